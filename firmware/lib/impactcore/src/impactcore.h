@@ -1,0 +1,165 @@
+// impactcore: the portable signal core of impactsense.
+//
+// One implementation, compiled for the board (Cortex-M4F, float32, no heap) and bound to Python for the
+// host. Everything the trainer computes from a recording and everything the firmware computes from a
+// capture goes through these functions.
+//
+// Data path: raw ADC capture (int16 counts, channel-major) -> baseline removal -> per-channel onset (ToA)
+// -> ToA order, DToA, Eq. 35 acceptance -> energy features -> feature vector -> models.
+//
+// Units are in the names: _us microseconds, _mm millimetres, _hz hertz; samples are plain ints/floats.
+#pragma once
+
+#include <stddef.h>
+#include <stdint.h>
+
+namespace impactcore {
+
+constexpr int kChannels = 4;
+constexpr int kPairs = 6;            // sensor pairs (0,1) (0,2) (0,3) (1,2) (1,3) (2,3)
+constexpr int kMaxSamples = 8192;    // longest capture per channel the core accepts
+constexpr int kEnergyWindows = 5;    // windows between ToA and n2 (method.md, Fig. 8 of the seed)
+constexpr int kMaxAicWindow = 512;   // samples in the AIC refinement window (stack scratch)
+
+// The pair order used for every DToA vector: DToA_ij = ToA_i - ToA_j.
+extern const uint8_t kPairI[kPairs];
+extern const uint8_t kPairJ[kPairs];
+
+enum Status : int32_t {
+  kOk = 0,
+  kErrNullInput = 1,
+  kErrTooManySamples = 2,
+  kErrTooFewSamples = 3,
+  kErrBadConfig = 4,
+  kErrNoTrigger = 5,        // no channel crossed the trigger threshold
+  kErrSingular = 6,         // localiser geometry degenerate
+};
+const char* status_name(int32_t status);
+
+// Flags per channel (bit field).
+enum ChannelFlag : uint8_t {
+  kFlagClipped = 1u << 0,   // a sample at/after the onset reached the ADC rail
+  kFlagDead = 1u << 1,      // no signal above the noise floor (or a flat line)
+  kFlagNoOnset = 1u << 2,   // the channel never crossed its onset threshold
+  kFlagAicFallback = 1u << 3,  // AIC refinement failed; threshold pick kept
+};
+
+struct CoreConfig {
+  float fs_hz = 100000.0f;            // per-channel sample rate
+  float channel_delay_us[kChannels] = {0, 0, 0, 0};  // known sampling delay of each channel (scan order)
+  int baseline_samples = 64;          // samples at the start of the capture used for baseline and noise
+  float onset_threshold_counts = 40;  // |x| above baseline that marks a channel's first arrival
+  float onset_noise_factor = 8;       // ... or this many noise RMS, whichever is larger
+  int aic_before = 40;                // AIC window: samples before the threshold crossing
+  int aic_after = 8;                  // ... and after it
+  float aic_blend = 0.0f;             // 0: ToA = threshold-crossing extrapolated; 1: ToA = AIC onset
+  int adc_min = 0;                    // rails for clipping detection (counts)
+  int adc_max = 4095;
+  float dead_rms_counts = 3.0f;       // a channel whose post-onset RMS is below this is dead
+  float n2_fraction = 0.99f;          // n2: cumulative energy reaches this fraction of the total
+};
+
+struct ChannelFeatures {
+  float baseline;          // counts
+  float noise_rms;         // counts, from the baseline segment
+  float toa_threshold;     // sub-sample threshold crossing (samples from capture start, delay not removed)
+  float toa_aic;           // AIC onset (samples)
+  float toa_us;            // final ToA in microseconds, channel delay removed
+  float peak;              // max |x| after baseline removal (counts)
+  float first_peak;        // |x| of the first extremum after the onset (counts)
+  float energy;            // sum of x^2 over the capture (counts^2)
+  float window_energy[kEnergyWindows];  // energy in five equal windows from ToA to n2
+  float residual_ratio;    // window_energy[4] / energy
+  int32_t n2;              // sample where the cumulative energy stops growing
+  uint8_t flags;           // ChannelFlag bits
+};
+
+struct EventFeatures {
+  ChannelFeatures ch[kChannels];
+  float dtoa_us[kPairs];   // ToA_i - ToA_j in kPair order
+  uint8_t order[kChannels];  // channel indices sorted by ToA (first arrival first)
+  int32_t status;
+};
+
+// Per-channel feature extraction over one capture. `adc[c]` points at n samples of channel c.
+int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
+                         EventFeatures* out);
+
+// --- pickers: plain functions of a buffer (vallenae style) ---
+
+// Mean and RMS deviation of x[0..n).
+void baseline_stats(const int16_t* x, int n, float* mean, float* rms);
+
+// First index i >= start with |x[i] - base| >= thr, refined to a sub-sample position by linear
+// interpolation between i-1 and i. Returns -1 if none.
+float threshold_crossing(const int16_t* x, int n, float base, float thr, int start);
+
+// Akaike information criterion onset picker (Maeda 1985; Kurz et al. 2005) on x[begin..end):
+// AIC(k) = k log var(x[begin..k)) + (n-k-1) log var(x[k..end)); returns the arg-min index (absolute),
+// or -1 when the window is too short.
+int aic_pick(const int16_t* x, int begin, int end);
+
+// --- acceptance rule (Eq. 35) ---
+
+// True when ToA_i <= ToA_j + tol_us for every pair where sensor i is nearer the impact (x_mm, y_mm)
+// than sensor j by at least margin_mm.
+bool accept_eq35(const float toa_us[kChannels], const float sensor_x_mm[kChannels],
+                 const float sensor_y_mm[kChannels], float x_mm, float y_mm, float tol_us,
+                 float margin_mm);
+
+// --- physics localiser: TDOA least squares ---
+
+struct LocaliserResult {
+  float x_mm, y_mm, t0_us;   // impact position and time
+  float cov_xx, cov_xy, cov_yy;  // mm^2, from sigma_us and the Jacobian at the solution
+  float rms_residual_us;     // rms of ToA residuals at the solution
+  int32_t iterations;
+  int32_t status;
+};
+
+// Solves toa_i = t0 + |p - s_i| / v for p = (x, y) and t0 with Gauss-Newton from a closed-form start
+// (linearised range differences). Channels whose `use` flag is 0 are left out (at least 3 needed).
+// velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance.
+LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
+                              const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
+                              float velocity_mm_per_us, float sigma_us, float plate_x_mm,
+                              float plate_y_mm);
+
+// --- streaming trigger (the only stateful part) ---
+
+// Threshold trigger with hysteresis and hold-off on the sum-free per-frame max |x - baseline|.
+// Feed it frames of kChannels samples; it reports when a capture should start and where the pre-trigger
+// begins. The board keeps a ring buffer of `pretrigger` frames; the host runs it over a recording.
+struct TriggerConfig {
+  float threshold_counts = 60;   // arm -> fire when any channel's |x - baseline| exceeds this
+  float rearm_counts = 20;       // hysteresis: re-arm only after all channels stay below this ...
+  int rearm_quiet_frames = 200;  // ... for this many frames
+  int holdoff_frames = 2000;     // after firing, ignore everything for this many frames
+  int pretrigger_frames = 256;   // frames kept before the firing frame
+  float baseline_alpha = 1.0f / 1024.0f;  // exponential baseline tracker while armed
+};
+
+class Trigger {
+ public:
+  explicit Trigger(const TriggerConfig& cfg, float initial_baseline = 2048.0f);
+  // Returns true on the frame that fires.
+  bool feed(const int16_t frame[kChannels]);
+  bool armed() const { return state_ == kArmed; }
+  long frames_seen() const { return frames_; }
+  long fired_at() const { return fired_at_; }
+  float baseline(int c) const { return baseline_[c]; }
+
+ private:
+  enum State { kArmed, kHoldoff, kWaitQuiet };
+  TriggerConfig cfg_;
+  State state_ = kArmed;
+  float baseline_[kChannels];
+  long frames_ = 0;
+  long fired_at_ = -1;
+  int counter_ = 0;
+};
+
+// Scans a whole recording (channel-major) with a fresh Trigger; returns the firing frame or -1.
+long find_trigger(const int16_t* const adc[kChannels], int n, const TriggerConfig& cfg);
+
+}  // namespace impactcore

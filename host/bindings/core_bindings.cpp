@@ -1,0 +1,266 @@
+// Python binding of the portable signal core. Only glue: loops over recordings and array plumbing;
+// every number is computed by firmware/lib/impactcore.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <vector>
+
+#include "impactcore.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+namespace ic = impactcore;
+
+template <typename T, typename... Shape>
+using Array = nb::ndarray<T, nb::numpy, Shape...>;
+using In16 = nb::ndarray<const int16_t, nb::c_contig, nb::device::cpu>;
+using InF = nb::ndarray<const float, nb::c_contig, nb::device::cpu>;
+using InU8 = nb::ndarray<const uint8_t, nb::c_contig, nb::device::cpu>;
+
+namespace {
+
+template <typename T>
+nb::ndarray<nb::numpy, T> make_array(std::vector<size_t> shape) {
+  size_t count = 1;
+  for (size_t s : shape) count *= s;
+  T* data = new T[count == 0 ? 1 : count]();
+  nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+  return nb::ndarray<nb::numpy, T>(data, shape.size(), shape.data(), owner);
+}
+
+std::vector<float> four(const std::vector<float>& v, const char* name) {
+  if (v.size() != ic::kChannels) throw std::invalid_argument(std::string(name) + " needs 4 values");
+  return v;
+}
+
+nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
+  if (adc.ndim() != 3 || adc.shape(1) != ic::kChannels) {
+    throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
+  }
+  const size_t r = adc.shape(0);
+  const int n = static_cast<int>(adc.shape(2));
+  if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
+  auto toa = make_array<float>({r, 4});
+  auto toa_thr = make_array<float>({r, 4});
+  auto toa_aic = make_array<float>({r, 4});
+  auto dtoa = make_array<float>({r, 6});
+  auto order = make_array<uint8_t>({r, 4});
+  auto flags = make_array<uint8_t>({r, 4});
+  auto energy = make_array<float>({r, 4});
+  auto wins = make_array<float>({r, 4, 5});
+  auto resid = make_array<float>({r, 4});
+  auto peak = make_array<float>({r, 4});
+  auto fpeak = make_array<float>({r, 4});
+  auto noise = make_array<float>({r, 4});
+  auto base = make_array<float>({r, 4});
+  auto n2 = make_array<int32_t>({r, 4});
+  auto status = make_array<int32_t>({r});
+  const int16_t* data = adc.data();
+  ic::EventFeatures ev;
+  {
+    nb::gil_scoped_release release;
+    for (size_t k = 0; k < r; ++k) {
+      const int16_t* chans[4];
+      for (int c = 0; c < 4; ++c) chans[c] = data + (k * 4 + c) * static_cast<size_t>(n);
+      status.data()[k] = ic::extract_features(chans, n, cfg, &ev);
+      for (int c = 0; c < 4; ++c) {
+        const auto& f = ev.ch[c];
+        const size_t i = k * 4 + c;
+        const bool ok = status.data()[k] == ic::kOk || status.data()[k] == ic::kErrNoTrigger;
+        toa.data()[i] = ok ? f.toa_us : NAN;
+        toa_thr.data()[i] = ok ? f.toa_threshold : NAN;
+        toa_aic.data()[i] = ok ? f.toa_aic : NAN;
+        order.data()[i] = ok ? ev.order[c] : static_cast<uint8_t>(c);
+        flags.data()[i] = ok ? f.flags : static_cast<uint8_t>(ic::kFlagNoOnset);
+        energy.data()[i] = ok ? f.energy : NAN;
+        for (int w = 0; w < 5; ++w) wins.data()[i * 5 + w] = ok ? f.window_energy[w] : NAN;
+        resid.data()[i] = ok ? f.residual_ratio : NAN;
+        peak.data()[i] = ok ? f.peak : NAN;
+        fpeak.data()[i] = ok ? f.first_peak : NAN;
+        noise.data()[i] = ok ? f.noise_rms : NAN;
+        base.data()[i] = ok ? f.baseline : NAN;
+        n2.data()[i] = ok ? f.n2 : -1;
+      }
+      for (int p = 0; p < 6; ++p) {
+        const bool ok = status.data()[k] == ic::kOk || status.data()[k] == ic::kErrNoTrigger;
+        dtoa.data()[k * 6 + p] = ok ? ev.dtoa_us[p] : NAN;
+      }
+    }
+  }
+  nb::dict out;
+  out["toa_us"] = toa;
+  out["toa_threshold"] = toa_thr;
+  out["toa_aic"] = toa_aic;
+  out["dtoa_us"] = dtoa;
+  out["order"] = order;
+  out["flags"] = flags;
+  out["energy"] = energy;
+  out["window_energy"] = wins;
+  out["residual_ratio"] = resid;
+  out["peak"] = peak;
+  out["first_peak"] = fpeak;
+  out["noise_rms"] = noise;
+  out["baseline"] = base;
+  out["n2"] = n2;
+  out["status"] = status;
+  return out;
+}
+
+nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
+                        float sigma_us, float plate_x_mm, float plate_y_mm) {
+  if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
+  if (use.ndim() != 2 || use.shape(0) != toa.shape(0) || use.shape(1) != 4) {
+    throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
+  }
+  four(sx, "sensor_x_mm");
+  four(sy, "sensor_y_mm");
+  const size_t r = toa.shape(0);
+  auto x = make_array<float>({r});
+  auto y = make_array<float>({r});
+  auto t0 = make_array<float>({r});
+  auto cov = make_array<float>({r, 3});
+  auto rms = make_array<float>({r});
+  auto status = make_array<int32_t>({r});
+  for (size_t k = 0; k < r; ++k) {
+    const auto res = ic::localise_tdoa(toa.data() + 4 * k, use.data() + 4 * k, sx.data(), sy.data(), v,
+                                       sigma_us, plate_x_mm, plate_y_mm);
+    x.data()[k] = res.x_mm;
+    y.data()[k] = res.y_mm;
+    t0.data()[k] = res.t0_us;
+    cov.data()[3 * k] = res.cov_xx;
+    cov.data()[3 * k + 1] = res.cov_xy;
+    cov.data()[3 * k + 2] = res.cov_yy;
+    rms.data()[k] = res.rms_residual_us;
+    status.data()[k] = res.status;
+  }
+  nb::dict out;
+  out["x_mm"] = x;
+  out["y_mm"] = y;
+  out["t0_us"] = t0;
+  out["cov"] = cov;
+  out["rms_residual_us"] = rms;
+  out["status"] = status;
+  return out;
+}
+
+nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std::vector<float> sy,
+                                            InF xy, float tol_us, float margin_mm) {
+  if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
+  if (xy.ndim() != 2 || xy.shape(1) != 2 || xy.shape(0) != toa.shape(0)) {
+    throw std::invalid_argument("xy_mm must be float32 [n, 2] like toa_us");
+  }
+  four(sx, "sensor_x_mm");
+  four(sy, "sensor_y_mm");
+  const size_t r = toa.shape(0);
+  auto out = make_array<uint8_t>({r});
+  for (size_t k = 0; k < r; ++k) {
+    out.data()[k] = ic::accept_eq35(toa.data() + 4 * k, sx.data(), sy.data(), xy.data()[2 * k],
+                                    xy.data()[2 * k + 1], tol_us, margin_mm)
+                        ? 1
+                        : 0;
+  }
+  return out;
+}
+
+}  // namespace
+
+NB_MODULE(_core, m) {
+  m.doc() = "impactsense signal core (firmware/lib/impactcore) bound to Python";
+  m.attr("CHANNELS") = ic::kChannels;
+  m.attr("MAX_SAMPLES") = ic::kMaxSamples;
+  m.attr("PAIR_I") = std::vector<int>(ic::kPairI, ic::kPairI + ic::kPairs);
+  m.attr("PAIR_J") = std::vector<int>(ic::kPairJ, ic::kPairJ + ic::kPairs);
+  m.attr("FLAG_CLIPPED") = static_cast<int>(ic::kFlagClipped);
+  m.attr("FLAG_DEAD") = static_cast<int>(ic::kFlagDead);
+  m.attr("FLAG_NO_ONSET") = static_cast<int>(ic::kFlagNoOnset);
+  m.attr("FLAG_AIC_FALLBACK") = static_cast<int>(ic::kFlagAicFallback);
+  m.attr("STATUS_OK") = static_cast<int>(ic::kOk);
+  m.attr("STATUS_NO_TRIGGER") = static_cast<int>(ic::kErrNoTrigger);
+  m.def("status_name", &ic::status_name);
+
+  nb::class_<ic::CoreConfig>(m, "CoreConfig")
+      .def(nb::init<>())
+      .def_rw("fs_hz", &ic::CoreConfig::fs_hz)
+      .def_prop_rw(
+          "channel_delay_us",
+          [](const ic::CoreConfig& c) {
+            return std::vector<float>(c.channel_delay_us, c.channel_delay_us + ic::kChannels);
+          },
+          [](ic::CoreConfig& c, std::vector<float> v) {
+            four(v, "channel_delay_us");
+            std::memcpy(c.channel_delay_us, v.data(), sizeof(c.channel_delay_us));
+          })
+      .def_rw("baseline_samples", &ic::CoreConfig::baseline_samples)
+      .def_rw("onset_threshold_counts", &ic::CoreConfig::onset_threshold_counts)
+      .def_rw("onset_noise_factor", &ic::CoreConfig::onset_noise_factor)
+      .def_rw("aic_before", &ic::CoreConfig::aic_before)
+      .def_rw("aic_after", &ic::CoreConfig::aic_after)
+      .def_rw("aic_blend", &ic::CoreConfig::aic_blend)
+      .def_rw("adc_min", &ic::CoreConfig::adc_min)
+      .def_rw("adc_max", &ic::CoreConfig::adc_max)
+      .def_rw("dead_rms_counts", &ic::CoreConfig::dead_rms_counts)
+      .def_rw("n2_fraction", &ic::CoreConfig::n2_fraction);
+
+  nb::class_<ic::TriggerConfig>(m, "TriggerConfig")
+      .def(nb::init<>())
+      .def_rw("threshold_counts", &ic::TriggerConfig::threshold_counts)
+      .def_rw("rearm_counts", &ic::TriggerConfig::rearm_counts)
+      .def_rw("rearm_quiet_frames", &ic::TriggerConfig::rearm_quiet_frames)
+      .def_rw("holdoff_frames", &ic::TriggerConfig::holdoff_frames)
+      .def_rw("pretrigger_frames", &ic::TriggerConfig::pretrigger_frames)
+      .def_rw("baseline_alpha", &ic::TriggerConfig::baseline_alpha);
+
+  nb::class_<ic::Trigger>(m, "Trigger")
+      .def(nb::init<const ic::TriggerConfig&, float>(), "config"_a, "initial_baseline"_a = 2048.0f)
+      .def("feed",
+           [](ic::Trigger& t, std::vector<int> frame) {
+             if (frame.size() != 4) throw std::invalid_argument("a frame has 4 samples");
+             int16_t f[4];
+             for (int c = 0; c < 4; ++c) f[c] = static_cast<int16_t>(frame[c]);
+             return t.feed(f);
+           })
+      .def_prop_ro("armed", &ic::Trigger::armed)
+      .def_prop_ro("frames_seen", &ic::Trigger::frames_seen)
+      .def_prop_ro("fired_at", &ic::Trigger::fired_at);
+
+  m.def(
+      "find_trigger",
+      [](In16 adc, const ic::TriggerConfig& cfg) {
+        if (adc.ndim() != 2 || adc.shape(0) != 4) throw std::invalid_argument("adc must be int16 [4, n]");
+        const int n = static_cast<int>(adc.shape(1));
+        const int16_t* ch[4];
+        for (int c = 0; c < 4; ++c) ch[c] = adc.data() + static_cast<size_t>(c) * n;
+        return ic::find_trigger(ch, n, cfg);
+      },
+      "adc"_a, "config"_a);
+
+  m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
+        "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
+  m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,
+        "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a);
+  m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
+        "tol_us"_a, "margin_mm"_a);
+
+  m.def(
+      "threshold_crossing",
+      [](In16 x, float base, float thr, int start) {
+        return ic::threshold_crossing(x.data(), static_cast<int>(x.shape(0)), base, thr, start);
+      },
+      "x"_a, "base"_a, "thr"_a, "start"_a = 1);
+  m.def(
+      "aic_pick", [](In16 x, int begin, int end) { return ic::aic_pick(x.data(), begin, end); }, "x"_a,
+      "begin"_a, "end"_a);
+  m.def(
+      "baseline_stats",
+      [](In16 x) {
+        float mean, rms;
+        ic::baseline_stats(x.data(), static_cast<int>(x.shape(0)), &mean, &rms);
+        return nb::make_tuple(mean, rms);
+      },
+      "x"_a);
+}

@@ -1,0 +1,4 @@
+#include "impactsim.h"
+namespace impactsim {
+int version() { return 0; }
+}
