@@ -1,26 +1,28 @@
 """The `impactsense` command line.
 
 Each sub-command lives in its own module under `impactsense.commands`; a module provides
-`register(subparsers)` which adds its parser and sets `func` (called with the parsed args; returns an exit
-code). Add a command by adding its module name to COMMANDS.
+`register(subparsers)`, which adds its parser and sets `func` (called with the parsed args; returns an exit
+code), and an integer `ORDER` (its place in `--help`). Adding a command is adding a module.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 
 from . import __version__
 from .errors import ImpactSenseError
 
-# Module names under impactsense.commands, in the order `--help` lists them.
-COMMANDS = [
-    "info",
-    "train",
-    "evaluate",
-    "demo",
-]
+from . import commands
+
+
+def command_modules():
+    """The command modules, in `--help` order."""
+    mods = [importlib.import_module(f"{commands.__name__}.{m.name}")
+            for m in pkgutil.iter_modules(commands.__path__) if not m.name.startswith("_")]
+    return sorted(mods, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,8 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"impactsense {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        module = importlib.import_module(f".commands.{name}", __package__)
+    for module in command_modules():
         module.register(sub)
     return parser
 

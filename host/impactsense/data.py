@@ -1,0 +1,334 @@
+"""Session folders: `rig.json`, `impacts.csv`, `recordings.npz` — read, validated, written.
+
+A session is the unit every tool reads: measured (from the lab rig or `impactsense record`) or simulated
+(`impactsense simulate-dataset`). Every problem raises `DataError` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DataError
+
+RIG_FILE = "rig.json"
+IMPACTS_FILE = "impacts.csv"
+RECORDINGS_FILE = "recordings.npz"
+IMPACT_COLUMNS = ("recording_id", "case_id", "repetition", "x_mm", "y_mm", "height_mm")
+CHANNELS = 4
+
+# rig.json keys and their types; all required.
+_RIG_NUMBERS = (
+    "plate_x_mm", "plate_y_mm", "thickness_mm", "density_kg_m3", "sensor_diameter_mm",
+    "ball_diameter_mm", "ball_mass_g", "fs_hz", "vref",
+)
+_RIG_INTS = ("channels", "samples", "adc_bits", "bias_counts")
+_RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
+
+
+@dataclass(frozen=True)
+class Sensor:
+    name: str
+    channel: int
+    x_mm: float
+    y_mm: float
+
+
+@dataclass(frozen=True)
+class Rig:
+    """What was declared about the rig (rig.json), validated."""
+
+    plate_material: str
+    plate_x_mm: float
+    plate_y_mm: float
+    thickness_mm: float
+    density_kg_m3: float
+    plate_support: str
+    sensors: tuple[Sensor, ...]
+    sensor_diameter_mm: float
+    ball_material: str
+    ball_diameter_mm: float
+    ball_mass_g: float
+    channels: int
+    fs_hz: float
+    samples: int
+    adc_bits: int
+    vref: float
+    bias_counts: int
+    raw: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def sensor_x_mm(self) -> np.ndarray:
+        return np.array([s.x_mm for s in self.sensors], dtype=np.float32)
+
+    @property
+    def sensor_y_mm(self) -> np.ndarray:
+        return np.array([s.y_mm for s in self.sensors], dtype=np.float32)
+
+    @property
+    def sensor_xy_mm(self) -> np.ndarray:
+        return np.stack([self.sensor_x_mm, self.sensor_y_mm], axis=1)
+
+    @property
+    def adc_max(self) -> int:
+        return (1 << self.adc_bits) - 1
+
+    def to_dict(self) -> dict:
+        return dict(self.raw)
+
+
+@dataclass
+class Session:
+    """One session folder in memory. Arrays are indexed by recording_id (row order)."""
+
+    path: Path
+    rig: Rig
+    recording_id: np.ndarray  # int64 [R]
+    case_id: np.ndarray       # int64 [R]
+    repetition: np.ndarray    # int64 [R]
+    x_mm: np.ndarray          # float64 [R]
+    y_mm: np.ndarray          # float64 [R]
+    height_mm: np.ndarray     # float64 [R]
+    adc: np.ndarray           # uint16 [R, 4, samples]
+
+    def __len__(self) -> int:
+        return int(self.adc.shape[0])
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def xy_mm(self) -> np.ndarray:
+        return np.stack([self.x_mm, self.y_mm], axis=1)
+
+    @property
+    def n_cases(self) -> int:
+        return int(np.unique(self.case_id).size)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the three files' contents (the data hash of model cards)."""
+        h = hashlib.sha256()
+        for name in (RIG_FILE, IMPACTS_FILE, RECORDINGS_FILE):
+            with open(self.path / name, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(block)
+        return h.hexdigest()
+
+    def subset(self, rows: np.ndarray) -> "Session":
+        rows = np.asarray(rows)
+        return Session(self.path, self.rig, self.recording_id[rows], self.case_id[rows],
+                       self.repetition[rows], self.x_mm[rows], self.y_mm[rows],
+                       self.height_mm[rows], self.adc[rows])
+
+
+def bundled_session_path(name: str = "session-1") -> Path:
+    """The session folder shipped inside the package (default data)."""
+    return Path(str(resources.files("impactsense") / "data" / name))
+
+
+def resolve_session_path(path: str | os.PathLike | None) -> Path:
+    """`None` or `bundled` (or `bundled:session-1`) means the packaged default data."""
+    if path is None or str(path) == "bundled":
+        return bundled_session_path()
+    text = str(path)
+    if text.startswith("bundled:"):
+        return bundled_session_path(text.split(":", 1)[1])
+    return Path(path)
+
+
+def load_rig(path: str | os.PathLike) -> Rig:
+    path = Path(path)
+    if path.is_dir():
+        path = path / RIG_FILE
+    if not path.is_file():
+        raise DataError(path, None, "file not found")
+    try:
+        raw = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataError(path, None, f"not valid JSON ({exc})") from exc
+    if not isinstance(raw, dict):
+        raise DataError(path, None, "must hold a JSON object")
+    return rig_from_dict(raw, path)
+
+
+def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
+    def need(key):
+        if key not in raw:
+            raise DataError(path, key, "missing key")
+        return raw[key]
+
+    values: dict = {}
+    for key in _RIG_NUMBERS:
+        v = need(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
+            raise DataError(path, key, f"must be a positive finite number, got {v!r}")
+        values[key] = float(v)
+    for key in _RIG_INTS:
+        v = need(key)
+        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+            raise DataError(path, key, f"must be a positive integer, got {v!r}")
+        values[key] = int(v)
+    for key in _RIG_STRINGS:
+        v = need(key)
+        if not isinstance(v, str):
+            raise DataError(path, key, f"must be a string, got {v!r}")
+        values[key] = v
+    if values["channels"] != CHANNELS:
+        raise DataError(path, "channels", f"must be {CHANNELS}, got {values['channels']}")
+    sensors_raw = need("sensors")
+    if not isinstance(sensors_raw, list) or len(sensors_raw) != CHANNELS:
+        raise DataError(path, "sensors", f"must be a list of {CHANNELS} sensors")
+    sensors = []
+    for k, s in enumerate(sensors_raw):
+        if not isinstance(s, dict):
+            raise DataError(path, f"sensors[{k}]", "must be an object")
+        for key in ("name", "channel", "x_mm", "y_mm"):
+            if key not in s:
+                raise DataError(path, f"sensors[{k}].{key}", "missing key")
+        if s["channel"] != k:
+            raise DataError(path, f"sensors[{k}].channel", f"must be {k} (channel k = sensor k+1)")
+        for key in ("x_mm", "y_mm"):
+            v = s[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise DataError(path, f"sensors[{k}].{key}", f"must be a finite number, got {v!r}")
+        if not (0 <= s["x_mm"] <= values["plate_x_mm"] and 0 <= s["y_mm"] <= values["plate_y_mm"]):
+            raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")
+        sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
+    return Rig(sensors=tuple(sensors), raw=dict(raw), **values)
+
+
+def _read_impacts(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise DataError(path, None, "file not found")
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames or []
+        for col in IMPACT_COLUMNS:
+            if col not in header:
+                raise DataError(path, col, "missing column")
+        rows = list(reader)
+    if not rows:
+        raise DataError(path, None, "no impacts")
+    out: dict[str, np.ndarray] = {}
+    for col in IMPACT_COLUMNS:
+        is_int = col in ("recording_id", "case_id", "repetition")
+        vals = []
+        for line, row in enumerate(rows, start=2):
+            text = (row.get(col) or "").strip()
+            try:
+                v = int(text) if is_int else float(text)
+            except ValueError:
+                raise DataError(path, col, f"line {line}: {text!r} is not a number") from None
+            if not is_int and not np.isfinite(v):
+                raise DataError(path, col, f"line {line}: value is {text} (not finite)")
+            vals.append(v)
+        out[col] = np.asarray(vals, dtype=np.int64 if is_int else np.float64)
+    rid = out["recording_id"]
+    if not np.array_equal(rid, np.arange(rid.size)):
+        bad = int(np.flatnonzero(rid != np.arange(rid.size))[0])
+        raise DataError(path, "recording_id",
+                        f"ids must be 0..N-1 in order; line {bad + 2} has {rid[bad]}, expected {bad}")
+    if np.any(out["repetition"] < 0) or np.any(out["case_id"] < 0):
+        raise DataError(path, "case_id/repetition", "must be non-negative")
+    if np.any(out["height_mm"] <= 0):
+        raise DataError(path, "height_mm", "must be positive")
+    return out
+
+
+def _read_adc(path: Path, rig: Rig, n_rows: int) -> np.ndarray:
+    if not path.is_file():
+        raise DataError(path, None, "file not found")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            if "adc" not in npz.files:
+                raise DataError(path, "adc", f"missing array (found {npz.files})")
+            adc = npz["adc"]
+    except DataError:
+        raise
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise DataError(path, "adc", f"unreadable or truncated ({exc})") from exc
+    if adc.dtype != np.uint16:
+        raise DataError(path, "adc", f"dtype must be uint16 (raw ADC counts), got {adc.dtype}")
+    if adc.ndim != 3:
+        raise DataError(path, "adc", f"shape must be [recording, channel, sample], got {adc.shape}")
+    if adc.shape[1] != CHANNELS:
+        raise DataError(path, "adc", f"must have {CHANNELS} channels, got {adc.shape[1]}")
+    if adc.shape[0] != n_rows:
+        raise DataError(path, "adc", f"{adc.shape[0]} recordings but impacts.csv lists {n_rows}")
+    if adc.shape[2] != rig.samples:
+        raise DataError(path, "adc", f"{adc.shape[2]} samples per channel but rig.json says {rig.samples}")
+    if adc.shape[2] < 256:
+        raise DataError(path, "adc", f"{adc.shape[2]} samples per channel is too short a capture")
+    if int(adc.max(initial=0)) > rig.adc_max:
+        raise DataError(path, "adc", f"counts above the {rig.adc_bits}-bit ADC range")
+    return adc
+
+
+def load_session(path: str | os.PathLike | None = None) -> Session:
+    """Reads and validates a session folder (None: the bundled session-1)."""
+    path = resolve_session_path(path)
+    if not path.is_dir():
+        raise DataError(path, None, "session folder not found")
+    rig = load_rig(path / RIG_FILE)
+    imp = _read_impacts(path / IMPACTS_FILE)
+    for col, hi in (("x_mm", rig.plate_x_mm), ("y_mm", rig.plate_y_mm)):
+        v = imp[col]
+        if np.any((v < 0) | (v > hi)):
+            bad = int(np.flatnonzero((v < 0) | (v > hi))[0])
+            raise DataError(path / IMPACTS_FILE, col, f"line {bad + 2}: {v[bad]} lies off the plate")
+    adc = _read_adc(path / RECORDINGS_FILE, rig, imp["recording_id"].size)
+    return Session(path=path, rig=rig, adc=adc, **imp)
+
+
+def write_session(path: str | os.PathLike, rig: dict | Rig, x_mm, y_mm, height_mm, adc,
+                  case_id=None, repetition=None) -> Path:
+    """Writes a session folder atomically (a temporary folder renamed into place)."""
+    path = Path(path)
+    raw = rig.to_dict() if isinstance(rig, Rig) else dict(rig)
+    rig_from_dict(raw)  # validate before writing anything
+    adc = np.asarray(adc)
+    if adc.dtype != np.uint16 or adc.ndim != 3 or adc.shape[1] != CHANNELS:
+        raise DataError(path / RECORDINGS_FILE, "adc", "must be uint16 [recording, 4, sample]")
+    n = adc.shape[0]
+    case_id = np.arange(n) if case_id is None else np.asarray(case_id)
+    repetition = np.zeros(n, dtype=int) if repetition is None else np.asarray(repetition)
+    cols = [np.asarray(x_mm, float), np.asarray(y_mm, float), np.asarray(height_mm, float)]
+    if any(c.shape != (n,) for c in [*cols, case_id, repetition]):
+        raise DataError(path / IMPACTS_FILE, None, f"every column needs {n} values")
+    raw["samples"] = int(adc.shape[2])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        (tmp / RIG_FILE).write_text(json.dumps(raw, indent=1))
+        with open(tmp / IMPACTS_FILE, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(IMPACT_COLUMNS)
+            for i in range(n):
+                w.writerow([i, int(case_id[i]), int(repetition[i]), f"{cols[0][i]:.3f}",
+                            f"{cols[1][i]:.3f}", f"{cols[2][i]:g}"])
+        np.savez_compressed(tmp / RECORDINGS_FILE, adc=adc)
+        if path.exists():
+            old = path.with_name(f".{path.name}.old")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            for f in old.iterdir():
+                f.unlink()
+            old.rmdir()
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        for f in tmp.iterdir():
+            f.unlink()
+        tmp.rmdir()
+        raise
+    return path
