@@ -1,0 +1,131 @@
+"""Sub-problem 1: plate E and nu from the four drops' DToA (Eq. 16), full factorial grid.
+
+Each grid point's ToAs come from the fast first-arrival model (`arrival`): the unit-gain synthetic signal of
+every drop and sensor is scaled so its peak equals the measured peak of that channel (the picker then sees the
+same threshold-to-peak ratio as on the measured drop), quantised, and picked by the signal core. The loss is
+Eq. 16: sum over drops and the six sensor pairs of (DToA measured - DToA simulated)^2 [us^2].
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from .. import _core
+from . import arrival
+
+PAIR_I = np.array(_core.PAIR_I)
+PAIR_J = np.array(_core.PAIR_J)
+
+
+def grid_axes(e_min_mpa=1500.0, e_max_mpa=65000.0, e_step_mpa=250.0, nu_min=0.30, nu_max=0.40,
+              nu_step=0.001):
+    e = np.arange(e_min_mpa, e_max_mpa + 0.5 * e_step_mpa, e_step_mpa)
+    nu = np.round(np.arange(nu_min, nu_max + 0.5 * nu_step, nu_step), 6)
+    return e, nu
+
+
+def eq16_loss(dtoa_sim_us: np.ndarray, dtoa_meas_us: np.ndarray) -> np.ndarray:
+    """Eq. 16 over drops and pairs; dtoa_sim [..., D, 6], dtoa_meas [D, 6]. A missing pick costs (1 ms)^2."""
+    err = dtoa_sim_us - dtoa_meas_us
+    err = np.where(np.isfinite(err), err, 1000.0)
+    return np.sum(err ** 2, axis=(-1, -2))
+
+
+def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu):
+    """Eq. 16 of the fast model for plates (e_mpa[i], nu[i]); returns loss [P] and dtoa [P, D, 6]."""
+    cfg = _apply_state(_core.CoreConfig(), cfg_state)
+    unit = arrival.synth_unit(setup, np.asarray(e_mpa) * 1e6, np.asarray(nu))
+    peak_unit = np.abs(unit).max(axis=-1)
+    gain = peak[None] / np.where(peak_unit > 0, peak_unit, 1.0)
+    adc = arrival.to_counts(unit, gain, cfg_state.get("bias", 2048), cfg.adc_max)
+    out = _core.extract_batch(np.ascontiguousarray(adc.reshape(-1, 4, unit.shape[-1])), cfg)
+    toa = out["toa_us"].reshape(unit.shape[:-1]).astype(float)
+    dtoa = toa[..., PAIR_I] - toa[..., PAIR_J]
+    return eq16_loss(dtoa, dtoa_meas), dtoa
+
+
+def cfg_state(cfg, bias):
+    return {"fs_hz": cfg.fs_hz, "channel_delay_us": list(cfg.channel_delay_us), "adc_max": cfg.adc_max,
+            "baseline_samples": cfg.baseline_samples, "onset_threshold_counts": cfg.onset_threshold_counts,
+            "onset_noise_factor": cfg.onset_noise_factor, "aic_blend": cfg.aic_blend, "bias": bias}
+
+
+def _chunk_task(args):
+    return fast_loss(*args)[0]
+
+
+def _apply_state(cfg, state):
+    for k, v in state.items():
+        if k != "bias":
+            setattr(cfg, k, v)
+    return cfg
+
+
+def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,
+             chunk=48, progress=True):
+    """Loss over the full grid [len(e_axis), len(nu_axis)]; resumable from `cache_path` (npz)."""
+    from tqdm import tqdm
+    ee, nn = np.meshgrid(e_axis, nu_axis, indexing="ij")
+    e_flat, nu_flat = ee.ravel(), nn.ravel()
+    loss = np.full(e_flat.size, np.nan)
+    if cache_path and os.path.exists(cache_path):
+        with np.load(cache_path) as z:
+            if (z["e_axis"].shape == e_axis.shape and np.allclose(z["e_axis"], e_axis)
+                    and z["nu_axis"].shape == nu_axis.shape and np.allclose(z["nu_axis"], nu_axis)
+                    and np.allclose(z["dtoa_meas"], dtoa_meas)):
+                loss = z["loss"].ravel().copy()
+    todo = [np.arange(i, min(i + chunk, e_flat.size)) for i in range(0, e_flat.size, chunk)]
+    todo = [idx for idx in todo if np.isnan(loss[idx]).any()]
+    state = cfg_state(cfg, bias)
+
+    def save():
+        if cache_path:
+            tmp = cache_path + ".tmp.npz"
+            np.savez(tmp, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas)
+            os.replace(tmp, cache_path)
+
+    bar = tqdm(total=len(todo), desc="plate grid (E, nu)", unit="chunk", disable=not progress)
+    tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx]) for idx in todo]
+    if workers > 1 and len(tasks) > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for k, (idx, res) in enumerate(zip(todo, pool.map(_chunk_task, tasks))):
+                loss[idx] = res
+                bar.update(1)
+                if k % 50 == 49:
+                    save()
+    else:
+        for k, (idx, t) in enumerate(zip(todo, tasks)):
+            loss[idx] = _chunk_task(t)
+            bar.update(1)
+            if k % 50 == 49:
+                save()
+    bar.close()
+    save()
+    return loss.reshape(ee.shape)
+
+
+def refine_minimum(loss, e_axis, nu_axis):
+    """Grid minimum (the method picks the grid point; no interpolation)."""
+    i, j = np.unravel_index(np.nanargmin(loss), loss.shape)
+    return float(e_axis[i]), float(nu_axis[j]), float(loss[i, j])
+
+
+def contour_plot(loss, e_axis, nu_axis, best, path, title="Eq. 16 loss over the plate grid"):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    z = np.log10(np.maximum(loss.T, 1e-9))
+    cs = ax.contourf(e_axis, nu_axis, z, levels=30, cmap="viridis")
+    fig.colorbar(cs, ax=ax, label="log10 loss [us^2]")
+    ax.plot(best[0], best[1], "r*", ms=12, label=f"min E={best[0]:.0f} MPa, nu={best[1]:.3f}")
+    ax.set_xlabel("E [MPa]")
+    ax.set_ylabel("nu [-]")
+    ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
