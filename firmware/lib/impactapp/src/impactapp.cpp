@@ -1,0 +1,228 @@
+// impactapp: capture state machine + signal core + models + protocol.
+#include "impactapp.h"
+
+#include <math.h>
+#include <string.h>
+
+namespace impactapp {
+
+namespace ic = impactcore;
+namespace il = impactlink;
+
+void TableModels::predict(const float* f, float* x_mm, float* y_mm, uint8_t* cls) const {
+  *x_mm = forest_mean(x_, f);
+  *y_mm = forest_mean(y_, f);
+  *cls = forest_mean(e_, f) > 0.5f ? 1 : 0;
+}
+
+int feature_vector(const ic::EventFeatures& ev, float* out, int cap) {
+  // Interim layout until impactcore::feature_vector lands: 6 DToA (us), 4 log10(1 + energy),
+  // 4 log10(1 + first peak). Missing values (no onset) are 0.
+  if (cap < 14) return 0;
+  int k = 0;
+  for (int p = 0; p < ic::kPairs; ++p) out[k++] = ev.dtoa_us[p] == ev.dtoa_us[p] ? ev.dtoa_us[p] : 0.0f;
+  for (int c = 0; c < ic::kChannels; ++c) {
+    const float e = ev.ch[c].energy;
+    out[k++] = e == e ? log10f(1.0f + e) : 0.0f;
+  }
+  for (int c = 0; c < ic::kChannels; ++c) {
+    const float p = ev.ch[c].first_peak;
+    out[k++] = p == p ? log10f(1.0f + p) : 0.0f;
+  }
+  return k;
+}
+
+App::App(Hal& hal, const Models* models, const AppConfig& cfg)
+    : hal_(hal), models_(models), trigger_(ic::TriggerConfig()) {
+  if (!configure(cfg)) configure(AppConfig());
+}
+
+bool App::configure(const AppConfig& cfg) {
+  if (cfg.fs_hz < kMinRateHz || cfg.fs_hz > kMaxRateHz) return false;
+  const float fs = static_cast<float>(cfg.fs_hz);
+  int pre = static_cast<int>(cfg.pretrigger_us * fs * 1e-6f + 0.5f);
+  if (pre < cfg.core.baseline_samples + 16) pre = cfg.core.baseline_samples + 16;  // room for the baseline
+  const int cap = static_cast<int>(cfg.capture_us * fs * 1e-6f + 0.5f);
+  const int hold = static_cast<int>(cfg.holdoff_us * fs * 1e-6f + 0.5f);
+  const int quiet = static_cast<int>(cfg.quiet_us * fs * 1e-6f + 0.5f);
+  if (pre < cfg.core.baseline_samples || pre > kMaxPretrigger || cap <= pre + 16 || cap > kMaxCapture ||
+      hold < cap - pre || quiet < 1 || !(cfg.threshold_counts > cfg.rearm_counts)) {
+    return false;
+  }
+  cfg_ = cfg;
+  cfg_.core.fs_hz = fs;
+  for (int c = 0; c < 4; ++c) cfg_.core.channel_delay_us[c] = kScanStepUs * static_cast<float>(c);
+  pre_frames_ = pre;
+  capture_frames_ = cap;
+  trig_cfg_ = ic::TriggerConfig();
+  trig_cfg_.threshold_counts = cfg.threshold_counts;
+  trig_cfg_.rearm_counts = cfg.rearm_counts;
+  trig_cfg_.holdoff_frames = hold;
+  trig_cfg_.rearm_quiet_frames = quiet;
+  trig_cfg_.pretrigger_frames = pre;
+  restart();
+  return true;
+}
+
+void App::restart() {
+  state_ = kWarmup;
+  ring_pos_ = 0;
+  ring_fill_ = 0;
+  cap_pos_ = 0;
+}
+
+void App::on_samples(const int16_t* data, int n_frames) {
+  for (int i = 0; i < n_frames; ++i) {
+    const int16_t* frame = data + 4 * i;
+    const uint64_t now = frame_count_++;
+    if (state_ == kCapturing) {
+      for (int c = 0; c < 4; ++c) capture_[c][cap_pos_] = frame[c];
+      ++cap_pos_;
+      trigger_.feed(frame);  // keeps counting its hold-off
+      memcpy(ring_[ring_pos_], frame, sizeof(ring_[0]));  // the ring always holds the latest frames
+      ring_pos_ = (ring_pos_ + 1) % pre_frames_;
+      if (cap_pos_ == capture_frames_) {
+        process_capture();
+        state_ = kListening;
+      }
+      continue;
+    }
+    if (state_ == kListening && trigger_.feed(frame)) {
+      // Pre-trigger: the ring's frames, oldest first, then this frame.
+      for (int k = 0; k < pre_frames_; ++k) {
+        const int16_t* f = ring_[(ring_pos_ + k) % pre_frames_];
+        for (int c = 0; c < 4; ++c) capture_[c][k] = f[c];
+      }
+      for (int c = 0; c < 4; ++c) capture_[c][pre_frames_] = frame[c];
+      cap_pos_ = pre_frames_ + 1;
+      trigger_frame_ = now;
+      state_ = kCapturing;
+      continue;
+    }
+    memcpy(ring_[ring_pos_], frame, sizeof(ring_[0]));
+    ring_pos_ = (ring_pos_ + 1) % pre_frames_;
+    if (state_ == kWarmup && ++ring_fill_ == pre_frames_) {
+      // Arm with the mean of the first pre-trigger window as the baseline.
+      float sum = 0.0f;
+      for (int k = 0; k < pre_frames_; ++k) {
+        for (int c = 0; c < 4; ++c) sum += static_cast<float>(ring_[k][c]);
+      }
+      trigger_ = ic::Trigger(trig_cfg_, sum / static_cast<float>(4 * pre_frames_));
+      state_ = kListening;
+    }
+  }
+}
+
+void App::process_capture() {
+  const int16_t* chans[4] = {capture_[0], capture_[1], capture_[2], capture_[3]};
+  const int32_t st = ic::extract_features(chans, capture_frames_, cfg_.core, &ev_);
+  il::Report& r = report_;
+  memset(&r, 0, sizeof(r));
+  r.seq = seq_++;
+  r.timestamp_ms = static_cast<uint32_t>((trigger_frame_ * 1000u) / cfg_.fs_hz);
+  r.uncertainty_mm = -1.0f;
+  for (int c = 0; c < 4; ++c) r.order[c] = static_cast<uint8_t>(c);
+  if (st == ic::kOk || st == ic::kErrNoTrigger) {
+    uint8_t use[4];
+    float toa[4];
+    for (int c = 0; c < 4; ++c) {
+      const uint8_t fl = ev_.ch[c].flags;
+      if (fl & ic::kFlagClipped) r.clipped |= static_cast<uint8_t>(1u << c);
+      if (fl & (ic::kFlagDead | ic::kFlagNoOnset)) r.dead |= static_cast<uint8_t>(1u << c);
+      use[c] = (fl & (ic::kFlagDead | ic::kFlagNoOnset)) ? 0 : 1;
+      toa[c] = ev_.ch[c].toa_us;
+      r.order[c] = ev_.order[c];
+    }
+    if (st == ic::kOk && models_ != nullptr) {
+      const int n = feature_vector(ev_, features_, kMaxFeatures);
+      if (n == models_->n_features()) {
+        models_->predict(features_, &r.x_mm, &r.y_mm, &r.energy_class);
+        r.valid = true;
+        r.accepted = ic::accept_eq35(toa, cfg_.sensor_x_mm, cfg_.sensor_y_mm, r.x_mm, r.y_mm,
+                                     cfg_.accept_tol_us, cfg_.accept_margin_mm);
+        const ic::LocaliserResult loc =
+            ic::localise_tdoa(toa, use, cfg_.sensor_x_mm, cfg_.sensor_y_mm, cfg_.velocity_mm_per_us,
+                              cfg_.sigma_us, cfg_.plate_x_mm, cfg_.plate_y_mm);
+        if (loc.status == ic::kOk) {
+          const float var = loc.cov_xx + loc.cov_yy;
+          if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
+        }
+      }
+    }
+  }
+  if (cfg_.dump_raw) send_raw();
+  size_t n = il::encode_report(r, tx_, sizeof(tx_));
+  hal_.write(tx_, n);
+  uint8_t ble[il::kBlePayload];
+  n = il::ble_payload(r, ble);
+  hal_.notify(ble, n);
+}
+
+void App::send_raw() {
+  for (int c = 0; c < 4; ++c) {
+    for (int off = 0; off < capture_frames_; off += kRawChunk) {
+      const int cnt = capture_frames_ - off < kRawChunk ? capture_frames_ - off : kRawChunk;
+      const size_t n = il::encode_raw(report_.seq, static_cast<uint8_t>(c),
+                                      static_cast<uint16_t>(capture_frames_), static_cast<uint16_t>(off),
+                                      capture_[c] + off, static_cast<uint16_t>(cnt), tx_, sizeof(tx_));
+      hal_.write(tx_, n);
+    }
+  }
+}
+
+void App::on_rx(const uint8_t* data, size_t n) {
+  for (size_t i = 0; i < n; ++i) {
+    if (!rx_.push(data[i], &rx_frame_)) continue;
+    do handle_command(rx_frame_);
+    while (rx_.poll(&rx_frame_));
+  }
+}
+
+static uint32_t body_u32(const impactlink::Frame& f) {
+  uint32_t v = 0;
+  for (int i = f.len - 1; i >= 0; --i) v = (v << 8) | f.body[i];
+  return v;
+}
+
+void App::handle_command(const il::Frame& f) {
+  AppConfig next = cfg_;
+  switch (f.type) {
+    case il::kCmdSetThreshold:
+      next.threshold_counts = static_cast<float>(body_u32(f));
+      if (next.rearm_counts >= next.threshold_counts) next.rearm_counts = next.threshold_counts / 3.0f;
+      send_ack(f.type, configure(next) ? 0 : 1);
+      return;
+    case il::kCmdSetRate: {
+      next.fs_hz = body_u32(f);
+      const bool ok = next.fs_hz >= kMinRateHz && next.fs_hz <= kMaxRateHz && hal_.apply_rate(next.fs_hz) &&
+                      configure(next);
+      send_ack(f.type, ok ? 0 : 1);
+      return;
+    }
+    case il::kCmdDumpRaw:
+      cfg_.dump_raw = body_u32(f) != 0;
+      send_ack(f.type, 0);
+      return;
+    case il::kCmdGetConfig:
+      send_ack(f.type, 0);
+      return;
+    default:
+      send_ack(f.type, 2);  // reports/acks/raw are not commands
+      return;
+  }
+}
+
+void App::send_ack(uint8_t command, uint8_t status) {
+  il::Ack a;
+  a.command = command;
+  a.status = status;
+  a.fs_hz = cfg_.fs_hz;
+  const float t = cfg_.threshold_counts;
+  a.threshold_counts = t <= 0.0f ? 0 : (t >= 65535.0f ? 65535 : static_cast<uint16_t>(t + 0.5f));
+  a.capture_frames = static_cast<uint16_t>(capture_frames_);
+  a.dump_raw = cfg_.dump_raw ? 1 : 0;
+  const size_t n = il::encode_ack(a, tx_, sizeof(tx_));
+  hal_.write(tx_, n);
+}
+
+}  // namespace impactapp

@@ -1,0 +1,146 @@
+// impactapp: the portable firmware application. Samples in, protocol bytes out.
+//
+// The board (firmware/src) implements Hal and calls App::on_samples() with each EasyDMA buffer of
+// interleaved 4-channel frames, and App::on_rx() with the bytes received on USB serial (or the BLE config
+// characteristic). Everything here also runs natively: the emulator (impactsense emulate) and the qemu
+// test image drive the same class. No heap anywhere; all buffers are members of App (static on the board).
+//
+// Memory (defaults; bytes):
+//   ring_      kMaxPretrigger x 4 int16          =  2,048  pre-trigger frames
+//   capture_   4 x kMaxCapture int16              = 16,384  channel-major capture (the core's input)
+//   tx_        impactlink::kMaxFrame              =  1,034  one outgoing frame
+//   decoder    impactlink::kMaxFrame + stats      ~  1,070  command decoder
+//   features   EventFeatures + feature vector     ~    400
+//   total App                                     ~ 21 KB of the nRF52840's 256 KB RAM
+// The board adds 2 x kDmaFrames x 4 int16 EasyDMA buffers (firmware/src/main.cpp).
+//
+// Timing at 4 x 50 kHz: a capture is processed inside on_samples() when its last frame arrives; the
+// budget is 64,000 instructions (1 ms at 64 MHz) for features + localiser + models + encoding, measured by
+// benchmarks/bench_firmware_cost.py under qemu. The SAADC keeps filling the other DMA half meanwhile
+// (kDmaFrames = 256 frames = 5.12 ms at 50 kHz), so one event's processing never loses samples.
+#pragma once
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "forest.h"
+#include "impactcore.h"
+#include "impactlink.h"
+
+namespace impactapp {
+
+constexpr int kMaxPretrigger = 256;   // frames
+constexpr int kMaxCapture = 2048;     // frames (<= impactcore::kMaxSamples)
+constexpr int kMaxFeatures = 32;
+constexpr uint32_t kMaxRateHz = 50000;  // SAADC: 200 ksps in all over 4 channels
+constexpr uint32_t kMinRateHz = 5000;
+constexpr float kScanStepUs = 5.0f;     // SAADC TACQ 3 us + conversion <= 2 us per channel in a scan
+constexpr int kRawChunk = 256;          // samples per raw-capture frame
+
+// Board services the app needs.
+class Hal {
+ public:
+  virtual ~Hal() {}
+  virtual void write(const uint8_t* data, size_t n) = 0;             // USB serial
+  virtual void notify(const uint8_t* payload, size_t n) { (void)payload; (void)n; }  // BLE report
+  virtual bool apply_rate(uint32_t fs_hz) { (void)fs_hz; return true; }  // retime the sampling TIMER
+};
+
+// The models: a feature vector in, position and energy class out.
+class Models {
+ public:
+  virtual ~Models() {}
+  virtual int n_features() const = 0;
+  virtual void predict(const float* features, float* x_mm, float* y_mm, uint8_t* energy_class) const = 0;
+};
+
+// Models as forest tables (forest.h): one regressor per coordinate and a binary classifier.
+class TableModels : public Models {
+ public:
+  TableModels(const ForestTables& x, const ForestTables& y, const ForestTables& energy, int n_features)
+      : x_(x), y_(y), e_(energy), n_(n_features) {}
+  int n_features() const override { return n_; }
+  void predict(const float* f, float* x_mm, float* y_mm, uint8_t* cls) const override;
+
+ private:
+  ForestTables x_, y_, e_;
+  int n_;
+};
+
+struct AppConfig {
+  uint32_t fs_hz = 50000;            // per channel
+  float pretrigger_us = 1920.0f;     // 96 frames at 50 kHz
+  float capture_us = 20480.0f;       // 1024 frames at 50 kHz (the ringing has decayed, n2 < 10 ms)
+  float holdoff_us = 40000.0f;       // after a trigger, ignore the plate this long
+  float quiet_us = 2000.0f;          // re-arm after all channels stayed below rearm_counts this long
+  float threshold_counts = 60.0f;
+  float rearm_counts = 20.0f;
+  // Geometry (session-1 rig) and the physics localiser used for the uncertainty.
+  float sensor_x_mm[4] = {30.0f, 290.0f, 290.0f, 30.0f};
+  float sensor_y_mm[4] = {33.0f, 33.0f, 284.0f, 284.0f};
+  float plate_x_mm = 320.0f, plate_y_mm = 317.0f;
+  float velocity_mm_per_us = 0.35f;
+  float sigma_us = 2.0f;
+  float accept_tol_us = 2.0f;        // Eq. 35
+  float accept_margin_mm = 10.0f;
+  impactcore::CoreConfig core;       // fs_hz and channel_delay_us are set from fs_hz by configure()
+  bool dump_raw = false;
+};
+
+// Fills the model input from the core's features. Returns the number of values written.
+int feature_vector(const impactcore::EventFeatures& ev, float* out, int cap);
+
+class App {
+ public:
+  enum State { kWarmup, kListening, kCapturing };
+
+  App(Hal& hal, const Models* models, const AppConfig& cfg = AppConfig());
+  // Applies cfg (derived frame counts, core fs and scan delays). False if out of range (kept old).
+  bool configure(const AppConfig& cfg);
+  const AppConfig& config() const { return cfg_; }
+
+  // Interleaved frames: data[4*i + c] is channel c of frame i (the SAADC scan order).
+  void on_samples(const int16_t* data, int n_frames);
+  // Bytes from the host: commands.
+  void on_rx(const uint8_t* data, size_t n);
+
+  // Processes the capture in capture_ now (called by on_samples; public for the tests and the bench).
+  void process_capture();
+
+  State state() const { return state_; }
+  uint32_t events() const { return seq_; }
+  uint32_t overruns() const { return overruns_; }
+  int capture_frames() const { return capture_frames_; }
+  const int16_t* capture(int c) const { return capture_[c]; }
+  const impactcore::EventFeatures& last_features() const { return ev_; }
+  const impactlink::Report& last_report() const { return report_; }
+  const impactlink::DecoderStats& rx_stats() const { return rx_.stats(); }
+
+ private:
+  void handle_command(const impactlink::Frame& f);
+  void send_ack(uint8_t command, uint8_t status);
+  void send_raw();
+  void restart();
+
+  Hal& hal_;
+  const Models* models_;
+  AppConfig cfg_;
+  impactcore::TriggerConfig trig_cfg_;
+  impactcore::Trigger trigger_;
+  State state_ = kWarmup;
+  int pre_frames_ = 96, capture_frames_ = 1024;
+  int16_t ring_[kMaxPretrigger][4];
+  int ring_pos_ = 0, ring_fill_ = 0;
+  int16_t capture_[4][kMaxCapture];
+  int cap_pos_ = 0;
+  uint64_t frame_count_ = 0, trigger_frame_ = 0;
+  uint32_t seq_ = 0, overruns_ = 0;
+  impactcore::EventFeatures ev_;
+  float features_[kMaxFeatures];
+  impactlink::Report report_;
+  uint8_t tx_[impactlink::kMaxFrame];
+  impactlink::Decoder rx_;
+  impactlink::Frame rx_frame_;
+};
+
+}  // namespace impactapp

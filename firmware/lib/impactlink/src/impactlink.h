@@ -1,0 +1,151 @@
+// impactlink: the impactsense wire protocol, once, for the board and the host.
+//
+// Frame (all integers little-endian):
+//   sync0 0xA5 | sync1 0x5A | version u8 | type u8 | len u16 | body[len] | crc32 u32
+// crc32 is the IEEE/zlib CRC-32 over version, type, len and body (not the sync bytes).
+// Every type has a fixed body length (raw chunks: a fixed header + a sample count that must agree), so
+// a corrupted length is caught at the header. Worst-case frame: kMaxFrame bytes.
+//
+// Report body (kReportBody = 18 bytes; the BLE GATT notification is [version] + this body, 19 bytes, so it
+// fits the default ATT MTU of 23 without negotiation):
+//   0  seq u32            event counter since boot (gaps = lost reports)
+//   4  timestamp_ms u32   sample-clock time of the trigger frame
+//   8  x i16              0.1 mm
+//  10  y i16              0.1 mm
+//  12  uncertainty u16    0.1 mm, 1-sigma radial, from the TDOA localiser's covariance (0xFFFF: unknown)
+//  14  energy_class u8    model class index (0 low, 1 high)
+//  15  order u8           ToA order, 2 bits a place, first arrival in bits 0-1 (a permutation of 0..3)
+//  16  status u8          bit0 accepted (Eq. 35), bit1 valid (features + models ran); other bits 0
+//  17  channels u8        bits 0-3 clipped per channel, bits 4-7 dead / no onset per channel
+//
+// Commands (host -> board): set threshold (u16 counts), set rate (u32 Hz per channel), dump raw
+// (u8 0/1: send each capture as raw chunks before its report), get config (empty). The board answers
+// each command with an ack carrying its configuration.
+#pragma once
+
+#include <stddef.h>
+#include <stdint.h>
+
+namespace impactlink {
+
+constexpr uint8_t kSync0 = 0xA5;
+constexpr uint8_t kSync1 = 0x5A;
+constexpr uint8_t kVersion = 1;
+constexpr size_t kHeaderBytes = 6;
+constexpr size_t kCrcBytes = 4;
+constexpr size_t kMaxBody = 1024;
+constexpr size_t kMaxFrame = kHeaderBytes + kMaxBody + kCrcBytes;
+constexpr size_t kReportBody = 18;
+constexpr size_t kReportFrame = kHeaderBytes + kReportBody + kCrcBytes;  // 28 bytes
+constexpr size_t kBlePayload = 1 + kReportBody;                          // 19 bytes
+constexpr size_t kAckBody = 12;
+constexpr size_t kRawHeader = 11;
+constexpr size_t kMaxRawSamples = (kMaxBody - kRawHeader) / 2;  // 506 int16 per chunk
+
+enum FrameType : uint8_t {
+  kTypeReport = 0x01,
+  kTypeRaw = 0x02,
+  kTypeAck = 0x03,
+  kCmdSetThreshold = 0x10,
+  kCmdSetRate = 0x11,
+  kCmdDumpRaw = 0x12,
+  kCmdGetConfig = 0x13,
+};
+
+enum ReportStatus : uint8_t { kReportAccepted = 1u << 0, kReportValid = 1u << 1 };
+
+struct Report {
+  uint32_t seq;
+  uint32_t timestamp_ms;
+  float x_mm, y_mm;
+  float uncertainty_mm;   // negative or NaN: unknown
+  uint8_t energy_class;
+  uint8_t order[4];
+  bool accepted;
+  bool valid;
+  uint8_t clipped;        // bit c: channel c clipped
+  uint8_t dead;           // bit c: channel c dead or without onset
+};
+
+// One capture chunk: `count` samples of one channel starting at `offset` of a `total`-sample capture.
+struct RawChunk {
+  uint32_t event_seq;
+  uint8_t channel;
+  uint16_t total;
+  uint16_t offset;
+  uint16_t count;
+  const uint8_t* samples_le;  // count int16 LE (points into the frame body)
+};
+
+struct Ack {
+  uint8_t command;   // the command type answered
+  uint8_t status;    // 0 ok, 1 value rejected, 2 unknown command
+  uint32_t fs_hz;
+  uint16_t threshold_counts;
+  uint16_t capture_frames;
+  uint8_t dump_raw;
+};
+
+// --- CRC and bodies ---
+uint32_t crc32(const uint8_t* data, size_t n, uint32_t crc = 0);
+void pack_report(const Report& r, uint8_t body[kReportBody]);
+bool unpack_report(const uint8_t* body, size_t len, Report* r);  // false: not a well-formed report
+void pack_ack(const Ack& a, uint8_t body[kAckBody]);
+bool unpack_ack(const uint8_t* body, size_t len, Ack* a);
+bool unpack_raw(const uint8_t* body, size_t len, RawChunk* c);
+
+// Body length a type must have; for raw chunks the minimum (kRawHeader). -1: unknown type.
+int expected_body_length(uint8_t type);
+bool body_length_ok(uint8_t type, size_t len, const uint8_t* body_head /* >= kRawHeader bytes or null */);
+
+// --- encoding: returns the frame length written to out, 0 if it does not fit ---
+size_t encode_frame(uint8_t type, const uint8_t* body, size_t len, uint8_t* out, size_t cap);
+size_t encode_report(const Report& r, uint8_t* out, size_t cap);
+size_t encode_ack(const Ack& a, uint8_t* out, size_t cap);
+size_t encode_raw(uint32_t event_seq, uint8_t channel, uint16_t total, uint16_t offset,
+                  const int16_t* samples, uint16_t count, uint8_t* out, size_t cap);
+size_t encode_command(uint8_t type, uint32_t value, uint8_t* out, size_t cap);
+
+// BLE: [version] + report body.
+size_t ble_payload(const Report& r, uint8_t out[kBlePayload]);
+bool parse_ble_payload(const uint8_t* p, size_t n, Report* r);
+
+// --- streaming decoder: one byte at a time, never allocates ---
+struct Frame {
+  uint8_t version;
+  uint8_t type;
+  uint16_t len;
+  uint8_t body[kMaxBody];
+};
+
+struct DecoderStats {
+  uint32_t frames;          // well-formed frames emitted
+  uint32_t crc_errors;
+  uint32_t length_errors;   // length not allowed for the type
+  uint32_t version_errors;
+  uint32_t type_errors;     // unknown frame type
+  uint32_t payload_errors;  // CRC fine but a report body is malformed (never emitted)
+  uint32_t bytes_skipped;   // bytes dropped while hunting for a frame start
+};
+
+class Decoder {
+ public:
+  // Feeds one byte; true when a frame completed (copied into *out). After a true, call poll() until it
+  // returns false: bytes kept after a rejected frame may already hold further frames.
+  bool push(uint8_t byte, Frame* out);
+  bool poll(Frame* out);
+  void reset();
+  const DecoderStats& stats() const { return stats_; }
+  uint32_t errors() const {
+    return stats_.crc_errors + stats_.length_errors + stats_.version_errors + stats_.type_errors +
+           stats_.payload_errors;
+  }
+
+ private:
+  void drop(size_t n);  // discard the first n buffered bytes
+  uint8_t buf_[kMaxFrame];
+  size_t n_ = 0;
+  DecoderStats stats_ = {};
+};
+
+}  // namespace impactlink

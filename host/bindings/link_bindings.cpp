@@ -1,0 +1,434 @@
+// Python binding of the wire protocol (firmware/lib/impactlink) and the firmware app
+// (firmware/lib/impactapp). Only glue: every byte and every number comes from the firmware sources.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "impactapp.h"
+#include "impactcore.h"
+#include "impactlink.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+namespace il = impactlink;
+namespace ia = impactapp;
+namespace ic = impactcore;
+
+using In16 = nb::ndarray<const int16_t, nb::c_contig, nb::device::cpu>;
+using InF = nb::ndarray<const float, nb::c_contig, nb::device::cpu>;
+
+namespace {
+
+nb::bytes to_bytes(const uint8_t* p, size_t n) { return nb::bytes(reinterpret_cast<const char*>(p), n); }
+
+std::string as_string(nb::bytes b) { return std::string(b.c_str(), b.size()); }
+
+nb::dict report_dict(const il::Report& r) {
+  nb::dict d;
+  d["seq"] = r.seq;
+  d["timestamp_ms"] = r.timestamp_ms;
+  d["x_mm"] = r.x_mm;
+  d["y_mm"] = r.y_mm;
+  d["uncertainty_mm"] = r.uncertainty_mm < 0.0f ? nb::cast(NAN) : nb::cast(r.uncertainty_mm);
+  d["energy_class"] = r.energy_class;
+  d["order"] = std::vector<int>(r.order, r.order + 4);
+  d["accepted"] = r.accepted;
+  d["valid"] = r.valid;
+  d["clipped"] = r.clipped;
+  d["dead"] = r.dead;
+  return d;
+}
+
+il::Report report_from(nb::dict d) {
+  il::Report r{};
+  r.seq = nb::cast<uint32_t>(d["seq"]);
+  r.timestamp_ms = d.contains("timestamp_ms") ? nb::cast<uint32_t>(d["timestamp_ms"]) : 0;
+  r.x_mm = nb::cast<float>(d["x_mm"]);
+  r.y_mm = nb::cast<float>(d["y_mm"]);
+  r.uncertainty_mm = d.contains("uncertainty_mm") ? nb::cast<float>(d["uncertainty_mm"]) : -1.0f;
+  if (!(r.uncertainty_mm >= 0.0f)) r.uncertainty_mm = -1.0f;
+  r.energy_class = d.contains("energy_class") ? nb::cast<uint8_t>(d["energy_class"]) : 0;
+  std::vector<int> order = d.contains("order") ? nb::cast<std::vector<int>>(d["order"])
+                                               : std::vector<int>{0, 1, 2, 3};
+  if (order.size() != 4) throw std::invalid_argument("order needs 4 channel indices");
+  for (int i = 0; i < 4; ++i) r.order[i] = static_cast<uint8_t>(order[i]);
+  r.accepted = d.contains("accepted") ? nb::cast<bool>(d["accepted"]) : false;
+  r.valid = d.contains("valid") ? nb::cast<bool>(d["valid"]) : true;
+  r.clipped = d.contains("clipped") ? nb::cast<uint8_t>(d["clipped"]) : 0;
+  r.dead = d.contains("dead") ? nb::cast<uint8_t>(d["dead"]) : 0;
+  return r;
+}
+
+nb::dict stats_dict(const il::DecoderStats& s) {
+  nb::dict d;
+  d["frames"] = s.frames;
+  d["crc_errors"] = s.crc_errors;
+  d["length_errors"] = s.length_errors;
+  d["version_errors"] = s.version_errors;
+  d["type_errors"] = s.type_errors;
+  d["payload_errors"] = s.payload_errors;
+  d["bytes_skipped"] = s.bytes_skipped;
+  return d;
+}
+
+// A decoded frame as a Python object: (type, dict) for known bodies.
+nb::object frame_object(const il::Frame& f) {
+  nb::dict d;
+  d["type"] = f.type;
+  switch (f.type) {
+    case il::kTypeReport: {
+      il::Report r;
+      il::unpack_report(f.body, f.len, &r);  // the decoder only emits well-formed reports
+      d["kind"] = "report";
+      d["report"] = report_dict(r);
+      break;
+    }
+    case il::kTypeAck: {
+      il::Ack a;
+      il::unpack_ack(f.body, f.len, &a);
+      nb::dict ad;
+      ad["command"] = a.command;
+      ad["status"] = a.status;
+      ad["fs_hz"] = a.fs_hz;
+      ad["threshold_counts"] = a.threshold_counts;
+      ad["capture_frames"] = a.capture_frames;
+      ad["dump_raw"] = a.dump_raw;
+      d["kind"] = "ack";
+      d["ack"] = ad;
+      break;
+    }
+    case il::kTypeRaw: {
+      il::RawChunk c;
+      il::unpack_raw(f.body, f.len, &c);
+      nb::dict rd;
+      rd["event_seq"] = c.event_seq;
+      rd["channel"] = c.channel;
+      rd["total"] = c.total;
+      rd["offset"] = c.offset;
+      int16_t* s = new int16_t[c.count];
+      for (int i = 0; i < c.count; ++i) {
+        s[i] = static_cast<int16_t>(c.samples_le[2 * i] | (c.samples_le[2 * i + 1] << 8));
+      }
+      nb::capsule owner(s, [](void* p) noexcept { delete[] static_cast<int16_t*>(p); });
+      size_t shape[1] = {c.count};
+      rd["samples"] = nb::ndarray<nb::numpy, int16_t>(s, 1, shape, owner);
+      d["kind"] = "raw";
+      d["raw"] = rd;
+      break;
+    }
+    default:
+      d["kind"] = "command";
+      d["body"] = to_bytes(f.body, f.len);
+  }
+  return d;
+}
+
+class PyDecoder {
+ public:
+  PyDecoder() : frame_(new il::Frame) {}
+  // Feeds bytes; returns the frames completed, in order.
+  nb::list feed(nb::bytes data) {
+    nb::list out;
+    const uint8_t* p = reinterpret_cast<const uint8_t*>(data.c_str());
+    for (size_t i = 0; i < data.size(); ++i) {
+      if (!dec_.push(p[i], frame_.get())) continue;
+      do out.append(frame_object(*frame_));
+      while (dec_.poll(frame_.get()));
+    }
+    return out;
+  }
+  // Fast path for fuzzing/benchmarks: counts frames by type without building objects.
+  nb::dict count(nb::bytes data) {
+    const uint8_t* p = reinterpret_cast<const uint8_t*>(data.c_str());
+    uint64_t reports = 0, other = 0;
+    {
+      nb::gil_scoped_release release;
+      for (size_t i = 0; i < data.size(); ++i) {
+        if (!dec_.push(p[i], frame_.get())) continue;
+        do (frame_->type == il::kTypeReport ? reports : other)++;
+        while (dec_.poll(frame_.get()));
+      }
+    }
+    nb::dict d;
+    d["reports"] = reports;
+    d["other"] = other;
+    return d;
+  }
+  nb::dict stats() const { return stats_dict(dec_.stats()); }
+  uint32_t errors() const { return dec_.errors(); }
+  void reset() { dec_.reset(); }
+
+ private:
+  il::Decoder dec_;
+  std::unique_ptr<il::Frame> frame_;
+};
+
+// Forest tables owned by Python-side copies.
+struct Tables {
+  std::vector<int32_t> roots;
+  std::vector<uint8_t> feature;
+  std::vector<float> value;
+  std::vector<uint16_t> right;
+  ia::ForestTables view() const {
+    return ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(), value.data(),
+                            right.data()};
+  }
+};
+
+Tables tables_from(nb::dict d) {
+  Tables t;
+  t.roots = nb::cast<std::vector<int32_t>>(d["roots"]);
+  t.feature = nb::cast<std::vector<uint8_t>>(d["feature"]);
+  t.value = nb::cast<std::vector<float>>(d["value"]);
+  t.right = nb::cast<std::vector<uint16_t>>(d["right"]);
+  const size_t n = t.feature.size();
+  if (t.value.size() != n || t.right.size() != n) throw std::invalid_argument("forest arrays differ in length");
+  for (int32_t r : t.roots) {
+    if (r < 0 || static_cast<size_t>(r) >= n) throw std::invalid_argument("forest root out of range");
+  }
+  // Validate every walk stays inside its tree (a bad table must not crash the emulator).
+  for (size_t k = 0; k < t.roots.size(); ++k) {
+    const size_t lo = t.roots[k], hi = k + 1 < t.roots.size() ? t.roots[k + 1] : n;
+    for (size_t i = lo; i < hi; ++i) {
+      if (t.feature[i] == ia::kLeaf) continue;
+      if (i + 1 >= hi || lo + t.right[i] >= hi || lo + t.right[i] <= i) {
+        throw std::invalid_argument("forest child index out of range");
+      }
+    }
+  }
+  return t;
+}
+
+struct PyModels : ia::Models {
+  Tables x, y, e;
+  int n;
+  std::unique_ptr<ia::TableModels> impl;
+  PyModels(nb::dict dx, nb::dict dy, nb::dict de, int n_features)
+      : x(tables_from(dx)), y(tables_from(dy)), e(tables_from(de)), n(n_features) {
+    for (const Tables* t : {&x, &y, &e}) {
+      for (uint8_t f : t->feature) {
+        if (f != ia::kLeaf && f >= n) throw std::invalid_argument("forest uses a feature beyond n_features");
+      }
+    }
+    impl.reset(new ia::TableModels(x.view(), y.view(), e.view(), n));
+  }
+  int n_features() const override { return n; }
+  void predict(const float* f, float* xm, float* ym, uint8_t* c) const override { impl->predict(f, xm, ym, c); }
+};
+
+// Collects what the app writes.
+struct BufferHal : ia::Hal {
+  std::string out;
+  std::string ble;
+  uint32_t last_rate = 0;
+  void write(const uint8_t* d, size_t n) override { out.append(reinterpret_cast<const char*>(d), n); }
+  void notify(const uint8_t* d, size_t n) override { ble.append(reinterpret_cast<const char*>(d), n); }
+  bool apply_rate(uint32_t hz) override {
+    last_rate = hz;
+    return true;
+  }
+};
+
+ia::AppConfig app_config(nb::dict d) {
+  ia::AppConfig c;
+  for (auto item : d) {
+    const std::string k = nb::cast<std::string>(item.first);
+    nb::handle v = item.second;
+    if (k == "fs_hz") c.fs_hz = nb::cast<uint32_t>(v);
+    else if (k == "pretrigger_us") c.pretrigger_us = nb::cast<float>(v);
+    else if (k == "capture_us") c.capture_us = nb::cast<float>(v);
+    else if (k == "holdoff_us") c.holdoff_us = nb::cast<float>(v);
+    else if (k == "quiet_us") c.quiet_us = nb::cast<float>(v);
+    else if (k == "threshold_counts") c.threshold_counts = nb::cast<float>(v);
+    else if (k == "rearm_counts") c.rearm_counts = nb::cast<float>(v);
+    else if (k == "sensor_x_mm" || k == "sensor_y_mm") {
+      auto a = nb::cast<std::vector<float>>(v);
+      if (a.size() != 4) throw std::invalid_argument(k + " needs 4 values");
+      std::memcpy(k == "sensor_x_mm" ? c.sensor_x_mm : c.sensor_y_mm, a.data(), 4 * sizeof(float));
+    } else if (k == "plate_x_mm") c.plate_x_mm = nb::cast<float>(v);
+    else if (k == "plate_y_mm") c.plate_y_mm = nb::cast<float>(v);
+    else if (k == "velocity_mm_per_us") c.velocity_mm_per_us = nb::cast<float>(v);
+    else if (k == "sigma_us") c.sigma_us = nb::cast<float>(v);
+    else if (k == "accept_tol_us") c.accept_tol_us = nb::cast<float>(v);
+    else if (k == "accept_margin_mm") c.accept_margin_mm = nb::cast<float>(v);
+    else if (k == "adc_max") c.core.adc_max = nb::cast<int>(v);
+    else if (k == "dump_raw") c.dump_raw = nb::cast<bool>(v);
+    else if (k == "core") c.core = nb::cast<ic::CoreConfig>(v);
+    else throw std::invalid_argument("unknown app config key: " + k);
+  }
+  return c;
+}
+
+class PyApp {
+ public:
+  PyApp(nb::dict config, nb::object models) {
+    if (!models.is_none()) models_ = nb::cast<PyModels*>(models);
+    keep_ = models;
+    app_.reset(new ia::App(hal_, models_, ia::AppConfig()));
+    if (!app_->configure(app_config(config))) throw std::invalid_argument("app configuration out of range");
+  }
+  // Interleaved int16 frames [n, 4]; returns the serial bytes written meanwhile.
+  nb::bytes feed(In16 frames) {
+    if (frames.ndim() != 2 || frames.shape(1) != 4) throw std::invalid_argument("frames must be int16 [n, 4]");
+    {
+      nb::gil_scoped_release release;
+      app_->on_samples(frames.data(), static_cast<int>(frames.shape(0)));
+    }
+    return take();
+  }
+  nb::bytes rx(nb::bytes data) {
+    app_->on_rx(reinterpret_cast<const uint8_t*>(data.c_str()), data.size());
+    return take();
+  }
+  nb::bytes take() {
+    nb::bytes b(hal_.out.data(), hal_.out.size());
+    hal_.out.clear();
+    return b;
+  }
+  nb::bytes take_ble() {
+    nb::bytes b(hal_.ble.data(), hal_.ble.size());
+    hal_.ble.clear();
+    return b;
+  }
+  int capture_frames() const { return app_->capture_frames(); }
+  uint32_t events() const { return app_->events(); }
+  uint32_t fs_hz() const { return app_->config().fs_hz; }
+  std::vector<float> channel_delay_us() const {
+    const auto& c = app_->config().core.channel_delay_us;
+    return std::vector<float>(c, c + 4);
+  }
+  ic::CoreConfig core_config() const { return app_->config().core; }
+  nb::dict rx_stats() const { return stats_dict(app_->rx_stats()); }
+
+ private:
+  BufferHal hal_;
+  PyModels* models_ = nullptr;
+  nb::object keep_;
+  std::unique_ptr<ia::App> app_;
+};
+
+}  // namespace
+
+NB_MODULE(_link, m) {
+  m.doc() = "impactsense wire protocol (firmware/lib/impactlink) and firmware app (firmware/lib/impactapp)";
+  m.attr("VERSION") = il::kVersion;
+  m.attr("TYPE_REPORT") = static_cast<int>(il::kTypeReport);
+  m.attr("TYPE_RAW") = static_cast<int>(il::kTypeRaw);
+  m.attr("TYPE_ACK") = static_cast<int>(il::kTypeAck);
+  m.attr("CMD_SET_THRESHOLD") = static_cast<int>(il::kCmdSetThreshold);
+  m.attr("CMD_SET_RATE") = static_cast<int>(il::kCmdSetRate);
+  m.attr("CMD_DUMP_RAW") = static_cast<int>(il::kCmdDumpRaw);
+  m.attr("CMD_GET_CONFIG") = static_cast<int>(il::kCmdGetConfig);
+  m.attr("REPORT_FRAME_BYTES") = il::kReportFrame;
+  m.attr("REPORT_BODY_BYTES") = il::kReportBody;
+  m.attr("BLE_PAYLOAD_BYTES") = il::kBlePayload;
+  m.attr("MAX_FRAME_BYTES") = il::kMaxFrame;
+  m.attr("MAX_RATE_HZ") = ia::kMaxRateHz;
+  m.attr("SCAN_STEP_US") = ia::kScanStepUs;
+  m.attr("LEAF") = ia::kLeaf;
+
+  m.def("crc32", [](nb::bytes b) {
+    return il::crc32(reinterpret_cast<const uint8_t*>(b.c_str()), b.size());
+  });
+  m.def("encode_report", [](nb::dict d) {
+    uint8_t buf[il::kReportFrame];
+    const size_t n = il::encode_report(report_from(d), buf, sizeof(buf));
+    return to_bytes(buf, n);
+  }, "report"_a, "The serial frame of a report dict.");
+  m.def("report_body", [](nb::dict d) {
+    uint8_t b[il::kReportBody];
+    il::pack_report(report_from(d), b);
+    return to_bytes(b, sizeof(b));
+  });
+  m.def("ble_payload", [](nb::dict d) {
+    uint8_t b[il::kBlePayload];
+    il::ble_payload(report_from(d), b);
+    return to_bytes(b, sizeof(b));
+  }, "report"_a, "The BLE GATT notification of a report dict: [version] + report body.");
+  m.def("parse_ble_payload", [](nb::bytes b) -> nb::object {
+    il::Report r;
+    if (!il::parse_ble_payload(reinterpret_cast<const uint8_t*>(b.c_str()), b.size(), &r)) return nb::none();
+    return report_dict(r);
+  });
+  m.def("encode_command", [](int type, uint32_t value) {
+    uint8_t buf[16];
+    const size_t n = il::encode_command(static_cast<uint8_t>(type), value, buf, sizeof(buf));
+    if (n == 0) throw std::invalid_argument("not a command or value out of range");
+    return to_bytes(buf, n);
+  }, "type"_a, "value"_a = 0);
+  m.def("encode_frame", [](int type, nb::bytes body) {
+    std::vector<uint8_t> buf(il::kMaxFrame);
+    const size_t n = il::encode_frame(static_cast<uint8_t>(type), reinterpret_cast<const uint8_t*>(body.c_str()),
+                                      body.size(), buf.data(), buf.size());
+    if (n == 0) throw std::invalid_argument("body too long");
+    return to_bytes(buf.data(), n);
+  }, "type"_a, "body"_a, "A frame of any type around any body (for tests: the decoder must judge it).");
+
+  nb::class_<PyDecoder>(m, "Decoder")
+      .def(nb::init<>())
+      .def("feed", &PyDecoder::feed, "data"_a, "Feeds bytes; returns the completed frames as dicts.")
+      .def("count", &PyDecoder::count, "data"_a)
+      .def_prop_ro("stats", &PyDecoder::stats)
+      .def_prop_ro("errors", &PyDecoder::errors)
+      .def("reset", &PyDecoder::reset);
+
+  nb::class_<PyModels>(m, "ForestModels")
+      .def(nb::init<nb::dict, nb::dict, nb::dict, int>(), "x"_a, "y"_a, "energy"_a, "n_features"_a)
+      .def_prop_ro("n_features", [](const PyModels& p) { return p.n; })
+      .def("predict", [](const PyModels& p, InF X) {
+        if (X.ndim() != 2 || static_cast<int>(X.shape(1)) != p.n) throw std::invalid_argument("X must be float32 [n, n_features]");
+        const size_t r = X.shape(0);
+        float* out = new float[3 * (r ? r : 1)];
+        for (size_t k = 0; k < r; ++k) {
+          uint8_t c;
+          p.predict(X.data() + k * p.n, &out[3 * k], &out[3 * k + 1], &c);
+          out[3 * k + 2] = static_cast<float>(c);
+        }
+        nb::capsule owner(out, [](void* q) noexcept { delete[] static_cast<float*>(q); });
+        size_t shape[2] = {r, 3};
+        return nb::ndarray<nb::numpy, float>(out, 2, shape, owner);
+      }, "X"_a, "Predictions [n, 3]: x_mm, y_mm, energy_class, from the firmware's forest walker.");
+
+  m.def("feature_vector_batch", [](In16 adc, const ic::CoreConfig& cfg) {
+    if (adc.ndim() != 3 || adc.shape(1) != 4) throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
+    const size_t r = adc.shape(0);
+    const int n = static_cast<int>(adc.shape(2));
+    if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
+    ic::EventFeatures ev;
+    float tmp[ia::kMaxFeatures];
+    const int nf = ia::feature_vector(ev, tmp, ia::kMaxFeatures);
+    float* out = new float[(r ? r : 1) * nf];
+    int32_t* st = new int32_t[r ? r : 1];
+    for (size_t k = 0; k < r; ++k) {
+      const int16_t* ch[4];
+      for (int c = 0; c < 4; ++c) ch[c] = adc.data() + (k * 4 + c) * static_cast<size_t>(n);
+      st[k] = ic::extract_features(ch, n, cfg, &ev);
+      ia::feature_vector(ev, out + k * nf, nf);
+    }
+    nb::capsule o1(out, [](void* q) noexcept { delete[] static_cast<float*>(q); });
+    nb::capsule o2(st, [](void* q) noexcept { delete[] static_cast<int32_t*>(q); });
+    size_t s1[2] = {r, static_cast<size_t>(nf)};
+    size_t s2[1] = {r};
+    return nb::make_tuple(nb::ndarray<nb::numpy, float>(out, 2, s1, o1), nb::ndarray<nb::numpy, int32_t>(st, 1, s2, o2));
+  }, "adc"_a, "config"_a, "The firmware's model input for each recording: (features [R, F], core status [R]).");
+
+  nb::class_<PyApp>(m, "App")
+      .def(nb::init<nb::dict, nb::object>(), "config"_a = nb::dict(), "models"_a = nb::none())
+      .def("feed", &PyApp::feed, "frames"_a, "Feeds interleaved frames int16 [n, 4]; returns the serial bytes.")
+      .def("rx", &PyApp::rx, "data"_a, "Bytes from the host (commands); returns the serial bytes.")
+      .def("take_ble", &PyApp::take_ble)
+      .def_prop_ro("capture_frames", &PyApp::capture_frames)
+      .def_prop_ro("events", &PyApp::events)
+      .def_prop_ro("fs_hz", &PyApp::fs_hz)
+      .def_prop_ro("channel_delay_us", &PyApp::channel_delay_us)
+      .def_prop_ro("core_config", &PyApp::core_config)
+      .def_prop_ro("rx_stats", &PyApp::rx_stats);
+}
