@@ -112,7 +112,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
 }
 
 nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
-                        float sigma_us, float plate_x_mm, float plate_y_mm) {
+                        float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us) {
   if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
   if (use.ndim() != 2 || use.shape(0) != toa.shape(0) || use.shape(1) != 4) {
     throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
@@ -128,7 +128,7 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
   auto status = make_array<int32_t>({r});
   for (size_t k = 0; k < r; ++k) {
     const auto res = ic::localise_tdoa(toa.data() + 4 * k, use.data() + 4 * k, sx.data(), sy.data(), v,
-                                       sigma_us, plate_x_mm, plate_y_mm);
+                                       sigma_us, plate_x_mm, plate_y_mm, huber_us);
     x.data()[k] = res.x_mm;
     y.data()[k] = res.y_mm;
     t0.data()[k] = res.t0_us;
@@ -164,6 +164,47 @@ nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std
                         ? 1
                         : 0;
   }
+  return out;
+}
+
+nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserConfig& loc) {
+  if (adc.ndim() != 3 || adc.shape(1) != ic::kChannels) {
+    throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
+  }
+  const size_t r = adc.shape(0);
+  const int n = static_cast<int>(adc.shape(2));
+  if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
+  auto vec = make_array<float>({r, static_cast<size_t>(ic::kNumFeatures)});
+  auto phys = make_array<float>({r, 2});
+  auto cov = make_array<float>({r, 3});
+  auto accepted = make_array<uint8_t>({r});
+  auto status = make_array<int32_t>({r});
+  const int16_t* data = adc.data();
+  {
+    nb::gil_scoped_release release;
+    ic::EventResult ev;
+    for (size_t k = 0; k < r; ++k) {
+      const int16_t* chans[4];
+      for (int c = 0; c < 4; ++c) chans[c] = data + (k * 4 + c) * static_cast<size_t>(n);
+      status.data()[k] = ic::process_event(chans, n, cfg, loc, &ev);
+      std::memcpy(vec.data() + k * ic::kNumFeatures, ev.vector, sizeof(ev.vector));
+      phys.data()[2 * k] = ev.phys.x_mm;
+      phys.data()[2 * k + 1] = ev.phys.y_mm;
+      cov.data()[3 * k] = ev.phys.cov_xx;
+      cov.data()[3 * k + 1] = ev.phys.cov_xy;
+      cov.data()[3 * k + 2] = ev.phys.cov_yy;
+      accepted.data()[k] = ev.accepted;
+      if (status.data()[k] != ic::kOk) {
+        phys.data()[2 * k] = phys.data()[2 * k + 1] = NAN;
+      }
+    }
+  }
+  nb::dict out;
+  out["vector"] = vec;
+  out["phys_xy_mm"] = phys;
+  out["phys_cov"] = cov;
+  out["accepted"] = accepted;
+  out["status"] = status;
   return out;
 }
 
@@ -206,6 +247,35 @@ NB_MODULE(_core, m) {
       .def_rw("dead_rms_counts", &ic::CoreConfig::dead_rms_counts)
       .def_rw("n2_fraction", &ic::CoreConfig::n2_fraction);
 
+  nb::class_<ic::LocaliserConfig>(m, "LocaliserConfig")
+      .def(nb::init<>())
+      .def_rw("velocity_mm_per_us", &ic::LocaliserConfig::velocity_mm_per_us)
+      .def_rw("sigma_us", &ic::LocaliserConfig::sigma_us)
+      .def_rw("huber_us", &ic::LocaliserConfig::huber_us)
+      .def_prop_rw(
+          "sensor_x_mm",
+          [](const ic::LocaliserConfig& c) { return std::vector<float>(c.sensor_x_mm, c.sensor_x_mm + 4); },
+          [](ic::LocaliserConfig& c, std::vector<float> v) {
+            four(v, "sensor_x_mm");
+            std::memcpy(c.sensor_x_mm, v.data(), sizeof(c.sensor_x_mm));
+          })
+      .def_prop_rw(
+          "sensor_y_mm",
+          [](const ic::LocaliserConfig& c) { return std::vector<float>(c.sensor_y_mm, c.sensor_y_mm + 4); },
+          [](ic::LocaliserConfig& c, std::vector<float> v) {
+            four(v, "sensor_y_mm");
+            std::memcpy(c.sensor_y_mm, v.data(), sizeof(c.sensor_y_mm));
+          })
+      .def_rw("plate_x_mm", &ic::LocaliserConfig::plate_x_mm)
+      .def_rw("plate_y_mm", &ic::LocaliserConfig::plate_y_mm)
+      .def_rw("accept_tol_us", &ic::LocaliserConfig::accept_tol_us)
+      .def_rw("accept_margin_mm", &ic::LocaliserConfig::accept_margin_mm);
+
+  m.attr("FEATURE_NAMES") = std::vector<std::string>(ic::kFeatureNames, ic::kFeatureNames + ic::kNumFeatures);
+  m.def("process_batch", &process_batch, "adc"_a, "config"_a, "localiser"_a,
+        "The board's per-event path over adc int16 [recording, 4, sample]: feature vectors, physics "
+        "position and covariance, Eq. 35 flag, status.");
+
   nb::class_<ic::TriggerConfig>(m, "TriggerConfig")
       .def(nb::init<>())
       .def_rw("threshold_counts", &ic::TriggerConfig::threshold_counts)
@@ -242,7 +312,7 @@ NB_MODULE(_core, m) {
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,
-        "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a);
+        "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a, "huber_us"_a = 4.0f);
   m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
         "tol_us"_a, "margin_mm"_a);
 

@@ -48,8 +48,8 @@ struct CoreConfig {
   float fs_hz = 100000.0f;            // per-channel sample rate
   float channel_delay_us[kChannels] = {0, 0, 0, 0};  // known sampling delay of each channel (scan order)
   int baseline_samples = 64;          // samples at the start of the capture used for baseline and noise
-  float onset_threshold_counts = 40;  // |x| above baseline that marks a channel's first arrival
-  float onset_noise_factor = 8;       // ... or this many noise RMS, whichever is larger
+  float onset_threshold_counts = 10;  // |x| above baseline that marks a channel's first arrival
+  float onset_noise_factor = 5;       // ... or this many noise RMS, whichever is larger
   int aic_before = 40;                // AIC window: samples before the threshold crossing
   int aic_after = 8;                  // ... and after it
   float aic_blend = 0.0f;             // 0: ToA = threshold-crossing extrapolated; 1: ToA = AIC onset
@@ -113,17 +113,53 @@ struct LocaliserResult {
   float x_mm, y_mm, t0_us;   // impact position and time
   float cov_xx, cov_xy, cov_yy;  // mm^2, from sigma_us and the Jacobian at the solution
   float rms_residual_us;     // rms of ToA residuals at the solution
-  int32_t iterations;
+  int32_t iterations;        // Gauss-Newton iterations of the winning start
   int32_t status;
 };
 
-// Solves toa_i = t0 + |p - s_i| / v for p = (x, y) and t0 with Gauss-Newton from a closed-form start
-// (linearised range differences). Channels whose `use` flag is 0 are left out (at least 3 needed).
+// Solves toa_i = t0 + |p - s_i| / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
+// (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from several
+// starts: the closed-form solution of the linearised range differences (Chan 1994, with the earliest
+// sensor as reference), the plate centre and the four quadrant centres; p stays on the plate. The start
+// with the lowest Huber cost wins. Channels whose `use` flag is 0 are left out (at least 3 needed).
 // velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance.
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
-                              float plate_y_mm);
+                              float plate_y_mm, float huber_us = 4.0f);
+
+
+// --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---
+
+struct LocaliserConfig {
+  float velocity_mm_per_us = 0.93f;   // fitted group velocity of the picked arrival
+  float sigma_us = 2.0f;              // ToA uncertainty for the covariance
+  float huber_us = 4.0f;              // robust-loss threshold
+  float sensor_x_mm[kChannels] = {30.0f, 290.0f, 290.0f, 30.0f};
+  float sensor_y_mm[kChannels] = {33.0f, 33.0f, 284.0f, 284.0f};
+  float plate_x_mm = 320.0f;
+  float plate_y_mm = 317.0f;
+  float accept_tol_us = 5.0f;         // Eq. 35 tolerance on ToA
+  float accept_margin_mm = 10.0f;     // Eq. 35: only pairs whose distances differ by this much
+};
+
+// The model feature vector, in this order (names in kFeatureNames):
+//   dtoa_us[6] (pair order), rel_toa_us[4] (ToA - earliest ToA), phys_x_mm, phys_y_mm,
+//   log_energy_rel[4] (log10 E_c - mean_c log10 E_c), log_energy_mean, log_first_peak[4],
+//   residual_ratio[4], phys_rms_us.
+constexpr int kNumFeatures = 6 + 4 + 2 + 4 + 1 + 4 + 4 + 1;
+extern const char* const kFeatureNames[kNumFeatures];
+
+struct EventResult {
+  EventFeatures features;
+  LocaliserResult phys;
+  uint8_t accepted;              // Eq. 35 at the physics position
+  float vector[kNumFeatures];    // model inputs; NaN where a channel has no onset
+  int32_t status;
+};
+
+int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
+                      const LocaliserConfig& loc, EventResult* out);
 
 // --- streaming trigger (the only stateful part) ---
 

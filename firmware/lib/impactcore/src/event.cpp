@@ -1,0 +1,65 @@
+// The per-event path shared by the board and the host.
+#include <math.h>
+
+#include "impactcore.h"
+
+namespace impactcore {
+
+const char* const kFeatureNames[kNumFeatures] = {
+    "dtoa_01_us", "dtoa_02_us", "dtoa_03_us", "dtoa_12_us", "dtoa_13_us", "dtoa_23_us",
+    "rel_toa_0_us", "rel_toa_1_us", "rel_toa_2_us", "rel_toa_3_us",
+    "phys_x_mm", "phys_y_mm",
+    "log_energy_rel_0", "log_energy_rel_1", "log_energy_rel_2", "log_energy_rel_3",
+    "log_energy_mean",
+    "log_first_peak_0", "log_first_peak_1", "log_first_peak_2", "log_first_peak_3",
+    "residual_ratio_0", "residual_ratio_1", "residual_ratio_2", "residual_ratio_3",
+    "phys_rms_us",
+};
+
+int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
+                      const LocaliserConfig& loc, EventResult* out) {
+  if (out == nullptr) return kErrNullInput;
+  out->accepted = 0;
+  for (int k = 0; k < kNumFeatures; ++k) out->vector[k] = NAN;
+  out->status = extract_features(adc, n, cfg, &out->features);
+  if (out->status != kOk) return out->status;
+  const EventFeatures& f = out->features;
+  float toa[kChannels];
+  uint8_t use[kChannels];
+  for (int c = 0; c < kChannels; ++c) {
+    toa[c] = f.ch[c].toa_us;
+    use[c] = (f.ch[c].flags & (kFlagNoOnset | kFlagDead)) ? 0 : 1;
+  }
+  out->phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
+                            loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us);
+  if (out->phys.status == kOk) {
+    out->accepted = accept_eq35(toa, loc.sensor_x_mm, loc.sensor_y_mm, out->phys.x_mm, out->phys.y_mm,
+                                loc.accept_tol_us, loc.accept_margin_mm)
+                        ? 1
+                        : 0;
+  }
+  float* v = out->vector;
+  float tmin = INFINITY;
+  for (int c = 0; c < kChannels; ++c) {
+    if (toa[c] < tmin) tmin = toa[c];
+  }
+  for (int p = 0; p < kPairs; ++p) v[p] = f.dtoa_us[p];
+  for (int c = 0; c < kChannels; ++c) v[6 + c] = toa[c] - tmin;
+  v[10] = out->phys.x_mm;
+  v[11] = out->phys.y_mm;
+  float le[kChannels];
+  float le_mean = 0.0f;
+  for (int c = 0; c < kChannels; ++c) {
+    le[c] = log10f(f.ch[c].energy + 1.0f);
+    le_mean += le[c];
+  }
+  le_mean *= 0.25f;
+  for (int c = 0; c < kChannels; ++c) v[12 + c] = le[c] - le_mean;
+  v[16] = le_mean;
+  for (int c = 0; c < kChannels; ++c) v[17 + c] = log10f(f.ch[c].first_peak + 1.0f);
+  for (int c = 0; c < kChannels; ++c) v[21 + c] = f.ch[c].residual_ratio;
+  v[25] = out->phys.rms_residual_us;
+  return out->status;
+}
+
+}  // namespace impactcore
