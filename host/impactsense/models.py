@@ -1,0 +1,161 @@
+"""features -> model: the localisation forests and the energy classifier, saved with a model card.
+
+Localisation is physics first, learning second: the core's TDOA localiser gives (x, y); one random forest
+per coordinate (one regressor each, so the C export is exact) learns the correction from the core's
+feature vector. The energy classifier is a random forest on the energy features; "high" means
+m g h at or above the 75th percentile of the training drops.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import joblib
+import numpy as np
+from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
+
+from . import __version__
+from .errors import DataError
+from .pipeline import FEATURE_NAMES, Features, SignalConfig
+
+G_M_S2 = 9.80665
+LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa_", "phys_x", "phys_y",
+                                                                "log_energy_rel_"))]
+ENERGY_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("phys_x", "phys_y", "log_energy",
+                                                              "log_first_peak_", "residual_ratio_"))]
+MODEL_FILES = {"x": "forest_dx.joblib", "y": "forest_dy.joblib", "energy": "forest_energy.joblib"}
+CARD_FILE = "model_card.json"
+
+
+def impact_energy_j(height_mm: np.ndarray, ball_mass_g: float) -> np.ndarray:
+    """E = m g h of the ball at release (the class label's quantity)."""
+    return ball_mass_g * 1e-3 * G_M_S2 * np.asarray(height_mm, float) * 1e-3
+
+
+def columns(names: list[str]) -> np.ndarray:
+    return np.array([FEATURE_NAMES.index(n) for n in names])
+
+
+@dataclass
+class ForestSettings:
+    n_estimators: int = 100
+    min_samples_leaf: int = 1
+    max_features: float | str = 0.5
+    max_depth: int | None = None
+    seed: int = 0
+
+    def regressor(self) -> RandomForestRegressor:
+        return RandomForestRegressor(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
+                                     max_features=self.max_features, max_depth=self.max_depth,
+                                     random_state=self.seed, n_jobs=-1)
+
+    def classifier(self) -> RandomForestClassifier:
+        return RandomForestClassifier(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
+                                      max_features="sqrt", max_depth=self.max_depth,
+                                      random_state=self.seed, n_jobs=-1, class_weight="balanced")
+
+
+@dataclass
+class ImpactModel:
+    signal: SignalConfig
+    forest_dx: RandomForestRegressor
+    forest_dy: RandomForestRegressor
+    forest_energy: RandomForestClassifier
+    energy_threshold_j: float
+    card: dict = field(default_factory=dict)
+
+    # ----- training -----
+    @classmethod
+    def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
+            signal: SignalConfig, settings: ForestSettings | None = None) -> "ImpactModel":
+        settings = settings or ForestSettings()
+        use = features.usable
+        if use.sum() < 10:
+            raise DataError("training data", None, f"only {int(use.sum())} usable drops (need >= 10)")
+        X = features.vector[use]
+        xy = np.asarray(xy_mm, float)[use]
+        resid = xy - features.phys_xy_mm[use]
+        loc_cols = columns(LOCATION_FEATURES)
+        fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
+        fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
+        energy = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
+        threshold = float(np.percentile(energy, 75))
+        label = (energy >= threshold).astype(int)
+        fe = settings.classifier()
+        if np.unique(label).size < 2:
+            raise DataError("training data", "height_mm", "all drops fall in one energy class")
+        fe.fit(X[:, columns(ENERGY_FEATURES)], label)
+        return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
+                   energy_threshold_j=threshold,
+                   card={"forest": settings.__dict__, "n_train_drops": int(use.sum())})
+
+    # ----- inference -----
+    def predict(self, features: Features) -> dict:
+        """Position (mm), per-coordinate spread across trees, energy class; NaN where unusable."""
+        n = len(features)
+        xy = np.full((n, 2), np.nan)
+        spread = np.full((n, 2), np.nan)
+        energy_class = np.full(n, -1, int)
+        use = features.usable
+        if use.any():
+            X = features.vector[use]
+            Xl = X[:, columns(LOCATION_FEATURES)]
+            for k, forest in enumerate((self.forest_dx, self.forest_dy)):
+                per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
+                xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
+                spread[use, k] = per_tree.std(0)
+            energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
+        return {"xy_mm": xy, "spread_mm": spread, "energy_class": energy_class}
+
+    # ----- persistence -----
+    def save(self, out_dir: str | Path, extra_card: dict | None = None) -> Path:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        joblib.dump(self.forest_dx, out / MODEL_FILES["x"])
+        joblib.dump(self.forest_dy, out / MODEL_FILES["y"])
+        joblib.dump(self.forest_energy, out / MODEL_FILES["energy"])
+        card = {
+            "package": "impactsense",
+            "package_version": __version__,
+            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "target": "x = phys_x_mm + forest_dx(features[location_features]); same for y",
+            "feature_names": FEATURE_NAMES,
+            "location_features": LOCATION_FEATURES,
+            "energy_features": ENERGY_FEATURES,
+            "energy_threshold_j": self.energy_threshold_j,
+            "energy_classes": {"0": "low", "1": "high"},
+            "files": MODEL_FILES,
+            "signal": self.signal.to_dict(),
+            **self.card,
+            **(extra_card or {}),
+        }
+        (out / CARD_FILE).write_text(json.dumps(card, indent=1))
+        self.card = card
+        return out
+
+    @classmethod
+    def load(cls, model_dir: str | Path) -> "ImpactModel":
+        d = Path(model_dir)
+        card_path = d / CARD_FILE
+        if not card_path.is_file():
+            raise DataError(card_path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
+        try:
+            card = json.loads(card_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise DataError(card_path, None, f"not valid JSON ({exc})") from exc
+        for key in ("signal", "energy_threshold_j", "feature_names"):
+            if key not in card:
+                raise DataError(card_path, key, "missing key")
+        if card["feature_names"] != FEATURE_NAMES:
+            raise DataError(card_path, "feature_names", "model was trained on another feature set; retrain")
+        forests = []
+        for key in ("x", "y", "energy"):
+            p = d / MODEL_FILES[key]
+            if not p.is_file():
+                raise DataError(p, None, "model file not found")
+            forests.append(joblib.load(p))
+        return cls(signal=SignalConfig.from_dict(card["signal"]), forest_dx=forests[0], forest_dy=forests[1],
+                   forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card)

@@ -1,0 +1,180 @@
+"""recording -> signal core -> features: the host side of the one path through the data.
+
+Every number here comes from the C++ core (`impactsense._core`, compiled from firmware/lib/impactcore);
+this module only holds the configuration, fits the physics localiser's two constants (group velocity and
+per-channel delays) on training drops, and arranges the core's outputs as arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from . import _core
+from .data import Rig, Session
+
+FEATURE_NAMES: list[str] = list(_core.FEATURE_NAMES)
+PAIRS = list(zip(_core.PAIR_I, _core.PAIR_J))
+
+
+@dataclass
+class SignalConfig:
+    """Everything the core needs besides the samples; stored in every model card."""
+
+    fs_hz: float = 100000.0
+    channel_delay_us: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    baseline_samples: int = 64
+    onset_threshold_counts: float = 10.0
+    onset_noise_factor: float = 5.0
+    aic_before: int = 40
+    aic_after: int = 8
+    aic_blend: float = 0.0
+    adc_min: int = 0
+    adc_max: int = 4095
+    dead_rms_counts: float = 3.0
+    n2_fraction: float = 0.99
+    # physics localiser
+    velocity_mm_per_us: float = 0.93
+    sigma_us: float = 2.0
+    huber_us: float = 4.0
+    accept_tol_us: float = 5.0
+    accept_margin_mm: float = 10.0
+    sensor_x_mm: list[float] = field(default_factory=lambda: [30.0, 290.0, 290.0, 30.0])
+    sensor_y_mm: list[float] = field(default_factory=lambda: [33.0, 33.0, 284.0, 284.0])
+    plate_x_mm: float = 320.0
+    plate_y_mm: float = 317.0
+
+    @classmethod
+    def for_rig(cls, rig: Rig, **overrides) -> "SignalConfig":
+        cfg = cls(fs_hz=float(rig.fs_hz), adc_max=rig.adc_max,
+                  sensor_x_mm=[float(v) for v in rig.sensor_x_mm],
+                  sensor_y_mm=[float(v) for v in rig.sensor_y_mm],
+                  plate_x_mm=rig.plate_x_mm, plate_y_mm=rig.plate_y_mm)
+        for k, v in overrides.items():
+            setattr(cfg, k, v)
+        return cfg
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SignalConfig":
+        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def core(self) -> "_core.CoreConfig":
+        c = _core.CoreConfig()
+        for name in ("fs_hz", "channel_delay_us", "baseline_samples", "onset_threshold_counts",
+                     "onset_noise_factor", "aic_before", "aic_after", "aic_blend", "adc_min",
+                     "adc_max", "dead_rms_counts", "n2_fraction"):
+            setattr(c, name, getattr(self, name))
+        return c
+
+    def localiser(self) -> "_core.LocaliserConfig":
+        c = _core.LocaliserConfig()
+        for name in ("velocity_mm_per_us", "sigma_us", "huber_us", "sensor_x_mm", "sensor_y_mm",
+                     "plate_x_mm", "plate_y_mm", "accept_tol_us", "accept_margin_mm"):
+            setattr(c, name, getattr(self, name))
+        return c
+
+    @property
+    def sensor_xy_mm(self) -> np.ndarray:
+        return np.stack([self.sensor_x_mm, self.sensor_y_mm], axis=1)
+
+
+@dataclass
+class Features:
+    """The core's view of a set of recordings (row k = recording k)."""
+
+    vector: np.ndarray        # float32 [R, n_features] in FEATURE_NAMES order
+    phys_xy_mm: np.ndarray    # float32 [R, 2] physics localiser
+    phys_cov: np.ndarray      # float32 [R, 3] cov_xx, cov_xy, cov_yy (mm^2)
+    accepted: np.ndarray      # bool [R] Eq. 35
+    status: np.ndarray        # int32 [R] core status (0 ok)
+    flags: np.ndarray         # uint8 [R, 4] per-channel flags
+    toa_us: np.ndarray        # float32 [R, 4] (channel delays removed)
+    energy: np.ndarray        # float32 [R, 4]
+    raw: dict                 # every array extract_batch returned
+
+    def __len__(self) -> int:
+        return int(self.vector.shape[0])
+
+    def take(self, rows: np.ndarray) -> "Features":
+        rows = np.asarray(rows)
+        return Features(self.vector[rows], self.phys_xy_mm[rows], self.phys_cov[rows], self.accepted[rows],
+                        self.status[rows], self.flags[rows], self.toa_us[rows], self.energy[rows],
+                        {k: v[rows] for k, v in self.raw.items()})
+
+    @property
+    def clipped(self) -> np.ndarray:
+        return (self.flags & _core.FLAG_CLIPPED) != 0
+
+    @property
+    def dead(self) -> np.ndarray:
+        return (self.flags & _core.FLAG_DEAD) != 0
+
+    @property
+    def no_onset(self) -> np.ndarray:
+        return (self.flags & _core.FLAG_NO_ONSET) != 0
+
+    @property
+    def usable(self) -> np.ndarray:
+        """Rows the core processed with an onset on every channel and a finite feature vector."""
+        return (self.status == _core.STATUS_OK) & ~self.no_onset.any(1) & np.isfinite(self.vector).all(1)
+
+
+def as_int16(adc: np.ndarray) -> np.ndarray:
+    """uint16 ADC counts (<= 4095 for 12 bits) as the core's int16, C-contiguous."""
+    adc = np.asarray(adc)
+    if adc.ndim == 2:
+        adc = adc[None]
+    if adc.dtype == np.uint16 and adc.size and int(adc.max()) > 32767:
+        raise ValueError("ADC counts above 32767 do not fit the core's int16 samples")
+    return np.ascontiguousarray(adc.astype(np.int16, copy=False))
+
+
+def featurize(adc: np.ndarray, cfg: SignalConfig) -> Features:
+    """Runs the core's per-event path (the firmware's) over every recording."""
+    a16 = as_int16(adc)
+    raw = _core.extract_batch(a16, cfg.core())
+    ev = _core.process_batch(a16, cfg.core(), cfg.localiser())
+    return Features(vector=ev["vector"], phys_xy_mm=ev["phys_xy_mm"], phys_cov=ev["phys_cov"],
+                    accepted=ev["accepted"].astype(bool), status=ev["status"], flags=raw["flags"],
+                    toa_us=raw["toa_us"], energy=raw["energy"], raw=raw)
+
+
+def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
+    s = cfg.sensor_xy_mm
+    return np.hypot(xy_mm[:, None, 0] - s[None, :, 0], xy_mm[:, None, 1] - s[None, :, 1])
+
+
+def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+    """Fits the group velocity and per-channel delays (relative to channel 0) on training drops.
+
+    Model: ToA_ik = t0_k + d_ik / v + delay_i at the drops' nominal positions; t0_k is eliminated by
+    centring each drop's residuals; a soft-L1 loss keeps cycle-skipped picks from steering the fit.
+    Returns a copy of `cfg` with velocity and channel delays set (delays add to any known scan delay).
+    """
+    base = SignalConfig.from_dict(cfg.to_dict())
+    base.channel_delay_us = [0.0, 0.0, 0.0, 0.0]
+    raw = _core.extract_batch(as_int16(session.adc[rows]), base.core())
+    toa = raw["toa_us"].astype(float)
+    ok = np.isfinite(toa).all(1)
+    if ok.sum() < 8:
+        raise ValueError(f"only {int(ok.sum())} training drops have an onset on every channel")
+    d = distances_mm(session.xy_mm[rows], cfg)[ok]
+    toa = toa[ok]
+
+    def residuals(p):
+        r = toa - d / p[0] - np.r_[0.0, p[1:]][None]
+        return (r - r.mean(1, keepdims=True)).ravel()
+
+    sol = least_squares(residuals, [cfg.velocity_mm_per_us, 0.0, 0.0, 0.0], loss="soft_l1", f_scale=3.0)
+    out = SignalConfig.from_dict(cfg.to_dict())
+    out.velocity_mm_per_us = float(sol.x[0])
+    out.channel_delay_us = [0.0] + [float(v) for v in sol.x[1:]]
+    r = residuals(sol.x)
+    out.sigma_us = float(np.sqrt(np.median(r ** 2)) * 1.4826) if r.size else cfg.sigma_us
+    return out

@@ -1,0 +1,92 @@
+"""Train and evaluate: the steps `impactsense train`, `evaluate` and `demo` share."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .data import Session
+from .metrics import region_metrics
+from .models import ForestSettings, ImpactModel, impact_energy_j
+from .pipeline import SignalConfig, featurize, fit_localiser
+from .split import case_split
+
+
+def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0.2, seed: int = 0,
+          exclude_rows: np.ndarray | None = None, settings: ForestSettings | None = None,
+          signal: SignalConfig | None = None, extra_card: dict | None = None) -> tuple[ImpactModel, dict]:
+    """Fits the localiser constants and the forests on the training cases; saves if out_dir is given."""
+    train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
+    cfg = signal or SignalConfig.for_rig(session.rig)
+    cfg = fit_localiser(session, train_rows, cfg)
+    feats = featurize(session.adc, cfg)
+    model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
+                            session.rig.ball_mass_g, cfg, settings)
+    split = {
+        "data_path": str(session.path),
+        "data_hash": session.fingerprint(),
+        "test_fraction": test_fraction,
+        "seed": seed,
+        "train_recordings": session.recording_id[train_rows].tolist(),
+        "test_recordings": session.recording_id[test_rows].tolist(),
+        "excluded_recordings": [] if exclude_rows is None else session.recording_id[np.asarray(exclude_rows)].tolist(),
+    }
+    if out_dir is not None:
+        model.save(out_dir, extra_card={"split": split, **(extra_card or {})})
+    else:
+        model.card["split"] = split
+    return model, split
+
+
+def evaluation_rows(session: Session, model: ImpactModel) -> tuple[np.ndarray, str]:
+    """On the model's own session only its held-out drops; on any other session every drop."""
+    split = model.card.get("split", {})
+    if split.get("data_hash") and split["data_hash"] == session.fingerprint():
+        rows = np.asarray(split.get("test_recordings", []), int)
+        return rows, "held-out drops of the training session"
+    return np.arange(len(session)), "all drops (another session)"
+
+
+def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = None) -> dict:
+    """The JSON report of `impactsense evaluate`."""
+    scope = "given rows"
+    if rows is None:
+        rows, scope = evaluation_rows(session, model)
+    if len(rows) == 0:
+        raise ValueError("no drops to evaluate (the model was trained with --test-fraction 0 on this session)")
+    feats = featurize(session.adc[rows], model.signal)
+    pred = model.predict(feats)
+    true_xy = session.xy_mm[rows]
+    ok = np.isfinite(pred["xy_mm"]).all(1)
+    energy = impact_energy_j(session.height_mm[rows], session.rig.ball_mass_g)
+    label = (energy >= model.energy_threshold_j).astype(int)
+    report = {
+        "scope": scope,
+        "n": int(len(rows)),
+        "predicted": int(ok.sum()),
+        "accepted": int(feats.accepted.sum()),
+        "rejected": int((~feats.accepted).sum()),
+        **region_metrics(true_xy[ok], pred["xy_mm"][ok]),
+        "energy_class_accuracy": float(np.mean(pred["energy_class"][ok] == label[ok])) if ok.any() else float("nan"),
+        "physics": region_metrics(true_xy[ok], feats.phys_xy_mm[ok]),
+        "accepted_only": region_metrics(true_xy[ok & feats.accepted], pred["xy_mm"][ok & feats.accepted]),
+        "energy_threshold_j": model.energy_threshold_j,
+        "high_energy_fraction": float(label.mean()),
+        "clipped_drops": int(feats.clipped.any(1).sum()),
+    }
+    report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "phys_xy": feats.phys_xy_mm,
+                         "spread": pred["spread_mm"], "energy_class": pred["energy_class"], "label": label,
+                         "accepted": feats.accepted}
+    return report
+
+
+def public(report: dict) -> dict:
+    """The report without its arrays, for JSON."""
+    return {k: v for k, v in report.items() if not k.startswith("_")}
+
+
+def write_json(report: dict, path: str | Path) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(public(report), indent=1))
