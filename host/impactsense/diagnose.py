@@ -1,0 +1,277 @@
+"""Close the loop: residuals of a session against a reference model, the effect that explains them, the
+error before and after adding it.
+
+Selection (forward, greedy): every candidate (effect x sensor) is fitted on 4/5 of the cases and scored on
+the held-out fifth (5 folds, split by case so repetitions never straddle train and test). The score is
+the held-out log-likelihood gain over the current model, summed over drops (nats). A candidate is
+significant when (1) its per-case held-out gains are positive by a one-sided t-test at
+alpha / n_candidates (Bonferroni, alpha = 0.01), (2) it is material (its size exceeds the rig tolerance the
+effect states) and (3) for an effect that contains a simpler one (sensor_position contains
+channel_delay) it also beats that simpler one by the same test. The best significant candidate is added
+to the model (parameters refitted on all drops) and the search repeats; it stops when nothing is
+significant. Nothing significant at all: the answer is `none`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from . import residuals as R
+from .data import Session
+from .effects import EFFECTS
+
+ALPHA = 0.01
+FOLDS = 5
+MAX_EFFECTS = 6
+PROBE_DROPS = 48
+
+
+@dataclass
+class Candidate:
+    effect: str
+    sensor: int | None
+    params: dict
+    score: float
+    p_value: float
+    material: bool
+    significant: bool
+    fold_params: list
+
+
+def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
+    cases = np.unique(case_id)
+    rng = np.random.default_rng(seed)
+    rng.shuffle(cases)
+    groups = np.array_split(cases, k)
+    return [np.flatnonzero(np.isin(case_id, g)) for g in groups]
+
+
+def _case_sums(gain: np.ndarray, case_id: np.ndarray) -> np.ndarray:
+    _, inv = np.unique(case_id, return_inverse=True)
+    return np.bincount(inv, weights=gain)
+
+
+def _one_sided_p(case_gains: np.ndarray) -> float:
+    if case_gains.size < 3 or np.allclose(case_gains, 0):
+        return 1.0
+    if np.std(case_gains) == 0:
+        return 0.0 if case_gains.mean() > 0 else 1.0
+    t = stats.ttest_1samp(case_gains, 0.0, alternative="greater")
+    return float(t.pvalue)
+
+
+def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor):
+    """Held-out per-drop log-likelihood gain of one candidate over `ref`, and its per-fold params."""
+    eff = EFFECTS[effect_name]
+    gain = np.zeros(len(F))
+    fold_params = []
+    for test in folds:
+        train = np.setdiff1d(np.arange(len(F)), test)
+        Ftr, Fte = F.subset(train), F.subset(test)
+        params = eff.fit(ref, Ftr, sensor)
+        fold_params.append(params)
+        gain[test] = eff.add(ref, sensor, params).ll(Fte) - ref.ll(Fte)
+    return gain, fold_params
+
+
+def build(ref: R.Reference, F: R.Features, chosen: list[tuple], sweeps: int = 4):
+    """The reference with the chosen (effect, sensor) additions fitted jointly by backfitting: each one is
+    refitted with all the others in place, a few sweeps (single-channel fits are otherwise biased by the
+    other channels' offsets through the per-drop centring). Returns (model, params list)."""
+    params = [None] * len(chosen)
+    for sweep in range(sweeps if len(chosen) > 1 else 1):
+        for j, (name, sensor) in enumerate(chosen):
+            m = ref
+            for k, (n2, s2) in enumerate(chosen):
+                if k != j and params[k] is not None:
+                    m = EFFECTS[n2].add(m, s2, params[k])
+            params[j] = EFFECTS[name].fit(m, F, sensor)
+    m = ref
+    for (name, sensor), p in zip(chosen, params):
+        m = EFFECTS[name].add(m, sensor, p)
+    return m, params
+
+
+def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MAX_EFFECTS):
+    """Forward selection of effects. Returns (accepted candidates in order, final model, last round)."""
+    folds = case_folds(F.case_id)
+    accepted: list[Candidate] = []
+    current = ref
+    last_round: list[Candidate] = []
+    cands = [(n, s) for n, e in EFFECTS.items() for s in e.candidates()]
+    for round_ in range(max_effects):
+        gains = {}
+        results = []
+        for name, sensor in cands:
+            if progress:
+                progress(f"round {round_ + 1}: {name} {sensor}")
+            g, fp = evaluate(current, F, folds, name, sensor)
+            gains[(name, sensor)] = g
+            params = EFFECTS[name].fit(current, F, sensor)
+            p = _one_sided_p(_case_sums(g, F.case_id))
+            results.append(Candidate(name, sensor, params, float(g.sum()), p,
+                                     bool(EFFECTS[name].material(params)), False, fp))
+        thr = ALPHA / len(cands)
+        for c in results:
+            ok = c.p_value < thr and c.material and c.score > 0
+            nest = EFFECTS[c.effect].nests
+            if ok and nest is not None and (nest, c.sensor) in gains:
+                diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
+                ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
+            c.significant = bool(ok)
+        results.sort(key=lambda c: -c.score)
+        last_round = results
+        best = next((c for c in results if c.significant), None)
+        if best is None:
+            break
+        accepted.append(best)
+        current, params = build(ref, F, [(c.effect, c.sensor) for c in accepted])
+        for c, p in zip(accepted, params):
+            c.params = p
+    return accepted, current, last_round
+
+
+def out_of_fold_metrics(ref: R.Reference, F: R.Features, accepted: list[Candidate]) -> dict:
+    """Metrics of the model with the accepted effects, each fold scored with effects fitted on the others."""
+    folds = case_folds(F.case_id, seed=1)
+    sq, mae, en, n, ne = 0.0, 0.0, 0.0, 0, 0
+    for test in folds:
+        train = np.setdiff1d(np.arange(len(F)), test)
+        Ftr, Fte = F.subset(train), F.subset(test)
+        m, _ = build(ref, Ftr, [(c.effect, c.sensor) for c in accepted])
+        k = R.metrics(m, Fte)
+        sq += k["dtoa_rms_us"] ** 2 * len(test)
+        mae += k["mae_mm"] * len(test)
+        nen = int((~m.clip_mask(Fte)).sum())
+        en += k["energy_rms"] ** 2 * nen
+        n += len(test)
+        ne += nen
+    return {"mae_mm": mae / n, "dtoa_rms_us": float(np.sqrt(sq / n)), "energy_rms": float(np.sqrt(en / ne))}
+
+
+def make_probe(session: Session, n: int = PROBE_DROPS, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    rows = np.sort(rng.choice(len(session), size=min(n, len(session)), replace=False))
+    return {"session": session.subset(rows)}
+
+
+def _jsonable(v):
+    if isinstance(v, (np.floating, float)):
+        return float(v)
+    if isinstance(v, (np.integer, int)):
+        return int(v)
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    return v
+
+
+def _param_sd(c: Candidate) -> dict:
+    out = {}
+    for k in c.params:
+        vals = [fp[k] for fp in c.fold_params if isinstance(fp.get(k), (int, float))]
+        if len(vals) > 1:
+            out[k] = float(np.std(vals, ddof=1) * np.sqrt(len(vals) - 1) / np.sqrt(len(vals)) * 1.0)
+    return out
+
+
+def diagnose(baseline: Session, data: Session, progress=None, same: bool | None = None):
+    """The whole loop. Returns (result dict in the JSON schema of issue 5, details for the report)."""
+    if same is None:
+        same = Path(baseline.path).resolve() == Path(data.path).resolve() and len(baseline) == len(data)
+    Fb = R.extract(baseline)
+    Fn = Fb if same else R.extract(data)
+    ref = R.fit_reference(Fb, "nominal" if same else "calibrated")
+    ref.probe = make_probe(baseline)
+    if same:
+        # the first loop: the nominal model's velocity is refitted per fold inside the metrics below
+        pass
+    before = R.metrics(ref, Fn)
+    accepted, final, last_round = select(ref, Fn, progress)
+    after = out_of_fold_metrics(ref, Fn, accepted) if accepted else dict(before)
+    effects = []
+    for c in sorted(accepted, key=lambda c: -c.score):
+        effects.append({"effect": c.effect, "sensor": c.sensor, "params": _jsonable(c.params),
+                        "score": c.score, "significant": True, "p_value": c.p_value,
+                        "param_sd": _param_sd(c), "units": EFFECTS[c.effect].units})
+    if not effects:
+        effects.append({"effect": "none", "sensor": None, "params": {}, "score": 0.0,
+                        "significant": False})
+    # the strongest rejected candidate of each family, for the record (never significant)
+    seen = {(e["effect"], e["sensor"]) for e in effects}
+    families = set()
+    for c in last_round:
+        if c.significant or c.effect in families or (c.effect, c.sensor) in seen:
+            continue
+        families.add(c.effect)
+        effects.append({"effect": c.effect, "sensor": c.sensor, "params": _jsonable(c.params),
+                        "score": c.score, "significant": False, "p_value": c.p_value,
+                        "units": EFFECTS[c.effect].units})
+    result = {"effects": effects, "before": before, "after": after,
+              "baseline": str(baseline.path), "data": str(data.path),
+              "reference": "nominal (first loop)" if same else "calibrated on the baseline",
+              "core_config": {"aic_blend": 1.0, "channel_delay_us": _jsonable(final.delay_us)},
+              "model": {"velocity_m_s": final.velocity_m_s, "sensor_xy_mm": _jsonable(final.sensor_xy_mm),
+                        "gain": _jsonable(np.exp(final.gain_log / 2)), "anisotropy": _jsonable(final.aniso),
+                        "decay_per_s": final.decay0_per_s}}
+    details = {"ref": ref, "final": final, "F": Fn, "accepted": accepted}
+    return _jsonable(result), details
+
+
+# ---- report ---------------------------------------------------------------------------------------
+def write_report(result: dict, details: dict, out_dir: str | Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    F, ref, final = details["F"], details["ref"], details["final"]
+    for tag, m in (("before", ref), ("after", final)):
+        pred = m.toa_pred(F)
+        r = (F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]) - (pred[:, R.PAIR_I] - pred[:, R.PAIR_J])
+        fig, axes = plt.subplots(2, 3, figsize=(12, 7.5), constrained_layout=True)
+        lim = np.nanpercentile(np.abs(r), 95)
+        for p, ax in enumerate(axes.ravel()):
+            sc = ax.scatter(F.x_mm, F.y_mm, c=r[:, p], cmap="coolwarm", vmin=-lim, vmax=lim, s=12)
+            ax.set_title(f"DToA S{R.PAIR_I[p] + 1}-S{R.PAIR_J[p] + 1}: mean {np.nanmean(r[:, p]):+.1f} µs")
+            ax.set_aspect("equal")
+            ax.plot(m.sensor_xy_mm[:, 0], m.sensor_xy_mm[:, 1], "k^")
+        fig.colorbar(sc, ax=axes, label="measured - predicted DToA (µs)")
+        fig.savefig(out / f"dtoa_residual_map_{tag}.png", dpi=80)
+        plt.close(fig)
+        d, *_ = m.geometry(F)
+        rt = m.toa_resid(F)
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+        for c in range(4):
+            axes[0].plot(d[:, c], rt[:, c], ".", ms=3, label=f"S{c + 1}")
+            axes[1].hist(rt[:, c], bins=40, histtype="step", label=f"S{c + 1} mean {np.nanmean(rt[:, c]):+.2f}")
+        axes[0].set_xlabel("distance (mm)")
+        axes[0].set_ylabel("ToA residual, drop-centred (µs)")
+        axes[1].set_xlabel("ToA residual (µs)")
+        for ax in axes:
+            ax.legend()
+        fig.savefig(out / f"toa_residual_vs_distance_{tag}.png", dpi=80)
+        plt.close(fig)
+    lines = [f"# impactsense diagnose", "", f"- baseline: {result['baseline']}", f"- data: {result['data']}",
+             f"- reference: {result['reference']}", "", "| effect | sensor | params | score (nats) | significant |",
+             "|---|---|---|---|---|"]
+    for e in result["effects"]:
+        ps = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items() if isinstance(v, (int, float)))
+        s = "-" if e["sensor"] is None else f"S{e['sensor'] + 1} (ch{e['sensor']})"
+        lines.append(f"| {e['effect']} | {s} | {ps} | {e['score']:.1f} | {e['significant']} |")
+    lines += ["", "| metric | before | after |", "|---|---|---|"]
+    for k in ("dtoa_rms_us", "mae_mm", "energy_rms"):
+        lines.append(f"| {k} | {result['before'][k]:.3f} | {result['after'][k]:.3f} |")
+    lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
+              "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    return out
