@@ -1,0 +1,56 @@
+"""`impactsense export MODEL_DIR --out models/`: the forests as C for the firmware (and tables for the
+emulator)."""
+
+ORDER = 60
+
+
+def register(sub):
+    p = sub.add_parser("export", help="export trained forests to C for the firmware (float32, per-tree)",
+                       description=__doc__)
+    p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + joblib)")
+    p.add_argument("--out", default="models", help="output folder (default: models/)")
+    p.add_argument("--trees", default="all",
+                   help="trees per coordinate forest: all, N, or auto (smallest within 0.2 mm MAE of the "
+                        "full forest on the model's held-out drops)")
+    p.add_argument("--no-m2cgen", action="store_true", help="write only the node tables")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import json
+
+    from ..export import export_models
+
+    X = xy = None
+    if args.trees == "auto":
+        from .._link import feature_vector_batch  # noqa: F401
+        X, xy = _held_out(args.model_dir)
+    s = export_models(args.model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy,
+                      write_m2cgen=not args.no_m2cgen)
+    for row in s["tree_sweep"]:
+        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB (x+y)")
+    print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
+          f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
+    print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
+    return 0 if s["within_budget"] else 1
+
+
+def _held_out(model_dir):
+    """Feature vectors and positions of the model card's held-out drops (firmware feature layout)."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from .. import _core
+    from .. import _link
+    from ..data import load_session
+
+    card = json.loads((Path(model_dir) / "model_card.json").read_text())
+    rows = card.get("test_recording_ids") or card.get("held_out") or card.get("test_ids")
+    s = load_session(card.get("data") if card.get("data") and Path(card["data"]).is_dir() else None)
+    rows = np.asarray(rows if rows else np.arange(len(s)), dtype=int)
+    cfg = _core.CoreConfig()
+    cfg.fs_hz = float(s.rig.fs_hz)
+    X, _ = _link.feature_vector_batch(np.ascontiguousarray(s.adc[rows].astype(np.int16)), cfg)
+    return X, s.xy_mm[rows]

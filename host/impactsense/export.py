@@ -1,0 +1,344 @@
+"""Model export for the firmware: scikit-learn forests -> C the Cortex-M4F runs in float32.
+
+The only module that knows about scikit-learn's tree internals and m2cgen. Two forms, both written:
+
+- **Node tables** (`impactsense_forest_tables.c`, emlearn style, the firmware default): a forest is data —
+  per node a feature index (u8), a float32 threshold or leaf value and the right child's index (u16); the
+  left child is the next node. 7 bytes a node, walked by `impactapp::forest_mean` (firmware/lib/impactapp).
+  The same tables go to `forest_tables.npz` for the emulator, so the emulator runs the very numbers
+  the board runs.
+- **m2cgen** (`impactsense_models_m2c.c`): m2cgen per tree (one function per tree, so no function grows past
+  the Thumb-2 branch range), post-processed to float32 (`double` emulation costs ~11x on the M4F).
+
+Thresholds are scikit-learn's float64 split points rounded *down* to float32: for float32 inputs
+`x <= t32` decides exactly as scikit-learn's `float64(x) <= t`, so the C gives the Python predictions to
+float32 rounding of the leaf sums.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ImpactSenseError
+
+LEAF = 0xFF
+
+
+class ExportError(ImpactSenseError):
+    pass
+
+
+@dataclass
+class ModelSet:
+    """One regressor per coordinate and a binary energy classifier (scikit-learn forests)."""
+
+    x: object
+    y: object
+    energy: object
+    card: dict
+    n_features: int
+
+
+def _find_models(model_dir: Path, card: dict) -> dict:
+    """Maps role -> joblib path: from the card's `files`/`models` if given, else by estimator type/name."""
+    import joblib
+
+    for key in ("files", "models", "model_files"):
+        files = card.get(key)
+        if isinstance(files, dict):
+            roles = {}
+            for role, name in files.items():
+                r = role.lower()
+                r = ("x" if r in ("x", "x_mm", "model_x", "rf_x") else
+                     "y" if r in ("y", "y_mm", "model_y", "rf_y") else
+                     "energy" if "energy" in r or "class" in r else r)
+                roles[r] = model_dir / str(name)
+            if {"x", "y", "energy"} <= roles.keys():
+                return roles
+    roles = {}
+    for path in sorted(model_dir.glob("*.joblib")):
+        est = joblib.load(path)
+        stem = path.stem.lower()
+        if hasattr(est, "predict_proba"):
+            roles.setdefault("energy", path)
+        elif re.search(r"(^|[_-])x($|[_-])|x_mm", stem):
+            roles.setdefault("x", path)
+        elif re.search(r"(^|[_-])y($|[_-])|y_mm", stem):
+            roles.setdefault("y", path)
+    missing = {"x", "y", "energy"} - roles.keys()
+    if missing:
+        raise ExportError(f"{model_dir}: no joblib model found for {sorted(missing)}")
+    return roles
+
+
+def load_models(model_dir) -> ModelSet:
+    import joblib
+
+    model_dir = Path(model_dir)
+    card_path = model_dir / "model_card.json"
+    if not card_path.is_file():
+        raise ExportError(f"{card_path}: model card not found")
+    card = json.loads(card_path.read_text())
+    roles = _find_models(model_dir, card)
+    models = {r: joblib.load(p) for r, p in roles.items()}
+    for role in ("x", "y"):
+        if not hasattr(models[role], "estimators_") or getattr(models[role], "n_outputs_", 1) != 1:
+            raise ExportError(f"{roles[role]}: need a single-output random forest regressor")
+    if len(getattr(models["energy"], "classes_", [])) != 2:
+        raise ExportError(f"{roles['energy']}: the energy classifier must have two classes")
+    n = int(models["x"].n_features_in_)
+    if models["y"].n_features_in_ != n or models["energy"].n_features_in_ != n:
+        raise ExportError("the three models disagree on the number of features")
+    return ModelSet(models["x"], models["y"], models["energy"], card, n)
+
+
+# --- float32 helpers ---
+
+def f32_floor(t: np.ndarray) -> np.ndarray:
+    """Largest float32 <= each float64 value."""
+    t = np.asarray(t, dtype=np.float64)
+    t32 = t.astype(np.float32)
+    up = t32.astype(np.float64) > t
+    t32[up] = np.nextafter(t32[up], np.float32(-np.inf))
+    return t32
+
+
+def _c_float(v) -> str:
+    v = np.float32(v)
+    if not np.isfinite(v):
+        raise ExportError(f"non-finite constant {v} in a tree")
+    return f"{float(v):.9g}f"
+
+
+# --- node tables ---
+
+def _leaf_values(tree, classifier: bool) -> np.ndarray:
+    v = tree.value[:, 0, :]
+    if classifier:
+        s = v.sum(axis=1, keepdims=True)
+        s[s == 0] = 1
+        return (v / s)[:, 1]
+    return v[:, 0]
+
+
+def forest_tables(forest, n_trees: int | None = None) -> dict:
+    """Node tables of the first n_trees trees of a fitted forest (see module doc)."""
+    classifier = hasattr(forest, "predict_proba")
+    trees = forest.estimators_[: n_trees or len(forest.estimators_)]
+    roots, feature, value, right = [], [], [], []
+    for est in trees:
+        t = est.tree_
+        n = t.node_count
+        if n > 0xFFFF:
+            raise ExportError(f"a tree of {n} nodes exceeds the u16 child index")
+        leaf = t.children_left == -1
+        internal = np.flatnonzero(~leaf)
+        if np.any(t.children_left[internal] != internal + 1):
+            raise ExportError("tree is not in depth-first order (left child != next node)")
+        if np.any(t.feature[internal] >= LEAF):
+            raise ExportError("more than 254 features")
+        roots.append(len(feature))
+        f = np.where(leaf, LEAF, t.feature).astype(np.uint8)
+        vals = np.where(leaf, _leaf_values(t, classifier).astype(np.float32), f32_floor(t.threshold))
+        r = np.where(leaf, 0, t.children_right).astype(np.uint16)
+        feature.extend(f.tolist())
+        value.extend(vals.astype(np.float32).tolist())
+        right.extend(r.tolist())
+    return {
+        "roots": np.asarray(roots, dtype=np.int32),
+        "feature": np.asarray(feature, dtype=np.uint8),
+        "value": np.asarray(value, dtype=np.float32),
+        "right": np.asarray(right, dtype=np.uint16),
+    }
+
+
+def table_bytes(tables: dict) -> int:
+    return int(sum(np.asarray(a).nbytes for a in tables.values()))
+
+
+def _c_array(ctype: str, name: str, values, fmt) -> str:
+    vals = [fmt(v) for v in np.asarray(values).tolist()]
+    rows = [", ".join(vals[i:i + 8]) for i in range(0, len(vals), 8)]
+    body = ",\n  ".join(rows)
+    return f"static const {ctype} {name}[{max(len(vals), 1)}] = {{\n  {body}\n}};\n"
+
+
+def tables_c(tabs: dict[str, dict], n_features: int, header: str) -> str:
+    out = [header, '#include "impactsense_models.h"\n\n']
+    for role, t in tabs.items():
+        out.append(_c_array("int32_t", f"{role}_roots", t["roots"], str))
+        out.append(_c_array("uint8_t", f"{role}_feature", t["feature"], str))
+        out.append(_c_array("float", f"{role}_value", t["value"], _c_float))
+        out.append(_c_array("uint16_t", f"{role}_right", t["right"], str))
+        out.append(f"const impactsense_forest impactsense_forest_{role} = {{{len(t['roots'])}, {role}_roots, "
+                   f"{role}_feature, {role}_value, {role}_right}};\n\n")
+    return "".join(out)
+
+
+# --- m2cgen, one function per tree, float32 ---
+
+_THRESH = re.compile(r"(input\[\d+\]\s*(?:<=|<|>=|>)\s*)([-+0-9.eE]+)")
+_NUMBER = re.compile(r"(?<![\w\[.])([-+]?\d+\.\d*(?:[eE][-+]?\d+)?|[-+]?\d+[eE][-+]?\d+)(?![\w\]])")
+_BINARY_LEAF = re.compile(r"memcpy\(var0, \(double\[\]\)\{([^,}]+), ([^}]+)\}, 2 \* sizeof\(double\)\);")
+
+
+def m2cgen_tree_c(tree, name: str, classifier: bool) -> str:
+    """m2cgen's C for one tree, rewritten to `float name(const float* input)` in float32."""
+    import m2cgen
+
+    code = m2cgen.export_to_c(tree, function_name=name)
+    code = code.replace("#include <string.h>\n", "")
+    if classifier:
+        # Binary classifier: keep P(class 1) as the tree's value.
+        code = _BINARY_LEAF.sub(lambda m: f"var0 = {m.group(2).strip()};", code)
+        code = code.replace("double var0[2];", "double var0;")
+        code = code.replace("void " + name + "(double * input, double * output)",
+                            "float " + name + "(const float * input)")
+        code = code.replace("memcpy(output, var0, 2 * sizeof(double));", "return var0;")
+    else:
+        code = code.replace("double " + name + "(double * input)", "float " + name + "(const float * input)")
+    if "memcpy" in code or "(double * input" in code:
+        raise ExportError("unexpected m2cgen output; cannot post-process")
+    code = _THRESH.sub(lambda m: m.group(1) + _c_float(f32_floor(float(m.group(2)))), code)
+    code = _NUMBER.sub(lambda m: _c_float(float(m.group(1))), code)
+    code = code.replace("double", "float")
+    return "static " + code.strip() + "\n"
+
+
+def m2cgen_c(models: ModelSet, n_trees: dict[str, int], header: str) -> str:
+    out = [header, '#include "impactsense_models.h"\n\n']
+    for role, forest in (("x", models.x), ("y", models.y), ("energy", models.energy)):
+        classifier = role == "energy"
+        k = n_trees[role]
+        names = []
+        for i, est in enumerate(forest.estimators_[:k]):
+            name = f"{role}_tree_{i}"
+            out.append(m2cgen_tree_c(est, name, classifier))
+            names.append(name)
+        out.append(f"float impactsense_m2c_{role}(const float* input) {{\n  float s = 0.0f;\n")
+        out.extend(f"  s += {n}(input);\n" for n in names)
+        out.append(f"  return s / {float(k):.1f}f;\n}}\n\n")
+    return "".join(out)
+
+
+HEADER_H = """// Generated by `impactsense export`; do not edit. Model: {model_hash}
+#pragma once
+#include <stdint.h>
+
+#define IMPACTSENSE_N_FEATURES {n_features}
+
+#ifdef __cplusplus
+extern "C" {{
+#endif
+
+// Node tables (impactsense_forest_tables.c): same layout as impactapp::ForestTables.
+typedef struct {{
+  int32_t n_trees;
+  const int32_t* roots;
+  const uint8_t* feature;
+  const float* value;
+  const uint16_t* right;
+}} impactsense_forest;
+extern const impactsense_forest impactsense_forest_x;
+extern const impactsense_forest impactsense_forest_y;
+extern const impactsense_forest impactsense_forest_energy;  // leaf value = P(high energy)
+
+// m2cgen, one function per tree, float32 (impactsense_models_m2c.c): the forest means.
+float impactsense_m2c_x(const float* input);
+float impactsense_m2c_y(const float* input);
+float impactsense_m2c_energy(const float* input);  // P(high energy); class 1 when > 0.5
+
+#ifdef __cplusplus
+}}
+#endif
+"""
+
+
+def select_trees(models: ModelSet, X: np.ndarray | None, xy: np.ndarray | None,
+                 tol_mm: float = 0.2) -> tuple[int, list[dict]]:
+    """Smallest prefix of the coordinate forests within tol_mm MAE of the full forests on (X, xy)."""
+    n_all = len(models.x.estimators_)
+    if X is None or len(X) == 0:
+        return n_all, []
+    X = np.asarray(X, dtype=np.float32)
+    px = np.stack([t.predict(X) for t in models.x.estimators_])
+    py = np.stack([t.predict(X) for t in models.y.estimators_])
+    rows = []
+    for k in sorted({k for k in (5, 10, 20, 30, 50, 75, 100, 150, 200, n_all) if k <= n_all}):
+        ex = px[:k].mean(0) - xy[:, 0]
+        ey = py[:k].mean(0) - xy[:, 1]
+        mae = float(np.mean(np.hypot(ex, ey)))
+        rows.append({"trees": k, "mae_mm": mae,
+                     "table_bytes": table_bytes(forest_tables(models.x, k)) + table_bytes(forest_tables(models.y, k))})
+    best = min(r["mae_mm"] for r in rows)
+    chosen = min(r["trees"] for r in rows if r["mae_mm"] <= best + tol_mm)
+    return chosen, rows
+
+
+def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_eval=None,
+                  write_m2cgen: bool = True) -> dict:
+    """Writes the C sources, the emulator's tables and export.json; returns the summary."""
+    models = load_models(model_dir)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    card_bytes = (Path(model_dir) / "model_card.json").read_bytes()
+    model_hash = hashlib.sha256(card_bytes).hexdigest()[:16]
+    sweep = []
+    if trees == "auto":
+        k, sweep = select_trees(models, X_eval, xy_eval)
+    elif trees == "all":
+        k = len(models.x.estimators_)
+    else:
+        k = min(int(trees), len(models.x.estimators_))
+    n_trees = {"x": k, "y": min(k, len(models.y.estimators_)), "energy": len(models.energy.estimators_)}
+    tabs = {"x": forest_tables(models.x, n_trees["x"]), "y": forest_tables(models.y, n_trees["y"]),
+            "energy": forest_tables(models.energy, n_trees["energy"])}
+    head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
+    (out_dir / "impactsense_models.h").write_text(HEADER_H.format(model_hash=model_hash, n_features=models.n_features))
+    (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models.n_features, head))
+    if write_m2cgen:
+        (out_dir / "impactsense_models_m2c.c").write_text(m2cgen_c(models, n_trees, head))
+    np.savez(out_dir / "forest_tables.npz", n_features=models.n_features,
+             **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()})
+    summary = {
+        "model_card_sha256_16": model_hash,
+        "features": models.card.get("features"),
+        "n_features": models.n_features,
+        "trees": n_trees,
+        "nodes": {r: int(t["feature"].size) for r, t in tabs.items()},
+        "table_bytes": {r: table_bytes(t) for r, t in tabs.items()},
+        "table_bytes_total": sum(table_bytes(t) for t in tabs.values()),
+        "flash_budget_bytes": 256 * 1024,
+        "tree_sweep": sweep,
+    }
+    summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
+    (out_dir / "export.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def load_tables(path) -> tuple[dict, dict, dict, int]:
+    """The emulator's copy of the exported tables: (x, y, energy, n_features)."""
+    z = np.load(Path(path))
+    tabs = [{k: z[f"{r}_{k}"] for k in ("roots", "feature", "value", "right")} for r in ("x", "y", "energy")]
+    return tabs[0], tabs[1], tabs[2], int(z["n_features"])
+
+
+def firmware_models(path):
+    """`impactsense._link.ForestModels` from an export folder (or its forest_tables.npz)."""
+    from . import _core  # noqa: F401  (registers CoreConfig for _link)
+    from . import _link
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "forest_tables.npz"
+    if not path.is_file():
+        raise ExportError(f"{path}: no exported forest tables (run `impactsense export`)")
+    x, y, e, n = load_tables(path)
+    return _link.ForestModels({k: v.tolist() for k, v in x.items()}, {k: v.tolist() for k, v in y.items()},
+                              {k: v.tolist() for k, v in e.items()}, n)

@@ -1,0 +1,186 @@
+"""A pseudo-terminal that behaves like the board.
+
+Recorded drops (100 kHz, channels sampled together) are turned into what the SAADC would deliver: each
+channel band-limited, resampled to the board rate and read `c * SCAN_STEP_US` later than channel 0 (the
+scan order), rounded to counts; the frames are fed to the natively compiled firmware app
+(firmware/lib/impactapp via `impactsense._link.App`, with the exported forest tables), and its serial bytes
+go to the pty.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import time
+from fractions import Fraction
+
+import numpy as np
+
+from .. import _core  # noqa: F401
+from .. import _link
+
+
+def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
+                  adc_max: int = 4095) -> np.ndarray:
+    """What the board's SAADC would read: int16 [R, n, 4] interleaved frames of each recording.
+
+    The recording is interpolated (band-limited, polyphase) onto the scan grid, 1/scan_step = 200 kHz, and
+    channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
+    channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
+    above fs/2 is removed: it aliases as it would on the board."""
+    from scipy.signal import resample_poly
+
+    grid_hz = 1e6 / scan_step_us
+    up = Fraction(grid_hz / fs_in_hz).limit_denominator(1000)
+    d = grid_hz / fs_hz
+    if abs(d - round(d)) > 1e-9 or round(d) < 4:
+        raise ValueError(f"board rate {fs_hz} Hz must divide the {grid_hz:.0f} Hz scan grid at least 4 times")
+    d = int(round(d))
+    x = np.asarray(adc, dtype=np.float32)
+    r, _, n = x.shape
+    n_out = (int(n * up) - 3) // d
+    y = np.empty((r, n_out, 4), dtype=np.int16)
+    if up == 2:
+        # Fast path (the rig's 100 kHz onto a 200 kHz grid): even grid points are the recorded samples,
+        # odd ones the half-sample band-limited interpolation (a Kaiser-windowed sinc, 32 taps).
+        from scipy.ndimage import correlate1d
+
+        k = np.arange(-15, 17) - 0.5
+        h = (np.sinc(k) * np.kaiser(k.size, 8.0)).astype(np.float32)
+        h /= h.sum()
+        for c in range(4):
+            g0 = d * np.arange(n_out) + c
+            if g0[0] % 2 == 0 and d % 2 == 0:
+                v = x[:, c, g0 // 2]
+            else:
+                mean = x[:, c, :].mean(axis=1, keepdims=True)
+                half = correlate1d(x[:, c, :] - mean, h, axis=1, mode="nearest", origin=-1) + mean
+                v = np.where(g0 % 2 == 0, x[:, c, np.minimum(g0 // 2, n - 1)], half[:, g0 // 2])
+            y[:, :, c] = np.clip(np.rint(v), 0, adc_max)
+        return y
+    mean = x.mean(axis=2, keepdims=True)
+    g = resample_poly(x - mean, up.numerator, up.denominator, axis=2) + mean if up != 1 else x
+    for c in range(4):
+        y[:, :, c] = np.clip(np.rint(g[:, c, c::d][:, :n_out]), 0, adc_max)
+    return y
+
+
+def app_config(rig, fs_hz: int = 50000, **extra) -> dict:
+    cfg = {"fs_hz": int(fs_hz), "sensor_x_mm": rig.sensor_x_mm.tolist(), "sensor_y_mm": rig.sensor_y_mm.tolist(),
+           "plate_x_mm": rig.plate_x_mm, "plate_y_mm": rig.plate_y_mm, "adc_max": rig.adc_max}
+    cfg.update(extra)
+    return cfg
+
+
+class Emulator:
+    """The firmware app over a session's recordings, as a byte stream."""
+
+    def __init__(self, session, models=None, fs_hz: int = 50000, **config):
+        self.session = session
+        self.fs_hz = int(fs_hz)
+        self.app = _link.App(app_config(session.rig, fs_hz, **config), models)
+        self._frames = None
+
+    @property
+    def frames(self) -> np.ndarray:
+        if self._frames is None:
+            self._frames = board_samples(self.session.adc, self.session.rig.fs_hz, self.fs_hz,
+                                         adc_max=self.session.rig.adc_max)
+        return self._frames
+
+    def drops(self):
+        """(index, bytes) per recording: the serial output while that recording's frames were fed."""
+        for i in range(self.frames.shape[0]):
+            yield i, self.app.feed(self.frames[i])
+
+    def real_time_s(self) -> float:
+        return self.frames.shape[0] * self.frames.shape[1] / self.fs_hz
+
+
+def _probe_client(master: int) -> bytes | None:
+    """None while no client has the pty open (reads fail with EIO); else what the client already sent."""
+    try:
+        return os.read(master, 4096)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        if exc.errno == errno.EIO:
+            return None
+        raise
+
+
+def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_timeout_s: float = 600.0) -> int:
+    """Opens a pty, announces its path, waits for a client, streams every drop, closes. Returns the number of
+    bytes written."""
+    import fcntl
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    os.close(slave)
+    fl = fcntl.fcntl(master, fcntl.F_GETFL)
+    fcntl.fcntl(master, fcntl.F_SETFL, fl | os.O_NONBLOCK)
+    frames = emulator.frames  # resample before announcing, so the client never waits on it
+    announce(path)
+    t_end = time.monotonic() + connect_timeout_s
+    pending = _probe_client(master)
+    while pending is None:
+        if time.monotonic() > t_end:
+            os.close(master)
+            return 0
+        time.sleep(0.01)
+        pending = _probe_client(master)
+    time.sleep(0.05)  # let the client finish configuring the port and send its first commands
+    written = 0
+    t0 = time.monotonic()
+    per_drop_s = frames.shape[1] / emulator.fs_hz
+    try:
+        for i in range(frames.shape[0]):
+            try:
+                cmd = pending + os.read(master, 4096)
+            except BlockingIOError:
+                cmd = pending
+            pending = b""
+            out = emulator.app.rx(cmd) if cmd else b""
+            out += emulator.app.feed(frames[i])
+            _write_all(master, out)
+            written += len(out)
+            if speed and speed > 0:
+                lag = t0 + (i + 1) * per_drop_s / speed - time.monotonic()
+                if lag > 0:
+                    time.sleep(lag)
+        _drain(master)
+    except OSError as exc:
+        if exc.errno != errno.EIO:  # EIO: the client went away
+            raise
+    finally:
+        os.close(master)
+    return written
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    import select
+
+    view = memoryview(data)
+    while view:
+        try:
+            n = os.write(fd, view)
+            view = view[n:]
+        except BlockingIOError:
+            select.select([], [fd], [], 0.1)
+
+
+def _drain(master: int, timeout_s: float = 10.0) -> None:
+    """Waits until the client has read what was written (the pty's queue is empty)."""
+    import fcntl
+    import struct
+    import termios
+
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        buf = fcntl.ioctl(master, termios.TIOCOUTQ, struct.pack("i", 0))
+        if struct.unpack("i", buf)[0] == 0:
+            break
+        time.sleep(0.01)
+    time.sleep(0.1)

@@ -1,0 +1,104 @@
+"""Live reports from a board (or the emulator): a transport, the C++ decoder, a table or JSON lines."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+from . import protocol
+from .transport import PortClosed, read_some
+
+
+class Monitor:
+    """Reads frames from a transport; keeps counts of errors and sequence gaps."""
+
+    def __init__(self, port):
+        self.port = port
+        self.decoder = protocol.Decoder()
+        self.seq = protocol.SeqTracker()
+        self.reports = 0
+
+    def frames(self, idle_timeout_s: float | None = None):
+        """Yields decoded frames (dicts, see `_link.Decoder.feed`) until the port closes."""
+        last = time.monotonic()
+        while True:
+            try:
+                data = read_some(self.port)
+            except PortClosed:
+                return
+            if data:
+                last = time.monotonic()
+                for frame in self.decoder.feed(data):
+                    if frame["kind"] == "report":
+                        self.reports += 1
+                        self.seq.update(frame["report"]["seq"])
+                    yield frame
+            elif idle_timeout_s is not None and time.monotonic() - last > idle_timeout_s:
+                return
+
+    def counters(self) -> dict:
+        s = dict(self.decoder.stats)
+        s.update(reports=self.reports, seq_gaps=self.seq.gaps, lost_reports=self.seq.lost)
+        return s
+
+
+def report_json(r: dict) -> str:
+    d = dict(r)
+    if isinstance(d.get("uncertainty_mm"), float) and math.isnan(d["uncertainty_mm"]):
+        d["uncertainty_mm"] = None
+    for k in ("x_mm", "y_mm", "uncertainty_mm"):
+        if d.get(k) is not None:
+            d[k] = round(float(d[k]), 1)
+    return json.dumps(d, sort_keys=True)
+
+
+def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.stdout, err=sys.stderr,
+        idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30) -> dict:
+    """Prints reports until the port closes (and, with reconnect, re-opens it). Returns the counters."""
+    totals: dict = {}
+    retries = 0
+    header_done = False
+    while True:
+        try:
+            port = open_port()
+        except Exception as exc:  # noqa: BLE001  (any open failure: retry or give up)
+            if reconnect and retries < max_retries:
+                retries += 1
+                time.sleep(retry_s)
+                continue
+            print(f"monitor: cannot open the port: {exc}", file=err)
+            break
+        retries = 0
+        mon = Monitor(port)
+        try:
+            for frame in mon.frames(idle_timeout_s):
+                if frame["kind"] != "report":
+                    continue
+                r = frame["report"]
+                if json_lines:
+                    print(report_json(r), file=out, flush=True)
+                else:
+                    if not header_done:
+                        print(f"{'seq':>6} {'t_ms':>9} {'x_mm':>7} {'y_mm':>7} {'±mm':>6} {'E':>2} "
+                              f"{'order':>5} {'acc':>3} clip dead", file=out)
+                        header_done = True
+                    order = "".join(str(c) for c in r["order"])
+                    print(f"{r['seq']:>6} {r['timestamp_ms']:>9} {r['x_mm']:>7.1f} {r['y_mm']:>7.1f} "
+                          f"{r['uncertainty_mm']:>6.1f} {r['energy_class']:>2} {order:>5} "
+                          f"{'y' if r['accepted'] else 'n':>3} {r['clipped']:04b} {r['dead']:04b}",
+                          file=out, flush=True)
+        finally:
+            try:
+                port.close()
+            except Exception:  # noqa: BLE001
+                pass
+        for k, v in mon.counters().items():
+            totals[k] = totals.get(k, 0) + v
+        if not reconnect:
+            break
+        print("monitor: port closed; reconnecting", file=err)
+        time.sleep(retry_s)
+    print("monitor: " + ", ".join(f"{k}={v}" for k, v in totals.items()), file=err)
+    return totals
