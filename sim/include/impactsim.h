@@ -1,4 +1,109 @@
+// impactsim: explicit finite-element dynamics of a rectangular Mindlin-Reissner plate struck by a rigid
+// Hertzian ball, sensed by surface-bonded PZT discs.
+//
+// Pieces (each a named part of the code, see method.md):
+//   Mesh       structured nx x ny grid of 4-node rectangles, node (i, j) at (i*hx_m, j*hy_m), row-major.
+//   Element    MITC4 Mindlin-Reissner quad: bilinear w, beta_x, beta_y (u = z beta_x, v = z beta_y);
+//              bending integrated exactly (2x2 Gauss, written as centre + hourglass terms), transverse shear
+//              by assumed natural strains tied at edge midpoints (MITC4), so no shear locking and no
+//              spurious zero-energy modes.
+//   Mass       lumped: translational mass_w, rotary mass_r per node (may include disc mass / scaling).
+//   Stepper    central differences with mass-proportional damping: a = M^-1 (P - F) - D_s v.
+//   Contact    rigid sphere, Hertz F = k delta^1.5, delta = z_ball - w(x_c); bilinear load distribution.
+//   Sensors    linear functionals of the rotations (disc-averaged surface strain, Python builds weights);
+//              output sampled on a record grid with hat (linear B-spline) weights.
 #pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
 namespace impactsim {
+
 int version();
-}
+
+using Real = float;  // state precision (vectorised); energies and outputs are accumulated in double
+
+struct PlateSpec {
+  int nx = 0, ny = 0;                // elements along x and y
+  double hx_m = 0, hy_m = 0;         // element size
+  double nu = 0.3;                   // Poisson ratio (bending)
+  std::vector<double> d_elem;        // bending stiffness D per element [N m] (size nx*ny)
+  std::vector<double> s_elem;        // shear stiffness kappa G t per element [N/m] (size nx*ny)
+  std::vector<double> mass_w;        // lumped translational mass per node [kg]
+  std::vector<double> mass_r;        // lumped rotary inertia per node [kg m^2]
+  std::vector<uint8_t> fix_w, fix_bx, fix_by;  // 1 = dof held at zero (size nodes)
+  double damping_per_s = 0;          // D_s
+};
+
+// A sparse linear functional over the rotation dofs: value = sum wx[k] beta_x[node[k]] + wy[k] beta_y[node[k]].
+struct Functional {
+  std::vector<int64_t> node;
+  std::vector<double> wx, wy;
+};
+
+struct Ball {
+  bool enabled = false;
+  double x_m = 0, y_m = 0;       // contact point
+  double mass_kg = 0;
+  double k_hertz = 0;            // F = k delta^1.5 [N / m^1.5]
+  double v0_m_s = 0;             // velocity at first touch (into the plate)
+  double g_m_s2 = 9.81;
+};
+
+struct RunConfig {
+  double dt_s = 0;
+  int64_t n_steps = 0;
+  int record_every = 1;          // record grid spacing in steps (Delta = record_every * dt)
+  int64_t n_record = 0;          // record samples (hat weights centred on q * Delta, q = 0..n_record-1)
+  Ball ball;
+  // Prescribed load: load_functional (as forces/moments on beta dofs) times the hat phi_1(t) of unit peak
+  // centred at t = Delta (reciprocity runs).
+  bool hat_load = false;
+  Functional load;
+  std::vector<Functional> sensors;  // recorded on the record grid
+  bool record_field = false;        // record w of every node on the record grid (reciprocity)
+  bool record_energy = false;       // energy at each record sample
+  bool stop_after_contact = false;  // contact-window mode: stop once the ball has clearly left
+  double quiet_after_contact_s = 100e-6;
+  int nan_check_every = 50;
+  // initial state (optional; empty = at rest)
+  std::vector<double> w0, bx0, by0, vw0, vbx0, vby0;
+};
+
+struct RunResult {
+  int64_t steps_done = 0;
+  std::vector<double> sensors;      // [n_sensors * n_record]
+  std::vector<float> field;         // [n_record * nodes]
+  std::vector<double> force_n;      // contact force per step
+  std::vector<double> energy;       // [n_record * 4]: plate kinetic, plate strain, ball kinetic, contact
+  double ball_z_m = 0, ball_v_m_s = 0;
+  double contact_start_s = -1, contact_end_s = -1;
+  int contacts = 0;                 // number of separate touches
+  std::vector<double> w, bx, by;    // final displacement state
+};
+
+class Plate {
+ public:
+  explicit Plate(PlateSpec spec);
+  const PlateSpec& spec() const { return s_; }
+  int64_t nodes() const { return static_cast<int64_t>(s_.nx + 1) * (s_.ny + 1); }
+  int64_t elements() const { return static_cast<int64_t>(s_.nx) * s_.ny; }
+
+  // f = K u (internal nodal forces), boundary conditions not applied (fixed dofs are handled by the stepper).
+  void internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx, Real* fby) const;
+  double strain_energy(const Real* w, const Real* bx, const Real* by) const;
+
+  RunResult run(const RunConfig& cfg) const;
+
+ private:
+  PlateSpec s_;
+  std::vector<Real> de_, se_;   // per element D and kappa G t (float copies)
+  std::vector<Real> inv_mw_, inv_mr_;  // 0 at fixed dofs
+};
+
+// 12 x 12 stiffness of one element (dof order: node-major w, bx, by for nodes 1..4 counter-clockwise from
+// (-,-)), built by probing the same kernel the stepper uses.
+std::vector<double> element_stiffness(double hx_m, double hy_m, double d, double nu, double s);
+
+}  // namespace impactsim

@@ -1,0 +1,254 @@
+"""From (SimParams, Rig) to a ready-to-step finite-element model: mesh (Eq. 1), masses, supports, disc
+sensing functionals, Hertz constant and time step (Eq. 2 + stability). All SI inside; `_mm`/`_us` at the edges.
+
+Sensing law (open circuit, thin disc perfectly bonded to the plate's top surface, strain-charge form of
+method.md): the disc takes the plate's in-plane surface strain S1, S2; with E3 small compared to the
+strain-driven stress (first order in the coupling), sigma1 + sigma2 = E11 (S1 + S2) / (1 - nu12), and
+open circuit (integral of D3 over the electrode = 0) gives E3 = -d31 (sigma1 + sigma2) / eps33, so
+    U = -E3 t_p = t_p d31 E11 / ((1 - nu12) eps33) * <S1 + S2>_disc,      S1 + S2 = z_s (beta_x,x + beta_y,y)
+at the bonded surface z_s = -t/2 (w and z point into the plate, away from the ball). The fully coupled
+law divides by (1 - k_p^2), k_p^2 = 2 d31^2 / ((s11 + s12) eps33); it is not used because the
+calibration box (d31 up to -800 pC/N, eps33 down to 500) makes k_p^2 > 1, i.e. non-physical.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import _sim
+from ..errors import ConfigError
+from . import dispersion
+from .params import SimParams
+
+EPS0 = 8.8541878128e-12
+
+
+def hertz_k(params: SimParams, ball_radius_m: float) -> float:
+    """Hertz constant k of F = k delta^1.5 for the ball on the plate (both materials elastic)."""
+    e_star = 1.0 / ((1 - params.nu ** 2) / params.e_pa + (1 - params.ball_nu ** 2) / params.ball_e_pa)
+    return 4.0 / 3.0 * e_star * math.sqrt(ball_radius_m)
+
+
+def hertz_duration_s(k: float, mass_kg: float, v_m_s: float) -> float:
+    """Contact duration of a sphere on a rigid-backed elastic half space: 2.94 delta_max / v (Hertz)."""
+    delta_max = (5 * mass_kg * v_m_s ** 2 / (4 * k)) ** 0.4
+    return 2.9432 * delta_max / v_m_s
+
+
+def impact_velocity(params: SimParams, height_mm) -> np.ndarray:
+    return np.sqrt(2 * params.g_m_s2 * np.asarray(height_mm, float) * 1e-3)
+
+
+@dataclass
+class Model:
+    params: SimParams
+    plate: object            # _sim.Plate
+    nx: int
+    ny: int
+    hx_m: float
+    hy_m: float
+    lx_m: float
+    ly_m: float
+    dt_s: float
+    dt_crit_s: float
+    record_every: int        # steps per ADC sample
+    n_record: int            # simulated samples after the impact
+    sensors: list            # functionals (node, wx, wy), output in volts
+    sensor_xy_m: np.ndarray
+    disc_radius_m: float
+    ball_radius_m: float
+    ball_mass_kg: float
+    k_hertz: float
+    f_max_hz: float
+    fs_hz: float
+
+    @property
+    def nodes(self) -> int:
+        return (self.nx + 1) * (self.ny + 1)
+
+    @property
+    def elements(self) -> int:
+        return self.nx * self.ny
+
+    def node_xy_m(self):
+        x = np.arange(self.nx + 1) * self.hx_m
+        y = np.arange(self.ny + 1) * self.hy_m
+        return np.meshgrid(x, y)  # [ny+1, nx+1]
+
+    def bilinear(self, x_m: float, y_m: float):
+        """Nodes and weights of a point (the same interpolation the contact uses)."""
+        i = min(int(x_m / self.hx_m), self.nx - 1)
+        j = min(int(y_m / self.hy_m), self.ny - 1)
+        xi, eta = x_m / self.hx_m - i, y_m / self.hy_m - j
+        r = self.nx + 1
+        nodes = np.array([j * r + i, j * r + i + 1, (j + 1) * r + i + 1, (j + 1) * r + i])
+        wts = np.array([(1 - xi) * (1 - eta), xi * (1 - eta), xi * eta, (1 - xi) * eta])
+        return nodes, wts
+
+    def describe(self) -> dict:
+        return dict(nx=self.nx, ny=self.ny, element_mm=(self.hx_m * 1e3, self.hy_m * 1e3),
+                    elements=self.elements, nodes=self.nodes, dt_us=self.dt_s * 1e6,
+                    dt_crit_us=self.dt_crit_s * 1e6, f_max_hz=self.f_max_hz, record_every=self.record_every,
+                    n_record=self.n_record)
+
+
+def plate_constants(p: SimParams):
+    t = p.thickness_mm * 1e-3
+    g = p.e_pa / (2 * (1 + p.nu))
+    d = p.e_pa * t ** 3 / (12 * (1 - p.nu ** 2))
+    s = p.shear_factor * g * t
+    return t, d, s
+
+
+def element_dt_crit(hx, hy, d, nu, s, m_node, i_node) -> float:
+    """Stability limit 2 / omega_max with omega_max from the element eigenproblem (an upper bound on the
+    assembled one for lumped mass: Irons' theorem), i.e. a conservative dt."""
+    k = np.asarray(_sim.element_stiffness(hx, hy, d, nu, s), float)
+    m = np.tile([m_node, i_node, i_node], 4)
+    lam = np.linalg.eigvalsh(k / np.sqrt(np.outer(m, m)))
+    return 2.0 / math.sqrt(lam.max())
+
+
+def _disc_fraction(model_h, centre, radius, n_sub=8):
+    """Area fraction of each element inside a disc (sub-cell sampling), as a sparse dict {(i, j): frac}."""
+    hx, hy, nx, ny = model_h
+    cx, cy = centre
+    i0, i1 = max(int((cx - radius) / hx), 0), min(int((cx + radius) / hx) + 1, nx)
+    j0, j1 = max(int((cy - radius) / hy), 0), min(int((cy + radius) / hy) + 1, ny)
+    sub = (np.arange(n_sub) + 0.5) / n_sub
+    out = {}
+    for j in range(j0, j1):
+        for i in range(i0, i1):
+            xs = (i + sub) * hx
+            ys = (j + sub) * hy
+            xx, yy = np.meshgrid(xs, ys)
+            frac = np.mean((xx - cx) ** 2 + (yy - cy) ** 2 <= radius ** 2)
+            if frac > 0:
+                out[(i, j)] = float(frac)
+    return out
+
+
+def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> Model:
+    p = params
+    lx, ly = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3
+    t, d, s = plate_constants(p)
+    rho = p.rho_kg_m3
+    fs = float(rig.fs_hz)
+    ball_r = rig.ball_diameter_mm * 0.5e-3
+    ball_m = rig.ball_mass_g * 1e-3
+    k = hertz_k(p, ball_r)
+    disc_r = rig.sensor_diameter_mm * 0.5e-3
+
+    # Eq. 1: element size from the shortest A0 wavelength in the contact's spectrum
+    if p.f_max_hz is not None:
+        f_max = float(p.f_max_hz)
+    else:
+        tc = hertz_duration_s(k, ball_m, float(impact_velocity(p, p.max_height_mm)))
+        f_max = 2.0 / tc
+    if p.element_mm is not None:
+        le = p.element_mm * 1e-3
+    else:
+        le = float(dispersion.a0_wavelength(f_max, p.e_pa, p.nu, rho, t, p.shear_factor)) / 10
+    nx, ny = max(int(math.ceil(lx / le - 1e-9)), 2), max(int(math.ceil(ly / le - 1e-9)), 2)
+    hx, hy = lx / nx, ly / ny
+    if nx * ny > 4_000_000:
+        raise ConfigError(f"mesh of {nx} x {ny} elements is too large (element_mm = {le * 1e3:.3g})")
+
+    # per-element stiffness; discs add their bending stiffness about the plate's mid-plane
+    d_elem = np.full((ny, nx), d)
+    s_elem = np.full((ny, nx), s)
+    tp = p.pzt_thickness_mm * 1e-3
+    e11 = p.pzt_e11_mpa * 1e6
+    d_disc = e11 / (1 - p.pzt_nu12 ** 2) * ((t / 2 + tp) ** 3 - (t / 2) ** 3) / 3
+    sensors_xy = np.asarray(rig.sensor_xy_mm, float) * 1e-3
+    fractions = [_disc_fraction((hx, hy, nx, ny), c, disc_r) for c in sensors_xy]
+    if p.disc_stiffness:
+        for fr in fractions:
+            for (i, j), f in fr.items():
+                d_elem[j, i] += f * d_disc
+
+    # lumped masses: a quarter of each element's mass to each of its nodes
+    area_node = np.zeros((ny + 1, nx + 1))
+    area_node[:-1, :-1] += 0.25
+    area_node[1:, :-1] += 0.25
+    area_node[:-1, 1:] += 0.25
+    area_node[1:, 1:] += 0.25
+    area_node *= hx * hy
+    i_rot = rho * t ** 3 / 12 * p.rotary_inertia_scale
+    mass_w = rho * t * area_node
+    mass_r = i_rot * area_node
+    if p.disc_mass:
+        mp = p.pzt_rho_kg_m3 * tp
+        ip = mp * (t / 2 + tp / 2) ** 2
+        for fr in fractions:
+            for (i, j), f in fr.items():
+                for dj in (0, 1):
+                    for di in (0, 1):
+                        mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
+                        mass_r[j + dj, i + di] += 0.25 * f * hx * hy * ip
+
+    # supports
+    fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
+    fix_bx = np.zeros_like(fix_w)
+    fix_by = np.zeros_like(fix_w)
+    if p.support in ("simply_supported", "clamped"):
+        for a in (fix_w,):
+            a[0, :] = a[-1, :] = 1
+            a[:, 0] = a[:, -1] = 1
+        # hard simple support: rotation about the edge's normal (the tangential slope) held
+        fix_by[:, 0] = fix_by[:, -1] = 1   # edges x = 0, Lx: w,y = 0 along them
+        fix_bx[0, :] = fix_bx[-1, :] = 1   # edges y = 0, Ly
+    if p.support == "clamped":
+        fix_bx[:, 0] = fix_bx[:, -1] = 1
+        fix_by[0, :] = fix_by[-1, :] = 1
+
+    # time step: stability (element bound, stiffest element type) and Eq. 2, snapped to divide 1/fs
+    q = hx * hy / 4
+    dt_crit = element_dt_crit(hx, hy, d, p.nu, s, rho * t * q, i_rot * q)
+    if p.disc_stiffness and any(fractions):  # a fully covered element, with the disc's mass if modelled
+        mp, ip = (p.pzt_rho_kg_m3 * tp, p.pzt_rho_kg_m3 * tp * (t / 2 + tp / 2) ** 2) if p.disc_mass else (0, 0)
+        dt_crit = min(dt_crit, element_dt_crit(hx, hy, d + d_disc, p.nu, s, (rho * t + mp) * q, (i_rot + ip) * q))
+    dt_eq2 = 1.0 / (20 * f_max)
+    t_sample = 1.0 / fs
+    if p.dt_us is not None:
+        dt_req = p.dt_us * 1e-6
+        if dt_req > dt_crit:
+            raise ConfigError(f"dt_us = {p.dt_us:g} is above the stability limit {dt_crit * 1e6:.4g} us "
+                              f"for this mesh ({hx * 1e3:.3g} x {hy * 1e3:.3g} mm elements)")
+    else:
+        dt_req = min(p.cfl_safety * dt_crit, dt_eq2)
+    m = max(int(math.ceil(t_sample / dt_req - 1e-9)), 1)
+    dt = t_sample / m
+
+    dur = (p.duration_ms if duration_ms is None else duration_ms) * 1e-3
+    n_record = int(round(dur * fs))
+
+    # sensing functionals: U = C <beta_x,x + beta_y,y>_disc, gradients at element centres
+    z_s = -t / 2
+    c_volt = tp * (p.pzt_d31_pc_n * 1e-12) * e11 / ((1 - p.pzt_nu12) * p.pzt_eps33_rel * EPS0) * z_s
+    r = nx + 1
+    sensors = []
+    for fr in fractions:
+        a_disc = sum(fr.values()) * hx * hy
+        acc: dict[int, list] = {}
+        for (i, j), f in fr.items():
+            wgt = c_volt * f * hx * hy / a_disc
+            n1, n2, n3, n4 = j * r + i, j * r + i + 1, (j + 1) * r + i + 1, (j + 1) * r + i
+            # beta_x,x = (-b1 + b2 + b3 - b4) / (2 hx); beta_y,y = (-b1 - b2 + b3 + b4) / (2 hy)
+            for node, sx, sy in ((n1, -1, -1), (n2, 1, -1), (n3, 1, 1), (n4, -1, 1)):
+                e = acc.setdefault(node, [0.0, 0.0])
+                e[0] += wgt * sx / (2 * hx)
+                e[1] += wgt * sy / (2 * hy)
+        nodes = np.array(sorted(acc), dtype=np.int64)
+        sensors.append((nodes, np.array([acc[k][0] for k in nodes]), np.array([acc[k][1] for k in nodes])))
+
+    plate = _sim.Plate(nx, ny, hx, hy, p.nu, np.ascontiguousarray(d_elem.ravel()),
+                       np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
+                       fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s)
+    return Model(params=p, plate=plate, nx=nx, ny=ny, hx_m=hx, hy_m=hy, lx_m=lx, ly_m=ly, dt_s=dt,
+                 dt_crit_s=dt_crit, record_every=m, n_record=n_record, sensors=sensors,
+                 sensor_xy_m=sensors_xy, disc_radius_m=disc_r, ball_radius_m=ball_r, ball_mass_kg=ball_m,
+                 k_hertz=k, f_max_hz=f_max, fs_hz=fs)

@@ -1,0 +1,197 @@
+"""`SimParams`: every number the simulator needs that is not rig geometry, in one JSON.
+
+Geometry (plate size, sensor centres, disc diameter, ball size and mass, sampling rate, ADC) always comes from
+the rig (`impactsense.data.Rig`); `SimParams.from_rig` also copies the plate's density, thickness and support.
+
+Defaults (documented, see method.md):
+- plate: PMMA, E = 5000 MPa, nu = 0.32 (the seed's calibrated values), rho and t from the rig (1157 kg/m3,
+  4.2 mm), Mindlin shear factor kappa = pi^2/12; support "simply_supported" (the rig's plate rests on a
+  rubber rim: its edges cannot lift against the ball's load on the first arrivals we use, and they rotate
+  freely). Also "free" and "clamped".
+- PZT block: the seed's fitted disc (E11 75200, E33 55200, G12 24800, G13 24900 MPa, nu12 0.30, nu13 0.34,
+  rho 7531.4, eps11 3875.5, eps33 6320.2 relative, d15 50, d31 -737.8, d33 793 pC/N), ceramic 0.25 mm thick.
+  The open-circuit disc is modelled by the thin-disc sensing law (see `model.py`): only d31, eps33, E11,
+  nu12, rho and the thickness enter it; the other constants are carried for calibration and the record.
+- damping D_s = 1086 1/s (seed), mass proportional.
+- circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
+  ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
+- ball: steel E = 210 GPa, nu = 0.30.
+- numerics: element size by Eq. 1 (L_e = lambda_A0(f_max) / 10, f_max = 2 / T_contact of a Hertz impact
+  from `max_height_mm` on a rigid-backed half space of the plate material: the force spectrum is > 20 dB down
+  there), dt by Eq. 2 and the element stability bound (safety 0.9), snapped to divide the ADC period;
+  6 ms simulated after the impact (99 % of the measured energy arrives within it), impact at sample 200.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from ..errors import ConfigError
+
+FORMAT = "impactsense-sim-params"
+SUPPORTS = ("free", "simply_supported", "clamped")
+METHODS = ("fast", "direct")
+
+
+@dataclass(frozen=True)
+class SimParams:
+    # plate
+    e_pa: float = 5.0e9
+    nu: float = 0.32
+    rho_kg_m3: float = 1157.0
+    thickness_mm: float = 4.2
+    support: str = "simply_supported"
+    shear_factor: float = math.pi ** 2 / 12
+    damping_per_s: float = 1086.0          # D_s
+    # PZT disc (method.md block; relative permittivities, pC/N, MPa)
+    pzt_rho_kg_m3: float = 7531.4
+    pzt_e11_mpa: float = 75200.0
+    pzt_e33_mpa: float = 55200.0
+    pzt_nu12: float = 0.30
+    pzt_nu13: float = 0.34
+    pzt_g12_mpa: float = 24800.0
+    pzt_g13_mpa: float = 24900.0
+    pzt_d15_pc_n: float = 50.0
+    pzt_d31_pc_n: float = -737.8
+    pzt_d33_pc_n: float = 793.0
+    pzt_eps11_rel: float = 3875.5
+    pzt_eps33_rel: float = 6320.2
+    pzt_thickness_mm: float = 0.25
+    disc_mass: bool = True                 # add the ceramic's mass under each disc
+    disc_stiffness: bool = True            # add the ceramic's bending stiffness under each disc
+    circuit_gain: float = 0.04             # ADC-input volts per disc volt (sign = wiring); fitted to session-1 peaks
+    # ball
+    ball_e_pa: float = 210e9
+    ball_nu: float = 0.30
+    g_m_s2: float = 9.80665
+    # numerics
+    element_mm: float | None = None        # None: Eq. 1
+    f_max_hz: float | None = None          # None: from the Hertz contact at max_height_mm
+    max_height_mm: float = 200.0
+    dt_us: float | None = None             # None: Eq. 2 and stability (snapped to divide 1/fs)
+    cfl_safety: float = 0.9
+    rotary_inertia_scale: float = 1.0      # > 1 raises the stable dt (mass scaling); 1 = physical
+    duration_ms: float = 6.0               # simulated time after the first touch
+    taper_ms: float = 1.0                  # raised-cosine fade at the end of the simulated window
+    contact_window_ms: float = 2.0         # fast path: longest direct contact solve
+    pretrigger_samples: int = 200          # record sample of the first touch
+    noise_counts_rms: float = 1.5          # used only when noise is asked for
+    method: str = "fast"                   # "fast" (reciprocity) or "direct"
+
+    # ---- construction -------------------------------------------------------------------------------
+    def __post_init__(self):
+        self.validate()
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+    @classmethod
+    def from_dict(cls, raw: dict, where: str = "sim params") -> "SimParams":
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{where}: must be a JSON object")
+        raw = {k: v for k, v in raw.items() if k not in ("format", "version")}
+        unknown = sorted(set(raw) - set(cls.field_names()))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; known: {cls.field_names()}")
+        try:
+            return cls(**raw)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        except TypeError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> "SimParams":
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"{path}: file not found")
+        try:
+            raw = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+        if isinstance(raw, dict) and "sim_params" in raw and isinstance(raw["sim_params"], dict):
+            raw = raw["sim_params"]  # a calibration file
+        return cls.from_dict(raw, str(path))
+
+    @classmethod
+    def from_rig(cls, rig, **overrides) -> "SimParams":
+        """Defaults with the rig's plate density, thickness and support."""
+        text = str(getattr(rig, "plate_support", "")).lower()
+        if "clamp" in text:
+            support = "clamped"
+        elif "free" in text or "suspend" in text:
+            support = "free"
+        else:  # resting on a rim / simply supported
+            support = "simply_supported"
+        base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support)
+        base.update(overrides)
+        return cls.from_dict(base, "SimParams.from_rig")
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "version": 1, **dataclasses.asdict(self)}
+
+    def to_json(self, path: str | os.PathLike) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1))
+        return path
+
+    def replace(self, **changes) -> "SimParams":
+        return dataclasses.replace(self, **changes)
+
+    # ---- validation ---------------------------------------------------------------------------------
+    def validate(self) -> None:
+        def num(name, lo=None, hi=None, lo_open=True, hi_open=True, allow_none=False):
+            v = getattr(self, name)
+            if v is None and allow_none:
+                return
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"{name} must be a finite number, got {v!r}")
+            if lo is not None and (v <= lo if lo_open else v < lo):
+                raise ConfigError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {v!r}")
+            if hi is not None and (v >= hi if hi_open else v > hi):
+                raise ConfigError(f"{name} must be {'<' if hi_open else '<='} {hi}, got {v!r}")
+
+        num("e_pa", 0)
+        num("nu", -1, 0.5)
+        num("rho_kg_m3", 0)
+        num("thickness_mm", 0)
+        num("shear_factor", 0, 1, hi_open=False)
+        num("damping_per_s", 0, lo_open=False)
+        for name in ("pzt_rho_kg_m3", "pzt_e11_mpa", "pzt_e33_mpa", "pzt_g12_mpa", "pzt_g13_mpa",
+                     "pzt_eps11_rel", "pzt_eps33_rel", "pzt_thickness_mm"):
+            num(name, 0)
+        num("pzt_nu12", -1, 0.5)
+        num("pzt_nu13", -1, 0.5)
+        for name in ("pzt_d15_pc_n", "pzt_d31_pc_n", "pzt_d33_pc_n", "circuit_gain"):
+            num(name)
+        num("ball_e_pa", 0)
+        num("ball_nu", -1, 0.5)
+        num("g_m_s2", 0, lo_open=False)
+        num("element_mm", 0, allow_none=True)
+        num("f_max_hz", 0, allow_none=True)
+        num("max_height_mm", 0)
+        num("dt_us", 0, allow_none=True)
+        num("cfl_safety", 0, 1, hi_open=False)
+        num("rotary_inertia_scale", 1, lo_open=False)
+        num("duration_ms", 0)
+        num("taper_ms", 0, lo_open=False)
+        num("contact_window_ms", 0)
+        num("noise_counts_rms", 0, lo_open=False)
+        if self.taper_ms >= self.duration_ms:
+            raise ConfigError(f"taper_ms ({self.taper_ms}) must be shorter than duration_ms ({self.duration_ms})")
+        if isinstance(self.pretrigger_samples, bool) or not isinstance(self.pretrigger_samples, int) \
+                or self.pretrigger_samples < 0:
+            raise ConfigError(f"pretrigger_samples must be an integer >= 0, got {self.pretrigger_samples!r}")
+        if self.support not in SUPPORTS:
+            raise ConfigError(f"support must be one of {SUPPORTS}, got {self.support!r}")
+        if self.method not in METHODS:
+            raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
+        for name in ("disc_mass", "disc_stiffness"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be true or false")

@@ -1,0 +1,212 @@
+"""Simulated drops: the ball, the plate and the four discs, to raw ADC counts like the rig records.
+
+Two paths behind one API (`SimParams.method`):
+- "direct": one explicit run per drop with the ball, the plate and the discs stepped together for the whole
+  record window.
+- "fast" (default, for data sets): the plate is linear, so the disc voltage is V_s(t) = (g_s(x, .) * F)(t)
+  with g_s(x, t) the voltage of disc s for a force at x. By reciprocity (K, M and the mass-proportional
+  damping are symmetric) g_s(x, t) is the plate displacement at x when disc s's sensing functional is
+  applied as a load: ONE run per disc gives g_s at every node. The force F(t) needs the local plate response,
+  so each drop still runs the ball on the plate, but only for the contact window (until the ball has left for
+  longer than the contact lasted, <= contact_window_ms), then V = sum_q F(q dT) g_s(x, t - (q - 1) dT)
+  with F expanded in hat functions on the ADC grid dT (the reciprocal run is driven by that hat). This is
+  exact for the discrete model up to the piecewise-linear expansion of F; a touch after the window is lost.
+Both paths sample the voltage with hat weights on the ADC grid (a linear-B-spline average, a 1.5 %
+attenuation at 20 kHz for 100 kHz sampling).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..errors import ConfigError, ImpactSenseError
+from .model import Model, build_model, impact_velocity
+from .params import SimParams
+
+
+class SimulationError(ImpactSenseError, RuntimeError):
+    """The explicit integration failed (NaN/Inf blow-up); the message names the step."""
+
+
+_CACHE_LOCK = threading.Lock()
+_CACHE: dict = {}
+
+
+def _rig_key(rig) -> tuple:
+    return (rig.plate_x_mm, rig.plate_y_mm, rig.sensor_diameter_mm, tuple(map(tuple, rig.sensor_xy_mm.tolist())),
+            rig.ball_diameter_mm, rig.ball_mass_g, rig.fs_hz, rig.samples)
+
+
+def get_model(params: SimParams, rig) -> Model:
+    """The model for (params, rig), cached (one entry: the latest) with its reciprocal fields."""
+    key = (params, _rig_key(rig))
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            return _CACHE[key]
+    model = build_model(params, rig)
+    with _CACHE_LOCK:
+        _CACHE.clear()
+        _CACHE[key] = model
+    return model
+
+
+def _run(model: Model, **kw) -> dict:
+    try:
+        return model.plate.run(**kw)
+    except RuntimeError as exc:
+        raise SimulationError(str(exc)) from None
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def check_impacts(rig, params: SimParams, x_mm, y_mm, height_mm):
+    """Validated float arrays; ConfigError for impacts off the plate, on a disc, or non-positive heights."""
+    x = np.atleast_1d(np.asarray(x_mm, float))
+    y = np.atleast_1d(np.asarray(y_mm, float))
+    h = np.atleast_1d(np.asarray(height_mm, float))
+    n = max(x.size, y.size, h.size)
+    try:
+        x, y, h = (np.broadcast_to(a, (n,)).copy() for a in (x, y, h))
+    except ValueError:
+        raise ConfigError(f"x_mm, y_mm, height_mm have incompatible sizes {x.size}, {y.size}, {h.size}") from None
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(h))):
+        raise ConfigError("impact positions and heights must be finite")
+    r_ball = rig.ball_diameter_mm / 2
+    for k in range(n):
+        if not (0 < x[k] < rig.plate_x_mm and 0 < y[k] < rig.plate_y_mm):
+            raise ConfigError(f"impact {k} at ({x[k]:g}, {y[k]:g}) mm lies off the "
+                              f"{rig.plate_x_mm:g} x {rig.plate_y_mm:g} mm plate")
+        d = np.hypot(rig.sensor_x_mm - x[k], rig.sensor_y_mm - y[k])
+        s = int(np.argmin(d))
+        if d[s] < rig.sensor_diameter_mm / 2 + r_ball:
+            raise ConfigError(f"impact {k} at ({x[k]:g}, {y[k]:g}) mm lands on sensor {rig.sensors[s].name} "
+                              f"({d[s]:.1f} mm from its centre; disc radius {rig.sensor_diameter_mm / 2:g} mm)")
+        if h[k] <= 0:
+            raise ConfigError(f"impact {k}: height_mm must be > 0, got {h[k]:g}")
+    return x, y, h
+
+
+def direct_drop(model: Model, x_m: float, y_m: float, v0: float, *, n_record=None, record_energy=False,
+                nan_check_every=50) -> dict:
+    """Ball, plate and discs stepped together; volts [4, n_record] on the ADC grid from the first touch."""
+    n_rec = model.n_record if n_record is None else n_record
+    p = model.params
+    out = _run(model, dt_s=model.dt_s, n_steps=n_rec * model.record_every, record_every=model.record_every,
+               n_record=n_rec, ball=[x_m, y_m, model.ball_mass_kg, model.k_hertz, v0, p.g_m_s2],
+               sensors=model.sensors, record_energy=record_energy, nan_check_every=nan_check_every)
+    out["volts"] = np.asarray(out["sensors"])
+    return out
+
+
+def contact_window(model: Model, x_m: float, y_m: float, v0: float) -> dict:
+    """The ball on the plate until it has clearly left (fast path): force history per step."""
+    p = model.params
+    n_steps = int(math.ceil(p.contact_window_ms * 1e-3 / model.dt_s))
+    return _run(model, dt_s=model.dt_s, n_steps=n_steps, record_every=model.record_every, n_record=0,
+                ball=[x_m, y_m, model.ball_mass_kg, model.k_hertz, v0, p.g_m_s2], stop_after_contact=True,
+                quiet_after_contact_s=100e-6)
+
+
+def reciprocal_fields(model: Model, *, workers: int = 2) -> list:
+    """g_s at every node: [n_record, nodes] float32 per disc (cached on the model)."""
+    fields = getattr(model, "_fields", None)
+    if fields is not None:
+        return fields
+
+    def one(s):
+        out = _run(model, dt_s=model.dt_s, n_steps=model.n_record * model.record_every,
+                   record_every=model.record_every, n_record=model.n_record, load=model.sensors[s],
+                   record_field=True)
+        return np.asarray(out["field"])
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as ex:
+        fields = list(ex.map(one, range(len(model.sensors))))
+    model._fields = fields
+    return fields
+
+
+def fast_drop(model: Model, x_m: float, y_m: float, v0: float, fields: list) -> dict:
+    win = contact_window(model, x_m, y_m, v0)
+    force = np.asarray(win["force_n"])
+    m = model.record_every
+    a = force[::m]                                    # F at the ADC grid, a[0] = F(0) = 0
+    nodes, wts = model.bilinear(x_m, y_m)
+    n_rec = model.n_record
+    volts = np.zeros((len(fields), n_rec))
+    for s, fld in enumerate(fields):
+        g = fld[:, nodes].astype(float) @ wts          # response at x to the hat phi_1
+        volts[s] = np.convolve(a[1:], g)[:n_rec]
+    win["volts"] = volts
+    return win
+
+
+def _taper(model: Model, volts: np.ndarray) -> np.ndarray:
+    n_t = int(round(model.params.taper_ms * 1e-3 * model.fs_hz))
+    if n_t > 0:
+        ramp = 0.5 * (1 + np.cos(np.pi * (np.arange(n_t) + 1) / n_t))
+        volts = volts.copy()
+        volts[..., -n_t:] *= ramp
+    return volts
+
+
+def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
+                      workers: int = 2, progress: bool = False) -> dict:
+    """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details."""
+    x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
+    method = method or params.method
+    if method not in ("fast", "direct"):
+        raise ConfigError(f"method must be 'fast' or 'direct', got {method!r}")
+    model = get_model(params, rig)
+    v0 = impact_velocity(params, h)
+    fields = reciprocal_fields(model, workers=workers) if method == "fast" else None
+
+    def one(k):
+        if method == "fast":
+            return fast_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]), fields)
+        return direct_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]))
+
+    results = [None] * x.size
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=x.size, desc=f"simulate ({method})", unit="drop")
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as ex:
+        futs = {ex.submit(one, k): k for k in range(x.size)}
+        for fut in futs:
+            k = futs[fut]
+            results[k] = fut.result()
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    volts = np.stack([_taper(model, r["volts"]) for r in results])
+    return dict(volts=volts, model=model, contacts=np.array([r["contacts"] for r in results]),
+                force_n=[np.asarray(r["force_n"]) for r in results], dt_s=model.dt_s,
+                contact_s=np.array([r["contact_end_s"] - r["contact_start_s"] for r in results]))
+
+
+def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, seed=None) -> np.ndarray:
+    """Volts [n, 4, n_sim] from the first touch -> uint16 counts [n, 4, rig.samples] (bias, pre-trigger)."""
+    n, c, n_sim = volts.shape
+    rec = np.zeros((n, c, rig.samples))
+    start = params.pretrigger_samples
+    if start >= rig.samples:
+        raise ConfigError(f"pretrigger_samples {start} >= record length {rig.samples}")
+    take = min(n_sim, rig.samples - start)
+    rec[:, :, start:start + take] = volts[:, :, :take]
+    counts = rig.bias_counts + params.circuit_gain * rec * (2 ** rig.adc_bits) / rig.vref
+    if noise:
+        rng = np.random.default_rng(seed)
+        counts = counts + rng.normal(0.0, params.noise_counts_rms, counts.shape)
+    return np.clip(np.rint(counts), 0, rig.adc_max).astype(np.uint16)
+
+
+def simulate_drops(params: SimParams, rig, x_mm, y_mm, height_mm, *, noise: bool = False, seed=None,
+                   workers: int = 2, progress: bool = True) -> np.ndarray:
+    """Raw ADC records uint16 [n, 4, rig.samples] of drops at (x_mm, y_mm) from height_mm, like the rig's."""
+    res = simulate_voltages(params, rig, x_mm, y_mm, height_mm, workers=workers, progress=progress)
+    return to_adc(res["volts"], params, rig, noise=noise, seed=seed)

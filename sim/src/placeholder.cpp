@@ -1,4 +1,0 @@
-#include "impactsim.h"
-namespace impactsim {
-int version() { return 0; }
-}

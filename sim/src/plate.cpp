@@ -1,0 +1,329 @@
+// Plate: mesh + element + lumped mass + central-difference stepper + Hertz contact + sensor sampling.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <sstream>
+#include <stdexcept>
+
+#include "element.h"
+#include "impactsim.h"
+
+namespace impactsim {
+
+int version() { return 1; }
+
+namespace {
+
+void need(bool ok, const std::string& what) {
+  if (!ok) throw std::invalid_argument(what);
+}
+
+struct Bilinear {  // node indices and weights of a point inside the mesh
+  int64_t node[4];
+  double wt[4];
+};
+
+Bilinear locate(const PlateSpec& s, double x, double y) {
+  const double lx = s.nx * s.hx_m, ly = s.ny * s.hy_m;
+  need(x >= 0 && x <= lx && y >= 0 && y <= ly, "contact point lies off the plate");
+  int i = std::min(static_cast<int>(x / s.hx_m), s.nx - 1);
+  int j = std::min(static_cast<int>(y / s.hy_m), s.ny - 1);
+  const double xi = x / s.hx_m - i, eta = y / s.hy_m - j;  // 0..1
+  const int64_t r = s.nx + 1;
+  Bilinear b;
+  b.node[0] = j * r + i;
+  b.node[1] = j * r + i + 1;
+  b.node[2] = (j + 1) * r + i + 1;
+  b.node[3] = (j + 1) * r + i;
+  b.wt[0] = (1 - xi) * (1 - eta);
+  b.wt[1] = xi * (1 - eta);
+  b.wt[2] = xi * eta;
+  b.wt[3] = (1 - xi) * eta;
+  return b;
+}
+
+}  // namespace
+
+Plate::Plate(PlateSpec spec) : s_(std::move(spec)) {
+  need(s_.nx >= 1 && s_.ny >= 1, "mesh needs at least one element per direction");
+  need(s_.hx_m > 0 && s_.hy_m > 0, "element size must be positive");
+  need(s_.nu > -1 && s_.nu < 0.5, "Poisson ratio must be in (-1, 0.5)");
+  const size_t ne = static_cast<size_t>(elements()), nn = static_cast<size_t>(nodes());
+  need(s_.d_elem.size() == ne && s_.s_elem.size() == ne, "d_elem/s_elem need one value per element");
+  need(s_.mass_w.size() == nn && s_.mass_r.size() == nn, "mass_w/mass_r need one value per node");
+  need(s_.fix_w.size() == nn && s_.fix_bx.size() == nn && s_.fix_by.size() == nn,
+       "fix_w/fix_bx/fix_by need one value per node");
+  need(s_.damping_per_s >= 0, "damping must be >= 0");
+  de_.resize(ne);
+  se_.resize(ne);
+  for (size_t e = 0; e < ne; ++e) {
+    need(s_.d_elem[e] > 0 && s_.s_elem[e] > 0, "element stiffness must be positive");
+    de_[e] = Real(s_.d_elem[e]);
+    se_[e] = Real(s_.s_elem[e]);
+  }
+  inv_mw_.resize(nn);
+  inv_mr_.resize(2 * nn);
+  for (size_t k = 0; k < nn; ++k) {
+    need(s_.mass_w[k] > 0 && s_.mass_r[k] > 0, "nodal masses must be positive");
+    inv_mw_[k] = s_.fix_w[k] ? Real(0) : Real(1 / s_.mass_w[k]);
+    inv_mr_[k] = s_.fix_bx[k] ? Real(0) : Real(1 / s_.mass_r[k]);
+    inv_mr_[nn + k] = s_.fix_by[k] ? Real(0) : Real(1 / s_.mass_r[k]);
+  }
+}
+
+void Plate::internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx,
+                           Real* fby) const {
+  const int nx = s_.nx, ny = s_.ny, r = nx + 1;
+  const size_t nn = static_cast<size_t>(nodes());
+  std::fill(fw, fw + nn, Real(0));
+  std::fill(fbx, fbx + nn, Real(0));
+  std::fill(fby, fby + nn, Real(0));
+  const detail::ElemConst kc(s_.hx_m, s_.hy_m, s_.nu);
+  thread_local std::vector<Real> e;
+  e.resize(static_cast<size_t>(12) * nx);
+  for (int j = 0; j < ny; ++j) {
+    const size_t o0 = static_cast<size_t>(j) * r, o1 = o0 + r;
+    detail::row_forces(nx, w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1, de_.data() + j * nx,
+                       se_.data() + j * nx, kc, e.data());
+    detail::row_scatter(nx, e.data(), fw + o0, fw + o1);
+    detail::row_scatter(nx, e.data() + 4 * nx, fbx + o0, fbx + o1);
+    detail::row_scatter(nx, e.data() + 8 * nx, fby + o0, fby + o1);
+  }
+}
+
+double Plate::strain_energy(const Real* w, const Real* bx, const Real* by) const {
+  const size_t nn = static_cast<size_t>(nodes());
+  std::vector<Real> f(3 * nn);
+  internal_force(w, bx, by, f.data(), f.data() + nn, f.data() + 2 * nn);
+  double u = 0;
+  for (size_t k = 0; k < nn; ++k) u += double(w[k]) * f[k] + double(bx[k]) * f[nn + k] + double(by[k]) * f[2 * nn + k];
+  return 0.5 * u;
+}
+
+static double eval(const Functional& fn, const Real* bx, const Real* by) {
+  double v = 0;
+  for (size_t k = 0; k < fn.node.size(); ++k) v += fn.wx[k] * bx[fn.node[k]] + fn.wy[k] * by[fn.node[k]];
+  return v;
+}
+
+RunResult Plate::run(const RunConfig& c) const {
+  const size_t nn = static_cast<size_t>(nodes());
+  need(c.dt_s > 0 && std::isfinite(c.dt_s), "time step must be positive");
+  need(c.n_steps >= 0, "n_steps must be >= 0");
+  need(c.record_every >= 1, "record_every must be >= 1");
+  need(c.n_record >= 0, "n_record must be >= 0");
+  for (const auto* fn : {&c.load}) {
+    need(fn->node.size() == fn->wx.size() && fn->node.size() == fn->wy.size(), "functional arrays differ in size");
+  }
+  for (const auto& fn : c.sensors) {
+    need(fn.node.size() == fn.wx.size() && fn.node.size() == fn.wy.size(), "functional arrays differ in size");
+    for (auto k : fn.node) need(k >= 0 && static_cast<size_t>(k) < nn, "functional node out of range");
+  }
+  for (auto k : c.load.node) need(k >= 0 && static_cast<size_t>(k) < nn, "load node out of range");
+  Bilinear cp{};
+  if (c.ball.enabled) {
+    need(c.ball.mass_kg > 0 && c.ball.k_hertz > 0, "ball mass and Hertz constant must be positive");
+    cp = locate(s_, c.ball.x_m, c.ball.y_m);
+  }
+
+  // state: u = [w | bx | by], v likewise (v at half steps)
+  std::vector<Real> u(3 * nn, Real(0)), v(3 * nn, Real(0)), f(3 * nn, Real(0));
+  auto load_init = [&](const std::vector<double>& src, Real* dst, const char* name) {
+    if (src.empty()) return;
+    need(src.size() == nn, std::string(name) + " needs one value per node");
+    for (size_t k = 0; k < nn; ++k) dst[k] = Real(src[k]);
+  };
+  load_init(c.w0, u.data(), "w0");
+  load_init(c.bx0, u.data() + nn, "bx0");
+  load_init(c.by0, u.data() + 2 * nn, "by0");
+  load_init(c.vw0, v.data(), "vw0");
+  load_init(c.vbx0, v.data() + nn, "vbx0");
+  load_init(c.vby0, v.data() + 2 * nn, "vby0");
+  for (size_t k = 0; k < nn; ++k) {  // fixed dofs stay at zero
+    if (inv_mw_[k] == 0) u[k] = v[k] = 0;
+    if (inv_mr_[k] == 0) u[nn + k] = v[nn + k] = 0;
+    if (inv_mr_[nn + k] == 0) u[2 * nn + k] = v[2 * nn + k] = 0;
+  }
+  std::vector<Real> mass(3 * nn);
+  for (size_t k = 0; k < nn; ++k) {
+    mass[k] = Real(s_.mass_w[k]);
+    mass[nn + k] = mass[2 * nn + k] = Real(s_.mass_r[k]);
+  }
+  std::vector<Real> inv_m(3 * nn);
+  std::copy(inv_mw_.begin(), inv_mw_.end(), inv_m.begin());
+  std::copy(inv_mr_.begin(), inv_mr_.end(), inv_m.begin() + nn);
+
+  RunResult res;
+  const int m = c.record_every;
+  const int64_t nrec = c.n_record;
+  const size_t ns = c.sensors.size();
+  res.sensors.assign(ns * nrec, 0.0);
+  if (c.record_field) res.field.assign(static_cast<size_t>(nrec) * nn, 0.0f);
+  if (c.record_energy) res.energy.assign(static_cast<size_t>(nrec) * 4, 0.0);
+  if (c.ball.enabled) res.force_n.reserve(static_cast<size_t>(c.n_steps));
+
+  const Real dt = Real(c.dt_s);
+  const Real cd = Real(0.5 * s_.damping_per_s * c.dt_s);
+  const Real c1 = 1 - cd, c2 = 1 / (1 + cd);
+  const double delta_rec = m * c.dt_s;
+
+  double zb = 0, vb = c.ball.v0_m_s;  // ball: position (down = into the plate), velocity at half step
+  bool in_contact = false;
+  double t_first = -1, t_last = -1;
+  std::vector<Real> vold;
+  Real* fw = f.data();
+
+  for (int64_t n = 0; n < c.n_steps; ++n) {
+    const double t = n * c.dt_s;
+    Real* uw = u.data();
+    Real* ubx = u.data() + nn;
+    Real* uby = u.data() + 2 * nn;
+    internal_force(uw, ubx, uby, fw, f.data() + nn, f.data() + 2 * nn);
+
+    const int64_t q = n / m;
+    const int r = static_cast<int>(n % m);
+    const double frac = double(r) / m;
+    const bool on_grid = (r == 0) && q < nrec;
+    double se = 0;
+    if (c.record_energy && on_grid) {
+      for (size_t k = 0; k < 3 * nn; ++k) se += double(u[k]) * f[k];
+      se *= 0.5;
+    }
+
+    // ball contact
+    double force = 0, delta = 0;
+    if (c.ball.enabled) {
+      double wp = 0;
+      for (int a = 0; a < 4; ++a) wp += cp.wt[a] * uw[cp.node[a]];
+      delta = zb - wp;
+      if (delta > 0) {
+        force = c.ball.k_hertz * delta * std::sqrt(delta);
+        if (!in_contact) {
+          ++res.contacts;
+          if (t_first < 0) t_first = t;
+        }
+        in_contact = true;
+        t_last = t;
+      } else {
+        in_contact = false;
+      }
+      for (int a = 0; a < 4; ++a) fw[cp.node[a]] -= Real(cp.wt[a] * force);
+      res.force_n.push_back(force);
+    }
+    if (c.hat_load) {
+      const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec) / delta_rec);
+      if (phi > 0) {
+        for (size_t k = 0; k < c.load.node.size(); ++k) {
+          f[nn + c.load.node[k]] -= Real(phi * c.load.wx[k]);
+          f[2 * nn + c.load.node[k]] -= Real(phi * c.load.wy[k]);
+        }
+      }
+    }
+    // outputs at time t (hat weights onto the record grid)
+    if (q < nrec) {
+      const double w_lo = (1 - frac) / m, w_hi = frac / m;
+      const bool hi_ok = r > 0 && q + 1 < nrec;
+      for (size_t s = 0; s < ns; ++s) {
+        const double val = eval(c.sensors[s], ubx, uby);
+        res.sensors[s * nrec + q] += w_lo * val;
+        if (hi_ok) res.sensors[s * nrec + q + 1] += w_hi * val;
+      }
+      if (c.record_field) {
+        float* lo = res.field.data() + static_cast<size_t>(q) * nn;
+        const float a = float(w_lo);
+        for (size_t k = 0; k < nn; ++k) lo[k] += a * uw[k];
+        if (hi_ok) {
+          float* hi = lo + nn;
+          const float b = float(w_hi);
+          for (size_t k = 0; k < nn; ++k) hi[k] += b * uw[k];
+        }
+      }
+    }
+    if (c.record_energy && on_grid) vold.assign(v.begin(), v.end());
+
+    // central-difference update: v+ = ((1 - cd) v- + dt M^-1 (P - F)) / (1 + cd); u += dt v+
+    {
+      Real* __restrict vv = v.data();
+      Real* __restrict uu = u.data();
+      const Real* __restrict ff = f.data();
+      const Real* __restrict im = inv_m.data();
+      const size_t n3 = 3 * nn;
+#pragma omp simd
+      for (size_t k = 0; k < n3; ++k) {
+        const Real vn = (c1 * vv[k] - dt * im[k] * ff[k]) * c2;
+        vv[k] = vn;
+        uu[k] += dt * vn;
+      }
+    }
+    if (c.ball.enabled) {
+      const double vb_old = vb;
+      vb += c.dt_s * (c.ball.g_m_s2 - force / c.ball.mass_kg);
+      if (c.record_energy && on_grid) {
+        res.energy[q * 4 + 2] = 0.5 * c.ball.mass_kg * vb_old * vb;
+        res.energy[q * 4 + 3] = (delta > 0 ? 0.4 * c.ball.k_hertz * delta * delta * std::sqrt(delta) : 0.0) -
+                                c.ball.mass_kg * c.ball.g_m_s2 * zb;
+      }
+      zb += c.dt_s * vb;
+    }
+    if (c.record_energy && on_grid) {
+      double ke = 0;
+      for (size_t k = 0; k < 3 * nn; ++k) ke += double(mass[k]) * vold[k] * v[k];
+      res.energy[q * 4 + 0] = 0.5 * ke;
+      res.energy[q * 4 + 1] = se;
+    }
+    res.steps_done = n + 1;
+
+    if (c.nan_check_every > 0 && ((n + 1) % c.nan_check_every == 0 || n + 1 == c.n_steps)) {
+      bool bad = !std::isfinite(zb) || !std::isfinite(vb);
+      for (size_t k = 0; k < 3 * nn && !bad; ++k) bad = !std::isfinite(u[k]);
+      if (bad) {
+        std::ostringstream os;
+        os << "numerical blow-up (NaN/Inf) detected at step " << (n + 1) << " of " << c.n_steps
+           << " (t = " << (n + 1) * c.dt_s * 1e6 << " us, checked every " << c.nan_check_every
+           << " steps, dt = " << c.dt_s * 1e6 << " us)";
+        throw std::runtime_error(os.str());
+      }
+    }
+    if (c.stop_after_contact && t_first >= 0 && !in_contact && vb < 0 &&
+        t - t_last > std::max(c.quiet_after_contact_s, t_last - t_first)) {
+      break;
+    }
+  }
+  res.ball_z_m = zb;
+  res.ball_v_m_s = vb;
+  res.contact_start_s = t_first;
+  res.contact_end_s = t_last;
+  res.w.assign(u.begin(), u.begin() + nn);
+  res.bx.assign(u.begin() + nn, u.begin() + 2 * nn);
+  res.by.assign(u.begin() + 2 * nn, u.end());
+  return res;
+}
+
+std::vector<double> element_stiffness(double hx_m, double hy_m, double d, double nu, double s) {
+  PlateSpec sp;
+  sp.nx = sp.ny = 1;
+  sp.hx_m = hx_m;
+  sp.hy_m = hy_m;
+  sp.nu = nu;
+  sp.d_elem = {d};
+  sp.s_elem = {s};
+  sp.mass_w.assign(4, 1.0);
+  sp.mass_r.assign(4, 1.0);
+  sp.fix_w.assign(4, 0);
+  sp.fix_bx.assign(4, 0);
+  sp.fix_by.assign(4, 0);
+  Plate p(sp);
+  // mesh node order (0,0),(1,0),(0,1),(1,1) -> local 1,2,4,3
+  const int local_to_mesh[4] = {0, 1, 3, 2};
+  std::vector<double> k(144);
+  for (int col = 0; col < 12; ++col) {
+    Real u[12] = {0}, f[12];
+    const int node = col / 3, field = col % 3;
+    u[field * 4 + local_to_mesh[node]] = 1;
+    p.internal_force(u, u + 4, u + 8, f, f + 4, f + 8);
+    for (int row = 0; row < 12; ++row) k[row * 12 + col] = f[(row % 3) * 4 + local_to_mesh[row / 3]];
+  }
+  return k;
+}
+
+}  // namespace impactsim
