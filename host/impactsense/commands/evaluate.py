@@ -1,0 +1,54 @@
+"""impactsense evaluate DATA --model MODEL_DIR --json OUT.json [--plots DIR]"""
+
+from __future__ import annotations
+
+ORDER = 25
+
+
+def register(sub) -> None:
+    p = sub.add_parser("evaluate", help="evaluate a trained model on a session",
+                       description="On the model's own session only its held-out drops are used; on any "
+                                   "other session every drop.")
+    p.add_argument("data", help="session folder (or 'bundled')")
+    p.add_argument("--model", required=True, help="model folder from `impactsense train`")
+    p.add_argument("--json", dest="json_out", required=True, help="report to write")
+    p.add_argument("--plots", default=None, help="folder for predicted-vs-true and error-map plots")
+    p.set_defaults(func=run)
+
+
+def format_table(rows: list[tuple[str, dict, float | None]]) -> str:
+    lines = [f"{'':34s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
+    for name, m, acc in rows:
+        acc_s = f"{acc:9.2f}" if acc is not None else f"{'':9s}"
+        lines.append(f"{name:34s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} {m['mae_mm']:7.2f} {acc_s}")
+    return "\n".join(lines)
+
+
+def report_table(report: dict) -> str:
+    acc = report["energy_class_accuracy"]
+    return format_table([
+        ("random forest, whole plate", report["all"], acc),
+        ("random forest, inner region", report["inner"], acc),
+        ("physics localiser, whole plate", report["physics"]["all"], None),
+        ("physics localiser, inner region", report["physics"]["inner"], None),
+    ])
+
+
+def run(args) -> int:
+    from ..data import load_session
+    from ..models import ImpactModel
+    from ..plots import evaluation_plots
+    from ..workflow import evaluate, write_json
+
+    session = load_session(args.data)
+    model = ImpactModel.load(args.model)
+    report = evaluate(session, model)
+    write_json(report, args.json_out)
+    print(f"{session.name}: {report['scope']}: n = {report['n']}, accepted {report['accepted']}, "
+          f"rejected {report['rejected']} (Eq. 35)")
+    print(report_table(report))
+    if args.plots:
+        for p in evaluation_plots(report, session.rig, args.plots):
+            print(f"plot: {p}")
+    print(f"wrote {args.json_out}")
+    return 0

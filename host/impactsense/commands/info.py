@@ -1,0 +1,76 @@
+"""impactsense info DATA"""
+
+from __future__ import annotations
+
+import json
+
+ORDER = 10
+
+
+def register(sub) -> None:
+    p = sub.add_parser("info", help="summarise a session: drops, cases, heights, clipping, noise, SNR",
+                       description="Reads and validates a session folder and summarises it.")
+    p.add_argument("data", nargs="?", default="bundled", help="session folder (default: bundled session-1)")
+    p.add_argument("--json", dest="json_out", default=None, help="also write the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def summarise(session) -> dict:
+    import numpy as np
+
+    from ..pipeline import SignalConfig, featurize
+
+    feats = featurize(session.adc, SignalConfig.for_rig(session.rig))
+    noise = feats.raw["noise_rms"]
+    peak = feats.raw["peak"]
+    snr_db = 20 * np.log10(np.maximum(peak, 1e-6) / np.maximum(noise, 1e-6))
+    reps = np.bincount(session.case_id)
+    reps = reps[reps > 0]
+    heights, counts = np.unique(session.height_mm, return_counts=True)
+    return {
+        "session": str(session.path),
+        "drops": len(session),
+        "cases": session.n_cases,
+        "repetitions_per_case": {"min": int(reps.min()), "median": float(np.median(reps)), "max": int(reps.max())},
+        "heights_mm": {"min": float(heights.min()), "max": float(heights.max()), "distinct": int(heights.size)},
+        "drops_per_height": {f"{h:g}": int(c) for h, c in zip(heights, counts)},
+        "samples": int(session.adc.shape[2]),
+        "fs_hz": session.rig.fs_hz,
+        "channels": [
+            {
+                "channel": c,
+                "sensor": session.rig.sensors[c].name,
+                "clipped_drops": int(feats.clipped[:, c].sum()),
+                "dead_drops": int(feats.dead[:, c].sum()),
+                "no_onset_drops": int(feats.no_onset[:, c].sum()),
+                "noise_rms_counts": float(np.median(noise[:, c])),
+                "peak_counts_median": float(np.median(peak[:, c])),
+                "snr_db_median": float(np.median(snr_db[:, c])),
+            }
+            for c in range(4)
+        ],
+        "usable_drops": int(feats.usable.sum()),
+    }
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..data import load_session
+
+    session = load_session(args.data)
+    s = summarise(session)
+    print(f"{s['session']}")
+    print(f"  drops {s['drops']}, cases {s['cases']}, repetitions per case "
+          f"{s['repetitions_per_case']['min']}..{s['repetitions_per_case']['max']}")
+    print(f"  heights {s['heights_mm']['min']:g}..{s['heights_mm']['max']:g} mm "
+          f"({s['heights_mm']['distinct']} distinct); {s['samples']} samples at {s['fs_hz']:g} Hz")
+    print(f"  usable drops (onset on all 4 channels): {s['usable_drops']}")
+    print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'median peak':>12s} {'SNR dB':>7s}")
+    for c in s["channels"]:
+        print(f"  {c['channel']:2d} {c['sensor']:>6s} {c['clipped_drops']:8d} {c['dead_drops']:5d} "
+              f"{c['noise_rms_counts']:10.2f} {c['peak_counts_median']:12.0f} {c['snr_db_median']:7.1f}")
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(s, indent=1))
+        print(f"wrote {args.json_out}")
+    return 0

@@ -1,0 +1,156 @@
+"""Known-answer tests of the C++ signal core through its binding."""
+
+import math
+
+import numpy as np
+import pytest
+
+from impactsense import _core
+from impactsense.pipeline import SignalConfig, featurize
+
+
+SX = [30.0, 290.0, 290.0, 30.0]
+SY = [33.0, 33.0, 284.0, 284.0]
+
+
+def test_threshold_crossing_is_sub_sample_linear_interpolation():
+    x = np.array([0, 0, 0, 10, 30, 50], np.int16)
+    # |x| reaches 20 halfway between samples 3 (10) and 4 (30)
+    assert _core.threshold_crossing(x, 0.0, 20.0, 1) == pytest.approx(3.5)
+    assert _core.threshold_crossing(x, 0.0, 100.0, 1) == -1.0
+
+
+def test_aic_finds_a_step_in_variance():
+    rng = np.random.default_rng(1)
+    x = np.concatenate([rng.normal(0, 1, 100), rng.normal(0, 30, 60)]).round().astype(np.int16)
+    k = _core.aic_pick(x, 0, 160)
+    assert abs(k - 100) <= 2
+
+
+@pytest.mark.parametrize("onsets", [(300.0, 320.0, 345.0, 310.0), (400.0, 400.0, 401.0, 399.0)])
+def test_onsets_of_synthetic_bursts(onsets, synth):
+    """A sine burst starting at sample s0: the threshold pick lies just after s0 (it needs the amplitude to
+    reach 10 counts: with 600 counts at 20 kHz that takes asin(10/600)/(2 pi f) = 0.13 us = 0.013
+    samples after the onset, plus linear interpolation error < 0.2 sample)."""
+    adc = synth([int(o) for o in onsets])
+    cfg = SignalConfig()
+    f = featurize(adc, cfg)
+    toa_samples = f.toa_us[0] / 10.0
+    assert np.all(np.abs(toa_samples - np.array([int(o) for o in onsets])) < 0.25)
+    # DToA in the core's pair order
+    for p, (i, j) in enumerate(zip(_core.PAIR_I, _core.PAIR_J)):
+        assert f.raw["dtoa_us"][0, p] == pytest.approx(f.toa_us[0, i] - f.toa_us[0, j], abs=1e-4)
+    # ToA order is the argsort of onsets
+    assert list(f.raw["order"][0]) == list(np.argsort([int(o) for o in onsets], kind="stable"))
+    assert f.usable[0] and f.flags[0].sum() == 0
+
+
+def test_energy_matches_the_analytic_burst_energy(synth):
+    """sum x^2 of A sin(w t) e^(-a t) sampled at fs ~ fs * A^2 / (4 a) (for w >> a)."""
+    amp, a, fs = 400.0, 800.0, 100000.0
+    adc = synth([200] * 4, n=4000, amp=amp, decay_per_s=a)
+    f = featurize(adc, SignalConfig())
+    expected = fs * amp ** 2 / (4 * a)
+    assert np.allclose(f.energy[0], expected, rtol=0.02)
+    # five windows from ToA to n2 hold (almost) all of it; n2 is where 99 % is reached
+    win = f.raw["window_energy"][0]
+    assert np.allclose(win.sum(1), 0.99 * expected, rtol=0.02)
+    # exponential decay: successive windows fall by a constant ratio
+    ratios = win[:, 1:] / win[:, :-1]
+    assert np.allclose(ratios, ratios[:, :1], rtol=0.15)
+    n2_expected = 200 + math.log(1 / 0.01) / (2 * a) * fs
+    assert np.allclose(f.raw["n2"][0], n2_expected, atol=3)
+
+
+def test_channel_delay_is_subtracted(synth):
+    adc = synth([300, 300, 300, 300])
+    cfg = SignalConfig(channel_delay_us=[0.0, 2.5, 5.0, 7.5])
+    f = featurize(adc, cfg)
+    assert np.allclose(f.toa_us[0, 1:] - f.toa_us[0, 0], [-2.5, -5.0, -7.5], atol=1e-3)
+
+
+def test_clipping_and_dead_channels_are_flagged(synth):
+    adc = synth([300, 310, 320, 330], amp=2500.0)  # rails at 0 and 4095
+    adc[3, :] = 2048  # channel 3 flat: dead
+    f = featurize(adc, SignalConfig())
+    flags = f.flags[0]
+    assert all(flags[c] & _core.FLAG_CLIPPED for c in range(3))
+    assert flags[3] & _core.FLAG_DEAD and flags[3] & _core.FLAG_NO_ONSET
+    assert not f.usable[0]
+    assert np.isnan(f.toa_us[0, 3])
+
+
+def test_a_drop_that_never_crosses_the_threshold_is_flagged_not_invented(synth):
+    adc = synth([300] * 4, amp=5.0, noise=1.0)
+    f = featurize(adc, SignalConfig())
+    assert f.status[0] == _core.STATUS_NO_TRIGGER
+    assert not f.usable[0]
+    assert np.isnan(f.phys_xy_mm[0]).all()
+
+
+def eq35(toa, x, y, tol=0.0, margin=0.0):
+    return bool(_core.accept_batch(np.array([toa], np.float32), SX, SY, np.array([[x, y]], np.float32), tol, margin)[0])
+
+
+def test_eq35_acceptance_rule_on_constructed_cases():
+    # impact near S1: S1 first, S3 last is consistent
+    assert eq35([10, 200, 300, 200], 40, 40)
+    # the nearest sensor arriving after a farther one violates the rule
+    assert not eq35([250, 200, 300, 200], 40, 40)
+    # ... unless within the tolerance
+    assert eq35([205, 200, 300, 200], 40, 40, tol=10)
+    # equidistant sensors (plate centre, margin > 0) are not ordered by the rule
+    assert eq35([100, 101, 99, 100], 160, 158.5, margin=5)
+    # a missing ToA (NaN) is a rejection
+    assert not eq35([10, float("nan"), 300, 200], 40, 40)
+
+
+def exact_toa(x, y, v=0.9, t0=100.0):
+    return [t0 + math.hypot(x - sx, y - sy) / v for sx, sy in zip(SX, SY)]
+
+
+@pytest.mark.parametrize("xy", [(160, 158), (60, 250), (280, 40), (100, 120), (5, 300)])
+def test_localiser_recovers_exact_positions(xy):
+    toa = np.array([exact_toa(*xy)], np.float32)
+    r = _core.localise_batch(toa, np.ones((1, 4), np.uint8), SX, SY, 0.9, 1.0, 320.0, 317.0)
+    assert r["status"][0] == 0
+    assert r["x_mm"][0] == pytest.approx(xy[0], abs=0.05)
+    assert r["y_mm"][0] == pytest.approx(xy[1], abs=0.05)
+    assert r["t0_us"][0] == pytest.approx(100.0, abs=0.05)
+    assert r["rms_residual_us"][0] < 0.01
+
+
+def test_localiser_covariance_scales_with_sigma_and_resists_one_bad_pick():
+    toa = np.array([exact_toa(120, 140)], np.float32)
+    a = _core.localise_batch(toa, np.ones((1, 4), np.uint8), SX, SY, 0.9, 1.0, 320.0, 317.0)
+    b = _core.localise_batch(toa, np.ones((1, 4), np.uint8), SX, SY, 0.9, 2.0, 320.0, 317.0)
+    assert b["cov"][0, 0] == pytest.approx(4 * a["cov"][0, 0], rel=1e-3)
+    assert a["cov"][0, 0] > 0 and a["cov"][0, 2] > 0
+    bad = toa.copy()
+    bad[0, 2] += 20.0  # a cycle-skipped pick on the farthest sensor
+    r = _core.localise_batch(bad, np.ones((1, 4), np.uint8), SX, SY, 0.9, 1.0, 320.0, 317.0, 2.0)
+    assert math.hypot(r["x_mm"][0] - 120, r["y_mm"][0] - 140) < 15.0
+    three = _core.localise_batch(toa, np.array([[1, 1, 0, 1]], np.uint8), SX, SY, 0.9, 1.0, 320.0, 317.0)
+    assert three["x_mm"][0] == pytest.approx(120, abs=0.1) and three["y_mm"][0] == pytest.approx(140, abs=0.1)
+
+
+def test_trigger_fires_once_then_holds_off_and_rearms():
+    cfg = _core.TriggerConfig()
+    cfg.threshold_counts = 50
+    cfg.rearm_counts = 10
+    cfg.rearm_quiet_frames = 5
+    cfg.holdoff_frames = 20
+    trig = _core.Trigger(cfg, 2048.0)
+    fired = []
+    signal = [2048] * 50 + [2148] * 30 + [2048] * 40 + [2200] + [2048] * 10
+    for i, v in enumerate(signal):
+        if trig.feed([v, 2048, 2048, 2048]):
+            fired.append(i)
+    assert fired == [50, 120]
+
+
+def test_find_trigger_on_a_synthetic_recording(synth):
+    adc = synth([500, 520, 540, 560]).astype(np.int16)
+    cfg = _core.TriggerConfig()
+    cfg.threshold_counts = 60
+    assert 500 <= _core.find_trigger(np.ascontiguousarray(adc), cfg) <= 503
