@@ -10,6 +10,7 @@ def register(sub):
     p.add_argument("--out", required=True, help="session folder to write")
     p.add_argument("--max-events", type=int, default=None)
     p.add_argument("--rig", default=None, help="rig.json template (default: the bundled session-1 rig)")
+    p.add_argument("--height-mm", type=float, default=100.0, help="drop height written to impacts.csv")
     p.add_argument("--baud", type=int, default=115200)
     p.set_defaults(func=run)
 
@@ -32,7 +33,7 @@ def run(args) -> int:
     if not events:
         print("record: no complete capture received", file=sys.stderr)
         return 1
-    write_recorded_session(args.out, events, fs_hz or 50000, rig)
+    write_recorded_session(args.out, events, fs_hz or 50000, rig, args.height_mm)
     print(f"record: {len(events)} captures -> {args.out} (incomplete {incomplete}, "
           f"crc errors {counters['crc_errors']}, lost reports {counters['lost_reports']})", file=sys.stderr)
     return 0

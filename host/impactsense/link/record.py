@@ -59,7 +59,7 @@ def record(port, max_events: int | None = None, idle_timeout_s: float | None = N
     return out, fs_hz, mon.counters(), asm.incomplete
 
 
-def write_recorded_session(path, events, fs_hz: int, rig_template) -> None:
+def write_recorded_session(path, events, fs_hz: int, rig_template, height_mm: float = 100.0) -> None:
     """A session folder from recorded captures. The positions are the board's estimates (labelled so in
     rig.json notes): replace impacts.csv with the true positions before training on it."""
     from ..data import write_session
@@ -68,8 +68,8 @@ def write_recorded_session(path, events, fs_hz: int, rig_template) -> None:
     rig["fs_hz"] = int(fs_hz)
     rig["notes"] = ("Recorded by `impactsense record` from the board's raw captures (SAADC scan order: channel "
                     "c sampled c*5 us after channel 0). impacts.csv holds the BOARD'S ESTIMATES of x, y and "
-                    "height 0: replace them with the true drop positions and heights before training.")
+                    "the --height-mm given to record: replace them with the true drop positions and heights before training.")
     adc = np.stack([np.clip(c, 0, None).astype(np.uint16) for c, _ in events])
     x = np.clip([r["x_mm"] for _, r in events], 0, rig["plate_x_mm"])
     y = np.clip([r["y_mm"] for _, r in events], 0, rig["plate_y_mm"])
-    write_session(path, rig, x, y, np.zeros(len(events)), adc)
+    write_session(path, rig, x, y, np.full(len(events), float(height_mm)), adc)
