@@ -91,6 +91,17 @@ NB_MODULE(_sim, m) {
           },
           "u"_a, "f = K u for u float32 [3, nodes] (w, beta_x, beta_y); no boundary conditions applied.")
       .def(
+          "internal_force_double",
+          [](const is::Plate& p, InD u) {
+            const size_t nn = static_cast<size_t>(p.nodes());
+            if (u.size() != 3 * nn) throw std::invalid_argument("u must be float64 [3, nodes] (w, bx, by)");
+            std::vector<double> f(3 * nn);
+            p.internal_force_double(u.data(), u.data() + nn, u.data() + 2 * nn, f.data(), f.data() + nn,
+                                    f.data() + 2 * nn);
+            return to_numpy(std::move(f), {3, nn});
+          },
+          "u"_a, "internal_force with the same kernel in double precision (assembling K for checks).")
+      .def(
           "run",
           [](const is::Plate& p, double dt_s, int64_t n_steps, int record_every, int64_t n_record,
              nb::object ball, nb::object load, nb::list sensors, bool record_field, bool record_energy,

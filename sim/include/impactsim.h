@@ -92,6 +92,9 @@ class Plate {
 
   // f = K u (internal nodal forces), boundary conditions not applied (fixed dofs are handled by the stepper).
   void internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx, Real* fby) const;
+  // The same kernel in double precision (for assembling K in validation tests).
+  void internal_force_double(const double* w, const double* bx, const double* by, double* fw, double* fbx,
+                             double* fby) const;
   double strain_energy(const Real* w, const Real* bx, const Real* by) const;
 
   RunResult run(const RunConfig& cfg) const;

@@ -16,6 +16,7 @@
 namespace impactsim {
 namespace detail {
 
+template <typename Real>
 struct ElemConst {
   Real inv_a, inv_b, four_ab, four_ab_3, nu, half_1mnu, hg_x, hg_y;  // hg_*: hourglass bending factors / D
   ElemConst(double hx, double hy, double nu_) {
@@ -33,10 +34,11 @@ struct ElemConst {
 
 // Row of n elements: node row 0 (p0*) and node row 1 (p1*), element i spans nodes i, i+1 of both rows.
 // Writes element nodal forces e[12][n]: index field*4 + local node (field 0 w, 1 bx, 2 by).
+template <typename Real>
 inline void row_forces(int n, const Real* __restrict w0, const Real* __restrict w1,
                        const Real* __restrict x0, const Real* __restrict x1, const Real* __restrict y0,
                        const Real* __restrict y1, const Real* __restrict d, const Real* __restrict s,
-                       const ElemConst& k, Real* __restrict e) {
+                       const ElemConst<Real>& k, Real* __restrict e) {
   Real* __restrict e0 = e;
   Real* __restrict e1 = e + n;
   Real* __restrict e2 = e + 2 * n;
@@ -90,6 +92,7 @@ inline void row_forces(int n, const Real* __restrict w0, const Real* __restrict 
 
 // Adds element forces of one row into node rows f0 (bottom) and f1 (top) of one field.
 // en[0..3][n] are the forces at local nodes 1..4 (1 = (i, bottom), 2 = (i+1, bottom), 3 = (i+1, top), 4 = (i, top)).
+template <typename Real>
 inline void row_scatter(int n, const Real* __restrict e, Real* __restrict f0, Real* __restrict f1) {
   const Real* __restrict n1 = e;
   const Real* __restrict n2 = e + n;

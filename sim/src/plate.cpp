@@ -71,24 +71,37 @@ Plate::Plate(PlateSpec spec) : s_(std::move(spec)) {
   }
 }
 
-void Plate::internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx,
-                           Real* fby) const {
+namespace {
+template <typename T>
+void forces(const PlateSpec& s_, const T* de, const T* se, const T* w, const T* bx, const T* by, T* fw, T* fbx,
+            T* fby) {
   const int nx = s_.nx, ny = s_.ny, r = nx + 1;
-  const size_t nn = static_cast<size_t>(nodes());
-  std::fill(fw, fw + nn, Real(0));
-  std::fill(fbx, fbx + nn, Real(0));
-  std::fill(fby, fby + nn, Real(0));
-  const detail::ElemConst kc(s_.hx_m, s_.hy_m, s_.nu);
-  thread_local std::vector<Real> e;
+  const size_t nn = static_cast<size_t>(nx + 1) * (ny + 1);
+  std::fill(fw, fw + nn, T(0));
+  std::fill(fbx, fbx + nn, T(0));
+  std::fill(fby, fby + nn, T(0));
+  const detail::ElemConst<T> kc(s_.hx_m, s_.hy_m, s_.nu);
+  thread_local std::vector<T> e;
   e.resize(static_cast<size_t>(12) * nx);
   for (int j = 0; j < ny; ++j) {
     const size_t o0 = static_cast<size_t>(j) * r, o1 = o0 + r;
-    detail::row_forces(nx, w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1, de_.data() + j * nx,
-                       se_.data() + j * nx, kc, e.data());
-    detail::row_scatter(nx, e.data(), fw + o0, fw + o1);
-    detail::row_scatter(nx, e.data() + 4 * nx, fbx + o0, fbx + o1);
-    detail::row_scatter(nx, e.data() + 8 * nx, fby + o0, fby + o1);
+    detail::row_forces<T>(nx, w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1, de + j * nx, se + j * nx, kc,
+                          e.data());
+    detail::row_scatter<T>(nx, e.data(), fw + o0, fw + o1);
+    detail::row_scatter<T>(nx, e.data() + 4 * nx, fbx + o0, fbx + o1);
+    detail::row_scatter<T>(nx, e.data() + 8 * nx, fby + o0, fby + o1);
   }
+}
+}  // namespace
+
+void Plate::internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx,
+                           Real* fby) const {
+  forces<Real>(s_, de_.data(), se_.data(), w, bx, by, fw, fbx, fby);
+}
+
+void Plate::internal_force_double(const double* w, const double* bx, const double* by, double* fw, double* fbx,
+                                  double* fby) const {
+  forces<double>(s_, s_.d_elem.data(), s_.s_elem.data(), w, bx, by, fw, fbx, fby);
 }
 
 double Plate::strain_energy(const Real* w, const Real* bx, const Real* by) const {

@@ -112,6 +112,49 @@ def element_dt_crit(hx, hy, d, nu, s, m_node, i_node) -> float:
     return 2.0 / math.sqrt(lam.max())
 
 
+def support_masks(nx: int, ny: int, support: str):
+    """fix_w, fix_bx, fix_by [ny+1, nx+1] for "free", "simply_supported" (hard: w and the tangential
+    rotation held on every edge) or "clamped"."""
+    fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
+    fix_bx = np.zeros_like(fix_w)
+    fix_by = np.zeros_like(fix_w)
+    if support in ("simply_supported", "clamped"):
+        fix_w[0, :] = fix_w[-1, :] = 1
+        fix_w[:, 0] = fix_w[:, -1] = 1
+        fix_by[:, 0] = fix_by[:, -1] = 1   # edges x = 0, Lx: rotation about x (w,y along the edge) held
+        fix_bx[0, :] = fix_bx[-1, :] = 1   # edges y = 0, Ly
+    if support == "clamped":
+        fix_bx[:, 0] = fix_bx[:, -1] = 1
+        fix_by[0, :] = fix_by[-1, :] = 1
+    return fix_w, fix_bx, fix_by
+
+
+def node_areas(nx: int, ny: int, hx: float, hy: float) -> np.ndarray:
+    """Lumping: a quarter of each element to each of its nodes."""
+    a = np.zeros((ny + 1, nx + 1))
+    a[:-1, :-1] += 0.25
+    a[1:, :-1] += 0.25
+    a[:-1, 1:] += 0.25
+    a[1:, 1:] += 0.25
+    return a * hx * hy
+
+
+def uniform_plate(nx: int, ny: int, hx: float, hy: float, params: SimParams, masks=None):
+    """A bare plate (no discs) with params' material and support (or explicit masks (fix_w, fix_bx,
+    fix_by)); returns (_sim.Plate, mass_w, mass_r, dt_crit_s). Used by the validation tests."""
+    t, d, s = plate_constants(params)
+    rho = params.rho_kg_m3
+    i_rot = rho * t ** 3 / 12 * params.rotary_inertia_scale
+    area = node_areas(nx, ny, hx, hy)
+    masks = support_masks(nx, ny, params.support) if masks is None else masks
+    mass_w, mass_r = rho * t * area, i_rot * area
+    plate = _sim.Plate(nx, ny, hx, hy, params.nu, np.full(nx * ny, d), np.full(nx * ny, s), mass_w.ravel(),
+                       mass_r.ravel(), *(np.ascontiguousarray(m, np.uint8).ravel() for m in masks),
+                       params.damping_per_s)
+    dt_crit = element_dt_crit(hx, hy, d, params.nu, s, rho * t * hx * hy / 4, i_rot * hx * hy / 4)
+    return plate, mass_w.ravel(), mass_r.ravel(), dt_crit
+
+
 def _disc_fraction(model_h, centre, radius, n_sub=8):
     """Area fraction of each element inside a disc (sub-cell sampling), as a sparse dict {(i, j): frac}."""
     hx, hy, nx, ny = model_h
@@ -171,12 +214,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
                 d_elem[j, i] += f * d_disc
 
     # lumped masses: a quarter of each element's mass to each of its nodes
-    area_node = np.zeros((ny + 1, nx + 1))
-    area_node[:-1, :-1] += 0.25
-    area_node[1:, :-1] += 0.25
-    area_node[:-1, 1:] += 0.25
-    area_node[1:, 1:] += 0.25
-    area_node *= hx * hy
+    area_node = node_areas(nx, ny, hx, hy)
     i_rot = rho * t ** 3 / 12 * p.rotary_inertia_scale
     mass_w = rho * t * area_node
     mass_r = i_rot * area_node
@@ -191,19 +229,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
                         mass_r[j + dj, i + di] += 0.25 * f * hx * hy * ip
 
     # supports
-    fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
-    fix_bx = np.zeros_like(fix_w)
-    fix_by = np.zeros_like(fix_w)
-    if p.support in ("simply_supported", "clamped"):
-        for a in (fix_w,):
-            a[0, :] = a[-1, :] = 1
-            a[:, 0] = a[:, -1] = 1
-        # hard simple support: rotation about the edge's normal (the tangential slope) held
-        fix_by[:, 0] = fix_by[:, -1] = 1   # edges x = 0, Lx: w,y = 0 along them
-        fix_bx[0, :] = fix_bx[-1, :] = 1   # edges y = 0, Ly
-    if p.support == "clamped":
-        fix_bx[:, 0] = fix_bx[:, -1] = 1
-        fix_by[0, :] = fix_by[-1, :] = 1
+    fix_w, fix_bx, fix_by = support_masks(nx, ny, p.support)
 
     # time step: stability (element bound, stiffest element type) and Eq. 2, snapped to divide 1/fs
     q = hx * hy / 4

@@ -1,0 +1,211 @@
+"""Validation of the finite-element twin (issue 3) against analytic physics. Coarse meshes; each test is
+seconds. Tolerances: 1 % / 2 % as the issue asks, where the discretisation error at the chosen mesh is
+well below them (so a wrong element, mass or stepper fails)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from impactsense.data import bundled_session_path, load_rig, rig_from_dict
+from impactsense.sim import SimParams, dispersion, simulate_voltages
+from impactsense.sim.model import build_model, hertz_duration_s, hertz_k, impact_velocity, uniform_plate
+
+PMMA = dict(e_pa=5.0e9, nu=0.32, rho_kg_m3=1157.0, thickness_mm=4.2)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig(bundled_session_path())
+
+
+def assembled_stiffness(plate, nx, ny):
+    """K of the C++ operator, probed with 9 node colours x 3 fields (nodes of one colour are 3 apart, so
+    their stencils do not overlap)."""
+    nn = (nx + 1) * (ny + 1)
+    jj, ii = np.divmod(np.arange(nn), nx + 1)
+    rows, cols, vals = [], [], []
+    for ci in range(3):
+        for cj in range(3):
+            sel = np.flatnonzero((ii % 3 == ci) & (jj % 3 == cj))
+            for field in range(3):
+                u = np.zeros((3, nn))
+                u[field, sel] = 1
+                f = np.asarray(plate.internal_force_double(u))
+                for di in (-1, 0, 1):
+                    for dj in (-1, 0, 1):
+                        ni, nj = ii[sel] + di, jj[sel] + dj
+                        ok = (ni >= 0) & (ni <= nx) & (nj >= 0) & (nj <= ny)
+                        src = sel[ok]
+                        dst = nj[ok] * (nx + 1) + ni[ok]
+                        for g in range(3):
+                            rows.append(g * nn + dst)
+                            cols.append(field * nn + src)
+                            vals.append(f[g, dst])
+    k = sp.csr_matrix((np.concatenate(vals).astype(float), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(3 * nn, 3 * nn))
+    return k
+
+
+def test_simply_supported_frequencies_within_1pct():
+    a, b, nx, ny = 0.320, 0.317, 64, 64
+    p = SimParams(support="simply_supported", **PMMA)
+    plate, mw, mr, _ = uniform_plate(nx, ny, a / nx, b / ny, p)
+    k = assembled_stiffness(plate, nx, ny)
+    assert abs(k - k.T).max() <= 1e-5 * abs(k).max()          # the operator is symmetric
+    from impactsense.sim.model import support_masks
+    free = np.flatnonzero(np.concatenate([1 - m.ravel() for m in support_masks(nx, ny, "simply_supported")]))
+    m = np.concatenate([mw, mr, mr])[free]
+    kf = k[free][:, free]
+    dm = sp.diags(1 / np.sqrt(m))
+    lam = spla.eigsh(dm @ kf @ dm, k=10, sigma=0, which="LM", return_eigenvectors=False)
+    f_fe = np.sort(np.sqrt(lam)) / (2 * np.pi)
+    f_an, modes = dispersion.ss_plate_frequencies(a, b, p.e_pa, p.nu, p.rho_kg_m3, 4.2e-3, p.shear_factor)
+    err = np.abs(f_fe / f_an - 1)
+    assert err.max() < 0.01, (f_fe, f_an, modes)
+
+
+def test_a0_phase_and_group_velocity_within_2pct():
+    """Plane A0 wave along a 4 m strip (beta_y held: no y-variation; beta_x held at x = 0: symmetry plane
+    at the source), 1 mm elements, zero-momentum (Ricker) initial velocity. The transfer function between
+    receivers 300 mm apart gives k(f) (2 pi branch anchored once at mid-band with the analytic k; one branch
+    step is 21 rad/m, ten times the tolerance), compared with Mindlin's relation over 2-20 kHz."""
+    from scipy.signal import savgol_filter
+
+    p = SimParams(support="free", damping_per_s=0.0, **PMMA)
+    h, nx, ny = 1e-3, 4000, 1
+    fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
+    fix_bx = fix_w.copy()
+    fix_bx[:, 0] = 1
+    fix_by = np.ones_like(fix_w)
+    plate, _, _, dt_crit = uniform_plate(nx, ny, h, h, p, masks=(fix_w, fix_bx, fix_by))
+    m_rec = int(math.ceil(2e-6 / (0.9 * dt_crit)))
+    n_rec = int(6e-3 / 2e-6)
+    x = np.arange(nx + 1) * h
+    vw0 = np.tile((1 - (x / 1.5e-3) ** 2) * np.exp(-0.5 * (x / 1.5e-3) ** 2), ny + 1)
+    out = plate.run(dt_s=2e-6 / m_rec, n_steps=n_rec * m_rec, record_every=m_rec, n_record=n_rec,
+                    record_field=True, vw0=vw0)
+    field = np.asarray(out["field"])
+    i1, i2 = 100, 400
+    t_ax = np.arange(n_rec) * 2e-6
+    c_shear = math.sqrt(p.shear_factor * p.e_pa / (2 * (1 + p.nu)) / p.rho_kg_m3)   # faster than any A0 part
+    t_reflect = (2 * nx - i2) * h / c_shear
+    assert t_reflect > t_ax[-1]                                 # no far-end reflection in the record
+    n_fft = 1 << 15
+    f = np.fft.rfftfreq(n_fft, 2e-6)
+    s1, s2 = np.fft.rfft(field[:, i1], n_fft), np.fft.rfft(field[:, i2], n_fft)
+    band = (f >= 1500) & (f <= 21000)
+    fb = f[band]
+    kw = dict(e_pa=p.e_pa, nu=p.nu, rho_kg_m3=p.rho_kg_m3, t_m=4.2e-3, kappa=p.shear_factor)
+    dx = (i2 - i1) * h
+    phase = np.unwrap(np.angle(s1[band] / s2[band]))
+    k_an = dispersion.a0_wavenumber(fb, **kw)
+    mid = fb.size // 2
+    phase += 2 * np.pi * np.round((k_an[mid] * dx - phase[mid]) / (2 * np.pi))
+    k_fe = phase / dx
+    cp_fe = 2 * np.pi * fb / k_fe
+    win = int(1000 / (fb[1] - fb[0])) | 1                      # dk/df by a local quadratic over 1 kHz
+    cg_fe = 2 * np.pi * (fb[1] - fb[0]) / savgol_filter(k_fe, win, 2, deriv=1)
+    sel = (fb >= 2000) & (fb <= 20000)
+    err_cp = np.abs(cp_fe[sel] / dispersion.a0_phase_velocity(fb[sel], **kw) - 1)
+    err_cg = np.abs(cg_fe[sel] / dispersion.a0_group_velocity(fb[sel], **kw) - 1)
+    assert err_cp.max() < 0.02, err_cp.max()
+    assert err_cg.max() < 0.02, err_cg.max()
+
+
+def test_energy_conserved_undamped_plate_and_ball(rig):
+    p = SimParams.from_rig(rig, damping_per_s=0.0, element_mm=8.0, disc_mass=False, disc_stiffness=False)
+    model = build_model(p, rig)
+    v0 = float(impact_velocity(p, 150.0))
+    n_rec = 500                                              # 5 ms
+    out = model.plate.run(dt_s=model.dt_s, n_steps=n_rec * model.record_every, record_every=model.record_every,
+                          n_record=n_rec, ball=[0.13, 0.17, model.ball_mass_kg, model.k_hertz, v0, p.g_m_s2],
+                          record_energy=True)
+    e = np.asarray(out["energy"]).sum(axis=1)
+    e_ball0 = 0.5 * model.ball_mass_kg * v0 ** 2
+    assert np.asarray(out["energy"])[-1, 0:2].sum() > 0.05 * e_ball0   # energy really went into the plate
+    assert np.max(np.abs(e[1:] - e[1])) < 1e-3 * e_ball0
+
+
+def test_damping_decays_at_rate_ds():
+    """Mass-proportional damping, M u'' + D_s M u' + K u = 0: (1) energy balance dE/dt = -2 D_s KE;
+    (2) with the energy in modes far above D_s (zero-mean 10 mm bump on 4 mm elements: zeta ~ 2e-3) the energy
+    decays as exp(-D_s t): fitted rate within 2 %."""
+    d_s = 300.0
+    nx = ny = 80
+    p = SimParams(support="simply_supported", damping_per_s=d_s, **PMMA)
+    lx, ly = 0.32, 0.317
+    plate, mw, mr, dt_crit = uniform_plate(nx, ny, lx / nx, ly / ny, p)
+    xx, yy = np.meshgrid(np.arange(nx + 1) * lx / nx, np.arange(ny + 1) * ly / ny)
+    r2 = ((xx - 0.15) ** 2 + (yy - 0.14) ** 2) / 0.010 ** 2
+    vw0 = ((1 - r2 / 2) * np.exp(-r2 / 2)).ravel()
+    m_rec = int(math.ceil(10e-6 / (0.9 * dt_crit)))
+    dt = 10e-6 / m_rec
+    n_rec = 400 * m_rec                                         # energy at every step
+    out = plate.run(dt_s=dt, n_steps=n_rec, record_every=1, n_record=n_rec, record_energy=True, vw0=vw0)
+    e = np.asarray(out["energy"])
+    total = e[:, :2].sum(axis=1)
+    t = np.arange(n_rec) * dt
+    # (1) energy balance: the energy lost equals 2 D_s times the time integral of the kinetic energy (to
+    # O((omega dt)^2) = 5 % of the kinetic-energy estimate <v-, M v+>, hence 3 %)
+    lost = 2 * d_s * np.concatenate([[0], np.cumsum(0.5 * (e[1:, 0] + e[:-1, 0]) * dt)])
+    assert np.max(np.abs(total[1:] + lost[1:] - lost[1] - total[1])) < 0.03 * (total[1] - total[-1])
+    # (2) decay rate
+    slope = np.polyfit(t[m_rec:], np.log(total[m_rec:]), 1)[0]
+    assert abs(-slope / d_s - 1) < 0.02, -slope
+
+
+def test_hertz_contact_duration_on_stiff_thick_plate(rig):
+    raw = dict(rig.raw, plate_x_mm=200.0, plate_y_mm=200.0, thickness_mm=60.0, density_kg_m3=7850.0)
+    raw["sensors"] = [dict(s, x_mm=min(s["x_mm"], 180.0), y_mm=min(s["y_mm"], 180.0)) for s in raw["sensors"]]
+    thick = rig_from_dict(raw)
+    p = SimParams(e_pa=210e9, nu=0.30, rho_kg_m3=7850.0, thickness_mm=60.0, support="clamped",
+                  element_mm=10.0, dt_us=0.05, disc_mass=False, disc_stiffness=False, damping_per_s=0.0)
+    model = build_model(p, thick)
+    v0 = float(impact_velocity(p, 150.0))
+    out = model.plate.run(dt_s=model.dt_s, n_steps=int(80e-6 / model.dt_s), ball=[0.1, 0.1, model.ball_mass_kg,
+                          model.k_hertz, v0, 0.0], n_record=0)
+    force = np.asarray(out["force_n"])
+    duration = np.count_nonzero(force > 0) * model.dt_s
+    k = hertz_k(p, model.ball_radius_m)
+    t_an = hertz_duration_s(k, model.ball_mass_kg, v0)
+    f_an = k * (5 * model.ball_mass_kg * v0 ** 2 / (4 * k)) ** 0.6
+    assert abs(duration / t_an - 1) < 0.02
+    assert abs(force.max() / f_an - 1) < 0.02
+
+
+def test_fast_path_matches_direct_within_2pct_rms(rig):
+    p = SimParams.from_rig(rig, element_mm=6.0, duration_ms=3.0, taper_ms=0.5)
+    xs, ys, hs = [100.0, 230.0], [150.0, 90.0], [120.0, 190.0]
+    fast = simulate_voltages(p, rig, xs, ys, hs, method="fast", progress=False)["volts"]
+    direct = simulate_voltages(p, rig, xs, ys, hs, method="direct", progress=False)["volts"]
+    rel = np.sqrt(((fast - direct) ** 2).mean(axis=2) / (direct ** 2).mean(axis=2))
+    assert np.abs(direct).max() > 0
+    assert rel.max() < 0.02, rel
+
+
+def test_first_arrival_converges_with_mesh_and_step(rig):
+    """Onset (2 % of the channel's peak) moves less between the two finer meshes than between the two
+    coarser ones, and halving dt moves it < 1 us."""
+    import impactsense._core as core
+
+    def onset_us(**kw):
+        p = SimParams.from_rig(rig, duration_ms=1.5, taper_ms=0.2, **kw)
+        v = simulate_voltages(p, rig, [210.0], [120.0], [150.0], method="direct", progress=False)["volts"][0]
+        out = []
+        for ch in v:
+            fine = np.abs(ch)
+            k = np.argmax(fine > 0.02 * fine.max())
+            # linear interpolation of the crossing
+            y0, y1 = fine[k - 1], fine[k]
+            out.append((k - 1 + (0.02 * fine.max() - y0) / (y1 - y0)) * 10.0)
+        return np.array(out)
+
+    coarse, mid, fine = onset_us(element_mm=8.0), onset_us(element_mm=5.0), onset_us(element_mm=3.5)
+    assert np.abs(fine - mid).max() < np.abs(mid - coarse).max()
+    half_dt = onset_us(element_mm=5.0, dt_us=build_model(SimParams.from_rig(rig, element_mm=5.0), rig).dt_s * 0.5e6)
+    assert np.abs(half_dt - mid).max() < 1.0
