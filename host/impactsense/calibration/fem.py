@@ -1,0 +1,88 @@
+"""The calibration's view of the simulator: a flat parameter dict and `simulate(params, rig, x, y, h)`.
+
+The flat dict uses `impactsense.sim.SimParams` field names (e_pa, nu, damping_per_s, pzt_*), so
+`SimParams.from_rig(rig, **flat)` builds the simulator's parameters and CAL.json's "sim_params" is its
+`to_dict()` (what `SimParams.from_json(CAL.json)` / `simulate-dataset --calibration` loads).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ConfigError
+
+# Sub-problem 2 factors (method.md): SimParams name, low, high, step, unit
+FACTORS = (
+    ("pzt_rho_kg_m3", 7500.0, 7800.0, 150.0, "kg/m3"),
+    ("pzt_e11_mpa", 55000.0, 85000.0, 5000.0, "MPa"),
+    ("pzt_e33_mpa", 45000.0, 75000.0, 5000.0, "MPa"),
+    ("pzt_nu12", 0.30, 0.40, 0.02, "-"),
+    ("pzt_nu13", 0.30, 0.40, 0.02, "-"),
+    ("pzt_g12_mpa", 20000.0, 25000.0, 2500.0, "MPa"),
+    ("pzt_g13_mpa", 20000.0, 25000.0, 2500.0, "MPa"),
+    ("pzt_d15_pc_n", 50.0, 800.0, 50.0, "pC/N"),
+    ("pzt_d31_pc_n", -800.0, -50.0, 50.0, "pC/N"),
+    ("pzt_d33_pc_n", 50.0, 800.0, 50.0, "pC/N"),
+    ("pzt_eps11_rel", 500.0, 10000.0, 250.0, "-"),
+    ("pzt_eps33_rel", 500.0, 10000.0, 250.0, "-"),
+    ("damping_per_s", 200.0, 1200.0, 100.0, "1/s"),
+)
+FACTOR_NAMES = tuple(f[0] for f in FACTORS)
+
+# Starting point before sub-problem 2: the seed's fitted PZT and damping (method.md).
+SEED_PZT = {
+    "pzt_rho_kg_m3": 7531.4, "pzt_e11_mpa": 75200.0, "pzt_e33_mpa": 55200.0, "pzt_nu12": 0.30,
+    "pzt_nu13": 0.34, "pzt_g12_mpa": 24800.0, "pzt_g13_mpa": 24900.0, "pzt_d15_pc_n": 50.0,
+    "pzt_d31_pc_n": -737.8, "pzt_d33_pc_n": 793.0, "pzt_eps11_rel": 3875.5, "pzt_eps33_rel": 6320.2,
+    "damping_per_s": 1086.0,
+}
+
+
+def base_params(rig, e_mpa: float = 5000.0, nu: float = 0.32) -> dict:
+    """Flat parameters: plate E (Pa) and nu, the seed's PZT block and damping. Plate rho, t and support
+    come from the rig (`SimParams.from_rig`)."""
+    return {"e_pa": float(e_mpa) * 1e6, "nu": float(nu), **SEED_PZT}
+
+
+def available() -> bool:
+    try:
+        from .. import sim
+        return hasattr(sim, "simulate_drops") and hasattr(sim, "SimParams")
+    except Exception:
+        return False
+
+
+def _support(rig) -> str:
+    text = str(getattr(rig, "plate_support", "")).lower()
+    return "clamped" if "clamp" in text else "free" if ("free" in text or "suspend" in text) else "simply_supported"
+
+
+def sim_params_json(flat: dict, rig) -> dict:
+    """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()`; without the simulator in this
+    build, the same keys and format written by hand."""
+    if available():
+        from ..sim import SimParams
+        return SimParams.from_rig(rig, **{k: float(v) for k, v in flat.items()}).to_dict()
+    return {"format": "impactsense-sim-params", "version": 1, **{k: float(v) for k, v in flat.items()},
+            "rho_kg_m3": float(rig.density_kg_m3), "thickness_mm": float(rig.thickness_mm), "support": _support(rig)}
+
+
+Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def fem_simulator(workers: int = 2, **overrides) -> Simulator:
+    """`simulate(flat, rig, x_mm, y_mm, height_mm) -> uint16 [n, 4, samples]` with the project's FEM.
+    `overrides` are extra SimParams fields (e.g. element_mm for a coarse mesh)."""
+    if not available():
+        raise ConfigError("the FEM simulator (impactsense.sim) is not available in this build; calibration "
+                          "needs it to confirm the plate and for sub-problem 2 (or run with --no-fem)")
+    from ..sim import SimParams, simulate_drops
+
+    def simulate(flat, rig, x_mm, y_mm, height_mm):
+        p = SimParams.from_rig(rig, **{k: float(v) for k, v in flat.items()}, **overrides)
+        return np.asarray(simulate_drops(p, rig, np.asarray(x_mm, float), np.asarray(y_mm, float),
+                                         np.asarray(height_mm, float), noise=False, seed=None,
+                                         workers=workers, progress=False))
+    return simulate

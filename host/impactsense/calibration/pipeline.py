@@ -1,0 +1,377 @@
+"""`impactsense calibrate`: fit the twin to four measured drops (method.md, Calibration).
+
+Stages (each cached next to CAL.json as `<stem>.<stage>.*`, keyed by the inputs that determine it, so an
+interrupted run resumes and a finished one is not recomputed):
+
+  drops     choose four repeatable, Eq.-35-accepted cases well spread over the plate (`drops`)
+  plate     sub-problem 1: Eq. 16 over the full E x nu grid with the fast first-arrival model (`plate`,
+            `arrival`), contour plot; the FEM at the minimum confirms it
+  design    sub-problem 2: Sobol design over the PZT block and D_s, the FEM at every point; outputs f2
+            (sensor energies) and f3 (last-window residual-energy ratios), method.md
+  surrogate RF, GPR, NN and SVD-polynomial surrogates of log10 f2 and log10 f3, tuned on a 70/15/15 split;
+            Welch factor screening; surrogate optimisation; a confirming FEM run
+
+CAL.json (written atomically at the end) holds every fitted parameter, "sim_params" for the simulator, the
+losses, the drops used (never to be tested on) and each stage's wall time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import _core
+from ..data import load_session
+from ..errors import ConfigError, DataError
+from . import arrival, drops as drops_mod, fem, plate, screening, surrogates
+
+MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
+
+
+@dataclass
+class CalibrateOptions:
+    drops: object = "auto"                 # "auto" or four case ids
+    budget: int = 64                       # FEM runs in the sub-problem-2 design
+    seed: int = 0
+    workers: int = 2
+    progress: bool = True
+    e_min_mpa: float = 1500.0
+    e_max_mpa: float = 65000.0
+    e_step_mpa: float = 250.0
+    nu_min: float = 0.30
+    nu_max: float = 0.40
+    nu_step: float = 0.001
+    aic_blend: float = 1.0                 # core ToA: 1 = AIC onset (amplitude-independent), 0 = threshold
+    channel_delay_us: list | None = None   # known per-channel sampling delays; default: rig.json's, else 0
+    eq35_tol_us: float = 0.0
+    eq35_margin_mm: float = 0.0
+    min_reps: int = 2
+    surrogate_trials: int = 8
+    fem: bool = True                       # False: sub-problem 1 only (no FEM confirmation, no sub-problem 2)
+    fast_n_fft: int = 1024
+
+    def validate(self):
+        if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
+            raise ConfigError(f"--budget {self.budget} is too small for the sub-problem-2 design: the 70/15/15 "
+                              f"split and the factor screening of {len(fem.FACTORS)} factors need at least "
+                              f"{MIN_BUDGET} FEM runs")
+        if self.e_step_mpa <= 0 or self.nu_step <= 0 or self.e_max_mpa < self.e_min_mpa or self.nu_max < self.nu_min:
+            raise ConfigError("the E / nu grid needs positive steps and max >= min")
+        if self.e_min_mpa <= 0 or not (0.0 <= self.nu_min and self.nu_max < 0.5):
+            raise ConfigError("the E / nu grid must stay physical: E > 0, 0 <= nu < 0.5")
+        if self.workers < 1:
+            raise ConfigError("--workers must be >= 1")
+
+
+def _key(*parts) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _write_json_atomic(path: Path, obj: dict):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(obj, f, indent=1, default=_jsonable)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    raise TypeError(type(o))
+
+
+def _read_cache(path: Path, key: str):
+    if path.exists():
+        try:
+            obj = json.loads(path.read_text())
+            if obj.get("key") == key:
+                return obj
+        except (OSError, ValueError):
+            pass
+    return None
+
+
+def core_config(rig, opts: CalibrateOptions):
+    cfg = drops_mod.core_config(rig)
+    cfg.aic_blend = float(opts.aic_blend)
+    if opts.channel_delay_us is not None:
+        if len(opts.channel_delay_us) != 4:
+            raise ConfigError("--channel-delay-us needs four values (microseconds, channel 0..3)")
+        cfg.channel_delay_us = [float(v) for v in opts.channel_delay_us]
+    return cfg
+
+
+def _sim_core_config(cfg):
+    """Config for simulated signals: same picker, no channel delays (the simulator samples simultaneously)."""
+    c = _core.CoreConfig()
+    for k in ("fs_hz", "baseline_samples", "onset_threshold_counts", "onset_noise_factor", "aic_before",
+              "aic_after", "aic_blend", "adc_min", "adc_max", "dead_rms_counts", "n2_fraction"):
+        setattr(c, k, getattr(cfg, k))
+    return c
+
+
+def sim_features(adc_u16, cfg_sim):
+    out = _core.extract_batch(np.ascontiguousarray(np.asarray(adc_u16).astype(np.int16)), cfg_sim)
+    toa = out["toa_us"].astype(float)
+    return {"toa_us": toa, "dtoa_us": toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J],
+            "energy": out["energy"].astype(float), "residual_ratio": out["residual_ratio"].astype(float)}
+
+
+def objectives(feat, targets) -> tuple[float, float]:
+    """f2 = sum (E_meas - E_sim)^2, f3 = sum (ratio_meas - ratio_sim)^2 over drops and sensors."""
+    e = np.where(np.isfinite(feat["energy"]), feat["energy"], 0.0)
+    r = np.where(np.isfinite(feat["residual_ratio"]), feat["residual_ratio"], 1.0)
+    f2 = float(np.sum((targets.energy - e) ** 2))
+    f3 = float(np.sum((targets.residual_ratio - r) ** 2))
+    return f2, f3
+
+
+@dataclass
+class StageClock:
+    seconds: dict = field(default_factory=dict)
+
+    def run(self, name, fn, *a, **k):
+        t = time.perf_counter()
+        res = fn(*a, **k)
+        self.seconds[name] = round(time.perf_counter() - t, 3)
+        return res
+
+
+def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=None) -> dict:
+    """Run the calibration of session folder `data`; writes `out` (CAL.json) and returns its dict."""
+    opts = options or CalibrateOptions()
+    opts.validate()
+    out = Path(out)
+    if out.suffix.lower() != ".json":
+        raise ConfigError(f"--out must name a .json file, got {out}")
+    if out.exists() and out.is_dir():
+        raise ConfigError(f"--out {out} is a directory")
+    t_all = time.perf_counter()
+    clock = StageClock()
+    session = load_session(data)
+    rig = session.rig
+    cfg = core_config(rig, opts)
+    cfg_sim = _sim_core_config(cfg)
+    if simulate is None and opts.fem:
+        simulate = fem.fem_simulator(workers=opts.workers)
+    stem = out.with_suffix("")
+    cache = lambda tag: Path(f"{stem}.{tag}")  # noqa: E731
+
+    # --- stage: drops ---------------------------------------------------------------------------------
+    def stage_drops():
+        feats = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
+        return drops_mod.select_drops(session, feats, opts.drops, tol_us=opts.eq35_tol_us,
+                                      margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
+    targets = clock.run("drops", stage_drops)
+    out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
+    base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us))
+
+    # --- stage: plate grid (sub-problem 1) --------------------------------------------------------------
+    e_axis, nu_axis = plate.grid_axes(opts.e_min_mpa, opts.e_max_mpa, opts.e_step_mpa, opts.nu_min,
+                                      opts.nu_max, opts.nu_step)
+    setup = arrival.setup_from_rig(rig, targets.x_mm, targets.y_mm, targets.height_mm, n_fft=opts.fast_n_fft)
+    grid_path = cache("stage1-grid.npz")
+    loss = clock.run("plate_grid", plate.run_grid, setup, cfg_sim, int(rig.bias_counts), targets.peak,
+                     targets.dtoa_us, e_axis, nu_axis, cache_path=str(grid_path), workers=opts.workers,
+                     progress=opts.progress)
+    e_best, nu_best, loss_best = plate.refine_minimum(loss, e_axis, nu_axis)
+    fig9 = Path(f"{stem}.fig9-plate-loss.png")
+    plate.contour_plot(loss, e_axis, nu_axis, (e_best, nu_best), fig9)
+    stage1 = {"E_mpa": e_best, "nu": nu_best, "loss_eq16_us2": loss_best,
+              "rms_dtoa_error_us": float(np.sqrt(loss_best / targets.dtoa_us.size)),
+              "grid": {"E_mpa": [float(e_axis[0]), float(e_axis[-1]), opts.e_step_mpa],
+                       "nu": [float(nu_axis[0]), float(nu_axis[-1]), opts.nu_step], "points": int(loss.size)},
+              "model": "infinite Mindlin plate, Hertz pulse, core picker (calibration.arrival)",
+              "contour_png": str(fig9)}
+
+    params = fem.base_params(rig, e_best, nu_best)
+    result = {"format": "impactsense-calibration/1", "data": str(Path(data)),
+              "data_sha256": session.fingerprint(), "seed": opts.seed,
+              "options": {k: v for k, v in asdict(opts).items() if k not in ("progress",)},
+              "core_config": {"aic_blend": cfg.aic_blend, "channel_delay_us": list(cfg.channel_delay_us),
+                              "fs_hz": cfg.fs_hz},
+              "drops": targets.to_json(), "exclude_case_ids": [int(c) for c in targets.case_ids],
+              "exclude_recording_ids": sorted(int(r) for rs in targets.recording_ids for r in rs),
+              "plate": stage1}
+
+    if opts.fem:
+        # FEM confirmation of the plate minimum
+        conf_path = cache("stage1-confirm.json")
+        k1 = _key(base_key, e_best, nu_best)
+        cached = _read_cache(conf_path, k1)
+        if cached is None:
+            def confirm1():
+                adc = simulate(params, rig, targets.x_mm, targets.y_mm, targets.height_mm)
+                f = sim_features(adc, cfg_sim)
+                return {"key": k1, "loss_eq16_us2": float(plate.eq16_loss(f["dtoa_us"], targets.dtoa_us)),
+                        "dtoa_us": f["dtoa_us"]}
+            cached = clock.run("plate_fem_confirm", confirm1)
+            _write_json_atomic(conf_path, cached)
+        else:
+            clock.seconds["plate_fem_confirm"] = 0.0
+        stage1["fem_confirm_loss_eq16_us2"] = cached["loss_eq16_us2"]
+        stage1["fem_confirm_rms_dtoa_error_us"] = float(np.sqrt(cached["loss_eq16_us2"] / targets.dtoa_us.size))
+        # sub-problem 2
+        s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem)
+        params.update(s2.pop("fitted"))
+        result["pzt_damping"] = s2
+    else:
+        result["pzt_damping"] = {"skipped": "run without the FEM (--no-fem): seed's PZT block and D_s kept"}
+    result["fitted"] = params
+    result["sim_params"] = fem.sim_params_json(params, rig)
+    result["loss_at_optimum"] = {"eq16_us2": loss_best, **({k: result["pzt_damping"][k] for k in
+                                 ("f2", "f3", "f2_rel") if k in result["pzt_damping"]})}
+    clock.seconds["total"] = round(time.perf_counter() - t_all, 3)
+    result["wall_time_s"] = clock.seconds
+    _write_json_atomic(out, result)
+    return result
+
+
+def _unit_to_params(u):
+    lo = np.array([f[1] for f in fem.FACTORS])
+    hi = np.array([f[2] for f in fem.FACTORS])
+    return lo + np.asarray(u) * (hi - lo)
+
+
+def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem) -> dict:
+    from scipy.optimize import differential_evolution
+    from scipy.stats import qmc
+    from tqdm import tqdm
+
+    d = len(fem.FACTORS)
+    n = int(opts.budget)
+    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed)
+    u = qmc.Sobol(d=d, scramble=True, seed=opts.seed).random(n)
+    xs = _unit_to_params(u)
+    path = cache("stage2-design.npz")
+    energy = np.full((n, 4, 4), np.nan)
+    ratio = np.full((n, 4, 4), np.nan)
+    done = np.zeros(n, bool)
+    if path.exists():
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["key"]) == key:
+                energy, ratio, done = z["energy"].copy(), z["ratio"].copy(), z["done"].copy()
+
+    def save():
+        tmp = str(path) + ".tmp.npz"
+        np.savez(tmp, key=key, energy=energy, ratio=ratio, done=done, x=xs)
+        os.replace(tmp, path)
+
+    def run_design():
+        bar = tqdm(total=n, initial=int(done.sum()), desc="FEM design runs", unit="run", disable=not opts.progress)
+        for i in np.flatnonzero(~done):
+            p = dict(params, **dict(zip(fem.FACTOR_NAMES, xs[i])))
+            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim)
+            energy[i], ratio[i], done[i] = f["energy"], f["residual_ratio"], True
+            save()
+            bar.update(1)
+        bar.close()
+    clock.run("design_fem", run_design)
+
+    e_sim = np.where(np.isfinite(energy) & (energy > 0), energy, 1.0).reshape(n, 16)
+    r_sim = np.where(np.isfinite(ratio), ratio, 1.0).reshape(n, 16)
+    e_meas = targets.energy.reshape(16)
+    r_meas = targets.residual_ratio.reshape(16)
+    f2 = np.sum((e_meas[None] - e_sim) ** 2, axis=1)
+    f3 = np.sum((r_meas[None] - r_sim) ** 2, axis=1)
+    # surrogate outputs: what the FEM returns per drop and sensor (the seed's Table 5 rows); f2 and f3 are
+    # computed from them. Energies in log10 (they scale as gain^2 and decay exponentially with D_s).
+    outputs = {"sensor_energies_log10": np.log10(e_sim), "residual_ratios": r_sim}
+
+    def f23(pred):
+        e_hat = 10.0 ** pred["sensor_energies_log10"]
+        return (np.sum((e_meas[None] - e_hat) ** 2, axis=1), np.sum((r_meas[None] - pred["residual_ratios"]) ** 2,
+                                                                      axis=1))
+
+    tr, va, te = surrogates.split_indices(n, opts.seed)
+    x_unit = u
+
+    def fit_all():
+        table, best = {}, {}
+        bar = tqdm(total=len(outputs) * len(surrogates.MODELS), desc="surrogates", unit="model",
+                   disable=not opts.progress)
+        for oname, y in outputs.items():
+            table[oname] = {}
+            for m_i, kind in enumerate(surrogates.MODELS):
+                fit = surrogates.tune(kind, x_unit[tr], y[tr], x_unit[va], y[va], x_unit[te], y[te],
+                                      trials=opts.surrogate_trials, seed=opts.seed + 17 * m_i)
+                table[oname][kind] = {"r2_test": fit.r2_test, "r2_val": fit.r2_val,
+                                      "config": {k: v for k, v in fit.config.items() if k != "d"}}
+                if oname not in best or fit.r2_val > best[oname].r2_val:
+                    best[oname] = fit
+                bar.update(1)
+        bar.close()
+        return table, best
+    table, best = clock.run("surrogates", fit_all)
+
+    def screen():
+        ys = {"sensor energy (mean log10)": outputs["sensor_energies_log10"].mean(axis=1),
+              "residual ratio (mean)": outputs["residual_ratios"].mean(axis=1)}
+        res = {o: screening.welch_screen(xs, y, list(fem.FACTOR_NAMES)) for o, y in ys.items()}
+        png = Path(f"{stem}.fig10-screening.png")
+        screening.screening_chart(res, png)
+        return res, png
+    screen_res, png10 = clock.run("screening", screen)
+
+    def objective(uu):
+        pred = {o: np.asarray(best[o].predict(uu)).reshape(len(uu), 16) for o in outputs}
+        f2h, f3h = f23(pred)
+        return np.log10(f2h + 1e-30) + np.log10(f3h + 1e-30)
+
+    def optimise():
+        def obj(uu):
+            uu = np.asarray(uu)
+            return objective(uu.T if uu.ndim == 2 else uu[None])
+        res = differential_evolution(obj, [(0.0, 1.0)] * d, seed=opts.seed, maxiter=80, popsize=12, tol=1e-8,
+                                     polish=False, vectorized=True, updating="deferred")
+        return res.x, float(np.atleast_1d(res.fun)[0])
+    u_opt, j_pred = clock.run("optimise", optimise)
+    x_opt = _unit_to_params(u_opt)
+
+    def confirm():
+        p = dict(params, **dict(zip(fem.FACTOR_NAMES, x_opt)))
+        f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim)
+        return objectives(f, targets)
+    f2_c, f3_c = clock.run("fem_confirm", confirm)
+    j_conf = float(np.log10(f2_c + 1e-30) + np.log10(f3_c + 1e-30))
+    j_design = np.log10(f2 + 1e-30) + np.log10(f3 + 1e-30)
+    i_best = int(np.argmin(j_design))
+    if j_conf <= j_design[i_best]:
+        chosen, x_fit, f2_fit, f3_fit = "surrogate optimum (FEM-confirmed)", x_opt, f2_c, f3_c
+    else:
+        chosen, x_fit, f2_fit, f3_fit = "best design point (the surrogate optimum did worse in the FEM)", \
+            xs[i_best], float(f2[i_best]), float(f3[i_best])
+    e_norm = float(np.sum(e_meas ** 2))
+    fitted = dict(zip(fem.FACTOR_NAMES, (float(v) for v in x_fit)))
+    return {
+        "fitted": fitted, "chosen": chosen, "budget": n, "f2": f2_fit, "f3": f3_fit, "f2_rel": f2_fit / e_norm,
+        "surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in x_opt))),
+        "objective": "minimise log10 f2 + log10 f3 (both scale-free; their product)",
+        "surrogate_predicted_objective": j_pred,
+        "fem_confirm": {"f2": f2_c, "f3": f3_c, "objective": j_conf},
+        "best_design_point": {"index": i_best, "f2": float(f2[i_best]), "f3": float(f3[i_best])},
+        "surrogate_r2_test": table, "best_surrogate": {o: b.kind for o, b in best.items()},
+        "split": {"train": len(tr), "validation": len(va), "test": len(te)},
+        "screening": {o: r[:20] for o, r in screen_res.items()}, "screening_png": str(png10),
+        "outputs": "surrogates model the 16 (drop, sensor) log10 energies and residual ratios (R2 = mean over "
+                   "the 16); f2 = sum (E meas - E sim)^2 [counts^4], f2_rel = f2 / sum E_meas^2; f3 = sum "
+                   "(Eresid/E meas - Eresid/E sim)^2 over the 4 drops x 4 sensors",
+    }
