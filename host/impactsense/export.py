@@ -113,7 +113,10 @@ def _c_float(v) -> str:
     v = np.float32(v)
     if not np.isfinite(v):
         raise ExportError(f"non-finite constant {v} in a tree")
-    return f"{float(v):.9g}f"
+    text = f"{float(v):.9g}"
+    if not any(ch in text for ch in ".e"):
+        text += ".0"
+    return text + "f"
 
 
 # --- node tables ---

@@ -1,0 +1,73 @@
+"""Per-event cost of the firmware on the Cortex-M4F, in instructions, under qemu (mps2-an386).
+
+Runs firmware/test/qemu/run.sh with `-icount shift=4` (every guest instruction advances virtual time by
+16 ns); the test image reads SysTick around each stage and around a calibration loop of exactly 200,000
+instructions, so instructions = ticks x 200,000 / calibration ticks (resolution ~2.5 instructions).
+Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
+
+    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET = 64000
+
+
+def run(build: Path, extra: list[str]) -> tuple[dict, str]:
+    env = dict(os.environ, QEMU_EXTRA="-icount shift=4")
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(build), *extra], env=env,
+                       capture_output=True, text=True, timeout=1200)
+    if p.returncode != 0:
+        sys.exit(f"qemu test image failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
+    ticks = {m.group(1): int(m.group(2)) for m in re.finditer(r"^TICKS (\S+) (\d+)$", p.stdout + p.stderr, re.M)}
+    return ticks, p.stdout
+
+
+def obj_size(build: Path, name: str) -> int:
+    out = subprocess.run(["arm-none-eabi-size", str(build / "obj" / name)], capture_output=True, text=True).stdout
+    return int(out.splitlines()[1].split()[0])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model-dir")
+    ap.add_argument("--trees", type=int, default=12)
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
+        print("needs arm-none-eabi-gcc and qemu-system-arm (firmware/test/install-deps.sh)")
+        return 2
+    extra = ["--trees", str(args.trees)] + (["--model-dir", args.model_dir] if args.model_dir else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        build = Path(tmp)
+        ticks, _ = run(build, extra)
+        per = 200000 / ticks.pop("calib_200000_instructions")
+        ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
+        sizes = {"models_tables": obj_size(build, "impactsense_forest_tables.o"),
+                 "models_m2cgen": obj_size(build, "impactsense_models_m2c.o")}
+        export = json.loads((build / "models/export.json").read_text())
+    print(f"per-event instructions on the Cortex-M4F (qemu -icount), {export['trees']} trees, "
+          f"{export['nodes']} nodes")
+    print(f"{'stage':<22}{'instructions':>14}{'of 64k':>9}{'flash bytes':>13}")
+    for k in ("features", "localiser", "models_tables", "models_m2cgen", "event_total"):
+        print(f"{k:<22}{ins[k]:>14,}{ins[k] / TARGET:>9.2f}{sizes.get(k, 0) or '':>13}")
+    print(f"event_total = features + localiser (uncertainty) + table models + Eq. 35 + encoding; "
+          f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

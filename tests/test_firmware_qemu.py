@@ -1,0 +1,27 @@
+"""The portable firmware cross-compiled for the Cortex-M4F and run on qemu (mps2-an386): the bare-metal
+image processes recorded drops and checks its reports, features and model outputs against the host's."""
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(
+    not (shutil.which("arm-none-eabi-gcc") and shutil.which("qemu-system-arm")),
+    reason="needs gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (firmware/test/install-deps.sh)")
+
+
+def test_qemu_image_matches_host(tmp_path):
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path), "--drops", "6", "--trees", "8"],
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA=""))
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out
+    assert "FAILURES 0" in out
+    # arm-none-eabi-size was printed for the libraries and the image
+    assert re.search(r"\(TOTALS\)", out) and "test.elf" in out
+    assert not re.search(r"FAIL \w", out)
