@@ -199,6 +199,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
               "rms_dtoa_error_us": float(np.sqrt(loss_best / targets.dtoa_us.size)),
               "grid": {"E_mpa": [float(e_axis[0]), float(e_axis[-1]), opts.e_step_mpa],
                        "nu": [float(nu_axis[0]), float(nu_axis[-1]), opts.nu_step], "points": int(loss.size)},
+              "near_optimal": plate.near_optimal_ranges(loss, e_axis, nu_axis),
               "model": "infinite Mindlin plate, Hertz pulse, core picker (calibration.arrival)",
               "contour_png": str(fig9)}
 

@@ -113,19 +113,32 @@ def refine_minimum(loss, e_axis, nu_axis):
     return float(e_axis[i]), float(nu_axis[j]), float(loss[i, j])
 
 
+def near_optimal_ranges(loss, e_axis, nu_axis, factor=1.25):
+    """E and nu intervals whose best loss stays within `factor` x the minimum (how well each is pinned)."""
+    lmin = np.nanmin(loss)
+    e_ok = e_axis[np.nanmin(loss, axis=1) <= factor * lmin]
+    nu_ok = nu_axis[np.nanmin(loss, axis=0) <= factor * lmin]
+    return {"factor": factor, "E_mpa": [float(e_ok.min()), float(e_ok.max())],
+            "nu": [float(nu_ok.min()), float(nu_ok.max())]}
+
+
 def contour_plot(loss, e_axis, nu_axis, best, path, title="Eq. 16 loss over the plate grid"):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     z = np.log10(np.maximum(loss.T, 1e-9))
-    cs = ax.contourf(e_axis, nu_axis, z, levels=30, cmap="viridis")
-    fig.colorbar(cs, ax=ax, label="log10 loss [us^2]")
-    ax.plot(best[0], best[1], "r*", ms=12, label=f"min E={best[0]:.0f} MPa, nu={best[1]:.3f}")
-    ax.set_xlabel("E [MPa]")
-    ax.set_ylabel("nu [-]")
-    ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=8)
+    zoom = (e_axis >= 0.6 * best[0]) & (e_axis <= 1.6 * best[0])
+    for ax, sel, label in ((axes[0], slice(None), "full grid"), (axes[1], zoom, "around the minimum")):
+        if np.count_nonzero(np.ones_like(e_axis, bool)[sel]) < 2:
+            sel = slice(None)
+        cs = ax.contourf(e_axis[sel], nu_axis, z[:, sel], levels=30, cmap="viridis")
+        fig.colorbar(cs, ax=ax, label="log10 loss [us^2]")
+        ax.plot(best[0], best[1], "r*", ms=12, label=f"min E={best[0]:.0f} MPa, nu={best[1]:.3f}")
+        ax.set_xlabel("E [MPa]")
+        ax.set_ylabel("nu [-]")
+        ax.set_title(f"{title}: {label}", fontsize=9)
+        ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -1,0 +1,103 @@
+"""impactsense calibrate: fit the FEM twin (plate E, nu; PZT block; damping D_s) to four measured drops."""
+
+from __future__ import annotations
+
+ORDER = 45
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "calibrate", help="calibrate the simulator on four measured drops (method.md, Calibration)",
+        description="Picks four repeatable drops (or takes --drops), fits plate E and nu on the full factorial "
+                    "grid (Eq. 16, fast first-arrival model, FEM-confirmed), then the PZT block and damping by "
+                    "a Sobol design of FEM runs, surrogates and surrogate optimisation. Writes CAL.json "
+                    "(its 'sim_params' feed `simulate-dataset --calibration`), per-stage caches and figures "
+                    "next to it. Re-running resumes from the caches.")
+    p.add_argument("data", help="measured session folder (or 'bundled' for session-1)")
+    p.add_argument("--out", required=True, help="calibration JSON to write (CAL.json)")
+    p.add_argument("--drops", default="auto",
+                   help="'auto' (default) or four comma-separated case ids (case_id column of impacts.csv)")
+    p.add_argument("--budget", type=int, default=64, help="FEM runs in the sub-problem-2 Sobol design (default 64)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--nu-step", type=float, default=0.001,
+                   help="nu step of the plate grid (default 0.001: 255 x 101 = 25,755 points; method.md lists 0.01)")
+    p.add_argument("--e-step", type=float, default=250.0, help="E step of the plate grid, MPa (default 250)")
+    p.add_argument("--aic-blend", type=float, default=1.0,
+                   help="core ToA for Eq. 16: 1 = AIC onset (default, amplitude independent), 0 = threshold")
+    p.add_argument("--channel-delay-us", default=None,
+                   help="four per-channel sampling delays in us (default: rig.json's channel_delay_us, else 0)")
+    p.add_argument("--surrogate-trials", type=int, default=8, help="hyper-parameter candidates per surrogate")
+    p.add_argument("--no-fem", action="store_true",
+                   help="sub-problem 1 only (no FEM confirmation, no sub-problem 2; the seed's PZT block is kept)")
+    p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def _drops(text: str):
+    from ..errors import ConfigError
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        ids = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"--drops must be 'auto' or four comma-separated case ids, got {text!r}") from None
+    if len(ids) != 4 or len(set(ids)) != 4:
+        raise ConfigError(f"--drops needs four different case ids, got {text!r}")
+    return ids
+
+
+def summary(cal: dict) -> str:
+    """A short table a person can read."""
+    pl = cal["plate"]
+    lines = [f"calibration drops (cases, excluded from every test set): {cal['drops']['case_ids']}",
+             f"plate: E = {pl['E_mpa']:.0f} MPa, nu = {pl['nu']:.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} us^2 "
+             f"(rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points"]
+    if "fem_confirm_loss_eq16_us2" in pl:
+        lines.append(f"       FEM at the minimum: Eq. 16 loss {pl['fem_confirm_loss_eq16_us2']:.0f} us^2 "
+                     f"(rms {pl['fem_confirm_rms_dtoa_error_us']:.1f} us)")
+    pd = cal.get("pzt_damping", {})
+    if "f2" in pd:
+        f = cal["fitted"]
+        lines.append(f"PZT/damping ({pd['chosen']}; {pd['budget']} FEM runs): D_s = {f['damping_per_s']:.0f} 1/s, "
+                     f"d31 = {f['pzt_d31_pc_n']:.0f} pC/N, eps33 = {f['pzt_eps33_rel']:.0f}, E11 = "
+                     f"{f['pzt_e11_mpa']:.0f} MPa; f2_rel = {pd['f2_rel']:.3g}, f3 = {pd['f3']:.3g}")
+        lines.append(f"{'surrogate test R2':26s}" + "".join(f"{k:>8s}" for k in ("RF", "GPR", "NN", "SVD")))
+        for out, row in pd["surrogate_r2_test"].items():
+            lines.append(f"{out:26s}" + "".join(f"{row[k]['r2_test']:8.2f}" for k in ("RF", "GPR", "NN", "SVD")))
+        for out, rows in pd["screening"].items():
+            sig = [r["term"].replace("pzt_", "") for r in rows if r["significant"]][:5]
+            lines.append(f"screening, {out}: {', '.join(sig) if sig else 'no significant term'}")
+    else:
+        lines.append(f"PZT/damping: {pd.get('skipped', '-')}")
+    lines.append("wall time [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from ..calibration.pipeline import CalibrateOptions, calibrate
+    from ..errors import ConfigError
+
+    data = args.data
+    if data == "bundled":
+        from importlib import resources
+        data = str(resources.files("impactsense") / "data" / "session-1")
+    delays = None
+    if args.channel_delay_us:
+        try:
+            delays = [float(v) for v in args.channel_delay_us.split(",")]
+        except ValueError:
+            raise ConfigError(f"--channel-delay-us needs four numbers, got {args.channel_delay_us!r}") from None
+    opts = CalibrateOptions(drops=_drops(args.drops), budget=args.budget, seed=args.seed, workers=args.workers,
+                            progress=not args.quiet, nu_step=args.nu_step, e_step_mpa=args.e_step,
+                            aic_blend=args.aic_blend, channel_delay_us=delays,
+                            surrogate_trials=args.surrogate_trials, fem=not args.no_fem)
+    simulate = None
+    if opts.fem and args.element_mm is not None:
+        from ..calibration.fem import fem_simulator
+        simulate = fem_simulator(args.workers, element_mm=float(args.element_mm))
+    cal = calibrate(data, args.out, opts, simulate=simulate)
+    print(summary(cal))
+    print(f"wrote {args.out}")
+    return 0
