@@ -34,7 +34,7 @@ const uint32_t kPsel[4] = {SAADC_CH_PSELP_PSELP_AnalogInput2, SAADC_CH_PSELP_PSE
                            SAADC_CH_PSELP_PSELP_AnalogInput6, SAADC_CH_PSELP_PSELP_AnalogInput5};
 
 int16_t g_dma[2][kDmaFrames * 4] __attribute__((aligned(4)));
-volatile uint8_t g_next = 0;        // buffer the SAADC will use after the current one
+volatile uint8_t g_next = 0;        // the buffer the SAADC is filling (set at each STARTED)
 volatile int8_t g_ready = -1;       // buffer completed and waiting for loop()
 volatile uint32_t g_overruns = 0;   // buffers loop() was too late for
 
@@ -48,13 +48,12 @@ void saadc_irq() {
   // END before STARTED: END of buffer k triggers (PPI) the START of k+1 at once, so both may be pending.
   if (NRF_SAADC->EVENTS_END) {
     NRF_SAADC->EVENTS_END = 0;
-    // The buffer just filled is the one before the one now starting.
     if (g_ready >= 0) ++g_overruns;
-    g_ready = static_cast<int8_t>(g_next);  // g_next: the buffer after the one filling, i.e. the one just filled
+    g_ready = static_cast<int8_t>(g_next);  // after a STARTED, g_next names the buffer that was filling
   }
   if (NRF_SAADC->EVENTS_STARTED) {
     NRF_SAADC->EVENTS_STARTED = 0;
-    // The SAADC latched RESULT.PTR for the buffer now filling; prepare the one after it.
+    // The SAADC latched RESULT.PTR (buffer g_next ^ 1 is filling now); point it at the other one.
     NRF_SAADC->RESULT.PTR = reinterpret_cast<uint32_t>(g_dma[g_next]);
     g_next ^= 1;
   }
@@ -89,7 +88,7 @@ void acquisition_begin(uint32_t fs_hz) {
   }
   NRF_SAADC->RESULT.PTR = reinterpret_cast<uint32_t>(g_dma[0]);
   NRF_SAADC->RESULT.MAXCNT = kDmaFrames * 4;  // whole scans only, so frames never straddle buffers
-  g_next = 1;
+  g_next = 1;  // the first STARTED latches buffer 0 and sets PTR to buffer 1
   NRF_SAADC->EVENTS_STARTED = 0;
   NRF_SAADC->EVENTS_END = 0;
   NRF_SAADC->INTENSET = SAADC_INTENSET_STARTED_Msk | SAADC_INTENSET_END_Msk;
