@@ -28,9 +28,9 @@ class SignalConfig:
     baseline_samples: int = 64
     onset_threshold_counts: float = 10.0
     onset_noise_factor: float = 5.0
-    aic_before: int = 40
-    aic_after: int = 8
-    aic_blend: float = 0.0
+    aic_before: int = 60
+    aic_after: int = 12
+    aic_blend: float = 0.35
     adc_min: int = 0
     adc_max: int = 4095
     dead_rms_counts: float = 3.0

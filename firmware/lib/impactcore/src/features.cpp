@@ -65,10 +65,10 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   if (begin < 0) begin = 0;
   int end = icross + cfg.aic_after + 1;
   if (end > n) end = n;
-  const int aic = aic_pick(x, begin, end);
+  const float aic = aic_pick_subsample(x, begin, end);
   float toa = cross;
-  if (aic >= 0 && aic <= icross + 1) {
-    f->toa_aic = static_cast<float>(aic);
+  if (aic >= 0.0f && aic <= cross + 1.0f) {
+    f->toa_aic = aic;
     toa = (1.0f - cfg.aic_blend) * cross + cfg.aic_blend * f->toa_aic;
   } else {
     f->flags |= kFlagAicFallback;

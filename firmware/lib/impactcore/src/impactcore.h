@@ -50,9 +50,9 @@ struct CoreConfig {
   int baseline_samples = 64;          // samples at the start of the capture used for baseline and noise
   float onset_threshold_counts = 10;  // |x| above baseline that marks a channel's first arrival
   float onset_noise_factor = 5;       // ... or this many noise RMS, whichever is larger
-  int aic_before = 40;                // AIC window: samples before the threshold crossing
-  int aic_after = 8;                  // ... and after it
-  float aic_blend = 0.0f;             // 0: ToA = threshold-crossing extrapolated; 1: ToA = AIC onset
+  int aic_before = 60;                // AIC window: samples before the threshold crossing
+  int aic_after = 12;                 // ... and after it
+  float aic_blend = 0.35f;            // 0: ToA = threshold crossing; 1: ToA = sub-sample AIC onset
   int adc_min = 0;                    // rails for clipping detection (counts)
   int adc_max = 4095;
   float dead_rms_counts = 3.0f;       // a channel whose post-onset RMS is below this is dead
@@ -98,6 +98,9 @@ float threshold_crossing(const int16_t* x, int n, float base, float thr, int sta
 // AIC(k) = k log var(x[begin..k)) + (n-k-1) log var(x[k..end)); returns the arg-min index (absolute),
 // or -1 when the window is too short.
 int aic_pick(const int16_t* x, int begin, int end);
+
+// The AIC onset refined to a sub-sample position by a parabola through the minimum and its neighbours.
+float aic_pick_subsample(const int16_t* x, int begin, int end);
 
 // --- acceptance rule (Eq. 35) ---
 

@@ -31,10 +31,10 @@ float threshold_crossing(const int16_t* x, int n, float base, float thr, int sta
   return -1.0f;
 }
 
-int aic_pick(const int16_t* x, int begin, int end) {
+float aic_pick_subsample(const int16_t* x, int begin, int end) {
   if (begin < 0) begin = 0;
   const int len = end - begin;
-  if (len < 6 || len > kMaxAicWindow) return -1;
+  if (len < 6 || len > kMaxAicWindow) return -1.0f;
   // Centre the window to keep float prefix sums well conditioned.
   float mean = 0.0f;
   for (int i = begin; i < end; ++i) mean += static_cast<float>(x[i]);
@@ -49,23 +49,41 @@ int aic_pick(const int16_t* x, int begin, int end) {
     s2[k + 1] = s2[k] + d * d;
   }
   const float eps = 1e-3f;
-  float best = 0.0f;
-  int best_k = -1;
-  for (int k = 2; k <= len - 2; ++k) {
+  auto aic_at = [&](int k) {
     const float n1 = static_cast<float>(k);
     const float n2 = static_cast<float>(len - k);
     const float m1 = s1[k] / n1;
     const float v1 = s2[k] / n1 - m1 * m1;
     const float m2 = (s1[len] - s1[k]) / n2;
     const float v2 = (s2[len] - s2[k]) / n2 - m2 * m2;
-    const float aic = n1 * logf((v1 > 0.0f ? v1 : 0.0f) + eps) +
-                      (n2 - 1.0f) * logf((v2 > 0.0f ? v2 : 0.0f) + eps);
+    return n1 * logf((v1 > 0.0f ? v1 : 0.0f) + eps) + (n2 - 1.0f) * logf((v2 > 0.0f ? v2 : 0.0f) + eps);
+  };
+  float best = 0.0f;
+  int best_k = -1;
+  for (int k = 2; k <= len - 2; ++k) {
+    const float aic = aic_at(k);
     if (best_k < 0 || aic < best) {
       best = aic;
       best_k = k;
     }
   }
-  return best_k < 0 ? -1 : begin + best_k;
+  if (best_k < 0) return -1.0f;
+  // Parabola through the minimum and its neighbours: the sub-sample position of the minimum.
+  float offset = 0.0f;
+  if (best_k > 2 && best_k < len - 2) {
+    const float am = aic_at(best_k - 1);
+    const float ap = aic_at(best_k + 1);
+    const float curv = am - 2.0f * best + ap;
+    if (curv > 0.0f) offset = 0.5f * (am - ap) / curv;
+    if (offset > 0.5f) offset = 0.5f;
+    if (offset < -0.5f) offset = -0.5f;
+  }
+  return static_cast<float>(begin + best_k) + offset;
+}
+
+int aic_pick(const int16_t* x, int begin, int end) {
+  const float k = aic_pick_subsample(x, begin, end);
+  return k < 0.0f ? -1 : static_cast<int>(k + 0.5f);
 }
 
 }  // namespace impactcore
