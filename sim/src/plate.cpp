@@ -5,6 +5,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#if defined(__SSE__) || defined(__x86_64__)
+#include <xmmintrin.h>
+#define IMPACTSIM_X86 1
+#endif
+
 #include "element.h"
 #include "impactsim.h"
 
@@ -21,6 +26,16 @@ void need(bool ok, const std::string& what) {
 struct Bilinear {  // node indices and weights of a point inside the mesh
   int64_t node[4];
   double wt[4];
+};
+
+// Flush denormals to zero while stepping (wave fronts have exponentially small tails; denormal arithmetic is
+// ~100x slower on x86). Restores the caller's mode.
+struct DenormalGuard {
+#ifdef IMPACTSIM_X86
+  unsigned int saved = _mm_getcsr();
+  DenormalGuard() { _mm_setcsr(saved | 0x8040u); }
+  ~DenormalGuard() { _mm_setcsr(saved); }
+#endif
 };
 
 Bilinear locate(const PlateSpec& s, double x, double y) {
@@ -120,6 +135,7 @@ static double eval(const Functional& fn, const Real* bx, const Real* by) {
 }
 
 RunResult Plate::run(const RunConfig& c) const {
+  DenormalGuard ftz;
   const size_t nn = static_cast<size_t>(nodes());
   need(c.dt_s > 0 && std::isfinite(c.dt_s), "time step must be positive");
   need(c.n_steps >= 0, "n_steps must be >= 0");
@@ -179,31 +195,36 @@ RunResult Plate::run(const RunConfig& c) const {
   const Real cd = Real(0.5 * s_.damping_per_s * c.dt_s);
   const Real c1 = 1 - cd, c2 = 1 / (1 + cd);
   const double delta_rec = m * c.dt_s;
+  const int nx = s_.nx, ny = s_.ny, rl = nx + 1;
+  const detail::ElemConst<Real> kc(s_.hx_m, s_.hy_m, s_.nu);
+  std::vector<Real> e(static_cast<size_t>(12) * nx);
+  // rolling force rows: f_lo = node row j (complete after element row j), f_hi = node row j + 1
+  std::vector<Real> frow(static_cast<size_t>(6) * rl);
+  // external loads of the step: (dof = field * nn + node, value), sorted by node
+  struct Load {
+    int64_t node;
+    int field;
+    Real value;
+  };
+  std::vector<Load> loads;
 
   double zb = 0, vb = c.ball.v0_m_s;  // ball: position (down = into the plate), velocity at half step
   bool in_contact = false;
   double t_first = -1, t_last = -1;
-  std::vector<Real> vold;
-  Real* fw = f.data();
 
   for (int64_t n = 0; n < c.n_steps; ++n) {
     const double t = n * c.dt_s;
     Real* uw = u.data();
     Real* ubx = u.data() + nn;
     Real* uby = u.data() + 2 * nn;
-    internal_force(uw, ubx, uby, fw, f.data() + nn, f.data() + 2 * nn);
-
     const int64_t q = n / m;
     const int r = static_cast<int>(n % m);
     const double frac = double(r) / m;
     const bool on_grid = (r == 0) && q < nrec;
-    double se = 0;
-    if (c.record_energy && on_grid) {
-      for (size_t k = 0; k < 3 * nn; ++k) se += double(u[k]) * f[k];
-      se *= 0.5;
-    }
+    const bool want_energy = c.record_energy && on_grid;
 
-    // ball contact
+    // ball contact (state at t_n)
+    loads.clear();
     double force = 0, delta = 0;
     if (c.ball.enabled) {
       double wp = 0;
@@ -220,26 +241,30 @@ RunResult Plate::run(const RunConfig& c) const {
       } else {
         in_contact = false;
       }
-      for (int a = 0; a < 4; ++a) fw[cp.node[a]] -= Real(cp.wt[a] * force);
+      if (force > 0)
+        for (int a = 0; a < 4; ++a) loads.push_back({cp.node[a], 0, Real(cp.wt[a] * force)});
       res.force_n.push_back(force);
     }
     if (c.hat_load) {
       const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec) / delta_rec);
       if (phi > 0) {
         for (size_t k = 0; k < c.load.node.size(); ++k) {
-          f[nn + c.load.node[k]] -= Real(phi * c.load.wx[k]);
-          f[2 * nn + c.load.node[k]] -= Real(phi * c.load.wy[k]);
+          loads.push_back({c.load.node[k], 1, Real(phi * c.load.wx[k])});
+          loads.push_back({c.load.node[k], 2, Real(phi * c.load.wy[k])});
         }
       }
     }
+    if (loads.size() > 1)
+      std::sort(loads.begin(), loads.end(), [](const Load& x, const Load& y) { return x.node < y.node; });
+
     // outputs at time t (hat weights onto the record grid)
     if (q < nrec) {
       const double w_lo = (1 - frac) / m, w_hi = frac / m;
       const bool hi_ok = r > 0 && q + 1 < nrec;
-      for (size_t s = 0; s < ns; ++s) {
-        const double val = eval(c.sensors[s], ubx, uby);
-        res.sensors[s * nrec + q] += w_lo * val;
-        if (hi_ok) res.sensors[s * nrec + q + 1] += w_hi * val;
+      for (size_t si = 0; si < ns; ++si) {
+        const double val = eval(c.sensors[si], ubx, uby);
+        res.sensors[si * nrec + q] += w_lo * val;
+        if (hi_ok) res.sensors[si * nrec + q + 1] += w_hi * val;
       }
       if (c.record_field) {
         float* lo = res.field.data() + static_cast<size_t>(q) * nn;
@@ -252,37 +277,69 @@ RunResult Plate::run(const RunConfig& c) const {
         }
       }
     }
-    if (c.record_energy && on_grid) vold.assign(v.begin(), v.end());
 
-    // central-difference update: v+ = ((1 - cd) v- + dt M^-1 (P - F)) / (1 + cd); u += dt v+
-    {
-      Real* __restrict vv = v.data();
-      Real* __restrict uu = u.data();
-      const Real* __restrict ff = f.data();
-      const Real* __restrict im = inv_m.data();
-      const size_t n3 = 3 * nn;
+    // fused sweep: element row j -> node row j complete -> loads -> central-difference update of row j
+    double se = 0, ke = 0;
+    std::fill(frow.begin(), frow.end(), Real(0));
+    size_t li = 0;
+    for (int j = 0; j <= ny; ++j) {
+      Real* flo[3] = {frow.data() + (j % 2) * 3 * rl, frow.data() + (j % 2) * 3 * rl + rl,
+                      frow.data() + (j % 2) * 3 * rl + 2 * rl};
+      if (j < ny) {
+        Real* fhi[3] = {frow.data() + ((j + 1) % 2) * 3 * rl, frow.data() + ((j + 1) % 2) * 3 * rl + rl,
+                        frow.data() + ((j + 1) % 2) * 3 * rl + 2 * rl};
+        const size_t o0 = static_cast<size_t>(j) * rl, o1 = o0 + rl;
+        detail::row_forces<Real>(nx, uw + o0, uw + o1, ubx + o0, ubx + o1, uby + o0, uby + o1, de_.data() + j * nx,
+                                 se_.data() + j * nx, kc, e.data());
+        for (int fld = 0; fld < 3; ++fld) detail::row_scatter<Real>(nx, e.data() + 4 * fld * nx, flo[fld], fhi[fld]);
+      }
+      const int64_t row0 = static_cast<int64_t>(j) * rl;
+      if (want_energy) {
+        for (int fld = 0; fld < 3; ++fld)
+          for (int i = 0; i < rl; ++i) se += double(u[fld * nn + row0 + i]) * flo[fld][i];
+      }
+      while (li < loads.size() && loads[li].node < row0 + rl) {
+        flo[loads[li].field][loads[li].node - row0] -= loads[li].value;
+        ++li;
+      }
+      for (int fld = 0; fld < 3; ++fld) {
+        Real* __restrict vv = v.data() + fld * nn + row0;
+        Real* __restrict uu = u.data() + fld * nn + row0;
+        Real* __restrict ff = flo[fld];
+        const Real* __restrict im = inv_m.data() + fld * nn + row0;
+        if (want_energy) {
+          const Real* mm = mass.data() + fld * nn + row0;
+          for (int i = 0; i < rl; ++i) {
+            const Real vn = (c1 * vv[i] - dt * im[i] * ff[i]) * c2;
+            ke += double(mm[i]) * vv[i] * vn;
+            vv[i] = vn;
+            uu[i] += dt * vn;
+          }
+        } else {
 #pragma omp simd
-      for (size_t k = 0; k < n3; ++k) {
-        const Real vn = (c1 * vv[k] - dt * im[k] * ff[k]) * c2;
-        vv[k] = vn;
-        uu[k] += dt * vn;
+          for (int i = 0; i < rl; ++i) {
+            const Real vn = (c1 * vv[i] - dt * im[i] * ff[i]) * c2;
+            vv[i] = vn;
+            uu[i] += dt * vn;
+          }
+        }
+        std::fill(ff, ff + rl, Real(0));  // this buffer becomes row j + 2
       }
     }
+
     if (c.ball.enabled) {
       const double vb_old = vb;
       vb += c.dt_s * (c.ball.g_m_s2 - force / c.ball.mass_kg);
-      if (c.record_energy && on_grid) {
+      if (want_energy) {
         res.energy[q * 4 + 2] = 0.5 * c.ball.mass_kg * vb_old * vb;
         res.energy[q * 4 + 3] = (delta > 0 ? 0.4 * c.ball.k_hertz * delta * delta * std::sqrt(delta) : 0.0) -
                                 c.ball.mass_kg * c.ball.g_m_s2 * zb;
       }
       zb += c.dt_s * vb;
     }
-    if (c.record_energy && on_grid) {
-      double ke = 0;
-      for (size_t k = 0; k < 3 * nn; ++k) ke += double(mass[k]) * vold[k] * v[k];
+    if (want_energy) {
       res.energy[q * 4 + 0] = 0.5 * ke;
-      res.energy[q * 4 + 1] = se;
+      res.energy[q * 4 + 1] = 0.5 * se;
     }
     res.steps_done = n + 1;
 
