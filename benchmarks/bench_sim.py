@@ -1,0 +1,201 @@
+"""Benchmarks of the finite-element twin (issue 3). Prints the figures; not a test.
+
+    python benchmarks/bench_sim.py            # everything (several minutes)
+    python benchmarks/bench_sim.py --quick    # 1 mm drop and the sparse comparison extrapolated from 1500 steps
+
+1. One 5 ms drop at the seed's ~1 mm mesh (320 x 317 = 101,440 elements) on one core: wall time,
+   element-updates per second, flops per element-update (counted in sim/src/element.h + the update) against
+   the core's peak (clock x 32 single-precision flops/cycle: two 256-bit FMA pipes).
+2. The same mesh and step with an assembled sparse-matrix explicit FE: scikit-fem assembly (Q1 w, beta_x,
+   beta_y; bending 2x2 Gauss, shear 1-point = selective reduced integration), scipy.sparse K @ u per step.
+3. The 490-drop virtual data set at the default mesh on 2 cores (fast path), and the peak memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+FLOPS_PER_ELEMENT_UPDATE = 121 + 12 + 18   # element kernel + scatter + central-difference update (per node)
+
+
+def core_peak_gflops() -> float:
+    mhz = 0.0
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("cpu MHz"):
+                mhz = max(mhz, float(line.split(":")[1]))
+    except OSError:
+        pass
+    return mhz * 1e-3 * 32
+
+
+def bench_drop_1mm(rig, quick: bool):
+    from impactsense.sim import SimParams
+    from impactsense.sim.model import build_model, impact_velocity
+
+    p = SimParams.from_rig(rig, element_mm=1.0, duration_ms=5.0)
+    m = build_model(p, rig)
+    v0 = float(impact_velocity(p, 150.0))
+    n_total = m.n_record * m.record_every
+    n_run = 1500 if quick else n_total
+    t0 = time.perf_counter()
+    m.plate.run(dt_s=m.dt_s, n_steps=n_run, record_every=m.record_every, n_record=m.n_record,
+                ball=[0.16, 0.15, m.ball_mass_kg, m.k_hertz, v0, p.g_m_s2], sensors=m.sensors)
+    el = time.perf_counter() - t0
+    rate = n_run * m.elements / el
+    drop_s = el * n_total / n_run
+    peak = core_peak_gflops()
+    return dict(mesh=f"{m.nx} x {m.ny}", elements=m.elements, dt_us=m.dt_s * 1e6, steps=n_total,
+                drop_seconds=drop_s, extrapolated=quick, element_updates_per_s=rate,
+                flops_per_element_update=FLOPS_PER_ELEMENT_UPDATE,
+                gflops=rate * FLOPS_PER_ELEMENT_UPDATE * 1e-9, core_peak_gflops=peak), m
+
+
+def bench_sparse(m, quick: bool):
+    """scikit-fem assembly of the same plate (same mesh, dt), scipy.sparse explicit loop."""
+    import scipy.sparse as sp
+    import skfem
+    from skfem.helpers import dot
+
+    p = m.params
+    t = p.thickness_mm * 1e-3
+    d = p.e_pa * t ** 3 / (12 * (1 - p.nu ** 2))
+    s = p.shear_factor * p.e_pa / (2 * (1 + p.nu)) * t
+    t0 = time.perf_counter()
+    mesh = skfem.MeshQuad.init_tensor(np.linspace(0, m.lx_m, m.nx + 1), np.linspace(0, m.ly_m, m.ny + 1))
+    e = skfem.ElementQuad1()
+    basis = skfem.Basis(mesh, e, intorder=2)
+    basis1 = skfem.Basis(mesh, e, intorder=1)
+
+    @skfem.BilinearForm
+    def lap_xx(u, v, w):
+        return u.grad[0] * v.grad[0]
+
+    @skfem.BilinearForm
+    def lap_yy(u, v, w):
+        return u.grad[1] * v.grad[1]
+
+    @skfem.BilinearForm
+    def lap_xy(u, v, w):
+        return u.grad[0] * v.grad[1]
+
+    @skfem.BilinearForm
+    def mass(u, v, w):
+        return u * v
+
+    @skfem.BilinearForm
+    def grad_x(u, v, w):
+        return u.grad[0] * v
+
+    @skfem.BilinearForm
+    def grad_y(u, v, w):
+        return u.grad[1] * v
+
+    @skfem.BilinearForm
+    def gradgrad(u, v, w):
+        return dot(u.grad, v.grad)
+
+    xx, yy, xy = (skfem.asm(f, basis) for f in (lap_xx, lap_yy, lap_xy))
+    m1 = skfem.asm(mass, basis1)
+    gx, gy = skfem.asm(grad_x, basis1), skfem.asm(grad_y, basis1)   # int N_i dN_j/dx (shear, 1-point)
+    gg = skfem.asm(gradgrad, basis1)
+    h = (1 - p.nu) / 2
+    # dofs [w, bx, by]; bending: D [bx,x^2 + by,y^2 + 2 nu bx,x by,y + (1-nu)/2 (bx,y + by,x)^2]
+    kbb = sp.bmat([[d * (xx + h * yy), d * (p.nu * xy + h * xy.T)],
+                   [d * (p.nu * xy.T + h * xy), d * (yy + h * xx)]])
+    # shear: S [(w,x + bx)^2 + (w,y + by)^2] with 1-point quadrature
+    kww = s * gg
+    kwb = sp.hstack([s * gx.T, s * gy.T])
+    kbs = sp.bmat([[s * m1, None], [None, s * m1]])
+    k = sp.bmat([[kww, kwb], [kwb.T, kbb + kbs]]).tocsr()
+    t_asm = time.perf_counter() - t0
+    n = k.shape[0]
+    mass_w = np.asarray(skfem.asm(mass, basis).sum(axis=1)).ravel() * p.rho_kg_m3 * t
+    mass_r = mass_w * t ** 2 / 12
+    inv_m = 1 / np.concatenate([mass_w, mass_r, mass_r])
+    u = np.zeros(n)
+    v = np.zeros(n)
+    u[n // 6] = 1e-6
+    dt = m.dt_s
+    cd = 0.5 * p.damping_per_s * dt
+    n_total = m.n_record * m.record_every
+    n_run = 300 if quick else 1500
+    t0 = time.perf_counter()
+    for _ in range(n_run):
+        f = k @ u
+        v = ((1 - cd) * v - dt * inv_m * f) / (1 + cd)
+        u += dt * v
+    el = time.perf_counter() - t0
+    return dict(assembly_seconds=t_asm, nnz=int(k.nnz), dofs=int(n), steps_timed=n_run,
+                drop_seconds_extrapolated=el * n_total / n_run, step_ms=el / n_run * 1e3)
+
+
+def bench_dataset(rig, n: int, workers: int):
+    from impactsense.commands.simulate_dataset import doe
+    from impactsense.sim import SimParams, simulate_voltages, to_adc
+    from impactsense.sim.simulate import _CACHE
+
+    _CACHE.clear()
+    p = SimParams.from_rig(rig)
+    x, y, h = doe(rig, n, 0, 20.0, 25.0)
+    t0 = time.perf_counter()
+    res = simulate_voltages(p, rig, x, y, h, workers=workers, progress=False)
+    adc = to_adc(res["volts"], p, rig, noise=True, seed=0)
+    el = time.perf_counter() - t0
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return dict(drops=n, workers=workers, seconds=el, mesh=res["model"].describe(), peak_rss_mb=peak_mb,
+                adc_shape=list(adc.shape))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--n", type=int, default=490)
+    ap.add_argument("--skip-dataset", action="store_true")
+    ap.add_argument("--json", default=None, help="also write the figures as JSON")
+    args = ap.parse_args(argv)
+    from impactsense.data import bundled_session_path, load_rig
+
+    rig = load_rig(bundled_session_path())
+    out = {"load_average": os.getloadavg()}
+    drop, model = bench_drop_1mm(rig, args.quick)
+    out["drop_1mm"] = drop
+    print(f"1 mm mesh ({drop['mesh']} = {drop['elements']} elements), dt {drop['dt_us']:.3f} us, "
+          f"{drop['steps']} steps / 5 ms, one core:")
+    print(f"  drop time           {drop['drop_seconds']:8.2f} s {'(extrapolated)' if drop['extrapolated'] else ''}")
+    print(f"  element-updates/s   {drop['element_updates_per_s']:8.3g}")
+    print(f"  flops/elem-update   {drop['flops_per_element_update']:8d}  -> {drop['gflops']:.1f} GFlop/s "
+          f"= {100 * drop['gflops'] / max(drop['core_peak_gflops'], 1e-9):.1f} % of {drop['core_peak_gflops']:.0f} "
+          f"GFlop/s single-precision peak")
+    sparse = bench_sparse(model, args.quick)
+    out["sparse"] = sparse
+    ratio = sparse["drop_seconds_extrapolated"] / drop["drop_seconds"]
+    out["speedup_vs_sparse"] = ratio
+    print(f"scikit-fem assembly + scipy.sparse explicit, same mesh and dt ({sparse['dofs']} dofs, "
+          f"{sparse['nnz']} nnz):")
+    print(f"  assembly {sparse['assembly_seconds']:.2f} s, {sparse['step_ms']:.2f} ms/step, "
+          f"drop {sparse['drop_seconds_extrapolated']:.1f} s (from {sparse['steps_timed']} steps)")
+    print(f"  impactsim is {ratio:.1f}x faster")
+    if not args.skip_dataset:
+        ds = bench_dataset(rig, args.n, 2)
+        out["dataset"] = ds
+        print(f"{ds['drops']}-drop data set, default mesh {ds['mesh']['nx']} x {ds['mesh']['ny']} "
+              f"({ds['mesh']['element_mm'][0]:.2f} mm), dt {ds['mesh']['dt_us']:.3f} us, 2 workers (fast path):")
+        print(f"  {ds['seconds']:.1f} s, peak memory {ds['peak_rss_mb']:.0f} MB (process max RSS)")
+    print(f"load average during the run: {out['load_average']}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
