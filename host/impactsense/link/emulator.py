@@ -43,8 +43,6 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
     if up == 2:
         # Fast path (the rig's 100 kHz onto a 200 kHz grid): even grid points are the recorded samples,
         # odd ones the half-sample band-limited interpolation (a Kaiser-windowed sinc, 32 taps).
-        from scipy.ndimage import correlate1d
-
         k = np.arange(-15, 17) - 0.5
         h = (np.sinc(k) * np.kaiser(k.size, 8.0)).astype(np.float32)
         h /= h.sum()
@@ -54,8 +52,18 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
                 v = x[:, c, g0 // 2]
             else:
                 mean = x[:, c, :].mean(axis=1, keepdims=True)
-                half = correlate1d(x[:, c, :] - mean, h, axis=1, mode="nearest", origin=-1) + mean
-                v = np.where(g0 % 2 == 0, x[:, c, np.minimum(g0 // 2, n - 1)], half[:, g0 // 2])
+                xp = np.pad(x[:, c, :] - mean, ((0, 0), (15, 16 + d)), mode="edge")  # xp[i + 15] = x[i]
+                i0 = g0 // 2  # x at i0 + 0.5 = sum_j h[j] x[i0 - 15 + j]
+                half = np.zeros((x.shape[0], n_out), dtype=np.float32)
+                if d % 2 == 0:  # i0 advances by d/2: strided slices, one multiply-add a tap
+                    step = d // 2
+                    for j in range(h.size):
+                        half += h[j] * xp[:, i0[0] + j:i0[0] + j + step * n_out:step]
+                else:
+                    for j in range(h.size):
+                        half += h[j] * xp[:, i0 + j]
+                half += mean
+                v = half if np.all(g0 % 2) else np.where(g0 % 2 == 0, x[:, c, np.minimum(i0, n - 1)], half)
             y[:, :, c] = np.clip(np.rint(v), 0, adc_max)
         return y
     mean = x.mean(axis=2, keepdims=True)
