@@ -34,23 +34,26 @@ struct ElemConst {
 
 // Row of n elements: node row 0 (p0*) and node row 1 (p1*), element i spans nodes i, i+1 of both rows.
 // Writes element nodal forces e[12][n]: index field*4 + local node (field 0 w, 1 bx, 2 by).
-template <typename Real>
+constexpr int kChunk = 128;        // elements per chunk (compile-time stride of the element-force buffer)
+constexpr int kStride = kChunk + 8;
+
+template <typename Real, int Stride>
 inline void row_forces(int n, const Real* __restrict w0, const Real* __restrict w1,
                        const Real* __restrict x0, const Real* __restrict x1, const Real* __restrict y0,
                        const Real* __restrict y1, const Real* __restrict d, const Real* __restrict s,
                        const ElemConst<Real>& k, Real* __restrict e) {
   Real* __restrict e0 = e;
-  Real* __restrict e1 = e + n;
-  Real* __restrict e2 = e + 2 * n;
-  Real* __restrict e3 = e + 3 * n;
-  Real* __restrict e4 = e + 4 * n;
-  Real* __restrict e5 = e + 5 * n;
-  Real* __restrict e6 = e + 6 * n;
-  Real* __restrict e7 = e + 7 * n;
-  Real* __restrict e8 = e + 8 * n;
-  Real* __restrict e9 = e + 9 * n;
-  Real* __restrict e10 = e + 10 * n;
-  Real* __restrict e11 = e + 11 * n;
+  Real* __restrict e1 = e + Stride;
+  Real* __restrict e2 = e + 2 * Stride;
+  Real* __restrict e3 = e + 3 * Stride;
+  Real* __restrict e4 = e + 4 * Stride;
+  Real* __restrict e5 = e + 5 * Stride;
+  Real* __restrict e6 = e + 6 * Stride;
+  Real* __restrict e7 = e + 7 * Stride;
+  Real* __restrict e8 = e + 8 * Stride;
+  Real* __restrict e9 = e + 9 * Stride;
+  Real* __restrict e10 = e + 10 * Stride;
+  Real* __restrict e11 = e + 11 * Stride;
   const Real q = Real(0.25);
 #pragma omp simd
   for (int i = 0; i < n; ++i) {
@@ -107,6 +110,38 @@ inline void row_scatter(int n, const Real* __restrict e, Real* __restrict f0, Re
   }
   f0[n] += n2[n - 1];
   f1[n] += n3[n - 1];
+}
+
+// Chunk version: elements c0..c0+n-1 of a row (forces in e with compile-time stride) into node rows f0, f1
+// (pointing at node c0). Adds element i's local nodes 1, 4 to node i and 2, 3 to node i + 1.
+template <typename Real, int Stride>
+inline void chunk_scatter(int n, const Real* __restrict e, Real* __restrict f0, Real* __restrict f1) {
+  const Real* __restrict n1 = e;
+  const Real* __restrict n2 = e + Stride;
+  const Real* __restrict n3 = e + 2 * Stride;
+  const Real* __restrict n4 = e + 3 * Stride;
+  f0[0] += n1[0];
+  f1[0] += n4[0];
+#pragma omp simd
+  for (int i = 1; i < n; ++i) {
+    f0[i] += n1[i] + n2[i - 1];
+    f1[i] += n4[i] + n3[i - 1];
+  }
+  f0[n] += n2[n - 1];
+  f1[n] += n3[n - 1];
+}
+
+// Element forces of element row (rows o0 / o1 of the node arrays) added into node-row force buffers.
+template <typename Real>
+inline void element_row(int nx, const Real* w0, const Real* w1, const Real* x0, const Real* x1, const Real* y0,
+                        const Real* y1, const Real* d, const Real* s, const ElemConst<Real>& k, Real* e,
+                        Real* const flo[3], Real* const fhi[3]) {
+  for (int c0 = 0; c0 < nx; c0 += kChunk) {
+    const int n = nx - c0 < kChunk ? nx - c0 : kChunk;
+    row_forces<Real, kStride>(n, w0 + c0, w1 + c0, x0 + c0, x1 + c0, y0 + c0, y1 + c0, d + c0, s + c0, k, e);
+    for (int fld = 0; fld < 3; ++fld)
+      chunk_scatter<Real, kStride>(n, e + 4 * fld * kStride, flo[fld] + c0, fhi[fld] + c0);
+  }
 }
 
 }  // namespace detail

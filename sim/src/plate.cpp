@@ -97,14 +97,13 @@ void forces(const PlateSpec& s_, const T* de, const T* se, const T* w, const T* 
   std::fill(fby, fby + nn, T(0));
   const detail::ElemConst<T> kc(s_.hx_m, s_.hy_m, s_.nu);
   thread_local std::vector<T> e;
-  e.resize(static_cast<size_t>(12) * nx);
+  e.resize(static_cast<size_t>(12) * detail::kStride);
   for (int j = 0; j < ny; ++j) {
     const size_t o0 = static_cast<size_t>(j) * r, o1 = o0 + r;
-    detail::row_forces<T>(nx, w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1, de + j * nx, se + j * nx, kc,
-                          e.data());
-    detail::row_scatter<T>(nx, e.data(), fw + o0, fw + o1);
-    detail::row_scatter<T>(nx, e.data() + 4 * nx, fbx + o0, fbx + o1);
-    detail::row_scatter<T>(nx, e.data() + 8 * nx, fby + o0, fby + o1);
+    T* const lo[3] = {fw + o0, fbx + o0, fby + o0};
+    T* const hi[3] = {fw + o1, fbx + o1, fby + o1};
+    detail::element_row<T>(nx, w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1, de + j * nx, se + j * nx, kc,
+                           e.data(), lo, hi);
   }
 }
 }  // namespace
@@ -197,7 +196,7 @@ RunResult Plate::run(const RunConfig& c) const {
   const double delta_rec = m * c.dt_s;
   const int nx = s_.nx, ny = s_.ny, rl = nx + 1;
   const detail::ElemConst<Real> kc(s_.hx_m, s_.hy_m, s_.nu);
-  std::vector<Real> e(static_cast<size_t>(12) * nx);
+  std::vector<Real> e(static_cast<size_t>(12) * detail::kStride);
   // rolling force rows: f_lo = node row j (complete after element row j), f_hi = node row j + 1
   std::vector<Real> frow(static_cast<size_t>(6) * rl);
   // external loads of the step: (dof = field * nn + node, value), sorted by node
@@ -289,9 +288,8 @@ RunResult Plate::run(const RunConfig& c) const {
         Real* fhi[3] = {frow.data() + ((j + 1) % 2) * 3 * rl, frow.data() + ((j + 1) % 2) * 3 * rl + rl,
                         frow.data() + ((j + 1) % 2) * 3 * rl + 2 * rl};
         const size_t o0 = static_cast<size_t>(j) * rl, o1 = o0 + rl;
-        detail::row_forces<Real>(nx, uw + o0, uw + o1, ubx + o0, ubx + o1, uby + o0, uby + o1, de_.data() + j * nx,
-                                 se_.data() + j * nx, kc, e.data());
-        for (int fld = 0; fld < 3; ++fld) detail::row_scatter<Real>(nx, e.data() + 4 * fld * nx, flo[fld], fhi[fld]);
+        detail::element_row<Real>(nx, uw + o0, uw + o1, ubx + o0, ubx + o1, uby + o0, uby + o1, de_.data() + j * nx,
+                                  se_.data() + j * nx, kc, e.data(), flo, fhi);
       }
       const int64_t row0 = static_cast<int64_t>(j) * rl;
       if (want_energy) {
