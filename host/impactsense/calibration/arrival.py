@@ -67,17 +67,14 @@ def setup_from_rig(rig, x_mm, y_mm, height_mm, *, n_fft: int = 2048) -> ArrivalS
 
 
 def a0_wavenumber(omega, e_pa, nu, rho, t_m):
-    """Mindlin A0 wavenumber k1 [rad/m] for angular frequency omega (broadcasts over all arguments)."""
+    """Mindlin A0 wavenumber k1 [rad/m] (the simulator's `sim.dispersion`, one copy of the relation) and the
+    plate constants D, S = kappa G t, m = rho t used by the Green function (broadcasts)."""
+    from ..sim import dispersion
     omega = np.asarray(omega, float)
+    k1 = dispersion.a0_wavenumber(omega / (2 * np.pi), e_pa, nu, rho, t_m, KAPPA)
     g = e_pa / (2.0 * (1.0 + nu))
     d = e_pa * t_m ** 3 / (12.0 * (1.0 - nu ** 2))
-    inertia = rho * t_m ** 3 / 12.0
-    m = rho * t_m
-    a = rho * omega ** 2 / (KAPPA * g)
-    b = inertia * omega ** 2 + a * d
-    c = a * inertia * omega ** 2 - m * omega ** 2
-    k1sq = (b + np.sqrt(b * b - 4.0 * d * c)) / (2.0 * d)
-    return np.sqrt(k1sq), k1sq, d, KAPPA * g * t_m, m
+    return k1, k1 * k1, d, KAPPA * g * t_m, rho * t_m
 
 
 def hertz_duration_s(e_pa, nu, height_m, ball_radius_m, ball_mass_kg):

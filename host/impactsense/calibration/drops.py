@@ -125,9 +125,10 @@ def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0
         chosen = [int(c) for c in drops]
         if len(chosen) != 4 or len(set(chosen)) != 4:
             raise ConfigError(f"--drops needs four different case ids, got {drops!r}")
+        missing = [c for c in chosen if c not in rows]
+        if missing:
+            raise DataError(where, "case_id", f"case {missing[0]} is not in the session")
         for c in chosen:
-            if c not in rows:
-                raise DataError(where, "case_id", f"case {c} is not in the session")
             if not rows[c]["usable"]:
                 r = rows[c]
                 raise DataError(where, "case_id", f"case {c} is not usable for calibration: {r['n_ok']} of "

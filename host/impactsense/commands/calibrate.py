@@ -51,12 +51,15 @@ def _drops(text: str):
 def summary(cal: dict) -> str:
     """A short table a person can read."""
     pl = cal["plate"]
+    e_fast = pl.get("E_fast_mpa", pl["E_mpa"])
     lines = [f"calibration drops (cases, excluded from every test set): {cal['drops']['case_ids']}",
-             f"plate: E = {pl['E_mpa']:.0f} MPa, nu = {pl['nu']:.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} us^2 "
-             f"(rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points"]
-    if "fem_confirm_loss_eq16_us2" in pl:
-        lines.append(f"       FEM at the minimum: Eq. 16 loss {pl['fem_confirm_loss_eq16_us2']:.0f} us^2 "
-                     f"(rms {pl['fem_confirm_rms_dtoa_error_us']:.1f} us)")
+             f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl['nu']:.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
+             f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
+             f"within 1.25 x min: E {pl['near_optimal']['E_mpa']}, nu {pl['near_optimal']['nu']}"]
+    if "fem_loss_eq16_us2" in pl:
+        scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
+        lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
+                     f"(rms {pl['fem_rms_dtoa_error_us']:.1f} us); FEM scan E -> loss: {scan}")
     pd = cal.get("pzt_damping", {})
     if "f2" in pd:
         f = cal["fitted"]
