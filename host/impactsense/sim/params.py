@@ -35,7 +35,7 @@ from ..errors import ConfigError
 
 FORMAT = "impactsense-sim-params"
 SUPPORTS = ("free", "simply_supported", "clamped")
-METHODS = ("fast", "direct")
+METHODS = ("auto", "fast", "direct")
 
 
 @dataclass(frozen=True)
@@ -81,7 +81,7 @@ class SimParams:
     contact_window_ms: float = 2.0         # fast path: longest direct contact solve
     pretrigger_samples: int = 200          # record sample of the first touch
     noise_counts_rms: float = 1.5          # used only when noise is asked for
-    method: str = "fast"                   # "fast" (reciprocity) or "direct"
+    method: str = "auto"                   # "fast" (reciprocity), "direct", "auto": direct for <= 4 drops
 
     # ---- construction -------------------------------------------------------------------------------
     def __post_init__(self):

@@ -1,6 +1,7 @@
 """Simulated drops: the ball, the plate and the four discs, to raw ADC counts like the rig records.
 
-Two paths behind one API (`SimParams.method`):
+Two paths behind one API (`SimParams.method`; "auto" picks direct for up to 4 drops unless the reciprocal
+fields are already cached, fast otherwise):
 - "direct": one explicit run per drop with the ball, the plate and the discs stepped together for the whole
   record window.
 - "fast" (default, for data sets): the plate is linear, so the disc voltage is V_s(t) = (g_s(x, .) * F)(t)
@@ -158,8 +159,11 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
     """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details."""
     x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
     method = method or params.method
-    if method not in ("fast", "direct"):
-        raise ConfigError(f"method must be 'fast' or 'direct', got {method!r}")
+    if method not in ("auto", "fast", "direct"):
+        raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
+    if method == "auto":  # the fast path costs one full solve per disc up front
+        cached = getattr(_CACHE.get((params, _rig_key(rig))), "_fields", None) is not None
+        method = "fast" if (x.size > 4 or cached) else "direct"
     model = get_model(params, rig)
     v0 = impact_velocity(params, h)
     fields = reciprocal_fields(model, workers=workers) if method == "fast" else None
