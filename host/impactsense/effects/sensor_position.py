@@ -2,8 +2,10 @@
 
 Physical meaning: a bonding offset moves sensor i by (dx, dy); its ToA changes by -s (u_x dx + u_y dy),
 u the unit vector from the sensor to the impact. Because every impact lies in the sensor's quadrant, a
-shift along the diagonal is nearly a constant delay: the fit carries a free channel delay and the
-selection keeps a position only when it beats `channel_delay` on the same sensor on held-out drops.
+shift along the sensor's mean look direction is nearly a constant delay and cannot be told from one
+with a few-µs picker. The fit therefore estimates the offset across the look direction (identifiable) and
+a free channel delay (which absorbs the along-look part); the selection keeps a position only when it
+beats `channel_delay` on the same sensor on held-out drops. Reported dx, dy are the across-look offset.
 """
 
 import numpy as np
@@ -22,12 +24,13 @@ class SensorPosition(Effect):
         _, _, ux, uy = ref.geometry(F)
         s = ref.slowness_us_per_mm
         n = len(F)
-        cx = np.zeros((n, 4))
-        cy = np.zeros((n, 4))
-        cx[:, sensor] = -s * ux[:, sensor]
-        cy[:, sensor] = -s * uy[:, sensor]
-        dx, dy, dl = fit_timing(ref, F, [cx, cy, channel_columns(n, sensor)])
-        return {"dx_mm": float(dx), "dy_mm": float(dy), "delay_us": float(dl)}
+        look = np.array([np.mean(ux[:, sensor]), np.mean(uy[:, sensor])])
+        across = np.array([-look[1], look[0]]) / np.hypot(*look)
+        col = np.zeros((n, 4))
+        col[:, sensor] = -s * (ux[:, sensor] * across[0] + uy[:, sensor] * across[1])
+        off, dl = fit_timing(ref, F, [col, channel_columns(n, sensor)])
+        return {"dx_mm": float(off * across[0]), "dy_mm": float(off * across[1]),
+                "offset_mm": float(abs(off)), "delay_us": float(dl)}
 
     def add(self, ref, sensor, params):
         out = ref.copy()
