@@ -11,7 +11,6 @@ import joblib
 import numpy as np
 import pytest
 
-from impactsense import _core
 from impactsense import _link
 from impactsense.data import load_session
 from impactsense.export import export_models
@@ -25,7 +24,7 @@ def exported(tmp_path_factory):
     from impactsense.link.boardmodel import train_board_models
 
     root = tmp_path_factory.mktemp("fw")
-    model_dir = train_board_models(load_session(), root / "model", n_trees=12)
+    model_dir = train_board_models(load_session(), root / "model", n_trees=10)
     export_models(model_dir, root / "out", write_m2cgen=False)
     return model_dir, root / "out"
 
@@ -39,18 +38,14 @@ def start_emulator(models, *extra):
     return proc, path
 
 
-def host_reference(model_dir, captures, cfg, rig):
-    """The host pipeline on the firmware's captures: core features + scikit-learn forests + Eq. 35."""
-    X, status = _link.feature_vector_batch(captures, cfg)
-    assert np.all(status == 0)
-    rx = joblib.load(model_dir / "rf_x.joblib")
-    ry = joblib.load(model_dir / "rf_y.joblib")
-    re_ = joblib.load(model_dir / "rf_energy.joblib")
-    x, y, cls = rx.predict(X), ry.predict(X), re_.predict(X)
-    feats = _core.extract_batch(captures, cfg)
-    acc = _core.accept_batch(feats["toa_us"], rig.sensor_x_mm.tolist(), rig.sensor_y_mm.tolist(),
-                             np.stack([x, y], 1).astype(np.float32), 2.0, 10.0)
-    return x, y, cls, acc.astype(bool), feats["order"]
+def host_reference(model_dir, captures, signal):
+    """The host pipeline on the firmware's captures: the trainer's featurize + ImpactModel.predict."""
+    from impactsense.models import ImpactModel
+    from impactsense.pipeline import featurize
+
+    feats = featurize(captures, signal)
+    pred = ImpactModel.load(model_dir).predict(feats)
+    return feats, pred
 
 
 def read_all(port, dump_raw=False):
@@ -80,18 +75,26 @@ def check_against_host(exported, n_drops):
     assert len(reports) == n_drops  # one report per drop: trigger, hold-off and re-arm work
     assert counters["crc_errors"] == 0 and counters["seq_gaps"] == 0
     assert [r["seq"] for r in reports] == list(range(n_drops))
-    app = _link.App({}, None)  # the board's default core configuration (50 kHz, scan delays)
-    rig = load_session().rig
-    x, y, cls, acc, order = host_reference(model_dir, np.stack(caps), app.core_config, rig)
-    got = {k: np.array([r[k] for r in reports]) for k in ("x_mm", "y_mm", "energy_class", "accepted")}
-    np.testing.assert_allclose(got["x_mm"], x, atol=0.05 + 1e-3)  # 0.1 mm wire resolution
-    np.testing.assert_allclose(got["y_mm"], y, atol=0.05 + 1e-3)
-    np.testing.assert_array_equal(got["energy_class"], cls)
-    np.testing.assert_array_equal(got["accepted"], acc)
-    np.testing.assert_array_equal(np.array([r["order"] for r in reports]), order)
+    from impactsense.export import firmware_models
+    from impactsense.link.emulator import signal_for_board
+
+    s = load_session()
+    signal = signal_for_board(s.rig, firmware_models(out)[1], 50000)  # what the board runs
+    feats, pred = host_reference(model_dir, np.stack(caps), signal)
+    got = {k: np.array([r[k] for r in reports]) for k in ("x_mm", "y_mm", "energy_class", "accepted", "valid")}
+    use = feats.usable
+    assert use.mean() > 0.9
+    np.testing.assert_array_equal(got["valid"], use)
+    np.testing.assert_allclose(got["x_mm"][use], pred["xy_mm"][use, 0], atol=0.05 + 1e-3)  # 0.1 mm on the wire
+    np.testing.assert_allclose(got["y_mm"][use], pred["xy_mm"][use, 1], atol=0.05 + 1e-3)
+    np.testing.assert_array_equal(got["energy_class"][use], pred["energy_class"][use])
+    np.testing.assert_array_equal(got["accepted"], feats.accepted)
+    np.testing.assert_array_equal(np.array([r["order"] for r in reports]), feats.raw["order"])
+    unc = np.sqrt(feats.phys_cov[:, 0] + feats.phys_cov[:, 2])
+    np.testing.assert_allclose(np.array([r["uncertainty_mm"] for r in reports])[use], unc[use], atol=0.051)
     # and the positions mean something: near the true drop positions on the training data
-    truth = load_session().xy_mm[:n_drops]
-    err = np.hypot(got["x_mm"] - truth[:, 0], got["y_mm"] - truth[:, 1])
+    truth = s.xy_mm[:n_drops]
+    err = np.hypot(got["x_mm"] - truth[:, 0], got["y_mm"] - truth[:, 1])[use]
     assert np.median(err) < 15.0
 
 

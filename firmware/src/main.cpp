@@ -20,7 +20,7 @@
 #include <ArduinoBLE.h>
 
 #include "impactapp.h"
-#include "impactsense_models.h"
+#include "impactapp_models.h"
 #include "nrf.h"
 
 namespace {
@@ -133,14 +133,9 @@ class BoardHal : public impactapp::Hal {
   }
 };
 
-impactapp::ForestTables tables(const impactsense_forest& f) {
-  return impactapp::ForestTables{f.n_trees, f.roots, f.feature, f.value, f.right};
-}
-
 BoardHal g_hal;
-impactapp::TableModels g_models(tables(impactsense_forest_x), tables(impactsense_forest_y),
-                                tables(impactsense_forest_energy), IMPACTSENSE_N_FEATURES);
-impactapp::App g_app(g_hal, &g_models);
+impactapp::TableModels g_models = impactapp::exported_models();
+impactapp::App g_app(g_hal, &g_models, impactapp::exported_config(impactapp::AppConfig()));
 uint8_t g_rx[64];
 
 }  // namespace

@@ -177,9 +177,11 @@ struct Tables {
   std::vector<uint8_t> feature;
   std::vector<float> value;
   std::vector<uint16_t> right;
-  ia::ForestTables view() const {
-    return ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(), value.data(),
-                            right.data()};
+  std::vector<uint8_t> inputs;
+  ia::ModelSpec spec() const {
+    return ia::ModelSpec{ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(),
+                                          value.data(), right.data()},
+                         inputs.data(), static_cast<int32_t>(inputs.size())};
   }
 };
 
@@ -189,18 +191,25 @@ Tables tables_from(nb::dict d) {
   t.feature = nb::cast<std::vector<uint8_t>>(d["feature"]);
   t.value = nb::cast<std::vector<float>>(d["value"]);
   t.right = nb::cast<std::vector<uint16_t>>(d["right"]);
+  t.inputs = nb::cast<std::vector<uint8_t>>(d["inputs"]);
   const size_t n = t.feature.size();
   if (t.value.size() != n || t.right.size() != n) throw std::invalid_argument("forest arrays differ in length");
+  if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
+    throw std::invalid_argument("a forest reads 1..32 features");
+  }
+  for (uint8_t i : t.inputs) {
+    if (i >= ic::kNumFeatures) throw std::invalid_argument("forest input beyond the core's feature vector");
+  }
   for (int32_t r : t.roots) {
     if (r < 0 || static_cast<size_t>(r) >= n) throw std::invalid_argument("forest root out of range");
   }
-  // Validate every walk stays inside its tree (a bad table must not crash the emulator).
+  // Validate every walk stays inside its tree and reads a gathered input (a bad table must not crash).
   for (size_t k = 0; k < t.roots.size(); ++k) {
     const size_t lo = t.roots[k], hi = k + 1 < t.roots.size() ? t.roots[k + 1] : n;
     for (size_t i = lo; i < hi; ++i) {
       if (t.feature[i] == ia::kLeaf) continue;
-      if (i + 1 >= hi || lo + t.right[i] >= hi || lo + t.right[i] <= i) {
-        throw std::invalid_argument("forest child index out of range");
+      if (t.feature[i] >= t.inputs.size() || i + 1 >= hi || lo + t.right[i] >= hi || lo + t.right[i] <= i) {
+        throw std::invalid_argument("forest node out of range");
       }
     }
   }
@@ -209,19 +218,15 @@ Tables tables_from(nb::dict d) {
 
 struct PyModels : ia::Models {
   Tables x, y, e;
-  int n;
+  bool residual;
   std::unique_ptr<ia::TableModels> impl;
-  PyModels(nb::dict dx, nb::dict dy, nb::dict de, int n_features)
-      : x(tables_from(dx)), y(tables_from(dy)), e(tables_from(de)), n(n_features) {
-    for (const Tables* t : {&x, &y, &e}) {
-      for (uint8_t f : t->feature) {
-        if (f != ia::kLeaf && f >= n) throw std::invalid_argument("forest uses a feature beyond n_features");
-      }
-    }
-    impl.reset(new ia::TableModels(x.view(), y.view(), e.view(), n));
+  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy)
+      : x(tables_from(dx)), y(tables_from(dy)), e(tables_from(de)), residual(residual_xy) {
+    impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual));
   }
-  int n_features() const override { return n; }
-  void predict(const float* f, float* xm, float* ym, uint8_t* c) const override { impl->predict(f, xm, ym, c); }
+  bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
+    return impl->predict(ev, xm, ym, c);
+  }
 };
 
 // Collects what the app writes.
@@ -249,17 +254,7 @@ ia::AppConfig app_config(nb::dict d) {
     else if (k == "quiet_us") c.quiet_us = nb::cast<float>(v);
     else if (k == "threshold_counts") c.threshold_counts = nb::cast<float>(v);
     else if (k == "rearm_counts") c.rearm_counts = nb::cast<float>(v);
-    else if (k == "sensor_x_mm" || k == "sensor_y_mm") {
-      auto a = nb::cast<std::vector<float>>(v);
-      if (a.size() != 4) throw std::invalid_argument(k + " needs 4 values");
-      std::memcpy(k == "sensor_x_mm" ? c.sensor_x_mm : c.sensor_y_mm, a.data(), 4 * sizeof(float));
-    } else if (k == "plate_x_mm") c.plate_x_mm = nb::cast<float>(v);
-    else if (k == "plate_y_mm") c.plate_y_mm = nb::cast<float>(v);
-    else if (k == "velocity_mm_per_us") c.velocity_mm_per_us = nb::cast<float>(v);
-    else if (k == "sigma_us") c.sigma_us = nb::cast<float>(v);
-    else if (k == "accept_tol_us") c.accept_tol_us = nb::cast<float>(v);
-    else if (k == "accept_margin_mm") c.accept_margin_mm = nb::cast<float>(v);
-    else if (k == "adc_max") c.core.adc_max = nb::cast<int>(v);
+    else if (k == "loc") c.loc = nb::cast<ic::LocaliserConfig>(v);
     else if (k == "dump_raw") c.dump_raw = nb::cast<bool>(v);
     else if (k == "core") c.core = nb::cast<ic::CoreConfig>(v);
     else throw std::invalid_argument("unknown app config key: " + k);
@@ -306,6 +301,7 @@ class PyApp {
     return std::vector<float>(c, c + 4);
   }
   ic::CoreConfig core_config() const { return app_->config().core; }
+  ic::LocaliserConfig localiser_config() const { return app_->config().loc; }
   nb::dict rx_stats() const { return stats_dict(app_->rx_stats()); }
 
  private:
@@ -381,44 +377,38 @@ NB_MODULE(_link, m) {
       .def("reset", &PyDecoder::reset);
 
   nb::class_<PyModels>(m, "ForestModels")
-      .def(nb::init<nb::dict, nb::dict, nb::dict, int>(), "x"_a, "y"_a, "energy"_a, "n_features"_a)
-      .def_prop_ro("n_features", [](const PyModels& p) { return p.n; })
-      .def("predict", [](const PyModels& p, InF X) {
-        if (X.ndim() != 2 || static_cast<int>(X.shape(1)) != p.n) throw std::invalid_argument("X must be float32 [n, n_features]");
-        const size_t r = X.shape(0);
-        float* out = new float[3 * (r ? r : 1)];
+      .def(nb::init<nb::dict, nb::dict, nb::dict, bool>(), "x"_a, "y"_a, "energy"_a, "residual_xy"_a,
+           "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them.")
+      .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
+      .def("predict", [](const PyModels& p, InF vector, InF phys_xy) {
+        if (vector.ndim() != 2 || vector.shape(1) != static_cast<size_t>(ic::kNumFeatures)) {
+          throw std::invalid_argument("vector must be float32 [n, core feature count]");
+        }
+        if (phys_xy.ndim() != 2 || phys_xy.shape(1) != 2 || phys_xy.shape(0) != vector.shape(0)) {
+          throw std::invalid_argument("phys_xy must be float32 [n, 2]");
+        }
+        const size_t r = vector.shape(0);
+        float* out = new float[4 * (r ? r : 1)];
+        ic::EventResult ev{};
+        ev.status = ic::kOk;
+        ev.phys.status = ic::kOk;
         for (size_t k = 0; k < r; ++k) {
-          uint8_t c;
-          p.predict(X.data() + k * p.n, &out[3 * k], &out[3 * k + 1], &c);
-          out[3 * k + 2] = static_cast<float>(c);
+          std::memcpy(ev.vector, vector.data() + k * ic::kNumFeatures, sizeof(ev.vector));
+          ev.phys.x_mm = phys_xy.data()[2 * k];
+          ev.phys.y_mm = phys_xy.data()[2 * k + 1];
+          float x = NAN, y = NAN;
+          uint8_t c = 0;
+          const bool ok = p.predict(ev, &x, &y, &c);
+          out[4 * k] = x;
+          out[4 * k + 1] = y;
+          out[4 * k + 2] = static_cast<float>(c);
+          out[4 * k + 3] = ok ? 1.0f : 0.0f;
         }
         nb::capsule owner(out, [](void* q) noexcept { delete[] static_cast<float*>(q); });
-        size_t shape[2] = {r, 3};
+        size_t shape[2] = {r, 4};
         return nb::ndarray<nb::numpy, float>(out, 2, shape, owner);
-      }, "X"_a, "Predictions [n, 3]: x_mm, y_mm, energy_class, from the firmware's forest walker.");
-
-  m.def("feature_vector_batch", [](In16 adc, const ic::CoreConfig& cfg) {
-    if (adc.ndim() != 3 || adc.shape(1) != 4) throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
-    const size_t r = adc.shape(0);
-    const int n = static_cast<int>(adc.shape(2));
-    if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
-    ic::EventFeatures ev;
-    float tmp[ia::kMaxFeatures];
-    const int nf = ia::feature_vector(ev, tmp, ia::kMaxFeatures);
-    float* out = new float[(r ? r : 1) * nf];
-    int32_t* st = new int32_t[r ? r : 1];
-    for (size_t k = 0; k < r; ++k) {
-      const int16_t* ch[4];
-      for (int c = 0; c < 4; ++c) ch[c] = adc.data() + (k * 4 + c) * static_cast<size_t>(n);
-      st[k] = ic::extract_features(ch, n, cfg, &ev);
-      ia::feature_vector(ev, out + k * nf, nf);
-    }
-    nb::capsule o1(out, [](void* q) noexcept { delete[] static_cast<float*>(q); });
-    nb::capsule o2(st, [](void* q) noexcept { delete[] static_cast<int32_t*>(q); });
-    size_t s1[2] = {r, static_cast<size_t>(nf)};
-    size_t s2[1] = {r};
-    return nb::make_tuple(nb::ndarray<nb::numpy, float>(out, 2, s1, o1), nb::ndarray<nb::numpy, int32_t>(st, 1, s2, o2));
-  }, "adc"_a, "config"_a, "The firmware's model input for each recording: (features [R, F], core status [R]).");
+      }, "vector"_a, "phys_xy"_a,
+      "Predictions [n, 4]: x_mm, y_mm, energy_class, ran (1/0), from the firmware's forest walker.");
 
   nb::class_<PyApp>(m, "App")
       .def(nb::init<nb::dict, nb::object>(), "config"_a = nb::dict(), "models"_a = nb::none())
@@ -430,5 +420,6 @@ NB_MODULE(_link, m) {
       .def_prop_ro("fs_hz", &PyApp::fs_hz)
       .def_prop_ro("channel_delay_us", &PyApp::channel_delay_us)
       .def_prop_ro("core_config", &PyApp::core_config)
+      .def_prop_ro("localiser_config", &PyApp::localiser_config)
       .def_prop_ro("rx_stats", &PyApp::rx_stats);
 }

@@ -1,5 +1,6 @@
-/* Host driver for the exported C models: reads float32 feature rows from stdin (n_features each) and
-   prints, per row, the table and m2cgen predictions (x, y, P(high)) with %.9g. Used by
+/* Host driver for the exported C models: reads float32 rows from stdin (the core's feature vector,
+   IMPACTSENSE_N_FEATURES values) and prints, per row, the forests' outputs from the node tables and from
+   m2cgen (x, y, P(high); x and y before adding the physics position) with %.9g. Used by
    tests/test_firmware_export.py to check the generated C against scikit-learn. */
 #include <stdio.h>
 
@@ -19,12 +20,20 @@ static float forest_mean(const impactsense_forest* f, const float* x) {
   return sum / (float)f->n_trees;
 }
 
+static const float* gather(const impactsense_model* m, const float* v, float* out) {
+  for (int k = 0; k < m->n_inputs; ++k) out[k] = v[m->inputs[k]];
+  return out;
+}
+
 int main(void) {
-  float x[IMPACTSENSE_N_FEATURES];
-  while (fread(x, sizeof(float), IMPACTSENSE_N_FEATURES, stdin) == IMPACTSENSE_N_FEATURES) {
-    printf("%.9g %.9g %.9g %.9g %.9g %.9g\n", forest_mean(&impactsense_forest_x, x),
-           forest_mean(&impactsense_forest_y, x), forest_mean(&impactsense_forest_energy, x),
-           impactsense_m2c_x(x), impactsense_m2c_y(x), impactsense_m2c_energy(x));
+  float v[IMPACTSENSE_N_FEATURES], a[32], b[32], c[32];
+  while (fread(v, sizeof(float), IMPACTSENSE_N_FEATURES, stdin) == IMPACTSENSE_N_FEATURES) {
+    gather(&impactsense_model_x, v, a);
+    gather(&impactsense_model_y, v, b);
+    gather(&impactsense_model_energy, v, c);
+    printf("%.9g %.9g %.9g %.9g %.9g %.9g\n", forest_mean(&impactsense_model_x.forest, a),
+           forest_mean(&impactsense_model_y.forest, b), forest_mean(&impactsense_model_energy.forest, c),
+           impactsense_m2c_x(a), impactsense_m2c_y(b), impactsense_m2c_energy(c));
   }
   return 0;
 }

@@ -9,16 +9,12 @@
 #include <vector>
 
 #include "impactapp.h"
-#include "impactsense_models.h"
+#include "impactapp_models.h"
 
 struct Hal : impactapp::Hal {
   std::vector<uint8_t> out;
   void write(const uint8_t* d, size_t n) override { out.insert(out.end(), d, d + n); }
 };
-
-static impactapp::ForestTables tables(const impactsense_forest& f) {
-  return impactapp::ForestTables{f.n_trees, f.roots, f.feature, f.value, f.right};
-}
 
 int main(int argc, char** argv) {
   if (argc < 4) return 2;
@@ -28,9 +24,8 @@ int main(int argc, char** argv) {
   if (!f || fread(frames.data(), 2, frames.size(), f) != frames.size()) return 3;
   fclose(f);
   static Hal hal;
-  static impactapp::TableModels models(tables(impactsense_forest_x), tables(impactsense_forest_y),
-                                       tables(impactsense_forest_energy), IMPACTSENSE_N_FEATURES);
-  static impactapp::AppConfig cfg;
+  static impactapp::TableModels models = impactapp::exported_models();
+  static impactapp::AppConfig cfg = impactapp::exported_config(impactapp::AppConfig());
   cfg.dump_raw = true;
   static impactapp::App app(hal, &models, cfg);
   for (long k = 0; k < r; ++k) {
@@ -61,9 +56,12 @@ int main(int argc, char** argv) {
   static int16_t flat[4][300];
   for (int c = 0; c < 4; ++c) for (int i = 0; i < 300; ++i) flat[c][i] = static_cast<int16_t>(c == 1 ? (i % 2) * 4095 : 2048);
   const int16_t* ch[4] = {flat[0], flat[1], flat[2], flat[3]};
-  impactcore::EventFeatures ev;
-  impactcore::extract_features(ch, 300, impactcore::CoreConfig(), &ev);
-  impactcore::extract_features(ch, 10, impactcore::CoreConfig(), &ev);
+  static impactcore::EventResult ev;
+  impactcore::process_event(ch, 300, cfg.core, cfg.loc, &ev);
+  impactcore::process_event(ch, 10, cfg.core, cfg.loc, &ev);
+  uint8_t cls;
+  float x, y;
+  models.predict(ev, &x, &y, &cls);
   printf("reports %ld events %u decode_errors %u\n", reports, app.events(), dec.errors());
   return reports == static_cast<long>(app.events()) ? 0 : 1;
 }

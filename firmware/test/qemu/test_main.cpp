@@ -8,7 +8,7 @@
 
 #include "fixture.h"
 #include "impactapp.h"
-#include "impactsense_models.h"
+#include "impactapp_models.h"
 
 extern "C" void semihost_puts(const char* s);
 
@@ -83,23 +83,28 @@ struct TestHal : impactapp::Hal {
   }
 };
 
-static impactapp::ForestTables tables(const impactsense_forest& f) {
-  return impactapp::ForestTables{f.n_trees, f.roots, f.feature, f.value, f.right};
-}
-
+// The m2cgen export behind the same interface (gathers its inputs like TableModels).
 struct M2cModels : impactapp::Models {
-  int n_features() const override { return IMPACTSENSE_N_FEATURES; }
-  void predict(const float* f, float* x, float* y, uint8_t* c) const override {
-    *x = impactsense_m2c_x(f);
-    *y = impactsense_m2c_y(f);
-    *c = impactsense_m2c_energy(f) > 0.5f ? 1 : 0;
+  static void gather(const impactsense_model& m, const float* v, float* out) {
+    for (int k = 0; k < m.n_inputs; ++k) out[k] = v[m.inputs[k]];
+  }
+  bool predict(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c) const override {
+    float in[impactapp::kMaxModelInputs];
+    const float bx = IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f;
+    const float by = IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f;
+    gather(impactsense_model_x, ev.vector, in);
+    *x = bx + impactsense_m2c_x(in);
+    gather(impactsense_model_y, ev.vector, in);
+    *y = by + impactsense_m2c_y(in);
+    gather(impactsense_model_energy, ev.vector, in);
+    *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
+    return true;
   }
 };
 
 static TestHal g_hal;
-static impactapp::TableModels g_models(tables(impactsense_forest_x), tables(impactsense_forest_y),
-                                       tables(impactsense_forest_energy), IMPACTSENSE_N_FEATURES);
-static impactapp::App g_app(g_hal, &g_models);
+static impactapp::TableModels g_models = impactapp::exported_models();
+static impactapp::App g_app(g_hal, &g_models, impactapp::exported_config(impactapp::AppConfig()));
 static M2cModels g_m2c;
 
 static bool near(float a, float b, float tol) { return fabsf(a - b) <= tol; }
@@ -107,7 +112,7 @@ static bool near(float a, float b, float tol) { return fabsf(a - b) <= tol; }
 int main() {
   systick_start();
   semihost_puts("impactsense qemu test: firmware app on recorded drops\n");
-  float fv[impactapp::kMaxFeatures];
+  static impactcore::EventResult host;  // the host's feature vector and physics position
   for (int d = 0; d < FIX_N_DROPS; ++d) {
     const int before = g_hal.reports;
     for (int off = 0; off < FIX_FRAMES; off += 256) {  // EasyDMA-sized blocks
@@ -124,67 +129,57 @@ int main() {
     check(memcmp(got.order, want.order, 4) == 0, "FAIL ToA order, drop", d);
     check(got.clipped == want.clipped && got.dead == want.dead, "FAIL channel flags, drop", d);
     check(fabsf(got.uncertainty_mm - want.uncertainty_mm) <= 0.11f, "FAIL uncertainty, drop", d);
-    const impactcore::EventFeatures& ev = g_app.last_features();
-    for (int c = 0; c < 4; ++c) check(near(ev.ch[c].toa_us, fix_toa_us[d][c], 1e-2f), "FAIL toa_us, drop", d);
-    const int nf = impactapp::feature_vector(ev, fv, impactapp::kMaxFeatures);
-    check(nf == IMPACTSENSE_N_FEATURES, "FAIL feature count, drop", d);
-    for (int k = 0; k < nf; ++k) {
-      const float tol = 1e-4f * (1.0f + fabsf(fix_features[d][k]));
-      check(near(fv[k], fix_features[d][k], tol), "FAIL feature value, drop", d);
+    const impactcore::EventResult& ev = g_app.last_result();
+    for (int c = 0; c < 4; ++c) check(near(ev.features.ch[c].toa_us, fix_toa_us[d][c], 1e-2f), "FAIL toa_us, drop", d);
+    for (int k = 0; k < impactcore::kNumFeatures; ++k) {
+      const float tol = 1e-3f * (1.0f + fabsf(fix_vector[d][k]));
+      check(near(ev.vector[k], fix_vector[d][k], tol), "FAIL feature value, drop", d);
     }
     // Models on the host's feature vector: both exports give scikit-learn's predictions.
+    memcpy(host.vector, fix_vector[d], sizeof(host.vector));
+    host.status = impactcore::kOk;
+    host.phys.status = impactcore::kOk;
+    host.phys.x_mm = fix_phys_xy[d][0];
+    host.phys.y_mm = fix_phys_xy[d][1];
     float x, y;
     uint8_t cls;
-    g_models.predict(fix_features[d], &x, &y, &cls);
-    check(near(x, fix_sklearn[d][0], 1e-3f) && near(y, fix_sklearn[d][1], 1e-3f), "FAIL table x/y vs sklearn, drop", d);
+    check(g_models.predict(host, &x, &y, &cls), "FAIL table models did not run, drop", d);
+    check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL table x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL table class vs sklearn, drop", d);
-    g_m2c.predict(fix_features[d], &x, &y, &cls);
-    check(near(x, fix_sklearn[d][0], 1e-3f) && near(y, fix_sklearn[d][1], 1e-3f), "FAIL m2cgen x/y vs sklearn, drop", d);
+    g_m2c.predict(host, &x, &y, &cls);
+    check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL m2cgen x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL m2cgen class vs sklearn, drop", d);
   }
   check(g_heap_calls == 0, "FAIL heap allocations", g_heap_calls);
 
   // Per-event cost on the last capture, in SysTick ticks (bench_firmware_cost.py converts to instructions).
   const int16_t* chans[4] = {g_app.capture(0), g_app.capture(1), g_app.capture(2), g_app.capture(3)};
-  impactcore::EventFeatures ev;
-  uint64_t t0 = ticks();
-  impactcore::extract_features(chans, g_app.capture_frames(), g_app.config().core, &ev);
-  uint64_t t1 = ticks();
-  impactapp::feature_vector(ev, fv, impactapp::kMaxFeatures);
+  const impactapp::AppConfig& cfg = g_app.config();
+  static impactcore::EventFeatures feats;
+  static impactcore::EventResult res;
   float x, y;
   uint8_t cls;
-  uint64_t t2 = ticks();
-  g_models.predict(fv, &x, &y, &cls);
-  uint64_t t3 = ticks();
-  g_m2c.predict(fv, &x, &y, &cls);
-  uint64_t t4 = ticks();
+  const uint64_t t0 = ticks();
+  impactcore::extract_features(chans, g_app.capture_frames(), cfg.core, &feats);
+  const uint64_t t1 = ticks();
+  impactcore::process_event(chans, g_app.capture_frames(), cfg.core, cfg.loc, &res);
+  const uint64_t t2 = ticks();
+  g_models.predict(res, &x, &y, &cls);
+  const uint64_t t3 = ticks();
+  g_m2c.predict(res, &x, &y, &cls);
+  const uint64_t t4 = ticks();
   g_app.process_capture();
-  uint64_t t5 = ticks();
-  uint64_t t6 = ticks();
-  {
-    const impactapp::AppConfig& c = g_app.config();
-    float toa[4];
-    uint8_t use[4];
-    for (int k = 0; k < 4; ++k) {
-      toa[k] = ev.ch[k].toa_us;
-      use[k] = (ev.ch[k].flags & (impactcore::kFlagDead | impactcore::kFlagNoOnset)) ? 0 : 1;
-    }
-    const uint64_t l0 = ticks();
-    volatile impactcore::LocaliserResult r = impactcore::localise_tdoa(
-        toa, use, c.sensor_x_mm, c.sensor_y_mm, c.velocity_mm_per_us, c.sigma_us, c.plate_x_mm, c.plate_y_mm);
-    (void)r;
-    const uint64_t l1 = ticks();
-    put_int("TICKS localiser", static_cast<long long>(l1 - l0));
-  }
-  // Calibration: a loop of exactly 200,000 instructions (100,000 x subs + bne).
-  uint64_t c0 = ticks();
+  const uint64_t t5 = ticks();
+  const uint64_t t6 = ticks();
+  const uint64_t c0 = ticks();  // calibration: exactly 200,000 instructions (100,000 x subs + bne)
   {
     uint32_t n = 100000;
     __asm volatile("1: subs %0, %0, #1\n bne 1b" : "+r"(n) : : "cc");
   }
-  uint64_t c1 = ticks();
+  const uint64_t c1 = ticks();
   put_int("TICKS calib_200000_instructions", static_cast<long long>(c1 - c0));
   put_int("TICKS features", static_cast<long long>(t1 - t0));
+  put_int("TICKS process_event", static_cast<long long>(t2 - t1));
   put_int("TICKS models_tables", static_cast<long long>(t3 - t2));
   put_int("TICKS models_m2cgen", static_cast<long long>(t4 - t3));
   put_int("TICKS event_total", static_cast<long long>(t5 - t4));

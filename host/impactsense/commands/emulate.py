@@ -28,11 +28,11 @@ def run(args) -> int:
     s = load_session(args.data)
     if args.limit:
         s = s.subset(list(range(min(args.limit, len(s)))))
-    models = firmware_models(args.models) if Path(args.models).exists() else None
+    models, signal = firmware_models(args.models) if Path(args.models).exists() else (None, None)
     if models is None:
         print(f"emulate: no exported models in {args.models}; reports carry no position", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
-    emu = Emulator(s, models, fs_hz=args.rate, **extra)
+    emu = Emulator(s, models, fs_hz=args.rate, signal=signal, **extra)
     serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True))
     print(f"emulate: {emu.app.events} reports from {len(s)} drops", file=sys.stderr)
     return 0

@@ -21,11 +21,10 @@ def run(args) -> int:
 
     from ..export import export_models
 
-    X = xy = None
+    X = xy = phys = None
     if args.trees == "auto":
-        from .._link import feature_vector_batch  # noqa: F401
-        X, xy = _held_out(args.model_dir)
-    s = export_models(args.model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy,
+        X, phys, xy = _held_out(args.model_dir)
+    s = export_models(args.model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
                       write_m2cgen=not args.no_m2cgen)
     for row in s["tree_sweep"]:
         print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB (x+y)")
@@ -36,21 +35,24 @@ def run(args) -> int:
 
 
 def _held_out(model_dir):
-    """Feature vectors and positions of the model card's held-out drops (firmware feature layout)."""
+    """Feature vectors, physics positions and true positions of the model card's held-out drops."""
     import json
     from pathlib import Path
 
     import numpy as np
 
-    from .. import _core
-    from .. import _link
     from ..data import load_session
+    from ..pipeline import SignalConfig, featurize
 
     card = json.loads((Path(model_dir) / "model_card.json").read_text())
-    rows = card.get("test_recording_ids") or card.get("held_out") or card.get("test_ids")
-    s = load_session(card.get("data") if card.get("data") and Path(card["data"]).is_dir() else None)
-    rows = np.asarray(rows if rows else np.arange(len(s)), dtype=int)
-    cfg = _core.CoreConfig()
-    cfg.fs_hz = float(s.rig.fs_hz)
-    X, _ = _link.feature_vector_batch(np.ascontiguousarray(s.adc[rows].astype(np.int16)), cfg)
-    return X, s.xy_mm[rows]
+    rows = None
+    for key in ("test_recording_ids", "held_out", "held_out_recording_ids", "test_ids", "test_rows"):
+        if card.get(key):
+            rows = card[key]
+            break
+    data = card.get("data") or card.get("session")
+    s = load_session(data if data and Path(str(data)).is_dir() else None)
+    rows = np.asarray(rows if rows is not None else np.arange(len(s)), dtype=int)
+    f = featurize(s.adc[rows], SignalConfig.from_dict(card.get("signal") or {}))
+    use = f.usable
+    return f.vector[use], f.phys_xy_mm[use], s.xy_mm[rows][use]

@@ -73,9 +73,28 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
     return y
 
 
-def app_config(rig, fs_hz: int = 50000, **extra) -> dict:
-    cfg = {"fs_hz": int(fs_hz), "sensor_x_mm": rig.sensor_x_mm.tolist(), "sensor_y_mm": rig.sensor_y_mm.tolist(),
-           "plate_x_mm": rig.plate_x_mm, "plate_y_mm": rig.plate_y_mm, "adc_max": rig.adc_max}
+def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
+    """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig), sample
+    counts scaled from the training rate to the board's, the board rate and the SAADC scan delays (what
+    impactapp_models.h does on the board)."""
+    from ..pipeline import SignalConfig
+
+    cfg = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
+    scale = fs_hz / float(cfg.fs_hz)
+    cfg.aic_before = int(cfg.aic_before * scale + 0.5)
+    cfg.aic_after = int(cfg.aic_after * scale + 0.5)
+    cfg.fs_hz = float(fs_hz)
+    cfg.channel_delay_us = [_link.SCAN_STEP_US * c for c in range(4)]
+    cfg.adc_max = rig.adc_max
+    cfg.sensor_x_mm = [float(v) for v in rig.sensor_x_mm]
+    cfg.sensor_y_mm = [float(v) for v in rig.sensor_y_mm]
+    cfg.plate_x_mm, cfg.plate_y_mm = rig.plate_x_mm, rig.plate_y_mm
+    return cfg
+
+
+def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
+    sig = signal_for_board(rig, signal, fs_hz)
+    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
     cfg.update(extra)
     return cfg
 
@@ -83,10 +102,11 @@ def app_config(rig, fs_hz: int = 50000, **extra) -> dict:
 class Emulator:
     """The firmware app over a session's recordings, as a byte stream."""
 
-    def __init__(self, session, models=None, fs_hz: int = 50000, **config):
+    def __init__(self, session, models=None, fs_hz: int = 50000, signal: dict | None = None, **config):
         self.session = session
         self.fs_hz = int(fs_hz)
-        self.app = _link.App(app_config(session.rig, fs_hz, **config), models)
+        self.signal = signal_for_board(session.rig, signal, fs_hz)
+        self.app = _link.App(app_config(session.rig, fs_hz, signal, **config), models)
         self._frames = None
 
     @property

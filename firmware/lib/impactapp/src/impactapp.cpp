@@ -9,27 +9,34 @@ namespace impactapp {
 namespace ic = impactcore;
 namespace il = impactlink;
 
-void TableModels::predict(const float* f, float* x_mm, float* y_mm, uint8_t* cls) const {
-  *x_mm = forest_mean(x_, f);
-  *y_mm = forest_mean(y_, f);
-  *cls = forest_mean(e_, f) > 0.5f ? 1 : 0;
+namespace {
+
+bool gather(const ModelSpec& m, const float* vector, float* out) {
+  if (m.n_inputs > kMaxModelInputs) return false;
+  for (int32_t k = 0; k < m.n_inputs; ++k) {
+    if (m.inputs[k] >= ic::kNumFeatures) return false;
+    const float v = vector[m.inputs[k]];
+    if (!(v == v) || v - v != 0.0f) return false;  // NaN or inf: the event is not usable
+    out[k] = v;
+  }
+  return true;
 }
 
-int feature_vector(const ic::EventFeatures& ev, float* out, int cap) {
-  // Interim layout until impactcore::feature_vector lands: 6 DToA (us), 4 log10(1 + energy),
-  // 4 log10(1 + first peak). Missing values (no onset) are 0.
-  if (cap < 14) return 0;
-  int k = 0;
-  for (int p = 0; p < ic::kPairs; ++p) out[k++] = ev.dtoa_us[p] == ev.dtoa_us[p] ? ev.dtoa_us[p] : 0.0f;
-  for (int c = 0; c < ic::kChannels; ++c) {
-    const float e = ev.ch[c].energy;
-    out[k++] = e == e ? log10f(1.0f + e) : 0.0f;
-  }
-  for (int c = 0; c < ic::kChannels; ++c) {
-    const float p = ev.ch[c].first_peak;
-    out[k++] = p == p ? log10f(1.0f + p) : 0.0f;
-  }
-  return k;
+}  // namespace
+
+bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const {
+  float in[kMaxModelInputs];
+  if (ev.status != ic::kOk) return false;
+  if (residual_ && ev.phys.status != ic::kOk) return false;
+  if (!gather(x_, ev.vector, in)) return false;
+  const float dx = forest_mean(x_.forest, in);
+  if (!gather(y_, ev.vector, in)) return false;
+  const float dy = forest_mean(y_.forest, in);
+  if (!gather(e_, ev.vector, in)) return false;
+  *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
+  *x_mm = residual_ ? ev.phys.x_mm + dx : dx;
+  *y_mm = residual_ ? ev.phys.y_mm + dy : dy;
+  return true;
 }
 
 App::App(Hal& hal, const Models* models, const AppConfig& cfg)
@@ -115,7 +122,7 @@ void App::on_samples(const int16_t* data, int n_frames) {
 
 void App::process_capture() {
   const int16_t* chans[4] = {capture_[0], capture_[1], capture_[2], capture_[3]};
-  const int32_t st = ic::extract_features(chans, capture_frames_, cfg_.core, &ev_);
+  const int32_t st = ic::process_event(chans, capture_frames_, cfg_.core, cfg_.loc, &ev_);
   il::Report& r = report_;
   memset(&r, 0, sizeof(r));
   r.seq = seq_++;
@@ -123,33 +130,22 @@ void App::process_capture() {
   r.uncertainty_mm = -1.0f;
   for (int c = 0; c < 4; ++c) r.order[c] = static_cast<uint8_t>(c);
   if (st == ic::kOk || st == ic::kErrNoTrigger) {
-    uint8_t use[4];
-    float toa[4];
     for (int c = 0; c < 4; ++c) {
-      const uint8_t fl = ev_.ch[c].flags;
+      const uint8_t fl = ev_.features.ch[c].flags;
       if (fl & ic::kFlagClipped) r.clipped |= static_cast<uint8_t>(1u << c);
       if (fl & (ic::kFlagDead | ic::kFlagNoOnset)) r.dead |= static_cast<uint8_t>(1u << c);
-      use[c] = (fl & (ic::kFlagDead | ic::kFlagNoOnset)) ? 0 : 1;
-      toa[c] = ev_.ch[c].toa_us;
-      r.order[c] = ev_.order[c];
-    }
-    if (st == ic::kOk && models_ != nullptr) {
-      const int n = feature_vector(ev_, features_, kMaxFeatures);
-      if (n == models_->n_features()) {
-        models_->predict(features_, &r.x_mm, &r.y_mm, &r.energy_class);
-        r.valid = true;
-        r.accepted = ic::accept_eq35(toa, cfg_.sensor_x_mm, cfg_.sensor_y_mm, r.x_mm, r.y_mm,
-                                     cfg_.accept_tol_us, cfg_.accept_margin_mm);
-        const ic::LocaliserResult loc =
-            ic::localise_tdoa(toa, use, cfg_.sensor_x_mm, cfg_.sensor_y_mm, cfg_.velocity_mm_per_us,
-                              cfg_.sigma_us, cfg_.plate_x_mm, cfg_.plate_y_mm);
-        if (loc.status == ic::kOk) {
-          const float var = loc.cov_xx + loc.cov_yy;
-          if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
-        }
-      }
+      r.order[c] = ev_.features.order[c];
     }
   }
+  if (st == ic::kOk && ev_.phys.status == ic::kOk) {
+    // The physics localiser: the position when the models cannot run, the uncertainty, Eq. 35.
+    r.x_mm = ev_.phys.x_mm;
+    r.y_mm = ev_.phys.y_mm;
+    r.accepted = ev_.accepted != 0;
+    const float var = ev_.phys.cov_xx + ev_.phys.cov_yy;
+    if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
+  }
+  if (st == ic::kOk && models_ != nullptr) r.valid = models_->predict(ev_, &r.x_mm, &r.y_mm, &r.energy_class);
   if (cfg_.dump_raw) send_raw();
   size_t n = il::encode_report(r, tx_, sizeof(tx_));
   hal_.write(tx_, n);

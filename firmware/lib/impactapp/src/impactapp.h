@@ -10,7 +10,7 @@
 //   capture_   4 x kMaxCapture int16              = 16,384  channel-major capture (the core's input)
 //   tx_        impactlink::kMaxFrame              =  1,034  one outgoing frame
 //   decoder    impactlink::kMaxFrame + stats      ~  1,070  command decoder
-//   features   EventFeatures + feature vector     ~    400
+//   ev_        impactcore::EventResult            ~    420
 //   total App                                     ~ 21 KB of the nRF52840's 256 KB RAM
 // The board adds 2 x kDmaFrames x 4 int16 EasyDMA buffers (firmware/src/main.cpp).
 //
@@ -31,7 +31,6 @@ namespace impactapp {
 
 constexpr int kMaxPretrigger = 256;   // frames
 constexpr int kMaxCapture = 2048;     // frames (<= impactcore::kMaxSamples)
-constexpr int kMaxFeatures = 32;
 constexpr uint32_t kMaxRateHz = 50000;  // SAADC: 200 ksps in all over 4 channels
 constexpr uint32_t kMinRateHz = 5000;
 constexpr float kScanStepUs = 5.0f;     // SAADC TACQ 3 us + conversion <= 2 us per channel in a scan
@@ -46,25 +45,36 @@ class Hal {
   virtual bool apply_rate(uint32_t fs_hz) { (void)fs_hz; return true; }  // retime the sampling TIMER
 };
 
-// The models: a feature vector in, position and energy class out.
+constexpr int kMaxModelInputs = 32;
+
+// One forest and the indices of the impactcore feature-vector entries it reads (model_card.json's
+// location_features / energy_features), in the order the forest was trained on.
+struct ModelSpec {
+  ForestTables forest;
+  const uint8_t* inputs;
+  int32_t n_inputs;
+};
+
+// The models: the core's per-event result in, position and energy class out. False when they cannot run
+// (a feature is missing, e.g. a channel without onset).
 class Models {
  public:
   virtual ~Models() {}
-  virtual int n_features() const = 0;
-  virtual void predict(const float* features, float* x_mm, float* y_mm, uint8_t* energy_class) const = 0;
+  virtual bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm,
+                       uint8_t* energy_class) const = 0;
 };
 
-// Models as forest tables (forest.h): one regressor per coordinate and a binary classifier.
+// Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
+// localiser's position when residual_xy, as `impactsense train` fits them) and a binary classifier.
 class TableModels : public Models {
  public:
-  TableModels(const ForestTables& x, const ForestTables& y, const ForestTables& energy, int n_features)
-      : x_(x), y_(y), e_(energy), n_(n_features) {}
-  int n_features() const override { return n_; }
-  void predict(const float* f, float* x_mm, float* y_mm, uint8_t* cls) const override;
+  TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy)
+      : x_(x), y_(y), e_(energy), residual_(residual_xy) {}
+  bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
 
  private:
-  ForestTables x_, y_, e_;
-  int n_;
+  ModelSpec x_, y_, e_;
+  bool residual_;
 };
 
 struct AppConfig {
@@ -75,20 +85,10 @@ struct AppConfig {
   float quiet_us = 2000.0f;          // re-arm after all channels stayed below rearm_counts this long
   float threshold_counts = 60.0f;
   float rearm_counts = 20.0f;
-  // Geometry (session-1 rig) and the physics localiser used for the uncertainty.
-  float sensor_x_mm[4] = {30.0f, 290.0f, 290.0f, 30.0f};
-  float sensor_y_mm[4] = {33.0f, 33.0f, 284.0f, 284.0f};
-  float plate_x_mm = 320.0f, plate_y_mm = 317.0f;
-  float velocity_mm_per_us = 0.35f;
-  float sigma_us = 2.0f;
-  float accept_tol_us = 2.0f;        // Eq. 35
-  float accept_margin_mm = 10.0f;
   impactcore::CoreConfig core;       // fs_hz and channel_delay_us are set from fs_hz by configure()
+  impactcore::LocaliserConfig loc;   // geometry, group velocity, Eq. 35 tolerances
   bool dump_raw = false;
 };
-
-// Fills the model input from the core's features. Returns the number of values written.
-int feature_vector(const impactcore::EventFeatures& ev, float* out, int cap);
 
 class App {
  public:
@@ -112,7 +112,7 @@ class App {
   uint32_t overruns() const { return overruns_; }
   int capture_frames() const { return capture_frames_; }
   const int16_t* capture(int c) const { return capture_[c]; }
-  const impactcore::EventFeatures& last_features() const { return ev_; }
+  const impactcore::EventResult& last_result() const { return ev_; }
   const impactlink::Report& last_report() const { return report_; }
   const impactlink::DecoderStats& rx_stats() const { return rx_.stats(); }
 
@@ -135,8 +135,7 @@ class App {
   int cap_pos_ = 0;
   uint64_t frame_count_ = 0, trigger_frame_ = 0;
   uint32_t seq_ = 0, overruns_ = 0;
-  impactcore::EventFeatures ev_;
-  float features_[kMaxFeatures];
+  impactcore::EventResult ev_;
   impactlink::Report report_;
   uint8_t tx_[impactlink::kMaxFrame];
   impactlink::Decoder rx_;
