@@ -59,6 +59,7 @@ class DropTargets:
     residual_ratio: np.ndarray          # [4, 4]
     peak: np.ndarray                    # [4, 4]
     first_peak: np.ndarray              # [4, 4]
+    noise_rms: np.ndarray               # [4, 4] counts, baseline noise of the measured records
     info: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -68,7 +69,8 @@ class DropTargets:
             "x_mm": self.x_mm.tolist(), "y_mm": self.y_mm.tolist(), "height_mm": self.height_mm.tolist(),
             "dtoa_us": self.dtoa_us.tolist(), "dtoa_spread_us": self.dtoa_spread_us.tolist(),
             "energy": self.energy.tolist(), "residual_ratio": self.residual_ratio.tolist(),
-            "peak": self.peak.tolist(), "first_peak": self.first_peak.tolist(), **self.info,
+            "peak": self.peak.tolist(), "first_peak": self.first_peak.tolist(),
+            "noise_rms": self.noise_rms.tolist(), **self.info,
         }
 
 
@@ -104,7 +106,7 @@ def _targets(session, feats, rows, chosen, info) -> DropTargets:
         height_mm=np.array([rows[c]["h"] for c in chosen]),
         dtoa_us=med("dtoa_us"), dtoa_spread_us=np.array([rows[c]["spread_us"] for c in chosen]),
         energy=med("energy"), residual_ratio=med("residual_ratio"), peak=med("peak"),
-        first_peak=med("first_peak"), info=info)
+        first_peak=med("first_peak"), noise_rms=med("noise_rms"), info=info)
 
 
 def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0, min_reps=2,

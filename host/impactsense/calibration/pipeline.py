@@ -57,6 +57,7 @@ class CalibrateOptions:
     fem: bool = True                       # False: sub-problem 1 only (no FEM confirmation, no sub-problem 2)
     fast_n_fft: int = 1024
     fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM check of the plate: E = fast minimum x these
+    n_noise: int = 4                       # rig-noise realisations added to simulated records before picking
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -129,11 +130,21 @@ def _sim_core_config(cfg):
     return c
 
 
-def sim_features(adc_u16, cfg_sim):
-    out = _core.extract_batch(np.ascontiguousarray(np.asarray(adc_u16).astype(np.int16)), cfg_sim)
-    toa = out["toa_us"].astype(float)
+def sim_features(adc_u16, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
+    """Core features of simulated records, with the rig's noise added (`n_noise` seeded realisations,
+    averaged): the picker must see what it sees on the rig."""
+    adc = np.asarray(adc_u16).astype(float)
+    rng = np.random.default_rng(seed)
+    acc = {}
+    for _ in range(max(1, n_noise)):
+        x = adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc
+        x = np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16)
+        out = _core.extract_batch(np.ascontiguousarray(x), cfg_sim)
+        for k in ("toa_us", "energy", "residual_ratio"):
+            acc.setdefault(k, []).append(out[k].astype(float))
+    toa = np.mean(acc["toa_us"], axis=0)
     return {"toa_us": toa, "dtoa_us": toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J],
-            "energy": out["energy"].astype(float), "residual_ratio": out["residual_ratio"].astype(float)}
+            "energy": np.mean(acc["energy"], axis=0), "residual_ratio": np.mean(acc["residual_ratio"], axis=0)}
 
 
 def objectives(feat, targets) -> tuple[float, float]:
@@ -183,7 +194,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                       margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
     targets = clock.run("drops", stage_drops)
     out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
-    base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us))
+    noise = (float(np.median(targets.noise_rms)), int(opts.n_noise), int(opts.seed))
+    base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us), noise)
 
     # --- stage: plate grid (sub-problem 1) --------------------------------------------------------------
     e_axis, nu_axis = plate.grid_axes(opts.e_min_mpa, opts.e_max_mpa, opts.e_step_mpa, opts.nu_min,
@@ -192,7 +204,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     grid_path = cache("stage1-grid.npz")
     loss = clock.run("plate_grid", plate.run_grid, setup, cfg_sim, int(rig.bias_counts), targets.peak,
                      targets.dtoa_us, e_axis, nu_axis, cache_path=str(grid_path), workers=opts.workers,
-                     progress=opts.progress)
+                     progress=opts.progress, noise_counts=noise[0], n_noise=noise[1], seed=noise[2])
     e_best, nu_best, loss_best = plate.refine_minimum(loss, e_axis, nu_axis)
     fig9 = Path(f"{stem}.fig9-plate-loss.png")
     plate.contour_plot(loss, e_axis, nu_axis, (e_best, nu_best), fig9)
@@ -208,6 +220,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     result = {"format": "impactsense-calibration/1", "data": str(Path(data)),
               "data_sha256": session.fingerprint(), "seed": opts.seed,
               "options": {k: v for k, v in asdict(opts).items() if k not in ("progress",)},
+              "noise_added_to_simulations": {"counts_rms": noise[0], "realisations": noise[1]},
               "core_config": {"aic_blend": cfg.aic_blend, "channel_delay_us": list(cfg.channel_delay_us),
                               "fs_hz": cfg.fs_hz},
               "drops": targets.to_json(), "exclude_case_ids": [int(c) for c in targets.case_ids],
@@ -221,7 +234,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         def fem_stage():
             return _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, cache("stage1-fem.json"),
                                    _key(base_key, e_best, nu_best, opts.e_step_mpa, list(opts.fem_e_ratios)),
-                                   e_best, e_axis)
+                                   e_best, e_axis, noise)
         scan = clock.run("plate_fem", fem_stage)
         e_fem = min(scan, key=scan.get)
         stage1["E_fast_mpa"] = e_best
@@ -232,7 +245,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         stage1["fem_confirm_at_fast_minimum_loss_eq16_us2"] = scan.get(e_best)
         stage1["fem_scan"] = {f"{k:.0f}": v for k, v in sorted(scan.items())}
         # sub-problem 2
-        s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem)
+        s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise)
         params.update(s2.pop("fitted"))
         result["pzt_damping"] = s2
     else:
@@ -248,7 +261,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     return result
 
 
-def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, key: str, e_best, e_axis) -> dict:
+def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, key: str, e_best, e_axis,
+                    noise) -> dict:
     """FEM Eq. 16 loss at E = e_best x ratios (snapped to the E grid), extended past an edge minimum, then at
     the snapped vertex of a parabola through the best three. Returns {E_mpa: loss}; cached, resumable."""
     from tqdm import tqdm
@@ -263,7 +277,7 @@ def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, k
         e = snap(e)
         if e not in losses:
             p = dict(params, e_pa=e * 1e6)
-            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim)
+            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
             losses[e] = float(plate.eq16_loss(f["dtoa_us"], targets.dtoa_us))
             _write_json_atomic(path, {"key": key, "losses": {f"{k!r}": v for k, v in losses.items()}})
             bar.update(1)
@@ -295,7 +309,7 @@ def _unit_to_params(u):
     return lo + np.asarray(u) * (hi - lo)
 
 
-def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem) -> dict:
+def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise) -> dict:
     from scipy.optimize import differential_evolution
     from scipy.stats import qmc
     from tqdm import tqdm
@@ -323,7 +337,7 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
         bar = tqdm(total=n, initial=int(done.sum()), desc="FEM design runs", unit="run", disable=not opts.progress)
         for i in np.flatnonzero(~done):
             p = dict(params, **dict(zip(fem.FACTOR_NAMES, xs[i])))
-            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim)
+            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
             energy[i], ratio[i], done[i] = f["energy"], f["residual_ratio"], True
             save()
             bar.update(1)
@@ -392,7 +406,7 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
 
     def confirm():
         p = dict(params, **dict(zip(fem.FACTOR_NAMES, x_opt)))
-        f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim)
+        f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
         return objectives(f, targets)
     f2_c, f3_c = clock.run("fem_confirm", confirm)
     j_conf = float(np.log10(f2_c + 1e-30) + np.log10(f3_c + 1e-30))

@@ -34,15 +34,25 @@ def eq16_loss(dtoa_sim_us: np.ndarray, dtoa_meas_us: np.ndarray) -> np.ndarray:
     return np.sum(err ** 2, axis=(-1, -2))
 
 
-def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu):
-    """Eq. 16 of the fast model for plates (e_mpa[i], nu[i]); returns loss [P] and dtoa [P, D, 6]."""
+def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu, noise_counts=0.0, n_noise=1, seed=0):
+    """Eq. 16 of the fast model for plates (e_mpa[i], nu[i]); returns loss [P] and dtoa [P, D, 6].
+
+    The rig's noise (`noise_counts` rms) is added before picking, `n_noise` seeded realisations (the same for
+    every plate: common random numbers keep the loss surface smooth) and the ToAs averaged: the AIC onset of
+    a noiseless record is not the onset the picker finds in a real one."""
     cfg = _apply_state(_core.CoreConfig(), cfg_state)
     unit = arrival.synth_unit(setup, np.asarray(e_mpa) * 1e6, np.asarray(nu))
     peak_unit = np.abs(unit).max(axis=-1)
     gain = peak[None] / np.where(peak_unit > 0, peak_unit, 1.0)
-    adc = arrival.to_counts(unit, gain, cfg_state.get("bias", 2048), cfg.adc_max)
-    out = _core.extract_batch(np.ascontiguousarray(adc.reshape(-1, 4, unit.shape[-1])), cfg)
-    toa = out["toa_us"].reshape(unit.shape[:-1]).astype(float)
+    clean = unit * gain[..., None] + cfg_state.get("bias", 2048)
+    rng = np.random.default_rng(seed)
+    toas = []
+    for _ in range(max(1, n_noise)):
+        noisy = clean + rng.normal(0.0, noise_counts, clean.shape[1:])[None] if noise_counts > 0 else clean
+        adc = np.clip(np.rint(noisy), 0, cfg.adc_max).astype(np.int16)
+        out = _core.extract_batch(np.ascontiguousarray(adc.reshape(-1, 4, unit.shape[-1])), cfg)
+        toas.append(out["toa_us"].reshape(unit.shape[:-1]).astype(float))
+    toa = np.mean(toas, axis=0)
     dtoa = toa[..., PAIR_I] - toa[..., PAIR_J]
     return eq16_loss(dtoa, dtoa_meas), dtoa
 
@@ -65,7 +75,7 @@ def _apply_state(cfg, state):
 
 
 def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,
-             chunk=48, progress=True):
+             chunk=48, progress=True, noise_counts=0.0, n_noise=1, seed=0):
     """Loss over the full grid [len(e_axis), len(nu_axis)]; resumable from `cache_path` (npz)."""
     from tqdm import tqdm
     ee, nn = np.meshgrid(e_axis, nu_axis, indexing="ij")
@@ -75,7 +85,8 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
         with np.load(cache_path) as z:
             if (z["e_axis"].shape == e_axis.shape and np.allclose(z["e_axis"], e_axis)
                     and z["nu_axis"].shape == nu_axis.shape and np.allclose(z["nu_axis"], nu_axis)
-                    and np.allclose(z["dtoa_meas"], dtoa_meas)):
+                    and np.allclose(z["dtoa_meas"], dtoa_meas)
+                    and float(z["noise"]) == float(noise_counts) * 1000 + n_noise):
                 loss = z["loss"].ravel().copy()
     todo = [np.arange(i, min(i + chunk, e_flat.size)) for i in range(0, e_flat.size, chunk)]
     todo = [idx for idx in todo if np.isnan(loss[idx]).any()]
@@ -84,11 +95,13 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
     def save():
         if cache_path:
             tmp = cache_path + ".tmp.npz"
-            np.savez(tmp, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas)
+            np.savez(tmp, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas,
+                     noise=float(noise_counts) * 1000 + n_noise)
             os.replace(tmp, cache_path)
 
     bar = tqdm(total=len(todo), desc="plate grid (E, nu)", unit="chunk", disable=not progress)
-    tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx]) for idx in todo]
+    tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx], noise_counts, n_noise, seed)
+             for idx in todo]
     if workers > 1 and len(tasks) > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for k, (idx, res) in enumerate(zip(todo, pool.map(_chunk_task, tasks))):
