@@ -255,6 +255,11 @@ ia::AppConfig app_config(nb::dict d) {
     else if (k == "threshold_counts") c.threshold_counts = nb::cast<float>(v);
     else if (k == "rearm_counts") c.rearm_counts = nb::cast<float>(v);
     else if (k == "loc") c.loc = nb::cast<ic::LocaliserConfig>(v);
+    else if (k == "rig_delay_us") {
+      auto a = nb::cast<std::vector<float>>(v);
+      if (a.size() != 4) throw std::invalid_argument("rig_delay_us needs 4 values");
+      std::memcpy(c.rig_delay_us, a.data(), sizeof(c.rig_delay_us));
+    }
     else if (k == "dump_raw") c.dump_raw = nb::cast<bool>(v);
     else if (k == "core") c.core = nb::cast<ic::CoreConfig>(v);
     else throw std::invalid_argument("unknown app config key: " + k);

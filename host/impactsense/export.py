@@ -201,7 +201,8 @@ def signal_c(signal: dict) -> str:
     for name, ctype, default in SIGNAL_FIELDS:
         v = signal.get(name, default)
         vals.append(str(int(v)) if ctype == "int32_t" else _c_float(v))
-    for key, default in (("sensor_x_mm", [30.0, 290.0, 290.0, 30.0]), ("sensor_y_mm", [33.0, 33.0, 284.0, 284.0])):
+    for key, default in (("sensor_x_mm", [30.0, 290.0, 290.0, 30.0]), ("sensor_y_mm", [33.0, 33.0, 284.0, 284.0]),
+                         ("channel_delay_us", [0.0, 0.0, 0.0, 0.0])):
         vals.append("{" + ", ".join(_c_float(v) for v in signal.get(key, default)) + "}")
     return "const impactsense_signal_config impactsense_signal = {\n  " + ",\n  ".join(vals) + "\n};\n"
 
@@ -306,6 +307,7 @@ typedef struct {{
   float velocity_mm_per_us, sigma_us, huber_us, accept_tol_us, accept_margin_mm;
   float plate_x_mm, plate_y_mm;
   float sensor_x_mm[4], sensor_y_mm[4];
+  float channel_delay_us[4];  // the rig's measured channel delays (the board adds its scan delays)
 }} impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

@@ -45,12 +45,12 @@ def _held_out(model_dir):
     from ..pipeline import SignalConfig, featurize
 
     card = json.loads((Path(model_dir) / "model_card.json").read_text())
-    rows = None
+    split = card.get("split") or {}
+    rows = split.get("test_recordings")
     for key in ("test_recording_ids", "held_out", "held_out_recording_ids", "test_ids", "test_rows"):
-        if card.get(key):
+        if rows is None and card.get(key):
             rows = card[key]
-            break
-    data = card.get("data") or card.get("session")
+    data = split.get("data_path") or card.get("data") or card.get("session")
     s = load_session(data if data and Path(str(data)).is_dir() else None)
     rows = np.asarray(rows if rows is not None else np.arange(len(s)), dtype=int)
     f = featurize(s.adc[rows], SignalConfig.from_dict(card.get("signal") or {}))

@@ -51,5 +51,13 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     settings = ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(train)), session.xy_mm[rows][train],
                             session.height_mm[rows][train], session.rig.ball_mass_g, sig, settings)
-    return model.save(out_dir, extra_card={"board_fs_hz": fs_hz, "data": str(session.path),
-                                           "test_recording_ids": [int(r) for r in rows[~train]]})
+    out = model.save(out_dir, extra_card={"board_fs_hz": fs_hz, "data": str(session.path),
+                                          "test_recording_ids": [int(r) for r in rows[~train]]})
+    # The card's channel delays are the rig's own; the scan delays are added by the firmware (and emulator).
+    import json
+
+    card_path = Path(out) / "model_card.json"
+    card = json.loads(card_path.read_text())
+    card["signal"]["channel_delay_us"] = [0.0, 0.0, 0.0, 0.0]
+    card_path.write_text(json.dumps(card, indent=1))
+    return Path(out)

@@ -84,7 +84,7 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     cfg.aic_before = int(cfg.aic_before * scale + 0.5)
     cfg.aic_after = int(cfg.aic_after * scale + 0.5)
     cfg.fs_hz = float(fs_hz)
-    cfg.channel_delay_us = [_link.SCAN_STEP_US * c for c in range(4)]
+    cfg.channel_delay_us = [float(d) + _link.SCAN_STEP_US * c for c, d in enumerate(cfg.channel_delay_us)]
     cfg.adc_max = rig.adc_max
     cfg.sensor_x_mm = [float(v) for v in rig.sensor_x_mm]
     cfg.sensor_y_mm = [float(v) for v in rig.sensor_y_mm]
@@ -94,7 +94,8 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
 
 def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
     sig = signal_for_board(rig, signal, fs_hz)
-    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
+    rig_delay = (signal or {}).get("channel_delay_us", [0.0] * 4)
+    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser(), "rig_delay_us": list(rig_delay)}
     cfg.update(extra)
     return cfg
 

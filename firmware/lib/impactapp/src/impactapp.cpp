@@ -58,7 +58,9 @@ bool App::configure(const AppConfig& cfg) {
   }
   cfg_ = cfg;
   cfg_.core.fs_hz = fs;
-  for (int c = 0; c < 4; ++c) cfg_.core.channel_delay_us[c] = kScanStepUs * static_cast<float>(c);
+  for (int c = 0; c < 4; ++c) {
+    cfg_.core.channel_delay_us[c] = cfg.rig_delay_us[c] + kScanStepUs * static_cast<float>(c);
+  }
   pre_frames_ = pre;
   capture_frames_ = cap;
   trig_cfg_ = ic::TriggerConfig();

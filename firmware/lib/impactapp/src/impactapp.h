@@ -85,7 +85,8 @@ struct AppConfig {
   float quiet_us = 2000.0f;          // re-arm after all channels stayed below rearm_counts this long
   float threshold_counts = 60.0f;
   float rearm_counts = 20.0f;
-  impactcore::CoreConfig core;       // fs_hz and channel_delay_us are set from fs_hz by configure()
+  float rig_delay_us[4] = {0, 0, 0, 0};  // measured delays of the sensors/wiring (model card), added to ...
+  impactcore::CoreConfig core;       // ... the SAADC scan delays: configure() sets fs_hz and channel_delay_us
   impactcore::LocaliserConfig loc;   // geometry, group velocity, Eq. 35 tolerances
   bool dump_raw = false;
 };
