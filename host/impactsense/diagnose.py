@@ -178,12 +178,14 @@ def _jsonable(v):
     return v
 
 
-def _param_sd(c: Candidate) -> dict:
+def _param_se(c: Candidate) -> dict:
+    """Delete-a-fold jackknife standard error of each parameter over the case folds."""
     out = {}
     for k in c.params:
-        vals = [fp[k] for fp in c.fold_params if isinstance(fp.get(k), (int, float))]
+        vals = np.array([fp[k] for fp in c.fold_params if isinstance(fp.get(k), (int, float))], float)
         if len(vals) > 1:
-            out[k] = float(np.std(vals, ddof=1) * np.sqrt(len(vals) - 1) / np.sqrt(len(vals)) * 1.0)
+            n = len(vals)
+            out[k] = float(np.sqrt((n - 1) / n * np.sum((vals - vals.mean()) ** 2)))
     return out
 
 
@@ -205,7 +207,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     for c in sorted(accepted, key=lambda c: -c.score):
         effects.append({"effect": c.effect, "sensor": c.sensor, "params": _jsonable(c.params),
                         "score": c.score, "significant": True, "p_value": c.p_value,
-                        "param_sd": _param_sd(c), "units": EFFECTS[c.effect].units})
+                        "param_se": _param_se(c), "units": EFFECTS[c.effect].units})
     if not effects:
         effects.append({"effect": "none", "sensor": None, "params": {}, "score": 0.0,
                         "significant": False})
