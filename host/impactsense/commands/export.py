@@ -27,7 +27,7 @@ def run(args) -> int:
     s = export_models(args.model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
                       write_m2cgen=not args.no_m2cgen)
     for row in s["tree_sweep"]:
-        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB (x+y)")
+        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB of tables")
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
     print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
@@ -53,6 +53,16 @@ def _held_out(model_dir):
     data = split.get("data_path") or card.get("data") or card.get("session")
     s = load_session(data if data and Path(str(data)).is_dir() else None)
     rows = np.asarray(rows if rows is not None else np.arange(len(s)), dtype=int)
-    f = featurize(s.adc[rows], SignalConfig.from_dict(card.get("signal") or {}))
+    signal = card.get("signal") or {}
+    board_fs = card.get("board_fs_hz")
+    if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:
+        # A model trained on board captures: evaluate on what the (emulated) board captures.
+        from ..link.boardmodel import board_captures
+
+        caps, got, sig = board_captures(s.subset(rows), int(board_fs), signal)
+        rows = rows[got]
+        f = featurize(caps, sig)
+    else:
+        f = featurize(s.adc[rows], SignalConfig.from_dict(signal))
     use = f.usable
     return f.vector[use], f.phys_xy_mm[use], s.xy_mm[rows][use]
