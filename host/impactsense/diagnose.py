@@ -228,8 +228,54 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
               "model": {"velocity_m_s": final.velocity_m_s, "sensor_xy_mm": _jsonable(final.sensor_xy_mm),
                         "gain": _jsonable(np.exp(final.gain_log / 2)), "anisotropy": _jsonable(final.aniso),
                         "decay_per_s": final.decay0_per_s}}
+    result["residuals"] = {"dependence_before": dependence(ref, Fn), "dependence_after": dependence(final, Fn),
+                           "repeatability": repeatability(Fn),
+                           "noise_rms_counts": np.exp(np.median(Fn.log_noise, axis=0)).tolist(),
+                           "hum_counts_50_60hz": np.sqrt((Fn.hum_counts ** 2).mean(axis=0)).tolist(),
+                           "clipped_drops": Fn.clipped.sum(axis=0).tolist()}
     details = {"ref": ref, "final": final, "F": Fn, "accepted": accepted}
     return _jsonable(result), details
+
+
+def dependence(ref: R.Reference, F: R.Features) -> dict:
+    """How each channel's residuals depend on distance, direction, height, drop order and amplitude:
+    per channel, a joint least-squares slope (± standard error) of the drop-centred ToA residual (µs) and
+    log-energy residual on standardised regressors (slope per 1 SD of the regressor)."""
+    d, th, _, _ = ref.geometry(F)
+    amp = F.log_energy - F.log_energy.mean(axis=1, keepdims=True)
+    out = {"regressors": ["distance_mm", "cos2theta", "sin2theta", "height_mm", "drop_order", "log_energy"]}
+    for label, r in (("toa_us", ref.toa_resid(F)), ("log_energy", ref.energy_resid(F))):
+        rows = []
+        for c in range(4):
+            X = np.stack([d[:, c], np.cos(2 * th[:, c]), np.sin(2 * th[:, c]), F.height_mm, F.order,
+                          amp[:, c]], axis=1)
+            ok = np.all(np.isfinite(X), axis=1) & np.isfinite(r[:, c])
+            if label == "log_energy":
+                ok &= ~ref.clip_mask(F)[:, c]
+            X = X[ok]
+            X = (X - X.mean(0)) / np.maximum(X.std(0), 1e-9)
+            X = np.c_[np.ones(len(X)), X]
+            y = r[ok, c]
+            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+            res = y - X @ beta
+            cov = np.linalg.pinv(X.T @ X) * res.var(ddof=X.shape[1])
+            rows.append({"slope": beta[1:].tolist(), "se": np.sqrt(np.diag(cov))[1:].tolist(),
+                         "mean": float(np.mean(y))})
+        out[label] = rows
+    return out
+
+
+def repeatability(F: R.Features) -> dict:
+    """Within-case scatter of DToA (µs rms, per pair): the floor no timing model can go below."""
+    dt = F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]
+    dev, dof = np.zeros(6), 0
+    for c in np.unique(F.case_id):
+        m = F.case_id == c
+        if m.sum() > 1:
+            x = dt[m]
+            dev += np.nansum((x - np.nanmean(x, 0)) ** 2, axis=0)
+            dof += m.sum() - 1
+    return {"dtoa_within_case_rms_us": (np.sqrt(dev / max(dof, 1))).tolist(), "dof": int(dof)}
 
 
 # ---- report ---------------------------------------------------------------------------------------
@@ -277,6 +323,20 @@ def write_report(result: dict, details: dict, out_dir: str | Path) -> Path:
     lines += ["", "| metric | before | after |", "|---|---|---|"]
     for k in ("dtoa_rms_us", "mae_mm", "energy_rms"):
         lines.append(f"| {k} | {result['before'][k]:.3f} | {result['after'][k]:.3f} |")
+    res = result.get("residuals", {})
+    if res:
+        lines += ["", "Residual dependence before the effects (slope per 1 SD of the regressor, µs; |t| > 3 in bold):",
+                  "", "| channel | " + " | ".join(res["dependence_before"]["regressors"]) + " |",
+                  "|---" * 7 + "|"]
+        for c, row in enumerate(res["dependence_before"]["toa_us"]):
+            cells = [(f"**{b:+.2f}**" if abs(b) > 3 * se else f"{b:+.2f}") for b, se in zip(row["slope"], row["se"])]
+            lines.append(f"| S{c + 1} ToA | " + " | ".join(cells) + " |")
+        rep = res["repeatability"]["dtoa_within_case_rms_us"]
+        lines += ["", f"DToA within-case repeatability (µs rms, pairs 01 02 03 12 13 23): "
+                      + " ".join(f"{v:.1f}" for v in rep),
+                  f"noise floor (counts rms): " + " ".join(f"{v:.2f}" for v in res["noise_rms_counts"]),
+                  f"hum 50/60 Hz (counts): " + " ".join(f"{a:.2f}/{b:.2f}" for a, b in res["hum_counts_50_60hz"]),
+                  f"clipped drops per channel: {res['clipped_drops']}"]
     lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
               "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
