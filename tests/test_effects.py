@@ -77,3 +77,17 @@ def test_channel_delay_feeds_the_core(s1, ref_and_features):
     toa = np.asarray(_core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), cfg)["toa_us"], float)
     shift = np.nanmedian(toa[:, 3] - F.toa_us[:, 3])
     assert abs(shift) <= 1.5
+
+
+def test_diagnosed_effects_feed_core_and_recordings(s1, ref_and_features):
+    from impactsense.effects.apply import apply_effects, core_config_with_effects
+
+    ref, F = ref_and_features
+    effects = [{"effect": "channel_delay", "sensor": 2, "params": {"delay_us": 20.0}, "significant": True},
+               {"effect": "sensor_gain", "sensor": 0, "params": {"gain": 0.5}, "significant": False}]
+    adc = apply_effects(s1.adc, effects, context(s1))
+    F2 = R.extract(replace(s1, adc=adc))
+    assert abs(np.nanmedian(F2.toa_us[:, 2] - F.toa_us[:, 2]) - 20.0) <= 1.0
+    assert abs(np.nanmedian(F2.log_energy[:, 0] - F.log_energy[:, 0])) < 0.01   # not significant: not applied
+    cfg = core_config_with_effects(R.core_config(), effects)
+    assert list(cfg.channel_delay_us) == [0.0, 0.0, 20.0, 0.0]

@@ -28,19 +28,11 @@ def register(sub) -> None:
 
 def augment(base, accepted, ref, seed: int = 0):
     """DATA_REF's recordings with the diagnosed effects put in (uint16, same shape)."""
-    import numpy as np
+    from ..effects import context
+    from ..effects.apply import apply_effects
 
-    from .. import _core
-    from ..effects import EFFECTS, context
-    from ..residuals import core_config
-
-    ctx = context(base, ref.slowness_us_per_mm)
-    adc = base.adc
-    for c in accepted:
-        f = _core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), core_config())
-        ctx["onset_samples"] = np.nan_to_num(np.asarray(f["toa_aic"], float))
-        adc = EFFECTS[c.effect].apply_signal(adc, c.sensor, c.params, ctx, rng=seed)
-    return adc
+    effects = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in accepted]
+    return apply_effects(base.adc, effects, context(base, ref.slowness_us_per_mm), seed)
 
 
 def run(args) -> int:
