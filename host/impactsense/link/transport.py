@@ -55,12 +55,20 @@ class BleTransport:
         self._buf = b""
         self.is_open = False
         self.bad_payloads = 0
-        if client_factory is None:
-            from bleak import BleakClient as client_factory  # noqa: N813
-        self._client = client_factory(address)
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
         self._thread.start()
+        if client_factory is None:
+            from bleak import BleakClient, BleakScanner
+
+            target = address
+            if len(address.split(":")) != 6:  # a name: find the device first
+                target = self._run(BleakScanner.find_device_by_name(address, timeout=10.0))
+                if target is None:
+                    raise PortClosed(f"no BLE device named {address!r}")
+            client_factory = lambda dev: BleakClient(dev, disconnected_callback=lambda _c: self.disconnected())  # noqa: E731
+            address = target
+        self._client = client_factory(address)
         self._run(self._connect())
         self.is_open = True
 
@@ -77,9 +85,6 @@ class BleTransport:
             self.bad_payloads += 1
             return
         self._q.put(protocol.encode_report(report))
-
-    def _on_disconnect(self) -> None:
-        self._q.put(None)
 
     def disconnected(self) -> None:
         """Called by the client's disconnect callback (or a test)."""
