@@ -160,12 +160,19 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--n", type=int, default=490)
     ap.add_argument("--skip-dataset", action="store_true")
+    ap.add_argument("--only-dataset", action="store_true")
     ap.add_argument("--json", default=None, help="also write the figures as JSON")
     args = ap.parse_args(argv)
     from impactsense.data import bundled_session_path, load_rig
 
     rig = load_rig(bundled_session_path())
     out = {"load_average": os.getloadavg()}
+    if args.only_dataset:
+        ds = bench_dataset(rig, args.n, 2)
+        print(f"{ds['drops']}-drop data set, default mesh {ds['mesh']['nx']} x {ds['mesh']['ny']}: "
+              f"{ds['seconds']:.1f} s on 2 workers, peak memory {ds['peak_rss_mb']:.0f} MB; "
+              f"load average {os.getloadavg()}")
+        return 0
     drop, model = bench_drop_1mm(rig, args.quick)
     out["drop_1mm"] = drop
     print(f"1 mm mesh ({drop['mesh']} = {drop['elements']} elements), dt {drop['dt_us']:.3f} us, "

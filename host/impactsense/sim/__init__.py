@@ -8,6 +8,6 @@
 
 from . import dispersion
 from .params import SimParams
-from .simulate import SimulationError, simulate_drops, simulate_voltages, to_adc
+from .simulate import SimulationError, clear_cache, simulate_drops, simulate_voltages, to_adc
 
-__all__ = ["SimParams", "simulate_drops", "simulate_voltages", "to_adc", "dispersion", "SimulationError"]
+__all__ = ["SimParams", "simulate_drops", "simulate_voltages", "to_adc", "dispersion", "SimulationError", "clear_cache"]
