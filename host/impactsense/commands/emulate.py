@@ -28,7 +28,9 @@ def run(args) -> int:
     s = load_session(args.data)
     if args.limit:
         s = s.subset(list(range(min(args.limit, len(s)))))
-    models, signal = firmware_models(args.models) if Path(args.models).exists() else (None, None)
+    path = Path(args.models)
+    have = path.is_file() or (path / "forest_tables.npz").is_file()
+    models, signal = firmware_models(path) if have else (None, None)
     if models is None:
         print(f"emulate: no exported models in {args.models}; reports carry no position", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
