@@ -32,7 +32,7 @@ def run(args) -> int:
     have = path.is_file() or (path / "forest_tables.npz").is_file()
     models, signal = firmware_models(path) if have else (None, None)
     if models is None:
-        print(f"emulate: no exported models in {args.models}; reports carry no position", file=sys.stderr)
+        print(f"emulate: no exported models in {args.models}; reports carry the physics localiser's position (valid=0)", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
     emu = Emulator(s, models, fs_hz=args.rate, signal=signal, **extra)
     serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True))
