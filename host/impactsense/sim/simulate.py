@@ -176,8 +176,11 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
 
     def one(k):
         if method == "fast":
-            return fast_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]), fields)
-        return direct_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]))
+            r = fast_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]), fields)
+        else:
+            r = direct_drop(model, x[k] * 1e-3, y[k] * 1e-3, float(v0[k]))
+        keep = ("volts", "contacts", "force_n", "contact_start_s", "contact_end_s")
+        return {key: r[key] for key in keep}   # not the final plate state (3 x nodes per drop)
 
     results = [None] * x.size
     bar = None
