@@ -46,7 +46,7 @@ def main() -> int:
     ap.add_argument("--json")
     args = ap.parse_args()
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
-        print("needs arm-none-eabi-gcc and qemu-system-arm (firmware/test/install-deps.sh)")
+        print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
     extra = ["--trees", str(args.trees)] + (["--model-dir", args.model_dir] if args.model_dir else [])
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,7 @@
 # core and the exported models are cross-compiled for the Cortex-M4F) and qemu (runs the bare-metal test
 # image). Idempotent; uses sudo when not root.
 set -euo pipefail
-pkgs=(gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib qemu-system-arm)
+pkgs=(gcc-arm-none-eabi libnewlib-arm-none-eabi libstdc++-arm-none-eabi-newlib qemu-system-arm make)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

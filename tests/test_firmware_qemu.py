@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.skipif(
     not (shutil.which("arm-none-eabi-gcc") and shutil.which("qemu-system-arm")),
-    reason="needs gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (firmware/test/install-deps.sh)")
+    reason="needs gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (scripts/setup-debian.sh)")
 
 
 def test_qemu_image_matches_host(tmp_path):

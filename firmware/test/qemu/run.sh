@@ -2,7 +2,7 @@
 # Cross-compiles the portable firmware + exported models for the Cortex-M4F, prints arm-none-eabi-size, and
 # runs the bare-metal test image on qemu (mps2-an386). Exit code = the image's (0: all checks passed).
 #   firmware/test/qemu/run.sh [BUILD_DIR] [--model-dir MODEL_DIR]
-# Needs: arm-none-eabi-gcc, newlib, qemu-system-arm (firmware/test/install-deps.sh) and the impactsense
+# Needs: arm-none-eabi-gcc, newlib, qemu-system-arm (scripts/setup-debian.sh) and the impactsense
 # package (for the fixture: recorded drops + the host's expected values).
 set -eu
 HERE=$(cd "$(dirname "$0")" && pwd)
