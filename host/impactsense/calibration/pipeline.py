@@ -285,7 +285,7 @@ def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, k
 
     for r in opts.fem_e_ratios:
         loss_at(e_best * r)
-    for _ in range(4):      # walk on while the minimum sits at the scanned edge
+    for _ in range(15):     # walk on (10 % steps) while the minimum sits at the scanned edge
         es = sorted(losses)
         i = int(np.argmin([losses[e] for e in es]))
         if 0 < i < len(es) - 1 or es[i] in (lo, hi):
@@ -310,62 +310,76 @@ def _unit_to_params(u):
 
 
 def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise) -> dict:
+    """Sobol design (budget - infill runs), surrogates tuned on its 70/15/15 split (the R2 table), Welch
+    screening, surrogate optimisation; then infill rounds (FEM runs in a shrinking box around the current
+    surrogate optimum, surrogates refitted with their tuned settings, re-optimised) and the final FEM run at
+    the last optimum. The fitted point is the best FEM-evaluated one by the (weighted) objective."""
     from scipy.optimize import differential_evolution
     from scipy.stats import qmc
     from tqdm import tqdm
 
     d = len(fem.FACTORS)
     n = int(opts.budget)
-    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed)
-    u = qmc.Sobol(d=d, scramble=True, seed=opts.seed).random(n)
-    xs = _unit_to_params(u)
+    n_infill = n // 4
+    rounds = 2
+    n_init = n - n_infill
+    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, "infill-v1")
+    u_all = np.full((n + 1, d), np.nan)        # + 1: the final confirming run
+    u_all[:n_init] = qmc.Sobol(d=d, scramble=True, seed=opts.seed).random(2 ** int(np.ceil(np.log2(n_init))))[:n_init]
     path = cache("stage2-design.npz")
-    energy = np.full((n, 4, 4), np.nan)
-    ratio = np.full((n, 4, 4), np.nan)
-    done = np.zeros(n, bool)
+    energy = np.full((n + 1, 4, 4), np.nan)
+    ratio = np.full((n + 1, 4, 4), np.nan)
+    done = np.zeros(n + 1, bool)
     if path.exists():
         with np.load(path, allow_pickle=False) as z:
             if str(z["key"]) == key:
                 energy, ratio, done = z["energy"].copy(), z["ratio"].copy(), z["done"].copy()
+                u_all[done] = z["u"][done]
 
     def save():
         tmp = str(path) + ".tmp.npz"
-        np.savez(tmp, key=key, energy=energy, ratio=ratio, done=done, x=xs)
+        np.savez(tmp, key=key, energy=energy, ratio=ratio, done=done, u=u_all, x=_unit_to_params(np.nan_to_num(u_all)))
         os.replace(tmp, path)
 
-    def run_design():
-        bar = tqdm(total=n, initial=int(done.sum()), desc="FEM design runs", unit="run", disable=not opts.progress)
-        for i in np.flatnonzero(~done):
-            p = dict(params, **dict(zip(fem.FACTOR_NAMES, xs[i])))
+    bar = tqdm(total=n + 1, initial=int(done.sum()), desc="FEM runs (design, infill, confirm)", unit="run",
+               disable=not opts.progress)
+
+    def run(idx):
+        for i in idx:
+            if done[i]:
+                continue
+            p = dict(params, **dict(zip(fem.FACTOR_NAMES, _unit_to_params(u_all[i]))))
             f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
             energy[i], ratio[i], done[i] = f["energy"], f["residual_ratio"], True
             save()
             bar.update(1)
-        bar.close()
-    clock.run("design_fem", run_design)
 
-    e_sim = np.where(np.isfinite(energy) & (energy > 0), energy, 1.0).reshape(n, 16)
-    r_sim = np.where(np.isfinite(ratio), ratio, 1.0).reshape(n, 16)
+    clock.run("design_fem", run, range(n_init))
     e_meas = targets.energy.reshape(16)
     r_meas = targets.residual_ratio.reshape(16)
-    f2 = np.sum((e_meas[None] - e_sim) ** 2, axis=1)
-    f3 = np.sum((r_meas[None] - r_sim) ** 2, axis=1)
-    # surrogate outputs: what the FEM returns per drop and sensor (the seed's Table 5 rows); f2 and f3 are
-    # computed from them. Energies in log10 (they scale as gain^2 and decay exponentially with D_s).
-    outputs = {"sensor_energies_log10": np.log10(e_sim), "residual_ratios": r_sim}
+
+    def data(m):
+        e_sim = np.where(np.isfinite(energy[:m]) & (energy[:m] > 0), energy[:m], 1.0).reshape(m, 16)
+        r_sim = np.where(np.isfinite(ratio[:m]), ratio[:m], 1.0).reshape(m, 16)
+        f2 = np.sum((e_meas[None] - e_sim) ** 2, axis=1)
+        f3 = np.sum((r_meas[None] - r_sim) ** 2, axis=1)
+        # surrogate outputs: what the FEM returns per drop and sensor (the seed's Table 5 rows); f2, f3 are
+        # computed from them. Energies in log10 (they scale as gain^2 and decay exponentially with D_s).
+        return {"sensor_energies_log10": np.log10(e_sim), "residual_ratios": r_sim}, f2, f3
+
+    outputs, f2, f3 = data(n_init)
+    x_unit = u_all[:n_init]
+    tr, va, te = surrogates.split_indices(n_init, opts.seed)
 
     def f23(pred):
         e_hat = 10.0 ** pred["sensor_energies_log10"]
-        return (np.sum((e_meas[None] - e_hat) ** 2, axis=1), np.sum((r_meas[None] - pred["residual_ratios"]) ** 2,
-                                                                      axis=1))
-
-    tr, va, te = surrogates.split_indices(n, opts.seed)
-    x_unit = u
+        return (np.sum((e_meas[None] - e_hat) ** 2, axis=1),
+                np.sum((r_meas[None] - pred["residual_ratios"]) ** 2, axis=1))
 
     def fit_all():
         table, best = {}, {}
-        bar = tqdm(total=len(outputs) * len(surrogates.MODELS), desc="surrogates", unit="model",
-                   disable=not opts.progress)
+        pbar = tqdm(total=len(outputs) * len(surrogates.MODELS), desc="surrogates", unit="model",
+                    disable=not opts.progress)
         for oname, y in outputs.items():
             table[oname] = {}
             for m_i, kind in enumerate(surrogates.MODELS):
@@ -375,60 +389,99 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
                                       "config": {k: v for k, v in fit.config.items() if k != "d"}}
                 if oname not in best or fit.r2_val > best[oname].r2_val:
                     best[oname] = fit
-                bar.update(1)
-        bar.close()
+                pbar.update(1)
+        pbar.close()
         return table, best
     table, best = clock.run("surrogates", fit_all)
 
     def screen():
         ys = {"sensor energy (mean log10)": outputs["sensor_energies_log10"].mean(axis=1),
               "residual ratio (mean)": outputs["residual_ratios"].mean(axis=1)}
-        res = {o: screening.welch_screen(xs, y, list(fem.FACTOR_NAMES)) for o, y in ys.items()}
+        res = {o: screening.welch_screen(_unit_to_params(x_unit), y, list(fem.FACTOR_NAMES)) for o, y in ys.items()}
         png = Path(f"{stem}.fig10-screening.png")
         screening.screening_chart(res, png)
         return res, png
     screen_res, png10 = clock.run("screening", screen)
 
-    def objective(uu):
-        pred = {o: np.asarray(best[o].predict(uu)).reshape(len(uu), 16) for o in outputs}
-        f2h, f3h = f23(pred)
-        return np.log10(f2h + 1e-30) + np.log10(f3h + 1e-30)
+    # each term weighted by its surrogate's validated skill (R2 on the validation split, clipped to [0, 1]):
+    # a residual-ratio surrogate that cannot predict (noisy ratios, clipping) must not steer the optimum
+    w2 = float(np.clip(best["sensor_energies_log10"].r2_val, 0.0, 1.0))
+    w3 = float(np.clip(best["residual_ratios"].r2_val, 0.0, 1.0))
+    models = {o: b.model for o, b in best.items()}
 
-    def optimise():
+    def objective(uu):
+        pred = {o: np.asarray(models[o].predict(uu)).reshape(len(uu), 16) for o in outputs}
+        f2h, f3h = f23(pred)
+        return w2 * np.log10(f2h + 1e-30) + w3 * np.log10(np.maximum(f3h, 0) + 1e-30)
+
+    def optimise(seed):
         def obj(uu):
             uu = np.asarray(uu)
             return objective(uu.T if uu.ndim == 2 else uu[None])
-        res = differential_evolution(obj, [(0.0, 1.0)] * d, seed=opts.seed, maxiter=80, popsize=12, tol=1e-8,
+        res = differential_evolution(obj, [(0.0, 1.0)] * d, seed=seed, maxiter=80, popsize=12, tol=1e-8,
                                      polish=False, vectorized=True, updating="deferred")
         return res.x, float(np.atleast_1d(res.fun)[0])
-    u_opt, j_pred = clock.run("optimise", optimise)
-    x_opt = _unit_to_params(u_opt)
 
-    def confirm():
-        p = dict(params, **dict(zip(fem.FACTOR_NAMES, x_opt)))
-        f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
-        return objectives(f, targets)
-    f2_c, f3_c = clock.run("fem_confirm", confirm)
-    j_conf = float(np.log10(f2_c + 1e-30) + np.log10(f3_c + 1e-30))
-    j_design = np.log10(f2 + 1e-30) + np.log10(f3 + 1e-30)
-    i_best = int(np.argmin(j_design))
-    if j_conf <= j_design[i_best]:
-        chosen, x_fit, f2_fit, f3_fit = "surrogate optimum (FEM-confirmed)", x_opt, f2_c, f3_c
-    else:
-        chosen, x_fit, f2_fit, f3_fit = "best design point (the surrogate optimum did worse in the FEM)", \
-            xs[i_best], float(f2[i_best]), float(f3[i_best])
+    t0 = time.perf_counter()
+    u_opt, j_pred = optimise(opts.seed)
+    first_opt = u_opt.copy()
+    t_opt = time.perf_counter() - t0
+    t_fem = 0.0
+    start = n_init
+    for r in range(rounds):
+        k = n_infill // rounds + (n_infill % rounds if r == rounds - 1 else 0)
+        if k <= 0:
+            continue
+        radius = 0.15 / 2 ** r
+        box = qmc.Sobol(d=d, scramble=True, seed=opts.seed + 101 + r).random(max(1, k - 1))
+        pts = np.vstack([u_opt[None], np.clip(u_opt + (2 * box - 1) * radius, 0, 1)])[:k]
+        idx = range(start, start + k)
+        for i, pnt in zip(idx, pts):
+            if not done[i]:
+                u_all[i] = pnt
+        t1 = time.perf_counter()
+        run(idx)
+        t_fem += time.perf_counter() - t1
+        start += k
+        t1 = time.perf_counter()
+        outs_all, _, _ = data(start)
+        for o in outputs:     # refit the tuned surrogates on every FEM run so far
+            m = surrogates.build(best[o].kind, best[o].config, opts.seed)
+            import warnings
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                m.fit(u_all[:start], outs_all[o])
+            models[o] = m
+        u_opt, j_pred = optimise(opts.seed + 1 + r)
+        t_opt += time.perf_counter() - t1
+    clock.seconds["optimise"] = round(t_opt, 3)
+    clock.seconds["infill_fem"] = round(t_fem, 3)
+    if not done[n]:
+        u_all[n] = u_opt
+    clock.run("fem_confirm", run, [n])
+    bar.close()
+
+    _, f2_all, f3_all = data(n + 1)
+    j_all = w2 * np.log10(f2_all + 1e-30) + w3 * np.log10(f3_all + 1e-30)
+    i_best = int(np.argmin(j_all))
+    kind_of = "initial design" if i_best < n_init else "infill" if i_best < n else "final surrogate optimum"
+    x_fit = _unit_to_params(u_all[i_best])
     e_norm = float(np.sum(e_meas ** 2))
     fitted = dict(zip(fem.FACTOR_NAMES, (float(v) for v in x_fit)))
     return {
-        "fitted": fitted, "chosen": chosen, "budget": n, "f2": f2_fit, "f3": f3_fit, "f2_rel": f2_fit / e_norm,
-        "surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in x_opt))),
-        "objective": "minimise log10 f2 + log10 f3 (both scale-free; their product)",
+        "fitted": fitted, "chosen": f"best FEM-evaluated point ({kind_of}, run {i_best})", "budget": n,
+        "runs": {"design": n_init, "infill": n_infill, "confirm": 1},
+        "f2": float(f2_all[i_best]), "f3": float(f3_all[i_best]), "f2_rel": float(f2_all[i_best]) / e_norm,
+        "first_surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in _unit_to_params(first_opt)))),
+        "final_surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in _unit_to_params(u_opt)))),
+        "objective": "minimise w2 log10 f2 + w3 log10 f3, w = validation R2 of the surrogate (clipped 0..1)",
+        "objective_weights": {"f2": w2, "f3": w3},
         "surrogate_predicted_objective": j_pred,
-        "fem_confirm": {"f2": f2_c, "f3": f3_c, "objective": j_conf},
-        "best_design_point": {"index": i_best, "f2": float(f2[i_best]), "f3": float(f3[i_best])},
+        "fem_confirm": {"f2": float(f2_all[n]), "f3": float(f3_all[n]), "objective": float(j_all[n])},
+        "best_initial_design_point": {"index": int(np.argmin(j_all[:n_init])), "objective": float(j_all[:n_init].min())},
         "surrogate_r2_test": table, "best_surrogate": {o: b.kind for o, b in best.items()},
         "split": {"train": len(tr), "validation": len(va), "test": len(te)},
-        "screening": {o: r[:20] for o, r in screen_res.items()}, "screening_png": str(png10),
+        "screening": {o: r_[:20] for o, r_ in screen_res.items()}, "screening_png": str(png10),
         "outputs": "surrogates model the 16 (drop, sensor) log10 energies and residual ratios (R2 = mean over "
                    "the 16); f2 = sum (E meas - E sim)^2 [counts^4], f2_rel = f2 / sum E_meas^2; f3 = sum "
                    "(Eresid/E meas - Eresid/E sim)^2 over the 4 drops x 4 sensors",
