@@ -130,7 +130,7 @@ def test_recovers_known_parameters_fem(tmp_path, rig):
     assert abs(pl["E_mpa"] / TRUTH_E - 1) < 0.03, pl
     assert abs(pl["E_mpa"] / (1 - pl["nu"] ** 2) / (TRUTH_E / (1 - TRUTH_NU ** 2)) - 1) < 0.05, pl
     assert abs(cal["fitted"]["damping_per_s"] / TRUTH_DS - 1) < 0.10, cal["fitted"]
-    # the energies are matched: relative energy misfit below 1 % (the seed's PZT start is at ~5e-3)
+    # the energies are matched: relative energy misfit below 1 %
     assert cal["pzt_damping"]["f2_rel"] < 0.01
 
 
