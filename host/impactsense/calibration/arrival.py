@@ -18,9 +18,9 @@ on the contact pulse only. The model is evaluated in the frequency domain:
   delta_max = (15 m v^2 / (16 E* sqrt(R)))^(2/5), v = sqrt(2 g h).
 
 The synthetic voltage is high-passed at `highpass_hz` (the disc's electrical high-pass; it removes the
-slow, late low-frequency tail that would wrap around the FFT window), scaled to ADC counts by a gain fitted
-per drop and channel to the measured first extremum after the onset, quantised, and picked by the SAME
-signal core (`impactsense._core.extract_batch`) as the measured drops.
+slow, late low-frequency tail that would wrap around the FFT window) and cut before the fastest A0 arrival
+(causality). `plate.fast_loss` scales it to ADC counts (peak = the measured channel's peak), adds the rig's
+noise and picks it with the SAME signal core (`impactsense._core.extract_batch`) as the measured drops.
 """
 
 from __future__ import annotations
@@ -142,23 +142,3 @@ def to_counts(unit: np.ndarray, gain: np.ndarray, bias: int, adc_max: int) -> np
     """Scale unit signals [..., 4, S] by gain [..., 4] and quantise to int16 ADC counts."""
     x = np.rint(unit * gain[..., None] + bias)
     return np.clip(x, 0, adc_max).astype(np.int16)
-
-
-def pick(unit: np.ndarray, target_first_peak: np.ndarray, cfg, bias: int, adc_max: int,
-         passes: int = 3) -> np.ndarray:
-    """ToA [us] of unit signals [N, 4, S] after fitting the gain so the core's first extremum after the
-    onset matches `target_first_peak` [N, 4] (counts). Returns toa_us [N, 4] (NaN where no onset)."""
-    peak = np.abs(unit).max(axis=-1)
-    peak = np.where(peak > 0, peak, 1.0)
-    # start: the whole packet 4x the measured first extremum (typical of A0 onsets), then refine
-    gain = 4.0 * target_first_peak / peak
-    toa = None
-    for _ in range(passes):
-        adc = to_counts(unit, gain, bias, adc_max)
-        out = _core.extract_batch(np.ascontiguousarray(adc.reshape(-1, 4, unit.shape[-1])), cfg)
-        toa = out["toa_us"].reshape(unit.shape[:-1]).astype(float)
-        fp = out["first_peak"].reshape(unit.shape[:-1]).astype(float)
-        ok = np.isfinite(fp) & (fp > 0)
-        ratio = np.where(ok, target_first_peak / np.where(ok, fp, 1.0), 2.0)
-        gain = gain * np.clip(ratio, 0.25, 4.0)
-    return toa

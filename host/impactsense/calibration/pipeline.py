@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import _core
 from ..data import load_session
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError
 from . import arrival, drops as drops_mod, fem, plate, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
