@@ -236,6 +236,16 @@ NB_MODULE(_core, m) {
             four(v, "channel_delay_us");
             std::memcpy(c.channel_delay_us, v.data(), sizeof(c.channel_delay_us));
           })
+      .def_prop_rw(
+          "channel_gain",
+          [](const ic::CoreConfig& c) { return std::vector<float>(c.channel_gain, c.channel_gain + ic::kChannels); },
+          [](ic::CoreConfig& c, std::vector<float> v) {
+            four(v, "channel_gain");
+            for (float g : v) {
+              if (!(g > 0.0f)) throw std::invalid_argument("channel_gain values must be positive");
+            }
+            std::memcpy(c.channel_gain, v.data(), sizeof(c.channel_gain));
+          })
       .def_rw("baseline_samples", &ic::CoreConfig::baseline_samples)
       .def_rw("onset_threshold_counts", &ic::CoreConfig::onset_threshold_counts)
       .def_rw("onset_noise_factor", &ic::CoreConfig::onset_noise_factor)

@@ -202,7 +202,7 @@ def signal_c(signal: dict) -> str:
         v = signal.get(name, default)
         vals.append(str(int(v)) if ctype == "int32_t" else _c_float(v))
     for key, default in (("sensor_x_mm", [30.0, 290.0, 290.0, 30.0]), ("sensor_y_mm", [33.0, 33.0, 284.0, 284.0]),
-                         ("channel_delay_us", [0.0, 0.0, 0.0, 0.0])):
+                         ("channel_delay_us", [0.0, 0.0, 0.0, 0.0]), ("channel_gain", [1.0, 1.0, 1.0, 1.0])):
         vals.append("{" + ", ".join(_c_float(v) for v in signal.get(key, default)) + "}")
     return "const impactsense_signal_config impactsense_signal = {\n  " + ",\n  ".join(vals) + "\n};\n"
 
@@ -308,6 +308,7 @@ typedef struct {{
   float plate_x_mm, plate_y_mm;
   float sensor_x_mm[4], sensor_y_mm[4];
   float channel_delay_us[4];  // the rig's measured channel delays (the board adds its scan delays)
+  float channel_gain[4];      // the rig's channel gains (amplitudes / g, energies / g^2)
 }} impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

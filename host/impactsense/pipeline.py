@@ -25,6 +25,7 @@ class SignalConfig:
 
     fs_hz: float = 100000.0
     channel_delay_us: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    channel_gain: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0, 1.0])
     baseline_samples: int = 64
     onset_threshold_counts: float = 10.0
     onset_noise_factor: float = 5.0
@@ -66,7 +67,7 @@ class SignalConfig:
 
     def core(self) -> "_core.CoreConfig":
         c = _core.CoreConfig()
-        for name in ("fs_hz", "channel_delay_us", "baseline_samples", "onset_threshold_counts",
+        for name in ("fs_hz", "channel_delay_us", "channel_gain", "baseline_samples", "onset_threshold_counts",
                      "onset_noise_factor", "aic_before", "aic_after", "aic_blend", "adc_min",
                      "adc_max", "dead_rms_counts", "n2_fraction"):
             setattr(c, name, getattr(self, name))

@@ -21,6 +21,12 @@ def register(sub) -> None:
     p.add_argument("--data", default="bundled", help="session folder (default: bundled session-1)")
     p.add_argument("--out", default="impactsense-demo", help="output folder (default ./impactsense-demo)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--zero-shot", action="store_true",
+                   help="also the seed's central experiment: calibrate the twin on four drops, train on N "
+                        "virtual drops only, test on the measured split (Tables 7-9: sim- vs measured-trained)")
+    p.add_argument("--calibration", default=None,
+                   help="with --zero-shot: an existing CAL.json (default: OUT/CAL.json, calibrated if missing)")
+    p.add_argument("--virtual", type=int, default=490, help="with --zero-shot: virtual drops (default 490)")
     p.set_defaults(func=run)
 
 
@@ -73,5 +79,29 @@ def run(args) -> int:
         print(comparison_table({"whole plate": (rep2["all"], rep2["energy_class_accuracy"]),
                                 "inner region": (rep2["inner"], rep2["energy_class_accuracy"])}))
         print("  (run `impactsense diagnose` to find what changed)")
+    if args.zero_shot:
+        run_zero_shot_part(args, session, out)
     print(f"\nwrote {out}/ (model/, plots/, evaluate-*.json) in {time.time() - t0:.1f} s")
     return 0
+
+
+def run_zero_shot_part(args, session, out) -> None:
+    from pathlib import Path
+
+    from ..cli import main as cli_main
+    from ..errors import ImpactSenseError
+    from ..zeroshot import run_zero_shot, zero_shot_table
+
+    cal = Path(args.calibration) if args.calibration else out / "CAL.json"
+    if not cal.is_file():
+        if args.calibration:
+            raise ImpactSenseError(f"{cal}: calibration file not found")
+        print(f"\ncalibrating the twin on four drops of {session.name} -> {cal} ...")
+        if cli_main(["calibrate", str(session.path), "--out", str(cal), "--seed", str(args.seed)]) != 0:
+            raise ImpactSenseError("calibration failed")
+    print(f"\nzero-shot: {args.virtual} virtual drops from {cal}, trained on them only ...")
+    res = run_zero_shot(session, cal, out / "zero-shot", n_virtual=args.virtual, seed=args.seed)
+    print(f"measured test split: {len(res['test_recordings'])} drops (the calibration drops "
+          f"{len(res['calibration_recordings'])} recordings excluded); channel delays from the calibration "
+          f"drops (us): {', '.join(f'{d:+.2f}' for d in res['channel_delay_us_from_calibration_drops'])}")
+    print(zero_shot_table(res))

@@ -40,6 +40,7 @@ inline AppConfig exported_config(AppConfig cfg) {
   cfg.loc.accept_margin_mm = s.accept_margin_mm;
   for (int c = 0; c < 4; ++c) {
     cfg.rig_delay_us[c] = s.channel_delay_us[c];
+    cfg.core.channel_gain[c] = s.channel_gain[c];
     cfg.loc.sensor_x_mm[c] = s.sensor_x_mm[c];
     cfg.loc.sensor_y_mm[c] = s.sensor_y_mm[c];
   }

@@ -20,6 +20,17 @@ int first_extremum(const int16_t* x, int n, float base, int from) {
   return n - 1;
 }
 
+// Amplitude features in units of a unit-gain channel (ratios are gain free).
+void apply_gain(ChannelFeatures* f, float gain) {
+  if (!(gain > 0.0f) || gain == 1.0f) return;
+  const float inv = 1.0f / gain;
+  const float inv2 = inv * inv;
+  f->peak *= inv;
+  f->first_peak *= inv;
+  f->energy *= inv2;
+  for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] *= inv2;
+}
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, ChannelFeatures* f) {
   baseline_stats(x, cfg.baseline_samples, &f->baseline, &f->noise_rms);
   const float base = f->baseline;
@@ -45,7 +56,9 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   if (peak == 0.0f || signal_rms < cfg.dead_rms_counts) f->flags |= kFlagDead;
 
   // Onset: sub-sample threshold crossing, refined by AIC in a window around it.
-  float thr = cfg.onset_threshold_counts;
+  // The onset threshold is in unit-gain counts: a channel with gain g crosses at the same wave phase.
+  const float gain = cfg.channel_gain[c] > 0.0f ? cfg.channel_gain[c] : 1.0f;
+  float thr = cfg.onset_threshold_counts * gain;
   const float noise_thr = cfg.onset_noise_factor * f->noise_rms;
   if (noise_thr > thr) thr = noise_thr;
   const float cross = threshold_crossing(x, n, base, thr, cfg.baseline_samples);
@@ -58,6 +71,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   if (cross < 0.0f || (f->flags & kFlagDead)) {
     f->flags |= kFlagNoOnset;
     f->toa_us = kNaN;
+    apply_gain(f, cfg.channel_gain[c]);
     return;
   }
   const int icross = static_cast<int>(cross);
@@ -107,6 +121,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
     }
     f->residual_ratio = energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / energy : kNaN;
   }
+  apply_gain(f, cfg.channel_gain[c]);
 }
 
 }  // namespace

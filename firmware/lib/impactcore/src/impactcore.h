@@ -47,6 +47,8 @@ enum ChannelFlag : uint8_t {
 struct CoreConfig {
   float fs_hz = 100000.0f;            // per-channel sample rate
   float channel_delay_us[kChannels] = {0, 0, 0, 0};  // known sampling delay of each channel (scan order)
+  float channel_gain[kChannels] = {1, 1, 1, 1};      // sensor/front-end gain g: amplitudes / g,
+                                                     // energies / g^2, onset threshold x g
   int baseline_samples = 64;          // samples at the start of the capture used for baseline and noise
   float onset_threshold_counts = 10;  // |x| above baseline that marks a channel's first arrival
   float onset_noise_factor = 5;       // ... or this many noise RMS, whichever is larger
@@ -65,9 +67,9 @@ struct ChannelFeatures {
   float toa_threshold;     // sub-sample threshold crossing (samples from capture start, delay not removed)
   float toa_aic;           // AIC onset (samples)
   float toa_us;            // final ToA in microseconds, channel delay removed
-  float peak;              // max |x| after baseline removal (counts)
-  float first_peak;        // |x| of the first extremum after the onset (counts)
-  float energy;            // sum of x^2 over the capture (counts^2)
+  float peak;              // max |x| after baseline removal, divided by the channel gain (counts)
+  float first_peak;        // |x| of the first extremum after the onset, divided by the gain (counts)
+  float energy;            // sum of x^2 over the capture, divided by the gain squared (counts^2)
   float window_energy[kEnergyWindows];  // energy in five equal windows from ToA to n2
   float residual_ratio;    // window_energy[4] / energy
   int32_t n2;              // sample where the cumulative energy stops growing

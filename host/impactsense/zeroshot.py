@@ -1,0 +1,149 @@
+"""Zero-shot: models trained only on the calibrated twin's virtual drops, tested on measured drops.
+
+The seed's central claim (method.md, Tables 7-9). The flow:
+  calibrate on four measured drops (CAL.json) -> simulate N virtual drops -> train on them (all) ->
+  evaluate on the measured test split, which excludes the calibration drops; the measured-trained model is
+  trained on the rest of the same session with the same split, so both rows see the same test drops.
+
+Only the four calibration drops ever inform the sim-trained model about the rig: besides the plate, PZT and
+damping parameters, the per-channel timing offsets and gains (the `channel_delay` and `sensor_gain` effects of the diagnosis:
+the rig's electronics and bonds, which the plate model cannot know) are fitted as measured minus simulated
+ToA, and measured over simulated energy, on those drops.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .data import Session, load_session, write_session
+from .errors import DataError
+from .pipeline import SignalConfig, as_int16, featurize
+from .workflow import evaluate, train
+
+
+def calibration_rows(session: Session, cal: dict) -> np.ndarray:
+    """Recording ids of the calibration drops (all repetitions of the calibration cases)."""
+    if cal.get("exclude_recording_ids"):
+        rows = np.asarray(cal["exclude_recording_ids"], int)
+    elif cal.get("exclude_case_ids"):
+        rows = np.flatnonzero(np.isin(session.case_id, np.asarray(cal["exclude_case_ids"], int)))
+    else:
+        raise DataError("CAL.json", "exclude_recording_ids", "calibration file names no calibration drops")
+    if rows.size == 0 or rows.max() >= len(session):
+        raise DataError("CAL.json", "exclude_recording_ids", "calibration drops do not belong to this session")
+    return rows
+
+
+def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: np.ndarray,
+                                      signal: SignalConfig) -> tuple[list[float], list[float]]:
+    """The rig's channel effects the twin lacks, from the calibration drops only:
+    gain = sqrt(median of measured / simulated energy), unclipped drops only, fitted first;
+    delay (relative to channel 0) = median of measured minus simulated ToA, picked with those gains."""
+    base = SignalConfig.from_dict(signal.to_dict())
+    base.channel_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.channel_gain = [1.0, 1.0, 1.0, 1.0]
+    meas = featurize(session.adc[rows], base)
+    sim = featurize(sim_adc, base)
+    ok = np.isfinite(meas.toa_us).all(1) & np.isfinite(sim.toa_us).all(1)
+    if ok.sum() < 2:
+        raise DataError("calibration drops", None, "fewer than two calibration drops have an onset on every channel")
+    gains = []
+    for c in range(4):
+        good = ok & ~meas.clipped[:, c] & ~sim.clipped[:, c]
+        ratio = meas.energy[good, c].astype(float) / sim.energy[good, c].astype(float)
+        gains.append(float(np.sqrt(np.median(ratio))) if good.any() else 1.0)
+    # Delays with the gains applied, so the (amplitude-dependent) threshold picks see equal amplitudes.
+    base.channel_gain = gains
+    meas = featurize(session.adc[rows], base)
+    diff = meas.toa_us.astype(float) - sim.toa_us.astype(float)
+    diff = diff - diff[:, :1]
+    delays = [float(v) for v in np.median(diff[ok], axis=0)]
+    return delays, gains
+
+
+def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
+                  seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True) -> dict:
+    from .sim import SimParams, simulate_drops
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cal_path = Path(cal_path)
+    if not cal_path.is_file():
+        raise DataError(cal_path, None, "calibration file not found (run `impactsense calibrate` first)")
+    cal = json.loads(cal_path.read_text())
+    if "sim_params" not in cal:
+        raise DataError(cal_path, "sim_params", "missing key")
+    params = SimParams.from_json(cal_path)
+    cal_rows = calibration_rows(session, cal)
+
+    # The virtual data set, written as a session folder so every tool can read it.
+    sim_dir = out / f"virtual-{n_virtual}"
+    if not (sim_dir / "recordings.npz").is_file():
+        rng = np.random.default_rng(seed)
+        from scipy.stats import qmc
+
+        edge, clearance = 20.0, 25.0
+        sensors = session.rig.sensor_xy_mm
+        pts = []
+        sampler = qmc.Sobol(d=3, scramble=True, seed=seed)
+        while len(pts) < n_virtual:
+            u = sampler.random(64)
+            x = edge + u[:, 0] * (session.rig.plate_x_mm - 2 * edge)
+            y = edge + u[:, 1] * (session.rig.plate_y_mm - 2 * edge)
+            h = 100.0 + 5.0 * np.floor(u[:, 2] * 21)
+            far = np.min(np.hypot(x[:, None] - sensors[None, :, 0], y[:, None] - sensors[None, :, 1]), 1) >= clearance
+            pts.extend(zip(x[far], y[far], h[far]))
+        x, y, h = (np.array(v[:n_virtual]) for v in zip(*pts))
+        adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
+                             workers=workers, progress=progress)
+        write_session(sim_dir, session.rig, x, y, h, adc)
+    virtual = load_session(sim_dir)
+
+    # Sim-trained: localiser constants and forests from the virtual drops only ...
+    sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed)
+    # ... and the rig's channel timing from the four calibration drops.
+    cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
+                             session.height_mm[cal_rows], noise=True, seed=seed, workers=workers, progress=False)
+    delays, gains = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
+    sim_model.signal.channel_delay_us = delays
+    sim_model.signal.channel_gain = gains
+    sim_model.save(out / "model-sim", extra_card={"trained_on": str(sim_dir), "calibration": str(cal_path),
+                                                   "channel_delay_from_calibration_drops_us": delays,
+                                                   "channel_gain_from_calibration_drops": gains})
+
+    # Measured-trained on the same session, same split, calibration drops excluded everywhere.
+    meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows)
+    test_rows = np.asarray(split["test_recordings"], int)
+    assert not np.isin(test_rows, cal_rows).any()
+    rep_sim = evaluate(session, sim_model, rows=test_rows)
+    rep_meas = evaluate(session, meas_model, rows=test_rows)
+    result = {
+        "calibration": str(cal_path),
+        "calibration_recordings": cal_rows.tolist(),
+        "virtual_drops": len(virtual),
+        "test_recordings": test_rows.tolist(),
+        "channel_delay_us_from_calibration_drops": delays,
+        "channel_gain_from_calibration_drops": gains,
+        "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
+        "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},
+    }
+    (out / "zero-shot.json").write_text(json.dumps(result, indent=1))
+    result["_reports"] = {"sim": rep_sim, "measured": rep_meas}
+    return result
+
+
+def zero_shot_table(result: dict) -> str:
+    from .commands.demo import SEED_ROWS
+
+    lines = [f"{'':46s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
+    for region, label in (("all", "whole plate"), ("inner", "inner region")):
+        for kind, key in (("sim-trained", "sim_trained"), ("measured-trained", "measured_trained")):
+            r2, rmse, mae, acc = SEED_ROWS[f"{kind}, {label}"]
+            lines.append(f"{'seed, ' + kind + ', ' + label:46s} {r2:6.2f} {rmse:8.1f} {mae:7.1f} {acc:9.2f}")
+            m = result[key][region]
+            lines.append(f"{'impactsense, ' + kind + ', ' + label:46s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} "
+                         f"{m['mae_mm']:7.2f} {result[key]['energy_class_accuracy']:9.2f}")
+    return "\n".join(lines)

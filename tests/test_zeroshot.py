@@ -1,0 +1,58 @@
+"""The zero-shot flow's channel effects, fitted on calibration drops only, and the core's channel gain."""
+
+import numpy as np
+import pytest
+
+from impactsense.pipeline import SignalConfig, featurize
+from impactsense.zeroshot import calibration_rows, fit_channels_on_calibration_drops
+
+
+def test_channel_gain_divides_amplitudes_and_energies(synth):
+    adc = synth([300, 310, 320, 330], amp=500.0)
+    plain = featurize(adc, SignalConfig())
+    g = [1.0, 2.0, 0.5, 1.25]
+    scaled = featurize(adc, SignalConfig(channel_gain=g))
+    assert np.allclose(scaled.energy[0], plain.energy[0] / np.square(g), rtol=1e-5)
+    assert np.allclose(scaled.raw["peak"][0], plain.raw["peak"][0] / np.array(g), rtol=1e-5)
+    assert np.allclose(scaled.raw["residual_ratio"], plain.raw["residual_ratio"], equal_nan=True)
+
+
+def test_a_gain_corrected_channel_picks_like_the_unit_gain_one(session1):
+    """A sensor g times more sensitive, corrected by channel_gain = g, gives the onsets and energies of the
+    unit-gain sensor: the onset threshold is in unit-gain counts."""
+    adc = session1.adc[:20]
+    g = np.array([1.0, 1.6, 0.7, 1.3])
+    louder = np.clip(np.round(2048 + (adc.astype(float) - 2048) * g[None, :, None]), 0, 4095).astype(np.uint16)
+    ok = ~((louder == 0) | (louder == 4095)).any(axis=(1, 2))  # clipping would change the energies
+    cfg = SignalConfig.for_rig(session1.rig)
+    ref = featurize(adc[ok], cfg)
+    cfg.channel_gain = g.tolist()
+    corr = featurize(louder[ok], cfg)
+    assert ok.sum() >= 5
+    assert np.median(np.abs(corr.toa_us - ref.toa_us)) < 0.3
+    assert np.allclose(corr.energy, ref.energy, rtol=0.01)
+
+
+def test_channel_delay_and_gain_recovered_from_four_drops(session1):
+    """'Simulated' drops = the measured calibration drops with channel 2 advanced by 2 samples (20 us) and
+    channel 1 attenuated by 1/1.3: the fit must report delay -20 us... i.e. measured later by 20 us, and gain
+    1.3 (measured/simulated), from these drops alone."""
+    rows = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2]))
+    meas = session1.adc[rows]
+    sim = meas.astype(float).copy()
+    sim[:, 2, :-2] = sim[:, 2, 2:]                      # channel 2 arrives 20 us earlier in the "twin"
+    sim[:, 1] = 2048 + (sim[:, 1] - 2048) / 1.3         # and channel 1 is 1.3x weaker
+    sim = np.clip(np.round(sim), 0, 4095).astype(np.uint16)
+    delays, gains = fit_channels_on_calibration_drops(session1, rows, sim, SignalConfig.for_rig(session1.rig))
+    assert delays[0] == 0.0
+    assert delays[2] == pytest.approx(20.0, abs=1.0)
+    assert abs(delays[1]) < 1.0 and abs(delays[3]) < 1.0
+    assert gains[1] == pytest.approx(1.3, rel=0.02)
+    assert gains[0] == pytest.approx(1.0, rel=0.02) and gains[2] == pytest.approx(1.0, rel=0.02)
+
+
+def test_calibration_rows_come_from_the_calibration_file(session1):
+    rows = calibration_rows(session1, {"exclude_case_ids": [0, 1]})
+    assert set(session1.case_id[rows]) == {0, 1}
+    with pytest.raises(ValueError):
+        calibration_rows(session1, {})
