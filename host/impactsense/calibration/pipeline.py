@@ -433,7 +433,7 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
         if k <= 0:
             continue
         radius = 0.15 / 2 ** r
-        box = qmc.Sobol(d=d, scramble=True, seed=opts.seed + 101 + r).random(max(1, k - 1))
+        box = qmc.Sobol(d=d, scramble=True, seed=opts.seed + 101 + r).random(2 ** int(np.ceil(np.log2(max(2, k - 1)))))
         pts = np.vstack([u_opt[None], np.clip(u_opt + (2 * box - 1) * radius, 0, 1)])[:k]
         idx = range(start, start + k)
         for i, pnt in zip(idx, pts):
