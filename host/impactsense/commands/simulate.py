@@ -36,22 +36,12 @@ def load_inputs(args):
     from pathlib import Path
 
     from ..data import load_rig, resolve_session_path
-    from ..errors import ConfigError
     from ..sim import SimParams
 
     rig_path = Path(args.rig) if args.rig.endswith(".json") else resolve_session_path(args.rig)
     rig = load_rig(rig_path)
     if args.calibration:
-        path = Path(args.calibration)
-        if not path.is_file():
-            raise ConfigError(f"{path}: file not found")
-        try:
-            raw = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"{path}: not valid JSON ({exc})") from None
-        if not isinstance(raw, dict) or not isinstance(raw.get("sim_params"), dict):
-            raise ConfigError(f"{path}: no 'sim_params' object (is this a calibration file?)")
-        params = SimParams.from_dict(raw["sim_params"], f"{path} [sim_params]")
+        params = SimParams.from_json(args.calibration)  # a calibration file: its 'sim_params'
     elif args.params:
         params = SimParams.from_json(args.params)
     else:
