@@ -93,14 +93,12 @@ inline void row_forces(int n, const Real* __restrict w0, const Real* __restrict 
   }
 }
 
-// Adds element forces of one row into node rows f0 (bottom) and f1 (top) of one field.
-// en[0..3][n] are the forces at local nodes 1..4 (1 = (i, bottom), 2 = (i+1, bottom), 3 = (i+1, top), 4 = (i, top)).
+// Adds the forces of n elements of a row into node rows f0 (bottom) and f1 (top): element i's local nodes
+// 1, 4 (n1, n4) go to node i and 2, 3 (n2, n3) to node i + 1
+// (1 = (i, bottom), 2 = (i+1, bottom), 3 = (i+1, top), 4 = (i, top)).
 template <typename Real>
-inline void row_scatter(int n, const Real* __restrict e, Real* __restrict f0, Real* __restrict f1) {
-  const Real* __restrict n1 = e;
-  const Real* __restrict n2 = e + n;
-  const Real* __restrict n3 = e + 2 * n;
-  const Real* __restrict n4 = e + 3 * n;
+inline void scatter_nodes(int n, const Real* __restrict n1, const Real* __restrict n2, const Real* __restrict n3,
+                          const Real* __restrict n4, Real* __restrict f0, Real* __restrict f1) {
   f0[0] += n1[0];
   f1[0] += n4[0];
 #pragma omp simd
@@ -112,23 +110,17 @@ inline void row_scatter(int n, const Real* __restrict e, Real* __restrict f0, Re
   f1[n] += n3[n - 1];
 }
 
+// A whole row: en[0..3][n] (stride n) are the forces at local nodes 1..4.
+template <typename Real>
+inline void row_scatter(int n, const Real* __restrict e, Real* __restrict f0, Real* __restrict f1) {
+  scatter_nodes(n, e, e + n, e + 2 * n, e + 3 * n, f0, f1);
+}
+
 // Chunk version: elements c0..c0+n-1 of a row (forces in e with compile-time stride) into node rows f0, f1
-// (pointing at node c0). Adds element i's local nodes 1, 4 to node i and 2, 3 to node i + 1.
+// (pointing at node c0).
 template <typename Real, int Stride>
 inline void chunk_scatter(int n, const Real* __restrict e, Real* __restrict f0, Real* __restrict f1) {
-  const Real* __restrict n1 = e;
-  const Real* __restrict n2 = e + Stride;
-  const Real* __restrict n3 = e + 2 * Stride;
-  const Real* __restrict n4 = e + 3 * Stride;
-  f0[0] += n1[0];
-  f1[0] += n4[0];
-#pragma omp simd
-  for (int i = 1; i < n; ++i) {
-    f0[i] += n1[i] + n2[i - 1];
-    f1[i] += n4[i] + n3[i - 1];
-  }
-  f0[n] += n2[n - 1];
-  f1[n] += n3[n - 1];
+  scatter_nodes(n, e, e + Stride, e + 2 * Stride, e + 3 * Stride, f0, f1);
 }
 
 // Element forces of element row (rows o0 / o1 of the node arrays) added into node-row force buffers.
