@@ -110,6 +110,9 @@ def test_recovers_known_parameters_standin(tmp_path, rig):
     cal2 = pipeline.calibrate(data, out, _small_opts(budget=48), simulate=_standin_clean)
     assert cal2["fitted"] == cal["fitted"]
     assert cal2["wall_time_s"]["design_fem"] < 0.5 * max(cal["wall_time_s"]["design_fem"], 0.2)
+    # ... and still reports what each stage cost when it was computed
+    assert cal2["stage_compute_time_s"]["design_fem"] == cal["stage_compute_time_s"]["design_fem"] > 0
+    assert cal2["stage_compute_time_s"]["sum"] >= cal2["stage_compute_time_s"]["design_fem"]
 
 
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")

@@ -258,6 +258,20 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                  ("f2", "f3", "f2_rel") if k in result["pzt_damping"]})}
     clock.seconds["total"] = round(time.perf_counter() - t_all, 3)
     result["wall_time_s"] = clock.seconds
+    # the time each stage took when it was last computed (a stage read from its cache takes ~0 s here)
+    times_path = cache("stage-times.json")
+    compute = {}
+    if times_path.exists():
+        try:
+            compute = json.loads(times_path.read_text())
+        except ValueError:
+            compute = {}
+    for stage, sec in clock.seconds.items():
+        if stage != "total" and (sec > 0.5 or stage not in compute):
+            compute[stage] = sec
+    compute.pop("total", None)
+    _write_json_atomic(times_path, compute)
+    result["stage_compute_time_s"] = {**compute, "sum": round(sum(compute.values()), 3)}
     _write_json_atomic(out, result)
     return result
 

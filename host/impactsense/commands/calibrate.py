@@ -74,7 +74,10 @@ def summary(cal: dict) -> str:
             lines.append(f"screening, {out}: {', '.join(sig) if sig else 'no significant term'}")
     else:
         lines.append(f"PZT/damping: {pd.get('skipped', '-')}")
-    lines.append("wall time [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
+    lines.append("wall time [s], this run: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
+    if "stage_compute_time_s" in cal:
+        lines.append("compute time [s] per stage (cached stages: when last computed): "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in cal["stage_compute_time_s"].items()))
     return "\n".join(lines)
 
 
