@@ -98,7 +98,7 @@ def test_cli_export(exported, tmp_path):
     from impactsense.cli import main
 
     model_dir = exported[0]
-    assert main(["export", str(model_dir), "--out", str(tmp_path / "m"), "--no-m2cgen"]) == 0
+    assert main(["export", str(model_dir), "--out", str(tmp_path / "m"), "--no-m2cgen", "--rate", "native"]) == 0
     assert (tmp_path / "m" / "impactsense_forest_tables.c").is_file()
     assert not (tmp_path / "m" / "impactsense_models_m2c.c").exists()
 

@@ -1,5 +1,11 @@
 """`impactsense export MODEL_DIR --out models/`: the forests as C for the firmware (and tables for the
-emulator)."""
+emulator).
+
+The board samples 4 x 50 kHz (the SAADC's ceiling), not the lab logger's 100 kHz. A model trained at 100 kHz
+(`impactsense train`) is therefore first trained again, with the same split and forest settings, on the drops
+as the board captures them (resampled, SAADC scan delays, cut by the firmware app); that model is written to
+OUT/board-model and exported. `--rate native` exports MODEL_DIR's forests as they are. The held-out drops
+are then run through the emulated board (the firmware app with the exported tables) and scored."""
 
 ORDER = 60
 
@@ -9,50 +15,116 @@ def register(sub):
                        description=__doc__)
     p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + joblib)")
     p.add_argument("--out", default="models", help="output folder (default: models/)")
-    p.add_argument("--trees", default="all",
-                   help="trees per coordinate forest: all, N, or auto (smallest within 0.2 mm MAE of the "
-                        "full forest on the model's held-out drops)")
+    p.add_argument("--trees", default="auto",
+                   help="trees per coordinate forest: auto (default: the smallest within 0.2 mm of the best "
+                        "on the held-out drops, within the 256 KB flash budget), all, or N")
+    p.add_argument("--rate", default="50000",
+                   help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
+                        "'native' exports MODEL_DIR's forests unchanged")
     p.add_argument("--no-m2cgen", action="store_true", help="write only the node tables")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     import json
+    from pathlib import Path
 
+    from ..errors import ConfigError
     from ..export import export_models
 
+    model_dir = Path(args.model_dir)
+    card = _card(model_dir)
+    if args.rate != "native":
+        try:
+            rate = int(args.rate)
+        except ValueError:
+            raise ConfigError(f"--rate: {args.rate!r} is neither a rate in Hz nor 'native'") from None
+        if int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
+            from ..link.boardmodel import retrain_for_board
+
+            model_dir = retrain_for_board(model_dir, Path(args.out) / "board-model", rate)
+            card = _card(model_dir)
+            print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz (same split, "
+                  f"{card['forest']['n_estimators']} trees) -> {model_dir}")
     X = xy = phys = None
     if args.trees == "auto":
-        X, phys, xy = _held_out(args.model_dir)
-    s = export_models(args.model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
+        X, phys, xy = _held_out(model_dir)
+    s = export_models(model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
                       write_m2cgen=not args.no_m2cgen)
     for row in s["tree_sweep"]:
         print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB of tables")
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
+    acc = _board_accuracy(model_dir, card, args.out)
+    if acc is not None:
+        s["board_held_out"] = acc
+        (Path(args.out) / "export.json").write_text(json.dumps(s, indent=1))
+        print(f"held-out drops on the emulated board (4 x {acc['fs_hz'] / 1000:g} kHz, firmware app, exported "
+              f"tables): {acc['reported']}/{acc['n']} reported, MAE {acc['all']['mae_mm']:.2f} mm "
+              f"(inner {acc['inner']['mae_mm']:.2f} mm), mean distance {acc['all']['euclid_mm']:.2f} mm, "
+              f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
     print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
     return 0 if s["within_budget"] else 1
 
 
-def _held_out(model_dir):
-    """Feature vectors, physics positions and true positions of the model card's held-out drops."""
+def _card(model_dir):
     import json
+    from pathlib import Path
+
+    from ..errors import DataError
+
+    path = Path(model_dir) / "model_card.json"
+    if not path.is_file():
+        raise DataError(path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataError(path, None, f"not valid JSON ({exc})") from exc
+
+
+def _held_out_rows(card):
+    """(session, row indices of the card's held-out drops) or (session, None) when the card has none."""
     from pathlib import Path
 
     import numpy as np
 
     from ..data import load_session
-    from ..pipeline import SignalConfig, featurize
 
-    card = json.loads((Path(model_dir) / "model_card.json").read_text())
     split = card.get("split") or {}
-    rows = split.get("test_recordings")
+    ids = split.get("test_recordings")
     for key in ("test_recording_ids", "held_out", "held_out_recording_ids", "test_ids", "test_rows"):
-        if rows is None and card.get(key):
-            rows = card[key]
+        if ids is None and card.get(key):
+            ids = card[key]
     data = split.get("data_path") or card.get("data") or card.get("session")
     s = load_session(data if data and Path(str(data)).is_dir() else None)
-    rows = np.asarray(rows if rows is not None else np.arange(len(s)), dtype=int)
+    if ids is None:
+        return s, None
+    index = {int(r): k for k, r in enumerate(s.recording_id)}
+    return s, np.asarray([index[int(r)] for r in ids if int(r) in index], dtype=int)
+
+
+def _board_accuracy(model_dir, card, out):
+    """The exported tables on the emulated board over the held-out drops (None without held-out drops)."""
+    from ..export import firmware_models
+    from ..link.boardmodel import board_accuracy
+
+    s, rows = _held_out_rows(card)
+    if rows is None or rows.size == 0 or "energy_threshold_j" not in card:
+        return None
+    models, signal = firmware_models(out)
+    return board_accuracy(s.subset(rows), models, signal, float(card["energy_threshold_j"]),
+                          int(card.get("board_fs_hz") or 50000))
+
+
+def _held_out(model_dir):
+    """Feature vectors, physics positions and true positions of the model card's held-out drops."""
+    import numpy as np
+
+    from ..pipeline import SignalConfig, featurize
+
+    card = _card(model_dir)
+    s, rows = _held_out_rows(card)
+    rows = np.arange(len(s)) if rows is None else rows
     signal = card.get("signal") or {}
     board_fs = card.get("board_fs_hz")
     if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:

@@ -1,14 +1,19 @@
 """Models trained on the firmware's own inputs: the captures the firmware app takes from the board-rate
-stream (SAADC scan delays included), through `impactsense train`'s own model code.
+stream (4 x 50 kHz, SAADC scan delays included), through `impactsense train`'s own model code.
 
-The trainer (impactsense.models) fits on 100 kHz recordings; the board samples 4 x 50 kHz, where energies
-and sample-count settings differ. Until sessions are recorded on the board (`impactsense record`), this
-trains the same model type on what the emulated board captures, for the firmware tests and benchmarks.
+The trainer (impactsense.workflow.train) fits on the lab's 100 kHz recordings; the board samples 4 x 50 kHz,
+where the onset picks scatter more and energies and sample counts differ, so a 100 kHz model loses most of
+its accuracy on the board. Until sessions are recorded on the board (`impactsense record`), this trains the
+same model type, with the same split and settings, on what the emulated board captures: the recordings
+resampled onto the scan grid, channel c read c x 5 us after channel 0 (link.emulator.board_samples),
+triggered and cut by the firmware app itself. `impactsense export` ships such models by default.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -32,32 +37,109 @@ def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
                 if cap is not None:
                     caps.append(cap)
                     rows.append(i)
+    if not caps:
+        raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
     return np.stack(caps), np.asarray(rows), emu.signal
 
 
+def _scan_delays_us() -> np.ndarray:
+    return -_link.SCAN_STEP_US * np.arange(4)
+
+
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
-                       test_fraction: float = 0.2, max_depth: int | None = None) -> Path:
-    """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of a
-    case-split training part of `session`; the card lists the held-out recording ids."""
+                       test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
+                       exclude_rows=None, train_rows=None, extra_card: dict | None = None) -> Path:
+    """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
+    drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
+    board-rate picks, then the forests on the board-rate features.
+
+    The split is the trainer's (split.case_split with test_fraction, seed, exclude_rows) unless train_rows
+    (row indices) is given; the card lists the held-out recording ids (`test_recording_ids`, and `split`
+    as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
+    The card's channel delays are the rig's own: the firmware (and the emulator) add the scan delays."""
     from ..models import ForestSettings, ImpactModel
-    from ..pipeline import featurize
+    from ..pipeline import featurize, fit_localiser
+    from ..split import case_split
 
+    if train_rows is None:
+        train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
+    train_rows = np.asarray(train_rows, int)
+    excluded = np.zeros(len(session), bool)
+    if exclude_rows is not None and len(exclude_rows):
+        excluded[np.asarray(exclude_rows, int)] = True
     caps, rows, sig = board_captures(session, fs_hz)
+    is_train = np.isin(rows, train_rows)
+    is_test = ~is_train & ~excluded[rows]
+    board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows])
+    sig = fit_localiser(board, np.flatnonzero(is_train), sig)  # total delays: the rig's plus the scan's
     feats = featurize(caps, sig)
-    rng = np.random.default_rng(seed)
-    cases = np.unique(session.case_id)
-    test_cases = rng.choice(cases, size=int(round(test_fraction * cases.size)), replace=False)
-    train = ~np.isin(session.case_id[rows], test_cases)
-    settings = ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
-    model = ImpactModel.fit(feats.take(np.flatnonzero(train)), session.xy_mm[rows][train],
-                            session.height_mm[rows][train], session.rig.ball_mass_g, sig, settings)
-    out = model.save(out_dir, extra_card={"board_fs_hz": fs_hz, "data": str(session.path),
-                                          "test_recording_ids": [int(r) for r in rows[~train]]})
-    # The card's channel delays are the rig's own; the scan delays are added by the firmware (and emulator).
-    import json
+    settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
+    model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
+                            session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings)
+    model.signal.channel_delay_us = [float(v) for v in np.asarray(sig.channel_delay_us) - _scan_delays_us()]
+    ids = session.recording_id
+    split = {
+        "data_path": str(session.path),
+        "data_hash": session.fingerprint(),
+        "test_fraction": test_fraction,
+        "seed": seed,
+        "train_recordings": ids[rows[is_train]].tolist(),
+        "test_recordings": ids[rows[is_test]].tolist(),
+        "excluded_recordings": ids[excluded].tolist(),
+        "not_captured_recordings": ids[np.setdiff1d(np.arange(len(session)), rows)].tolist(),
+    }
+    card = {"board_fs_hz": int(fs_hz), "data": str(session.path), "split": split,
+            "test_recording_ids": split["test_recordings"], **(extra_card or {})}
+    return Path(model.save(out_dir, extra_card=card))
 
-    card_path = Path(out) / "model_card.json"
+
+def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000) -> Path:
+    """The model of MODEL_DIR (a 100 kHz `impactsense train` model) trained again on the board's captures of
+    the same training drops, with the same forest settings; the held-out drops stay held out."""
+    from ..data import load_session
+    from ..errors import DataError
+    from ..models import ForestSettings
+
+    card_path = Path(model_dir) / "model_card.json"
+    if not card_path.is_file():
+        raise DataError(card_path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
     card = json.loads(card_path.read_text())
-    card["signal"]["channel_delay_us"] = [0.0, 0.0, 0.0, 0.0]
-    card_path.write_text(json.dumps(card, indent=1))
-    return Path(out)
+    split = card.get("split")
+    if not split or "train_recordings" not in split:
+        raise DataError(card_path, "split", "missing key (needed to retrain on the same drops at the board rate)")
+    data = split.get("data_path")
+    if not data or not Path(data).is_dir():
+        raise DataError(card_path, "split.data_path", f"session folder {data!r} not found")
+    session = load_session(data)
+    if split.get("data_hash") and split["data_hash"] != session.fingerprint():
+        raise DataError(card_path, "split.data_hash", f"{data} changed since the model was trained")
+    index = {int(r): k for k, r in enumerate(session.recording_id)}
+    rows = lambda key: np.asarray([index[int(r)] for r in split.get(key, [])], int)  # noqa: E731
+    forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
+    return train_board_models(session, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest),
+                              exclude_rows=rows("excluded_recordings"), train_rows=rows("train_recordings"),
+                              test_fraction=float(split.get("test_fraction", 0.2)), seed=int(split.get("seed", 0)),
+                              extra_card={"retrained_from": str(Path(model_dir).resolve())})
+
+
+def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_hz: int = 50000) -> dict:
+    """The firmware app (emulated board, exported node tables) over `session`'s drops, scored against the true
+    positions and energy classes: Eq. 36 metrics of the reports with valid positions, their class accuracy,
+    and how many drops gave a report."""
+    from ..metrics import region_metrics
+    from ..models import impact_energy_j
+
+    emu = Emulator(session, models, fs_hz=fs_hz, signal=signal)
+    dec = _link.Decoder()
+    got = {}
+    for i, data in emu.drops():
+        for f in dec.feed(data):
+            if f["kind"] == "report" and f["report"].get("valid", True):
+                got.setdefault(i, f["report"])
+    rows = np.asarray(sorted(got), int)
+    pred = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
+    label = (impact_energy_j(session.height_mm, session.rig.ball_mass_g) >= energy_threshold_j).astype(int)
+    cls = np.array([got[i]["energy_class"] for i in rows], int)
+    return {"n": len(session), "reported": int(rows.size), "fs_hz": int(fs_hz),
+            **region_metrics(session.xy_mm[rows], pred),
+            "energy_class_accuracy": float(np.mean(cls == label[rows])) if rows.size else float("nan")}

@@ -84,7 +84,8 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     cfg.aic_before = int(cfg.aic_before * scale + 0.5)
     cfg.aic_after = int(cfg.aic_after * scale + 0.5)
     cfg.fs_hz = float(fs_hz)
-    cfg.channel_delay_us = [float(d) + _link.SCAN_STEP_US * c for c, d in enumerate(cfg.channel_delay_us)]
+    # channel c is read c * scan_step after channel 0: its onsets read early, a delay of -c * scan_step
+    cfg.channel_delay_us = [float(d) - _link.SCAN_STEP_US * c for c, d in enumerate(cfg.channel_delay_us)]
     cfg.adc_max = rig.adc_max
     cfg.sensor_x_mm = [float(v) for v in rig.sensor_x_mm]
     cfg.sensor_y_mm = [float(v) for v in rig.sensor_y_mm]

@@ -59,7 +59,10 @@ bool App::configure(const AppConfig& cfg) {
   cfg_ = cfg;
   cfg_.core.fs_hz = fs;
   for (int c = 0; c < 4; ++c) {
-    cfg_.core.channel_delay_us[c] = cfg.rig_delay_us[c] + kScanStepUs * static_cast<float>(c);
+    // Channel c is converted c * kScanStepUs after channel 0, so its sample k shows the wave that late:
+    // its onsets read early by that much (a delay of -c * kScanStepUs in the core's convention,
+    // toa = index / fs - delay).
+    cfg_.core.channel_delay_us[c] = cfg.rig_delay_us[c] - kScanStepUs * static_cast<float>(c);
   }
   pre_frames_ = pre;
   capture_frames_ = cap;
