@@ -1,4 +1,7 @@
-"""`impactsense monitor --port PORT`: live reports from the board (USB serial, pty emulator or BLE)."""
+"""`impactsense monitor --port PORT`: live reports from the board (USB serial, pty emulator or BLE).
+
+A table (or, with --json-lines, one JSON object per report) on stdout; `--plot` also opens a live plot of the
+plate (needs a display; without one the monitor says so and carries on without it)."""
 
 ORDER = 62
 
@@ -10,6 +13,11 @@ def register(sub):
     p.add_argument("--json-lines", action="store_true", help="one JSON object per report on stdout")
     p.add_argument("--reconnect", action="store_true", help="re-open the port after a disconnect")
     p.add_argument("--baud", type=int, default=115200)
+    p.add_argument("--plot", action="store_true",
+                   help="live plot of the plate: sensors, the last impacts by energy class, the uncertainty")
+    p.add_argument("--plot-last", type=int, default=20, metavar="N", help="impacts shown on the plot (default 20)")
+    p.add_argument("--rig", default=None,
+                   help="rig.json or session folder for the plot's plate and sensors (default: bundled session-1)")
     p.set_defaults(func=run)
 
 
@@ -22,6 +30,24 @@ def run(args) -> int:
     if not args.port and not args.ble:
         print("monitor: give --port or --ble", file=sys.stderr)
         return 2
+    plot = None
+    if args.plot:
+        from ..data import load_rig, load_session
+        from ..link.plot import open_live_plot
+
+        if args.plot_last < 1:
+            from ..errors import ConfigError
+
+            raise ConfigError(f"--plot-last must be at least 1, got {args.plot_last}")
+        rig = load_rig(args.rig) if args.rig else load_session(None).rig
+        plot = open_live_plot((rig.plate_x_mm, rig.plate_y_mm), list(zip(rig.sensor_x_mm, rig.sensor_y_mm)),
+                              args.plot_last)
     opener = (lambda: BleTransport(args.ble)) if args.ble else (lambda: open_serial(args.port, args.baud))
-    totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect)
+    totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot)
+    if plot is not None and plot.refresh():
+        import matplotlib.pyplot as plt
+
+        print("monitor: port closed; close the plot window to exit", file=sys.stderr)
+        plt.ioff()
+        plt.show()
     return 0 if totals.get("reports", 0) or not totals.get("crc_errors") else 1

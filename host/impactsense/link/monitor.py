@@ -54,12 +54,55 @@ def report_json(r: dict) -> str:
     return json.dumps(d, sort_keys=True)
 
 
+_END = object()
+
+
+def read_in_thread(frames, tick, tick_s: float = 0.05):
+    """Yields what the `frames` iterator yields, read in a thread of its own; calls tick() at least every
+    tick_s seconds meanwhile (and between frames), so a slow consumer (a plot redraw) never stalls the reads
+    and the consumer stays responsive while the port is quiet. Exceptions of the reader are re-raised."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue()
+
+    def reader():
+        try:
+            for f in frames:
+                q.put(f)
+        except BaseException as exc:  # noqa: BLE001  (handed to the consumer)
+            q.put(exc)
+        finally:
+            q.put(_END)
+
+    threading.Thread(target=reader, name="impactsense-monitor-reader", daemon=True).start()
+    due = time.monotonic() + tick_s
+    while True:
+        try:
+            item = q.get(timeout=max(0.0, due - time.monotonic()))
+        except queue.Empty:
+            item = None
+        if item is None or time.monotonic() >= due:
+            tick()
+            due = time.monotonic() + tick_s
+        if item is None:
+            continue
+        if item is _END:
+            return
+        if isinstance(item, BaseException):
+            raise item
+        yield item
+
+
 def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.stdout, err=sys.stderr,
-        idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30) -> dict:
-    """Prints reports until the port closes (and, with reconnect, re-opens it). Returns the counters."""
+        idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30, plot=None) -> dict:
+    """Prints reports until the port closes (and, with reconnect, re-opens it). Returns the counters.
+
+    plot (link.plot.LivePlot): also draws the reports; the port is then read in a thread of its own."""
     totals: dict = {}
     retries = 0
     header_done = False
+    state = {"plot": plot}  # None once the window is closed
     while True:
         try:
             port = open_port()
@@ -72,11 +115,21 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             break
         retries = 0
         mon = Monitor(port)
+        frames = mon.frames(idle_timeout_s)
+        if plot is not None:
+            def tick():
+                if state["plot"] is not None and not state["plot"].refresh():
+                    print("monitor: plot window closed; still monitoring", file=err)
+                    state["plot"] = None
+
+            frames = read_in_thread(frames, tick)
         try:
-            for frame in mon.frames(idle_timeout_s):
+            for frame in frames:
                 if frame["kind"] != "report":
                     continue
                 r = frame["report"]
+                if plot is not None and state["plot"] is not None:
+                    state["plot"].add(r)
                 if json_lines:
                     print(report_json(r), file=out, flush=True)
                 else:
@@ -94,6 +147,8 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                 port.close()
             except Exception:  # noqa: BLE001
                 pass
+        if plot is not None and state["plot"] is not None:
+            state["plot"].refresh()
         for k, v in mon.counters().items():
             totals[k] = totals.get(k, 0) + v
         if not reconnect:
