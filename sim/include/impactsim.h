@@ -22,6 +22,35 @@ namespace impactsim {
 
 int version();
 
+namespace detail {
+// Constants of one MITC4 rectangle (see src/element.h): linear in the bending stiffness D and the shear
+// stiffness S, so K(D, S) - K(D0, S0) = K(D - D0, S - S0).
+template <typename Real>
+struct Coef {  // element constants for bending stiffness D and shear stiffness S (linear in both)
+  Real ka, kb;                // 1/a, 1/b
+  Real sa, sa3;               // shear: S ab / 4, S ab / 12
+  Real b11, b12, b22;         // bending centre: g1x = b11 C1x + b12 C2y, g2y = b12 C1x + b22 C2y
+  Real c11, c12, c22;         // twist: g2x += c22 C2x + c12 C1y, g1y += c12 C2x + c11 C1y
+  Real h3x, h3y;              // hourglass: g3x = h3x C3x, g3y = h3y C3y
+  Coef() = default;
+  Coef(double hx, double hy, double nu, double d, double s) {
+    const double a = hx / 2, b = hy / 2, h = (1 - nu) / 2;
+    ka = Real(1 / a);
+    kb = Real(1 / b);
+    sa = Real(s * a * b / 4);
+    sa3 = Real(s * a * b / 12);
+    b11 = Real(d * b / (4 * a));
+    b12 = Real(d * nu / 4);
+    b22 = Real(d * a / (4 * b));
+    c11 = Real(d * h * b / (4 * a));
+    c12 = Real(d * h / 4);
+    c22 = Real(d * h * a / (4 * b));
+    h3x = Real(d * a * b / 12 * (h / (b * b) + 1 / (a * a)));
+    h3y = Real(d * a * b / 12 * (1 / (b * b) + h / (a * a)));
+  }
+};
+}  // namespace detail
+
 using Real = float;  // state precision (vectorised); energies and outputs are accumulated in double
 
 struct PlateSpec {
@@ -99,9 +128,23 @@ class Plate {
 
   RunResult run(const RunConfig& cfg) const;
 
+  // Elements whose (D, S) differ from the base (most common) pair: stepped as the base element plus
+  // K(D - D0, S - S0).
+  struct Special {
+    int i;  // column; the row is given by row_start()
+    detail::Coef<float> kf;
+    detail::Coef<double> kd;
+  };
+  const std::vector<Special>& special() const { return special_; }
+  const std::vector<int64_t>& row_start() const { return row_start_; }  // special()[row_start[j]..row_start[j+1])
+
  private:
   PlateSpec s_;
-  std::vector<Real> de_, se_;   // per element D and kappa G t (float copies)
+  double d0_ = 0, s0_ = 0;             // base element
+  detail::Coef<Real> base_f_;
+  detail::Coef<double> base_d_;
+  std::vector<Special> special_;
+  std::vector<int64_t> row_start_;
   std::vector<Real> inv_mw_, inv_mr_;  // 0 at fixed dofs
 };
 
