@@ -91,6 +91,14 @@ NB_MODULE(_sim, m) {
           },
           "u"_a, "f = K u for u float32 [3, nodes] (w, beta_x, beta_y); no boundary conditions applied.")
       .def(
+          "max_eigenvalue",
+          [](const is::Plate& p, int max_iter, double rtol) {
+            nb::gil_scoped_release release;
+            return p.max_eigenvalue(max_iter, rtol);
+          },
+          "max_iter"_a = 300, "rtol"_a = 1e-7,
+          "omega_max^2 of M^-1 K over the free dofs (Lanczos with the stepper's kernel); dt_crit = 2 / omega_max.")
+      .def(
           "internal_force_double",
           [](const is::Plate& p, InD u) {
             const size_t nn = static_cast<size_t>(p.nodes());

@@ -125,6 +125,11 @@ class Plate {
   void internal_force_double(const double* w, const double* bx, const double* by, double* fw, double* fbx,
                              double* fby) const;
   double strain_energy(const Real* w, const Real* bx, const Real* by) const;
+  // Largest eigenvalue omega_max^2 of M^-1 K over the free dofs (the explicit stability limit is
+  // dt = 2 / omega_max), by Lanczos with the stepper's kernel; iterates until the largest Ritz value changes
+  // by less than rtol (relative) between checks every 5 iterations, at most max_iter. A Ritz value never
+  // exceeds the eigenvalue: callers keep a safety factor.
+  double max_eigenvalue(int max_iter = 300, double rtol = 1e-7) const;
 
   RunResult run(const RunConfig& cfg) const;
 

@@ -255,6 +255,89 @@ double Plate::strain_energy(const Real* w, const Real* bx, const Real* by) const
   return 0.5 * u;
 }
 
+namespace {
+// Largest eigenvalue of the symmetric tridiagonal matrix (diagonal a[0..k), off-diagonal b[0..k-1)) by
+// bisection on the Sturm sequence count.
+double tridiagonal_max_eigenvalue(const std::vector<double>& a, const std::vector<double>& b) {
+  const size_t k = a.size();
+  double lo = 1e300, hi = -1e300;
+  for (size_t i = 0; i < k; ++i) {  // Gershgorin
+    const double r = (i > 0 ? std::fabs(b[i - 1]) : 0.0) + (i + 1 < k ? std::fabs(b[i]) : 0.0);
+    lo = std::min(lo, a[i] - r);
+    hi = std::max(hi, a[i] + r);
+  }
+  auto count_below = [&](double x) {  // eigenvalues < x
+    int n = 0;
+    double d = 1;
+    for (size_t i = 0; i < k; ++i) {
+      d = a[i] - x - (i > 0 ? b[i - 1] * b[i - 1] / d : 0.0);
+      if (d == 0) d = -1e-300;
+      if (d < 0) ++n;
+    }
+    return n;
+  };
+  for (int it = 0; it < 200 && hi - lo > 1e-15 * std::max(std::fabs(hi), std::fabs(lo)); ++it) {
+    const double mid = 0.5 * (lo + hi);
+    if (count_below(mid) == static_cast<int>(k)) hi = mid; else lo = mid;
+  }
+  return hi;
+}
+}  // namespace
+
+double Plate::max_eigenvalue(int max_iter, double rtol) const {
+  need(max_iter >= 2, "max_iter must be >= 2");
+  const size_t nn = static_cast<size_t>(nodes()), n = 3 * nn;
+  std::vector<double> s(n);  // M^-1/2 on free dofs, 0 on fixed ones
+  for (size_t k = 0; k < nn; ++k) {
+    s[k] = std::sqrt(double(inv_mw_[k]));
+    s[nn + k] = std::sqrt(double(inv_mr_[k]));
+    s[2 * nn + k] = std::sqrt(double(inv_mr_[nn + k]));
+  }
+  std::vector<double> q(n), qp(n, 0.0), z(n);
+  std::vector<Real> u(n), f(n);
+  uint64_t state = 0x9E3779B97F4A7C15ull;  // deterministic start vector
+  double norm = 0;
+  for (size_t k = 0; k < n; ++k) {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    q[k] = s[k] > 0 ? double(state >> 11) * 0x1.0p-53 - 0.5 : 0.0;
+    norm += q[k] * q[k];
+  }
+  need(norm > 0, "no free degree of freedom");
+  for (auto& x : q) x /= std::sqrt(norm);
+  std::vector<double> alpha, beta;
+  double theta = 0, beta_prev = 0;
+  DenormalGuard ftz;
+  for (int it = 0; it < max_iter; ++it) {
+    for (size_t k = 0; k < n; ++k) u[k] = Real(s[k] * q[k]);
+    internal_force(u.data(), u.data() + nn, u.data() + 2 * nn, f.data(), f.data() + nn, f.data() + 2 * nn);
+    double a = 0;
+    for (size_t k = 0; k < n; ++k) {
+      z[k] = s[k] * double(f[k]);
+      a += q[k] * z[k];
+    }
+    double b = 0;
+    for (size_t k = 0; k < n; ++k) {
+      z[k] -= a * q[k] + beta_prev * qp[k];
+      b += z[k] * z[k];
+    }
+    b = std::sqrt(b);
+    alpha.push_back(a);
+    if ((it + 1) % 5 == 0 || b == 0 || it + 1 == max_iter) {
+      const double th = tridiagonal_max_eigenvalue(alpha, beta);
+      const bool done = it >= 9 && std::fabs(th - theta) <= rtol * th;
+      theta = th;
+      if (done || b == 0) break;
+    }
+    beta.push_back(b);
+    beta_prev = b;
+    for (size_t k = 0; k < n; ++k) {
+      qp[k] = q[k];
+      q[k] = z[k] / b;
+    }
+  }
+  return theta;
+}
+
 static double eval(const Functional& fn, const Real* bx, const Real* by) {
   double v = 0;
   for (size_t k = 0; k < fn.node.size(); ++k) v += fn.wx[k] * bx[fn.node[k]] + fn.wy[k] * by[fn.node[k]];
