@@ -82,33 +82,12 @@ def _card(model_dir):
         raise DataError(path, None, f"not valid JSON ({exc})") from exc
 
 
-def _held_out_rows(card):
-    """(session, row indices of the card's held-out drops) or (session, None) when the card has none."""
-    from pathlib import Path
-
-    import numpy as np
-
-    from ..data import load_session
-
-    split = card.get("split") or {}
-    ids = split.get("test_recordings")
-    for key in ("test_recording_ids", "held_out", "held_out_recording_ids", "test_ids", "test_rows"):
-        if ids is None and card.get(key):
-            ids = card[key]
-    data = split.get("data_path") or card.get("data") or card.get("session")
-    s = load_session(data if data and Path(str(data)).is_dir() else None)
-    if ids is None:
-        return s, None
-    index = {int(r): k for k, r in enumerate(s.recording_id)}
-    return s, np.asarray([index[int(r)] for r in ids if int(r) in index], dtype=int)
-
-
 def _board_accuracy(model_dir, card, out):
     """The exported tables on the emulated board over the held-out drops (None without held-out drops)."""
     from ..export import firmware_models
-    from ..link.boardmodel import board_accuracy
+    from ..link.boardmodel import board_accuracy, held_out_rows
 
-    s, rows = _held_out_rows(card)
+    s, rows = held_out_rows(card)
     if rows is None or rows.size == 0 or "energy_threshold_j" not in card:
         return None
     models, signal = firmware_models(out)
@@ -118,23 +97,8 @@ def _board_accuracy(model_dir, card, out):
 
 def _held_out(model_dir):
     """Feature vectors, physics positions and true positions of the model card's held-out drops."""
-    import numpy as np
+    from ..link.boardmodel import held_out_features
 
-    from ..pipeline import SignalConfig, featurize
-
-    card = _card(model_dir)
-    s, rows = _held_out_rows(card)
-    rows = np.arange(len(s)) if rows is None else rows
-    signal = card.get("signal") or {}
-    board_fs = card.get("board_fs_hz")
-    if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:
-        # A model trained on board captures: evaluate on what the (emulated) board captures.
-        from ..link.boardmodel import board_captures
-
-        caps, got, sig = board_captures(s.subset(rows), int(board_fs), signal)
-        rows = rows[got]
-        f = featurize(caps, sig)
-    else:
-        f = featurize(s.adc[rows], SignalConfig.from_dict(signal))
+    f, xy, _ = held_out_features(_card(model_dir))
     use = f.usable
-    return f.vector[use], f.phys_xy_mm[use], s.xy_mm[rows][use]
+    return f.vector[use], f.phys_xy_mm[use], xy[use]

@@ -143,3 +143,37 @@ def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_
     return {"n": len(session), "reported": int(rows.size), "fs_hz": int(fs_hz),
             **region_metrics(session.xy_mm[rows], pred),
             "energy_class_accuracy": float(np.mean(cls == label[rows])) if rows.size else float("nan")}
+
+
+def held_out_rows(card: dict):
+    """(session, row indices of the model card's held-out drops), rows None when the card lists none."""
+    from ..data import load_session
+
+    split = card.get("split") or {}
+    ids = split.get("test_recordings")
+    if ids is None:
+        ids = card.get("test_recording_ids")
+    data = split.get("data_path") or card.get("data")
+    s = load_session(data if data and Path(str(data)).is_dir() else None)
+    if ids is None:
+        return s, None
+    index = {int(r): k for k, r in enumerate(s.recording_id)}
+    return s, np.asarray([index[int(r)] for r in ids if int(r) in index], dtype=int)
+
+
+def held_out_features(card: dict):
+    """(Features, true xy [R, 2], heights [R]) of the card's held-out drops (all drops if it lists none) as
+    the model sees them: a board-rate model's through the emulated board's captures."""
+    from ..pipeline import SignalConfig, featurize
+
+    s, rows = held_out_rows(card)
+    rows = np.arange(len(s)) if rows is None else rows
+    signal = card.get("signal") or {}
+    board_fs = card.get("board_fs_hz")
+    if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:
+        caps, got, sig = board_captures(s.subset(rows), int(board_fs), signal)
+        rows = rows[got]
+        f = featurize(caps, sig)
+    else:
+        f = featurize(s.adc[rows], SignalConfig.from_dict(signal))
+    return f, s.xy_mm[rows], s.height_mm[rows]

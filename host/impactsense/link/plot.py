@@ -115,7 +115,8 @@ def open_live_plot(plate_mm, sensors_mm, last_n: int = 20, err=sys.stderr) -> Li
 
             backend = matplotlib.get_backend().lower()
             if backend not in _interactive_backends():
-                why = f"matplotlib has no interactive backend here (it chose {backend!r}; install python3-tk)"
+                why = (f"matplotlib found no usable interactive backend (it fell back to {backend!r}): is the "
+                       f"display reachable, and is a GUI toolkit installed (python3-tk)?")
             else:
                 plt.ion()
                 fig = plt.figure("impactsense monitor", figsize=(6.4, 6.4))
