@@ -26,9 +26,9 @@ def bench_emulator(trees: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         model_dir = train_board_models(s, Path(tmp) / "m", n_trees=trees)
         export_models(model_dir, Path(tmp) / "out", write_m2cgen=False)
-        models = firmware_models(Path(tmp) / "out")
+        models, signal = firmware_models(Path(tmp) / "out")
     t0 = time.perf_counter()
-    emu = Emulator(s, models)
+    emu = Emulator(s, models, signal=signal)
     _ = emu.frames
     t1 = time.perf_counter()
     dec = _link.Decoder()
