@@ -1,5 +1,13 @@
 // Per-channel onset and energy features of one capture.
+//
+// Cost: one integer pass per channel (block_prefix_sums: exact S1, S2 per block of kBlock samples); every
+// energy (total, five windows, n2's cumulative sum) is exact int64 algebra on those sums plus at most a
+// block's worth of samples at each range end; the peak, the clipping test and the threshold crossing scan
+// only the blocks whose energy can hold a large enough sample (a sample's (x - b)^2 never exceeds its
+// block's energy), so the float per-sample work is a few blocks. See firmware/lib/impactapp/README.md.
 #include <math.h>
+#include <stdint.h>
+#include <string.h>
 
 #include "impactcore.h"
 
@@ -31,37 +39,219 @@ void apply_gain(ChannelFeatures* f, float gain) {
   for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] *= inv2;
 }
 
+#if defined(__GNUC__)
+#define IC_INLINE inline __attribute__((always_inline))
+#else
+#define IC_INLINE inline
+#endif
+
+// floor(v) for v >= 0 as int64, saturating (no libgcc float -> int64 conversion, ~150 instructions on
+// the M4F: floats >= 2^24 are integers, so the mantissa shifted by the exponent is exact).
+int64_t to_int64(float v) {
+  if (!(v >= 0.0f)) return 0;
+  if (v < 2147483648.0f) return static_cast<int32_t>(v);
+  if (v >= 9.2e18f) return INT64_MAX;
+  uint32_t u;
+  memcpy(&u, &v, sizeof(u));
+  const int shift = static_cast<int>(u >> 23) - 127 - 23;
+  return static_cast<int64_t>((u & 0x007FFFFFu) | 0x00800000u) << shift;
+}
+
+// The energy bookkeeping of one channel: the prefix table and the scaled-energy form
+// n_b^2 sum (x - b)^2 = c2 S2 - c1 S1 + m sb^2 (impactcore.h), exact in int64; to_energy gives counts^2.
+struct Channel {
+  const int16_t* x;
+  int n;
+  int nblk;
+  int nb;          // baseline samples
+  int32_t sb;      // their sum: b = sb / nb
+  int64_t c2;      // nb^2
+  int64_t c1;      // 2 nb sb
+  int64_t sb2;     // sb^2
+  float nb2;       // nb^2
+  Sums prefix[kMaxBlocks + 1];
+
+  void set_baseline(int n_b, int32_t sum_b) {
+    nb = n_b;
+    sb = sum_b;
+    c2 = static_cast<int64_t>(n_b) * n_b;
+    c1 = 2 * static_cast<int64_t>(n_b) * sum_b;
+    sb2 = static_cast<int64_t>(sum_b) * sum_b;
+    nb2 = static_cast<float>(c2);
+  }
+  IC_INLINE int64_t form(int64_t s2, int32_t s1, int m) const { return c2 * s2 - c1 * s1 + m * sb2; }
+  // Scaled energy of x[0 .. i) (a partial block costs its samples).
+  int64_t energy_to(int i) const {
+    const Sums r = prefix_at(x, prefix, i);
+    return form(r.s2, r.s1, i);
+  }
+  // ... of x[0 .. k kBlock), k <= nblk.
+  IC_INLINE int64_t energy_to_block(int k) const {
+    const int m = k * kBlock < n ? k * kBlock : n;
+    return form(prefix[k].s2, prefix[k].s1, m);
+  }
+  // ... of block k.
+  IC_INLINE int64_t block_energy(int k) const {
+    const int m = (k + 1 == nblk) ? n - k * kBlock : kBlock;
+    return form(prefix[k + 1].s2 - prefix[k].s2, prefix[k + 1].s1 - prefix[k].s1, m);
+  }
+  // Can blocks [k0, k1) hold a sample with |float(x) - base| >= a (lim = bound(a), lim_f = 0.999 a^2)?
+  // For full blocks whose sum of squares fits 32 bits (every 12-bit capture, up to 16 blocks) in float:
+  // e = S2 - 2 base S1 + m base^2 is sum (x - base)^2 to within 1e-6 (S2 + m base^2), which the test
+  // adds; exact int64 otherwise.
+  IC_INLINE bool may_reach(int k0, int k1, float base, float lim_f, int64_t lim) const {
+    const int64_t s2 = prefix[k1].s2 - prefix[k0].s2;
+    const int32_t s1 = prefix[k1].s1 - prefix[k0].s1;
+    if (k1 < nblk && (s2 >> 32) == 0) {
+      const float s2f = static_cast<float>(static_cast<uint32_t>(s2));
+      const float mb2 = static_cast<float>((k1 - k0) * kBlock) * base * base;
+      const float e = (s2f - 2.0f * base * static_cast<float>(s1)) + mb2;
+      return e + 1e-6f * (s2f + mb2) >= lim_f;
+    }
+    const int m = (k1 * kBlock < n ? k1 * kBlock : n) - k0 * kBlock;
+    return form(s2, s1, m) >= lim;
+  }
+  IC_INLINE int block_end(int k) const { return (k + 1) * kBlock < n ? (k + 1) * kBlock : n; }
+  float to_energy(int64_t e) const { return static_cast<float>(e) / nb2; }
+  // A block whose scaled energy is below bound(a) holds no sample with |float(x) - base| >= a: a sample's
+  // nb^2 (x - b)^2 never exceeds its block's energy; the margins (0.999, 0.004 counts) cover the rounding
+  // of the float baseline (<= 2^-24 * 32768 = 0.002 counts) and of this bound.
+  int64_t bound(float a) const {
+    const float r = a - 0.004f;
+    return r > 0.0f ? to_int64(0.999f * r * r * nb2) : 0;
+  }
+};
+
+// Raises *peak to the largest |x - base| of block k (the per-sample float expression of a full scan).
+void scan_peak(const Channel& ch, int k, float base, float* peak) {
+  float p = *peak;
+  for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
+    const float a = fabsf(static_cast<float>(ch.x[i]) - base);
+    if (a > p) p = a;
+  }
+  *peak = p;
+}
+
+// max |x - base| over the capture: the blocks whose energy could hold a larger sample than the peak so
+// far. With an onset, the crossing's block is taken first; the blocks between `start` and it are skipped
+// (their samples from `start` on are below the threshold, hence below the peak).
+float peak_abs(const Channel& ch, float base, int at, int start) {
+  float peak = 0.0f;
+  const int kc = at >= 0 ? at / kBlock : -1;
+  if (kc >= 0) scan_peak(ch, kc, base, &peak);
+  int64_t lim = ch.bound(peak);
+  float lim_f = 0.999f * peak * peak;
+  // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
+  constexpr int kGroup = 4;
+  for (int g = 0; g < ch.nblk; g += kGroup) {
+    const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
+    if (!ch.may_reach(g, gend, base, lim_f, lim)) continue;
+    for (int k = g; k < gend; ++k) {
+      if (k == kc || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
+      if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+      const float before = peak;
+      scan_peak(ch, k, base, &peak);
+      if (peak > before) {
+        lim = ch.bound(peak);
+        lim_f = 0.999f * peak * peak;
+      }
+    }
+  }
+  return peak;
+}
+
+// Any sample at or beyond a rail: only blocks whose energy reaches the distance from the baseline to the
+// nearer rail can hold one.
+bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max) {
+  const float room_lo = base - static_cast<float>(adc_min);
+  const float room_hi = static_cast<float>(adc_max) - base;
+  const float room = room_lo < room_hi ? room_lo : room_hi;
+  if (room > 1.001f * peak + 1.0f) return false;
+  const int64_t lim = ch.bound(room);
+  for (int k = 0; k < ch.nblk; ++k) {
+    if (ch.block_energy(k) < lim) continue;
+    for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
+      if (ch.x[i] <= adc_min || ch.x[i] >= adc_max) return true;
+    }
+  }
+  return false;
+}
+
+// threshold_crossing(x, n, base, thr, start), skipping the blocks too weak to hold a crossing; *at is the
+// first sample at or above the threshold (-1 if none).
+float crossing(const Channel& ch, float base, float thr, int start, int* at) {
+  if (start < 1) start = 1;
+  const int64_t lim = ch.bound(thr);
+  const float lim_f = 0.999f * thr * thr;
+  for (int k = start / kBlock; k < ch.nblk; ++k) {
+    if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+    for (int i = k * kBlock > start ? k * kBlock : start, end = ch.block_end(k); i < end; ++i) {
+      if (fabsf(static_cast<float>(ch.x[i]) - base) >= thr) {
+        *at = i;
+        return crossing_subsample(ch.x, i, base, thr);
+      }
+    }
+  }
+  *at = -1;
+  return -1.0f;
+}
+
+// The first sample where the scaled cumulative energy reaches `target`: bisection over the block
+// boundaries, then one block sample by sample. n - 1 if it never does.
+int energy_reaches(const Channel& ch, int64_t target) {
+  if (ch.energy_to_block(ch.nblk) < target) return ch.n - 1;
+  int lo = 0, hi = ch.nblk;  // energy_to_block(lo) < target <= energy_to_block(hi), or lo = 0
+  if (target <= 0) hi = 0;
+  while (hi - lo > 1) {
+    const int mid = (lo + hi) / 2;
+    if (ch.energy_to_block(mid) < target) {
+      lo = mid;
+    } else {
+      hi = mid;
+    }
+  }
+  int64_t cum = ch.energy_to_block(lo);
+  for (int i = lo * kBlock; i < ch.n; ++i) {
+    const int64_t d = static_cast<int64_t>(ch.nb) * ch.x[i] - ch.sb;
+    cum += d * d;
+    if (cum >= target) return i;
+  }
+  return ch.n - 1;
+}
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, ChannelFeatures* f) {
-  baseline_stats(x, cfg.baseline_samples, &f->baseline, &f->noise_rms);
+  static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
+  Channel ch;
+  ch.x = x;
+  ch.n = n;
+  ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
+  const Sums base_sums = prefix_at(x, ch.prefix, cfg.baseline_samples);
+  ch.set_baseline(cfg.baseline_samples, base_sums.s1);
+  baseline_from_sums(base_sums, ch.nb, &f->baseline, &f->noise_rms);
   const float base = f->baseline;
   f->flags = 0;
 
-  // Energy, peak and clipping over the whole capture.
-  float energy = 0.0f;
-  float peak = 0.0f;
-  bool clipped = false;
-  for (int i = 0; i < n; ++i) {
-    const int v = x[i];
-    if (v <= cfg.adc_min || v >= cfg.adc_max) clipped = true;
-    const float d = static_cast<float>(v) - base;
-    energy += d * d;
-    const float a = fabsf(d);
-    if (a > peak) peak = a;
-  }
-  f->energy = energy;
-  f->peak = peak;
-  if (clipped) f->flags |= kFlagClipped;
-
-  const float signal_rms = sqrtf(energy / static_cast<float>(n));
-  if (peak == 0.0f || signal_rms < cfg.dead_rms_counts) f->flags |= kFlagDead;
-
-  // Onset: sub-sample threshold crossing, refined by AIC in a window around it.
-  // The onset threshold is in unit-gain counts: a channel with gain g crosses at the same wave phase.
+  // Onset threshold crossing (sub-sample). The threshold is in unit-gain counts: a channel with gain g
+  // crosses at the same wave phase.
   const float gain = cfg.channel_gain[c] > 0.0f ? cfg.channel_gain[c] : 1.0f;
   float thr = cfg.onset_threshold_counts * gain;
   const float noise_thr = cfg.onset_noise_factor * f->noise_rms;
   if (noise_thr > thr) thr = noise_thr;
-  const float cross = threshold_crossing(x, n, base, thr, cfg.baseline_samples);
+  int at = -1;
+  const float cross = crossing(ch, base, thr, cfg.baseline_samples, &at);
+
+  // Energy, peak and clipping over the whole capture.
+  const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
+  const float energy = ch.to_energy(energy_scaled);
+  const float peak = peak_abs(ch, base, at, cfg.baseline_samples);
+  f->energy = energy;
+  f->peak = peak;
+  if (clipped(ch, base, peak, cfg.adc_min, cfg.adc_max)) f->flags |= kFlagClipped;
+
+  const float signal_rms = sqrtf(energy / static_cast<float>(n));
+  if (peak == 0.0f || signal_rms < cfg.dead_rms_counts) f->flags |= kFlagDead;
+
+  // AIC refinement in a window around the crossing.
   f->toa_threshold = cross;
   f->toa_aic = kNaN;
   f->first_peak = 0.0f;
@@ -93,31 +283,19 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
-  const float target = cfg.n2_fraction * energy;
-  float cum = 0.0f;
-  int n2 = n - 1;
-  for (int i = 0; i < n; ++i) {
-    const float d = static_cast<float>(x[i]) - base;
-    cum += d * d;
-    if (cum >= target) {
-      n2 = i;
-      break;
-    }
-  }
+  const float target = ceilf(cfg.n2_fraction * static_cast<float>(energy_scaled));
+  const int n2 = energy_reaches(ch, to_int64(target));
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
   const int start = static_cast<int>(toa);
   const int span = n2 + 1 - start;
   if (span >= kEnergyWindows) {
+    int64_t at = ch.energy_to(start);
     for (int w = 0; w < kEnergyWindows; ++w) {
-      const int a = start + (span * w) / kEnergyWindows;
       const int b = start + (span * (w + 1)) / kEnergyWindows;
-      float e = 0.0f;
-      for (int i = a; i < b; ++i) {
-        const float d = static_cast<float>(x[i]) - base;
-        e += d * d;
-      }
-      f->window_energy[w] = e;
+      const int64_t next = ch.energy_to(b);
+      f->window_energy[w] = ch.to_energy(next - at);
+      at = next;
     }
     f->residual_ratio = energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / energy : kNaN;
   }
@@ -134,7 +312,8 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
     if (adc[c] == nullptr) return out->status = kErrNullInput;
   }
   if (n > kMaxSamples) return out->status = kErrTooManySamples;
-  if (cfg.baseline_samples < 2 || n < cfg.baseline_samples + 16) {
+  if (cfg.baseline_samples < 2 || cfg.baseline_samples > kMaxBaselineSamples ||
+      n < cfg.baseline_samples + 16) {
     return out->status = kErrTooFewSamples;
   }
   if (!(cfg.fs_hz > 0.0f) || cfg.aic_before < 0 || cfg.aic_after < 0 ||

@@ -12,6 +12,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 namespace impactcore {
 
@@ -84,21 +85,80 @@ struct EventFeatures {
 };
 
 // Per-channel feature extraction over one capture. `adc[c]` points at n samples of channel c.
+// One integer pass per channel (block_prefix_sums); everything else reads those sums and touches only the
+// few blocks it needs (see features.cpp). Stack: one prefix table (kMaxBlocks + 1 Sums, 6 KB) at a time.
 int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                          EventFeatures* out);
 
+// --- exact block sums: the one pass over a channel ---
+//
+// Every energy the core reports is a sum over a range of samples of (x - b)^2, b the baseline. With the
+// integer sums S1 = sum x and S2 = sum x^2 of the range, that is exact algebra:
+//   n_b^2 * sum (x - b)^2 = n_b^2 S2 - 2 n_b B S1 + m B^2      (b = B / n_b, m samples in the range)
+// evaluated in int64 (scaled_energy), so host and board agree bit for bit whatever the summation order.
+// The capture is summed once, in blocks of kBlock samples; a range [a, b) costs the prefix difference plus
+// at most kBlock - 1 samples at each end. To add a statistic (say sum (x[i] - x[i-1])^2 for a spectral
+// moment): one field in Sums, one line in add_sample() and in the DSP kernel (sums.cpp), and it has
+// exact range sums everywhere for free.
+constexpr int kBlock = 16;
+constexpr int kMaxBlocks = (kMaxSamples + kBlock - 1) / kBlock;
+// The baseline segment length is bounded so the scaled energies fit int64 for any int16 input:
+// n_b^2 S2 <= 2^16 * 2^13 * 2^30 = 2^59, 2 n_b B S1 <= 2^60, m B^2 <= 2^59.
+constexpr int kMaxBaselineSamples = 256;
+
+struct Sums {
+  int64_t s2;  // sum x^2
+  int32_t s1;  // sum x
+};
+
+// prefix[k] = sums over x[0 .. min(k kBlock, n)) for k = 0 .. ceil(n / kBlock); returns ceil(n / kBlock).
+int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
+// Sums over x[0 .. i) from the prefix table (0 <= i <= n).
+Sums prefix_at(const int16_t* x, const Sums* prefix, int i);
+// n_b^2 * sum over a range of m samples of (x - sum_b / n_b)^2, exact (see above).
+int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
+
 // --- pickers: plain functions of a buffer (vallenae style) ---
 
-// Mean and RMS deviation of x[0..n).
+// Mean and RMS deviation of x[0..n), from exact integer sums (0 < n <= kMaxBaselineSamples for exactness).
 void baseline_stats(const int16_t* x, int n, float* mean, float* rms);
+// The same from the sums of the n samples (what extract_features uses).
+void baseline_from_sums(const Sums& s, int n, float* mean, float* rms);
+
+// log2 of a positive normal float to ~1e-7 (exponent + atanh series on the mantissa): the AIC picker's
+// log, no libm call (logf is ~80 instructions on the M4F, this ~20 inlined).
+#if defined(__GNUC__)
+__attribute__((always_inline))
+#endif
+inline float fast_log2(float v) {
+  // v = 2^e m, m in [sqrt(1/2), sqrt(2)); ln m = 2 atanh(s) = 2 (s + s^3/3 + s^5/5 + s^7/7) + O(s^9),
+  // s = (m - 1) / (m + 1), |s| <= 0.172: the truncation is below 5e-8 (in log2 units).
+  uint32_t u;
+  memcpy(&u, &v, sizeof(u));
+  int e = static_cast<int>(u >> 23) - 127;
+  u = (u & 0x007FFFFFu) | 0x3F800000u;
+  float m;
+  memcpy(&m, &u, sizeof(m));
+  if (m > 1.41421356f) {
+    m *= 0.5f;
+    ++e;
+  }
+  const float s = (m - 1.0f) / (m + 1.0f);
+  const float s2 = s * s;
+  const float p = 1.0f + s2 * (1.0f / 3.0f + s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)));
+  return static_cast<float>(e) + (2.0f / 0.693147181f) * s * p;
+}
 
 // First index i >= start with |x[i] - base| >= thr, refined to a sub-sample position by linear
 // interpolation between i-1 and i. Returns -1 if none.
 float threshold_crossing(const int16_t* x, int n, float base, float thr, int start);
+// That sub-sample position when i (>= 1) is the first index at or above the threshold.
+float crossing_subsample(const int16_t* x, int i, float base, float thr);
 
 // Akaike information criterion onset picker (Maeda 1985; Kurz et al. 2005) on x[begin..end):
 // AIC(k) = k log var(x[begin..k)) + (n-k-1) log var(x[k..end)); returns the arg-min index (absolute),
-// or -1 when the window is too short.
+// or -1 when the window is too short. Evaluated with fast_log2 (the arg-min and the parabola do not
+// depend on the base of the log), one running pass, no scratch buffers.
 int aic_pick(const int16_t* x, int begin, int end);
 
 // The AIC onset refined to a sub-sample position by a parabola through the minimum and its neighbours.

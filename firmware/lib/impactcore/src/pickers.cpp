@@ -2,31 +2,45 @@
 #include <math.h>
 
 #include "impactcore.h"
+#ifndef AIC_STEP
+#define AIC_STEP 1
+#endif
 
 namespace impactcore {
 
-void baseline_stats(const int16_t* x, int n, float* mean, float* rms) {
-  float s = 0.0f;
-  for (int i = 0; i < n; ++i) s += static_cast<float>(x[i]);
-  const float m = n > 0 ? s / static_cast<float>(n) : 0.0f;
-  float ss = 0.0f;
-  for (int i = 0; i < n; ++i) {
-    const float d = static_cast<float>(x[i]) - m;
-    ss += d * d;
+void baseline_from_sums(const Sums& s, int n, float* mean, float* rms) {
+  if (n <= 0) {
+    *mean = 0.0f;
+    *rms = 0.0f;
+    return;
   }
-  *mean = m;
-  *rms = n > 0 ? sqrtf(ss / static_cast<float>(n)) : 0.0f;
+  // n^2 var = n S2 - S1^2 >= 0, exact in int64 for n <= kMaxBaselineSamples.
+  const int64_t nn = static_cast<int64_t>(n) * n;
+  const int64_t var_nn = static_cast<int64_t>(n) * s.s2 - static_cast<int64_t>(s.s1) * s.s1;
+  *mean = static_cast<float>(s.s1) / static_cast<float>(n);
+  *rms = sqrtf(static_cast<float>(var_nn) / static_cast<float>(nn));
+}
+
+void baseline_stats(const int16_t* x, int n, float* mean, float* rms) {
+  Sums s = {0, 0};
+  for (int i = 0; i < n; ++i) {
+    s.s1 += x[i];
+    s.s2 += static_cast<int64_t>(x[i]) * x[i];
+  }
+  baseline_from_sums(s, n, mean, rms);
+}
+
+float crossing_subsample(const int16_t* x, int i, float base, float thr) {
+  const float a = fabsf(static_cast<float>(x[i]) - base);
+  const float a0 = fabsf(static_cast<float>(x[i - 1]) - base);
+  const float frac = (a > a0) ? (thr - a0) / (a - a0) : 1.0f;
+  return static_cast<float>(i - 1) + (frac < 0.0f ? 0.0f : frac);
 }
 
 float threshold_crossing(const int16_t* x, int n, float base, float thr, int start) {
   if (start < 1) start = 1;
   for (int i = start; i < n; ++i) {
-    const float a = fabsf(static_cast<float>(x[i]) - base);
-    if (a >= thr) {
-      const float a0 = fabsf(static_cast<float>(x[i - 1]) - base);
-      const float frac = (a > a0) ? (thr - a0) / (a - a0) : 1.0f;
-      return static_cast<float>(i - 1) + (frac < 0.0f ? 0.0f : frac);
-    }
+    if (fabsf(static_cast<float>(x[i]) - base) >= thr) return crossing_subsample(x, i, base, thr);
   }
   return -1.0f;
 }
@@ -35,46 +49,60 @@ float aic_pick_subsample(const int16_t* x, int begin, int end) {
   if (begin < 0) begin = 0;
   const int len = end - begin;
   if (len < 6 || len > kMaxAicWindow) return -1.0f;
-  // Centre the window to keep float prefix sums well conditioned.
+  const int16_t* w = x + begin;
+  // Centre the window to keep the float running sums well conditioned.
   float mean = 0.0f;
-  for (int i = begin; i < end; ++i) mean += static_cast<float>(x[i]);
+  for (int i = 0; i < len; ++i) mean += static_cast<float>(w[i]);
   mean /= static_cast<float>(len);
-  float s1[kMaxAicWindow + 1];
-  float s2[kMaxAicWindow + 1];
-  s1[0] = 0.0f;
-  s2[0] = 0.0f;
-  for (int k = 0; k < len; ++k) {
-    const float d = static_cast<float>(x[begin + k]) - mean;
-    s1[k + 1] = s1[k] + d;
-    s2[k + 1] = s2[k] + d * d;
+  float t1 = 0.0f, t2 = 0.0f;  // sums over the whole window
+  for (int i = 0; i < len; ++i) {
+    const float d = static_cast<float>(w[i]) - mean;
+    t1 += d;
+    t2 += d * d;
   }
+  // AIC / ln 2 = k log2 var(x[0..k)) + (len - k - 1) log2 var(x[k..len)), one pass with the sums s1, s2
+  // over x[0..k) running; the values either side of the best k are kept for the parabola.
   const float eps = 1e-3f;
-  auto aic_at = [&](int k) {
-    const float n1 = static_cast<float>(k);
-    const float n2 = static_cast<float>(len - k);
-    const float m1 = s1[k] / n1;
-    const float v1 = s2[k] / n1 - m1 * m1;
-    const float m2 = (s1[len] - s1[k]) / n2;
-    const float v2 = (s2[len] - s2[k]) / n2 - m2 * m2;
-    return n1 * logf((v1 > 0.0f ? v1 : 0.0f) + eps) + (n2 - 1.0f) * logf((v2 > 0.0f ? v2 : 0.0f) + eps);
-  };
-  float best = 0.0f;
+  float s1 = 0.0f, s2 = 0.0f;
+  for (int i = 0; i < 2; ++i) {
+    const float d = static_cast<float>(w[i]) - mean;
+    s1 += d;
+    s2 += d * d;
+  }
+  float best = 0.0f, best_prev = 0.0f, best_next = 0.0f, prev = 0.0f;
   int best_k = -1;
-  for (int k = 2; k <= len - 2; ++k) {
-    const float aic = aic_at(k);
+  bool want_next = false;
+  float n1 = 2.0f, n2 = static_cast<float>(len - 2);
+  for (int k = 2; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
+    const float i1 = 1.0f / n1;
+    const float i2 = 1.0f / n2;
+    const float m1 = s1 * i1;
+    const float v1 = s2 * i1 - m1 * m1;
+    const float m2 = (t1 - s1) * i2;
+    const float v2 = (t2 - s2) * i2 - m2 * m2;
+    const float aic = n1 * fast_log2((v1 > 0.0f ? v1 : 0.0f) + eps) +
+                      (n2 - 1.0f) * fast_log2((v2 > 0.0f ? v2 : 0.0f) + eps);
+    if (want_next) {
+      best_next = aic;
+      want_next = false;
+    }
     if (best_k < 0 || aic < best) {
       best = aic;
       best_k = k;
+      best_prev = prev;
+      want_next = true;
     }
+    prev = aic;
+    const float d = static_cast<float>(w[k]) - mean;
+    s1 += d;
+    s2 += d * d;
   }
   if (best_k < 0) return -1.0f;
   // Parabola through the minimum and its neighbours: the sub-sample position of the minimum.
   float offset = 0.0f;
   if (best_k > 2 && best_k < len - 2) {
-    const float am = aic_at(best_k - 1);
-    const float ap = aic_at(best_k + 1);
-    const float curv = am - 2.0f * best + ap;
-    if (curv > 0.0f) offset = 0.5f * (am - ap) / curv;
+    const float curv = best_prev - 2.0f * best + best_next;
+    if (curv > 0.0f) offset = 0.5f * (best_prev - best_next) / curv;
     if (offset > 0.5f) offset = 0.5f;
     if (offset < -0.5f) offset = -0.5f;
   }

@@ -1,0 +1,80 @@
+// Exact block sums of a channel: the only pass over every sample of a capture (impactcore.h).
+#include <string.h>
+
+#include "impactcore.h"
+
+#if defined(__ARM_FEATURE_DSP)
+#include <arm_acle.h>
+#endif
+
+namespace impactcore {
+namespace {
+
+// One sample into the sums: the portable definition of every statistic.
+inline void add_sample(Sums* s, const int16_t* x, int i) {
+  const int32_t v = x[i];
+  s->s1 += v;
+  s->s2 += static_cast<int64_t>(v * v);  // |v| <= 2^15: v * v fits int32
+}
+
+inline void add(Sums* a, const Sums& b) {
+  a->s1 += b.s1;
+  a->s2 += b.s2;
+}
+
+// A full block of kBlock samples. On cores with the DSP extension (Cortex-M4/M7/M33) two samples at a
+// time: SMLALD adds x0^2 + x1^2 to the 64-bit sum, SMLAD x0 * 1 + x1 * 1 to the 32-bit one. Integer
+// arithmetic: the same numbers as the portable loop, bit for bit.
+inline Sums block(const int16_t* x) {
+  Sums s = {0, 0};
+#if defined(__ARM_FEATURE_DSP)
+  static_assert(kBlock % 2 == 0, "the DSP kernel takes samples in pairs");
+  int64_t s2 = 0;
+  int32_t s1 = 0;
+#pragma GCC unroll 8
+  for (int i = 0; i < kBlock; i += 2) {
+    int32_t w;
+    memcpy(&w, x + i, sizeof(w));  // x[i] in the low half, x[i + 1] in the high half (little endian)
+    s2 = __smlald(w, w, s2);
+    s1 = __smlad(w, 0x00010001, s1);
+  }
+  s.s1 = s1;
+  s.s2 = s2;
+#else
+  for (int i = 0; i < kBlock; ++i) add_sample(&s, x, i);
+#endif
+  return s;
+}
+
+}  // namespace
+
+int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
+  Sums run = {0, 0};
+  prefix[0] = run;
+  int k = 0;
+  int i = 0;
+  for (; i + kBlock <= n; i += kBlock) {
+    add(&run, block(x + i));
+    prefix[++k] = run;
+  }
+  if (i < n) {
+    for (; i < n; ++i) add_sample(&run, x, i);
+    prefix[++k] = run;
+  }
+  return k;
+}
+
+Sums prefix_at(const int16_t* x, const Sums* prefix, int i) {
+  const int k = i / kBlock;
+  Sums s = prefix[k];
+  for (int j = k * kBlock; j < i; ++j) add_sample(&s, x, j);
+  return s;
+}
+
+int64_t scaled_energy(const Sums& r, int m, int n_b, int32_t sum_b) {
+  const int64_t nb = n_b;
+  const int64_t b = sum_b;
+  return nb * nb * r.s2 - 2 * nb * b * r.s1 + static_cast<int64_t>(m) * b * b;
+}
+
+}  // namespace impactcore
