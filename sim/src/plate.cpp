@@ -12,6 +12,7 @@
 #endif
 
 #include "element.h"
+#include "fused.h"
 #include "impactsim.h"
 
 namespace impactsim {
@@ -23,6 +24,15 @@ namespace {
 void need(bool ok, const std::string& what) {
   if (!ok) throw std::invalid_argument(what);
 }
+
+struct AlignedFloats {  // zero-initialised, 64-byte aligned
+  std::vector<float> raw;
+  float* p;
+  explicit AlignedFloats(size_t n) : raw(n + 16, 0.0f) {
+    const size_t mis = reinterpret_cast<uintptr_t>(raw.data()) % 64;
+    p = raw.data() + (mis ? (64 - mis) / sizeof(float) : 0);
+  }
+};
 
 struct Bilinear {  // node indices and weights of a point inside the mesh
   int64_t node[4];
@@ -136,18 +146,17 @@ struct Accumulators {
   }
 };
 
-// One pass over the element rows: after element row j (and its corrections) node row j is complete and
+// One pass over the element rows (state rows rs apart): after element row j (and its corrections) node row j is complete and
 // done(j, acc) is called with its accumulators; node row ny last. done may overwrite node row j's state:
 // later element rows no longer read it.
 template <typename T, typename Done>
-IMPACTSIM_INLINE void sweep(int nx, int ny, const detail::Coef<T>& base, const Plate::Special* special,
-                  const int64_t* row_start, const T* w, const T* bx, const T* by, Accumulators<T>& acc,
-                  Done&& done) {
-  const int64_t rl = nx + 1;
+IMPACTSIM_INLINE void sweep(int nx, int ny, int64_t rs, const detail::Coef<T>& base, const Plate::Special* special,
+                            const int64_t* row_start, const T* w, const T* bx, const T* by, Accumulators<T>& acc,
+                            Done&& done) {
   int cur = 0;
   acc.clear(cur);
   for (int j = 0; j < ny; ++j) {
-    const int64_t o0 = j * rl, o1 = o0 + rl;
+    const int64_t o0 = j * rs, o1 = o0 + rs;
     const detail::RowIn<T> in{w + o0, w + o1, bx + o0, bx + o1, by + o0, by + o1};
     const detail::RowAcc<T>& lo = acc.row[cur];
     const detail::RowAcc<T>& hi = acc.row[1 - cur];
@@ -168,7 +177,7 @@ void forces(const Plate& p, const detail::Coef<T>& base, const T* w, const T* bx
   const PlateSpec& s = p.spec();
   const int nx = s.nx, rl = nx + 1;
   Accumulators<T> acc(nx);
-  sweep<T>(nx, s.ny, base, p.special().data(), p.row_start().data(), w, bx, by, acc,
+  sweep<T>(nx, s.ny, rl, base, p.special().data(), p.row_start().data(), w, bx, by, acc,
            [&](int j, const detail::RowAcc<T>& a) {
              const size_t o = static_cast<size_t>(j) * rl;
              for (int i = 0; i < rl; ++i) {
@@ -181,18 +190,21 @@ void forces(const Plate& p, const detail::Coef<T>& base, const T* w, const T* bx
 
 // The stepper's pass: internal forces and the central-difference update of a row as soon as it is complete,
 //   d_{n+1/2} = alpha d_{n-1/2} - beta f,  u_{n+1} = u_n + d_{n+1/2}   (d = dt v, beta = dt^2 c2 / m, 0 at
-// fixed dofs). External loads are added afterwards (they do not enter the internal forces of this step).
+// fixed dofs and padding). External loads are added afterwards (they do not enter this step's internal forces).
 struct StepArgs {
   int nx, ny;
-  size_t nn;
+  int64_t rs;         // row stride of the state arrays (padded: a multiple of 16 floats, one block to spare)
+  size_t np;          // field stride, (ny + 1) * rs
   const detail::Coef<float>* base;
   const Plate::Special* special;
   const int64_t* row_start;
-  float* u;           // [w | bx | by]
+  float* u;           // [w | bx | by], 64-byte aligned rows
   float* d;           // likewise
   const float* beta;  // likewise
   float alpha;
-  Accumulators<float>* acc;
+  Accumulators<float>* acc;  // portable path
+  float* edge;               // fused path: 2 x 6 edge arrays of rs floats (zero beyond the elements)
+  float* pending;            // fused path: 6 x (most special elements in a row)
 };
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(IMPACTSIM_NO_CLONES)
@@ -207,21 +219,66 @@ struct StepArgs {
 #endif
 
 IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
-  const int rl = a.nx + 1;
-  const size_t nn = a.nn;
+  const int64_t rs = a.rs;
+  const size_t np = a.np;
   float* const u = a.u;
   float* const d = a.d;
   const float* const beta = a.beta;
   const float alpha = a.alpha;
-  sweep<float>(a.nx, a.ny, *a.base, a.special, a.row_start, u, u + nn, u + 2 * nn, *a.acc,
+#ifdef IMPACTSIM_FUSED
+  float* set[2][6];
+  for (int r = 0; r < 2; ++r)
+    for (int k = 0; k < 6; ++k) set[r][k] = a.edge + (6 * r + k) * rs;
+  for (int k = 0; k < 6; ++k) std::fill(set[0][k], set[0][k] + rs, 0.0f);
+  int cur = 0;
+  detail::FusedRow fr;
+  for (int j = 0; j <= a.ny; ++j) {
+    for (int f = 0; f < 3; ++f) {
+      fr.u0[f] = u + f * np + j * rs;
+      fr.u1[f] = u + f * np + (j < a.ny ? j + 1 : j) * rs;
+      fr.d[f] = d + f * np + j * rs;
+      fr.beta[f] = beta + f * np + j * rs;
+    }
+    for (int k = 0; k < 6; ++k) {
+      fr.in[k] = set[cur][k];
+      fr.out[k] = set[1 - cur][k];
+    }
+    if (j == a.ny) {
+      detail::last_row(a.nx, alpha, fr);
+      break;
+    }
+    // elements unlike the base one: their bottom-edge terms into this row's P, Q now, their top-edge terms
+    // (computed before the row's nodes move) into the next row's after the pass
+    const int64_t s0 = a.row_start[j], ns = a.row_start[j + 1] - s0;
+    if (ns > 0) {
+      std::fill(a.pending, a.pending + 6 * ns, 0.0f);
+      const detail::RowIn<float> rin{fr.u0[0], fr.u1[0], fr.u0[1], fr.u1[1], fr.u0[2], fr.u1[2]};
+      const detail::RowAcc<float> lo{set[cur][0], set[cur][1], set[cur][2], set[cur][3], set[cur][4], set[cur][5]};
+      float* pd = a.pending;
+      const detail::RowAcc<float> hi{pd, pd + ns, pd + 2 * ns, pd + 3 * ns, pd + 4 * ns, pd + 5 * ns};
+      for (int64_t k = 0; k < ns; ++k) {
+        const int i = a.special[s0 + k].i;
+        detail::element_row<float, true>(1, rin.at(i), a.special[s0 + k].kf, lo.at(i), hi.at(k));
+      }
+    }
+    detail::fused_row(a.nx, *a.base, alpha, fr);
+    for (int64_t k = 0; k < ns; ++k) {
+      const int i = a.special[s0 + k].i;
+      for (int q = 0; q < 6; ++q) fr.out[q][i] += a.pending[q * ns + k];
+    }
+    cur = 1 - cur;
+  }
+#else
+  const int rl = a.nx + 1;
+  sweep<float>(a.nx, a.ny, rs, *a.base, a.special, a.row_start, u, u + np, u + 2 * np, *a.acc,
                [&](int j, const detail::RowAcc<float>& acc) IMPACTSIM_LAMBDA_INLINE {
-                 const size_t o = static_cast<size_t>(j) * rl;
+                 const size_t o = static_cast<size_t>(j) * rs;
                  const float* const p[3] = {acc.pw, acc.px, acc.py};
                  const float* const q[3] = {acc.qw, acc.qx, acc.qy};
                  for (int fld = 0; fld < 3; ++fld) {
-                   float* __restrict uu = u + fld * nn + o;
-                   float* __restrict dd = d + fld * nn + o;
-                   const float* __restrict bb = beta + fld * nn + o;
+                   float* __restrict uu = u + fld * np + o;
+                   float* __restrict dd = d + fld * np + o;
+                   const float* __restrict bb = beta + fld * np + o;
                    const float* __restrict pp = p[fld];
                    const float* __restrict qq = q[fld];
 #pragma omp simd
@@ -232,6 +289,7 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
                    }
                  }
                });
+#endif
 }
 
 }  // namespace
@@ -365,50 +423,68 @@ RunResult Plate::run(const RunConfig& c) const {
     cp = locate(s_, c.ball.x_m, c.ball.y_m);
   }
 
-  // state: u = [w | bx | by]; d = dt * v at half steps, likewise
-  std::vector<Real> u(3 * nn, Real(0)), d(3 * nn, Real(0));
-  auto load_init = [&](const std::vector<double>& src, Real* dst, double scale, const char* name) {
+  // state: u = [w | bx | by]; d = dt * v at half steps, likewise. Rows padded to rs floats (64-byte aligned),
+  // so node k = j * rl + i lives at j * rs + i.
+  const int nx = s_.nx, ny = s_.ny, rl = nx + 1;
+  const int64_t rs = 16 * ((nx + 15) / 16 + 1);
+  const size_t np = static_cast<size_t>(ny + 1) * rs;
+  auto at = [&](int64_t k) { return static_cast<size_t>((k / rl) * rs + k % rl); };
+  AlignedFloats u_buf(3 * np), d_buf(3 * np), beta_buf(3 * np), mass_buf(3 * np);
+  float* const u = u_buf.p;
+  float* const d = d_buf.p;
+  float* const beta = beta_buf.p;
+  float* const mass = mass_buf.p;
+  auto load_init = [&](const std::vector<double>& src, size_t field, double scale, float* dst, const char* name) {
     if (src.empty()) return;
     need(src.size() == nn, std::string(name) + " needs one value per node");
-    for (size_t k = 0; k < nn; ++k) dst[k] = Real(scale * src[k]);
+    for (size_t k = 0; k < nn; ++k) dst[field * np + at(k)] = Real(scale * src[k]);
   };
-  load_init(c.w0, u.data(), 1.0, "w0");
-  load_init(c.bx0, u.data() + nn, 1.0, "bx0");
-  load_init(c.by0, u.data() + 2 * nn, 1.0, "by0");
-  load_init(c.vw0, d.data(), c.dt_s, "vw0");
-  load_init(c.vbx0, d.data() + nn, c.dt_s, "vbx0");
-  load_init(c.vby0, d.data() + 2 * nn, c.dt_s, "vby0");
-  std::vector<Real> inv_m(3 * nn);
-  std::copy(inv_mw_.begin(), inv_mw_.end(), inv_m.begin());
-  std::copy(inv_mr_.begin(), inv_mr_.end(), inv_m.begin() + nn);
-  for (size_t k = 0; k < 3 * nn; ++k)  // fixed dofs stay at zero
-    if (inv_m[k] == 0) u[k] = d[k] = 0;
-  std::vector<Real> mass(3 * nn);
+  load_init(c.w0, 0, 1.0, u, "w0");
+  load_init(c.bx0, 1, 1.0, u, "bx0");
+  load_init(c.by0, 2, 1.0, u, "by0");
+  load_init(c.vw0, 0, c.dt_s, d, "vw0");
+  load_init(c.vbx0, 1, c.dt_s, d, "vbx0");
+  load_init(c.vby0, 2, c.dt_s, d, "vby0");
+  const double cd = 0.5 * s_.damping_per_s * c.dt_s;
+  const Real alpha = Real((1 - cd) / (1 + cd));
   for (size_t k = 0; k < nn; ++k) {
-    mass[k] = Real(s_.mass_w[k]);
-    mass[nn + k] = mass[2 * nn + k] = Real(s_.mass_r[k]);
+    const size_t o = at(k);
+    const Real inv_m[3] = {inv_mw_[k], inv_mr_[k], inv_mr_[nn + k]};
+    const Real m_k[3] = {Real(s_.mass_w[k]), Real(s_.mass_r[k]), Real(s_.mass_r[k])};
+    for (int f = 0; f < 3; ++f) {
+      beta[f * np + o] = Real(c.dt_s * c.dt_s / (1 + cd) * inv_m[f]);
+      mass[f * np + o] = m_k[f];
+      if (inv_m[f] == 0) u[f * np + o] = d[f * np + o] = 0;  // fixed dofs stay at zero
+    }
   }
+  std::vector<Functional> sensors = c.sensors;  // node indices into the padded rows
+  for (auto& fn : sensors)
+    for (auto& k : fn.node) k = static_cast<int64_t>(at(k));
+  Functional hat = c.load;
+  for (auto& k : hat.node) k = static_cast<int64_t>(at(k));
+  int64_t cp_at[4] = {0, 0, 0, 0};
+  if (c.ball.enabled)
+    for (int a = 0; a < 4; ++a) cp_at[a] = static_cast<int64_t>(at(cp.node[a]));
 
   RunResult res;
   const int m = c.record_every;
   const int64_t nrec = c.n_record;
-  const size_t ns = c.sensors.size();
+  const size_t ns = sensors.size();
   res.sensors.assign(ns * nrec, 0.0);
   if (c.record_field) res.field.assign(static_cast<size_t>(nrec) * nn, 0.0f);
   if (c.record_energy) res.energy.assign(static_cast<size_t>(nrec) * 4, 0.0);
   if (c.ball.enabled) res.force_n.reserve(static_cast<size_t>(c.n_steps));
 
-  const double cd = 0.5 * s_.damping_per_s * c.dt_s;
-  const Real alpha = Real((1 - cd) / (1 + cd));
-  std::vector<Real> beta(3 * nn);
-  for (size_t k = 0; k < 3 * nn; ++k) beta[k] = Real(c.dt_s * c.dt_s / (1 + cd) * inv_m[k]);
   const double delta_rec = m * c.dt_s;
-  const int nx = s_.nx, ny = s_.ny, rl = nx + 1;
   Accumulators<Real> acc(nx);
-  const StepArgs step{nx, ny, nn, &base_f_, special_.data(), row_start_.data(), u.data(), d.data(), beta.data(),
-                      alpha, &acc};
+  AlignedFloats edge(static_cast<size_t>(12) * rs);
+  int64_t most_special = 0;
+  for (int j = 0; j < ny; ++j) most_special = std::max(most_special, row_start_[j + 1] - row_start_[j]);
+  std::vector<float> pending(static_cast<size_t>(6) * std::max<int64_t>(most_special, 1));
+  const StepArgs step{nx, ny, rs, np, &base_f_, special_.data(), row_start_.data(), u, d, beta, alpha, &acc,
+                      edge.p, pending.data()};
   std::vector<Real> frow(static_cast<size_t>(3) * rl);  // energy steps: explicit forces of one node row
-  // external loads of the step: (dof = field * nn + node, value), sorted by node
+  // external loads of the step: (padded node, field, value), sorted by node
   struct Load {
     int64_t node;
     int field;
@@ -419,12 +495,12 @@ RunResult Plate::run(const RunConfig& c) const {
   double zb = 0, vb = c.ball.v0_m_s;  // ball: position (down = into the plate), velocity at half step
   bool in_contact = false;
   double t_first = -1, t_last = -1;
+  Real* const uw = u;
+  Real* const ubx = u + np;
+  Real* const uby = u + 2 * np;
 
   for (int64_t n = 0; n < c.n_steps; ++n) {
     const double t = n * c.dt_s;
-    Real* uw = u.data();
-    Real* ubx = u.data() + nn;
-    Real* uby = u.data() + 2 * nn;
     const int64_t q = n / m;
     const int r = static_cast<int>(n % m);
     const double frac = double(r) / m;
@@ -436,7 +512,7 @@ RunResult Plate::run(const RunConfig& c) const {
     double force = 0, delta = 0;
     if (c.ball.enabled) {
       double wp = 0;
-      for (int a = 0; a < 4; ++a) wp += cp.wt[a] * uw[cp.node[a]];
+      for (int a = 0; a < 4; ++a) wp += cp.wt[a] * uw[cp_at[a]];
       delta = zb - wp;
       if (delta > 0) {
         force = c.ball.k_hertz * delta * std::sqrt(delta);
@@ -450,15 +526,15 @@ RunResult Plate::run(const RunConfig& c) const {
         in_contact = false;
       }
       if (force > 0)
-        for (int a = 0; a < 4; ++a) loads.push_back({cp.node[a], 0, Real(cp.wt[a] * force)});
+        for (int a = 0; a < 4; ++a) loads.push_back({cp_at[a], 0, Real(cp.wt[a] * force)});
       res.force_n.push_back(force);
     }
     if (c.hat_load) {
       const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec) / delta_rec);
       if (phi > 0) {
-        for (size_t k = 0; k < c.load.node.size(); ++k) {
-          loads.push_back({c.load.node[k], 1, Real(phi * c.load.wx[k])});
-          loads.push_back({c.load.node[k], 2, Real(phi * c.load.wy[k])});
+        for (size_t k = 0; k < hat.node.size(); ++k) {
+          loads.push_back({hat.node[k], 1, Real(phi * hat.wx[k])});
+          loads.push_back({hat.node[k], 2, Real(phi * hat.wy[k])});
         }
       }
     }
@@ -470,18 +546,21 @@ RunResult Plate::run(const RunConfig& c) const {
       const double w_lo = (1 - frac) / m, w_hi = frac / m;
       const bool hi_ok = r > 0 && q + 1 < nrec;
       for (size_t si = 0; si < ns; ++si) {
-        const double val = eval(c.sensors[si], ubx, uby);
+        const double val = eval(sensors[si], ubx, uby);
         res.sensors[si * nrec + q] += w_lo * val;
         if (hi_ok) res.sensors[si * nrec + q + 1] += w_hi * val;
       }
       if (c.record_field) {
         float* lo = res.field.data() + static_cast<size_t>(q) * nn;
-        const float a = float(w_lo);
-        for (size_t k = 0; k < nn; ++k) lo[k] += a * uw[k];
-        if (hi_ok) {
-          float* hi = lo + nn;
-          const float b = float(w_hi);
-          for (size_t k = 0; k < nn; ++k) hi[k] += b * uw[k];
+        const float a = float(w_lo), b = float(w_hi);
+        for (int j = 0; j <= ny; ++j) {
+          const Real* row = uw + static_cast<size_t>(j) * rs;
+          float* lo_j = lo + static_cast<size_t>(j) * rl;
+          for (int i = 0; i < rl; ++i) lo_j[i] += a * row[i];
+          if (hi_ok) {
+            float* hi_j = lo_j + nn;
+            for (int i = 0; i < rl; ++i) hi_j[i] += b * row[i];
+          }
         }
       }
     }
@@ -489,23 +568,23 @@ RunResult Plate::run(const RunConfig& c) const {
     if (!want_energy) {
       step_fast(step);
       for (const Load& l : loads) {  // u_{n+1} += beta P, d += beta P
-        const size_t k = static_cast<size_t>(l.field) * nn + l.node;
+        const size_t k = static_cast<size_t>(l.field) * np + l.node;
         const Real inc = beta[k] * l.value;
         d[k] += inc;
         u[k] += inc;
       }
-    } else {  // the same pass, with the strain and kinetic energy (plate) accumulated
+    } else {  // the portable pass, with the strain and kinetic energy (plate) accumulated
       double se = 0, ke = 0;
       size_t li = 0;
-      sweep<Real>(nx, ny, base_f_, special_.data(), row_start_.data(), uw, ubx, uby, acc,
+      sweep<Real>(nx, ny, rs, base_f_, special_.data(), row_start_.data(), uw, ubx, uby, acc,
                   [&](int j, const detail::RowAcc<Real>& a) {
-                    const int64_t row0 = static_cast<int64_t>(j) * rl;
+                    const int64_t row0 = static_cast<int64_t>(j) * rs;
                     const Real* const p[3] = {a.pw, a.px, a.py};
                     const Real* const qq[3] = {a.qw, a.qx, a.qy};
                     for (int fld = 0; fld < 3; ++fld)
                       for (int i = 0; i < rl; ++i) {
                         frow[fld * rl + i] = detail::node_force(p[fld], qq[fld], i);
-                        se += double(u[fld * nn + row0 + i]) * frow[fld * rl + i];
+                        se += double(u[fld * np + row0 + i]) * frow[fld * rl + i];
                       }
                     while (li < loads.size() && loads[li].node < row0 + rl) {
                       frow[loads[li].field * rl + (loads[li].node - row0)] -= loads[li].value;
@@ -513,7 +592,7 @@ RunResult Plate::run(const RunConfig& c) const {
                     }
                     for (int fld = 0; fld < 3; ++fld)
                       for (int i = 0; i < rl; ++i) {
-                        const size_t k = fld * nn + row0 + i;
+                        const size_t k = fld * np + row0 + i;
                         const Real dn = alpha * d[k] - beta[k] * frow[fld * rl + i];
                         ke += double(mass[k]) * d[k] * dn;
                         d[k] = dn;
@@ -538,7 +617,7 @@ RunResult Plate::run(const RunConfig& c) const {
 
     if (c.nan_check_every > 0 && ((n + 1) % c.nan_check_every == 0 || n + 1 == c.n_steps)) {
       bool bad = !std::isfinite(zb) || !std::isfinite(vb);
-      for (size_t k = 0; k < 3 * nn && !bad; ++k) bad = !std::isfinite(u[k]);
+      for (size_t k = 0; k < 3 * np && !bad; ++k) bad = !std::isfinite(u[k]);
       if (bad) {
         std::ostringstream os;
         os << "numerical blow-up (NaN/Inf) detected at step " << (n + 1) << " of " << c.n_steps
@@ -556,9 +635,14 @@ RunResult Plate::run(const RunConfig& c) const {
   res.ball_v_m_s = vb;
   res.contact_start_s = t_first;
   res.contact_end_s = t_last;
-  res.w.assign(u.begin(), u.begin() + nn);
-  res.bx.assign(u.begin() + nn, u.begin() + 2 * nn);
-  res.by.assign(u.begin() + 2 * nn, u.end());
+  res.w.resize(nn);
+  res.bx.resize(nn);
+  res.by.resize(nn);
+  for (size_t k = 0; k < nn; ++k) {
+    res.w[k] = u[at(k)];
+    res.bx[k] = u[np + at(k)];
+    res.by[k] = u[2 * np + at(k)];
+  }
   return res;
 }
 

@@ -1,0 +1,135 @@
+// The stepper's inner loop: one element row and the central-difference update of the node row below it in a
+// single pass, 16 elements at a time (GCC/Clang vector extensions: the compiler maps a 16-float vector onto
+// one AVX-512, two AVX2 or four SSE registers in each multiversioned clone).
+//
+// Same element as element.h (see there for the algebra). Per block of 16 elements i0..i0+15 of row j:
+//   P = P_in + B0, Q = Q_in + B1 (node row j: P_in, Q_in hold the top-edge terms of element row j - 1),
+//   top-edge terms T0, T1 stored as node row j + 1's P_in, Q_in,
+//   nodal force f_i = (P_i - Q_i) + (P_{i-1} + Q_{i-1}), the i - 1 term shifted in from the previous block,
+//   d = alpha d - beta f, u += d   (node row j is final: element rows j - 1 and j have used it).
+// State rows are padded to a multiple of 16 floats (plus one block), 64-byte aligned; padding holds zeros
+// and beta = 0, so it stays zero. Elements past nx in the last block are masked out.
+#pragma once
+
+#if (defined(__GNUC__) && __GNUC__ >= 12) || defined(__clang__)
+#define IMPACTSIM_FUSED 1
+
+#include <cstring>
+
+#include "element.h"
+
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wpsabi"  // the vector helpers are always inlined: no ABI crosses a call
+#endif
+
+namespace impactsim {
+namespace detail {
+
+constexpr int kLanes = 16;
+typedef float v16 __attribute__((vector_size(64)));
+
+IMPACTSIM_INLINE v16 vload(const float* p) {
+  v16 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+IMPACTSIM_INLINE void vstore(float* p, v16 v) { std::memcpy(p, &v, sizeof v); }
+// [prev[15], cur[0], ..., cur[14]]: the value of lane i - 1
+IMPACTSIM_INLINE v16 from_left(v16 prev, v16 cur) {
+  return __builtin_shufflevector(prev, cur, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30);
+}
+
+struct FusedRow {
+  float* u0[3];          // node row j (read, then updated), fields w, bx, by
+  const float* u1[3];    // node row j + 1 (read)
+  float* d[3];           // node row j: dt * velocity
+  const float* beta[3];  // node row j: dt^2 / ((1 + cd) m), 0 at fixed dofs and padding
+  const float* in[6];    // P_w, Q_w, P_x, Q_x, P_y, Q_y of node row j
+  float* out[6];         // the same for node row j + 1 (written)
+};
+
+IMPACTSIM_INLINE void update_block(int i0, v16 p, v16 q, v16& carry, float alpha, float* u, v16 u_now, float* d,
+                                   const float* beta) {
+  const v16 r = p + q;
+  const v16 f = (p - q) + from_left(carry, r);
+  carry = r;
+  const v16 dn = alpha * vload(d + i0) - vload(beta + i0) * f;
+  vstore(d + i0, dn);
+  vstore(u + i0, u_now + dn);
+}
+
+template <bool Masked>
+IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, float alpha, const FusedRow& r,
+                                    v16 carry[3]) {
+  const v16 w0 = vload(r.u0[0] + i0), w0n = vload(r.u0[0] + i0 + 1);
+  const v16 w1 = vload(r.u1[0] + i0), w1n = vload(r.u1[0] + i0 + 1);
+  const v16 x0 = vload(r.u0[1] + i0), x0n = vload(r.u0[1] + i0 + 1);
+  const v16 x1 = vload(r.u1[1] + i0), x1n = vload(r.u1[1] + i0 + 1);
+  const v16 y0 = vload(r.u0[2] + i0), y0n = vload(r.u0[2] + i0 + 1);
+  const v16 y1 = vload(r.u1[2] + i0), y1n = vload(r.u1[2] + i0 + 1);
+  const v16 dwb = w0n - w0, dwt = w1n - w1, swb = w0 + w0n, swt = w1 + w1n;
+  const v16 dxb = x0n - x0, dxt = x1n - x1, sxb = x0 + x0n, sxt = x1 + x1n;
+  const v16 dyb = y0n - y0, dyt = y1n - y1, syb = y0 + y0n, syt = y1 + y1n;
+  const v16 c1w = dwb + dwt, c2w = swt - swb, c3w = dwt - dwb;
+  const v16 c0x = sxb + sxt, c1x = dxb + dxt, c2x = sxt - sxb, c3x = dxt - dxb;
+  const v16 c0y = syb + syt, c1y = dyb + dyt, c2y = syt - syb, c3y = dyt - dyb;
+  const v16 qx0 = k.sa * (c1w * k.ka + c0x), qy0 = k.sa * (c2w * k.kb + c0y);
+  const v16 qx1 = k.sa3 * (c3w * k.ka + c2x), qy1 = k.sa3 * (c3w * k.kb + c1y);
+  const v16 g1w = qx0 * k.ka, g2w = qy0 * k.kb, g3w = qx1 * k.ka + qy1 * k.kb;
+  const v16 g1x = k.b11 * c1x + k.b12 * c2y, g2x = qx1 + k.c22 * c2x + k.c12 * c1y, g3x = k.h3x * c3x;
+  const v16 g1y = qy1 + k.c12 * c2x + k.c11 * c1y, g2y = k.b12 * c1x + k.b22 * c2y, g3y = k.h3y * c3y;
+  v16 bpw = -g2w, bqw = g1w - g3w, tpw = g2w, tqw = g1w + g3w;
+  v16 bpx = qx0 - g2x, bqx = g1x - g3x, tpx = qx0 + g2x, tqx = g1x + g3x;
+  v16 bpy = qy0 - g2y, bqy = g1y - g3y, tpy = qy0 + g2y, tqy = g1y + g3y;
+  if (Masked) {
+    bpw *= mask, bqw *= mask, tpw *= mask, tqw *= mask;
+    bpx *= mask, bqx *= mask, tpx *= mask, tqx *= mask;
+    bpy *= mask, bqy *= mask, tpy *= mask, tqy *= mask;
+  }
+  vstore(r.out[0] + i0, tpw);
+  vstore(r.out[1] + i0, tqw);
+  vstore(r.out[2] + i0, tpx);
+  vstore(r.out[3] + i0, tqx);
+  vstore(r.out[4] + i0, tpy);
+  vstore(r.out[5] + i0, tqy);
+  update_block(i0, vload(r.in[0] + i0) + bpw, vload(r.in[1] + i0) + bqw, carry[0], alpha, r.u0[0], w0, r.d[0],
+               r.beta[0]);
+  update_block(i0, vload(r.in[2] + i0) + bpx, vload(r.in[3] + i0) + bqx, carry[1], alpha, r.u0[1], x0, r.d[1],
+               r.beta[1]);
+  update_block(i0, vload(r.in[4] + i0) + bpy, vload(r.in[5] + i0) + bqy, carry[2], alpha, r.u0[2], y0, r.d[2],
+               r.beta[2]);
+}
+
+// Element row j (nx elements) and node row j (nodes 0..nx).
+IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const FusedRow& r) {
+  v16 carry[3] = {v16{}, v16{}, v16{}};
+  const int full = nx / kLanes;
+  for (int b = 0; b < full; ++b) element_block<false>(b * kLanes, v16{}, k, alpha, r, carry);
+  const int rest = nx - full * kLanes;
+  if (rest > 0) {  // elements past nx masked; node nx lies in this block
+    v16 mask{};
+    for (int l = 0; l < rest; ++l) mask[l] = 1.0f;
+    element_block<true>(full * kLanes, mask, k, alpha, r, carry);
+  } else {  // node nx: only element nx - 1 (lane 15 of the carry)
+    for (int fld = 0; fld < 3; ++fld) {
+      const float f = carry[fld][kLanes - 1];
+      const float dn = alpha * r.d[fld][nx] - r.beta[fld][nx] * f;
+      r.d[fld][nx] = dn;
+      r.u0[fld][nx] += dn;
+    }
+  }
+}
+
+// The last node row (ny): forces from element row ny - 1 only (r.in), nodes 0..nx.
+IMPACTSIM_INLINE void last_row(int nx, float alpha, const FusedRow& r) {
+  v16 carry[3] = {v16{}, v16{}, v16{}};
+  for (int i0 = 0; i0 <= nx; i0 += kLanes)
+    for (int fld = 0; fld < 3; ++fld)
+      update_block(i0, vload(r.in[2 * fld] + i0), vload(r.in[2 * fld + 1] + i0), carry[fld], alpha, r.u0[fld],
+                   vload(r.u0[fld] + i0), r.d[fld], r.beta[fld]);
+}
+
+}  // namespace detail
+}  // namespace impactsim
+
+#endif
