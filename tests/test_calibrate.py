@@ -77,16 +77,14 @@ def _small_opts(**kw):
 
 def test_recovers_known_parameters_standin(tmp_path, rig):
     """Drops from the private stand-in (fast model + image-source edges + damping + gain), noise and 1 mm
-    position jitter: E within 3 %, the bending stiffness E / (1 - nu^2) within 4 %, D_s within 10 % (the nu
-    left free by the DToA biases the energy fit; observed +6 %, the same as with the FEM). nu alone
-    is not asserted: four drops' DToA fix the bending wave speed, and the Eq. 16 valley runs along nu (the
-    seed's Fig. 9 shows the same); CAL.json reports the near-optimal nu interval instead."""
+    position jitter: the pipeline's stages, caches, figures and keys, and E within 3 %, the bending stiffness
+    E / (1 - nu^2) within 4 %. D_s is not asserted here: the stand-in has one order of edge images, so no
+    reverberant field after ~3 ms, and the envelope decay D_s is taken from is the FEM's (the FEM tests)."""
     data = _session(tmp_path, rig, _standin_noisy, _truth(rig))
     out = tmp_path / "cal" / "CAL.json"
     cal = pipeline.calibrate(data, out, _small_opts(budget=48), simulate=_standin_clean)
     pl = cal["plate"]
     assert abs(pl["E_mpa"] / TRUTH_E - 1) < 0.03, pl
-    assert abs(cal["fitted"]["damping_per_s"] / TRUTH_DS - 1) < 0.10, cal["fitted"]
     stiff = pl["E_mpa"] / (1 - pl["nu"] ** 2)
     assert abs(stiff / (TRUTH_E / (1 - TRUTH_NU ** 2)) - 1) < 0.04, pl
     # what CAL.json must carry
@@ -94,7 +92,8 @@ def test_recovers_known_parameters_standin(tmp_path, rig):
     assert saved["sim_params"]["damping_per_s"] == pytest.approx(cal["fitted"]["damping_per_s"])
     assert saved["sim_params"]["e_pa"] == pytest.approx(pl["E_mpa"] * 1e6)
     assert len(saved["exclude_case_ids"]) == 4 and len(saved["exclude_recording_ids"]) >= 8
-    for stage in ("drops", "plate_grid", "plate_fem", "design_fem", "surrogates", "screening", "optimise",
+    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    for stage in ("drops", "plate_grid", "plate_fem", "damping", "design_fem", "surrogates", "screening", "optimise",
                   "fem_confirm", "total"):
         assert stage in saved["wall_time_s"]
     r2 = saved["pzt_damping"]["surrogate_r2_test"]
@@ -115,28 +114,47 @@ def test_recovers_known_parameters_standin(tmp_path, rig):
     assert cal2["stage_compute_time_s"]["sum"] >= cal2["stage_compute_time_s"]["design_fem"]
 
 
-@pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
-def test_recovers_known_parameters_fem(tmp_path, rig):
-    """Drops the project's FEM made (coarse 5 mm mesh for CI) with known E, nu, D_s plus noise and 1 mm
-    jitter; calibration with the same FEM (budget 32). E within 3 %; D_s within 10 %: the plate's nu is not
-    pinned by DToA (see the stand-in test), and the energy fit trades the nu error against the PZT gain
-    and D_s (observed: +6.7 %). The bending stiffness E / (1 - nu^2) within 5 %."""
-    sim_fn = fem.fem_simulator(workers=2, element_mm=5.0)
+def _fem_recovery(tmp_path, rig, element_mm, budget, n_cases):
+    """Drops the project's FEM made with known E, nu, D_s (12 ms records: the envelope decays inside them, as
+    on the rig's 50 ms captures) plus the simulator's 1.5-count noise and 1 mm position jitter, calibrated with
+    the same FEM."""
+    over = {} if element_mm is None else {"element_mm": element_mm}
+    sim_fn = fem.fem_simulator(workers=2, **over)
 
     def noisy(truth, rig_, x, y, h):
         from impactsense.sim import SimParams, simulate_drops
-        p = SimParams.from_rig(rig_, **truth, element_mm=5.0)
+        p = SimParams.from_rig(rig_, **truth, **over, duration_ms=12.0)
         return simulate_drops(p, rig_, x, y, h, noise=True, seed=5, progress=False)
 
-    data = _session(tmp_path, rig, noisy, _truth(rig), n_cases=12, reps=3)
-    out = tmp_path / "fem" / "CAL.json"
-    cal = pipeline.calibrate(data, out, _small_opts(budget=32), simulate=sim_fn)
-    pl = cal["plate"]
+    data = _session(tmp_path, rig, noisy, _truth(rig), n_cases=n_cases, reps=3)
+    return pipeline.calibrate(data, tmp_path / "fem" / "CAL.json", _small_opts(budget=budget), simulate=sim_fn)
+
+
+def _assert_recovered(cal, ds_tol):
+    pl, dd = cal["plate"], cal["damping_from_decay"]
     assert abs(pl["E_mpa"] / TRUTH_E - 1) < 0.03, pl
     assert abs(pl["E_mpa"] / (1 - pl["nu"] ** 2) / (TRUTH_E / (1 - TRUTH_NU ** 2)) - 1) < 0.05, pl
-    assert abs(cal["fitted"]["damping_per_s"] / TRUTH_DS - 1) < 0.10, cal["fitted"]
-    # the energies are matched: relative energy misfit below 1 %
-    assert cal["pzt_damping"]["f2_rel"] < 0.01
+    # D_s from the envelope decay; the twin's decay moves by 1/2 of a D_s change (theory: exactly 1/2)
+    assert abs(cal["fitted"]["damping_per_s"] / TRUTH_DS - 1) < ds_tol, dd
+    assert dd["slope_decay_per_damping"] == pytest.approx(0.5, abs=0.05)
+    assert abs(dd["estimate_per_s"] - TRUTH_DS) < 4 * dd["se_per_s"] + 5.0, dd
+    # the energies are matched by the PZT block at that D_s: relative energy misfit below 5 %
+    assert cal["pzt_damping"]["f2_rel"] < 0.05
+
+
+@pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
+def test_recovers_known_parameters_fem_coarse(tmp_path, rig):
+    """CI variant: 5 mm mesh, the smallest design (24 runs). E within 3 %, D_s within 3 %, E / (1 - nu^2) within
+    5 %. nu alone is not asserted: the four drops' AIC DToA fix a combination of the bending and the shear
+    stiffness (Fisher information at the rig's repeatability: sd(nu) ~ 0.011 with E free, docs/findings.md)."""
+    _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8), 0.03)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
+def test_recovers_known_parameters_fem(tmp_path, rig):
+    """The default (Eq. 1) mesh, budget 32, twelve cases: as the CI variant, D_s within 2 %."""
+    _assert_recovered(_fem_recovery(tmp_path, rig, None, 32, 12), 0.02)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -248,3 +266,24 @@ def test_welch_screening_finds_the_active_factor_and_interaction():
     sig = {r["term"] for r in rows if r["significant"]}
     assert "b" in sig and "c x d" in sig
     assert "a" not in sig
+
+
+def test_decay_rate_of_a_known_exponential_envelope_under_noise():
+    """A reverberant-like record (40 random modes, 1-20 kHz) decaying as exp(-lambda t), 1.5 counts of noise:
+    the noise-corrected block-power slope returns lambda within 3 %, over the blocks the SNR window keeps."""
+    from impactsense.calibration import damping
+    rng = np.random.default_rng(4)
+    fs, n, onset, bias = 100_000.0, 5000, 300, 2048.0
+    t = (np.arange(n) - onset) / fs
+    f = rng.uniform(1e3, 20e3, 40)
+    ph = rng.uniform(0, 2 * np.pi, 40)
+    cfg = pipeline._sim_core_config(pipeline.core_config(load_session(SESSION1).rig, pipeline.CalibrateOptions()))
+    for lam in (250.0, 500.0):
+        wave = np.sin(2 * np.pi * f[:, None] * t[None] + ph[:, None]).sum(axis=0) * 60.0
+        x = np.where(t >= 0, wave * np.exp(-lam * np.clip(t, 0, None)), 0.0)
+        rec = np.stack([x] * 4)[None] + rng.normal(0, 1.5, (1, 4, n)) + bias
+        adc = np.clip(np.rint(rec), 0, 4095).astype(np.uint16)
+        power = damping.block_power(adc, cfg, bias)
+        mask = damping.window_mask(power, np.full((1, 4), 1.5))
+        assert mask.sum(axis=-1).min() >= damping.MIN_BLOCKS
+        assert np.allclose(damping.decay_rates(power, mask), lam, rtol=0.03)

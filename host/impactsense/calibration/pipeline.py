@@ -30,7 +30,7 @@ import numpy as np
 from .. import _core
 from ..data import load_session
 from ..errors import ConfigError
-from . import arrival, drops as drops_mod, fem, plate, screening, surrogates
+from . import arrival, damping, drops as drops_mod, fem, plate, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
 
@@ -244,8 +244,17 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         stage1["fem_rms_dtoa_error_us"] = float(np.sqrt(scan[e_fem] / targets.dtoa_us.size))
         stage1["fem_confirm_at_fast_minimum_loss_eq16_us2"] = scan.get(e_best)
         stage1["fem_scan"] = {f"{k:.0f}": v for k, v in sorted(scan.items())}
+
+        # D_s from the envelope decay (`damping`): far better conditioned than the energy objectives
+        def damping_stage():
+            return _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simulate,
+                                       cache("damping.json"), _key(base_key, params["e_pa"], params["nu"],
+                                                                   params["damping_per_s"], "decay-v2"), noise)
+        decay = clock.run("damping", damping_stage)
+        result["damping_from_decay"] = decay
         # sub-problem 2
-        s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise)
+        s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise,
+                          damping_fixed=decay["damping_per_s"])
         params.update(s2.pop("fitted"))
         result["channel_amplitude_gain_meas_over_sim"] = s2["channel_amplitude_gain_meas_over_sim"]
         result["pzt_damping"] = s2
@@ -318,17 +327,65 @@ def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, k
     return losses
 
 
+def _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simulate, path: Path, key: str,
+                        noise) -> dict:
+    """D_s from the envelope decay of the four cases' accepted drops against two FEM runs of them (the
+    current D_s, then the one the 1/2 slope predicts); the secant between the runs gives the final step."""
+    cached = _read_cache(path, key)
+    if cached is not None:
+        cached.pop("key")
+        return cached
+    recs = sorted({int(r) for rs in targets.recording_ids for r in rs})
+    power = np.full((len(session), 4, int(round((damping.MAX_MS - damping.START_MS) / damping.BLOCK_MS))), np.nan)
+    power[recs] = damping.block_power(session.adc[recs], cfg, float(rig.bias_counts))
+    p_meas = damping.case_power(power, targets.recording_ids)
+    mask = damping.window_mask(p_meas, targets.noise_rms)
+    meas = damping.decay_rates(p_meas, mask)
+
+    def sim_rates(d_s):
+        p = dict(params, damping_per_s=float(d_s), duration_ms=damping.DECAY_DURATION_MS)
+        adc = simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm)
+        return damping.decay_rates(damping.sim_power(adc, cfg_sim, float(rig.bias_counts), targets.peak, *noise),
+                                   mask)
+
+    d0 = float(params["damping_per_s"])
+    r0 = sim_rates(d0)
+    d1 = damping.damping_step(meas, r0, d0)
+    r1 = sim_rates(d1)
+    slope = float(np.nanmedian(r1 - r0) / (d1 - d0)) if abs(d1 - d0) > 20.0 else 0.5
+    slope = slope if 0.25 < slope < 1.0 else 0.5          # a failed secant falls back to the theory
+    d2 = damping.damping_step(meas, r1, d1, slope)
+    lo, hi = fem.FACTORS[fem.FACTOR_NAMES.index("damping_per_s")][1:3]
+    per_drop = [float(d1 + np.nanmedian(meas[i] - r1[i]) / slope) for i in range(len(meas))]
+    out = {"damping_per_s": float(np.clip(d2, lo, hi)), "estimate_per_s": d2,
+           "se_per_s": damping.robust_se((meas - r1) / slope),
+           "per_drop_per_s": per_drop, "slope_decay_per_damping": slope, "runs_per_s": [d0, d1],
+           "measured_decay_per_s": meas, "fem_decay_per_s_at_runs": [r0, r1],
+           "window_ms": [damping.START_MS, damping.START_MS + damping.BLOCK_MS * mask.sum(axis=-1)],
+           "in_range": bool(lo <= d2 <= hi),
+           "method": "D_s = D_1 + median(lambda_meas - lambda_fem(D_1)) / slope; lambda = -1/2 slope of the "
+                     "noise-corrected log block power from 1 ms after the AIC onset while the measured case "
+                     f"stays >= {damping.SNR:.0f} x noise (<= {damping.MAX_MS:.0f} ms); FEM runs of the four drops "
+                     f"({damping.DECAY_DURATION_MS:.0f} ms) scaled to the measured peaks, rig noise added"}
+    out = json.loads(json.dumps(out, default=_jsonable))
+    _write_json_atomic(path, {"key": key, **out})
+    return out
+
+
 def _unit_to_params(u):
     lo = np.array([f[1] for f in fem.FACTORS])
     hi = np.array([f[2] for f in fem.FACTORS])
     return lo + np.asarray(u) * (hi - lo)
 
 
-def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise) -> dict:
+def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise,
+                 damping_fixed=None) -> dict:
     """Sobol design (budget - infill runs), surrogates tuned on its 70/15/15 split (the R2 table), Welch
     screening, surrogate optimisation; then infill rounds (FEM runs in a shrinking box around the current
     surrogate optimum, surrogates refitted with their tuned settings, re-optimised) and the final FEM run at
-    the last optimum. The fitted point is the best FEM-evaluated one by the (weighted) objective."""
+    the last optimum. The fitted point is the best FEM-evaluated one by the (weighted) objective.
+    `damping_fixed`: D_s measured directly (the envelope decay); the design still spans D_s (screening,
+    surrogates), the optimisation and the infill hold it there and fit the PZT block."""
     from scipy.optimize import differential_evolution
     from scipy.stats import qmc
     from tqdm import tqdm
@@ -338,9 +395,13 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
     n_infill = n // 4
     rounds = 2
     n_init = n - n_infill
-    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, "infill-v1")
+    i_d = fem.FACTOR_NAMES.index("damping_per_s")
+    lo_d, hi_d = fem.FACTORS[i_d][1:3]
+    u_d = None if damping_fixed is None else float(np.clip((damping_fixed - lo_d) / (hi_d - lo_d), 0.0, 1.0))
+    free = [k for k in range(d) if k != i_d or u_d is None]
+    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2")
     result_path = cache("stage2-result.json")
-    result_key = _key(key, opts.surrogate_trials, "result-v2")
+    result_key = _key(key, opts.surrogate_trials, "result-v3")
     cached = _read_cache(result_path, result_key)
     if cached is not None:
         for stage in ("design_fem", "surrogates", "screening", "optimise", "infill_fem", "fem_confirm"):
@@ -437,13 +498,20 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
         f2h, f3h = f23(pred)
         return w2 * np.log10(f2h + 1e-30) + w3 * np.log10(np.maximum(f3h, 0) + 1e-30)
 
+    def full(uu_free):
+        uu = np.empty((len(uu_free), d))
+        uu[:, free] = uu_free
+        if u_d is not None:
+            uu[:, i_d] = u_d
+        return uu
+
     def optimise(seed):
         def obj(uu):
             uu = np.asarray(uu)
-            return objective(uu.T if uu.ndim == 2 else uu[None])
-        res = differential_evolution(obj, [(0.0, 1.0)] * d, seed=seed, maxiter=80, popsize=12, tol=1e-8,
-                                     polish=False, vectorized=True, updating="deferred")
-        return res.x, float(np.atleast_1d(res.fun)[0])
+            return objective(full(uu.T if uu.ndim == 2 else uu[None]))
+        res = differential_evolution(obj, [(0.0, 1.0)] * len(free), seed=seed, maxiter=80, popsize=12,
+                                     tol=1e-8, polish=False, vectorized=True, updating="deferred")
+        return full(np.asarray(res.x)[None])[0], float(np.atleast_1d(res.fun)[0])
 
     t0 = time.perf_counter()
     u_opt, j_pred = optimise(opts.seed)
@@ -458,6 +526,8 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
         radius = 0.15 / 2 ** r
         box = qmc.Sobol(d=d, scramble=True, seed=opts.seed + 101 + r).random(2 ** int(np.ceil(np.log2(max(2, k - 1)))))
         pts = np.vstack([u_opt[None], np.clip(u_opt + (2 * box - 1) * radius, 0, 1)])[:k]
+        if u_d is not None:
+            pts[:, i_d] = u_d
         idx = range(start, start + k)
         for i, pnt in zip(idx, pts):
             if not done[i]:
@@ -511,7 +581,8 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
                                                                           _unit_to_params(u_all[i_best]))))},
         "first_surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in _unit_to_params(first_opt)))),
         "final_surrogate_optimum": dict(zip(fem.FACTOR_NAMES, (float(v) for v in _unit_to_params(u_opt)))),
-        "objective": "minimise w2 log10 f2 + w3 log10 f3, w = validation R2 of the surrogate (clipped 0..1)",
+        "objective": "minimise w2 log10 f2 + w3 log10 f3, w = validation R2 of the surrogate (clipped 0..1)"
+                     + ("" if u_d is None else "; D_s held at the envelope-decay estimate"),
         "objective_weights": {"f2": w2, "f3": w3},
         "surrogate_predicted_objective": j_pred,
         "fem_confirm": {"f2": float(f2_all[n]), "f3": float(f3_all[n]), "objective": float(j_all[n])},

@@ -1,0 +1,104 @@
+"""D_s from the envelope decay: the direct estimate of the plate's mass-proportional damping.
+
+With M u'' + D_s M u' + K u = f, u = exp(-D_s t / 2) v turns the equation into M v'' + (K - D_s^2 / 4 M) v =
+f exp(D_s t / 2): once the ~50 us contact is over, every record of the damped plate is the undamped one times
+exp(-D_s t / 2) (the D_s^2 / 4 shift of K is < 0.1 % of any mode above 1 kHz). The log-envelope slope of every
+channel is therefore lambda = lambda_0 + D_s / 2, lambda_0 the geometric trend of the undamped field (direct
+wave spreading, reflections), the same for the twin and the rig when the twin's geometry is right.
+
+The observable is the log-envelope slope in 1 ms blocks from 1 ms after the AIC onset, like the diagnose
+tool's decay (`impactsense.residuals`), but with the noise power subtracted from each block and the window cut
+where the *measured* case's envelope falls to `SNR` x the noise (the same blocks are then used for the FEM
+records of that case, scaled to the measured peak): a twin that decays faster or slower must not see a
+different window, and blocks at the noise floor must not flatten the slope. Then
+
+    D_s = D_ref + (lambda_meas - lambda_sim(D_ref)) / s,   s = d lambda_sim / d D_s  (theory 1/2)
+
+with s measured by a secant between two FEM runs; the median over the 16 (drop, sensor) differences makes it
+robust to a channel whose envelope the twin gets wrong.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _core
+
+BLOCK_MS = 1.0
+START_MS = 1.0          # after the AIC onset: the direct wave has passed
+MAX_MS = 8.0            # window end at the latest (the FEM runs cover it, see DECAY_DURATION_MS)
+SNR = 5.0               # keep blocks whose noise-corrected RMS is at least SNR x the noise RMS
+MIN_BLOCKS = 3
+# FEM duration for the decay runs: the window ends MAX_MS after the onset, the onset is < 0.5 ms after the
+# touch, and the simulator fades its last taper_ms (1 ms) out
+DECAY_DURATION_MS = 10.0
+
+
+def block_power(adc, cfg, bias: float) -> np.ndarray:
+    """Noise-corrected mean square per 1 ms block after the onset, [R, 4, blocks] (counts^2)."""
+    a = np.asarray(adc)
+    x = np.ascontiguousarray(a.astype(np.int16))
+    feats = _core.extract_batch(x, cfg)
+    onset = np.nan_to_num(np.asarray(feats["toa_aic"], float), nan=0.0).astype(int)
+    noise2 = np.asarray(feats["noise_rms"], float) ** 2
+    fs = float(cfg.fs_hz)
+    bw = int(round(BLOCK_MS * 1e-3 * fs))
+    b0 = int(round(START_MS * 1e-3 * fs))
+    nb = int(round((MAX_MS - START_MS) / BLOCK_MS))
+    idx = onset[..., None] + b0 + np.arange(nb * bw)[None, None, :]
+    idx = np.clip(idx, 0, a.shape[-1] - 1)
+    seg = np.take_along_axis(a.astype(float) - bias, idx, axis=-1).reshape(*a.shape[:2], nb, bw)
+    return seg.var(axis=-1) - noise2[..., None]          # var: the block mean (baseline drift) removed
+
+
+def window_mask(power_meas: np.ndarray, noise_rms: np.ndarray) -> np.ndarray:
+    """[cases, 4, blocks] True for the leading blocks whose measured RMS stays >= SNR x noise."""
+    ok = power_meas >= (SNR * np.asarray(noise_rms, float)[..., None]) ** 2
+    return np.cumprod(ok, axis=-1).astype(bool)
+
+
+def decay_rates(power: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Amplitude decay rate [1/s] (positive = decaying) per (case, channel): LS slope of log power / -2."""
+    t = (np.arange(power.shape[-1]) + 0.5) * BLOCK_MS * 1e-3
+    out = np.full(power.shape[:-1], np.nan)
+    for ij in np.ndindex(*power.shape[:-1]):
+        m = mask[ij] & (power[ij] > 0)
+        if m.sum() >= MIN_BLOCKS:
+            out[ij] = -0.5 * np.polyfit(t[m], np.log(power[ij][m]), 1)[0]
+    return out
+
+
+def case_power(power: np.ndarray, recording_ids: list) -> np.ndarray:
+    """[cases, 4, blocks]: geometric mean of the block power over each case's repetitions."""
+    return np.stack([np.exp(np.mean(np.log(np.maximum(power[np.asarray(r)], 1e-6)), axis=0))
+                     for r in recording_ids])
+
+
+def scaled_noisy(adc, peak, bias: float, noise_counts: float, rng, adc_max: int) -> np.ndarray:
+    """Simulated records scaled to `peak` [cases, 4] about the bias, the rig's noise added, quantised."""
+    a = np.asarray(adc, float) - bias
+    pk = np.abs(a).max(axis=-1, keepdims=True)
+    a = a * np.asarray(peak, float)[..., None] / np.where(pk > 0, pk, 1.0)
+    a = a + rng.normal(0.0, noise_counts, a.shape)
+    return np.clip(np.rint(a + bias), 0, adc_max).astype(np.uint16)
+
+
+def sim_power(adc, cfg, bias, peak, noise_counts: float, n_noise: int, seed: int) -> np.ndarray:
+    """`block_power` of simulated records scaled to the measured peaks, noise added (mean of realisations)."""
+    rng = np.random.default_rng(seed)
+    return np.mean([block_power(scaled_noisy(adc, peak, bias, noise_counts, rng, int(cfg.adc_max)), cfg, bias)
+                    for _ in range(max(1, n_noise))], axis=0)
+
+
+def robust_se(values: np.ndarray) -> float:
+    """Standard error of the median of `values` from their MAD (normal efficiency factor 1.2533)."""
+    v = np.asarray(values, float).ravel()
+    v = v[np.isfinite(v)]
+    mad = 1.4826 * np.median(np.abs(v - np.median(v)))
+    return float(1.2533 * mad / np.sqrt(max(v.size, 1)))
+
+
+def damping_step(meas: np.ndarray, sim: np.ndarray, d_ref: float, slope: float = 0.5) -> float:
+    """D_s that moves the twin's decay onto the measured one: d_ref + median(meas - sim) / slope."""
+    diff = np.asarray(meas, float) - np.asarray(sim, float)
+    return float(d_ref + np.nanmedian(diff) / slope)
