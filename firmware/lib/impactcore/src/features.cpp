@@ -122,14 +122,19 @@ struct Channel {
   }
 };
 
-// Raises *peak to the largest |x - base| of block k (the per-sample float expression of a full scan).
+// Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
+// over the samples (float subtraction is monotone in x), from the block's integer extremes.
 void scan_peak(const Channel& ch, int k, float base, float* peak) {
-  float p = *peak;
-  for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
-    const float a = fabsf(static_cast<float>(ch.x[i]) - base);
-    if (a > p) p = a;
+  int lo = ch.x[k * kBlock], hi = lo;
+  for (int i = k * kBlock + 1, end = ch.block_end(k); i < end; ++i) {
+    const int v = ch.x[i];
+    if (v > hi) hi = v;
+    if (v < lo) lo = v;
   }
-  *peak = p;
+  const float a = fabsf(static_cast<float>(hi) - base);
+  const float b = fabsf(static_cast<float>(lo) - base);
+  if (a > *peak) *peak = a;
+  if (b > *peak) *peak = b;
 }
 
 // max |x - base| over the capture: the blocks whose energy could hold a larger sample than the peak so

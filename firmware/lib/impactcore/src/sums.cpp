@@ -17,47 +17,43 @@ inline void add_sample(Sums* s, const int16_t* x, int i) {
   s->s2 += static_cast<int64_t>(v * v);  // |v| <= 2^15: v * v fits int32
 }
 
-inline void add(Sums* a, const Sums& b) {
-  a->s1 += b.s1;
-  a->s2 += b.s2;
-}
-
-// A full block of kBlock samples. On cores with the DSP extension (Cortex-M4/M7/M33) two samples at a
-// time: SMLALD adds x0^2 + x1^2 to the 64-bit sum, SMLAD x0 * 1 + x1 * 1 to the 32-bit one. Integer
-// arithmetic: the same numbers as the portable loop, bit for bit.
-inline Sums block(const int16_t* x) {
-  Sums s = {0, 0};
-#if defined(__ARM_FEATURE_DSP)
-  static_assert(kBlock % 2 == 0, "the DSP kernel takes samples in pairs");
-  int64_t s2 = 0;
-  int32_t s1 = 0;
-#pragma GCC unroll 8
-  for (int i = 0; i < kBlock; i += 2) {
-    int32_t w;
-    memcpy(&w, x + i, sizeof(w));  // x[i] in the low half, x[i + 1] in the high half (little endian)
-    s2 = __smlald(w, w, s2);
-    s1 = __smlad(w, 0x00010001, s1);
-  }
-  s.s1 = s1;
-  s.s2 = s2;
-#else
-  for (int i = 0; i < kBlock; ++i) add_sample(&s, x, i);
-#endif
-  return s;
-}
-
 }  // namespace
 
+// Full blocks of kBlock samples add straight into the running sums. On cores with the DSP extension
+// (Cortex-M4/M7/M33) two samples at a time: SMLALD adds x0^2 + x1^2 to the 64-bit sum, SMLAD
+// x0 * 1 + x1 * 1 to the 32-bit one. Integer arithmetic: the same numbers as the portable loop (which
+// is add_sample), bit for bit.
 int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
-  Sums run = {0, 0};
-  prefix[0] = run;
+  int64_t s2 = 0;
+  int32_t s1 = 0;
+  prefix[0].s1 = 0;
+  prefix[0].s2 = 0;
   int k = 0;
   int i = 0;
   for (; i + kBlock <= n; i += kBlock) {
-    add(&run, block(x + i));
-    prefix[++k] = run;
+    const int16_t* b = x + i;
+#if defined(__ARM_FEATURE_DSP)
+    static_assert(kBlock % 2 == 0, "the DSP kernel takes samples in pairs");
+#pragma GCC unroll 8
+    for (int j = 0; j < kBlock; j += 2) {
+      int32_t w;
+      memcpy(&w, b + j, sizeof(w));  // b[j] in the low half, b[j + 1] in the high half (little endian)
+      s2 = __smlald(w, w, s2);
+      s1 = __smlad(w, 0x00010001, s1);
+    }
+#else
+    for (int j = 0; j < kBlock; ++j) {
+      const int32_t v = b[j];
+      s1 += v;
+      s2 += static_cast<int64_t>(v * v);
+    }
+#endif
+    ++k;
+    prefix[k].s1 = s1;
+    prefix[k].s2 = s2;
   }
   if (i < n) {
+    Sums run = prefix[k];
     for (; i < n; ++i) add_sample(&run, x, i);
     prefix[++k] = run;
   }
