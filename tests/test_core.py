@@ -154,3 +154,90 @@ def test_find_trigger_on_a_synthetic_recording(synth):
     cfg = _core.TriggerConfig()
     cfg.threshold_counts = 60
     assert 500 <= _core.find_trigger(np.ascontiguousarray(adc), cfg) <= 503
+
+
+# --- the one-pass integer core: every energy is exact, the pruned scans equal full scans ---
+
+def _captures(n=2001):
+    """Two captures (odd length, not a multiple of the core's block): a 12-bit burst with noise and a
+    full-range int16 signal with samples at both int16 extremes and a rail sample deep in a quiet tail."""
+    rng = np.random.default_rng(7)
+    a = synthetic_burst(n, rng)
+    b = rng.integers(-32768, 32768, size=(4, n)).astype(np.int64)
+    b[:, :100] = rng.integers(-300, 300, size=(4, 100))  # a quieter baseline segment
+    b[:, 500] = 32767
+    b[:, 501] = -32768
+    return np.stack([a, b]).astype(np.int16)
+
+
+def synthetic_burst(n, rng):
+    t = np.arange(n)
+    x = 2048 + rng.normal(0, 2, (4, n)) + 700 * np.sin(0.9 * t) * np.exp(-(t - 300) / 400.0) * (t >= 300)
+    x = np.clip(np.round(x), 0, 4095).astype(np.int64)
+    x[0, 1500] = 2048 + 1000  # the peak: one sample in a quiet block, above the burst
+    x[1, 150] = 2048 + 12  # the first crossing: one sample just above the threshold, before the burst
+    x[2, 1700] = 4095  # one rail sample where everything else is quiet: still a clipped channel
+    return x
+
+
+@pytest.mark.parametrize("baseline_samples", [64, 100])
+def test_energies_are_exact_sums_about_the_baseline(baseline_samples):
+    adc = _captures()
+    cfg = SignalConfig(baseline_samples=baseline_samples, adc_min=-32768, adc_max=32767)
+    out = _core.extract_batch(adc, cfg.core())
+    for r in range(adc.shape[0]):
+        for c in range(4):
+            x = adc[r, c].astype(np.float64)
+            b = x[:baseline_samples].mean()
+            d2 = (x - b) ** 2
+            assert out["baseline"][r, c] == pytest.approx(b, rel=1e-7)
+            assert out["noise_rms"][r, c] == pytest.approx(x[:baseline_samples].std(), rel=1e-6)
+            assert out["energy"][r, c] == pytest.approx(d2.sum(), rel=1e-6)
+            if out["flags"][r, c] & _core.FLAG_NO_ONSET:
+                continue
+            # n2: the first sample where the cumulative energy reaches 99 % (float32 target: +-1 sample)
+            cum = np.cumsum(d2)
+            assert abs(out["n2"][r, c] - int(np.argmax(cum >= 0.99 * cum[-1]))) <= 1
+            # the five windows from int(ToA) to n2 (ToA recovered from toa_us: allow either neighbour)
+            toa = out["toa_us"][r, c] * cfg.fs_hz / 1e6
+            n2 = int(out["n2"][r, c])
+            ok = False
+            for start in {int(np.floor(toa - 1e-3)), int(np.floor(toa + 1e-3))}:
+                span = n2 + 1 - start
+                edges = [start + span * w // 5 for w in range(6)]
+                want = [d2[edges[w]:edges[w + 1]].sum() for w in range(5)]
+                ok |= np.allclose(out["window_energy"][r, c], want, rtol=1e-6)
+            assert ok
+
+
+def test_pruned_peak_crossing_and_clipping_equal_full_scans():
+    adc = _captures()
+    cfg = SignalConfig(adc_min=0, adc_max=4095)
+    out = _core.extract_batch(adc, cfg.core())
+    for r in range(adc.shape[0]):
+        for c in range(4):
+            x = adc[r, c]
+            base = np.float32(out["baseline"][r, c])
+            peak = np.max(np.abs(x.astype(np.float32) - base))
+            assert out["peak"][r, c] == peak  # the same float expression, bit for bit
+            thr = max(np.float32(10.0), np.float32(5.0) * np.float32(out["noise_rms"][r, c]))
+            assert out["toa_threshold"][r, c] == _core.threshold_crossing(x, float(base), float(thr), 64)
+            clipped = bool(np.any((x <= 0) | (x >= 4095)))
+            assert bool(out["flags"][r, c] & _core.FLAG_CLIPPED) == clipped
+    assert out["flags"][0, 2] & _core.FLAG_CLIPPED and not out["flags"][0, 1] & _core.FLAG_CLIPPED
+    assert out["peak"][0, 0] == pytest.approx(1000, abs=3) and 149 <= out["toa_threshold"][0, 1] <= 150
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_aic_with_fast_log2_has_the_natural_log_minimum(seed):
+    """The picker's log2 (exponent + series, no libm) finds the same arg-min as AIC with natural logs."""
+    rng = np.random.default_rng(seed)
+    k0 = int(rng.integers(20, 60))
+    x = np.concatenate([rng.normal(0, 2, k0), rng.normal(0, rng.uniform(5, 40), 73 - k0)]).round().astype(np.int16)
+    d = x.astype(np.float64) - x.mean()
+    n = len(d)
+    aic = []
+    for k in range(2, n - 1):
+        v1, v2 = d[:k].var(), d[k:].var()
+        aic.append(k * np.log(max(v1, 0) + 1e-3) + (n - k - 1) * np.log(max(v2, 0) + 1e-3))
+    assert _core.aic_pick(x, 0, n) == 2 + int(np.argmin(aic))
