@@ -44,9 +44,13 @@ struct FusedRow {
   const float* u1[3];    // node row j + 1 (read)
   float* d[3];           // node row j: dt * velocity
   const float* beta[3];  // node row j: dt^2 / ((1 + cd) m), 0 at fixed dofs and padding
-  const float* in[6];    // P_w, Q_w, P_x, Q_x, P_y, Q_y of node row j
-  float* out[6];         // the same for node row j + 1 (written)
+  const float* in;       // P_w, Q_w, P_x, Q_x, P_y, Q_y of node row j, interleaved by block (edge_at)
+  float* out;            // the same for node row j + 1 (written)
 };
+
+// Edge arrays are stored block-interleaved, [block][6 arrays][16 lanes], so one pointer reaches all six.
+constexpr int kEdgeBlock = 6 * kLanes;
+IMPACTSIM_INLINE int64_t edge_at(int64_t i, int q) { return (i / kLanes) * kEdgeBlock + q * kLanes + i % kLanes; }
 
 IMPACTSIM_INLINE void update_block(int i0, v16 p, v16 q, v16& carry, float alpha, float* u, v16 u_now, float* d,
                                    const float* beta) {
@@ -86,17 +90,18 @@ IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, floa
     bpx *= mask, bqx *= mask, tpx *= mask, tqx *= mask;
     bpy *= mask, bqy *= mask, tpy *= mask, tqy *= mask;
   }
-  vstore(r.out[0] + i0, tpw);
-  vstore(r.out[1] + i0, tqw);
-  vstore(r.out[2] + i0, tpx);
-  vstore(r.out[3] + i0, tqx);
-  vstore(r.out[4] + i0, tpy);
-  vstore(r.out[5] + i0, tqy);
-  update_block(i0, vload(r.in[0] + i0) + bpw, vload(r.in[1] + i0) + bqw, carry[0], alpha, r.u0[0], w0, r.d[0],
-               r.beta[0]);
-  update_block(i0, vload(r.in[2] + i0) + bpx, vload(r.in[3] + i0) + bqx, carry[1], alpha, r.u0[1], x0, r.d[1],
+  float* const out = r.out + 6 * i0;
+  const float* const in = r.in + 6 * i0;
+  vstore(out, tpw);
+  vstore(out + kLanes, tqw);
+  vstore(out + 2 * kLanes, tpx);
+  vstore(out + 3 * kLanes, tqx);
+  vstore(out + 4 * kLanes, tpy);
+  vstore(out + 5 * kLanes, tqy);
+  update_block(i0, vload(in) + bpw, vload(in + kLanes) + bqw, carry[0], alpha, r.u0[0], w0, r.d[0], r.beta[0]);
+  update_block(i0, vload(in + 2 * kLanes) + bpx, vload(in + 3 * kLanes) + bqx, carry[1], alpha, r.u0[1], x0, r.d[1],
                r.beta[1]);
-  update_block(i0, vload(r.in[4] + i0) + bpy, vload(r.in[5] + i0) + bqy, carry[2], alpha, r.u0[2], y0, r.d[2],
+  update_block(i0, vload(in + 4 * kLanes) + bpy, vload(in + 5 * kLanes) + bqy, carry[2], alpha, r.u0[2], y0, r.d[2],
                r.beta[2]);
 }
 
@@ -125,7 +130,8 @@ IMPACTSIM_INLINE void last_row(int nx, float alpha, const FusedRow& r) {
   v16 carry[3] = {v16{}, v16{}, v16{}};
   for (int i0 = 0; i0 <= nx; i0 += kLanes)
     for (int fld = 0; fld < 3; ++fld)
-      update_block(i0, vload(r.in[2 * fld] + i0), vload(r.in[2 * fld + 1] + i0), carry[fld], alpha, r.u0[fld],
+      update_block(i0, vload(r.in + 6 * i0 + 2 * fld * kLanes), vload(r.in + 6 * i0 + (2 * fld + 1) * kLanes),
+                   carry[fld], alpha, r.u0[fld],
                    vload(r.u0[fld] + i0), r.d[fld], r.beta[fld]);
 }
 

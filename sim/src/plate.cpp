@@ -203,7 +203,7 @@ struct StepArgs {
   const float* beta;  // likewise
   float alpha;
   Accumulators<float>* acc;  // portable path
-  float* edge;               // fused path: 2 x 6 edge arrays of rs floats (zero beyond the elements)
+  float* edge;               // fused path: 2 x 6 edge arrays of rs floats, block-interleaved (zero beyond nx)
   float* pending;            // fused path: 6 x (most special elements in a row)
 };
 
@@ -226,10 +226,8 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
   const float* const beta = a.beta;
   const float alpha = a.alpha;
 #ifdef IMPACTSIM_FUSED
-  float* set[2][6];
-  for (int r = 0; r < 2; ++r)
-    for (int k = 0; k < 6; ++k) set[r][k] = a.edge + (6 * r + k) * rs;
-  for (int k = 0; k < 6; ++k) std::fill(set[0][k], set[0][k] + rs, 0.0f);
+  float* const set[2] = {a.edge, a.edge + 6 * rs};
+  std::fill(set[0], set[0] + 6 * rs, 0.0f);
   int cur = 0;
   detail::FusedRow fr;
   for (int j = 0; j <= a.ny; ++j) {
@@ -239,10 +237,8 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
       fr.d[f] = d + f * np + j * rs;
       fr.beta[f] = beta + f * np + j * rs;
     }
-    for (int k = 0; k < 6; ++k) {
-      fr.in[k] = set[cur][k];
-      fr.out[k] = set[1 - cur][k];
-    }
+    fr.in = set[cur];
+    fr.out = set[1 - cur];
     if (j == a.ny) {
       detail::last_row(a.nx, alpha, fr);
       break;
@@ -253,18 +249,20 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
     if (ns > 0) {
       std::fill(a.pending, a.pending + 6 * ns, 0.0f);
       const detail::RowIn<float> rin{fr.u0[0], fr.u1[0], fr.u0[1], fr.u1[1], fr.u0[2], fr.u1[2]};
-      const detail::RowAcc<float> lo{set[cur][0], set[cur][1], set[cur][2], set[cur][3], set[cur][4], set[cur][5]};
       float* pd = a.pending;
       const detail::RowAcc<float> hi{pd, pd + ns, pd + 2 * ns, pd + 3 * ns, pd + 4 * ns, pd + 5 * ns};
       for (int64_t k = 0; k < ns; ++k) {
         const int i = a.special[s0 + k].i;
-        detail::element_row<float, true>(1, rin.at(i), a.special[s0 + k].kf, lo.at(i), hi.at(k));
+        float* e = set[cur] + detail::edge_at(i, 0);
+        const int L = detail::kLanes;
+        const detail::RowAcc<float> lo{e, e + L, e + 2 * L, e + 3 * L, e + 4 * L, e + 5 * L};
+        detail::element_row<float, true>(1, rin.at(i), a.special[s0 + k].kf, lo, hi.at(k));
       }
     }
     detail::fused_row(a.nx, *a.base, alpha, fr);
     for (int64_t k = 0; k < ns; ++k) {
       const int i = a.special[s0 + k].i;
-      for (int q = 0; q < 6; ++q) fr.out[q][i] += a.pending[q * ns + k];
+      for (int q = 0; q < 6; ++q) fr.out[detail::edge_at(i, q)] += a.pending[q * ns + k];
     }
     cur = 1 - cur;
   }
