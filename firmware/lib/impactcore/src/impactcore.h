@@ -86,7 +86,8 @@ struct EventFeatures {
 
 // Per-channel feature extraction over one capture. `adc[c]` points at n samples of channel c.
 // One integer pass per channel (block_prefix_sums); everything else reads those sums and touches only the
-// few blocks it needs (see features.cpp). Stack: one prefix table (kMaxBlocks + 1 Sums, 6 KB) at a time.
+// few blocks it needs (see features.cpp). Stack: one prefix table (kMaxBlocks + 1 Sums, 8.2 KB) at a time.
+// Design, cost and accuracy: firmware/lib/impactapp/README.md, "Per-event budget".
 int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                          EventFeatures* out);
 
