@@ -42,8 +42,8 @@ IMPACTSIM_INLINE v16 from_left(v16 prev, v16 cur) {
 struct FusedRow {
   float* u0[3];          // node row j (read, then updated), fields w, bx, by
   const float* u1[3];    // node row j + 1 (read)
-  float* d[3];           // node row j: dt * velocity
-  const float* beta[3];  // node row j: dt^2 / ((1 + cd) m), 0 at fixed dofs and padding
+  float* db;             // node row j: d = dt * velocity and beta = dt^2 / ((1 + cd) m) (0 at fixed dofs and
+                         // padding), block-interleaved [block][d w, bx, by | beta w, bx, by][16 lanes] (db_at)
   const float* in;       // P_w, Q_w, P_x, Q_x, P_y, Q_y of node row j, interleaved by block (edge_at)
   float* out;            // the same for node row j + 1 (written)
 };
@@ -51,14 +51,17 @@ struct FusedRow {
 // Edge arrays are stored block-interleaved, [block][6 arrays][16 lanes], so one pointer reaches all six.
 constexpr int kEdgeBlock = 6 * kLanes;
 IMPACTSIM_INLINE int64_t edge_at(int64_t i, int q) { return (i / kLanes) * kEdgeBlock + q * kLanes + i % kLanes; }
+// d and beta likewise: d of field f at db_at(i, f), beta at db_at(i, f) + kBetaOffset.
+constexpr int kBetaOffset = 3 * kLanes;
+IMPACTSIM_INLINE int64_t db_at(int64_t i, int f) { return edge_at(i, f); }
 
-IMPACTSIM_INLINE void update_block(int i0, v16 p, v16 q, v16& carry, float alpha, float* u, v16 u_now, float* d,
-                                   const float* beta) {
+// d: this block's d of the field (beta kBetaOffset further on)
+IMPACTSIM_INLINE void update_block(int i0, v16 p, v16 q, v16& carry, float alpha, float* u, v16 u_now, float* d) {
   const v16 r = p + q;
   const v16 f = (p - q) + from_left(carry, r);
   carry = r;
-  const v16 dn = alpha * vload(d + i0) - vload(beta + i0) * f;
-  vstore(d + i0, dn);
+  const v16 dn = alpha * vload(d) - vload(d + kBetaOffset) * f;
+  vstore(d, dn);
   vstore(u + i0, u_now + dn);
 }
 
@@ -98,11 +101,12 @@ IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, floa
   vstore(out + 3 * kLanes, tqx);
   vstore(out + 4 * kLanes, tpy);
   vstore(out + 5 * kLanes, tqy);
-  update_block(i0, vload(in) + bpw, vload(in + kLanes) + bqw, carry[0], alpha, r.u0[0], w0, r.d[0], r.beta[0]);
-  update_block(i0, vload(in + 2 * kLanes) + bpx, vload(in + 3 * kLanes) + bqx, carry[1], alpha, r.u0[1], x0, r.d[1],
-               r.beta[1]);
-  update_block(i0, vload(in + 4 * kLanes) + bpy, vload(in + 5 * kLanes) + bqy, carry[2], alpha, r.u0[2], y0, r.d[2],
-               r.beta[2]);
+  float* const db = r.db + 6 * i0;
+  update_block(i0, vload(in) + bpw, vload(in + kLanes) + bqw, carry[0], alpha, r.u0[0], w0, db);
+  update_block(i0, vload(in + 2 * kLanes) + bpx, vload(in + 3 * kLanes) + bqx, carry[1], alpha, r.u0[1], x0,
+               db + kLanes);
+  update_block(i0, vload(in + 4 * kLanes) + bpy, vload(in + 5 * kLanes) + bqy, carry[2], alpha, r.u0[2], y0,
+               db + 2 * kLanes);
 }
 
 // Element row j (nx elements) and node row j (nodes 0..nx).
@@ -118,8 +122,9 @@ IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const
   } else {  // node nx: only element nx - 1 (lane 15 of the carry)
     for (int fld = 0; fld < 3; ++fld) {
       const float f = carry[fld][kLanes - 1];
-      const float dn = alpha * r.d[fld][nx] - r.beta[fld][nx] * f;
-      r.d[fld][nx] = dn;
+      float* const d = r.db + db_at(nx, fld);
+      const float dn = alpha * d[0] - d[kBetaOffset] * f;
+      d[0] = dn;
       r.u0[fld][nx] += dn;
     }
   }
@@ -132,7 +137,7 @@ IMPACTSIM_INLINE void last_row(int nx, float alpha, const FusedRow& r) {
     for (int fld = 0; fld < 3; ++fld)
       update_block(i0, vload(r.in + 6 * i0 + 2 * fld * kLanes), vload(r.in + 6 * i0 + (2 * fld + 1) * kLanes),
                    carry[fld], alpha, r.u0[fld],
-                   vload(r.u0[fld] + i0), r.d[fld], r.beta[fld]);
+                   vload(r.u0[fld] + i0), r.db + 6 * i0 + fld * kLanes);
 }
 
 }  // namespace detail

@@ -25,6 +25,11 @@ void need(bool ok, const std::string& what) {
   if (!ok) throw std::invalid_argument(what);
 }
 
+// d and beta are stored row by row (6 rs floats a row), block-interleaved [16-node block][d w, bx, by |
+// beta w, bx, by][16]: node i, field f at db_index(i, f), its beta kBetaOffset further on.
+constexpr int kBetaOffset = 48;
+inline size_t db_index(int64_t i, int f) { return static_cast<size_t>((i / 16) * 96 + f * 16 + i % 16); }
+
 struct AlignedFloats {  // zero-initialised, 64-byte aligned
   std::vector<float> raw;
   float* p;
@@ -199,8 +204,7 @@ struct StepArgs {
   const Plate::Special* special;
   const int64_t* row_start;
   float* u;           // [w | bx | by], 64-byte aligned rows
-  float* d;           // likewise
-  const float* beta;  // likewise
+  float* db;          // d and beta, rows of 6 rs floats, block-interleaved (db_index)
   float alpha;
   Accumulators<float>* acc;  // portable path
   float* edge;               // fused path: 2 x 6 edge arrays of rs floats, block-interleaved (zero beyond nx)
@@ -222,10 +226,9 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
   const int64_t rs = a.rs;
   const size_t np = a.np;
   float* const u = a.u;
-  float* const d = a.d;
-  const float* const beta = a.beta;
   const float alpha = a.alpha;
 #ifdef IMPACTSIM_FUSED
+  static_assert(detail::kLanes == 16 && detail::kBetaOffset == kBetaOffset, "d/beta layout differs from fused.h");
   float* const set[2] = {a.edge, a.edge + 6 * rs};
   std::fill(set[0], set[0] + 6 * rs, 0.0f);
   int cur = 0;
@@ -234,9 +237,8 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
     for (int f = 0; f < 3; ++f) {
       fr.u0[f] = u + f * np + j * rs;
       fr.u1[f] = u + f * np + (j < a.ny ? j + 1 : j) * rs;
-      fr.d[f] = d + f * np + j * rs;
-      fr.beta[f] = beta + f * np + j * rs;
     }
+    fr.db = a.db + j * 6 * rs;
     fr.in = set[cur];
     fr.out = set[1 - cur];
     if (j == a.ny) {
@@ -275,14 +277,13 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
                  const float* const q[3] = {acc.qw, acc.qx, acc.qy};
                  for (int fld = 0; fld < 3; ++fld) {
                    float* __restrict uu = u + fld * np + o;
-                   float* __restrict dd = d + fld * np + o;
-                   const float* __restrict bb = beta + fld * np + o;
+                   float* const db = a.db + j * 6 * rs;
                    const float* __restrict pp = p[fld];
                    const float* __restrict qq = q[fld];
-#pragma omp simd
                    for (int i = 0; i < rl; ++i) {
-                     const float dn = alpha * dd[i] - bb[i] * detail::node_force(pp, qq, i);
-                     dd[i] = dn;
+                     float* const dd = db + db_index(i, fld);
+                     const float dn = alpha * dd[0] - dd[kBetaOffset] * detail::node_force(pp, qq, i);
+                     dd[0] = dn;
                      uu[i] += dn;
                    }
                  }
@@ -427,22 +428,22 @@ RunResult Plate::run(const RunConfig& c) const {
   const int64_t rs = 16 * ((nx + 15) / 16 + 1);
   const size_t np = static_cast<size_t>(ny + 1) * rs;
   auto at = [&](int64_t k) { return static_cast<size_t>((k / rl) * rs + k % rl); };
-  AlignedFloats u_buf(3 * np), d_buf(3 * np), beta_buf(3 * np), mass_buf(3 * np);
+  AlignedFloats u_buf(3 * np), db_buf(static_cast<size_t>(ny + 1) * 6 * rs), mass_buf(3 * np);
   float* const u = u_buf.p;
-  float* const d = d_buf.p;
-  float* const beta = beta_buf.p;
+  float* const db = db_buf.p;  // d = dt * v and beta, see db_index
   float* const mass = mass_buf.p;
+  auto d_at = [&](int f, int64_t k) { return static_cast<size_t>((k / rl) * 6 * rs) + db_index(k % rl, f); };
   auto load_init = [&](const std::vector<double>& src, size_t field, double scale, float* dst, const char* name) {
     if (src.empty()) return;
     need(src.size() == nn, std::string(name) + " needs one value per node");
-    for (size_t k = 0; k < nn; ++k) dst[field * np + at(k)] = Real(scale * src[k]);
+    for (size_t k = 0; k < nn; ++k) dst[dst == u ? field * np + at(k) : d_at(int(field), k)] = Real(scale * src[k]);
   };
   load_init(c.w0, 0, 1.0, u, "w0");
   load_init(c.bx0, 1, 1.0, u, "bx0");
   load_init(c.by0, 2, 1.0, u, "by0");
-  load_init(c.vw0, 0, c.dt_s, d, "vw0");
-  load_init(c.vbx0, 1, c.dt_s, d, "vbx0");
-  load_init(c.vby0, 2, c.dt_s, d, "vby0");
+  load_init(c.vw0, 0, c.dt_s, db, "vw0");
+  load_init(c.vbx0, 1, c.dt_s, db, "vbx0");
+  load_init(c.vby0, 2, c.dt_s, db, "vby0");
   const double cd = 0.5 * s_.damping_per_s * c.dt_s;
   const Real alpha = Real((1 - cd) / (1 + cd));
   for (size_t k = 0; k < nn; ++k) {
@@ -450,9 +451,9 @@ RunResult Plate::run(const RunConfig& c) const {
     const Real inv_m[3] = {inv_mw_[k], inv_mr_[k], inv_mr_[nn + k]};
     const Real m_k[3] = {Real(s_.mass_w[k]), Real(s_.mass_r[k]), Real(s_.mass_r[k])};
     for (int f = 0; f < 3; ++f) {
-      beta[f * np + o] = Real(c.dt_s * c.dt_s / (1 + cd) * inv_m[f]);
+      db[d_at(f, k) + kBetaOffset] = Real(c.dt_s * c.dt_s / (1 + cd) * inv_m[f]);
       mass[f * np + o] = m_k[f];
-      if (inv_m[f] == 0) u[f * np + o] = d[f * np + o] = 0;  // fixed dofs stay at zero
+      if (inv_m[f] == 0) u[f * np + o] = db[d_at(f, k)] = 0;  // fixed dofs stay at zero
     }
   }
   std::vector<Functional> sensors = c.sensors;  // node indices into the padded rows
@@ -479,7 +480,7 @@ RunResult Plate::run(const RunConfig& c) const {
   int64_t most_special = 0;
   for (int j = 0; j < ny; ++j) most_special = std::max(most_special, row_start_[j + 1] - row_start_[j]);
   std::vector<float> pending(static_cast<size_t>(6) * std::max<int64_t>(most_special, 1));
-  const StepArgs step{nx, ny, rs, np, &base_f_, special_.data(), row_start_.data(), u, d, beta, alpha, &acc,
+  const StepArgs step{nx, ny, rs, np, &base_f_, special_.data(), row_start_.data(), u, db, alpha, &acc,
                       edge.p, pending.data()};
   std::vector<Real> frow(static_cast<size_t>(3) * rl);  // energy steps: explicit forces of one node row
   // external loads of the step: (padded node, field, value), sorted by node
@@ -567,8 +568,9 @@ RunResult Plate::run(const RunConfig& c) const {
       step_fast(step);
       for (const Load& l : loads) {  // u_{n+1} += beta P, d += beta P
         const size_t k = static_cast<size_t>(l.field) * np + l.node;
-        const Real inc = beta[k] * l.value;
-        d[k] += inc;
+        float* const dk = db + (l.node / rs) * 6 * rs + db_index(l.node % rs, l.field);
+        const Real inc = dk[kBetaOffset] * l.value;
+        dk[0] += inc;
         u[k] += inc;
       }
     } else {  // the portable pass, with the strain and kinetic energy (plate) accumulated
@@ -591,9 +593,10 @@ RunResult Plate::run(const RunConfig& c) const {
                     for (int fld = 0; fld < 3; ++fld)
                       for (int i = 0; i < rl; ++i) {
                         const size_t k = fld * np + row0 + i;
-                        const Real dn = alpha * d[k] - beta[k] * frow[fld * rl + i];
-                        ke += double(mass[k]) * d[k] * dn;
-                        d[k] = dn;
+                        float* const dk = db + static_cast<size_t>(j) * 6 * rs + db_index(i, fld);
+                        const Real dn = alpha * dk[0] - dk[kBetaOffset] * frow[fld * rl + i];
+                        ke += double(mass[k]) * dk[0] * dn;
+                        dk[0] = dn;
                         u[k] += dn;
                       }
                   });
