@@ -82,7 +82,7 @@ struct Channel {
   IC_INLINE int64_t form(int64_t s2, int32_t s1, int m) const { return c2 * s2 - c1 * s1 + m * sb2; }
   // Scaled energy of x[0 .. i) (a partial block costs its samples).
   int64_t energy_to(int i) const {
-    const Sums r = prefix_at(x, prefix, i);
+    const Sums r = prefix_at(x, prefix, n, i);
     return form(r.s2, r.s1, i);
   }
   // ... of x[0 .. k kBlock), k <= nblk.
@@ -230,7 +230,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   ch.x = x;
   ch.n = n;
   ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
-  const Sums base_sums = prefix_at(x, ch.prefix, cfg.baseline_samples);
+  const Sums base_sums = prefix_at(x, ch.prefix, n, cfg.baseline_samples);
   ch.set_baseline(cfg.baseline_samples, base_sums.s1);
   baseline_from_sums(base_sums, ch.nb, &f->baseline, &f->noise_rms);
   const float base = f->baseline;

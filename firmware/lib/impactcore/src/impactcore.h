@@ -114,8 +114,9 @@ struct Sums {
 
 // prefix[k] = sums over x[0 .. min(k kBlock, n)) for k = 0 .. ceil(n / kBlock); returns ceil(n / kBlock).
 int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
-// Sums over x[0 .. i) from the prefix table (0 <= i <= n).
-Sums prefix_at(const int16_t* x, const Sums* prefix, int i);
+// Sums over x[0 .. i) from the prefix table of x[0 .. n) (0 <= i <= n): the nearer block boundary's sums
+// plus or minus the samples in between (at most kBlock / 2).
+Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i);
 // n_b^2 * sum over a range of m samples of (x - sum_b / n_b)^2, exact (see above).
 int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
 
@@ -126,7 +127,8 @@ void baseline_stats(const int16_t* x, int n, float* mean, float* rms);
 // The same from the sums of the n samples (what extract_features uses).
 void baseline_from_sums(const Sums& s, int n, float* mean, float* rms);
 
-// log2 of a positive normal float to ~1e-7 (exponent + atanh series on the mantissa): the AIC picker's
+// log2 of a positive normal float to float precision (exponent + atanh series on the mantissa; |error|
+// <= 1.1e-6 up to 1e9, the rounding of the result): the AIC picker's
 // log, no libm call (logf is ~80 instructions on the M4F, this ~20 inlined).
 #if defined(__GNUC__)
 __attribute__((always_inline))
@@ -134,16 +136,13 @@ __attribute__((always_inline))
 inline float fast_log2(float v) {
   // v = 2^e m, m in [sqrt(1/2), sqrt(2)); ln m = 2 atanh(s) = 2 (s + s^3/3 + s^5/5 + s^7/7) + O(s^9),
   // s = (m - 1) / (m + 1), |s| <= 0.172: the truncation is below 5e-8 (in log2 units).
-  uint32_t u;
+  // e = floor(log2(v / sqrt(1/2))) straight from the bits (0x3F3504F3 is sqrt(1/2)); m = v / 2^e.
+  int32_t u;
   memcpy(&u, &v, sizeof(u));
-  int e = static_cast<int>(u >> 23) - 127;
-  u = (u & 0x007FFFFFu) | 0x3F800000u;
+  const int32_t e = (u - 0x3F3504F3) >> 23;
+  u -= static_cast<int32_t>(static_cast<uint32_t>(e) << 23);
   float m;
   memcpy(&m, &u, sizeof(m));
-  if (m > 1.41421356f) {
-    m *= 0.5f;
-    ++e;
-  }
   const float s = (m - 1.0f) / (m + 1.0f);
   const float s2 = s * s;
   const float p = 1.0f + s2 * (1.0f / 3.0f + s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)));

@@ -60,8 +60,18 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
   return k;
 }
 
-Sums prefix_at(const int16_t* x, const Sums* prefix, int i) {
+Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i) {
   const int k = i / kBlock;
+  const int next = (k + 1) * kBlock < n ? (k + 1) * kBlock : n;  // the boundary after i: prefix[k + 1]
+  if (next - i < i - k * kBlock) {  // nearer the next boundary: take its sums back to i
+    const Sums& p = prefix[k + 1];
+    Sums t = {0, 0};
+    for (int j = i; j < next; ++j) add_sample(&t, x, j);
+    Sums s;
+    s.s1 = p.s1 - t.s1;
+    s.s2 = p.s2 - t.s2;
+    return s;
+  }
   Sums s = prefix[k];
   for (int j = k * kBlock; j < i; ++j) add_sample(&s, x, j);
   return s;
