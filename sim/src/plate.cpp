@@ -208,7 +208,10 @@ struct StepArgs {
   float alpha;
   Accumulators<float>* acc;  // portable path
   float* edge;               // fused path: 2 x 6 edge arrays of rs floats, block-interleaved (zero beyond nx)
-  float* pending;            // fused path: 6 x (most special elements in a row)
+  const int64_t* scaled_row;     // fused path: per element row, index into the scale tables or -1
+  const uint8_t* scaled_block;   // [scaled row][16-element block]: 1 if the block holds a special element
+  const float* scale;            // [scaled row][D / D0 (rs floats), S / S0 (rs floats)]
+  int64_t nblocks;
 };
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(IMPACTSIM_NO_CLONES)
@@ -245,27 +248,12 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
       detail::last_row(a.nx, alpha, fr);
       break;
     }
-    // elements unlike the base one: their bottom-edge terms into this row's P, Q now, their top-edge terms
-    // (computed before the row's nodes move) into the next row's after the pass
-    const int64_t s0 = a.row_start[j], ns = a.row_start[j + 1] - s0;
-    if (ns > 0) {
-      std::fill(a.pending, a.pending + 6 * ns, 0.0f);
-      const detail::RowIn<float> rin{fr.u0[0], fr.u1[0], fr.u0[1], fr.u1[1], fr.u0[2], fr.u1[2]};
-      float* pd = a.pending;
-      const detail::RowAcc<float> hi{pd, pd + ns, pd + 2 * ns, pd + 3 * ns, pd + 4 * ns, pd + 5 * ns};
-      for (int64_t k = 0; k < ns; ++k) {
-        const int i = a.special[s0 + k].i;
-        float* e = set[cur] + detail::edge_at(i, 0);
-        const int L = detail::kLanes;
-        const detail::RowAcc<float> lo{e, e + L, e + 2 * L, e + 3 * L, e + 4 * L, e + 5 * L};
-        detail::element_row<float, true>(1, rin.at(i), a.special[s0 + k].kf, lo, hi.at(k));
-      }
-    }
-    detail::fused_row(a.nx, *a.base, alpha, fr);
-    for (int64_t k = 0; k < ns; ++k) {
-      const int i = a.special[s0 + k].i;
-      for (int q = 0; q < 6; ++q) fr.out[detail::edge_at(i, q)] += a.pending[q * ns + k];
-    }
+    const int64_t sr = a.scaled_row[j];  // rows with disc elements: per-element stiffness on their blocks
+    if (sr >= 0)
+      detail::fused_row(a.nx, *a.base, alpha, fr, a.scaled_block + sr * a.nblocks, a.scale + 2 * sr * rs,
+                        a.scale + (2 * sr + 1) * rs);
+    else
+      detail::fused_row(a.nx, *a.base, alpha, fr, nullptr, nullptr, nullptr);
     cur = 1 - cur;
   }
 #else
@@ -477,11 +465,27 @@ RunResult Plate::run(const RunConfig& c) const {
   const double delta_rec = m * c.dt_s;
   Accumulators<Real> acc(nx);
   AlignedFloats edge(static_cast<size_t>(12) * rs);
-  int64_t most_special = 0;
-  for (int j = 0; j < ny; ++j) most_special = std::max(most_special, row_start_[j + 1] - row_start_[j]);
-  std::vector<float> pending(static_cast<size_t>(6) * std::max<int64_t>(most_special, 1));
+  // rows holding elements unlike the base one: stiffness ratios per element, flags per 16-element block
+  const int64_t nblocks = (nx + 15) / 16;
+  std::vector<int64_t> scaled_row(static_cast<size_t>(ny), -1);
+  std::vector<uint8_t> scaled_block;
+  std::vector<float> scale;
+  for (int j = 0, n_rows = 0; j < ny; ++j) {
+    if (row_start_[j + 1] == row_start_[j]) continue;
+    scaled_row[j] = n_rows++;
+    scaled_block.resize(static_cast<size_t>(n_rows * nblocks), 0);
+    scale.resize(static_cast<size_t>(2 * n_rows * rs), 1.0f);
+    float* ds = scale.data() + 2 * (n_rows - 1) * rs;
+    float* ss = ds + rs;
+    for (int i = 0; i < nx; ++i) {
+      const size_t e = static_cast<size_t>(j) * nx + i;
+      ds[i] = Real(s_.d_elem[e] / d0_);
+      ss[i] = Real(s_.s_elem[e] / s0_);
+      if (s_.d_elem[e] != d0_ || s_.s_elem[e] != s0_) scaled_block[(n_rows - 1) * nblocks + i / 16] = 1;
+    }
+  }
   const StepArgs step{nx, ny, rs, np, &base_f_, special_.data(), row_start_.data(), u, db, alpha, &acc,
-                      edge.p, pending.data()};
+                      edge.p, scaled_row.data(), scaled_block.data(), scale.data(), nblocks};
   std::vector<Real> frow(static_cast<size_t>(3) * rl);  // energy steps: explicit forces of one node row
   // external loads of the step: (padded node, field, value), sorted by node
   struct Load {
