@@ -383,11 +383,56 @@ double Plate::max_eigenvalue(int max_iter, double rtol) const {
   return theta;
 }
 
-static double eval(const Functional& fn, const Real* bx, const Real* by) {
-  double v = 0;
-  for (size_t k = 0; k < fn.node.size(); ++k) v += fn.wx[k] * bx[fn.node[k]] + fn.wy[k] * by[fn.node[k]];
-  return v;
+namespace {
+// A functional as runs of consecutive (padded) node indices, so its value is a few contiguous dot products.
+struct Segmented {
+  std::vector<int64_t> start, length;
+  std::vector<double> wx, wy;  // concatenated over the runs
+  explicit Segmented(const Functional& fn) {
+    std::vector<size_t> order(fn.node.size());
+    for (size_t k = 0; k < order.size(); ++k) order[k] = k;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return fn.node[a] < fn.node[b]; });
+    for (size_t k : order) {
+      const int64_t node = fn.node[k];
+      if (!start.empty() && node == start.back() + length.back() - 1) {  // repeated node: add its weights
+        wx.back() += fn.wx[k];
+        wy.back() += fn.wy[k];
+        continue;
+      }
+      if (start.empty() || node != start.back() + length.back()) {
+        start.push_back(node);
+        length.push_back(0);
+      }
+      ++length.back();
+      wx.push_back(fn.wx[k]);
+      wy.push_back(fn.wy[k]);
+    }
+  }
+  double operator()(const Real* bx, const Real* by) const {
+    double v = 0;
+    const double* ax = wx.data();
+    const double* ay = wy.data();
+    for (size_t r = 0; r < start.size(); ++r) {
+      const Real* x = bx + start[r];
+      const Real* y = by + start[r];
+      const int64_t n = length[r];
+#pragma omp simd reduction(+ : v)
+      for (int64_t k = 0; k < n; ++k) v += ax[k] * x[k] + ay[k] * y[k];
+      ax += n;
+      ay += n;
+    }
+    return v;
+  }
+};
+
+// True if every value is finite (NaN and Inf survive a multiplication by zero; the sum's order is immaterial).
+IMPACTSIM_CLONES bool all_finite(const float* x, size_t n) {
+  float acc = 0;
+#pragma omp simd reduction(+ : acc)
+  for (size_t k = 0; k < n; ++k) acc += x[k] * 0.0f;
+  return acc == 0;
 }
+}  // namespace
 
 RunResult Plate::run(const RunConfig& c) const {
   DenormalGuard ftz;
@@ -444,9 +489,11 @@ RunResult Plate::run(const RunConfig& c) const {
       if (inv_m[f] == 0) u[f * np + o] = db[d_at(f, k)] = 0;  // fixed dofs stay at zero
     }
   }
-  std::vector<Functional> sensors = c.sensors;  // node indices into the padded rows
-  for (auto& fn : sensors)
+  std::vector<Segmented> sensors;  // node indices into the padded rows
+  for (Functional fn : c.sensors) {
     for (auto& k : fn.node) k = static_cast<int64_t>(at(k));
+    sensors.emplace_back(fn);
+  }
   Functional hat = c.load;
   for (auto& k : hat.node) k = static_cast<int64_t>(at(k));
   int64_t cp_at[4] = {0, 0, 0, 0};
@@ -549,7 +596,7 @@ RunResult Plate::run(const RunConfig& c) const {
       const double w_lo = (1 - frac) / m, w_hi = frac / m;
       const bool hi_ok = r > 0 && q + 1 < nrec;
       for (size_t si = 0; si < ns; ++si) {
-        const double val = eval(sensors[si], ubx, uby);
+        const double val = sensors[si](ubx, uby);
         res.sensors[si * nrec + q] += w_lo * val;
         if (hi_ok) res.sensors[si * nrec + q + 1] += w_hi * val;
       }
@@ -621,8 +668,7 @@ RunResult Plate::run(const RunConfig& c) const {
     res.steps_done = n + 1;
 
     if (c.nan_check_every > 0 && ((n + 1) % c.nan_check_every == 0 || n + 1 == c.n_steps)) {
-      bool bad = !std::isfinite(zb) || !std::isfinite(vb);
-      for (size_t k = 0; k < 3 * np && !bad; ++k) bad = !std::isfinite(u[k]);
+      const bool bad = !std::isfinite(zb) || !std::isfinite(vb) || !all_finite(u, 3 * np);
       if (bad) {
         std::ostringstream os;
         os << "numerical blow-up (NaN/Inf) detected at step " << (n + 1) << " of " << c.n_steps
