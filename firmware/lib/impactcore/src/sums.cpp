@@ -24,10 +24,8 @@ inline void add_sample(Sums* s, const int16_t* x, int i) {
 // x0 * 1 + x1 * 1 to the 32-bit one. Integer arithmetic: the same numbers as the portable loop (which
 // is add_sample), bit for bit.
 int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
-  int64_t s2 = 0;
-  int32_t s1 = 0;
-  prefix[0].s1 = 0;
-  prefix[0].s2 = 0;
+  Sums run = {0, 0};
+  prefix[0] = run;
   int k = 0;
   int i = 0;
   for (; i + kBlock <= n; i += kBlock) {
@@ -38,22 +36,15 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
     for (int j = 0; j < kBlock; j += 2) {
       int32_t w;
       memcpy(&w, b + j, sizeof(w));  // b[j] in the low half, b[j + 1] in the high half (little endian)
-      s2 = __smlald(w, w, s2);
-      s1 = __smlad(w, 0x00010001, s1);
+      run.s2 = __smlald(w, w, run.s2);
+      run.s1 = __smlad(w, 0x00010001, run.s1);
     }
 #else
-    for (int j = 0; j < kBlock; ++j) {
-      const int32_t v = b[j];
-      s1 += v;
-      s2 += static_cast<int64_t>(v * v);
-    }
+    for (int j = 0; j < kBlock; ++j) add_sample(&run, b, j);
 #endif
-    ++k;
-    prefix[k].s1 = s1;
-    prefix[k].s2 = s2;
+    prefix[++k] = run;
   }
   if (i < n) {
-    Sums run = prefix[k];
     for (; i < n; ++i) add_sample(&run, x, i);
     prefix[++k] = run;
   }
