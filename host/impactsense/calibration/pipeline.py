@@ -6,10 +6,13 @@ interrupted run resumes and a finished one is not recomputed):
   drops     choose four repeatable, Eq.-35-accepted cases well spread over the plate (`drops`)
   plate     sub-problem 1: Eq. 16 over the full E x nu grid with the fast first-arrival model (`plate`,
             `arrival`), contour plot; the FEM at the minimum confirms it
+  damping   D_s from the envelope decay of the four cases against two FEM runs of them (`damping`): the
+            twin's log-envelope slope moves by D_s / 2, a far better conditioned observable than f2 / f3
   design    sub-problem 2: Sobol design over the PZT block and D_s, the FEM at every point; outputs f2
             (sensor energies) and f3 (last-window residual-energy ratios), method.md
   surrogate RF, GPR, NN and SVD-polynomial surrogates of log10 f2 and log10 f3, tuned on a 70/15/15 split;
-            Welch factor screening; surrogate optimisation; a confirming FEM run
+            Welch factor screening; surrogate optimisation of the PZT block with D_s held at the decay
+            estimate; a confirming FEM run
 
 CAL.json (written atomically at the end) holds every fitted parameter, "sim_params" for the simulator, the
 losses, the drops used (never to be tested on) and each stage's wall time.

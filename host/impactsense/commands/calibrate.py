@@ -9,8 +9,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "calibrate", help="calibrate the simulator on four measured drops (method.md, Calibration)",
         description="Picks four repeatable drops (or takes --drops), fits plate E and nu on the full factorial "
-                    "grid (Eq. 16, fast first-arrival model, FEM-confirmed), then the PZT block and damping by "
-                    "a Sobol design of FEM runs, surrogates and surrogate optimisation. Writes CAL.json "
+                    "grid (Eq. 16, fast first-arrival model, FEM-confirmed), D_s from the envelope decay, then the "
+                    "PZT block by a Sobol design of FEM runs, surrogates and surrogate optimisation. Writes CAL.json "
                     "(its 'sim_params' feed `simulate-dataset --calibration`), per-stage caches and figures "
                     "next to it. Re-running resumes from the caches.")
     p.add_argument("data", help="measured session folder (or 'bundled' for session-1)")
@@ -60,6 +60,11 @@ def summary(cal: dict) -> str:
         scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
         lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
                      f"(rms {pl['fem_rms_dtoa_error_us']:.1f} us); FEM scan E -> loss: {scan}")
+    dd = cal.get("damping_from_decay")
+    if dd:
+        lines.append(f"damping from the envelope decay: D_s = {dd['estimate_per_s']:.0f} +- {dd['se_per_s']:.0f} 1/s "
+                     f"(per drop {', '.join(f'{v:.0f}' for v in dd['per_drop_per_s'])}; twin's decay moves "
+                     f"{dd['slope_decay_per_damping']:.2f} per unit D_s, theory 0.5)")
     pd = cal.get("pzt_damping", {})
     if "f2" in pd:
         f = cal["fitted"]
