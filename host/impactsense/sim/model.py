@@ -233,15 +233,20 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     i_rot = rho * t ** 3 / 12 * p.rotary_inertia_scale
     mass_w = rho * t * area_node
     mass_r = i_rot * area_node
-    if p.disc_mass:
-        mp = p.pzt_rho_kg_m3 * tp
-        ip = mp * (t / 2 + tp / 2) ** 2
-        for fr in fractions:
-            for (i, j), f in fr.items():
-                for dj in (0, 1):
-                    for di in (0, 1):
-                        mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
-                        mass_r[j + dj, i + di] += 0.25 * f * hx * hy * ip
+    mp = p.pzt_rho_kg_m3 * tp if p.disc_mass else 0.0
+    ip = mp * (t / 2 + tp / 2) ** 2
+    for fr in fractions:
+        for (i, j), f in fr.items():
+            # opt-in: raise the rotary inertia under the disc until its D / I is the bare plate's, so the
+            # stiffer disc no longer sets the stable step (see SimParams.disc_inertia_scaling)
+            i_el = i_rot + f * ip
+            extra = 0.0
+            if p.disc_inertia_scaling and p.disc_stiffness:
+                extra = max(0.0, d_elem[j, i] / d * i_rot / i_el - 1.0) * i_el
+            for dj in (0, 1):
+                for di in (0, 1):
+                    mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
+                    mass_r[j + dj, i + di] += 0.25 * hx * hy * (f * ip + extra)
 
     # supports
     fix_w, fix_bx, fix_by = support_masks(nx, ny, p.support)
