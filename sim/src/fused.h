@@ -11,7 +11,7 @@
 // and beta = 0, so it stays zero. Elements past nx in the last block are masked out.
 #pragma once
 
-#if (defined(__GNUC__) && __GNUC__ >= 12) || defined(__clang__)
+#if !defined(IMPACTSIM_NO_FUSED) && ((defined(__GNUC__) && __GNUC__ >= 12) || defined(__clang__))
 #define IMPACTSIM_FUSED 1
 
 #include <cstdint>
