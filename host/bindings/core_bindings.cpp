@@ -54,6 +54,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   auto energy = make_array<float>({r, 4});
   auto wins = make_array<float>({r, 4, 5});
   auto resid = make_array<float>({r, 4});
+  auto diffe = make_array<float>({r, 4, ic::kDiffOrders});
   auto peak = make_array<float>({r, 4});
   auto fpeak = make_array<float>({r, 4});
   auto noise = make_array<float>({r, 4});
@@ -80,6 +81,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
         energy.data()[i] = ok ? f.energy : NAN;
         for (int w = 0; w < 5; ++w) wins.data()[i * 5 + w] = ok ? f.window_energy[w] : NAN;
         resid.data()[i] = ok ? f.residual_ratio : NAN;
+        for (int k = 0; k < ic::kDiffOrders; ++k) diffe.data()[i * ic::kDiffOrders + k] = ok ? f.diff_energy[k] : NAN;
         peak.data()[i] = ok ? f.peak : NAN;
         fpeak.data()[i] = ok ? f.first_peak : NAN;
         noise.data()[i] = ok ? f.noise_rms : NAN;
@@ -102,6 +104,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   out["energy"] = energy;
   out["window_energy"] = wins;
   out["residual_ratio"] = resid;
+  out["diff_energy"] = diffe;
   out["peak"] = peak;
   out["first_peak"] = fpeak;
   out["noise_rms"] = noise;
@@ -255,7 +258,8 @@ NB_MODULE(_core, m) {
       .def_rw("adc_min", &ic::CoreConfig::adc_min)
       .def_rw("adc_max", &ic::CoreConfig::adc_max)
       .def_rw("dead_rms_counts", &ic::CoreConfig::dead_rms_counts)
-      .def_rw("n2_fraction", &ic::CoreConfig::n2_fraction);
+      .def_rw("n2_fraction", &ic::CoreConfig::n2_fraction)
+      .def_rw("diff_window_us", &ic::CoreConfig::diff_window_us);
 
   nb::class_<ic::LocaliserConfig>(m, "LocaliserConfig")
       .def(nb::init<>())

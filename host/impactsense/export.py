@@ -191,6 +191,7 @@ SIGNAL_FIELDS = (  # name, C type, default (impactsense.pipeline.SignalConfig)
     ("fs_hz", "float", 100000.0), ("baseline_samples", "int32_t", 64), ("onset_threshold_counts", "float", 10.0),
     ("onset_noise_factor", "float", 5.0), ("aic_before", "int32_t", 60), ("aic_after", "int32_t", 12),
     ("aic_blend", "float", 0.35), ("dead_rms_counts", "float", 3.0), ("n2_fraction", "float", 0.99),
+    ("diff_window_us", "float", 2500.0),
     ("velocity_mm_per_us", "float", 0.93), ("sigma_us", "float", 2.0), ("huber_us", "float", 4.0),
     ("accept_tol_us", "float", 5.0), ("accept_margin_mm", "float", 10.0), ("plate_x_mm", "float", 320.0),
     ("plate_y_mm", "float", 317.0))
@@ -303,7 +304,7 @@ typedef struct {{
   int32_t baseline_samples;
   float onset_threshold_counts, onset_noise_factor;
   int32_t aic_before, aic_after;
-  float aic_blend, dead_rms_counts, n2_fraction;
+  float aic_blend, dead_rms_counts, n2_fraction, diff_window_us;
   float velocity_mm_per_us, sigma_us, huber_us, accept_tol_us, accept_margin_mm;
   float plate_x_mm, plate_y_mm;
   float sensor_x_mm[4], sensor_y_mm[4];

@@ -24,8 +24,11 @@ from .pipeline import FEATURE_NAMES, Features, SignalConfig
 G_M_S2 = 9.80665
 LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa_", "phys_x", "phys_y",
                                                                 "log_energy_rel_"))]
-ENERGY_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("phys_x", "phys_y", "log_energy",
-                                                              "log_first_peak_", "residual_ratio_"))]
+# Where the plate was hit and how much energy, and how much high-frequency energy, reached the sensors
+# during the arrival (spectral moments, see impactcore.h): the per-channel energies and first peaks carry
+# the site's modal colouring, which the sums over channels and the difference energies average out.
+ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", "log_arrival_energy_sum", "log_diff1_energy_sum",
+                   "log_diff2_energy_sum", "log_diff3_energy_sum"]
 MODEL_FILES = {"x": "forest_dx.joblib", "y": "forest_dy.joblib", "energy": "forest_energy.joblib"}
 CARD_FILE = "model_card.json"
 

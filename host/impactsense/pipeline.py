@@ -36,6 +36,7 @@ class SignalConfig:
     adc_max: int = 4095
     dead_rms_counts: float = 3.0
     n2_fraction: float = 0.99
+    diff_window_us: float = 2500.0
     # physics localiser
     velocity_mm_per_us: float = 0.93
     sigma_us: float = 2.0
@@ -69,7 +70,7 @@ class SignalConfig:
         c = _core.CoreConfig()
         for name in ("fs_hz", "channel_delay_us", "channel_gain", "baseline_samples", "onset_threshold_counts",
                      "onset_noise_factor", "aic_before", "aic_after", "aic_blend", "adc_min",
-                     "adc_max", "dead_rms_counts", "n2_fraction"):
+                     "adc_max", "dead_rms_counts", "n2_fraction", "diff_window_us"):
             setattr(c, name, getattr(self, name))
         return c
 

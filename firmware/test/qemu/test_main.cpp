@@ -73,7 +73,15 @@ struct TestHal : impactapp::Hal {
   impactlink::Frame frame;
   impactlink::Report last;
   int reports = 0;
+  // The cost benchmark times the board's work only: there write() hands the bytes over (a copy, as into
+  // the USB serial buffer); the checks decode them like the host would.
+  bool decode = true;
+  uint8_t sink[512];
   void write(const uint8_t* d, size_t n) override {
+    if (!decode) {
+      memcpy(sink, d, n < sizeof(sink) ? n : sizeof(sink));
+      return;
+    }
     for (size_t i = 0; i < n; ++i) {
       if (!dec.push(d[i], &frame)) continue;
       do {
@@ -168,8 +176,10 @@ int main() {
   const uint64_t t3 = ticks();
   g_m2c.predict(res, &x, &y, &cls);
   const uint64_t t4 = ticks();
+  g_hal.decode = false;
   g_app.process_capture();
   const uint64_t t5 = ticks();
+  g_hal.decode = true;
   const uint64_t t6 = ticks();
   const uint64_t c0 = ticks();  // calibration: exactly 200,000 instructions (100,000 x subs + bne)
   {

@@ -33,6 +33,7 @@ inline AppConfig exported_config(AppConfig cfg) {
   cfg.core.aic_blend = s.aic_blend;
   cfg.core.dead_rms_counts = s.dead_rms_counts;
   cfg.core.n2_fraction = s.n2_fraction;
+  cfg.core.diff_window_us = s.diff_window_us;
   cfg.loc.velocity_mm_per_us = s.velocity_mm_per_us;
   cfg.loc.sigma_us = s.sigma_us;
   cfg.loc.huber_us = s.huber_us;

@@ -14,6 +14,7 @@ const char* const kFeatureNames[kNumFeatures] = {
     "log_first_peak_0", "log_first_peak_1", "log_first_peak_2", "log_first_peak_3",
     "residual_ratio_0", "residual_ratio_1", "residual_ratio_2", "residual_ratio_3",
     "phys_rms_us",
+    "log_arrival_energy_sum", "log_diff1_energy_sum", "log_diff2_energy_sum", "log_diff3_energy_sum",
 };
 
 // log10 x = log10(2) log2 x (fast_log2: no libm log10f, ~100 instructions a call on the M4F).
@@ -62,6 +63,15 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   for (int c = 0; c < kChannels; ++c) v[17 + c] = kLog10Of2 * fast_log2(f.ch[c].first_peak + 1.0f);
   for (int c = 0; c < kChannels; ++c) v[21 + c] = f.ch[c].residual_ratio;
   v[25] = out->phys.rms_residual_us;
+  // Energies of the arrival summed over the channels (the plate's response at all four sensors).
+  float arrival = 0.0f;
+  float diff[kDiffOrders] = {0.0f, 0.0f, 0.0f};
+  for (int c = 0; c < kChannels; ++c) {
+    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.ch[c].window_energy[w];
+    for (int k = 0; k < kDiffOrders; ++k) diff[k] += f.ch[c].diff_energy[k];
+  }
+  v[26] = kLog10Of2 * fast_log2(arrival + 1.0f);
+  for (int k = 0; k < kDiffOrders; ++k) v[27 + k] = kLog10Of2 * fast_log2(diff[k] + 1.0f);
   return out->status;
 }
 

@@ -37,6 +37,7 @@ void apply_gain(ChannelFeatures* f, float gain) {
   f->first_peak *= inv;
   f->energy *= inv2;
   for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] *= inv2;
+  for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] *= inv2;
 }
 
 #if defined(__GNUC__)
@@ -262,6 +263,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->first_peak = 0.0f;
   f->n2 = n - 1;
   for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] = 0.0f;
+  for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] = 0.0f;
   f->residual_ratio = kNaN;
   if (cross < 0.0f || (f->flags & kFlagDead)) {
     f->flags |= kFlagNoOnset;
@@ -304,6 +306,17 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
     }
     f->residual_ratio = energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / energy : kNaN;
   }
+  // Difference energies over the first diff_window_us of the arrival (at most up to n2): the only
+  // per-sample pass besides the block sums. Most of the high-frequency energy arrives in the first few
+  // ms; a longer window costs instructions and adds little (README of impactapp).
+  int dend = n2 + 1;
+  const int dcap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
+  if (dcap > 0 && start + dcap < dend) dend = start + dcap;
+  if (dend > start && start >= kDiffOrders) {
+    int64_t d[kDiffOrders];
+    difference_energies(x, start, dend, d);
+    for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] = static_cast<float>(d[k]);
+  }
   apply_gain(f, cfg.channel_gain[c]);
 }
 
@@ -323,7 +336,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   }
   if (!(cfg.fs_hz > 0.0f) || cfg.aic_before < 0 || cfg.aic_after < 0 ||
       cfg.aic_before + cfg.aic_after + 1 > kMaxAicWindow || !(cfg.n2_fraction > 0.0f) ||
-      cfg.n2_fraction > 1.0f) {
+      cfg.n2_fraction > 1.0f || !(cfg.diff_window_us >= 0.0f)) {
     return out->status = kErrBadConfig;
   }
   int onsets = 0;

@@ -20,6 +20,7 @@ constexpr int kChannels = 4;
 constexpr int kPairs = 6;            // sensor pairs (0,1) (0,2) (0,3) (1,2) (1,3) (2,3)
 constexpr int kMaxSamples = 8192;    // longest capture per channel the core accepts
 constexpr int kEnergyWindows = 5;    // windows between ToA and n2 (method.md, Fig. 8 of the seed)
+constexpr int kDiffOrders = 3;       // difference energies sum (Delta^k x)^2, k = 1..3, from ToA to n2
 constexpr int kMaxAicWindow = 512;   // samples in the AIC refinement window (stack scratch)
 
 // The pair order used for every DToA vector: DToA_ij = ToA_i - ToA_j.
@@ -60,6 +61,7 @@ struct CoreConfig {
   int adc_max = 4095;
   float dead_rms_counts = 3.0f;       // a channel whose post-onset RMS is below this is dead
   float n2_fraction = 0.99f;          // n2: cumulative energy reaches this fraction of the total
+  float diff_window_us = 2500.0f;     // difference energies: ToA .. min(n2, ToA + this); 0 = up to n2
 };
 
 struct ChannelFeatures {
@@ -73,6 +75,11 @@ struct ChannelFeatures {
   float energy;            // sum of x^2 over the capture, divided by the gain squared (counts^2)
   float window_energy[kEnergyWindows];  // energy in five equal windows from ToA to n2
   float residual_ratio;    // window_energy[4] / energy
+  // sum over [ToA, min(n2, ToA + diff_window_us)] of (Delta^k x)^2 for k = 1, 2, 3 (Delta x[i] = x[i] - x[i-1]), divided by the gain
+  // squared (counts^2). By Parseval these are the spectral moments of the arrival, weighted by
+  // (2 sin(pi f / fs))^(2k): they carry how much high-frequency energy the contact put in, which grows
+  // faster with the impact speed than the total and is less coloured by the plate's modes at the site.
+  float diff_energy[kDiffOrders];
   int32_t n2;              // sample where the cumulative energy stops growing
   uint8_t flags;           // ChannelFlag bits
 };
@@ -119,6 +126,9 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
 Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i);
 // n_b^2 * sum over a range of m samples of (x - sum_b / n_b)^2, exact (see above).
 int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
+
+// sum over i in [a, b) of (Delta^k x[i])^2 for k = 1 .. kDiffOrders, exact in int64 (needs a >= kDiffOrders: the products reach back to x[a - 3]).
+void difference_energies(const int16_t* x, int a, int b, int64_t out[kDiffOrders]);
 
 // --- pickers: plain functions of a buffer (vallenae style) ---
 
@@ -211,8 +221,10 @@ struct LocaliserConfig {
 // The model feature vector, in this order (names in kFeatureNames):
 //   dtoa_us[6] (pair order), rel_toa_us[4] (ToA - earliest ToA), phys_x_mm, phys_y_mm,
 //   log_energy_rel[4] (log10 E_c - mean_c log10 E_c), log_energy_mean, log_first_peak[4],
-//   residual_ratio[4], phys_rms_us.
-constexpr int kNumFeatures = 6 + 4 + 2 + 4 + 1 + 4 + 4 + 1;
+//   residual_ratio[4], phys_rms_us,
+//   log_arrival_energy_sum (log10 of the energy from ToA to n2 summed over channels),
+//   log_diff{1,2,3}_energy_sum (log10 of diff_energy[k] summed over channels).
+constexpr int kNumFeatures = 6 + 4 + 2 + 4 + 1 + 4 + 4 + 1 + 1 + kDiffOrders;
 extern const char* const kFeatureNames[kNumFeatures];
 
 struct EventResult {

@@ -68,6 +68,80 @@ Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i) {
   return s;
 }
 
+namespace {
+
+// S0 = sum x[i]^2 and the lagged products P_l = sum x[i] x[i-l], l = 1..3, over i in [a, b): the one pass
+// the difference energies need. On the DSP extension two samples per step: with w0 = (x[i], x[i+1]) and
+// wl = (x[i-l], x[i+1-l]) packed, SMLALD(w0, wl) adds x[i] x[i-l] + x[i+1] x[i+1-l].
+#if defined(__GNUC__) && !defined(__clang__)
+// Its own register allocation and -O2 even in an -Os build: inlined, or at -Os, GCC spills the int64
+// accumulators every step (18 instead of 14 instructions a pair of samples on the M4).
+__attribute__((noinline, optimize("O2")))
+#endif
+void lagged_products(const int16_t* x, int a, int b, int64_t p[kDiffOrders + 1]) {
+  int64_t p0 = 0, p1 = 0, p2 = 0, p3 = 0;
+  int i = a;
+#if defined(__ARM_FEATURE_DSP)
+  // Two passes of two int64 accumulators each: four at once (eight registers) make GCC spill them every
+  // step. Unaligned LDR of the lagged pairs is allowed on the M4.
+  const int pairs_end = a + ((b - a) & ~1);
+  for (const int16_t* q = x + a; q < x + pairs_end; q += 2) {
+    int32_t w0, w1;
+    memcpy(&w0, q, sizeof(w0));
+    memcpy(&w1, q - 1, sizeof(w1));
+    p0 = __smlald(w0, w0, p0);
+    p1 = __smlald(w0, w1, p1);
+  }
+  for (const int16_t* q = x + a; q < x + pairs_end; q += 2) {
+    int32_t w0, w2, w3;
+    memcpy(&w0, q, sizeof(w0));
+    memcpy(&w2, q - 2, sizeof(w2));
+    memcpy(&w3, q - 3, sizeof(w3));
+    p2 = __smlald(w0, w2, p2);
+    p3 = __smlald(w0, w3, p3);
+  }
+  i = pairs_end;
+#endif
+  for (; i < b; ++i) {
+    const int32_t v = x[i];
+    p0 += v * v;
+    p1 += v * x[i - 1];
+    p2 += v * x[i - 2];
+    p3 += v * x[i - 3];
+  }
+  p[0] = p0;
+  p[1] = p1;
+  p[2] = p2;
+  p[3] = p3;
+}
+
+}  // namespace
+
+void difference_energies(const int16_t* x, int a, int b, int64_t out[kDiffOrders]) {
+  // Delta^k x[i] = sum_j c_kj x[i-j] (binomial, alternating), so
+  //   sum_i (Delta^k x[i])^2 = sum_j c_kj^2 S(j) + 2 sum_{j<m} c_kj c_km P_{m-j}(j),
+  // where S(s) = sum x[i]^2 and P_l(s) = sum x[i] x[i-l] over the range shifted back by s, i in [a-s, b-s):
+  // the one pass's sums plus at most three end products on each side. Exact integers: the same numbers as
+  // summing the squared differences directly (tests/test_core.py), whatever the instruction set.
+  int64_t p[kDiffOrders + 1];
+  lagged_products(x, a, b, p);
+  // sh[l][s] = P_l(s) (P_0 = S)
+  int64_t sh[kDiffOrders + 1][kDiffOrders + 1];
+  for (int l = 0; l <= kDiffOrders; ++l) {
+    int64_t v = p[l];
+    sh[l][0] = v;
+    for (int s = 1; s + l <= kDiffOrders; ++s) {
+      v += static_cast<int32_t>(x[a - s]) * x[a - s - l] - static_cast<int32_t>(x[b - s]) * x[b - s - l];
+      sh[l][s] = v;
+    }
+  }
+  // c = (1, -1), (1, -2, 1), (1, -3, 3, -1)
+  out[0] = sh[0][0] + sh[0][1] - 2 * sh[1][0];
+  out[1] = sh[0][0] + 4 * sh[0][1] + sh[0][2] - 4 * (sh[1][0] + sh[1][1]) + 2 * sh[2][0];
+  out[2] = sh[0][0] + 9 * (sh[0][1] + sh[0][2]) + sh[0][3] - 6 * (sh[1][0] + sh[1][2]) - 18 * sh[1][1] +
+           6 * (sh[2][0] + sh[2][1]) - 2 * sh[3][0];
+}
+
 int64_t scaled_energy(const Sums& r, int m, int n_b, int32_t sum_b) {
   const int64_t nb = n_b;
   const int64_t b = sum_b;
