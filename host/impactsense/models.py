@@ -27,8 +27,9 @@ LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa
 # Where the plate was hit and how much energy, and how much high-frequency energy, reached the sensors
 # during the arrival (spectral moments, see impactcore.h): the per-channel energies and first peaks carry
 # the site's modal colouring, which the sums over channels and the difference energies average out.
-ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", "log_arrival_energy_sum", "log_diff1_energy_sum",
-                   "log_diff2_energy_sum", "log_diff3_energy_sum"]
+ARRIVAL_ENERGY_FEATURES = ["log_arrival_energy_sum", "log_diff1_energy_sum", "log_diff2_energy_sum",
+                           "log_diff3_energy_sum"]
+ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
 MODEL_FILES = {"x": "forest_dx.joblib", "y": "forest_dy.joblib", "energy": "forest_energy.joblib"}
 CARD_FILE = "model_card.json"
 
@@ -61,6 +62,16 @@ class ForestSettings:
                                       random_state=self.seed, n_jobs=-1, class_weight="balanced")
 
 
+def fit_energy_classifier(X: np.ndarray, energy_j: np.ndarray,
+                          settings: ForestSettings | None = None) -> tuple[RandomForestClassifier, float]:
+    """The energy classifier on ENERGY_FEATURES columns; "high" = m g h >= the drops' 75th percentile."""
+    threshold = float(np.percentile(energy_j, 75))
+    label = (np.asarray(energy_j) >= threshold).astype(int)
+    if np.unique(label).size < 2:
+        raise DataError("training data", "height_mm", "all drops fall in one energy class")
+    return (settings or ForestSettings()).classifier().fit(X, label), threshold
+
+
 @dataclass
 class ImpactModel:
     signal: SignalConfig
@@ -84,13 +95,8 @@ class ImpactModel:
         loc_cols = columns(LOCATION_FEATURES)
         fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
         fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
-        energy = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
-        threshold = float(np.percentile(energy, 75))
-        label = (energy >= threshold).astype(int)
-        fe = settings.classifier()
-        if np.unique(label).size < 2:
-            raise DataError("training data", "height_mm", "all drops fall in one energy class")
-        fe.fit(X[:, columns(ENERGY_FEATURES)], label)
+        fe, threshold = fit_energy_classifier(X[:, columns(ENERGY_FEATURES)],
+                                              impact_energy_j(np.asarray(height_mm)[use], ball_mass_g), settings)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold,
                    card={"forest": settings.__dict__, "n_train_drops": int(use.sum())})

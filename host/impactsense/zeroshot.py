@@ -8,7 +8,11 @@ The seed's central claim (method.md, Tables 7-9). The flow:
 Only the four calibration drops ever inform the sim-trained model about the rig: besides the plate, PZT and
 damping parameters, the per-channel timing offsets and gains (the `channel_delay` and `sensor_gain` effects of the diagnosis:
 the rig's electronics and bonds, which the plate model cannot know) are fitted as measured minus simulated
-ToA, and measured over simulated energy, on those drops.
+ToA, and measured over simulated energy, on those drops; and so is the twin's spectral tilt: the measured
+minus simulated arrival energies and difference energies (log10, summed over sensors) of those drops, by
+which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
+mesh and sensor model lose some of the highest frequencies: a constant offset per feature, ~0.04-0.14 on
+session-1, while the features' growth with the drop height matches the rig's).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 
 from .data import Session, load_session, write_session
 from .errors import DataError
+from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
 from .pipeline import SignalConfig, as_int16, featurize
 from .workflow import evaluate, train
 
@@ -62,6 +67,19 @@ def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_ad
     diff = diff - diff[:, :1]
     delays = [float(v) for v in np.median(diff[ok], axis=0)]
     return delays, gains
+
+
+def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,
+                       simulated: SignalConfig) -> dict[str, float]:
+    """Median over the calibration drops of measured minus simulated arrival-energy features (log10)."""
+    meas = featurize(session.adc[rows], measured)
+    sim = featurize(sim_adc, simulated)
+    ok = meas.usable & sim.usable
+    if ok.sum() < 2:
+        raise DataError("calibration drops", None, "fewer than two calibration drops are usable in both")
+    cols = columns(ARRIVAL_ENERGY_FEATURES)
+    diff = np.median(meas.vector[ok][:, cols].astype(float) - sim.vector[ok][:, cols].astype(float), axis=0)
+    return {name: float(v) for name, v in zip(ARRIVAL_ENERGY_FEATURES, diff)}
 
 
 def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
@@ -107,12 +125,23 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
     # ... and the rig's channel timing from the four calibration drops.
     cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
                              session.height_mm[cal_rows], noise=True, seed=seed, workers=workers, progress=False)
+    virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
     delays, gains = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
     sim_model.signal.channel_delay_us = delays
     sim_model.signal.channel_gain = gains
+    # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
+    offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
+    vf = featurize(virtual.adc, virtual_signal)
+    use = vf.usable
+    X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
+    for k, name in enumerate(ENERGY_FEATURES):
+        X[:, k] += offsets.get(name, 0.0)
+    sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
+        X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
     sim_model.save(out / "model-sim", extra_card={"trained_on": str(sim_dir), "calibration": str(cal_path),
                                                    "channel_delay_from_calibration_drops_us": delays,
-                                                   "channel_gain_from_calibration_drops": gains})
+                                                   "channel_gain_from_calibration_drops": gains,
+                                                   "energy_feature_offsets_from_calibration_drops": offsets})
 
     # Measured-trained on the same session, same split, calibration drops excluded everywhere.
     meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows)
@@ -127,6 +156,7 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "test_recordings": test_rows.tolist(),
         "channel_delay_us_from_calibration_drops": delays,
         "channel_gain_from_calibration_drops": gains,
+        "energy_feature_offsets_from_calibration_drops": offsets,
         "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
         "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},
     }
