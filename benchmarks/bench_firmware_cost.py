@@ -60,10 +60,11 @@ def main() -> int:
     print(f"per-event instructions on the Cortex-M4F (qemu -icount), {export['trees']} trees, "
           f"{export['nodes']} nodes")
     print(f"{'stage':<22}{'instructions':>14}{'of 64k':>9}{'flash bytes':>13}")
-    for k in ("features", "process_event", "models_tables", "models_m2cgen", "event_total"):
+    for k in ("features", "process_event", "models_tables", "models_m2cgen", "event_total", "event_max_over_drops"):
         print(f"{k:<22}{ins[k]:>14,}{ins[k] / TARGET:>9.2f}{sizes.get(k, 0) or '':>13}")
     print(f"event_total = process_event (features + physics localiser + Eq. 35 + feature vector) + table models + encoding; "
-          f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'}")
+          f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'} on the last capture, "
+          f"{'met' if ins['event_max_over_drops'] <= TARGET else 'NOT met'} on the slowest fixture drop")
     if args.json:
         Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export}, indent=1))
     return 0
