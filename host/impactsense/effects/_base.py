@@ -11,12 +11,14 @@ An effect is a parameterised addition to the reference model (`impactsense.resid
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from ..residuals import Features, Reference, centre, _robust_lstsq
 
 
-class Effect:
+class Effect(ABC):
     name = ""
     per_sensor = True
     units: dict = {}
@@ -26,14 +28,17 @@ class Effect:
     def candidates(self):
         return [0, 1, 2, 3] if self.per_sensor else [None]
 
+    @abstractmethod
     def fit(self, ref: Reference, F: Features, sensor):
-        raise NotImplementedError
+        """Every effect implements this (see the module docstring)."""
 
+    @abstractmethod
     def add(self, ref: Reference, sensor, params) -> Reference:
-        raise NotImplementedError
+        """Every effect implements this (see the module docstring)."""
 
+    @abstractmethod
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
-        raise NotImplementedError
+        """Every effect implements this (see the module docstring)."""
 
     def core_config(self, cfg, sensor, params):
         return cfg
