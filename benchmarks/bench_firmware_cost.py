@@ -5,7 +5,7 @@ Runs firmware/test/qemu/run.sh with `-icount shift=4` (every guest instruction a
 instructions, so instructions = ticks x 200,000 / calibration ticks (resolution ~2.5 instructions).
 Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
 
-    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12]
+    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6]
 """
 
 from __future__ import annotations
@@ -20,18 +20,24 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = 64000
 
 
-def run(build: Path, extra: list[str]) -> tuple[dict, str]:
+def run(build: Path, extra: list[str]) -> tuple[dict, dict, str]:
     env = dict(os.environ, QEMU_EXTRA="-icount shift=4")
     p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(build), *extra], env=env,
                        capture_output=True, text=True, timeout=1200)
     if p.returncode != 0:
         sys.exit(f"qemu test image failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
-    ticks = {m.group(1): int(m.group(2)) for m in re.finditer(r"^TICKS (\S+) (\d+)$", p.stdout + p.stderr, re.M)}
-    return ticks, p.stdout
+    out = p.stdout + p.stderr
+    ticks = {m.group(1): int(m.group(2)) for m in re.finditer(r"^TICKS (\S+) (\d+)$", out, re.M)}
+    per_drop: dict[str, list[int]] = {}
+    for m in re.finditer(r"^(?:TICKS_)?DROP (\S+) (\d+)$", out, re.M):
+        per_drop.setdefault(m.group(1), []).append(int(m.group(2)))
+    return ticks, per_drop, p.stdout
 
 
 def obj_size(build: Path, name: str) -> int:
@@ -43,30 +49,47 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model-dir")
     ap.add_argument("--trees", type=int, default=12)
+    ap.add_argument("--drops", type=int, default=6,
+                    help="session-1 drops in the fixture, evenly spaced (each one's whole event is timed)")
     ap.add_argument("--json")
     args = ap.parse_args()
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
         print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
-    extra = ["--trees", str(args.trees)] + (["--model-dir", args.model_dir] if args.model_dir else [])
+    extra = ["--trees", str(args.trees), "--drops", str(args.drops)]
+    extra += ["--model-dir", args.model_dir] if args.model_dir else []
     with tempfile.TemporaryDirectory() as tmp:
         build = Path(tmp)
-        ticks, _ = run(build, extra)
+        ticks, per_drop_ticks, _ = run(build, extra)
         per = 200000 / ticks.pop("calib_200000_instructions")
         ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
+        per_drop = {k: [round(v * per) for v in vs] for k, vs in per_drop_ticks.items() if k != "localiser_iterations"}
+        per_drop["localiser_iterations"] = per_drop_ticks.get("localiser_iterations", [])
         sizes = {"models_tables": obj_size(build, "impactsense_forest_tables.o"),
                  "models_m2cgen": obj_size(build, "impactsense_models_m2c.o")}
         export = json.loads((build / "models/export.json").read_text())
+        rows = json.loads((build / "fixture.json").read_text())["rows"]
     print(f"per-event instructions on the Cortex-M4F (qemu -icount), {export['trees']} trees, "
           f"{export['nodes']} nodes")
     print(f"{'stage':<22}{'instructions':>14}{'of 64k':>9}{'flash bytes':>13}")
     for k in ("features", "process_event", "models_tables", "models_m2cgen", "event_total", "event_max_over_drops"):
         print(f"{k:<22}{ins[k]:>14,}{ins[k] / TARGET:>9.2f}{sizes.get(k, 0) or '':>13}")
+    ev, fe = np.array(per_drop["event"]), np.array(per_drop["features"])
+    print(f"per drop ({len(ev)} session-1 drops, rows {rows[0]}..{rows[-1]} evenly spaced): whole event "
+          f"min {ev.min():,} median {int(np.median(ev)):,} p95 {int(np.percentile(ev, 95)):,} max {ev.max():,}; "
+          f"features min {fe.min():,} max {fe.max():,}; the rest (localiser, Eq. 35, vector, models, "
+          f"encoding) max {(ev - fe).max():,}")
+    if len(ev) <= 12:
+        print("  whole event per drop: " + " / ".join(f"{v:,}" for v in ev))
+    worst = np.argsort(ev)[::-1][:3]
+    print("  slowest: " + ", ".join(f"row {rows[i]} {ev[i]:,} (features {fe[i]:,}, winning start "
+                                      f"{per_drop['localiser_iterations'][i]} iterations)" for i in worst))
     print(f"event_total = process_event (features + physics localiser + Eq. 35 + feature vector) + table models + encoding; "
           f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'} on the last capture, "
-          f"{'met' if ins['event_max_over_drops'] <= TARGET else 'NOT met'} on the slowest fixture drop")
+          f"{'met' if ins['event_max_over_drops'] <= TARGET else 'NOT met'} on the slowest of {len(ev)} drops")
     if args.json:
-        Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export}, indent=1))
+        Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export,
+                                               "per_drop": per_drop, "rows": rows}, indent=1))
     return 0
 
 

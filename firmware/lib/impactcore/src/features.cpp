@@ -276,7 +276,10 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   if (begin < 0) begin = 0;
   int end = icross + cfg.aic_after + 1;
   if (end > n) end = n;
-  const float aic = aic_pick_subsample(x, begin, end);
+  // The onset is sought in the last third of the samples before the crossing (the AIC minimum lies within
+  // 3.1 samples of it at 50 kHz, 6.1 at 100 kHz, over session-1's 3084 picks); the earlier two thirds
+  // give the noise variance. Same picks as the whole-window search there, at half the logarithms.
+  const float aic = aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 3);
   float toa = cross;
   if (aic >= 0.0f && aic <= cross + 1.0f) {
     f->toa_aic = aic;

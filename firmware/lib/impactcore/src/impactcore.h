@@ -171,8 +171,10 @@ float crossing_subsample(const int16_t* x, int i, float base, float thr);
 // depend on the base of the log), one running pass, no scratch buffers.
 int aic_pick(const int16_t* x, int begin, int end);
 
-// The AIC onset refined to a sub-sample position by a parabola through the minimum and its neighbours.
-float aic_pick_subsample(const int16_t* x, int begin, int end);
+// The AIC onset refined to a sub-sample position by a parabola through the minimum and its neighbours,
+// the minimum sought over k >= search_from only (the whole window still sets the variances; k before
+// search_from cost no logarithms): the arg-min over [search_from, end) of the full-window AIC.
+float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 
 // --- acceptance rule (Eq. 35) ---
 

@@ -45,10 +45,16 @@ float threshold_crossing(const int16_t* x, int n, float base, float thr, int sta
   return -1.0f;
 }
 
-float aic_pick_subsample(const int16_t* x, int begin, int end) {
+float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) {
   if (begin < 0) begin = 0;
   const int len = end - begin;
   if (len < 6 || len > kMaxAicWindow) return -1.0f;
+  // The arg-min is sought over k >= k_first; with k_first > 2 the AIC at k_first - 1 is evaluated too, as
+  // the parabola's left neighbour. Before that only the running sums advance (no logs).
+  int k_first = search_from - begin;
+  if (k_first < 2) k_first = 2;
+  if (k_first > len - 2) k_first = len - 2;
+  const int k_eval = k_first > 2 ? k_first - 1 : 2;
   const int16_t* w = x + begin;
   // Centre the window to keep the float running sums well conditioned.
   float mean = 0.0f;
@@ -72,8 +78,13 @@ float aic_pick_subsample(const int16_t* x, int begin, int end) {
   float best = 0.0f, best_prev = 0.0f, best_next = 0.0f, prev = 0.0f;
   int best_k = -1;
   bool want_next = false;
-  float n1 = 2.0f, n2 = static_cast<float>(len - 2);
-  for (int k = 2; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
+  for (int k = 2; k < k_eval; ++k) {
+    const float d = static_cast<float>(w[k]) - mean;
+    s1 += d;
+    s2 += d * d;
+  }
+  float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
+  for (int k = k_eval; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
     const float i1 = 1.0f / n1;
     const float i2 = 1.0f / n2;
     const float m1 = s1 * i1;
@@ -86,7 +97,7 @@ float aic_pick_subsample(const int16_t* x, int begin, int end) {
       best_next = aic;
       want_next = false;
     }
-    if (best_k < 0 || aic < best) {
+    if (k >= k_first && (best_k < 0 || aic < best)) {
       best = aic;
       best_k = k;
       best_prev = prev;
@@ -110,7 +121,7 @@ float aic_pick_subsample(const int16_t* x, int begin, int end) {
 }
 
 int aic_pick(const int16_t* x, int begin, int end) {
-  const float k = aic_pick_subsample(x, begin, end);
+  const float k = aic_pick_subsample(x, begin, end, begin);
   return k < 0.0f ? -1 : static_cast<int>(k + 0.5f);
 }
 
