@@ -12,6 +12,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from impactsense.data import bundled_session_path, load_rig, rig_from_dict
+from impactsense.errors import ConfigError
 from impactsense.sim import SimParams, dispersion, simulate_voltages
 from impactsense.sim.model import build_model, hertz_duration_s, hertz_k, impact_velocity, uniform_plate
 
@@ -268,3 +269,18 @@ def test_disc_inertia_scaling_is_local_and_lifts_the_step_limit(rig):
          for p in (base, scaled)]
     rel = np.sqrt(((v[1] - v[0]) ** 2).mean(axis=1) / (v[0] ** 2).mean(axis=1))
     assert rel.max() < 0.02, rel
+
+
+def test_disc_inertia_factor_raises_the_limit_by_at_most_its_square_root(rig):
+    """The default disc_inertia_factor (rotary inertia under the discs x 1.06) lifts the disc-set stability
+    limit, by no more than sqrt(factor) (M' <= f M gives lambda_max(M'^-1 K) >= lambda_max(M^-1 K) / f), and a
+    large factor is capped at the plate's D / I (the same plate as disc_inertia_scaling)."""
+    base = SimParams.from_rig(rig, element_mm=4.0, duration_ms=2.0, taper_ms=0.3)
+    assert base.disc_inertia_factor > 1
+    crit = {k: build_model(p, rig).dt_crit_s for k, p in (
+        ("physical", base.replace(disc_inertia_factor=1.0)), ("default", base),
+        ("large", base.replace(disc_inertia_factor=10.0)), ("scaled", base.replace(disc_inertia_scaling=True)))}
+    assert crit["physical"] * 1.01 < crit["default"] <= crit["physical"] * base.disc_inertia_factor ** 0.5 * 1.000001
+    assert abs(crit["large"] / crit["scaled"] - 1) < 1e-6
+    with pytest.raises(ConfigError, match="disc_inertia_factor"):
+        base.replace(disc_inertia_factor=0.9)

@@ -237,12 +237,14 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     ip = mp * (t / 2 + tp / 2) ** 2
     for fr in fractions:
         for (i, j), f in fr.items():
-            # opt-in: raise the rotary inertia under the disc until its D / I is the bare plate's, so the
-            # stiffer disc no longer sets the stable step (see SimParams.disc_inertia_scaling)
+            # rotary inertia under the disc raised by disc_inertia_factor (default 1.06), or (opt-in
+            # disc_inertia_scaling) until its D / I is the bare plate's, so the stiffer disc sets a larger
+            # stable step or no longer sets it; never past the plate's D / I
             i_el = i_rot + f * ip
             extra = 0.0
-            if p.disc_inertia_scaling and p.disc_stiffness:
-                extra = max(0.0, d_elem[j, i] / d * i_rot / i_el - 1.0) * i_el
+            if p.disc_stiffness:
+                need = max(0.0, d_elem[j, i] / d * i_rot / i_el - 1.0)   # the raise to the plate's D / I
+                extra = (need if p.disc_inertia_scaling else min(need, p.disc_inertia_factor - 1.0)) * i_el
             for dj in (0, 1):
                 for di in (0, 1):
                     mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
