@@ -130,10 +130,22 @@ def _fem_recovery(tmp_path, rig, element_mm, budget, n_cases):
     return pipeline.calibrate(data, tmp_path / "fem" / "CAL.json", _small_opts(budget=budget), simulate=sim_fn)
 
 
-def _assert_recovered(cal, ds_tol):
+def _assert_recovered(cal, stiff_tol, ds_tol):
+    """What four drops identify: the bending stiffness E / (1 - nu^2) and D_s. Not nu: one 0.01 of nu at fixed
+    stiffness moves every timing observable by less than its measured standard error (asserted from the
+    calibration's own FEM sensitivities), and E inherits nu's freedom over the grid's 0.30..0.40 (+-4.5 %;
+    docs/findings.md, "Can four drops tell nu?")."""
     pl, dd = cal["plate"], cal["damping_from_decay"]
-    assert abs(pl["E_mpa"] / TRUTH_E - 1) < 0.03, pl
-    assert abs(pl["E_mpa"] / (1 - pl["nu"] ** 2) / (TRUTH_E / (1 - TRUTH_NU ** 2)) - 1) < 0.05, pl
+    truth_stiff = TRUTH_E / (1 - TRUTH_NU ** 2)
+    assert abs(pl["stiffness_E_over_1_minus_nu2_mpa"] / truth_stiff - 1) < stiff_tol, pl
+    assert pl["E_mpa"] == pytest.approx(pl["stiffness_E_over_1_minus_nu2_mpa"] * (1 - pl["nu"] ** 2))
+    # E within what the stiffness and nu's range allow
+    assert truth_stiff * (1 - 0.40 ** 2) * (1 - stiff_tol) < pl["E_mpa"] < truth_stiff * (1 - 0.30 ** 2) * (1 + stiff_tol)
+    idf = pl["nu_identifiability"]
+    sigma = pl["timing_targets"]["sigma_us"]
+    for k, name in enumerate(pl["timing_targets"]["observables"]):
+        assert 0 < idf["per_0.01_nu_at_fixed_D_us"][name] < sigma[k], idf
+    assert idf["sd_nu"] > 0.005, idf          # best case (independent errors); end-to-end it is ~3x worse
     # D_s from the envelope decay; the twin's decay moves by 1/2 of a D_s change (theory: exactly 1/2)
     assert abs(cal["fitted"]["damping_per_s"] / TRUTH_DS - 1) < ds_tol, dd
     assert dd["slope_decay_per_damping"] == pytest.approx(0.5, abs=0.05)
@@ -144,17 +156,15 @@ def _assert_recovered(cal, ds_tol):
 
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
 def test_recovers_known_parameters_fem_coarse(tmp_path, rig):
-    """CI variant: 5 mm mesh, the smallest design (24 runs). E within 3 %, D_s within 3 %, E / (1 - nu^2) within
-    5 %. nu alone is not asserted: the four drops' AIC DToA fix a combination of the bending and the shear
-    stiffness (Fisher information at the rig's repeatability: sd(nu) ~ 0.011 with E free, docs/findings.md)."""
-    _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8), 0.03)
+    """CI variant: 5 mm mesh, the smallest design (24 runs): E / (1 - nu^2) within 3 %, D_s within 3 %."""
+    _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8), 0.03, 0.03)
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
 def test_recovers_known_parameters_fem(tmp_path, rig):
-    """The default (Eq. 1) mesh, budget 32, twelve cases: as the CI variant, D_s within 2 %."""
-    _assert_recovered(_fem_recovery(tmp_path, rig, None, 32, 12), 0.02)
+    """The default (Eq. 1) mesh, budget 32, twelve cases: E / (1 - nu^2) within 3 %, D_s within 2 %."""
+    _assert_recovered(_fem_recovery(tmp_path, rig, None, 32, 12), 0.03, 0.02)
 
 
 # ------------------------------------------------------------------------------------------------------------

@@ -5,7 +5,8 @@ interrupted run resumes and a finished one is not recomputed):
 
   drops     choose four repeatable, Eq.-35-accepted cases well spread over the plate (`drops`)
   plate     sub-problem 1: Eq. 16 over the full E x nu grid with the fast first-arrival model (`plate`,
-            `arrival`), contour plot; the FEM at the minimum confirms it
+            `arrival`), contour plot; then the FEM fits E and nu to the AIC DToA and the low-band group delays
+            together (`plate_fem`, `bands`): the AIC DToA alone fix only a combination of E and nu
   damping   D_s from the envelope decay of the four cases against two FEM runs of them (`damping`): the
             twin's log-envelope slope moves by D_s / 2, a far better conditioned observable than f2 / f3
   design    sub-problem 2: Sobol design over the PZT block and D_s, the FEM at every point; outputs f2
@@ -33,7 +34,7 @@ import numpy as np
 from .. import _core
 from ..data import load_session
 from ..errors import ConfigError
-from . import arrival, damping, drops as drops_mod, fem, plate, screening, surrogates
+from . import arrival, damping, drops as drops_mod, fem, plate, plate_fem, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
 
@@ -59,7 +60,7 @@ class CalibrateOptions:
     surrogate_trials: int = 8
     fem: bool = True                       # False: sub-problem 1 only (no FEM confirmation, no sub-problem 2)
     fast_n_fft: int = 1024
-    fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM check of the plate: E = fast minimum x these
+    fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM plate fit: E basin scan = fast minimum x these
     n_noise: int = 4                       # rig-noise realisations added to simulated records before picking
 
     def validate(self):
@@ -193,9 +194,10 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     # --- stage: drops ---------------------------------------------------------------------------------
     def stage_drops():
         feats = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
-        return drops_mod.select_drops(session, feats, opts.drops, tol_us=opts.eq35_tol_us,
-                                      margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
-    targets = clock.run("drops", stage_drops)
+        t = drops_mod.select_drops(session, feats, opts.drops, tol_us=opts.eq35_tol_us,
+                                   margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
+        return t, plate_fem.measured_targets(session, t, feats, cfg)
+    targets, plate_targets = clock.run("drops", stage_drops)
     out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
     noise = (float(np.median(targets.noise_rms)), int(opts.n_noise), int(opts.seed))
     base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us), noise)
@@ -231,22 +233,28 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
               "plate": stage1}
 
     if opts.fem:
-        # FEM confirmation of the plate minimum, and refinement along E: the FEM's mesh (Eq. 1 at the contact's
-        # spectrum) carries numerical dispersion above its f_max, so its onsets run slightly slower than the
-        # fast model's; the twin gets the E that makes the FEM itself match (nu kept: DToA barely fix it)
+        # sub-problem 1 on the twin itself (`plate_fem`): E at the grid's nu from the AIC DToA and the low-band
+        # arrivals together; after D_s is known (its decay also tilts the early envelopes), E again, and how well
+        # the drops fix nu (they do not: docs/findings.md)
+        def plate_evals(p_now, tag):
+            def run_obs(e_mpa, nu):
+                p = dict(p_now, e_pa=e_mpa * 1e6, nu=nu)
+                return plate_fem.sim_observables(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm),
+                                                 cfg_sim, *noise)
+            return plate_fem.Evaluations(run_obs, cache(f"stage1-{tag}.json"),
+                                         _key(base_key, plate_targets.to_json(), p_now["damping_per_s"], "plate-v3"),
+                                         progress=opts.progress)
+        e_bounds = (float(e_axis[0]), float(e_axis[-1]))
+
         def fem_stage():
-            return _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, cache("stage1-fem.json"),
-                                   _key(base_key, e_best, nu_best, opts.e_step_mpa, list(opts.fem_e_ratios)),
-                                   e_best, e_axis, noise)
-        scan = clock.run("plate_fem", fem_stage)
-        e_fem = min(scan, key=scan.get)
+            return plate_fem.e_scan(plate_evals(params, "fem"), plate_targets, e_best, nu_best, e_bounds,
+                                    ratios=opts.fem_e_ratios)
+        e_fem, scan = clock.run("plate_fem", fem_stage)
         stage1["E_fast_mpa"] = e_best
         stage1["E_mpa"] = float(e_fem)
         params["e_pa"] = float(e_fem) * 1e6
-        stage1["fem_loss_eq16_us2"] = scan[e_fem]
-        stage1["fem_rms_dtoa_error_us"] = float(np.sqrt(scan[e_fem] / targets.dtoa_us.size))
-        stage1["fem_confirm_at_fast_minimum_loss_eq16_us2"] = scan.get(e_best)
-        stage1["fem_scan"] = {f"{k:.0f}": v for k, v in sorted(scan.items())}
+        stage1["fem_scan_seed_damping"] = {f"{k:.0f}": v for k, v in sorted(scan.items())}
+        stage1["timing_targets"] = plate_targets.to_json()
 
         # D_s from the envelope decay (`damping`): far better conditioned than the energy objectives
         def damping_stage():
@@ -255,6 +263,29 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                                                    params["damping_per_s"], "decay-v2"), noise)
         decay = clock.run("damping", damping_stage)
         result["damping_from_decay"] = decay
+
+        def refit_stage():
+            p_ds = dict(params, damping_per_s=float(decay["damping_per_s"]))
+            ev = plate_evals(p_ds, "fem-ds")
+            e2, scan2 = plate_fem.e_scan(ev, plate_targets, float(params["e_pa"]) / 1e6, nu_best, e_bounds,
+                                         ratios=(0.97, 1.0, 1.03), walk=1.03)
+            ident = plate_fem.nu_identifiability(ev, plate_targets, e2, nu_best,
+                                                 nu_bounds=(float(nu_axis[0]), float(nu_axis[-1])))
+            obs = ev(e2, nu_best)
+            return e2, scan2, ident, obs
+        e2, scan2, ident, obs = clock.run("plate_fem_refit", refit_stage)
+        params["e_pa"] = float(e2) * 1e6
+        eq16_fem = float(plate.eq16_loss(obs[:, 0], plate_targets.dtoa[:, 0]))
+        stage1.update({
+            "E_mpa": float(e2), "stiffness_E_over_1_minus_nu2_mpa": float(e2) / (1 - nu_best ** 2),
+            "fem_scan": {f"{k:.0f}": v for k, v in sorted(scan2.items())},
+            "fem_loss_eq16_us2": eq16_fem, "fem_rms_dtoa_error_us": float(np.sqrt(eq16_fem / targets.dtoa_us.size)),
+            "fem_chi2": plate_fem.chi2(obs, plate_targets),
+            "fem_rms_residual_us": {n: float(np.sqrt(np.nanmean((obs[:, k] - plate_targets.dtoa[:, k]) ** 2)))
+                                    for k, n in enumerate(plate_targets.names)},
+            "nu_identifiability": ident,
+            "claimed": "E / (1 - nu^2), the bending stiffness; nu is the grid's (not identified by four drops' "
+                       "timing, docs/findings.md) and E follows from it"})
         # sub-problem 2
         s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise,
                           damping_fixed=decay["damping_per_s"])
@@ -286,48 +317,6 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     result["stage_compute_time_s"] = {**compute, "sum": round(sum(compute.values()), 3)}
     _write_json_atomic(out, result)
     return result
-
-
-def _fem_plate_scan(opts, rig, params, targets, simulate, cfg_sim, path: Path, key: str, e_best, e_axis,
-                    noise) -> dict:
-    """FEM Eq. 16 loss at E = e_best x ratios (snapped to the E grid), extended past an edge minimum, then at
-    the snapped vertex of a parabola through the best three. Returns {E_mpa: loss}; cached, resumable."""
-    from tqdm import tqdm
-    cached = _read_cache(path, key)
-    losses = {float(k): v for k, v in (cached or {}).get("losses", {}).items()}
-    step = opts.e_step_mpa
-    lo, hi = float(e_axis[0]), float(e_axis[-1])
-    snap = lambda e: float(np.clip(lo + round((e - lo) / step) * step, lo, hi))  # noqa: E731
-    bar = tqdm(desc="FEM plate check (E scan)", unit="run", disable=not opts.progress)
-
-    def loss_at(e):
-        e = snap(e)
-        if e not in losses:
-            p = dict(params, e_pa=e * 1e6)
-            f = sim_features(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise)
-            losses[e] = float(plate.eq16_loss(f["dtoa_us"], targets.dtoa_us))
-            _write_json_atomic(path, {"key": key, "losses": {f"{k!r}": v for k, v in losses.items()}})
-            bar.update(1)
-        return losses[e]
-
-    for r in opts.fem_e_ratios:
-        loss_at(e_best * r)
-    for _ in range(15):     # walk on (10 % steps) while the minimum sits at the scanned edge
-        es = sorted(losses)
-        i = int(np.argmin([losses[e] for e in es]))
-        if 0 < i < len(es) - 1 or es[i] in (lo, hi):
-            break
-        loss_at(es[i] * (0.9 if i == 0 else 1.1))
-    es = sorted(losses)
-    i = int(np.argmin([losses[e] for e in es]))
-    if 0 < i < len(es) - 1:
-        x = np.log(es[i - 1:i + 2])
-        yv = np.array([losses[e] for e in es[i - 1:i + 2]])
-        c2, c1, _ = np.polyfit(x, yv, 2)
-        if c2 > 0:
-            loss_at(float(np.exp(-c1 / (2 * c2))))
-    bar.close()
-    return losses
 
 
 def _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simulate, path: Path, key: str,

@@ -1,0 +1,66 @@
+"""Band arrival times: the second timing observable of sub-problem 1, the one that separates E from nu.
+
+Why: the signal core's AIC onset is the fastest part of the A0 front, the high-frequency end where Mindlin's
+shear stiffness kappa G = kappa E / 2(1 + nu) slows the flexural wave; its DToA fix one combination of the
+bending stiffness D ~ E / (1 - nu^2) and kappa G. The group delay of a LOW band (2-10 kHz, the Kirchhoff end
+of the branch) depends on D almost alone. Together they fix E and nu: on the project's FEM at the rig's
+drops, +0.02 in nu at fixed D moves the AIC DToA by ~2.4-3.3 us rms but the 2-5 kHz band's by only ~1 us,
+while +2 % in E moves them by ~2.7-4.5 and ~5-7 us (docs/findings.md, "Can the drops tell nu?").
+
+The observable: the record, baseline removed, band-passed (Butterworth, zero phase), Hilbert envelope; its
+first local maximum reaching half the envelope's maximum in a window from just before the drop's earliest
+onset, refined by a parabola through three samples. Times are in us with the rig's per-channel delays removed
+(the core's convention), so pair differences compare with the simulator's directly.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy.signal import butter, hilbert, sosfilt
+
+BANDS_HZ = ((1000.0, 4000.0), (2000.0, 5000.0))
+ORDER = 2               # causal Butterworth band-pass: nothing of the band precedes the onset
+LEAD_US = 20.0          # each channel's window starts this long before its own AIC onset ...
+WINDOW_US = 800.0       # ... and lasts this long (the low band's packet rises within it at every sensor)
+FRACTION = 0.3          # the arrival: first crossing of this fraction of the window's envelope maximum
+
+
+@lru_cache(maxsize=8)
+def _sos(lo, hi, fs):
+    return butter(ORDER, [lo, hi], btype="band", fs=fs, output="sos")
+
+
+def band_arrivals(adc, toa_us, fs_hz, *, channel_delay_us=(0.0, 0.0, 0.0, 0.0), bands=None,
+                  baseline_samples=100) -> np.ndarray:
+    """Band arrival times [n, 4, len(bands)] us of records adc [n, 4, S] (raw counts).
+
+    toa_us [n, 4]: the core's onsets (channel delays removed) of the same records, which anchor each channel's
+    window; channel_delay_us: the rig's per-channel delays (a channel reading d us early has d < 0), removed
+    from the result as the core removes them from its ToA. NaN where a channel has no onset."""
+    bands = BANDS_HZ if bands is None else bands
+    x = np.asarray(adc, float)
+    x = x - np.median(x[..., :baseline_samples], axis=-1, keepdims=True)
+    s = x.shape[-1]
+    us = 1e6 / fs_hz
+    raw = np.asarray(toa_us, float) + np.asarray(channel_delay_us, float)[None, :]      # record time [n, 4]
+    t = np.arange(s) * us
+    inside = (t >= (raw - LEAD_US)[..., None]) & (t <= (raw + WINDOW_US)[..., None])    # [n, 4, S]
+    out = np.full(raw.shape + (len(bands),), np.nan)
+    for b, (lo, hi) in enumerate(bands):
+        env = np.abs(hilbert(sosfilt(_sos(lo, hi, float(fs_hz)), x, axis=-1), axis=-1))
+        env_w = np.where(inside, env, 0.0)
+        thr = FRACTION * env_w.max(axis=-1)
+        i = np.maximum(np.argmax(env_w >= thr[..., None], axis=-1), 1)                   # first sample >= thr
+        a = np.take_along_axis(env_w, (i - 1)[..., None], -1)[..., 0]
+        c = np.take_along_axis(env_w, i[..., None], -1)[..., 0]
+        frac = np.clip((thr - a) / np.where(c > a, c - a, 1.0), 0.0, 1.0)
+        out[..., b] = np.where(np.isfinite(raw) & (thr > 0), (i - 1 + frac) * us, np.nan) - (raw - np.asarray(toa_us, float))
+    return out
+
+
+def pair_differences(times, pair_i, pair_j) -> np.ndarray:
+    """[n, 4, B] times -> [n, B, 6] pair differences (ToA_i - ToA_j, the core's pair order)."""
+    t = np.moveaxis(np.asarray(times, float), -1, 1)
+    return t[..., pair_i] - t[..., pair_j]

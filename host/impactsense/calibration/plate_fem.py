@@ -1,0 +1,186 @@
+"""Sub-problem 1 on the FEM: the twin's E from two timing observables of the four drops, and what they say
+about nu.
+
+The fast model's grid (`plate`, Eq. 16 on the AIC DToA) gives nu and the E basin. The twin is then fitted
+along E (nu held) to
+
+  r = [ (DToA_AIC sim - meas) / sigma_AIC ,  (DToA_band sim - meas) / sigma_band  for each band (`bands`) ]
+
+over the four drops and six pairs, sigma = the standard error of the measured target (the pooled spread of
+the drop's accepted repetitions / sqrt(repetitions), at least `SIGMA_FLOOR_US`). `nu_identifiability` measures,
+at the fit, how far one 0.01 of nu at fixed bending stiffness moves these observables against sigma, and the
+best-case standard deviation of nu with E free. On this rig (4 drops, 100 kHz) it is ~0.01 at best and the
+end-to-end error on FEM-made drops ~0.04: nu is not identified, E / (1 - nu^2) is (docs/findings.md).
+Every FEM evaluation is cached (resumable).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import _core
+from . import bands, plate
+
+SIGMA_FLOOR_US = 0.5
+MISSING_US = 1000.0      # a missing pick costs (1 ms / sigma)^2, as in Eq. 16
+
+
+@dataclass
+class PlateTargets:
+    """Measured timing observables of the four drops: dtoa [4, K, 6] us (K = AIC + bands), sigma [K] us."""
+
+    dtoa: np.ndarray
+    sigma: np.ndarray
+    names: tuple
+
+    def to_json(self) -> dict:
+        return {"observables": list(self.names), "dtoa_us": self.dtoa.tolist(), "sigma_us": self.sigma.tolist()}
+
+
+def names(band_list=None) -> tuple:
+    band_list = bands.BANDS_HZ if band_list is None else band_list
+    return ("AIC onset",) + tuple(f"envelope {lo / 1e3:g}-{hi / 1e3:g} kHz" for lo, hi in band_list)
+
+
+def measured_targets(session, targets, feats, cfg) -> PlateTargets:
+    """The observables of the chosen cases' accepted repetitions (median) and their standard errors."""
+    per_case, var, reps = [], [], []
+    for recs in targets.recording_ids:
+        recs = np.asarray(recs, int)
+        toa = feats["toa_us"][recs].astype(float)
+        t_band = bands.band_arrivals(session.adc[recs], toa, cfg.fs_hz, channel_delay_us=cfg.channel_delay_us,
+                                     baseline_samples=cfg.baseline_samples)
+        obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
+                              bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)   # [r, K, 6]
+        per_case.append(np.nanmedian(obs, axis=0))
+        var.append(np.nanvar(obs, axis=0, ddof=1))
+        reps.append(len(recs))
+    dtoa = np.stack(per_case)
+    dtoa[:, 0] = targets.dtoa_us                      # the AIC target is Eq. 16's (the same median)
+    spread = np.sqrt(np.nanmean(np.stack(var), axis=(0, 2)))
+    sigma = np.maximum(spread / np.sqrt(np.mean(reps)), SIGMA_FLOOR_US)
+    return PlateTargets(dtoa=dtoa, sigma=sigma, names=names())
+
+
+def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0) -> np.ndarray:
+    """The same observables [D, K, 6] of simulated records (no channel delays), with the rig's noise added
+    (`n_noise` seeded realisations, averaged; the same seeds for every plate: a smooth objective)."""
+    adc = np.asarray(adc).astype(float)
+    rng = np.random.default_rng(seed)
+    acc = []
+    for _ in range(max(1, n_noise)):
+        x = adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc
+        q = np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16)
+        toa = _core.extract_batch(np.ascontiguousarray(q), cfg_sim)["toa_us"].astype(float)
+        t_band = bands.band_arrivals(q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
+        acc.append(np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
+                                   bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1))
+    return np.mean(acc, axis=0)
+
+
+def residuals(obs_sim, meas: PlateTargets) -> np.ndarray:
+    err = np.where(np.isfinite(obs_sim - meas.dtoa), obs_sim - meas.dtoa, MISSING_US)
+    return (err / meas.sigma[None, :, None]).ravel()
+
+
+class Evaluations:
+    """FEM evaluations of the observables {(E, nu): [D, K, 6]}, cached in a JSON file (resumable)."""
+
+    def __init__(self, run_obs, cache_path=None, key="", progress=False, desc="FEM plate (E, nu)"):
+        from tqdm import tqdm
+        self.run_obs, self.path, self.key = run_obs, cache_path, key
+        self.obs = {}
+        if cache_path and Path(cache_path).exists():
+            try:
+                obj = json.loads(Path(cache_path).read_text())
+                if obj.get("key") == key:
+                    self.obs = {tuple(json.loads(k)): np.array(v) for k, v in obj["obs"].items()}
+            except (OSError, ValueError):
+                self.obs = {}
+        self.bar = tqdm(desc=desc, unit="run", disable=not progress)
+
+    def __call__(self, e_mpa, nu):
+        k = (round(float(e_mpa), 2), round(float(nu), 5))
+        if k not in self.obs:
+            self.obs[k] = np.asarray(self.run_obs(*k), float)
+            if self.path:
+                tmp = str(self.path) + ".tmp"
+                with open(tmp, "w") as f:
+                    json.dump({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist() for kk, v in self.obs.items()}}, f)
+                os.replace(tmp, self.path)
+            self.bar.update(1)
+        return self.obs[k]
+
+
+def chi2(obs_sim, meas: PlateTargets) -> float:
+    return float(np.sum(residuals(obs_sim, meas) ** 2))
+
+
+def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios=(0.7, 0.8, 0.9, 1.0, 1.1),
+           walk=1.1) -> tuple[float, dict]:
+    """Twin's E at fixed nu: chi^2 at E = e_start x ratios (clipped to the grid's range), walked on by `walk`
+    while the minimum sits at the scanned edge, then at the vertex of a parabola in ln E through the best three.
+    Returns (E [MPa], {E: chi^2})."""
+    lo, hi = e_bounds
+    scan = {}
+
+    def at(e):
+        e = float(np.clip(e, lo, hi))
+        if e not in scan:
+            scan[e] = chi2(evals(e, nu), meas)
+        return scan[e]
+
+    for r in ratios:
+        at(e_start * r)
+    for _ in range(15):
+        es = sorted(scan)
+        i = int(np.argmin([scan[e] for e in es]))
+        if 0 < i < len(es) - 1 or es[i] in (lo, hi):
+            break
+        at(es[i] / walk if i == 0 else es[i] * walk)
+    es = sorted(scan)
+    i = int(np.argmin([scan[e] for e in es]))
+    if 0 < i < len(es) - 1:
+        c2, c1, _ = np.polyfit(np.log(es[i - 1:i + 2]), [scan[e] for e in es[i - 1:i + 2]], 2)
+        if c2 > 0:
+            at(round(float(np.exp(-c1 / (2 * c2))), 1))
+    return min(scan, key=scan.get), scan
+
+
+def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_ln_e=0.03, d_nu=0.03,
+                       nu_bounds=(0.30, 0.40)) -> dict:
+    """How well the drops fix nu once E is free: central differences of the observables along ln E and along
+    nu at fixed bending stiffness D ~ E / (1 - nu^2) (4 FEM runs), then the Fisher information of nu with E
+    profiled out, for independent errors of the targets' standard errors (a best case: the jitter of a drop's
+    position moves all its observables together) scaled by max(1, chi^2 / dof) (model error).
+    On drops the FEM made with known values the end-to-end errors of nu were ~3x this best case
+    (docs/findings.md): it bounds what the drops can tell, it does not certify a fitted nu."""
+    nu_c = float(np.clip(nu, nu_bounds[0] + d_nu, nu_bounds[1] - d_nu))
+    stiff = e_mpa / (1 - nu ** 2)
+    j_e = (evals(e_mpa * np.exp(d_ln_e), nu) - evals(e_mpa * np.exp(-d_ln_e), nu)) / (2 * d_ln_e)
+    j_nu = (evals(stiff * (1 - (nu_c + d_nu) ** 2), nu_c + d_nu)
+            - evals(stiff * (1 - (nu_c - d_nu) ** 2), nu_c - d_nu)) / (2 * d_nu)
+    r = residuals(evals(e_mpa, nu), meas)
+    dof = max(1, r.size - 2)
+    scale = max(1.0, float(np.sum(r ** 2)) / dof)
+    w = 1.0 / meas.sigma[None, :, None]
+    out = {"sd_at_target_error": {}, "sd": {}, "per_0.01_nu_at_fixed_D_us": {}, "per_1pct_E_us": {},
+           "model_error_scale": scale, "definition": "sd(nu) with E free = 1 / |J_nu - projection on J_lnE| in "
+           "target-standard-error units (independent errors: a best case), x sqrt(max(1, chi^2 / dof))"}
+    for label, ks in (("AIC onset only", [0]), ("AIC onset + bands", list(range(len(meas.names))))):
+        a = (j_e * w)[:, ks].ravel()
+        b = (j_nu * w)[:, ks].ravel()
+        b_orth = b - a * (a @ b) / (a @ a)
+        sd = 1.0 / max(float(np.linalg.norm(b_orth)), 1e-12)
+        out["sd_at_target_error"][label] = sd
+        out["sd"][label] = sd * np.sqrt(scale)
+    for k, n in enumerate(meas.names):
+        out["per_0.01_nu_at_fixed_D_us"][n] = float(np.sqrt(np.mean(j_nu[:, k] ** 2)) * 0.01)
+        out["per_1pct_E_us"][n] = float(np.sqrt(np.mean(j_e[:, k] ** 2)) * 0.01)
+    out["sd_nu"] = out["sd"]["AIC onset + bands"]
+    return out
