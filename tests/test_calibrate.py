@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import qmc
 
 from impactsense import cli
-from impactsense.calibration import _standin, arrival, drops, fem, pipeline, plate, screening, surrogates
+from impactsense.calibration import _standin, arrival, bands, drops, fem, pipeline, plate, screening, surrogates
 from impactsense.data import load_session, write_session
 from impactsense.errors import ConfigError, DataError
 
@@ -297,3 +297,28 @@ def test_decay_rate_of_a_known_exponential_envelope_under_noise():
         mask = damping.window_mask(power, np.full((1, 4), 1.5))
         assert mask.sum(axis=-1).min() >= damping.MIN_BLOCKS
         assert np.allclose(damping.decay_rates(power, mask), lam, rtol=0.03)
+
+
+def test_band_arrivals_follow_a_delayed_low_band_burst_and_remove_channel_delays():
+    """A 3 kHz Hann-windowed burst preceded by a weak 20 kHz front (the AIC onset), delayed by known amounts per
+    channel: band arrival differences equal the delays to < 0.5 us, and a channel read early by d us (d < 0)
+    and declared so is put back in place."""
+    fs, n = 100_000.0, 3000
+    t = np.arange(n) / fs
+    delays_us = np.array([0.0, 137.0, 263.5, 401.2])
+    rec = np.zeros((1, 4, n))
+    for c, d in enumerate(delays_us):
+        tau = t - 5e-3 - d * 1e-6
+        burst = np.where((tau > 0) & (tau < 1e-3), np.sin(np.pi * tau / 1e-3) ** 2 * np.sin(2 * np.pi * 3000 * tau), 0)
+        front = np.where((tau > 0) & (tau < 2e-4), np.sin(2 * np.pi * 20000 * tau), 0)
+        rec[0, c] = 2048 + 600 * burst + 30 * front
+    toa = 5000.0 + delays_us[None]
+    got = bands.band_arrivals(rec, toa, fs)
+    diff = bands.pair_differences(got, plate.PAIR_I, plate.PAIR_J)[0]
+    want = delays_us[plate.PAIR_I] - delays_us[plate.PAIR_J]
+    assert np.allclose(diff, want[None], atol=0.5)
+    # channel 2 sampled 6 us early: its record is shifted, the core's ToA already corrected
+    early = rec.copy()
+    early[0, 2] = np.interp(t + 6e-6, t, rec[0, 2])
+    got2 = bands.band_arrivals(early, toa, fs, channel_delay_us=[0.0, 0.0, -6.0, 0.0])
+    assert np.allclose(got2, got, atol=0.3)

@@ -1,16 +1,17 @@
-"""Band arrival times: the second timing observable of sub-problem 1, the one that separates E from nu.
+"""Band arrival times: a second timing observable for sub-problem 1.
 
 Why: the signal core's AIC onset is the fastest part of the A0 front, the high-frequency end where Mindlin's
 shear stiffness kappa G = kappa E / 2(1 + nu) slows the flexural wave; its DToA fix one combination of the
-bending stiffness D ~ E / (1 - nu^2) and kappa G. The group delay of a LOW band (2-10 kHz, the Kirchhoff end
-of the branch) depends on D almost alone. Together they fix E and nu: on the project's FEM at the rig's
-drops, +0.02 in nu at fixed D moves the AIC DToA by ~2.4-3.3 us rms but the 2-5 kHz band's by only ~1 us,
-while +2 % in E moves them by ~2.7-4.5 and ~5-7 us (docs/findings.md, "Can the drops tell nu?").
+bending stiffness D ~ E / (1 - nu^2) and kappa G. The arrival of a LOW band (1-5 kHz, the Kirchhoff end of the
+branch) depends on D almost alone, so the two together could separate E and nu. On this rig they do not by
+enough: one 0.01 of nu at fixed D moves them by ~0.5-1 us against 2-4 us of target error (docs/findings.md);
+they enter the twin's E fit as a second, bending-dominated constraint.
 
-The observable: the record, baseline removed, band-passed (Butterworth, zero phase), Hilbert envelope; its
-first local maximum reaching half the envelope's maximum in a window from just before the drop's earliest
-onset, refined by a parabola through three samples. Times are in us with the rig's per-channel delays removed
-(the core's convention), so pair differences compare with the simulator's directly.
+The observable: the record, baseline removed, through a causal Butterworth band-pass (nothing of the band
+precedes the onset), Hilbert envelope; in each channel's window from just before its own AIC onset, the first
+crossing of `FRACTION` of the window's envelope maximum (linear between samples). A crossing on the rising
+edge moves continuously with the plate; a peak pick jumps between packets. Times are in us with the rig's
+per-channel delays removed (the core's convention), so pair differences compare with the simulator's.
 """
 
 from __future__ import annotations
