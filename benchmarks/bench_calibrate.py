@@ -1,9 +1,16 @@
 """Benchmark: the full calibration of the bundled session-1 on this machine; prints each stage's wall time.
 
     python benchmarks/bench_calibrate.py [--budget 64] [--out DIR] [--workers 2]
+    python benchmarks/bench_calibrate.py --nu-study [--mesh-mm 5]
 
 Target (issue 4): full calibration <= 10 minutes on 2 cores. Runs from scratch (a fresh output folder, so
 no stage is read from a cache) unless --out names a folder with an earlier run.
+
+--nu-study: can four drops tell nu? Drops the FEM made with known (E, nu), D_s 650 1/s, rig noise and 1 mm
+position jitter (8 cases x 3 repetitions; the calibration's four drops chosen from them), then the profile of
+the sub-problem-1 objective (AIC DToA + band arrivals, `plate_fem`) over nu = 0.30..0.40 with E fitted at each
+nu, and the best-case Fisher sd(nu) at the truth. Prints, per truth: the profile's minimum, chi^2 at the truth
+minus the minimum, and the sensitivities (docs/findings.md).
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ import argparse
 import tempfile
 import time
 from importlib import resources
+from pathlib import Path
 
 from impactsense.calibration.pipeline import CalibrateOptions, calibrate
 from impactsense.commands.calibrate import summary
@@ -20,12 +28,68 @@ TARGET_S = 600.0
 FINDINGS_DELAYS_US = [0.0, -0.6, -5.7, -6.5]   # docs/findings.md (session-1, AIC)
 
 
+def nu_study(mesh_mm, workers) -> None:
+    import numpy as np
+    from scipy.stats import qmc
+
+    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
+    from impactsense.data import load_session, write_session
+    from impactsense.sim import SimParams, simulate_drops
+
+    rig = load_session("bundled").rig
+    over = {} if mesh_mm is None else {"element_mm": mesh_mm}
+    sim = fem.fem_simulator(workers=workers, **over)
+    u = qmc.Sobol(3, seed=1).random(32)[:8]
+    cx = np.where(u[:, 0] < 0.5, 50 + u[:, 0] * 160, 190 + (u[:, 0] - 0.5) * 160)
+    cy, ch = 50 + u[:, 1] * 217, 100 + np.round(u[:, 2] * 20) * 5
+    nu_axis = np.round(np.arange(0.30, 0.4001, 0.01), 3)
+    print(f"{'truth E, nu':>14s} {'seed':>4s} {'profile min nu':>14s} {'chi2 min':>8s} {'chi2(truth)-min':>15s} "
+          f"{'sd_nu best case':>15s} {'us per 0.01 nu @D (AIC, bands)':>32s} {'target sigma us':>16s}")
+    for e_true, nu_true, seed in ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6)):
+        truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
+        rng = np.random.default_rng(seed)
+        x, y, h = (np.repeat(v, 3) for v in (cx, cy, ch))
+        p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
+        adc = simulate_drops(p, rig, x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size), h, noise=True,
+                             seed=seed + 2, progress=False)
+        path = Path(tempfile.mkdtemp(prefix="nu-study-")) / "s"
+        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), 3),
+                      repetition=np.tile(np.arange(3), 8))
+        session = load_session(path)
+        cfg = pipeline.core_config(rig, CalibrateOptions())
+        cfg_sim = pipeline._sim_core_config(cfg)
+        feats = drops_mod.extract(session, cfg)
+        targets = drops_mod.select_drops(session, feats)
+        meas = plate_fem.measured_targets(session, targets, feats, cfg)
+        noise = (float(np.median(targets.noise_rms)), 4, 0)
+        evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise))
+        stiff = e_true / (1 - nu_true ** 2)
+        prof = {}
+        for nu in nu_axis:
+            e_nu, scan = plate_fem.e_scan(evals, meas, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
+                                          ratios=(0.98, 1.0, 1.02), walk=1.02)
+            prof[nu] = scan[e_nu]
+        ident = plate_fem.nu_identifiability(evals, meas, e_true, nu_true)
+        best = min(prof, key=prof.get)
+        sens = ident["per_0.01_nu_at_fixed_D_us"]
+        print(f"{e_true:8.0f}, {nu_true:.2f} {seed:4d} {best:14.2f} {prof[best]:8.1f} {prof[nu_true] - prof[best]:15.1f} "
+              f"{ident['sd_at_target_error']['AIC onset + bands']:15.4f} "
+              f"{', '.join(f'{v:.2f}' for v in sens.values()):>32s} {', '.join(f'{v:.1f}' for v in meas.sigma):>16s}")
+        print("      profile chi2 over nu 0.30..0.40: " + " ".join(f"{prof[nu]:.0f}" for nu in nu_axis))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=64)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default=None, help="output folder (default: a fresh temporary one)")
+    ap.add_argument("--nu-study", action="store_true", help="can four drops tell nu? (see the docstring)")
+    ap.add_argument("--mesh-mm", type=float, default=5.0, help="--nu-study's FEM element size (0: the default mesh)")
     args = ap.parse_args()
+    if args.nu_study:
+        nu_study(args.mesh_mm or None, args.workers)
+        return 0
     out_dir = args.out or tempfile.mkdtemp(prefix="bench-calibrate-")
     data = str(resources.files("impactsense") / "data" / "session-1")
     opts = CalibrateOptions(budget=args.budget, workers=args.workers, channel_delay_us=FINDINGS_DELAYS_US)
