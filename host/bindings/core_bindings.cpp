@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "impactcore.h"
+#include "twin.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -211,6 +212,92 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   return out;
 }
 
+// The twin's per-channel log-energies of every recording, from extract_batch's arrays (twin.h).
+nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
+  const size_t r = flags.ndim() == 2 ? flags.shape(0) : 0;
+  if (flags.ndim() != 2 || flags.shape(1) != ic::kChannels || window_energy.ndim() != 3 ||
+      window_energy.shape(0) != r || window_energy.shape(1) != ic::kChannels ||
+      window_energy.shape(2) != ic::kEnergyWindows || diff_energy.ndim() != 3 || diff_energy.shape(0) != r ||
+      diff_energy.shape(1) != ic::kChannels || diff_energy.shape(2) != ic::kDiffOrders) {
+    throw std::invalid_argument("window_energy [R,4,5], diff_energy [R,4,3] float32 and flags [R,4] uint8 needed");
+  }
+  auto feats = make_array<float>({r, static_cast<size_t>(ic::kTwinFeatures)});
+  auto usable = make_array<uint16_t>({r});
+  ic::EventFeatures ev;
+  std::memset(&ev, 0, sizeof(ev));
+  for (size_t k = 0; k < r; ++k) {
+    for (int c = 0; c < ic::kChannels; ++c) {
+      for (int w = 0; w < ic::kEnergyWindows; ++w)
+        ev.ch[c].window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
+      for (int d = 0; d < ic::kDiffOrders; ++d)
+        ev.ch[c].diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+      ev.ch[c].flags = flags.data()[k * ic::kChannels + c];
+    }
+    usable.data()[k] = ic::twin_features(ev, feats.data() + k * ic::kTwinFeatures);
+  }
+  return nb::make_tuple(feats, usable);
+}
+
+using InU16 = nb::ndarray<const uint16_t, nb::c_contig, nb::device::cpu>;
+
+void copy16(float* dst, InF src, const char* name) {
+  if (src.ndim() != 1 || src.shape(0) != ic::kTwinFeatures)
+    throw std::invalid_argument(std::string(name) + " needs 16 float32 values");
+  std::memcpy(dst, src.data(), sizeof(float) * ic::kTwinFeatures);
+}
+
+// twin_estimate over every row: features [R,16], usable [R] (uint16 masks), xy_mm [R,2] model positions.
+nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int nx, int ny, float x0_mm,
+                             float y0_mm, float step_mm, InF base, InF scale, InF offset, InF slope,
+                             InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
+                             float temperature) {
+  const size_t r = features.ndim() == 2 ? features.shape(0) : 0;
+  if (features.ndim() != 2 || features.shape(1) != ic::kTwinFeatures || usable.ndim() != 1 ||
+      usable.shape(0) != r || xy_mm.ndim() != 2 || xy_mm.shape(0) != r || xy_mm.shape(1) != 2) {
+    throw std::invalid_argument("features [R,16] float32, usable [R] uint16 and xy_mm [R,2] float32 needed");
+  }
+  if (nx < 1 || ny < 1 || q.ndim() != 2 || q.shape(0) != static_cast<size_t>(nx) * ny ||
+      q.shape(1) != ic::kTwinFeatures) {
+    throw std::invalid_argument("site map q must be uint8 [nx*ny, 16]");
+  }
+  ic::SiteMap map{nx, ny, x0_mm, y0_mm, step_mm, {}, {}, q.data()};
+  copy16(map.base, base, "base");
+  copy16(map.scale, scale, "scale");
+  ic::TwinConfig cfg;
+  copy16(cfg.offset, offset, "offset");
+  copy16(cfg.slope, slope, "slope");
+  copy16(cfg.weight, weight, "weight");
+  cfg.ref_log10_height_mm = ref_log10_height_mm;
+  cfg.prior_mm = prior_mm;
+  cfg.cutoff_mm = cutoff_mm;
+  cfg.temperature = temperature;
+  auto lh = make_array<float>({r});
+  auto pos = make_array<float>({r, 2});
+  auto misfit = make_array<float>({r});
+  auto npts = make_array<int32_t>({r});
+  auto status = make_array<int32_t>({r});
+  {
+    nb::gil_scoped_release release;
+    for (size_t k = 0; k < r; ++k) {
+      const ic::TwinEstimate e = ic::twin_estimate(features.data() + k * ic::kTwinFeatures, usable.data()[k],
+                                                   xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], map, cfg);
+      lh.data()[k] = e.log10_height_mm;
+      pos.data()[2 * k] = e.x_mm;
+      pos.data()[2 * k + 1] = e.y_mm;
+      misfit.data()[k] = e.misfit;
+      npts.data()[k] = e.n_points;
+      status.data()[k] = e.status;
+    }
+  }
+  nb::dict out;
+  out["log10_height_mm"] = lh;
+  out["xy_mm"] = pos;
+  out["misfit"] = misfit;
+  out["n_points"] = npts;
+  out["status"] = status;
+  return out;
+}
+
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -323,6 +410,14 @@ NB_MODULE(_core, m) {
       },
       "adc"_a, "config"_a);
 
+  m.attr("TWIN_FEATURES") = ic::kTwinFeatures;
+  m.attr("SITE_MAP_MISSING") = static_cast<int>(ic::kSiteMapMissing);
+  m.def("twin_features_batch", &twin_features_batch, "window_energy"_a, "diff_energy"_a, "flags"_a,
+        "The twin's 16 log-energies (4 channels x arrival, Delta^1..3) and usable-feature masks.");
+  m.def("twin_estimate_batch", &twin_estimate_batch, "features"_a, "usable"_a, "xy_mm"_a, "q"_a, "nx"_a,
+        "ny"_a, "x0_mm"_a, "y0_mm"_a, "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a,
+        "ref_log10_height_mm"_a, "prior_mm"_a, "cutoff_mm"_a, "temperature"_a,
+        "The twin's energy fingerprint (twin.h) of every row: log10 height, position, misfit, status.");
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

@@ -1,0 +1,130 @@
+// The twin's energy fingerprint (twin.h).
+#include "twin.h"
+
+#include <math.h>
+
+namespace impactcore {
+
+namespace {
+constexpr float kLog10Of2 = 0.301029996f;
+constexpr uint8_t kUnusable = kFlagClipped | kFlagDead | kFlagNoOnset;
+}  // namespace
+
+uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
+  uint16_t usable = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    const ChannelFeatures& f = ev.ch[c];
+    float arrival = 0.0f;
+    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.window_energy[w];
+    float* o = out + c * kTwinPerChannel;
+    o[0] = kLog10Of2 * fast_log2(arrival + 1.0f);
+    for (int k = 0; k < kDiffOrders; ++k) o[1 + k] = kLog10Of2 * fast_log2(f.diff_energy[k] + 1.0f);
+    if ((f.flags & kUnusable) == 0) usable |= static_cast<uint16_t>(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel));
+  }
+  return usable;
+}
+
+TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
+                           const SiteMap& map, const TwinConfig& cfg) {
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, 0};
+  if (features == nullptr || map.q == nullptr) {
+    r.status = kErrNullInput;
+    return r;
+  }
+  if (map.nx < 1 || map.ny < 1 || !(map.step_mm > 0.0f) || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) ||
+      !(cfg.temperature > 0.0f) || !(x_mm == x_mm) || !(y_mm == y_mm)) {
+    r.status = kErrBadConfig;
+    return r;
+  }
+  // The per-event constants: residual before the map, and the normal equation's denominator A = sum w s^2.
+  float r0[kTwinFeatures], ws[kTwinFeatures], w[kTwinFeatures];
+  float a = 0.0f;
+  int n_used = 0;
+  for (int k = 0; k < kTwinFeatures; ++k) {
+    const bool use = (usable >> k) & 1u;
+    w[k] = use ? cfg.weight[k] : 0.0f;
+    r0[k] = use ? features[k] - cfg.offset[k] : 0.0f;
+    ws[k] = w[k] * cfg.slope[k];
+    a += ws[k] * cfg.slope[k];
+    n_used += use ? 1 : 0;
+  }
+  if (n_used < kTwinPerChannel || !(a > 0.0f)) {
+    r.status = kErrTooFewSamples;
+    return r;
+  }
+  // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
+  // window of grid points within the cutoff of it.
+  const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
+  const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
+  x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
+  y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
+  const float inv_step = 1.0f / map.step_mm;
+  int i0 = static_cast<int>(ceilf((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step));
+  int i1 = static_cast<int>(floorf((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step));
+  int j0 = static_cast<int>(ceilf((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step));
+  int j1 = static_cast<int>(floorf((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step));
+  if (i0 < 0) i0 = 0;
+  if (j0 < 0) j0 = 0;
+  if (i1 > map.nx - 1) i1 = map.nx - 1;
+  if (j1 > map.ny - 1) j1 = map.ny - 1;
+  if ((i1 - i0 + 1) * (j1 - j0 + 1) > kMaxTwinPoints) {
+    r.status = kErrBadConfig;
+    return r;
+  }
+  const float inv_a = 1.0f / a;
+  const float inv_n = 1.0f / static_cast<float>(n_used);
+  const float inv_t = 1.0f / cfg.temperature;
+  const float inv_2s2 = 0.5f / (cfg.prior_mm * cfg.prior_mm);
+  const float cut2 = cfg.cutoff_mm * cfg.cutoff_mm;
+  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], px[kMaxTwinPoints], py[kMaxTwinPoints];
+  int n = 0;
+  float best_logw = -INFINITY, best_misfit = INFINITY;
+  for (int i = i0; i <= i1; ++i) {
+    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
+    for (int j = j0; j <= j1; ++j) {
+      const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
+      const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
+      if (d2 > cut2) continue;
+      const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
+      if (q[0] == kSiteMapMissing) continue;
+      // D = sum w s rr / A; misfit = (sum w rr^2 - A D^2) / n, rr = r0 - map (unused features have w = 0).
+      float b = 0.0f, c = 0.0f;
+      for (int k = 0; k < kTwinFeatures; ++k) {
+        const float rr = r0[k] - (map.base[k] + map.scale[k] * static_cast<float>(q[k]));
+        b += ws[k] * rr;
+        c += w[k] * rr * rr;
+      }
+      const float shift_j = b * inv_a;
+      float misfit = (c - a * shift_j * shift_j) * inv_n;
+      if (misfit < 0.0f) misfit = 0.0f;
+      const float lw = -misfit * inv_t - d2 * inv_2s2;
+      logw[n] = lw;
+      shift[n] = shift_j;
+      px[n] = gx;
+      py[n] = gy;
+      if (lw > best_logw) best_logw = lw;
+      if (misfit < best_misfit) best_misfit = misfit;
+      ++n;
+    }
+  }
+  r.n_points = n;
+  if (n == 0) {
+    r.status = kErrTooFewSamples;
+    return r;
+  }
+  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f;
+  for (int m = 0; m < n; ++m) {
+    const float p = expf(logw[m] - best_logw);
+    sw += p;
+    sd += p * shift[m];
+    sx += p * px[m];
+    sy += p * py[m];
+  }
+  r.log10_height_mm = cfg.ref_log10_height_mm + sd / sw;
+  r.x_mm = sx / sw;
+  r.y_mm = sy / sw;
+  r.misfit = best_misfit;
+  return r;
+}
+
+}  // namespace impactcore

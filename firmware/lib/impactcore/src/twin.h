@@ -1,0 +1,66 @@
+// The twin's energy fingerprint: how hard the plate was hit, from the per-channel energies of an event
+// compared with what the calibrated twin (sim/) predicts at and around the impact position.
+//
+// Why (docs/findings.md, "Energy class"): a sensor's arrival energy carries a site factor of the impact
+// position -- the direct wave interfering with its reflections from the nearest edges -- that swings by
+// +-10-20 % within a few millimetres near the edges. It is finer than any measured training grid, but the
+// twin reproduces it (r = 0.9 between measured and simulated site factors at the true positions). So the
+// host simulates a drop from a reference height at every point of a regular grid (the site map, built
+// once per calibration), and the event's 16 log-energies (4 channels x arrival, Delta^1..3) are matched
+// against the map's entries near the model's position: each grid point j gives the least-squares shift
+// D_j of log10 height that best explains the event (per-feature slope s_k = d feature / d log10 h,
+// weight w_k = 1 / variance of the twin's error), and a misfit; the estimate is the average of D_j with
+// weights exp(-misfit_j / T - d_j^2 / (2 sigma^2)) (d_j: distance of the grid point from the position).
+// Everything is per event and fixed-size: at most kMaxTwinPoints grid points, no heap, no libm log.
+#pragma once
+
+#include <stdint.h>
+
+#include "impactcore.h"
+
+namespace impactcore {
+
+constexpr int kTwinPerChannel = 1 + kDiffOrders;                 // arrival energy, Delta^1..3 energies
+constexpr int kTwinFeatures = kChannels * kTwinPerChannel;       // 16, channel-major
+constexpr int kMaxTwinPoints = 256;                              // grid points one estimate may visit
+constexpr uint8_t kSiteMapMissing = 255;                         // q value of grid points with no drop
+
+// The site map: grid point (i, j) at (x0_mm + i step_mm, y0_mm + j step_mm), i < nx, j < ny, row i * ny + j;
+// feature k of a point = base[k] + scale[k] * q[(i * ny + j) * kTwinFeatures + k] (uint8, 255 = no drop
+// there: the point lies on a sensor disc).
+struct SiteMap {
+  int32_t nx, ny;
+  float x0_mm, y0_mm, step_mm;
+  float base[kTwinFeatures];
+  float scale[kTwinFeatures];
+  const uint8_t* q;
+};
+
+// How the rig's events relate to the map (fitted by the host on drops of known height and position).
+struct TwinConfig {
+  float offset[kTwinFeatures];  // event feature - map feature at the reference height (gains, spectral tilt)
+  float slope[kTwinFeatures];   // d feature / d log10(height)
+  float weight[kTwinFeatures];  // 1 / variance of the event-minus-map residual
+  float ref_log10_height_mm;    // the map's drop height
+  float prior_mm = 7.0f;        // sigma of the model position's error
+  float cutoff_mm = 15.0f;      // grid points farther than this from the position are not visited
+  float temperature = 0.5f;     // misfit scale T of the weights
+};
+
+struct TwinEstimate {
+  int32_t status;               // kOk, kErrBadConfig, kErrNullInput, or kErrTooFewSamples (< 1 usable channel)
+  float log10_height_mm;        // the estimate (NaN unless kOk)
+  float x_mm, y_mm;             // weighted mean of the visited grid points
+  float misfit;                 // smallest weighted misfit among them (per usable feature)
+  int32_t n_points;             // grid points visited
+};
+
+// The event's 16 features: log10(1 + energy) of each channel's arrival (ToA .. n2) and Delta^1..3
+// energies; returns the bit mask of usable features (a channel that clipped, is dead or has no onset
+// gives none).
+uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]);
+
+TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
+                           const SiteMap& map, const TwinConfig& cfg);
+
+}  // namespace impactcore

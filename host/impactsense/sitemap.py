@@ -1,0 +1,192 @@
+"""The twin's site map: the simulated per-channel energies of a drop from one height at every grid point.
+
+A sensor's arrival energy depends on where the plate was hit at a scale of a few millimetres (the direct
+wave meets its reflections from the nearest edges; docs/findings.md, "Energy class"). The calibrated twin
+reproduces that pattern, so the map holds, for a regular grid over the plate, the 16 features the core's
+twin_features() computes (twin.h: log10 energies of 4 channels x arrival, Delta^1..3) of a simulated drop
+from `ref_height_mm`, quantised to one byte each so the same table fits the board's flash. The host and the
+board read the same bytes through the same C++ (impactcore twin_estimate).
+
+    impactsense sitemap --calibration CAL.json --out site-map.npz [--step-mm 5]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from .errors import DataError
+from .pipeline import SignalConfig, featurize
+
+MISSING = int(_core.SITE_MAP_MISSING)
+N_FEATURES = int(_core.TWIN_FEATURES)
+TWIN_FEATURE_NAMES = [f"log_{kind}_{c}" for c in range(4) for kind in ("arrival", "diff1", "diff2", "diff3")]
+FORMAT = "impactsense-site-map/1"
+
+
+@dataclass
+class SiteMap:
+    x0_mm: float
+    y0_mm: float
+    step_mm: float
+    nx: int
+    ny: int
+    base: np.ndarray          # float32 [16]
+    scale: np.ndarray         # float32 [16]
+    q: np.ndarray             # uint8 [nx * ny, 16]; row i * ny + j; MISSING where no drop (a sensor disc)
+    ref_height_mm: float
+    source: dict = field(default_factory=dict)   # twin parameters, rig and signal the map was made with
+
+    @property
+    def xy_mm(self) -> np.ndarray:
+        """Grid point coordinates [nx * ny, 2] in row order."""
+        i, j = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
+        return np.stack([self.x0_mm + self.step_mm * i.ravel(), self.y0_mm + self.step_mm * j.ravel()], 1)
+
+    @property
+    def present(self) -> np.ndarray:
+        return self.q[:, 0] != MISSING
+
+    def values(self) -> np.ndarray:
+        """Dequantised features [nx * ny, 16] (float32, the board's arithmetic); NaN at missing points."""
+        v = self.base[None, :] + self.scale[None, :] * self.q.astype(np.float32)
+        v[~self.present] = np.nan
+        return v.astype(np.float32)
+
+    def nearest(self, xy_mm: np.ndarray) -> np.ndarray:
+        """Features of the nearest present grid point to each position [n, 2] -> [n, 16]."""
+        xy_mm = np.asarray(xy_mm, float).reshape(-1, 2)
+        from scipy.spatial import cKDTree
+
+        pts = self.xy_mm[self.present]
+        _, k = cKDTree(pts).query(xy_mm)
+        return self.values()[self.present][k]
+
+    def fingerprint(self) -> str:
+        h = hashlib.sha256()
+        for a in (self.base, self.scale, self.q):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(json.dumps([self.x0_mm, self.y0_mm, self.step_mm, self.nx, self.ny, self.ref_height_mm]).encode())
+        return h.hexdigest()[:16]
+
+    # ----- files -----
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = dict(format=FORMAT, x0_mm=self.x0_mm, y0_mm=self.y0_mm, step_mm=self.step_mm, nx=self.nx,
+                    ny=self.ny, ref_height_mm=self.ref_height_mm, feature_names=TWIN_FEATURE_NAMES,
+                    source=self.source)
+        tmp = path.with_name(path.name + ".part")
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, base=self.base, scale=self.scale, q=self.q, meta=np.array(json.dumps(meta)))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SiteMap":
+        path = Path(path)
+        if not path.is_file():
+            raise DataError(path, None, "site map not found (make one with `impactsense sitemap`)")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+                base, scale, q = z["base"], z["scale"], z["q"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise DataError(path, None, f"not a site map file ({exc})") from None
+        if meta.get("format") != FORMAT:
+            raise DataError(path, "format", f"expected {FORMAT}, got {meta.get('format')!r}")
+        if meta.get("feature_names") != TWIN_FEATURE_NAMES:
+            raise DataError(path, "feature_names", "made for another core's twin features; rebuild it")
+        nx, ny = int(meta["nx"]), int(meta["ny"])
+        if q.shape != (nx * ny, N_FEATURES) or q.dtype != np.uint8:
+            raise DataError(path, "q", f"expected uint8 [{nx * ny}, {N_FEATURES}], got {q.dtype} {q.shape}")
+        if base.shape != (N_FEATURES,) or scale.shape != (N_FEATURES,):
+            raise DataError(path, "base", f"base and scale need {N_FEATURES} values")
+        return cls(x0_mm=float(meta["x0_mm"]), y0_mm=float(meta["y0_mm"]), step_mm=float(meta["step_mm"]),
+                   nx=nx, ny=ny, base=base.astype(np.float32), scale=scale.astype(np.float32), q=q,
+                   ref_height_mm=float(meta["ref_height_mm"]), source=meta.get("source", {}))
+
+
+def twin_features(features) -> tuple[np.ndarray, np.ndarray]:
+    """The core's 16 twin features [R, 16] and usable-feature masks [R] (uint16) of featurize() output."""
+    raw = features.raw
+    return _core.twin_features_batch(np.ascontiguousarray(raw["window_energy"], np.float32),
+                                     np.ascontiguousarray(raw["diff_energy"], np.float32),
+                                     np.ascontiguousarray(features.flags, np.uint8))
+
+
+def quantise(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """float [n, 16] (NaN rows = missing) -> base, scale, uint8 q (0..254; 255 = missing)."""
+    present = np.isfinite(values).all(1)
+    if not present.any():
+        raise DataError("site map", None, "no grid point has a usable simulated drop")
+    lo = values[present].min(0)
+    hi = values[present].max(0)
+    scale = np.maximum(hi - lo, 1e-6) / 254.0
+    q = np.full(values.shape, MISSING, np.uint8)
+    q[present] = np.clip(np.rint((values[present] - lo) / scale), 0, 254).astype(np.uint8)
+    return lo.astype(np.float32), scale.astype(np.float32), q
+
+
+def grid(rig, step_mm: float, margin_mm: float) -> tuple[float, float, int, int]:
+    if not (0 < step_mm <= 50):
+        raise DataError("site map", "step_mm", f"must be in (0, 50], got {step_mm}")
+    nx = int(np.floor((rig.plate_x_mm - 2 * margin_mm) / step_mm + 1e-9)) + 1
+    ny = int(np.floor((rig.plate_y_mm - 2 * margin_mm) / step_mm + 1e-9)) + 1
+    if nx < 2 or ny < 2:
+        raise DataError("site map", "margin_mm", "the plate is too small for this step and margin")
+    return margin_mm, margin_mm, nx, ny
+
+
+def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
+                   ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
+                   progress: bool = True) -> SiteMap:
+    """Simulate a drop from ref_height_mm at every grid point (off the sensor discs) and keep the core's
+    twin features. The counts are not clipped (int16 range, the core's clip detection off), so the map
+    holds the whole energy even where the rig's ADC would saturate; the rig's clipped channels are left out
+    of the match instead (twin.h)."""
+    from .sim import simulate_voltages
+
+    x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
+    m = SiteMap(x0, y0, step_mm, nx, ny, np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32),
+                np.zeros((nx * ny, N_FEATURES), np.uint8), ref_height_mm)
+    xy = m.xy_mm
+    d = np.hypot(xy[:, None, 0] - rig.sensor_x_mm[None], xy[:, None, 1] - rig.sensor_y_mm[None]).min(1)
+    on_disc = d < rig.sensor_diameter_mm / 2 + rig.ball_diameter_mm / 2 + 0.5
+    todo = np.flatnonzero(~on_disc)
+    sig = SignalConfig.from_dict(signal.to_dict())
+    sig.adc_min, sig.adc_max = -32768, 32767
+    values = np.full((nx * ny, N_FEATURES), np.nan)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=todo.size, desc="site map", unit="drop")
+    start = params.pretrigger_samples
+    for k in range(0, todo.size, chunk):
+        rows = todo[k:k + chunk]
+        res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),
+                                workers=workers)
+        volts = res["volts"]
+        rec = np.zeros((rows.size, 4, rig.samples))
+        take = min(volts.shape[2], rig.samples - start)
+        rec[:, :, start:start + take] = volts[:, :, :take]
+        counts = rig.bias_counts + params.circuit_gain * rec * (2 ** rig.adc_bits) / rig.vref
+        if np.abs(counts).max() > 32000:
+            raise DataError("site map", "circuit_gain", "simulated counts exceed the int16 range")
+        f = featurize(np.rint(counts).astype(np.int16), sig)
+        feats, usable = twin_features(f)
+        ok = (usable == (1 << N_FEATURES) - 1) & np.isfinite(feats).all(1)
+        values[rows[ok]] = feats[ok]
+        if bar is not None:
+            bar.update(rows.size)
+    if bar is not None:
+        bar.close()
+    m.base, m.scale, m.q = quantise(values)
+    m.source = {"sim_params": params.to_dict() if hasattr(params, "to_dict") else {},
+                "rig_sensors_mm": rig.sensor_xy_mm.tolist(), "signal": signal.to_dict()}
+    return m

@@ -1,0 +1,101 @@
+"""How hard the plate was hit, by matching an event's energies against the twin's site map.
+
+Fitting (here, in Python: it is training) finds how the rig's events relate to the map: per feature an
+offset (the rig's gains and the twin's spectral tilt), a slope d feature / d log10 height, and a weight
+(1 / variance of the rig-minus-map residual, pooled over the four channels per kind of energy). The
+estimate itself is the core's twin_estimate (C++, the board's code) through the binding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from . import _core
+from .errors import DataError
+from .sitemap import N_FEATURES, SiteMap
+
+KINDS = 4   # arrival, Delta^1, Delta^2, Delta^3 per channel (channel-major features)
+
+
+@dataclass
+class TwinFit:
+    offset: list[float]
+    slope: list[float]
+    weight: list[float]
+    ref_log10_height_mm: float
+    prior_mm: float = 7.0
+    cutoff_mm: float = 15.0
+    temperature: float = 0.5
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TwinFit":
+        try:
+            fit = cls(**d)
+        except TypeError as exc:
+            raise DataError("model card", "twin", str(exc)) from None
+        for name in ("offset", "slope", "weight"):
+            if len(getattr(fit, name)) != N_FEATURES:
+                raise DataError("model card", f"twin.{name}", f"needs {N_FEATURES} values")
+        return fit
+
+
+def _residual_rows(feats, usable, site: SiteMap, xy_mm):
+    mask = ((usable[:, None].astype(np.int64) >> np.arange(N_FEATURES)) & 1).astype(bool)
+    mask &= np.isfinite(feats)
+    return feats.astype(float) - site.nearest(xy_mm).astype(float), mask
+
+
+def fit_slopes(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.ndarray,
+               height_mm: np.ndarray) -> np.ndarray:
+    """d feature / d log10 height of the event-minus-map residual, by least squares over the drops."""
+    r, mask = _residual_rows(feats, usable, site, xy_mm)
+    lh = np.log10(np.asarray(height_mm, float))
+    if np.ptp(lh) < 0.05:
+        raise DataError("training data", "height_mm", "the twin's slopes need drops from several heights")
+    slope = np.empty(N_FEATURES)
+    for k in range(N_FEATURES):
+        m = mask[:, k]
+        if m.sum() < 5:
+            raise DataError("training data", None, f"fewer than 5 drops with a usable twin feature {k}")
+        slope[k] = np.polyfit(lh[m], r[m, k], 1)[0]
+    return slope
+
+
+def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.ndarray, height_mm: np.ndarray,
+             slope: np.ndarray | None = None) -> TwinFit:
+    """Offsets and weights from drops of known position and height (slopes too unless given)."""
+    if slope is None:
+        slope = fit_slopes(feats, usable, site, xy_mm, height_mm)
+    slope = np.asarray(slope, float)
+    ref = float(np.log10(site.ref_height_mm))
+    r, mask = _residual_rows(feats, usable, site, xy_mm)
+    r = r - slope[None, :] * (np.log10(np.asarray(height_mm, float)) - ref)[:, None]
+    offset = np.zeros(N_FEATURES)
+    for k in range(N_FEATURES):
+        if not mask[:, k].any():
+            raise DataError("training data", None, f"no drop has a usable twin feature {k} (all clipped?)")
+        offset[k] = np.median(r[mask[:, k], k])
+    dev = r - offset[None, :]
+    weight = np.zeros(N_FEATURES)
+    for kind in range(KINDS):
+        cols = np.arange(kind, N_FEATURES, KINDS)
+        pooled = dev[:, cols][mask[:, cols]]
+        if pooled.size < 4:
+            raise DataError("training data", None, "too few usable drops to weight the twin's features")
+        weight[cols] = 1.0 / max(float(np.var(pooled)), 1e-6)
+    return TwinFit(offset=offset.tolist(), slope=slope.tolist(), weight=weight.tolist(), ref_log10_height_mm=ref)
+
+
+def estimate(site: SiteMap, fit: TwinFit, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray) -> dict:
+    """The core's twin_estimate for every row: log10_height_mm, xy_mm, misfit, n_points, status."""
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    xy = f32(np.asarray(xy_mm, float).reshape(-1, 2))   # NaN rows: status kErrBadConfig, estimate NaN
+    return _core.twin_estimate_batch(f32(feats), np.ascontiguousarray(usable, np.uint16), xy, site.q,
+                                     site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm, f32(site.base),
+                                     f32(site.scale), f32(fit.offset), f32(fit.slope), f32(fit.weight),
+                                     fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature)

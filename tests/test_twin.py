@@ -1,0 +1,131 @@
+"""The twin's energy fingerprint: site map files, the core's twin_estimate, fitting, and the map's build."""
+
+import numpy as np
+import pytest
+
+from impactsense import _core
+from impactsense.errors import DataError
+from impactsense.sitemap import MISSING, N_FEATURES, SiteMap, quantise, twin_features
+from impactsense.twin import TwinFit, estimate, fit_twin
+
+REF = 175.0
+
+
+def synthetic_map(step=5.0, nx=40, ny=40, seed=0):
+    """A map whose features vary on a 10-20 mm scale (like the edge interference) with known values."""
+    rng = np.random.default_rng(seed)
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    x, y = 10 + step * i.ravel(), 10 + step * j.ravel()
+    k = rng.uniform(0.2, 0.6, (N_FEATURES, 2))
+    ph = rng.uniform(0, 2 * np.pi, N_FEATURES)
+    values = 8.0 + 0.3 * np.sin(k[:, 0][None] * x[:, None] + k[:, 1][None] * y[:, None] + ph[None])
+    values[5] = np.nan                                   # one grid point on a "disc"
+    base, scale, q = quantise(values)
+    site = SiteMap(10.0, 10.0, step, nx, ny, base, scale, q, REF)
+    return site
+
+
+def fit_for(slope=1.2, weight=100.0):
+    return TwinFit(offset=[0.0] * N_FEATURES, slope=[slope] * N_FEATURES, weight=[weight] * N_FEATURES,
+                   ref_log10_height_mm=float(np.log10(REF)))
+
+
+def test_quantised_map_is_within_half_a_step_and_marks_missing_points():
+    values = np.random.default_rng(1).normal(9, 0.5, (50, N_FEATURES))
+    values[7] = np.nan
+    base, scale, q = quantise(values)
+    assert (q[7] == MISSING).all() and (q[np.arange(50) != 7] < MISSING).all()
+    back = base + scale * q.astype(np.float32)
+    ok = np.arange(50) != 7
+    assert np.max(np.abs(back[ok] - values[ok]) / scale) <= 0.5 + 1e-4
+
+
+def test_estimate_recovers_height_and_position_of_an_event_made_from_the_map():
+    site = synthetic_map()
+    fit = fit_for()
+    v = site.values()
+    rng = np.random.default_rng(2)
+    rows = rng.choice(np.flatnonzero(site.present & (site.xy_mm[:, 0] > 40) & (site.xy_mm[:, 0] < 170)
+                                     & (site.xy_mm[:, 1] > 40) & (site.xy_mm[:, 1] < 170)), 30, replace=False)
+    heights = rng.uniform(100, 200, rows.size)
+    feats = v[rows] + 1.2 * (np.log10(heights) - np.log10(REF))[:, None]
+    # the model's position is off by 4 mm in a random direction: the fingerprint finds the grid point
+    ang = rng.uniform(0, 2 * np.pi, rows.size)
+    centre = site.xy_mm[rows] + 4.0 * np.stack([np.cos(ang), np.sin(ang)], 1)
+    out = estimate(site, fit, feats, np.full(rows.size, 0xFFFF, np.uint16), centre)
+    assert (out["status"] == 0).all()
+    # exact match at the true point; the neighbours' weights add a small bias only
+    assert np.max(np.abs(out["log10_height_mm"] - np.log10(heights))) < 0.01
+    assert np.median(np.linalg.norm(out["xy_mm"] - site.xy_mm[rows], axis=1)) < 1.5
+
+
+def test_unusable_features_do_not_count():
+    site = synthetic_map()
+    fit = fit_for()
+    row = int(np.flatnonzero(site.present)[500])
+    feats = site.values()[[row]].copy()
+    usable = np.array([0xFFFF & ~0x000F], np.uint16)          # channel 0 clipped
+    a = estimate(site, fit, feats, usable, site.xy_mm[[row]])
+    feats[0, :4] += 5.0                                        # its values are nonsense now
+    b = estimate(site, fit, feats, usable, site.xy_mm[[row]])
+    assert a["log10_height_mm"][0] == b["log10_height_mm"][0]
+    none = estimate(site, fit, feats, np.array([0], np.uint16), site.xy_mm[[row]])
+    assert none["status"][0] != 0 and np.isnan(none["log10_height_mm"][0])
+
+
+def test_no_position_gives_no_estimate_and_off_map_positions_use_the_edge():
+    site = synthetic_map()
+    fit = fit_for()
+    feats = site.values()[[100, 100]]
+    out = estimate(site, fit, feats, np.full(2, 0xFFFF, np.uint16), np.array([[np.nan, 50.0], [-80.0, 50.0]]))
+    assert out["status"][0] != 0 and np.isnan(out["log10_height_mm"][0])
+    assert out["status"][1] == 0 and site.x0_mm <= out["xy_mm"][1, 0] < site.x0_mm + fit.cutoff_mm
+
+
+def test_fit_recovers_offsets_slopes_and_weights_by_kind():
+    site = synthetic_map()
+    rng = np.random.default_rng(3)
+    rows = rng.choice(np.flatnonzero(site.present), 400)
+    h = rng.uniform(100, 200, rows.size)
+    true_off = rng.normal(0, 0.1, N_FEATURES)
+    true_slope = np.tile([1.0, 1.15, 1.3, 1.4], 4)
+    sd = np.tile([0.02, 0.03, 0.04, 0.05], 4)
+    feats = (site.values()[rows] + true_off + true_slope * (np.log10(h) - np.log10(REF))[:, None]
+             + rng.normal(0, 1, (rows.size, N_FEATURES)) * sd)
+    fit = fit_twin(feats, np.full(rows.size, 0xFFFF, np.uint16), site, site.xy_mm[rows], h)
+    assert np.allclose(fit.offset, true_off, atol=0.01)
+    assert np.allclose(fit.slope, true_slope, atol=0.08)
+    assert np.allclose(1 / np.sqrt(fit.weight), sd, rtol=0.15)
+
+
+def test_fit_needs_several_heights():
+    site = synthetic_map()
+    rows = np.flatnonzero(site.present)[:50]
+    with pytest.raises(DataError, match="height_mm"):
+        fit_twin(site.values()[rows], np.full(50, 0xFFFF, np.uint16), site, site.xy_mm[rows], np.full(50, 150.0))
+
+
+def test_site_map_file_round_trip_and_bad_files(tmp_path):
+    site = synthetic_map()
+    p = site.save(tmp_path / "m.npz")
+    back = SiteMap.load(p)
+    assert back.fingerprint() == site.fingerprint() and back.nx == site.nx
+    with pytest.raises(DataError, match="not found"):
+        SiteMap.load(tmp_path / "none.npz")
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="bad.npz"):
+        SiteMap.load(tmp_path / "bad.npz")
+
+
+def test_twin_features_are_the_log_energies_and_clipped_channels_are_unusable(session1):
+    from impactsense.pipeline import SignalConfig, featurize
+
+    f = featurize(session1.adc[:40], SignalConfig.for_rig(session1.rig))
+    feats, usable = twin_features(f)
+    arrival = f.raw["window_energy"].sum(2)
+    assert np.allclose(feats[:, 0::4], np.log10(arrival + 1), atol=1e-5)
+    assert np.allclose(feats[:, 1::4], np.log10(f.raw["diff_energy"][:, :, 0] + 1), atol=1e-5)
+    for c in range(4):
+        bits = (usable >> (4 * c)) & 0xF
+        assert np.array_equal(bits == 0, f.clipped[:, c] | f.dead[:, c] | f.no_onset[:, c])
+    assert _core.TWIN_FEATURES == N_FEATURES
