@@ -82,7 +82,7 @@ def main() -> int:
     if len(ev) <= 12:
         print("  whole event per drop: " + " / ".join(f"{v:,}" for v in ev))
     worst = np.argsort(ev)[::-1][:3]
-    print("  slowest: " + ", ".join(f"row {rows[i]} {ev[i]:,} (features {fe[i]:,}, winning start "
+    print("  slowest: " + ", ".join(f"row {rows[i]} {ev[i]:,} (features {fe[i]:,}, localiser "
                                       f"{per_drop['localiser_iterations'][i]} iterations)" for i in worst))
     print(f"event_total = process_event (features + physics localiser + Eq. 35 + feature vector) + table models + encoding; "
           f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'} on the last capture, "

@@ -4,6 +4,8 @@ scikit-learn's predictions).
 
     python gen_fixture.py BUILD_DIR [--model-dir MODEL_DIR] [--drops 6] [--trees 12]
 
+--trees: the localisation forests' trees exported (the energy forest is exported whole, as `impactsense export` does).
+
 Without --model-dir it trains small forests on the firmware's own captures (impactsense.link.boardmodel).
 """
 
@@ -49,8 +51,10 @@ def main(argv=None):
         from impactsense.link.boardmodel import train_board_models
 
         model_dir = train_board_models(s, build / "model", n_trees=args.trees, fs_hz=args.fs)
-    export_models(model_dir, build / "models")
+    export_models(model_dir, build / "models", trees=args.trees)
     model = ImpactModel.load(model_dir)
+    for forest in (model.forest_dx, model.forest_dy):  # the exported prefix (a random forest itself)
+        forest.estimators_ = forest.estimators_[:args.trees]
     fm, signal = firmware_models(build / "models")
 
     rows = np.linspace(0, len(s) - 1, args.drops).round().astype(int)

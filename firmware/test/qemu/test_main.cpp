@@ -172,7 +172,21 @@ int main() {
       const uint64_t f0 = ticks();
       impactcore::extract_features(ch, g_app.capture_frames(), g_app.config().core, &f);
       put_int("TICKS_DROP features", static_cast<long long>(ticks() - f0));
-      put_int("DROP localiser_iterations", g_app.last_result().phys.iterations);
+      const impactapp::AppConfig& cfg = g_app.config();
+      float toa[4];
+      uint8_t use[4];
+      for (int c = 0; c < 4; ++c) {
+        toa[c] = f.ch[c].toa_us;
+        use[c] = (f.ch[c].flags & (impactcore::kFlagNoOnset | impactcore::kFlagDead)) ? 0 : 1;
+      }
+      const uint64_t l0 = ticks();
+      const impactcore::LocaliserResult loc = impactcore::localise_tdoa(
+          toa, use, cfg.loc.sensor_x_mm, cfg.loc.sensor_y_mm, cfg.loc.velocity_mm_per_us, cfg.loc.sigma_us,
+          cfg.loc.plate_x_mm, cfg.loc.plate_y_mm, cfg.loc.huber_us);
+      put_int("TICKS_DROP localiser", static_cast<long long>(ticks() - l0));
+      check(loc.x_mm == g_app.last_result().phys.x_mm, "FAIL localiser rerun differs, drop", d);
+      put_int("DROP localiser_iterations", loc.iterations);
+      put_int("DROP localiser_evaluations", loc.evaluations);
     }
   }
   put_int("TICKS event_max_over_drops", static_cast<long long>(event_max));

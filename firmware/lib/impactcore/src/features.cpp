@@ -139,12 +139,15 @@ void scan_peak(const Channel& ch, int k, float base, float* peak) {
 }
 
 // max |x - base| over the capture: the blocks whose energy could hold a larger sample than the peak so
-// far. With an onset, the crossing's block is taken first; the blocks between `start` and it are skipped
-// (their samples from `start` on are below the threshold, hence below the peak).
+// far. With an onset, the crossing's block and the kArrivalBlocks - 1 after it (the first lobes, usually
+// the largest: a high peak early rules out most other blocks) are taken first; the blocks between `start`
+// and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
+constexpr int kArrivalBlocks = 3;
 float peak_abs(const Channel& ch, float base, int at, int start) {
   float peak = 0.0f;
   const int kc = at >= 0 ? at / kBlock : -1;
-  if (kc >= 0) scan_peak(ch, kc, base, &peak);
+  const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
+  for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
   int64_t lim = ch.bound(peak);
   float lim_f = 0.999f * peak * peak;
   // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
@@ -153,7 +156,7 @@ float peak_abs(const Channel& ch, float base, int at, int start) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
     if (!ch.may_reach(g, gend, base, lim_f, lim)) continue;
     for (int k = g; k < gend; ++k) {
-      if (k == kc || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
+      if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
       if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
       const float before = peak;
       scan_peak(ch, k, base, &peak);

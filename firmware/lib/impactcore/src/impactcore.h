@@ -190,15 +190,15 @@ struct LocaliserResult {
   float x_mm, y_mm, t0_us;   // impact position and time
   float cov_xx, cov_xy, cov_yy;  // mm^2, from sigma_us and the Jacobian at the solution
   float rms_residual_us;     // rms of ToA residuals at the solution
-  int32_t iterations;        // Gauss-Newton iterations of the winning start
+  int32_t iterations;        // Gauss-Newton iterations
+  int32_t evaluations;       // normal-equation evaluations (iterations + step halvings + 1): the cost
   int32_t status;
 };
 
 // Solves toa_i = t0 + |p - s_i| / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
-// (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from several
-// starts: the closed-form solution of the linearised range differences (Chan 1994, with the earliest
-// sensor as reference), the plate centre and the four quadrant centres; p stays on the plate. The start
-// with the lowest Huber cost wins. Channels whose `use` flag is 0 are left out (at least 3 needed).
+// (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from one start:
+// the lowest Huber cost of a 4 x 4 grid of cell centres over the plate; at most 10 iterations (a bounded
+// cost per event); p stays on the plate. Channels whose `use` flag is 0 are left out (at least 3 needed).
 // velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance.
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
