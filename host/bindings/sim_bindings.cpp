@@ -92,12 +92,18 @@ NB_MODULE(_sim, m) {
           "u"_a, "f = K u for u float32 [3, nodes] (w, beta_x, beta_y); no boundary conditions applied.")
       .def(
           "max_eigenvalue",
-          [](const is::Plate& p, int max_iter, double rtol) {
+          [](const is::Plate& p, int max_iter, double rtol, bool coarse) {
             nb::gil_scoped_release release;
-            return p.max_eigenvalue(max_iter, rtol);
+            return p.max_eigenvalue(max_iter, rtol, coarse);
           },
-          "max_iter"_a = 300, "rtol"_a = 1e-7,
-          "omega_max^2 of M^-1 K over the free dofs (Lanczos with the stepper's kernel); dt_crit = 2 / omega_max.")
+          "max_iter"_a = 300, "rtol"_a = 1e-7, "coarse"_a = false,
+          "omega_max^2 of M^-1 K over the free dofs (Lanczos with the stepper's kernel); dt_crit = 2 / omega_max. "
+          "coarse: the sub-cycled dofs held fixed (the large step's limit).")
+      .def("set_subcycling", &is::Plate::set_subcycling, "fine_dt_s"_a, "layer"_a = 1,
+           "Step the disc patches (elements unlike the base one, dilated by layer nodes) with dt / m, "
+           "m = ceil(dt / fine_dt_s), the rest with dt; fine_dt_s <= 0 turns it off. Call before any run.")
+      .def_prop_ro("subcycled_nodes", &is::Plate::subcycled_nodes)
+      .def_prop_ro("fine_dt_s", &is::Plate::fine_dt)
       .def(
           "internal_force_double",
           [](const is::Plate& p, InD u) {

@@ -129,7 +129,17 @@ class Plate {
   // dt = 2 / omega_max), by Lanczos with the stepper's kernel; iterates until the largest Ritz value changes
   // by less than rtol (relative) between checks every 5 iterations, at most max_iter. A Ritz value never
   // exceeds the eigenvalue: callers keep a safety factor.
-  double max_eigenvalue(int max_iter = 300, double rtol = 1e-7) const;
+  // coarse: the sub-cycled dofs (set_subcycling) held fixed, i.e. the limit of the large step.
+  double max_eigenvalue(int max_iter = 300, double rtol = 1e-7, bool coarse = false) const;
+
+  // Sub-cycling (nodal-partition multi-time-step central differences, Belytschko-Yen-Mullen): the nodes of
+  // the elements unlike the base one (the discs), dilated by `layer` nodes and grown to rectangular
+  // patches, are stepped m times per step with dt / m, m = ceil(dt / fine_dt_s); over the sub-steps the
+  // patch's outer ring (large-step nodes) moves linearly from u_n to u_{n+1}. A run with dt <= fine_dt_s
+  // is the plain single-step scheme. fine_dt_s <= 0 turns it off.
+  void set_subcycling(double fine_dt_s, int layer);
+  int64_t subcycled_nodes() const;
+  double fine_dt() const { return fine_dt_; }
 
   RunResult run(const RunConfig& cfg) const;
 
@@ -151,6 +161,12 @@ class Plate {
   std::vector<Special> special_;
   std::vector<int64_t> row_start_;
   std::vector<Real> inv_mw_, inv_mr_;  // 0 at fixed dofs
+  struct Patch {  // sub-cycled nodes i0..i1 x j0..j1; with its ring of large-step nodes, ei0..ei1 x ej0..ej1
+    int i0, i1, j0, j1, ei0, ei1, ej0, ej1;
+  };
+  std::vector<Patch> patches_;
+  std::vector<uint8_t> sub_;           // per node: 1 if sub-cycled
+  double fine_dt_ = 0;
 };
 
 // 12 x 12 stiffness of one element (dof order: node-major w, bx, by for nodes 1..4 counter-clockwise from

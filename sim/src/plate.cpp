@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 
@@ -329,14 +330,83 @@ double tridiagonal_max_eigenvalue(const std::vector<double>& a, const std::vecto
 }
 }  // namespace
 
-double Plate::max_eigenvalue(int max_iter, double rtol) const {
+void Plate::set_subcycling(double fine_dt_s, int layer) {
+  need(layer >= 0, "subcycling layer must be >= 0");
+  patches_.clear();
+  sub_.assign(static_cast<size_t>(nodes()), 0);
+  fine_dt_ = 0;
+  if (!(fine_dt_s > 0) || special_.empty()) return;
+  fine_dt_ = fine_dt_s;
+  const int nx = s_.nx, ny = s_.ny;
+  // clusters of special elements (8-connected) -> node boxes dilated by layer, merged while a box's ring
+  // touches another box (ring nodes must be large-step nodes)
+  std::vector<uint8_t> mark(static_cast<size_t>(elements()), 0);
+  for (int j = 0; j < ny; ++j)
+    for (int64_t k = row_start_[j]; k < row_start_[j + 1]; ++k) mark[static_cast<size_t>(j) * nx + special_[k].i] = 1;
+  struct Box { int i0, i1, j0, j1; };
+  std::vector<Box> boxes;
+  std::vector<int64_t> stack;
+  for (size_t e0 = 0; e0 < mark.size(); ++e0) {
+    if (mark[e0] != 1) continue;
+    Box b{nx, -1, ny, -1};
+    stack.assign(1, static_cast<int64_t>(e0));
+    mark[e0] = 2;
+    while (!stack.empty()) {
+      const int64_t e = stack.back();
+      stack.pop_back();
+      const int i = static_cast<int>(e % nx), j = static_cast<int>(e / nx);
+      b = {std::min(b.i0, i), std::max(b.i1, i + 1), std::min(b.j0, j), std::max(b.j1, j + 1)};
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          const int a = i + di, c = j + dj;
+          if (a < 0 || a >= nx || c < 0 || c >= ny) continue;
+          const size_t f = static_cast<size_t>(c) * nx + a;
+          if (mark[f] == 1) {
+            mark[f] = 2;
+            stack.push_back(static_cast<int64_t>(f));
+          }
+        }
+    }
+    boxes.push_back({std::max(b.i0 - layer, 0), std::min(b.i1 + layer, nx), std::max(b.j0 - layer, 0),
+                     std::min(b.j1 + layer, ny)});
+  }
+  for (bool merged = true; merged;) {
+    merged = false;
+    for (size_t a = 0; a < boxes.size() && !merged; ++a)
+      for (size_t b = a + 1; b < boxes.size() && !merged; ++b) {
+        const Box &p = boxes[a], &q = boxes[b];
+        if (p.i0 - 1 <= q.i1 && q.i0 - 1 <= p.i1 && p.j0 - 1 <= q.j1 && q.j0 - 1 <= p.j1) {
+          boxes[a] = {std::min(p.i0, q.i0), std::max(p.i1, q.i1), std::min(p.j0, q.j0), std::max(p.j1, q.j1)};
+          boxes.erase(boxes.begin() + static_cast<std::ptrdiff_t>(b));
+          merged = true;
+        }
+      }
+  }
+  const int64_t rl = nx + 1;
+  for (const Box& b : boxes) {
+    const Patch pt{b.i0, b.i1, b.j0, b.j1, std::max(b.i0 - 1, 0), std::min(b.i1 + 1, nx), std::max(b.j0 - 1, 0),
+                   std::min(b.j1 + 1, ny)};
+    for (int j = pt.j0; j <= pt.j1; ++j)
+      for (int i = pt.i0; i <= pt.i1; ++i) sub_[static_cast<size_t>(j * rl + i)] = 1;
+    patches_.push_back(pt);
+  }
+}
+
+int64_t Plate::subcycled_nodes() const {
+  int64_t n = 0;
+  for (uint8_t f : sub_) n += f;
+  return n;
+}
+
+double Plate::max_eigenvalue(int max_iter, double rtol, bool coarse) const {
   need(max_iter >= 2, "max_iter must be >= 2");
   const size_t nn = static_cast<size_t>(nodes()), n = 3 * nn;
   std::vector<double> s(n);  // M^-1/2 on free dofs, 0 on fixed ones
   for (size_t k = 0; k < nn; ++k) {
-    s[k] = std::sqrt(double(inv_mw_[k]));
-    s[nn + k] = std::sqrt(double(inv_mr_[k]));
-    s[2 * nn + k] = std::sqrt(double(inv_mr_[nn + k]));
+    const bool held = coarse && !sub_.empty() && sub_[k];
+    s[k] = held ? 0.0 : std::sqrt(double(inv_mw_[k]));
+    s[nn + k] = held ? 0.0 : std::sqrt(double(inv_mr_[k]));
+    s[2 * nn + k] = held ? 0.0 : std::sqrt(double(inv_mr_[nn + k]));
   }
   std::vector<double> q(n), qp(n, 0.0), z(n);
   std::vector<Real> u(n), f(n);
@@ -489,6 +559,107 @@ RunResult Plate::run(const RunConfig& c) const {
       if (inv_m[f] == 0) u[f * np + o] = db[d_at(f, k)] = 0;  // fixed dofs stay at zero
     }
   }
+  // Sub-cycled patches (set_subcycling): each patch with its ring of large-step nodes is a small grid of its
+  // own, stepped msub times per step with dt / msub by the same stepper (step_fast); the ring has beta = d = 0
+  // there and is set before each sub-step to u_n + theta (u_{n+1} - u_n), theta = k / msub. The patch's nodes
+  // get beta = d = 0 in the global pass, which so leaves them alone; they are copied back after the sub-steps.
+  const int msub = (!patches_.empty() && fine_dt_ > 0)
+                       ? std::max(1, static_cast<int>(std::ceil(c.dt_s / fine_dt_ - 1e-9))) : 1;
+  const double dts = c.dt_s / msub, cds = 0.5 * s_.damping_per_s * dts;
+  const Real alpha_s = Real((1 - cds) / (1 + cds));
+  struct PatchGrid {
+    const Patch* pt;
+    int64_t rs;                  // local row stride (padded like the plate's)
+    size_t np;                   // local field stride
+    AlignedFloats u, db, edge;   // local state, d and beta (db_index layout), edge arrays of the fused pass
+    Accumulators<Real> acc;      // portable pass
+    std::vector<Special> special;
+    std::vector<int64_t> row_start, scaled_row;
+    std::vector<uint8_t> scaled_block;
+    std::vector<float> scale;
+    std::vector<int64_t> ring_l, ring_g, in_l, in_g;  // local / global padded node of each ring / patch node
+    std::vector<Real> ring0, ring1;                   // [3][ring]: u_n, u_{n+1}
+    std::vector<Real> mass, d_old;                    // [3][patch node] (energy steps)
+    std::vector<int64_t> load_l;                      // this step's loads on the patch: local node, field
+    std::vector<int> load_f;
+    std::vector<Real> load_v;
+    StepArgs args;
+    PatchGrid(int lnx, int lny)
+        : rs(16 * ((lnx + 15) / 16 + 1)), np(static_cast<size_t>(lny + 1) * rs), u(3 * np),
+          db(static_cast<size_t>(lny + 1) * 6 * rs), edge(static_cast<size_t>(12) * rs), acc(lnx) {}
+  };
+  std::vector<std::unique_ptr<PatchGrid>> grids;
+  if (msub > 1) {
+    for (const Patch& pt : patches_) {
+      const int lnx = pt.ei1 - pt.ei0, lny = pt.ej1 - pt.ej0;  // elements of the local grid
+      grids.push_back(std::make_unique<PatchGrid>(lnx, lny));
+      PatchGrid& g = *grids.back();
+      g.pt = &pt;
+      const int64_t lrs = g.rs;
+      // elements unlike the base one: corrections (portable pass) and per-block scale tables (fused pass)
+      const int64_t nb = (lnx + 15) / 16;
+      g.row_start.assign(static_cast<size_t>(lny) + 1, 0);
+      g.scaled_row.assign(static_cast<size_t>(lny), -1);
+      for (int lj = 0, n_rows = 0; lj < lny; ++lj) {
+        const int j = pt.ej0 + lj;
+        g.row_start[lj] = static_cast<int64_t>(g.special.size());
+        bool any = false;
+        for (int64_t k = row_start_[j]; k < row_start_[j + 1]; ++k) {
+          if (special_[k].i < pt.ei0 || special_[k].i >= pt.ei1) continue;
+          g.special.push_back(special_[k]);
+          g.special.back().i -= pt.ei0;
+          any = true;
+        }
+        if (!any) continue;
+        g.scaled_row[lj] = n_rows++;
+        g.scaled_block.resize(static_cast<size_t>(n_rows * nb), 0);
+        g.scale.resize(static_cast<size_t>(2 * n_rows * lrs), 1.0f);
+        float* ds = g.scale.data() + 2 * (n_rows - 1) * lrs;
+        float* ss = ds + lrs;
+        for (int li = 0; li < lnx; ++li) {
+          const size_t e = static_cast<size_t>(j) * nx + pt.ei0 + li;
+          ds[li] = Real(s_.d_elem[e] / d0_);
+          ss[li] = Real(s_.s_elem[e] / s0_);
+          if (s_.d_elem[e] != d0_ || s_.s_elem[e] != s0_) g.scaled_block[(n_rows - 1) * nb + li / 16] = 1;
+        }
+      }
+      g.row_start[lny] = static_cast<int64_t>(g.special.size());
+      for (int lj = 0; lj <= lny; ++lj)
+        for (int li = 0; li <= lnx; ++li) {
+          const int i = pt.ei0 + li, j = pt.ej0 + lj;
+          const int64_t k = static_cast<int64_t>(j) * rl + i, gl = static_cast<int64_t>(at(k)), ll = lj * lrs + li;
+          for (int f = 0; f < 3; ++f) g.u.p[f * g.np + ll] = u[f * np + gl];
+          if (!sub_[static_cast<size_t>(k)]) {
+            g.ring_l.push_back(ll);
+            g.ring_g.push_back(gl);
+            continue;
+          }
+          g.in_l.push_back(ll);
+          g.in_g.push_back(gl);
+          const Real inv_m[3] = {inv_mw_[k], inv_mr_[k], inv_mr_[nn + k]};
+          const std::vector<double>* v0[3] = {&c.vw0, &c.vbx0, &c.vby0};
+          for (int f = 0; f < 3; ++f) {
+            float* const dl = g.db.p + lj * 6 * lrs + db_index(li, f);
+            dl[kBetaOffset] = Real(dts * dts / (1 + cds) * inv_m[f]);
+            if (!v0[f]->empty() && inv_m[f] != 0) dl[0] = Real(dts * (*v0[f])[k]);
+            db[d_at(f, k)] = db[d_at(f, k) + kBetaOffset] = 0;
+          }
+        }
+      const size_t nr = g.ring_l.size(), ni = g.in_l.size();
+      g.ring0.assign(3 * nr, Real(0));
+      g.ring1.assign(3 * nr, Real(0));
+      g.d_old.assign(3 * ni, Real(0));
+      g.mass.resize(3 * ni);
+      for (int f = 0; f < 3; ++f)
+        for (size_t r = 0; r < ni; ++r) g.mass[f * ni + r] = mass[f * np + g.in_g[r]];
+      g.args = StepArgs{lnx, lny, lrs, g.np, &base_f_, g.special.data(), g.row_start.data(), g.u.p, g.db.p,
+                        alpha_s, &g.acc, g.edge.p, g.scaled_row.data(), g.scaled_block.data(), g.scale.data(), nb};
+    }
+  }
+  // local db offset of local padded node l, field f
+  auto local_d = [](const PatchGrid& g, int64_t l, int f) {
+    return static_cast<size_t>((l / g.rs) * 6 * g.rs) + db_index(l % g.rs, f);
+  };
   std::vector<Segmented> sensors;  // node indices into the padded rows
   for (Functional fn : c.sensors) {
     for (auto& k : fn.node) k = static_cast<int64_t>(at(k));
@@ -615,6 +786,24 @@ RunResult Plate::run(const RunConfig& c) const {
       }
     }
 
+    for (auto& gp : grids) {  // u_n of the patch's ring; the step's loads on the patch's nodes
+      PatchGrid& g = *gp;
+      const size_t nr = g.ring_l.size();
+      for (int f = 0; f < 3; ++f)
+        for (size_t r = 0; r < nr; ++r) g.ring0[f * nr + r] = u[f * np + g.ring_g[r]];
+      g.load_l.clear();
+      g.load_f.clear();
+      g.load_v.clear();
+      const Patch& pt = *g.pt;
+      for (const Load& ld : loads) {
+        const int j = static_cast<int>(ld.node / rs), i = static_cast<int>(ld.node % rs);
+        if (i < pt.i0 || i > pt.i1 || j < pt.j0 || j > pt.j1) continue;
+        g.load_l.push_back((j - pt.ej0) * g.rs + (i - pt.ei0));
+        g.load_f.push_back(ld.field);
+        g.load_v.push_back(ld.value);
+      }
+    }
+
     if (!want_energy) {
       step_fast(step);
       for (const Load& l : loads) {  // u_{n+1} += beta P, d += beta P
@@ -654,6 +843,38 @@ RunResult Plate::run(const RunConfig& c) const {
       res.energy[q * 4 + 0] = 0.5 * ke / (c.dt_s * c.dt_s);
       res.energy[q * 4 + 1] = 0.5 * se;
     }
+    double ke_sub = 0;  // sub-cycled patches: msub steps of dt / msub, the ring interpolated in time
+    for (auto& gp : grids) {
+      PatchGrid& g = *gp;
+      const size_t nr = g.ring_l.size(), ni = g.in_l.size();
+      float* const lu = g.u.p;
+      for (int f = 0; f < 3; ++f)  // u_{n+1} of the ring
+        for (size_t r = 0; r < nr; ++r) g.ring1[f * nr + r] = u[f * np + g.ring_g[r]];
+      for (int k = 0; k < msub; ++k) {
+        const Real th = Real(k) / Real(msub);
+        for (int f = 0; f < 3; ++f)
+          for (size_t r = 0; r < nr; ++r)
+            lu[f * g.np + g.ring_l[r]] = g.ring0[f * nr + r] + th * (g.ring1[f * nr + r] - g.ring0[f * nr + r]);
+        const bool energy_now = want_energy && k == 0;
+        if (energy_now)
+          for (int f = 0; f < 3; ++f)
+            for (size_t r = 0; r < ni; ++r) g.d_old[f * ni + r] = g.db.p[local_d(g, g.in_l[r], f)];
+        step_fast(g.args);
+        for (size_t l = 0; l < g.load_l.size(); ++l) {  // the step's loads at every sub-step (impulse dt P)
+          float* const dk = g.db.p + local_d(g, g.load_l[l], g.load_f[l]);
+          const Real inc = dk[kBetaOffset] * g.load_v[l];
+          dk[0] += inc;
+          lu[g.load_f[l] * g.np + g.load_l[l]] += inc;
+        }
+        if (energy_now)
+          for (int f = 0; f < 3; ++f)
+            for (size_t r = 0; r < ni; ++r)
+              ke_sub += double(g.mass[f * ni + r]) * g.d_old[f * ni + r] * g.db.p[local_d(g, g.in_l[r], f)];
+      }
+      for (int f = 0; f < 3; ++f)
+        for (size_t r = 0; r < ni; ++r) u[f * np + g.in_g[r]] = lu[f * g.np + g.in_l[r]];
+    }
+    if (want_energy) res.energy[q * 4 + 0] += 0.5 * ke_sub / (dts * dts);
 
     if (c.ball.enabled) {
       const double vb_old = vb;

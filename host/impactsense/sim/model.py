@@ -24,6 +24,8 @@ from . import dispersion
 from .params import SimParams
 
 EPS0 = 8.8541878128e-12
+SUBCYCLE_LAYER = 0   # rings of bare-plate nodes added around each disc's elements in its sub-cycled patch
+#                      (the interface error grows with the patch's perimeter: 0 is the most accurate)
 
 
 def hertz_k(params: SimParams, ball_radius_m: float) -> float:
@@ -92,7 +94,15 @@ class Model:
         return dict(nx=self.nx, ny=self.ny, element_mm=(self.hx_m * 1e3, self.hy_m * 1e3),
                     elements=self.elements, nodes=self.nodes, dt_us=self.dt_s * 1e6,
                     dt_crit_us=self.dt_crit_s * 1e6, f_max_hz=self.f_max_hz, record_every=self.record_every,
-                    n_record=self.n_record)
+                    n_record=self.n_record, subcycles=self.subcycles)
+
+    @property
+    def subcycles(self) -> int:
+        """Sub-steps per step in the disc patches (1: not sub-cycled)."""
+        fine = float(self.plate.fine_dt_s)
+        if fine <= 0 or not self.plate.subcycled_nodes:
+            return 1
+        return max(1, math.ceil(self.dt_s / fine - 1e-9))
 
 
 def plate_constants(p: SimParams):
@@ -257,8 +267,14 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
                        np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
                        fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s)
 
-    # time step: the assembled plate's stability limit and Eq. 2, snapped to divide 1/fs
+    # time step: the assembled plate's stability limit and Eq. 2, snapped to divide 1/fs; sub-cycled (fine
+    # meshes, see SimParams.subcycle), the disc patches take sub-steps under cfl_safety x the whole plate's
+    # limit and dt is bound by the rest of the plate
     dt_crit = assembled_dt_crit(plate)
+    if p.subcycle and max(hx, hy) <= p.subcycle_max_element_mm * 1e-3:
+        plate.set_subcycling(p.cfl_safety * dt_crit, SUBCYCLE_LAYER)
+        if plate.subcycled_nodes:
+            dt_crit = 2.0 / math.sqrt(float(plate.max_eigenvalue(coarse=True)))
     dt_eq2 = 1.0 / (20 * f_max)
     t_sample = 1.0 / fs
     if p.dt_us is not None:

@@ -23,6 +23,15 @@ Defaults (documented, see method.md):
   Turned on, the rotary inertia under each disc is raised (x1.73 for the rig's disc) so that its D / I
   equals the bare plate's: the step is then set by the plate (~24 % fewer steps). Selective rotary-inertia
   scaling, local to the 4 discs; it changes only what propagates under a disc (rotational inertia there).
+- subcycle (on, for meshes of elements <= subcycle_max_element_mm = 1.5 mm): the stiff disc elements set the
+  explicit step, so on fine meshes the four disc patches (the nodes of their elements) are sub-cycled: stepped
+  m times per step with dt / m in their own limit while the rest of the plate takes the bare plate's step
+  (nodal-partition multi-time-step central differences, Belytschko-Yen-Mullen: the ring of plate nodes around
+  a patch moves linearly in time from u_n to u_{n+1} during the sub-steps; stable, energy conserved to 1e-3).
+  1 mm mesh: 23 steps per ADC sample (2 sub-steps under the discs) instead of 29, disc voltages within 0.25 %
+  RMS of the single-step scheme. The error sits at the patch boundary (linear interpolation of the ring) and
+  grows with the element size and dt: 0.4-0.7 % at the default 2.1 mm mesh (11 steps instead of 14), so the
+  default mesh is stepped plainly. subcycle = false turns it off everywhere.
 - circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
   ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
 - ball: steel E = 210 GPa, nu = 0.30.
@@ -79,6 +88,8 @@ class SimParams:
     disc_stiffness: bool = True            # add the ceramic's bending stiffness under each disc
     disc_inertia_scaling: bool = False     # opt-in: rotary inertia under the discs raised to the plate's D/I
     disc_inertia_factor: float = 1.06      # rotary inertia under the discs x this (capped at the plate's D/I)
+    subcycle: bool = True                  # fine meshes: the disc patches stepped with dt / m, the plate at its limit
+    subcycle_max_element_mm: float = 1.5   # sub-cycle only meshes this fine (the interface error grows with h)
     circuit_gain: float = 0.04             # ADC-input volts per disc volt (sign = wiring); fitted to session-1 peaks
     # ball
     ball_e_pa: float = 210e9
@@ -197,6 +208,7 @@ class SimParams:
         num("cfl_safety", 0, 1, hi_open=False)
         num("rotary_inertia_scale", 1, lo_open=False)
         num("disc_inertia_factor", 1, lo_open=False)
+        num("subcycle_max_element_mm", 0, lo_open=False)
         num("duration_ms", 0)
         num("taper_ms", 0, lo_open=False)
         num("contact_window_ms", 0)
@@ -210,6 +222,6 @@ class SimParams:
             raise ConfigError(f"support must be one of {SUPPORTS}, got {self.support!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
-        for name in ("disc_mass", "disc_stiffness", "disc_inertia_scaling"):
+        for name in ("disc_mass", "disc_stiffness", "disc_inertia_scaling", "subcycle"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false")
