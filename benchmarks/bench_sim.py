@@ -12,6 +12,11 @@
 2. The same mesh and step with an assembled sparse-matrix explicit FE: scikit-fem assembly (Q1 w, beta_x,
    beta_y; bending 2x2 Gauss, shear 1-point = selective reduced integration), scipy.sparse K @ u per step.
 3. The 490-drop virtual data set at the default mesh on 2 cores (fast path), and the peak memory.
+4. --dtoa N: sub-cycling against the single-step scheme where it matters, DToA against session-1: N measured
+   drops (the first of evenly spaced cases) simulated at their positions and heights (fast path, noise seeds
+   1 and 2), picked by the signal core like the rig's; RMS of measured - simulated DToA (us, all six pairs)
+   for the default mesh single-step (the default) and sub-cycled (forced), and the 1 mm mesh single-step and
+   sub-cycled (its default); plus the disc voltages' RMS difference of the two schemes on each mesh.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ def bench_drop_1mm(rig, quick: bool, repeat: int, **overrides):
     drop_s = el * n_total / n_run
     peak = core_peak_gflops()
     return dict(mesh=f"{m.nx} x {m.ny}", elements=m.elements, nodes=m.nodes, dt_us=m.dt_s * 1e6,
+                subcycles=m.subcycles, subcycled_nodes=int(m.plate.subcycled_nodes) if m.subcycles > 1 else 0,
                 dt_crit_us=m.dt_crit_s * 1e6, dt_element_bound_us=dt_elem * 1e6,
                 dt_eq2_us=1e6 / (20 * m.f_max_hz), steps=n_total, build_seconds=build_s,
                 drop_seconds=drop_s, drop_cpu_seconds=min(cpus) * n_total / n_run, runs=len(walls),
@@ -174,6 +180,42 @@ def bench_dataset(rig, n: int, workers: int):
                 adc_shape=list(adc.shape))
 
 
+def bench_dtoa(n: int, seeds=(1, 2)):
+    import impactsense._core as core
+    from impactsense.data import load_session
+    from impactsense.sim import SimParams, simulate_voltages, to_adc
+    from impactsense.sim.simulate import clear_cache
+
+    s1 = load_session("bundled:session-1")
+    _, first = np.unique(s1.case_id, return_index=True)
+    rows = first[np.linspace(0, len(first) - 1, n).round().astype(int)]
+    cfg = core.CoreConfig()
+    meas = core.extract_batch(s1.adc[rows].astype(np.int16), cfg)["dtoa_us"]
+    out = {}
+    for mesh, em in (("default", None), ("1mm", 1.0)):
+        volts = {}
+        for scheme, over in (("single", dict(subcycle=False)), ("subcycled", dict(subcycle_max_element_mm=10.0))):
+            p = SimParams.from_rig(s1.rig, element_mm=em, **over)
+            t0 = time.perf_counter()
+            res = simulate_voltages(p, s1.rig, s1.x_mm[rows], s1.y_mm[rows], s1.height_mm[rows], method="fast",
+                                    progress=False)
+            m = res["model"]
+            volts[scheme] = res["volts"]
+            rms = []
+            for seed in seeds:
+                sim = core.extract_batch(to_adc(res["volts"], p, s1.rig, noise=True, seed=seed).astype(np.int16),
+                                         cfg)["dtoa_us"]
+                ok = np.all(np.isfinite(meas), axis=1) & np.all(np.isfinite(sim), axis=1)
+                rms.append(dict(seed=seed, drops=int(ok.sum()), rms_us=float(np.sqrt(np.mean((meas[ok] - sim[ok]) ** 2)))))
+            out[f"{mesh}_{scheme}"] = dict(steps_per_sample=m.record_every, subcycles=m.subcycles,
+                                           seconds=time.perf_counter() - t0, dtoa=rms)
+            clear_cache()
+        v0, v1 = volts["single"], volts["subcycled"]
+        rel = np.sqrt(((v1 - v0) ** 2).mean(axis=2) / (v0 ** 2).mean(axis=2))
+        out[f"{mesh}_volts_rel_rms"] = dict(median=float(np.median(rel)), max=float(rel.max()))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -182,11 +224,30 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-dataset", action="store_true")
     ap.add_argument("--only-dataset", action="store_true")
     ap.add_argument("--json", default=None, help="also write the figures as JSON")
+    ap.add_argument("--dtoa", type=int, default=0, metavar="N",
+                    help="DToA vs session-1 over N drops, single-step vs sub-cycled (default mesh and 1 mm)")
+    ap.add_argument("--only-dtoa", action="store_true")
     args = ap.parse_args(argv)
     from impactsense.data import bundled_session_path, load_rig
 
     rig = load_rig(bundled_session_path())
     out = {"load_average": os.getloadavg()}
+    if args.dtoa or args.only_dtoa:
+        dt = bench_dtoa(args.dtoa or 40)
+        out["dtoa"] = dt
+        print(f"DToA vs session-1 (measured - simulated, us RMS over the six pairs; fast path, noise seeds 1, 2):")
+        for mesh in ("default", "1mm"):
+            for scheme in ("single", "subcycled"):
+                r = dt[f"{mesh}_{scheme}"]
+                print(f"  {mesh:7s} mesh {scheme:9s} ({r['steps_per_sample']:2d} steps/sample, {r['subcycles']} sub-steps "
+                      f"under the discs): " + ", ".join(f"seed {d['seed']} {d['rms_us']:.2f} us ({d['drops']} drops)"
+                                                       for d in r["dtoa"]) + f"  [{r['seconds']:.0f} s]")
+            v = dt[f"{mesh}_volts_rel_rms"]
+            print(f"  {mesh:7s} mesh volts, sub-cycled vs single-step: median {100 * v['median']:.2f} %, "
+                  f"max {100 * v['max']:.2f} % RMS")
+        if args.only_dtoa:
+            print(f"load average: {os.getloadavg()}")
+            return 0
     if args.only_dataset:
         ds = bench_dataset(rig, args.n, 2)
         print(f"{ds['drops']}-drop data set, default mesh {ds['mesh']['nx']} x {ds['mesh']['ny']}: "
@@ -198,12 +259,18 @@ def main(argv=None) -> int:
     print(f"1 mm mesh ({drop['mesh']} = {drop['elements']} elements), {drop['steps']} steps / 5 ms "
           f"= {drop['steps'] * drop['elements']:.3g} element-updates, one core:")
     print(f"  dt {drop['dt_us']:.4f} us = {drop['dt_us'] / drop['dt_crit_us']:.3f} x the assembled stability limit "
-          f"{drop['dt_crit_us']:.4f} us (bare-plate element bound {drop['dt_element_bound_us']:.4f} us, the stiffer disc elements lower; Eq. 2 allows "
-          f"{drop['dt_eq2_us']:.3f} us); model build {drop['build_seconds']:.2f} s")
+          f"{drop['dt_crit_us']:.4f} us of the plate outside the sub-cycled disc patches ({drop['subcycled_nodes']} "
+          f"nodes, {drop['subcycles']} sub-steps; bare-plate element bound {drop['dt_element_bound_us']:.4f} us; Eq. 2 "
+          f"allows {drop['dt_eq2_us']:.3f} us); model build {drop['build_seconds']:.2f} s")
     print(f"  drop time           {drop['drop_seconds']:8.2f} s wall, {drop['drop_cpu_seconds']:.2f} s CPU "
           f"(best of {drop['runs']}: {', '.join(f'{x:.2f}' for x in drop['drop_seconds_all'])} s)"
           f"{' (extrapolated)' if drop['extrapolated'] else ''}")
     print(f"  state per step      {drop['state_mb_per_step']:8.2f} MB (u, d, beta in float32)")
+    one = bench_drop_1mm(rig, args.quick, args.repeat, subcycle=False)[0]
+    out["drop_1mm_single_step"] = one
+    print(f"  single-step (subcycle = false): dt {one['dt_us']:.4f} us = {one['dt_us'] / one['dt_crit_us']:.3f} x "
+          f"the limit {one['dt_crit_us']:.4f} us set by the disc elements ({one['steps']} steps), drop "
+          f"{one['drop_seconds']:.2f} s wall, {one['drop_cpu_seconds']:.2f} s CPU (best of {one['runs']})")
     opt = bench_drop_1mm(rig, args.quick, args.repeat, disc_inertia_scaling=True)[0]
     out["drop_1mm_disc_inertia_scaling"] = opt
     print(f"  opt-in disc_inertia_scaling: dt {opt['dt_us']:.4f} us ({opt['steps']} steps), drop "
