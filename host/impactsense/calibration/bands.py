@@ -5,7 +5,7 @@ shear stiffness kappa G = kappa E / 2(1 + nu) slows the flexural wave; its DToA 
 bending stiffness D ~ E / (1 - nu^2) and kappa G. The arrival of a LOW band (1-5 kHz, the Kirchhoff end of the
 branch) depends on D almost alone, so the two together could separate E and nu. On this rig they do not by
 enough: one 0.01 of nu at fixed D moves them by ~0.5-1 us against 2-4 us of target error (docs/findings.md);
-they enter the twin's E fit as a second, bending-dominated constraint.
+calibration records how far they move (`plate_fem.nu_identifiability`).
 
 The observable: the record, baseline removed, through a causal Butterworth band-pass (nothing of the band
 precedes the onset), Hilbert envelope; in each channel's window from just before its own AIC onset, the first

@@ -233,9 +233,9 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
               "plate": stage1}
 
     if opts.fem:
-        # sub-problem 1 on the twin itself (`plate_fem`): E at the grid's nu from the AIC DToA and the low-band
-        # arrivals together; after D_s is known (its decay also tilts the early envelopes), E again, and how well
-        # the drops fix nu (they do not: docs/findings.md)
+        # sub-problem 1 on the twin itself (`plate_fem`): E at the grid's nu from the AIC DToA (Eq. 16); after
+        # D_s is known (its decay also tilts the early envelopes), E again, and how well the AIC DToA and the
+        # low-band arrivals could fix nu (they do not: docs/findings.md)
         def plate_evals(p_now, tag):
             def run_obs(e_mpa, nu):
                 p = dict(p_now, e_pa=e_mpa * 1e6, nu=nu)
@@ -248,7 +248,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
 
         def fem_stage():
             return plate_fem.e_scan(plate_evals(params, "fem"), plate_targets, e_best, nu_best, e_bounds,
-                                    ratios=opts.fem_e_ratios)
+                                    ratios=opts.fem_e_ratios, observables=[0])
         e_fem, scan = clock.run("plate_fem", fem_stage)
         stage1["E_fast_mpa"] = e_best
         stage1["E_mpa"] = float(e_fem)
@@ -268,7 +268,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
             p_ds = dict(params, damping_per_s=float(decay["damping_per_s"]))
             ev = plate_evals(p_ds, "fem-ds")
             e2, scan2 = plate_fem.e_scan(ev, plate_targets, float(params["e_pa"]) / 1e6, nu_best, e_bounds,
-                                         ratios=(0.97, 1.0, 1.03), walk=1.03)
+                                         ratios=(0.97, 1.0, 1.03), walk=1.03, observables=[0])
             ident = plate_fem.nu_identifiability(ev, plate_targets, e2, nu_best,
                                                  nu_bounds=(float(nu_axis[0]), float(nu_axis[-1])))
             obs = ev(e2, nu_best)
@@ -280,7 +280,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
             "E_mpa": float(e2), "stiffness_E_over_1_minus_nu2_mpa": float(e2) / (1 - nu_best ** 2),
             "fem_scan": {f"{k:.0f}": v for k, v in sorted(scan2.items())},
             "fem_loss_eq16_us2": eq16_fem, "fem_rms_dtoa_error_us": float(np.sqrt(eq16_fem / targets.dtoa_us.size)),
-            "fem_chi2": plate_fem.chi2(obs, plate_targets),
+            "fem_chi2_all_observables": plate_fem.chi2(obs, plate_targets),
             "fem_rms_residual_us": {n: float(np.sqrt(np.nanmean((obs[:, k] - plate_targets.dtoa[:, k]) ** 2)))
                                     for k, n in enumerate(plate_targets.names)},
             "nu_identifiability": ident,

@@ -1,13 +1,14 @@
 """Sub-problem 1 on the FEM: the twin's E from two timing observables of the four drops, and what they say
 about nu.
 
-The fast model's grid (`plate`, Eq. 16 on the AIC DToA) gives nu and the E basin. The twin is then fitted
-along E (nu held) to
+The fast model's grid (`plate`, Eq. 16 on the AIC DToA) gives nu and the E basin. The observables are
 
   r = [ (DToA_AIC sim - meas) / sigma_AIC ,  (DToA_band sim - meas) / sigma_band  for each band (`bands`) ]
 
 over the four drops and six pairs, sigma = the standard error of the measured target (the pooled spread of
-the drop's accepted repetitions / sqrt(repetitions), at least `SIGMA_FLOOR_US`). `nu_identifiability` measures,
+the drop's accepted repetitions / sqrt(repetitions), at least `SIGMA_FLOOR_US`). The twin's E is fitted (nu
+held) to the AIC part, Eq. 16: the DToA the models learn from; on session-1 the band arrivals pull E away
+away from the AIC's optimum (model error), so they only measure identifiability. `nu_identifiability` measures,
 at the fit, how far one 0.01 of nu at fixed bending stiffness moves these observables against sigma, and the
 best-case standard deviation of nu with E free. On this rig (4 drops, 100 kHz) it is ~0.01 at best and the
 end-to-end error on FEM-made drops ~0.04: nu is not identified, E / (1 - nu^2) is (docs/findings.md).
@@ -117,12 +118,14 @@ class Evaluations:
         return self.obs[k]
 
 
-def chi2(obs_sim, meas: PlateTargets) -> float:
-    return float(np.sum(residuals(obs_sim, meas) ** 2))
+def chi2(obs_sim, meas: PlateTargets, observables=None) -> float:
+    """Sum of squared standardised residuals over `observables` (indices into meas.names; default all)."""
+    r = residuals(obs_sim, meas).reshape(meas.dtoa.shape)
+    return float(np.sum((r if observables is None else r[:, list(observables)]) ** 2))
 
 
 def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios=(0.7, 0.8, 0.9, 1.0, 1.1),
-           walk=1.1) -> tuple[float, dict]:
+           walk=1.1, observables=None) -> tuple[float, dict]:
     """Twin's E at fixed nu: chi^2 at E = e_start x ratios (clipped to the grid's range), walked on by `walk`
     while the minimum sits at the scanned edge, then at the vertex of a parabola in ln E through the best three.
     Returns (E [MPa], {E: chi^2})."""
@@ -132,7 +135,7 @@ def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios
     def at(e):
         e = float(np.clip(e, lo, hi))
         if e not in scan:
-            scan[e] = chi2(evals(e, nu), meas)
+            scan[e] = chi2(evals(e, nu), meas, observables)
         return scan[e]
 
     for r in ratios:
