@@ -1,4 +1,4 @@
-"""Sub-problem 1 on the FEM: the twin's E from two timing observables of the four drops, and what they say
+"""Sub-problem 1 on the FEM: the twin's E from the four drops' AIC DToA, and what two timing observables say
 about nu.
 
 The fast model's grid (`plate`, Eq. 16 on the AIC DToA) gives nu and the E basin. The observables are
