@@ -129,3 +129,52 @@ def test_twin_features_are_the_log_energies_and_clipped_channels_are_unusable(se
         bits = (usable >> (4 * c)) & 0xF
         assert np.array_equal(bits == 0, f.clipped[:, c] | f.dead[:, c] | f.no_onset[:, c])
     assert _core.TWIN_FEATURES == N_FEATURES
+
+
+def test_site_map_holds_the_core_features_of_the_twins_drops():
+    """A coarse map made by the simulator: each present point's bytes decode to the core's twin features of
+    the same simulated drop (counts unclipped), and points on a sensor disc are missing."""
+    from impactsense.data import load_rig, resolve_session_path
+    from impactsense.pipeline import SignalConfig, featurize
+    from impactsense.sim import SimParams, simulate_voltages
+    from impactsense.sitemap import build_site_map
+
+    rig = load_rig(resolve_session_path("bundled"))
+    params = SimParams.from_rig(rig)
+    site = build_site_map(params, rig, SignalConfig.for_rig(rig), step_mm=20.0, margin_mm=30.0, progress=False)
+    xy = site.xy_mm
+    on_disc = np.hypot(xy[:, None, 0] - rig.sensor_x_mm, xy[:, None, 1] - rig.sensor_y_mm).min(1) < 15.25
+    assert on_disc.any() and np.array_equal(~site.present, on_disc)
+    rows = np.flatnonzero(site.present)[[0, 7, 30]]
+    v = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(3, site.ref_height_mm))["volts"]
+    counts = np.zeros((3, 4, rig.samples))
+    take = min(v.shape[2], rig.samples - params.pretrigger_samples)
+    counts[:, :, params.pretrigger_samples:params.pretrigger_samples + take] = v[:, :, :take]
+    counts = rig.bias_counts + params.circuit_gain * counts * 2 ** rig.adc_bits / rig.vref
+    sig = SignalConfig.for_rig(rig)
+    sig.adc_min, sig.adc_max = -32768, 32767
+    feats, usable = twin_features(featurize(np.rint(counts).astype(np.int16), sig))
+    assert (usable == 0xFFFF).all()
+    assert np.all(np.abs(site.values()[rows] - feats) <= site.scale * 0.5 + 1e-4)
+
+
+def test_bundled_twin_classifies_held_out_drops_and_survives_save_load(session1, tmp_path):
+    """The demo's split with the bundled twin's site map: energy class >= 0.95 (issue 2's target; the
+    forest on summed energies gets 0.94), the estimates' spread in log10 height, and a saved model that
+    predicts the same."""
+    from impactsense.models import ImpactModel
+    from impactsense.pipeline import featurize
+    from impactsense.sitemap import BUNDLED, resolve_site_map
+    from impactsense.workflow import evaluate, train
+
+    site = resolve_site_map("auto", session1.rig)
+    assert site is not None and site.fingerprint() == SiteMap.load(BUNDLED).fingerprint()
+    model, split = train(session1, tmp_path / "m", 0.2, 0, site_map=site)
+    rows = np.asarray(split["test_recordings"])
+    report = evaluate(session1, model, rows=rows)
+    assert report["energy_class_accuracy"] >= 0.95
+    pred = model.predict(featurize(session1.adc[rows], model.signal))
+    err = np.log10(pred["height_mm"]) - np.log10(session1.height_mm[rows])
+    assert np.nanstd(err) < 0.02          # 5 mm steps are 0.013 apart at 170 mm
+    again = ImpactModel.load(tmp_path / "m").predict(featurize(session1.adc[rows], model.signal))
+    assert np.array_equal(again["energy_class"], pred["energy_class"])

@@ -3,7 +3,8 @@
 Localisation is physics first, learning second: the core's TDOA localiser gives (x, y); one random forest
 per coordinate (one regressor each, so the C export is exact) learns the correction from the core's
 feature vector. The energy classifier is a random forest on the energy features; "high" means
-m g h at or above the 75th percentile of the training drops.
+m g h at or above the 75th percentile of the training drops. With the twin's site map (sitemap.py) the
+classifier reads the twin's height estimate instead (twin.py, the core's twin_estimate).
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from . import __version__
 from .errors import DataError
 from .pipeline import FEATURE_NAMES, Features, SignalConfig
+from .sitemap import SiteMap, twin_features
+from .twin import TwinFit, fit_twin
+from .twin import estimate as twin_estimate
 
 G_M_S2 = 9.80665
 LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa_", "phys_x", "phys_y",
@@ -31,6 +35,10 @@ ARRIVAL_ENERGY_FEATURES = ["log_arrival_energy_sum", "log_diff1_energy_sum", "lo
                            "log_diff3_energy_sum"]
 ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
 MODEL_FILES = {"x": "forest_dx.joblib", "y": "forest_dy.joblib", "energy": "forest_energy.joblib"}
+SITE_MAP_FILE = "site_map.npz"
+# With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
+# i.e. a threshold on log10 height learned with its uncertainty.
+TWIN_ENERGY_FEATURES = ["twin_log10_height_mm"]
 CARD_FILE = "model_card.json"
 
 
@@ -50,6 +58,7 @@ class ForestSettings:
     max_features: float | str = 0.5
     max_depth: int | None = None
     seed: int = 0
+    balanced: bool = True     # classifier: class weights inverse to the class sizes
 
     def regressor(self) -> RandomForestRegressor:
         return RandomForestRegressor(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
@@ -59,7 +68,12 @@ class ForestSettings:
     def classifier(self) -> RandomForestClassifier:
         return RandomForestClassifier(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
                                       max_features="sqrt", max_depth=self.max_depth,
-                                      random_state=self.seed, n_jobs=-1, class_weight="balanced")
+                                      random_state=self.seed, n_jobs=-1,
+                                      class_weight="balanced" if self.balanced else None)
+
+
+# Unweighted: the boundary between two drop heights, not shifted toward the rarer "high" class.
+TWIN_CLASSIFIER = ForestSettings(n_estimators=25, max_depth=1, balanced=False)
 
 
 def fit_energy_classifier(X: np.ndarray, energy_j: np.ndarray,
@@ -80,11 +94,15 @@ class ImpactModel:
     forest_energy: RandomForestClassifier
     energy_threshold_j: float
     card: dict = field(default_factory=dict)
+    # The twin's energy fingerprint (twin.py): when present, the energy classifier reads its height estimate.
+    site_map: SiteMap | None = None
+    twin_fit: TwinFit | None = None
 
     # ----- training -----
     @classmethod
     def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
-            signal: SignalConfig, settings: ForestSettings | None = None) -> "ImpactModel":
+            signal: SignalConfig, settings: ForestSettings | None = None,
+            site_map: SiteMap | None = None) -> "ImpactModel":
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -95,11 +113,25 @@ class ImpactModel:
         loc_cols = columns(LOCATION_FEATURES)
         fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
         fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
-        fe, threshold = fit_energy_classifier(X[:, columns(ENERGY_FEATURES)],
-                                              impact_energy_j(np.asarray(height_mm)[use], ball_mass_g), settings)
+        energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
+        twin_fit = None
+        if site_map is None:
+            fe, threshold = fit_energy_classifier(X[:, columns(ENERGY_FEATURES)], energy_j, settings)
+        else:
+            # The twin's height estimate of each training drop at its physics position (an error like the
+            # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
+            feats, usable = twin_features(features.take(np.flatnonzero(use)))
+            twin_fit = fit_twin(feats, usable, site_map, xy, np.asarray(height_mm)[use])
+            est = twin_estimate(site_map, twin_fit, feats, usable, features.phys_xy_mm[use])["log10_height_mm"]
+            ok = np.isfinite(est)
+            fe, threshold = fit_energy_classifier(est[ok, None], energy_j[ok], TWIN_CLASSIFIER)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
-                   energy_threshold_j=threshold,
+                   energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card={"forest": settings.__dict__, "n_train_drops": int(use.sum())})
+
+    @property
+    def energy_features(self) -> list[str]:
+        return TWIN_ENERGY_FEATURES if self.site_map is not None else ENERGY_FEATURES
 
     # ----- inference -----
     def predict(self, features: Features) -> dict:
@@ -116,8 +148,21 @@ class ImpactModel:
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
                 spread[use, k] = per_tree.std(0)
-            energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
-        return {"xy_mm": xy, "spread_mm": spread, "energy_class": energy_class}
+            if self.site_map is None:
+                energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
+        out = {"xy_mm": xy, "spread_mm": spread, "energy_class": energy_class}
+        if self.site_map is not None and use.any():
+            rows = np.flatnonzero(use)
+            feats, usable = twin_features(features.take(rows))
+            twin = twin_estimate(self.site_map, self.twin_fit, feats, usable, xy[rows])
+            est = twin["log10_height_mm"]
+            ok = np.isfinite(est)
+            energy_class[rows[ok]] = self.forest_energy.predict(est[ok, None])
+            out["height_mm"] = np.full(n, np.nan)
+            out["height_mm"][rows] = 10.0 ** est
+            out["twin_xy_mm"] = np.full((n, 2), np.nan)
+            out["twin_xy_mm"][rows] = twin["xy_mm"]
+        return out
 
     # ----- persistence -----
     def save(self, out_dir: str | Path, extra_card: dict | None = None) -> Path:
@@ -126,6 +171,13 @@ class ImpactModel:
         joblib.dump(self.forest_dx, out / MODEL_FILES["x"])
         joblib.dump(self.forest_dy, out / MODEL_FILES["y"])
         joblib.dump(self.forest_energy, out / MODEL_FILES["energy"])
+        twin = {}
+        if self.site_map is not None:
+            self.site_map.save(out / SITE_MAP_FILE)
+            twin = {"twin": {"site_map": SITE_MAP_FILE, "site_map_sha": self.site_map.fingerprint(),
+                             "ref_height_mm": self.site_map.ref_height_mm, **self.twin_fit.to_dict()}}
+        elif (out / SITE_MAP_FILE).exists():
+            (out / SITE_MAP_FILE).unlink()
         card = {
             "package": "impactsense",
             "package_version": __version__,
@@ -133,12 +185,13 @@ class ImpactModel:
             "target": "x = phys_x_mm + forest_dx(features[location_features]); same for y",
             "feature_names": FEATURE_NAMES,
             "location_features": LOCATION_FEATURES,
-            "energy_features": ENERGY_FEATURES,
+            "energy_features": self.energy_features,
             "energy_threshold_j": self.energy_threshold_j,
             "energy_classes": {"0": "low", "1": "high"},
             "files": MODEL_FILES,
             "signal": self.signal.to_dict(),
-            **self.card,
+            **{k: v for k, v in self.card.items() if k != "twin"},
+            **twin,
             **(extra_card or {}),
         }
         (out / CARD_FILE).write_text(json.dumps(card, indent=1))
@@ -166,5 +219,13 @@ class ImpactModel:
             if not p.is_file():
                 raise DataError(p, None, "model file not found")
             forests.append(joblib.load(p))
+        site_map = twin_fit = None
+        if "twin" in card:
+            site_map = SiteMap.load(d / card["twin"].get("site_map", SITE_MAP_FILE))
+            if site_map.fingerprint() != card["twin"].get("site_map_sha"):
+                raise DataError(d / SITE_MAP_FILE, None, "site map differs from the one the model was trained with")
+            twin_fit = TwinFit.from_dict({k: v for k, v in card["twin"].items()
+                                          if k not in ("site_map", "site_map_sha", "ref_height_mm")})
         return cls(signal=SignalConfig.from_dict(card["signal"]), forest_dx=forests[0], forest_dy=forests[1],
-                   forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card)
+                   forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
+                   site_map=site_map, twin_fit=twin_fit)

@@ -112,6 +112,31 @@ class SiteMap:
                    ref_height_mm=float(meta["ref_height_mm"]), source=meta.get("source", {}))
 
 
+BUNDLED = Path(__file__).parent / "data" / "twin" / "site-map.npz"
+
+
+def rig_matches(a: dict, b) -> bool:
+    """True when a map's recorded sensor positions are the rig's (within 0.5 mm)."""
+    sensors = np.asarray(a.get("rig_sensors_mm", []), float)
+    return sensors.shape == (4, 2) and bool(np.all(np.abs(sensors - b.sensor_xy_mm) < 0.5))
+
+
+def resolve_site_map(arg: str | None, rig) -> SiteMap | None:
+    """--site-map: a file, 'none', or 'auto' (the bundled twin's map when the rig is the bundled rig's)."""
+    if arg is None or arg == "auto":
+        if BUNDLED.is_file():
+            site = SiteMap.load(BUNDLED)
+            if rig_matches(site.source, rig):
+                return site
+        return None
+    if arg == "none":
+        return None
+    site = SiteMap.load(arg)
+    if not rig_matches(site.source, rig):
+        raise DataError(arg, "source.rig_sensors_mm", "site map was made for another rig's sensor positions")
+    return site
+
+
 def twin_features(features) -> tuple[np.ndarray, np.ndarray]:
     """The core's 16 twin features [R, 16] and usable-feature masks [R] (uint16) of featurize() output."""
     raw = features.raw
@@ -145,11 +170,17 @@ def grid(rig, step_mm: float, margin_mm: float) -> tuple[float, float, int, int]
 
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
-                   progress: bool = True) -> SiteMap:
+                   progress: bool = True, capture=None) -> SiteMap:
     """Simulate a drop from ref_height_mm at every grid point (off the sensor discs) and keep the core's
     twin features. The counts are not clipped (int16 range, the core's clip detection off), so the map
     holds the whole energy even where the rig's ADC would saturate; the rig's clipped channels are left out
-    of the match instead (twin.h)."""
+    of the match instead (twin.h).
+
+    capture: how a device other than the lab logger takes the drops, e.g. the board
+    (link.boardmodel.board_capture: resampled to 4 x 50 kHz with the SAADC scan delays, cut by the firmware
+    app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
+    rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
+    counts as the rig records them."""
     from .sim import simulate_voltages
 
     x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
@@ -178,10 +209,14 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
         counts = rig.bias_counts + params.circuit_gain * rec * (2 ** rig.adc_bits) / rig.vref
         if np.abs(counts).max() > 32000:
             raise DataError("site map", "circuit_gain", "simulated counts exceed the int16 range")
-        f = featurize(np.rint(counts).astype(np.int16), sig)
+        counts = np.rint(counts).astype(np.int16)
+        got = np.arange(rows.size)
+        if capture is not None:
+            counts, got = capture(counts)
+        f = featurize(counts, sig)
         feats, usable = twin_features(f)
         ok = (usable == (1 << N_FEATURES) - 1) & np.isfinite(feats).all(1)
-        values[rows[ok]] = feats[ok]
+        values[rows[got[ok]]] = feats[ok]
         if bar is not None:
             bar.update(rows.size)
     if bar is not None:

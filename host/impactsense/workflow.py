@@ -16,14 +16,15 @@ from .split import case_split
 
 def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0.2, seed: int = 0,
           exclude_rows: np.ndarray | None = None, settings: ForestSettings | None = None,
-          signal: SignalConfig | None = None, extra_card: dict | None = None) -> tuple[ImpactModel, dict]:
+          signal: SignalConfig | None = None, extra_card: dict | None = None,
+          site_map=None) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given."""
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     cfg = signal or SignalConfig.for_rig(session.rig)
     cfg = fit_localiser(session, train_rows, cfg)
     feats = featurize(session.adc, cfg)
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
-                            session.rig.ball_mass_g, cfg, settings)
+                            session.rig.ball_mass_g, cfg, settings, site_map=site_map)
     split = {
         "data_path": str(session.path),
         "data_hash": session.fingerprint(),

@@ -8,7 +8,10 @@ The seed's central claim (method.md, Tables 7-9). The flow:
 Only the four calibration drops ever inform the sim-trained model about the rig: besides the plate, PZT and
 damping parameters, the per-channel timing offsets and gains (the `channel_delay` and `sensor_gain` effects of the diagnosis:
 the rig's electronics and bonds, which the plate model cannot know) are fitted as measured minus simulated
-ToA, and measured over simulated energy, on those drops; and so is the twin's spectral tilt: the measured
+ToA, and measured over simulated energy, on those drops; so is the twin's error in the picks' group velocity
+(the part of measured minus simulated ToA that grows with the path length: the bundled twin's picks travel
+at 0.894 mm/us over the virtual drops, the rig's at 0.946; uncorrected, that 5 % scale error of the physics
+position is one the sim-trained forests cannot undo); and so is the twin's spectral tilt: the measured
 minus simulated arrival energies and difference energies (log10, summed over sensors) of those drops, by
 which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
 mesh and sensor model lose some of the highest frequencies: a constant offset per feature, ~0.04-0.14 on
@@ -21,11 +24,12 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from .data import Session, load_session, write_session
 from .errors import DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
-from .pipeline import SignalConfig, as_int16, featurize
+from .pipeline import SignalConfig, as_int16, distances_mm, featurize
 from .workflow import evaluate, train
 
 
@@ -43,10 +47,14 @@ def calibration_rows(session: Session, cal: dict) -> np.ndarray:
 
 
 def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: np.ndarray,
-                                      signal: SignalConfig) -> tuple[list[float], list[float]]:
+                                      signal: SignalConfig) -> tuple[list[float], list[float], float]:
     """The rig's channel effects the twin lacks, from the calibration drops only:
     gain = sqrt(median of measured / simulated energy), unclipped drops only, fitted first;
-    delay (relative to channel 0) = median of measured minus simulated ToA, picked with those gains."""
+    then, picked with those gains, measured minus simulated ToA of drop k on channel i as
+    c_k + delay_i + d_ik (1 / v_rig - 1 / v_twin) (d_ik the path length, c_k the drop's onset, removed by
+    centring; soft-L1 as in `fit_localiser`): the delays (relative to channel 0) and the group velocity the
+    rig's picks travel at, v_rig, given `signal.velocity_mm_per_us` as the twin's (fitted on virtual drops).
+    Returns (delays, gains, v_rig)."""
     base = SignalConfig.from_dict(signal.to_dict())
     base.channel_delay_us = [0.0, 0.0, 0.0, 0.0]
     base.channel_gain = [1.0, 1.0, 1.0, 1.0]
@@ -63,10 +71,17 @@ def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_ad
     # Delays with the gains applied, so the (amplitude-dependent) threshold picks see equal amplitudes.
     base.channel_gain = gains
     meas = featurize(session.adc[rows], base)
-    diff = meas.toa_us.astype(float) - sim.toa_us.astype(float)
-    diff = diff - diff[:, :1]
-    delays = [float(v) for v in np.median(diff[ok], axis=0)]
-    return delays, gains
+    diff = (meas.toa_us.astype(float) - sim.toa_us.astype(float))[ok]
+    path = distances_mm(session.xy_mm[rows], base)[ok]
+
+    def residuals(p):
+        r = diff - np.r_[0.0, p[:3]][None] - path * p[3]
+        return (r - r.mean(1, keepdims=True)).ravel()
+
+    sol = least_squares(residuals, np.zeros(4), loss="soft_l1", f_scale=3.0)
+    delays = [0.0] + [float(v) for v in sol.x[:3]]
+    velocity = 1.0 / (1.0 / signal.velocity_mm_per_us + float(sol.x[3]))
+    return delays, gains, velocity
 
 
 def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,
@@ -82,8 +97,46 @@ def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, 
     return {name: float(v) for name, v in zip(ARRIVAL_ENERGY_FEATURES, diff)}
 
 
+def twin_site_map(params, session: Session, out: Path, progress: bool = True):
+    """The calibrated twin's site map, cached in out/site-map.npz (rebuilt when the twin changed)."""
+    from .sitemap import SiteMap, build_site_map
+
+    from .sitemap import BUNDLED
+
+    from .sim import SimParams
+
+    def same_twin(site) -> bool:   # parameters added since the map was made take their defaults
+        try:
+            return SimParams.from_dict(dict(site.source.get("sim_params") or {})) == params
+        except Exception:
+            return False
+
+    for path in (BUNDLED, out / "site-map.npz"):   # the bundled twin's map, when this is the bundled twin
+        if path.is_file():
+            site = SiteMap.load(path)
+            if same_twin(site):
+                return site
+    path = out / "site-map.npz"
+    site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress)
+    site.save(path)
+    return site
+
+
+def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, site) -> None:
+    """The rig's offsets and weights of the twin's fingerprint from the calibration drops only; the slopes
+    (d feature / d log10 height) stay the virtual drops'."""
+    from .sitemap import twin_features
+    from .twin import fit_twin
+
+    meas = featurize(session.adc[rows], model.signal)
+    feats, usable = twin_features(meas)
+    model.twin_fit = fit_twin(feats, usable, site, session.xy_mm[rows], session.height_mm[rows],
+                              slope=np.asarray(model.twin_fit.slope))
+
+
 def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
-                  seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True) -> dict:
+                  seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
+                  use_twin: bool = True) -> dict:
     from .sim import SimParams, simulate_drops
 
     out = Path(out_dir)
@@ -98,8 +151,13 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
     cal_rows = calibration_rows(session, cal)
 
     # The virtual data set, written as a session folder so every tool can read it.
+    # Reused only when it was simulated with this twin and seed (a set from another twin would be tested
+    # under this calibration's name).
     sim_dir = out / f"virtual-{n_virtual}"
-    if not (sim_dir / "recordings.npz").is_file():
+    made_with = {"sim_params": params.to_dict(), "seed": seed}
+    stamp = sim_dir / "made_with.json"
+    if not (stamp.is_file() and (sim_dir / "recordings.npz").is_file()
+            and json.loads(stamp.read_text()) == made_with):
         rng = np.random.default_rng(seed)
         from scipy.stats import qmc
 
@@ -118,33 +176,45 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
                              workers=workers, progress=progress)
         write_session(sim_dir, session.rig, x, y, h, adc)
+        stamp.write_text(json.dumps(made_with, indent=1))
     virtual = load_session(sim_dir)
 
+    # The twin's site map for the energy class (the twin's fingerprint, twin.py).
+    site = twin_site_map(params, session, out, progress) if use_twin else None
     # Sim-trained: localiser constants and forests from the virtual drops only ...
-    sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed)
+    sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site)
     # ... and the rig's channel timing from the four calibration drops.
     cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
                              session.height_mm[cal_rows], noise=True, seed=seed, workers=workers, progress=False)
     virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
-    delays, gains = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
+    virtual_velocity = sim_model.signal.velocity_mm_per_us
+    delays, gains, velocity = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
+    sim_model.signal.velocity_mm_per_us = velocity
     sim_model.signal.channel_delay_us = delays
     sim_model.signal.channel_gain = gains
     # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
-    offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
-    vf = featurize(virtual.adc, virtual_signal)
-    use = vf.usable
-    X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
-    for k, name in enumerate(ENERGY_FEATURES):
-        X[:, k] += offsets.get(name, 0.0)
-    sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
-        X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
+    offsets = {}
+    if site is not None:
+        fit_twin_on_calibration_drops(sim_model, session, cal_rows, site)
+    else:
+        offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
+        vf = featurize(virtual.adc, virtual_signal)
+        use = vf.usable
+        X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
+        for k, name in enumerate(ENERGY_FEATURES):
+            X[:, k] += offsets.get(name, 0.0)
+        sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
+            X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
     sim_model.save(out / "model-sim", extra_card={"trained_on": str(sim_dir), "calibration": str(cal_path),
                                                    "channel_delay_from_calibration_drops_us": delays,
                                                    "channel_gain_from_calibration_drops": gains,
+                                                   "velocity_mm_per_us_virtual_drops": virtual_velocity,
+                                                   "velocity_mm_per_us_from_calibration_drops": velocity,
                                                    "energy_feature_offsets_from_calibration_drops": offsets})
 
     # Measured-trained on the same session, same split, calibration drops excluded everywhere.
-    meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows)
+    meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows,
+                              site_map=site)
     test_rows = np.asarray(split["test_recordings"], int)
     assert not np.isin(test_rows, cal_rows).any()
     rep_sim = evaluate(session, sim_model, rows=test_rows)
@@ -156,6 +226,8 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "test_recordings": test_rows.tolist(),
         "channel_delay_us_from_calibration_drops": delays,
         "channel_gain_from_calibration_drops": gains,
+        "velocity_mm_per_us_virtual_drops": virtual_velocity,
+        "velocity_mm_per_us_from_calibration_drops": velocity,
         "energy_feature_offsets_from_calibration_drops": offsets,
         "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
         "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},

@@ -54,7 +54,13 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     session = load_session(args.data)
     print(f"training on 80 % of the cases of {session.name} ({len(session)} drops, {session.n_cases} cases) ...")
-    model, split = train(session, out / "model", 0.2, args.seed)
+    from ..sitemap import resolve_site_map
+
+    site = resolve_site_map("auto", session.rig)
+    if site is not None:
+        print(f"energy class from the bundled twin's site map ({site.nx} x {site.ny} points, "
+              f"{site.step_mm:g} mm, drop height {site.ref_height_mm:g} mm)")
+    model, split = train(session, out / "model", 0.2, args.seed, site_map=site)
     report = evaluate(session, model)
     write_json(report, out / "evaluate-session-1.json")
     evaluation_plots(report, session.rig, out / "plots")

@@ -18,6 +18,9 @@ def register(sub) -> None:
                    help="fraction of cases held out for evaluate (0 trains on everything; default 0.2)")
     p.add_argument("--seed", type=int, default=0, help="split and forest seed (default 0)")
     p.add_argument("--trees", type=int, default=100, help="trees per forest (default 100)")
+    p.add_argument("--site-map", default="auto", metavar="auto|none|site-map.npz",
+                   help="the twin's site map for the energy class (`impactsense sitemap`); auto = the bundled "
+                        "twin's when the rig is the bundled rig, else none (energy forest on summed energies)")
     p.add_argument("--exclude", default=None,
                    help="comma-separated recording ids to leave out (e.g. calibration drops), or a CAL.json")
     p.set_defaults(func=run)
@@ -50,13 +53,17 @@ def run(args) -> int:
     if not 0.0 <= args.test_fraction < 1.0:
         raise ConfigError(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
     session = load_session(args.data)
+    from ..sitemap import resolve_site_map
+
+    site = resolve_site_map(args.site_map, session.rig)
     model, split = train(session, args.out, args.test_fraction, args.seed, parse_exclude(args.exclude),
-                         ForestSettings(n_estimators=args.trees, seed=args.seed))
+                         ForestSettings(n_estimators=args.trees, seed=args.seed), site_map=site)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
           f"held out {len(split['test_recordings'])} drops")
     print(f"physics localiser: v = {sig.velocity_mm_per_us * 1000:.0f} m/s, channel delays (us) = "
           f"{', '.join(f'{d:+.2f}' for d in sig.channel_delay_us)}")
-    print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile)")
+    print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
+          + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
     print(f"wrote {args.out}")
     return 0
