@@ -8,7 +8,8 @@
 //              by assumed natural strains tied at edge midpoints (MITC4), so no shear locking and no
 //              spurious zero-energy modes.
 //   Mass       lumped: translational mass_w, rotary mass_r per node (may include disc mass / scaling).
-//   Stepper    central differences with mass-proportional damping: a = M^-1 (P - F) - D_s v.
+//   Stepper    central differences with mass-proportional damping: a = M^-1 (P - F) - D_s v; optionally the
+//              disc patches sub-cycled (m sub-steps of dt / m, see Plate::set_subcycling).
 //   Contact    rigid sphere, Hertz F = k delta^1.5, delta = z_ball - w(x_c); bilinear load distribution.
 //   Sensors    linear functionals of the rotations (disc-averaged surface strain, Python builds weights);
 //              output sampled on a record grid with hat (linear B-spline) weights.
