@@ -28,7 +28,7 @@ Defaults (documented, see method.md):
   m times per step with dt / m in their own limit while the rest of the plate takes the bare plate's step
   (nodal-partition multi-time-step central differences, Belytschko-Yen-Mullen: the ring of plate nodes around
   a patch moves linearly in time from u_n to u_{n+1} during the sub-steps; stable, energy conserved to 1e-3).
-  1 mm mesh: 23 steps per ADC sample (2 sub-steps under the discs) instead of 29, disc voltages within 0.25 %
+  1 mm mesh: 23 steps per ADC sample (2 sub-steps under the discs) instead of 29, disc voltages within 0.3 %
   RMS of the single-step scheme. The error sits at the patch boundary (linear interpolation of the ring) and
   grows with the element size and dt: 0.4-0.7 % at the default 2.1 mm mesh (11 steps instead of 14), so the
   default mesh is stepped plainly. subcycle = false turns it off everywhere.
