@@ -2,12 +2,43 @@
 #include "twin.h"
 
 #include <math.h>
+#include <string.h>
 
 namespace impactcore {
 
 namespace {
 constexpr float kLog10Of2 = 0.301029996f;
 constexpr uint8_t kUnusable = kFlagClipped | kFlagDead | kFlagNoOnset;
+
+// exp(x) for x <= 0, within 2 ulp of expf where it matters (x > -87; 0 below): 2^n 2^f with n the nearest
+// integer to x log2(e) and a degree-6 polynomial for 2^f on [-1/2, 1/2] (Chebyshev interpolation). About a
+// fifth of newlib's expf on the Cortex-M4F (no errno, no double). The rounding of x log2(e) moves exp(x) by
+// at most ~|x| 6e-8 relative, i.e. by < 3e-8 of the largest weight (1) for any x: float rounding of the sums.
+inline float exp_nonpositive(float x) {
+  if (!(x > -87.0f)) return 0.0f;
+  const float t = x * 1.44269504f;
+  const int n = static_cast<int>(t - 0.5f);  // round to nearest (t <= 0: truncation is toward zero)
+  const float f = t - static_cast<float>(n);
+  float p = 1.546144472e-4f;
+  p = p * f + 1.340042818e-3f;
+  p = p * f + 9.618056678e-3f;
+  p = p * f + 5.550327227e-2f;
+  p = p * f + 2.402265092e-1f;
+  p = p * f + 6.931472067e-1f;
+  p = p * f + 1.0f;
+  const uint32_t bits = static_cast<uint32_t>(n + 127) << 23;  // 2^n, n >= -126
+  float scale;
+  memcpy(&scale, &bits, sizeof(scale));
+  return p * scale;
+}
+
+// One twin feature's per-event constants, interleaved so the grid loop reads them in one pass.
+struct Term {
+  float r;   // event feature - offset - map base (0 when not usable)
+  float s;   // map scale
+  float ws;  // weight x slope (0 when not usable)
+  float w;   // weight (0 when not usable)
+};
 }  // namespace
 
 uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
@@ -37,15 +68,17 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
     return r;
   }
   // The per-event constants: residual before the map, and the normal equation's denominator A = sum w s^2.
-  float r0[kTwinFeatures], ws[kTwinFeatures], w[kTwinFeatures];
+  Term term[kTwinFeatures];
   float a = 0.0f;
   int n_used = 0;
   for (int k = 0; k < kTwinFeatures; ++k) {
     const bool use = (usable >> k) & 1u;
-    w[k] = use ? cfg.weight[k] : 0.0f;
-    r0[k] = use ? features[k] - cfg.offset[k] : 0.0f;
-    ws[k] = w[k] * cfg.slope[k];
-    a += ws[k] * cfg.slope[k];
+    Term& t = term[k];
+    t.w = use ? cfg.weight[k] : 0.0f;
+    t.r = use ? (features[k] - cfg.offset[k]) - map.base[k] : 0.0f;
+    t.s = map.scale[k];
+    t.ws = t.w * cfg.slope[k];
+    a += t.ws * cfg.slope[k];
     n_used += use ? 1 : 0;
   }
   if (n_used < kTwinPerChannel || !(a > 0.0f)) {
@@ -89,10 +122,12 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
       if (q[0] == kSiteMapMissing) continue;
       // D = sum w s rr / A; misfit = (sum w rr^2 - A D^2) / n, rr = r0 - map (unused features have w = 0).
       float b = 0.0f, c = 0.0f;
+#pragma GCC unroll 16
       for (int k = 0; k < kTwinFeatures; ++k) {
-        const float rr = r0[k] - (map.base[k] + map.scale[k] * static_cast<float>(q[k]));
-        b += ws[k] * rr;
-        c += w[k] * rr * rr;
+        const Term& t = term[k];
+        const float rr = t.r - t.s * static_cast<float>(q[k]);
+        b += t.ws * rr;
+        c += t.w * rr * rr;
       }
       const float shift_j = b * inv_a;
       float misfit = (c - a * shift_j * shift_j) * inv_n;
@@ -114,7 +149,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   }
   float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f;
   for (int m = 0; m < n; ++m) {
-    const float p = expf(logw[m] - best_logw);
+    const float p = exp_nonpositive(logw[m] - best_logw);
     sw += p;
     sd += p * shift[m];
     sx += p * px[m];
