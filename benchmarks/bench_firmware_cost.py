@@ -6,6 +6,12 @@ instructions, so instructions = ticks x 200,000 / calibration ticks (resolution 
 Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
 
     python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6]
+                                             [--site-map auto|none|FILE] [--site-map-step MM]
+
+Without --model-dir the fixture trains its own board-rate forests (--trees per localisation forest) with the
+energy class on the twin's site map as the board sees it (--site-map auto: the bundled twin's; the board's
+5 mm map takes a few minutes the first time and is cached in build/bench-cache/). --model-dir MODEL_DIR
+exports that board model instead (e.g. OUT/board-model from `impactsense export`).
 """
 
 from __future__ import annotations
@@ -34,9 +40,9 @@ def run(build: Path, extra: list[str]) -> tuple[dict, dict, str]:
         sys.exit(f"qemu test image failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
     out = p.stdout + p.stderr
     ticks = {m.group(1): int(m.group(2)) for m in re.finditer(r"^TICKS (\S+) (\d+)$", out, re.M)}
-    per_drop: dict[str, list[int]] = {}
-    for m in re.finditer(r"^(?:TICKS_)?DROP (\S+) (\d+)$", out, re.M):
-        per_drop.setdefault(m.group(1), []).append(int(m.group(2)))
+    per_drop: dict[str, list[int]] = {}   # TICKS_DROP: ticks; DROP: counts
+    for m in re.finditer(r"^(TICKS_)?DROP (\S+) (\d+)$", out, re.M):
+        per_drop.setdefault(("ticks:" if m.group(1) else "") + m.group(2), []).append(int(m.group(3)))
     return ticks, per_drop, p.stdout
 
 
@@ -51,6 +57,8 @@ def main() -> int:
     ap.add_argument("--trees", type=int, default=12)
     ap.add_argument("--drops", type=int, default=6,
                     help="session-1 drops in the fixture, evenly spaced (each one's whole event is timed)")
+    ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
+    ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
     ap.add_argument("--json")
     args = ap.parse_args()
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
@@ -58,13 +66,17 @@ def main() -> int:
         return 2
     extra = ["--trees", str(args.trees), "--drops", str(args.drops)]
     extra += ["--model-dir", args.model_dir] if args.model_dir else []
+    cache = ROOT / "build" / "bench-cache" / f"board-site-map-{args.site_map_step or 'default'}.npz"
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    extra += ["--site-map", args.site_map, "--site-map-cache", str(cache)]
+    extra += ["--site-map-step", str(args.site_map_step)] if args.site_map_step else []
     with tempfile.TemporaryDirectory() as tmp:
         build = Path(tmp)
         ticks, per_drop_ticks, _ = run(build, extra)
         per = 200000 / ticks.pop("calib_200000_instructions")
         ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
-        per_drop = {k: [round(v * per) for v in vs] for k, vs in per_drop_ticks.items() if k != "localiser_iterations"}
-        per_drop["localiser_iterations"] = per_drop_ticks.get("localiser_iterations", [])
+        per_drop = {k[len("ticks:"):] if k.startswith("ticks:") else k:
+                    [round(v * per) for v in vs] if k.startswith("ticks:") else vs for k, vs in per_drop_ticks.items()}
         sizes = {"models_tables": obj_size(build, "impactsense_forest_tables.o"),
                  "models_m2cgen": obj_size(build, "impactsense_models_m2c.o")}
         export = json.loads((build / "models/export.json").read_text())
@@ -79,6 +91,12 @@ def main() -> int:
           f"min {ev.min():,} median {int(np.median(ev)):,} p95 {int(np.percentile(ev, 95)):,} max {ev.max():,}; "
           f"features min {fe.min():,} max {fe.max():,}; the rest (localiser, Eq. 35, vector, models, "
           f"encoding) max {(ev - fe).max():,}")
+    if "twin" in per_drop:
+        tw, pts = np.array(per_drop["twin"]), np.array(per_drop["twin_points"])
+        print(f"  twin fingerprint (twin_features + twin_estimate at the reported position): min {tw.min():,} "
+              f"median {int(np.median(tw)):,} max {tw.max():,} instructions; grid points visited "
+              f"{pts.min()}..{pts.max()} (site map {export['twin']['grid'][:2]} points, "
+              f"{export['table_bytes']['twin']:,} bytes)")
     if len(ev) <= 12:
         print("  whole event per drop: " + " / ".join(f"{v:,}" for v in ev))
     worst = np.argsort(ev)[::-1][:3]

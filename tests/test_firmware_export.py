@@ -1,5 +1,6 @@
 """Model export: the generated C (node tables and m2cgen per tree, float32) gives scikit-learn's
-predictions on every session-1 drop."""
+predictions on every session-1 drop, for the energy classifier on summed energies and for the one on the
+twin's height estimate (site map and twin configuration exported with the forests)."""
 
 import re
 import shutil
@@ -24,19 +25,28 @@ def session_features():
     return s, f
 
 
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory, session_features):
-    """`impactsense train`'s model type (residual x/y forests on feature subsets), small, on all drops."""
+@pytest.fixture(scope="module", params=["summed", "twin"])
+def exported(request, tmp_path_factory, session_features):
+    """`impactsense train`'s model type (residual x/y forests on feature subsets), small, on all drops; the
+    energy class on the summed energies or on the bundled twin's site map."""
     from impactsense.models import ForestSettings, ImpactModel
     from impactsense.pipeline import SignalConfig
+    from impactsense.sitemap import BUNDLED, SiteMap
 
     s, f = session_features
+    site = SiteMap.load(BUNDLED) if request.param == "twin" else None
     model = ImpactModel.fit(f, s.xy_mm, s.height_mm, s.rig.ball_mass_g, SignalConfig.for_rig(s.rig),
-                            ForestSettings(n_estimators=15, min_samples_leaf=2))
+                            ForestSettings(n_estimators=15, min_samples_leaf=2), site_map=site)
     d = model.save(tmp_path_factory.mktemp("model"))
     out = tmp_path_factory.mktemp("export")
     summary = export_models(d, out)
     return d, out, summary
+
+
+def energies(f):
+    """What the twin reads of each event (EventFeatures): window energies, difference energies, flags."""
+    return (np.ascontiguousarray(f.raw["window_energy"], np.float32),
+            np.ascontiguousarray(f.raw["diff_energy"], np.float32), np.ascontiguousarray(f.flags, np.uint8))
 
 
 def test_float32_floor_keeps_sklearn_decisions():
@@ -55,23 +65,58 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     _, f = session_features
     use = f.usable
     assert use.sum() > 700
-    want = ImpactModel.load(model_dir).predict(f)
+    model = ImpactModel.load(model_dir)
+    want = model.predict(f)
     fm, signal = firmware_models(out)
-    got = fm.predict(f.vector, f.phys_xy_mm)
-    np.testing.assert_array_equal(got[:, 3], use)  # the firmware runs the models exactly where the host does
-    np.testing.assert_allclose(got[use, :2], want["xy_mm"][use], atol=2e-3)
-    np.testing.assert_array_equal(got[use, 2], want["energy_class"][use])
+    assert fm.has_twin == (model.site_map is not None)
+    got = fm.predict(f.vector, f.phys_xy_mm, *energies(f))
+    ran = use & (want["energy_class"] >= 0)
+    assert ran.sum() >= use.sum() - 2
+    np.testing.assert_array_equal(got[:, 3], ran)  # the firmware runs the models exactly where the host does
+    np.testing.assert_allclose(got[ran, :2], want["xy_mm"][ran], atol=2e-3)
+    np.testing.assert_array_equal(got[ran, 2], want["energy_class"][ran])
     assert summary["residual_xy"] and signal["fs_hz"] == 100000
     n_inputs = sum(len(v) for v in summary["inputs"].values())
-    assert summary["table_bytes_total"] == sum(7 * n for n in summary["nodes"].values()) + 4 * 45 + n_inputs
+    n_trees = sum(summary["trees"].values())
+    twin_bytes = 0
+    if model.site_map is not None:
+        assert summary["inputs"]["energy"] == [len(f.vector[0])]  # the twin's estimate: one past the vector
+        site = model.site_map
+        twin_bytes = site.nx * site.ny * 16 + 4 * (5 * 16 + 5 + 4)  # q; base, scale, offset, slope, weight; grid; config
+        assert summary["trees"]["energy"] == 25 and summary["nodes"]["energy"] <= 3 * 25  # stumps
+    assert summary["table_bytes_total"] == sum(7 * n for n in summary["nodes"].values()) + 4 * n_trees + n_inputs + twin_bytes
+
+
+def test_firmware_walker_needs_the_twin_for_a_twin_model(exported):
+    """A forest that reads the twin's estimate without a site map is refused (and so is one for x or y)."""
+    from impactsense import _link
+    from impactsense.export import load_tables
+
+    t = load_tables(exported[1] / "forest_tables.npz")
+    spec = {r: {k: v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}
+    if t["twin"] is None:
+        pytest.skip("not a twin model")
+    with pytest.raises(ValueError, match="twin"):
+        _link.ForestModels(spec["x"], spec["y"], spec["energy"], True)
+    with pytest.raises(ValueError, match="twin"):
+        _link.ForestModels(spec["energy"], spec["y"], spec["energy"], True)
+    twin = {k: v.tolist() for k, v in t["twin"].items()}
+    twin["q"] = twin["q"][:-1]
+    with pytest.raises(ValueError, match="q needs"):
+        _link.ForestModels(spec["x"], spec["y"], spec["energy"], True, twin)
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="no host C compiler")
 def test_generated_c_matches_sklearn_on_every_drop(exported, session_features, tmp_path):
+    from impactsense.models import ImpactModel
+
     model_dir, out, _ = exported
     _, f = session_features
-    use = f.usable
-    X = np.ascontiguousarray(f.vector[use], dtype=np.float32)
+    pred = ImpactModel.load(model_dir).predict(f)
+    use = f.usable & (pred["energy_class"] >= 0)
+    # The feature vector and the twin's log10 height estimate (the energy classifier's input of a twin model).
+    est = np.log10(pred["height_mm"][use]) if "height_mm" in pred else np.full(use.sum(), np.nan)
+    X = np.ascontiguousarray(np.c_[f.vector[use], est], dtype=np.float32)
     m2c = (out / "impactsense_models_m2c.c").read_text()
     assert "double" not in m2c
     assert len(re.findall(r"^static float x_tree_\d+\(const float \* input\)", m2c, re.M)) == 15
@@ -92,6 +137,7 @@ def test_generated_c_matches_sklearn_on_every_drop(exported, session_features, t
         np.testing.assert_allclose(got[:, cols[2]], want_p, atol=1e-5)
         np.testing.assert_array_equal((got[:, cols[2]] > 0.5).astype(int),
                                       m.energy.predict(X[:, m.inputs["energy"]]))
+    np.testing.assert_array_equal((got[:, 2] > 0.5).astype(int), pred["energy_class"][use])
 
 
 def test_cli_export(exported, tmp_path):

@@ -1,5 +1,6 @@
 """The portable firmware cross-compiled for the Cortex-M4F and run on qemu (mps2-an386): the bare-metal
-image processes recorded drops and checks its reports, features and model outputs against the host's."""
+image processes recorded drops and checks its reports, features and model outputs against the host's, with
+the energy class on the twin's site map as the board sees it (a coarse 20 mm map here, to keep it quick)."""
 
 import os
 import re
@@ -17,7 +18,8 @@ pytestmark = pytest.mark.skipif(
 
 
 def test_qemu_image_matches_host(tmp_path):
-    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path), "--drops", "6", "--trees", "8"],
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path), "--drops", "6", "--trees", "8",
+                        "--site-map-step", "20"],
                        capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA=""))
     out = p.stdout + p.stderr
     assert p.returncode == 0, out
@@ -25,3 +27,5 @@ def test_qemu_image_matches_host(tmp_path):
     # arm-none-eabi-size was printed for the libraries and the image
     assert re.search(r"\(TOTALS\)", out) and "test.elf" in out
     assert not re.search(r"FAIL \w", out)
+    assert re.search(r"^DROP twin_points [1-9]", out, re.M)  # the twin ran on the board's events
+    assert "impactsense_twin_map" in (tmp_path / "models" / "impactsense_forest_tables.c").read_text()

@@ -15,6 +15,7 @@
 #include "impactapp.h"
 #include "impactcore.h"
 #include "impactlink.h"
+#include "twin.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -24,6 +25,7 @@ namespace ic = impactcore;
 
 using In16 = nb::ndarray<const int16_t, nb::c_contig, nb::device::cpu>;
 using InF = nb::ndarray<const float, nb::c_contig, nb::device::cpu>;
+using InU8 = nb::ndarray<const uint8_t, nb::c_contig, nb::device::cpu>;
 
 namespace {
 
@@ -185,7 +187,8 @@ struct Tables {
   }
 };
 
-Tables tables_from(nb::dict d) {
+// allow_twin: the forest may read ia::kTwinInput (the twin's height estimate; the energy classifier only).
+Tables tables_from(nb::dict d, bool allow_twin) {
   Tables t;
   t.roots = nb::cast<std::vector<int32_t>>(d["roots"]);
   t.feature = nb::cast<std::vector<uint8_t>>(d["feature"]);
@@ -198,7 +201,10 @@ Tables tables_from(nb::dict d) {
     throw std::invalid_argument("a forest reads 1..32 features");
   }
   for (uint8_t i : t.inputs) {
-    if (i >= ic::kNumFeatures) throw std::invalid_argument("forest input beyond the core's feature vector");
+    if (i > ia::kTwinInput || (i == ia::kTwinInput && !allow_twin)) {
+      throw std::invalid_argument(i == ia::kTwinInput ? "forest reads the twin's estimate but no twin was given"
+                                                      : "forest input beyond the core's feature vector");
+    }
   }
   for (int32_t r : t.roots) {
     if (r < 0 || static_cast<size_t>(r) >= n) throw std::invalid_argument("forest root out of range");
@@ -216,13 +222,61 @@ Tables tables_from(nb::dict d) {
   return t;
 }
 
+std::vector<float> floats(nb::dict d, const char* key, size_t n) {
+  if (!d.contains(key)) throw std::invalid_argument(std::string("twin: missing key ") + key);
+  auto v = nb::cast<std::vector<float>>(d[key]);
+  if (v.size() != n) throw std::invalid_argument(std::string("twin: ") + key + " needs " + std::to_string(n) + " values");
+  return v;
+}
+
+// The twin's site map and configuration (twin.h), owned here; the dict holds the export's arrays.
+struct Twin {
+  std::vector<uint8_t> q;
+  ia::TwinSpec spec{};
+  explicit Twin(nb::dict d) {
+    const auto grid = floats(d, "grid", 5);  // nx, ny, x0_mm, y0_mm, step_mm
+    const auto cfg = floats(d, "config", 4);  // ref_log10_height_mm, prior_mm, cutoff_mm, temperature
+    ic::SiteMap& m = spec.map;
+    m.nx = static_cast<int32_t>(grid[0]);
+    m.ny = static_cast<int32_t>(grid[1]);
+    m.x0_mm = grid[2];
+    m.y0_mm = grid[3];
+    m.step_mm = grid[4];
+    if (m.nx < 1 || m.ny < 1 || static_cast<float>(m.nx) != grid[0] || static_cast<float>(m.ny) != grid[1]) {
+      throw std::invalid_argument("twin: grid nx, ny must be positive integers");
+    }
+    q = nb::cast<std::vector<uint8_t>>(d["q"]);
+    if (q.size() != static_cast<size_t>(m.nx) * m.ny * ic::kTwinFeatures) {
+      throw std::invalid_argument("twin: q needs nx * ny * 16 bytes");
+    }
+    m.q = q.data();
+    const size_t n = ic::kTwinFeatures;
+    const auto base = floats(d, "base", n), scale = floats(d, "scale", n);
+    const auto off = floats(d, "offset", n), slope = floats(d, "slope", n), w = floats(d, "weight", n);
+    for (size_t k = 0; k < n; ++k) {
+      m.base[k] = base[k];
+      m.scale[k] = scale[k];
+      spec.cfg.offset[k] = off[k];
+      spec.cfg.slope[k] = slope[k];
+      spec.cfg.weight[k] = w[k];
+    }
+    spec.cfg.ref_log10_height_mm = cfg[0];
+    spec.cfg.prior_mm = cfg[1];
+    spec.cfg.cutoff_mm = cfg[2];
+    spec.cfg.temperature = cfg[3];
+  }
+};
+
 struct PyModels : ia::Models {
   Tables x, y, e;
   bool residual;
+  std::unique_ptr<Twin> twin;
   std::unique_ptr<ia::TableModels> impl;
-  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy)
-      : x(tables_from(dx)), y(tables_from(dy)), e(tables_from(de)), residual(residual_xy) {
-    impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual));
+  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin)
+      : x(tables_from(dx, false)), y(tables_from(dy, false)), e(tables_from(de, !dtwin.is_none())),
+        residual(residual_xy) {
+    if (!dtwin.is_none()) twin.reset(new Twin(nb::cast<nb::dict>(dtwin)));
+    impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual, twin ? &twin->spec : nullptr));
   }
   bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
     return impl->predict(ev, xm, ym, c);
@@ -381,11 +435,19 @@ NB_MODULE(_link, m) {
       .def_prop_ro("errors", &PyDecoder::errors)
       .def("reset", &PyDecoder::reset);
 
+  m.attr("TWIN_INPUT") = static_cast<int>(ia::kTwinInput);
+
   nb::class_<PyModels>(m, "ForestModels")
-      .def(nb::init<nb::dict, nb::dict, nb::dict, bool>(), "x"_a, "y"_a, "energy"_a, "residual_xy"_a,
-           "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them.")
+      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object>(), "x"_a, "y"_a, "energy"_a, "residual_xy"_a,
+           "twin"_a = nb::none(),
+           "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them; twin: the "
+           "site map and its configuration (dict of grid [nx, ny, x0_mm, y0_mm, step_mm], q, base, scale, offset, "
+           "slope, weight, config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]) when the energy "
+           "classifier reads the twin's estimate (input TWIN_INPUT).")
       .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
-      .def("predict", [](const PyModels& p, InF vector, InF phys_xy) {
+      .def_prop_ro("has_twin", [](const PyModels& p) { return p.twin != nullptr; })
+      .def("predict", [](const PyModels& p, InF vector, InF phys_xy, nb::object window_energy,
+                         nb::object diff_energy, nb::object flags) {
         if (vector.ndim() != 2 || vector.shape(1) != static_cast<size_t>(ic::kNumFeatures)) {
           throw std::invalid_argument("vector must be float32 [n, core feature count]");
         }
@@ -393,17 +455,42 @@ NB_MODULE(_link, m) {
           throw std::invalid_argument("phys_xy must be float32 [n, 2]");
         }
         const size_t r = vector.shape(0);
+        // The per-channel energies and flags the twin reads (EventFeatures), when given.
+        const bool energies = !window_energy.is_none();
+        InF we, de;
+        InU8 fl;
+        if (energies) {
+          we = nb::cast<InF>(window_energy);
+          de = nb::cast<InF>(diff_energy);
+          fl = nb::cast<InU8>(flags);
+          if (we.ndim() != 3 || we.shape(0) != r || we.shape(1) != ic::kChannels ||
+              we.shape(2) != ic::kEnergyWindows || de.ndim() != 3 || de.shape(0) != r ||
+              de.shape(1) != ic::kChannels || de.shape(2) != ic::kDiffOrders || fl.ndim() != 2 ||
+              fl.shape(0) != r || fl.shape(1) != ic::kChannels) {
+            throw std::invalid_argument("window_energy [n,4,5], diff_energy [n,4,3] float32 and flags [n,4] uint8");
+          }
+        }
         float* out = new float[4 * (r ? r : 1)];
-        ic::EventResult ev{};
-        ev.status = ic::kOk;
-        ev.phys.status = ic::kOk;
+        std::unique_ptr<ic::EventResult> ev(new ic::EventResult());
+        ev->status = ic::kOk;
+        ev->phys.status = ic::kOk;
         for (size_t k = 0; k < r; ++k) {
-          std::memcpy(ev.vector, vector.data() + k * ic::kNumFeatures, sizeof(ev.vector));
-          ev.phys.x_mm = phys_xy.data()[2 * k];
-          ev.phys.y_mm = phys_xy.data()[2 * k + 1];
+          std::memcpy(ev->vector, vector.data() + k * ic::kNumFeatures, sizeof(ev->vector));
+          ev->phys.x_mm = phys_xy.data()[2 * k];
+          ev->phys.y_mm = phys_xy.data()[2 * k + 1];
+          if (energies) {
+            for (int c = 0; c < ic::kChannels; ++c) {
+              ic::ChannelFeatures& ch = ev->features.ch[c];
+              std::memcpy(ch.window_energy, we.data() + (k * ic::kChannels + c) * ic::kEnergyWindows,
+                          sizeof(ch.window_energy));
+              std::memcpy(ch.diff_energy, de.data() + (k * ic::kChannels + c) * ic::kDiffOrders,
+                          sizeof(ch.diff_energy));
+              ch.flags = fl.data()[k * ic::kChannels + c];
+            }
+          }
           float x = NAN, y = NAN;
           uint8_t c = 0;
-          const bool ok = p.predict(ev, &x, &y, &c);
+          const bool ok = p.predict(*ev, &x, &y, &c);
           out[4 * k] = x;
           out[4 * k + 1] = y;
           out[4 * k + 2] = static_cast<float>(c);
@@ -412,8 +499,10 @@ NB_MODULE(_link, m) {
         nb::capsule owner(out, [](void* q) noexcept { delete[] static_cast<float*>(q); });
         size_t shape[2] = {r, 4};
         return nb::ndarray<nb::numpy, float>(out, 2, shape, owner);
-      }, "vector"_a, "phys_xy"_a,
-      "Predictions [n, 4]: x_mm, y_mm, energy_class, ran (1/0), from the firmware's forest walker.");
+      }, "vector"_a, "phys_xy"_a, "window_energy"_a = nb::none(), "diff_energy"_a = nb::none(),
+      "flags"_a = nb::none(),
+      "Predictions [n, 4]: x_mm, y_mm, energy_class, ran (1/0), from the firmware's forest walker. A twin model "
+      "also needs each event's window_energy [n,4,5], diff_energy [n,4,3] and flags [n,4] (featurize's raw).");
 
   nb::class_<PyApp>(m, "App")
       .def(nb::init<nb::dict, nb::object>(), "config"_a = nb::dict(), "models"_a = nb::none())

@@ -1,5 +1,6 @@
 /* Host driver for the exported C models: reads float32 rows from stdin (the core's feature vector,
-   IMPACTSENSE_N_FEATURES values) and prints, per row, the forests' outputs from the node tables and from
+   IMPACTSENSE_N_FEATURES values, then the twin's log10 height estimate: the input IMPACTSENSE_TWIN_INPUT a
+   twin model's energy classifier reads, NaN otherwise) and prints, per row, the forests' outputs from the node tables and from
    m2cgen (x, y, P(high); x and y before adding the physics position) with %.9g. Used by
    tests/test_firmware_export.py to check the generated C against scikit-learn. */
 #include <stdio.h>
@@ -26,8 +27,8 @@ static const float* gather(const impactsense_model* m, const float* v, float* ou
 }
 
 int main(void) {
-  float v[IMPACTSENSE_N_FEATURES], a[32], b[32], c[32];
-  while (fread(v, sizeof(float), IMPACTSENSE_N_FEATURES, stdin) == IMPACTSENSE_N_FEATURES) {
+  float v[IMPACTSENSE_N_FEATURES + 1], a[32], b[32], c[32];
+  while (fread(v, sizeof(float), IMPACTSENSE_N_FEATURES + 1, stdin) == IMPACTSENSE_N_FEATURES + 1) {
     gather(&impactsense_model_x, v, a);
     gather(&impactsense_model_y, v, b);
     gather(&impactsense_model_energy, v, c);

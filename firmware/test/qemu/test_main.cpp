@@ -91,20 +91,30 @@ struct TestHal : impactapp::Hal {
   }
 };
 
-// The m2cgen export behind the same interface (gathers its inputs like TableModels).
+// The m2cgen export behind the same interface (gathers its inputs like TableModels, the twin's estimate at
+// its own x, y for IMPACTSENSE_TWIN_INPUT).
 struct M2cModels : impactapp::Models {
-  static void gather(const impactsense_model& m, const float* v, float* out) {
-    for (int k = 0; k < m.n_inputs; ++k) out[k] = v[m.inputs[k]];
+  static void gather(const impactsense_model& m, const float* v, float twin, float* out) {
+    for (int k = 0; k < m.n_inputs; ++k) out[k] = m.inputs[k] == IMPACTSENSE_TWIN_INPUT ? twin : v[m.inputs[k]];
   }
   bool predict(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c) const override {
     float in[impactapp::kMaxModelInputs];
     const float bx = IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f;
     const float by = IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f;
-    gather(impactsense_model_x, ev.vector, in);
+    gather(impactsense_model_x, ev.vector, NAN, in);
     *x = bx + impactsense_m2c_x(in);
-    gather(impactsense_model_y, ev.vector, in);
+    gather(impactsense_model_y, ev.vector, NAN, in);
     *y = by + impactsense_m2c_y(in);
-    gather(impactsense_model_energy, ev.vector, in);
+    float twin = NAN;
+#if IMPACTSENSE_TWIN
+    static const impactapp::TwinSpec spec = impactapp::exported_twin();
+    float f[impactcore::kTwinFeatures];
+    const uint16_t usable = impactcore::twin_features(ev.features, f);
+    const impactcore::TwinEstimate t = impactcore::twin_estimate(f, usable, *x, *y, spec.map, spec.cfg);
+    if (t.status != impactcore::kOk) return false;
+    twin = t.log10_height_mm;
+#endif
+    gather(impactsense_model_energy, ev.vector, twin, in);
     *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
     return true;
   }
@@ -150,12 +160,17 @@ int main() {
     host.phys.status = impactcore::kOk;
     host.phys.x_mm = fix_phys_xy[d][0];
     host.phys.y_mm = fix_phys_xy[d][1];
+    for (int c = 0; c < 4; ++c) {  // the energies and flags the twin reads
+      memcpy(host.features.ch[c].window_energy, fix_window_energy[d][c], sizeof(fix_window_energy[d][c]));
+      memcpy(host.features.ch[c].diff_energy, fix_diff_energy[d][c], sizeof(fix_diff_energy[d][c]));
+      host.features.ch[c].flags = fix_flags[d][c];
+    }
     float x, y;
     uint8_t cls;
     check(g_models.predict(host, &x, &y, &cls), "FAIL table models did not run, drop", d);
     check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL table x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL table class vs sklearn, drop", d);
-    g_m2c.predict(host, &x, &y, &cls);
+    check(g_m2c.predict(host, &x, &y, &cls), "FAIL m2cgen models did not run, drop", d);
     check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL m2cgen x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL m2cgen class vs sklearn, drop", d);
     // This drop's whole event again, timed (the cost depends on the drop through the localiser).
@@ -187,6 +202,17 @@ int main() {
       check(loc.x_mm == g_app.last_result().phys.x_mm, "FAIL localiser rerun differs, drop", d);
       put_int("DROP localiser_iterations", loc.iterations);
       put_int("DROP localiser_evaluations", loc.evaluations);
+#if IMPACTSENSE_TWIN
+      // The twin's fingerprint at the reported position (features + estimate), timed.
+      static const impactapp::TwinSpec spec = impactapp::exported_twin();
+      const impactlink::Report& rep = g_app.last_report();
+      const uint64_t w0 = ticks();
+      float tf[impactcore::kTwinFeatures];
+      const uint16_t usable = impactcore::twin_features(g_app.last_result().features, tf);
+      const impactcore::TwinEstimate te = impactcore::twin_estimate(tf, usable, rep.x_mm, rep.y_mm, spec.map, spec.cfg);
+      put_int("TICKS_DROP twin", static_cast<long long>(ticks() - w0));
+      put_int("DROP twin_points", te.n_points);
+#endif
     }
   }
   put_int("TICKS event_max_over_drops", static_cast<long long>(event_max));

@@ -4,7 +4,9 @@ emulator).
 The board samples 4 x 50 kHz (the SAADC's ceiling), not the lab logger's 100 kHz. A model trained at 100 kHz
 (`impactsense train`) is therefore first trained again, with the same split and forest settings, on the drops
 as the board captures them (resampled, SAADC scan delays, cut by the firmware app); that model is written to
-OUT/board-model and exported. `--rate native` exports MODEL_DIR's forests as they are. The held-out drops
+OUT/board-model and exported; a model whose energy class reads the twin's site map gets the site map as the
+board sees it (the twin's drops taken the same way; a few minutes, cached as OUT/board-site-map.npz).
+`--rate native` exports MODEL_DIR's forests as they are. The held-out drops
 are then run through the emulated board (the firmware app with the exported tables) and scored."""
 
 ORDER = 60
@@ -40,9 +42,10 @@ def run(args) -> int:
         except ValueError:
             raise ConfigError(f"--rate: {args.rate!r} is neither a rate in Hz nor 'native'") from None
         if int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
-            from ..link.boardmodel import retrain_for_board
+            from ..link.boardmodel import BOARD_SITE_MAP, retrain_for_board
 
-            model_dir = retrain_for_board(model_dir, Path(args.out) / "board-model", rate)
+            model_dir = retrain_for_board(model_dir, Path(args.out) / "board-model", rate,
+                                          site_map_cache=Path(args.out) / BOARD_SITE_MAP)
             card = _card(model_dir)
             print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz (same split, "
                   f"{card['forest']['n_estimators']} trees) -> {model_dir}")

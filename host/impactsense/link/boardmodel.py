@@ -7,6 +7,10 @@ its accuracy on the board. Until sessions are recorded on the board (`impactsens
 same model type, with the same split and settings, on what the emulated board captures: the recordings
 resampled onto the scan grid, channel c read c x 5 us after channel 0 (link.emulator.board_samples),
 triggered and cut by the firmware app itself. `impactsense export` ships such models by default.
+
+A model whose energy class reads the twin's site map (`impactsense train --site-map`) needs the map as the
+board sees it too: the twin's simulated drops taken the same way (board_site_map; ~3,500 drops for a 5 mm
+grid, a few minutes on 2 cores, cached in the export folder).
 """
 
 from __future__ import annotations
@@ -18,17 +22,18 @@ from types import SimpleNamespace
 import numpy as np
 
 from .. import _link
-from .emulator import Emulator, signal_for_board
+from .emulator import Emulator, app_config, board_samples, signal_for_board
 from .record import CaptureAssembler
 
+BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
 
-def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
-    """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app."""
-    emu = Emulator(session, None, fs_hz=fs_hz, signal=signal, dump_raw=True)
+
+def _captures(drops) -> tuple[list, list]:
+    """The raw captures a dump-raw app wrote, from (index, serial bytes) per drop: (captures, indices)."""
     dec = _link.Decoder()
     asm = CaptureAssembler()
     caps, rows = [], []
-    for i, data in emu.drops():
+    for i, data in drops:
         for f in dec.feed(data):
             if f["kind"] == "raw":
                 asm.add(f["raw"])
@@ -37,9 +42,71 @@ def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
                 if cap is not None:
                     caps.append(cap)
                     rows.append(i)
+    return caps, rows
+
+
+def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
+    """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app."""
+    emu = Emulator(session, None, fs_hz=fs_hz, signal=signal, dump_raw=True)
+    caps, rows = _captures(emu.drops())
     if not caps:
         raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
     return np.stack(caps), np.asarray(rows), emu.signal
+
+
+def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
+    """The board as a capture hook (sitemap.build_site_map's `capture`): counts int16 [R, 4, n] at the rig's
+    rate -> (captures int16 [R', 4, m], rows [R']) as the firmware app takes them at fs_hz: board_samples
+    (resampled, SAADC scan delays) with the int16 range kept instead of the ADC's, then the app's trigger,
+    pre-trigger and window (the emulator's path for recorded drops)."""
+    cfg = app_config(rig, fs_hz, signal, dump_raw=True)
+
+    def capture(counts: np.ndarray):
+        frames = board_samples(counts, rig.fs_hz, fs_hz, adc_max=32767, adc_min=-32768)
+        app = _link.App(cfg, None)
+        caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
+        if not caps:
+            return np.zeros((0, 4, app.capture_frames), np.int16), np.zeros(0, int)
+        return np.stack(caps), np.asarray(rows, int)
+
+    return capture
+
+
+def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2, progress: bool = True,
+                   step_mm: float | None = None):
+    """The twin's site map as the board sees it (sitemap.SiteMap): the grid and reference height of `source`
+    (a site map made at the rig's rate), drops simulated with the twin it was made with
+    (source.source["sim_params"]), taken by the board (board_capture) and featurized with the board's signal
+    (the source map's settings at fs_hz, scan delays). Read from / written to `cache` (reused when made from
+    the same source map at the same rate). step_mm: another grid step than the source's (coarse maps for
+    tests)."""
+    from ..errors import DataError
+    from ..sim.params import SimParams
+    from ..sitemap import SiteMap, build_site_map
+
+    step = float(step_mm or source.step_mm)
+    key = {"from_site_map_sha": source.fingerprint(), "board_fs_hz": int(fs_hz), "step_mm": step}
+    if cache is not None and Path(cache).is_file():
+        try:
+            cached = SiteMap.load(cache)
+        except DataError:
+            cached = None
+        if cached is not None and all(cached.source.get(k) == v for k, v in key.items()):
+            return cached
+    raw = source.source.get("sim_params")
+    if not raw:
+        raise DataError("site map", "source.sim_params", "missing: the board's map needs the twin the map was made with")
+    params = SimParams.from_dict(raw, "site map source.sim_params")
+    src_signal = source.source.get("signal") or None
+    board = build_site_map(params, rig, signal_for_board(rig, src_signal, fs_hz), step_mm=step,
+                           margin_mm=source.x0_mm, ref_height_mm=source.ref_height_mm, workers=workers,
+                           progress=progress, capture=board_capture(rig, fs_hz, src_signal))
+    if step == source.step_mm and (board.nx, board.ny, board.y0_mm) != (source.nx, source.ny, source.y0_mm):
+        raise DataError("site map", "grid", "the source map's grid is not one build_site_map makes (x0 != y0?)")
+    board.source.update(key, calibration=source.source.get("calibration"))
+    if cache is not None:
+        board.save(cache)
+    return board
 
 
 def _scan_delays_us() -> np.ndarray:
@@ -48,7 +115,8 @@ def _scan_delays_us() -> np.ndarray:
 
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
-                       exclude_rows=None, train_rows=None, extra_card: dict | None = None) -> Path:
+                       exclude_rows=None, train_rows=None, extra_card: dict | None = None,
+                       site_map=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -56,6 +124,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     The split is the trainer's (split.case_split with test_fraction, seed, exclude_rows) unless train_rows
     (row indices) is given; the card lists the held-out recording ids (`test_recording_ids`, and `split`
     as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
+    site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
     The card's channel delays are the rig's own: the firmware (and the emulator) add the scan delays."""
     from ..models import ForestSettings, ImpactModel
     from ..pipeline import featurize, fit_localiser
@@ -75,7 +144,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
-                            session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings)
+                            session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
+                            site_map=site_map)
     model.signal.channel_delay_us = [float(v) for v in np.asarray(sig.channel_delay_us) - _scan_delays_us()]
     ids = session.recording_id
     split = {
@@ -93,9 +163,10 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     return Path(model.save(out_dir, extra_card=card))
 
 
-def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000) -> Path:
+def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=None) -> Path:
     """The model of MODEL_DIR (a 100 kHz `impactsense train` model) trained again on the board's captures of
-    the same training drops, with the same forest settings; the held-out drops stay held out."""
+    the same training drops, with the same forest settings; the held-out drops stay held out. A model with
+    the twin's site map gets the board's site map (board_site_map, cached in site_map_cache)."""
     from ..data import load_session
     from ..errors import DataError
     from ..models import ForestSettings
@@ -116,7 +187,14 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000) -> Path:
     index = {int(r): k for k, r in enumerate(session.recording_id)}
     rows = lambda key: np.asarray([index[int(r)] for r in split.get(key, [])], int)  # noqa: E731
     forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
-    return train_board_models(session, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest),
+    board_map = None
+    if "twin" in card:
+        from ..models import SITE_MAP_FILE
+        from ..sitemap import SiteMap
+
+        source = SiteMap.load(Path(model_dir) / card["twin"].get("site_map", SITE_MAP_FILE))
+        board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache)
+    return train_board_models(session, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
                               exclude_rows=rows("excluded_recordings"), train_rows=rows("train_recordings"),
                               test_fraction=float(split.get("test_fraction", 0.2)), seed=int(split.get("seed", 0)),
                               extra_card={"retrained_from": str(Path(model_dir).resolve())})

@@ -21,13 +21,14 @@ from .. import _link
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
-                  adc_max: int = 4095) -> np.ndarray:
+                  adc_max: int = 4095, adc_min: int = 0) -> np.ndarray:
     """What the board's SAADC would read: int16 [R, n, 4] interleaved frames of each recording.
 
     The recording is interpolated (band-limited, polyphase) onto the scan grid, 1/scan_step = 200 kHz, and
     channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
     channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
-    above fs/2 is removed: it aliases as it would on the board."""
+    above fs/2 is removed: it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the
+    SAADC's range; the int16 range keeps simulated drops whole)."""
     from scipy.signal import resample_poly
 
     grid_hz = 1e6 / scan_step_us
@@ -64,12 +65,12 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
                         half += h[j] * xp[:, i0 + j]
                 half += mean
                 v = half if np.all(g0 % 2) else np.where(g0 % 2 == 0, x[:, c, np.minimum(i0, n - 1)], half)
-            y[:, :, c] = np.clip(np.rint(v), 0, adc_max)
+            y[:, :, c] = np.clip(np.rint(v), adc_min, adc_max)
         return y
     mean = x.mean(axis=2, keepdims=True)
     g = resample_poly(x - mean, up.numerator, up.denominator, axis=2) + mean if up != 1 else x
     for c in range(4):
-        y[:, :, c] = np.clip(np.rint(g[:, c, c::d][:, :n_out]), 0, adc_max)
+        y[:, :, c] = np.clip(np.rint(g[:, c, c::d][:, :n_out]), adc_min, adc_max)
     return y
 
 

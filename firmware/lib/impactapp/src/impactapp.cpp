@@ -11,15 +11,24 @@ namespace il = impactlink;
 
 namespace {
 
-bool gather(const ModelSpec& m, const float* vector, float* out) {
+// The inputs of model m from the feature vector; kTwinInput reads `twin` (NaN: not available).
+bool gather(const ModelSpec& m, const float* vector, float twin, float* out) {
   if (m.n_inputs > kMaxModelInputs) return false;
   for (int32_t k = 0; k < m.n_inputs; ++k) {
-    if (m.inputs[k] >= ic::kNumFeatures) return false;
-    const float v = vector[m.inputs[k]];
+    const uint8_t i = m.inputs[k];
+    if (i > kTwinInput) return false;
+    const float v = i == kTwinInput ? twin : vector[i];
     if (!(v == v) || v - v != 0.0f) return false;  // NaN or inf: the event is not usable
     out[k] = v;
   }
   return true;
+}
+
+bool reads_twin(const ModelSpec& m) {
+  for (int32_t k = 0; k < m.n_inputs; ++k) {
+    if (m.inputs[k] == kTwinInput) return true;
+  }
+  return false;
 }
 
 }  // namespace
@@ -28,14 +37,26 @@ bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, u
   float in[kMaxModelInputs];
   if (ev.status != ic::kOk) return false;
   if (residual_ && ev.phys.status != ic::kOk) return false;
-  if (!gather(x_, ev.vector, in)) return false;
+  if (!gather(x_, ev.vector, NAN, in)) return false;
   const float dx = forest_mean(x_.forest, in);
-  if (!gather(y_, ev.vector, in)) return false;
+  if (!gather(y_, ev.vector, NAN, in)) return false;
   const float dy = forest_mean(y_.forest, in);
-  if (!gather(e_, ev.vector, in)) return false;
+  const float x = residual_ ? ev.phys.x_mm + dx : dx;
+  const float y = residual_ ? ev.phys.y_mm + dy : dy;
+  float twin = NAN;
+  if (reads_twin(e_)) {
+    // How hard: the event's per-channel energies against the twin's site map around (x, y).
+    if (!has_twin_) return false;
+    float f[ic::kTwinFeatures];
+    const uint16_t usable = ic::twin_features(ev.features, f);
+    const ic::TwinEstimate t = ic::twin_estimate(f, usable, x, y, twin_.map, twin_.cfg);
+    if (t.status != ic::kOk) return false;
+    twin = t.log10_height_mm;
+  }
+  if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
-  *x_mm = residual_ ? ev.phys.x_mm + dx : dx;
-  *y_mm = residual_ ? ev.phys.y_mm + dy : dy;
+  *x_mm = x;
+  *y_mm = y;
   return true;
 }
 

@@ -26,6 +26,7 @@
 #include "forest.h"
 #include "impactcore.h"
 #include "impactlink.h"
+#include "twin.h"
 
 namespace impactapp {
 
@@ -46,6 +47,11 @@ class Hal {
 };
 
 constexpr int kMaxModelInputs = 32;
+// A model input index equal to kTwinInput (one past the core's feature vector) reads the twin's estimate
+// of log10(drop height / mm) (twin.h: twin_features + twin_estimate at the position the x/y forests give).
+// Only the energy classifier may read it; `impactsense export` writes it for models trained with a site map.
+constexpr uint8_t kTwinInput = static_cast<uint8_t>(impactcore::kNumFeatures);
+static_assert(impactcore::kNumFeatures < 255, "kTwinInput must fit a u8 input index");
 
 // One forest and the indices of the impactcore feature-vector entries it reads (model_card.json's
 // location_features / energy_features), in the order the forest was trained on.
@@ -53,6 +59,12 @@ struct ModelSpec {
   ForestTables forest;
   const uint8_t* inputs;
   int32_t n_inputs;
+};
+
+// The twin's site map and how the rig's events relate to it (the model card's "twin").
+struct TwinSpec {
+  impactcore::SiteMap map;
+  impactcore::TwinConfig cfg;
 };
 
 // The models: the core's per-event result in, position and energy class out. False when they cannot run
@@ -65,16 +77,24 @@ class Models {
 };
 
 // Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
-// localiser's position when residual_xy, as `impactsense train` fits them) and a binary classifier.
+// localiser's position when residual_xy, as `impactsense train` fits them) and a binary classifier. With a
+// twin (copied), an energy classifier input kTwinInput reads twin_estimate() at the forests' position; the
+// models then do not run (false) when the estimate fails (no usable channel, no map point near).
 class TableModels : public Models {
  public:
-  TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy)
-      : x_(x), y_(y), e_(energy), residual_(residual_xy) {}
+  TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
+              const TwinSpec* twin = nullptr)
+      : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr) {
+    if (twin != nullptr) twin_ = *twin;
+  }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
+  bool has_twin() const { return has_twin_; }
 
  private:
   ModelSpec x_, y_, e_;
   bool residual_;
+  bool has_twin_;
+  TwinSpec twin_{};
 };
 
 struct AppConfig {

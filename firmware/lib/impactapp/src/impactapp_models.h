@@ -16,9 +16,46 @@ inline ModelSpec exported_spec(const impactsense_model& m) {
                    m.inputs, m.n_inputs};
 }
 
+#if IMPACTSENSE_TWIN
+static_assert(IMPACTSENSE_TWIN_FEATURES == impactcore::kTwinFeatures,
+              "site map exported for another twin feature set: re-export it with this core");
+
+// The twin's site map (flash) and its configuration from the model card (the energy forest reads the twin's
+// height estimate: input index kTwinInput).
+inline TwinSpec exported_twin() {
+  const impactsense_site_map& m = impactsense_twin_map;
+  const impactsense_twin_config& c = impactsense_twin;
+  TwinSpec t{};
+  t.map.nx = m.nx;
+  t.map.ny = m.ny;
+  t.map.x0_mm = m.x0_mm;
+  t.map.y0_mm = m.y0_mm;
+  t.map.step_mm = m.step_mm;
+  t.map.q = m.q;
+  for (int k = 0; k < impactcore::kTwinFeatures; ++k) {
+    t.map.base[k] = m.base[k];
+    t.map.scale[k] = m.scale[k];
+    t.cfg.offset[k] = c.offset[k];
+    t.cfg.slope[k] = c.slope[k];
+    t.cfg.weight[k] = c.weight[k];
+  }
+  t.cfg.ref_log10_height_mm = c.ref_log10_height_mm;
+  t.cfg.prior_mm = c.prior_mm;
+  t.cfg.cutoff_mm = c.cutoff_mm;
+  t.cfg.temperature = c.temperature;
+  return t;
+}
+#endif
+
 inline TableModels exported_models() {
+#if IMPACTSENSE_TWIN
+  const TwinSpec twin = exported_twin();
+  return TableModels(exported_spec(impactsense_model_x), exported_spec(impactsense_model_y),
+                     exported_spec(impactsense_model_energy), IMPACTSENSE_RESIDUAL_XY != 0, &twin);
+#else
   return TableModels(exported_spec(impactsense_model_x), exported_spec(impactsense_model_y),
                      exported_spec(impactsense_model_energy), IMPACTSENSE_RESIDUAL_XY != 0);
+#endif
 }
 
 // The signal and localiser settings of the model card, with sample counts scaled to the board rate.
