@@ -7,6 +7,11 @@ The only module that knows about scikit-learn's tree internals and m2cgen. Two f
   left child is the next node. 7 bytes a node, walked by `impactapp::forest_mean` (firmware/lib/impactapp).
   The same tables go to `forest_tables.npz` for the emulator, so the emulator runs the very numbers
   the board runs.
+- **The twin's site map** (models trained with one, `impactsense train --site-map`): the uint8 table, its
+  base/scale and grid, and the model card's twin configuration, in `impactsense_forest_tables.c` and
+  `forest_tables.npz`; the energy classifier then reads one input, index IMPACTSENSE_N_FEATURES (the
+  firmware's `impactapp::kTwinInput`): the twin's log10 height estimate at the forests' position
+  (impactcore twin.h, the same C++ the host trains with).
 - **m2cgen** (`impactsense_models_m2c.c`): m2cgen per tree (one function per tree, so no function grows past
   the Thumb-2 branch range), post-processed to float32 (`double` emulation costs ~11x on the M4F).
 
@@ -47,6 +52,36 @@ class ModelSet:
     inputs: dict                    # role -> list of feature indices
     residual_xy: bool
     signal: dict
+    twin: dict | None = None        # the site map and twin configuration (twin_arrays), when the card has one
+
+
+def twin_arrays(site, fit) -> dict:
+    """The twin's site map (sitemap.SiteMap) and fit (twin.TwinFit) as the firmware's arrays: grid [nx, ny,
+    x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16] and
+    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]."""
+    f32 = lambda v: np.asarray(v, dtype=np.float32)  # noqa: E731
+    return {"grid": f32([site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm]),
+            "q": np.ascontiguousarray(site.q, dtype=np.uint8).reshape(-1),
+            "base": f32(site.base), "scale": f32(site.scale), "offset": f32(fit.offset), "slope": f32(fit.slope),
+            "weight": f32(fit.weight),
+            "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature])}
+
+
+def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
+    from .errors import DataError
+    from .models import SITE_MAP_FILE
+    from .sitemap import SiteMap
+    from .twin import TwinFit
+
+    t = card["twin"]
+    try:
+        site = SiteMap.load(model_dir / t.get("site_map", SITE_MAP_FILE))
+        fit = TwinFit.from_dict({k: v for k, v in t.items() if k not in ("site_map", "site_map_sha", "ref_height_mm")})
+    except DataError as exc:
+        raise ExportError(f"{card_path} [twin]: {exc}") from None
+    if t.get("site_map_sha") and site.fingerprint() != t["site_map_sha"]:
+        raise ExportError(f"{card_path} [twin.site_map_sha]: the site map differs from the one the model was trained with")
+    return twin_arrays(site, fit)
 
 
 def _find_models(model_dir: Path, card: dict) -> dict:
@@ -98,19 +133,27 @@ def load_models(model_dir) -> ModelSet:
         raise ExportError(f"{roles['energy']}: the energy classifier must have two classes")
     names = card.get("feature_names")
     n = len(names) if names else int(models["x"].n_features_in_)
+    twin = _load_twin(model_dir, card, card_path) if "twin" in card else None
     inputs = {}
     for role, key in (("x", "location_features"), ("y", "location_features"), ("energy", "energy_features")):
         sel = card.get(key)
-        idx = [names.index(f) for f in sel] if sel and names else list(range(int(models[role].n_features_in_)))
+        if role == "energy" and twin is not None:
+            # The twin's height estimate: one input past the core's feature vector (impactapp::kTwinInput).
+            if sel != ["twin_log10_height_mm"]:
+                raise ExportError(f"{card_path} [energy_features]: a twin model's classifier reads "
+                                  f"['twin_log10_height_mm'], the card lists {sel}")
+            idx = [n]
+        else:
+            idx = [names.index(f) for f in sel] if sel and names else list(range(int(models[role].n_features_in_)))
         if len(idx) != models[role].n_features_in_:
             raise ExportError(f"{card_path}: {key} lists {len(idx)} features, the {role} forest reads "
                               f"{models[role].n_features_in_}")
-        if max(idx) >= n or n > 255:
+        if max(idx) > n or (max(idx) == n and twin is None) or n >= 255:
             raise ExportError(f"{card_path}: feature index out of range")
         inputs[role] = idx
     residual = "phys_x_mm +" in str(card.get("target", ""))
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual,
-                    dict(card.get("signal") or {}))
+                    dict(card.get("signal") or {}), twin)
 
 
 # --- float32 helpers ---
@@ -176,8 +219,9 @@ def forest_tables(forest, n_trees: int | None = None) -> dict:
     }
 
 
-def table_bytes(tables: dict) -> int:
-    return int(sum(np.asarray(a).nbytes for a in tables.values()))
+def table_bytes(tables: dict | None) -> int:
+    """Flash bytes of a forest's node tables (or of the twin's arrays; 0 for None)."""
+    return int(sum(np.asarray(a).nbytes for a in tables.values())) if tables else 0
 
 
 def _c_array(ctype: str, name: str, values, fmt) -> str:
@@ -218,8 +262,23 @@ def tables_c(tabs: dict[str, dict], models: "ModelSet", header: str) -> str:
         out.append(_c_array("uint8_t", f"{role}_inputs", models.inputs[role], str))
         out.append(f"const impactsense_model impactsense_model_{role} = {{{{{len(t['roots'])}, {role}_roots, "
                    f"{role}_feature, {role}_value, {role}_right}}, {role}_inputs, {len(models.inputs[role])}}};\n\n")
+    if models.twin is not None:
+        out.append(twin_c(models.twin))
     out.append(signal_c(models.signal))
     return "".join(out)
+
+
+def twin_c(t: dict) -> str:
+    """The site map (impactsense_twin_map) and twin configuration (impactsense_twin) as C."""
+    g = t["grid"]
+    vec = lambda a: "{" + ", ".join(_c_float(v) for v in np.asarray(a).tolist()) + "}"  # noqa: E731
+    grid = f"{int(g[0])}, {int(g[1])}, {_c_float(g[2])}, {_c_float(g[3])}, {_c_float(g[4])}"
+    site = ",\n  ".join([grid, vec(t["base"]), vec(t["scale"]), "twin_q"])
+    cfg = ",\n  ".join([vec(t["offset"]), vec(t["slope"]), vec(t["weight"]),
+                        ", ".join(_c_float(v) for v in t["config"].tolist())])
+    return (_c_array("uint8_t", "twin_q", t["q"], str)
+            + f"const impactsense_site_map impactsense_twin_map = {{\n  {site}\n}};\n"
+            + f"const impactsense_twin_config impactsense_twin = {{\n  {cfg}\n}};\n\n")
 
 
 # --- m2cgen, one function per tree, float32 ---
@@ -274,6 +333,9 @@ HEADER_H = """// Generated by `impactsense export`; do not edit. Model card {mod
 
 #define IMPACTSENSE_N_FEATURES {n_features}  // length of impactcore's feature vector
 #define IMPACTSENSE_RESIDUAL_XY {residual}    // 1: x, y forests predict corrections to the physics position
+#define IMPACTSENSE_TWIN {twin}               // 1: the energy classifier reads the twin's height estimate
+#define IMPACTSENSE_TWIN_INPUT IMPACTSENSE_N_FEATURES  // that input's index (impactapp::kTwinInput)
+#define IMPACTSENSE_TWIN_FEATURES 16          // the twin's per-event features (impactcore::kTwinFeatures)
 
 #ifdef __cplusplus
 extern "C" {{
@@ -298,6 +360,26 @@ extern const impactsense_model impactsense_model_x;
 extern const impactsense_model impactsense_model_y;
 extern const impactsense_model impactsense_model_energy;  // leaf value = P(high energy)
 
+// The twin's site map and configuration (impactcore::SiteMap / TwinConfig, twin.h): feature k of grid point
+// (i, j) = base[k] + scale[k] * q[(i * ny + j) * 16 + k]; q = 255 where no drop (a sensor disc).
+typedef struct {{
+  int32_t nx, ny;
+  float x0_mm, y0_mm, step_mm;
+  float base[IMPACTSENSE_TWIN_FEATURES];
+  float scale[IMPACTSENSE_TWIN_FEATURES];
+  const uint8_t* q;
+}} impactsense_site_map;
+typedef struct {{
+  float offset[IMPACTSENSE_TWIN_FEATURES];
+  float slope[IMPACTSENSE_TWIN_FEATURES];
+  float weight[IMPACTSENSE_TWIN_FEATURES];
+  float ref_log10_height_mm, prior_mm, cutoff_mm, temperature;
+}} impactsense_twin_config;
+#if IMPACTSENSE_TWIN
+extern const impactsense_site_map impactsense_twin_map;
+extern const impactsense_twin_config impactsense_twin;
+#endif
+
 // The model card's signal and localiser settings (sample counts at fs_hz, the training rate).
 typedef struct {{
   float fs_hz;
@@ -314,7 +396,7 @@ typedef struct {{
 extern const impactsense_signal_config impactsense_signal;
 
 // m2cgen, one function per tree, float32 (impactsense_models_m2c.c): the forest means of the gathered
-// inputs (input[k] = feature_vector[model.inputs[k]]).
+// inputs (input[k] = feature_vector[model.inputs[k]], or the twin's estimate for IMPACTSENSE_TWIN_INPUT).
 float impactsense_m2c_x(const float* input);
 float impactsense_m2c_y(const float* input);
 float impactsense_m2c_energy(const float* input);  // P(high energy); class 1 when > 0.5
@@ -337,7 +419,7 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     base = np.asarray(phys_xy, float) if models.residual_xy else np.zeros((len(X), 2))
     px = np.stack([t.predict(X[:, models.inputs["x"]]) for t in models.x.estimators_])
     py = np.stack([t.predict(X[:, models.inputs["y"]]) for t in models.y.estimators_])
-    e_bytes = table_bytes(forest_tables(models.energy))
+    e_bytes = table_bytes(forest_tables(models.energy)) + table_bytes(models.twin)
     rows = []
     for k in sorted({k for k in (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all) if k <= n_all}):
         ex = base[:, 0] + px[:k].mean(0) - xy[:, 0]
@@ -372,14 +454,16 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
             "energy": forest_tables(models.energy, n_trees["energy"])}
     head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
     (out_dir / "impactsense_models.h").write_text(HEADER_H.format(model_hash=model_hash, n_features=models.n_features,
-                                                                  residual=int(models.residual_xy)))
+                                                                  residual=int(models.residual_xy),
+                                                                  twin=int(models.twin is not None)))
     (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head))
     if write_m2cgen:
         (out_dir / "impactsense_models_m2c.c").write_text(m2cgen_c(models, n_trees, head))
     np.savez(out_dir / "forest_tables.npz", n_features=models.n_features, residual_xy=models.residual_xy,
              signal=json.dumps(models.signal),
              **{f"{r}_inputs": np.asarray(models.inputs[r], dtype=np.uint8) for r in tabs},
-             **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()})
+             **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()},
+             **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()})
     summary = {
         "model_card_sha256_16": model_hash,
         "features": models.card.get("features"),
@@ -389,8 +473,11 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
         "signal_fs_hz": models.signal.get("fs_hz"),
         "trees": n_trees,
         "nodes": {r: int(t["feature"].size) for r, t in tabs.items()},
-        "table_bytes": {r: table_bytes(t) for r, t in tabs.items()},
-        "table_bytes_total": sum(table_bytes(t) for t in tabs.values()) + sum(len(v) for v in models.inputs.values()),
+        "table_bytes": {**{r: table_bytes(t) for r, t in tabs.items()}, "twin": table_bytes(models.twin)},
+        "table_bytes_total": (sum(table_bytes(t) for t in tabs.values()) + table_bytes(models.twin)
+                              + sum(len(v) for v in models.inputs.values())),
+        "twin": None if models.twin is None else {
+            "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
         "flash_budget_bytes": 256 * 1024,
         "tree_sweep": sweep,
     }
@@ -406,6 +493,8 @@ def load_tables(path) -> dict:
            for r in ("x", "y", "energy")}
     out.update(n_features=int(z["n_features"]), residual_xy=bool(z["residual_xy"]),
                signal=json.loads(str(z["signal"])))
+    twin_keys = [k for k in z.files if k.startswith("twin_")]
+    out["twin"] = {k[len("twin_"):]: z[k] for k in twin_keys} if twin_keys else None
     return out
 
 
@@ -421,4 +510,5 @@ def firmware_models(path):
         raise ExportError(f"{path}: no exported forest tables (run `impactsense export`)")
     t = load_tables(path)
     spec = {r: {k: v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}
-    return _link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"]), t["signal"]
+    twin = None if t["twin"] is None else {k: v.tolist() for k, v in t["twin"].items()}
+    return _link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin), t["signal"]
