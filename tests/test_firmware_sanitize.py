@@ -1,5 +1,5 @@
 """The portable firmware (core + app + codec) under AddressSanitizer and UndefinedBehaviorSanitizer over the
-recordings at the board rate."""
+recordings at the board rate, with models whose energy class reads the twin's site map (a coarse board map)."""
 
 import shutil
 import subprocess
@@ -17,10 +17,13 @@ CXX = shutil.which("g++") or shutil.which("c++")
 
 
 def build_and_run(tmp_path, rows, n_trees=5, data=None):
-    from impactsense.link.boardmodel import train_board_models
+    from impactsense.link.boardmodel import board_site_map, train_board_models
+    from impactsense.sitemap import BUNDLED, SiteMap
 
     s = load_session()
-    model_dir = train_board_models(s.subset(np.arange(0, len(s), 3)), tmp_path / "model", n_trees=n_trees)
+    board_map = board_site_map(SiteMap.load(BUNDLED), s.rig, 50000, step_mm=20.0, progress=False)
+    model_dir = train_board_models(s.subset(np.arange(0, len(s), 3)), tmp_path / "model", n_trees=n_trees,
+                                   site_map=board_map)
     export_models(model_dir, tmp_path / "models", write_m2cgen=False)
     sub = load_session(data).subset(rows)
     frames = board_samples(sub.adc, sub.rig.fs_hz, 50000)
@@ -40,7 +43,10 @@ def build_and_run(tmp_path, rows, n_trees=5, data=None):
                        capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "runtime error" not in p.stderr and "AddressSanitizer" not in p.stderr
-    return int(p.stdout.split()[1])
+    out = p.stdout.split()
+    assert out[out.index("twin") + 1] == "1"  # the energy class ran on the twin's estimate ...
+    assert int(out[out.index("valid") + 1]) >= 0.9 * int(out[1])  # ... on (nearly) every report
+    return int(out[1])
 
 
 @pytest.mark.skipif(CXX is None, reason="no host C++ compiler")

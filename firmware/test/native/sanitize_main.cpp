@@ -37,11 +37,15 @@ int main(int argc, char** argv) {
   // decode everything, then a corrupted copy
   static impactlink::Decoder dec;
   static impactlink::Frame fr;
-  long reports = 0;
+  long reports = 0, valid = 0;
   for (uint8_t b : hal.out) {
     if (!dec.push(b, &fr)) continue;
-    do reports += fr.type == impactlink::kTypeReport;
-    while (dec.poll(&fr));
+    do {
+      impactlink::Report rep;
+      if (fr.type != impactlink::kTypeReport) continue;
+      ++reports;
+      if (impactlink::unpack_report(fr.body, fr.len, &rep) && rep.valid) ++valid;  // the models ran
+    } while (dec.poll(&fr));
   }
   std::vector<uint8_t> bad(hal.out);
   srand(1);
@@ -62,6 +66,7 @@ int main(int argc, char** argv) {
   uint8_t cls;
   float x, y;
   models.predict(ev, &x, &y, &cls);
-  printf("reports %ld events %u decode_errors %u\n", reports, app.events(), dec.errors());
+  printf("reports %ld events %u decode_errors %u valid %ld twin %d\n", reports, app.events(), dec.errors(), valid,
+         models.has_twin() ? 1 : 0);
   return reports == static_cast<long>(app.events()) ? 0 : 1;
 }
