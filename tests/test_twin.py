@@ -136,7 +136,7 @@ def test_site_map_holds_the_core_features_of_the_twins_drops():
     the same simulated drop (counts unclipped), and points on a sensor disc are missing."""
     from impactsense.data import load_rig, resolve_session_path
     from impactsense.pipeline import SignalConfig, featurize
-    from impactsense.sim import SimParams, simulate_voltages
+    from impactsense.sim import SimParams, simulate_voltages, to_adc
     from impactsense.sitemap import build_site_map
 
     rig = load_rig(resolve_session_path("bundled"))
@@ -147,13 +147,10 @@ def test_site_map_holds_the_core_features_of_the_twins_drops():
     assert on_disc.any() and np.array_equal(~site.present, on_disc)
     rows = np.flatnonzero(site.present)[[0, 7, 30]]
     v = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(3, site.ref_height_mm))["volts"]
-    counts = np.zeros((3, 4, rig.samples))
-    take = min(v.shape[2], rig.samples - params.pretrigger_samples)
-    counts[:, :, params.pretrigger_samples:params.pretrigger_samples + take] = v[:, :, :take]
-    counts = rig.bias_counts + params.circuit_gain * counts * 2 ** rig.adc_bits / rig.vref
+    counts = to_adc(v, params, rig, clip=False)
     sig = SignalConfig.for_rig(rig)
     sig.adc_min, sig.adc_max = -32768, 32767
-    feats, usable = twin_features(featurize(np.rint(counts).astype(np.int16), sig))
+    feats, usable = twin_features(featurize(counts, sig))
     assert (usable == 0xFFFF).all()
     assert np.all(np.abs(site.values()[rows] - feats) <= site.scale * 0.5 + 1e-4)
 

@@ -181,7 +181,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
     counts as the rig records them."""
-    from .sim import simulate_voltages
+    from .sim import simulate_voltages, to_adc
 
     x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
     m = SiteMap(x0, y0, step_mm, nx, ny, np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32),
@@ -197,19 +197,11 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=todo.size, desc="site map", unit="drop")
-    start = params.pretrigger_samples
     for k in range(0, todo.size, chunk):
         rows = todo[k:k + chunk]
         res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),
                                 workers=workers)
-        volts = res["volts"]
-        rec = np.zeros((rows.size, 4, rig.samples))
-        take = min(volts.shape[2], rig.samples - start)
-        rec[:, :, start:start + take] = volts[:, :, :take]
-        counts = rig.bias_counts + params.circuit_gain * rec * (2 ** rig.adc_bits) / rig.vref
-        if np.abs(counts).max() > 32000:
-            raise DataError("site map", "circuit_gain", "simulated counts exceed the int16 range")
-        counts = np.rint(counts).astype(np.int16)
+        counts = to_adc(res["volts"], params, rig, clip=False)
         got = np.arange(rows.size)
         if capture is not None:
             counts, got = capture(counts)

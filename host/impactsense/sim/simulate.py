@@ -202,8 +202,10 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
                 contact_s=np.array([r["contact_end_s"] - r["contact_start_s"] for r in results]))
 
 
-def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, seed=None) -> np.ndarray:
-    """Volts [n, 4, n_sim] from the first touch -> uint16 counts [n, 4, rig.samples] (bias, pre-trigger)."""
+def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, seed=None,
+           clip: bool = True) -> np.ndarray:
+    """Volts [n, 4, n_sim] from the first touch -> uint16 counts [n, 4, rig.samples] (bias, pre-trigger).
+    clip=False: int16 counts past the ADC's rails (the whole signal, e.g. for the twin's site map)."""
     n, c, n_sim = volts.shape
     rec = np.zeros((n, c, rig.samples))
     start = params.pretrigger_samples
@@ -215,6 +217,10 @@ def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, se
     if noise:
         rng = np.random.default_rng(seed)
         counts = counts + rng.normal(0.0, params.noise_counts_rms, counts.shape)
+    if not clip:
+        if counts.size and np.abs(counts).max() > 32000:
+            raise ConfigError("circuit_gain: simulated counts exceed the int16 range")
+        return np.rint(counts).astype(np.int16)
     return np.clip(np.rint(counts), 0, rig.adc_max).astype(np.uint16)
 
 
