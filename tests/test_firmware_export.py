@@ -74,6 +74,9 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     assert ran.sum() >= use.sum() - 2
     np.testing.assert_array_equal(got[:, 3], ran)  # the firmware runs the models exactly where the host does
     np.testing.assert_allclose(got[ran, :2], want["xy_mm"][ran], atol=2e-3)
+    # A twin model's position on the board is the twin's matched one, as on the host, not the forests'.
+    moved = np.abs(got[ran, :2] - want["forest_xy_mm"][ran]).max()
+    assert (moved > 1.0) if model.site_map is not None else (moved < 2e-3)
     np.testing.assert_array_equal(got[ran, 2], want["energy_class"][ran])
     assert summary["residual_xy"] and signal["fs_hz"] == 100000
     n_inputs = sum(len(v) for v in summary["inputs"].values())

@@ -41,17 +41,21 @@ bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, u
   const float dx = forest_mean(x_.forest, in);
   if (!gather(y_, ev.vector, NAN, in)) return false;
   const float dy = forest_mean(y_.forest, in);
-  const float x = residual_ ? ev.phys.x_mm + dx : dx;
-  const float y = residual_ ? ev.phys.y_mm + dy : dy;
+  float x = residual_ ? ev.phys.x_mm + dx : dx;
+  float y = residual_ ? ev.phys.y_mm + dy : dy;
   float twin = NAN;
-  if (reads_twin(e_)) {
-    // How hard: the event's per-channel energies against the twin's site map around (x, y).
-    if (!has_twin_) return false;
+  if (reads_twin(e_) && !has_twin_) return false;
+  if (has_twin_) {
+    // The event's per-channel energies against the twin's site map around the forests' (x, y): how hard
+    // (log10 height, the energy forest's input kTwinInput) and where (the matched grid points' weighted
+    // mean, reported instead of the forests' position; host: models.ImpactModel.predict).
     float f[ic::kTwinFeatures];
     const uint16_t usable = ic::twin_features(ev.features, f);
     const ic::TwinEstimate t = ic::twin_estimate(f, usable, x, y, twin_.map, twin_.cfg);
     if (t.status != ic::kOk) return false;
     twin = t.log10_height_mm;
+    x = t.x_mm;
+    y = t.y_mm;
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;

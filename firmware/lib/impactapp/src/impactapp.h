@@ -78,8 +78,10 @@ class Models {
 
 // Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
 // localiser's position when residual_xy, as `impactsense train` fits them) and a binary classifier. With a
-// twin (copied), an energy classifier input kTwinInput reads twin_estimate() at the forests' position; the
-// models then do not run (false) when the estimate fails (no usable channel, no map point near).
+// twin (copied), twin_estimate() runs at the forests' position: the reported x, y are its matched position
+// (the site map's grid points weighted by how well they explain the event's energies) and an energy
+// classifier input kTwinInput reads its log10 height; the models then do not run (false) when the estimate
+// fails (no usable channel, no map point near).
 class TableModels : public Models {
  public:
   TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
