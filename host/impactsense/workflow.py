@@ -72,12 +72,17 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
         **region_metrics(true_xy[ok], pred["xy_mm"][ok]),
         "energy_class_accuracy": float(np.mean(pred["energy_class"][ok] == label[ok])) if ok.any() else float("nan"),
         "physics": region_metrics(true_xy[ok], feats.phys_xy_mm[ok]),
+        # Where all/inner's positions come from ("twin": the site map's match, "forest"), and the forests'
+        # own position on the same drops (the twin's starting point; equal to all/inner without a site map).
+        "position_source": pred["position_source"],
+        "forest": region_metrics(true_xy[ok], pred["forest_xy_mm"][ok]),
         "accepted_only": region_metrics(true_xy[ok & feats.accepted], pred["xy_mm"][ok & feats.accepted]),
         "energy_threshold_j": model.energy_threshold_j,
         "high_energy_fraction": float(label.mean()),
         "clipped_drops": int(feats.clipped.any(1).sum()),
     }
-    report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "phys_xy": feats.phys_xy_mm,
+    report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "forest_xy": pred["forest_xy_mm"],
+                         "phys_xy": feats.phys_xy_mm,
                          "spread": pred["spread_mm"], "energy_class": pred["energy_class"], "label": label,
                          "accepted": feats.accepted}
     return report

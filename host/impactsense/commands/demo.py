@@ -58,7 +58,7 @@ def run(args) -> int:
 
     site = resolve_site_map("auto", session.rig)
     if site is not None:
-        print(f"energy class from the bundled twin's site map ({site.nx} x {site.ny} points, "
+        print(f"position and energy class from the bundled twin's site map ({site.nx} x {site.ny} points, "
               f"{site.step_mm:g} mm, drop height {site.ref_height_mm:g} mm)")
     model, split = train(session, out / "model", 0.2, args.seed, site_map=site)
     report = evaluate(session, model)
@@ -68,6 +68,11 @@ def run(args) -> int:
     ours = {
         "measured-trained, whole plate": (report["all"], acc),
         "measured-trained, inner region": (report["inner"], acc),
+    }
+    if report.get("position_source") == "twin":   # the forests' position the twin's match started from
+        ours.update({"forests' position, whole plate": (report["forest"]["all"], "-"),
+                     "forests' position, inner region": (report["forest"]["inner"], "-")})
+    ours |= {
         "physics localiser, whole plate": (report["physics"]["all"], "-"),
         "physics localiser, inner region": (report["physics"]["inner"], "-"),
     }
@@ -82,8 +87,11 @@ def run(args) -> int:
         rep2 = evaluate(other, model)
         write_json(rep2, out / "evaluate-session-2.json")
         print(f"\nsession-2 (a later day) with the session-1 model, all {rep2['n']} drops:")
-        print(comparison_table({"whole plate": (rep2["all"], rep2["energy_class_accuracy"]),
-                                "inner region": (rep2["inner"], rep2["energy_class_accuracy"])}))
+        rows2 = {"whole plate": (rep2["all"], rep2["energy_class_accuracy"]),
+                 "inner region": (rep2["inner"], rep2["energy_class_accuracy"])}
+        if rep2.get("position_source") == "twin":
+            rows2["forests' position, whole plate"] = (rep2["forest"]["all"], "-")
+        print(comparison_table(rows2))
         print("  (run `impactsense diagnose` to find what changed)")
     if args.zero_shot:
         run_zero_shot_part(args, session, out)

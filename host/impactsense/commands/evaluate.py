@@ -26,9 +26,13 @@ def format_table(rows: list[tuple[str, dict, float | None]]) -> str:
 
 def report_table(report: dict) -> str:
     acc = report["energy_class_accuracy"]
-    return format_table([
-        ("random forest, whole plate", report["all"], acc),
-        ("random forest, inner region", report["inner"], acc),
+    twin = report.get("position_source") == "twin"
+    name = "twin's position (site map)" if twin else "random forest"
+    rows = [(f"{name}, whole plate", report["all"], acc), (f"{name}, inner region", report["inner"], acc)]
+    if twin:   # the forests' position the twin started from, on the same drops
+        rows += [("forests' position, whole plate", report["forest"]["all"], None),
+                 ("forests' position, inner region", report["forest"]["inner"], None)]
+    return format_table(rows + [
         ("physics localiser, whole plate", report["physics"]["all"], None),
         ("physics localiser, inner region", report["physics"]["inner"], None),
     ])
