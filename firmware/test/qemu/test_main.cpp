@@ -92,7 +92,7 @@ struct TestHal : impactapp::Hal {
 };
 
 // The m2cgen export behind the same interface (gathers its inputs like TableModels, the twin's estimate at
-// its own x, y for IMPACTSENSE_TWIN_INPUT).
+// its own x, y for IMPACTSENSE_TWIN_INPUT, and then the twin's position as TableModels reports it).
 struct M2cModels : impactapp::Models {
   static void gather(const impactsense_model& m, const float* v, float twin, float* out) {
     for (int k = 0; k < m.n_inputs; ++k) out[k] = m.inputs[k] == IMPACTSENSE_TWIN_INPUT ? twin : v[m.inputs[k]];
@@ -113,6 +113,8 @@ struct M2cModels : impactapp::Models {
     const impactcore::TwinEstimate t = impactcore::twin_estimate(f, usable, *x, *y, spec.map, spec.cfg);
     if (t.status != impactcore::kOk) return false;
     twin = t.log10_height_mm;
+    *x = t.x_mm;  // a twin model reports the twin's matched position (TableModels::predict)
+    *y = t.y_mm;
 #endif
     gather(impactsense_model_energy, ev.vector, twin, in);
     *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
@@ -203,7 +205,7 @@ int main() {
       put_int("DROP localiser_iterations", loc.iterations);
       put_int("DROP localiser_evaluations", loc.evaluations);
 #if IMPACTSENSE_TWIN
-      // The twin's fingerprint at the reported position (features + estimate), timed.
+      // The twin's fingerprint (features + estimate) around the reported position (the twin's own), timed.
       static const impactapp::TwinSpec spec = impactapp::exported_twin();
       const impactlink::Report& rep = g_app.last_report();
       const uint64_t w0 = ticks();
