@@ -2,6 +2,7 @@
 predictions on every session-1 drop, for the energy classifier on summed energies and for the one on the
 twin's height estimate (site map and twin configuration exported with the forests)."""
 
+import json
 import re
 import shutil
 import subprocess
@@ -150,6 +151,10 @@ def test_cli_export(exported, tmp_path):
     assert main(["export", str(model_dir), "--out", str(tmp_path / "m"), "--no-m2cgen", "--rate", "native"]) == 0
     assert (tmp_path / "m" / "impactsense_forest_tables.c").is_file()
     assert not (tmp_path / "m" / "impactsense_models_m2c.c").exists()
+    # --trees auto picks the prefix on the reported position's error: the twin's match for a twin model.
+    sweep = json.loads((tmp_path / "m" / "export.json").read_text())["tree_sweep"]
+    twin = "twin" in json.loads((model_dir / "model_card.json").read_text())
+    assert sweep and all(("forest_mae_mm" in r) == twin for r in sweep)
 
 
 def test_export_rejects_incomplete_model_dir(tmp_path):

@@ -49,13 +49,15 @@ def run(args) -> int:
             card = _card(model_dir)
             print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz (same split, "
                   f"{card['forest']['n_estimators']} trees) -> {model_dir}")
-    X = xy = phys = None
+    X = xy = phys = twin = None
     if args.trees == "auto":
-        X, phys, xy = _held_out(model_dir)
+        X, phys, xy, twin = _held_out(model_dir)
     s = export_models(model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
-                      write_m2cgen=not args.no_m2cgen)
+                      write_m2cgen=not args.no_m2cgen, twin_eval=twin)
     for row in s["tree_sweep"]:
-        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm, {row['table_bytes'] / 1024:.1f} KB of tables")
+        forest = f" (the forests' {row['forest_mae_mm']:.2f} mm)" if "forest_mae_mm" in row else ""
+        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm{forest}, "
+              f"{row['table_bytes'] / 1024:.1f} KB of tables")
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
     acc = _board_accuracy(model_dir, card, args.out)
@@ -99,9 +101,13 @@ def _board_accuracy(model_dir, card, out):
 
 
 def _held_out(model_dir):
-    """Feature vectors, physics positions and true positions of the model card's held-out drops."""
+    """Feature vectors, physics positions, true positions and the twin's features (twin features, usable
+    masks) of the model card's held-out drops (usable rows)."""
+    import numpy as np
+
     from ..link.boardmodel import held_out_features
+    from ..sitemap import twin_features
 
     f, xy, _ = held_out_features(_card(model_dir))
     use = f.usable
-    return f.vector[use], f.phys_xy_mm[use], xy[use]
+    return f.vector[use], f.phys_xy_mm[use], xy[use], twin_features(f.take(np.flatnonzero(use)))
