@@ -11,7 +11,8 @@ The only module that knows about scikit-learn's tree internals and m2cgen. Two f
   base/scale and grid, and the model card's twin configuration, in `impactsense_forest_tables.c` and
   `forest_tables.npz`; the energy classifier then reads one input, index IMPACTSENSE_N_FEATURES (the
   firmware's `impactapp::kTwinInput`): the twin's log10 height estimate at the forests' position
-  (impactcore twin.h, the same C++ the host trains with).
+  (impactcore twin.h, the same C++ the host trains with); the board reports the twin's matched position
+  there, as models.ImpactModel.predict does, and `--trees auto` picks the prefix on that position's error.
 - **m2cgen** (`impactsense_models_m2c.c`): m2cgen per tree (one function per tree, so no function grows past
   the Thumb-2 branch range), post-processed to float32 (`double` emulation costs ~11x on the M4F).
 

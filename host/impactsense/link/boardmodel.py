@@ -8,8 +8,8 @@ same model type, with the same split and settings, on what the emulated board ca
 resampled onto the scan grid, channel c read c x 5 us after channel 0 (link.emulator.board_samples),
 triggered and cut by the firmware app itself. `impactsense export` ships such models by default.
 
-A model whose energy class reads the twin's site map (`impactsense train --site-map`) needs the map as the
-board sees it too: the twin's simulated drops taken the same way (board_site_map; ~3,500 drops for a 5 mm
+A model with the twin's site map (`impactsense train --site-map`: position and energy class from the twin's
+match) needs the map as the board sees it too: the twin's simulated drops taken the same way (board_site_map; ~3,500 drops for a 5 mm
 grid, a few minutes on 2 cores, cached in the export folder).
 """
 
