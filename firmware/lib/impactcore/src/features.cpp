@@ -126,12 +126,8 @@ struct Channel {
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
 // over the samples (float subtraction is monotone in x), from the block's integer extremes.
 void scan_peak(const Channel& ch, int k, float base, float* peak) {
-  int lo = ch.x[k * kBlock], hi = lo;
-  for (int i = k * kBlock + 1, end = ch.block_end(k); i < end; ++i) {
-    const int v = ch.x[i];
-    if (v > hi) hi = v;
-    if (v < lo) lo = v;
-  }
+  int32_t lo, hi;
+  range_extremes(ch.x, k * kBlock, ch.block_end(k), &lo, &hi);
   const float a = fabsf(static_cast<float>(hi) - base);
   const float b = fabsf(static_cast<float>(lo) - base);
   if (a > *peak) *peak = a;
@@ -186,16 +182,45 @@ bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max
   return false;
 }
 
-// threshold_crossing(x, n, base, thr, start), skipping the blocks too weak to hold a crossing; *at is the
-// first sample at or above the threshold (-1 if none).
+// The samples that do not cross the threshold, as an integer band: lo <= x <= hi exactly when
+// fabsf(float(x) - base) < thr (that expression is monotone in x on either side of the baseline). False
+// when the band is empty (thr below the rounding of the baseline).
+bool quiet_band(float base, float thr, int32_t* lo, int32_t* hi) {
+  const auto crosses = [base, thr](int32_t v) { return fabsf(static_cast<float>(v) - base) >= thr; };
+  const int32_t c = static_cast<int32_t>(floorf(base));
+  if (crosses(c) || crosses(c + 1)) return false;
+  int32_t h = static_cast<int32_t>(floorf(base + thr));
+  if (h < c + 1) h = c + 1;
+  while (crosses(h)) --h;
+  while (!crosses(h + 1)) ++h;
+  int32_t l = static_cast<int32_t>(ceilf(base - thr));
+  if (l > c) l = c;
+  while (crosses(l)) ++l;
+  while (!crosses(l - 1)) --l;
+  *lo = l;
+  *hi = h;
+  return true;
+}
+
+// threshold_crossing(x, n, base, thr, start), skipping the blocks too weak to hold a crossing and those
+// whose extremes stay in the quiet band; *at is the first sample at or above the threshold (-1 if none).
 float crossing(const Channel& ch, float base, float thr, int start, int* at) {
   if (start < 1) start = 1;
   const int64_t lim = ch.bound(thr);
   const float lim_f = 0.999f * thr * thr;
+  int32_t lo = 0, hi = -1;
+  const bool band = quiet_band(base, thr, &lo, &hi);
   for (int k = start / kBlock; k < ch.nblk; ++k) {
     if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
-    for (int i = k * kBlock > start ? k * kBlock : start, end = ch.block_end(k); i < end; ++i) {
-      if (fabsf(static_cast<float>(ch.x[i]) - base) >= thr) {
+    const int from = k * kBlock > start ? k * kBlock : start;
+    const int end = ch.block_end(k);
+    if (band) {
+      int32_t mn, mx;
+      range_extremes(ch.x, from, end, &mn, &mx);
+      if (mn >= lo && mx <= hi) continue;
+    }
+    for (int i = from; i < end; ++i) {
+      if (band ? (ch.x[i] < lo || ch.x[i] > hi) : fabsf(static_cast<float>(ch.x[i]) - base) >= thr) {
         *at = i;
         return crossing_subsample(ch.x, i, base, thr);
       }

@@ -124,6 +124,9 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
 // Sums over x[0 .. i) from the prefix table of x[0 .. n) (0 <= i <= n): the nearer block boundary's sums
 // plus or minus the samples in between (at most kBlock / 2).
 Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i);
+// Smallest and largest sample of x[a .. b) (b > a): exact integers, two samples an instruction pair on
+// the DSP extension (SSUB16 + SEL), a plain loop elsewhere.
+void range_extremes(const int16_t* x, int a, int b, int32_t* lo, int32_t* hi);
 // n_b^2 * sum over a range of m samples of (x - sum_b / n_b)^2, exact (see above).
 int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
 

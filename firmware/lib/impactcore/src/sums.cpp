@@ -3,7 +3,7 @@
 
 #include "impactcore.h"
 
-#if defined(__ARM_FEATURE_DSP)
+#if defined(__ARM_FEATURE_DSP) || defined(__ARM_FEATURE_SIMD32)
 #include <arm_acle.h>
 #endif
 
@@ -140,6 +140,51 @@ void difference_energies(const int16_t* x, int a, int b, int64_t out[kDiffOrders
   out[1] = sh[0][0] + 4 * sh[0][1] + sh[0][2] - 4 * (sh[1][0] + sh[1][1]) + 2 * sh[2][0];
   out[2] = sh[0][0] + 9 * (sh[0][1] + sh[0][2]) + sh[0][3] - 6 * (sh[1][0] + sh[1][2]) - 18 * sh[1][1] +
            6 * (sh[2][0] + sh[2][1]) - 2 * sh[3][0];
+}
+
+void range_extremes(const int16_t* x, int a, int b, int32_t* lo, int32_t* hi) {
+  int32_t mn = x[a], mx = x[a];
+  int i = a;
+#if defined(__ARM_FEATURE_SIMD32)
+  // Two samples a word: SSUB16 sets each half's GE flags where the (full-precision) difference is >= 0,
+  // SEL then takes that half from its first operand: a running pairwise max and min. A full block is
+  // kBlock / 2 words, unrolled.
+  if (b - a >= 2) {
+    int32_t w;
+    memcpy(&w, x + a, sizeof(w));
+    int16x2_t pmx = w, pmn = w;
+    i = a + 2;
+    if (b - a == kBlock) {
+#pragma GCC unroll 8
+      for (int j = 2; j < kBlock; j += 2) {
+        memcpy(&w, x + a + j, sizeof(w));
+        __ssub16(w, pmx);
+        pmx = __sel(w, pmx);
+        __ssub16(pmn, w);
+        pmn = __sel(w, pmn);
+      }
+      i = b;
+    }
+    for (; i + 2 <= b; i += 2) {
+      memcpy(&w, x + i, sizeof(w));
+      __ssub16(w, pmx);
+      pmx = __sel(w, pmx);
+      __ssub16(pmn, w);
+      pmn = __sel(w, pmn);
+    }
+    const int32_t mx0 = static_cast<int16_t>(pmx & 0xFFFF), mx1 = static_cast<int16_t>(pmx >> 16);
+    const int32_t mn0 = static_cast<int16_t>(pmn & 0xFFFF), mn1 = static_cast<int16_t>(pmn >> 16);
+    mx = mx0 > mx1 ? mx0 : mx1;
+    mn = mn0 < mn1 ? mn0 : mn1;
+  }
+#endif
+  for (; i < b; ++i) {
+    const int32_t v = x[i];
+    if (v > mx) mx = v;
+    if (v < mn) mn = v;
+  }
+  *lo = mn;
+  *hi = mx;
 }
 
 int64_t scaled_energy(const Sums& r, int m, int n_b, int32_t sum_b) {
