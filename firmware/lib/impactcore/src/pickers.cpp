@@ -56,33 +56,30 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) 
   if (k_first > len - 2) k_first = len - 2;
   const int k_eval = k_first > 2 ? k_first - 1 : 2;
   const int16_t* w = x + begin;
-  // Centre the window to keep the float running sums well conditioned.
-  float mean = 0.0f;
-  for (int i = 0; i < len; ++i) mean += static_cast<float>(w[i]);
-  mean /= static_cast<float>(len);
-  float t1 = 0.0f, t2 = 0.0f;  // sums over the whole window
-  for (int i = 0; i < len; ++i) {
+  // Centre the window to keep the float running sums well conditioned. The mean from the integer sum:
+  // a float sum of these integers would be exact too (|partial sums| <= 512 x 32768 = 2^24).
+  int32_t isum = 0;
+  for (int i = 0; i < len; ++i) isum += w[i];
+  const float mean = static_cast<float>(isum) / static_cast<float>(len);
+  // AIC / ln 2 = k log2 var(x[0..k)) + (len - k - 1) log2 var(x[k..len)), one pass with the sums s1, s2
+  // over x[0..k) running; the values either side of the best k are kept for the parabola. The sums over
+  // the whole window (t1, t2) continue those over x[0..k_eval) in the same order: one pass for both.
+  const float eps = 1e-3f;
+  float s1 = 0.0f, s2 = 0.0f;
+  for (int i = 0; i < k_eval; ++i) {
+    const float d = static_cast<float>(w[i]) - mean;
+    s1 += d;
+    s2 += d * d;
+  }
+  float t1 = s1, t2 = s2;
+  for (int i = k_eval; i < len; ++i) {
     const float d = static_cast<float>(w[i]) - mean;
     t1 += d;
     t2 += d * d;
   }
-  // AIC / ln 2 = k log2 var(x[0..k)) + (len - k - 1) log2 var(x[k..len)), one pass with the sums s1, s2
-  // over x[0..k) running; the values either side of the best k are kept for the parabola.
-  const float eps = 1e-3f;
-  float s1 = 0.0f, s2 = 0.0f;
-  for (int i = 0; i < 2; ++i) {
-    const float d = static_cast<float>(w[i]) - mean;
-    s1 += d;
-    s2 += d * d;
-  }
   float best = 0.0f, best_prev = 0.0f, best_next = 0.0f, prev = 0.0f;
   int best_k = -1;
   bool want_next = false;
-  for (int k = 2; k < k_eval; ++k) {
-    const float d = static_cast<float>(w[k]) - mean;
-    s1 += d;
-    s2 += d * d;
-  }
   float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
   for (int k = k_eval; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
     const float i1 = 1.0f / n1;
