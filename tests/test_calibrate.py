@@ -322,3 +322,59 @@ def test_band_arrivals_follow_a_delayed_low_band_burst_and_remove_channel_delays
     early[0, 2] = np.interp(t + 6e-6, t, rec[0, 2])
     got2 = bands.band_arrivals(early, toa, fs, channel_delay_us=[0.0, 0.0, -6.0, 0.0])
     assert np.allclose(got2, got, atol=0.3)
+
+
+def _linear_drops(rng, n_drops=4, k=3, reps=5, noise_us=0.7, jitter_mm=1.0):
+    """Observables that move linearly with each drop's position (random d obs / d position, ~2-5 us/mm like
+    the FEM's), repetitions jittered by `jitter_mm` and read with `noise_us` of independent pick noise."""
+    from impactsense.calibration import plate_fem
+    j_pos = rng.normal(0, 3.0, (n_drops, k, 6, 2))
+    base = rng.normal(0, 50.0, (n_drops, k, 6))
+    per_rep = [base[d] + np.einsum("kpc,rc->rkp", j_pos[d], rng.normal(0, jitter_mm, (reps, 2)))
+               + rng.normal(0, noise_us, (reps, k, 6)) for d in range(n_drops)]
+    meas = plate_fem.PlateTargets(dtoa=np.stack([o.mean(axis=0) for o in per_rep]), sigma=np.ones(k),
+                                  names=tuple(f"o{i}" for i in range(k)), per_rep=per_rep)
+    return base, j_pos, meas
+
+
+def test_position_free_chi2_ignores_where_each_drop_landed_but_not_the_plate():
+    """A drop that landed 1 mm off its declared place moves all its observables along its two position columns:
+    the position-free chi^2 does not see it (linear model: exactly), the plain chi^2 does; a change that is not
+    a position shift (a plate change) stays visible."""
+    from impactsense.calibration import plate_fem
+    rng = np.random.default_rng(2)
+    base, j_pos, meas = _linear_drops(rng, noise_us=0.0)
+    meas.sigma = np.full(3, 0.5)
+    shift = rng.normal(0, 1.0, (4, 2))
+    moved = base + np.einsum("dkpc,dc->dkp", j_pos, shift)
+    meas.dtoa = moved
+    assert plate_fem.chi2(base, meas) > 100
+    assert plate_fem.chi2_position_free(base, meas, j_pos) < 1e-9
+    plate_change = rng.normal(0, 1.0, base.shape)
+    # 2 of each drop's 18 directions are removed: most of the change's chi^2 (16/18 on average) remains
+    assert plate_fem.chi2_position_free(base + plate_change, meas, j_pos) > 0.6 * np.sum((plate_change / 0.5) ** 2)
+
+
+def test_position_free_sigma_is_the_pick_noise_not_the_position_scatter():
+    """Repetitions scattered by 1 mm (3 us/mm) and read with 0.7 us of pick noise: the plain spread is several
+    us, the position-free standard error is 0.7 / sqrt(reps) within 20 %."""
+    from impactsense.calibration import plate_fem
+    rng = np.random.default_rng(3)
+    _, j_pos, meas = _linear_drops(rng, n_drops=12, reps=5, noise_us=0.7)
+    spread = np.sqrt(np.mean([np.var(o, axis=0, ddof=1).mean() for o in meas.per_rep]))
+    assert spread > 3.0
+    sig = plate_fem.position_free_sigma(meas, j_pos)
+    assert np.allclose(sig, max(0.7 / np.sqrt(5), plate_fem.SIGMA_FLOOR_US), rtol=0.2), sig
+
+
+def test_fisher_sd_nu_with_position_free_is_never_better_than_with_positions_known():
+    """Profiling nuisance directions out can only remove information: sd(nu) with positions free >= with them
+    known; a nu direction that is a pure position shift carries no information (infinite sd)."""
+    from impactsense.calibration import plate_fem
+    rng = np.random.default_rng(4)
+    _, j_pos, meas = _linear_drops(rng)
+    j_e, j_nu = rng.normal(0, 30, j_pos.shape[:3]), rng.normal(0, 30, j_pos.shape[:3])
+    ks = [0, 1, 2]
+    assert plate_fem.fisher_sd_nu(j_e, j_nu, meas, ks, j_pos) >= plate_fem.fisher_sd_nu(j_e, j_nu, meas, ks)
+    j_nu_shift = np.einsum("dkpc,dc->dkp", j_pos, rng.normal(0, 1, (4, 2)))
+    assert plate_fem.fisher_sd_nu(j_e, j_nu_shift, meas, ks, j_pos) > 1e3

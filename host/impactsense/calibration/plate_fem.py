@@ -38,6 +38,7 @@ class PlateTargets:
     dtoa: np.ndarray
     sigma: np.ndarray
     names: tuple
+    per_rep: list | None = None     # each case's repetitions' observables [r, K, 6] (for `position_free_sigma`)
 
     def to_json(self) -> dict:
         return {"observables": list(self.names), "dtoa_us": self.dtoa.tolist(), "sigma_us": self.sigma.tolist()}
@@ -50,7 +51,7 @@ def names(band_list=None) -> tuple:
 
 def measured_targets(session, targets, feats, cfg) -> PlateTargets:
     """The observables of the chosen cases' accepted repetitions (median) and their standard errors."""
-    per_case, var, reps = [], [], []
+    per_case, var, reps, per_rep = [], [], [], []
     for recs in targets.recording_ids:
         recs = np.asarray(recs, int)
         toa = feats["toa_us"][recs].astype(float)
@@ -58,6 +59,7 @@ def measured_targets(session, targets, feats, cfg) -> PlateTargets:
                                      baseline_samples=cfg.baseline_samples)
         obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
                               bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)   # [r, K, 6]
+        per_rep.append(obs)
         per_case.append(np.nanmedian(obs, axis=0))
         var.append(np.nanvar(obs, axis=0, ddof=1))
         reps.append(len(recs))
@@ -65,7 +67,7 @@ def measured_targets(session, targets, feats, cfg) -> PlateTargets:
     dtoa[:, 0] = targets.dtoa_us                      # the AIC target is Eq. 16's (the same median)
     spread = np.sqrt(np.nanmean(np.stack(var), axis=(0, 2)))
     sigma = np.maximum(spread / np.sqrt(np.mean(reps)), SIGMA_FLOOR_US)
-    return PlateTargets(dtoa=dtoa, sigma=sigma, names=names())
+    return PlateTargets(dtoa=dtoa, sigma=sigma, names=names(), per_rep=per_rep)
 
 
 def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0) -> np.ndarray:
@@ -125,9 +127,10 @@ def chi2(obs_sim, meas: PlateTargets, observables=None) -> float:
 
 
 def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios=(0.7, 0.8, 0.9, 1.0, 1.1),
-           walk=1.1, observables=None) -> tuple[float, dict]:
+           walk=1.1, observables=None, loss=None) -> tuple[float, dict]:
     """Twin's E at fixed nu: chi^2 at E = e_start x ratios (clipped to the grid's range), walked on by `walk`
     while the minimum sits at the scanned edge, then at the vertex of a parabola in ln E through the best three.
+    `loss(obs_sim) -> float` replaces chi^2 over `observables` (e.g. `chi2_position_free`).
     Returns (E [MPa], {E: chi^2})."""
     lo, hi = e_bounds
     scan = {}
@@ -135,7 +138,8 @@ def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios
     def at(e):
         e = float(np.clip(e, lo, hi))
         if e not in scan:
-            scan[e] = chi2(evals(e, nu), meas, observables)
+            obs = evals(e, nu)
+            scan[e] = chi2(obs, meas, observables) if loss is None else float(loss(obs))
         return scan[e]
 
     for r in ratios:
@@ -156,7 +160,7 @@ def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios
 
 
 def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_ln_e=0.03, d_nu=0.03,
-                       nu_bounds=(0.30, 0.40)) -> dict:
+                       nu_bounds=(0.30, 0.40), j_pos=None) -> dict:
     """How well the drops fix nu once E is free: central differences of the observables along ln E and along
     nu at fixed bending stiffness D ~ E / (1 - nu^2) (4 FEM runs), then the Fisher information of nu with E
     profiled out, for independent errors of the targets' standard errors (a best case: the jitter of a drop's
@@ -186,4 +190,93 @@ def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_l
         out["per_0.01_nu_at_fixed_D_us"][n] = float(np.sqrt(np.mean(j_nu[:, k] ** 2)) * 0.01)
         out["per_1pct_E_us"][n] = float(np.sqrt(np.mean(j_e[:, k] ** 2)) * 0.01)
     out["sd_nu"] = out["sd"]["AIC onset + bands"]
+    if j_pos is not None:
+        # each drop's position profiled out, the targets' errors re-estimated without the position scatter
+        sig = position_free_sigma(meas, j_pos)
+        m2 = PlateTargets(dtoa=meas.dtoa, sigma=sig, names=meas.names)
+        n_obs = len(meas.names)
+        out["position_free"] = {
+            "sigma_us": sig.tolist(),
+            "sd_at_target_error": {label: fisher_sd_nu(j_e, j_nu, m2, ks, j_pos) for label, ks in
+                                   (("AIC onset only", [0]), ("bands only", list(range(1, n_obs))),
+                                    ("AIC onset + bands", list(range(n_obs))))},
+            "definition": "as sd, with each drop's (x, y) free (linearised, FEM central differences) and the "
+                          "targets' standard errors from the repetitions' spread with their own positions "
+                          "profiled out"}
     return out
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Each drop's true position as a nuisance parameter (issue 4's identifiability of nu)
+#
+# A drop lands ~1 mm from its declared position; that moves every observable of the drop together (by the
+# distance change over each observable's own speed) and, left as error, it masks nu. Linearised at the declared
+# position, the position moves the drop's standardised residual vector (K observables x 6 pairs) within the span
+# of two columns d r / d x, d r / d y (FEM central differences); projecting that span out of each drop's
+# residual before summing squares is the profile likelihood over the drop's position (the pair differences
+# already remove the origin time).
+
+
+def position_jacobian(run_obs_at, x_mm, y_mm, h_mm, d_mm=1.0) -> np.ndarray:
+    """d obs / d position [D, K, 6, 2] us/mm by central differences; run_obs_at(x, y, h) -> obs [D, K, 6]
+    (called four times with the drops shifted, so seeded noise is common to the +- runs)."""
+    x, y, h = (np.asarray(v, float) for v in (x_mm, y_mm, h_mm))
+    jx = (run_obs_at(x + d_mm, y, h) - run_obs_at(x - d_mm, y, h)) / (2 * d_mm)
+    jy = (run_obs_at(x, y + d_mm, h) - run_obs_at(x, y - d_mm, h)) / (2 * d_mm)
+    return np.stack([jx, jy], axis=-1)
+
+
+def _position_projector(j_pos, meas: PlateTargets, observables=None) -> np.ndarray:
+    """Per drop, the projector [D, M, M] onto the complement of the standardised position columns (M = the
+    chosen observables x 6 pairs)."""
+    ks = list(range(len(meas.names))) if observables is None else list(observables)
+    w = (1.0 / meas.sigma)[ks][None, :, None, None]
+    a = np.nan_to_num((j_pos[:, ks] * w).reshape(j_pos.shape[0], -1, j_pos.shape[-1]))    # [D, M, 2]
+    out = []
+    for ad in a:
+        q, s, _ = np.linalg.svd(ad, full_matrices=False)
+        q = q[:, s > 1e-9 * max(s.max(), 1e-300)]
+        out.append(np.eye(ad.shape[0]) - q @ q.T)
+    return np.stack(out)
+
+
+def chi2_position_free(obs_sim, meas: PlateTargets, j_pos, observables=None) -> float:
+    """chi^2 with each drop's position profiled out (linearised): sum over drops of |P_d r_d|^2."""
+    ks = list(range(len(meas.names))) if observables is None else list(observables)
+    r = residuals(obs_sim, meas).reshape(meas.dtoa.shape)[:, ks].reshape(meas.dtoa.shape[0], -1)
+    proj = _position_projector(j_pos, meas, ks)
+    return float(np.sum(np.einsum("dij,dj->di", proj, r) ** 2))
+
+
+def fisher_sd_nu(j_e, j_nu, meas: PlateTargets, observables, j_pos=None) -> float:
+    """Best-case sd(nu) with ln E free (independent errors of the targets' standard errors); with `j_pos`,
+    each drop's position free as well (its two directions projected out of every drop's block)."""
+    ks = list(observables)
+    w = (1.0 / meas.sigma)[ks][None, :, None]
+    a = np.stack([(j_e[:, ks] * w).reshape(j_e.shape[0], -1), (j_nu[:, ks] * w).reshape(j_nu.shape[0], -1)], -1)
+    if j_pos is not None:
+        a = np.einsum("dij,djp->dip", _position_projector(j_pos, meas, ks), a)
+    f = np.einsum("dip,diq->pq", a, a)
+    return float(np.sqrt(np.linalg.inv(f)[1, 1])) if np.linalg.cond(f) < 1e12 else float("inf")
+
+
+def position_free_sigma(meas: PlateTargets, j_pos) -> np.ndarray:
+    """The targets' standard errors [K] us once each repetition's own position is profiled out: each
+    repetition's deviation from its case's mean, with the case's position directions (unweighted) projected
+    out, pooled per observable (corrected for the 2 of 3K independent pair dimensions the projection removes and
+    for the case mean), over sqrt(repetitions). What is left is the picks' noise, not the position scatter."""
+    if meas.per_rep is None:
+        raise ValueError("position_free_sigma needs the targets' per-repetition observables (measured_targets)")
+    k = len(meas.names)
+    unit = PlateTargets(dtoa=meas.dtoa, sigma=np.ones(k), names=meas.names)
+    proj = _position_projector(j_pos, unit)
+    ss, n, reps = np.zeros(k), 0.0, []
+    for d, obs in enumerate(meas.per_rep):
+        r = obs.shape[0]
+        dev = np.nan_to_num(obs - np.nanmean(obs, axis=0, keepdims=True)).reshape(r, -1)
+        pd = (dev @ proj[d].T).reshape(r, k, -1)
+        ss += np.sum(pd ** 2, axis=(0, 2)) * r / max(r - 1, 1)
+        n += r * pd.shape[-1]
+        reps.append(r)
+    var = ss / n * (3 * k) / (3 * k - 2)
+    return np.maximum(np.sqrt(var / np.mean(reps)), SIGMA_FLOOR_US)
