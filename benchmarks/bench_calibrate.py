@@ -10,7 +10,8 @@ no stage is read from a cache) unless --out names a folder with an earlier run.
 position jitter (8 cases x 3 repetitions; the calibration's four drops chosen from them), then the profile of
 the sub-problem-1 objective (AIC DToA + band arrivals, `plate_fem`) over nu = 0.30..0.40 with E fitted at each
 nu, and the best-case Fisher sd(nu) at the truth. Prints, per truth: the profile's minimum, chi^2 at the truth
-minus the minimum, and the sensitivities (docs/findings.md).
+minus the minimum, and the sensitivities (docs/findings.md). Then the same with each drop's position as a
+nuisance (`plate_fem.chi2_position_free`, band arrivals, errors re-estimated without the position scatter).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ TARGET_S = 600.0
 FINDINGS_DELAYS_US = [0.0, -0.6, -5.7, -6.5]   # docs/findings.md (session-1, AIC)
 
 
-def nu_study(mesh_mm, workers) -> None:
+def nu_study(mesh_mm, workers, reps=3) -> None:
     import numpy as np
     from scipy.stats import qmc
 
@@ -48,13 +49,13 @@ def nu_study(mesh_mm, workers) -> None:
     for e_true, nu_true, seed in ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6)):
         truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
         rng = np.random.default_rng(seed)
-        x, y, h = (np.repeat(v, 3) for v in (cx, cy, ch))
+        x, y, h = (np.repeat(v, reps) for v in (cx, cy, ch))
         p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
         adc = simulate_drops(p, rig, x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size), h, noise=True,
                              seed=seed + 2, progress=False)
         path = Path(tempfile.mkdtemp(prefix="nu-study-")) / "s"
-        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), 3),
-                      repetition=np.tile(np.arange(3), 8))
+        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), reps),
+                      repetition=np.tile(np.arange(reps), 8))
         session = load_session(path)
         cfg = pipeline.core_config(rig, CalibrateOptions())
         cfg_sim = pipeline._sim_core_config(cfg)
@@ -70,7 +71,27 @@ def nu_study(mesh_mm, workers) -> None:
             e_nu, scan = plate_fem.e_scan(evals, meas, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
                                           ratios=(0.98, 1.0, 1.02), walk=1.02)
             prof[nu] = scan[e_nu]
-        ident = plate_fem.nu_identifiability(evals, meas, e_true, nu_true)
+        # each drop's position as a nuisance (linearised at the declared positions, at E fitted to the AIC at
+        # nu 0.35): the profile over nu of the band arrivals' position-free chi^2, errors without the scatter
+        e0, _ = plate_fem.e_scan(evals, meas, stiff * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
+        j_pos = plate_fem.position_jacobian(lambda xx, yy, hh: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e0 * 1e6, nu=0.35), rig, xx, yy, hh), cfg_sim, *noise),
+            targets.x_mm, targets.y_mm, targets.height_mm)
+        meas_pf = plate_fem.PlateTargets(dtoa=meas.dtoa, sigma=plate_fem.position_free_sigma(meas, j_pos),
+                                         names=meas.names)
+        prof_pf = {}
+        for nu in nu_axis:
+            e_nu, scan = plate_fem.e_scan(evals, meas_pf, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
+                                          ratios=(0.98, 1.0, 1.02), walk=1.02,
+                                          loss=lambda o: plate_fem.chi2_position_free(o, meas_pf, j_pos, [1, 2]))
+            prof_pf[nu] = (scan[e_nu], e_nu)
+        ident = plate_fem.nu_identifiability(evals, meas, e_true, nu_true, j_pos=j_pos)
+        best_pf = min(prof_pf, key=lambda k: prof_pf[k][0])
+        pf = ident["position_free"]["sd_at_target_error"]
+        print(f"      position-free: sigma {', '.join(f'{v:.1f}' for v in meas_pf.sigma)} us; Fisher sd(nu) "
+              f"bands {pf['bands only']:.4f}, AIC + bands {pf['AIC onset + bands']:.4f}; band profile minimum "
+              f"nu {best_pf:.2f} (E {prof_pf[best_pf][1]:.0f} MPa, {prof_pf[best_pf][1] / e_true - 1:+.3f}), "
+              f"chi2(truth)-min {prof_pf[nu_true][0] - prof_pf[best_pf][0]:.1f}")
         best = min(prof, key=prof.get)
         sens = ident["per_0.01_nu_at_fixed_D_us"]
         print(f"{e_true:8.0f}, {nu_true:.2f} {seed:4d} {best:14.2f} {prof[best]:8.1f} {prof[nu_true] - prof[best]:15.1f} "
@@ -86,9 +107,10 @@ def main() -> int:
     ap.add_argument("--out", default=None, help="output folder (default: a fresh temporary one)")
     ap.add_argument("--nu-study", action="store_true", help="can four drops tell nu? (see the docstring)")
     ap.add_argument("--mesh-mm", type=float, default=5.0, help="--nu-study's FEM element size (0: the default mesh)")
+    ap.add_argument("--reps", type=int, default=3, help="--nu-study's repetitions per case (session-1: median 5)")
     args = ap.parse_args()
     if args.nu_study:
-        nu_study(args.mesh_mm or None, args.workers)
+        nu_study(args.mesh_mm or None, args.workers, args.reps)
         return 0
     out_dir = args.out or tempfile.mkdtemp(prefix="bench-calibrate-")
     data = str(resources.files("impactsense") / "data" / "session-1")
