@@ -144,3 +144,48 @@ def test_zero_shot_energy_class_with_the_bundled_twins_site_map(session1, tmp_pa
     assert card["energy_features"] == ["twin_log10_height_mm"] and len(card["twin"]["offset"]) == 16
     assert r["sim_trained"]["energy_class_accuracy"] >= 0.93
     assert r["measured_trained"]["energy_class_accuracy"] >= 0.95
+
+
+@pytest.mark.parametrize("cal, problem", [
+    (None, "calibration file not found"),
+    ("{not json", "not valid JSON"),
+    ({"exclude_case_ids": [0, 3, 41, 2]}, r"\[sim_params\]: missing key"),
+    ({"sim_params": {}}, "names no calibration drops"),
+    ({"sim_params": {}, "exclude_recording_ids": [0, 100000]}, "do not belong to this session"),
+])
+def test_zero_shot_bad_calibration_file_writes_nothing(session1, tmp_path, cal, problem):
+    """A missing, unreadable or foreign CAL.json: a clear error naming the file or field, raised before any
+    virtual drop is simulated, and no output folder."""
+    from impactsense.errors import ImpactSenseError
+    from impactsense.zeroshot import run_zero_shot
+
+    path = tmp_path / "CAL.json"
+    if cal is not None:
+        path.write_text(cal if isinstance(cal, str) else json.dumps(cal))
+    with pytest.raises(ImpactSenseError, match=problem):
+        run_zero_shot(session1, path, tmp_path / "zs", n_virtual=8, progress=False)
+    assert not (tmp_path / "zs").exists()
+
+
+def test_an_interrupted_virtual_set_is_not_reused(session1, tmp_path, monkeypatch):
+    """The virtual set counts as made only once `made_with.json` is written (last): a set left without it, or
+    made with another twin, is simulated again, and a complete one with this twin is read back as is."""
+    from impactsense import zeroshot
+    from impactsense.sim import SimParams
+
+    calls = []
+
+    def fake_simulate(params, rig, x, y, h, **kw):   # the recorded drops stand in for the FEM's
+        calls.append(len(x))
+        return session1.adc[: len(x)]
+
+    monkeypatch.setattr("impactsense.sim.simulate_drops", fake_simulate)
+    params, sim_dir = SimParams(), tmp_path / "virtual-6"
+    v, cached = zeroshot.virtual_set(params, session1, sim_dir, 6, 0, 1, False)
+    assert not cached and calls == [6] and len(v) == 6 and (sim_dir / "made_with.json").is_file()
+    v, cached = zeroshot.virtual_set(params, session1, sim_dir, 6, 0, 1, False)
+    assert cached and calls == [6]
+    (sim_dir / "made_with.json").unlink()                   # interrupted after the recordings were written
+    assert not zeroshot.virtual_set(params, session1, sim_dir, 6, 0, 1, False)[1] and calls == [6, 6]
+    other = SimParams(e_pa=params.e_pa * 1.1)
+    assert not zeroshot.virtual_set(other, session1, sim_dir, 6, 0, 1, False)[1] and calls == [6, 6, 6]

@@ -21,13 +21,15 @@ session-1, while the features' growth with the drop height matches the rig's).
 from __future__ import annotations
 
 import json
+import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from .data import Session, load_session, write_session
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
 from .pipeline import SignalConfig, as_int16, distances_mm, featurize
 from .workflow import evaluate, train
@@ -134,77 +136,113 @@ def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, sit
                               slope=np.asarray(model.twin_fit.slope))
 
 
+def _virtual_positions(rig, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sobol (x, y, h) 20 mm inside the edges and 25 mm from the sensors; h 100..200 mm in 5 mm steps."""
+    from scipy.stats import qmc
+
+    edge, clearance = 20.0, 25.0
+    sensors = rig.sensor_xy_mm
+    pts = []
+    sampler = qmc.Sobol(d=3, scramble=True, seed=seed)
+    while len(pts) < n:
+        u = sampler.random(64)
+        x = edge + u[:, 0] * (rig.plate_x_mm - 2 * edge)
+        y = edge + u[:, 1] * (rig.plate_y_mm - 2 * edge)
+        h = 100.0 + 5.0 * np.floor(u[:, 2] * 21)
+        far = np.min(np.hypot(x[:, None] - sensors[None, :, 0], y[:, None] - sensors[None, :, 1]), 1) >= clearance
+        pts.extend(zip(x[far], y[far], h[far]))
+    x, y, h = (np.array(v[:n]) for v in zip(*pts))
+    return x, y, h
+
+
+def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, workers: int,
+                progress: bool) -> tuple[Session, bool]:
+    """The virtual data set, written as a session folder so every tool can read it. Reused only when it was
+    simulated with this twin and seed (a set from another twin would be tested under this calibration's
+    name); `made_with.json` is written last, so an interrupted run leaves no set that counts as made.
+    Returns (the set, whether it came from the cache)."""
+    from .sim import simulate_drops
+
+    made_with = {"sim_params": params.to_dict(), "seed": seed}
+    stamp = sim_dir / "made_with.json"
+    try:
+        cached = (sim_dir / "recordings.npz").is_file() and json.loads(stamp.read_text()) == made_with
+    except (OSError, ValueError):
+        cached = False
+    if not cached:
+        stamp.unlink(missing_ok=True)
+        x, y, h = _virtual_positions(session.rig, n, seed)
+        rng = np.random.default_rng(seed)
+        adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
+                             workers=workers, progress=progress)
+        write_session(sim_dir, session.rig, x, y, h, adc)
+        stamp.write_text(json.dumps(made_with, indent=1))
+    return load_session(sim_dir), cached
+
+
 def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
                   seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
                   use_twin: bool = True) -> dict:
     from .sim import SimParams, simulate_drops
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cal_path = Path(cal_path)
     if not cal_path.is_file():
         raise DataError(cal_path, None, "calibration file not found (run `impactsense calibrate` first)")
-    cal = json.loads(cal_path.read_text())
+    try:
+        cal = json.loads(cal_path.read_text())
+    except ValueError as e:
+        raise DataError(cal_path, None, f"not valid JSON ({e})") from None
     if "sim_params" not in cal:
         raise DataError(cal_path, "sim_params", "missing key")
     params = SimParams.from_json(cal_path)
     cal_rows = calibration_rows(session, cal)
+    if n_virtual < 2:
+        raise ConfigError(f"--virtual needs at least 2 virtual drops, got {n_virtual}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    wall: dict[str, float] = {}
 
-    # The virtual data set, written as a session folder so every tool can read it.
-    # Reused only when it was simulated with this twin and seed (a set from another twin would be tested
-    # under this calibration's name).
+    @contextmanager
+    def stage(name):     # wall time of each step
+        t = time.perf_counter()
+        yield
+        wall[name] = round(time.perf_counter() - t, 1)
+
     sim_dir = out / f"virtual-{n_virtual}"
-    made_with = {"sim_params": params.to_dict(), "seed": seed}
-    stamp = sim_dir / "made_with.json"
-    if not (stamp.is_file() and (sim_dir / "recordings.npz").is_file()
-            and json.loads(stamp.read_text()) == made_with):
-        rng = np.random.default_rng(seed)
-        from scipy.stats import qmc
-
-        edge, clearance = 20.0, 25.0
-        sensors = session.rig.sensor_xy_mm
-        pts = []
-        sampler = qmc.Sobol(d=3, scramble=True, seed=seed)
-        while len(pts) < n_virtual:
-            u = sampler.random(64)
-            x = edge + u[:, 0] * (session.rig.plate_x_mm - 2 * edge)
-            y = edge + u[:, 1] * (session.rig.plate_y_mm - 2 * edge)
-            h = 100.0 + 5.0 * np.floor(u[:, 2] * 21)
-            far = np.min(np.hypot(x[:, None] - sensors[None, :, 0], y[:, None] - sensors[None, :, 1]), 1) >= clearance
-            pts.extend(zip(x[far], y[far], h[far]))
-        x, y, h = (np.array(v[:n_virtual]) for v in zip(*pts))
-        adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
-                             workers=workers, progress=progress)
-        write_session(sim_dir, session.rig, x, y, h, adc)
-        stamp.write_text(json.dumps(made_with, indent=1))
-    virtual = load_session(sim_dir)
-
+    with stage("virtual_set"):
+        virtual, cached = virtual_set(params, session, sim_dir, n_virtual, seed, workers, progress)
+    if cached:
+        wall["virtual_set (cached)"] = wall.pop("virtual_set")
     # The twin's site map for the energy class (the twin's fingerprint, twin.py).
-    site = twin_site_map(params, session, out, progress) if use_twin else None
+    with stage("site_map"):
+        site = twin_site_map(params, session, out, progress) if use_twin else None
     # Sim-trained: localiser constants and forests from the virtual drops only ...
-    sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site)
+    with stage("train_sim"):
+        sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site)
     # ... and the rig's channel timing from the four calibration drops.
-    cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
-                             session.height_mm[cal_rows], noise=True, seed=seed, workers=workers, progress=False)
-    virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
-    virtual_velocity = sim_model.signal.velocity_mm_per_us
-    delays, gains, velocity = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
-    sim_model.signal.velocity_mm_per_us = velocity
-    sim_model.signal.channel_delay_us = delays
-    sim_model.signal.channel_gain = gains
-    # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
-    offsets = {}
-    if site is not None:
-        fit_twin_on_calibration_drops(sim_model, session, cal_rows, site)
-    else:
-        offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
-        vf = featurize(virtual.adc, virtual_signal)
-        use = vf.usable
-        X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
-        for k, name in enumerate(ENERGY_FEATURES):
-            X[:, k] += offsets.get(name, 0.0)
-        sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
-            X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
+    with stage("fit_on_calibration_drops"):
+        cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
+                                 session.height_mm[cal_rows], noise=True, seed=seed, workers=workers,
+                                 progress=False)
+        virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
+        virtual_velocity = sim_model.signal.velocity_mm_per_us
+        delays, gains, velocity = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
+        sim_model.signal.velocity_mm_per_us = velocity
+        sim_model.signal.channel_delay_us = delays
+        sim_model.signal.channel_gain = gains
+        # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
+        offsets = {}
+        if site is not None:
+            fit_twin_on_calibration_drops(sim_model, session, cal_rows, site)
+        else:
+            offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
+            vf = featurize(virtual.adc, virtual_signal)
+            use = vf.usable
+            X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
+            for k, name in enumerate(ENERGY_FEATURES):
+                X[:, k] += offsets.get(name, 0.0)
+            sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
+                X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
     sim_model.save(out / "model-sim", extra_card={"trained_on": str(sim_dir), "calibration": str(cal_path),
                                                    "channel_delay_from_calibration_drops_us": delays,
                                                    "channel_gain_from_calibration_drops": gains,
@@ -213,12 +251,14 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
                                                    "energy_feature_offsets_from_calibration_drops": offsets})
 
     # Measured-trained on the same session, same split, calibration drops excluded everywhere.
-    meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows,
-                              site_map=site)
+    with stage("train_measured"):
+        meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows,
+                                  site_map=site)
     test_rows = np.asarray(split["test_recordings"], int)
     assert not np.isin(test_rows, cal_rows).any()
-    rep_sim = evaluate(session, sim_model, rows=test_rows)
-    rep_meas = evaluate(session, meas_model, rows=test_rows)
+    with stage("evaluate"):
+        rep_sim = evaluate(session, sim_model, rows=test_rows)
+        rep_meas = evaluate(session, meas_model, rows=test_rows)
     result = {
         "calibration": str(cal_path),
         "calibration_recordings": cal_rows.tolist(),
@@ -231,6 +271,7 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "energy_feature_offsets_from_calibration_drops": offsets,
         "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
         "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},
+        "wall_time_s": wall,
     }
     (out / "zero-shot.json").write_text(json.dumps(result, indent=1))
     result["_reports"] = {"sim": rep_sim, "measured": rep_meas}
@@ -248,4 +289,6 @@ def zero_shot_table(result: dict) -> str:
             m = result[key][region]
             lines.append(f"{'impactsense, ' + kind + ', ' + label:46s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} "
                          f"{m['mae_mm']:7.2f} {result[key]['energy_class_accuracy']:9.2f}")
+    if result.get("wall_time_s"):
+        lines.append("wall time [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in result["wall_time_s"].items()))
     return "\n".join(lines)
