@@ -1,4 +1,5 @@
 // Exact block sums of a channel: the only pass over every sample of a capture (impactcore.h).
+#include <stdint.h>
 #include <string.h>
 
 #include "impactcore.h"
@@ -23,27 +24,65 @@ inline void add_sample(Sums* s, const int16_t* x, int i) {
 // (Cortex-M4/M7/M33) two samples at a time: SMLALD adds x0^2 + x1^2 to the 64-bit sum, SMLAD
 // x0 * 1 + x1 * 1 to the 32-bit one. Integer arithmetic: the same numbers as the portable loop (which
 // is add_sample), bit for bit.
+#if defined(__ARM_FEATURE_DSP)
+__attribute__((always_inline)) inline void add_pair(int32_t w, Sums* run) {  // w: x[j] in the low half, x[j + 1] in the high half
+  run->s2 = __smlald(w, w, run->s2);
+  run->s1 = __smlad(w, 0x00010001, run->s1);
+}
+
+// Eight samples (b word aligned) in four registers by two LDRD: one load instruction per four samples
+// (GCC splits a 64-bit load from a word-aligned address into two LDR; LDRD needs word alignment only).
+typedef uint32_t __attribute__((may_alias)) Word;
+__attribute__((always_inline)) inline void load8(const int16_t* b, int32_t& w0, int32_t& w1, int32_t& w2, int32_t& w3) {
+  __asm__("ldrd %0, %1, [%4]\n\tldrd %2, %3, [%4, #8]"
+          : "=&r"(w0), "=&r"(w1), "=&r"(w2), "=r"(w3)
+          : "r"(b), "m"(*reinterpret_cast<const Word(*)[4]>(b)));
+}
+
+template <bool kAligned>
+inline Sums dsp_blocks(const int16_t* x, int blocks, Sums run, Sums* prefix) {
+  static_assert(kBlock % 8 == 0, "the DSP kernel takes samples in eights");
+  for (int k = 0; k < blocks; ++k) {
+    const int16_t* b = x + k * kBlock;
+#pragma GCC unroll 2
+    for (int j = 0; j < kBlock; j += 8) {
+      int32_t w0, w1, w2, w3;
+      if (kAligned) {
+        load8(b + j, w0, w1, w2, w3);
+      } else {
+        memcpy(&w0, b + j, sizeof(w0));
+        memcpy(&w1, b + j + 2, sizeof(w1));
+        memcpy(&w2, b + j + 4, sizeof(w2));
+        memcpy(&w3, b + j + 6, sizeof(w3));
+      }
+      add_pair(w0, &run);
+      add_pair(w1, &run);
+      add_pair(w2, &run);
+      add_pair(w3, &run);
+    }
+    prefix[k + 1] = run;
+  }
+  return run;
+}
+#endif
+
 int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
   Sums run = {0, 0};
   prefix[0] = run;
-  int k = 0;
-  int i = 0;
-  for (; i + kBlock <= n; i += kBlock) {
-    const int16_t* b = x + i;
+  int k = n / kBlock;
+  int i = k * kBlock;
 #if defined(__ARM_FEATURE_DSP)
-    static_assert(kBlock % 2 == 0, "the DSP kernel takes samples in pairs");
-#pragma GCC unroll 8
-    for (int j = 0; j < kBlock; j += 2) {
-      int32_t w;
-      memcpy(&w, b + j, sizeof(w));  // b[j] in the low half, b[j + 1] in the high half (little endian)
-      run.s2 = __smlald(w, w, run.s2);
-      run.s1 = __smlad(w, 0x00010001, run.s1);
-    }
-#else
-    for (int j = 0; j < kBlock; ++j) add_sample(&run, b, j);
-#endif
-    prefix[++k] = run;
+  if ((reinterpret_cast<uintptr_t>(x) & 3u) == 0) {
+    run = dsp_blocks<true>(x, k, run, prefix);
+  } else {
+    run = dsp_blocks<false>(x, k, run, prefix);
   }
+#else
+  for (int m = 0; m < i; m += kBlock) {
+    for (int j = m; j < m + kBlock; ++j) add_sample(&run, x, j);
+    prefix[m / kBlock + 1] = run;
+  }
+#endif
   if (i < n) {
     for (; i < n; ++i) add_sample(&run, x, i);
     prefix[++k] = run;
