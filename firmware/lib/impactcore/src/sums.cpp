@@ -121,24 +121,33 @@ void lagged_products(const int16_t* x, int a, int b, int64_t p[kDiffOrders + 1])
   int64_t p0 = 0, p1 = 0, p2 = 0, p3 = 0;
   int i = a;
 #if defined(__ARM_FEATURE_DSP)
-  // Two passes of two int64 accumulators each: four at once (eight registers) make GCC spill them every
-  // step. Unaligned LDR of the lagged pairs is allowed on the M4.
-  const int pairs_end = a + ((b - a) & ~1);
-  for (const int16_t* q = x + a; q < x + pairs_end; q += 2) {
-    int32_t w0, w1;
-    memcpy(&w0, q, sizeof(w0));
-    memcpy(&w1, q - 1, sizeof(w1));
-    p0 = __smlald(w0, w0, p0);
-    p1 = __smlald(w0, w1, p1);
+  // One pass, four samples a step: with w0 = (x[i], x[i+1]) and w1 = (x[i-1], x[i]) loaded, the lag-2
+  // and lag-3 pairs (x[i-2], x[i-1]) and (x[i-3], x[i-2]) are the previous step's w0 and w1 (unaligned
+  // LDR is allowed on the M4). Two steps per iteration, so the previous pair needs no register moves.
+  const int quads_end = a + ((b - a) & ~3);
+  if (quads_end > a) {
+    int32_t u0, u1;
+    memcpy(&u0, x + a - 2, sizeof(u0));
+    memcpy(&u1, x + a - 3, sizeof(u1));
+    for (const int16_t* q = x + a; q < x + quads_end; q += 4) {
+      int32_t w0, w1, v0, v1;
+      memcpy(&w0, q, sizeof(w0));
+      memcpy(&w1, q - 1, sizeof(w1));
+      p0 = __smlald(w0, w0, p0);
+      p1 = __smlald(w0, w1, p1);
+      p2 = __smlald(w0, u0, p2);
+      p3 = __smlald(w0, u1, p3);
+      memcpy(&v0, q + 2, sizeof(v0));
+      memcpy(&v1, q + 1, sizeof(v1));
+      p0 = __smlald(v0, v0, p0);
+      p1 = __smlald(v0, v1, p1);
+      p2 = __smlald(v0, w0, p2);
+      p3 = __smlald(v0, w1, p3);
+      u0 = v0;
+      u1 = v1;
+    }
   }
-  for (const int16_t* q = x + a; q < x + pairs_end; q += 2) {
-    int32_t w0, w2, w3;
-    memcpy(&w0, q, sizeof(w0));
-    memcpy(&w2, q - 2, sizeof(w2));
-    memcpy(&w3, q - 3, sizeof(w3));
-    p2 = __smlald(w0, w2, p2);
-    p3 = __smlald(w0, w3, p3);
-  }
+  const int pairs_end = quads_end;
   i = pairs_end;
 #endif
   for (; i < b; ++i) {
