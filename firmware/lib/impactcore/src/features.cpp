@@ -246,8 +246,9 @@ int energy_reaches(const Channel& ch, int64_t target) {
   }
   int64_t cum = ch.energy_to_block(lo);
   for (int i = lo * kBlock; i < ch.n; ++i) {
-    const int64_t d = static_cast<int64_t>(ch.nb) * ch.x[i] - ch.sb;
-    cum += d * d;
+    // |nb x - sb| <= 2^24 (nb <= kMaxBaselineSamples): a 32-bit difference, one SMLAL a sample.
+    const int32_t d = ch.nb * ch.x[i] - ch.sb;
+    cum += static_cast<int64_t>(d) * d;
     if (cum >= target) return i;
   }
   return ch.n - 1;

@@ -32,12 +32,23 @@ inline float exp_nonpositive(float x) {
   return p * scale;
 }
 
-// One twin feature's per-event constants, interleaved so the grid loop reads them in one pass.
+// floor and ceil of a float of magnitude < 2^31 as int (the conversion truncates toward zero; no libm call).
+inline int floor_int(float v) {
+  const int t = static_cast<int>(v);
+  return static_cast<float>(t) > v ? t - 1 : t;
+}
+inline int ceil_int(float v) {
+  const int t = static_cast<int>(v);
+  return static_cast<float>(t) < v ? t + 1 : t;
+}
+
+// One twin feature's per-event constants, interleaved so the grid loop reads them in one pass, and
+// scaled by sqrt(weight): a grid point's residual is then u = r - s q (one multiply-subtract), the
+// misfit's sum w (r - s q)^2 is sum u^2 and the normal equation's sum w slope (r - s q) is sum sigma u.
 struct Term {
-  float r;   // event feature - offset - map base (0 when not usable)
-  float s;   // map scale
-  float ws;  // weight x slope (0 when not usable)
-  float w;   // weight (0 when not usable)
+  float r;      // sqrt(w) (event feature - offset - map base) (0 when not usable)
+  float s;      // sqrt(w) map scale (0 when not usable)
+  float sigma;  // sqrt(w) slope (0 when not usable)
 };
 }  // namespace
 
@@ -67,18 +78,18 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
     r.status = kErrBadConfig;
     return r;
   }
-  // The per-event constants: residual before the map, and the normal equation's denominator A = sum w s^2.
+  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
   Term term[kTwinFeatures];
   float a = 0.0f;
   int n_used = 0;
   for (int k = 0; k < kTwinFeatures; ++k) {
     const bool use = (usable >> k) & 1u;
+    const float sw = use && cfg.weight[k] > 0.0f ? sqrtf(cfg.weight[k]) : 0.0f;
     Term& t = term[k];
-    t.w = use ? cfg.weight[k] : 0.0f;
-    t.r = use ? (features[k] - cfg.offset[k]) - map.base[k] : 0.0f;
-    t.s = map.scale[k];
-    t.ws = t.w * cfg.slope[k];
-    a += t.ws * cfg.slope[k];
+    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
+    t.s = sw * map.scale[k];
+    t.sigma = sw * cfg.slope[k];
+    a += t.sigma * t.sigma;
     n_used += use ? 1 : 0;
   }
   if (n_used < kTwinPerChannel || !(a > 0.0f)) {
@@ -92,10 +103,10 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
   y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
   const float inv_step = 1.0f / map.step_mm;
-  int i0 = static_cast<int>(ceilf((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step));
-  int i1 = static_cast<int>(floorf((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step));
-  int j0 = static_cast<int>(ceilf((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step));
-  int j1 = static_cast<int>(floorf((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step));
+  int i0 = ceil_int((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step);
+  int i1 = floor_int((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step);
+  int j0 = ceil_int((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step);
+  int j1 = floor_int((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step);
   if (i0 < 0) i0 = 0;
   if (j0 < 0) j0 = 0;
   if (i1 > map.nx - 1) i1 = map.nx - 1;
@@ -120,14 +131,14 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
       if (d2 > cut2) continue;
       const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
       if (q[0] == kSiteMapMissing) continue;
-      // D = sum w s rr / A; misfit = (sum w rr^2 - A D^2) / n, rr = r0 - map (unused features have w = 0).
+      // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
       float b = 0.0f, c = 0.0f;
 #pragma GCC unroll 16
       for (int k = 0; k < kTwinFeatures; ++k) {
         const Term& t = term[k];
-        const float rr = t.r - t.s * static_cast<float>(q[k]);
-        b += t.ws * rr;
-        c += t.w * rr * rr;
+        const float u = t.r - t.s * static_cast<float>(q[k]);
+        b += t.sigma * u;
+        c += u * u;
       }
       const float shift_j = b * inv_a;
       float misfit = (c - a * shift_j * shift_j) * inv_n;
