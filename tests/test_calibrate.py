@@ -378,3 +378,41 @@ def test_fisher_sd_nu_with_position_free_is_never_better_than_with_positions_kno
     assert plate_fem.fisher_sd_nu(j_e, j_nu, meas, ks, j_pos) >= plate_fem.fisher_sd_nu(j_e, j_nu, meas, ks)
     j_nu_shift = np.einsum("dkpc,dc->dkp", j_pos, rng.normal(0, 1, (4, 2)))
     assert plate_fem.fisher_sd_nu(j_e, j_nu_shift, meas, ks, j_pos) > 1e3
+
+
+def _bursts(delays_us, fs=100_000.0, n=1500, t0=5e-3):
+    """Four channels of a 3 kHz burst in a Gaussian envelope (sd 250 us), delayed by `delays_us`."""
+    t = np.arange(n) / fs
+    tau = t[None, :] - t0 - np.asarray(delays_us)[:, None] * 1e-6
+    return (2048 + 500 * np.exp(-0.5 * (tau / 2.5e-4) ** 2) * np.sin(2 * np.pi * 3000 * tau))[None], t
+
+
+def test_group_delays_recover_packet_delays_smoothly_and_remove_channel_delays():
+    """Packets delayed by known, non-integer amounts: the group-delay pair differences equal the delays to
+    < 1.5 us; moving one channel in 0.1-sample steps moves its pairs by the same 1 us each (a smooth
+    observable, unlike a sample-quantised pick) though its onset moves in 10 us steps, and a channel read 6 us
+    early and declared so is put back."""
+    from impactsense.calibration import group_delay
+    fs = 100_000.0
+    delays = np.array([0.0, 123.4, -50.2, 210.7])
+    rec, t = _bursts(delays)
+    toa = np.round((4200.0 + delays) / 10) * 10.0         # sample-quantised onsets, as the core's
+    toa = toa[None]
+    got = group_delay.group_delays(rec, toa, fs, plate.PAIR_I, plate.PAIR_J)[0]
+    want = delays[plate.PAIR_I] - delays[plate.PAIR_J]
+    assert np.allclose(got, want[None], atol=1.5), got
+    steps = []
+    for k in range(1, 11):
+        d = delays.copy()
+        d[1] += k * 1.0
+        r2, _ = _bursts(d)
+        steps.append(group_delay.group_delays(r2, np.round((4200.0 + d) / 10)[None] * 10.0, fs, plate.PAIR_I, plate.PAIR_J)[0])
+    moved = np.diff(np.stack([got] + steps), axis=0)            # [10, B, 6]: per 1 us of channel 1
+    sign = (np.asarray(plate.PAIR_I) == 1).astype(float) - (np.asarray(plate.PAIR_J) == 1)
+    assert np.allclose(moved, sign[None, None, :], atol=0.15), moved
+    early = rec.copy()
+    early[0, 2] = np.interp(t + 6e-6, t, rec[0, 2])
+    got2 = group_delay.group_delays(early, toa, fs, plate.PAIR_I, plate.PAIR_J, channel_delay_us=[0, 0, -6.0, 0])[0]
+    assert np.allclose(got2, got, atol=0.3)
+    with pytest.raises(ValueError, match="adc must be"):
+        group_delay.group_delays(rec[0], toa, fs, plate.PAIR_I, plate.PAIR_J)

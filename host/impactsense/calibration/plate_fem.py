@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from . import bands, plate
+from . import bands, group_delay, plate
 
 SIGMA_FLOOR_US = 0.5
 MISSING_US = 1000.0      # a missing pick costs (1 ms / sigma)^2, as in Eq. 16
@@ -44,12 +44,21 @@ class PlateTargets:
         return {"observables": list(self.names), "dtoa_us": self.dtoa.tolist(), "sigma_us": self.sigma.tolist()}
 
 
-def names(band_list=None) -> tuple:
+def names(band_list=None, group_delays=False) -> tuple:
+    """The observables' names; with `group_delays`, the band group delays (`group_delay`) appended."""
     band_list = bands.BANDS_HZ if band_list is None else band_list
-    return ("AIC onset",) + tuple(f"envelope {lo / 1e3:g}-{hi / 1e3:g} kHz" for lo, hi in band_list)
+    out = ("AIC onset",) + tuple(f"envelope {lo / 1e3:g}-{hi / 1e3:g} kHz" for lo, hi in band_list)
+    if group_delays:
+        out += group_delay.names()
+    return out
 
 
-def measured_targets(session, targets, feats, cfg) -> PlateTargets:
+def _with_group_delays(obs, adc, toa, fs_hz, **kw) -> np.ndarray:
+    """obs [r, K, 6] with the band group delays [r, B, 6] appended along K."""
+    return np.concatenate([obs, group_delay.group_delays(adc, toa, fs_hz, plate.PAIR_I, plate.PAIR_J, **kw)], axis=1)
+
+
+def measured_targets(session, targets, feats, cfg, group_delays=False) -> PlateTargets:
     """The observables of the chosen cases' accepted repetitions (median) and their standard errors."""
     per_case, var, reps, per_rep = [], [], [], []
     for recs in targets.recording_ids:
@@ -59,6 +68,9 @@ def measured_targets(session, targets, feats, cfg) -> PlateTargets:
                                      baseline_samples=cfg.baseline_samples)
         obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
                               bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)   # [r, K, 6]
+        if group_delays:
+            obs = _with_group_delays(obs, session.adc[recs], toa, cfg.fs_hz, channel_delay_us=cfg.channel_delay_us,
+                                     baseline_samples=cfg.baseline_samples)
         per_rep.append(obs)
         per_case.append(np.nanmedian(obs, axis=0))
         var.append(np.nanvar(obs, axis=0, ddof=1))
@@ -67,10 +79,10 @@ def measured_targets(session, targets, feats, cfg) -> PlateTargets:
     dtoa[:, 0] = targets.dtoa_us                      # the AIC target is Eq. 16's (the same median)
     spread = np.sqrt(np.nanmean(np.stack(var), axis=(0, 2)))
     sigma = np.maximum(spread / np.sqrt(np.mean(reps)), SIGMA_FLOOR_US)
-    return PlateTargets(dtoa=dtoa, sigma=sigma, names=names(), per_rep=per_rep)
+    return PlateTargets(dtoa=dtoa, sigma=sigma, names=names(group_delays=group_delays), per_rep=per_rep)
 
 
-def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0) -> np.ndarray:
+def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0, group_delays=False) -> np.ndarray:
     """The same observables [D, K, 6] of simulated records (no channel delays), with the rig's noise added
     (`n_noise` seeded realisations, averaged; the same seeds for every plate: a smooth objective)."""
     adc = np.asarray(adc).astype(float)
@@ -81,8 +93,11 @@ def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0) -> np.nda
         q = np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16)
         toa = _core.extract_batch(np.ascontiguousarray(q), cfg_sim)["toa_us"].astype(float)
         t_band = bands.band_arrivals(q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
-        acc.append(np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
-                                   bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1))
+        obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
+                              bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)
+        if group_delays:
+            obs = _with_group_delays(obs, q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
+        acc.append(obs)
     return np.mean(acc, axis=0)
 
 
