@@ -397,7 +397,14 @@ NB_MODULE(_core, m) {
            })
       .def_prop_ro("armed", &ic::Trigger::armed)
       .def_prop_ro("frames_seen", &ic::Trigger::frames_seen)
-      .def_prop_ro("fired_at", &ic::Trigger::fired_at);
+      .def_prop_ro("fired_at", &ic::Trigger::fired_at)
+      .def(
+          "baseline",
+          [](const ic::Trigger& t, int channel) {
+            if (channel < 0 || channel >= ic::kChannels) throw std::out_of_range("channel is 0..3");
+            return t.baseline(channel);
+          },
+          "channel"_a);
 
   m.def(
       "find_trigger",

@@ -254,7 +254,7 @@ struct TriggerConfig {
   int rearm_quiet_frames = 200;  // ... for this many frames
   int holdoff_frames = 2000;     // after firing, ignore everything for this many frames
   int pretrigger_frames = 256;   // frames kept before the firing frame
-  float baseline_alpha = 1.0f / 1024.0f;  // exponential baseline tracker while armed
+  float baseline_alpha = 1.0f / 1024.0f;  // exponential baseline tracker (every frame but the firing one)
 };
 
 class Trigger {
@@ -275,6 +275,7 @@ class Trigger {
   long frames_ = 0;
   long fired_at_ = -1;
   int counter_ = 0;
+  void track_baseline(const int16_t frame[kChannels]);
 };
 
 // Scans a whole recording (channel-major) with a fresh Trigger; returns the firing frame or -1.

@@ -24,17 +24,20 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
         counter_ = 0;
         return true;
       }
-      for (int c = 0; c < kChannels; ++c) {
-        baseline_[c] += cfg_.baseline_alpha * (static_cast<float>(frame[c]) - baseline_[c]);
-      }
+      track_baseline(frame);
       return false;
     case kHoldoff:
+      track_baseline(frame);
       if (++counter_ >= cfg_.holdoff_frames) {
         state_ = kWaitQuiet;
         counter_ = 0;
       }
       return false;
     case kWaitQuiet:
+      // The baseline keeps tracking while the plate rings down (the ringing averages out): a baseline that
+      // was wrong when armed -- a hit during warm-up, a drifting bias -- converges, so the trigger re-arms
+      // instead of waiting for a quiet that its stale baseline never shows.
+      track_baseline(frame);
       counter_ = (level < cfg_.rearm_counts) ? counter_ + 1 : 0;
       if (counter_ >= cfg_.rearm_quiet_frames) {
         state_ = kArmed;
@@ -43,6 +46,12 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       return false;
   }
   return false;
+}
+
+void Trigger::track_baseline(const int16_t frame[kChannels]) {
+  for (int c = 0; c < kChannels; ++c) {
+    baseline_[c] += cfg_.baseline_alpha * (static_cast<float>(frame[c]) - baseline_[c]);
+  }
 }
 
 long find_trigger(const int16_t* const adc[kChannels], int n, const TriggerConfig& cfg) {
