@@ -32,6 +32,17 @@ inline float exp_nonpositive(float x) {
   return p * scale;
 }
 
+// sqrt of a non-negative float: the FPU's VSQRT on the M4F (newlib's sqrtf adds an errno check and a call).
+inline float sqrt_nonneg(float v) {
+#if defined(__ARM_FP) && (__ARM_FP & 4) && defined(__thumb2__)
+  float r;
+  __asm__("vsqrt.f32 %0, %1" : "=t"(r) : "t"(v));
+  return r;
+#else
+  return sqrtf(v);
+#endif
+}
+
 // floor and ceil of a float of magnitude < 2^31 as int (the conversion truncates toward zero; no libm call).
 inline int floor_int(float v) {
   const int t = static_cast<int>(v);
@@ -84,7 +95,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   int n_used = 0;
   for (int k = 0; k < kTwinFeatures; ++k) {
     const bool use = (usable >> k) & 1u;
-    const float sw = use && cfg.weight[k] > 0.0f ? sqrtf(cfg.weight[k]) : 0.0f;
+    const float sw = use && cfg.weight[k] > 0.0f ? sqrt_nonneg(cfg.weight[k]) : 0.0f;
     Term& t = term[k];
     t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
     t.s = sw * map.scale[k];
