@@ -5,13 +5,14 @@ Runs firmware/test/qemu/run.sh with `-icount shift=4` (every guest instruction a
 instructions, so instructions = ticks x 200,000 / calibration ticks (resolution ~2.5 instructions).
 Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
 
-    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6]
+    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6 | --all]
                                              [--site-map auto|none|FILE] [--site-map-step MM]
 
 Without --model-dir the fixture trains its own board-rate forests (--trees per localisation forest) with the
 energy class on the twin's site map as the board sees it (--site-map auto: the bundled twin's; the board's
 5 mm map takes a few minutes the first time and is cached in build/bench-cache/). --model-dir MODEL_DIR
-exports that board model instead (e.g. OUT/board-model from `impactsense export`).
+exports that board model instead (e.g. OUT/board-model from `impactsense export`). --all times every
+session-1 drop, 100 to a test image (the image's 4 MB flash holds the recordings as data).
 """
 
 from __future__ import annotations
@@ -57,6 +58,9 @@ def main() -> int:
     ap.add_argument("--trees", type=int, default=12)
     ap.add_argument("--drops", type=int, default=6,
                     help="session-1 drops in the fixture, evenly spaced (each one's whole event is timed)")
+    ap.add_argument("--all", action="store_true",
+                    help="every session-1 drop, in fixtures of --chunk rows (the test image holds ~100 drops)")
+    ap.add_argument("--chunk", type=int, default=100)
     ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
     ap.add_argument("--json")
@@ -64,33 +68,56 @@ def main() -> int:
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
         print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
-    extra = ["--trees", str(args.trees), "--drops", str(args.drops)]
+    extra = ["--trees", str(args.trees)]
     extra += ["--model-dir", args.model_dir] if args.model_dir else []
     cache = ROOT / "build" / "bench-cache" / f"board-site-map-{args.site_map_step or 'default'}.npz"
     cache.parent.mkdir(parents=True, exist_ok=True)
     extra += ["--site-map", args.site_map, "--site-map-cache", str(cache)]
     extra += ["--site-map-step", str(args.site_map_step)] if args.site_map_step else []
-    with tempfile.TemporaryDirectory() as tmp:
-        build = Path(tmp)
-        ticks, per_drop_ticks, _ = run(build, extra)
-        per = 200000 / ticks.pop("calib_200000_instructions")
-        ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
-        per_drop = {k[len("ticks:"):] if k.startswith("ticks:") else k:
-                    [round(v * per) for v in vs] if k.startswith("ticks:") else vs for k, vs in per_drop_ticks.items()}
-        sizes = {"models_tables": obj_size(build, "impactsense_forest_tables.o"),
-                 "models_m2cgen": obj_size(build, "impactsense_models_m2c.o")}
-        export = json.loads((build / "models/export.json").read_text())
-        rows = json.loads((build / "fixture.json").read_text())["rows"]
+    if args.all:
+        from impactsense.data import load_session
+        n = len(load_session())
+        fixtures = [["--rows", f"{a}:{min(a + args.chunk, n)}"] for a in range(0, n, args.chunk)]
+    else:
+        fixtures = [["--drops", str(args.drops)]]
+    per_drop: dict[str, list[int]] = {}
+    rows: list[int] = []
+    skipped: list[int] = []  # --all: drops the board does not report or the models cannot read (no full event)
+    event_max = 0
+    for k, which in enumerate(fixtures):
+        with tempfile.TemporaryDirectory() as tmp:
+            build = Path(tmp)
+            ticks, per_drop_ticks, _ = run(build, extra + which)
+            per = 200000 / ticks.pop("calib_200000_instructions")
+            ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
+            for key, vs in per_drop_ticks.items():
+                name = key[len("ticks:"):] if key.startswith("ticks:") else key
+                per_drop.setdefault(name, []).extend([round(v * per) for v in vs] if key.startswith("ticks:") else vs)
+            event_max = max(event_max, ins["event_max_over_drops"])
+            sizes = {"models_tables": obj_size(build, "impactsense_forest_tables.o"),
+                     "models_m2cgen": obj_size(build, "impactsense_models_m2c.o")}
+            export = json.loads((build / "models/export.json").read_text())
+            fixture = json.loads((build / "fixture.json").read_text())
+            rows += fixture["rows"]
+            skipped += fixture.get("skipped_rows", [])
+        if len(fixtures) > 1:
+            print(f"fixture {k + 1}/{len(fixtures)} (rows {which[1]}): slowest event {ins['event_max_over_drops']:,}",
+                  flush=True)
+    ins["event_max_over_drops"] = event_max  # the stages above: the last fixture's last capture
     print(f"per-event instructions on the Cortex-M4F (qemu -icount), {export['trees']} trees, "
           f"{export['nodes']} nodes")
     print(f"{'stage':<22}{'instructions':>14}{'of 64k':>9}{'flash bytes':>13}")
     for k in ("features", "process_event", "models_tables", "models_m2cgen", "event_total", "event_max_over_drops"):
         print(f"{k:<22}{ins[k]:>14,}{ins[k] / TARGET:>9.2f}{sizes.get(k, 0) or '':>13}")
     ev, fe = np.array(per_drop["event"]), np.array(per_drop["features"])
-    print(f"per drop ({len(ev)} session-1 drops, rows {rows[0]}..{rows[-1]} evenly spaced): whole event "
+    print(f"per drop ({len(ev)} session-1 drops, rows {rows[0]}..{rows[-1]}"
+          f"{'' if args.all else ' evenly spaced'}): whole event "
           f"min {ev.min():,} median {int(np.median(ev)):,} p95 {int(np.percentile(ev, 95)):,} max {ev.max():,}; "
           f"features min {fe.min():,} max {fe.max():,}; the rest (localiser, Eq. 35, vector, models, "
-          f"encoding) max {(ev - fe).max():,}")
+          f"encoding) max {(ev - fe).max():,}; over {TARGET:,}: {(ev > TARGET).sum()} drops")
+    if skipped:
+        print(f"  not timed: {len(skipped)} drops without a report the models make (rows {skipped[:12]}"
+              f"{' ...' if len(skipped) > 12 else ''})")
     if "twin" in per_drop:
         tw, pts = np.array(per_drop["twin"]), np.array(per_drop["twin_points"])
         print(f"  twin fingerprint (twin_features + twin_estimate at the reported position): min {tw.min():,} "

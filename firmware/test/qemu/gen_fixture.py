@@ -44,6 +44,7 @@ def main(argv=None):
     ap.add_argument("build")
     ap.add_argument("--model-dir")
     ap.add_argument("--drops", type=int, default=6)
+    ap.add_argument("--rows", default=None, help="session-1 rows A:B instead of --drops evenly spaced ones")
     ap.add_argument("--trees", type=int, default=12)
     ap.add_argument("--fs", type=int, default=50000)
     ap.add_argument("--site-map", default="auto", help="auto (the bundled twin's), none, or a site map file")
@@ -70,28 +71,56 @@ def main(argv=None):
         forest.estimators_ = forest.estimators_[:args.trees]
     fm, signal = firmware_models(build / "models")
 
-    rows = np.linspace(0, len(s) - 1, args.drops).round().astype(int)
-    frames = board_samples(s.adc[rows], s.rig.fs_hz, args.fs, adc_max=s.rig.adc_max)
+    if args.rows:
+        a, b = (int(v) for v in args.rows.split(":"))
+        rows = np.arange(max(a, 0), min(b, len(s)))
+        if rows.size == 0:
+            raise SystemExit(f"--rows {args.rows}: no session-1 rows in that range (0..{len(s) - 1})")
+    else:
+        rows = np.linspace(0, len(s) - 1, args.drops).round().astype(int)
     cfg = app_config(s.rig, args.fs, signal, dump_raw=True)
-    app = _link.App(cfg, fm)
-    dec, asm = _link.Decoder(), CaptureAssembler()
-    bodies, caps = [], []
-    for k in range(len(rows)):
-        reps = []
-        for f in dec.feed(app.feed(frames[k])):
-            if f["kind"] == "raw":
-                asm.add(f["raw"])
-            elif f["kind"] == "report":
-                reps.append(f["report"])
-                caps.append(asm.take(f["report"]["seq"]))
-        if len(reps) != 1:
-            raise SystemExit(f"drop {rows[k]}: {len(reps)} reports from the native app")
-        bodies.append(np.frombuffer(_link.report_body(reps[0]), dtype=np.uint8))
+    board_signal = signal_for_board(s.rig, signal, args.fs)
+
+    def replay(rows):
+        """The native app on the rows' board captures: report bodies, captures, one report per drop?"""
+        frames = board_samples(s.adc[rows], s.rig.fs_hz, args.fs, adc_max=s.rig.adc_max)
+        app = _link.App(cfg, fm)
+        dec, asm = _link.Decoder(), CaptureAssembler()
+        bodies, caps, one = [], [], []
+        for k in range(len(rows)):
+            reps = []
+            for f in dec.feed(app.feed(frames[k])):
+                if f["kind"] == "raw":
+                    asm.add(f["raw"])
+                elif f["kind"] == "report":
+                    reps.append(f["report"])
+                    caps.append(asm.take(f["report"]["seq"]))
+            one.append(len(reps) == 1)
+            if len(reps) == 1:
+                bodies.append(np.frombuffer(_link.report_body(reps[0]), dtype=np.uint8))
+        return frames, bodies, caps, np.array(one)
+
+    frames, bodies, caps, one = replay(rows)
+    skipped = []
+    if args.rows and not one.all():   # a range of rows: keep the drops the board reports and the models read
+        skipped = rows[~one].tolist()
+        rows = rows[one]
+        frames, bodies, caps, one = replay(rows)
+    if not one.all():
+        raise SystemExit(f"drop {rows[~one][0]}: not one report from the native app")
     caps = np.stack(caps)
-    feats = featurize(caps, signal_for_board(s.rig, signal, args.fs))
+    feats = featurize(caps, board_signal)
+    pred = model.predict(feats)
+    good = feats.usable & (pred["energy_class"] >= 0)
+    if args.rows and not good.all():
+        skipped += rows[~good].tolist()
+        rows = rows[good]
+        frames, bodies, caps, one = replay(rows)
+        caps = np.stack(caps)
+        feats = featurize(caps, board_signal)
+        pred = model.predict(feats)
     if not feats.usable.all():
         raise SystemExit("a fixture drop is not usable by the models; pick others")
-    pred = model.predict(feats)
     if (pred["energy_class"] < 0).any():
         raise SystemExit("the twin gives no estimate on a fixture drop; pick others")
     sk = np.concatenate([pred["xy_mm"], pred["energy_class"][:, None]], axis=1)
@@ -112,7 +141,8 @@ def main(argv=None):
            c_array("uint8_t", "fix_flags", feats.flags, str),
            c_array("float", "fix_sklearn", sk.astype(np.float32), fmt_f)]
     (build / "fixture.h").write_text("".join(out))
-    (build / "fixture.json").write_text(json.dumps({"rows": rows.tolist(), "model_dir": str(model_dir)}))
+    (build / "fixture.json").write_text(json.dumps({"rows": rows.tolist(), "skipped_rows": sorted(skipped),
+                                                    "model_dir": str(model_dir)}))
 
 
 if __name__ == "__main__":
