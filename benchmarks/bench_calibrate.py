@@ -62,43 +62,64 @@ def nu_study(mesh_mm, workers, reps=3) -> None:
         cfg_sim = pipeline._sim_core_config(cfg)
         feats = drops_mod.extract(session, cfg)
         targets = drops_mod.select_drops(session, feats)
-        meas = plate_fem.measured_targets(session, targets, feats, cfg)
-        noise = (float(np.median(targets.noise_rms)), 4, 0)
+        meas = plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True)
+        noise = (float(np.median(targets.noise_rms)), 4, 0, True)
         evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise))
         stiff = e_true / (1 - nu_true ** 2)
+        old = plate_fem.observable_sets(meas.names)["AIC onset + bands"]
         prof = {}
         for nu in nu_axis:
             e_nu, scan = plate_fem.e_scan(evals, meas, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
-                                          ratios=(0.98, 1.0, 1.02), walk=1.02)
+                                          ratios=(0.98, 1.0, 1.02), walk=1.02, observables=old)
             prof[nu] = scan[e_nu]
         # each drop's position as a nuisance (linearised at the declared positions, at E fitted to the AIC at
-        # nu 0.35): the profile over nu of the band arrivals' position-free chi^2, errors without the scatter
+        # nu 0.35): the profile over nu of the position-free chi^2, errors without the position scatter
         e0, _ = plate_fem.e_scan(evals, meas, stiff * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
         j_pos = plate_fem.position_jacobian(lambda xx, yy, hh: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e0 * 1e6, nu=0.35), rig, xx, yy, hh), cfg_sim, *noise),
             targets.x_mm, targets.y_mm, targets.height_mm)
         meas_pf = plate_fem.PlateTargets(dtoa=meas.dtoa, sigma=plate_fem.position_free_sigma(meas, j_pos),
                                          names=meas.names)
-        prof_pf = {}
-        for nu in nu_axis:
-            e_nu, scan = plate_fem.e_scan(evals, meas_pf, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
-                                          ratios=(0.98, 1.0, 1.02), walk=1.02,
-                                          loss=lambda o: plate_fem.chi2_position_free(o, meas_pf, j_pos, [1, 2]))
-            prof_pf[nu] = (scan[e_nu], e_nu)
         ident = plate_fem.nu_identifiability(evals, meas, e_true, nu_true, j_pos=j_pos)
-        best_pf = min(prof_pf, key=lambda k: prof_pf[k][0])
         pf = ident["position_free"]["sd_at_target_error"]
-        print(f"      position-free: sigma {', '.join(f'{v:.1f}' for v in meas_pf.sigma)} us; Fisher sd(nu) "
-              f"bands {pf['bands only']:.4f}, AIC + bands {pf['AIC onset + bands']:.4f}; band profile minimum "
-              f"nu {best_pf:.2f} (E {prof_pf[best_pf][1]:.0f} MPa, {prof_pf[best_pf][1] / e_true - 1:+.3f}), "
-              f"chi2(truth)-min {prof_pf[nu_true][0] - prof_pf[best_pf][0]:.1f}")
+        print(f"      position-free sigma us: " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_pf.sigma)))
+        print(f"      per 0.01 nu at fixed D us: " + ", ".join(f"{n} {v:.2f}" for n, v in
+                                                            ident["per_0.01_nu_at_fixed_D_us"].items()))
+        for label in ("bands only", "group delays only", "AIC onset + group delays"):
+            ks = plate_fem.observable_sets(meas.names)[label]
+            nu_hat, e_hat, gap = position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true)
+            print(f"      position-free {label:26s}: Fisher sd(nu) {pf[label]:.4f}; profile minimum nu {nu_hat:.3f} "
+                  f"({nu_hat - nu_true:+.3f}), E {e_hat:.0f} MPa ({e_hat / e_true - 1:+.3f}), chi2(truth)-min {gap:.1f}")
         best = min(prof, key=prof.get)
-        sens = ident["per_0.01_nu_at_fixed_D_us"]
+        sens = list(ident["per_0.01_nu_at_fixed_D_us"].values())[:3]
         print(f"{e_true:8.0f}, {nu_true:.2f} {seed:4d} {best:14.2f} {prof[best]:8.1f} {prof[nu_true] - prof[best]:15.1f} "
               f"{ident['sd_at_target_error']['AIC onset + bands']:15.4f} "
-              f"{', '.join(f'{v:.2f}' for v in sens.values()):>32s} {', '.join(f'{v:.1f}' for v in meas.sigma):>16s}")
+              f"{', '.join(f'{v:.2f}' for v in sens):>32s} {', '.join(f'{v:.1f}' for v in meas.sigma[:3]):>16s}", flush=True)
         print("      profile chi2 over nu 0.30..0.40: " + " ".join(f"{prof[nu]:.0f}" for nu in nu_axis))
+
+
+def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true):
+    """The position-free chi^2 over `ks` profiled over nu (E fitted at each nu): the vertex of a parabola
+    through the best three nu, E there (interpolated in ln E), and chi^2(truth) - min."""
+    import numpy as np
+
+    from impactsense.calibration import plate_fem
+    prof = {}
+    for nu in nu_axis:
+        e_nu, scan = plate_fem.e_scan(evals, meas_pf, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
+                                      ratios=(0.98, 1.0, 1.02), walk=1.02,
+                                      loss=lambda o: plate_fem.chi2_position_free(o, meas_pf, j_pos, ks))
+        prof[nu] = (scan[e_nu], e_nu)
+    nus = sorted(prof)
+    i = int(np.argmin([prof[n][0] for n in nus]))
+    nu_hat, e_hat = nus[i], prof[nus[i]][1]
+    if 0 < i < len(nus) - 1:
+        c2, c1, _ = np.polyfit(nus[i - 1:i + 2], [prof[n][0] for n in nus[i - 1:i + 2]], 2)
+        if c2 > 0:
+            nu_hat = float(np.clip(-c1 / (2 * c2), nus[i - 1], nus[i + 1]))
+            e_hat = float(np.exp(np.interp(nu_hat, nus, [np.log(prof[n][1]) for n in nus])))
+    return nu_hat, e_hat, prof[nu_true][0] - prof[nus[i]][0]
 
 
 def position_scan(mesh_mm, workers) -> None:

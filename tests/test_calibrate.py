@@ -394,11 +394,12 @@ def test_group_delays_recover_packet_delays_smoothly_and_remove_channel_delays()
     early and declared so is put back."""
     from impactsense.calibration import group_delay
     fs = 100_000.0
+    band = ((2000.0, 5000.0, 2000.0),)              # the packets lie in the window's flat part
     delays = np.array([0.0, 123.4, -50.2, 210.7])
     rec, t = _bursts(delays)
     toa = np.round((4200.0 + delays) / 10) * 10.0         # sample-quantised onsets, as the core's
     toa = toa[None]
-    got = group_delay.group_delays(rec, toa, fs, plate.PAIR_I, plate.PAIR_J)[0]
+    got = group_delay.group_delays(rec, toa, fs, plate.PAIR_I, plate.PAIR_J, bands=band)[0]
     want = delays[plate.PAIR_I] - delays[plate.PAIR_J]
     assert np.allclose(got, want[None], atol=1.5), got
     steps = []
@@ -406,13 +407,15 @@ def test_group_delays_recover_packet_delays_smoothly_and_remove_channel_delays()
         d = delays.copy()
         d[1] += k * 1.0
         r2, _ = _bursts(d)
-        steps.append(group_delay.group_delays(r2, np.round((4200.0 + d) / 10)[None] * 10.0, fs, plate.PAIR_I, plate.PAIR_J)[0])
+        toa2 = np.round((4200.0 + d) / 10)[None] * 10.0
+        steps.append(group_delay.group_delays(r2, toa2, fs, plate.PAIR_I, plate.PAIR_J, bands=band)[0])
     moved = np.diff(np.stack([got] + steps), axis=0)            # [10, B, 6]: per 1 us of channel 1
     sign = (np.asarray(plate.PAIR_I) == 1).astype(float) - (np.asarray(plate.PAIR_J) == 1)
     assert np.allclose(moved, sign[None, None, :], atol=0.15), moved
     early = rec.copy()
     early[0, 2] = np.interp(t + 6e-6, t, rec[0, 2])
-    got2 = group_delay.group_delays(early, toa, fs, plate.PAIR_I, plate.PAIR_J, channel_delay_us=[0, 0, -6.0, 0])[0]
+    got2 = group_delay.group_delays(early, toa, fs, plate.PAIR_I, plate.PAIR_J, channel_delay_us=[0, 0, -6.0, 0],
+                                    bands=band)[0]
     assert np.allclose(got2, got, atol=0.3)
     with pytest.raises(ValueError, match="adc must be"):
         group_delay.group_delays(rec[0], toa, fs, plate.PAIR_I, plate.PAIR_J)

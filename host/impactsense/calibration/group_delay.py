@@ -7,15 +7,18 @@ no threshold and no argmax, so it moves continuously.
 
 The observable, per band and channel: the record, baseline removed, through a zero-phase Butterworth
 band-pass (the same filter on every channel: its delay cancels in the pair differences), Hilbert envelope e(t);
-the packet time c is the fixed point of c = sum t K(t - c) e(t)^2 / sum K(t - c) e(t)^2 with K a biweight
-kernel of half-width `HALF_US` (a mean shift to the nearest mode of the smoothed energy, started at the
-channel's own AIC onset: the start only picks the basin, not the value, so the onset's 10 us steps do not
-reach it). The group delay of pair (i, j) is c_i - c_j (the core's ToA_i - ToA_j order). The rig's
-per-channel delays are removed as the core removes them from its ToA.
+the packet time c = sum t W(t) e(t)^2 / sum W(t) e(t)^2, with one window W common to the event's four channels:
+a cosine rise over `RISE_US` to `LEAD_US` before the mean of the four AIC onsets, flat to `FLAT_US` after it,
+a cosine fall over `TAPER_US`. No threshold, no argmax, no mode picking: c is a smooth function of the record,
+and of the anchor (a 10 us step of one onset moves the anchor by 2.5 us and the centroid by a fraction of that,
+the window's edges sitting where the band's energy is small). The group delay of pair (i, j) is c_i - c_j (the
+core's ToA_i - ToA_j order). The rig's per-channel delays are removed as the core removes them from its ToA.
 
-Tried first and dropped: the lag of the envelopes' cross-correlation maximum (parabolic vertex) in a window
-common to the event: smooth in 1-4 kHz (0.6 us rms off a straight line over +-1.5 mm) but it jumps by up to
-300 us in 2-5 kHz when two correlation peaks swap.
+Tried first and dropped (`--position-scan`, FEM drops made with 1 mm jitter):
+- the lag of the envelopes' cross-correlation maximum: smooth in 1-4 kHz, jumps up to 300 us in 2-5 kHz when
+  two correlation peaks swap;
+- a mean shift to the nearest mode of the kernel-smoothed energy: smooth along the scan, but between
+  repetitions 1 mm apart it lands in different modes (jumps of 400 us).
 """
 
 from __future__ import annotations
@@ -25,11 +28,13 @@ from functools import lru_cache
 import numpy as np
 from scipy.signal import butter, hilbert, sosfiltfilt
 
-# (low Hz, high Hz, kernel half-width us): chosen on `bench_calibrate.py --position-scan` (smooth in position)
-BANDS = ((1000.0, 3000.0, 600.0), (2000.0, 5000.0, 1000.0), (3000.0, 8000.0, 300.0))
+# (low Hz, high Hz, flat part of the window after the mean onset, us): chosen on `bench_calibrate.py
+# --position-scan` (smooth in position) and on their nu sensitivity against noise
+BANDS = ((1000.0, 3000.0, 1000.0), (2000.0, 5000.0, 500.0), (5000.0, 15000.0, 500.0))
 ORDER = 2
-ITERATIONS = 40
-TOL_US = 1e-3
+RISE_US = 300.0
+LEAD_US = 300.0
+TAPER_US = 1000.0
 
 
 @lru_cache(maxsize=8)
@@ -37,29 +42,28 @@ def _sos(lo, hi, fs):
     return butter(ORDER, [lo, hi], btype="band", fs=fs, output="sos")
 
 
-def packet_times(env, start_us, half_us, us_per_sample) -> np.ndarray:
-    """Mean-shift packet times [...] us of envelopes env [..., S] started at start_us [...] (finite)."""
+def window(t_us, anchor_us, flat_us) -> np.ndarray:
+    """[n, S] weights: cosine rise over RISE up to anchor - LEAD, 1 until anchor + flat, cosine fall over TAPER."""
+    rel = t_us[None, :] - np.asarray(anchor_us, float)[:, None]
+    rise = 0.5 * (1 - np.cos(np.pi * np.clip((rel + LEAD_US + RISE_US) / RISE_US, 0.0, 1.0)))
+    fall = 0.5 * (1 + np.cos(np.pi * np.clip((rel - flat_us) / TAPER_US, 0.0, 1.0)))
+    return rise * fall
+
+
+def packet_times(env, anchor_us, flat_us, us_per_sample) -> np.ndarray:
+    """Energy centroids [n, C] us of envelopes env [n, C, S] in each event's window (anchor_us [n])."""
     t = np.arange(env.shape[-1]) * us_per_sample
-    e2 = env ** 2
-    c = np.asarray(start_us, float).copy()
-    for _ in range(ITERATIONS):
-        k = np.clip(1.0 - ((t - c[..., None]) / half_us) ** 2, 0.0, None) ** 2
-        w = k * e2
-        tot = w.sum(-1)
-        new = np.where(tot > 0, (w * t).sum(-1) / np.where(tot > 0, tot, 1.0), np.nan)
-        done = np.nanmax(np.abs(new - c)) < TOL_US if np.isfinite(new).any() else True
-        c = new
-        if done:
-            break
-    return c
+    w = window(t, anchor_us, flat_us)[:, None, :] * env ** 2
+    tot = w.sum(-1)
+    return np.where(tot > 0, (w * t).sum(-1) / np.where(tot > 0, tot, 1.0), np.nan)
 
 
 def group_delays(adc, toa_us, fs_hz, pair_i, pair_j, *, channel_delay_us=(0.0, 0.0, 0.0, 0.0), bands=None,
                  baseline_samples=100) -> np.ndarray:
     """Band group delays [n, B, P] us of records adc [n, 4, S] (raw counts) for the pairs (pair_i, pair_j).
 
-    toa_us [n, 4]: the core's onsets (channel delays removed), each channel's mean-shift start. NaN where a
-    channel has no onset."""
+    toa_us [n, 4]: the core's onsets (channel delays removed); their mean (over the finite ones) anchors the
+    event's window. NaN for an event with no onset."""
     bands = BANDS if bands is None else bands
     x = np.asarray(adc, float)
     if x.ndim != 3 or x.shape[1] != 4:
@@ -69,10 +73,12 @@ def group_delays(adc, toa_us, fs_hz, pair_i, pair_j, *, channel_delay_us=(0.0, 0
     delay = np.asarray(channel_delay_us, float)
     raw = np.asarray(toa_us, float) + delay[None, :]                 # record time of each onset [n, 4]
     ok = np.isfinite(raw)
+    has = ok.any(axis=1)
+    anchor = np.array([r[f].mean() if f.any() else 0.0 for r, f in zip(raw, ok)])
     out = np.empty((x.shape[0], len(bands), len(pair_i)))
-    for b, (lo, hi, half) in enumerate(bands):
+    for b, (lo, hi, flat) in enumerate(bands):
         env = np.abs(hilbert(sosfiltfilt(_sos(lo, hi, float(fs_hz)), x, axis=-1), axis=-1))
-        c = np.where(ok, packet_times(env, np.where(ok, raw, 0.0), half, us), np.nan) - delay[None, :]
+        c = np.where(has[:, None], packet_times(env, anchor, flat, us), np.nan) - delay[None, :]
         out[:, b] = c[:, pair_i] - c[:, pair_j]
     return out
 

@@ -194,7 +194,8 @@ def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_l
     out = {"sd_at_target_error": {}, "sd": {}, "per_0.01_nu_at_fixed_D_us": {}, "per_1pct_E_us": {},
            "model_error_scale": scale, "definition": "sd(nu) with E free = 1 / |J_nu - projection on J_lnE| in "
            "target-standard-error units (independent errors: a best case), x sqrt(max(1, chi^2 / dof))"}
-    for label, ks in (("AIC onset only", [0]), ("AIC onset + bands", list(range(len(meas.names))))):
+    sets = observable_sets(meas.names)
+    for label, ks in sets.items():
         a = (j_e * w)[:, ks].ravel()
         b = (j_nu * w)[:, ks].ravel()
         b_orth = b - a * (a @ b) / (a @ a)
@@ -209,15 +210,23 @@ def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_l
         # each drop's position profiled out, the targets' errors re-estimated without the position scatter
         sig = position_free_sigma(meas, j_pos)
         m2 = PlateTargets(dtoa=meas.dtoa, sigma=sig, names=meas.names)
-        n_obs = len(meas.names)
         out["position_free"] = {
             "sigma_us": sig.tolist(),
-            "sd_at_target_error": {label: fisher_sd_nu(j_e, j_nu, m2, ks, j_pos) for label, ks in
-                                   (("AIC onset only", [0]), ("bands only", list(range(1, n_obs))),
-                                    ("AIC onset + bands", list(range(n_obs))))},
+            "sd_at_target_error": {label: fisher_sd_nu(j_e, j_nu, m2, ks, j_pos)
+                                   for label, ks in observable_sets(meas.names).items()},
             "definition": "as sd, with each drop's (x, y) free (linearised, FEM central differences) and the "
                           "targets' standard errors from the repetitions' spread with their own positions "
                           "profiled out"}
+    return out
+
+
+def observable_sets(obs_names) -> dict:
+    """Named index sets of the observables: the AIC onset, the band 30 % crossings, the band group delays."""
+    env = [k for k, n in enumerate(obs_names) if n.startswith("envelope")]
+    gd = [k for k, n in enumerate(obs_names) if n.startswith("group delay")]
+    out = {"AIC onset only": [0], "bands only": env, "AIC onset + bands": [0] + env}
+    if gd:
+        out.update({"group delays only": gd, "AIC onset + group delays": [0] + gd})
     return out
 
 
@@ -277,13 +286,16 @@ def fisher_sd_nu(j_e, j_nu, meas: PlateTargets, observables, j_pos=None) -> floa
 
 def position_free_sigma(meas: PlateTargets, j_pos) -> np.ndarray:
     """The targets' standard errors [K] us once each repetition's own position is profiled out: each
-    repetition's deviation from its case's mean, with the case's position directions (unweighted) projected
-    out, pooled per observable (corrected for the 2 of 3K independent pair dimensions the projection removes and
+    repetition's deviation from its case's mean, with the case's position directions (each observable scaled
+    by its raw spread) projected out, pooled per observable (corrected for the 2 of 3K independent pair dimensions the projection removes and
     for the case mean), over sqrt(repetitions). What is left is the picks' noise, not the position scatter."""
     if meas.per_rep is None:
         raise ValueError("position_free_sigma needs the targets' per-repetition observables (measured_targets)")
     k = len(meas.names)
-    unit = PlateTargets(dtoa=meas.dtoa, sigma=np.ones(k), names=meas.names)
+    # the position directions in units of each observable's raw spread (observables of very different scatter
+    # would otherwise let the largest decide the directions)
+    raw = np.sqrt(np.nanmean([np.nanvar(o, axis=0, ddof=1).mean(axis=-1) for o in meas.per_rep], axis=0))
+    unit = PlateTargets(dtoa=meas.dtoa, sigma=np.where(raw > 0, raw, 1.0), names=meas.names)
     proj = _position_projector(j_pos, unit)
     ss, n, reps = np.zeros(k), 0.0, []
     for d, obs in enumerate(meas.per_rep):
