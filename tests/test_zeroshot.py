@@ -189,3 +189,15 @@ def test_an_interrupted_virtual_set_is_not_reused(session1, tmp_path, monkeypatc
     assert not zeroshot.virtual_set(params, session1, sim_dir, 6, 0, 1, False)[1] and calls == [6, 6]
     other = SimParams(e_pa=params.e_pa * 1.1)
     assert not zeroshot.virtual_set(other, session1, sim_dir, 6, 0, 1, False)[1] and calls == [6, 6, 6]
+
+
+def test_demo_zero_shot_with_a_bad_calibration_fails_before_the_measured_half(tmp_path, capsys):
+    """`impactsense demo --zero-shot --calibration BAD`: exit status 2 with the file named, and the demo's output
+    folder is not even made (the measured half used to run and write first)."""
+    from impactsense.cli import main
+
+    bad = tmp_path / "CAL.json"
+    bad.write_text('{"exclude_case_ids": [0, 3, 41, 2]}')
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--zero-shot", "--calibration", str(bad)]) == 2
+    assert "sim_params" in capsys.readouterr().err and not out.exists()

@@ -180,11 +180,8 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
     return load_session(sim_dir), cached
 
 
-def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
-                  seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
-                  use_twin: bool = True) -> dict:
-    from .sim import SimParams, simulate_drops
-
+def read_calibration(cal_path: str | Path) -> dict:
+    """CAL.json as a dict, or a DataError naming the file and field (checked before any work starts)."""
     cal_path = Path(cal_path)
     if not cal_path.is_file():
         raise DataError(cal_path, None, "calibration file not found (run `impactsense calibrate` first)")
@@ -192,8 +189,18 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         cal = json.loads(cal_path.read_text())
     except ValueError as e:
         raise DataError(cal_path, None, f"not valid JSON ({e})") from None
-    if "sim_params" not in cal:
+    if not isinstance(cal, dict) or "sim_params" not in cal:
         raise DataError(cal_path, "sim_params", "missing key")
+    return cal
+
+
+def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
+                  seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
+                  use_twin: bool = True) -> dict:
+    from .sim import SimParams, simulate_drops
+
+    cal_path = Path(cal_path)
+    cal = read_calibration(cal_path)
     params = SimParams.from_json(cal_path)
     cal_rows = calibration_rows(session, cal)
     if n_virtual < 2:

@@ -50,6 +50,10 @@ def run(args) -> int:
     from ..workflow import evaluate, train, write_json
 
     t0 = time.time()
+    if args.zero_shot and args.calibration:   # a bad CAL.json fails before anything is trained or written
+        from ..zeroshot import read_calibration
+
+        read_calibration(args.calibration)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     session = load_session(args.data)
