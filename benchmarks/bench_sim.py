@@ -164,13 +164,13 @@ def bench_sparse(m, quick: bool):
 
 
 def bench_dataset(rig, n: int, workers: int):
-    from impactsense.commands.simulate_dataset import doe
+    from impactsense.sim.doe import virtual_drops
     from impactsense.sim import SimParams, simulate_voltages, to_adc
     from impactsense.sim.simulate import _CACHE
 
     _CACHE.clear()
     p = SimParams.from_rig(rig)
-    x, y, h = doe(rig, n, 0, 20.0, 25.0)
+    x, y, h = virtual_drops(rig, n, 0)
     t0 = time.perf_counter()
     res = simulate_voltages(p, rig, x, y, h, workers=workers, progress=False)
     adc = to_adc(res["volts"], p, rig, noise=True, seed=0)

@@ -136,25 +136,6 @@ def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, sit
                               slope=np.asarray(model.twin_fit.slope))
 
 
-def _virtual_positions(rig, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sobol (x, y, h) 20 mm inside the edges and 25 mm from the sensors; h 100..200 mm in 5 mm steps."""
-    from scipy.stats import qmc
-
-    edge, clearance = 20.0, 25.0
-    sensors = rig.sensor_xy_mm
-    pts = []
-    sampler = qmc.Sobol(d=3, scramble=True, seed=seed)
-    while len(pts) < n:
-        u = sampler.random(64)
-        x = edge + u[:, 0] * (rig.plate_x_mm - 2 * edge)
-        y = edge + u[:, 1] * (rig.plate_y_mm - 2 * edge)
-        h = 100.0 + 5.0 * np.floor(u[:, 2] * 21)
-        far = np.min(np.hypot(x[:, None] - sensors[None, :, 0], y[:, None] - sensors[None, :, 1]), 1) >= clearance
-        pts.extend(zip(x[far], y[far], h[far]))
-    x, y, h = (np.array(v[:n]) for v in zip(*pts))
-    return x, y, h
-
-
 def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, workers: int,
                 progress: bool) -> tuple[Session, bool]:
     """The virtual data set, written as a session folder so every tool can read it. Reused only when it was
@@ -162,8 +143,9 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
     name); `made_with.json` is written last, so an interrupted run leaves no set that counts as made.
     Returns (the set, whether it came from the cache)."""
     from .sim import simulate_drops
+    from .sim.doe import virtual_drops
 
-    made_with = {"sim_params": params.to_dict(), "seed": seed}
+    made_with = {"sim_params": params.to_dict(), "seed": seed, "layout": "sim.doe.virtual_drops"}
     stamp = sim_dir / "made_with.json"
     try:
         cached = (sim_dir / "recordings.npz").is_file() and json.loads(stamp.read_text()) == made_with
@@ -171,7 +153,7 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
         cached = False
     if not cached:
         stamp.unlink(missing_ok=True)
-        x, y, h = _virtual_positions(session.rig, n, seed)
+        x, y, h = virtual_drops(session.rig, n, seed)
         rng = np.random.default_rng(seed)
         adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
                              workers=workers, progress=progress)

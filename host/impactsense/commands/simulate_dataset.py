@@ -28,42 +28,19 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def doe(rig, n: int, seed: int, edge_mm: float, clearance_mm: float):
-    """Sobol (x, y, h) away from sensors; h in 100..200 mm, 5 mm steps."""
-    import numpy as np
-    from scipy.stats import qmc
-
-    from ..errors import ConfigError
-
-    if n < 1:
-        raise ConfigError(f"--n must be >= 1, got {n}")
-    if not (0 <= edge_mm < min(rig.plate_x_mm, rig.plate_y_mm) / 2):
-        raise ConfigError(f"--edge-mm {edge_mm} leaves no plate")
-    sob = qmc.Sobol(d=3, scramble=True, seed=seed)
-    pts = np.empty((0, 3))
-    while pts.shape[0] < n:
-        u = sob.random(1 << int(np.ceil(np.log2(max(2 * n, 2)))))
-        x = edge_mm + u[:, 0] * (rig.plate_x_mm - 2 * edge_mm)
-        y = edge_mm + u[:, 1] * (rig.plate_y_mm - 2 * edge_mm)
-        h = 100.0 + 5.0 * np.minimum(np.floor(u[:, 2] * 21), 20)
-        d = np.hypot(x[:, None] - rig.sensor_x_mm, y[:, None] - rig.sensor_y_mm).min(axis=1)
-        ok = d >= max(clearance_mm, rig.sensor_diameter_mm / 2 + rig.ball_diameter_mm / 2 + 1)
-        pts = np.vstack([pts, np.stack([x, y, h], axis=1)[ok]])
-    return pts[:n, 0], pts[:n, 1], pts[:n, 2]
-
-
 def run(args) -> int:
     import numpy as np
 
     from ..data import write_session
     from ..errors import ConfigError
     from ..sim import simulate_voltages, to_adc
+    from ..sim.doe import virtual_drops
     from .simulate import load_inputs
 
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     params, rig = load_inputs(args)
-    x, y, h = doe(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
+    x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
     t0 = time.perf_counter()
     res = simulate_voltages(params, rig, x, y, h, method=args.method, workers=args.workers, progress=True)
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
