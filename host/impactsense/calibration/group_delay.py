@@ -8,10 +8,12 @@ no threshold and no argmax, so it moves continuously.
 The observable, per band and channel: the record, baseline removed, through a zero-phase Butterworth
 band-pass (the same filter on every channel: its delay cancels in the pair differences), Hilbert envelope e(t);
 the packet time c = sum t W(t) e(t)^2 / sum W(t) e(t)^2, with one window W common to the event's four channels:
-a cosine rise over `RISE_US` to `LEAD_US` before the mean of the four AIC onsets, flat to `FLAT_US` after it,
-a cosine fall over `TAPER_US`. No threshold, no argmax, no mode picking: c is a smooth function of the record,
-and of the anchor (a 10 us step of one onset moves the anchor by 2.5 us and the centroid by a fraction of that,
-the window's edges sitting where the band's energy is small). The group delay of pair (i, j) is c_i - c_j (the
+a cosine rise over `RISE_US` to `LEAD_US` before the anchor, flat to `FLAT_US` after it, a cosine fall over
+`TAPER_US`. No threshold, no argmax, no mode picking: c is a smooth function of the record and of the anchor.
+The anchor must then be smooth and quiet itself (a 10 us shift of it moves c by 1-5 us): not the mean of the
+four AIC onsets (10 us steps, ~4 us of noise), but one step from it: the energy centroid of the four channels'
+summed 1-15 kHz energy in the window `ANCHOR_FLAT_US` long from the mean onset, less `ANCHOR_OFFSET_US` (a
+constant: the centroid sits ~0.85 ms after the onsets). It moves by ~0.2 us per us of the mean onset. The group delay of pair (i, j) is c_i - c_j (the
 core's ToA_i - ToA_j order). The rig's per-channel delays are removed as the core removes them from its ToA.
 
 Tried first and dropped (`--position-scan`, FEM drops made with 1 mm jitter):
@@ -35,6 +37,9 @@ ORDER = 2
 RISE_US = 300.0
 LEAD_US = 300.0
 TAPER_US = 1000.0
+ANCHOR_BAND_HZ = (1000.0, 15000.0)
+ANCHOR_FLAT_US = 2500.0
+ANCHOR_OFFSET_US = 850.0
 
 
 @lru_cache(maxsize=8)
@@ -58,12 +63,19 @@ def packet_times(env, anchor_us, flat_us, us_per_sample) -> np.ndarray:
     return np.where(tot > 0, (w * t).sum(-1) / np.where(tot > 0, tot, 1.0), np.nan)
 
 
+def event_anchor(x, mean_onset_us, fs_hz) -> np.ndarray:
+    """Each event's window anchor [n] us (record time) from baseline-removed records x [n, 4, S]."""
+    e2 = (np.abs(hilbert(sosfiltfilt(_sos(*ANCHOR_BAND_HZ, float(fs_hz)), x, axis=-1), axis=-1)) ** 2).sum(1)
+    c = packet_times(e2[:, None, :] ** 0.5, mean_onset_us, ANCHOR_FLAT_US, 1e6 / fs_hz)[:, 0]
+    return np.where(np.isfinite(c), c - ANCHOR_OFFSET_US, mean_onset_us)
+
+
 def group_delays(adc, toa_us, fs_hz, pair_i, pair_j, *, channel_delay_us=(0.0, 0.0, 0.0, 0.0), bands=None,
                  baseline_samples=100) -> np.ndarray:
     """Band group delays [n, B, P] us of records adc [n, 4, S] (raw counts) for the pairs (pair_i, pair_j).
 
-    toa_us [n, 4]: the core's onsets (channel delays removed); their mean (over the finite ones) anchors the
-    event's window. NaN for an event with no onset."""
+    toa_us [n, 4]: the core's onsets (channel delays removed); their mean (over the finite ones) starts the
+    event's anchor (`event_anchor`). NaN for an event with no onset."""
     bands = BANDS if bands is None else bands
     x = np.asarray(adc, float)
     if x.ndim != 3 or x.shape[1] != 4:
@@ -74,7 +86,7 @@ def group_delays(adc, toa_us, fs_hz, pair_i, pair_j, *, channel_delay_us=(0.0, 0
     raw = np.asarray(toa_us, float) + delay[None, :]                 # record time of each onset [n, 4]
     ok = np.isfinite(raw)
     has = ok.any(axis=1)
-    anchor = np.array([r[f].mean() if f.any() else 0.0 for r, f in zip(raw, ok)])
+    anchor = event_anchor(x, np.array([r[f].mean() if f.any() else 0.0 for r, f in zip(raw, ok)]), fs_hz)
     out = np.empty((x.shape[0], len(bands), len(pair_i)))
     for b, (lo, hi, flat) in enumerate(bands):
         env = np.abs(hilbert(sosfiltfilt(_sos(lo, hi, float(fs_hz)), x, axis=-1), axis=-1))
