@@ -12,7 +12,10 @@ position jitter (8 cases x 3 repetitions; the calibration's four drops chosen fr
 the sub-problem-1 objective (AIC DToA + band arrivals, `plate_fem`) over nu = 0.30..0.40 with E fitted at each
 nu, and the best-case Fisher sd(nu) at the truth. Prints, per truth: the profile's minimum, chi^2 at the truth
 minus the minimum, and the sensitivities (docs/findings.md). Then the same with each drop's position as a
-nuisance (`plate_fem.chi2_position_free`, band arrivals, errors re-estimated without the position scatter).
+nuisance (`plate_fem.chi2_position_free`, errors re-estimated without the position scatter) for three sets of
+observables: the band 30 % crossings, the band group delays (`group_delay`), the AIC DToA + group delays; each
+with its Fisher sd(nu), the profile's minimum (parabola vertex) and E there.
+--position-scan: how smoothly each observable follows a drop's position (noiseless FEM, 0.25 mm steps).
 """
 
 from __future__ import annotations
