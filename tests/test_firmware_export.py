@@ -155,6 +155,13 @@ def test_cli_export(exported, tmp_path):
     sweep = json.loads((tmp_path / "m" / "export.json").read_text())["tree_sweep"]
     twin = "twin" in json.loads((model_dir / "model_card.json").read_text())
     assert sweep and all(("forest_mae_mm" in r) == twin for r in sweep)
+    # ... and never more trees than a budget allows: the flash, and for a twin model the per-event cycles.
+    from impactsense.export import TWIN_MAX_TREES
+
+    chosen = json.loads((tmp_path / "m" / "export.json").read_text())["trees"]["x"]
+    assert next(r for r in sweep if r["trees"] == chosen)["within_budgets"]
+    if twin:
+        assert all(r["within_budgets"] == (r["trees"] <= TWIN_MAX_TREES) for r in sweep)
 
 
 def test_export_rejects_incomplete_model_dir(tmp_path):

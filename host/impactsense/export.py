@@ -425,13 +425,21 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
     return out
 
 
+# The per-event cycle budget (issue 6: <= 64,000 instructions, 1 ms at 64 MHz) bounds the localisation forests of
+# a twin model: with 10 trees per coordinate every session-1 drop fits (max 63.7k; with 15, 65.0k on the worst
+# drop), measured by `python3 benchmarks/bench_firmware_cost.py --all --trees N` (qemu instruction counts).
+TWIN_MAX_TREES = 10
+
+
 def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarray | None, xy: np.ndarray | None,
-                 tol_mm: float = 0.2, budget_bytes: int = 256 * 1024, twin_eval=None) -> tuple[int, list[dict]]:
+                 tol_mm: float = 0.2, budget_bytes: int = 256 * 1024, twin_eval=None,
+                 max_trees: int | None = None) -> tuple[int, list[dict]]:
     """Trees per coordinate forest: the smallest prefix within tol_mm MAE of the full forests on the held-out
     drops (vector: the core's feature vectors, usable rows only), shrunk further if the tables would
-    exceed the flash budget. A prefix of a random forest is itself a random forest. With the twin (and
-    twin_eval = (twin features [R, 16], usable masks [R]) of the same drops) the MAE is the reported
-    position's: the twin's match around each prefix's position (mae_mm; the forests' own: forest_mae_mm)."""
+    exceed the flash budget or the prefix would exceed max_trees (the cycle budget's bound). A prefix of a
+    random forest is itself a random forest. With the twin (and twin_eval = (twin features [R, 16], usable
+    masks [R]) of the same drops) the MAE is the reported position's: the twin's match around each prefix's
+    position (mae_mm; the forests' own: forest_mae_mm). Each row says whether it fits both budgets."""
     n_all = len(models.x.estimators_)
     if vector is None or len(vector) == 0:
         return n_all, []
@@ -449,10 +457,11 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
             tw = twin_xy(models.twin, *twin_eval, pos)
             ok = np.isfinite(tw).all(1)
             row.update(forest_mae_mm=row["mae_mm"], mae_mm=float(np.mean(np.hypot(*(tw[ok] - xy[ok]).T))))
+        row["within_budgets"] = b <= budget_bytes and (max_trees is None or k <= max_trees)
         rows.append(row)
     best = min(r["mae_mm"] for r in rows)
     chosen = min(r["trees"] for r in rows if r["mae_mm"] <= best + tol_mm)
-    fits = [r["trees"] for r in rows if r["table_bytes"] <= budget_bytes]
+    fits = [r["trees"] for r in rows if r["within_budgets"]]
     if fits and chosen > max(fits):
         chosen = max(fits)
     return chosen, rows
@@ -468,7 +477,8 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
     model_hash = hashlib.sha256(card_bytes).hexdigest()[:16]
     sweep = []
     if trees == "auto":
-        k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval)
+        k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval,
+                                max_trees=TWIN_MAX_TREES if models.twin is not None else None)
     elif trees == "all":
         k = len(models.x.estimators_)
     else:

@@ -19,7 +19,8 @@ def register(sub):
     p.add_argument("--out", default="models", help="output folder (default: models/)")
     p.add_argument("--trees", default="auto",
                    help="trees per coordinate forest: auto (default: the smallest within 0.2 mm of the best "
-                        "on the held-out drops, within the 256 KB flash budget), all, or N")
+                        "on the held-out drops, within the 256 KB flash budget and, for a twin model, the "
+                        "per-event cycle budget's 10 trees), all, or N")
     p.add_argument("--rate", default="50000",
                    help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
                         "'native' exports MODEL_DIR's forests unchanged")
@@ -57,7 +58,7 @@ def run(args) -> int:
     for row in s["tree_sweep"]:
         forest = f" (the forests' {row['forest_mae_mm']:.2f} mm)" if "forest_mae_mm" in row else ""
         print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm{forest}, "
-              f"{row['table_bytes'] / 1024:.1f} KB of tables")
+              f"{row['table_bytes'] / 1024:.1f} KB of tables{'' if row['within_budgets'] else ', over a budget'}")
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
     acc = _board_accuracy(model_dir, card, args.out)
