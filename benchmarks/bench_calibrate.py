@@ -102,7 +102,7 @@ def nu_study(mesh_mm, workers, reps=3) -> None:
         print("      profile chi2 over nu 0.30..0.40: " + " ".join(f"{prof[nu]:.0f}" for nu in nu_axis))
 
 
-def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true):
+def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true, loss=None):
     """The position-free chi^2 over `ks` profiled over nu (E fitted at each nu): the vertex of a parabola
     through the best three nu, E there (interpolated in ln E), and chi^2(truth) - min."""
     import numpy as np
@@ -112,7 +112,7 @@ def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true):
     for nu in nu_axis:
         e_nu, scan = plate_fem.e_scan(evals, meas_pf, stiff * (1 - nu ** 2), nu, (1000.0, 9000.0),
                                       ratios=(0.98, 1.0, 1.02), walk=1.02,
-                                      loss=lambda o: plate_fem.chi2_position_free(o, meas_pf, j_pos, ks))
+                                      loss=loss or (lambda o: plate_fem.chi2_position_free(o, meas_pf, j_pos, ks)))
         prof[nu] = (scan[e_nu], e_nu)
     nus = sorted(prof)
     i = int(np.argmin([prof[n][0] for n in nus]))
@@ -123,6 +123,70 @@ def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true):
             nu_hat = float(np.clip(-c1 / (2 * c2), nus[i - 1], nus[i + 1]))
             e_hat = float(np.exp(np.interp(nu_hat, nus, [np.log(prof[n][1]) for n in nus])))
     return nu_hat, e_hat, prof[nu_true][0] - prof[nus[i]][0]
+
+
+def nu_oracle(mesh_mm, workers, reps=3) -> None:
+    """The best that a per-repetition position fit (next step (b) of issue 4) could do: the nu-study's drops
+    (same truths, seeds, 1 mm jitter, noise), but the twin simulates every repetition at its TRUE jittered
+    position and is compared repetition by repetition (errors: the noise-only, position-free sigma x
+    sqrt(reps)). Profile over nu with E fitted at each nu, for the group delays alone and AIC + group delays.
+    If this misses, no position fit can recover nu from these observables."""
+    import numpy as np
+    from scipy.stats import qmc
+
+    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
+    from impactsense.data import load_session, write_session
+    from impactsense.sim import SimParams, simulate_drops
+
+    rig = load_session("bundled").rig
+    over = {} if mesh_mm is None else {"element_mm": mesh_mm}
+    sim = fem.fem_simulator(workers=workers, **over)
+    u = qmc.Sobol(3, seed=1).random(32)[:8]
+    cx = np.where(u[:, 0] < 0.5, 50 + u[:, 0] * 160, 190 + (u[:, 0] - 0.5) * 160)
+    cy, ch = 50 + u[:, 1] * 217, 100 + np.round(u[:, 2] * 20) * 5
+    nu_axis = np.round(np.arange(0.30, 0.4001, 0.01), 3)
+    print(f"{'truth E, nu':>14s} {'observables':26s} {'nu hat':>7s} {'nu err':>7s} {'E err':>7s} {'chi2(truth)-min':>15s}"
+          f" {'chi2/dof at truth':>17s}")
+    for e_true, nu_true, seed in ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6)):
+        t0 = time.perf_counter()
+        truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
+        rng = np.random.default_rng(seed)
+        x, y, h = (np.repeat(v, reps) for v in (cx, cy, ch))
+        xj, yj = x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size)
+        p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
+        adc = simulate_drops(p, rig, xj, yj, h, noise=True, seed=seed + 2, progress=False)
+        path = Path(tempfile.mkdtemp(prefix="nu-oracle-")) / "s"
+        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), reps),
+                      repetition=np.tile(np.arange(reps), 8))
+        session = load_session(path)
+        cfg = pipeline.core_config(rig, CalibrateOptions())
+        cfg_sim = pipeline._sim_core_config(cfg)
+        feats = drops_mod.extract(session, cfg)
+        targets = drops_mod.select_drops(session, feats)
+        meas = plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True)
+        noise = (float(np.median(targets.noise_rms)), 4, 0, True)
+        e0 = e_true
+        j_pos = plate_fem.position_jacobian(lambda xx, yy, hh: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e0 * 1e6, nu=0.35), rig, xx, yy, hh), cfg_sim, *noise),
+            targets.x_mm, targets.y_mm, targets.height_mm)
+        recs = np.concatenate([np.asarray(r, int) for r in targets.recording_ids])
+        per_rep = np.concatenate(meas.per_rep)                                        # [R, K, 6]
+        n_rep = np.mean([len(r) for r in targets.recording_ids])
+        meas_rep = plate_fem.PlateTargets(dtoa=per_rep, names=meas.names,
+                                          sigma=plate_fem.position_free_sigma(meas, j_pos) * np.sqrt(n_rep))
+        evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, xj[recs], yj[recs], h[recs]), cfg_sim, *noise))
+        stiff = e_true / (1 - nu_true ** 2)
+        sets = plate_fem.observable_sets(meas.names)
+        for label in ("group delays only", "AIC onset + group delays"):
+            ks = sets[label]
+            nu_hat, e_hat, gap = position_free_profile(evals, meas_rep, None, ks, stiff, nu_axis, nu_true,
+                                                       loss=lambda o, ks=ks: plate_fem.chi2(o, meas_rep, ks))
+            c_truth = plate_fem.chi2(evals(e_true, nu_true), meas_rep, ks) / (per_rep.shape[0] * len(ks) * 6)
+            print(f"{e_true:8.0f}, {nu_true:.2f} {label:26s} {nu_hat:7.3f} {nu_hat - nu_true:+7.3f} "
+                  f"{e_hat / e_true - 1:+7.3f} {gap:15.1f} {c_truth:17.2f}", flush=True)
+        print(f"      sigma us (per repetition): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_rep.sigma))
+              + f"; {time.perf_counter() - t0:.0f} s", flush=True)
 
 
 def position_scan(mesh_mm, workers) -> None:
@@ -168,10 +232,14 @@ def main() -> int:
     ap.add_argument("--nu-study", action="store_true", help="can four drops tell nu? (see the docstring)")
     ap.add_argument("--mesh-mm", type=float, default=5.0, help="--nu-study's FEM element size (0: the default mesh)")
     ap.add_argument("--position-scan", action="store_true", help="how smoothly the observables follow a drop's position")
+    ap.add_argument("--nu-oracle", action="store_true", help="the nu-study with the twin at each drop's true position")
     ap.add_argument("--reps", type=int, default=3, help="--nu-study's repetitions per case (session-1: median 5)")
     args = ap.parse_args()
     if args.position_scan:
         position_scan(args.mesh_mm or None, args.workers)
+        return 0
+    if args.nu_oracle:
+        nu_oracle(args.mesh_mm or None, args.workers, args.reps)
         return 0
     if args.nu_study:
         nu_study(args.mesh_mm or None, args.workers, args.reps)
