@@ -173,17 +173,24 @@ float peak_abs(const Channel& ch, float base, int at, int start) {
 }
 
 // Any sample at or beyond a rail: only blocks whose energy reaches the distance from the baseline to the
-// nearer rail can hold one.
+// nearer rail can hold one (may_reach, in groups of four blocks first, as the peak scan).
 bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max) {
   const float room_lo = base - static_cast<float>(adc_min);
   const float room_hi = static_cast<float>(adc_max) - base;
   const float room = room_lo < room_hi ? room_lo : room_hi;
   if (room > 1.001f * peak + 1.0f) return false;
   const int64_t lim = ch.bound(room);
-  for (int k = 0; k < ch.nblk; ++k) {
-    if (ch.block_energy(k) < lim) continue;
-    for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
-      if (ch.x[i] <= adc_min || ch.x[i] >= adc_max) return true;
+  const float r = room - 0.004f;  // bound()'s margin: lim_f = 0 (scan everything) when room <= 0
+  const float lim_f = r > 0.0f ? 0.999f * r * r : 0.0f;
+  constexpr int kGroup = 4;
+  for (int g = 0; g < ch.nblk; g += kGroup) {
+    const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
+    if (!ch.may_reach(g, gend, base, lim_f, lim)) continue;
+    for (int k = g; k < gend; ++k) {
+      if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+      for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
+        if (ch.x[i] <= adc_min || ch.x[i] >= adc_max) return true;
+      }
     }
   }
   return false;
