@@ -500,7 +500,10 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
              **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()})
     summary = {
         "model_card_sha256_16": model_hash,
-        "features": models.card.get("features"),
+        "features": models.card.get("feature_names"),
+        "energy_threshold_j": models.card.get("energy_threshold_j"),
+        "n_train_drops": models.card.get("n_train_drops"),
+        "data_hash": (models.card.get("split") or {}).get("data_hash"),
         "n_features": models.n_features,
         "inputs": models.inputs,
         "residual_xy": models.residual_xy,
