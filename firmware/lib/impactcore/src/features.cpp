@@ -46,12 +46,7 @@ void apply_gain(ChannelFeatures* f, float gain) {
 #define IC_INLINE inline
 #endif
 
-// float(v) for an int64: VCVT from 32 bits when v fits them (the same round-to-nearest result), else
-// libgcc's 64-bit conversion (~28 instructions on the M4F).
-IC_INLINE float to_float(int64_t v) {
-  if (v >= INT32_MIN && v <= INT32_MAX) return static_cast<float>(static_cast<int32_t>(v));
-  return static_cast<float>(v);
-}
+IC_INLINE float to_float(int64_t v) { return int64_to_float(v); }
 
 // floor(v) for v >= 0 as int64, saturating (no libgcc float -> int64 conversion, ~150 instructions on
 // the M4F: floats >= 2^24 are integers, so the mantissa shifted by the exponent is exact).
@@ -63,6 +58,12 @@ int64_t to_int64(float v) {
   memcpy(&u, &v, sizeof(u));
   const int shift = static_cast<int>(u >> 23) - 127 - 23;
   return static_cast<int64_t>((u & 0x007FFFFFu) | 0x00800000u) << shift;
+}
+
+// to_int64(ceilf(v)) without libm: floats >= 2^31 are integers already.
+int64_t ceil_to_int64(float v) {
+  if (!(v > 0.0f)) return 0;
+  return v < 2147483648.0f ? ceil_to_int(v) : to_int64(v);
 }
 
 // The energy bookkeeping of one channel: the prefix table and the scaled-energy form
@@ -201,13 +202,13 @@ bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max
 // when the band is empty (thr below the rounding of the baseline).
 bool quiet_band(float base, float thr, int32_t* lo, int32_t* hi) {
   const auto crosses = [base, thr](int32_t v) { return fabsf(static_cast<float>(v) - base) >= thr; };
-  const int32_t c = static_cast<int32_t>(floorf(base));
+  const int32_t c = floor_to_int(base);
   if (crosses(c) || crosses(c + 1)) return false;
-  int32_t h = static_cast<int32_t>(floorf(base + thr));
+  int32_t h = floor_to_int(base + thr);
   if (h < c + 1) h = c + 1;
   while (crosses(h)) --h;
   while (!crosses(h + 1)) ++h;
-  int32_t l = static_cast<int32_t>(ceilf(base - thr));
+  int32_t l = ceil_to_int(base - thr);
   if (l > c) l = c;
   while (crosses(l)) ++l;
   while (!crosses(l - 1)) --l;
@@ -297,7 +298,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->peak = peak;
   if (clipped(ch, base, peak, cfg.adc_min, cfg.adc_max)) f->flags |= kFlagClipped;
 
-  const float signal_rms = sqrtf(energy / static_cast<float>(n));
+  const float signal_rms = vsqrt_f32(energy / static_cast<float>(n));
   if (peak == 0.0f || signal_rms < cfg.dead_rms_counts) f->flags |= kFlagDead;
 
   // AIC refinement in a window around the crossing.
@@ -336,8 +337,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
-  const float target = ceilf(cfg.n2_fraction * to_float(energy_scaled));
-  const int n2 = energy_reaches(ch, to_int64(target));
+  const int n2 = energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
   const int start = static_cast<int>(toa);

@@ -10,6 +10,7 @@
 // Units are in the names: _us microseconds, _mm millimetres, _hz hertz; samples are plain ints/floats.
 #pragma once
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -160,6 +161,35 @@ inline float fast_log2(float v) {
   const float s2 = s * s;
   const float p = 1.0f + s2 * (1.0f / 3.0f + s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)));
   return static_cast<float>(e) + (2.0f / 0.693147181f) * s * p;
+}
+
+// sqrt of a float >= 0: the FPU's VSQRT on the M4F (the same IEEE result; newlib's sqrtf adds an errno
+// check and two calls).
+inline float vsqrt_f32(float v) {
+#if defined(__ARM_FP) && (__ARM_FP & 4) && defined(__thumb2__)
+  float r;
+  __asm__("vsqrt.f32 %0, %1" : "=t"(r) : "t"(v));
+  return r;
+#else
+  return sqrtf(v);
+#endif
+}
+
+// float(v) for an int64: VCVT from 32 bits when v fits them (the same round-to-nearest result), else
+// libgcc's 64-bit conversion (~28 instructions on the M4F).
+inline float int64_to_float(int64_t v) {
+  if (v >= INT32_MIN && v <= INT32_MAX) return static_cast<float>(static_cast<int32_t>(v));
+  return static_cast<float>(v);
+}
+
+// floorf(v) and ceilf(v) as int32 for |v| < 2^31 (no libm call): the truncation, corrected by one.
+inline int32_t floor_to_int(float v) {
+  const int32_t t = static_cast<int32_t>(v);
+  return static_cast<float>(t) > v ? t - 1 : t;
+}
+inline int32_t ceil_to_int(float v) {
+  const int32_t t = static_cast<int32_t>(v);
+  return static_cast<float>(t) < v ? t + 1 : t;
 }
 
 // First index i >= start with |x[i] - base| >= thr, refined to a sub-sample position by linear

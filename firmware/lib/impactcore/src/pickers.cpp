@@ -18,7 +18,7 @@ void baseline_from_sums(const Sums& s, int n, float* mean, float* rms) {
   const int64_t nn = static_cast<int64_t>(n) * n;
   const int64_t var_nn = static_cast<int64_t>(n) * s.s2 - static_cast<int64_t>(s.s1) * s.s1;
   *mean = static_cast<float>(s.s1) / static_cast<float>(n);
-  *rms = sqrtf(static_cast<float>(var_nn) / static_cast<float>(nn));
+  *rms = vsqrt_f32(int64_to_float(var_nn) / int64_to_float(nn));
 }
 
 void baseline_stats(const int16_t* x, int n, float* mean, float* rms) {
