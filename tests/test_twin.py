@@ -59,6 +59,31 @@ def test_estimate_recovers_height_and_position_of_an_event_made_from_the_map():
     assert np.median(np.linalg.norm(out["xy_mm"] - site.xy_mm[rows], axis=1)) < 1.5
 
 
+def test_spread_is_the_weighted_scatter_and_grows_with_the_events_noise():
+    """TwinEstimate.spread_mm: an exact event from the map is pinned to its grid point (spread near the grid's
+    own step/sqrt(6) floor); noise on its energies makes more points explain it, and the spread grows."""
+    site = synthetic_map()
+    fit = fit_for()
+    v = site.values()
+    rng = np.random.default_rng(3)
+    rows = rng.choice(np.flatnonzero(site.present & (site.xy_mm[:, 0] > 40) & (site.xy_mm[:, 0] < 170)
+                                     & (site.xy_mm[:, 1] > 40) & (site.xy_mm[:, 1] < 170)), 40, replace=False)
+    ang = rng.uniform(0, 2 * np.pi, rows.size)
+    centre = site.xy_mm[rows] + 4.0 * np.stack([np.cos(ang), np.sin(ang)], 1)
+    floor = site.step_mm / np.sqrt(6.0)
+    medians = []
+    for noise in (0.0, 0.05, 0.15, 0.4):
+        feats = v[rows] + rng.normal(0.0, noise, v[rows].shape)
+        out = estimate(site, fit, feats, np.full(rows.size, 0xFFFF, np.uint16), centre)
+        assert (out["status"] == 0).all()
+        spread = out["spread_mm"]
+        assert (spread >= floor - 1e-4).all() and (spread <= fit.cutoff_mm).all()
+        medians.append(float(np.median(spread)))
+    assert medians[0] < floor + 0.5
+    assert all(b > a for a, b in zip(medians, medians[1:])), medians
+    assert medians[-1] > 1.5 * medians[0], medians
+
+
 def test_unusable_features_do_not_count():
     site = synthetic_map()
     fit = fit_for()

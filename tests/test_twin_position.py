@@ -87,3 +87,23 @@ def test_twin_finds_a_map_made_event_from_an_offset_position(split_features):
     err = np.hypot(*(r["xy_mm"] - truth).T)
     assert np.median(err) < 2.0 and np.mean(err < 6.0) > 0.98, np.percentile(err, [50, 90, 100])
     np.testing.assert_allclose(r["log10_height_mm"], lh, atol=0.05)
+
+
+def test_reported_uncertainty_is_the_twins_spread_and_ranks_the_errors(models, split_features):
+    """uncertainty_mm (the report's field) of the twin's position is its spread (twin.h spread_mm): on held-out
+    cases larger spreads go with larger errors (Spearman > 0.2; 0.38 with 100 trees), and it is a cautious
+    1-sigma: >= 90 % of the errors lie within 2x it, while it is not so wide that it says nothing (its
+    median below 4x the median error)."""
+    from scipy.stats import spearmanr
+
+    s, f, _, _, test = split_features
+    p = models["twin"].predict(f.take(test))
+    ran = np.isfinite(p["xy_mm"]).all(1)
+    np.testing.assert_array_equal(ran, np.isfinite(p["uncertainty_mm"]))
+    u = p["uncertainty_mm"][ran]
+    err = np.linalg.norm(p["xy_mm"][ran] - s.xy_mm[test][ran], axis=1)
+    rho = spearmanr(u, err).statistic
+    assert rho > 0.2
+    assert np.mean(err <= 2 * u) >= 0.9
+    assert np.median(u) < 4 * np.median(err)
+    assert np.isnan(models["forest"].predict(f.take(test))["uncertainty_mm"]).all()

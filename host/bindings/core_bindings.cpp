@@ -273,6 +273,7 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   cfg.temperature = temperature;
   auto lh = make_array<float>({r});
   auto pos = make_array<float>({r, 2});
+  auto spread = make_array<float>({r});
   auto misfit = make_array<float>({r});
   auto npts = make_array<int32_t>({r});
   auto status = make_array<int32_t>({r});
@@ -284,6 +285,7 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
       lh.data()[k] = e.log10_height_mm;
       pos.data()[2 * k] = e.x_mm;
       pos.data()[2 * k + 1] = e.y_mm;
+      spread.data()[k] = e.spread_mm;
       misfit.data()[k] = e.misfit;
       npts.data()[k] = e.n_points;
       status.data()[k] = e.status;
@@ -292,6 +294,7 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   nb::dict out;
   out["log10_height_mm"] = lh;
   out["xy_mm"] = pos;
+  out["spread_mm"] = spread;
   out["misfit"] = misfit;
   out["n_points"] = npts;
   out["status"] = status;
@@ -424,7 +427,7 @@ NB_MODULE(_core, m) {
   m.def("twin_estimate_batch", &twin_estimate_batch, "features"_a, "usable"_a, "xy_mm"_a, "q"_a, "nx"_a,
         "ny"_a, "x0_mm"_a, "y0_mm"_a, "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a,
         "ref_log10_height_mm"_a, "prior_mm"_a, "cutoff_mm"_a, "temperature"_a,
-        "The twin's energy fingerprint (twin.h) of every row: log10 height, position, misfit, status.");
+        "The twin's energy fingerprint (twin.h) of every row: log10 height, position, spread, misfit, status.");
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

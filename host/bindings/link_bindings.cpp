@@ -281,6 +281,10 @@ struct PyModels : ia::Models {
   bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
     return impl->predict(ev, xm, ym, c);
   }
+  bool predict_with_uncertainty(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c,
+                                float* u) const override {
+    return impl->predict_with_uncertainty(ev, xm, ym, c, u);
+  }
 };
 
 // Collects what the app writes.

@@ -148,7 +148,9 @@ class ImpactModel:
         position (twin.h TwinEstimate.x_mm, y_mm: the site map's grid points within cutoff_mm of the forests'
         position, weighted by how well their simulated energies explain the event), as on the board
         (impactapp TableModels); the forests' position stays in forest_xy_mm. An event the twin cannot match
-        (no usable channel) gets no position and no class, as the board marks it not valid."""
+        (no usable channel) gets no position and no class, as the board marks it not valid. uncertainty_mm is
+        the reported position's 1-sigma radial spread: with the twin its TwinEstimate.spread_mm (the board's
+        report carries it), without it NaN (the board then reports the physics localiser's)."""
         n = len(features)
         xy = np.full((n, 2), np.nan)
         spread = np.full((n, 2), np.nan)
@@ -164,7 +166,7 @@ class ImpactModel:
             if self.site_map is None:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
-               "position_source": self.position_source}
+               "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
         if self.site_map is not None:
             out["xy_mm"] = np.full((n, 2), np.nan)
             out["height_mm"] = np.full(n, np.nan)
@@ -177,6 +179,7 @@ class ImpactModel:
                 energy_class[rows[ok]] = self.forest_energy.predict(est[ok, None])
                 out["height_mm"][rows[ok]] = 10.0 ** est[ok]
                 out["xy_mm"][rows[ok]] = np.asarray(twin["xy_mm"], float)[ok]
+                out["uncertainty_mm"][rows[ok]] = np.asarray(twin["spread_mm"], float)[ok]
         return out
 
     # ----- persistence -----

@@ -92,7 +92,8 @@ def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.nda
 
 
 def estimate(site: SiteMap, fit: TwinFit, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray) -> dict:
-    """The core's twin_estimate for every row: log10_height_mm, xy_mm, misfit, n_points, status."""
+    """The core's twin_estimate for every row: log10_height_mm, xy_mm, spread_mm (1-sigma radial of xy_mm),
+    misfit, n_points, status."""
     f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
     xy = f32(np.asarray(xy_mm, float).reshape(-1, 2))   # NaN rows: status kErrBadConfig, estimate NaN
     return _core.twin_estimate_batch(f32(feats), np.ascontiguousarray(usable, np.uint16), xy, site.q,

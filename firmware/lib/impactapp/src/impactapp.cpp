@@ -34,6 +34,12 @@ bool reads_twin(const ModelSpec& m) {
 }  // namespace
 
 bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const {
+  float uncertainty = 0.0f;
+  return predict_with_uncertainty(ev, x_mm, y_mm, cls, &uncertainty);
+}
+
+bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls,
+                                           float* uncertainty_mm) const {
   float in[kMaxModelInputs];
   if (ev.status != ic::kOk) return false;
   if (residual_ && ev.phys.status != ic::kOk) return false;
@@ -43,7 +49,7 @@ bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, u
   const float dy = forest_mean(y_.forest, in);
   float x = residual_ ? ev.phys.x_mm + dx : dx;
   float y = residual_ ? ev.phys.y_mm + dy : dy;
-  float twin = NAN;
+  float twin = NAN, spread = NAN;
   if (reads_twin(e_) && !has_twin_) return false;
   if (has_twin_) {
     // The event's per-channel energies against the twin's site map around the forests' (x, y): how hard
@@ -56,11 +62,13 @@ bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, u
     twin = t.log10_height_mm;
     x = t.x_mm;
     y = t.y_mm;
+    spread = t.spread_mm;
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
   *x_mm = x;
   *y_mm = y;
+  if (has_twin_) *uncertainty_mm = spread;
   return true;
 }
 
@@ -168,14 +176,16 @@ void App::process_capture() {
     }
   }
   if (st == ic::kOk && ev_.phys.status == ic::kOk) {
-    // The physics localiser: the position when the models cannot run, the uncertainty, Eq. 35.
+    // The physics localiser: the position and uncertainty when the models cannot run, Eq. 35.
     r.x_mm = ev_.phys.x_mm;
     r.y_mm = ev_.phys.y_mm;
     r.accepted = ev_.accepted != 0;
     const float var = ev_.phys.cov_xx + ev_.phys.cov_yy;
     if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
   }
-  if (st == ic::kOk && models_ != nullptr) r.valid = models_->predict(ev_, &r.x_mm, &r.y_mm, &r.energy_class);
+  if (st == ic::kOk && models_ != nullptr) {
+    r.valid = models_->predict_with_uncertainty(ev_, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm);
+  }
   if (cfg_.dump_raw) send_raw();
   size_t n = il::encode_report(r, tx_, sizeof(tx_));
   hal_.write(tx_, n);

@@ -74,6 +74,13 @@ class Models {
   virtual ~Models() {}
   virtual bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm,
                        uint8_t* energy_class) const = 0;
+  // predict(), and the 1-sigma radial uncertainty (mm) of the position when the models have their own
+  // (left unchanged otherwise: the report keeps the physics localiser's).
+  virtual bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x_mm, float* y_mm,
+                                        uint8_t* energy_class, float* uncertainty_mm) const {
+    (void)uncertainty_mm;
+    return predict(ev, x_mm, y_mm, energy_class);
+  }
 };
 
 // Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
@@ -90,6 +97,9 @@ class TableModels : public Models {
     if (twin != nullptr) twin_ = *twin;
   }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
+  // With a twin the uncertainty is its matched position's spread (TwinEstimate.spread_mm).
+  bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls,
+                                float* uncertainty_mm) const override;
   bool has_twin() const { return has_twin_; }
 
  private:

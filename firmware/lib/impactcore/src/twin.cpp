@@ -79,7 +79,7 @@ uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
 
 TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
                            const SiteMap& map, const TwinConfig& cfg) {
-  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, 0};
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
   if (features == nullptr || map.q == nullptr) {
     r.status = kErrNullInput;
     return r;
@@ -131,11 +131,15 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   const float inv_t = 1.0f / cfg.temperature;
   const float inv_2s2 = 0.5f / (cfg.prior_mm * cfg.prior_mm);
   const float cut2 = cfg.cutoff_mm * cfg.cutoff_mm;
-  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], px[kMaxTwinPoints], py[kMaxTwinPoints];
+  // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
+  // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
+  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
+  uint16_t row_n[kMaxTwinPoints];
   int n = 0;
   float best_logw = -INFINITY, best_misfit = INFINITY;
   for (int i = i0; i <= i1; ++i) {
     const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
+    const int row_start = n;
     for (int j = j0; j <= j1; ++j) {
       const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
       const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
@@ -157,29 +161,46 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
       const float lw = -misfit * inv_t - d2 * inv_2s2;
       logw[n] = lw;
       shift[n] = shift_j;
-      px[n] = gx;
       py[n] = gy;
+      dist2[n] = d2;
       if (lw > best_logw) best_logw = lw;
       if (misfit < best_misfit) best_misfit = misfit;
       ++n;
     }
+    row_n[i - i0] = static_cast<uint16_t>(n - row_start);
   }
   r.n_points = n;
   if (n == 0) {
     r.status = kErrTooFewSamples;
     return r;
   }
-  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f;
-  for (int m = 0; m < n; ++m) {
-    const float p = exp_nonpositive(logw[m] - best_logw);
-    sw += p;
-    sd += p * shift[m];
-    sx += p * px[m];
-    sy += p * py[m];
+  // The weighted means, and the weighted mean squared distance from the position (the spread).
+  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
+  int m = 0;
+  for (int i = i0; i <= i1; ++i) {
+    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
+    float row_w = 0.0f;
+    for (const int end = m + row_n[i - i0]; m < end; ++m) {
+      const float p = exp_nonpositive(logw[m] - best_logw);
+      row_w += p;
+      sd += p * shift[m];
+      sy += p * py[m];
+      sr += p * dist2[m];
+    }
+    sw += row_w;
+    sx += row_w * gx;
   }
-  r.log10_height_mm = cfg.ref_log10_height_mm + sd / sw;
-  r.x_mm = sx / sw;
-  r.y_mm = sy / sw;
+  const float inv_sw = 1.0f / sw;
+  r.log10_height_mm = cfg.ref_log10_height_mm + sd * inv_sw;
+  r.x_mm = sx * inv_sw;
+  r.y_mm = sy * inv_sw;
+  // Weighted variance about the mean = mean squared distance from the position - the mean's own squared
+  // distance from it; plus the grid's quantisation, step^2 / 12 per axis (a single dominant point is not
+  // an exact position).
+  const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
+  float var = sr * inv_sw - (ex * ex + ey * ey);
+  if (var < 0.0f) var = 0.0f;
+  r.spread_mm = sqrt_nonneg(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
   r.misfit = best_misfit;
   return r;
 }

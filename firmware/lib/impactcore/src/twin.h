@@ -51,6 +51,8 @@ struct TwinEstimate {
   int32_t status;               // kOk, kErrBadConfig, kErrNullInput, or kErrTooFewSamples (< 1 usable channel)
   float log10_height_mm;        // the estimate (NaN unless kOk)
   float x_mm, y_mm;             // weighted mean of the visited grid points
+  float spread_mm;              // 1-sigma radial spread of x, y: sqrt(weighted variance of the visited
+                                // points about the mean + step^2/6, the grid's quantisation in 2 axes)
   float misfit;                 // smallest weighted misfit among them (per usable feature)
   int32_t n_points;             // grid points visited
 };

@@ -12,7 +12,9 @@
 //   4  timestamp_ms u32   sample-clock time of the trigger frame
 //   8  x i16              0.1 mm
 //  10  y i16              0.1 mm
-//  12  uncertainty u16    0.1 mm, 1-sigma radial, from the TDOA localiser's covariance (0xFFFF: unknown)
+//  12  uncertainty u16    0.1 mm, 1-sigma radial, of the reported x, y: with the twin's site map its
+//                         matched position's spread (twin.h spread_mm), else the TDOA localiser's
+//                         covariance (0xFFFF: unknown)
 //  14  energy_class u8    model class index (0 low, 1 high)
 //  15  order u8           ToA order, 2 bits a place, first arrival in bits 0-1 (a permutation of 0..3)
 //  16  status u8          bit0 accepted (Eq. 35), bit1 valid (features + models ran); other bits 0
