@@ -125,12 +125,13 @@ def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true, lo
     return nu_hat, e_hat, prof[nu_true][0] - prof[nus[i]][0]
 
 
-def nu_oracle(mesh_mm, workers, reps=3) -> None:
+def nu_oracle(mesh_mm, workers, reps=3, fit=False) -> None:
     """The best that a per-repetition position fit (next step (b) of issue 4) could do: the nu-study's drops
     (same truths, seeds, 1 mm jitter, noise), but the twin simulates every repetition at its TRUE jittered
     position and is compared repetition by repetition (errors: the noise-only, position-free sigma x
     sqrt(reps)). Profile over nu with E fitted at each nu, for the group delays alone and AIC + group delays.
-    If this misses, no position fit can recover nu from these observables."""
+    If this misses, no position fit can recover nu from these observables. With `fit` (--nu-fit): the
+    positions are not known but fitted per repetition (`fit_rounds`)."""
     import numpy as np
     from scipy.stats import qmc
 
@@ -174,10 +175,14 @@ def nu_oracle(mesh_mm, workers, reps=3) -> None:
         n_rep = np.mean([len(r) for r in targets.recording_ids])
         meas_rep = plate_fem.PlateTargets(dtoa=per_rep, names=meas.names,
                                           sigma=plate_fem.position_free_sigma(meas, j_pos) * np.sqrt(n_rep))
-        evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
-            sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, xj[recs], yj[recs], h[recs]), cfg_sim, *noise))
         stiff = e_true / (1 - nu_true ** 2)
         sets = plate_fem.observable_sets(meas.names)
+        if fit:
+            fit_rounds(sim, truth, rig, cfg_sim, noise, meas, per_rep, targets, recs, x, y, h, xj, yj, sets,
+                       nu_axis, e_true, nu_true, t0)
+            continue
+        evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, xj[recs], yj[recs], h[recs]), cfg_sim, *noise))
         for label in ("group delays only", "AIC onset + group delays"):
             ks = sets[label]
             nu_hat, e_hat, gap = position_free_profile(evals, meas_rep, None, ks, stiff, nu_axis, nu_true,
@@ -187,6 +192,47 @@ def nu_oracle(mesh_mm, workers, reps=3) -> None:
                   f"{e_hat / e_true - 1:+7.3f} {gap:15.1f} {c_truth:17.2f}", flush=True)
         print(f"      sigma us (per repetition): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_rep.sigma))
               + f"; {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def fit_rounds(sim, truth, rig, cfg_sim, noise, meas, per_rep, targets, recs, x, y, h, xj, yj, sets, nu_axis,
+               e_true, nu_true, t0, rounds=2, label="group delays only"):
+    """Issue 4 step (b): each repetition's position fitted non-linearly (`plate_fem.fit_positions`, FEM
+    re-simulated at the trial positions) at the current (E, nu), then the profile over nu with the positions
+    fixed there and their residual linear freedom projected out (`chi2_position_free`, FEM derivatives at the
+    fitted positions); `rounds` times, starting at nu 0.35 and E fitted to the AIC at the declared positions.
+    Errors: the noise-only spread of the observables (FEM noise realisations at the rig's noise level)."""
+    import numpy as np
+
+    from impactsense.calibration import plate_fem
+    ks = sets[label]
+    nm, seed_obs = noise[0], []
+    for s in range(1, 5):
+        seed_obs.append(plate_fem.sim_observables(sim(dict(truth, e_pa=e_true * 1e6, nu=0.35), rig, x[recs], y[recs],
+                                                      h[recs]), cfg_sim, nm, 1, s, True))
+    sd = np.sqrt(np.nanmean(np.nanvar(np.stack(seed_obs), axis=0, ddof=1), axis=(0, 2))) * np.sqrt(1.25)
+    sigma = np.maximum(sd, 0.2)
+    meas_rep = plate_fem.PlateTargets(dtoa=per_rep, sigma=sigma, names=meas.names)
+    stiff0 = e_true / (1 - nu_true ** 2)            # only the scan's start (E is then fitted)
+    ev0 = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
+        sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise))
+    e_c, _ = plate_fem.e_scan(ev0, meas, stiff0 * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
+    nu_c, xf, yf = 0.35, x[recs].astype(float), y[recs].astype(float)
+    for rnd in range(rounds):
+        at = lambda xx, yy, hh, e=e_c, n=nu_c: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e * 1e6, nu=n), rig, xx, yy, hh), cfg_sim, *noise)
+        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h[recs], ks)
+        j_pos = plate_fem.position_jacobian(at, xf, yf, h[recs], d_mm=0.25)
+        evals = plate_fem.Evaluations(lambda e, nu, xf=xf, yf=yf: plate_fem.sim_observables(
+            sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, xf, yf, h[recs]), cfg_sim, *noise))
+        nu_c, e_c, gap = position_free_profile(
+            evals, meas_rep, None, ks, e_c / (1 - nu_c ** 2), nu_axis, nu_true,
+            loss=lambda o: plate_fem.chi2_position_free(o, meas_rep, j_pos, ks))
+        pos_err = np.sqrt(np.mean((xf - xj[recs]) ** 2 + (yf - yj[recs]) ** 2))
+        print(f"{e_true:8.0f}, {nu_true:.2f} round {rnd + 1} {label:20s} nu {nu_c:.3f} ({nu_c - nu_true:+.3f}) "
+              f"E {e_c:.0f} ({e_c / e_true - 1:+.3f}) chi2(truth)-min {gap:.1f}; position rms error {pos_err:.2f} mm "
+              f"(declared {np.sqrt(np.mean((x[recs] - xj[recs]) ** 2 + (y[recs] - yj[recs]) ** 2)):.2f}); "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
+    print("      noise-only sigma us: " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, sigma)), flush=True)
 
 
 def position_scan(mesh_mm, workers) -> None:
@@ -233,10 +279,14 @@ def main() -> int:
     ap.add_argument("--mesh-mm", type=float, default=5.0, help="--nu-study's FEM element size (0: the default mesh)")
     ap.add_argument("--position-scan", action="store_true", help="how smoothly the observables follow a drop's position")
     ap.add_argument("--nu-oracle", action="store_true", help="the nu-study with the twin at each drop's true position")
+    ap.add_argument("--nu-fit", action="store_true", help="the nu-study with each repetition's position fitted")
     ap.add_argument("--reps", type=int, default=3, help="--nu-study's repetitions per case (session-1: median 5)")
     args = ap.parse_args()
     if args.position_scan:
         position_scan(args.mesh_mm or None, args.workers)
+        return 0
+    if args.nu_fit:
+        nu_oracle(args.mesh_mm or None, args.workers, args.reps, fit=True)
         return 0
     if args.nu_oracle:
         nu_oracle(args.mesh_mm or None, args.workers, args.reps)

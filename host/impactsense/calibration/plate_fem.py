@@ -307,3 +307,40 @@ def position_free_sigma(meas: PlateTargets, j_pos) -> np.ndarray:
         reps.append(r)
     var = ss / n * (3 * k) / (3 * k - 2)
     return np.maximum(np.sqrt(var / np.mean(reps)), SIGMA_FLOOR_US)
+
+
+def fit_positions(run_obs_at, obs_rep, sigma, x_mm, y_mm, h_mm, observables, *, iters=6, d_mm=0.25,
+                  max_step_mm=1.0, bound_mm=3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Each repetition's own (x, y) fitted non-linearly to its observables obs_rep [R, K, 6] (issue 4, step b):
+    Levenberg-Marquardt per repetition, re-simulating at the trial positions (FEM finite differences, `d_mm`),
+    steps capped at `max_step_mm`, positions kept within `bound_mm` of the declared ones. run_obs_at(x, y, h)
+    -> [R, K, 6] for all repetitions at once (three calls per iteration). Returns the fitted (x, y)."""
+    ks = list(observables)
+    x0, y0, h = (np.asarray(v, float) for v in (x_mm, y_mm, h_mm))
+    x, y = x0.copy(), y0.copy()
+    w = (1.0 / np.asarray(sigma, float))[ks][None, :, None]
+
+    def res(o):
+        r = np.where(np.isfinite(o - obs_rep), o - obs_rep, 0.0)[:, ks] * w
+        return r.reshape(r.shape[0], -1)
+
+    lam = np.full(x.size, 1e-2)
+    r0 = res(run_obs_at(x, y, h))
+    for _ in range(iters):
+        jx = (res(run_obs_at(x + d_mm, y, h)) - r0) / d_mm
+        jy = (res(run_obs_at(x, y + d_mm, h)) - r0) / d_mm
+        j = np.stack([jx, jy], -1)                                              # [R, M, 2]
+        a = np.einsum("rmp,rmq->rpq", j, j)
+        g = np.einsum("rmp,rm->rp", j, r0)
+        step = -np.linalg.solve(a + lam[:, None, None] * np.eye(2) * np.trace(a, axis1=1, axis2=2)[:, None, None]
+                                / 2 + 1e-12 * np.eye(2), g[..., None])[..., 0]
+        norm = np.linalg.norm(step, axis=1, keepdims=True)
+        step *= np.minimum(1.0, max_step_mm / np.maximum(norm, 1e-12))
+        xt = np.clip(x + step[:, 0], x0 - bound_mm, x0 + bound_mm)
+        yt = np.clip(y + step[:, 1], y0 - bound_mm, y0 + bound_mm)
+        rt = res(run_obs_at(xt, yt, h))
+        better = (rt ** 2).sum(1) < (r0 ** 2).sum(1)
+        x, y = np.where(better, xt, x), np.where(better, yt, y)
+        r0 = np.where(better[:, None], rt, r0)
+        lam = np.where(better, lam / 3, lam * 4)
+    return x, y
