@@ -125,7 +125,7 @@ def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true, lo
     return nu_hat, e_hat, prof[nu_true][0] - prof[nus[i]][0]
 
 
-def nu_oracle(mesh_mm, workers, reps=3, fit=False) -> None:
+def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
     """The best that a per-repetition position fit (next step (b) of issue 4) could do: the nu-study's drops
     (same truths, seeds, 1 mm jitter, noise), but the twin simulates every repetition at its TRUE jittered
     position and is compared repetition by repetition (errors: the noise-only, position-free sigma x
@@ -178,7 +178,8 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False) -> None:
         stiff = e_true / (1 - nu_true ** 2)
         sets = plate_fem.observable_sets(meas.names)
         if fit:
-            fit_rounds(sim, truth, rig, cfg_sim, noise, meas, per_rep, targets, recs, x, y, h, xj, yj, sets,
+            twin = truth if twin_ds is None else dict(truth, damping_per_s=twin_ds)
+            fit_rounds(sim, twin, rig, cfg_sim, noise, meas, per_rep, targets, recs, x, y, h, xj, yj, sets,
                        nu_axis, e_true, nu_true, t0)
             continue
         evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
@@ -280,13 +281,14 @@ def main() -> int:
     ap.add_argument("--position-scan", action="store_true", help="how smoothly the observables follow a drop's position")
     ap.add_argument("--nu-oracle", action="store_true", help="the nu-study with the twin at each drop's true position")
     ap.add_argument("--nu-fit", action="store_true", help="the nu-study with each repetition's position fitted")
+    ap.add_argument("--twin-ds", type=float, default=None, help="--nu-fit: the twin's D_s 1/s (default: the truth's 650)")
     ap.add_argument("--reps", type=int, default=3, help="--nu-study's repetitions per case (session-1: median 5)")
     args = ap.parse_args()
     if args.position_scan:
         position_scan(args.mesh_mm or None, args.workers)
         return 0
     if args.nu_fit:
-        nu_oracle(args.mesh_mm or None, args.workers, args.reps, fit=True)
+        nu_oracle(args.mesh_mm or None, args.workers, args.reps, fit=True, twin_ds=args.twin_ds)
         return 0
     if args.nu_oracle:
         nu_oracle(args.mesh_mm or None, args.workers, args.reps)
