@@ -32,27 +32,6 @@ inline float exp_nonpositive(float x) {
   return p * scale;
 }
 
-// sqrt of a non-negative float: the FPU's VSQRT on the M4F (newlib's sqrtf adds an errno check and a call).
-inline float sqrt_nonneg(float v) {
-#if defined(__ARM_FP) && (__ARM_FP & 4) && defined(__thumb2__)
-  float r;
-  __asm__("vsqrt.f32 %0, %1" : "=t"(r) : "t"(v));
-  return r;
-#else
-  return sqrtf(v);
-#endif
-}
-
-// floor and ceil of a float of magnitude < 2^31 as int (the conversion truncates toward zero; no libm call).
-inline int floor_int(float v) {
-  const int t = static_cast<int>(v);
-  return static_cast<float>(t) > v ? t - 1 : t;
-}
-inline int ceil_int(float v) {
-  const int t = static_cast<int>(v);
-  return static_cast<float>(t) < v ? t + 1 : t;
-}
-
 // One twin feature's per-event constants, interleaved so the grid loop reads them in one pass, and
 // scaled by sqrt(weight): a grid point's residual is then u = r - s q (one multiply-subtract), the
 // misfit's sum w (r - s q)^2 is sum u^2 and the normal equation's sum w slope (r - s q) is sum sigma u.
@@ -95,7 +74,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   int n_used = 0;
   for (int k = 0; k < kTwinFeatures; ++k) {
     const bool use = (usable >> k) & 1u;
-    const float sw = use && cfg.weight[k] > 0.0f ? sqrt_nonneg(cfg.weight[k]) : 0.0f;
+    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
     Term& t = term[k];
     t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
     t.s = sw * map.scale[k];
@@ -114,10 +93,10 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
   y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
   const float inv_step = 1.0f / map.step_mm;
-  int i0 = ceil_int((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step);
-  int i1 = floor_int((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step);
-  int j0 = ceil_int((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step);
-  int j1 = floor_int((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step);
+  int i0 = ceil_to_int((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step);
+  int i1 = floor_to_int((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step);
+  int j0 = ceil_to_int((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step);
+  int j1 = floor_to_int((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step);
   if (i0 < 0) i0 = 0;
   if (j0 < 0) j0 = 0;
   if (i1 > map.nx - 1) i1 = map.nx - 1;
@@ -200,7 +179,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
   float var = sr * inv_sw - (ex * ex + ey * ey);
   if (var < 0.0f) var = 0.0f;
-  r.spread_mm = sqrt_nonneg(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
+  r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
   r.misfit = best_misfit;
   return r;
 }
