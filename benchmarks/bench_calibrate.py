@@ -33,13 +33,17 @@ TARGET_S = 600.0
 FINDINGS_DELAYS_US = [0.0, -0.6, -5.7, -6.5]   # docs/findings.md (session-1, AIC)
 
 
-def nu_study(mesh_mm, workers, reps=3) -> None:
+NU_STUDY_TRUTHS = ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6))  # E, nu, seed
+
+
+def _study_setup(mesh_mm, workers):
+    """The nu studies' common ground: the rig, the mesh override, the FEM, eight Sobol cases (x, y, h) spread
+    over both halves of the plate, and the nu axis of the grid."""
     import numpy as np
     from scipy.stats import qmc
 
-    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
-    from impactsense.data import load_session, write_session
-    from impactsense.sim import SimParams, simulate_drops
+    from impactsense.calibration import fem
+    from impactsense.data import load_session
 
     rig = load_session("bundled").rig
     over = {} if mesh_mm is None else {"element_mm": mesh_mm}
@@ -47,10 +51,20 @@ def nu_study(mesh_mm, workers, reps=3) -> None:
     u = qmc.Sobol(3, seed=1).random(32)[:8]
     cx = np.where(u[:, 0] < 0.5, 50 + u[:, 0] * 160, 190 + (u[:, 0] - 0.5) * 160)
     cy, ch = 50 + u[:, 1] * 217, 100 + np.round(u[:, 2] * 20) * 5
-    nu_axis = np.round(np.arange(0.30, 0.4001, 0.01), 3)
+    return rig, over, sim, (cx, cy, ch), np.round(np.arange(0.30, 0.4001, 0.01), 3)
+
+
+def nu_study(mesh_mm, workers, reps=3) -> None:
+    import numpy as np
+
+    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
+    from impactsense.data import load_session, write_session
+    from impactsense.sim import SimParams, simulate_drops
+
+    rig, over, sim, (cx, cy, ch), nu_axis = _study_setup(mesh_mm, workers)
     print(f"{'truth E, nu':>14s} {'seed':>4s} {'profile min nu':>14s} {'chi2 min':>8s} {'chi2(truth)-min':>15s} "
           f"{'sd_nu best case':>15s} {'us per 0.01 nu @D (AIC, bands)':>32s} {'target sigma us':>16s}")
-    for e_true, nu_true, seed in ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6)):
+    for e_true, nu_true, seed in NU_STUDY_TRUTHS:
         truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
         rng = np.random.default_rng(seed)
         x, y, h = (np.repeat(v, reps) for v in (cx, cy, ch))
@@ -133,22 +147,15 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
     If this misses, no position fit can recover nu from these observables. With `fit` (--nu-fit): the
     positions are not known but fitted per repetition (`fit_rounds`)."""
     import numpy as np
-    from scipy.stats import qmc
 
     from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
     from impactsense.data import load_session, write_session
     from impactsense.sim import SimParams, simulate_drops
 
-    rig = load_session("bundled").rig
-    over = {} if mesh_mm is None else {"element_mm": mesh_mm}
-    sim = fem.fem_simulator(workers=workers, **over)
-    u = qmc.Sobol(3, seed=1).random(32)[:8]
-    cx = np.where(u[:, 0] < 0.5, 50 + u[:, 0] * 160, 190 + (u[:, 0] - 0.5) * 160)
-    cy, ch = 50 + u[:, 1] * 217, 100 + np.round(u[:, 2] * 20) * 5
-    nu_axis = np.round(np.arange(0.30, 0.4001, 0.01), 3)
+    rig, over, sim, (cx, cy, ch), nu_axis = _study_setup(mesh_mm, workers)
     print(f"{'truth E, nu':>14s} {'observables':26s} {'nu hat':>7s} {'nu err':>7s} {'E err':>7s} {'chi2(truth)-min':>15s}"
           f" {'chi2/dof at truth':>17s}")
-    for e_true, nu_true, seed in ((3400.0, 0.31, 3), (3400.0, 0.35, 4), (3400.0, 0.39, 3), (4500.0, 0.33, 6)):
+    for e_true, nu_true, seed in NU_STUDY_TRUTHS:
         t0 = time.perf_counter()
         truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
         rng = np.random.default_rng(seed)
