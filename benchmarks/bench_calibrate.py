@@ -54,33 +54,44 @@ def _study_setup(mesh_mm, workers):
     return rig, over, sim, (cx, cy, ch), np.round(np.arange(0.30, 0.4001, 0.01), 3)
 
 
-def nu_study(mesh_mm, workers, reps=3) -> None:
+def _study_drops(rig, over, cases, truth, seed, reps, prefix) -> dict:
+    """FEM-made drops of the nu studies: each case `reps` times at 1 mm of position jitter (seeded), with noise,
+    written as a session and read back through calibration's own drop extraction and targets."""
     import numpy as np
 
-    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
+    from impactsense.calibration import drops as drops_mod, pipeline, plate_fem
     from impactsense.data import load_session, write_session
     from impactsense.sim import SimParams, simulate_drops
+
+    rng = np.random.default_rng(seed)
+    x, y, h = (np.repeat(v, reps) for v in cases)
+    xj, yj = x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size)
+    p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
+    adc = simulate_drops(p, rig, xj, yj, h, noise=True, seed=seed + 2, progress=False)
+    path = Path(tempfile.mkdtemp(prefix=prefix)) / "s"
+    n_cases = len(cases[0])
+    write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(n_cases), reps),
+                  repetition=np.tile(np.arange(reps), n_cases))
+    session = load_session(path)
+    cfg = pipeline.core_config(rig, CalibrateOptions())
+    feats = drops_mod.extract(session, cfg)
+    targets = drops_mod.select_drops(session, feats)
+    return dict(x=x, y=y, h=h, xj=xj, yj=yj, session=session, cfg=cfg, cfg_sim=pipeline._sim_core_config(cfg),
+                feats=feats, targets=targets, noise=(float(np.median(targets.noise_rms)), 4, 0, True),
+                meas=plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True))
+
+
+def nu_study(mesh_mm, workers, reps=3) -> None:
+    from impactsense.calibration import fem, plate_fem
 
     rig, over, sim, (cx, cy, ch), nu_axis = _study_setup(mesh_mm, workers)
     print(f"{'truth E, nu':>14s} {'seed':>4s} {'profile min nu':>14s} {'chi2 min':>8s} {'chi2(truth)-min':>15s} "
           f"{'sd_nu best case':>15s} {'us per 0.01 nu @D (AIC, bands)':>32s} {'target sigma us':>16s}")
     for e_true, nu_true, seed in NU_STUDY_TRUTHS:
         truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
-        rng = np.random.default_rng(seed)
-        x, y, h = (np.repeat(v, reps) for v in (cx, cy, ch))
-        p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
-        adc = simulate_drops(p, rig, x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size), h, noise=True,
-                             seed=seed + 2, progress=False)
-        path = Path(tempfile.mkdtemp(prefix="nu-study-")) / "s"
-        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), reps),
-                      repetition=np.tile(np.arange(reps), 8))
-        session = load_session(path)
-        cfg = pipeline.core_config(rig, CalibrateOptions())
-        cfg_sim = pipeline._sim_core_config(cfg)
-        feats = drops_mod.extract(session, cfg)
-        targets = drops_mod.select_drops(session, feats)
-        meas = plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True)
-        noise = (float(np.median(targets.noise_rms)), 4, 0, True)
+        d = _study_drops(rig, over, (cx, cy, ch), truth, seed, reps, "nu-study-")
+        session, cfg, cfg_sim, feats, targets, meas, noise = (d[k] for k in (
+            "session", "cfg", "cfg_sim", "feats", "targets", "meas", "noise"))
         evals = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise))
         stiff = e_true / (1 - nu_true ** 2)
@@ -148,9 +159,7 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
     positions are not known but fitted per repetition (`fit_rounds`)."""
     import numpy as np
 
-    from impactsense.calibration import drops as drops_mod, fem, pipeline, plate_fem
-    from impactsense.data import load_session, write_session
-    from impactsense.sim import SimParams, simulate_drops
+    from impactsense.calibration import fem, plate_fem
 
     rig, over, sim, (cx, cy, ch), nu_axis = _study_setup(mesh_mm, workers)
     print(f"{'truth E, nu':>14s} {'observables':26s} {'nu hat':>7s} {'nu err':>7s} {'E err':>7s} {'chi2(truth)-min':>15s}"
@@ -158,21 +167,10 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
     for e_true, nu_true, seed in NU_STUDY_TRUTHS:
         t0 = time.perf_counter()
         truth = dict(fem.base_params(rig, e_true, nu_true), damping_per_s=650.0)
-        rng = np.random.default_rng(seed)
-        x, y, h = (np.repeat(v, reps) for v in (cx, cy, ch))
-        xj, yj = x + rng.normal(0, 1, x.size), y + rng.normal(0, 1, y.size)
-        p = SimParams.from_rig(rig, **truth, **over, duration_ms=12.0)
-        adc = simulate_drops(p, rig, xj, yj, h, noise=True, seed=seed + 2, progress=False)
-        path = Path(tempfile.mkdtemp(prefix="nu-oracle-")) / "s"
-        write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(8), reps),
-                      repetition=np.tile(np.arange(reps), 8))
-        session = load_session(path)
-        cfg = pipeline.core_config(rig, CalibrateOptions())
-        cfg_sim = pipeline._sim_core_config(cfg)
-        feats = drops_mod.extract(session, cfg)
-        targets = drops_mod.select_drops(session, feats)
-        meas = plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True)
-        noise = (float(np.median(targets.noise_rms)), 4, 0, True)
+        d = _study_drops(rig, over, (cx, cy, ch), truth, seed, reps, "nu-oracle-")
+        x, y, h, xj, yj = (d[k] for k in ("x", "y", "h", "xj", "yj"))
+        session, cfg, cfg_sim, feats, targets, meas, noise = (d[k] for k in (
+            "session", "cfg", "cfg_sim", "feats", "targets", "meas", "noise"))
         e0 = e_true
         j_pos = plate_fem.position_jacobian(lambda xx, yy, hh: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e0 * 1e6, nu=0.35), rig, xx, yy, hh), cfg_sim, *noise),
