@@ -264,6 +264,12 @@ struct Twin {
     spec.cfg.prior_mm = cfg[1];
     spec.cfg.cutoff_mm = cfg[2];
     spec.cfg.temperature = cfg[3];
+    if (d.contains("uncertainty")) {  // offset_mm, scale, misfit_ref (impactapp::twin_uncertainty_mm)
+      const auto u = floats(d, "uncertainty", 3);
+      spec.uncertainty_offset_mm = u[0];
+      spec.uncertainty_scale = u[1];
+      spec.uncertainty_misfit_ref = u[2];
+    }
   }
 };
 

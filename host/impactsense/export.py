@@ -58,14 +58,16 @@ class ModelSet:
 
 def twin_arrays(site, fit) -> dict:
     """The twin's site map (sitemap.SiteMap) and fit (twin.TwinFit) as the firmware's arrays: grid [nx, ny,
-    x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16] and
-    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]."""
+    x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16],
+    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature] and uncertainty [offset_mm, scale,
+    misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty)."""
     f32 = lambda v: np.asarray(v, dtype=np.float32)  # noqa: E731
     return {"grid": f32([site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm]),
             "q": np.ascontiguousarray(site.q, dtype=np.uint8).reshape(-1),
             "base": f32(site.base), "scale": f32(site.scale), "offset": f32(fit.offset), "slope": f32(fit.slope),
             "weight": f32(fit.weight),
-            "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature])}
+            "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature]),
+            "uncertainty": f32([fit.uncertainty_offset_mm, fit.uncertainty_scale, fit.uncertainty_misfit_ref])}
 
 
 def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
@@ -276,7 +278,8 @@ def twin_c(t: dict) -> str:
     grid = f"{int(g[0])}, {int(g[1])}, {_c_float(g[2])}, {_c_float(g[3])}, {_c_float(g[4])}"
     site = ",\n  ".join([grid, vec(t["base"]), vec(t["scale"]), "twin_q"])
     cfg = ",\n  ".join([vec(t["offset"]), vec(t["slope"]), vec(t["weight"]),
-                        ", ".join(_c_float(v) for v in t["config"].tolist())])
+                        ", ".join(_c_float(v) for v in t["config"].tolist()),
+                        ", ".join(_c_float(v) for v in t["uncertainty"].tolist())])
     return (_c_array("uint8_t", "twin_q", t["q"], str)
             + f"const impactsense_site_map impactsense_twin_map = {{\n  {site}\n}};\n"
             + f"const impactsense_twin_config impactsense_twin = {{\n  {cfg}\n}};\n\n")
@@ -375,6 +378,8 @@ typedef struct {{
   float slope[IMPACTSENSE_TWIN_FEATURES];
   float weight[IMPACTSENSE_TWIN_FEATURES];
   float ref_log10_height_mm, prior_mm, cutoff_mm, temperature;
+  // The reported 1-sigma radial uncertainty (mm): (offset + scale * spread) * sqrt(max(1, misfit / misfit_ref))
+  float uncertainty_offset_mm, uncertainty_scale, uncertainty_misfit_ref;
 }} impactsense_twin_config;
 #if IMPACTSENSE_TWIN
 extern const impactsense_site_map impactsense_twin_map;

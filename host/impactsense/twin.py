@@ -12,6 +12,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from scipy.optimize import minimize
+
 from . import _core
 from .errors import DataError
 from .sitemap import N_FEATURES, SiteMap
@@ -28,6 +30,11 @@ class TwinFit:
     prior_mm: float = 7.0
     cutoff_mm: float = 15.0
     temperature: float = 0.5
+    # The reported uncertainty (module doc): u = (a + b spread) * sqrt(max(1, misfit / ref)); ref 0 = no
+    # inflation. The defaults (a model card from before the calibration) report the raw spread.
+    uncertainty_offset_mm: float = 0.0
+    uncertainty_scale: float = 1.0
+    uncertainty_misfit_ref: float = 0.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -92,11 +99,44 @@ def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.nda
 
 
 def estimate(site: SiteMap, fit: TwinFit, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray) -> dict:
-    """The core's twin_estimate for every row: log10_height_mm, xy_mm, spread_mm (1-sigma radial of xy_mm),
-    misfit, n_points, status."""
+    """The core's twin_estimate for every row: log10_height_mm, xy_mm, spread_mm (the match's raw
+    spread; the reported uncertainty is calibrated_uncertainty's), misfit, n_points, status."""
     f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
     xy = f32(np.asarray(xy_mm, float).reshape(-1, 2))   # NaN rows: status kErrBadConfig, estimate NaN
     return _core.twin_estimate_batch(f32(feats), np.ascontiguousarray(usable, np.uint16), xy, site.q,
                                      site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm, f32(site.base),
                                      f32(site.scale), f32(fit.offset), f32(fit.slope), f32(fit.weight),
                                      fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature)
+
+
+def calibrated_uncertainty(fit: TwinFit, spread_mm, misfit) -> np.ndarray:
+    """The reported 1-sigma radial uncertainty (mm) from the match's spread and misfit (module doc)."""
+    u = fit.uncertainty_offset_mm + fit.uncertainty_scale * np.asarray(spread_mm, float)
+    if fit.uncertainty_misfit_ref > 0:
+        u = u * np.sqrt(np.maximum(1.0, np.asarray(misfit, float) / fit.uncertainty_misfit_ref))
+    return u
+
+
+def fit_uncertainty(spread_mm, misfit, error_mm) -> dict:
+    """a, b and m_ref of calibrated_uncertainty from events the model did not learn (out-of-fold): m_ref the
+    mean misfit, a, b >= 0 maximising the Rayleigh likelihood of the radial errors r with E r^2 = u^2
+    (so mean (r / u)^2 = 1 at the optimum when a, b are free). Returns TwinFit's uncertainty_* fields."""
+    s, m, r = (np.asarray(v, float) for v in (spread_mm, misfit, error_mm))
+    ok = np.isfinite(s) & np.isfinite(m) & np.isfinite(r)
+    if ok.sum() < 20:
+        raise DataError("training data", None, f"only {int(ok.sum())} out-of-fold twin estimates to calibrate "
+                        "the uncertainty (need >= 20)")
+    s, m, r = s[ok], m[ok], r[ok]
+    ref = max(float(np.mean(m)), 1e-6)
+    inflate = np.sqrt(np.maximum(1.0, m / ref))
+
+    def nll(p):   # -log Rayleigh(r; sigma^2 = u^2 / 2) up to constants
+        u = np.maximum((p[0] + p[1] * s) * inflate, 1e-3)
+        return float(np.sum(2 * np.log(u) + (r / u) ** 2))
+
+    b0 = float(np.sqrt(np.mean((r / (s * inflate)) ** 2)))
+    res = minimize(nll, [0.0, b0], method="L-BFGS-B", bounds=[(0.0, None), (0.0, None)])
+    a, b = (float(v) for v in res.x)
+    if not (res.success and a + b * s.min() > 0):
+        a, b = 0.0, b0     # the plain scale (its own maximum-likelihood value)
+    return {"uncertainty_offset_mm": a, "uncertainty_scale": b, "uncertainty_misfit_ref": ref}

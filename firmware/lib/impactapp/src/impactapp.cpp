@@ -33,6 +33,14 @@ bool reads_twin(const ModelSpec& m) {
 
 }  // namespace
 
+float twin_uncertainty_mm(const ic::TwinEstimate& t, const TwinSpec& spec) {
+  float u = spec.uncertainty_offset_mm + spec.uncertainty_scale * t.spread_mm;
+  if (spec.uncertainty_misfit_ref > 0.0f && t.misfit > spec.uncertainty_misfit_ref) {
+    u *= ic::vsqrt_f32(t.misfit / spec.uncertainty_misfit_ref);  // the Birge ratio: energies fit worse than in training
+  }
+  return u;
+}
+
 bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const {
   float uncertainty = 0.0f;
   return predict_with_uncertainty(ev, x_mm, y_mm, cls, &uncertainty);
@@ -49,7 +57,7 @@ bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_m
   const float dy = forest_mean(y_.forest, in);
   float x = residual_ ? ev.phys.x_mm + dx : dx;
   float y = residual_ ? ev.phys.y_mm + dy : dy;
-  float twin = NAN, spread = NAN;
+  float twin = NAN, uncertainty = NAN;
   if (reads_twin(e_) && !has_twin_) return false;
   if (has_twin_) {
     // The event's per-channel energies against the twin's site map around the forests' (x, y): how hard
@@ -62,13 +70,13 @@ bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_m
     twin = t.log10_height_mm;
     x = t.x_mm;
     y = t.y_mm;
-    spread = t.spread_mm;
+    uncertainty = twin_uncertainty_mm(t, twin_);
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
   *x_mm = x;
   *y_mm = y;
-  if (has_twin_) *uncertainty_mm = spread;
+  if (has_twin_) *uncertainty_mm = uncertainty;
   return true;
 }
 

@@ -65,7 +65,17 @@ struct ModelSpec {
 struct TwinSpec {
   impactcore::SiteMap map;
   impactcore::TwinConfig cfg;
+  // The reported position's 1-sigma radial uncertainty, sqrt(E r^2) of its distance r from the truth,
+  // calibrated on the training drops (host twin.calibrated_uncertainty):
+  // (uncertainty_offset_mm + uncertainty_scale * spread_mm) * sqrt(max(1, misfit / uncertainty_misfit_ref));
+  // misfit_ref 0: no inflation. The defaults report the raw spread.
+  float uncertainty_offset_mm = 0.0f;
+  float uncertainty_scale = 1.0f;
+  float uncertainty_misfit_ref = 0.0f;
 };
+
+// The calibrated uncertainty (TwinSpec) of a twin estimate t (status kOk).
+float twin_uncertainty_mm(const impactcore::TwinEstimate& t, const TwinSpec& spec);
 
 // The models: the core's per-event result in, position and energy class out. False when they cannot run
 // (a feature is missing, e.g. a channel without onset).
@@ -97,7 +107,7 @@ class TableModels : public Models {
     if (twin != nullptr) twin_ = *twin;
   }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
-  // With a twin the uncertainty is its matched position's spread (TwinEstimate.spread_mm).
+  // With a twin the uncertainty is its matched position's calibrated 1-sigma (twin_uncertainty_mm).
   bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls,
                                 float* uncertainty_mm) const override;
   bool has_twin() const { return has_twin_; }
