@@ -253,6 +253,41 @@ def test_pruned_peak_crossing_and_clipping_equal_full_scans():
     assert out["peak"][0, 0] == pytest.approx(1000, abs=3) and 149 <= out["toa_threshold"][0, 1] <= 150
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_pruning_at_the_edge_of_its_bounds_equals_full_scans(seed):
+    """The block tests skip a block only when no sample in it can reach the level sought (uint32 sums about
+    the rounded baseline, exact while the capture's sum of squares about it fits 32 bits): quiet captures
+    whose baselines sit at any fraction of a count, above or below zero, with lone samples placed just
+    under, at and just over the threshold, the peak and the rails, give the full scans' peak, crossing
+    and clip flag."""
+    rng = np.random.default_rng(100 + seed)
+    n, rows = 1024, 24
+    adc = np.empty((rows, 4, n), np.int16)
+    for r in range(rows):
+        for c in range(4):
+            centre = rng.uniform(-3000, 3000)
+            x = np.round(centre + rng.choice([0.0, rng.uniform(0.2, 3.0)]) * rng.normal(0, 1, n))
+            base = np.float32(np.float32(x[:64].sum()) / np.float32(64))
+            level = rng.uniform(8, 400)
+            for k in rng.integers(64, n, size=int(rng.integers(1, 6))):
+                x[k] = np.round(base + rng.choice([-1, 1]) * (level + rng.choice([-1.0, -0.5, 0.0, 0.5, 1.0])))
+            if rng.random() < 0.3:
+                x[rng.integers(64, n)] = rng.choice([-4096, 4095])
+            adc[r, c] = np.clip(x, -32768, 32767)
+    cfg = SignalConfig(adc_min=-4096, adc_max=4095, onset_threshold_counts=float(rng.uniform(5, 50)))
+    out = _core.extract_batch(adc, cfg.core())
+    for r in range(rows):
+        for c in range(4):
+            x = adc[r, c]
+            base = np.float32(out["baseline"][r, c])
+            assert out["peak"][r, c] == np.max(np.abs(x.astype(np.float32) - base))
+            thr = max(np.float32(cfg.onset_threshold_counts), np.float32(5.0) * np.float32(out["noise_rms"][r, c]))
+            want = _core.threshold_crossing(x, float(base), float(thr), 64)
+            got = out["toa_threshold"][r, c]
+            assert got == want or (np.isnan(got) and want < 0)
+            assert bool(out["flags"][r, c] & _core.FLAG_CLIPPED) == bool(np.any((x <= -4096) | (x >= 4095)))
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_aic_with_fast_log2_has_the_natural_log_minimum(seed):
     """The picker's log2 (exponent + series, no libm) finds the same arg-min as AIC with natural logs."""

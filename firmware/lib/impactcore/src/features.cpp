@@ -78,6 +78,8 @@ struct Channel {
   int64_t c1;      // 2 nb sb
   int64_t sb2;     // sb^2
   float nb2;       // nb^2
+  bool fits32;     // set_centre(): the pruning tests' uint32 form is exact
+  uint32_t uc, uc2;  // c, c^2 (mod 2^32)
   Sums prefix[kMaxBlocks + 1];
 
   void set_baseline(int n_b, int32_t sum_b) {
@@ -129,6 +131,57 @@ struct Channel {
     const float r = a - 0.004f;
     return r > 0.0f ? to_int64(0.999f * r * r * nb2) : 0;
   }
+
+  // The pruning tests' cheap form, used when it is exact. c = sb / nb rounded to an integer, so
+  // |base - c| <= 0.502 (0.5, plus the float division's rounding <= 2^-24 * 32768). When the capture's
+  // sum of (x - c)^2 is below 2^32 (its rms about the baseline under 2048 counts: every 12-bit capture),
+  // every range's is too, and S2 - 2 c S1 + m c^2 over a range is exact in uint32 arithmetic on the low
+  // words of the prefix sums (wrap-around is arithmetic mod 2^32): ~10 instructions a test, not ~25.
+  // The scans below are compiled for either form (template argument kFits32 = fits32).
+  void set_centre() {
+    const int32_t num = 2 * sb + nb, den = 2 * nb;  // c = floor(sb / nb + 1/2); |num| < 2^25
+    int32_t c = num / den;
+    if (num % den != 0 && num < 0) --c;
+    const int64_t sc = prefix[nblk].s2 - 2 * static_cast<int64_t>(c) * prefix[nblk].s1 +
+                       static_cast<int64_t>(n) * c * c;
+    fits32 = (sc >> 32) == 0;
+    uc = static_cast<uint32_t>(c);
+    uc2 = uc * uc;
+  }
+  // What a test needs for one level a: the sample sought has |float(x) - base| >= a, so |x - base| >=
+  // a - 0.004 (a < 2^16; larger levels no int16 sample reaches), and the integer |x - c| >= a - 0.506 >
+  // fl(a - 0.52) (that subtraction rounds by <= 0.004), hence |x - c| >= q = ceil(fl(a - 0.52)) and the
+  // range's sum of (x - c)^2 >= q^2 (q capped at 2^16 - 1 so that q^2 fits: a weaker test, still safe).
+  struct Level {
+    uint32_t q2;   // fits32
+    float lim_f;   // otherwise: may_reach's bounds
+    int64_t lim;
+  };
+  template <bool kFits32>
+  Level level(float a) const {
+    Level l = {0u, 0.0f, 0};
+    if (kFits32) {
+      const float r = a - 0.52f;
+      if (r > 0.0f) {
+        const uint32_t q = r < 65535.0f ? static_cast<uint32_t>(ceil_to_int(r)) : 65535u;
+        l.q2 = q * q;
+      }
+    } else {
+      l.lim = bound(a);
+      const float r = a - 0.004f;  // bound()'s margin: lim_f = 0 (scan everything) when a <= 0.004
+      l.lim_f = r > 0.0f ? 0.999f * r * r : 0.0f;
+    }
+    return l;
+  }
+  // Can blocks [k0, k1) hold a sample with |float(x) - base| >= a (l = level(a))?
+  template <bool kFits32>
+  IC_INLINE bool reaches(int k0, int k1, float base, const Level& l) const {
+    if (!kFits32) return may_reach(k0, k1, base, l.lim_f, l.lim);
+    const uint32_t s2 = static_cast<uint32_t>(prefix[k1].s2) - static_cast<uint32_t>(prefix[k0].s2);
+    const uint32_t s1 = static_cast<uint32_t>(prefix[k1].s1 - prefix[k0].s1);
+    const uint32_t m = static_cast<uint32_t>((k1 == nblk ? n : k1 * kBlock) - k0 * kBlock);
+    return s2 - 2u * uc * s1 + m * uc2 >= l.q2;
+  }
 };
 
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
@@ -147,48 +200,44 @@ void scan_peak(const Channel& ch, int k, float base, float* peak) {
 // the largest: a high peak early rules out most other blocks) are taken first; the blocks between `start`
 // and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
 constexpr int kArrivalBlocks = 3;
+template <bool kFits32>
 float peak_abs(const Channel& ch, float base, int at, int start) {
   float peak = 0.0f;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
-  int64_t lim = ch.bound(peak);
-  float lim_f = 0.999f * peak * peak;
+  Channel::Level lim = ch.level<kFits32>(peak);
   // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
   constexpr int kGroup = 4;
   for (int g = 0; g < ch.nblk; g += kGroup) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
-    if (!ch.may_reach(g, gend, base, lim_f, lim)) continue;
+    if (!ch.reaches<kFits32>(g, gend, base, lim)) continue;
     for (int k = g; k < gend; ++k) {
       if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
-      if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+      if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
       const float before = peak;
       scan_peak(ch, k, base, &peak);
-      if (peak > before) {
-        lim = ch.bound(peak);
-        lim_f = 0.999f * peak * peak;
-      }
+      if (peak > before) lim = ch.level<kFits32>(peak);
     }
   }
   return peak;
 }
 
 // Any sample at or beyond a rail: only blocks whose energy reaches the distance from the baseline to the
-// nearer rail can hold one (may_reach, in groups of four blocks first, as the peak scan).
+// nearer rail can hold one (reaches, in groups of four blocks first, as the peak scan).
+template <bool kFits32>
 bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max) {
   const float room_lo = base - static_cast<float>(adc_min);
   const float room_hi = static_cast<float>(adc_max) - base;
   const float room = room_lo < room_hi ? room_lo : room_hi;
   if (room > 1.001f * peak + 1.0f) return false;
-  const int64_t lim = ch.bound(room);
-  const float r = room - 0.004f;  // bound()'s margin: lim_f = 0 (scan everything) when room <= 0
-  const float lim_f = r > 0.0f ? 0.999f * r * r : 0.0f;
+  const Channel::Level lim = ch.level<kFits32>(room);
   constexpr int kGroup = 4;
   for (int g = 0; g < ch.nblk; g += kGroup) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
-    if (!ch.may_reach(g, gend, base, lim_f, lim)) continue;
+    if (!ch.reaches<kFits32>(g, gend, base, lim)) continue;
     for (int k = g; k < gend; ++k) {
-      if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+      if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
       for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
         if (ch.x[i] <= adc_min || ch.x[i] >= adc_max) return true;
       }
@@ -219,14 +268,14 @@ bool quiet_band(float base, float thr, int32_t* lo, int32_t* hi) {
 
 // threshold_crossing(x, n, base, thr, start), skipping the blocks too weak to hold a crossing and those
 // whose extremes stay in the quiet band; *at is the first sample at or above the threshold (-1 if none).
+template <bool kFits32>
 float crossing(const Channel& ch, float base, float thr, int start, int* at) {
   if (start < 1) start = 1;
-  const int64_t lim = ch.bound(thr);
-  const float lim_f = 0.999f * thr * thr;
+  const Channel::Level lim = ch.level<kFits32>(thr);
   int32_t lo = 0, hi = -1;
   const bool band = quiet_band(base, thr, &lo, &hi);
   for (int k = start / kBlock; k < ch.nblk; ++k) {
-    if (!ch.may_reach(k, k + 1, base, lim_f, lim)) continue;
+    if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
     const int from = k * kBlock > start ? k * kBlock : start;
     const int end = ch.block_end(k);
     if (band) {
@@ -277,6 +326,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
   const Sums base_sums = prefix_at(x, ch.prefix, n, cfg.baseline_samples);
   ch.set_baseline(cfg.baseline_samples, base_sums.s1);
+  ch.set_centre();
   baseline_from_sums(base_sums, ch.nb, &f->baseline, &f->noise_rms);
   const float base = f->baseline;
   f->flags = 0;
@@ -288,15 +338,20 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   const float noise_thr = cfg.onset_noise_factor * f->noise_rms;
   if (noise_thr > thr) thr = noise_thr;
   int at = -1;
-  const float cross = crossing(ch, base, thr, cfg.baseline_samples, &at);
+  const float cross = ch.fits32 ? crossing<true>(ch, base, thr, cfg.baseline_samples, &at)
+                                 : crossing<false>(ch, base, thr, cfg.baseline_samples, &at);
 
   // Energy, peak and clipping over the whole capture.
   const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
   const float energy = ch.to_energy(energy_scaled);
-  const float peak = peak_abs(ch, base, at, cfg.baseline_samples);
+  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, cfg.baseline_samples)
+                                : peak_abs<false>(ch, base, at, cfg.baseline_samples);
   f->energy = energy;
   f->peak = peak;
-  if (clipped(ch, base, peak, cfg.adc_min, cfg.adc_max)) f->flags |= kFlagClipped;
+  if (ch.fits32 ? clipped<true>(ch, base, peak, cfg.adc_min, cfg.adc_max)
+                 : clipped<false>(ch, base, peak, cfg.adc_min, cfg.adc_max)) {
+    f->flags |= kFlagClipped;
+  }
 
   const float signal_rms = vsqrt_f32(energy / static_cast<float>(n));
   if (peak == 0.0f || signal_rms < cfg.dead_rms_counts) f->flags |= kFlagDead;
