@@ -336,6 +336,130 @@ def test_core_aic_onset_is_the_whole_window_minimum(seed):
     assert checked >= 24
 
 
+# --- the AIC picker's two passes: the same onset as a one-pass scan of the same float32 arithmetic ---
+
+F32 = np.float32
+
+
+def _fast_log2(v):
+    """impactcore.h's fast_log2 in numpy float32, operation for operation (vectorised)."""
+    u = np.asarray(v, np.float32).view(np.int32).astype(np.int64)
+    e = (u - 0x3F3504F3) >> 23
+    m = (u - (e << 23)).astype(np.int32).view(np.float32)
+    s = (m - F32(1)) / (m + F32(1))
+    s2 = s * s
+    p = F32(1) + s2 * (F32(1) / F32(3) + s2 * (F32(1) / F32(5) + s2 * (F32(1) / F32(7))))
+    return e.astype(np.float32) + (F32(2) / F32(0.693147181)) * s * p
+
+
+def _log2_below(v):
+    """pickers.cpp's log2_below: the bits as a fixed-point number, minus 0.001."""
+    u = np.asarray(v, np.float32).view(np.int32)
+    return (u - 0x3F800000).astype(np.float32) * F32(1.0 / 8388608.0) - F32(0.001)
+
+
+def _aic_one_pass(x, begin, end, search_from):
+    """aic_pick_subsample as a one-pass scan (every AIC computed), in float32 operation for operation."""
+    begin = max(begin, 0)
+    n = end - begin
+    kf = min(max(search_from - begin, 2), n - 2)
+    ke = kf - 1 if kf > 2 else 2
+    w = x[begin:end].astype(np.int32)
+    mean = F32(int(w.sum())) / F32(n)
+    d = w.astype(np.float32) - mean
+    s1 = s2 = F32(0)
+    for i in range(ke):
+        s1, s2 = s1 + d[i], s2 + d[i] * d[i]
+    t1, t2 = s1, s2
+    for i in range(ke, n):
+        t1, t2 = t1 + d[i], t2 + d[i] * d[i]
+    aic = {}
+    for k in range(ke, n - 1):
+        n1, n2 = F32(k), F32(n - k)
+        i1, i2 = F32(1) / n1, F32(1) / n2
+        m1, m2 = s1 * i1, (t1 - s1) * i2
+        v1, v2 = s2 * i1 - m1 * m1, (t2 - s2) * i2 - m2 * m2
+        y1, y2 = max(v1, F32(0)) + F32(1e-3), max(v2, F32(0)) + F32(1e-3)
+        aic[k] = n1 * _fast_log2(y1) + (n2 - F32(1)) * _fast_log2(y2)
+        s1, s2 = s1 + d[k], s2 + d[k] * d[k]
+    best = kf
+    for k in range(kf + 1, n - 1):
+        if aic[k] < aic[best]:
+            best = k
+    off = F32(0)
+    if 2 < best < n - 2:
+        curv = aic[best - 1] - F32(2) * aic[best] + aic[best + 1]
+        if curv > 0:
+            off = min(max(F32(0.5) * (aic[best - 1] - aic[best + 1]) / curv, F32(-0.5)), F32(0.5))
+    return F32(begin + best) + off
+
+
+def test_log2_below_is_below_fast_log2_over_the_aic_range():
+    """The picker skips the series where the bound already rules a split out; the bound must stay below
+    fast_log2 (as computed) for every variance + eps it can meet, 1e-3 .. 2^32: every mantissa at the
+    extreme exponents and a million random floats in between. fast_log2 itself is within 3e-6 of log2."""
+    rng = np.random.default_rng(0)
+    mant = np.arange(1 << 23, dtype=np.int64)
+    v = np.concatenate([((127 + e) << 23 | mant).astype(np.int32).view(np.float32) for e in (-10, -1, 0, 31)]
+                       + [np.exp2(rng.uniform(-10, 32, 1_000_000)).astype(np.float32)])
+    v = v[(v >= F32(1e-3)) & (v < F32(2.0**32))]
+    fl = _fast_log2(v)
+    assert np.abs(fl.astype(np.float64) - np.log2(v.astype(np.float64))).max() < 3e-6
+    gap = fl - _log2_below(v)
+    assert gap.min() > 0.0009 and gap.max() < 0.088  # the 0.001 margin, and the chord's 0.086
+
+
+def _random_onsets(rng, n=1024, rows=40):
+    """Noisy onsets of every kind: slow and sharp rises, tones from low to near Nyquist, spikes before the
+    arrival (picks the window rejects), dead-quiet and very noisy baselines."""
+    t = np.arange(n)
+    adc = np.empty((rows, 4, n), np.int16)
+    for r in range(rows):
+        for c in range(4):
+            s0 = int(rng.integers(100, 900))
+            amp = rng.uniform(5, 1500)
+            rise = (1 - np.exp(-np.clip(t - s0, 0, None) / rng.uniform(0.5, 20))) * (t >= s0)
+            x = 2048 + rng.normal(0, rng.uniform(0.2, 8), n) + amp * np.sin(2 * np.pi * rng.uniform(0.01, 0.45) * (t - s0)) * rise
+            if rng.random() < 0.3:
+                x[int(rng.integers(70, n))] += rng.choice([-1, 1]) * rng.uniform(10, 300)
+            adc[r, c] = np.clip(np.rint(x), 0, 4095)
+    return adc
+
+
+def _check_picks_equal_the_one_pass_scan(adc, cfg):
+    out = _core.extract_batch(np.ascontiguousarray(adc), cfg.core())
+    checked = 0
+    for r, c in zip(*np.nonzero((out["flags"] & _core.FLAG_NO_ONSET) == 0)):
+        i = int(out["toa_threshold"][r, c])
+        b, e = i - cfg.aic_before, min(i + cfg.aic_after + 1, adc.shape[-1])
+        want = _aic_one_pass(adc[r, c], b, e, i - cfg.aic_before // 3)
+        got = out["toa_aic"][r, c]
+        if want <= out["toa_threshold"][r, c] + 1.0:  # the core keeps a pick up to a sample past the crossing
+            assert F32(got).tobytes() == want.tobytes(), (r, c, got, want)
+        else:
+            assert np.isnan(got) and out["flags"][r, c] & _core.FLAG_AIC_FALLBACK
+        checked += 1
+    return checked
+
+
+@pytest.mark.parametrize("fs_hz, before, after", [(50000.0, 30, 6), (100000.0, 60, 12)])
+def test_two_pass_aic_picks_equal_a_one_pass_scan_on_random_onsets(fs_hz, before, after):
+    """Bit for bit, at the board's window (30 + 6 samples) and the 100 kHz one (60 + 12)."""
+    adc = _random_onsets(np.random.default_rng(int(fs_hz)))
+    cfg = SignalConfig(fs_hz=fs_hz, aic_before=before, aic_after=after)
+    assert _check_picks_equal_the_one_pass_scan(adc, cfg) > 140
+
+
+def test_two_pass_aic_picks_equal_a_one_pass_scan_on_measured_board_captures():
+    """Session-1 drops as the board captures them (4 x 50 kHz, scan delays), every 8th drop."""
+    from impactsense.data import load_session
+    from impactsense.link.boardmodel import board_captures
+
+    s1 = load_session()
+    caps, _, sig = board_captures(s1.subset(np.arange(0, len(s1), 8)), 50000)
+    assert _check_picks_equal_the_one_pass_scan(caps, sig) > 350
+
+
 def test_localiser_screened_start_reaches_every_position_within_its_iteration_cap():
     """One Gauss-Newton run (at most 10 iterations) from a screened start: exact ToAs from anywhere on the
     plate (corners out beyond the sensors, edges, next to a sensor) give the position back; with 1 us of

@@ -1,5 +1,6 @@
 // Onset pickers: plain functions of a buffer.
 #include <math.h>
+#include <string.h>
 
 #include "impactcore.h"
 #ifndef AIC_STEP
@@ -45,6 +46,49 @@ float threshold_crossing(const int16_t* x, int n, float base, float thr, int sta
   return -1.0f;
 }
 
+namespace {
+
+#if defined(__GNUC__)
+#define IC_INLINE inline __attribute__((always_inline))
+#else
+#define IC_INLINE inline
+#endif
+
+// The AIC / ln 2 at a split with n1 samples before it (variance + eps: y1) and n2 from it (y2).
+IC_INLINE float aic_value(float n1, float y1, float n2, float y2) {
+  return n1 * fast_log2(y1) + (n2 - 1.0f) * fast_log2(y2);
+}
+
+// A lower bound of fast_log2(v) for v in the AIC's range (1e-3 <= v < 2^32), without the series: the bits
+// of v = 2^e m (1 <= m < 2) read as a fixed-point number are e + (m - 1) <= log2(v) (log2 lies above its
+// chord on [1, 2]; 0.086 below at most). Minus 0.001: more than this line's rounding (< 3e-6) and
+// fast_log2's error (< 3e-6, tests/test_core.py) together.
+IC_INLINE float log2_below(float v) {
+  int32_t u;
+  memcpy(&u, &v, sizeof(u));
+  return static_cast<float>(u - 0x3F800000) * (1.0f / 8388608.0f) - 0.001f;
+}
+
+// aic_value with log2_below for fast_log2. Never above aic_value(n1, y1, n2, y2) as computed: the float
+// operations are the same, rounding to nearest is monotone and n1, n2 - 1 >= 0.
+IC_INLINE float aic_below(float n1, float y1, float n2, float y2) {
+  return n1 * log2_below(y1) + (n2 - 1.0f) * log2_below(y2);
+}
+
+// The first pass's record of one split: the variances' operands and the AIC's lower bound.
+struct Split {
+  float y1, y2, below;
+};
+constexpr int kMaxSplits = 64;  // splits searched in two passes (board 17, 100 kHz 33); more: one pass
+
+// The AIC at split k from the first pass's record (sp[0] is split k_eval): n1 = k, n2 = len - k.
+IC_INLINE float aic_split(const Split* sp, int k_eval, int len, int k) {
+  const Split& p = sp[k - k_eval];
+  return aic_value(static_cast<float>(k), p.y1, static_cast<float>(len - k), p.y2);
+}
+
+}  // namespace
+
 float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) {
   if (begin < 0) begin = 0;
   const int len = end - begin;
@@ -77,33 +121,91 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) 
     t1 += d;
     t2 += d * d;
   }
-  float best = 0.0f, best_prev = 0.0f, best_next = 0.0f, prev = 0.0f;
+  float best = 0.0f, best_prev = 0.0f, best_next = 0.0f;
   int best_k = -1;
-  bool want_next = false;
-  float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
-  for (int k = k_eval; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
-    const float i1 = 1.0f / n1;
-    const float i2 = 1.0f / n2;
-    const float m1 = s1 * i1;
-    const float v1 = s2 * i1 - m1 * m1;
-    const float m2 = (t1 - s1) * i2;
-    const float v2 = (t2 - s2) * i2 - m2 * m2;
-    const float aic = n1 * fast_log2((v1 > 0.0f ? v1 : 0.0f) + eps) +
-                      (n2 - 1.0f) * fast_log2((v2 > 0.0f ? v2 : 0.0f) + eps);
-    if (want_next) {
-      best_next = aic;
-      want_next = false;
+  const int splits = len - 1 - k_eval;  // k = k_eval .. len - 2
+  if (splits <= kMaxSplits) {
+    // Two passes, the logarithms only where the minimum can be. The first runs the sums and keeps, for
+    // every k, the operands y1, y2 and a lower bound of the AIC (aic_below, no series); kc is the k >=
+    // k_first with the least bound. The second computes the AIC at kc, then, in order, only at the k whose
+    // bound is below the least AIC found so far (before kc: not above it). That finds what a one-pass
+    // scan finds, the first k of the least AIC, k*: the AIC so far is never below aic(k*), and after kc it
+    // is above it (k* is the first of the least, kc is not), so k*'s bound (<= aic(k*)) passes; a skipped
+    // k's AIC is not below the least so far (not above it, before kc), so it could not have replaced it
+    // in the scan. The AIC at a k is the same expression on the same operands as in the one-pass scan
+    // (n1 = k, n2 = len - k exactly), so the same float; so are the parabola's neighbours. On the board's
+    // captures 3-4 of the ~17 AICs are computed.
+    Split sp[kMaxSplits];
+    int kc = -1;
+    float kc_below = 0.0f;
+    float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
+    for (int j = 0; j < splits; ++j, n1 += 1.0f, n2 -= 1.0f) {
+      const float i1 = 1.0f / n1;
+      const float i2 = 1.0f / n2;
+      const float m1 = s1 * i1;
+      const float v1 = s2 * i1 - m1 * m1;
+      const float m2 = (t1 - s1) * i2;
+      const float v2 = (t2 - s2) * i2 - m2 * m2;
+      Split& p = sp[j];
+      p.y1 = (v1 > 0.0f ? v1 : 0.0f) + eps;
+      p.y2 = (v2 > 0.0f ? v2 : 0.0f) + eps;
+      p.below = aic_below(n1, p.y1, n2, p.y2);
+      if (k_eval + j >= k_first && (kc < 0 || p.below < kc_below)) {
+        kc = k_eval + j;
+        kc_below = p.below;
+      }
+      const float d = static_cast<float>(w[k_eval + j]) - mean;
+      s1 += d;
+      s2 += d * d;
     }
-    if (k >= k_first && (best_k < 0 || aic < best)) {
-      best = aic;
-      best_k = k;
-      best_prev = prev;
-      want_next = true;
+    best = aic_split(sp, k_eval, len, kc);
+    best_k = kc;
+    for (int k = k_first; k < kc; ++k) {
+      if (sp[k - k_eval].below > best) continue;
+      const float aic = aic_split(sp, k_eval, len, k);
+      if (aic <= best && (aic < best || k < best_k)) {
+        best = aic;
+        best_k = k;
+      }
     }
-    prev = aic;
-    const float d = static_cast<float>(w[k]) - mean;
-    s1 += d;
-    s2 += d * d;
+    for (int k = kc + 1; k <= len - 2; ++k) {
+      if (sp[k - k_eval].below >= best) continue;
+      const float aic = aic_split(sp, k_eval, len, k);
+      if (aic < best) {
+        best = aic;
+        best_k = k;
+      }
+    }
+    // The parabola's neighbours (used when 2 < best_k < len - 2; k_eval <= best_k - 1 then).
+    if (best_k > k_eval) best_prev = aic_split(sp, k_eval, len, best_k - 1);
+    if (best_k < len - 2) best_next = aic_split(sp, k_eval, len, best_k + 1);
+  } else {
+    float prev = 0.0f;
+    bool want_next = false;
+    float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
+    for (int k = k_eval; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
+      const float i1 = 1.0f / n1;
+      const float i2 = 1.0f / n2;
+      const float m1 = s1 * i1;
+      const float v1 = s2 * i1 - m1 * m1;
+      const float m2 = (t1 - s1) * i2;
+      const float v2 = (t2 - s2) * i2 - m2 * m2;
+      const float aic = aic_value(n1, (v1 > 0.0f ? v1 : 0.0f) + eps, n2, (v2 > 0.0f ? v2 : 0.0f) + eps);
+      if (want_next) {
+        best_next = aic;
+        want_next = false;
+      }
+      if (k >= k_first && (best_k < 0 || aic < best)) {
+        best = aic;
+        best_k = k;
+        best_prev = prev;
+        want_next = true;
+      }
+      prev = aic;
+      const float d = static_cast<float>(w[k]) - mean;
+      s1 += d;
+      s2 += d * d;
+    }
   }
   if (best_k < 0) return -1.0f;
   // Parabola through the minimum and its neighbours: the sub-sample position of the minimum.
