@@ -125,6 +125,8 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
 // Sums over x[0 .. i) from the prefix table of x[0 .. n) (0 <= i <= n): the nearer block boundary's sums
 // plus or minus the samples in between (at most kBlock / 2).
 Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i);
+// sum x[a .. b) (|sum| < 2^31: b - a <= 65536), two samples an instruction on the DSP extension.
+int32_t range_sum(const int16_t* x, int a, int b);
 // Smallest and largest sample of x[a .. b) (b > a): exact integers, two samples an instruction pair on
 // the DSP extension (SSUB16 + SEL), a plain loop elsewhere.
 void range_extremes(const int16_t* x, int a, int b, int32_t* lo, int32_t* hi);

@@ -102,8 +102,7 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) 
   const int16_t* w = x + begin;
   // Centre the window to keep the float running sums well conditioned. The mean from the integer sum:
   // a float sum of these integers would be exact too (|partial sums| <= 512 x 32768 = 2^24).
-  int32_t isum = 0;
-  for (int i = 0; i < len; ++i) isum += w[i];
+  const int32_t isum = range_sum(w, 0, len);
   const float mean = static_cast<float>(isum) / static_cast<float>(len);
   // AIC / ln 2 = k log2 var(x[0..k)) + (len - k - 1) log2 var(x[k..len)), one pass with the sums s1, s2
   // over x[0..k) running; the values either side of the best k are kept for the parabola. The sums over
