@@ -130,20 +130,52 @@ def test_zero_shot_end_to_end_with_the_default_twin(session1, tmp_path):
     assert 0.5 < r["sim_trained"]["energy_class_accuracy"] <= 1.0
 
 
-def test_zero_shot_energy_class_with_the_bundled_twins_site_map(session1, tmp_path):
-    """The bundled calibration and its site map (no map is built: the bundled one matches): the sim-trained
-    energy class reads the twin's height estimate, its offsets and weights from the four calibration drops
-    only. Issue 4's target is >= 0.95 (490 virtual drops reach 0.955; the summed-energy forest 0.91)."""
+@pytest.fixture(scope="module")
+def bundled_zero_shot(session1, tmp_path_factory):
+    """The zero-shot flow with the bundled calibration and its site map, 160 virtual drops."""
     from impactsense.sitemap import BUNDLED
     from impactsense.zeroshot import run_zero_shot
 
-    cal = BUNDLED.parent / "calibration.json"
-    r = run_zero_shot(session1, cal, tmp_path / "zs", n_virtual=160, progress=False)
-    assert not (tmp_path / "zs" / "site-map.npz").exists()
-    card = json.loads((tmp_path / "zs" / "model-sim" / "model_card.json").read_text())
+    out = tmp_path_factory.mktemp("zs")
+    return run_zero_shot(session1, BUNDLED.parent / "calibration.json", out, n_virtual=160, progress=False), out
+
+
+def test_zero_shot_energy_class_with_the_bundled_twins_site_map(bundled_zero_shot):
+    """The bundled calibration and its site map (no map is built: the bundled one matches): the sim-trained
+    energy class reads the twin's height estimate, its offsets and weights from the four calibration drops
+    only. Issue 4's target is >= 0.95 (490 virtual drops reach 0.955; the summed-energy forest 0.91)."""
+    r, out = bundled_zero_shot
+    assert not (out / "site-map.npz").exists()
+    card = json.loads((out / "model-sim" / "model_card.json").read_text())
     assert card["energy_features"] == ["twin_log10_height_mm"] and len(card["twin"]["offset"]) == 16
     assert r["sim_trained"]["energy_class_accuracy"] >= 0.93
     assert r["measured_trained"]["energy_class_accuracy"] >= 0.95
+
+
+def test_zero_shot_uncertainty_is_a_1_sigma_on_measured_drops(session1, bundled_zero_shot):
+    """The sim-trained model's reported uncertainty on the measured test split (the calibration drops never
+    in it). Its constants fitted on the virtual drops alone read too narrow (measured drops err further than
+    simulated ones: 0.48 within 1x, rms(r / u) 1.4 here); scaled by the calibration drops held out by
+    position (x1.5), 0.63 +- 0.15 of the errors lie within 1x (0.76: the errors' tail is heavier than a
+    Gaussian's, so at rms(r / u) = 1 more than 63 % lie within 1x; the measured-trained model 0.59), >= 90 %
+    within 2x (0.95). The scaled constants are the model card's: the saved model reports the same."""
+    from impactsense.models import ImpactModel
+    from impactsense.zeroshot import uncertainty_figures
+
+    r, out = bundled_zero_shot
+    unc = r["uncertainty"]
+    after, before = unc["sim_trained"], unc["sim_trained_virtual_constants"]
+    assert after["n"] >= 140
+    assert after["within_1x"] == pytest.approx(1.0 - np.exp(-1.0), abs=0.15)
+    assert after["within_2x"] >= 0.9
+    assert 0.7 <= after["rms_error_over_u"] <= 1.3
+    assert before["within_1x"] <= after["within_1x"] - 0.15 and before["rms_error_over_u"] >= 1.2
+    scale = unc["factor_from_calibration_drops"]
+    assert scale["positions"] == 4 and scale["n"] >= 12 and scale["factor"] > 1.2
+    card = json.loads((out / "model-sim" / "model_card.json").read_text())
+    assert card["uncertainty_factor_from_calibration_drops"] == scale
+    loaded = uncertainty_figures(session1, ImpactModel.load(out / "model-sim"), np.asarray(r["test_recordings"]))
+    assert loaded == pytest.approx(after)
 
 
 @pytest.mark.parametrize("cal, problem", [

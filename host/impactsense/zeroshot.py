@@ -16,6 +16,15 @@ minus simulated arrival energies and difference energies (log10, summed over sen
 which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
 mesh and sensor model lose some of the highest frequencies: a constant offset per feature, ~0.04-0.14 on
 session-1, while the features' growth with the drop height matches the rig's).
+
+The reported uncertainty (uncertainty_mm, a calibrated 1-sigma radial error: twin.calibrated_uncertainty)
+keeps the shape a + b spread and the misfit inflation fitted on the virtual drops' out-of-fold errors, but
+measured drops err further than simulated ones (the twin is not the rig): with the virtual drops' constants
+alone u covers ~0.45 of the measured test split's errors at 1x (target 0.63; rms(r / u) ~1.5). Its scale
+comes from the calibration drops: each calibration position held out in turn, the channel effects and the
+twin refitted on the others (the calibration drops are in-sample for those fits, and in-sample their errors
+read as small as the virtual drops'), the held-out drops' errors give the maximum-likelihood factor
+k = sqrt(mean (r / u)^2) by which a and b are multiplied (uncertainty_on_calibration_drops).
 """
 
 from __future__ import annotations
@@ -23,10 +32,12 @@ from __future__ import annotations
 import json
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import spearmanr
 
 from .data import Session, load_session, write_session
 from .errors import ConfigError, DataError
@@ -126,14 +137,77 @@ def twin_site_map(params, session: Session, out: Path, progress: bool = True):
 
 def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, site) -> None:
     """The rig's offsets and weights of the twin's fingerprint from the calibration drops only; the slopes
-    (d feature / d log10 height) stay the virtual drops'."""
+    (d feature / d log10 height) and the uncertainty's constants stay the virtual drops'."""
     from .sitemap import twin_features
     from .twin import fit_twin
 
     meas = featurize(session.adc[rows], model.signal)
     feats, usable = twin_features(meas)
-    model.twin_fit = fit_twin(feats, usable, site, session.xy_mm[rows], session.height_mm[rows],
-                              slope=np.asarray(model.twin_fit.slope))
+    old = model.twin_fit
+    fit = fit_twin(feats, usable, site, session.xy_mm[rows], session.height_mm[rows], slope=np.asarray(old.slope))
+    model.twin_fit = replace(fit, **{k: getattr(old, k) for k in UNCERTAINTY_FIELDS})
+
+
+UNCERTAINTY_FIELDS = ("uncertainty_offset_mm", "uncertainty_scale", "uncertainty_misfit_ref")
+
+
+def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, virtual_signal: SignalConfig,
+                 site) -> tuple[list[float], list[float], float]:
+    """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
+    simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
+    the rig's group velocity, and with a site map the twin's offsets and weights. Returns (delays, gains,
+    velocity)."""
+    delays, gains, velocity = fit_channels_on_calibration_drops(session, rows, cal_sim, virtual_signal)
+    model.signal.velocity_mm_per_us = velocity
+    model.signal.channel_delay_us = delays
+    model.signal.channel_gain = gains
+    if site is not None:
+        fit_twin_on_calibration_drops(model, session, rows, site)
+    return delays, gains, velocity
+
+
+def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
+                                     virtual_signal: SignalConfig, site) -> dict:
+    """The factor k on the reported uncertainty from the calibration drops, each position held out in turn:
+    the model adapted to the rig (adapt_to_rig) on the other positions' drops, the held-out drops' radial
+    errors r and uncertainties u (the model's constants); k = sqrt(mean (r / u)^2), the maximum-likelihood
+    scale of a Rayleigh error with E r^2 = (k u)^2. The forests are the virtual drops' in every fold (they
+    never saw a measured drop). Returns factor, n (held-out drops with an estimate), positions and
+    rms_error_mm (of those drops)."""
+    xy = session.xy_mm[rows]
+    groups = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    if groups.max() < 1:
+        raise DataError("calibration drops", None, "the uncertainty's scale needs calibration drops at >= 2 "
+                        "positions (each is held out in turn)")
+    err, u = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
+    for g in np.unique(groups):
+        held = groups == g
+        fold = replace(model, signal=SignalConfig.from_dict(model.signal.to_dict()))
+        adapt_to_rig(fold, session, rows[~held], cal_sim[~held], virtual_signal, site)
+        p = fold.predict(featurize(session.adc[rows[held]], fold.signal))
+        err[held] = np.linalg.norm(p["xy_mm"] - xy[held], axis=1)
+        u[held] = p["uncertainty_mm"]
+    ok = np.isfinite(err) & np.isfinite(u) & (u > 0)
+    if ok.sum() < 4:
+        raise DataError("calibration drops", None, f"only {int(ok.sum())} held-out calibration drops have a "
+                        "twin estimate (need >= 4 to scale the uncertainty)")
+    return {"factor": float(np.sqrt(np.mean((err[ok] / u[ok]) ** 2))), "n": int(ok.sum()),
+            "positions": int(groups.max()) + 1, "rms_error_mm": float(np.sqrt(np.mean(err[ok] ** 2)))}
+
+
+def uncertainty_figures(session: Session, model, rows: np.ndarray) -> dict | None:
+    """How the reported uncertainty u covers the radial errors r on `rows`: the fraction within 1x and 2x
+    (0.63 and 0.98 for a calibrated 1-sigma of a 2-D Gaussian error), Spearman of u against r and
+    rms(r / u). None for a model without a position uncertainty (no site map)."""
+    p = model.predict(featurize(session.adc[rows], model.signal))
+    err = np.linalg.norm(p["xy_mm"] - session.xy_mm[rows], axis=1)
+    u = p["uncertainty_mm"]
+    ok = np.isfinite(err) & np.isfinite(u) & (u > 0)
+    if ok.sum() < 2:
+        return None
+    e, v = err[ok], u[ok]
+    return {"n": int(ok.sum()), "within_1x": float(np.mean(e <= v)), "within_2x": float(np.mean(e <= 2 * v)),
+            "spearman": float(spearmanr(v, e).statistic), "rms_error_over_u": float(np.sqrt(np.mean((e / v) ** 2)))}
 
 
 def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, workers: int,
@@ -215,14 +289,16 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
                                  progress=False)
         virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
         virtual_velocity = sim_model.signal.velocity_mm_per_us
-        delays, gains, velocity = fit_channels_on_calibration_drops(session, cal_rows, cal_sim, sim_model.signal)
-        sim_model.signal.velocity_mm_per_us = velocity
-        sim_model.signal.channel_delay_us = delays
-        sim_model.signal.channel_gain = gains
+        delays, gains, velocity = adapt_to_rig(sim_model, session, cal_rows, cal_sim, virtual_signal, site)
         # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
-        offsets = {}
+        offsets, scale, virtual_twin = {}, None, None
         if site is not None:
-            fit_twin_on_calibration_drops(sim_model, session, cal_rows, site)
+            # ... and the uncertainty's scale (module doc).
+            scale = uncertainty_on_calibration_drops(sim_model, session, cal_rows, cal_sim, virtual_signal, site)
+            virtual_twin = sim_model.twin_fit
+            sim_model.twin_fit = replace(
+                virtual_twin, uncertainty_offset_mm=scale["factor"] * virtual_twin.uncertainty_offset_mm,
+                uncertainty_scale=scale["factor"] * virtual_twin.uncertainty_scale)
         else:
             offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
             vf = featurize(virtual.adc, virtual_signal)
@@ -237,7 +313,8 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
                                                    "channel_gain_from_calibration_drops": gains,
                                                    "velocity_mm_per_us_virtual_drops": virtual_velocity,
                                                    "velocity_mm_per_us_from_calibration_drops": velocity,
-                                                   "energy_feature_offsets_from_calibration_drops": offsets})
+                                                   "energy_feature_offsets_from_calibration_drops": offsets,
+                                                   "uncertainty_factor_from_calibration_drops": scale})
 
     # Measured-trained on the same session, same split, calibration drops excluded everywhere.
     with stage("train_measured"):
@@ -248,6 +325,12 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
     with stage("evaluate"):
         rep_sim = evaluate(session, sim_model, rows=test_rows)
         rep_meas = evaluate(session, meas_model, rows=test_rows)
+        uncertainty = {"sim_trained": uncertainty_figures(session, sim_model, test_rows),
+                       "measured_trained": uncertainty_figures(session, meas_model, test_rows)}
+        if virtual_twin is not None:
+            uncertainty["sim_trained_virtual_constants"] = uncertainty_figures(
+                session, replace(sim_model, twin_fit=virtual_twin), test_rows)
+            uncertainty["factor_from_calibration_drops"] = scale
     result = {
         "calibration": str(cal_path),
         "calibration_recordings": cal_rows.tolist(),
@@ -260,6 +343,7 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "energy_feature_offsets_from_calibration_drops": offsets,
         "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
         "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},
+        "uncertainty": uncertainty,
         "wall_time_s": wall,
     }
     (out / "zero-shot.json").write_text(json.dumps(result, indent=1))
@@ -278,6 +362,26 @@ def zero_shot_table(result: dict) -> str:
             m = result[key][region]
             lines.append(f"{'impactsense, ' + kind + ', ' + label:46s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} "
                          f"{m['mae_mm']:7.2f} {result[key]['energy_class_accuracy']:9.2f}")
+    lines += uncertainty_lines(result.get("uncertainty") or {})
     if result.get("wall_time_s"):
         lines.append("wall time [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in result["wall_time_s"].items()))
     return "\n".join(lines)
+
+
+def uncertainty_lines(unc: dict) -> list[str]:
+    """The table's rows on the reported uncertainty (uncertainty_figures) on the measured test split."""
+    rows = [(label, unc.get(key)) for key, label in (("sim_trained", "sim-trained"),
+                                                      ("sim_trained_virtual_constants",
+                                                       "sim-trained, virtual drops' scale alone"),
+                                                      ("measured_trained", "measured-trained"))]
+    rows = [(label, f) for label, f in rows if f]
+    if not rows:
+        return []
+    lines = ["uncertainty_mm (1-sigma radial), measured test split: errors within 1x / 2x (0.63 / 0.98 if calibrated)"]
+    lines += [f"  {label:44s} {f['within_1x']:.2f} / {f['within_2x']:.2f}  rho {f['spearman']:+.2f}  "
+              f"rms(error / u) {f['rms_error_over_u']:.2f}" for label, f in rows]
+    if unc.get("factor_from_calibration_drops"):
+        s = unc["factor_from_calibration_drops"]
+        lines.append(f"  sim-trained scale x{s['factor']:.2f} from {s['n']} calibration drops, each of their "
+                     f"{s['positions']} positions held out in turn (rms error {s['rms_error_mm']:.2f} mm)")
+    return lines
