@@ -259,7 +259,7 @@ def test_pruning_at_the_edge_of_its_bounds_equals_full_scans(seed):
     the rounded baseline, exact while the capture's sum of squares about it fits 32 bits): quiet captures
     whose baselines sit at any fraction of a count, above or below zero, with lone samples placed just
     under, at and just over the threshold, the peak and the rails, give the full scans' peak, crossing
-    and clip flag."""
+    and clip flag, and the exact energies."""
     rng = np.random.default_rng(100 + seed)
     n, rows = 1024, 24
     adc = np.empty((rows, 4, n), np.int16)
@@ -286,6 +286,12 @@ def test_pruning_at_the_edge_of_its_bounds_equals_full_scans(seed):
             got = out["toa_threshold"][r, c]
             assert got == want or (np.isnan(got) and want < 0)
             assert bool(out["flags"][r, c] & _core.FLAG_CLIPPED) == bool(np.any((x <= -4096) | (x >= 4095)))
+            # the energies through the sums about the rounded baseline: the exact sums about the mean
+            d2 = (x.astype(np.float64) - x[:64].mean()) ** 2
+            assert out["energy"][r, c] == pytest.approx(d2.sum(), rel=1e-6)
+            if not out["flags"][r, c] & _core.FLAG_NO_ONSET:
+                cum = np.cumsum(d2)
+                assert abs(out["n2"][r, c] - int(np.argmax(cum >= 0.99 * cum[-1]))) <= 1
 
 
 @pytest.mark.parametrize("seed", range(6))

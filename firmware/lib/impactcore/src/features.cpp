@@ -84,8 +84,11 @@ struct Channel {
   int64_t c1;      // 2 nb sb
   int64_t sb2;     // sb^2
   float nb2;       // nb^2
-  bool fits32;     // set_centre(): the pruning tests' uint32 form is exact
+  bool fits32;     // set_centre(): the uint32 sums about c are exact
+  int32_t c;       // sb / nb rounded
   uint32_t uc, uc2;  // c, c^2 (mod 2^32)
+  uint32_t nbsq;   // nb^2
+  int32_t tnr, r2;  // 2 nb r, r^2 (r = nb c - sb)
   Sums prefix[kMaxBlocks + 1];
 
   void set_baseline(int n_b, int32_t sum_b) {
@@ -97,15 +100,25 @@ struct Channel {
     nb2 = static_cast<float>(c2);
   }
   IC_INLINE int64_t form(int64_t s2, int32_t s1, int m) const { return c2 * s2 - c1 * s1 + m * sb2; }
+  // form() of a prefix x[0 .. m), through the sums about c when fits32 (set_centre). With y = x - c and
+  // r = nb c - sb, nb x - sb = nb y + r, so the form is nb^2 sum y^2 + 2 nb r sum y + m r^2, the same
+  // integer: sum y^2 over a prefix is below 2^32 (exact in uint32 from the low words), |2 nb r| <= nb^2
+  // <= 2^16, |sum y| < 2^29, m r^2 < 2^27. One UMULL and one SMULL instead of three 64-bit products.
+  IC_INLINE int64_t prefix_form(int64_t s2, int32_t s1, int m) const {
+    if (!fits32) return form(s2, s1, m);
+    const uint32_t q = static_cast<uint32_t>(s2) - 2u * uc * static_cast<uint32_t>(s1) + static_cast<uint32_t>(m) * uc2;
+    const int32_t y = s1 - m * c;
+    return static_cast<int64_t>(static_cast<uint64_t>(nbsq) * q) + static_cast<int64_t>(tnr) * y + m * r2;
+  }
   // Scaled energy of x[0 .. i) (a partial block costs its samples).
   int64_t energy_to(int i) const {
     const Sums r = prefix_at(x, prefix, n, i);
-    return form(r.s2, r.s1, i);
+    return prefix_form(r.s2, r.s1, i);
   }
   // ... of x[0 .. k kBlock), k <= nblk.
   IC_INLINE int64_t energy_to_block(int k) const {
     const int m = k * kBlock < n ? k * kBlock : n;
-    return form(prefix[k].s2, prefix[k].s1, m);
+    return prefix_form(prefix[k].s2, prefix[k].s1, m);
   }
   // ... of block k.
   IC_INLINE int64_t block_energy(int k) const {
@@ -138,7 +151,7 @@ struct Channel {
     return r > 0.0f ? to_int64(0.999f * r * r * nb2) : 0;
   }
 
-  // The pruning tests' cheap form, used when it is exact. c = sb / nb rounded to an integer, so
+  // The sums about c (the pruning tests, prefix_form), used when exact. c = sb / nb rounded, so
   // |base - c| <= 0.502 (0.5, plus the float division's rounding <= 2^-24 * 32768). When the capture's
   // sum of (x - c)^2 is below 2^32 (its rms about the baseline under 2048 counts: every 12-bit capture),
   // every range's is too, and S2 - 2 c S1 + m c^2 over a range is exact in uint32 arithmetic on the low
@@ -146,8 +159,12 @@ struct Channel {
   // The scans below are compiled for either form (template argument kFits32 = fits32).
   void set_centre() {
     const int32_t num = 2 * sb + nb, den = 2 * nb;  // c = floor(sb / nb + 1/2); |num| < 2^25
-    int32_t c = num / den;
+    c = num / den;
     if (num % den != 0 && num < 0) --c;
+    const int32_t r = nb * c - sb;  // |r| <= nb / 2
+    nbsq = static_cast<uint32_t>(nb * nb);
+    tnr = 2 * nb * r;
+    r2 = r * r;
     const int64_t sc = prefix[nblk].s2 - 2 * static_cast<int64_t>(c) * prefix[nblk].s1 +
                        static_cast<int64_t>(n) * c * c;
     fits32 = (sc >> 32) == 0;
