@@ -150,7 +150,7 @@ def position_free_profile(evals, meas_pf, j_pos, ks, stiff, nu_axis, nu_true, lo
     return nu_hat, e_hat, prof[nu_true][0] - prof[nus[i]][0]
 
 
-def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
+def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None, joint_ds=None) -> None:
     """The best that a per-repetition position fit (next step (b) of issue 4) could do: the nu-study's drops
     (same truths, seeds, 1 mm jitter, noise), but the twin simulates every repetition at its TRUE jittered
     position and is compared repetition by repetition (errors: the noise-only, position-free sigma x
@@ -171,6 +171,11 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None) -> None:
         x, y, h, xj, yj = (d[k] for k in ("x", "y", "h", "xj", "yj"))
         session, cfg, cfg_sim, feats, targets, meas, noise = (d[k] for k in (
             "session", "cfg", "cfg_sim", "feats", "targets", "meas", "noise"))
+        recs = np.concatenate([np.asarray(r, int) for r in targets.recording_ids])
+        if fit and joint_ds is not None:
+            fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cfg, x, y, recs, xj, yj,
+                      e_true, nu_true, twin_ds or 650.0, joint_ds, t0)
+            continue
         e0 = e_true
         j_pos = plate_fem.position_jacobian(lambda xx, yy, hh: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e0 * 1e6, nu=0.35), rig, xx, yy, hh), cfg_sim, *noise),
@@ -236,9 +241,42 @@ def fit_rounds(sim, truth, rig, cfg_sim, noise, meas, per_rep, targets, recs, x,
         pos_err = np.sqrt(np.mean((xf - xj[recs]) ** 2 + (yf - yj[recs]) ** 2))
         print(f"{e_true:8.0f}, {nu_true:.2f} round {rnd + 1} {label:20s} nu {nu_c:.3f} ({nu_c - nu_true:+.3f}) "
               f"E {e_c:.0f} ({e_c / e_true - 1:+.3f}) chi2(truth)-min {gap:.1f}; position rms error {pos_err:.2f} mm "
-              f"(declared {np.sqrt(np.mean((x[recs] - xj[recs]) ** 2 + (y[recs] - yj[recs]) ** 2)):.2f}); "
+              f"(declared {pos0:.2f}); "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
     print("      noise-only sigma us: " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, sigma)), flush=True)
+
+
+def fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cfg, x, y, recs, xj, yj, e_true,
+              nu_true, ds_start, prior_frac, t0):
+    """Calibration's nu stage (`plate_nu.run`) on the nu-study's drops: E, nu and D_s fitted together to every
+    repetition's group delays with each repetition's position fitted, from nu 0.35, E fitted to the AIC at the
+    declared positions, D_s = `ds_start` (the truth is 650) with a Gaussian prior there of sd `prior_frac` x
+    ds_start (0: no prior). Returns the nu_fit block."""
+    import numpy as np
+
+    from impactsense.calibration import plate_fem, plate_nu
+    calls = [0]
+    stiff0 = e_true / (1 - nu_true ** 2)             # only the scan's start (E is then fitted)
+    ev0 = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
+        sim(dict(truth, e_pa=e * 1e6, nu=nu, damping_per_s=ds_start), rig, targets.x_mm, targets.y_mm,
+            targets.height_mm), cfg_sim, *noise))
+    e_c, _ = plate_fem.e_scan(ev0, meas, stiff0 * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
+    prior = (ds_start, prior_frac * ds_start) if prior_frac > 0 else None
+    res = plate_nu.run(sim, dict(truth, e_pa=e_c * 1e6, nu=0.35, damping_per_s=ds_start), rig, session, targets,
+                       feats, cfg, cfg_sim, noise[:3], ds_prior=prior,
+                       progress=lambda: calls.__setitem__(0, calls[0] + 1))
+    pos = np.sqrt(np.mean((np.asarray(res["x_mm"]) - xj[recs]) ** 2 + (np.asarray(res["y_mm"]) - yj[recs]) ** 2))
+    pos0 = np.sqrt(np.mean((x[recs] - xj[recs]) ** 2 + (y[recs] - yj[recs]) ** 2))
+    for r in res["rounds"]:
+        print(f"      round {r['round']}: nu {r['nu']:.4f} E {r['E_mpa']:.0f} D_s {r['damping_per_s']:.1f} "
+              f"chi2/dof {r['chi2'] / r['dof']:.2f} ({r['fem_runs']} FEM runs)", flush=True)
+    print(f"{e_true:8.0f}, {nu_true:.2f} joint (D_s start {ds_start:.0f}, prior sd {prior_frac:.0%}): "
+          f"nu {res['nu']:.4f} ({res['nu'] - nu_true:+.4f}) sd {res['sd']['nu']:.4f}, E {res['E_mpa']:.0f} "
+          f"({res['E_mpa'] / e_true - 1:+.2%}), D_s {res['damping_per_s']:.1f} ({res['damping_per_s'] / 650 - 1:+.2%}) "
+          f"sd {res['sd']['damping_per_s']:.1f}, chi2/dof {res['chi2_dof']:.2f}, identified {res['identified']}, "
+          f"position rms error {pos:.2f} mm (declared {pos0:.2f}); "
+          f"{calls[0]} least-squares FEM runs, {time.perf_counter() - t0:.0f} s", flush=True)
+    return res
 
 
 def position_scan(mesh_mm, workers) -> None:
@@ -287,13 +325,17 @@ def main() -> int:
     ap.add_argument("--nu-oracle", action="store_true", help="the nu-study with the twin at each drop's true position")
     ap.add_argument("--nu-fit", action="store_true", help="the nu-study with each repetition's position fitted")
     ap.add_argument("--twin-ds", type=float, default=None, help="--nu-fit: the twin's D_s 1/s (default: the truth's 650)")
+    ap.add_argument("--joint-ds", type=float, default=None, metavar="PRIOR_SD",
+                    help="--nu-fit: fit D_s with E and nu (calibration's nu stage), the twin's D_s (--twin-ds) as a "
+                         "prior of this relative sd (0: none)")
     ap.add_argument("--reps", type=int, default=3, help="--nu-study's repetitions per case (session-1: median 5)")
     args = ap.parse_args()
     if args.position_scan:
         position_scan(args.mesh_mm or None, args.workers)
         return 0
     if args.nu_fit:
-        nu_oracle(args.mesh_mm or None, args.workers, args.reps, fit=True, twin_ds=args.twin_ds)
+        nu_oracle(args.mesh_mm or None, args.workers, args.reps, fit=True, twin_ds=args.twin_ds,
+                  joint_ds=args.joint_ds)
         return 0
     if args.nu_oracle:
         nu_oracle(args.mesh_mm or None, args.workers, args.reps)

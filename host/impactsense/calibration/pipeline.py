@@ -5,10 +5,14 @@ interrupted run resumes and a finished one is not recomputed):
 
   drops     choose four repeatable, Eq.-35-accepted cases well spread over the plate (`drops`)
   plate     sub-problem 1: Eq. 16 over the full E x nu grid with the fast first-arrival model (`plate`,
-            `arrival`), contour plot; then the FEM fits E and nu to the AIC DToA and the low-band group delays
-            together (`plate_fem`, `bands`): the AIC DToA alone fix only a combination of E and nu
+            `arrival`), contour plot; then the FEM fits E at the grid's nu to the AIC DToA (`plate_fem`): the AIC
+            DToA alone fix only a combination of E and nu (the bending stiffness)
   damping   D_s from the envelope decay of the four cases against two FEM runs of them (`damping`): the
             twin's log-envelope slope moves by D_s / 2, a far better conditioned observable than f2 / f3
+  plate_nu  E, nu and D_s from every repetition's band group delays, each repetition's position fitted, the
+            decay D_s as a prior (`plate_nu`); nu (and that D_s) is used only when the fit passes its rule
+            (chi^2 / dof, sd(nu)), else the grid's nu and the decay's D_s are kept, and CAL.json says so
+  plate_fem_refit  E refitted to the AIC DToA (Eq. 16) at the nu and D_s now held
   design    sub-problem 2: Sobol design over the PZT block and D_s, the FEM at every point; outputs f2
             (sensor energies) and f3 (last-window residual-energy ratios), method.md
   surrogate RF, GPR, NN and SVD-polynomial surrogates of log10 f2 and log10 f3, tuned on a 70/15/15 split;
@@ -34,7 +38,7 @@ import numpy as np
 from .. import _core
 from ..data import load_session
 from ..errors import ConfigError
-from . import arrival, damping, drops as drops_mod, fem, plate, plate_fem, screening, surrogates
+from . import arrival, damping, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
 
@@ -62,6 +66,7 @@ class CalibrateOptions:
     fast_n_fft: int = 1024
     fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM plate fit: E basin scan = fast minimum x these
     n_noise: int = 4                       # rig-noise realisations added to simulated records before picking
+    nu_rounds: int = 2                     # nu stage: rounds of (positions, then E, nu, D_s); 0 skips the stage
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -74,6 +79,8 @@ class CalibrateOptions:
             raise ConfigError("the E / nu grid must stay physical: E > 0, 0 <= nu < 0.5")
         if self.workers < 1:
             raise ConfigError("--workers must be >= 1")
+        if not isinstance(self.nu_rounds, (int, np.integer)) or self.nu_rounds < 0:
+            raise ConfigError(f"nu_rounds must be a whole number >= 0, got {self.nu_rounds!r}")
 
 
 def _key(*parts) -> str:
@@ -196,8 +203,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         feats = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
         t = drops_mod.select_drops(session, feats, opts.drops, tol_us=opts.eq35_tol_us,
                                    margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
-        return t, plate_fem.measured_targets(session, t, feats, cfg)
-    targets, plate_targets = clock.run("drops", stage_drops)
+        return t, plate_fem.measured_targets(session, t, feats, cfg), feats
+    targets, plate_targets, feats = clock.run("drops", stage_drops)
     out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
     noise = (float(np.median(targets.noise_rms)), int(opts.n_noise), int(opts.seed))
     base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us), noise)
@@ -264,31 +271,53 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         decay = clock.run("damping", damping_stage)
         result["damping_from_decay"] = decay
 
+        # nu (with D_s and every repetition's position) from the band group delays (`plate_nu`)
+        nu_bounds = (float(nu_axis[0]), float(nu_axis[-1]))
+
+        def nu_stage():
+            key = _key(base_key, params, decay["damping_per_s"], decay["se_per_s"], nu_bounds, e_bounds,
+                       opts.nu_rounds, "plate-nu-v1")
+            return _plate_nu(opts, rig, params, targets, session, feats, cfg, cfg_sim, simulate, decay,
+                             cache("plate-nu.json"), key, noise, nu_bounds, e_bounds)
+        nu_fit = clock.run("plate_nu", nu_stage)
+        stage1["nu_fit"] = nu_fit
+        nu_final = float(nu_fit["nu"]) if nu_fit["identified"] else nu_best
+        ds_final = float(nu_fit["damping_per_s"]) if nu_fit["identified"] else float(decay["damping_per_s"])
+        nu_fit["used"] = {"nu": nu_final, "damping_per_s": ds_final}
+        params["nu"] = nu_final
+
         def refit_stage():
-            p_ds = dict(params, damping_per_s=float(decay["damping_per_s"]))
+            p_ds = dict(params, damping_per_s=ds_final)
             ev = plate_evals(p_ds, "fem-ds")
-            e2, scan2 = plate_fem.e_scan(ev, plate_targets, float(params["e_pa"]) / 1e6, nu_best, e_bounds,
-                                         ratios=(0.97, 1.0, 1.03), walk=1.03, observables=[0])
-            ident = plate_fem.nu_identifiability(ev, plate_targets, e2, nu_best,
-                                                 nu_bounds=(float(nu_axis[0]), float(nu_axis[-1])))
-            obs = ev(e2, nu_best)
-            return e2, scan2, ident, obs
-        e2, scan2, ident, obs = clock.run("plate_fem_refit", refit_stage)
+            e_aic, scan2 = plate_fem.e_scan(ev, plate_targets, float(params["e_pa"]) / 1e6, nu_final, e_bounds,
+                                            ratios=(0.97, 1.0, 1.03), walk=1.03, observables=[0])
+            # with nu identified, E is the group-delay fit's (it moves the delays by ~2 us per 1 %; the AIC DToA
+            # step by 10 us and fix E only to ~3 %, measured on FEM-made drops); else Eq. 16's at the grid's nu
+            e2 = round(float(nu_fit["E_mpa"]), 1) if nu_fit["identified"] else e_aic
+            ident = plate_fem.nu_identifiability(ev, plate_targets, e2, nu_final, nu_bounds=nu_bounds)
+            return e2, e_aic, scan2, ident, ev(e2, nu_final)
+        e2, e_aic, scan2, ident, obs = clock.run("plate_fem_refit", refit_stage)
         params["e_pa"] = float(e2) * 1e6
         eq16_fem = float(plate.eq16_loss(obs[:, 0], plate_targets.dtoa[:, 0]))
+        if nu_fit["identified"]:
+            claimed = (f"E, nu and D_s: nu {nu_final:.3f} +- {nu_fit['sd']['nu']:.3f}, E and D_s from the band group "
+                       "delays of every repetition (positions fitted); E_aic_mpa is Eq. 16's E at that nu")
+        else:
+            claimed = ("E / (1 - nu^2), the bending stiffness; nu is the grid's and E follows from it (Eq. 16): the "
+                       f"group-delay fit of nu is not identified ({nu_fit['rule']}); D_s from the envelope decay")
         stage1.update({
-            "E_mpa": float(e2), "stiffness_E_over_1_minus_nu2_mpa": float(e2) / (1 - nu_best ** 2),
+            "nu": nu_final, "nu_grid": nu_best, "E_aic_mpa": float(e_aic),
+            "E_mpa": float(e2), "stiffness_E_over_1_minus_nu2_mpa": float(e2) / (1 - nu_final ** 2),
             "fem_scan": {f"{k:.0f}": v for k, v in sorted(scan2.items())},
             "fem_loss_eq16_us2": eq16_fem, "fem_rms_dtoa_error_us": float(np.sqrt(eq16_fem / targets.dtoa_us.size)),
             "fem_chi2_all_observables": plate_fem.chi2(obs, plate_targets),
             "fem_rms_residual_us": {n: float(np.sqrt(np.nanmean((obs[:, k] - plate_targets.dtoa[:, k]) ** 2)))
                                     for k, n in enumerate(plate_targets.names)},
             "nu_identifiability": ident,
-            "claimed": "E / (1 - nu^2), the bending stiffness; nu is the grid's (not identified by four drops' "
-                       "timing, docs/findings.md) and E follows from it"})
+            "claimed": claimed})
         # sub-problem 2
         s2 = _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key, clock, stem, noise,
-                          damping_fixed=decay["damping_per_s"])
+                          damping_fixed=ds_final)
         params.update(s2.pop("fitted"))
         result["channel_amplitude_gain_meas_over_sim"] = s2["channel_amplitude_gain_meas_over_sim"]
         result["pzt_damping"] = s2
@@ -359,6 +388,31 @@ def _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simul
                      "noise-corrected log block power from 1 ms after the AIC onset while the measured case "
                      f"stays >= {damping.SNR:.0f} x noise (<= {damping.MAX_MS:.0f} ms); FEM runs of the four drops "
                      f"({damping.DECAY_DURATION_MS:.0f} ms) scaled to the measured peaks, rig noise added"}
+    out = json.loads(json.dumps(out, default=_jsonable))
+    _write_json_atomic(path, {"key": key, **out})
+    return out
+
+
+def _plate_nu(opts, rig, params, targets, session, feats, cfg, cfg_sim, simulate, decay, path: Path, key: str,
+              noise, nu_bounds, e_bounds) -> dict:
+    """Sub-problem 1's nu stage (`plate_nu.run`): E, nu and D_s from every accepted repetition's band group
+    delays, each repetition's position fitted, from (E at the grid's nu, the grid's nu, the decay's D_s) with
+    the decay estimate as D_s's prior (its SE and a systematic `plate_nu.DS_SYSTEMATIC` in quadrature)."""
+    from tqdm import tqdm
+    if opts.nu_rounds == 0:
+        return {"identified": False, "rule": "the nu stage was skipped (nu_rounds 0)", "skipped": True}
+    cached = _read_cache(path, key)
+    if cached is not None:
+        cached.pop("key")
+        return cached
+    ds0 = float(decay["damping_per_s"])
+    prior = (ds0, float(np.hypot(decay["se_per_s"], plate_nu.DS_SYSTEMATIC * ds0)))
+    lo_d, hi_d = fem.FACTORS[fem.FACTOR_NAMES.index("damping_per_s")][1:3]
+    bar = tqdm(desc="FEM nu fit (E, nu, D_s, positions)", unit="run", disable=not opts.progress)
+    out = plate_nu.run(simulate, dict(params, damping_per_s=ds0), rig, session, targets, feats, cfg, cfg_sim, noise,
+                       ds_prior=prior, e_bounds=e_bounds, nu_bounds=nu_bounds, ds_bounds=(lo_d, hi_d),
+                       rounds=int(opts.nu_rounds), progress=lambda: bar.update(1))
+    bar.close()
     out = json.loads(json.dumps(out, default=_jsonable))
     _write_json_atomic(path, {"key": key, **out})
     return out

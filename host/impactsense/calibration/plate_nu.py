@@ -1,0 +1,229 @@
+"""Sub-problem 1's nu stage: E, nu and D_s fitted together to every repetition's band group delays, with each
+repetition's own position fitted (issue 4; docs/findings.md, "Can four drops tell nu?").
+
+Why this shape:
+- the AIC DToA fix only the bending stiffness E / (1 - nu^2); the band group delays (`group_delay`) see the
+  shear end of the A0 branch too, and they move smoothly with a drop's position;
+- a drop lands ~1 mm from where it was declared, which moves its group delays by 5-100 us/mm (edge
+  reflections make that non-linear), so each repetition's (x, y) is fitted first, re-running the FEM at the
+  trial positions (`plate_fem.fit_positions`), and the positions' remaining linear freedom is projected out of
+  the residual (`plate_fem._position_projector`);
+- the group delays are energy centroids of envelopes damped by exp(-D_s t): a twin whose D_s is 5 % off moves
+  nu by up to 0.03. So D_s is a third parameter of the fit, with the envelope-decay estimate (`damping`) as a
+  Gaussian prior.
+
+Per round: positions at the current (E, nu, D_s); FEM position derivatives there; then a bounded least squares
+(scipy `least_squares`, forward FEM differences with fixed steps) over (ln E, nu, D_s) of the projected,
+standardised residuals plus the prior's term. The uncertainty is the Gauss-Newton covariance at the optimum,
+scaled by max(1, chi^2 / dof) (model error). A nu the data cannot support is not claimed (`identified`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .. import _core
+from . import group_delay, plate, plate_fem
+
+OBSERVABLES = "group delays only"   # the AIC onsets bias nu by +0.01-0.02 even at the true positions
+# records are cut this long after the latest measured onset before the group delays (measured and twin alike):
+# the windows end < 5.5 ms after the onsets, so 8 ms leaves the zero-phase filters' and the Hilbert transform's
+# edge effects outside them, and costs a quarter of the full 50 ms record
+CROP_AFTER_ONSET_MS = 8.0
+STEPS = (0.004, 0.004, 8.0)         # forward-difference steps of (ln E, nu, D_s 1/s)
+SIGMA_FLOOR_US = 0.2
+# a nu is claimed only when the twin explains the group delays (chi^2 / dof at most this) ...
+CHI2_DOF_MAX = 3.0
+# ... and its scaled standard deviation is below this fraction of the nu grid's range
+SD_FRACTION_MAX = 1.0 / 3.0
+DS_SYSTEMATIC = 0.03                # the decay estimate's systematic error (fraction of D_s) for its prior
+
+
+@dataclass
+class NuFit:
+    e_mpa: float
+    nu: float
+    damping_per_s: float
+    sd: dict                        # standard deviations of ln E, nu, D_s (scaled by max(1, chi^2 / dof))
+    chi2: float
+    dof: int
+    x_mm: np.ndarray                # each repetition's fitted position
+    y_mm: np.ndarray
+    rounds: list
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    def identified(self, nu_bounds) -> tuple[bool, str]:
+        """The rule for claiming nu: chi^2 / dof <= CHI2_DOF_MAX and sd(nu) <= SD_FRACTION_MAX of the range."""
+        span = float(nu_bounds[1] - nu_bounds[0])
+        if not np.isfinite(self.chi2_dof) or self.chi2_dof > CHI2_DOF_MAX:
+            return False, (f"chi^2 / dof = {self.chi2_dof:.1f} > {CHI2_DOF_MAX:g}: the twin does not explain the "
+                           "group delays, so their nu is the model error's, not the plate's")
+        if not self.sd["nu"] <= SD_FRACTION_MAX * span:
+            return False, f"sd(nu) = {self.sd['nu']:.3f} > {SD_FRACTION_MAX:.2f} of the grid's range {span:g}"
+        return True, (f"chi^2 / dof = {self.chi2_dof:.2f} <= {CHI2_DOF_MAX:g} and sd(nu) = {self.sd['nu']:.4f} "
+                      f"<= {SD_FRACTION_MAX:.2f} x {span:g}")
+
+    def to_json(self, x_declared, y_declared, nu_bounds) -> dict:
+        ok, why = self.identified(nu_bounds)
+        shift = np.hypot(self.x_mm - np.asarray(x_declared, float), self.y_mm - np.asarray(y_declared, float))
+        return {"E_mpa": self.e_mpa, "nu": self.nu, "damping_per_s": self.damping_per_s,
+                "sd": self.sd, "chi2": self.chi2, "dof": self.dof, "chi2_dof": self.chi2_dof,
+                "identified": ok, "rule": why,
+                "position_shift_rms_mm": float(np.sqrt(np.mean(shift ** 2))),
+                "position_shift_max_mm": float(shift.max()), "x_mm": self.x_mm.tolist(),
+                "y_mm": self.y_mm.tolist(), "rounds": self.rounds}
+
+
+def crop_samples(toa_us, fs_hz, n_samples, channel_delay_us=(0.0, 0.0, 0.0, 0.0)) -> int:
+    """Record length used for the group delays: the latest measured onset (record time) + CROP_AFTER_ONSET_MS."""
+    raw = np.asarray(toa_us, float) + np.asarray(channel_delay_us, float)[None, :]
+    last = np.nanmax(raw) if np.isfinite(raw).any() else 0.0
+    return int(min(n_samples, np.ceil((last * 1e-3 + CROP_AFTER_ONSET_MS) * 1e-3 * fs_hz)))
+
+
+def measured_group_delays(session, targets, feats, cfg) -> tuple[np.ndarray, int]:
+    """Every accepted repetition's band group delays [R, B, 6] us (cases in order), and the crop length."""
+    recs = np.concatenate([np.asarray(r, int) for r in targets.recording_ids])
+    toa = np.asarray(feats["toa_us"], float)[recs]
+    n = crop_samples(toa, cfg.fs_hz, session.adc.shape[-1], cfg.channel_delay_us)
+    gd = group_delay.group_delays(session.adc[recs][..., :n], toa, cfg.fs_hz, plate.PAIR_I, plate.PAIR_J,
+                                  channel_delay_us=cfg.channel_delay_us, baseline_samples=cfg.baseline_samples)
+    return gd, n
+
+
+def twin_group_delays(adc, cfg_sim, n_samples, noise_counts=0.0, n_noise=1, seed=0) -> np.ndarray:
+    """The same group delays [R, B, 6] of simulated records cut to `n_samples`, the rig's noise added (`n_noise`
+    seeded realisations averaged; the same seeds for every trial: a smooth objective)."""
+    a = np.asarray(adc, float)[..., :n_samples]
+    rng = np.random.default_rng(seed)
+    acc = []
+    for _ in range(max(1, n_noise)):
+        x = a + rng.normal(0.0, noise_counts, a.shape) if noise_counts > 0 else a
+        q = np.ascontiguousarray(np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16))
+        toa = _core.extract_batch(q, cfg_sim)["toa_us"].astype(float)
+        acc.append(group_delay.group_delays(q, toa, cfg_sim.fs_hz, plate.PAIR_I, plate.PAIR_J,
+                                            baseline_samples=cfg_sim.baseline_samples))
+    return np.mean(acc, axis=0)
+
+
+def noise_sigma(adc, cfg_sim, n_samples, noise_counts, n_noise=4, n_seeds=4) -> np.ndarray:
+    """The group delays' noise-only standard error [B] us for a residual measured - twin (the twin averaging
+    `n_noise` realisations): their spread over `n_seeds` single rig-noise realisations of one FEM run, x sqrt(1
+    + 1 / n_noise), floored at SIGMA_FLOOR_US."""
+    obs = np.stack([twin_group_delays(adc, cfg_sim, n_samples, noise_counts, 1, 1000 + s) for s in range(n_seeds)])
+    sd = np.sqrt(np.nanmean(np.nanvar(obs, axis=0, ddof=1), axis=(0, 2))) * np.sqrt(1 + 1 / max(n_noise, 1))
+    return np.maximum(np.nan_to_num(sd, nan=SIGMA_FLOOR_US), SIGMA_FLOOR_US)
+
+
+def run(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, ds_prior=None,
+        e_bounds=(1000.0, 9000.0), nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2,
+        progress=None) -> dict:
+    """The nu stage on a session's chosen cases: every accepted repetition's group delays against the twin
+    `simulate(params, rig, x, y, h)` (params: the flat dict; its e_pa, nu, damping_per_s are the start), with
+    the rig's noise (noise = (counts rms, realisations, seed)). Returns CAL.json's `plate.nu_fit` block."""
+    per_rep, n = measured_group_delays(session, targets, feats, cfg)
+    n_rep = [len(r) for r in targets.recording_ids]
+    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
+
+    def run_obs(e_mpa, nu, d_s, xx, yy, hh):
+        p = dict(params, e_pa=e_mpa * 1e6, nu=nu, damping_per_s=d_s)
+        return twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+
+    sigma = noise_sigma(simulate(params, rig, x, y, h), cfg_sim, n, noise[0], noise[1])
+    names = group_delay.names()
+    res = fit(run_obs, per_rep, sigma, names, x, y, h,
+              (float(params["e_pa"]) / 1e6, float(params["nu"]), float(params["damping_per_s"])),
+              ds_prior=ds_prior, e_bounds=e_bounds, nu_bounds=nu_bounds, ds_bounds=ds_bounds, rounds=rounds,
+              progress=progress)
+    out = res.to_json(x, y, nu_bounds)
+    out.update({"sigma_us": dict(zip(names, sigma.tolist())), "repetitions": int(per_rep.shape[0]),
+                "damping_prior_per_s": None if ds_prior is None else [float(v) for v in ds_prior],
+                "record_samples": n,
+                "method": "least squares over (ln E, nu, D_s) of every accepted repetition's band group delays "
+                          "(standardised by their rig-noise spread), each repetition's (x, y) fitted non-linearly "
+                          "and its remaining linear freedom projected out, the decay D_s as a Gaussian prior; "
+                          "sd = Gauss-Newton x sqrt(max(1, chi^2 / dof)); nu claimed only if "
+                          f"chi^2 / dof <= {CHI2_DOF_MAX:g} and sd(nu) <= {SD_FRACTION_MAX:.2f} of the grid's nu "
+                          "range"})
+    return out
+
+
+def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
+        nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=12, progress=None) -> NuFit:
+    """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
+
+    run_obs(e_mpa, nu, d_s, x, y, h) -> [R, K, 6]: the twin's observables (deterministic: seeded noise).
+    start = (E MPa, nu, D_s 1/s); x_mm, y_mm, h_mm [R]: the declared positions; ds_prior = (mean, sd) 1/s.
+    """
+    ks = plate_fem.observable_sets(names).get(OBSERVABLES, list(range(len(names))))
+    per_rep = np.asarray(per_rep, float)
+    sigma = np.asarray(sigma, float)
+    h = np.asarray(h_mm, float)
+    xf, yf = np.asarray(x_mm, float).copy(), np.asarray(y_mm, float).copy()
+    w = (1.0 / sigma)[ks][None, :, None]
+    lo = np.array([np.log(e_bounds[0]), nu_bounds[0], ds_bounds[0]])
+    hi = np.array([np.log(e_bounds[1]), nu_bounds[1], ds_bounds[1]])
+    theta = np.clip(np.array([np.log(start[0]), start[1], start[2]], float), lo, hi)
+    log = []
+
+    def raw(th, xx, yy):
+        return run_obs(float(np.exp(th[0])), float(th[1]), float(th[2]), xx, yy, h)
+
+    def standardised(o):
+        r = np.where(np.isfinite(o - per_rep), o - per_rep, 0.0)[:, ks] * w
+        return r.reshape(r.shape[0], -1)
+
+    for rnd in range(rounds):
+        th_now = theta.copy()
+        at = lambda xx, yy, hh, th=th_now: raw(th, xx, yy)      # noqa: E731
+        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks)
+        j_pos = plate_fem.position_jacobian(at, xf, yf, h, d_mm=0.25)
+        proj = plate_fem._position_projector(j_pos, plate_fem.PlateTargets(per_rep, sigma, names), ks)
+        cache = {}
+
+        def fun(th, xf=xf, yf=yf, proj=proj, cache=cache):
+            k = tuple(np.round(th, 7))
+            if k not in cache:
+                r = np.einsum("dij,dj->di", proj, standardised(raw(th, xf, yf))).ravel()
+                if ds_prior is not None:
+                    r = np.append(r, (th[2] - ds_prior[0]) / ds_prior[1])
+                cache[k] = r
+                if progress is not None:
+                    progress()
+            return cache[k]
+
+        def jac(th):
+            f0 = fun(th)
+            cols = []
+            for i, s in enumerate(STEPS):
+                step = s if th[i] + s <= hi[i] else -s
+                t2 = th.copy()
+                t2[i] += step
+                cols.append((fun(t2) - f0) / step)
+            return np.stack(cols, axis=1)
+
+        sol = least_squares(fun, theta, jac=jac, bounds=(lo, hi), x_scale=np.array(STEPS), max_nfev=max_nfev,
+                            method="trf")
+        theta = sol.x
+        r = fun(theta)
+        n_data = r.size - (ds_prior is not None)
+        dof = n_data - 2 * per_rep.shape[0] - 3
+        chi2 = float(np.sum(r[:n_data] ** 2))
+        jm = jac(theta)
+        scale = max(1.0, chi2 / max(dof, 1))
+        try:
+            cov = np.linalg.inv(jm.T @ jm) * scale
+            sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        except np.linalg.LinAlgError:
+            sd = np.full(3, np.inf)
+        log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
+                    "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache)})
+    return NuFit(e_mpa=float(np.exp(theta[0])), nu=float(theta[1]), damping_per_s=float(theta[2]),
+                 sd={"ln_E": float(sd[0]), "nu": float(sd[1]), "damping_per_s": float(sd[2])},
+                 chi2=chi2, dof=int(dof), x_mm=xf, y_mm=yf, rounds=log)
