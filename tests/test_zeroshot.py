@@ -1,9 +1,11 @@
 """The zero-shot flow's channel effects, fitted on calibration drops only, and the core's channel gain."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from impactsense.data import load_session
 from impactsense.pipeline import SignalConfig, featurize
 from impactsense.zeroshot import calibration_rows, fit_channels_on_calibration_drops, fit_energy_offsets
 
@@ -176,6 +178,96 @@ def test_zero_shot_uncertainty_is_a_1_sigma_on_measured_drops(session1, bundled_
     assert card["uncertainty_factor_from_calibration_drops"] == scale
     loaded = uncertainty_figures(session1, ImpactModel.load(out / "model-sim"), np.asarray(r["test_recordings"]))
     assert loaded == pytest.approx(after)
+
+
+@pytest.fixture(scope="module")
+def zero_shot_on_the_board(bundled_zero_shot, session1):
+    """The sim-trained model made again at the board's rate (zeroshot.board_model) and, as before it, from the
+    virtual drops alone (train_board_models), both exported (10 trees) and run on the emulated board over
+    the measured test split; the twin's board-rate site map at 10 mm to keep it quick."""
+    from impactsense.export import export_models, firmware_models
+    from impactsense.link.boardmodel import board_accuracy, board_site_map, held_out_rows, train_board_models
+    from impactsense.models import ForestSettings
+    from impactsense.sitemap import BUNDLED, SiteMap
+    from impactsense.zeroshot import board_model
+
+    r, out = bundled_zero_shot
+    board_map = board_site_map(SiteMap.load(BUNDLED), session1.rig, 50000, step_mm=10.0, progress=False)
+    after = board_model(out / "model-sim", out / "board-model", board_map=board_map)
+    card = json.loads((after / "model_card.json").read_text())
+    virtual = load_session(out / "virtual-160")
+    before = train_board_models(virtual, out / "board-virtual-only", settings=ForestSettings(**card["forest"]),
+                                site_map=board_map, train_rows=np.arange(len(virtual)), test_fraction=0.0)
+    session, rows = held_out_rows(card)
+    scores = {}
+    for name, model_dir in (("after", after), ("before", before)):
+        export_models(model_dir, out / f"export-{name}", trees=10, write_m2cgen=False)
+        models, signal = firmware_models(out / f"export-{name}")
+        threshold = json.loads((model_dir / "model_card.json").read_text())["energy_threshold_j"]
+        scores[name] = board_accuracy(session.subset(rows), models, signal, threshold)
+    return r, out, card, rows, scores
+
+
+def test_the_board_model_of_a_zero_shot_model_keeps_what_the_calibration_drops_taught_it(zero_shot_on_the_board):
+    """Made again at 4 x 50 kHz, the sim-trained model still reads the rig through its four calibration cases
+    only: the exported configuration carries the channel delays, gains and group velocity fitted on the
+    board's captures of the calibration drops (the rig's channels 2 and 3 read several us early; the scan
+    delays are the firmware's and not in them), the twin's offsets fitted on them and the uncertainty's
+    scale from them; the card names the calibration, and export scores it on the measured test split."""
+    from impactsense.export import load_tables
+
+    r, out, card, rows, _ = zero_shot_on_the_board
+    signal = load_tables(out / "export-after" / "forest_tables.npz")["signal"]
+    assert signal["fs_hz"] == 50000
+    assert signal["channel_delay_us"] == pytest.approx(card["channel_delay_from_calibration_drops_us"])
+    assert signal["channel_delay_us"][0] == 0.0 and max(abs(d) for d in signal["channel_delay_us"]) > 2.0
+    assert signal["channel_gain"] == pytest.approx(card["channel_gain_from_calibration_drops"])
+    assert max(abs(g - 1.0) for g in signal["channel_gain"]) > 0.05
+    assert signal["velocity_mm_per_us"] == pytest.approx(card["velocity_mm_per_us_from_calibration_drops"])
+    assert signal["velocity_mm_per_us"] != pytest.approx(card["velocity_mm_per_us_virtual_drops"], rel=1e-3)
+    zs = card["zero_shot"]
+    assert zs["calibration"] == card["calibration"] and zs["calibration_drops_on_the_board"] >= 12
+    assert sorted(zs["calibration_recordings"]) == sorted(r["calibration_recordings"])
+    assert rows.tolist() == r["test_recordings"] and not set(rows.tolist()) & set(r["calibration_recordings"])
+    twin, virtual_only = (load_tables(out / f"export-{n}" / "forest_tables.npz")["twin"] for n in ("after", "before"))
+    assert np.max(np.abs(twin["offset"] - virtual_only["offset"])) > 0.02   # the twin's spectral tilt
+    k = card["uncertainty_factor_from_calibration_drops"]["factor"]
+    assert k > 1.0
+    assert twin["uncertainty"][:2] == pytest.approx(k * virtual_only["uncertainty"][:2], rel=1e-5)
+
+
+def test_the_zero_shot_board_model_locates_measured_drops(zero_shot_on_the_board):
+    """On the emulated board over the measured test split (154 drops, calibration drops excluded): with the
+    calibration drops' fits the sim-trained model meets the issue's zero-shot target of <= 5 mm MAE (4.7 mm
+    here with 160 virtual drops and a 10 mm board map; 490 drops and the 5 mm map: 3.0 mm), and the fits
+    take >= 1 mm off the virtual drops' model alone (6.3 mm here, 6.2 mm at full size)."""
+    *_, scores = zero_shot_on_the_board
+    after, before = scores["after"], scores["before"]
+    assert after["reported"] == after["n"] == 154
+    assert after["all"]["mae_mm"] <= 5.0
+    assert after["all"]["mae_mm"] <= before["all"]["mae_mm"] - 1.0
+
+
+def test_export_of_a_zero_shot_model_checks_its_calibration(bundled_zero_shot, tmp_path):
+    """`impactsense export` of a sim-trained model (link.boardmodel.retrain_for_board) rebuilds it from the
+    calibration its card names: a calibration file changed since is an error naming the card's field, raised
+    before anything is trained."""
+    import shutil
+
+    from impactsense.errors import DataError
+    from impactsense.link.boardmodel import retrain_for_board
+
+    _, out = bundled_zero_shot
+    model = tmp_path / "model-sim"
+    shutil.copytree(out / "model-sim", model)
+    card = json.loads((model / "model_card.json").read_text())
+    changed = tmp_path / "CAL.json"
+    changed.write_text(Path(card["zero_shot"]["calibration"]).read_text() + "\n")
+    card["zero_shot"]["calibration"] = str(changed)
+    (model / "model_card.json").write_text(json.dumps(card))
+    with pytest.raises(DataError, match=r"zero_shot.calibration_sha256.*changed"):
+        retrain_for_board(model, tmp_path / "board")
+    assert not (tmp_path / "board").exists()
 
 
 @pytest.mark.parametrize("cal, problem", [

@@ -25,10 +25,17 @@ comes from the calibration drops: each calibration position held out in turn, th
 twin refitted on the others (the calibration drops are in-sample for those fits, and in-sample their errors
 read as small as the virtual drops'), the held-out drops' errors give the maximum-likelihood factor
 k = sqrt(mean (r / u)^2) by which a and b are multiplied (uncertainty_on_calibration_drops).
+
+The board samples 4 x 50 kHz with the SAADC's scan delays, so `impactsense export` makes the model again for
+it (board_model), the same way: trained on the board's captures of the virtual drops, then all of the above
+(fit_on_calibration_drops) on the board's captures of the calibration drops and of their simulated twins.
+The model card's `zero_shot` record (the calibration file and its hash, the calibration drops, the measured
+session and its test split) is what it is rebuilt from and scored on.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from contextlib import contextmanager
@@ -43,6 +50,7 @@ from .data import Session, load_session, write_session
 from .errors import ConfigError, DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
 from .pipeline import SignalConfig, as_int16, distances_mm, featurize
+from .split import case_split
 from .workflow import evaluate, train
 
 
@@ -152,14 +160,17 @@ UNCERTAINTY_FIELDS = ("uncertainty_offset_mm", "uncertainty_scale", "uncertainty
 
 
 def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, virtual_signal: SignalConfig,
-                 site) -> tuple[list[float], list[float], float]:
+                 site, capture_delay_us=None) -> tuple[list[float], list[float], float]:
     """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
     simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
-    the rig's group velocity, and with a site map the twin's offsets and weights. Returns (delays, gains,
-    velocity)."""
+    the rig's group velocity, and with a site map the twin's offsets and weights. capture_delay_us: the
+    delays the capture itself puts on the channels, in both the measured and the simulated drops (the
+    board's SAADC scan; none at the rig's rate): the core's delays are those plus the rig's. Returns
+    (the rig's delays, gains, velocity)."""
     delays, gains, velocity = fit_channels_on_calibration_drops(session, rows, cal_sim, virtual_signal)
+    capture = np.zeros(4) if capture_delay_us is None else np.asarray(capture_delay_us, float)
     model.signal.velocity_mm_per_us = velocity
-    model.signal.channel_delay_us = delays
+    model.signal.channel_delay_us = [float(c + d) for c, d in zip(capture, delays)]
     model.signal.channel_gain = gains
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)
@@ -167,7 +178,7 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
 
 
 def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
-                                     virtual_signal: SignalConfig, site) -> dict:
+                                     virtual_signal: SignalConfig, site, capture_delay_us=None) -> dict:
     """The factor k on the reported uncertainty from the calibration drops, each position held out in turn:
     the model adapted to the rig (adapt_to_rig) on the other positions' drops, the held-out drops' radial
     errors r and uncertainties u (the model's constants); k = sqrt(mean (r / u)^2), the maximum-likelihood
@@ -183,7 +194,7 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
     for g in np.unique(groups):
         held = groups == g
         fold = replace(model, signal=SignalConfig.from_dict(model.signal.to_dict()))
-        adapt_to_rig(fold, session, rows[~held], cal_sim[~held], virtual_signal, site)
+        adapt_to_rig(fold, session, rows[~held], cal_sim[~held], virtual_signal, site, capture_delay_us)
         p = fold.predict(featurize(session.adc[rows[held]], fold.signal))
         err[held] = np.linalg.norm(p["xy_mm"] - xy[held], axis=1)
         u[held] = p["uncertainty_mm"]
@@ -193,6 +204,43 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
                         "twin estimate (need >= 4 to scale the uncertainty)")
     return {"factor": float(np.sqrt(np.mean((err[ok] / u[ok]) ** 2))), "n": int(ok.sum()),
             "positions": int(groups.max()) + 1, "rms_error_mm": float(np.sqrt(np.mean(err[ok] ** 2)))}
+
+
+def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, site,
+                             virtual: Session, capture_delay_us=None) -> dict:
+    """Everything the calibration drops teach the sim-trained `model` (fitted on the virtual drops, its signal
+    their localiser), in place: the rig's channel delays and gains and group velocity (adapt_to_rig), with
+    a site map the twin's offsets and weights and the uncertainty's scale (uncertainty_on_calibration_drops),
+    without one the energy classifier trained again on the virtual drops' features shifted by the twin's
+    spectral tilt (fit_energy_offsets). session.adc[rows] and cal_sim are the calibration drops and their
+    simulated twins, and virtual.adc the virtual drops, as the model's signal reads them: the rig's
+    recordings, or the board's captures (capture_delay_us, adapt_to_rig). Returns the model card's record
+    of these fits and, under "_virtual_twin", the twin fit before the uncertainty's scale."""
+    virtual_signal = SignalConfig.from_dict(model.signal.to_dict())
+    delays, gains, velocity = adapt_to_rig(model, session, rows, cal_sim, virtual_signal, site, capture_delay_us)
+    offsets, scale, virtual_twin = {}, None, None
+    if site is not None:
+        scale = uncertainty_on_calibration_drops(model, session, rows, cal_sim, virtual_signal, site,
+                                                 capture_delay_us)
+        virtual_twin = model.twin_fit
+        k = scale["factor"]
+        model.twin_fit = replace(virtual_twin, uncertainty_offset_mm=k * virtual_twin.uncertainty_offset_mm,
+                                 uncertainty_scale=k * virtual_twin.uncertainty_scale)
+    else:
+        # the energy classifier learns on virtual features as the rig sees them
+        offsets = fit_energy_offsets(session, rows, cal_sim, model.signal, virtual_signal)
+        vf = featurize(virtual.adc, virtual_signal)
+        use = vf.usable
+        X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
+        for k, name in enumerate(ENERGY_FEATURES):
+            X[:, k] += offsets.get(name, 0.0)
+        model.forest_energy, model.energy_threshold_j = fit_energy_classifier(
+            X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
+    return {"channel_delay_from_calibration_drops_us": delays, "channel_gain_from_calibration_drops": gains,
+            "velocity_mm_per_us_virtual_drops": virtual_signal.velocity_mm_per_us,
+            "velocity_mm_per_us_from_calibration_drops": velocity,
+            "energy_feature_offsets_from_calibration_drops": offsets,
+            "uncertainty_factor_from_calibration_drops": scale, "_virtual_twin": virtual_twin}
 
 
 def uncertainty_figures(session: Session, model, rows: np.ndarray) -> dict | None:
@@ -250,10 +298,131 @@ def read_calibration(cal_path: str | Path) -> dict:
     return cal
 
 
+def calibration_twins(params, session: Session, rows: np.ndarray, seed: int, workers: int = 2) -> np.ndarray:
+    """The calibration drops `rows` simulated with the twin `params` (noise seeded by `seed`): uint16 [R, 4, n]."""
+    from .sim import simulate_drops
+
+    return simulate_drops(params, session.rig, session.x_mm[rows], session.y_mm[rows], session.height_mm[rows],
+                          noise=True, seed=seed, workers=workers, progress=False)
+
+
+def zero_shot_card(cal_path: str | Path, session: Session, cal_rows: np.ndarray, test_rows: np.ndarray, seed: int,
+                   n_virtual: int) -> dict:
+    """The model card's record of a sim-trained model: which calibration taught it the rig (the file, its
+    hash, the calibration drops and the measured session) and the measured test split it is scored on;
+    enough for `impactsense export` to make it again at the board's rate (board_model). The virtual drops
+    are the card's `split`."""
+    cal_path = Path(cal_path).resolve()
+    return {"calibration": str(cal_path), "zero_shot": {
+        "sim_trained": f"trained on {n_virtual} virtual drops of the twin {cal_path} only; the rig's channel "
+                       "delays and gains, the twin's group velocity, fingerprint offsets and weights and the "
+                       "uncertainty's scale fitted on the calibration drops alone",
+        "calibration": str(cal_path), "calibration_sha256": hashlib.sha256(cal_path.read_bytes()).hexdigest(),
+        "calibration_recordings": session.recording_id[cal_rows].tolist(),
+        "data_path": str(session.path), "data_hash": session.fingerprint(),
+        "test_recordings": session.recording_id[test_rows].tolist(),
+        "seed": int(seed)}}   # the noise seed of the calibration drops' simulated twins (calibration_twins)
+
+
+def board_view(session: Session, fs_hz: int) -> Session:
+    """`session` as the board captures it: the firmware app's captures (link.boardmodel.board_captures:
+    resampled to 4 x fs_hz with the SAADC scan delays, triggered and cut by the app) as its adc; drops the
+    app did not capture are left out."""
+    from .link.boardmodel import board_captures
+
+    caps, rows, _ = board_captures(session, fs_hz)
+    return replace(session.subset(rows), adc=caps)
+
+
+def _card_session(card_path: Path, field: str, record: dict) -> Session:
+    path = record.get("data_path")
+    if not path or not Path(path).is_dir():
+        raise DataError(card_path, f"{field}.data_path", f"session folder {path!r} not found")
+    session = load_session(path)
+    if record.get("data_hash") and record["data_hash"] != session.fingerprint():
+        raise DataError(card_path, f"{field}.data_hash", f"{path} changed since the model was trained")
+    return session
+
+
+def _card_rows(card_path: Path, field: str, session: Session, ids) -> np.ndarray:
+    index = {int(r): k for k, r in enumerate(session.recording_id)}
+    if ids is None or any(int(r) not in index for r in ids):
+        raise DataError(card_path, field, f"missing, or names recordings {session.path} does not have")
+    return np.asarray([index[int(r)] for r in ids], int)
+
+
+def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, site_map_cache=None,
+                board_map=None, workers: int = 2) -> Path:
+    """The sim-trained model of MODEL_DIR (run_zero_shot's model-sim) made again for the board, with all the
+    calibration drops taught it: the virtual drops' localiser, forests and twin fit trained on the board's
+    captures of the virtual drops (link.boardmodel.train_board_models, with the twin's board-rate site map,
+    board_site_map, cached in site_map_cache; board_map: one made already), then fit_on_calibration_drops
+    on the board's captures of the calibration drops and of their simulated twins (board_view), exactly as
+    run_zero_shot does at the rig's rate. Written to out_dir; the card keeps the zero-shot record (the
+    measured test split, on which `impactsense export` scores the emulated board)."""
+    from .link.boardmodel import board_site_map, train_board_models
+    from .link.emulator import signal_for_board
+    from .models import SITE_MAP_FILE, ForestSettings, ImpactModel
+    from .sim import SimParams
+    from .sitemap import SiteMap
+
+    model_dir = Path(model_dir)
+    card_path = model_dir / "model_card.json"
+    try:
+        card = json.loads(card_path.read_text())
+    except (OSError, ValueError) as e:
+        raise DataError(card_path, None, f"cannot read the model card ({e})") from None
+    zs = card.get("zero_shot")
+    if not isinstance(zs, dict):
+        raise DataError(card_path, "zero_shot", "missing key (not a sim-trained model of `impactsense demo "
+                        "--zero-shot`, or one made before the card recorded its calibration: run it again)")
+    cal_path = Path(str(zs.get("calibration")))
+    if not cal_path.is_file():
+        raise DataError(card_path, "zero_shot.calibration", f"calibration file {str(cal_path)!r} not found")
+    if hashlib.sha256(cal_path.read_bytes()).hexdigest() != zs.get("calibration_sha256"):
+        raise DataError(card_path, "zero_shot.calibration_sha256", f"{cal_path} changed since the model was trained")
+    params = SimParams.from_json(cal_path)
+    session = _card_session(card_path, "zero_shot", zs)
+    split = card.get("split") or {}
+    virtual = _card_session(card_path, "split", split)
+    cal_rows = _card_rows(card_path, "zero_shot.calibration_recordings", session, zs.get("calibration_recordings"))
+    train_rows = _card_rows(card_path, "split.train_recordings", virtual, split.get("train_recordings"))
+    if "twin" not in card:
+        board_map = None
+    elif board_map is None:
+        source = SiteMap.load(model_dir / card["twin"].get("site_map", SITE_MAP_FILE))
+        board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache, workers=workers)
+    forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
+    # The virtual drops as the board captures them: localiser, forests, the twin's fit (the virtual set's card).
+    train_board_models(virtual, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
+                       train_rows=train_rows, test_fraction=0.0, seed=int(split.get("seed", 0)))
+    model = ImpactModel.load(out_dir)
+    model.card = {k: v for k, v in model.card.items() if k not in ("signal", "energy_threshold_j", "created_utc")}
+    # The calibration drops and their twins as the board captures them (both with the scan delays).
+    meas = board_view(session.subset(cal_rows), fs_hz)
+    sim = board_view(replace(session.subset(cal_rows), adc=calibration_twins(params, session, cal_rows,
+                                                                              int(zs.get("seed", 0)), workers)), fs_hz)
+    both = np.intersect1d(meas.recording_id, sim.recording_id)
+    meas = meas.subset(np.flatnonzero(np.isin(meas.recording_id, both)))
+    sim_adc = sim.adc[np.isin(sim.recording_id, both)]
+    # The fits read the captures with the core's delays as the firmware sets them: the rig's plus the scan's.
+    rig_signal = model.signal.to_dict()
+    capture = signal_for_board(session.rig, {**rig_signal, "channel_delay_us": [0.0] * 4}, fs_hz).channel_delay_us
+    model.signal = signal_for_board(session.rig, rig_signal, fs_hz)
+    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if board_map is None else None
+    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board, capture)
+    fits.pop("_virtual_twin")
+    # The card's delays are the rig's own: the firmware (and the emulator) add the scan delays.
+    model.signal.channel_delay_us = [float(d - c) for d, c in zip(model.signal.channel_delay_us, capture)]
+    return Path(model.save(out_dir, extra_card={
+        **fits, "calibration": str(cal_path), "zero_shot": {**zs, "calibration_drops_on_the_board": len(meas)},
+        "retrained_from": str(model_dir.resolve())}))
+
+
 def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
                   seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
                   use_twin: bool = True) -> dict:
-    from .sim import SimParams, simulate_drops
+    from .sim import SimParams
 
     cal_path = Path(cal_path)
     cal = read_calibration(cal_path)
@@ -282,45 +451,21 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
     # Sim-trained: localiser constants and forests from the virtual drops only ...
     with stage("train_sim"):
         sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site)
-    # ... and the rig's channel timing from the four calibration drops.
+    # ... and everything about the rig from the calibration drops (fit_on_calibration_drops).
+    _, test_rows = case_split(session.case_id, test_fraction, seed, cal_rows)
     with stage("fit_on_calibration_drops"):
-        cal_sim = simulate_drops(params, session.rig, session.x_mm[cal_rows], session.y_mm[cal_rows],
-                                 session.height_mm[cal_rows], noise=True, seed=seed, workers=workers,
-                                 progress=False)
-        virtual_signal = SignalConfig.from_dict(sim_model.signal.to_dict())
-        virtual_velocity = sim_model.signal.velocity_mm_per_us
-        delays, gains, velocity = adapt_to_rig(sim_model, session, cal_rows, cal_sim, virtual_signal, site)
-        # ... and the twin's spectral tilt: the energy classifier learns on virtual features as the rig sees them.
-        offsets, scale, virtual_twin = {}, None, None
-        if site is not None:
-            # ... and the uncertainty's scale (module doc).
-            scale = uncertainty_on_calibration_drops(sim_model, session, cal_rows, cal_sim, virtual_signal, site)
-            virtual_twin = sim_model.twin_fit
-            sim_model.twin_fit = replace(
-                virtual_twin, uncertainty_offset_mm=scale["factor"] * virtual_twin.uncertainty_offset_mm,
-                uncertainty_scale=scale["factor"] * virtual_twin.uncertainty_scale)
-        else:
-            offsets = fit_energy_offsets(session, cal_rows, cal_sim, sim_model.signal, virtual_signal)
-            vf = featurize(virtual.adc, virtual_signal)
-            use = vf.usable
-            X = vf.vector[use][:, columns(ENERGY_FEATURES)].astype(float)
-            for k, name in enumerate(ENERGY_FEATURES):
-                X[:, k] += offsets.get(name, 0.0)
-            sim_model.forest_energy, sim_model.energy_threshold_j = fit_energy_classifier(
-                X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
-    sim_model.save(out / "model-sim", extra_card={"trained_on": str(sim_dir), "calibration": str(cal_path),
-                                                   "channel_delay_from_calibration_drops_us": delays,
-                                                   "channel_gain_from_calibration_drops": gains,
-                                                   "velocity_mm_per_us_virtual_drops": virtual_velocity,
-                                                   "velocity_mm_per_us_from_calibration_drops": velocity,
-                                                   "energy_feature_offsets_from_calibration_drops": offsets,
-                                                   "uncertainty_factor_from_calibration_drops": scale})
+        cal_sim = calibration_twins(params, session, cal_rows, seed, workers)
+        fits = fit_on_calibration_drops(sim_model, session, cal_rows, cal_sim, site, virtual)
+    virtual_twin = fits.pop("_virtual_twin")
+    sim_model.save(out / "model-sim", extra_card={
+        "trained_on": str(sim_dir), **fits,
+        **zero_shot_card(cal_path, session, cal_rows, test_rows, seed, len(virtual))})
 
     # Measured-trained on the same session, same split, calibration drops excluded everywhere.
     with stage("train_measured"):
         meas_model, split = train(session, out / "model-measured", test_fraction, seed, exclude_rows=cal_rows,
                                   site_map=site)
-    test_rows = np.asarray(split["test_recordings"], int)
+    assert np.array_equal(np.asarray(split["test_recordings"], int), session.recording_id[test_rows])
     assert not np.isin(test_rows, cal_rows).any()
     with stage("evaluate"):
         rep_sim = evaluate(session, sim_model, rows=test_rows)
@@ -330,17 +475,16 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         if virtual_twin is not None:
             uncertainty["sim_trained_virtual_constants"] = uncertainty_figures(
                 session, replace(sim_model, twin_fit=virtual_twin), test_rows)
-            uncertainty["factor_from_calibration_drops"] = scale
+            uncertainty["factor_from_calibration_drops"] = fits["uncertainty_factor_from_calibration_drops"]
     result = {
         "calibration": str(cal_path),
         "calibration_recordings": cal_rows.tolist(),
         "virtual_drops": len(virtual),
         "test_recordings": test_rows.tolist(),
-        "channel_delay_us_from_calibration_drops": delays,
-        "channel_gain_from_calibration_drops": gains,
-        "velocity_mm_per_us_virtual_drops": virtual_velocity,
-        "velocity_mm_per_us_from_calibration_drops": velocity,
-        "energy_feature_offsets_from_calibration_drops": offsets,
+        "channel_delay_us_from_calibration_drops": fits["channel_delay_from_calibration_drops_us"],
+        "channel_gain_from_calibration_drops": fits["channel_gain_from_calibration_drops"],
+        **{k: fits[k] for k in ("velocity_mm_per_us_virtual_drops", "velocity_mm_per_us_from_calibration_drops",
+                                "energy_feature_offsets_from_calibration_drops")},
         "sim_trained": {k: v for k, v in rep_sim.items() if not k.startswith("_")},
         "measured_trained": {k: v for k, v in rep_meas.items() if not k.startswith("_")},
         "uncertainty": uncertainty,

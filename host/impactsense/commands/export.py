@@ -6,6 +6,8 @@ The board samples 4 x 50 kHz (the SAADC's ceiling), not the lab logger's 100 kHz
 as the board captures them (resampled, SAADC scan delays, cut by the firmware app); that model is written to
 OUT/board-model and exported; a model whose energy class reads the twin's site map gets the site map as the
 board sees it (the twin's drops taken the same way; a few minutes, cached as OUT/board-site-map.npz).
+A sim-trained model (`impactsense demo --zero-shot`'s model-sim) is made again from its virtual drops and
+then fitted on its calibration drops, both as the board captures them, and scored on its measured test split.
 `--rate native` exports MODEL_DIR's forests as they are. The held-out drops
 are then run through the emulated board (the firmware app with the exported tables) and scored."""
 
@@ -48,7 +50,9 @@ def run(args) -> int:
             model_dir = retrain_for_board(model_dir, Path(args.out) / "board-model", rate,
                                           site_map_cache=Path(args.out) / BOARD_SITE_MAP)
             card = _card(model_dir)
-            print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz (same split, "
+            how = ("sim-trained: the virtual drops, then the calibration drops' fits" if "zero_shot" in card
+                   else "same split")
+            print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz ({how}, "
                   f"{card['forest']['n_estimators']} trees) -> {model_dir}")
     X = xy = phys = twin = None
     if args.trees == "auto":
@@ -65,7 +69,8 @@ def run(args) -> int:
     if acc is not None:
         s["board_held_out"] = acc
         (Path(args.out) / "export.json").write_text(json.dumps(s, indent=1))
-        print(f"held-out drops on the emulated board (4 x {acc['fs_hz'] / 1000:g} kHz, firmware app, exported "
+        which = "the measured test split" if "zero_shot" in card else "held-out drops"
+        print(f"{which} on the emulated board (4 x {acc['fs_hz'] / 1000:g} kHz, firmware app, exported "
               f"tables): {acc['reported']}/{acc['n']} reported, MAE {acc['all']['mae_mm']:.2f} mm "
               f"(inner {acc['inner']['mae_mm']:.2f} mm), mean distance {acc['all']['euclid_mm']:.2f} mm, "
               f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
@@ -103,12 +108,17 @@ def _board_accuracy(model_dir, card, out):
 
 def _held_out(model_dir):
     """Feature vectors, physics positions, true positions and the twin's features (twin features, usable
-    masks) of the model card's held-out drops (usable rows)."""
+    masks) of the model card's held-out drops (usable rows), on which --trees auto chooses. A sim-trained
+    model's are its calibration drops, the only measured drops it may learn from (its measured test split
+    only scores it)."""
     import numpy as np
 
     from ..link.boardmodel import held_out_features
     from ..sitemap import twin_features
 
-    f, xy, _ = held_out_features(_card(model_dir))
+    card = _card(model_dir)
+    if "zero_shot" in card:
+        card["zero_shot"] = {**card["zero_shot"], "test_recordings": card["zero_shot"]["calibration_recordings"]}
+    f, xy, _ = held_out_features(card)
     use = f.usable
     return f.vector[use], f.phys_xy_mm[use], xy[use], twin_features(f.take(np.flatnonzero(use)))

@@ -175,6 +175,10 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     if not card_path.is_file():
         raise DataError(card_path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
     card = json.loads(card_path.read_text())
+    if "zero_shot" in card:   # sim-trained: the virtual drops, then the calibration drops' fits, at the board rate
+        from ..zeroshot import board_model
+
+        return board_model(model_dir, out_dir, fs_hz, site_map_cache=site_map_cache)
     split = card.get("split")
     if not split or "train_recordings" not in split:
         raise DataError(card_path, "split", "missing key (needed to retrain on the same drops at the board rate)")
@@ -224,10 +228,11 @@ def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_
 
 
 def held_out_rows(card: dict):
-    """(session, row indices of the model card's held-out drops), rows None when the card lists none."""
+    """(session, row indices of the model card's held-out drops), rows None when the card lists none. A
+    sim-trained model's (zeroshot) are the measured test split, the calibration drops never in it."""
     from ..data import load_session
 
-    split = card.get("split") or {}
+    split = card.get("zero_shot") or card.get("split") or {}
     ids = split.get("test_recordings")
     if ids is None:
         ids = card.get("test_recording_ids")
