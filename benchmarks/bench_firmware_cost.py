@@ -6,13 +6,15 @@ instructions, so instructions = ticks x 200,000 / calibration ticks (resolution 
 Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
 
     python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6 | --all]
-                                             [--site-map auto|none|FILE] [--site-map-step MM]
+                                             [--site-map auto|none|FILE] [--site-map-step MM] [--profile]
 
 Without --model-dir the fixture trains its own board-rate forests (--trees per localisation forest) with the
 energy class on the twin's site map as the board sees it (--site-map auto: the bundled twin's; the board's
 5 mm map takes a few minutes the first time and is cached in build/bench-cache/). --model-dir MODEL_DIR
 exports that board model instead (e.g. OUT/board-model from `impactsense export`). --all times every
-session-1 drop, 100 to a test image (the image's 4 MB flash holds the recordings as data).
+session-1 drop, 100 to a test image (the image's 4 MB flash holds the recordings as data). --profile adds
+the instructions each function executes (where the features' cost goes; the image runs every stage of
+each drop, and its checks, so shares are of the whole run).
 """
 
 from __future__ import annotations
@@ -33,8 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TARGET = 64000
 
 
-def run(build: Path, extra: list[str]) -> tuple[dict, dict, str]:
-    env = dict(os.environ, QEMU_EXTRA="-icount shift=4")
+def run(build: Path, extra: list[str], qemu_log: Path | None = None) -> tuple[dict, dict, str]:
+    qemu = "-icount shift=4" + (f" -d in_asm,exec,nochain -D {qemu_log}" if qemu_log else "")
+    env = dict(os.environ, QEMU_EXTRA=qemu)
     p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(build), *extra], env=env,
                        capture_output=True, text=True, timeout=1200)
     if p.returncode != 0:
@@ -45,6 +48,48 @@ def run(build: Path, extra: list[str]) -> tuple[dict, dict, str]:
     for m in re.finditer(r"^(TICKS_)?DROP (\S+) (\d+)$", out, re.M):
         per_drop.setdefault(("ticks:" if m.group(1) else "") + m.group(2), []).append(int(m.group(3)))
     return ticks, per_drop, p.stdout
+
+
+def profile(log: Path, elf: Path, top: int = 25) -> None:
+    """Instructions executed per function over the whole test image (every stage of every drop, the
+    checks included), from qemu's translation-block log: each block's instructions (in_asm) times its
+    executions (exec, unchained). Calls: executions of the function's first instruction."""
+    import bisect
+    from collections import Counter
+
+    blocks: dict[str, list[int]] = {}
+    counts: Counter = Counter()
+    pending = None
+    with open(log, errors="replace") as f:
+        for line in f:
+            if line.startswith("IN:"):
+                pending = []
+            elif line.startswith("0x") and pending is not None:
+                pending.append(int(line[:10], 16))
+            elif line.startswith("Trace"):
+                host = line.split()[2]
+                if pending is not None:
+                    blocks[host], pending = pending, None
+                for a in blocks.get(host, ()):
+                    counts[a] += 1
+    nm = subprocess.run(["arm-none-eabi-nm", "-C", "-S", "--defined-only", str(elf)], capture_output=True,
+                        text=True).stdout
+    funcs = sorted((int(p[0], 16) & ~1, int(p[1], 16), p[3]) for p in (l.split(None, 3) for l in nm.splitlines())
+                   if len(p) == 4 and p[2] in "tTwW")
+    starts = [f[0] for f in funcs]
+    per: Counter = Counter()
+    calls: Counter = Counter()
+    for a, c in counts.items():
+        i = bisect.bisect_right(starts, a) - 1
+        if i >= 0 and a < funcs[i][0] + funcs[i][1]:
+            per[funcs[i][2]] += c
+            if a == funcs[i][0]:
+                calls[funcs[i][2]] = c
+    total = sum(counts.values())
+    print(f"profile: {total:,} instructions executed by the image; per function (calls, per call):")
+    for name, c in per.most_common(top):
+        k = calls.get(name, 0)
+        print(f"{c:>12,} {100 * c / total:5.1f}% {k:>7,} {c // k if k else 0:>8,}  {name[:90]}")
 
 
 def obj_size(build: Path, name: str) -> int:
@@ -64,7 +109,12 @@ def main() -> int:
     ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
     ap.add_argument("--json")
+    ap.add_argument("--profile", action="store_true",
+                    help="also count the instructions each function executes (qemu -d exec; one fixture, "
+                         "not with --all; a log of ~100 MB for 6 drops)")
     args = ap.parse_args()
+    if args.profile and args.all:
+        ap.error("--profile takes one fixture (--drops N), not --all")
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
         print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
@@ -87,7 +137,10 @@ def main() -> int:
     for k, which in enumerate(fixtures):
         with tempfile.TemporaryDirectory() as tmp:
             build = Path(tmp)
-            ticks, per_drop_ticks, _ = run(build, extra + which)
+            log = build / "qemu-exec.log" if args.profile else None
+            ticks, per_drop_ticks, _ = run(build, extra + which, log)
+            if log:
+                profile(log, build / "test.elf")
             per = 200000 / ticks.pop("calib_200000_instructions")
             ins = {k: round(v * per) for k, v in ticks.items() if k != "empty"}
             for key, vs in per_drop_ticks.items():
