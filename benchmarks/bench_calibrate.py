@@ -3,6 +3,7 @@
     python benchmarks/bench_calibrate.py [--budget 64] [--out DIR] [--workers 2]
     python benchmarks/bench_calibrate.py --nu-study [--mesh-mm 5] [--reps 3]
     python benchmarks/bench_calibrate.py --position-scan [--mesh-mm 5]
+    python benchmarks/bench_calibrate.py --nu-fit [--twin-ds 685] [--joint-ds 0.05]
 
 Target (issue 4): full calibration <= 10 minutes on 2 cores. Runs from scratch (a fresh output folder, so
 no stage is read from a cache) unless --out names a folder with an earlier run.
@@ -16,6 +17,10 @@ nuisance (`plate_fem.chi2_position_free`, errors re-estimated without the positi
 observables: the band 30 % crossings, the band group delays (`group_delay`), the AIC DToA + group delays; each
 with its Fisher sd(nu), the profile's minimum (parabola vertex) and E there.
 --position-scan: how smoothly each observable follows a drop's position (noiseless FEM, 0.25 mm steps).
+--nu-fit: the nu-study's drops with each repetition's position fitted and nu profiled at the twin's D_s
+(--twin-ds); with --joint-ds PRIOR_SD, calibration's own nu stage (`plate_nu.run`: E, nu and D_s fitted
+together from D_s = --twin-ds, with a prior there of relative sd PRIOR_SD; 0 = no prior). Prints, per truth,
+nu, E and D_s against the truth, chi^2 / dof and the positions' rms error.
 """
 
 from __future__ import annotations

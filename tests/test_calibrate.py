@@ -184,6 +184,15 @@ def test_recovers_second_truth_fem_coarse(tmp_path, rig):
 
 @pytest.mark.slow
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
+@pytest.mark.parametrize("truth", [(3400.0, 0.31, 650.0), (3400.0, 0.39, 650.0), (4500.0, 0.33, 650.0),
+                                   (3000.0, 0.37, 950.0)])
+def test_recovers_known_parameters_fem_coarse_more_truths(tmp_path, rig, truth):
+    """The nu study's other truths (docs/findings.md) and a softer, more damped plate, 5 mm mesh."""
+    _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8, truth), 0.03, 0.05, truth=truth)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
 def test_recovers_known_parameters_fem(tmp_path, rig):
     """The default (Eq. 1) mesh, budget 32, twelve cases: nu within 0.015, E and E / (1 - nu^2) within 3 %, D_s
     within 2 %."""
