@@ -431,9 +431,10 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
 
 
 # The per-event cycle budget (issue 6: <= 64,000 instructions, 1 ms at 64 MHz) bounds the localisation forests of
-# a twin model: with 10 trees per coordinate every session-1 drop fits (max 63.7k; with 15, 65.0k on the worst
-# drop), measured by `python3 benchmarks/bench_firmware_cost.py --all --trees N` (qemu instruction counts).
-TWIN_MAX_TREES = 10
+# a twin model: with 15 trees per coordinate every session-1 drop fits (max 61.1k since session 5's feature
+# savings, 2.9k of margin), measured by `python3 benchmarks/bench_firmware_cost.py --all --trees N`
+# (qemu instruction counts).
+TWIN_MAX_TREES = 15
 
 
 def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarray | None, xy: np.ndarray | None,
