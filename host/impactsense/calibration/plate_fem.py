@@ -11,8 +11,9 @@ held) to the AIC part, Eq. 16: the DToA the models learn from; on session-1 the 
 from the AIC's optimum (model error), so they only measure identifiability. `nu_identifiability` measures,
 at the fit, how far one 0.01 of nu at fixed bending stiffness moves these observables against sigma, and the
 best-case standard deviation of nu with E free. On FEM-made drops (4 drops, 100 kHz) it is ~0.01 and the
-end-to-end error on FEM-made drops ~0.04: nu is not identified, E / (1 - nu^2) is (docs/findings.md).
-Every FEM evaluation is cached (resumable).
+end-to-end error on FEM-made drops ~0.04: nu is not identified by these observables, E / (1 - nu^2) is
+(docs/findings.md). nu itself comes from the band group delays with each repetition's position and D_s fitted
+(`plate_nu`, calibration's `plate_nu` stage). Every FEM evaluation is cached (resumable).
 """
 
 from __future__ import annotations
