@@ -15,7 +15,7 @@ Why this shape:
 Per round: positions at the current (E, nu, D_s); FEM position derivatives there; then a bounded least squares
 (scipy `least_squares`, forward FEM differences with fixed steps) over (ln E, nu, D_s) of the projected,
 standardised residuals plus the prior's term. The uncertainty is the Gauss-Newton covariance at the optimum,
-scaled by max(1, chi^2 / dof) (model error). A nu the data cannot support is not claimed (`identified`).
+scaled by max(1, chi^2 / dof) (model error); on FEM-made drops the errors of nu reached ~4 of these sd. A nu the data cannot support is not claimed (`identified`).
 """
 
 from __future__ import annotations
@@ -161,6 +161,8 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
     run_obs(e_mpa, nu, d_s, x, y, h) -> [R, K, 6]: the twin's observables (deterministic: seeded noise).
     start = (E MPa, nu, D_s 1/s); x_mm, y_mm, h_mm [R]: the declared positions; ds_prior = (mean, sd) 1/s.
     """
+    if rounds < 1:
+        raise ValueError(f"plate_nu.fit needs at least one round, got {rounds}")
     ks = plate_fem.observable_sets(names).get(OBSERVABLES, list(range(len(names))))
     per_rep = np.asarray(per_rep, float)
     sigma = np.asarray(sigma, float)
