@@ -9,7 +9,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "calibrate", help="calibrate the simulator on four measured drops (method.md, Calibration)",
         description="Picks four repeatable drops (or takes --drops), fits plate E and nu on the full factorial "
-                    "grid (Eq. 16, fast first-arrival model, FEM-confirmed), D_s from the envelope decay, then the "
+                    "grid (Eq. 16, fast first-arrival model, FEM-confirmed), D_s from the envelope decay, nu with E and D_s "
+                    "from the band group delays (claimed only when the twin explains them), then the "
                     "PZT block by a Sobol design of FEM runs, surrogates and surrogate optimisation. Writes CAL.json "
                     "(its 'sim_params' feed `simulate-dataset --calibration`), per-stage caches and figures "
                     "next to it. Re-running resumes from the caches.")
@@ -28,6 +29,9 @@ def register(sub) -> None:
     p.add_argument("--channel-delay-us", default=None,
                    help="four per-channel sampling delays in us (default: rig.json's channel_delay_us, else 0)")
     p.add_argument("--surrogate-trials", type=int, default=8, help="hyper-parameter candidates per surrogate")
+    p.add_argument("--nu-rounds", type=int, default=2,
+                   help="rounds of the nu stage (E, nu, D_s from the band group delays with each drop's position "
+                        "fitted; default 2); 0 skips it and keeps the grid's nu and the decay D_s")
     p.add_argument("--no-fem", action="store_true",
                    help="sub-problem 1 only (no FEM confirmation, no sub-problem 2; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
@@ -53,13 +57,20 @@ def summary(cal: dict) -> str:
     pl = cal["plate"]
     e_fast = pl.get("E_fast_mpa", pl["E_mpa"])
     lines = [f"calibration drops (cases, excluded from every test set): {cal['drops']['case_ids']}",
-             f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl['nu']:.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
+             f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl.get('nu_grid', pl['nu']):.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
              f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
              f"within 1.25 x min: E {pl['near_optimal']['E_mpa']}, nu {pl['near_optimal']['nu']}"]
     if "fem_loss_eq16_us2" in pl:
         scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
         lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
                      f"(rms {pl['fem_rms_dtoa_error_us']:.1f} us); FEM scan E -> loss: {scan}")
+    nf = pl.get("nu_fit")
+    if nf:
+        verdict = "claimed" if nf["identified"] else "NOT claimed"
+        lines.append(f"plate, group delays with positions fitted: nu = {nf['nu']:.3f} +- {nf['sd']['nu']:.3f}, "
+                     f"E = {nf['E_mpa']:.0f} MPa, D_s = {nf['damping_per_s']:.0f} 1/s, chi^2/dof {nf['chi2_dof']:.2f} "
+                     f"-> {verdict} ({nf['rule']}); positions moved {nf['position_shift_rms_mm']:.1f} mm rms")
+        lines.append(f"plate, claimed: E = {pl['E_mpa']:.0f} MPa, nu = {pl['nu']:.3f}")
     dd = cal.get("damping_from_decay")
     if dd:
         lines.append(f"damping from the envelope decay: D_s = {dd['estimate_per_s']:.0f} +- {dd['se_per_s']:.0f} 1/s "
@@ -103,7 +114,8 @@ def run(args) -> int:
     opts = CalibrateOptions(drops=_drops(args.drops), budget=args.budget, seed=args.seed, workers=args.workers,
                             progress=not args.quiet, nu_step=args.nu_step, e_step_mpa=args.e_step,
                             aic_blend=args.aic_blend, channel_delay_us=delays,
-                            surrogate_trials=args.surrogate_trials, fem=not args.no_fem)
+                            surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
+                            nu_rounds=args.nu_rounds)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator
