@@ -75,6 +75,21 @@ IC_INLINE float aic_below(float n1, float y1, float n2, float y2) {
   return n1 * log2_below(y1) + (n2 - 1.0f) * log2_below(y2);
 }
 
+// The variances (+ eps) either side of a split with n1 samples before it and n2 from it, from the running
+// sums of the samples before it (s1, s2) and of the whole window (t1, t2), deviations about the window mean.
+struct SplitVar {
+  float y1, y2;
+};
+IC_INLINE SplitVar split_variances(float s1, float s2, float t1, float t2, float n1, float n2, float eps) {
+  const float i1 = 1.0f / n1;
+  const float i2 = 1.0f / n2;
+  const float m1 = s1 * i1;
+  const float v1 = s2 * i1 - m1 * m1;
+  const float m2 = (t1 - s1) * i2;
+  const float v2 = (t2 - s2) * i2 - m2 * m2;
+  return {(v1 > 0.0f ? v1 : 0.0f) + eps, (v2 > 0.0f ? v2 : 0.0f) + eps};
+}
+
 // The first pass's record of one split: the variances' operands and the AIC's lower bound.
 struct Split {
   float y1, y2, below;
@@ -139,15 +154,10 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) 
     float kc_below = 0.0f;
     float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
     for (int j = 0; j < splits; ++j, n1 += 1.0f, n2 -= 1.0f) {
-      const float i1 = 1.0f / n1;
-      const float i2 = 1.0f / n2;
-      const float m1 = s1 * i1;
-      const float v1 = s2 * i1 - m1 * m1;
-      const float m2 = (t1 - s1) * i2;
-      const float v2 = (t2 - s2) * i2 - m2 * m2;
+      const SplitVar v = split_variances(s1, s2, t1, t2, n1, n2, eps);
       Split& p = sp[j];
-      p.y1 = (v1 > 0.0f ? v1 : 0.0f) + eps;
-      p.y2 = (v2 > 0.0f ? v2 : 0.0f) + eps;
+      p.y1 = v.y1;
+      p.y2 = v.y2;
       p.below = aic_below(n1, p.y1, n2, p.y2);
       if (k_eval + j >= k_first && (kc < 0 || p.below < kc_below)) {
         kc = k_eval + j;
@@ -183,13 +193,8 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) 
     bool want_next = false;
     float n1 = static_cast<float>(k_eval), n2 = static_cast<float>(len - k_eval);
     for (int k = k_eval; k <= len - 2; ++k, n1 += 1.0f, n2 -= 1.0f) {
-      const float i1 = 1.0f / n1;
-      const float i2 = 1.0f / n2;
-      const float m1 = s1 * i1;
-      const float v1 = s2 * i1 - m1 * m1;
-      const float m2 = (t1 - s1) * i2;
-      const float v2 = (t2 - s2) * i2 - m2 * m2;
-      const float aic = aic_value(n1, (v1 > 0.0f ? v1 : 0.0f) + eps, n2, (v2 > 0.0f ? v2 : 0.0f) + eps);
+      const SplitVar v = split_variances(s1, s2, t1, t2, n1, n2, eps);
+      const float aic = aic_value(n1, v.y1, n2, v.y2);
       if (want_next) {
         best_next = aic;
         want_next = false;
