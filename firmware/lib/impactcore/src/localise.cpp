@@ -54,15 +54,20 @@ struct Problem {
   float lx, ly;
 };
 
+// The ToA residuals r[k] = toa[k] - |(x, y) - sensor k| / v; returns their mean (the least-squares t0).
+float residuals(const Problem& p, float x, float y, float* r) {
+  float mean = 0.0f;
+  for (int k = 0; k < p.m; ++k) {
+    r[k] = p.toa[k] - dist(x - p.sx[k], y - p.sy[k]) * p.inv_v;
+    mean += r[k];
+  }
+  return mean / static_cast<float>(p.m);
+}
+
 // Huber cost of (x, y) with t0 at its weighted optimum; also returns that t0.
 float huber_cost(const Problem& p, float x, float y, float* t0_out) {
   float r[kChannels];
-  float t0 = 0.0f;
-  for (int k = 0; k < p.m; ++k) {
-    r[k] = p.toa[k] - dist(x - p.sx[k], y - p.sy[k]) * p.inv_v;
-    t0 += r[k];
-  }
-  t0 /= static_cast<float>(p.m);
+  float t0 = residuals(p, x, y, r);
   // Two reweighting passes for t0 (the median-like centre under Huber weights).
   for (int pass = 0; pass < 2; ++pass) {
     float sw = 0.0f, swr = 0.0f;
@@ -86,12 +91,7 @@ float huber_cost(const Problem& p, float x, float y, float* t0_out) {
 // Sum of squared ToA residuals at (x, y) with t0 at its least-squares value (the residuals' mean).
 float l2_cost(const Problem& p, float x, float y) {
   float r[kChannels];
-  float mean = 0.0f;
-  for (int k = 0; k < p.m; ++k) {
-    r[k] = p.toa[k] - dist(x - p.sx[k], y - p.sy[k]) * p.inv_v;
-    mean += r[k];
-  }
-  mean /= static_cast<float>(p.m);
+  const float mean = residuals(p, x, y, r);
   float ss = 0.0f;
   for (int k = 0; k < p.m; ++k) ss += (r[k] - mean) * (r[k] - mean);
   return ss;
