@@ -25,7 +25,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
+import secrets
+import shutil
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -473,12 +478,55 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     return chosen, rows
 
 
+@contextmanager
+def staged_output(out_dir):
+    """A fresh folder next to out_dir to write an export into. When the block ends normally its entries replace
+    out_dir's entries of the same name (files by os.replace, folders by two renames) and the other entries of
+    out_dir are left alone; when it raises, the folder is removed and out_dir is as it was (created only on
+    success). Errors other than the package's own come out as an ExportError saying so."""
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = out.parent / f".{out.name}.{os.getpid()}-{secrets.token_hex(4)}.part"
+    stage.mkdir()       # not mkdtemp: on success this becomes out, with the umask's permissions
+    try:
+        yield stage
+    except BaseException as exc:
+        shutil.rmtree(stage, ignore_errors=True)
+        if isinstance(exc, Exception) and not isinstance(exc, ImpactSenseError):
+            raise ExportError(f"{out}: export failed ({type(exc).__name__}: {exc}); nothing was written, "
+                              f"{out} is as it was") from exc
+        raise
+    _commit(stage, out)
+
+
+def _commit(stage: Path, out: Path) -> None:
+    """Moves stage's entries into out (see staged_output) and removes stage."""
+    if not out.exists():
+        stage.rename(out)
+        return
+    if not out.is_dir():
+        shutil.rmtree(stage, ignore_errors=True)
+        raise ExportError(f"{out}: exists and is not a folder; nothing was written")
+    old = Path(tempfile.mkdtemp(prefix=".replaced.", dir=stage))
+    for entry in sorted(p for p in stage.iterdir() if p != old):
+        target = out / entry.name
+        if target.is_dir() and not target.is_symlink():
+            target.rename(old / entry.name)
+        os.replace(entry, target)
+    shutil.rmtree(stage, ignore_errors=True)
+
+
 def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_eval=None,
                   write_m2cgen: bool = True, phys_eval=None, twin_eval=None) -> dict:
-    """Writes the C sources, the emulator's tables and export.json; returns the summary."""
+    """Writes the C sources, the emulator's tables and export.json into out_dir (all of them or, on an error,
+    none: staged_output); returns the summary."""
     models = load_models(model_dir)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with staged_output(out_dir) as stage:
+        return _write_export(models, model_dir, stage, trees, X_eval, xy_eval, write_m2cgen, phys_eval, twin_eval)
+
+
+def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, write_m2cgen, phys_eval,
+                  twin_eval) -> dict:
     card_bytes = (Path(model_dir) / "model_card.json").read_bytes()
     model_hash = hashlib.sha256(card_bytes).hexdigest()[:16]
     sweep = []

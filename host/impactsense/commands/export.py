@@ -9,7 +9,9 @@ board sees it (the twin's drops taken the same way; a few minutes, cached as OUT
 A sim-trained model (`impactsense demo --zero-shot`'s model-sim) is made again from its virtual drops and
 then fitted on its calibration drops, both as the board captures them, and scored on its measured test split.
 `--rate native` exports MODEL_DIR's forests as they are. The held-out drops
-are then run through the emulated board (the firmware app with the exported tables) and scored."""
+are then run through the emulated board (the firmware app with the exported tables) and scored.
+All of it is written into a folder next to OUT and moved in only when every step has succeeded: a failure
+midway leaves OUT (an earlier board-model, C sources, tables) as it was; OUT's other files are never touched."""
 
 ORDER = 60
 
@@ -35,40 +37,25 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import ConfigError
-    from ..export import export_models
+    from ..export import staged_output
 
-    model_dir = Path(args.model_dir)
-    card = _card(model_dir)
+    out = Path(args.out)
+    card = _card(Path(args.model_dir))
+    rate = None
     if args.rate != "native":
         try:
             rate = int(args.rate)
         except ValueError:
             raise ConfigError(f"--rate: {args.rate!r} is neither a rate in Hz nor 'native'") from None
-        if int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
-            from ..link.boardmodel import BOARD_SITE_MAP, retrain_for_board
-
-            model_dir = retrain_for_board(model_dir, Path(args.out) / "board-model", rate,
-                                          site_map_cache=Path(args.out) / BOARD_SITE_MAP)
-            card = _card(model_dir)
-            how = ("sim-trained: the virtual drops, then the calibration drops' fits" if "zero_shot" in card
-                   else "same split")
-            print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz ({how}, "
-                  f"{card['forest']['n_estimators']} trees) -> {model_dir}")
-    X = xy = phys = twin = None
-    if args.trees == "auto":
-        X, phys, xy, twin = _held_out(model_dir)
-    s = export_models(model_dir, args.out, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
-                      write_m2cgen=not args.no_m2cgen, twin_eval=twin)
-    for row in s["tree_sweep"]:
-        forest = f" (the forests' {row['forest_mae_mm']:.2f} mm)" if "forest_mae_mm" in row else ""
-        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm{forest}, "
-              f"{row['table_bytes'] / 1024:.1f} KB of tables{'' if row['within_budgets'] else ', over a budget'}")
+    # Everything (OUT/board-model, the C sources, the tables, export.json) is written into a folder next to
+    # OUT and moved into OUT only when all of it is done: a failure midway leaves OUT as it was. The board's
+    # site map is a cache (written whole, keyed by its source map and rate) and stays in OUT.
+    with staged_output(out) as stage:
+        s, card, model_dir = _export(args, card, rate, stage, out)
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
-          f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {args.out}")
-    acc = _board_accuracy(model_dir, card, args.out)
+          f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {out}")
+    acc = s.get("board_held_out")
     if acc is not None:
-        s["board_held_out"] = acc
-        (Path(args.out) / "export.json").write_text(json.dumps(s, indent=1))
         which = "the measured test split" if "zero_shot" in card else "held-out drops"
         print(f"{which} on the emulated board (4 x {acc['fs_hz'] / 1000:g} kHz, firmware app, exported "
               f"tables): {acc['reported']}/{acc['n']} reported, MAE {acc['all']['mae_mm']:.2f} mm "
@@ -76,6 +63,39 @@ def run(args) -> int:
               f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
     print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
     return 0 if s["within_budget"] else 1
+
+
+def _export(args, card, rate, stage, out):
+    """The export written into `stage` (its final place: `out`): (summary, model card, model folder)."""
+    import json
+    from pathlib import Path
+
+    from ..export import export_models
+
+    model_dir = Path(args.model_dir)
+    if rate is not None and int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
+        from ..link.boardmodel import BOARD_SITE_MAP, retrain_for_board
+
+        model_dir = retrain_for_board(model_dir, stage / "board-model", rate, site_map_cache=out / BOARD_SITE_MAP)
+        card = _card(model_dir)
+        how = ("sim-trained: the virtual drops, then the calibration drops' fits" if "zero_shot" in card
+               else "same split")
+        print(f"trained again on the board's captures at 4 x {rate / 1000:g} kHz ({how}, "
+              f"{card['forest']['n_estimators']} trees) -> {out / 'board-model'}")
+    X = xy = phys = twin = None
+    if args.trees == "auto":
+        X, phys, xy, twin = _held_out(model_dir)
+    s = export_models(model_dir, stage, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
+                      write_m2cgen=not args.no_m2cgen, twin_eval=twin)
+    for row in s["tree_sweep"]:
+        forest = f" (the forests' {row['forest_mae_mm']:.2f} mm)" if "forest_mae_mm" in row else ""
+        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm{forest}, "
+              f"{row['table_bytes'] / 1024:.1f} KB of tables{'' if row['within_budgets'] else ', over a budget'}")
+    acc = _board_accuracy(model_dir, card, stage)
+    if acc is not None:
+        s["board_held_out"] = acc
+        (stage / "export.json").write_text(json.dumps(s, indent=1))
+    return s, card, model_dir
 
 
 def _card(model_dir):
