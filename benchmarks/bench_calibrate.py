@@ -260,7 +260,6 @@ def fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cf
     import numpy as np
 
     from impactsense.calibration import plate_fem, plate_nu
-    calls = [0]
     stiff0 = e_true / (1 - nu_true ** 2)             # only the scan's start (E is then fitted)
     ev0 = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
         sim(dict(truth, e_pa=e * 1e6, nu=nu, damping_per_s=ds_start), rig, targets.x_mm, targets.y_mm,
@@ -268,8 +267,7 @@ def fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cf
     e_c, _ = plate_fem.e_scan(ev0, meas, stiff0 * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
     prior = (ds_start, prior_frac * ds_start) if prior_frac > 0 else None
     res = plate_nu.run(sim, dict(truth, e_pa=e_c * 1e6, nu=0.35, damping_per_s=ds_start), rig, session, targets,
-                       feats, cfg, cfg_sim, noise[:3], ds_prior=prior,
-                       progress=lambda: calls.__setitem__(0, calls[0] + 1))
+                       feats, cfg, cfg_sim, noise[:3], ds_prior=prior)
     pos = np.sqrt(np.mean((np.asarray(res["x_mm"]) - xj[recs]) ** 2 + (np.asarray(res["y_mm"]) - yj[recs]) ** 2))
     pos0 = np.sqrt(np.mean((x[recs] - xj[recs]) ** 2 + (y[recs] - yj[recs]) ** 2))
     for r in res["rounds"]:
@@ -280,7 +278,7 @@ def fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cf
           f"({res['E_mpa'] / e_true - 1:+.2%}), D_s {res['damping_per_s']:.1f} ({res['damping_per_s'] / 650 - 1:+.2%}) "
           f"sd {res['sd']['damping_per_s']:.1f}, chi2/dof {res['chi2_dof']:.2f}, identified {res['identified']}, "
           f"position rms error {pos:.2f} mm (declared {pos0:.2f}); "
-          f"{calls[0]} least-squares FEM runs, {time.perf_counter() - t0:.0f} s", flush=True)
+          f"{sum(r['fem_runs'] for r in res['rounds'])} least-squares FEM runs, {time.perf_counter() - t0:.0f} s", flush=True)
     return res
 
 

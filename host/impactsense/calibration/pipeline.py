@@ -408,10 +408,11 @@ def _plate_nu(opts, rig, params, targets, session, feats, cfg, cfg_sim, simulate
     ds0 = float(decay["damping_per_s"])
     prior = (ds0, float(np.hypot(decay["se_per_s"], plate_nu.DS_SYSTEMATIC * ds0)))
     lo_d, hi_d = fem.FACTORS[fem.FACTOR_NAMES.index("damping_per_s")][1:3]
-    bar = tqdm(desc="FEM nu fit (E, nu, D_s, positions)", unit="run", disable=not opts.progress)
+    bar = tqdm(desc="FEM nu fit (E, nu, D_s, positions)", unit="run", total=plate_nu.max_evaluations(opts.nu_rounds),
+               disable=not opts.progress)
     out = plate_nu.run(simulate, dict(params, damping_per_s=ds0), rig, session, targets, feats, cfg, cfg_sim, noise,
                        ds_prior=prior, e_bounds=e_bounds, nu_bounds=nu_bounds, ds_bounds=(lo_d, hi_d),
-                       rounds=int(opts.nu_rounds), progress=lambda: bar.update(1))
+                       rounds=int(opts.nu_rounds), progress=bar.update)
     bar.close()
     out = json.loads(json.dumps(out, default=_jsonable))
     _write_json_atomic(path, {"key": key, **out})

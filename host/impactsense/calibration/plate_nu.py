@@ -34,6 +34,8 @@ OBSERVABLES = "group delays only"   # the AIC onsets bias nu by +0.01-0.02 even 
 # edge effects outside them, and costs a quarter of the full 50 ms record
 CROP_AFTER_ONSET_MS = 8.0
 STEPS = (0.004, 0.004, 8.0)         # forward-difference steps of (ln E, nu, D_s 1/s)
+MAX_NFEV = 12                       # trial points of each round's trust-region fit of (ln E, nu, D_s)
+POSITION_ITERS = 6                  # Levenberg-Marquardt iterations of each round's position fit
 SIGMA_FLOOR_US = 0.2
 # a nu is claimed only when the twin explains the group delays (chi^2 / dof at most this) ...
 CHI2_DOF_MAX = 3.0
@@ -126,7 +128,8 @@ def run(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, 
         progress=None) -> dict:
     """The nu stage on a session's chosen cases: every accepted repetition's group delays against the twin
     `simulate(params, rig, x, y, h)` (params: the flat dict; its e_pa, nu, damping_per_s are the start), with
-    the rig's noise (noise = (counts rms, realisations, seed)). Returns CAL.json's `plate.nu_fit` block."""
+    the rig's noise (noise = (counts rms, realisations, seed)). Returns CAL.json's `plate.nu_fit` block.
+    progress(n): called as `fit` runs the twin, n adding up to max_evaluations(rounds) (a tqdm bar's update)."""
     per_rep, n = measured_group_delays(session, targets, feats, cfg)
     n_rep = [len(r) for r in targets.recording_ids]
     x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
@@ -154,12 +157,22 @@ def run(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, 
     return out
 
 
+def max_evaluations(rounds: int, max_nfev: int = MAX_NFEV) -> int:
+    """At most this many twin runs (run_obs calls, each every repetition through the FEM) in `fit`: per round
+    the position fit (one, then three per iteration), the position Jacobian (four), the trust-region fit (at
+    most max_nfev trial points, a Jacobian of three forward differences at each accepted one) and the
+    Jacobian at its end (three)."""
+    return rounds * (1 + 3 * POSITION_ITERS + 4 + 4 * max_nfev + 3)
+
+
 def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
-        nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=12, progress=None) -> NuFit:
+        nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=MAX_NFEV, progress=None) -> NuFit:
     """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
 
     run_obs(e_mpa, nu, d_s, x, y, h) -> [R, K, 6]: the twin's observables (deterministic: seeded noise).
     start = (E MPa, nu, D_s 1/s); x_mm, y_mm, h_mm [R]: the declared positions; ds_prior = (mean, sd) 1/s.
+    progress(n): n = 1 after every run_obs call; when the fit is done, the rest of max_evaluations(rounds,
+    max_nfev) (a fit that converges early ends at its total all the same).
     """
     if rounds < 1:
         raise ValueError(f"plate_nu.fit needs at least one round, got {rounds}")
@@ -173,8 +186,12 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
     hi = np.array([np.log(e_bounds[1]), nu_bounds[1], ds_bounds[1]])
     theta = np.clip(np.array([np.log(start[0]), start[1], start[2]], float), lo, hi)
     log = []
+    runs = [0]
 
     def raw(th, xx, yy):
+        runs[0] += 1
+        if progress is not None:
+            progress(1)
         return run_obs(float(np.exp(th[0])), float(th[1]), float(th[2]), xx, yy, h)
 
     def standardised(o):
@@ -184,7 +201,7 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
     for rnd in range(rounds):
         th_now = theta.copy()
         at = lambda xx, yy, hh, th=th_now: raw(th, xx, yy)      # noqa: E731
-        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks)
+        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks, iters=POSITION_ITERS)
         j_pos = plate_fem.position_jacobian(at, xf, yf, h, d_mm=0.25)
         proj = plate_fem._position_projector(j_pos, plate_fem.PlateTargets(per_rep, sigma, names), ks)
         cache = {}
@@ -196,8 +213,6 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
                 if ds_prior is not None:
                     r = np.append(r, (th[2] - ds_prior[0]) / ds_prior[1])
                 cache[k] = r
-                if progress is not None:
-                    progress()
             return cache[k]
 
         def jac(th):
@@ -226,6 +241,8 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
             sd = np.full(3, np.inf)
         log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
                     "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache)})
+    if progress is not None and runs[0] < max_evaluations(rounds, max_nfev):
+        progress(max_evaluations(rounds, max_nfev) - runs[0])
     return NuFit(e_mpa=float(np.exp(theta[0])), nu=float(theta[1]), damping_per_s=float(theta[2]),
                  sd={"ln_E": float(sd[0]), "nu": float(sd[1]), "damping_per_s": float(sd[2])},
                  chi2=chi2, dof=int(dof), x_mm=xf, y_mm=yf, rounds=log)

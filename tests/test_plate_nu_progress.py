@@ -1,0 +1,64 @@
+"""The calibration's nu stage (`calibration.plate_nu.fit`) declares how many twin runs it may make
+(`max_evaluations`), so `impactsense calibrate` shows the stage's bar with a total and an ETA: every twin run
+advances the bar by one, the count never passes the total, and a fit that stops early ends at its total."""
+
+from itertools import combinations
+
+import numpy as np
+import pytest
+
+from impactsense.calibration import group_delay, plate_nu
+
+SENSORS = np.array([[10.0, 10.0], [310.0, 10.0], [310.0, 307.0], [10.0, 307.0]])
+PAIRS = list(combinations(range(4), 2))
+
+
+def twin(e_mpa, nu, d_s, x, y, h):
+    """Band group delays [R, 3, 6] of a dispersive plate: per band a velocity from the bending stiffness, nu
+    setting how the bands differ, D_s a band-dependent lag, the six sensor pairs' path differences."""
+    d = np.hypot(np.asarray(x)[:, None] - SENSORS[:, 0], np.asarray(y)[:, None] - SENSORS[:, 1])      # [R, 4]
+    band = np.arange(3)
+    v = 0.3 * np.sqrt(e_mpa / 4000.0 / (1 - nu ** 2)) * (1 + 2.0 * (nu - 0.35) * (band + 1))         # [3]
+    diff = np.stack([d[:, j] - d[:, i] for i, j in PAIRS], axis=-1)                                    # [R, 6]
+    return diff[:, None, :] / v[None, :, None] * (1 + 1e-4 * d_s * (band[None, :, None] - 1))
+
+
+@pytest.mark.parametrize("rounds, start", [(1, (4000.0, 0.35, 700.0)), (2, (3300.0, 0.32, 900.0))])
+def test_nu_fit_progress_reaches_its_declared_total(rounds, start):
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(60, 260, 8), rng.uniform(60, 260, 8)
+    h = np.full(8, 150.0)
+    truth = (4200.0, 0.36, 800.0)
+    per_rep = twin(*truth, x + rng.normal(0, 0.5, 8), y + rng.normal(0, 0.5, 8), h) + rng.normal(0, 0.3, (8, 3, 6))
+    calls, steps = [0], []
+
+    def counted(*args):
+        calls[0] += 1
+        return twin(*args)
+
+    total = plate_nu.max_evaluations(rounds)
+    res = plate_nu.fit(counted, per_rep, np.full(3, 0.3), group_delay.names(), x, y, h, start,
+                       ds_prior=(800.0, 80.0), rounds=rounds, progress=steps.append)
+    assert sum(steps) == total                    # the bar closes at 100 %
+    assert steps[:calls[0]] == [1] * calls[0]     # one step per twin run while it works ...
+    assert calls[0] <= total                      # ... never more than declared
+    assert len(steps) in (calls[0], calls[0] + 1)
+    # the bound is a usable ETA, not a wild one: at least a third of it is spent
+    assert calls[0] >= total / 3
+    assert abs(res.nu - truth[1]) < 0.02 and abs(res.e_mpa / truth[0] - 1) < 0.05
+
+
+def test_max_evaluations_holds_when_the_fit_runs_out_of_trial_points():
+    """A trust-region fit stopped by max_nfev (a start far off, two trial points) still stays in its bound."""
+    rng = np.random.default_rng(2)
+    x, y, h = rng.uniform(60, 260, 5), rng.uniform(60, 260, 5), np.full(5, 150.0)
+    per_rep = twin(5000.0, 0.38, 600.0, x, y, h)
+    calls, steps = [0], []
+
+    def counted(*args):
+        calls[0] += 1
+        return twin(*args)
+
+    plate_nu.fit(counted, per_rep, np.full(3, 0.3), group_delay.names(), x, y, h, (2500.0, 0.31, 1000.0),
+                 rounds=2, max_nfev=2, progress=steps.append)
+    assert calls[0] <= plate_nu.max_evaluations(2, max_nfev=2) == sum(steps)
