@@ -102,6 +102,13 @@ NB_MODULE(_sim, m) {
       .def("set_subcycling", &is::Plate::set_subcycling, "fine_dt_s"_a, "layer"_a = 1,
            "Step the disc patches (elements unlike the base one, dilated by layer nodes) with dt / m, "
            "m = ceil(dt / fine_dt_s), the rest with dt; fine_dt_s <= 0 turns it off. Call before any run.")
+      .def(
+          "set_node_springs",
+          [](is::Plate& p, InD k_w, InD c_w) { p.set_node_springs(vec<double>(k_w), vec<double>(c_w)); },
+          "k_w"_a, "c_w"_a,
+          "A spring k_w [N/m] and a dashpot c_w [N s/m] on w at every node (zeros: none), e.g. an elastic rim "
+          "along the edges. The springs are part of K; the dashpots act on the half-step velocity.")
+      .def_prop_ro("spring_nodes", [](const is::Plate& p) { return p.spring_nodes(); })
       .def_prop_ro("subcycled_nodes", &is::Plate::subcycled_nodes)
       .def_prop_ro("fine_dt_s", &is::Plate::fine_dt)
       .def(

@@ -120,7 +120,8 @@ class Plate {
   int64_t nodes() const { return static_cast<int64_t>(s_.nx + 1) * (s_.ny + 1); }
   int64_t elements() const { return static_cast<int64_t>(s_.nx) * s_.ny; }
 
-  // f = K u (internal nodal forces), boundary conditions not applied (fixed dofs are handled by the stepper).
+  // f = K u (internal nodal forces, node springs included), boundary conditions not applied (fixed dofs are
+  // handled by the stepper).
   void internal_force(const Real* w, const Real* bx, const Real* by, Real* fw, Real* fbx, Real* fby) const;
   // The same kernel in double precision (for assembling K in validation tests).
   void internal_force_double(const double* w, const double* bx, const double* by, double* fw, double* fbx,
@@ -141,6 +142,15 @@ class Plate {
   void set_subcycling(double fine_dt_s, int layer);
   int64_t subcycled_nodes() const;
   double fine_dt() const { return fine_dt_; }
+
+  // Elastic support: a spring k_w [N/m] and a dashpot c_w [N s/m] per node on w (e.g. the plate's edge nodes
+  // resting on a rubber rim, the rim's stiffness per length x the node's share of the edge). The springs are
+  // part of K (internal_force, strain_energy, max_eigenvalue); the dashpots act on the velocity at the half
+  // step before (explicit: c_w dt / m_w must stay well below 1, checked by run()). Empty vectors = none. Not
+  // allowed on sub-cycled or w-held nodes.
+  void set_node_springs(std::vector<double> k_w, std::vector<double> c_w);
+  const std::vector<int64_t>& spring_nodes() const { return spring_node_; }
+  double spring_k(size_t r) const { return spring_k_[r]; }
 
   RunResult run(const RunConfig& cfg) const;
 
@@ -168,6 +178,8 @@ class Plate {
   std::vector<Patch> patches_;
   std::vector<uint8_t> sub_;           // per node: 1 if sub-cycled
   double fine_dt_ = 0;
+  std::vector<int64_t> spring_node_;   // nodes with a spring or dashpot on w (set_node_springs)
+  std::vector<double> spring_k_, spring_c_;
 };
 
 // 12 x 12 stiffness of one element (dof order: node-major w, bx, by for nodes 1..4 counter-clockwise from

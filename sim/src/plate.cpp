@@ -192,6 +192,8 @@ void forces(const Plate& p, const detail::Coef<T>& base, const T* w, const T* bx
                fby[o + i] = detail::node_force(a.py, a.qy, i);
              }
            });
+  const std::vector<int64_t>& sn = p.spring_nodes();
+  for (size_t r = 0; r < sn.size(); ++r) fw[sn[r]] += T(p.spring_k(r)) * w[sn[r]];
 }
 
 // The stepper's pass: internal forces and the central-difference update of a row as soon as it is complete,
@@ -390,6 +392,26 @@ void Plate::set_subcycling(double fine_dt_s, int layer) {
       for (int i = pt.i0; i <= pt.i1; ++i) sub_[static_cast<size_t>(j * rl + i)] = 1;
     patches_.push_back(pt);
   }
+  for (int64_t k : spring_node_) need(!sub_[static_cast<size_t>(k)], "a node spring on a sub-cycled node");
+}
+
+void Plate::set_node_springs(std::vector<double> k_w, std::vector<double> c_w) {
+  const size_t nn = static_cast<size_t>(nodes());
+  need((k_w.empty() || k_w.size() == nn) && (c_w.empty() || c_w.size() == nn),
+       "node springs need one stiffness and one damping value per node (or none)");
+  spring_node_.clear();
+  spring_k_.clear();
+  spring_c_.clear();
+  for (size_t k = 0; k < nn; ++k) {
+    const double kk = k_w.empty() ? 0.0 : k_w[k], cc = c_w.empty() ? 0.0 : c_w[k];
+    need(std::isfinite(kk) && kk >= 0 && std::isfinite(cc) && cc >= 0, "node springs must be finite and >= 0");
+    if (kk == 0 && cc == 0) continue;
+    need(!s_.fix_w[k], "a node spring on a held w dof");
+    need(sub_.empty() || !sub_[k], "a node spring on a sub-cycled node");
+    spring_node_.push_back(static_cast<int64_t>(k));
+    spring_k_.push_back(kk);
+    spring_c_.push_back(cc);
+  }
 }
 
 int64_t Plate::subcycled_nodes() const {
@@ -549,6 +571,9 @@ RunResult Plate::run(const RunConfig& c) const {
   load_init(c.vby0, 2, c.dt_s, db, "vby0");
   const double cd = 0.5 * s_.damping_per_s * c.dt_s;
   const Real alpha = Real((1 - cd) / (1 + cd));
+  for (size_t r = 0; r < spring_node_.size(); ++r)
+    need(spring_c_[r] * c.dt_s <= s_.mass_w[static_cast<size_t>(spring_node_[r])],
+         "node dashpot too strong for the explicit step: c_w dt / m_w must be <= 1");
   for (size_t k = 0; k < nn; ++k) {
     const size_t o = at(k);
     const Real inv_m[3] = {inv_mw_[k], inv_mr_[k], inv_mr_[nn + k]};
@@ -759,6 +784,12 @@ RunResult Plate::run(const RunConfig& c) const {
         }
       }
     }
+    for (size_t r = 0; r < spring_node_.size(); ++r) {  // node springs and dashpots: -k w_n - c v_{n-1/2}
+      const int64_t k = spring_node_[r];
+      const size_t o = at(k);
+      const double v = double(db[d_at(0, k)]) / c.dt_s;
+      loads.push_back({static_cast<int64_t>(o), 0, Real(-spring_k_[r] * double(uw[o]) - spring_c_[r] * v)});
+    }
     if (loads.size() > 1)
       std::sort(loads.begin(), loads.end(), [](const Load& x, const Load& y) { return x.node < y.node; });
 
@@ -840,6 +871,10 @@ RunResult Plate::run(const RunConfig& c) const {
                         u[k] += dn;
                       }
                   });
+      for (size_t r = 0; r < spring_node_.size(); ++r) {  // spring energy at u_n (springs are part of K)
+        const double wn = double(u[at(spring_node_[r])]) - double(db[d_at(0, spring_node_[r])]);
+        se += spring_k_[r] * wn * wn;
+      }
       res.energy[q * 4 + 0] = 0.5 * ke / (c.dt_s * c.dt_s);
       res.energy[q * 4 + 1] = 0.5 * se;
     }

@@ -139,7 +139,7 @@ def assembled_dt_crit(plate) -> float:
 
 def support_masks(nx: int, ny: int, support: str):
     """fix_w, fix_bx, fix_by [ny+1, nx+1] for "free", "simply_supported" (hard: w and the tangential
-    rotation held on every edge) or "clamped"."""
+    rotation held on every edge) or "clamped"; "elastic_rim" holds nothing (its springs: `rim_springs`)."""
     fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
     fix_bx = np.zeros_like(fix_w)
     fix_by = np.zeros_like(fix_w)
@@ -152,6 +152,31 @@ def support_masks(nx: int, ny: int, support: str):
         fix_bx[:, 0] = fix_bx[:, -1] = 1
         fix_by[0, :] = fix_by[-1, :] = 1
     return fix_w, fix_bx, fix_by
+
+
+def rim_springs(nx: int, ny: int, hx: float, hy: float, params: SimParams):
+    """Per-node spring k_w [N/m] and dashpot c_w [N s/m] [ny+1, nx+1] of an "elastic_rim" support: the rim's
+    stiffness and damping per metre of edge times each edge node's share of the edge (h / 2 per adjacent edge
+    element: a corner node gets hx / 2 + hy / 2). Zeros for the other supports."""
+    length = np.zeros((ny + 1, nx + 1))
+    if params.support == "elastic_rim":
+        length[0, :] += hx
+        length[-1, :] += hx
+        length[:, 0] += hy
+        length[:, -1] += hy
+        for edge in (length[0, :], length[-1, :]):
+            edge[0] -= hx / 2
+            edge[-1] -= hx / 2
+        for edge in (length[:, 0], length[:, -1]):
+            edge[0] -= hy / 2
+            edge[-1] -= hy / 2
+    return params.rim_stiffness_n_m2 * length, params.rim_damping_n_s_m2 * length
+
+
+def _set_rim(plate, nx, ny, hx, hy, params: SimParams) -> None:
+    if params.support == "elastic_rim":
+        k_w, c_w = rim_springs(nx, ny, hx, hy, params)
+        plate.set_node_springs(np.ascontiguousarray(k_w.ravel()), np.ascontiguousarray(c_w.ravel()))
 
 
 def node_areas(nx: int, ny: int, hx: float, hy: float) -> np.ndarray:
@@ -176,6 +201,7 @@ def uniform_plate(nx: int, ny: int, hx: float, hy: float, params: SimParams, mas
     plate = _sim.Plate(nx, ny, hx, hy, params.nu, np.full(nx * ny, d), np.full(nx * ny, s), mass_w.ravel(),
                        mass_r.ravel(), *(np.ascontiguousarray(m, np.uint8).ravel() for m in masks),
                        params.damping_per_s)
+    _set_rim(plate, nx, ny, hx, hy, params)
     dt_crit = element_dt_crit(hx, hy, d, params.nu, s, rho * t * hx * hy / 4, i_rot * hx * hy / 4)
     return plate, mass_w.ravel(), mass_r.ravel(), dt_crit
 
@@ -266,6 +292,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     plate = _sim.Plate(nx, ny, hx, hy, p.nu, np.ascontiguousarray(d_elem.ravel()),
                        np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
                        fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s)
+    _set_rim(plate, nx, ny, hx, hy, p)
 
     # time step: the assembled plate's stability limit and Eq. 2, snapped to divide 1/fs; sub-cycled (fine
     # meshes, see SimParams.subcycle), the disc patches take sub-steps under cfl_safety x the whole plate's

@@ -7,7 +7,11 @@ Defaults (documented, see method.md):
 - plate: PMMA, E = 5000 MPa, nu = 0.32 (the seed's calibrated values), rho and t from the rig (1157 kg/m3,
   4.2 mm), Mindlin shear factor kappa = pi^2/12; support "simply_supported" (the rig's plate rests on a
   rubber rim: its edges cannot lift against the ball's load on the first arrivals we use, and they rotate
-  freely). Also "free" and "clamped".
+  freely). Also "free", "clamped" and "elastic_rim": free edges on a rubber rim, a spring
+  (rim_stiffness_n_m2, N/m per metre of edge) and a dashpot (rim_damping_n_s_m2, N s/m per metre) on w of
+  every edge node, lumped by the node's share of the edge (stiffness 0: the free plate; very stiff: w held
+  on the edges, the tangential rotation left free). The springs enter the stability limit; the dashpot is
+  explicit and must keep c dt / m <= 1 on the edge nodes.
 - PZT block: the seed's fitted disc (E11 75200, E33 55200, G12 24800, G13 24900 MPa, nu12 0.30, nu13 0.34,
   rho 7531.4, eps11 3875.5, eps33 6320.2 relative, d15 50, d31 -737.8, d33 793 pC/N), ceramic 0.25 mm thick.
   The open-circuit disc is modelled by the thin-disc sensing law (see `model.py`): only d31, eps33, E11,
@@ -56,7 +60,7 @@ from pathlib import Path
 from ..errors import ConfigError
 
 FORMAT = "impactsense-sim-params"
-SUPPORTS = ("free", "simply_supported", "clamped")
+SUPPORTS = ("free", "simply_supported", "clamped", "elastic_rim")
 METHODS = ("auto", "fast", "direct")
 
 
@@ -68,6 +72,8 @@ class SimParams:
     rho_kg_m3: float = 1157.0
     thickness_mm: float = 4.2
     support: str = "simply_supported"
+    rim_stiffness_n_m2: float = 0.0       # elastic_rim: the rim's stiffness on w per metre of edge [N/m per m]
+    rim_damping_n_s_m2: float = 0.0       # elastic_rim: its dashpot per metre of edge [N s/m per m]
     shear_factor: float = math.pi ** 2 / 12
     damping_per_s: float = 1086.0          # D_s
     # PZT disc (method.md block; relative permittivities, pC/N, MPa)
@@ -220,6 +226,11 @@ class SimParams:
             raise ConfigError(f"pretrigger_samples must be an integer >= 0, got {self.pretrigger_samples!r}")
         if self.support not in SUPPORTS:
             raise ConfigError(f"support must be one of {SUPPORTS}, got {self.support!r}")
+        num("rim_stiffness_n_m2", 0, lo_open=False)
+        num("rim_damping_n_s_m2", 0, lo_open=False)
+        if self.support != "elastic_rim" and (self.rim_stiffness_n_m2 or self.rim_damping_n_s_m2):
+            raise ConfigError(f"rim_stiffness_n_m2 / rim_damping_n_s_m2 are used only with support "
+                              f"'elastic_rim', not {self.support!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
         for name in ("disc_mass", "disc_stiffness", "disc_inertia_scaling", "subcycle"):

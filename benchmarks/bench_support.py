@@ -1,0 +1,177 @@
+"""Benchmark: which plate support explains the rig's low-band dispersion? (docs/findings.md, "Can four drops tell nu?")
+
+    python3 benchmarks/bench_support.py [--calibration CAL.json] [--supports simply_supported,free,clamped]
+                                        [--held-out 16] [--rounds 1] [--max-nfev 8]
+
+The rig's plate rests on a rubber rim (rig.json `plate_support`); the twin holds its edges (simply supported).
+Every sensor is 30-33 mm from two edges, so edge reflections sit inside every low-band packet and the edge
+condition sets their phase. For each support this prints, on session-1:
+
+- the four calibration drops' band group delays (`calibration/group_delay.py`), every repetition's position
+  fitted (`plate_fem.fit_positions`) at the calibration's E, nu, D_s: chi^2 / dof and rms residual per band;
+- the same after calibration's own nu stage (`plate_nu.fit`: ln E, nu, D_s and the positions, `--rounds`):
+  fitted E, nu, D_s and chi^2 / dof (the projected residual, as CAL.json `plate.nu_fit`);
+- the AIC DToA rms (Eq. 16) of the four cases at their declared positions, at the calibration's E and at the
+  nu stage's E;
+- `--held-out N` other usable cases (spread over the plate, none of the calibration's): their repetitions'
+  positions fitted at the support's nu-stage (E, nu, D_s) from the four drops; chi^2 / dof and rms per band.
+
+chi^2 uses the rig-noise spread of the group delays (`plate_nu.noise_sigma`), the same for every support;
+dof = observables - 2 x repetitions (the fitted positions).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from importlib import resources
+
+import numpy as np
+
+from impactsense.calibration import drops as drops_mod, fem, group_delay, plate, plate_fem, plate_nu
+from impactsense.calibration.pipeline import CalibrateOptions, _sim_core_config, core_config, sim_features
+from impactsense.data import load_session
+
+
+def bundled_calibration() -> str:
+    return str(resources.files("impactsense") / "data" / "twin" / "calibration.json")
+
+
+def support_overrides(spec: str) -> dict:
+    """SimParams fields of a support spec: a name, or elastic_rim:STIFFNESS[:DAMPING] (N/m and N s/m per m)."""
+    name, *vals = spec.split(":")
+    if name != "elastic_rim":
+        return {"support": name}
+    out = {"support": name, "rim_stiffness_n_m2": float(vals[0]) if vals else 0.0}
+    if len(vals) > 1:
+        out["rim_damping_n_s_m2"] = float(vals[1])
+    return out
+
+
+def held_out_cases(session, feats, exclude, n) -> list[int]:
+    """n usable cases (>= 3 accepted repetitions, >= 40 mm from every sensor), none of `exclude`, evenly spread
+    over the plate: a greedy farthest-point pick from the case nearest the plate's centre."""
+    rows, _ = drops_mod.case_table(session, feats, min_reps=3)
+    ok = [c for c, r in rows.items() if r["usable"] and c not in exclude]
+    xy = np.array([[rows[c]["x"], rows[c]["y"]] for c in ok])
+    centre = xy.mean(axis=0)
+    pick = [int(np.argmin(np.hypot(*(xy - centre).T)))]
+    while len(pick) < min(n, len(ok)):
+        d = np.min(np.hypot(xy[:, None, 0] - xy[pick][None, :, 0], xy[:, None, 1] - xy[pick][None, :, 1]), axis=1)
+        pick.append(int(np.argmax(d)))
+    return sorted(ok[i] for i in pick), rows
+
+
+def targets_for(session, feats, rows, cases):
+    return drops_mod._targets(session, feats, rows, cases, {"selection": "bench_support"})
+
+
+def band_stats(o_sim, per_rep, sigma, n_pos):
+    """chi^2 / dof and rms residual per band (us) of measured - twin group delays [R, B, 6]."""
+    r = o_sim - per_rep
+    ok = np.isfinite(r)
+    z = np.where(ok, r / sigma[None, :, None], 0.0)
+    dof = int(ok.sum()) - 2 * n_pos
+    rms = np.sqrt(np.nanmean(np.where(ok, r, np.nan) ** 2, axis=(0, 2)))
+    return float((z ** 2).sum() / max(dof, 1)), rms
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--calibration", default=bundled_calibration(), help="CAL.json (default: the bundled twin's)")
+    ap.add_argument("--data", default="bundled")
+    ap.add_argument("--supports", default="simply_supported,free,clamped",
+                    help="comma-separated: free, simply_supported, clamped, elastic_rim:K[:C] (N/m, N s/m per m)")
+    ap.add_argument("--held-out", type=int, default=16, help="other cases checked (0: none)")
+    ap.add_argument("--rounds", type=int, default=1, help="nu-stage rounds (0: skip the E, nu, D_s fit)")
+    ap.add_argument("--max-nfev", type=int, default=8)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", default=None, help="write the figures here too")
+    a = ap.parse_args(argv)
+
+    cal = json.loads(open(a.calibration).read())
+    flat = {k: float(v) for k, v in cal["fitted"].items()}
+    session = load_session(a.data)
+    rig = session.rig
+    cfg = core_config(rig, CalibrateOptions())
+    cfg_sim = _sim_core_config(cfg)
+    feats = drops_mod.extract(session, cfg)
+    cal_cases = [int(c) for c in cal["exclude_case_ids"]]
+    rows, _ = drops_mod.case_table(session, feats)
+    tgt = targets_for(session, feats, rows, cal_cases)
+    noise = (float(cal["noise_added_to_simulations"]["counts_rms"]), 4, 0)
+    names = group_delay.names()
+    ks = list(range(len(names)))
+    per_rep, n_samp = plate_nu.measured_group_delays(session, tgt, feats, cfg)
+    n_rep = [len(r) for r in tgt.recording_ids]
+    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (tgt.x_mm, tgt.y_mm, tgt.height_mm))
+    sigma = plate_nu.noise_sigma(fem.fem_simulator(a.workers)(flat, rig, x, y, h), cfg_sim, n_samp, noise[0],
+                                 noise[1])
+    held = []
+    if a.held_out > 0:
+        held_cases, rows3 = held_out_cases(session, feats, set(cal_cases), a.held_out)
+        t_h = targets_for(session, feats, rows3, held_cases)
+        gd_h, n_h = plate_nu.measured_group_delays(session, t_h, feats, cfg)
+        nr = [len(r) for r in t_h.recording_ids]
+        held = [t_h, gd_h, n_h, *(np.repeat(np.asarray(v, float), nr) for v in (t_h.x_mm, t_h.y_mm, t_h.height_mm))]
+    print(f"calibration {a.calibration}: E {flat['e_pa'] / 1e6:.0f} MPa, nu {flat['nu']:.3f}, "
+          f"D_s {flat['damping_per_s']:.0f} 1/s; cases {cal_cases} ({per_rep.shape[0]} repetitions); "
+          f"sigma {np.round(sigma, 2).tolist()} us" + (f"; held out: {len(held[0].case_ids)} cases "
+                                                        f"({held[1].shape[0]} repetitions)" if held else ""))
+
+    out = {}
+    for sup in a.supports.split(","):
+        t0 = time.perf_counter()
+        simulate = fem.fem_simulator(a.workers, **support_overrides(sup))
+
+        def obs(p, xx, yy, hh, n=n_samp):
+            return plate_nu.twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+
+        def aic_rms(p):
+            f = sim_features(simulate(p, rig, tgt.x_mm, tgt.y_mm, tgt.height_mm), cfg_sim, *noise)
+            return float(np.sqrt(plate.eq16_loss(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
+
+        row = {"aic_rms_us_cal": aic_rms(flat)}
+        xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
+        row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(obs(flat, xf, yf, h), per_rep, sigma, len(x))
+        p_fit = flat
+        if a.rounds > 0:
+            run_obs = lambda e, nu, ds, xx, yy, hh: obs(dict(flat, e_pa=e * 1e6, nu=nu, damping_per_s=ds), xx, yy, hh)  # noqa: E731
+            fit = plate_nu.fit(run_obs, per_rep, sigma, names, x, y, h,
+                               (flat["e_pa"] / 1e6, flat["nu"], flat["damping_per_s"]), rounds=a.rounds,
+                               max_nfev=a.max_nfev, e_bounds=(1500.0, 9000.0), ds_bounds=(100.0, 1500.0))
+            p_fit = dict(flat, e_pa=fit.e_mpa * 1e6, nu=fit.nu, damping_per_s=fit.damping_per_s)
+            row.update(E_mpa=fit.e_mpa, nu=fit.nu, damping_per_s=fit.damping_per_s, chi2_dof_nu_stage=fit.chi2_dof,
+                       aic_rms_us_fit=aic_rms(p_fit))
+            row["chi2_dof_fit"], row["rms_us_fit"] = band_stats(obs(p_fit, fit.x_mm, fit.y_mm, h), per_rep, sigma,
+                                                                len(x))
+        if held:
+            t_h, gd_h, n_h, xh, yh, hh = held
+            f_h = lambda xx, yy, hh_: obs(p_fit, xx, yy, hh_, n_h)  # noqa: E731
+            xhf, yhf = plate_fem.fit_positions(f_h, gd_h, sigma, xh, yh, hh, ks)
+            row["chi2_dof_held"], row["rms_us_held"] = band_stats(f_h(xhf, yhf, hh), gd_h, sigma, len(xh))
+            row["held_position_shift_rms_mm"] = float(np.sqrt(np.mean((xhf - xh) ** 2 + (yhf - yh) ** 2)))
+        row["seconds"] = time.perf_counter() - t0
+        out[sup] = row
+        print(f"  {sup}: done in {row['seconds']:.0f} s", flush=True)
+
+    bands = [n.replace("group delay ", "") for n in names]
+    print("\nsupport | chi2/dof at CAL (E, nu, D_s), positions fitted | rms us per band " + " / ".join(bands)
+          + " | nu stage: E MPa, nu, D_s 1/s | chi2/dof (nu stage, projected) | chi2/dof, rms per band after "
+          "| AIC DToA rms us at CAL E / fitted E | held-out cases: chi2/dof, rms per band")
+    for sup, r in out.items():
+        fit_s = (f"{r['E_mpa']:.0f}, {r['nu']:.3f}, {r['damping_per_s']:.0f} | {r['chi2_dof_nu_stage']:.1f} | "
+                 f"{r['chi2_dof_fit']:.1f}, {' / '.join(f'{v:.1f}' for v in r['rms_us_fit'])} | "
+                 f"{r['aic_rms_us_cal']:.1f} / {r['aic_rms_us_fit']:.1f}") if "E_mpa" in r else \
+            f"- | - | - | {r['aic_rms_us_cal']:.1f} / -"
+        held_s = (f"{r['chi2_dof_held']:.1f}, {' / '.join(f'{v:.1f}' for v in r['rms_us_held'])}"
+                  if "chi2_dof_held" in r else "-")
+        print(f"{sup} | {r['chi2_dof_cal']:.1f} | {' / '.join(f'{v:.1f}' for v in r['rms_us_cal'])} | {fit_s} | {held_s}")
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+if __name__ == "__main__":
+    main()

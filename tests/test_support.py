@@ -1,0 +1,109 @@
+"""The "elastic_rim" support (free edges on a rubber rim: a spring and a dashpot on w along every edge) against
+physics: a soft rim lets the plate bounce and rock on it as a rigid body at the frequencies the rim's stiffness
+and the plate's mass and inertia give, a stiff rim is the simply supported plate, the springs store energy and
+the dashpots only take it away. Coarse meshes; seconds each."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from impactsense.errors import ConfigError
+from impactsense.sim import SimParams, dispersion
+from impactsense.sim.model import assembled_dt_crit, rim_springs, support_masks, uniform_plate
+
+from test_sim_physics import PMMA, assembled_stiffness
+
+A, B, T = 0.320, 0.317, 4.2e-3
+
+
+def frequencies(p, nx, ny, n=10, masks=None):
+    """The n lowest natural frequencies (Hz) of the bare plate with p's support (the C++ operator, springs
+    included, probed into K; fixed dofs removed)."""
+    plate, mw, mr, _ = uniform_plate(nx, ny, A / nx, B / ny, p, masks=masks)
+    k = assembled_stiffness(plate, nx, ny)
+    held = np.concatenate([m.ravel() for m in (masks or support_masks(nx, ny, p.support))]).astype(bool)
+    keep = np.flatnonzero(~held)
+    dm = sp.diags(1 / np.sqrt(np.concatenate([mw, mr, mr])[keep]))
+    lam = spla.eigsh(dm @ k[keep][:, keep] @ dm, k=n, sigma=-1.0, which="LM", return_eigenvectors=False)
+    return np.sort(np.sqrt(np.clip(lam, 0, None))) / (2 * np.pi)
+
+
+def test_rim_springs_share_the_perimeter():
+    p = SimParams(support="elastic_rim", rim_stiffness_n_m2=2.0e6, rim_damping_n_s_m2=30.0, **PMMA)
+    k, c = rim_springs(8, 6, A / 8, B / 6, p)
+    assert k.sum() == pytest.approx(2.0e6 * 2 * (A + B), rel=1e-12)
+    assert c.sum() == pytest.approx(30.0 * 2 * (A + B), rel=1e-12)
+    assert np.all(k[1:-1, 1:-1] == 0)                       # interior nodes rest on nothing
+    k_ss, _ = rim_springs(8, 6, A / 8, B / 6, SimParams(support="simply_supported", **PMMA))
+    assert not k_ss.any()
+
+
+def test_soft_rim_bounce_and_rocking_at_the_rigid_body_frequencies():
+    """k = 100 N/m per m: the plate bounces and rocks on the rim as a rigid body (its first bending mode is
+    ~40x higher; at k = 1e4, 4x higher, the bounce already bends the plate and sits 6 % lower): omega^2 = k * perimeter / (rho t a b) for the bounce, k * int x^2 ds / (rho t int x^2 dA)
+    for the rocking about each axis; the bending modes are the free plate's."""
+    k_rim = 100.0
+    p = SimParams(support="elastic_rim", rim_stiffness_n_m2=k_rim, damping_per_s=0.0, **PMMA)
+    f = frequencies(p, 24, 24, n=6)
+    rho_t = p.rho_kg_m3 * T
+    bounce = math.sqrt(k_rim * 2 * (A + B) / (rho_t * A * B))
+    rock_y = math.sqrt(k_rim * (A ** 2 * B / 2 + A ** 3 / 6) / (rho_t * B * A ** 3 / 12))   # about the y axis
+    rock_x = math.sqrt(k_rim * (B ** 2 * A / 2 + B ** 3 / 6) / (rho_t * A * B ** 3 / 12))
+    expect = np.sort([bounce, rock_y, rock_x]) / (2 * np.pi)
+    assert np.allclose(f[:3], expect, rtol=0.01), (f[:3], expect)
+    f_free = frequencies(SimParams(support="free", damping_per_s=0.0, **PMMA), 24, 24, n=6)
+    assert f_free[:3].max() < 1e-3 * f_free[3]              # the free plate's rigid-body modes sit at zero
+    assert np.allclose(f[3:], f_free[3:], rtol=0.005), (f[3:], f_free[3:])
+
+
+def test_stiff_rim_is_the_simply_supported_plate():
+    """k = 1e12 N/m per m holds w on the edges: the frequencies are the plate's with w held there (tangential
+    rotation free) to 0.1 %, and the analytic simply supported Mindlin plate's to 1 %."""
+    nx = ny = 48
+    p = SimParams(support="elastic_rim", rim_stiffness_n_m2=1.0e12, damping_per_s=0.0, **PMMA)
+    f = frequencies(p, nx, ny, n=8)
+    fix_w = support_masks(nx, ny, "simply_supported")[0]
+    soft_ss = (fix_w, np.zeros_like(fix_w), np.zeros_like(fix_w))
+    f_w_held = frequencies(SimParams(support="free", damping_per_s=0.0, **PMMA), nx, ny, n=8, masks=soft_ss)
+    assert np.allclose(f, f_w_held, rtol=1e-3), (f, f_w_held)
+    f_an, _ = dispersion.ss_plate_frequencies(A, B, p.e_pa, p.nu, p.rho_kg_m3, T, p.shear_factor)
+    assert np.allclose(f, np.sort(f_an)[:8], rtol=0.01), (f, np.sort(f_an)[:8])
+    f_free = frequencies(SimParams(support="free", damping_per_s=0.0, **PMMA), nx, ny, n=4)
+    f_mid = frequencies(p.replace(rim_stiffness_n_m2=1.0e6), nx, ny, n=4)
+    assert f_free[3] < f_mid[0] < f[0]                       # in between, the first bending mode is in between
+
+
+def _ring_down(p, nx=20, ny=20, steps=6000):
+    """Energy history of the bare plate released from a bent, lifted state (no ball)."""
+    plate, _, _, _ = uniform_plate(nx, ny, A / nx, B / ny, p)
+    dt = 0.9 * assembled_dt_crit(plate)
+    xx, yy = np.meshgrid(np.linspace(0, 1, nx + 1), np.linspace(0, 1, ny + 1))
+    w0 = (1e-5 * (np.sin(np.pi * xx) * np.sin(np.pi * yy) + 0.3 + 0.2 * xx)).ravel()
+    out = plate.run(dt_s=dt, n_steps=steps, record_every=20, n_record=steps // 20, record_energy=True, w0=w0)
+    e = np.asarray(out["energy"]).reshape(-1, 4)
+    return e[1:, 0] + e[1:, 1]
+
+
+def test_rim_springs_conserve_energy_and_the_dashpot_takes_it_away():
+    p = SimParams(support="elastic_rim", rim_stiffness_n_m2=3.0e7, damping_per_s=0.0, **PMMA)
+    e = _ring_down(p)
+    assert np.ptp(e) < 2e-3 * e.mean()                       # springs store energy, give it back
+    e_c = _ring_down(p.replace(rim_damping_n_s_m2=2000.0))
+    assert np.all(np.diff(e_c) <= 1e-3 * e_c[0])             # the dashpot never adds energy ...
+    assert e_c[-1] < 0.5 * e_c[0]                            # ... and takes a good part of it
+
+
+def test_rim_fields_validated():
+    with pytest.raises(ConfigError, match="rim_stiffness_n_m2"):
+        SimParams(support="elastic_rim", rim_stiffness_n_m2=-1.0)
+    with pytest.raises(ConfigError, match="rim_damping_n_s_m2"):
+        SimParams(support="elastic_rim", rim_damping_n_s_m2=float("nan"))
+    with pytest.raises(ConfigError, match="only with support 'elastic_rim'"):
+        SimParams(support="simply_supported", rim_stiffness_n_m2=1e7)
+    with pytest.raises(ConfigError, match="rim_stiffness_n_m2"):
+        SimParams.from_dict({"support": "elastic_rim", "rim_stiffness_n_m2": "stiff"}, "P.json")
