@@ -39,13 +39,18 @@ def bundled_calibration() -> str:
 
 
 def support_overrides(spec: str) -> dict:
-    """SimParams fields of a support spec: a name, or elastic_rim:STIFFNESS[:DAMPING] (N/m and N s/m per m)."""
+    """SimParams fields of a support spec: a name, or elastic_rim:STIFFNESS[:DAMPING] (N/m and N s/m per m),
+    optionally followed by @FIELD=VALUE overrides (e.g. simply_supported@disc_mass=0: the other suspects)."""
+    spec, *extra = spec.split("@")
     name, *vals = spec.split(":")
-    if name != "elastic_rim":
-        return {"support": name}
-    out = {"support": name, "rim_stiffness_n_m2": float(vals[0]) if vals else 0.0}
-    if len(vals) > 1:
-        out["rim_damping_n_s_m2"] = float(vals[1])
+    out = {"support": name}
+    if name == "elastic_rim":
+        out["rim_stiffness_n_m2"] = float(vals[0]) if vals else 0.0
+        if len(vals) > 1:
+            out["rim_damping_n_s_m2"] = float(vals[1])
+    for kv in extra:
+        key, val = kv.split("=")
+        out[key] = bool(int(val)) if key in ("disc_mass", "disc_stiffness") else float(val)
     return out
 
 
@@ -91,7 +96,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     cal = json.loads(open(a.calibration).read())
-    flat = {k: float(v) for k, v in cal["fitted"].items()}
+    flat = {k: v if isinstance(v, str) else float(v) for k, v in cal["fitted"].items()}
     session = load_session(a.data)
     rig = session.rig
     cfg = core_config(rig, CalibrateOptions())

@@ -54,19 +54,26 @@ def available() -> bool:
         return False
 
 
-def _support(rig) -> str:
-    text = str(getattr(rig, "plate_support", "")).lower()
-    return "clamped" if "clamp" in text else "free" if ("free" in text or "suspend" in text) else "simply_supported"
+def rig_support(rig) -> str:
+    """The support `SimParams.from_rig` reads from rig.json's plate_support text."""
+    from ..sim import SimParams
+    return SimParams.from_rig(rig).support
+
+
+def _fields(flat: dict) -> dict:
+    """The flat dict as SimParams fields: numbers as floats, the support (a name) as it is."""
+    return {k: (v if isinstance(v, str) else float(v)) for k, v in flat.items()}
 
 
 def sim_params_json(flat: dict, rig) -> dict:
-    """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()`; without the simulator in this
-    build, the same keys and format written by hand."""
+    """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()` (the support: flat's, else the
+    rig's text through `SimParams.from_rig`); without the simulator in this build, the same keys written by hand
+    (the support then flat's or "simply_supported": the rig's text rule lives in SimParams)."""
     if available():
         from ..sim import SimParams
-        return SimParams.from_rig(rig, **{k: float(v) for k, v in flat.items()}).to_dict()
-    return {"format": "impactsense-sim-params", "version": 1, **{k: float(v) for k, v in flat.items()},
-            "rho_kg_m3": float(rig.density_kg_m3), "thickness_mm": float(rig.thickness_mm), "support": _support(rig)}
+        return SimParams.from_rig(rig, **_fields(flat)).to_dict()
+    return {"format": "impactsense-sim-params", "version": 1, "support": "simply_supported", **_fields(flat),
+            "rho_kg_m3": float(rig.density_kg_m3), "thickness_mm": float(rig.thickness_mm)}
 
 
 Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -81,7 +88,7 @@ def fem_simulator(workers: int = 2, **overrides) -> Simulator:
     from ..sim import SimParams, simulate_drops
 
     def simulate(flat, rig, x_mm, y_mm, height_mm):
-        p = SimParams.from_rig(rig, **{k: float(v) for k, v in flat.items()}, **overrides)
+        p = SimParams.from_rig(rig, **{**_fields(flat), **overrides})
         return np.asarray(simulate_drops(p, rig, np.asarray(x_mm, float), np.asarray(y_mm, float),
                                          np.asarray(height_mm, float), noise=False, seed=None,
                                          workers=workers, progress=False))

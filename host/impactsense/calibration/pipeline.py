@@ -67,6 +67,10 @@ class CalibrateOptions:
     fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM plate fit: E basin scan = fast minimum x these
     n_noise: int = 4                       # rig-noise realisations added to simulated records before picking
     nu_rounds: int = 2                     # nu stage: rounds of (positions, then E, nu, D_s); 0 skips the stage
+    # plate support: "rig" (rig.json's text, SimParams.from_rig), a SimParams support, or "auto": the candidate
+    # (plate_nu.SUPPORT_CANDIDATES) whose group delays fit best (stage `support`, after `damping`)
+    support: str = "rig"
+    rim_stiffness_n_m2: float | None = None  # support "elastic_rim": the rim's stiffness per metre of edge
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -81,6 +85,18 @@ class CalibrateOptions:
             raise ConfigError("--workers must be >= 1")
         if not isinstance(self.nu_rounds, (int, np.integer)) or self.nu_rounds < 0:
             raise ConfigError(f"nu_rounds must be a whole number >= 0, got {self.nu_rounds!r}")
+        try:
+            from ..sim.params import SUPPORTS
+        except ImportError:                 # a build without the simulator
+            SUPPORTS = ("free", "simply_supported", "clamped", "elastic_rim")
+        if self.support not in ("rig", "auto", *SUPPORTS):
+            raise ConfigError(f"--support must be one of {('rig', 'auto', *SUPPORTS)}, got {self.support!r}")
+        if self.support == "elastic_rim" and not (self.rim_stiffness_n_m2 is not None and self.rim_stiffness_n_m2 >= 0):
+            raise ConfigError("--support elastic_rim needs --rim-stiffness (N/m per metre of edge, >= 0)")
+        if self.support != "elastic_rim" and self.rim_stiffness_n_m2 is not None:
+            raise ConfigError("--rim-stiffness is used only with --support elastic_rim")
+        if self.support == "auto" and not self.fem:
+            raise ConfigError("--support auto compares the FEM's group delays: it needs the FEM (drop --no-fem)")
 
 
 def _key(*parts) -> str:
@@ -229,6 +245,10 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
               "contour_png": str(fig9)}
 
     params = fem.base_params(rig, e_best, nu_best)
+    if opts.support not in ("rig", "auto"):
+        params["support"] = opts.support
+        if opts.support == "elastic_rim":
+            params["rim_stiffness_n_m2"] = float(opts.rim_stiffness_n_m2)
     result = {"format": "impactsense-calibration/1", "data": str(Path(data)),
               "data_sha256": session.fingerprint(), "seed": opts.seed,
               "options": {k: v for k, v in asdict(opts).items() if k not in ("progress",)},
@@ -270,6 +290,18 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                                                    params["damping_per_s"], "decay-v2"), noise)
         decay = clock.run("damping", damping_stage)
         result["damping_from_decay"] = decay
+
+        # the plate's support from the band group delays (`plate_nu.choose_support`), if asked
+        if opts.support == "auto":
+            def support_stage():
+                key = _key(base_key, params, decay["damping_per_s"], plate_nu.SUPPORT_CANDIDATES, "support-v1")
+                p = dict(params, damping_per_s=float(decay["damping_per_s"]))
+                return _cached(cache("support.json"), key, lambda: plate_nu.choose_support(
+                    simulate, p, rig, session, targets, feats, cfg, cfg_sim, noise))
+            choice = clock.run("support", support_stage)
+            if choice["fields"] != {"support": fem.rig_support(rig)}:   # the rig's own: params stay as they are
+                params.update(choice["fields"])
+            stage1["support_choice"] = choice
 
         # nu (with D_s and every repetition's position) from the band group delays (`plate_nu`)
         nu_bounds = (float(nu_axis[0]), float(nu_axis[-1]))
@@ -389,6 +421,17 @@ def _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simul
                      f"stays >= {damping.SNR:.0f} x noise (<= {damping.MAX_MS:.0f} ms); FEM runs of the four drops "
                      f"({damping.DECAY_DURATION_MS:.0f} ms) scaled to the measured peaks, rig noise added"}
     out = json.loads(json.dumps(out, default=_jsonable))
+    _write_json_atomic(path, {"key": key, **out})
+    return out
+
+
+def _cached(path: Path, key: str, compute) -> dict:
+    """compute() once; its JSON result kept at path under key."""
+    cached = _read_cache(path, key)
+    if cached is not None:
+        cached.pop("key")
+        return cached
+    out = json.loads(json.dumps(compute(), default=_jsonable))
     _write_json_atomic(path, {"key": key, **out})
     return out
 

@@ -32,6 +32,13 @@ def register(sub) -> None:
     p.add_argument("--nu-rounds", type=int, default=2,
                    help="rounds of the nu stage (E, nu, D_s from the band group delays with each drop's position "
                         "fitted; default 2); 0 skips it and keeps the grid's nu and the decay D_s")
+    p.add_argument("--support", default="rig",
+                   choices=("rig", "auto", "simply_supported", "free", "clamped", "elastic_rim"),
+                   help="plate support of the twin: 'rig' (default: rig.json's plate_support text), a support, or "
+                        "'auto': the candidate (simply supported, free, clamped, elastic rims of 1e8-1e10 N/m per m) "
+                        "whose band group delays fit best, recorded in CAL.json plate.support_choice")
+    p.add_argument("--rim-stiffness", type=float, default=None,
+                   help="--support elastic_rim: the rim's stiffness on w, N/m per metre of edge")
     p.add_argument("--no-fem", action="store_true",
                    help="sub-problem 1 only (no FEM confirmation, no sub-problem 2; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
@@ -64,6 +71,10 @@ def summary(cal: dict) -> str:
         scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
         lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
                      f"(rms {pl['fem_rms_dtoa_error_us']:.1f} us); FEM scan E -> loss: {scan}")
+    sc = pl.get("support_choice")
+    if sc:
+        rows = "; ".join(f"{c['label']} {c['chi2_dof']:.0f}" for c in sc["candidates"])
+        lines.append(f"plate support from the group delays (chi^2/dof, positions fitted): {rows} -> {sc['chosen']}")
     nf = pl.get("nu_fit")
     if nf:
         verdict = "claimed" if nf["identified"] else "NOT claimed"
@@ -115,7 +126,8 @@ def run(args) -> int:
                             progress=not args.quiet, nu_step=args.nu_step, e_step_mpa=args.e_step,
                             aic_blend=args.aic_blend, channel_delay_us=delays,
                             surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
-                            nu_rounds=args.nu_rounds)
+                            nu_rounds=args.nu_rounds, support=args.support,
+                            rim_stiffness_n_m2=args.rim_stiffness)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator
