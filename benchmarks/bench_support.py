@@ -82,6 +82,27 @@ def band_stats(o_sim, per_rep, sigma, n_pos):
     return float((z ** 2).sum() / max(dof, 1)), rms
 
 
+def channel_delays(resid, sigma):
+    """Per band, the four channels' delays d (sum 0) that best explain residuals resid [R, B, 6] of the pairs
+    (i, j) as d_i - d_j (least squares, rig-noise weights): [B, 4] us."""
+    a = np.zeros((6, 4))
+    a[np.arange(6), plate.PAIR_I] = 1.0
+    a[np.arange(6), plate.PAIR_J] = -1.0
+    out = []
+    for b in range(resid.shape[1]):
+        r = resid[:, b, :]
+        ok = np.isfinite(r)
+        rows = np.concatenate([a[ok[k]] for k in range(r.shape[0])])
+        d, *_ = np.linalg.lstsq(np.vstack([rows, np.ones((1, 4))]), np.append(r[ok], 0.0), rcond=None)
+        out.append(d)
+    return np.array(out)
+
+
+def pair_offsets(d):
+    """[B, 6] pair offsets d_i - d_j of channel delays d [B, 4]."""
+    return d[:, plate.PAIR_I] - d[:, plate.PAIR_J]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--calibration", default=bundled_calibration(), help="CAL.json (default: the bundled twin's)")
@@ -92,6 +113,13 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=1, help="nu-stage rounds (0: skip the E, nu, D_s fit)")
     ap.add_argument("--max-nfev", type=int, default=8)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--per-band-e", action="store_true",
+                    help="also: E that best fits each band alone (positions held where they fit at the calibration's "
+                         "E), a dispersion check: a modulus rising with frequency (viscoelastic PMMA) shows as E "
+                         "growing from band to band")
+    ap.add_argument("--channel-delays", action="store_true",
+                    help="also: per-channel, per-band delays (3 a band) fitted on the calibration drops at the "
+                         "calibration's E, nu, D_s, and the held-out cases scored with them")
     ap.add_argument("--json", default=None, help="write the figures here too")
     a = ap.parse_args(argv)
 
@@ -139,7 +167,35 @@ def main(argv=None):
 
         row = {"aic_rms_us_cal": aic_rms(flat)}
         xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
-        row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(obs(flat, xf, yf, h), per_rep, sigma, len(x))
+        o_cal = obs(flat, xf, yf, h)
+        row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(o_cal, per_rep, sigma, len(x))
+        if a.channel_delays:
+            # a per-channel, per-band delay the twin lacks (e.g. the input network's phase at low frequency):
+            # fitted on the calibration drops, positions refitted with it, then checked on the held-out cases
+            d = channel_delays(per_rep - o_cal, sigma)
+            off = pair_offsets(d)[None]
+            for _ in range(2):
+                xd, yd = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh) + off, per_rep, sigma,
+                                                 x, y, h, ks)
+                o_d = obs(flat, xd, yd, h)
+                d = channel_delays(per_rep - o_d, sigma)
+                off = pair_offsets(d)[None]
+            row["channel_delays_us"] = d.tolist()
+            row["chi2_dof_chdelay"], row["rms_us_chdelay"] = band_stats(o_d + off, per_rep, sigma, len(x) + 4.5)
+        if a.per_band_e:
+            factors = np.array([0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15])
+            chi = []
+            for f in factors:
+                r = obs(dict(flat, e_pa=flat["e_pa"] * f), xf, yf, h) - per_rep
+                chi.append(np.nansum((r / sigma[None, :, None]) ** 2, axis=(0, 2)))
+            chi = np.array(chi)                                               # [factors, bands]
+            best = []
+            for b in range(chi.shape[1]):
+                i = int(np.clip(np.argmin(chi[:, b]), 1, len(factors) - 2))
+                c = np.polyfit(factors[i - 1:i + 2], chi[i - 1:i + 2, b], 2)
+                best.append(float(-c[1] / (2 * c[0]) * flat["e_pa"] / 1e6) if c[0] > 0 else float("nan"))
+            row["E_per_band_mpa"] = best
+            row["chi2_dof_per_band_at_best"] = (chi.min(axis=0) / (per_rep[:, 0].size - 2 * len(x) / 3)).tolist()
         p_fit = flat
         if a.rounds > 0:
             run_obs = lambda e, nu, ds, xx, yy, hh: obs(dict(flat, e_pa=e * 1e6, nu=nu, damping_per_s=ds), xx, yy, hh)  # noqa: E731
@@ -156,6 +212,12 @@ def main(argv=None):
             f_h = lambda xx, yy, hh_: obs(p_fit, xx, yy, hh_, n_h)  # noqa: E731
             xhf, yhf = plate_fem.fit_positions(f_h, gd_h, sigma, xh, yh, hh, ks)
             row["chi2_dof_held"], row["rms_us_held"] = band_stats(f_h(xhf, yhf, hh), gd_h, sigma, len(xh))
+            if a.channel_delays:
+                off = pair_offsets(np.array(row["channel_delays_us"]))[None]
+                f_hd = lambda xx, yy, hh_: obs(flat, xx, yy, hh_, n_h) + off  # noqa: E731
+                xhd, yhd = plate_fem.fit_positions(f_hd, gd_h, sigma, xh, yh, hh, ks)
+                row["chi2_dof_held_chdelay"], row["rms_us_held_chdelay"] = band_stats(f_hd(xhd, yhd, hh), gd_h,
+                                                                                      sigma, len(xh))
             row["held_position_shift_rms_mm"] = float(np.sqrt(np.mean((xhf - xh) ** 2 + (yhf - yh) ** 2)))
         row["seconds"] = time.perf_counter() - t0
         out[sup] = row
@@ -173,6 +235,20 @@ def main(argv=None):
         held_s = (f"{r['chi2_dof_held']:.1f}, {' / '.join(f'{v:.1f}' for v in r['rms_us_held'])}"
                   if "chi2_dof_held" in r else "-")
         print(f"{sup} | {r['chi2_dof_cal']:.1f} | {' / '.join(f'{v:.1f}' for v in r['rms_us_cal'])} | {fit_s} | {held_s}")
+    if a.channel_delays:
+        print("\nper-channel band delays fitted on the calibration drops (calibration's E, nu, D_s): chi2/dof, rms "
+              "per band; channel delays us (channels 0..3) per band; held-out cases without -> with them")
+        for sup, r in out.items():
+            d = "; ".join(" ".join(f"{v:+.1f}" for v in band) for band in r["channel_delays_us"])
+            held_s = (f" | held out {r['chi2_dof_held']:.0f} -> {r['chi2_dof_held_chdelay']:.0f} "
+                      f"({' / '.join(f'{v:.1f}' for v in r['rms_us_held_chdelay'])} us)"
+                      if "chi2_dof_held_chdelay" in r else "")
+            print(f"{sup}: {r['chi2_dof_cal']:.0f} -> {r['chi2_dof_chdelay']:.0f} "
+                  f"({' / '.join(f'{v:.1f}' for v in r['rms_us_chdelay'])} us); delays {d}{held_s}")
+    if a.per_band_e:
+        print("\nE fitted to each band alone (MPa), " + " / ".join(bands) + ":")
+        for sup, r in out.items():
+            print(f"{sup}: " + " / ".join(f"{v:.0f}" for v in r["E_per_band_mpa"]))
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))

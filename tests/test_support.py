@@ -79,6 +79,22 @@ def test_stiff_rim_is_the_simply_supported_plate():
     assert f_free[3] < f_mid[0] < f[0]                       # in between, the first bending mode is in between
 
 
+def test_stiff_inset_rim_holds_w_on_its_line_and_the_overhang_is_free():
+    """rim_inset_mm: the rim under the plate 40 mm inside the edges (3 node lines of a 24 x 24 mesh, 13.3 mm
+    elements): a stiff rim there is w held on that ring with the overhang free, to 0.1 %."""
+    nx = ny = 24
+    p = SimParams(support="elastic_rim", rim_stiffness_n_m2=1.0e12, rim_inset_mm=40.0, damping_per_s=0.0, **PMMA)
+    k, _ = rim_springs(nx, ny, A / nx, B / ny, p)
+    ring = k > 0
+    assert ring[3, 3:-3].all() and ring[3:-3, 3].all() and not ring[:3].any() and not ring[:, :3].any()
+    assert k.sum() == pytest.approx(1.0e12 * 2 * (A + B) * 18 / 24, rel=1e-12)   # the inner ring's perimeter
+    held = (ring.astype(np.uint8), np.zeros((ny + 1, nx + 1), np.uint8), np.zeros((ny + 1, nx + 1), np.uint8))
+    f_held = frequencies(SimParams(support="free", damping_per_s=0.0, **PMMA), nx, ny, n=6, masks=held)
+    assert np.allclose(frequencies(p, nx, ny, n=6), f_held, rtol=1e-3)
+    with pytest.raises(ConfigError, match="leaves no plate inside the rim"):
+        rim_springs(nx, ny, A / nx, B / ny, p.replace(rim_inset_mm=200.0))
+
+
 def _ring_down(p, nx=20, ny=20, steps=6000):
     """Energy history of the bare plate released from a bent, lifted state (no ball)."""
     plate, _, _, _ = uniform_plate(nx, ny, A / nx, B / ny, p)
@@ -106,6 +122,8 @@ def test_rim_fields_validated():
         SimParams(support="elastic_rim", rim_damping_n_s_m2=float("nan"))
     with pytest.raises(ConfigError, match="only with support 'elastic_rim'"):
         SimParams(support="simply_supported", rim_stiffness_n_m2=1e7)
+    with pytest.raises(ConfigError, match="rim_inset_mm"):
+        SimParams(support="free", rim_inset_mm=3.0)
     with pytest.raises(ConfigError, match="rim_stiffness_n_m2"):
         SimParams.from_dict({"support": "elastic_rim", "rim_stiffness_n_m2": "stiff"}, "P.json")
 

@@ -156,18 +156,25 @@ def support_masks(nx: int, ny: int, support: str):
 
 def rim_springs(nx: int, ny: int, hx: float, hy: float, params: SimParams):
     """Per-node spring k_w [N/m] and dashpot c_w [N s/m] [ny+1, nx+1] of an "elastic_rim" support: the rim's
-    stiffness and damping per metre of edge times each edge node's share of the edge (h / 2 per adjacent edge
-    element: a corner node gets hx / 2 + hy / 2). Zeros for the other supports."""
+    stiffness and damping per metre of edge times each rim node's share of the rim (h / 2 per adjacent rim
+    element: a corner node gets hx / 2 + hy / 2). The rim runs along the edges, or along the node lines nearest
+    rim_inset_mm inside them (the plate overhanging the rim). Zeros for the other supports."""
     length = np.zeros((ny + 1, nx + 1))
     if params.support == "elastic_rim":
-        length[0, :] += hx
-        length[-1, :] += hx
-        length[:, 0] += hy
-        length[:, -1] += hy
-        for edge in (length[0, :], length[-1, :]):
+        # the rim's line: the node lines nearest rim_inset_mm inside the edges (0: the edges)
+        i0 = int(round(params.rim_inset_mm * 1e-3 / hx))
+        j0 = int(round(params.rim_inset_mm * 1e-3 / hy))
+        if 2 * i0 >= nx or 2 * j0 >= ny:
+            raise ConfigError(f"rim_inset_mm = {params.rim_inset_mm:g} leaves no plate inside the rim")
+        ring = length[j0:ny + 1 - j0, i0:nx + 1 - i0]
+        ring[0, :] += hx
+        ring[-1, :] += hx
+        ring[:, 0] += hy
+        ring[:, -1] += hy
+        for edge in (ring[0, :], ring[-1, :]):
             edge[0] -= hx / 2
             edge[-1] -= hx / 2
-        for edge in (length[:, 0], length[:, -1]):
+        for edge in (ring[:, 0], ring[:, -1]):
             edge[0] -= hy / 2
             edge[-1] -= hy / 2
     return params.rim_stiffness_n_m2 * length, params.rim_damping_n_s_m2 * length

@@ -10,7 +10,7 @@ Defaults (documented, see method.md):
   freely). Also "free", "clamped" and "elastic_rim": free edges on a rubber rim, a spring
   (rim_stiffness_n_m2, N/m per metre of edge) and a dashpot (rim_damping_n_s_m2, N s/m per metre) on w of
   every edge node, lumped by the node's share of the edge (stiffness 0: the free plate; very stiff: w held
-  on the edges, the tangential rotation left free). The springs enter the stability limit; the dashpot is
+  on the edges, the tangential rotation left free); rim_inset_mm moves the rim's line inside the edges. The springs enter the stability limit; the dashpot is
   explicit and must keep c dt / m <= 1 on the edge nodes.
 - PZT block: the seed's fitted disc (E11 75200, E33 55200, G12 24800, G13 24900 MPa, nu12 0.30, nu13 0.34,
   rho 7531.4, eps11 3875.5, eps33 6320.2 relative, d15 50, d31 -737.8, d33 793 pC/N), ceramic 0.25 mm thick.
@@ -74,6 +74,7 @@ class SimParams:
     support: str = "simply_supported"
     rim_stiffness_n_m2: float = 0.0       # elastic_rim: the rim's stiffness on w per metre of edge [N/m per m]
     rim_damping_n_s_m2: float = 0.0       # elastic_rim: its dashpot per metre of edge [N s/m per m]
+    rim_inset_mm: float = 0.0             # elastic_rim: the rim's line this far inside the edges (overhang)
     shear_factor: float = math.pi ** 2 / 12
     damping_per_s: float = 1086.0          # D_s
     # PZT disc (method.md block; relative permittivities, pC/N, MPa)
@@ -228,8 +229,9 @@ class SimParams:
             raise ConfigError(f"support must be one of {SUPPORTS}, got {self.support!r}")
         num("rim_stiffness_n_m2", 0, lo_open=False)
         num("rim_damping_n_s_m2", 0, lo_open=False)
-        if self.support != "elastic_rim" and (self.rim_stiffness_n_m2 or self.rim_damping_n_s_m2):
-            raise ConfigError(f"rim_stiffness_n_m2 / rim_damping_n_s_m2 are used only with support "
+        num("rim_inset_mm", 0, lo_open=False)
+        if self.support != "elastic_rim" and (self.rim_stiffness_n_m2 or self.rim_damping_n_s_m2 or self.rim_inset_mm):
+            raise ConfigError(f"rim_stiffness_n_m2 / rim_damping_n_s_m2 / rim_inset_mm are used only with support "
                               f"'elastic_rim', not {self.support!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
