@@ -31,7 +31,7 @@ import numpy as np
 
 from impactsense.calibration import drops as drops_mod, fem, group_delay, plate, plate_fem, plate_nu
 from impactsense.calibration.pipeline import CalibrateOptions, _sim_core_config, core_config, sim_features
-from impactsense.data import load_session
+from impactsense.data import load_session, rig_from_dict
 
 
 def bundled_calibration() -> str:
@@ -103,6 +103,36 @@ def pair_offsets(d):
     return d[:, plate.PAIR_I] - d[:, plate.PAIR_J]
 
 
+def shifted_rig(rig, shift_mm):
+    """The rig with its sensor centres moved by shift_mm [4, 2] (x, y per channel)."""
+    raw = json.loads(json.dumps(rig.raw))
+    for sensor in raw["sensors"]:
+        dx, dy = shift_mm[int(sensor["channel"])]
+        sensor["x_mm"] = float(sensor["x_mm"]) + float(dx)
+        sensor["y_mm"] = float(sensor["y_mm"]) + float(dy)
+    return rig_from_dict(raw)
+
+
+def fit_sensor_shift(obs_rig, per_rep, sigma, rig, d_mm=1.0):
+    """Sensor centre shifts [4, 2] mm (Gauss-Newton, two steps, FEM differences of d_mm) that best explain
+    per_rep [R, B, 6]; obs_rig(rig) -> the twin's group delays at fixed drop positions."""
+    shift = np.zeros((4, 2))
+    w = 1.0 / sigma[None, :, None]
+    for _ in range(2):
+        o0 = obs_rig(shifted_rig(rig, shift))
+        r0 = ((per_rep - o0) * w).ravel()
+        cols = []
+        for k in range(8):
+            s2 = shift.copy()
+            s2.flat[k] += d_mm
+            cols.append(((obs_rig(shifted_rig(rig, s2)) - o0) * w).ravel() / d_mm)
+        j = np.stack(cols, 1)
+        ok = np.isfinite(r0) & np.isfinite(j).all(1)
+        step, *_ = np.linalg.lstsq(j[ok], r0[ok], rcond=None)
+        shift += np.clip(step.reshape(4, 2), -3.0, 3.0)
+    return shift
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--calibration", default=bundled_calibration(), help="CAL.json (default: the bundled twin's)")
@@ -120,6 +150,9 @@ def main(argv=None):
     ap.add_argument("--channel-delays", action="store_true",
                     help="also: per-channel, per-band delays (3 a band) fitted on the calibration drops at the "
                          "calibration's E, nu, D_s, and the held-out cases scored with them")
+    ap.add_argument("--sensor-positions", action="store_true",
+                    help="also: the four discs' centres fitted on the calibration drops (8 parameters), and the "
+                         "held-out cases scored with them")
     ap.add_argument("--json", default=None, help="write the figures here too")
     a = ap.parse_args(argv)
 
@@ -169,6 +202,23 @@ def main(argv=None):
         xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
         o_cal = obs(flat, xf, yf, h)
         row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(o_cal, per_rep, sigma, len(x))
+        if a.sensor_positions:
+            # the discs' centres (rig.json gives round numbers): fitted on the calibration drops at their fitted
+            # positions, positions refitted with the moved discs, then the held-out cases scored with them
+            def obs_at(rig_, xx, yy, hh, n=n_samp):
+                return plate_nu.twin_group_delays(simulate(flat, rig_, xx, yy, hh), cfg_sim, n, *noise)
+            shift = fit_sensor_shift(lambda rig_: obs_at(rig_, xf, yf, h), per_rep, sigma, rig)
+            rig_s = shifted_rig(rig, shift)
+            xs, ys = plate_fem.fit_positions(lambda xx, yy, hh: obs_at(rig_s, xx, yy, hh), per_rep, sigma, x, y, h, ks)
+            row["sensor_shift_mm"] = shift.tolist()
+            row["chi2_dof_sensors"], row["rms_us_sensors"] = band_stats(obs_at(rig_s, xs, ys, h), per_rep, sigma,
+                                                                        len(x) + 4)
+            if held:
+                t_h, gd_h, n_h, xh, yh, hh = held
+                f_hs = lambda xx, yy, hh_: obs_at(rig_s, xx, yy, hh_, n_h)  # noqa: E731
+                xhs, yhs = plate_fem.fit_positions(f_hs, gd_h, sigma, xh, yh, hh, ks)
+                row["chi2_dof_held_sensors"], row["rms_us_held_sensors"] = band_stats(f_hs(xhs, yhs, hh), gd_h,
+                                                                                      sigma, len(xh))
         if a.channel_delays:
             # a per-channel, per-band delay the twin lacks (e.g. the input network's phase at low frequency):
             # fitted on the calibration drops, positions refitted with it, then checked on the held-out cases
@@ -235,6 +285,16 @@ def main(argv=None):
         held_s = (f"{r['chi2_dof_held']:.1f}, {' / '.join(f'{v:.1f}' for v in r['rms_us_held'])}"
                   if "chi2_dof_held" in r else "-")
         print(f"{sup} | {r['chi2_dof_cal']:.1f} | {' / '.join(f'{v:.1f}' for v in r['rms_us_cal'])} | {fit_s} | {held_s}")
+    if a.sensor_positions:
+        print("\ndisc centres fitted on the calibration drops: chi2/dof, rms per band; shifts (dx, dy) mm per "
+              "channel; held-out cases without -> with them")
+        for sup, r in out.items():
+            sh = "; ".join(f"({v[0]:+.1f}, {v[1]:+.1f})" for v in r["sensor_shift_mm"])
+            held_s = (f" | held out {r['chi2_dof_held']:.0f} -> {r['chi2_dof_held_sensors']:.0f} "
+                      f"({' / '.join(f'{v:.1f}' for v in r['rms_us_held_sensors'])} us)"
+                      if "chi2_dof_held_sensors" in r else "")
+            print(f"{sup}: {r['chi2_dof_cal']:.0f} -> {r['chi2_dof_sensors']:.0f} "
+                  f"({' / '.join(f'{v:.1f}' for v in r['rms_us_sensors'])} us); shifts {sh}{held_s}")
     if a.channel_delays:
         print("\nper-channel band delays fitted on the calibration drops (calibration's E, nu, D_s): chi2/dof, rms "
               "per band; channel delays us (channels 0..3) per band; held-out cases without -> with them")
