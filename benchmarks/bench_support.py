@@ -2,6 +2,10 @@
 
     python3 benchmarks/bench_support.py [--calibration CAL.json] [--supports simply_supported,free,clamped]
                                         [--held-out 16] [--rounds 1] [--max-nfev 8]
+                                        [--per-band-e] [--channel-delays] [--sensor-positions]
+    supports: free, simply_supported, clamped, elastic_rim:K[:C] (N/m and N s/m per metre of edge), each
+    optionally with @FIELD=VALUE SimParams overrides (elastic_rim:1e10@rim_inset_mm=4,
+    simply_supported@disc_mass=0, simply_supported@pzt_thickness_mm=0.4)
 
 The rig's plate rests on a rubber rim (rig.json `plate_support`); the twin holds its edges (simply supported).
 Every sensor is 30-33 mm from two edges, so edge reflections sit inside every low-band packet and the edge
