@@ -3,8 +3,6 @@ quadrature, how far the match moves when each channel is left out in turn. A cha
 fit the twin moves the match; the jackknife sees it where the total misfit (averaged over 16 features) barely
 does, so u follows the errors on a day the rig changed (session-2) and stays a 1-sigma on session-1."""
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -94,12 +92,6 @@ def test_fit_recovers_a_known_calibration_with_the_jackknife_in_quadrature():
     for key, value in got.items():
         setattr(fit, key, value)
     assert coverage(draw(), host_uncertainty(fit, s, m, j)) == pytest.approx(TARGET, abs=0.03)
-    # a model whose u is rescaled afterwards (zero-shot: by the calibration drops' factor) scales all of it
-    k = 1.5
-    scaled = copy.copy(fit)
-    for key in got:
-        setattr(scaled, key, k * getattr(fit, key))
-    np.testing.assert_allclose(host_uncertainty(scaled, s, m, j), k * host_uncertainty(fit, s, m, j))
     with pytest.raises(DataError, match="jackknife"):
         fit_jackknife_uncertainty(s[:10], m[:10], j[:10], r[10:20], ref)
 
@@ -109,11 +101,6 @@ def test_a_fit_without_the_jackknife_constants_reports_the_twins_uncertainty():
                   uncertainty_offset_mm=1.0, uncertainty_scale=0.3, uncertainty_misfit_ref=0.5)
     np.testing.assert_allclose(host_uncertainty(fit, [3.0, 7.0], [0.4, 2.0], [5.0, 5.0]),
                                calibrated_uncertainty(fit, [3.0, 7.0], [0.4, 2.0]))
-    # fitted with a' = b' = 0 (the jackknife alone explains the errors) is not "not fitted": u = J
-    for key, value in {"uncertainty_jackknife_offset_mm": 0.0, "uncertainty_jackknife_scale": 0.0,
-                       "uncertainty_jackknife_factor": 1.0}.items():
-        setattr(fit, key, value)
-    np.testing.assert_allclose(host_uncertainty(fit, [3.0, 7.0], [0.4, 2.0], [5.0, 2.5]), [5.0, 2.5])
 
 
 @pytest.fixture(scope="module")

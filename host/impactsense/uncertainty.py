@@ -14,15 +14,12 @@ The jackknife over the n channels with a usable feature (p_(-c): the match witho
 from the same start; p_bar their mean) estimates the variance of the match that the channels' disagreement
 makes, with no constant of its own:
 
-    J^2 = (n - 1) / n * sum_c |p_(-c) - p_bar|^2,      u^2 = ((a' + b' s) sqrt(max(1, m / m_ref)))^2 + (f J)^2
+    J^2 = (n - 1) / n * sum_c |p_(-c) - p_bar|^2,      u^2 = ((a' + b' s) sqrt(max(1, m / m_ref)))^2 + J^2
 
 a', b' are fitted as twin.fit_uncertainty fits a, b (maximum likelihood on the training drops' out-of-fold
-errors, cases grouped), with J in place and f = 1; m_ref is the twin's. Nothing is fitted on another session.
-f is there for a model whose whole u is rescaled afterwards (zeroshot: a', b' and f times the factor the
-calibration drops give); f = 0 marks a fit without the jackknife (older cards: the twin's u). This is
+errors, cases grouped), with J in place; m_ref is the twin's. Nothing is fitted on another session. This is
 host-only: four more matches an event would cost the board ~4 x 8k of its 64k instructions, so the board keeps
-a, b (and the card keeps them for export) and `uncertainty_jackknife_offset_mm` / `_scale` / `_factor` sit
-beside them.
+a, b (and the card keeps them for export) and `uncertainty_jackknife_offset_mm` / `_scale` sit beside them.
 """
 
 from __future__ import annotations
@@ -69,7 +66,7 @@ def _inflation(fit_or_ref, misfit) -> np.ndarray:
 def fit_jackknife_uncertainty(spread_mm, misfit, jackknife_mm, error_mm, misfit_ref: float) -> dict:
     """a', b' >= 0 of u^2 = ((a' + b' s) sqrt(max(1, m / misfit_ref)))^2 + J^2 by maximum likelihood of the
     radial errors (Rayleigh, E r^2 = u^2), from out-of-fold estimates. Returns TwinFit's
-    uncertainty_jackknife_* fields (the factor f 1)."""
+    uncertainty_jackknife_* fields."""
     s, m, j, r = (np.asarray(v, float) for v in (spread_mm, misfit, jackknife_mm, error_mm))
     ok = np.isfinite(s) & np.isfinite(m) & np.isfinite(j) & np.isfinite(r)
     if ok.sum() < 20:
@@ -86,12 +83,12 @@ def fit_jackknife_uncertainty(spread_mm, misfit, jackknife_mm, error_mm, misfit_
     res = minimize(nll, [0.0, b0], method="L-BFGS-B", bounds=[(0.0, None), (0.0, None)])
     if not res.success:
         raise DataError("training data", None, f"the jackknife uncertainty's fit did not converge ({res.message})")
-    return {"uncertainty_jackknife_offset_mm": float(res.x[0]), "uncertainty_jackknife_scale": float(res.x[1]),
-            "uncertainty_jackknife_factor": 1.0}
+    return {"uncertainty_jackknife_offset_mm": float(res.x[0]), "uncertainty_jackknife_scale": float(res.x[1])}
 
 
 def jackknife_calibrated(fit: TwinFit) -> bool:
-    return getattr(fit, "uncertainty_jackknife_factor", 0.0) > 0
+    return (getattr(fit, "uncertainty_jackknife_offset_mm", 0.0) > 0
+            or getattr(fit, "uncertainty_jackknife_scale", 0.0) > 0)
 
 
 def host_uncertainty(fit: TwinFit, spread_mm, misfit, jackknife_mm) -> np.ndarray:
@@ -100,7 +97,7 @@ def host_uncertainty(fit: TwinFit, spread_mm, misfit, jackknife_mm) -> np.ndarra
     if not jackknife_calibrated(fit):
         return calibrated_uncertainty(fit, spread_mm, misfit)
     base = (fit.uncertainty_jackknife_offset_mm + fit.uncertainty_jackknife_scale * np.asarray(spread_mm, float))
-    return np.hypot(base * _inflation(fit, misfit), fit.uncertainty_jackknife_factor * np.asarray(jackknife_mm, float))
+    return np.hypot(base * _inflation(fit, misfit), np.asarray(jackknife_mm, float))
 
 
 def out_of_fold_twin(X_loc, phys_xy_mm, xy_mm, height_mm, feats, usable, site_map, settings,
