@@ -119,8 +119,7 @@ def session1_model(site):
 def errors_and_u(model, session, rows):
     f = featurize(session.adc[rows], model.signal)
     p = model.predict(f)
-    u_twin = calibrated_uncertainty(model.twin_fit, p["twin_spread_mm"], p["twin_misfit"])
-    return np.linalg.norm(p["xy_mm"] - session.xy_mm[rows], axis=1), u_twin, predict_uncertainty(model, f, p)
+    return np.linalg.norm(p["xy_mm"] - session.xy_mm[rows], axis=1), p["uncertainty_mm"], predict_uncertainty(model, f, p)
 
 
 def test_jackknife_uncertainty_is_a_1_sigma_on_held_out_cases(session1_model):
