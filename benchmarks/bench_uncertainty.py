@@ -5,9 +5,7 @@ error 63 % of the errors r lie within 1x and 98 % within 2x. Printed per set: co
 of u against r (does it rank the errors?), sqrt(mean (r / u)^2) (1 when u is the RMS error) for the
 calibrated u and for the twin match's raw spread. Host rows: the product path (workflow.train with the
 bundled twin's site map, 100 trees, the case split of --seed ...) on the held-out cases, and session-2 with
-the split-0 model; the row "with the channel jackknife" is the host's u with the leave-one-channel-out
-jackknife of the twin's match in quadrature (impactsense/uncertainty.py, calibrated on each split's training
-drops). --board adds the emulated board (firmware app, exported tables at 4 x 50 kHz): the shipped
+the split-0 model. --board adds the emulated board (firmware app, exported tables at 4 x 50 kHz): the shipped
 model (models/, all of session-1) on session-2, and with --board-splits N the held-out cases of N splits
 (train + export each, about a minute a split).
 
@@ -28,7 +26,6 @@ from scipy.stats import spearmanr
 from impactsense.data import load_session
 from impactsense.pipeline import featurize
 from impactsense.sitemap import BUNDLED, SiteMap
-from impactsense.uncertainty import calibrate, predict_uncertainty
 from impactsense.workflow import train
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -52,20 +49,16 @@ def line(name: str, rows: list) -> str:
 def host(splits: int) -> None:
     s1, s2 = load_session("bundled"), load_session("bundled:session-2")
     site = SiteMap.load(BUNDLED)
-    held = {"calibrated uncertainty_mm": [], "with the channel jackknife": [], "raw spread (twin_spread_mm)": []}
+    held = {"calibrated uncertainty_mm": [], "raw spread (twin_spread_mm)": []}
     for seed in range(splits):
         model, split = train(s1, None, 0.2, seed, site_map=site)
         index = {int(r): k for k, r in enumerate(s1.recording_id)}
         rows = np.array([index[int(r)] for r in split["test_recordings"]])
-        train_rows = np.array([index[int(r)] for r in split["train_recordings"]])
-        calibrate(model, featurize(s1.adc[train_rows], model.signal), s1.xy_mm[train_rows], s1.height_mm[train_rows])
         sets = [("held-out cases", s1, rows)] + ([("session-2", s2, np.arange(len(s2)))] if seed == 0 else [])
         for name, s, r in sets:
-            f = featurize(s.adc[r], model.signal)
-            p = model.predict(f)
+            p = model.predict(featurize(s.adc[r], model.signal))
             err = np.linalg.norm(p["xy_mm"] - s.xy_mm[r], axis=1)
-            got = [figures(err, p["uncertainty_mm"]), figures(err, predict_uncertainty(model, f, p)),
-                   figures(err, p["twin_spread_mm"])]
+            got = [figures(err, p["uncertainty_mm"]), figures(err, p["twin_spread_mm"])]
             if name == "held-out cases":
                 for key, g in zip(held, got):
                     held[key].append(g)
@@ -74,8 +67,7 @@ def host(splits: int) -> None:
         if seed == 0:
             fit = model.twin_fit
             print(f"split 0 calibration: u = ({fit.uncertainty_offset_mm:.2f} + {fit.uncertainty_scale:.3f} "
-                  f"spread) * sqrt(max(1, misfit / {fit.uncertainty_misfit_ref:.3f})); with the jackknife "
-                  f"({fit.uncertainty_jackknife_offset_mm:.2f} + {fit.uncertainty_jackknife_scale:.3f} spread)")
+                  f"spread) * sqrt(max(1, misfit / {fit.uncertainty_misfit_ref:.3f}))")
     print(f"host, 100 kHz, held-out 20 % of cases, {splits} split(s):")
     for key, rows in held.items():
         print("  " + line(key, rows))
