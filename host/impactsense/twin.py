@@ -73,21 +73,27 @@ def fit_slopes(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.n
     return slope
 
 
-def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.ndarray, height_mm: np.ndarray,
-             slope: np.ndarray | None = None) -> TwinFit:
-    """Offsets and weights from drops of known position and height (slopes too unless given)."""
-    if slope is None:
-        slope = fit_slopes(feats, usable, site, xy_mm, height_mm)
-    slope = np.asarray(slope, float)
-    ref = float(np.log10(site.ref_height_mm))
-    r, mask = _residual_rows(feats, usable, site, xy_mm)
-    r = r - slope[None, :] * (np.log10(np.asarray(height_mm, float)) - ref)[:, None]
+def position_groups(xy_mm: np.ndarray) -> np.ndarray:
+    """Drops grouped by position (a case's repetitions share one, to 0.1 mm)."""
+    return np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0, return_inverse=True)[1].ravel()
+
+
+def _offsets(r: np.ndarray, mask: np.ndarray, additive: bool) -> np.ndarray:
+    """Per feature the median residual; additive: the least-squares channel + kind table through those
+    medians (a channel's gain shifts its four log-energies alike, the twin's spectral tilt a kind's four
+    channels alike)."""
     offset = np.zeros(N_FEATURES)
     for k in range(N_FEATURES):
         if not mask[:, k].any():
             raise DataError("training data", None, f"no drop has a usable twin feature {k} (all clipped?)")
         offset[k] = np.median(r[mask[:, k], k])
-    dev = r - offset[None, :]
+    if additive:
+        t = offset.reshape(-1, KINDS)                 # [channel, kind]: the features are channel-major
+        offset = (t.mean(1, keepdims=True) + t.mean(0, keepdims=True) - t.mean()).ravel()
+    return offset
+
+
+def _kind_weights(dev: np.ndarray, mask: np.ndarray) -> np.ndarray:
     weight = np.zeros(N_FEATURES)
     for kind in range(KINDS):
         cols = np.arange(kind, N_FEATURES, KINDS)
@@ -95,6 +101,37 @@ def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.nda
         if pooled.size < 4:
             raise DataError("training data", None, "too few usable drops to weight the twin's features")
         weight[cols] = 1.0 / max(float(np.var(pooled)), 1e-6)
+    return weight
+
+
+def fit_twin(feats: np.ndarray, usable: np.ndarray, site: SiteMap, xy_mm: np.ndarray, height_mm: np.ndarray,
+             slope: np.ndarray | None = None, weight_shape: np.ndarray | None = None,
+             additive_offsets: bool = False) -> TwinFit:
+    """Offsets and weights from drops of known position and height (slopes too unless given).
+
+    The default (many drops, e.g. the measured training set): per feature the median residual, per kind
+    1 / the pooled residual variance. From a few positions (zero-shot: four calibration cases) both are
+    noisy -- four positions' site terms give each kind's variance to ~+-40 % -- so weight_shape (e.g. the
+    virtual drops' weights: the twin's own features say how much each kind varies from site to site) fixes
+    the weights' shape and only one scale is fitted (mean of shape * residual^2 over the usable features:
+    the maximum-likelihood variance scale); and additive_offsets (_offsets) fits 7 numbers instead of 16."""
+    if slope is None:
+        slope = fit_slopes(feats, usable, site, xy_mm, height_mm)
+    slope = np.asarray(slope, float)
+    ref = float(np.log10(site.ref_height_mm))
+    r, mask = _residual_rows(feats, usable, site, xy_mm)
+    r = r - slope[None, :] * (np.log10(np.asarray(height_mm, float)) - ref)[:, None]
+    offset = _offsets(r, mask, additive_offsets)
+    if weight_shape is None:
+        weight = _kind_weights(r - offset[None, :], mask)
+    else:
+        shape = np.asarray(weight_shape, float)
+        if shape.shape != (N_FEATURES,) or not (np.isfinite(shape).all() and (shape > 0).all()):
+            raise DataError("twin fit", "weight_shape", f"needs {N_FEATURES} positive values")
+        dev = r - offset[None, :]
+        if mask.sum() < 4:
+            raise DataError("training data", None, "too few usable drops to scale the twin's weights")
+        weight = shape / max(float(np.mean((shape[None, :] * dev ** 2)[mask])), 1e-12)
     return TwinFit(offset=offset.tolist(), slope=slope.tolist(), weight=weight.tolist(), ref_log10_height_mm=ref)
 
 
