@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import tempfile
-from dataclasses import replace
+import shutil
 from pathlib import Path
 
 ORDER = 51
+TRAINING_DATA = "training-data"   # OUT's copy of DATA_REF with the effects put in
 
 
 def register(sub) -> None:
@@ -15,14 +15,22 @@ def register(sub) -> None:
         "retrain", help="retrain for a changed rig: add the diagnosed effects to the training data",
         description="Diagnoses DATA_NEW against DATA_REF, puts the significant effects into DATA_REF's "
                     "recordings (each effect's own signal model: delay, gain, low-pass, speed, ...), "
-                    "trains the standard model on that and evaluates it on DATA_NEW beside a model "
-                    "trained on DATA_REF as it is.")
+                    "trains the standard model on that (as `impactsense train`: with the twin's site map "
+                    "for the bundled rig) and evaluates it on DATA_NEW beside a model trained on DATA_REF as "
+                    "it is. The recordings with the effects are kept in OUT/training-data, so "
+                    "`impactsense export OUT` can train the board's model on them.")
     p.add_argument("--baseline", required=True, help="reference session folder (or 'bundled')")
     p.add_argument("--data", required=True, help="the changed session")
     p.add_argument("--out", required=True, help="model folder to write")
     p.add_argument("--test-fraction", type=float, default=0.2, help="cases of DATA_REF held out (default 0.2)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--trees", type=int, default=100)
+    p.add_argument("--site-map", default="auto", metavar="auto|none|site-map.npz",
+                   help="the twin's site map, as in `impactsense train` (auto = the bundled twin's when the rig "
+                        "is the bundled rig): the twin's position, energy class and calibrated uncertainty, "
+                        "its offsets, weights and uncertainty fitted on the recordings with the effects put in")
+    p.add_argument("--exclude", default=None,
+                   help="recording ids of DATA_REF to leave out of training (comma-separated, or a CAL.json)")
     p.set_defaults(func=run)
 
 
@@ -36,14 +44,14 @@ def augment(base, accepted, ref, seed: int = 0):
 
 
 def run(args) -> int:
-    import numpy as np
-
     from ..data import load_session, resolve_session_path, write_session
     from ..diagnose import diagnose
     from ..errors import ConfigError
     from ..models import ForestSettings
+    from ..sitemap import resolve_site_map
+    from .train import parse_exclude
     try:
-        from ..workflow import evaluate, train
+        from ..workflow import train
     except ImportError as exc:  # the training API is the lead's
         raise ConfigError(f"retrain needs impactsense.workflow (train/evaluate): {exc}") from None
 
@@ -52,6 +60,12 @@ def run(args) -> int:
     base = load_session(args.baseline)
     same = resolve_session_path(args.baseline).resolve() == resolve_session_path(args.data).resolve()
     data = base if same else load_session(args.data)
+    # The augmented recordings keep DATA_REF's rig, so the site map resolves the same for both models. The
+    # map itself is the twin's (the plate's) and is not changed: the effects act on the recordings, and the
+    # twin's offsets, weights and uncertainty are fitted on them (a gain moves that channel's offsets by
+    # 2 log10 g; a delay leaves the energies, which start at the arrival, as they were).
+    site = resolve_site_map(args.site_map, base.rig)
+    exclude = parse_exclude(args.exclude)
     result, details = diagnose(base, data, same=same)
     accepted = [] if same else details["accepted"]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
@@ -61,26 +75,51 @@ def run(args) -> int:
                                           for c in accepted]}}
     out = Path(args.out)
     rows = {}
-    plain, _ = train(base, None, args.test_fraction, args.seed, settings=settings)
-    rows["baseline model"] = evaluate(data, plain, np.arange(len(data)))
+    plain, _ = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
+    rows["baseline model"] = score(data, plain)
+    train_on = base
     if accepted:
+        # The recordings the model is trained on are kept in OUT (the card's split points there), so
+        # `impactsense export OUT` can train the board's model again on the same drops at the board rate.
         adc = augment(base, accepted, details["ref"], args.seed)
-        with tempfile.TemporaryDirectory() as tmp:
-            path = write_session(Path(tmp) / f"{base.name}+effects", base.rig, base.x_mm, base.y_mm,
-                                 base.height_mm, adc, base.case_id, base.repetition)
-            aug = load_session(path)
-            model, _ = train(aug, out, args.test_fraction, args.seed, settings=settings, extra_card=card)
-    else:
-        model, _ = train(base, out, args.test_fraction, args.seed, settings=settings, extra_card=card)
-    rows["retrained model"] = evaluate(data, model, np.arange(len(data)))
-    summary = {k: {"mae_mm": v["all"]["mae_mm"], "rmse_mm": v["all"]["rmse_mm"],
-                   "physics_mae_mm": v["physics"]["all"]["mae_mm"],
-                   "energy_class_accuracy": v["energy_class_accuracy"]} for k, v in rows.items()}
-    (out / "retrain.json").write_text(json.dumps({**card, "on_data": summary}, indent=1))
+        path = write_session(out / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
+                             base.case_id, base.repetition)
+        train_on = load_session(path)
+    elif (out / TRAINING_DATA).is_dir():   # an earlier retrain's, into the same OUT
+        shutil.rmtree(out / TRAINING_DATA)
+    model, _ = train(train_on, out, args.test_fraction, args.seed, exclude, settings=settings,
+                     extra_card=card, site_map=site)
+    rows["retrained model"] = score(data, model)
+    on_data = {k: {f: (None if isinstance(v, float) and v != v else v) for f, v in r.items()} for k, r in rows.items()}
+    (out / "retrain.json").write_text(json.dumps({**card, "on_data": on_data}, indent=1))
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
-    print(f"{'on ' + data.name:<18} {'MAE mm':>8} {'RMSE mm':>8} {'phys MAE':>9} {'class acc':>9}")
-    for k, v in summary.items():
-        print(f"{k:<18} {v['mae_mm']:8.2f} {v['rmse_mm']:8.2f} {v['physics_mae_mm']:9.2f} "
-              f"{v['energy_class_accuracy']:9.3f}")
+    print(f"energy class and position from {'the twin (site map)' if site is not None else 'the forests'}")
+    print(f"{'on ' + data.name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "
+          f"{'within 1u':>9} {'2u':>5}")
+    for k, v in rows.items():
+        print(f"{k:<18} {v['mae_mm']:7.2f} {v['inner_mae_mm']:6.2f} {v['physics_mae_mm']:8.2f} "
+              f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
     print(f"model written to {out}")
     return 0
+
+
+def score(session, model) -> dict:
+    """A model on every drop of `session`: position MAE (whole plate, inner region), physics MAE, class
+    accuracy, and the share of the reported positions' errors within 1x and 2x the reported uncertainty
+    (NaN without a site map: the model reports none)."""
+    import numpy as np
+
+    from ..pipeline import featurize
+    from ..workflow import evaluate
+
+    rows = np.arange(len(session))
+    rep = evaluate(session, model, rows)
+    pred = model.predict(featurize(session.adc, model.signal))
+    err = np.linalg.norm(pred["xy_mm"] - session.xy_mm, axis=1)
+    u = pred["uncertainty_mm"]
+    ok = np.isfinite(err) & np.isfinite(u)
+    within = {f"within_{k}u": float(np.mean(err[ok] <= k * u[ok])) if ok.any() else float("nan") for k in (1, 2)}
+    return {"n": rep["n"], "mae_mm": rep["all"]["mae_mm"], "inner_mae_mm": rep["inner"]["mae_mm"],
+            "rmse_mm": rep["all"]["rmse_mm"], "physics_mae_mm": rep["physics"]["all"]["mae_mm"],
+            "energy_class_accuracy": rep["energy_class_accuracy"], "position_source": rep["position_source"],
+            "median_uncertainty_mm": float(np.median(u[ok])) if ok.any() else float("nan"), **within}
