@@ -8,6 +8,7 @@ drops of the changed rig that neither the diagnosis nor the training saw.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -75,7 +76,9 @@ def test_retrained_model_carries_the_twin(retrained, sessions):
     assert [(e["effect"], e["sensor"]) for e in added] == [("channel_delay", 3)]
     assert added[0]["params"]["delay_us"] == pytest.approx(DELAY_US, abs=1.5)
     # The model is trained on the recordings with the delay put in, kept in OUT for the board's retraining.
-    assert card["split"]["data_path"] == str(retrained / "training-data")
+    assert Path(card["split"]["data_path"]) == (retrained / "training-data").resolve()
+    kept = load_session(card["split"]["data_path"])   # what export's retrain_for_board checks and reads
+    assert kept.fingerprint() == card["split"]["data_hash"]
     summary = json.loads((retrained / "retrain.json").read_text())["on_data"]["retrained model"]
     assert 0 < summary["within_1u"] <= summary["within_2u"] <= 1
 

@@ -80,9 +80,10 @@ def run(args) -> int:
     train_on = base
     if accepted:
         # The recordings the model is trained on are kept in OUT (the card's split points there), so
-        # `impactsense export OUT` can train the board's model again on the same drops at the board rate.
+        # `impactsense export OUT` can train the board's model again on the same drops at the board rate
+        # (an absolute path: export may run from another folder).
         adc = augment(base, accepted, details["ref"], args.seed)
-        path = write_session(out / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
+        path = write_session(out.resolve() / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
                              base.case_id, base.repetition)
         train_on = load_session(path)
     elif (out / TRAINING_DATA).is_dir():   # an earlier retrain's, into the same OUT
