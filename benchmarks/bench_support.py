@@ -4,8 +4,18 @@
                                         [--held-out 16] [--rounds 1] [--max-nfev 8]
                                         [--per-band-e] [--channel-delays] [--sensor-positions]
     supports: free, simply_supported, clamped, elastic_rim:K[:C] (N/m and N s/m per metre of edge), each
-    optionally with @FIELD=VALUE SimParams overrides (elastic_rim:1e10@rim_inset_mm=4,
-    simply_supported@disc_mass=0, simply_supported@pzt_thickness_mm=0.4)
+    optionally with @FIELD=VALUE overrides (`parse_suspect`): SimParams fields (elastic_rim:1e10@rim_inset_mm=4,
+    simply_supported@disc_mass=0, @pzt_thickness_mm=0.4, the mesh @element_mm=1.03, @thickness_mm=4.0@e_pa=5.0e9),
+    the twin's rig geometry (@rig.sensor_diameter_mm=16, @rig.plate_x_mm=321) or the group-delay window, measured
+    and twin alike (@gd.flat=500/250/250, @gd.TAPER_US=300, @gd.ANCHOR_OFFSET_US=650)
+
+    numerics or sensor/geometry? (docs/findings.md; --rounds 0 scores every suspect at the calibration's E, nu, D_s):
+    S=simply_supported; python3 benchmarks/bench_support.py --calibration CAL.json --rounds 0 --supports \
+        $S,$S@element_mm=1.54,$S@element_mm=1.03                    # mesh (and dt: it follows the mesh)
+    ... --supports $S,$S@element_mm=1.54,$S@gd.flat=250/125/125@gd.TAPER_US=300,\
+        $S@gd.flat=250/125/125@gd.TAPER_US=300@element_mm=1.54,$S@gd.flat=2000/1000/1000   # the window
+    ... --supports $S,$S@rig.sensor_diameter_mm=16,$S@rig.sensor_diameter_mm=24,$S@rig.plate_x_mm=321,\
+        $S@thickness_mm=4.0@e_pa=5.0026e9                            # disc, plate size, thickness at E t^2 fixed
 
 The rig's plate rests on a rubber rim (rig.json `plate_support`); the twin holds its edges (simply supported).
 Every sensor is 30-33 mm from two edges, so edge reflections sit inside every low-band packet and the edge
@@ -21,7 +31,12 @@ condition sets their phase. For each support this prints, on session-1:
   positions fitted at the support's nu-stage (E, nu, D_s) from the four drops; chi^2 / dof and rms per band.
 
 chi^2 uses the rig-noise spread of the group delays (`plate_nu.noise_sigma`), the same for every support;
-dof = observables - 2 x repetitions (the fitted positions).
+dof = observables - 2 x repetitions (the fitted positions). A group-delay window suspect re-measures the rig's
+group delays and their noise sigma under its window.
+
+The compact table at the end adds the twin's own shift: its group delays at the reference suspect's fitted
+positions (the first suspect with the same window) minus the reference's, rms per band: between meshes that is
+the numerical dispersion, with the rig left out.
 """
 
 from __future__ import annotations
@@ -29,6 +44,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from contextlib import contextmanager
 from importlib import resources
 
 import numpy as np
@@ -42,20 +58,73 @@ def bundled_calibration() -> str:
     return str(resources.files("impactsense") / "data" / "twin" / "calibration.json")
 
 
-def support_overrides(spec: str) -> dict:
-    """SimParams fields of a support spec: a name, or elastic_rim:STIFFNESS[:DAMPING] (N/m and N s/m per m),
-    optionally followed by @FIELD=VALUE overrides (e.g. simply_supported@disc_mass=0: the other suspects)."""
+BOOL_FIELDS = ("disc_mass", "disc_stiffness", "disc_inertia_scaling", "subcycle")
+RIG_FIELDS = ("plate_x_mm", "plate_y_mm", "sensor_diameter_mm")
+GD_FIELDS = ("RISE_US", "LEAD_US", "TAPER_US", "ANCHOR_FLAT_US", "ANCHOR_OFFSET_US")
+
+
+def parse_suspect(spec: str) -> tuple[dict, dict, dict]:
+    """A suspect spec -> (SimParams fields, rig.json fields, group-delay window settings).
+
+    spec: a support name, or elastic_rim:STIFFNESS[:DAMPING] (N/m and N s/m per m), optionally followed by
+    @FIELD=VALUE overrides: a SimParams field (simply_supported@disc_mass=0, @element_mm=1.03, @thickness_mm=4.0),
+    rig.FIELD (@rig.sensor_diameter_mm=16, @rig.plate_x_mm=321: the twin's geometry only, the measured side is
+    unchanged) or gd.FIELD (the group-delay window of `calibration/group_delay.py`, measured and twin alike:
+    @gd.TAPER_US=300, @gd.flat=500/250/250 the bands' flat parts in us)."""
     spec, *extra = spec.split("@")
     name, *vals = spec.split(":")
-    out = {"support": name}
+    sim, rig, gd = {"support": name}, {}, {}
     if name == "elastic_rim":
-        out["rim_stiffness_n_m2"] = float(vals[0]) if vals else 0.0
+        sim["rim_stiffness_n_m2"] = float(vals[0]) if vals else 0.0
         if len(vals) > 1:
-            out["rim_damping_n_s_m2"] = float(vals[1])
+            sim["rim_damping_n_s_m2"] = float(vals[1])
     for kv in extra:
         key, val = kv.split("=")
-        out[key] = bool(int(val)) if key in ("disc_mass", "disc_stiffness") else float(val)
-    return out
+        if key.startswith("rig."):
+            if key[4:] not in RIG_FIELDS:
+                raise SystemExit(f"suspect {spec!r}: {key} is not one of rig.{RIG_FIELDS}")
+            rig[key[4:]] = float(val)
+        elif key == "gd.flat":
+            gd["flat"] = tuple(float(v) for v in val.split("/"))
+            if len(gd["flat"]) != len(group_delay.BANDS):
+                raise SystemExit(f"suspect {spec!r}: gd.flat needs {len(group_delay.BANDS)} values")
+        elif key.startswith("gd."):
+            if key[3:] not in GD_FIELDS:
+                raise SystemExit(f"suspect {spec!r}: {key} is not one of gd.{GD_FIELDS} or gd.flat")
+            gd[key[3:]] = float(val)
+        else:
+            sim[key] = bool(int(val)) if key in BOOL_FIELDS else float(val)
+    return sim, rig, gd
+
+
+def support_overrides(spec: str) -> dict:
+    """SimParams fields of a suspect spec (`parse_suspect`)."""
+    return parse_suspect(spec)[0]
+
+
+@contextmanager
+def gd_window(settings: dict):
+    """`calibration/group_delay.py`'s window constants (and the bands' flat parts) set for the block."""
+    saved = {k: getattr(group_delay, k) for k in (*GD_FIELDS, "BANDS")}
+    try:
+        for k, v in settings.items():
+            if k == "flat":
+                group_delay.BANDS = tuple((lo, hi, f) for (lo, hi, _), f in zip(saved["BANDS"], v))
+            else:
+                setattr(group_delay, k, v)
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(group_delay, k, v)
+
+
+def rig_with(rig, fields: dict):
+    """The rig with some rig.json plate/disc fields replaced (the twin's geometry suspects)."""
+    if not fields:
+        return rig
+    raw = json.loads(json.dumps(rig.raw))
+    raw.update(fields)
+    return rig_from_dict(raw)
 
 
 def held_out_cases(session, feats, exclude, n) -> list[int]:
@@ -173,110 +242,153 @@ def main(argv=None):
     noise = (float(cal["noise_added_to_simulations"]["counts_rms"]), 4, 0)
     names = group_delay.names()
     ks = list(range(len(names)))
-    per_rep, n_samp = plate_nu.measured_group_delays(session, tgt, feats, cfg)
     n_rep = [len(r) for r in tgt.recording_ids]
     x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (tgt.x_mm, tgt.y_mm, tgt.height_mm))
-    sigma = plate_nu.noise_sigma(fem.fem_simulator(a.workers)(flat, rig, x, y, h), cfg_sim, n_samp, noise[0],
-                                 noise[1])
-    held = []
+    held_cases = []
     if a.held_out > 0:
         held_cases, rows3 = held_out_cases(session, feats, set(cal_cases), a.held_out)
         t_h = targets_for(session, feats, rows3, held_cases)
-        gd_h, n_h = plate_nu.measured_group_delays(session, t_h, feats, cfg)
         nr = [len(r) for r in t_h.recording_ids]
-        held = [t_h, gd_h, n_h, *(np.repeat(np.asarray(v, float), nr) for v in (t_h.x_mm, t_h.y_mm, t_h.height_mm))]
+        xyh_h = [np.repeat(np.asarray(v, float), nr) for v in (t_h.x_mm, t_h.y_mm, t_h.height_mm)]
+    base_sim = fem.fem_simulator(a.workers)
+    measured_cache = {}
+
+    def measured(gd):
+        """(per_rep, n_samp, sigma, held) under the group-delay window gd (set by the caller): the measured group
+        delays of the calibration drops and of the held-out cases, and the rig-noise sigma (default mesh and
+        support at the calibration's parameters: the same for every suspect of one window)."""
+        key = json.dumps(gd, sort_keys=True)
+        if key not in measured_cache:
+            gd_c, n_c = plate_nu.measured_group_delays(session, tgt, feats, cfg)
+            sig = plate_nu.noise_sigma(base_sim(flat, rig, x, y, h), cfg_sim, n_c, noise[0], noise[1])
+            hl = []
+            if held_cases:
+                gd_h, n_h = plate_nu.measured_group_delays(session, t_h, feats, cfg)
+                hl = [t_h, gd_h, n_h, *xyh_h]
+            measured_cache[key] = (gd_c, n_c, sig, hl)
+        return measured_cache[key]
+
+    per_rep, n_samp, sigma, held = measured({})
     print(f"calibration {a.calibration}: E {flat['e_pa'] / 1e6:.0f} MPa, nu {flat['nu']:.3f}, "
           f"D_s {flat['damping_per_s']:.0f} 1/s; cases {cal_cases} ({per_rep.shape[0]} repetitions); "
           f"sigma {np.round(sigma, 2).tolist()} us" + (f"; held out: {len(held[0].case_ids)} cases "
                                                         f"({held[1].shape[0]} repetitions)" if held else ""))
 
     out = {}
+    refs = {}      # per group-delay window: the first suspect's fitted positions and twin group delays there
     for sup in a.supports.split(","):
-        t0 = time.perf_counter()
-        simulate = fem.fem_simulator(a.workers, **support_overrides(sup))
+        sim_over, rig_over, gd = parse_suspect(sup)
+        with gd_window(gd):
+            out[sup] = run_suspect(a, sup, sim_over, rig_with(rig, rig_over), gd, measured(gd), refs, flat, x, y, h,
+                                   tgt, cfg_sim, noise, names, ks)
+        print(f"  {sup}: done in {out[sup]['seconds']:.0f} s", flush=True)
+    report(a, out, names)
 
-        def obs(p, xx, yy, hh, n=n_samp):
-            return plate_nu.twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
 
-        def aic_rms(p):
-            f = sim_features(simulate(p, rig, tgt.x_mm, tgt.y_mm, tgt.height_mm), cfg_sim, *noise)
-            return float(np.sqrt(plate.eq16_loss(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
+def run_suspect(a, sup, sim_over, rig, gd, meas, refs, flat, x, y, h, tgt, cfg_sim, noise, names, ks) -> dict:
+    """One suspect's figures (see the module docstring)."""
+    per_rep, n_samp, sigma, held = meas
+    t0 = time.perf_counter()
+    simulate = fem.fem_simulator(a.workers, **sim_over)
 
-        row = {"aic_rms_us_cal": aic_rms(flat)}
-        xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
-        o_cal = obs(flat, xf, yf, h)
-        row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(o_cal, per_rep, sigma, len(x))
-        if a.sensor_positions:
-            # the discs' centres (rig.json gives round numbers): fitted on the calibration drops at their fitted
-            # positions, positions refitted with the moved discs, then the held-out cases scored with them
-            def obs_at(rig_, xx, yy, hh, n=n_samp):
-                return plate_nu.twin_group_delays(simulate(flat, rig_, xx, yy, hh), cfg_sim, n, *noise)
-            shift = fit_sensor_shift(lambda rig_: obs_at(rig_, xf, yf, h), per_rep, sigma, rig)
-            rig_s = shifted_rig(rig, shift)
-            xs, ys = plate_fem.fit_positions(lambda xx, yy, hh: obs_at(rig_s, xx, yy, hh), per_rep, sigma, x, y, h, ks)
-            row["sensor_shift_mm"] = shift.tolist()
-            row["chi2_dof_sensors"], row["rms_us_sensors"] = band_stats(obs_at(rig_s, xs, ys, h), per_rep, sigma,
-                                                                        len(x) + 4)
-            if held:
-                t_h, gd_h, n_h, xh, yh, hh = held
-                f_hs = lambda xx, yy, hh_: obs_at(rig_s, xx, yy, hh_, n_h)  # noqa: E731
-                xhs, yhs = plate_fem.fit_positions(f_hs, gd_h, sigma, xh, yh, hh, ks)
-                row["chi2_dof_held_sensors"], row["rms_us_held_sensors"] = band_stats(f_hs(xhs, yhs, hh), gd_h,
-                                                                                      sigma, len(xh))
-        if a.channel_delays:
-            # a per-channel, per-band delay the twin lacks (e.g. the input network's phase at low frequency):
-            # fitted on the calibration drops, positions refitted with it, then checked on the held-out cases
-            d = channel_delays(per_rep - o_cal, sigma)
-            off = pair_offsets(d)[None]
-            for _ in range(2):
-                xd, yd = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh) + off, per_rep, sigma,
-                                                 x, y, h, ks)
-                o_d = obs(flat, xd, yd, h)
-                d = channel_delays(per_rep - o_d, sigma)
-                off = pair_offsets(d)[None]
-            row["channel_delays_us"] = d.tolist()
-            row["chi2_dof_chdelay"], row["rms_us_chdelay"] = band_stats(o_d + off, per_rep, sigma, len(x) + 4.5)
-        if a.per_band_e:
-            factors = np.array([0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15])
-            chi = []
-            for f in factors:
-                r = obs(dict(flat, e_pa=flat["e_pa"] * f), xf, yf, h) - per_rep
-                chi.append(np.nansum((r / sigma[None, :, None]) ** 2, axis=(0, 2)))
-            chi = np.array(chi)                                               # [factors, bands]
-            best = []
-            for b in range(chi.shape[1]):
-                i = int(np.clip(np.argmin(chi[:, b]), 1, len(factors) - 2))
-                c = np.polyfit(factors[i - 1:i + 2], chi[i - 1:i + 2, b], 2)
-                best.append(float(-c[1] / (2 * c[0]) * flat["e_pa"] / 1e6) if c[0] > 0 else float("nan"))
-            row["E_per_band_mpa"] = best
-            row["chi2_dof_per_band_at_best"] = (chi.min(axis=0) / (per_rep[:, 0].size - 2 * len(x) / 3)).tolist()
-        p_fit = flat
-        if a.rounds > 0:
-            run_obs = lambda e, nu, ds, xx, yy, hh: obs(dict(flat, e_pa=e * 1e6, nu=nu, damping_per_s=ds), xx, yy, hh)  # noqa: E731
-            fit = plate_nu.fit(run_obs, per_rep, sigma, names, x, y, h,
-                               (flat["e_pa"] / 1e6, flat["nu"], flat["damping_per_s"]), rounds=a.rounds,
-                               max_nfev=a.max_nfev, e_bounds=(1500.0, 9000.0), ds_bounds=(100.0, 1500.0))
-            p_fit = dict(flat, e_pa=fit.e_mpa * 1e6, nu=fit.nu, damping_per_s=fit.damping_per_s)
-            row.update(E_mpa=fit.e_mpa, nu=fit.nu, damping_per_s=fit.damping_per_s, chi2_dof_nu_stage=fit.chi2_dof,
-                       aic_rms_us_fit=aic_rms(p_fit))
-            row["chi2_dof_fit"], row["rms_us_fit"] = band_stats(obs(p_fit, fit.x_mm, fit.y_mm, h), per_rep, sigma,
-                                                                len(x))
+    def obs(p, xx, yy, hh, n=n_samp):
+        return plate_nu.twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+
+    def aic_rms(p):
+        f = sim_features(simulate(p, rig, tgt.x_mm, tgt.y_mm, tgt.height_mm), cfg_sim, *noise)
+        return float(np.sqrt(plate.eq16_loss(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
+
+    row = {"aic_rms_us_cal": aic_rms(flat)}
+    xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
+    o_cal = obs(flat, xf, yf, h)
+    row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(o_cal, per_rep, sigma, len(x))
+    if a.sensor_positions:
+        # the discs' centres (rig.json gives round numbers): fitted on the calibration drops at their fitted
+        # positions, positions refitted with the moved discs, then the held-out cases scored with them
+        def obs_at(rig_, xx, yy, hh, n=n_samp):
+            return plate_nu.twin_group_delays(simulate(flat, rig_, xx, yy, hh), cfg_sim, n, *noise)
+        shift = fit_sensor_shift(lambda rig_: obs_at(rig_, xf, yf, h), per_rep, sigma, rig)
+        rig_s = shifted_rig(rig, shift)
+        xs, ys = plate_fem.fit_positions(lambda xx, yy, hh: obs_at(rig_s, xx, yy, hh), per_rep, sigma, x, y, h, ks)
+        row["sensor_shift_mm"] = shift.tolist()
+        row["chi2_dof_sensors"], row["rms_us_sensors"] = band_stats(obs_at(rig_s, xs, ys, h), per_rep, sigma,
+                                                                    len(x) + 4)
         if held:
             t_h, gd_h, n_h, xh, yh, hh = held
-            f_h = lambda xx, yy, hh_: obs(p_fit, xx, yy, hh_, n_h)  # noqa: E731
-            xhf, yhf = plate_fem.fit_positions(f_h, gd_h, sigma, xh, yh, hh, ks)
-            row["chi2_dof_held"], row["rms_us_held"] = band_stats(f_h(xhf, yhf, hh), gd_h, sigma, len(xh))
-            if a.channel_delays:
-                off = pair_offsets(np.array(row["channel_delays_us"]))[None]
-                f_hd = lambda xx, yy, hh_: obs(flat, xx, yy, hh_, n_h) + off  # noqa: E731
-                xhd, yhd = plate_fem.fit_positions(f_hd, gd_h, sigma, xh, yh, hh, ks)
-                row["chi2_dof_held_chdelay"], row["rms_us_held_chdelay"] = band_stats(f_hd(xhd, yhd, hh), gd_h,
-                                                                                      sigma, len(xh))
-            row["held_position_shift_rms_mm"] = float(np.sqrt(np.mean((xhf - xh) ** 2 + (yhf - yh) ** 2)))
-        row["seconds"] = time.perf_counter() - t0
-        out[sup] = row
-        print(f"  {sup}: done in {row['seconds']:.0f} s", flush=True)
+            f_hs = lambda xx, yy, hh_: obs_at(rig_s, xx, yy, hh_, n_h)  # noqa: E731
+            xhs, yhs = plate_fem.fit_positions(f_hs, gd_h, sigma, xh, yh, hh, ks)
+            row["chi2_dof_held_sensors"], row["rms_us_held_sensors"] = band_stats(f_hs(xhs, yhs, hh), gd_h,
+                                                                                  sigma, len(xh))
+    if a.channel_delays:
+        # a per-channel, per-band delay the twin lacks (e.g. the input network's phase at low frequency):
+        # fitted on the calibration drops, positions refitted with it, then checked on the held-out cases
+        d = channel_delays(per_rep - o_cal, sigma)
+        off = pair_offsets(d)[None]
+        for _ in range(2):
+            xd, yd = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh) + off, per_rep, sigma,
+                                             x, y, h, ks)
+            o_d = obs(flat, xd, yd, h)
+            d = channel_delays(per_rep - o_d, sigma)
+            off = pair_offsets(d)[None]
+        row["channel_delays_us"] = d.tolist()
+        row["chi2_dof_chdelay"], row["rms_us_chdelay"] = band_stats(o_d + off, per_rep, sigma, len(x) + 4.5)
+    if a.per_band_e:
+        factors = np.array([0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15])
+        chi = []
+        for f in factors:
+            r = obs(dict(flat, e_pa=flat["e_pa"] * f), xf, yf, h) - per_rep
+            chi.append(np.nansum((r / sigma[None, :, None]) ** 2, axis=(0, 2)))
+        chi = np.array(chi)                                               # [factors, bands]
+        best = []
+        for b in range(chi.shape[1]):
+            i = int(np.clip(np.argmin(chi[:, b]), 1, len(factors) - 2))
+            c = np.polyfit(factors[i - 1:i + 2], chi[i - 1:i + 2, b], 2)
+            best.append(float(-c[1] / (2 * c[0]) * flat["e_pa"] / 1e6) if c[0] > 0 else float("nan"))
+        row["E_per_band_mpa"] = best
+        row["chi2_dof_per_band_at_best"] = (chi.min(axis=0) / (per_rep[:, 0].size - 2 * len(x) / 3)).tolist()
+    p_fit = flat
+    if a.rounds > 0:
+        run_obs = lambda e, nu, ds, xx, yy, hh: obs(dict(flat, e_pa=e * 1e6, nu=nu, damping_per_s=ds), xx, yy, hh)  # noqa: E731
+        fit = plate_nu.fit(run_obs, per_rep, sigma, names, x, y, h,
+                           (flat["e_pa"] / 1e6, flat["nu"], flat["damping_per_s"]), rounds=a.rounds,
+                           max_nfev=a.max_nfev, e_bounds=(1500.0, 9000.0), ds_bounds=(100.0, 1500.0))
+        p_fit = dict(flat, e_pa=fit.e_mpa * 1e6, nu=fit.nu, damping_per_s=fit.damping_per_s)
+        row.update(E_mpa=fit.e_mpa, nu=fit.nu, damping_per_s=fit.damping_per_s, chi2_dof_nu_stage=fit.chi2_dof,
+                   aic_rms_us_fit=aic_rms(p_fit))
+        row["chi2_dof_fit"], row["rms_us_fit"] = band_stats(obs(p_fit, fit.x_mm, fit.y_mm, h), per_rep, sigma,
+                                                            len(x))
+    if held:
+        t_h, gd_h, n_h, xh, yh, hh = held
+        f_h = lambda xx, yy, hh_: obs(p_fit, xx, yy, hh_, n_h)  # noqa: E731
+        xhf, yhf = plate_fem.fit_positions(f_h, gd_h, sigma, xh, yh, hh, ks)
+        row["chi2_dof_held"], row["rms_us_held"] = band_stats(f_h(xhf, yhf, hh), gd_h, sigma, len(xh))
+        if a.channel_delays:
+            off = pair_offsets(np.array(row["channel_delays_us"]))[None]
+            f_hd = lambda xx, yy, hh_: obs(flat, xx, yy, hh_, n_h) + off  # noqa: E731
+            xhd, yhd = plate_fem.fit_positions(f_hd, gd_h, sigma, xh, yh, hh, ks)
+            row["chi2_dof_held_chdelay"], row["rms_us_held_chdelay"] = band_stats(f_hd(xhd, yhd, hh), gd_h,
+                                                                                  sigma, len(xh))
+        row["held_position_shift_rms_mm"] = float(np.sqrt(np.mean((xhf - xh) ** 2 + (yhf - yh) ** 2)))
+    # the twin's own movement: its group delays at the reference suspect's positions (the first suspect of this
+    # window), e.g. between meshes (numerical dispersion) or disc diameters, without the rig in it
+    key = json.dumps(gd, sort_keys=True)
+    if key not in refs:
+        refs[key] = dict(sup=sup, xy=(xf, yf), o=o_cal)
+        if held:
+            refs[key].update(xy_h=(xhf, yhf), o_h=obs(flat, xhf, yhf, hh, n_h))
+    else:
+        ref = refs[key]
+        d = obs(flat, *ref["xy"], h) - ref["o"]
+        row["twin_shift_ref"] = ref["sup"]
+        row["twin_shift_rms_us_cal"] = np.sqrt(np.nanmean(d ** 2, axis=(0, 2)))
+        if held and "o_h" in ref:
+            d = obs(flat, *ref["xy_h"], hh, n_h) - ref["o_h"]
+            row["twin_shift_rms_us_held"] = np.sqrt(np.nanmean(d ** 2, axis=(0, 2)))
+    row["seconds"] = time.perf_counter() - t0
+    return row
 
+
+def report(a, out, names):
     bands = [n.replace("group delay ", "") for n in names]
     print("\nsupport | chi2/dof at CAL (E, nu, D_s), positions fitted | rms us per band " + " / ".join(bands)
           + " | nu stage: E MPa, nu, D_s 1/s | chi2/dof (nu stage, projected) | chi2/dof, rms per band after "
@@ -289,6 +401,17 @@ def main(argv=None):
         held_s = (f"{r['chi2_dof_held']:.1f}, {' / '.join(f'{v:.1f}' for v in r['rms_us_held'])}"
                   if "chi2_dof_held" in r else "-")
         print(f"{sup} | {r['chi2_dof_cal']:.1f} | {' / '.join(f'{v:.1f}' for v in r['rms_us_cal'])} | {fit_s} | {held_s}")
+    print("\ncompact: suspect | calibration cases chi2/dof, rms us per band | held-out cases chi2/dof, rms us per "
+          "band | the twin's own shift from the reference suspect at fixed positions, rms us per band, calibration / "
+          "held-out drops | s (" + " / ".join(bands) + ")")
+
+    def us(v):
+        return " / ".join(f"{x:.1f}" for x in v)
+    for sup, r in out.items():
+        held_s = f"{r['chi2_dof_held']:.0f} | {us(r['rms_us_held'])}" if "chi2_dof_held" in r else "- | -"
+        shift = (f"{us(r['twin_shift_rms_us_cal'])}; {us(r.get('twin_shift_rms_us_held', []))} "
+                 f"(from {r['twin_shift_ref']})" if "twin_shift_ref" in r else "reference")
+        print(f"{sup} | {r['chi2_dof_cal']:.0f} | {us(r['rms_us_cal'])} | {held_s} | {shift} | {r['seconds']:.0f}")
     if a.sensor_positions:
         print("\ndisc centres fitted on the calibration drops: chi2/dof, rms per band; shifts (dx, dy) mm per "
               "channel; held-out cases without -> with them")
