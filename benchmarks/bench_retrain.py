@@ -42,18 +42,13 @@ def row(label, v) -> str:
 
 def board_score(export_dir: Path, s) -> dict:
     """The exported tables through the emulated board over every drop of `s`."""
-    from impactsense import _link
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import Emulator
+    from impactsense.link.boardmodel import board_reports
     from impactsense.metrics import region_metrics
     from impactsense.models import impact_energy_j
 
     models, signal = firmware_models(export_dir)
-    dec, got = _link.Decoder(), {}
-    for i, d in Emulator(s, models, fs_hz=50000, signal=signal).drops():
-        for f in dec.feed(d):
-            if f["kind"] == "report" and f["report"].get("valid", True):
-                got.setdefault(i, f["report"])
+    got = board_reports(s, models, signal)
     rows = np.array(sorted(got))
     xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows])
     err = np.hypot(*(xy - s.xy_mm[rows]).T)

@@ -77,9 +77,8 @@ def host(splits: int) -> None:
 
 
 def board_figures(export_dir: Path, data: str, card: Path | None = None) -> tuple:
-    from impactsense import _link
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import Emulator, held_out_rows
+    from impactsense.link.boardmodel import board_reports, held_out_rows
 
     s = load_session(data)
     keep = None
@@ -88,11 +87,7 @@ def board_figures(export_dir: Path, data: str, card: Path | None = None) -> tupl
 
         keep = set(held_out_rows(json.loads(card.read_text()))[1].tolist())
     models, signal = firmware_models(export_dir)
-    dec, got = _link.Decoder(), {}
-    for i, d in Emulator(s, models, fs_hz=50000, signal=signal).drops():
-        for f in dec.feed(d):
-            if f["kind"] == "report" and f["report"].get("valid", True):
-                got.setdefault(i, f["report"])
+    got = board_reports(s, models, signal)
     rows = np.array([i for i in sorted(got) if keep is None or i in keep])
     err = np.hypot(*(np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]) - s.xy_mm[rows]).T)
     return figures(err, np.array([got[i]["uncertainty_mm"] for i in rows]))

@@ -112,16 +112,11 @@ def test_shipped_board_model_reports_a_1_sigma_on_session_2():
     """The firmware app with the shipped tables (models/, all of session-1 at the board's rate) on session-2's
     160 drops, as the emulated board reports them: 0.63 +- 0.1 of the errors within the reported uncertainty
     (0.64), >= 90 % within 2x (0.96)."""
-    from impactsense import _link
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import Emulator
+    from impactsense.link.boardmodel import board_reports
     models, signal = firmware_models(Path(__file__).resolve().parents[1] / "models")
     s2 = load_session("bundled:session-2")
-    dec, got = _link.Decoder(), {}
-    for i, data in Emulator(s2, models, fs_hz=50000, signal=signal).drops():
-        for f in dec.feed(data):
-            if f["kind"] == "report" and f["report"].get("valid", True):
-                got.setdefault(i, f["report"])
+    got = board_reports(s2, models, signal)
     rows = np.asarray(sorted(got))
     assert rows.size >= 155
     err = np.hypot(*(np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]) - s2.xy_mm[rows]).T)

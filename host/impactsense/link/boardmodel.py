@@ -204,6 +204,17 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
                               extra_card={"retrained_from": str(Path(model_dir).resolve())})
 
 
+def board_reports(session, models, signal: dict, fs_hz: int = 50000) -> dict:
+    """The firmware app (emulated board, exported node tables) over `session`'s drops: {drop row: the first
+    valid report it sent, decoded from the wire}; drops without a valid report are absent."""
+    dec, got = _link.Decoder(), {}
+    for i, data in Emulator(session, models, fs_hz=fs_hz, signal=signal).drops():
+        for f in dec.feed(data):
+            if f["kind"] == "report" and f["report"].get("valid", True):
+                got.setdefault(i, f["report"])
+    return got
+
+
 def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_hz: int = 50000) -> dict:
     """The firmware app (emulated board, exported node tables) over `session`'s drops, scored against the true
     positions and energy classes: Eq. 36 metrics of the reports with valid positions, their class accuracy,
@@ -211,13 +222,7 @@ def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_
     from ..metrics import region_metrics
     from ..models import impact_energy_j
 
-    emu = Emulator(session, models, fs_hz=fs_hz, signal=signal)
-    dec = _link.Decoder()
-    got = {}
-    for i, data in emu.drops():
-        for f in dec.feed(data):
-            if f["kind"] == "report" and f["report"].get("valid", True):
-                got.setdefault(i, f["report"])
+    got = board_reports(session, models, signal, fs_hz)
     rows = np.asarray(sorted(got), int)
     pred = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
     label = (impact_energy_j(session.height_mm, session.rig.ball_mass_g) >= energy_threshold_j).astype(int)
