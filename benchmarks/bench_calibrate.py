@@ -116,8 +116,8 @@ def nu_study(mesh_mm, workers, reps=3) -> None:
                                          names=meas.names)
         ident = plate_fem.nu_identifiability(evals, meas, e_true, nu_true, j_pos=j_pos)
         pf = ident["position_free"]["sd_at_target_error"]
-        print(f"      position-free sigma us: " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_pf.sigma)))
-        print(f"      per 0.01 nu at fixed D us: " + ", ".join(f"{n} {v:.2f}" for n, v in
+        print("      position-free sigma us: " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_pf.sigma)))
+        print("      per 0.01 nu at fixed D us: " + ", ".join(f"{n} {v:.2f}" for n, v in
                                                             ident["per_0.01_nu_at_fixed_D_us"].items()))
         for label in ("bands only", "group delays only", "AIC onset + group delays"):
             ks = plate_fem.observable_sets(meas.names)[label]
@@ -206,7 +206,7 @@ def nu_oracle(mesh_mm, workers, reps=3, fit=False, twin_ds=None, joint_ds=None) 
             c_truth = plate_fem.chi2(evals(e_true, nu_true), meas_rep, ks) / (per_rep.shape[0] * len(ks) * 6)
             print(f"{e_true:8.0f}, {nu_true:.2f} {label:26s} {nu_hat:7.3f} {nu_hat - nu_true:+7.3f} "
                   f"{e_hat / e_true - 1:+7.3f} {gap:15.1f} {c_truth:17.2f}", flush=True)
-        print(f"      sigma us (per repetition): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_rep.sigma))
+        print("      sigma us (per repetition): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(meas.names, meas_rep.sigma))
               + f"; {time.perf_counter() - t0:.0f} s", flush=True)
 
 
@@ -233,6 +233,7 @@ def fit_rounds(sim, truth, rig, cfg_sim, noise, meas, per_rep, targets, recs, x,
         sim(dict(truth, e_pa=e * 1e6, nu=nu), rig, targets.x_mm, targets.y_mm, targets.height_mm), cfg_sim, *noise))
     e_c, _ = plate_fem.e_scan(ev0, meas, stiff0 * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
     nu_c, xf, yf = 0.35, x[recs].astype(float), y[recs].astype(float)
+    pos0 = np.sqrt(np.mean((xf - xj[recs]) ** 2 + (yf - yj[recs]) ** 2))   # the declared positions' error
     for rnd in range(rounds):
         at = lambda xx, yy, hh, e=e_c, n=nu_c: plate_fem.sim_observables(
             sim(dict(truth, e_pa=e * 1e6, nu=n), rig, xx, yy, hh), cfg_sim, *noise)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import resource
 import sys
@@ -235,7 +234,7 @@ def main(argv=None) -> int:
     if args.dtoa or args.only_dtoa:
         dt = bench_dtoa(args.dtoa or 40)
         out["dtoa"] = dt
-        print(f"DToA vs session-1 (measured - simulated, us RMS over the six pairs; fast path, noise seeds 1, 2):")
+        print("DToA vs session-1 (measured - simulated, us RMS over the six pairs; fast path, noise seeds 1, 2):")
         for mesh in ("default", "1mm"):
             for scheme in ("single", "subcycled"):
                 r = dt[f"{mesh}_{scheme}"]

@@ -40,7 +40,7 @@ import numpy as np
 from impactsense import zeroshot as zs
 from impactsense.data import load_session
 from impactsense.models import impact_energy_j
-from impactsense.pipeline import SignalConfig, featurize
+from impactsense.pipeline import featurize
 from impactsense.sim import SimParams
 from impactsense.sitemap import BUNDLED, twin_features
 from impactsense.split import case_split
@@ -184,7 +184,7 @@ def report(rows: list[dict]) -> None:
             print(f"  {name:10s} class test {x['acc_test']:.3f} all {x['acc_all']:.3f} | e test: bias {t[0]:+.4f} "
                   f"case sd {t[1]:.4f} within {t[2]:.4f}; all: {a[0]:+.4f} / {a[1]:.4f} / {a[2]:.4f} | "
                   f"offsets' bias vs many drops {x['implied_bias']:+.4f} | twin MAE {x['mae_mm']:.2f} mm"
-                  + ("" if ho is None else f" | calibration held out by position: " + " ".join(f"{v:+.4f}" for v in ho)
+                  + ("" if ho is None else " | calibration held out by position: " + " ".join(f"{v:+.4f}" for v in ho)
                      + f" (rms {np.sqrt(np.mean(ho ** 2)):.4f})"))
         for name, ev in r["eval"].items():
             line = f"  {name} evaluate: class {ev['class']:.3f}, MAE {ev['mae']:.2f} mm (inner {ev['mae_inner']:.2f})"

@@ -1,7 +1,6 @@
 """The session loader: bad input is a clear error naming the file and the field."""
 
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -99,3 +98,27 @@ def test_write_session_refuses_bad_arrays_and_leaves_nothing(tmp_path, session1)
         write_session(tmp_path / "bad", session1.rig, [1.0], [1.0], [100.0], np.zeros((1, 4, 10), np.float32))
     assert not (tmp_path / "bad").exists()
     assert not any(p.name.startswith(".bad") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("text, problem", [(None, "card gone"), ("{not json", "not valid JSON"),
+                                           ("[1, 2]", "must hold a JSON object"), (b"\xff\xfe", "not valid JSON")])
+def test_json_files_fail_with_the_file_named(tmp_path, text, problem):
+    """rig.json, model cards, CAL.json and --exclude files are read by one reader: a missing, corrupt or
+    non-object file is a DataError naming the file, never a traceback."""
+    from impactsense.data import read_json
+
+    path = tmp_path / "model_card.json"
+    if isinstance(text, bytes):
+        path.write_bytes(text)
+    elif text is not None:
+        path.write_text(text)
+    with pytest.raises(DataError) as err:
+        read_json(path, missing="card gone")
+    assert str(path) in str(err.value) and problem in str(err.value)
+
+
+def test_train_exclude_names_a_missing_calibration_file(tmp_path):
+    from impactsense.commands.train import parse_exclude
+
+    with pytest.raises(DataError, match="CAL.json"):
+        parse_exclude(str(tmp_path / "CAL.json"))

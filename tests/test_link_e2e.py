@@ -4,12 +4,9 @@ firmware took. The models classify the energy on the twin's site map as the boar
 map, to keep the test quick)."""
 
 import json
-import os
 import subprocess
 import sys
-import time
 
-import joblib
 import numpy as np
 import pytest
 

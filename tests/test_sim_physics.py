@@ -235,7 +235,6 @@ def test_fast_path_matches_direct_within_2pct_rms(rig):
 def test_first_arrival_converges_with_mesh_and_step(rig):
     """Onset (2 % of the channel's peak) moves less between the two finer meshes than between the two
     coarser ones, and halving dt moves it < 1 us."""
-    import impactsense._core as core
 
     def onset_us(**kw):
         p = SimParams.from_rig(rig, duration_ms=1.5, taper_ms=0.2, **kw)

@@ -146,19 +146,29 @@ def resolve_session_path(path: str | os.PathLike | None) -> Path:
     return Path(path)
 
 
+def read_json(path: str | os.PathLike, missing: str = "file not found") -> dict:
+    """A JSON file holding an object, or a DataError naming the file: `missing` when it is not there, else
+    what is wrong with it."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, None, missing)
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(path, None, f"not valid JSON ({exc})") from None
+    if not isinstance(raw, dict):
+        raise DataError(path, None, "must hold a JSON object")
+    return raw
+
+
+MODEL_CARD_MISSING = "model card not found (is this a MODEL_DIR from `impactsense train`?)"
+
+
 def load_rig(path: str | os.PathLike) -> Rig:
     path = Path(path)
     if path.is_dir():
         path = path / RIG_FILE
-    if not path.is_file():
-        raise DataError(path, None, "file not found")
-    try:
-        raw = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DataError(path, None, f"not valid JSON ({exc})") from exc
-    if not isinstance(raw, dict):
-        raise DataError(path, None, "must hold a JSON object")
-    return rig_from_dict(raw, path)
+    return rig_from_dict(read_json(path), path)
 
 
 def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:

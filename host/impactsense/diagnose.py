@@ -313,7 +313,7 @@ def write_report(result: dict, details: dict, out_dir: str | Path) -> Path:
             ax.legend()
         fig.savefig(out / f"toa_residual_vs_distance_{tag}.png", dpi=80)
         plt.close(fig)
-    lines = [f"# impactsense diagnose", "", f"- baseline: {result['baseline']}", f"- data: {result['data']}",
+    lines = ["# impactsense diagnose", "", f"- baseline: {result['baseline']}", f"- data: {result['data']}",
              f"- reference: {result['reference']}", "", "| effect | sensor | params | score (nats) | significant |",
              "|---|---|---|---|---|"]
     for e in result["effects"]:
@@ -332,10 +332,10 @@ def write_report(result: dict, details: dict, out_dir: str | Path) -> Path:
             cells = [(f"**{b:+.2f}**" if abs(b) > 3 * se else f"{b:+.2f}") for b, se in zip(row["slope"], row["se"])]
             lines.append(f"| S{c + 1} ToA | " + " | ".join(cells) + " |")
         rep = res["repeatability"]["dtoa_within_case_rms_us"]
-        lines += ["", f"DToA within-case repeatability (µs rms, pairs 01 02 03 12 13 23): "
+        lines += ["", "DToA within-case repeatability (µs rms, pairs 01 02 03 12 13 23): "
                       + " ".join(f"{v:.1f}" for v in rep),
-                  f"noise floor (counts rms): " + " ".join(f"{v:.2f}" for v in res["noise_rms_counts"]),
-                  f"hum 50/60 Hz (counts): " + " ".join(f"{a:.2f}/{b:.2f}" for a, b in res["hum_counts_50_60hz"]),
+                  "noise floor (counts rms): " + " ".join(f"{v:.2f}" for v in res["noise_rms_counts"]),
+                  "hum 50/60 Hz (counts): " + " ".join(f"{a:.2f}/{b:.2f}" for a, b in res["hum_counts_50_60hz"]),
                   f"clipped drops per channel: {res['clipped_drops']}"]
     lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
               "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]

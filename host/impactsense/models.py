@@ -24,6 +24,7 @@ from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from sklearn.model_selection import GroupKFold
 
 from . import __version__
+from .data import MODEL_CARD_MISSING, read_json
 from .errors import DataError
 from .pipeline import FEATURE_NAMES, Features, SignalConfig
 from .sitemap import SiteMap, twin_features
@@ -266,12 +267,7 @@ class ImpactModel:
     def load(cls, model_dir: str | Path) -> "ImpactModel":
         d = Path(model_dir)
         card_path = d / CARD_FILE
-        if not card_path.is_file():
-            raise DataError(card_path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
-        try:
-            card = json.loads(card_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise DataError(card_path, None, f"not valid JSON ({exc})") from exc
+        card = read_json(card_path, MODEL_CARD_MISSING)
         for key in ("signal", "energy_threshold_j", "feature_names"):
             if key not in card:
                 raise DataError(card_path, key, "missing key")

@@ -46,10 +46,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import spearmanr
 
-from .data import Session, load_session, write_session
+from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
-from .pipeline import SignalConfig, as_int16, distances_mm, featurize
+from .pipeline import SignalConfig, distances_mm, featurize
 from .split import case_split
 from .workflow import evaluate, train
 
@@ -299,13 +299,8 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
 def read_calibration(cal_path: str | Path) -> dict:
     """CAL.json as a dict, or a DataError naming the file and field (checked before any work starts)."""
     cal_path = Path(cal_path)
-    if not cal_path.is_file():
-        raise DataError(cal_path, None, "calibration file not found (run `impactsense calibrate` first)")
-    try:
-        cal = json.loads(cal_path.read_text())
-    except ValueError as e:
-        raise DataError(cal_path, None, f"not valid JSON ({e})") from None
-    if not isinstance(cal, dict) or "sim_params" not in cal:
+    cal = read_json(cal_path, "calibration file not found (run `impactsense calibrate` first)")
+    if "sim_params" not in cal:
         raise DataError(cal_path, "sim_params", "missing key")
     return cal
 
@@ -380,10 +375,7 @@ def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, 
 
     model_dir = Path(model_dir)
     card_path = model_dir / "model_card.json"
-    try:
-        card = json.loads(card_path.read_text())
-    except (OSError, ValueError) as e:
-        raise DataError(card_path, None, f"cannot read the model card ({e})") from None
+    card = read_json(card_path, MODEL_CARD_MISSING)
     zs = card.get("zero_shot")
     if not isinstance(zs, dict):
         raise DataError(card_path, "zero_shot", "missing key (not a sim-trained model of `impactsense demo "

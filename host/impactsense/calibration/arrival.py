@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _core
 
 KAPPA = np.pi ** 2 / 12.0      # Mindlin shear correction
 G0 = 9.80665                   # m/s^2

@@ -99,18 +99,11 @@ def _export(args, card, rate, stage, out):
 
 
 def _card(model_dir):
-    import json
     from pathlib import Path
 
-    from ..errors import DataError
+    from ..data import MODEL_CARD_MISSING, read_json
 
-    path = Path(model_dir) / "model_card.json"
-    if not path.is_file():
-        raise DataError(path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DataError(path, None, f"not valid JSON ({exc})") from exc
+    return read_json(Path(model_dir) / "model_card.json", MODEL_CARD_MISSING)
 
 
 def _board_accuracy(model_dir, card, out):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 
 ORDER = 20
 
@@ -28,14 +27,15 @@ def register(sub) -> None:
 
 def parse_exclude(text):
     import numpy as np
-    from pathlib import Path
+
+    from ..data import read_json
 
     from ..errors import ConfigError
 
     if not text:
         return None
     if text.endswith(".json"):
-        cal = json.loads(Path(text).read_text())
+        cal = read_json(text)
         ids = cal.get("drops") or cal.get("calibration_drops") or []
         return np.asarray(ids, int)
     try:

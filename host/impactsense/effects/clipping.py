@@ -6,7 +6,7 @@ equal samples at a channel's extreme that sit at a level other than the model's 
 
 import numpy as np
 
-from ._base import Effect, to_adc, to_float
+from ._base import Effect
 
 
 def _mode(v):

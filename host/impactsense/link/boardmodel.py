@@ -15,7 +15,6 @@ grid, a few minutes on 2 cores, cached in the export folder).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -167,14 +166,12 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     """The model of MODEL_DIR (a 100 kHz `impactsense train` model) trained again on the board's captures of
     the same training drops, with the same forest settings; the held-out drops stay held out. A model with
     the twin's site map gets the board's site map (board_site_map, cached in site_map_cache)."""
-    from ..data import load_session
+    from ..data import MODEL_CARD_MISSING, load_session, read_json
     from ..errors import DataError
     from ..models import ForestSettings
 
     card_path = Path(model_dir) / "model_card.json"
-    if not card_path.is_file():
-        raise DataError(card_path, None, "model card not found (is this a MODEL_DIR from `impactsense train`?)")
-    card = json.loads(card_path.read_text())
+    card = read_json(card_path, MODEL_CARD_MISSING)
     if "zero_shot" in card:   # sim-trained: the virtual drops, then the calibration drops' fits, at the board rate
         from ..zeroshot import board_model
 
