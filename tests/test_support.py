@@ -79,6 +79,28 @@ def test_stiff_rim_is_the_simply_supported_plate():
     assert f_free[3] < f_mid[0] < f[0]                       # in between, the first bending mode is in between
 
 
+def test_soft_simply_supported_holds_w_only():
+    """"simply_supported_soft": w held on the edges, both rotations free. It is the stiff rim's limit (1e12 N/m
+    per m, 1e-4); with fewer constraints every frequency lies below the hard support's, by the Mindlin
+    boundary layer: clearly (> 0.4 %) for a thick plate (16 mm on 320 mm), within 0.5 % for the rig's 4.2 mm,
+    where both are the Kirchhoff simply supported plate."""
+    nx = ny = 32
+    fix_w, fix_bx, fix_by = support_masks(nx, ny, "simply_supported_soft")
+    assert np.array_equal(fix_w, support_masks(nx, ny, "simply_supported")[0])
+    assert not fix_bx.any() and not fix_by.any()
+    for t_mm, lo, hi in ((16.0, 0.004, 0.03), (4.2, 0.0, 0.005)):
+        mat = {**PMMA, "thickness_mm": t_mm}
+        soft = frequencies(SimParams(support="simply_supported_soft", damping_per_s=0.0, **mat), nx, ny, n=6)
+        hard = frequencies(SimParams(support="simply_supported", damping_per_s=0.0, **mat), nx, ny, n=6)
+        rim = frequencies(SimParams(support="elastic_rim", rim_stiffness_n_m2=1.0e12, damping_per_s=0.0, **mat),
+                          nx, ny, n=6)
+        assert np.allclose(rim, soft, rtol=1e-4), (t_mm, rim, soft)
+        drop = 1 - soft / hard
+        assert np.all((drop > lo) & (drop < hi)), (t_mm, drop)
+    with pytest.raises(ConfigError, match="only with support 'elastic_rim'"):
+        SimParams(support="simply_supported_soft", rim_stiffness_n_m2=1e9)
+
+
 def test_stiff_inset_rim_holds_w_on_its_line_and_the_overhang_is_free():
     """rim_inset_mm: the rim under the plate 40 mm inside the edges (3 node lines of a 24 x 24 mesh, 13.3 mm
     elements): a stiff rim there is w held on that ring with the overhang free, to 0.1 %."""

@@ -139,13 +139,16 @@ def assembled_dt_crit(plate) -> float:
 
 def support_masks(nx: int, ny: int, support: str):
     """fix_w, fix_bx, fix_by [ny+1, nx+1] for "free", "simply_supported" (hard: w and the tangential
-    rotation held on every edge) or "clamped"; "elastic_rim" holds nothing (its springs: `rim_springs`)."""
+    rotation held on every edge), "simply_supported_soft" (w held, both rotations free: the Mindlin plate's
+    soft simple support, the limit of a stiff "elastic_rim") or "clamped"; "elastic_rim" holds nothing (its
+    springs: `rim_springs`)."""
     fix_w = np.zeros((ny + 1, nx + 1), np.uint8)
     fix_bx = np.zeros_like(fix_w)
     fix_by = np.zeros_like(fix_w)
-    if support in ("simply_supported", "clamped"):
+    if support in ("simply_supported", "simply_supported_soft", "clamped"):
         fix_w[0, :] = fix_w[-1, :] = 1
         fix_w[:, 0] = fix_w[:, -1] = 1
+    if support in ("simply_supported", "clamped"):
         fix_by[:, 0] = fix_by[:, -1] = 1   # edges x = 0, Lx: rotation about x (w,y along the edge) held
         fix_bx[0, :] = fix_bx[-1, :] = 1   # edges y = 0, Ly
     if support == "clamped":

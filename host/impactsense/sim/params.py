@@ -7,7 +7,8 @@ Defaults (documented, see method.md):
 - plate: PMMA, E = 5000 MPa, nu = 0.32 (the seed's calibrated values), rho and t from the rig (1157 kg/m3,
   4.2 mm), Mindlin shear factor kappa = pi^2/12; support "simply_supported" (the rig's plate rests on a
   rubber rim: its edges cannot lift against the ball's load on the first arrivals we use, and they rotate
-  freely). Also "free", "clamped" and "elastic_rim": free edges on a rubber rim, a spring
+  freely). Also "free", "clamped", "simply_supported_soft" (w held on the edges, both rotations free: the
+  Mindlin plate's soft simple support) and "elastic_rim": free edges on a rubber rim, a spring
   (rim_stiffness_n_m2, N/m per metre of edge) and a dashpot (rim_damping_n_s_m2, N s/m per metre) on w of
   every edge node, lumped by the node's share of the edge (stiffness 0: the free plate; very stiff: w held
   on the edges, the tangential rotation left free); rim_inset_mm moves the rim's line inside the edges. The springs enter the stability limit; the dashpot is
@@ -60,7 +61,7 @@ from pathlib import Path
 from ..errors import ConfigError
 
 FORMAT = "impactsense-sim-params"
-SUPPORTS = ("free", "simply_supported", "clamped", "elastic_rim")
+SUPPORTS = ("free", "simply_supported", "simply_supported_soft", "clamped", "elastic_rim")
 METHODS = ("auto", "fast", "direct")
 
 
