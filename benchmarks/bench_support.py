@@ -61,6 +61,7 @@ def bundled_calibration() -> str:
 BOOL_FIELDS = ("disc_mass", "disc_stiffness", "disc_inertia_scaling", "subcycle")
 RIG_FIELDS = ("plate_x_mm", "plate_y_mm", "sensor_diameter_mm")
 GD_FIELDS = ("RISE_US", "LEAD_US", "TAPER_US", "ANCHOR_FLAT_US", "ANCHOR_OFFSET_US")
+SENSE_FIELDS = ("diameter_mm",)
 
 
 def parse_suspect(spec: str) -> tuple[dict, dict, dict]:
@@ -70,7 +71,9 @@ def parse_suspect(spec: str) -> tuple[dict, dict, dict]:
     @FIELD=VALUE overrides: a SimParams field (simply_supported@disc_mass=0, @element_mm=1.03, @thickness_mm=4.0),
     rig.FIELD (@rig.sensor_diameter_mm=16, @rig.plate_x_mm=321: the twin's geometry only, the measured side is
     unchanged) or gd.FIELD (the group-delay window of `calibration/group_delay.py`, measured and twin alike:
-    @gd.TAPER_US=300, @gd.flat=500/250/250 the bands' flat parts in us)."""
+    @gd.TAPER_US=300, @gd.flat=500/250/250 the bands' flat parts in us) or sense.diameter_mm (the twin's discs
+    sense over a circle of that diameter, their mass and stiffness stay the rig's disc: `sensing_diameter`; carried
+    in the third dict as "sense_diameter_mm")."""
     spec, *extra = spec.split("@")
     name, *vals = spec.split(":")
     sim, rig, gd = {"support": name}, {}, {}
@@ -88,6 +91,10 @@ def parse_suspect(spec: str) -> tuple[dict, dict, dict]:
             gd["flat"] = tuple(float(v) for v in val.split("/"))
             if len(gd["flat"]) != len(group_delay.BANDS):
                 raise SystemExit(f"suspect {spec!r}: gd.flat needs {len(group_delay.BANDS)} values")
+        elif key.startswith("sense."):
+            if key[6:] not in SENSE_FIELDS:
+                raise SystemExit(f"suspect {spec!r}: {key} is not one of sense.{SENSE_FIELDS}")
+            gd["sense_" + key[6:]] = float(val)
         elif key.startswith("gd."):
             if key[3:] not in GD_FIELDS:
                 raise SystemExit(f"suspect {spec!r}: {key} is not one of gd.{GD_FIELDS} or gd.flat")
@@ -116,6 +123,50 @@ def gd_window(settings: dict):
     finally:
         for k, v in saved.items():
             setattr(group_delay, k, v)
+
+
+@contextmanager
+def sensing_diameter(diameter_mm):
+    """The twin's sensing functionals over a circle of diameter_mm (an electrode smaller or larger than the disc),
+    its disc mass and stiffness left on the rig's disc: `simulate.build_model` wrapped for the block (the model
+    cache cleared on both sides). The same open-circuit law as `model.build_model`: U = C <beta_x,x + beta_y,y>
+    over the circle, gradients at element centres. A diagnostic only: the product has no such field."""
+    if diameter_mm is None:
+        yield
+        return
+    from impactsense.sim import model as model_mod, simulate as sim_mod
+    original = sim_mod.build_model
+
+    def build(params, rig, **kw):
+        m = original(params, rig, **kw)
+        p, hx, hy, nx = m.params, m.hx_m, m.hy_m, m.nx
+        tp, e11 = p.pzt_thickness_mm * 1e-3, p.pzt_e11_mpa * 1e6
+        c_volt = tp * (p.pzt_d31_pc_n * 1e-12) * e11 / ((1 - p.pzt_nu12) * p.pzt_eps33_rel * model_mod.EPS0) \
+            * (-p.thickness_mm * 1e-3 / 2)
+        sensors, r = [], nx + 1
+        for c in m.sensor_xy_m:
+            fr = model_mod._disc_fraction((hx, hy, nx, m.ny), c, diameter_mm * 0.5e-3)
+            a_disc = sum(fr.values()) * hx * hy
+            acc = {}
+            for (i, j), f in fr.items():
+                wgt = c_volt * f * hx * hy / a_disc
+                for node, sx, sy in ((j * r + i, -1, -1), (j * r + i + 1, 1, -1), ((j + 1) * r + i + 1, 1, 1),
+                                     ((j + 1) * r + i, -1, 1)):
+                    e = acc.setdefault(node, [0.0, 0.0])
+                    e[0] += wgt * sx / (2 * hx)
+                    e[1] += wgt * sy / (2 * hy)
+            nodes = np.array(sorted(acc), dtype=np.int64)
+            sensors.append((nodes, np.array([acc[k][0] for k in nodes]), np.array([acc[k][1] for k in nodes])))
+        m.sensors = sensors
+        return m
+
+    sim_mod.clear_cache()
+    sim_mod.build_model = build
+    try:
+        yield
+    finally:
+        sim_mod.build_model = original
+        sim_mod.clear_cache()
 
 
 def rig_with(rig, fields: dict):
@@ -153,6 +204,11 @@ def band_stats(o_sim, per_rep, sigma, n_pos):
     dof = int(ok.sum()) - 2 * n_pos
     rms = np.sqrt(np.nanmean(np.where(ok, r, np.nan) ** 2, axis=(0, 2)))
     return float((z ** 2).sum() / max(dof, 1)), rms
+
+
+def rms_per_band(v):
+    """rms over repetitions and pairs of [R, B, 6] (us), per band."""
+    return np.sqrt(np.nanmean(np.asarray(v, float) ** 2, axis=(0, 2)))
 
 
 def channel_delays(resid, sigma):
@@ -220,6 +276,12 @@ def main(argv=None):
                     help="also: E that best fits each band alone (positions held where they fit at the calibration's "
                          "E), a dispersion check: a modulus rising with frequency (viscoelastic PMMA) shows as E "
                          "growing from band to band")
+    ap.add_argument("--per-band-ds", action="store_true",
+                    help="also: D_s that best fits each band alone (positions where they fit at the calibration's "
+                         "D_s), then every repetition's position refitted with each band's group delays from a twin "
+                         "at that band's D_s, and the held-out cases scored the same way: a frequency-dependent "
+                         "damping (PMMA's loss factor, not the twin's mass-proportional D_s) shows as D_s changing "
+                         "from band to band and a lower held-out chi2/dof")
     ap.add_argument("--channel-delays", action="store_true",
                     help="also: per-channel, per-band delays (3 a band) fitted on the calibration drops at the "
                          "calibration's E, nu, D_s, and the held-out cases scored with them")
@@ -278,7 +340,8 @@ def main(argv=None):
     refs = {}      # per group-delay window: the first suspect's fitted positions and twin group delays there
     for sup in a.supports.split(","):
         sim_over, rig_over, gd = parse_suspect(sup)
-        with gd_window(gd):
+        sense = gd.pop("sense_diameter_mm", None)
+        with gd_window(gd), sensing_diameter(sense):
             out[sup] = run_suspect(a, sup, sim_over, rig_with(rig, rig_over), gd, measured(gd), refs, flat, x, y, h,
                                    tgt, cfg_sim, noise, names, ks)
         print(f"  {sup}: done in {out[sup]['seconds']:.0f} s", flush=True)
@@ -298,7 +361,11 @@ def run_suspect(a, sup, sim_over, rig, gd, meas, refs, flat, x, y, h, tgt, cfg_s
         f = sim_features(simulate(p, rig, tgt.x_mm, tgt.y_mm, tgt.height_mm), cfg_sim, *noise)
         return float(np.sqrt(plate.eq16_loss(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
 
-    row = {"aic_rms_us_cal": aic_rms(flat)}
+    # the window's own scale: the rig-noise sigma and the spread (rms) of the measured group delays per band, so
+    # that residuals under different windows compare (a short window pulls the four centroids together)
+    row = {"aic_rms_us_cal": aic_rms(flat), "sigma_us": sigma, "meas_rms_us_cal": rms_per_band(per_rep)}
+    if held:
+        row["meas_rms_us_held"] = rms_per_band(held[1])
     xf, yf = plate_fem.fit_positions(lambda xx, yy, hh: obs(flat, xx, yy, hh), per_rep, sigma, x, y, h, ks)
     o_cal = obs(flat, xf, yf, h)
     row["chi2_dof_cal"], row["rms_us_cal"] = band_stats(o_cal, per_rep, sigma, len(x))
@@ -346,6 +413,27 @@ def run_suspect(a, sup, sim_over, rig, gd, meas, refs, flat, x, y, h, tgt, cfg_s
             best.append(float(-c[1] / (2 * c[0]) * flat["e_pa"] / 1e6) if c[0] > 0 else float("nan"))
         row["E_per_band_mpa"] = best
         row["chi2_dof_per_band_at_best"] = (chi.min(axis=0) / (per_rep[:, 0].size - 2 * len(x) / 3)).tolist()
+    if a.per_band_ds:
+        factors = np.array([0.9, 0.95, 1.0, 1.05, 1.1])
+        ds0 = flat["damping_per_s"]
+        chi = np.array([np.nansum(((obs(dict(flat, damping_per_s=ds0 * f), xf, yf, h) - per_rep)
+                                   / sigma[None, :, None]) ** 2, axis=(0, 2)) for f in factors])
+        ds_b = []
+        for b in range(chi.shape[1]):
+            i = int(np.clip(np.argmin(chi[:, b]), 1, len(factors) - 2))
+            c = np.polyfit(factors[i - 1:i + 2], chi[i - 1:i + 2, b], 2)
+            ds_b.append(float(np.clip(-c[1] / (2 * c[0]), 0.7, 1.3) * ds0) if c[0] > 0 else ds0 * factors[i])
+        row["ds_per_band"] = ds_b
+
+        def obs_pb(xx, yy, hh, n=n_samp):
+            return np.stack([obs(dict(flat, damping_per_s=d), xx, yy, hh, n)[:, b] for b, d in enumerate(ds_b)], 1)
+        xb, yb = plate_fem.fit_positions(obs_pb, per_rep, sigma, x, y, h, ks)
+        row["chi2_dof_pbds"], row["rms_us_pbds"] = band_stats(obs_pb(xb, yb, h), per_rep, sigma, len(x) + 1.5)
+        if held:
+            t_h, gd_h, n_h, xh, yh, hh = held
+            f_hb = lambda xx, yy, hh_: obs_pb(xx, yy, hh_, n_h)  # noqa: E731
+            xhb, yhb = plate_fem.fit_positions(f_hb, gd_h, sigma, xh, yh, hh, ks)
+            row["chi2_dof_held_pbds"], row["rms_us_held_pbds"] = band_stats(f_hb(xhb, yhb, hh), gd_h, sigma, len(xh))
     p_fit = flat
     if a.rounds > 0:
         run_obs = lambda e, nu, ds, xx, yy, hh: obs(dict(flat, e_pa=e * 1e6, nu=nu, damping_per_s=ds), xx, yy, hh)  # noqa: E731
@@ -402,16 +490,19 @@ def report(a, out, names):
                   if "chi2_dof_held" in r else "-")
         print(f"{sup} | {r['chi2_dof_cal']:.1f} | {' / '.join(f'{v:.1f}' for v in r['rms_us_cal'])} | {fit_s} | {held_s}")
     print("\ncompact: suspect | calibration cases chi2/dof, rms us per band | held-out cases chi2/dof, rms us per "
-          "band | the twin's own shift from the reference suspect at fixed positions, rms us per band, calibration / "
-          "held-out drops | s (" + " / ".join(bands) + ")")
+          "band (the measured group delays' own rms) | the twin's own shift from the reference suspect at fixed "
+          "positions, rms us per band, calibration / held-out drops | s (" + " / ".join(bands) + "; rig-noise sigma "
+          "per window in the suspect's row)")
 
     def us(v):
         return " / ".join(f"{x:.1f}" for x in v)
     for sup, r in out.items():
-        held_s = f"{r['chi2_dof_held']:.0f} | {us(r['rms_us_held'])}" if "chi2_dof_held" in r else "- | -"
+        held_s = (f"{r['chi2_dof_held']:.0f} | {us(r['rms_us_held'])} ({us(r['meas_rms_us_held'])})"
+                  if "chi2_dof_held" in r else "- | -")
         shift = (f"{us(r['twin_shift_rms_us_cal'])}; {us(r.get('twin_shift_rms_us_held', []))} "
                  f"(from {r['twin_shift_ref']})" if "twin_shift_ref" in r else "reference")
-        print(f"{sup} | {r['chi2_dof_cal']:.0f} | {us(r['rms_us_cal'])} | {held_s} | {shift} | {r['seconds']:.0f}")
+        print(f"{sup} | {r['chi2_dof_cal']:.0f} | {us(r['rms_us_cal'])} ({us(r['meas_rms_us_cal'])}) | {held_s} | "
+              f"{shift} | {r['seconds']:.0f}; sigma {us(r['sigma_us'])}")
     if a.sensor_positions:
         print("\ndisc centres fitted on the calibration drops: chi2/dof, rms per band; shifts (dx, dy) mm per "
               "channel; held-out cases without -> with them")
@@ -432,6 +523,15 @@ def report(a, out, names):
                       if "chi2_dof_held_chdelay" in r else "")
             print(f"{sup}: {r['chi2_dof_cal']:.0f} -> {r['chi2_dof_chdelay']:.0f} "
                   f"({' / '.join(f'{v:.1f}' for v in r['rms_us_chdelay'])} us); delays {d}{held_s}")
+    if a.per_band_ds:
+        print("\nD_s fitted to each band alone (1/s), " + " / ".join(bands) + "; chi2/dof, rms per band with each band's "
+              "twin at its D_s (positions refitted); held-out cases without -> with them")
+        for sup, r in out.items():
+            held_s = (f" | held out {r['chi2_dof_held']:.0f} -> {r['chi2_dof_held_pbds']:.0f} "
+                      f"({' / '.join(f'{v:.1f}' for v in r['rms_us_held_pbds'])} us)"
+                      if "chi2_dof_held_pbds" in r else "")
+            print(f"{sup}: D_s " + " / ".join(f"{v:.0f}" for v in r["ds_per_band"]) + f"; {r['chi2_dof_cal']:.0f} -> "
+                  f"{r['chi2_dof_pbds']:.0f} ({' / '.join(f'{v:.1f}' for v in r['rms_us_pbds'])} us){held_s}")
     if a.per_band_e:
         print("\nE fitted to each band alone (MPa), " + " / ".join(bands) + ":")
         for sup, r in out.items():
