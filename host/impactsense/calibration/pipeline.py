@@ -88,7 +88,7 @@ class CalibrateOptions:
         try:
             from ..sim.params import SUPPORTS
         except ImportError:                 # a build without the simulator
-            SUPPORTS = ("free", "simply_supported", "clamped", "elastic_rim")
+            SUPPORTS = ("free", "simply_supported", "simply_supported_soft", "clamped", "elastic_rim")
         if self.support not in ("rig", "auto", *SUPPORTS):
             raise ConfigError(f"--support must be one of {('rig', 'auto', *SUPPORTS)}, got {self.support!r}")
         if self.support == "elastic_rim" and not (self.rim_stiffness_n_m2 is not None and self.rim_stiffness_n_m2 >= 0):

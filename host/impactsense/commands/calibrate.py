@@ -32,9 +32,9 @@ def register(sub) -> None:
     p.add_argument("--nu-rounds", type=int, default=2,
                    help="rounds of the nu stage (E, nu, D_s from the band group delays with each drop's position "
                         "fitted; default 2); 0 skips it and keeps the grid's nu and the decay D_s")
-    p.add_argument("--support", default="rig",
-                   choices=("rig", "auto", "simply_supported", "free", "clamped", "elastic_rim"),
-                   help="plate support of the twin: 'rig' (default: rig.json's plate_support text), a support, or "
+    p.add_argument("--support", default="rig", metavar="rig|auto|SUPPORT",
+                   help="plate support of the twin: 'rig' (default: rig.json's plate_support text), a support "
+                        "(simply_supported, simply_supported_soft, free, clamped, elastic_rim), or "
                         "'auto': the candidate (simply supported, free, clamped, elastic rims of 1e8-1e10 N/m per m) "
                         "whose band group delays fit best, recorded in CAL.json plate.support_choice")
     p.add_argument("--rim-stiffness", type=float, default=None,
