@@ -2,7 +2,7 @@
 
     python3 benchmarks/bench_support.py [--calibration CAL.json] [--supports simply_supported,free,clamped]
                                         [--held-out 16] [--rounds 1] [--max-nfev 8]
-                                        [--per-band-e] [--channel-delays] [--sensor-positions]
+                                        [--per-band-e] [--per-band-ds] [--channel-delays] [--sensor-positions]
     supports: free, simply_supported, clamped, elastic_rim:K[:C] (N/m and N s/m per metre of edge), each
     optionally with @FIELD=VALUE overrides (`parse_suspect`): SimParams fields (elastic_rim:1e10@rim_inset_mm=4,
     simply_supported@disc_mass=0, @pzt_thickness_mm=0.4, the mesh @element_mm=1.03, @thickness_mm=4.0@e_pa=5.0e9),
