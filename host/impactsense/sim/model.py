@@ -66,6 +66,8 @@ class Model:
     k_hertz: float
     f_max_hz: float
     fs_hz: float
+    mass_w: np.ndarray | None = None     # lumped nodal mass on w [kg] (discs included), [nodes]
+    mass_r: np.ndarray | None = None     # lumped nodal rotary inertia on beta_x, beta_y [kg m^2], [nodes]
 
     @property
     def nodes(self) -> int:
@@ -268,9 +270,13 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     e11 = p.pzt_e11_mpa * 1e6
     d_disc = e11 / (1 - p.pzt_nu12 ** 2) * ((t / 2 + tp) ** 3 - (t / 2) ** 3) / 3
     sensors_xy = np.asarray(rig.sensor_xy_mm, float) * 1e-3
-    fractions = [_disc_fraction((hx, hy, nx, ny), c, disc_r) for c in sensors_xy]
+    fractions = [_disc_fraction((hx, hy, nx, ny), c, disc_r) for c in sensors_xy]   # the sensing circles
+    # the plate the ceramic loads mechanically (SimParams.disc_patch_diameter_mm; None: the sensing disc)
+    patches = fractions if p.disc_patch_diameter_mm is None else \
+        [_disc_fraction((hx, hy, nx, ny), c, p.disc_patch_diameter_mm * 0.5e-3) for c in sensors_xy]
     if p.disc_stiffness:
-        for fr in fractions:
+        d_disc = d_disc * p.disc_stiffness_scale
+        for fr in patches:
             for (i, j), f in fr.items():
                 d_elem[j, i] += f * d_disc
 
@@ -279,9 +285,9 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     i_rot = rho * t ** 3 / 12 * p.rotary_inertia_scale
     mass_w = rho * t * area_node
     mass_r = i_rot * area_node
-    mp = p.pzt_rho_kg_m3 * tp if p.disc_mass else 0.0
+    mp = p.pzt_rho_kg_m3 * tp * p.disc_mass_scale if p.disc_mass else 0.0
     ip = mp * (t / 2 + tp / 2) ** 2
-    for fr in fractions:
+    for fr in patches:
         for (i, j), f in fr.items():
             # rotary inertia under the disc raised by disc_inertia_factor (default 1.06), or (opt-in
             # disc_inertia_scaling) until its D / I is the bare plate's, so the stiffer disc sets a larger
@@ -349,4 +355,4 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     return Model(params=p, plate=plate, nx=nx, ny=ny, hx_m=hx, hy_m=hy, lx_m=lx, ly_m=ly, dt_s=dt,
                  dt_crit_s=dt_crit, record_every=m, n_record=n_record, sensors=sensors,
                  sensor_xy_m=sensors_xy, disc_radius_m=disc_r, ball_radius_m=ball_r, ball_mass_kg=ball_m,
-                 k_hertz=k, f_max_hz=f_max, fs_hz=fs)
+                 k_hertz=k, f_max_hz=f_max, fs_hz=fs, mass_w=mass_w.ravel(), mass_r=mass_r.ravel())

@@ -18,6 +18,13 @@ Defaults (documented, see method.md):
   The open-circuit disc is modelled by the thin-disc sensing law (see `model.py`): only d31, eps33, E11,
   nu12, rho and the thickness enter it; the other constants are carried for calibration and the record.
 - damping D_s = 1086 1/s (seed), mass proportional.
+- the discs' mechanical coupling, apart from what they sense: disc_patch_diameter_mm (None: the rig's
+  sensor_diameter_mm) is the circle of plate under each disc centre that carries the ceramic's mass and bending
+  stiffness (a smaller ceramic on a shim, or a bond that transfers strain only over part of the disc);
+  disc_stiffness_scale (1) multiplies the ceramic's added bending stiffness (a compliant bond line: the ceramic
+  then strains less than the plate's surface; 0 = disc_stiffness false) and disc_mass_scale (1) its added mass
+  and rotary inertia (0 = disc_mass false). The sensing functional always averages over the rig's disc (its
+  electrode). Defaults: the perfectly bonded disc, bit for bit.
 - disc_inertia_factor 1.06: the rotary inertia under the discs (plate + ceramic) is raised by 6 % (never past the
   plate's D / I). The stiff disc elements set the explicit step, so the limit rises by about 3 % (at most
   sqrt(1.06)): the 1 mm mesh takes 29 steps per ADC sample instead of 30, the default mesh 14 instead of 15.
@@ -94,6 +101,9 @@ class SimParams:
     pzt_thickness_mm: float = 0.25
     disc_mass: bool = True                 # add the ceramic's mass under each disc
     disc_stiffness: bool = True            # add the ceramic's bending stiffness under each disc
+    disc_patch_diameter_mm: float | None = None  # the plate area the ceramic loads (mass, stiffness); None: the disc's
+    disc_stiffness_scale: float = 1.0      # the ceramic's added bending stiffness x this (a compliant bond: < 1)
+    disc_mass_scale: float = 1.0           # the ceramic's added mass and rotary inertia x this
     disc_inertia_scaling: bool = False     # opt-in: rotary inertia under the discs raised to the plate's D/I
     disc_inertia_factor: float = 1.06      # rotary inertia under the discs x this (capped at the plate's D/I)
     subcycle: bool = True                  # fine meshes: the disc patches stepped with dt / m, the plate at its limit
@@ -236,6 +246,9 @@ class SimParams:
                               f"'elastic_rim', not {self.support!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
+        num("disc_patch_diameter_mm", 0, allow_none=True)
+        num("disc_stiffness_scale", 0, lo_open=False)
+        num("disc_mass_scale", 0, lo_open=False)
         for name in ("disc_mass", "disc_stiffness", "disc_inertia_scaling", "subcycle"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false")
