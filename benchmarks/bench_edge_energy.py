@@ -36,6 +36,11 @@ Each suspect edge model is the same calibration with other SimParams fields:
         elastic_rim@rim_stiffness_n_m2=1e10@rim_inset_mm=4,simply_supported@damping_per_s=1000,\
         simply_supported@element_mm=1.05 --spectrum
 
+    the discs' mechanical coupling (SimParams.disc_*; the energies' near-edge bias follows the stiffness the
+    ceramic adds, docs/findings.md "The disc's bond"):
+    python3 benchmarks/bench_edge_energy.py --calibration CAL.json --suspects ss,\
+        simply_supported@disc_stiffness_scale=0.51,simply_supported@disc_patch_diameter_mm=14
+
 --spectrum: for the first suspect, the same bias in band energies (0-45 kHz) over [ToA, ToA + 5 ms] and in
 broadband energies of time windows after the ToA: where in frequency and in time the deficit sits.
 

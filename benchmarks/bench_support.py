@@ -16,6 +16,9 @@
         $S@gd.flat=250/125/125@gd.TAPER_US=300@element_mm=1.54,$S@gd.flat=2000/1000/1000   # the window
     ... --supports $S,$S@rig.sensor_diameter_mm=16,$S@rig.sensor_diameter_mm=24,$S@rig.plate_x_mm=321,\
         $S@thickness_mm=4.0@e_pa=5.0026e9                            # disc, plate size, thickness at E t^2 fixed
+    ... --supports $S,$S@disc_stiffness_scale=0.5,$S@disc_mass_scale=0.5,$S@disc_patch_diameter_mm=16
+                                                # the disc's mechanical coupling only (bond, footprint; it senses
+                                                # over the rig's disc): SimParams.disc_*
 
 The rig's plate rests on a rubber rim (rig.json `plate_support`); the twin holds its edges (simply supported).
 Every sensor is 30-33 mm from two edges, so edge reflections sit inside every low-band packet and the edge
