@@ -7,18 +7,17 @@ plate back towards the bare plate. Coarse meshes; seconds each."""
 from __future__ import annotations
 
 import json
+from itertools import pairwise
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-
 from impactsense.data import load_session, rig_from_dict
 from impactsense.errors import ConfigError
 from impactsense.sim import SimParams
-from impactsense.sim.simulate import simulate_voltages
 from impactsense.sim.model import build_model, support_masks
-
+from impactsense.sim.simulate import simulate_voltages
 from test_sim_physics import PMMA, assembled_stiffness
 
 MESH_MM = 6.0
@@ -80,7 +79,7 @@ def test_the_patch_moves_the_modes_by_min_max(rig):
     # the rig's 20 mm ceramic moves the low modes measurably (the test can fail)
     assert np.max(stiff[-1] / bare - 1) > 1e-3 and np.max(1 - heavy[-1] / bare) > 1e-3
     bonds = [frequencies(base(rig, disc_mass=False, disc_stiffness_scale=s), rig) for s in (0.25, 0.5, 1.0)]
-    for lo, hi in zip(bonds, bonds[1:]):
+    for lo, hi in pairwise(bonds):
         assert np.all(hi >= lo - tol)
     both = [frequencies(base(rig, disc_patch_diameter_mm=d), rig) for d in patches]
     shift = [np.sqrt(np.mean((f / bare - 1) ** 2)) for f in both]
