@@ -9,6 +9,8 @@ interrupted run resumes and a finished one is not recomputed):
             DToA alone fix only a combination of E and nu (the bending stiffness)
   damping   D_s from the envelope decay of the four cases against two FEM runs of them (`damping`): the
             twin's log-envelope slope moves by D_s / 2, a far better conditioned observable than f2 / f3
+  disc_bond (`--disc-bond fit` only) how much plate the discs stiffen (SimParams disc_stiffness_scale in
+            [0.2, 1]) from every repetition's band group delays, positions fitted (`disc_bond`); into sim_params
   plate_nu  E, nu and D_s from every repetition's band group delays, each repetition's position fitted, the
             decay D_s as a prior (`plate_nu`); nu (and that D_s) is used only when the fit passes its rule
             (chi^2 / dof, sd(nu)), else the grid's nu and the decay's D_s are kept, and CAL.json says so
@@ -38,7 +40,7 @@ import numpy as np
 from .. import _core
 from ..data import load_session
 from ..errors import ConfigError
-from . import arrival, damping, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
+from . import arrival, damping, disc_bond, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
 
@@ -71,6 +73,8 @@ class CalibrateOptions:
     # (plate_nu.SUPPORT_CANDIDATES) whose group delays fit best (stage `support`, after `damping`)
     support: str = "rig"
     rim_stiffness_n_m2: float | None = None  # support "elastic_rim": the rim's stiffness per metre of edge
+    # the discs' bond: "off" (the bonded ceramic, disc_stiffness_scale 1) or "fit" (stage `disc_bond`)
+    disc_bond: str = "off"
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -95,6 +99,10 @@ class CalibrateOptions:
             raise ConfigError("--support elastic_rim needs --rim-stiffness (N/m per metre of edge, >= 0)")
         if self.support != "elastic_rim" and self.rim_stiffness_n_m2 is not None:
             raise ConfigError("--rim-stiffness is used only with --support elastic_rim")
+        if self.disc_bond not in ("off", "fit"):
+            raise ConfigError(f"--disc-bond must be 'off' or 'fit', got {self.disc_bond!r}")
+        if self.disc_bond == "fit" and not self.fem:
+            raise ConfigError("--disc-bond fit compares the FEM's group delays: it needs the FEM (drop --no-fem)")
         if self.support == "auto" and not self.fem:
             raise ConfigError("--support auto compares the FEM's group delays: it needs the FEM (drop --no-fem)")
 
@@ -269,7 +277,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                 return plate_fem.sim_observables(simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm),
                                                  cfg_sim, *noise)
             return plate_fem.Evaluations(run_obs, cache(f"stage1-{tag}.json"),
-                                         _key(base_key, plate_targets.to_json(), p_now["damping_per_s"], "plate-v3"),
+                                         _key(base_key, plate_targets.to_json(), p_now["damping_per_s"], "plate-v3",
+                                              *(() if disc_bond.FIELD not in p_now else (p_now[disc_bond.FIELD],))),
                                          progress=opts.progress)
         e_bounds = (float(e_axis[0]), float(e_axis[-1]))
 
@@ -302,6 +311,26 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
             if choice["fields"] != {"support": fem.rig_support(rig)}:   # the rig's own: params stay as they are
                 params.update(choice["fields"])
             stage1["support_choice"] = choice
+
+        # the discs' bond (SimParams disc_stiffness_scale) from the band group delays (`disc_bond`), if asked
+        if opts.disc_bond == "fit":
+            def disc_bond_stage():
+                from tqdm import tqdm
+                key = _key(base_key, params, decay["damping_per_s"], disc_bond.BOUNDS, disc_bond.COARSE,
+                           disc_bond.REFINE, "disc-bond-v1")
+                p = dict(params, damping_per_s=float(decay["damping_per_s"]))
+
+                def compute():
+                    bar = tqdm(desc="FEM disc bond (scale, positions)", unit="scale",
+                               total=len(disc_bond.COARSE) + disc_bond.REFINE, disable=not opts.progress)
+                    res = disc_bond.fit(simulate, p, rig, session, targets, feats, cfg, cfg_sim, noise,
+                                        progress=bar.update)
+                    bar.close()
+                    return res
+                return _cached(cache("disc-bond.json"), key, compute)
+            bond = clock.run("disc_bond", disc_bond_stage)
+            params[disc_bond.FIELD] = float(bond["scale"])
+            result["disc_bond"] = bond   # the stages' keys that name only E, nu or D_s now name the scale too
 
         # nu (with D_s and every repetition's position) from the band group delays (`plate_nu`)
         nu_bounds = (float(nu_axis[0]), float(nu_axis[-1]))
@@ -489,7 +518,8 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
     lo_d, hi_d = fem.FACTORS[i_d][1:3]
     u_d = None if damping_fixed is None else float(np.clip((damping_fixed - lo_d) / (hi_d - lo_d), 0.0, 1.0))
     free = [k for k in range(d) if k != i_d or u_d is None]
-    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2")
+    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2",
+               *(() if disc_bond.FIELD not in params else (params[disc_bond.FIELD],)))
     result_path = cache("stage2-result.json")
     result_key = _key(key, opts.surrogate_trials, "result-v3")
     cached = _read_cache(result_path, result_key)

@@ -263,38 +263,55 @@ def support_label(fields: dict) -> str:
     return str(fields["support"])
 
 
+def group_delay_problem(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise) -> dict:
+    """What a comparison of twins on the band group delays needs, computed once: every accepted repetition's
+    measured group delays per_rep [R, B, 6], the crop length n, the declared x, y, h [R] and the rig-noise sigma
+    [B] (one FEM run of `params`: the same sigma for every candidate)."""
+    per_rep, n = measured_group_delays(session, targets, feats, cfg)
+    n_rep = [len(r) for r in targets.recording_ids]
+    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
+    sigma = noise_sigma(simulate(params, rig, x, y, h), cfg_sim, n, noise[0], noise[1])
+    return {"per_rep": per_rep, "n": n, "x": x, "y": y, "h": h, "sigma": sigma, "names": group_delay.names()}
+
+
+def score_candidate(simulate, params, fields, rig, problem, cfg_sim, noise) -> dict:
+    """One candidate twin (params with SimParams `fields` on top): every repetition's position fitted to its
+    group delays (`plate_fem.fit_positions`), then chi^2 / dof (dof = observables - 2 x repetitions), the rms
+    residual per band and the positions' rms shift."""
+    per_rep, sigma, names, n = problem["per_rep"], problem["sigma"], problem["names"], problem["n"]
+    x, y, h = problem["x"], problem["y"], problem["h"]
+    p = {k: v for k, v in params.items() if not k.startswith("rim_")}
+    p.update(fields)
+
+    def obs(xx, yy, hh):
+        return twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+    xf, yf = plate_fem.fit_positions(obs, per_rep, sigma, x, y, h, list(range(len(names))))
+    r = obs(xf, yf, h) - per_rep
+    ok = np.isfinite(r)
+    dof = int(ok.sum()) - 2 * len(x)
+    chi2 = float(np.sum(np.where(ok, r / sigma[None, :, None], 0.0) ** 2))
+    rms = np.sqrt(np.nanmean(np.where(ok, r, np.nan) ** 2, axis=(0, 2)))
+    return {"fields": dict(fields), "chi2": chi2, "dof": dof, "chi2_dof": chi2 / max(dof, 1),
+            "rms_us": dict(zip(names, rms.tolist())),
+            "position_shift_rms_mm": float(np.sqrt(np.mean((xf - x) ** 2 + (yf - y) ** 2)))}
+
+
 def choose_support(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise,
                    candidates=SUPPORT_CANDIDATES, progress=None) -> dict:
     """The plate support that best explains the rig's band group delays: for each candidate (SimParams
     fields), every accepted repetition's position fitted (`plate_fem.fit_positions`) at params' E, nu and D_s,
     then chi^2 / dof of the group delays (rig-noise sigma, the same for every candidate; dof = observables - 2
     x repetitions) and the rms residual per band. Returns the table and the candidate with the lowest chi^2."""
-    per_rep, n = measured_group_delays(session, targets, feats, cfg)
-    n_rep = [len(r) for r in targets.recording_ids]
-    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
-    sigma = noise_sigma(simulate(params, rig, x, y, h), cfg_sim, n, noise[0], noise[1])
-    names = group_delay.names()
-    ks = list(range(len(names)))
+    problem = group_delay_problem(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise)
     table = []
     for fields in candidates:
-        p = {k: v for k, v in params.items() if not k.startswith("rim_")}
-        p.update(fields)
-
-        def obs(xx, yy, hh, p=p):
-            return twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
-        xf, yf = plate_fem.fit_positions(obs, per_rep, sigma, x, y, h, ks)
-        r = obs(xf, yf, h) - per_rep
-        ok = np.isfinite(r)
-        dof = int(ok.sum()) - 2 * len(x)
-        chi2 = float(np.sum(np.where(ok, r / sigma[None, :, None], 0.0) ** 2))
-        rms = np.sqrt(np.nanmean(np.where(ok, r, np.nan) ** 2, axis=(0, 2)))
-        table.append({"label": support_label(fields), "fields": dict(fields), "chi2": chi2, "dof": dof,
-                      "chi2_dof": chi2 / max(dof, 1), "rms_us": dict(zip(names, rms.tolist())),
-                      "position_shift_rms_mm": float(np.sqrt(np.mean((xf - x) ** 2 + (yf - y) ** 2)))})
+        table.append({"label": support_label(fields),
+                      **score_candidate(simulate, params, fields, rig, problem, cfg_sim, noise)})
         if progress is not None:
             progress()
     best = min(table, key=lambda row: row["chi2_dof"])
     return {"chosen": best["label"], "fields": best["fields"], "candidates": table,
-            "sigma_us": dict(zip(names, sigma.tolist())), "repetitions": int(per_rep.shape[0]),
+            "sigma_us": dict(zip(problem["names"], problem["sigma"].tolist())),
+            "repetitions": int(problem["per_rep"].shape[0]),
             "method": "each candidate support: every accepted repetition's position fitted to its band group delays "
                       "at the plate's E, nu and D_s, chi^2 / dof of the group delays (rig-noise sigma); lowest wins"}

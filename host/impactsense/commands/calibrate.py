@@ -39,6 +39,10 @@ def register(sub) -> None:
                         "whose band group delays fit best, recorded in CAL.json plate.support_choice")
     p.add_argument("--rim-stiffness", type=float, default=None,
                    help="--support elastic_rim: the rim's stiffness on w, N/m per metre of edge")
+    p.add_argument("--disc-bond", default="off", metavar="off|fit",
+                   help="the discs' bond: 'off' (default: perfectly bonded ceramic, disc_stiffness_scale 1) or 'fit': "
+                        "the scale in [0.2, 1] whose band group delays fit best (positions fitted), into sim_params; "
+                        "recorded in CAL.json disc_bond")
     p.add_argument("--no-fem", action="store_true",
                    help="sub-problem 1 only (no FEM confirmation, no sub-problem 2; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
@@ -75,6 +79,12 @@ def summary(cal: dict) -> str:
     if sc:
         rows = "; ".join(f"{c['label']} {c['chi2_dof']:.0f}" for c in sc["candidates"])
         lines.append(f"plate support from the group delays (chi^2/dof, positions fitted): {rows} -> {sc['chosen']}")
+    db = cal.get("disc_bond")
+    if db:
+        scan = ", ".join(f"{k} {v:.0f}" for k, v in db["chi2_dof"].items())
+        lines.append(f"disc bond from the group delays (disc_stiffness_scale -> chi^2/dof, positions fitted): {scan} "
+                     f"-> {db['scale']:.3f} (chi^2/dof {db['chi2_dof_bonded']:.0f} bonded, {db['chi2_dof_fit']:.0f} "
+                     f"fitted; {db['seconds']:.0f} s)")
     nf = pl.get("nu_fit")
     if nf:
         verdict = "claimed" if nf["identified"] else "NOT claimed"
@@ -127,7 +137,7 @@ def run(args) -> int:
                             aic_blend=args.aic_blend, channel_delay_us=delays,
                             surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
                             nu_rounds=args.nu_rounds, support=args.support,
-                            rim_stiffness_n_m2=args.rim_stiffness)
+                            rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator
