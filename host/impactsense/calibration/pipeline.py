@@ -111,6 +111,17 @@ def _key(*parts) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+# The twin's model choices a stage's result depends on beyond E, nu and D_s: set by --support, the `support`
+# stage or the `disc_bond` stage. Absent (the rig's support, the bonded disc) they leave the keys as they were.
+MODEL_FIELDS = ("support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", disc_bond.FIELD,
+                "disc_mass_scale", "disc_patch_diameter_mm")
+
+
+def _model_key(params: dict) -> tuple:
+    """Parts for a cache key: the MODEL_FIELDS present in params, as (name, value) pairs."""
+    return tuple((k, params[k]) for k in MODEL_FIELDS if k in params)
+
+
 def _write_json_atomic(path: Path, obj: dict):
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
@@ -278,7 +289,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                                  cfg_sim, *noise)
             return plate_fem.Evaluations(run_obs, cache(f"stage1-{tag}.json"),
                                          _key(base_key, plate_targets.to_json(), p_now["damping_per_s"], "plate-v3",
-                                              *(() if disc_bond.FIELD not in p_now else (p_now[disc_bond.FIELD],))),
+                                              *_model_key(p_now)),
                                          progress=opts.progress)
         e_bounds = (float(e_axis[0]), float(e_axis[-1]))
 
@@ -296,7 +307,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         def damping_stage():
             return _damping_from_decay(opts, rig, params, targets, session, cfg, cfg_sim, simulate,
                                        cache("damping.json"), _key(base_key, params["e_pa"], params["nu"],
-                                                                   params["damping_per_s"], "decay-v2"), noise)
+                                                                   params["damping_per_s"], "decay-v2",
+                                                                   *_model_key(params)), noise)
         decay = clock.run("damping", damping_stage)
         result["damping_from_decay"] = decay
 
@@ -518,8 +530,7 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
     lo_d, hi_d = fem.FACTORS[i_d][1:3]
     u_d = None if damping_fixed is None else float(np.clip((damping_fixed - lo_d) / (hi_d - lo_d), 0.0, 1.0))
     free = [k for k in range(d) if k != i_d or u_d is None]
-    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2",
-               *(() if disc_bond.FIELD not in params else (params[disc_bond.FIELD],)))
+    key = _key(base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2", *_model_key(params))
     result_path = cache("stage2-result.json")
     result_key = _key(key, opts.surrogate_trials, "result-v3")
     cached = _read_cache(result_path, result_key)
