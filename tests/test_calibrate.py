@@ -47,6 +47,25 @@ def _session(tmp_path, rig, simulate, truth, *, n_cases=16, reps=3, jitter_mm=1.
     return path
 
 
+def fem_calibration_drops(tmp_path, rig, truth, *, reps, element_mm=5.0, tol_us=0.0):
+    """Four cases the project's FEM made with `truth` (12 ms records, rig noise, 1 mm position jitter, the
+    coarse mesh), as a calibration stage sees them: (session, targets, feats, cfg, cfg_sim, the twin's FEM
+    simulator on the same mesh). `tol_us` is Eq. 35's tolerance for choosing the four cases."""
+    from impactsense.sim import SimParams, simulate_drops
+
+    mesh = {"element_mm": element_mm}
+
+    def noisy(p, rig_, x, y, h):
+        return simulate_drops(SimParams.from_rig(rig_, **p, **mesh, duration_ms=12.0), rig_, x, y, h, noise=True,
+                              seed=5, progress=False)
+
+    session = load_session(_session(tmp_path, rig, noisy, truth, n_cases=4, reps=reps))
+    cfg = pipeline.core_config(rig, pipeline.CalibrateOptions())
+    feats = drops.extract(session, cfg)
+    targets = drops.select_drops(session, feats, [0, 1, 2, 3], tol_us=tol_us)
+    return session, targets, feats, cfg, pipeline._sim_core_config(cfg), fem.fem_simulator(2, **mesh)
+
+
 def _standin_noisy(truth, rig, x, y, h):
     return _standin.standin_simulate(truth, rig, x, y, h, noise=True, seed=11)
 

@@ -60,30 +60,19 @@ def test_disc_bond_recovers_the_scale_that_made_the_drops(tmp_path):
     rig noise, 1 mm position jitter; coarse mesh; ~20 s): the stage finds the scale within 0.03 (0.407 measured:
     the parabola steps' spacing and the position fit's noise), the twin at the fit explains the group delays to
     their noise (chi^2 / dof < 3; 1.05 measured) and the bonded disc does not (over 20x worse; 104x measured)."""
-    from impactsense.calibration import drops, fem, pipeline
+    from impactsense.calibration import fem
     from impactsense.data import load_session
-    from impactsense.sim import SimParams, simulate_drops
-    from test_calibrate import _session
+    from test_calibrate import fem_calibration_drops
 
     rig = load_session(Path(__file__).resolve().parents[1] / "host/impactsense/data/session-1").rig
-    mesh = {"element_mm": 5.0}
     # d31 -300 pC/N: the seed's -738 clips the ADC with the softer discs (the plate bends more under them)
     truth = dict(fem.base_params(rig, 4500.0, 0.36), damping_per_s=850.0, pzt_d31_pc_n=-300.0,
                  disc_stiffness_scale=0.4)
-
-    def noisy(p, rig_, x, y, h):
-        return simulate_drops(SimParams.from_rig(rig_, **p, **mesh, duration_ms=12.0), rig_, x, y, h, noise=True,
-                              seed=5, progress=False)
-
-    session = load_session(_session(tmp_path, rig, noisy, truth, n_cases=4, reps=3))
-    cfg = pipeline.core_config(rig, pipeline.CalibrateOptions())
-    cfg_sim = pipeline._sim_core_config(cfg)
-    feats = drops.extract(session, cfg)
     # Eq. 35 with 20 us of tolerance: case 3's sensors 1 and 3 are near-equidistant, and the coarse mesh's picks
     # there are 10-20 us apart in two of three repetitions (the test is about the group delays, not the rule)
-    targets = drops.select_drops(session, feats, [0, 1, 2, 3], tol_us=20.0)
+    session, targets, feats, cfg, cfg_sim, twin = fem_calibration_drops(tmp_path, rig, truth, reps=3, tol_us=20.0)
     start = {k: v for k, v in truth.items() if k != disc_bond.FIELD}
-    out = disc_bond.fit(fem.fem_simulator(2, **mesh), start, rig, session, targets, feats, cfg, cfg_sim, (1.5, 4, 0))
+    out = disc_bond.fit(twin, start, rig, session, targets, feats, cfg, cfg_sim, (1.5, 4, 0))
     assert abs(out["scale"] - 0.4) < 0.03, out["chi2_dof"]
     assert out["chi2_dof_fit"] < 3.0, out["chi2_dof"]
     assert out["chi2_dof_bonded"] > 20 * out["chi2_dof_fit"], out["chi2_dof"]

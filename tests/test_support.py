@@ -156,32 +156,20 @@ def test_choose_support_finds_the_support_that_made_the_drops(tmp_path):
     repetitions, rig noise, 1 mm position jitter) are told from the simply supported, free and clamped plates
     and from a 100x stiffer rim by their band group delays: chi^2 / dof of the true rim within 10 (6 measured:
     the position fit's 6 steps do not all converge from 1 mm off), every other candidate's over 100x higher."""
-    from test_calibrate import _session
+    from test_calibrate import fem_calibration_drops
 
-    from impactsense.calibration import drops, fem, pipeline, plate_nu
+    from impactsense.calibration import fem, plate_nu
     from impactsense.data import load_session
-    from impactsense.sim import simulate_drops
 
     rig = load_session(Path(__file__).resolve().parents[1] / "host/impactsense/data/session-1").rig
-    mesh = {"element_mm": 5.0}
     truth = dict(fem.base_params(rig, 4500.0, 0.35), damping_per_s=800.0, support="elastic_rim",
                  rim_stiffness_n_m2=1.0e8)
-
-    def noisy(p, rig_, x, y, h):
-        from impactsense.sim import SimParams
-        return simulate_drops(SimParams.from_rig(rig_, **p, **mesh, duration_ms=12.0), rig_, x, y, h, noise=True,
-                              seed=5, progress=False)
-
-    session = load_session(_session(tmp_path, rig, noisy, truth, n_cases=4, reps=2))
-    cfg = pipeline.core_config(rig, pipeline.CalibrateOptions())
-    cfg_sim = pipeline._sim_core_config(cfg)
-    feats = drops.extract(session, cfg)
-    targets = drops.select_drops(session, feats, [0, 1, 2, 3])
+    session, targets, feats, cfg, cfg_sim, twin = fem_calibration_drops(tmp_path, rig, truth, reps=2)
     candidates = ({"support": "simply_supported"}, {"support": "free"}, {"support": "clamped"},
                   {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e8},
                   {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e10})
     start = {k: v for k, v in truth.items() if not k.startswith("rim_") and k != "support"}
-    out = plate_nu.choose_support(fem.fem_simulator(2, **mesh), start, rig, session, targets, feats, cfg, cfg_sim,
+    out = plate_nu.choose_support(twin, start, rig, session, targets, feats, cfg, cfg_sim,
                                   (1.5, 4, 0), candidates=candidates)
     chi = {c["label"]: c["chi2_dof"] for c in out["candidates"]}
     assert out["fields"] == {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e8}, chi
