@@ -56,7 +56,7 @@ def board_score(export_dir: Path, s) -> dict:
     threshold = json.loads((export_dir / "board-model" / "model_card.json").read_text())["energy_threshold_j"]
     label = impact_energy_j(s.height_mm[rows], s.rig.ball_mass_g) >= threshold
     cls = np.array([got[i]["energy_class"] for i in rows])
-    m = region_metrics(s.xy_mm[rows], xy)
+    m = region_metrics(s.xy_mm[rows], xy, s.rig.inner_region_mm)
     return {"mae_mm": m["all"]["mae_mm"], "inner_mae_mm": m["inner"]["mae_mm"], "reported": len(rows),
             "energy_class_accuracy": float(np.mean(cls == label)),
             "within_1u": float(np.mean(err <= u)), "within_2u": float(np.mean(err <= 2 * u))}

@@ -33,6 +33,9 @@ _RIG_NUMBERS = (
 )
 _RIG_INTS = ("channels", "samples", "adc_bits", "bias_counts")
 _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
+# Optional rig.json fields (docs/method.md "rig.json"): inner_region_mm [x0, x1, y0, y1] (default: the
+# sensors' bounding box inset by INNER_INSET_MM); material_axes, material_properties (materials.py).
+INNER_INSET_MM = 30.0
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,22 @@ class Rig:
     @property
     def adc_max(self) -> int:
         return (1 << self.adc_bits) - 1
+
+    @property
+    def inner_region_mm(self) -> tuple[float, float, float, float]:
+        """(x0, x1, y0, y1) of the inner region the metrics report apart: rig.json `inner_region_mm` when
+        given, else the sensors' bounding box inset by INNER_INSET_MM (kept at least a point wide)."""
+        given = self.raw.get("inner_region_mm")
+        if given is not None:
+            return tuple(float(v) for v in given)
+        xs, ys = self.sensor_x_mm.astype(float), self.sensor_y_mm.astype(float)
+        x0, x1 = xs.min() + INNER_INSET_MM, xs.max() - INNER_INSET_MM
+        y0, y1 = ys.min() + INNER_INSET_MM, ys.max() - INNER_INSET_MM
+        if x0 > x1:
+            x0 = x1 = 0.5 * (xs.min() + xs.max())
+        if y0 > y1:
+            y0 = y1 = 0.5 * (ys.min() + ys.max())
+        return (float(x0), float(x1), float(y0), float(y1))
 
     def to_dict(self) -> dict:
         return dict(self.raw)
@@ -214,7 +233,19 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
         if not (0 <= s["x_mm"] <= values["plate_x_mm"] and 0 <= s["y_mm"] <= values["plate_y_mm"]):
             raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")
         sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
+    _check_inner_region(raw.get("inner_region_mm"), values, path)
     return Rig(sensors=tuple(sensors), raw=dict(raw), **values)
+
+
+def _check_inner_region(region, values: dict, path) -> None:
+    if region is None:
+        return
+    if (not isinstance(region, list) or len(region) != 4
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) for v in region)):
+        raise DataError(path, "inner_region_mm", f"must be [x0, x1, y0, y1] in mm, got {region!r}")
+    x0, x1, y0, y1 = region
+    if not (0 <= x0 <= x1 <= values["plate_x_mm"] and 0 <= y0 <= y1 <= values["plate_y_mm"]):
+        raise DataError(path, "inner_region_mm", "must lie on the plate with x0 <= x1 and y0 <= y1")
 
 
 def _read_impacts(path: Path) -> dict[str, np.ndarray]:

@@ -1,15 +1,17 @@
-"""Eq. 36 metrics: R2, RMSE and MAE for x and for y, then averaged; the inner region of method.md."""
+"""Eq. 36 metrics: R2, RMSE and MAE for x and for y, then averaged; and the same in the rig's inner region
+(`Rig.inner_region_mm`: rig.json `inner_region_mm`, else the sensors' bounding box inset by 30 mm)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-INNER_MM = (60.0, 260.0)
 
 
-def inner_mask(xy_mm: np.ndarray, lo: float = INNER_MM[0], hi: float = INNER_MM[1]) -> np.ndarray:
-    xy_mm = np.asarray(xy_mm)
-    return np.all((xy_mm >= lo) & (xy_mm <= hi), axis=1)
+def inner_mask(xy_mm: np.ndarray, region: tuple[float, float, float, float]) -> np.ndarray:
+    """Rows of xy_mm inside region (x0, x1, y0, y1), edges included."""
+    xy_mm = np.asarray(xy_mm, float).reshape(-1, 2)
+    x0, x1, y0, y1 = region
+    return (xy_mm[:, 0] >= x0) & (xy_mm[:, 0] <= x1) & (xy_mm[:, 1] >= y0) & (xy_mm[:, 1] <= y1)
 
 
 def localisation_metrics(true_xy: np.ndarray, pred_xy: np.ndarray) -> dict:
@@ -30,7 +32,8 @@ def localisation_metrics(true_xy: np.ndarray, pred_xy: np.ndarray) -> dict:
             "mae_mm": float(np.mean(mae)), "euclid_mm": float(np.mean(np.hypot(*(p - t).T)))}
 
 
-def region_metrics(true_xy: np.ndarray, pred_xy: np.ndarray) -> dict:
-    m = inner_mask(true_xy)
+def region_metrics(true_xy: np.ndarray, pred_xy: np.ndarray, region: tuple[float, float, float, float]) -> dict:
+    """Eq. 36 over every drop ("all") and over the drops whose true position lies in region ("inner")."""
+    m = inner_mask(true_xy, region)
     return {"all": localisation_metrics(true_xy, pred_xy),
             "inner": localisation_metrics(np.asarray(true_xy)[m], np.asarray(pred_xy)[m])}

@@ -10,7 +10,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .metrics import INNER_MM  # noqa: E402
 
 
 def predicted_vs_true(true_xy, pred_xy, path, title="") -> Path:
@@ -30,7 +29,7 @@ def predicted_vs_true(true_xy, pred_xy, path, title="") -> Path:
     return Path(path)
 
 
-def error_map(true_xy, pred_xy, sensor_xy, plate_mm, path, title="") -> Path:
+def error_map(true_xy, pred_xy, sensor_xy, plate_mm, path, title="", inner_region=None) -> Path:
     err = np.hypot(*(pred_xy - true_xy).T)
     fig, ax = plt.subplots(figsize=(6, 5.6))
     sc = ax.scatter(true_xy[:, 0], true_xy[:, 1], c=err, cmap="viridis", s=28,
@@ -38,8 +37,9 @@ def error_map(true_xy, pred_xy, sensor_xy, plate_mm, path, title="") -> Path:
     ax.quiver(true_xy[:, 0], true_xy[:, 1], pred_xy[:, 0] - true_xy[:, 0], pred_xy[:, 1] - true_xy[:, 1],
               angles="xy", scale_units="xy", scale=1, width=0.003, color="r", alpha=0.6)
     ax.scatter(sensor_xy[:, 0], sensor_xy[:, 1], marker="s", s=80, c="k", label="sensors")
-    lo, hi = INNER_MM
-    ax.add_patch(plt.Rectangle((lo, lo), hi - lo, hi - lo, fill=False, ls="--", ec="grey", label="inner region"))
+    if inner_region is not None:
+        x0, x1, y0, y1 = inner_region
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", ec="grey", label="inner region"))
     ax.set_xlim(0, plate_mm[0])
     ax.set_ylim(0, plate_mm[1])
     ax.set_aspect("equal")
@@ -63,7 +63,8 @@ def evaluation_plots(report: dict, rig, out_dir, label="model") -> list[Path]:
     return [
         predicted_vs_true(a["true_xy"][ok], a["pred_xy"][ok], out / f"{label}_pred_vs_true.png",
                           f"{label}: MAE {report['all']['mae_mm']:.2f} mm"),
-        error_map(a["true_xy"][ok], a["pred_xy"][ok], rig.sensor_xy_mm, plate, out / f"{label}_error_map.png"),
+        error_map(a["true_xy"][ok], a["pred_xy"][ok], rig.sensor_xy_mm, plate, out / f"{label}_error_map.png",
+                  inner_region=rig.inner_region_mm),
         error_map(a["true_xy"][ok], a["phys_xy"][ok], rig.sensor_xy_mm, plate, out / "physics_error_map.png",
-                  "physics localiser error"),
+                  "physics localiser error", inner_region=rig.inner_region_mm),
     ]

@@ -62,6 +62,7 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     true_xy = session.xy_mm[rows]
     ok = np.isfinite(pred["xy_mm"]).all(1)
     energy = impact_energy_j(session.height_mm[rows], session.rig.ball_mass_g)
+    region = session.rig.inner_region_mm
     label = (energy >= model.energy_threshold_j).astype(int)
     report = {
         "scope": scope,
@@ -69,17 +70,18 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
         "predicted": int(ok.sum()),
         "accepted": int(feats.accepted.sum()),
         "rejected": int((~feats.accepted).sum()),
-        **region_metrics(true_xy[ok], pred["xy_mm"][ok]),
+        **region_metrics(true_xy[ok], pred["xy_mm"][ok], region),
         "energy_class_accuracy": float(np.mean(pred["energy_class"][ok] == label[ok])) if ok.any() else float("nan"),
-        "physics": region_metrics(true_xy[ok], feats.phys_xy_mm[ok]),
+        "physics": region_metrics(true_xy[ok], feats.phys_xy_mm[ok], region),
         # Where all/inner's positions come from ("twin": the site map's match, "forest"), and the forests'
         # own position on the same drops (the twin's starting point; equal to all/inner without a site map).
         "position_source": pred["position_source"],
-        "forest": region_metrics(true_xy[ok], pred["forest_xy_mm"][ok]),
-        "accepted_only": region_metrics(true_xy[ok & feats.accepted], pred["xy_mm"][ok & feats.accepted]),
+        "forest": region_metrics(true_xy[ok], pred["forest_xy_mm"][ok], region),
+        "accepted_only": region_metrics(true_xy[ok & feats.accepted], pred["xy_mm"][ok & feats.accepted], region),
         "energy_threshold_j": model.energy_threshold_j,
         "high_energy_fraction": float(label.mean()),
         "clipped_drops": int(feats.clipped.any(1).sum()),
+        "inner_region_mm": list(region),
     }
     report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "forest_xy": pred["forest_xy_mm"],
                          "phys_xy": feats.phys_xy_mm,

@@ -225,7 +225,7 @@ def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_
     label = (impact_energy_j(session.height_mm, session.rig.ball_mass_g) >= energy_threshold_j).astype(int)
     cls = np.array([got[i]["energy_class"] for i in rows], int)
     return {"n": len(session), "reported": int(rows.size), "fs_hz": int(fs_hz),
-            **region_metrics(session.xy_mm[rows], pred),
+            **region_metrics(session.xy_mm[rows], pred, session.rig.inner_region_mm),
             "energy_class_accuracy": float(np.mean(cls == label[rows])) if rows.size else float("nan")}
 
 

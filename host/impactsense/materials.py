@@ -1,0 +1,218 @@
+"""Plate materials: what rig.json's `plate_material` says about the plate's elastic constants, as priors.
+
+A rig declares its plate in words ("PMMA", "aluminium 6061-T6", "carbon-fibre laminate, fibres mostly along
+x (orthotropic)"). `material_for_rig` turns that into a `Material`: isotropic (E, nu) or orthotropic (E1, E2,
+G12, nu12 in the material axes, axis 1 along the fibres at `axis_deg` from the plate's x axis), each constant a
+`Prior` (a typical value and the range a calibration may search). The density always comes from rig.json
+(`density_kg_m3`); the table's density range only checks it. An unrecognised material gets wide priors.
+
+Optional rig.json fields read here:
+- `material_axes`: {"fibre_angle_deg": A}, the angle of material axis 1 (the fibres) from the plate's x axis,
+  counter-clockwise, in degrees. Absent: taken from the words ("fibres ... along x" -> 0, "along y" -> 90),
+  else 0.
+- `material_properties`: known constants that replace the table's typical values (and pin their range), in
+  SI units: {"e_pa": ..., "nu": ...} or {"e1_pa", "e2_pa", "g12_pa", "nu12"}.
+
+Tabled values are handbook figures for the dynamic (ultrasonic-rate) moduli: PMMA ~5 GPa (its quasi-static
+3 GPa rises with rate), aluminium alloys 69-72 GPa, steels 190-210 GPa, soda-lime/borosilicate glass
+62-74 GPa, CFRP and GFRP laminates over the range from cross-ply to mostly unidirectional lay-ups.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+
+from .errors import DataError
+
+ISOTROPIC = "isotropic"
+ORTHOTROPIC = "orthotropic"
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A typical value and the closed range [lo, hi] a fit may search (SI units)."""
+
+    value: float
+    lo: float
+    hi: float
+
+    def __post_init__(self):
+        if not (self.lo <= self.value <= self.hi):
+            raise ValueError(f"prior value {self.value} outside [{self.lo}, {self.hi}]")
+
+    def pinned(self, value: float) -> "Prior":
+        return Prior(float(value), float(value), float(value))
+
+    def to_dict(self) -> dict:
+        return {"value": self.value, "lo": self.lo, "hi": self.hi}
+
+
+@dataclass(frozen=True)
+class Material:
+    """A plate material's priors. Isotropic: e_pa, nu. Orthotropic: e1_pa, e2_pa, g12_pa, nu12 (axis 1 at
+    axis_deg from the plate's x axis)."""
+
+    name: str
+    kind: str
+    density_kg_m3: Prior
+    e_pa: Prior | None = None
+    nu: Prior | None = None
+    e1_pa: Prior | None = None
+    e2_pa: Prior | None = None
+    g12_pa: Prior | None = None
+    nu12: Prior | None = None
+    axis_deg: float = 0.0
+    known: bool = True            # False: not in the table, wide priors
+    notes: str = ""
+
+    @property
+    def orthotropic(self) -> bool:
+        return self.kind == ORTHOTROPIC
+
+    def constants(self) -> dict[str, Prior]:
+        names = ("e1_pa", "e2_pa", "g12_pa", "nu12") if self.orthotropic else ("e_pa", "nu")
+        return {n: getattr(self, n) for n in names}
+
+    def typical(self) -> dict[str, float]:
+        return {n: p.value for n, p in self.constants().items()}
+
+    def bending_stiffness_ratio(self) -> float:
+        """D_11 / D_22 of the typical values (1 for isotropic): how much faster flexural waves run along the
+        fibres, (D11/D22)^(1/4) in phase velocity."""
+        if not self.orthotropic:
+            return 1.0
+        return self.e1_pa.value / self.e2_pa.value
+
+    def to_dict(self) -> dict:
+        out = {"name": self.name, "kind": self.kind, "known": self.known, "axis_deg": self.axis_deg,
+               "density_kg_m3": self.density_kg_m3.to_dict()}
+        out.update({n: p.to_dict() for n, p in self.constants().items()})
+        if self.notes:
+            out["notes"] = self.notes
+        return out
+
+
+def _p(value, lo, hi) -> Prior:
+    return Prior(float(value), float(lo), float(hi))
+
+
+GPA = 1e9
+# (keywords matched in the lower-cased plate_material; the first entry that matches wins: composites first)
+TABLE: list[tuple[tuple[str, ...], Material]] = [
+    (("cfrp", "carbon"), Material(
+        "CFRP laminate", ORTHOTROPIC, _p(1550, 1400, 1700),
+        e1_pa=_p(70 * GPA, 30 * GPA, 150 * GPA), e2_pa=_p(20 * GPA, 6 * GPA, 70 * GPA),
+        g12_pa=_p(5 * GPA, 2.5 * GPA, 20 * GPA), nu12=_p(0.30, 0.05, 0.45))),
+    (("gfrp", "glass-fibre", "glass fibre", "glass-fiber", "glass fiber", "fibreglass", "fiberglass"), Material(
+        "GFRP laminate", ORTHOTROPIC, _p(1900, 1700, 2100),
+        e1_pa=_p(30 * GPA, 15 * GPA, 50 * GPA), e2_pa=_p(12 * GPA, 6 * GPA, 30 * GPA),
+        g12_pa=_p(4 * GPA, 2 * GPA, 8 * GPA), nu12=_p(0.25, 0.10, 0.40))),
+    (("pmma", "acrylic", "plexiglas", "perspex"), Material(
+        "PMMA", ISOTROPIC, _p(1180, 1150, 1200),
+        e_pa=_p(5.0 * GPA, 2.5 * GPA, 7.0 * GPA), nu=_p(0.35, 0.30, 0.40))),
+    (("alumin",), Material(
+        "aluminium", ISOTROPIC, _p(2700, 2600, 2850),
+        e_pa=_p(70 * GPA, 65 * GPA, 75 * GPA), nu=_p(0.33, 0.30, 0.36))),
+    (("steel",), Material(
+        "steel", ISOTROPIC, _p(7850, 7700, 8050),
+        e_pa=_p(200 * GPA, 185 * GPA, 215 * GPA), nu=_p(0.29, 0.26, 0.32))),
+    (("glass",), Material(
+        "glass", ISOTROPIC, _p(2500, 2200, 2700),
+        e_pa=_p(70 * GPA, 60 * GPA, 90 * GPA), nu=_p(0.22, 0.18, 0.26))),
+]
+
+UNKNOWN = Material("unknown", ISOTROPIC, _p(2000, 500, 20000), e_pa=_p(20 * GPA, 1 * GPA, 250 * GPA),
+                   nu=_p(0.30, 0.15, 0.45), known=False,
+                   notes="not in the materials table: wide priors; declare `material_properties` to narrow them")
+
+
+def lookup(text: str) -> Material:
+    """The table's entry whose keywords occur in `text` (case-insensitive), else UNKNOWN."""
+    low = text.lower()
+    for keys, mat in TABLE:
+        if any(k in low for k in keys):
+            return mat
+    return UNKNOWN
+
+
+def _fibre_angle_from_words(text: str) -> float:
+    low = text.lower()
+    if re.search(r"along\s+(the\s+)?y\b", low):
+        return 90.0
+    return 0.0
+
+
+def _number(raw: dict, where: str, key: str, path) -> float:
+    v = raw.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise DataError(path, f"{where}.{key}", f"must be a finite number, got {v!r}")
+    return float(v)
+
+
+def material_for_rig(rig, path="rig.json") -> Material:
+    """The rig's plate material with its priors (optional `material_axes`, `material_properties`)."""
+    raw = getattr(rig, "raw", None) or {}
+    text = str(raw.get("plate_material", getattr(rig, "plate_material", "")))
+    mat = lookup(text)
+    axes = raw.get("material_axes")
+    if axes is not None:
+        if not isinstance(axes, dict) or "fibre_angle_deg" not in axes:
+            raise DataError(path, "material_axes", 'must be an object {"fibre_angle_deg": degrees}')
+        angle = _number(axes, "material_axes", "fibre_angle_deg", path)
+    else:
+        angle = _fibre_angle_from_words(text) if mat.orthotropic else 0.0
+    mat = replace(mat, axis_deg=angle)
+    props = raw.get("material_properties")
+    if props is not None:
+        if not isinstance(props, dict):
+            raise DataError(path, "material_properties", "must be an object of constants (SI units)")
+        if {"e1_pa", "e2_pa"} & set(props) and not mat.orthotropic:
+            iso_nu = mat.nu if mat.nu is not None else UNKNOWN.nu
+            mat = replace(mat, kind=ORTHOTROPIC, e_pa=None, nu=None, e1_pa=mat.e_pa or UNKNOWN.e_pa,
+                          e2_pa=mat.e_pa or UNKNOWN.e_pa, g12_pa=_p(5 * GPA, 0.5 * GPA, 100 * GPA), nu12=iso_nu)
+        allowed = set(mat.constants())
+        for key in props:
+            if key not in allowed:
+                raise DataError(path, f"material_properties.{key}",
+                                f"not a constant of a {mat.kind} plate ({', '.join(sorted(allowed))})")
+            value = _number(props, "material_properties", key, path)
+            if value <= 0:
+                raise DataError(path, f"material_properties.{key}", "must be positive")
+            mat = replace(mat, **{key: getattr(mat, key).pinned(value)})
+    return mat
+
+
+def density_warning(rig, mat: Material) -> str | None:
+    """A line when rig.json's density lies outside the material's range (a typo or another material)."""
+    rho = float(getattr(rig, "density_kg_m3", float("nan")))
+    p = mat.density_kg_m3
+    if mat.known and not (p.lo <= rho <= p.hi):
+        return (f"rig.json density_kg_m3 {rho:g} lies outside {p.lo:g}..{p.hi:g} for {mat.name}; "
+                "the declared density is used")
+    return None
+
+
+def flexural_group_velocity_mm_per_us(mat: Material, thickness_mm: float, density_kg_m3: float,
+                                      freq_hz: float, angle_deg: float = 0.0) -> float:
+    """Kirchhoff flexural (A0) group velocity 2 (D(theta) / rho h)^(1/4) sqrt(omega) of the typical values,
+    in the direction angle_deg from the plate's x axis; D(theta) ~ D11 cos^4 + (2 D12 + 4 D66) cos^2 sin^2
+    + D22 sin^4 in the material axes. A starting value for fits, not a measurement."""
+    h = thickness_mm * 1e-3
+    if mat.orthotropic:
+        e1, e2, g12, nu12 = (mat.e1_pa.value, mat.e2_pa.value, mat.g12_pa.value, mat.nu12.value)
+        nu21 = nu12 * e2 / e1
+        q = 1.0 - nu12 * nu21
+        d11, d22, d12, d66 = e1 / q, e2 / q, nu12 * e2 / q, g12
+        t = math.radians(angle_deg - mat.axis_deg)
+        c, s = math.cos(t), math.sin(t)
+        modulus = d11 * c ** 4 + (2 * d12 + 4 * d66) * c * c * s * s + d22 * s ** 4
+    else:
+        modulus = mat.e_pa.value / (1.0 - mat.nu.value ** 2)
+    d = modulus * h ** 3 / 12.0
+    return 2.0 * (d / (density_kg_m3 * h)) ** 0.25 * math.sqrt(2 * math.pi * freq_hz) * 1e-3
+
+
+__all__ = ["Prior", "Material", "TABLE", "UNKNOWN", "lookup", "material_for_rig", "density_warning",
+           "flexural_group_velocity_mm_per_us", "ISOTROPIC", "ORTHOTROPIC"]
