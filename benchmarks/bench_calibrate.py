@@ -78,10 +78,10 @@ def _study_drops(rig, over, cases, truth, seed, reps, prefix) -> dict:
     write_session(path, rig, x, y, h, np.asarray(adc), case_id=np.repeat(np.arange(n_cases), reps),
                   repetition=np.tile(np.arange(reps), n_cases))
     session = load_session(path)
-    cfg = pipeline.core_config(rig, CalibrateOptions())
+    cfg = pipeline.measured_core_config(rig, CalibrateOptions())
     feats = drops_mod.extract(session, cfg)
     targets = drops_mod.select_drops(session, feats)
-    return dict(x=x, y=y, h=h, xj=xj, yj=yj, session=session, cfg=cfg, cfg_sim=pipeline._sim_core_config(cfg),
+    return dict(x=x, y=y, h=h, xj=xj, yj=yj, session=session, cfg=cfg, cfg_sim=pipeline.sim_core_config(rig, CalibrateOptions()),
                 feats=feats, targets=targets, noise=(float(np.median(targets.noise_rms)), 4, 0, True),
                 meas=plate_fem.measured_targets(session, targets, feats, cfg, group_delays=True))
 
@@ -298,7 +298,7 @@ def position_scan(mesh_mm, workers) -> None:
     over = {} if mesh_mm is None else {"element_mm": mesh_mm}
     sim = fem.fem_simulator(workers=workers, **over)
     truth = dict(fem.base_params(rig, 3400.0, 0.31), damping_per_s=650.0)
-    cfg_sim = pipeline._sim_core_config(pipeline.core_config(rig, CalibrateOptions()))
+    cfg_sim = pipeline.sim_core_config(rig, CalibrateOptions())
     x0, y0 = np.array([70.0, 250.0, 90.0, 230.0]), np.array([80.0, 70.0, 240.0, 250.0])
     h = np.array([100.0, 110.0, 120.0, 105.0])
     offs = np.linspace(-1.5, 1.5, 13)

@@ -53,7 +53,7 @@ from importlib import resources
 import numpy as np
 
 from impactsense.calibration import drops as drops_mod, fem, group_delay, plate, plate_fem, plate_nu
-from impactsense.calibration.pipeline import CalibrateOptions, _sim_core_config, core_config, sim_features
+from impactsense.calibration.pipeline import CalibrateOptions, measured_core_config, sim_core_config, sim_features
 from impactsense.data import load_session, rig_from_dict
 
 
@@ -298,8 +298,8 @@ def main(argv=None):
     flat = {k: v if isinstance(v, str) else float(v) for k, v in cal["fitted"].items()}
     session = load_session(a.data)
     rig = session.rig
-    cfg = core_config(rig, CalibrateOptions())
-    cfg_sim = _sim_core_config(cfg)
+    cfg = measured_core_config(rig, CalibrateOptions())
+    cfg_sim = sim_core_config(rig, CalibrateOptions())
     feats = drops_mod.extract(session, cfg)
     cal_cases = [int(c) for c in cal["exclude_case_ids"]]
     rows, _ = drops_mod.case_table(session, feats)

@@ -17744,6 +17744,8 @@ const impactsense_twin_config impactsense_twin = {
 
 const impactsense_signal_config impactsense_signal = {
   50000.0f,
+  {0.0f, -0.654706836f, -7.43290854f, -6.19447422f},
+  {1.0f, 1.0f, 1.0f, 1.0f},
   64,
   10.0f,
   5.0f,
@@ -17756,12 +17758,10 @@ const impactsense_signal_config impactsense_signal = {
   0.928563535f,
   10.2394018f,
   4.0f,
-  5.0f,
-  10.0f,
-  320.0f,
-  317.0f,
   {30.0f, 290.0f, 290.0f, 30.0f},
   {33.0f, 33.0f, 284.0f, 284.0f},
-  {0.0f, -0.654706836f, -7.43290854f, -6.19447422f},
-  {1.0f, 1.0f, 1.0f, 1.0f}
+  320.0f,
+  317.0f,
+  5.0f,
+  10.0f
 };

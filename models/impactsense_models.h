@@ -53,18 +53,31 @@ extern const impactsense_site_map impactsense_twin_map;
 extern const impactsense_twin_config impactsense_twin;
 #endif
 
-// The model card's signal and localiser settings (sample counts at fs_hz, the training rate).
+// The model card's signal and localiser settings (impactcore.h's CoreConfig and LocaliserConfig fields but
+// the ADC rails; sample counts at fs_hz, the training rate; the role says how impactapp::exported_config
+// takes each one to the board's rate).
 typedef struct {
-  float fs_hz;
-  int32_t baseline_samples;
-  float onset_threshold_counts, onset_noise_factor;
-  int32_t aic_before, aic_after;
-  float aic_blend, dead_rms_counts, n2_fraction, diff_window_us;
-  float velocity_mm_per_us, sigma_us, huber_us, accept_tol_us, accept_margin_mm;
-  float plate_x_mm, plate_y_mm;
-  float sensor_x_mm[4], sensor_y_mm[4];
-  float channel_delay_us[4];  // the rig's measured channel delays (the board adds its scan delays)
-  float channel_gain[4];      // the rig's channel gains (amplitudes / g, energies / g^2)
+  float fs_hz;  // rate
+  float channel_delay_us[4];  // delay
+  float channel_gain[4];  // copy
+  int32_t baseline_samples;  // copy
+  float onset_threshold_counts;  // copy
+  float onset_noise_factor;  // copy
+  int32_t aic_before;  // samples
+  int32_t aic_after;  // samples
+  float aic_blend;  // copy
+  float dead_rms_counts;  // copy
+  float n2_fraction;  // copy
+  float diff_window_us;  // copy
+  float velocity_mm_per_us;  // copy
+  float sigma_us;  // copy
+  float huber_us;  // copy
+  float sensor_x_mm[4];  // copy
+  float sensor_y_mm[4];  // copy
+  float plate_x_mm;  // copy
+  float plate_y_mm;  // copy
+  float accept_tol_us;  // copy
+  float accept_margin_mm;  // copy
 } impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

@@ -60,10 +60,10 @@ def fem_calibration_drops(tmp_path, rig, truth, *, reps, element_mm=5.0, tol_us=
                               seed=5, progress=False)
 
     session = load_session(_session(tmp_path, rig, noisy, truth, n_cases=4, reps=reps))
-    cfg = pipeline.core_config(rig, pipeline.CalibrateOptions())
+    cfg = pipeline.measured_core_config(rig, pipeline.CalibrateOptions())
     feats = drops.extract(session, cfg)
     targets = drops.select_drops(session, feats, [0, 1, 2, 3], tol_us=tol_us)
-    return session, targets, feats, cfg, pipeline._sim_core_config(cfg), fem.fem_simulator(2, **mesh)
+    return session, targets, feats, cfg, pipeline.sim_core_config(rig, pipeline.CalibrateOptions()), fem.fem_simulator(2, **mesh)
 
 
 def _standin_noisy(truth, rig, x, y, h):
@@ -356,7 +356,7 @@ def test_decay_rate_of_a_known_exponential_envelope_under_noise():
     t = (np.arange(n) - onset) / fs
     f = rng.uniform(1e3, 20e3, 40)
     ph = rng.uniform(0, 2 * np.pi, 40)
-    cfg = pipeline._sim_core_config(pipeline.core_config(load_session(SESSION1).rig, pipeline.CalibrateOptions()))
+    cfg = pipeline.sim_core_config(load_session(SESSION1).rig, pipeline.CalibrateOptions())
     for lam in (250.0, 500.0):
         wave = np.sin(2 * np.pi * f[:, None] * t[None] + ph[:, None]).sum(axis=0) * 60.0
         x = np.where(t >= 0, wave * np.exp(-lam * np.clip(t, 0, None)), 0.0)
@@ -498,7 +498,7 @@ def test_fit_positions_finds_where_fem_drops_landed(rig):
     from impactsense.calibration import plate_fem
     sim_fn = fem.fem_simulator(workers=2, element_mm=5.0)
     truth = dict(fem.base_params(rig, TRUTH_E, TRUTH_NU), damping_per_s=TRUTH_DS)
-    cfg_sim = pipeline._sim_core_config(pipeline.core_config(rig, pipeline.CalibrateOptions()))
+    cfg_sim = pipeline.sim_core_config(rig, pipeline.CalibrateOptions())
 
     def at(x, y, h):
         return plate_fem.sim_observables(sim_fn(truth, rig, x, y, h), cfg_sim, group_delays=True)

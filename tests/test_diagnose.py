@@ -56,8 +56,10 @@ def _inject(session, name, sensor, params, seed=3):
     ctx = context(session)
     if name == "damping":   # the onset the envelope decays from: the core's pick on the clean recording
         from impactsense import _core
-        from impactsense.residuals import core_config
-        f = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), core_config())
+        from impactsense.residuals import TIMING_PICKER
+        from impactsense.signal import core_config
+        cfg = core_config(session.rig, **TIMING_PICKER)
+        f = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
         ctx["onset_samples"] = np.nan_to_num(np.asarray(f["toa_aic"], float))
     adc = EFFECTS[name].apply_signal(session.adc, sensor, params, ctx, rng=seed)
     return replace(session, adc=adc)

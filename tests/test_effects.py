@@ -13,6 +13,7 @@ from impactsense import residuals as R
 from impactsense.data import load_session
 from impactsense.effects import EFFECTS, context
 from impactsense.effects._base import frac_shift
+from impactsense.signal import core_config, settings
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +74,7 @@ def test_channel_delay_feeds_the_core(s1, ref_and_features):
     adc = eff.apply_signal(s1.adc, 3, {"delay_us": 30.0}, context(s1))
     F2 = R.extract(replace(s1, adc=adc))
     got = eff.fit(ref, F2, 3)
-    cfg = eff.core_config(R.core_config(), 3, got)
+    cfg = core_config(**eff.core_overrides(settings(s1.rig, **R.TIMING_PICKER), 3, got))
     toa = np.asarray(_core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), cfg)["toa_us"], float)
     shift = np.nanmedian(toa[:, 3] - F.toa_us[:, 3])
     assert abs(shift) <= 1.5
@@ -89,5 +90,5 @@ def test_diagnosed_effects_feed_core_and_recordings(s1, ref_and_features):
     F2 = R.extract(replace(s1, adc=adc))
     assert abs(np.nanmedian(F2.toa_us[:, 2] - F.toa_us[:, 2]) - 20.0) <= 1.0
     assert abs(np.nanmedian(F2.log_energy[:, 0] - F.log_energy[:, 0])) < 0.01   # not significant: not applied
-    cfg = core_config_with_effects(R.core_config(), effects)
+    cfg = core_config_with_effects(s1.rig, effects, **R.TIMING_PICKER)
     assert list(cfg.channel_delay_us) == [0.0, 0.0, 20.0, 0.0]

@@ -5,6 +5,7 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -301,6 +302,77 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   return out;
 }
 
+// --- configuration structs, expanded from impactcore.h's field lists (one source) ---
+
+template <typename T>
+const char* type_name();
+template <>
+const char* type_name<float>() { return "float"; }
+template <>
+const char* type_name<int>() { return "int"; }
+
+// Values a field must satisfy beyond its type (by name; most fields have none).
+void check_field(const char* name, const std::vector<float>& v) {
+  if (std::strcmp(name, "channel_gain") == 0) {
+    for (float g : v) {
+      if (!(g > 0.0f)) throw std::invalid_argument("channel_gain values must be positive");
+    }
+  }
+}
+void check_field(const char*, const std::vector<int>&) {}
+
+template <typename Cls, typename T>
+void bind_field(nb::class_<Cls>& cls, nb::list& table, const Cls& defaults, const char* name, const char* role,
+                T Cls::*member) {
+  cls.def_rw(name, member);
+  table.append(nb::make_tuple(name, type_name<T>(), 1, defaults.*member, role));
+}
+
+template <typename Cls, typename T, size_t N>
+void bind_field(nb::class_<Cls>& cls, nb::list& table, const Cls& defaults, const char* name, const char* role,
+                T (Cls::*member)[N]) {
+  cls.def_prop_rw(
+      name, [member](const Cls& c) { return std::vector<T>(c.*member, c.*member + N); },
+      [member, name](Cls& c, std::vector<T> v) {
+        if (v.size() != N) throw std::invalid_argument(std::string(name) + " needs 4 values");
+        check_field(name, v);
+        std::copy(v.begin(), v.end(), c.*member);
+      });
+  const T* d = defaults.*member;
+  table.append(nb::make_tuple(name, type_name<T>(), static_cast<int>(N), std::vector<T>(d, d + N), role));
+}
+
+// Binds every field of a config struct and returns its table: (name, type, count, default, role) per field,
+// in declaration order; the host builds SignalConfig, model cards and the exported C from it.
+#define IMPACTSENSE_BIND_FIELD(kind, type, name, def, role) \
+  bind_field(cls, table, defaults, #name, #role, &Config::name);
+
+template <typename Config>
+nb::list bind_config(nb::module_& m, const char* py_name);
+
+template <>
+nb::list bind_config<ic::CoreConfig>(nb::module_& m, const char* py_name) {
+  using Config = ic::CoreConfig;
+  nb::class_<Config> cls(m, py_name);
+  cls.def(nb::init<>());
+  nb::list table;
+  const Config defaults;
+  IMPACTCORE_CONFIG_FIELDS(IMPACTSENSE_BIND_FIELD)
+  return table;
+}
+
+template <>
+nb::list bind_config<ic::LocaliserConfig>(nb::module_& m, const char* py_name) {
+  using Config = ic::LocaliserConfig;
+  nb::class_<Config> cls(m, py_name);
+  cls.def(nb::init<>());
+  nb::list table;
+  const Config defaults;
+  IMPACTCORE_LOCALISER_FIELDS(IMPACTSENSE_BIND_FIELD)
+  return table;
+}
+#undef IMPACTSENSE_BIND_FIELD
+
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -317,63 +389,8 @@ NB_MODULE(_core, m) {
   m.attr("STATUS_NO_TRIGGER") = static_cast<int>(ic::kErrNoTrigger);
   m.def("status_name", &ic::status_name);
 
-  nb::class_<ic::CoreConfig>(m, "CoreConfig")
-      .def(nb::init<>())
-      .def_rw("fs_hz", &ic::CoreConfig::fs_hz)
-      .def_prop_rw(
-          "channel_delay_us",
-          [](const ic::CoreConfig& c) {
-            return std::vector<float>(c.channel_delay_us, c.channel_delay_us + ic::kChannels);
-          },
-          [](ic::CoreConfig& c, std::vector<float> v) {
-            four(v, "channel_delay_us");
-            std::memcpy(c.channel_delay_us, v.data(), sizeof(c.channel_delay_us));
-          })
-      .def_prop_rw(
-          "channel_gain",
-          [](const ic::CoreConfig& c) { return std::vector<float>(c.channel_gain, c.channel_gain + ic::kChannels); },
-          [](ic::CoreConfig& c, std::vector<float> v) {
-            four(v, "channel_gain");
-            for (float g : v) {
-              if (!(g > 0.0f)) throw std::invalid_argument("channel_gain values must be positive");
-            }
-            std::memcpy(c.channel_gain, v.data(), sizeof(c.channel_gain));
-          })
-      .def_rw("baseline_samples", &ic::CoreConfig::baseline_samples)
-      .def_rw("onset_threshold_counts", &ic::CoreConfig::onset_threshold_counts)
-      .def_rw("onset_noise_factor", &ic::CoreConfig::onset_noise_factor)
-      .def_rw("aic_before", &ic::CoreConfig::aic_before)
-      .def_rw("aic_after", &ic::CoreConfig::aic_after)
-      .def_rw("aic_blend", &ic::CoreConfig::aic_blend)
-      .def_rw("adc_min", &ic::CoreConfig::adc_min)
-      .def_rw("adc_max", &ic::CoreConfig::adc_max)
-      .def_rw("dead_rms_counts", &ic::CoreConfig::dead_rms_counts)
-      .def_rw("n2_fraction", &ic::CoreConfig::n2_fraction)
-      .def_rw("diff_window_us", &ic::CoreConfig::diff_window_us);
-
-  nb::class_<ic::LocaliserConfig>(m, "LocaliserConfig")
-      .def(nb::init<>())
-      .def_rw("velocity_mm_per_us", &ic::LocaliserConfig::velocity_mm_per_us)
-      .def_rw("sigma_us", &ic::LocaliserConfig::sigma_us)
-      .def_rw("huber_us", &ic::LocaliserConfig::huber_us)
-      .def_prop_rw(
-          "sensor_x_mm",
-          [](const ic::LocaliserConfig& c) { return std::vector<float>(c.sensor_x_mm, c.sensor_x_mm + 4); },
-          [](ic::LocaliserConfig& c, std::vector<float> v) {
-            four(v, "sensor_x_mm");
-            std::memcpy(c.sensor_x_mm, v.data(), sizeof(c.sensor_x_mm));
-          })
-      .def_prop_rw(
-          "sensor_y_mm",
-          [](const ic::LocaliserConfig& c) { return std::vector<float>(c.sensor_y_mm, c.sensor_y_mm + 4); },
-          [](ic::LocaliserConfig& c, std::vector<float> v) {
-            four(v, "sensor_y_mm");
-            std::memcpy(c.sensor_y_mm, v.data(), sizeof(c.sensor_y_mm));
-          })
-      .def_rw("plate_x_mm", &ic::LocaliserConfig::plate_x_mm)
-      .def_rw("plate_y_mm", &ic::LocaliserConfig::plate_y_mm)
-      .def_rw("accept_tol_us", &ic::LocaliserConfig::accept_tol_us)
-      .def_rw("accept_margin_mm", &ic::LocaliserConfig::accept_margin_mm);
+  m.attr("CORE_CONFIG_FIELDS") = bind_config<ic::CoreConfig>(m, "CoreConfig");
+  m.attr("LOCALISER_CONFIG_FIELDS") = bind_config<ic::LocaliserConfig>(m, "LocaliserConfig");
 
   m.attr("FEATURE_NAMES") = std::vector<std::string>(ic::kFeatureNames, ic::kFeatureNames + ic::kNumFeatures);
   m.def("process_batch", &process_batch, "adc"_a, "config"_a, "localiser"_a,

@@ -26,7 +26,8 @@ from sklearn.model_selection import GroupKFold
 from . import __version__
 from .data import MODEL_CARD_MISSING, read_json
 from .errors import DataError
-from .pipeline import FEATURE_NAMES, Features, SignalConfig
+from .pipeline import FEATURE_NAMES, Features
+from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty
 from .twin import estimate as twin_estimate

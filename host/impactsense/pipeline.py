@@ -1,89 +1,23 @@
 """recording -> signal core -> features: the host side of the one path through the data.
 
 Every number here comes from the C++ core (`impactsense._core`, compiled from firmware/lib/impactcore);
-this module only holds the configuration, fits the physics localiser's two constants (group velocity and
+this module fits the physics localiser's two constants (group velocity and
 per-channel delays) on training drops, and arranges the core's outputs as arrays.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from . import _core
-from .data import Rig, Session
+from .data import Session
+from .signal import SignalConfig
 
 FEATURE_NAMES: list[str] = list(_core.FEATURE_NAMES)
 PAIRS = list(zip(_core.PAIR_I, _core.PAIR_J))
-
-
-@dataclass
-class SignalConfig:
-    """Everything the core needs besides the samples; stored in every model card."""
-
-    fs_hz: float = 100000.0
-    channel_delay_us: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
-    channel_gain: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0, 1.0])
-    baseline_samples: int = 64
-    onset_threshold_counts: float = 10.0
-    onset_noise_factor: float = 5.0
-    aic_before: int = 60
-    aic_after: int = 12
-    aic_blend: float = 0.35
-    adc_min: int = 0
-    adc_max: int = 4095
-    dead_rms_counts: float = 3.0
-    n2_fraction: float = 0.99
-    diff_window_us: float = 2500.0
-    # physics localiser
-    velocity_mm_per_us: float = 0.93
-    sigma_us: float = 2.0
-    huber_us: float = 4.0
-    accept_tol_us: float = 5.0
-    accept_margin_mm: float = 10.0
-    sensor_x_mm: list[float] = field(default_factory=lambda: [30.0, 290.0, 290.0, 30.0])
-    sensor_y_mm: list[float] = field(default_factory=lambda: [33.0, 33.0, 284.0, 284.0])
-    plate_x_mm: float = 320.0
-    plate_y_mm: float = 317.0
-
-    @classmethod
-    def for_rig(cls, rig: Rig, **overrides) -> "SignalConfig":
-        cfg = cls(fs_hz=float(rig.fs_hz), adc_max=rig.adc_max,
-                  sensor_x_mm=[float(v) for v in rig.sensor_x_mm],
-                  sensor_y_mm=[float(v) for v in rig.sensor_y_mm],
-                  plate_x_mm=rig.plate_x_mm, plate_y_mm=rig.plate_y_mm)
-        for k, v in overrides.items():
-            setattr(cfg, k, v)
-        return cfg
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "SignalConfig":
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def core(self) -> "_core.CoreConfig":
-        c = _core.CoreConfig()
-        for name in ("fs_hz", "channel_delay_us", "channel_gain", "baseline_samples", "onset_threshold_counts",
-                     "onset_noise_factor", "aic_before", "aic_after", "aic_blend", "adc_min",
-                     "adc_max", "dead_rms_counts", "n2_fraction", "diff_window_us"):
-            setattr(c, name, getattr(self, name))
-        return c
-
-    def localiser(self) -> "_core.LocaliserConfig":
-        c = _core.LocaliserConfig()
-        for name in ("velocity_mm_per_us", "sigma_us", "huber_us", "sensor_x_mm", "sensor_y_mm",
-                     "plate_x_mm", "plate_y_mm", "accept_tol_us", "accept_margin_mm"):
-            setattr(c, name, getattr(self, name))
-        return c
-
-    @property
-    def sensor_xy_mm(self) -> np.ndarray:
-        return np.stack([self.sensor_x_mm, self.sensor_y_mm], axis=1)
 
 
 @dataclass

@@ -24,22 +24,20 @@ import numpy as np
 
 from . import _core
 from .data import Session
+from .signal import core_config
 
 PAIR_I = np.array([0, 0, 0, 1, 1, 2])
 PAIR_J = np.array([1, 2, 3, 2, 3, 3])
 HUM_HZ = (50.0, 60.0)
-CENTROID_SAMPLES = 200      # 2 ms window after the onset
-DECAY_BLOCKS = (100, 800, 100)  # envelope blocks (samples after onset): 1 .. 8 ms
-TAIL_START = 2500           # samples: tail used for the hum lock-in (signal decayed by e^-10)
+CENTROID_S = 2e-3           # spectral-centroid window after the onset
+CENTROID_LEAD_S = 5e-5      # ... starting this long before the onset
+DECAY_BLOCKS_S = (1e-3, 8e-3, 1e-3)  # envelope blocks after the onset: start, stop, width
+TAIL_START_S = 25e-3        # tail used for the hum lock-in (signal decayed by e^-10)
 PLATEAU_SAMPLES = 4         # equal consecutive samples at the extreme that mark clipping
 
 
-def core_config(delays_us=None) -> "_core.CoreConfig":
-    cfg = _core.CoreConfig()
-    cfg.aic_blend = 1.0
-    if delays_us is not None:
-        cfg.channel_delay_us = [float(v) for v in delays_us]
-    return cfg
+# The core's picker for timing residuals (overrides for signal.core_config): the AIC onset, no delay removed.
+TIMING_PICKER = {"aic_blend": 1.0, "channel_delay_us": [0.0, 0.0, 0.0, 0.0]}
 
 
 @dataclass
@@ -94,15 +92,17 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     a = adc.astype(np.float32) - bias
     r, c, n = a.shape
     on = np.clip(np.nan_to_num(onset_samples, nan=0).astype(int), 0, n - 1)
-    # centroid of the first CENTROID_SAMPLES after the onset
-    idx = np.clip(on[..., None] - 5 + np.arange(CENTROID_SAMPLES), 0, n - 1)
+    samples = lambda s: int(round(s * fs_hz))  # noqa: E731
+    # centroid of the first CENTROID_S after the onset
+    m = samples(CENTROID_S)
+    idx = np.clip(on[..., None] - samples(CENTROID_LEAD_S) + np.arange(m), 0, n - 1)
     seg = np.take_along_axis(a, idx, axis=2)
     seg = seg - seg.mean(axis=2, keepdims=True)
-    p = np.abs(np.fft.rfft(seg * np.hanning(CENTROID_SAMPLES), axis=2)) ** 2
-    f = np.fft.rfftfreq(CENTROID_SAMPLES, 1.0 / fs_hz)
+    p = np.abs(np.fft.rfft(seg * np.hanning(m), axis=2)) ** 2
+    f = np.fft.rfftfreq(m, 1.0 / fs_hz)
     centroid = (p * f).sum(axis=2) / np.maximum(p.sum(axis=2), 1e-12)
     # decay: slope of the log RMS envelope in blocks
-    b0, b1, bw = DECAY_BLOCKS
+    b0, b1, bw = (samples(v) for v in DECAY_BLOCKS_S)
     starts = np.arange(b0, b1, bw)
     offsets = (starts[:, None] + np.arange(bw)[None, :]).reshape(-1)
     idx = np.clip(on[..., None] + offsets, 0, n - 1)
@@ -112,7 +112,7 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     tc = t - t.mean()
     decay = -(env * tc).sum(axis=2) / (tc ** 2).sum()
     # hum: least-squares lock-in at 50 and 60 Hz over the tail (with offset and trend)
-    tail = a[:, :, TAIL_START:]
+    tail = a[:, :, samples(TAIL_START_S):]
     tt = np.arange(tail.shape[2]) / fs_hz
     cols = [np.ones_like(tt), tt - tt.mean()]
     for hz in HUM_HZ:
@@ -127,9 +127,7 @@ def extract(session: Session) -> Features:
     """Features of every drop of a session: core features (AIC onset) plus host diagnostics."""
     rig = session.rig
     adc16 = np.ascontiguousarray(session.adc.astype(np.int16))
-    cfg = core_config()
-    cfg.adc_max = rig.adc_max
-    f = _core.extract_batch(adc16, cfg)
+    f = _core.extract_batch(adc16, core_config(rig, **TIMING_PICKER))
     toa = np.asarray(f["toa_us"], float)
     onset = np.asarray(f["toa_aic"], float)
     logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts))

@@ -21,7 +21,8 @@ import numpy as np
 
 from . import _core
 from .errors import DataError
-from .pipeline import SignalConfig, featurize
+from .pipeline import featurize
+from .signal import SignalConfig
 
 MISSING = int(_core.SITE_MAP_MISSING)
 N_FEATURES = int(_core.TWIN_FEATURES)

@@ -10,7 +10,8 @@ import numpy as np
 from .data import Session
 from .metrics import region_metrics
 from .models import ForestSettings, ImpactModel, impact_energy_j
-from .pipeline import SignalConfig, featurize, fit_localiser
+from .pipeline import featurize, fit_localiser
+from .signal import SignalConfig
 from .split import case_split
 
 

@@ -49,7 +49,8 @@ from scipy.stats import spearmanr
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
-from .pipeline import SignalConfig, distances_mm, featurize
+from .pipeline import distances_mm, featurize
+from .signal import SignalConfig
 from .split import case_split
 from .workflow import evaluate, train
 

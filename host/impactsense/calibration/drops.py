@@ -16,19 +16,9 @@ import numpy as np
 
 from .. import _core
 from ..errors import ConfigError, DataError
+from ..signal import core_config
 
 BAD_FLAGS = _core.FLAG_CLIPPED | _core.FLAG_DEAD | _core.FLAG_NO_ONSET
-
-
-def core_config(rig):
-    """The signal-core configuration for a rig (sample rate, ADC rails, channel delays if declared)."""
-    cfg = _core.CoreConfig()
-    cfg.fs_hz = float(rig.fs_hz)
-    cfg.adc_max = int(rig.adc_max)
-    delays = rig.raw.get("channel_delay_us") if isinstance(rig.raw, dict) else None
-    if delays is not None:
-        cfg.channel_delay_us = [float(d) for d in delays]
-    return cfg
 
 
 def extract(session, cfg=None) -> dict:

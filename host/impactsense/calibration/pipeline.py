@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
+from ..signal import core_config
 from ..data import load_session
 from ..errors import ConfigError
 from . import arrival, damping, disc_bond, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
@@ -157,23 +158,26 @@ def _read_cache(path: Path, key: str):
     return None
 
 
-def core_config(rig, opts: CalibrateOptions):
-    cfg = drops_mod.core_config(rig)
-    cfg.aic_blend = float(opts.aic_blend)
+def picker_overrides(opts: CalibrateOptions) -> dict:
+    """The calibration's choices for the core's picker (signal.core_config overrides): its AIC blend and, when
+    given, the channel delays."""
+    out = {"aic_blend": float(opts.aic_blend)}
     if opts.channel_delay_us is not None:
         if len(opts.channel_delay_us) != 4:
             raise ConfigError("--channel-delay-us needs four values (microseconds, channel 0..3)")
-        cfg.channel_delay_us = [float(v) for v in opts.channel_delay_us]
-    return cfg
+        out["channel_delay_us"] = [float(v) for v in opts.channel_delay_us]
+    return out
 
 
-def _sim_core_config(cfg):
-    """Config for simulated signals: same picker, no channel delays (the simulator samples simultaneously)."""
-    c = _core.CoreConfig()
-    for k in ("fs_hz", "baseline_samples", "onset_threshold_counts", "onset_noise_factor", "aic_before",
-              "aic_after", "aic_blend", "adc_min", "adc_max", "dead_rms_counts", "n2_fraction"):
-        setattr(c, k, getattr(cfg, k))
-    return c
+def measured_core_config(rig, opts: CalibrateOptions):
+    """The core's configuration for the rig's recordings."""
+    return core_config(rig, **picker_overrides(opts))
+
+
+def sim_core_config(rig, opts: CalibrateOptions):
+    """The core's configuration for simulated recordings: the same picker, no channel delays (the simulator
+    samples every channel at once)."""
+    return core_config(rig, **{**picker_overrides(opts), "channel_delay_us": [0.0, 0.0, 0.0, 0.0]})
 
 
 def sim_features(adc_u16, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
@@ -226,8 +230,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     clock = StageClock()
     session = load_session(data)
     rig = session.rig
-    cfg = core_config(rig, opts)
-    cfg_sim = _sim_core_config(cfg)
+    cfg = measured_core_config(rig, opts)
+    cfg_sim = sim_core_config(rig, opts)
     if simulate is None and opts.fem:
         simulate = fem.fem_simulator(workers=opts.workers)
     stem = out.with_suffix("")

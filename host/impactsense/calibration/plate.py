@@ -14,6 +14,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from .. import _core
+from ..signal import config_dict, core_config
 from . import arrival
 
 PAIR_I = np.array(_core.PAIR_I)
@@ -40,7 +41,7 @@ def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu, noise_counts=0.0, n_
     The rig's noise (`noise_counts` rms) is added before picking, `n_noise` seeded realisations (the same for
     every plate: common random numbers keep the loss surface smooth) and the ToAs averaged: the AIC onset of
     a noiseless record is not the onset the picker finds in a real one."""
-    cfg = _apply_state(_core.CoreConfig(), cfg_state)
+    cfg = core_config(**{k: v for k, v in cfg_state.items() if k != "bias"})
     unit = arrival.synth_unit(setup, np.asarray(e_mpa) * 1e6, np.asarray(nu))
     peak_unit = np.abs(unit).max(axis=-1)
     gain = peak[None] / np.where(peak_unit > 0, peak_unit, 1.0)
@@ -58,20 +59,12 @@ def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu, noise_counts=0.0, n_
 
 
 def cfg_state(cfg, bias):
-    return {"fs_hz": cfg.fs_hz, "channel_delay_us": list(cfg.channel_delay_us), "adc_max": cfg.adc_max,
-            "baseline_samples": cfg.baseline_samples, "onset_threshold_counts": cfg.onset_threshold_counts,
-            "onset_noise_factor": cfg.onset_noise_factor, "aic_blend": cfg.aic_blend, "bias": bias}
+    """The core's configuration and the ADC bias as a picklable dict (for the worker processes)."""
+    return {**config_dict(cfg), "bias": bias}
 
 
 def _chunk_task(args):
     return fast_loss(*args)[0]
-
-
-def _apply_state(cfg, state):
-    for k, v in state.items():
-        if k != "bias":
-            setattr(cfg, k, v)
-    return cfg
 
 
 def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,

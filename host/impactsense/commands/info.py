@@ -18,7 +18,8 @@ def register(sub) -> None:
 def summarise(session) -> dict:
     import numpy as np
 
-    from ..pipeline import SignalConfig, featurize
+    from ..pipeline import featurize
+    from ..signal import SignalConfig
 
     feats = featurize(session.adc, SignalConfig.for_rig(session.rig))
     noise = feats.raw["noise_rms"]

@@ -25,7 +25,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..pipeline import SignalConfig
+    from ..signal import SignalConfig
     from ..sitemap import build_site_map
     from .simulate import load_inputs
 

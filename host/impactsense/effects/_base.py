@@ -5,7 +5,7 @@ An effect is a parameterised addition to the reference model (`impactsense.resid
 - `add(ref, sensor, params)` returns the reference with the effect added (the model the loop keeps);
 - `apply_signal(adc, sensor, params, ctx, rng)` puts the effect into raw recordings (uint16 [R, 4, S]):
   used to inject effects in tests and by the simulator path;
-- `core_config(cfg, sensor, params)` feeds the signal core where the effect is a picker correction;
+- `core_overrides(values, sensor, params)` feeds the signal core's settings where the effect is a picker correction;
 - `material(params)` says whether the size is worth acting on (the rig tolerance stated per effect).
 """
 
@@ -40,8 +40,9 @@ class Effect(ABC):
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
         """Every effect implements this (see the module docstring)."""
 
-    def core_config(self, cfg, sensor, params):
-        return cfg
+    def core_overrides(self, values: dict, sensor, params) -> dict:
+        """The core's settings (signal.settings) with this effect's picker correction; most have none."""
+        return values
 
     def material(self, params) -> bool:
         return True

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _core
+from ..residuals import TIMING_PICKER
+from ..signal import core_config, settings
 from . import EFFECTS
 from ._base import context
 
@@ -18,12 +21,10 @@ def _significant(effects):
 
 def apply_effects(adc: np.ndarray, effects, ctx: dict, seed=0) -> np.ndarray:
     """Recordings (uint16 [R, 4, S]) with each effect's signal model applied in turn."""
-    from .. import _core
-    from ..residuals import core_config
-
     for e in _significant(effects):
         if e["effect"] == "damping":
-            f = _core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), core_config())
+            cfg = core_config(fs_hz=ctx["fs_hz"], adc_max=ctx["adc_max"], **TIMING_PICKER)
+            f = _core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), cfg)
             ctx = {**ctx, "onset_samples": np.nan_to_num(np.asarray(f["toa_aic"], float))}
         adc = EFFECTS[e["effect"]].apply_signal(adc, e["sensor"], e["params"], ctx, rng=seed)
     return adc
@@ -42,11 +43,13 @@ def simulate_with_effects(sim_params, rig, x_mm, y_mm, height_mm, effects, *, no
     return apply_effects(adc, effects, ctx, seed)
 
 
-def core_config_with_effects(cfg, effects):
-    """CoreConfig with the picker corrections of the effects (channel delays) added."""
+def core_config_with_effects(rig, effects, **overrides):
+    """The core's CoreConfig for `rig` (signal.core_config with `overrides`) with the picker corrections of the
+    effects (channel delays) added."""
+    values = settings(rig, **overrides)
     for e in _significant(effects):
-        cfg = EFFECTS[e["effect"]].core_config(cfg, e["sensor"], e["params"])
-    return cfg
+        values = EFFECTS[e["effect"]].core_overrides(values, e["sensor"], e["params"])
+    return core_config(**values)
 
 
 __all__ = ["apply_effects", "simulate_with_effects", "core_config_with_effects", "context"]

@@ -30,11 +30,10 @@ class ChannelDelay(Effect):
         s[:, sensor] = params["delay_us"]
         return shift_channels(adc, s, ctx)
 
-    def core_config(self, cfg, sensor, params):
-        d = list(cfg.channel_delay_us)
+    def core_overrides(self, values, sensor, params):
+        d = list(values["channel_delay_us"])
         d[sensor] += params["delay_us"]
-        cfg.channel_delay_us = d
-        return cfg
+        return {**values, "channel_delay_us": d}
 
     def material(self, params):
         return abs(params["delay_us"]) >= self.min_delay_us

@@ -249,7 +249,8 @@ def held_out_rows(card: dict):
 def held_out_features(card: dict):
     """(Features, true xy [R, 2], heights [R]) of the card's held-out drops (all drops if it lists none) as
     the model sees them: a board-rate model's through the emulated board's captures."""
-    from ..pipeline import SignalConfig, featurize
+    from ..pipeline import featurize
+    from ..signal import SignalConfig
 
     s, rows = held_out_rows(card)
     rows = np.arange(len(s)) if rows is None else rows

@@ -78,7 +78,7 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig), sample
     counts scaled from the training rate to the board's, the board rate and the SAADC scan delays (what
     impactapp_models.h does on the board)."""
-    from ..pipeline import SignalConfig
+    from ..signal import SignalConfig
 
     cfg = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
     scale = fs_hz / float(cfg.fs_hz)

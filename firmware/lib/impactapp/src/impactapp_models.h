@@ -61,32 +61,31 @@ inline TableModels exported_models() {
 #endif
 }
 
-// The signal and localiser settings of the model card, with sample counts scaled to the board rate.
+// How the board takes one field of the model card (impactcore.h's roles): a plain copy, a sample count
+// scaled from the training rate to the board's, the rig's channel delays (configure() adds the scan's).
+template <typename T>
+inline void take_copy(T& dst, const T& src) { dst = src; }
+template <typename T, int N>
+inline void take_copy(T (&dst)[N], const T (&src)[N]) {
+  for (int c = 0; c < N; ++c) dst[c] = src[c];
+}
+inline void take_samples(int& dst, int src, float scale) { dst = static_cast<int>(src * scale + 0.5f); }
+
+#define IMPACTAPP_TAKE_COPY(dst, src) take_copy(dst, src);
+#define IMPACTAPP_TAKE_SAMPLES(dst, src) take_samples(dst, src, scale);
+#define IMPACTAPP_TAKE_DELAY(dst, src) take_copy(cfg.rig_delay_us, src);
+#define IMPACTAPP_TAKE_RATE(dst, src)         // the board samples at its own rate (cfg.fs_hz)
+#define IMPACTAPP_TAKE_ACQUISITION(dst, src)  // the board's own ADC; not in the card
+#define IMPACTAPP_TAKE_CORE(kind, type, name, def, role) IMPACTAPP_TAKE_##role(cfg.core.name, s.name)
+#define IMPACTAPP_TAKE_LOC(kind, type, name, def, role) IMPACTAPP_TAKE_##role(cfg.loc.name, s.name)
+
+// The signal and localiser settings of the model card (every field of impactcore.h's lists), with sample
+// counts scaled to the board rate.
 inline AppConfig exported_config(AppConfig cfg) {
   const impactsense_signal_config& s = impactsense_signal;
   const float scale = static_cast<float>(cfg.fs_hz) / s.fs_hz;
-  cfg.core.baseline_samples = s.baseline_samples;
-  cfg.core.onset_threshold_counts = s.onset_threshold_counts;
-  cfg.core.onset_noise_factor = s.onset_noise_factor;
-  cfg.core.aic_before = static_cast<int>(s.aic_before * scale + 0.5f);
-  cfg.core.aic_after = static_cast<int>(s.aic_after * scale + 0.5f);
-  cfg.core.aic_blend = s.aic_blend;
-  cfg.core.dead_rms_counts = s.dead_rms_counts;
-  cfg.core.n2_fraction = s.n2_fraction;
-  cfg.core.diff_window_us = s.diff_window_us;
-  cfg.loc.velocity_mm_per_us = s.velocity_mm_per_us;
-  cfg.loc.sigma_us = s.sigma_us;
-  cfg.loc.huber_us = s.huber_us;
-  cfg.loc.accept_tol_us = s.accept_tol_us;
-  cfg.loc.accept_margin_mm = s.accept_margin_mm;
-  for (int c = 0; c < 4; ++c) {
-    cfg.rig_delay_us[c] = s.channel_delay_us[c];
-    cfg.core.channel_gain[c] = s.channel_gain[c];
-    cfg.loc.sensor_x_mm[c] = s.sensor_x_mm[c];
-    cfg.loc.sensor_y_mm[c] = s.sensor_y_mm[c];
-  }
-  cfg.loc.plate_x_mm = s.plate_x_mm;
-  cfg.loc.plate_y_mm = s.plate_y_mm;
+  IMPACTCORE_CONFIG_FIELDS(IMPACTAPP_TAKE_CORE)
+  IMPACTCORE_LOCALISER_FIELDS(IMPACTAPP_TAKE_LOC)
   return cfg;
 }
 

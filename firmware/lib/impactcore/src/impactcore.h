@@ -47,22 +47,59 @@ enum ChannelFlag : uint8_t {
   kFlagAicFallback = 1u << 3,  // AIC refinement failed; threshold pick kept
 };
 
+// --- configuration: every field, its type, default and board role, declared once ---
+//
+// IMPACTCORE_CONFIG_FIELDS(X) and IMPACTCORE_LOCALISER_FIELDS(X) list the fields of CoreConfig and
+// LocaliserConfig as X(kind, type, name, default, role). The structs below, the Python binding
+// (host/bindings/core_bindings.cpp: attributes and the field tables CORE_CONFIG_FIELDS /
+// LOCALISER_CONFIG_FIELDS) and, through them, the host's SignalConfig, model cards and the C the exporter
+// writes for the board (impactsense_signal_config, copied by impactapp::exported_config) all expand these
+// lists: adding a field is one line here.
+//   kind    ONE (a scalar) or PER_CHANNEL (kChannels values; default is a parenthesised list)
+//   type    float or int
+//   role    how the board takes the field from a model card trained at another sample rate:
+//           RATE       the sample rate itself (the card's is the training rate; the board runs its own)
+//           ACQUISITION set by the acquisition that made the samples (ADC rails), not by the card
+//           DELAY      the rig's channel delays (the board adds its capture's own; impactapp.cpp)
+//           SAMPLES    a sample count at the training rate, scaled to the board's rate
+//           COPY       taken as is
+#define IMPACTCORE_CONFIG_FIELDS(X)                                                                      \
+  X(ONE, float, fs_hz, 100000.0f, RATE)  /* per-channel sample rate */                                 \
+  X(PER_CHANNEL, float, channel_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), DELAY) /* known sampling delay of  \
+    each channel (scan order); removed from the ToA */                                                   \
+  X(PER_CHANNEL, float, channel_gain, (1.0f, 1.0f, 1.0f, 1.0f), COPY) /* sensor/front-end gain g:       \
+    amplitudes / g, energies / g^2, onset threshold x g */                                               \
+  X(ONE, int, baseline_samples, 64, COPY)  /* samples at the capture start for baseline and noise */   \
+  X(ONE, float, onset_threshold_counts, 10.0f, COPY)  /* |x| above baseline: a channel's arrival */     \
+  X(ONE, float, onset_noise_factor, 5.0f, COPY)  /* ... or this many noise RMS, whichever is larger */  \
+  X(ONE, int, aic_before, 60, SAMPLES)  /* AIC window: samples before the threshold crossing */          \
+  X(ONE, int, aic_after, 12, SAMPLES)  /* ... and after it */                                           \
+  X(ONE, float, aic_blend, 0.35f, COPY)  /* 0: ToA = threshold crossing; 1: sub-sample AIC onset */    \
+  X(ONE, int, adc_min, 0, ACQUISITION)  /* rails for clipping detection (counts) */                     \
+  X(ONE, int, adc_max, 4095, ACQUISITION)                                                               \
+  X(ONE, float, dead_rms_counts, 3.0f, COPY)  /* post-onset RMS below this: the channel is dead */      \
+  X(ONE, float, n2_fraction, 0.99f, COPY)  /* n2: cumulative energy reaches this fraction */            \
+  X(ONE, float, diff_window_us, 2500.0f, COPY)  /* difference energies: ToA .. min(n2, ToA + this);     \
+    0 = up to n2 */
+
+#define IMPACTCORE_LOCALISER_FIELDS(X)                                                                   \
+  X(ONE, float, velocity_mm_per_us, 0.93f, COPY)  /* fitted group velocity of the picked arrival */     \
+  X(ONE, float, sigma_us, 2.0f, COPY)  /* ToA uncertainty for the covariance */                         \
+  X(ONE, float, huber_us, 4.0f, COPY)  /* robust-loss threshold */                                      \
+  X(PER_CHANNEL, float, sensor_x_mm, (30.0f, 290.0f, 290.0f, 30.0f), COPY)                               \
+  X(PER_CHANNEL, float, sensor_y_mm, (33.0f, 33.0f, 284.0f, 284.0f), COPY)                               \
+  X(ONE, float, plate_x_mm, 320.0f, COPY)                                                               \
+  X(ONE, float, plate_y_mm, 317.0f, COPY)                                                               \
+  X(ONE, float, accept_tol_us, 5.0f, COPY)  /* acceptance rule: tolerance on ToA */                     \
+  X(ONE, float, accept_margin_mm, 10.0f, COPY)  /* ... only pairs whose distances differ this much */
+
+#define IMPACTCORE_UNPAREN(...) __VA_ARGS__
+#define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
+#define IMPACTCORE_DECLARE_PER_CHANNEL(type, name, def) type name[kChannels] = {IMPACTCORE_UNPAREN def};
+#define IMPACTCORE_DECLARE(kind, type, name, def, role) IMPACTCORE_DECLARE_##kind(type, name, def)
+
 struct CoreConfig {
-  float fs_hz = 100000.0f;            // per-channel sample rate
-  float channel_delay_us[kChannels] = {0, 0, 0, 0};  // known sampling delay of each channel (scan order)
-  float channel_gain[kChannels] = {1, 1, 1, 1};      // sensor/front-end gain g: amplitudes / g,
-                                                     // energies / g^2, onset threshold x g
-  int baseline_samples = 64;          // samples at the start of the capture used for baseline and noise
-  float onset_threshold_counts = 10;  // |x| above baseline that marks a channel's first arrival
-  float onset_noise_factor = 5;       // ... or this many noise RMS, whichever is larger
-  int aic_before = 60;                // AIC window: samples before the threshold crossing
-  int aic_after = 12;                 // ... and after it
-  float aic_blend = 0.35f;            // 0: ToA = threshold crossing; 1: ToA = sub-sample AIC onset
-  int adc_min = 0;                    // rails for clipping detection (counts)
-  int adc_max = 4095;
-  float dead_rms_counts = 3.0f;       // a channel whose post-onset RMS is below this is dead
-  float n2_fraction = 0.99f;          // n2: cumulative energy reaches this fraction of the total
-  float diff_window_us = 2500.0f;     // difference energies: ToA .. min(n2, ToA + this); 0 = up to n2
+  IMPACTCORE_CONFIG_FIELDS(IMPACTCORE_DECLARE)
 };
 
 struct ChannelFeatures {
@@ -244,15 +281,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
 // --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---
 
 struct LocaliserConfig {
-  float velocity_mm_per_us = 0.93f;   // fitted group velocity of the picked arrival
-  float sigma_us = 2.0f;              // ToA uncertainty for the covariance
-  float huber_us = 4.0f;              // robust-loss threshold
-  float sensor_x_mm[kChannels] = {30.0f, 290.0f, 290.0f, 30.0f};
-  float sensor_y_mm[kChannels] = {33.0f, 33.0f, 284.0f, 284.0f};
-  float plate_x_mm = 320.0f;
-  float plate_y_mm = 317.0f;
-  float accept_tol_us = 5.0f;         // Eq. 35 tolerance on ToA
-  float accept_margin_mm = 10.0f;     // Eq. 35: only pairs whose distances differ by this much
+  IMPACTCORE_LOCALISER_FIELDS(IMPACTCORE_DECLARE)
 };
 
 // The model feature vector, in this order (names in kFeatureNames):

@@ -1,0 +1,155 @@
+"""The signal core's configuration on the host: declared once in C++, built in one place.
+
+The fields of the core's `CoreConfig` and `LocaliserConfig` (name, type, default, board role) are declared
+once, in firmware/lib/impactcore/src/impactcore.h (`IMPACTCORE_CONFIG_FIELDS`,
+`IMPACTCORE_LOCALISER_FIELDS`); the binding hands them over as tables (`_core.CORE_CONFIG_FIELDS`,
+`_core.LOCALISER_CONFIG_FIELDS`). From them this module makes:
+
+- `SignalConfig`: one attribute per field, the form stored in every model card (`to_dict` / `from_dict`);
+- `core_config(rig, **overrides)` and `localiser_config(rig, **overrides)`: the core's structs, filled from the
+  defaults, then what the rig declares (`rig_settings`), then the overrides (a model card's signal settings,
+  a calibration's picker choice, diagnosed delays). Every caller on the host builds the core's
+  configuration through these two functions.
+
+Adding a field to the core is one line in impactcore.h: it then appears here, in model cards, in the C the
+exporter writes for the board and in the board's copy of it (impactapp::exported_config).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, make_dataclass
+
+import numpy as np
+
+from . import _core
+
+
+@dataclass(frozen=True)
+class ConfigField:
+    """One field of the core's configuration, as impactcore.h declares it."""
+
+    name: str
+    type: str               # "float" or "int"
+    count: int              # 1, or CHANNELS for a per-channel field
+    default: object         # float | int | list of those
+    role: str               # RATE, ACQUISITION, DELAY, SAMPLES or COPY (impactcore.h explains them)
+
+    @property
+    def c_type(self) -> str:
+        return "float" if self.type == "float" else "int32_t"
+
+    def value(self, v):
+        """`v` as this field's Python type (a list for per-channel fields); ValueError naming the field."""
+        cast = float if self.type == "float" else int
+        if self.count == 1:
+            return cast(v)
+        v = list(v)
+        if len(v) != self.count:
+            raise ValueError(f"{self.name} needs {self.count} values, got {len(v)}")
+        return [cast(x) for x in v]
+
+
+def _decimal(v, type_: str):
+    """The default as written in impactcore.h: float32 values back to their shortest decimal (0.35f -> 0.35)."""
+    if isinstance(v, (list, tuple)):
+        return [_decimal(x, type_) for x in v]
+    return float(str(np.float32(v))) if type_ == "float" else int(v)
+
+
+def _fields(table) -> tuple[ConfigField, ...]:
+    return tuple(ConfigField(str(n), str(t), int(c), _decimal(d, str(t)), str(r)) for n, t, c, d, r in table)
+
+
+CORE_FIELDS: tuple[ConfigField, ...] = _fields(_core.CORE_CONFIG_FIELDS)
+LOCALISER_FIELDS: tuple[ConfigField, ...] = _fields(_core.LOCALISER_CONFIG_FIELDS)
+FIELDS: dict[str, ConfigField] = {f.name: f for f in CORE_FIELDS + LOCALISER_FIELDS}
+
+
+def rig_settings(rig) -> dict:
+    """What a rig's rig.json decides: sample rate, ADC rail, sensor and plate geometry, declared channel
+    delays (optional key `channel_delay_us`)."""
+    d = {"fs_hz": float(rig.fs_hz), "adc_max": int(rig.adc_max),
+         "sensor_x_mm": [float(v) for v in rig.sensor_x_mm], "sensor_y_mm": [float(v) for v in rig.sensor_y_mm],
+         "plate_x_mm": float(rig.plate_x_mm), "plate_y_mm": float(rig.plate_y_mm)}
+    delays = rig.raw.get("channel_delay_us") if isinstance(getattr(rig, "raw", None), dict) else None
+    if delays is not None:
+        d["channel_delay_us"] = [float(v) for v in delays]
+    return d
+
+
+def settings(rig=None, **overrides) -> dict:
+    """Every field's value: impactcore.h's default, then the rig's (`rig_settings`), then `overrides`."""
+    unknown = sorted(set(overrides) - set(FIELDS))
+    if unknown:
+        raise TypeError(f"not fields of the core's configuration: {', '.join(unknown)}")
+    values = {name: f.default for name, f in FIELDS.items()}
+    if rig is not None:
+        values.update(rig_settings(rig))
+    values.update(overrides)
+    return {name: FIELDS[name].value(v) for name, v in values.items()}
+
+
+def _fill(obj, fields, values: dict):
+    for f in fields:
+        setattr(obj, f.name, values[f.name])
+    return obj
+
+
+def core_config(rig=None, **overrides) -> "_core.CoreConfig":
+    """The core's CoreConfig for `rig` (None: impactcore.h's defaults) with `overrides` (field=value)."""
+    return _fill(_core.CoreConfig(), CORE_FIELDS, settings(rig, **overrides))
+
+
+def localiser_config(rig=None, **overrides) -> "_core.LocaliserConfig":
+    """The core's LocaliserConfig for `rig` with `overrides` (field=value)."""
+    return _fill(_core.LocaliserConfig(), LOCALISER_FIELDS, settings(rig, **overrides))
+
+
+def config_dict(cfg) -> dict:
+    """A CoreConfig or LocaliserConfig as {field: value} (picklable; `core_config(**d)` rebuilds it)."""
+    fields = CORE_FIELDS if isinstance(cfg, _core.CoreConfig) else LOCALISER_FIELDS
+    return {f.name: f.value(getattr(cfg, f.name)) for f in fields}
+
+
+class _SignalConfigMethods:
+    """The behaviour of SignalConfig; its attributes are the fields of impactcore.h."""
+
+    @classmethod
+    def for_rig(cls, rig, **overrides):
+        return cls(**settings(rig, **overrides))
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        """From a model card's `signal` dict; keys that are not fields (older cards' extras) are ignored."""
+        return cls(**settings(**{k: v for k, v in d.items() if k in FIELDS}))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def core(self) -> "_core.CoreConfig":
+        return core_config(**self.to_dict())
+
+    def localiser(self) -> "_core.LocaliserConfig":
+        return localiser_config(**self.to_dict())
+
+    @property
+    def sensor_xy_mm(self) -> np.ndarray:
+        return np.stack([self.sensor_x_mm, self.sensor_y_mm], axis=1)
+
+
+def _dataclass_field(f: ConfigField):
+    kind = float if f.type == "float" else int
+    if f.count == 1:
+        return f.name, kind, field(default=f.default)
+    default = list(f.default)
+    return f.name, list[kind], field(default_factory=lambda: list(default))
+
+
+SignalConfig = make_dataclass(
+    "SignalConfig", [_dataclass_field(f) for f in FIELDS.values()], bases=(_SignalConfigMethods,),
+    namespace={"__doc__": "Everything the core needs besides the samples (the fields of impactcore.h's "
+                          "CoreConfig and LocaliserConfig); stored in every model card."})
+SignalConfig.__module__ = __name__
+
+__all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "SignalConfig", "config_dict",
+           "core_config", "localiser_config", "rig_settings", "settings"]
