@@ -59,7 +59,13 @@ class BleTransport:
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
         self._thread.start()
         if client_factory is None:
-            from bleak import BleakClient, BleakScanner
+            try:
+                from bleak import BleakClient, BleakScanner
+            except ImportError:
+                from ..errors import ConfigError
+
+                raise ConfigError("--ble needs the bleak package: pip install 'impactsense[ble]' "
+                                  "(or pip install bleak)") from None
 
             target = address
             if len(address.split(":")) != 6:  # a name: find the device first
