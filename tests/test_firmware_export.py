@@ -155,7 +155,7 @@ def test_cli_export(exported, tmp_path):
     # --trees auto picks the prefix on the reported position's error: the twin's match for a twin model.
     sweep = json.loads((tmp_path / "m" / "export.json").read_text())["tree_sweep"]
     twin = "twin" in json.loads((model_dir / "model_card.json").read_text())
-    assert sweep and all(("forest_mae_mm" in r) == twin for r in sweep)
+    assert sweep and all(("forest_mean_distance_mm" in r) == twin for r in sweep)
     # ... and never more trees than a budget allows: the flash, and for a twin model the per-event cycles.
     from impactsense.export import TWIN_MAX_TREES
 

@@ -439,12 +439,13 @@ TWIN_MAX_TREES = 15
 def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarray | None, xy: np.ndarray | None,
                  tol_mm: float = 0.2, budget_bytes: int = 256 * 1024, twin_eval=None,
                  max_trees: int | None = None) -> tuple[int, list[dict]]:
-    """Trees per coordinate forest: the smallest prefix within tol_mm MAE of the full forests on the held-out
+    """Trees per coordinate forest: the smallest prefix within tol_mm mean distance (of the reported position from
+    the truth) of the full forests on the held-out
     drops (vector: the core's feature vectors, usable rows only), shrunk further if the tables would
     exceed the flash budget or the prefix would exceed max_trees (the cycle budget's bound). A prefix of a
     random forest is itself a random forest. With the twin (and twin_eval = (twin features [R, 16], usable
-    masks [R]) of the same drops) the MAE is the reported position's: the twin's match around each prefix's
-    position (mae_mm; the forests' own: forest_mae_mm). Each row says whether it fits both budgets."""
+    masks [R]) of the same drops) the distance is the reported position's: the twin's match around each prefix's
+    position (mean_distance_mm; the forests' own: forest_mean_distance_mm). Each row says whether it fits both budgets."""
     n_all = len(models.x.estimators_)
     if vector is None or len(vector) == 0:
         return n_all, []
@@ -457,15 +458,16 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     for k in sorted({k for k in (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all) if k <= n_all}):
         pos = base + np.c_[px[:k].mean(0), py[:k].mean(0)]
         b = table_bytes(forest_tables(models.x, k)) + table_bytes(forest_tables(models.y, k)) + e_bytes
-        row = {"trees": k, "mae_mm": float(np.mean(np.hypot(*(pos - xy).T))), "table_bytes": b}
+        row = {"trees": k, "mean_distance_mm": float(np.mean(np.hypot(*(pos - xy).T))), "table_bytes": b}
         if models.twin is not None and twin_eval is not None:
             tw = twin_xy(models.twin, *twin_eval, pos)
             ok = np.isfinite(tw).all(1)
-            row.update(forest_mae_mm=row["mae_mm"], mae_mm=float(np.mean(np.hypot(*(tw[ok] - xy[ok]).T))))
+            row.update(forest_mean_distance_mm=row["mean_distance_mm"],
+                       mean_distance_mm=float(np.mean(np.hypot(*(tw[ok] - xy[ok]).T))))
         row["within_budgets"] = b <= budget_bytes and (max_trees is None or k <= max_trees)
         rows.append(row)
-    best = min(r["mae_mm"] for r in rows)
-    chosen = min(r["trees"] for r in rows if r["mae_mm"] <= best + tol_mm)
+    best = min(r["mean_distance_mm"] for r in rows)
+    chosen = min(r["trees"] for r in rows if r["mean_distance_mm"] <= best + tol_mm)
     fits = [r["trees"] for r in rows if r["within_budgets"]]
     if fits and chosen > max(fits):
         chosen = max(fits)
@@ -582,6 +584,17 @@ def load_tables(path) -> dict:
     twin_keys = [k for k in z.files if k.startswith("twin_")]
     out["twin"] = {k[len("twin_"):]: z[k] for k in twin_keys} if twin_keys else None
     return out
+
+
+def shipped_board_model() -> Path | None:
+    """The board model the repository ships in models/ (what `pio run` builds): installed with the package as
+    impactsense/board-model (CMakeLists.txt), read from the source tree's models/ in a development install.
+    None if neither is there."""
+    here = Path(__file__).resolve().parent
+    for d in (here / "board-model", here.parents[1] / "models"):
+        if (d / "forest_tables.npz").is_file():
+            return d
+    return None
 
 
 def firmware_models(path):

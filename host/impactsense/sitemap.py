@@ -196,8 +196,8 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     values = np.full((nx * ny, N_FEATURES), np.nan)
     bar = None
     if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=todo.size, desc="site map", unit="drop")
+        from .progress import progress_bar
+        bar = progress_bar(total=todo.size, desc="site map", unit="drop")
     for k in range(0, todo.size, chunk):
         rows = todo[k:k + chunk]
         res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),

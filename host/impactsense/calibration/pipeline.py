@@ -331,14 +331,15 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         # the discs' bond (SimParams disc_stiffness_scale) from the band group delays (`disc_bond`), if asked
         if opts.disc_bond == "fit":
             def disc_bond_stage():
-                from tqdm import tqdm
+                from ..progress import progress_bar
+
                 key = _key(base_key, params, decay["damping_per_s"], disc_bond.BOUNDS, disc_bond.COARSE,
                            disc_bond.REFINE, "disc-bond-v1")
                 p = dict(params, damping_per_s=float(decay["damping_per_s"]))
 
                 def compute():
-                    bar = tqdm(desc="FEM disc bond (scale, positions)", unit="scale",
-                               total=len(disc_bond.COARSE) + disc_bond.REFINE, disable=not opts.progress)
+                    bar = progress_bar(opts.progress, desc="FEM disc bond (scale, positions)", unit="scale",
+                                       total=len(disc_bond.COARSE) + disc_bond.REFINE)
                     res = disc_bond.fit(simulate, p, rig, session, targets, feats, cfg, cfg_sim, noise,
                                         progress=bar.update)
                     bar.close()
@@ -486,7 +487,7 @@ def _plate_nu(opts, rig, params, targets, session, feats, cfg, cfg_sim, simulate
     """Sub-problem 1's nu stage (`plate_nu.run`): E, nu and D_s from every accepted repetition's band group
     delays, each repetition's position fitted, from (E at the grid's nu, the grid's nu, the decay's D_s) with
     the decay estimate as D_s's prior (its SE and a systematic `plate_nu.DS_SYSTEMATIC` in quadrature)."""
-    from tqdm import tqdm
+    from ..progress import progress_bar
     if opts.nu_rounds == 0:
         return {"identified": False, "rule": "the nu stage was skipped (nu_rounds 0)", "skipped": True}
     cached = _read_cache(path, key)
@@ -496,8 +497,8 @@ def _plate_nu(opts, rig, params, targets, session, feats, cfg, cfg_sim, simulate
     ds0 = float(decay["damping_per_s"])
     prior = (ds0, float(np.hypot(decay["se_per_s"], plate_nu.DS_SYSTEMATIC * ds0)))
     lo_d, hi_d = fem.FACTORS[fem.FACTOR_NAMES.index("damping_per_s")][1:3]
-    bar = tqdm(desc="FEM nu fit (E, nu, D_s, positions)", unit="run", total=plate_nu.max_evaluations(opts.nu_rounds),
-               disable=not opts.progress)
+    bar = progress_bar(opts.progress, desc="FEM nu fit (E, nu, D_s, positions)", unit="run",
+                       total=plate_nu.max_evaluations(opts.nu_rounds))
     out = plate_nu.run(simulate, dict(params, damping_per_s=ds0), rig, session, targets, feats, cfg, cfg_sim, noise,
                        ds_prior=prior, e_bounds=e_bounds, nu_bounds=nu_bounds, ds_bounds=(lo_d, hi_d),
                        rounds=int(opts.nu_rounds), progress=bar.update)
@@ -523,7 +524,7 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
     surrogates), the optimisation and the infill hold it there and fit the PZT block."""
     from scipy.optimize import differential_evolution
     from scipy.stats import qmc
-    from tqdm import tqdm
+    from ..progress import progress_bar
 
     d = len(fem.FACTORS)
     n = int(opts.budget)
@@ -560,8 +561,8 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
         np.savez(tmp, key=key, energy=energy, ratio=ratio, done=done, u=u_all, x=_unit_to_params(np.nan_to_num(u_all)))
         os.replace(tmp, path)
 
-    bar = tqdm(total=n + 1, initial=int(done.sum()), desc="FEM runs (design, infill, confirm)", unit="run",
-               disable=not opts.progress)
+    bar = progress_bar(opts.progress, total=n + 1, initial=int(done.sum()), desc="FEM runs (design, infill, confirm)",
+                       unit="run")
 
     def run(idx):
         for i in idx:
@@ -597,8 +598,8 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
 
     def fit_all():
         table, best = {}, {}
-        pbar = tqdm(total=len(outputs) * len(surrogates.MODELS), desc="surrogates", unit="model",
-                    disable=not opts.progress)
+        pbar = progress_bar(opts.progress, total=len(outputs) * len(surrogates.MODELS), desc="surrogates",
+                            unit="model")
         for oname, y in outputs.items():
             table[oname] = {}
             for m_i, kind in enumerate(surrogates.MODELS):

@@ -70,7 +70,7 @@ def _chunk_task(args):
 def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,
              chunk=48, progress=True, noise_counts=0.0, n_noise=1, seed=0):
     """Loss over the full grid [len(e_axis), len(nu_axis)]; resumable from `cache_path` (npz)."""
-    from tqdm import tqdm
+    from ..progress import progress_bar
     ee, nn = np.meshgrid(e_axis, nu_axis, indexing="ij")
     e_flat, nu_flat = ee.ravel(), nn.ravel()
     loss = np.full(e_flat.size, np.nan)
@@ -92,7 +92,7 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
                      noise=float(noise_counts) * 1000 + n_noise)
             os.replace(tmp, cache_path)
 
-    bar = tqdm(total=len(todo), desc="plate grid (E, nu)", unit="chunk", disable=not progress)
+    bar = progress_bar(progress, total=len(todo), desc="plate grid (E, nu)", unit="chunk")
     tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx], noise_counts, n_noise, seed)
              for idx in todo]
     if workers > 1 and len(tasks) > 1:

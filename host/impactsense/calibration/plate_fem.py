@@ -111,7 +111,7 @@ class Evaluations:
     """FEM evaluations of the observables {(E, nu): [D, K, 6]}, cached in a JSON file (resumable)."""
 
     def __init__(self, run_obs, cache_path=None, key="", progress=False, desc="FEM plate (E, nu)"):
-        from tqdm import tqdm
+        from ..progress import progress_bar
         self.run_obs, self.path, self.key = run_obs, cache_path, key
         self.obs = {}
         if cache_path and Path(cache_path).exists():
@@ -121,7 +121,7 @@ class Evaluations:
                     self.obs = {tuple(json.loads(k)): np.array(v) for k, v in obj["obs"].items()}
             except (OSError, ValueError):
                 self.obs = {}
-        self.bar = tqdm(desc=desc, unit="run", disable=not progress)
+        self.bar = progress_bar(progress, desc=desc, unit="run")
 
     def __call__(self, e_mpa, nu):
         k = (round(float(e_mpa), 2), round(float(nu), 5))

@@ -19,8 +19,8 @@ def register(sub) -> None:
     p.add_argument("--drops", default="auto",
                    help="'auto' (default) or four comma-separated case ids (case_id column of impacts.csv)")
     p.add_argument("--budget", type=int, default=64, help="FEM runs in the sub-problem-2 Sobol design (default 64)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--seed", type=int, default=0, help="seed of the Sobol design and the surrogates (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="FEM runs in parallel processes (default 2)")
     p.add_argument("--nu-step", type=float, default=0.001,
                    help="nu step of the plate grid (default 0.001: 255 x 101 = 25,755 points; method.md lists 0.01)")
     p.add_argument("--e-step", type=float, default=250.0, help="E step of the plate grid, MPa (default 250)")

@@ -21,10 +21,12 @@ def register(sub):
                        description=__doc__)
     p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + joblib)")
     p.add_argument("--out", default="models", help="output folder (default: models/)")
+    from ..export import TWIN_MAX_TREES
+
     p.add_argument("--trees", default="auto",
-                   help="trees per coordinate forest: auto (default: the smallest within 0.2 mm of the best "
-                        "on the held-out drops, within the 256 KB flash budget and, for a twin model, the "
-                        "per-event cycle budget's 10 trees), all, or N")
+                   help="trees per coordinate forest: auto (default: the smallest within 0.2 mm mean distance "
+                        "of the best on the held-out drops, within the 256 KB flash budget and, for a twin "
+                        f"model, the per-event cycle budget's {TWIN_MAX_TREES} trees), all, or N")
     p.add_argument("--rate", default="50000",
                    help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
                         "'native' exports MODEL_DIR's forests unchanged")
@@ -88,8 +90,8 @@ def _export(args, card, rate, stage, out):
     s = export_models(model_dir, stage, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
                       write_m2cgen=not args.no_m2cgen, twin_eval=twin)
     for row in s["tree_sweep"]:
-        forest = f" (the forests' {row['forest_mae_mm']:.2f} mm)" if "forest_mae_mm" in row else ""
-        print(f"  {row['trees']:>4} trees: MAE {row['mae_mm']:.2f} mm{forest}, "
+        forest = f" (the forests' {row['forest_mean_distance_mm']:.2f} mm)" if "forest_mean_distance_mm" in row else ""
+        print(f"  {row['trees']:>4} trees: mean distance {row['mean_distance_mm']:.2f} mm{forest}, "
               f"{row['table_bytes'] / 1024:.1f} KB of tables{'' if row['within_budgets'] else ', over a budget'}")
     acc = _board_accuracy(model_dir, card, stage)
     if acc is not None:

@@ -23,8 +23,8 @@ def register(sub) -> None:
     p.add_argument("--data", required=True, help="the changed session")
     p.add_argument("--out", required=True, help="model folder to write")
     p.add_argument("--test-fraction", type=float, default=0.2, help="cases of DATA_REF held out (default 0.2)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--trees", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0, help="seed of the case split and the forests (default 0)")
+    p.add_argument("--trees", type=int, default=100, help="trees per forest (default 100)")
     p.add_argument("--site-map", default="auto", metavar="auto|none|site-map.npz",
                    help="the twin's site map, as in `impactsense train` (auto = the bundled twin's when the rig "
                         "is the bundled rig): the twin's position, energy class and calibrated uncertainty, "

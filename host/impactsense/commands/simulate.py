@@ -19,8 +19,8 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("direct", "fast"), default="direct",
                    help="direct (default for one drop) or fast (reciprocity; pays 4 solves up front)")
     p.add_argument("--noise", action="store_true", help="add the ADC noise (noise_counts_rms)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--out", required=True, metavar="FILE.npz")
+    p.add_argument("--seed", type=int, default=None, help="seed of the ADC noise (default: random)")
+    p.add_argument("--out", required=True, metavar="FILE.npz", help="file to write")
     p.set_defaults(func=run)
 
 

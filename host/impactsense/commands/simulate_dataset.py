@@ -17,11 +17,12 @@ def register(sub) -> None:
                                    "(rig.json, impacts.csv, recordings.npz) every session tool reads.")
     p.add_argument("--n", type=int, default=490, help="number of drops (default 490)")
     add_param_options(p)
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR", help="session folder to write")
     p.add_argument("--seed", type=int, default=0, help="Sobol scramble and noise seed")
     p.add_argument("--no-noise", dest="noise", action="store_false", help="noise-free counts")
-    p.add_argument("--method", choices=("fast", "direct"), default="fast")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--method", choices=("fast", "direct"), default="fast",
+                   help="fast (default: reciprocity, 4 solves up front, then cheap per drop) or direct (one full run a drop)")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,
                    help="keep impacts this far from sensor centres")

@@ -16,11 +16,11 @@ def register(sub) -> None:
                                    "16 twin features per point (uint8, the board's table). `impactsense train "
                                    "--site-map` and `export` use it for the energy class.")
     add_param_options(p)
-    p.add_argument("--out", required=True, metavar="site-map.npz")
+    p.add_argument("--out", required=True, metavar="site-map.npz", help="site map file to write")
     p.add_argument("--step-mm", type=float, default=5.0, help="grid step (default 5 mm)")
     p.add_argument("--margin-mm", type=float, default=10.0, help="first grid line from the edges (default 10)")
     p.add_argument("--height-mm", type=float, default=175.0, help="reference drop height (default 175)")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.set_defaults(func=run)
 
 

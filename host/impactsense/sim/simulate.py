@@ -185,8 +185,8 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
     results = [None] * x.size
     bar = None
     if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=x.size, desc=f"simulate ({method})", unit="drop")
+        from ..progress import progress_bar
+        bar = progress_bar(total=x.size, desc=f"simulate ({method})", unit="drop")
     with ThreadPoolExecutor(max_workers=max(1, workers)) as ex:
         futs = {ex.submit(one, k): k for k in range(x.size)}
         for fut in futs:
