@@ -31,10 +31,11 @@ def exported(tmp_path_factory):
     return model_dir, root / "out"
 
 
-def start_emulator(models, *extra):
+def start_emulator(models, *extra, once=True, cwd=None):
+    models = [] if models is None else ["--models", str(models)]
     proc = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--speed", "0",
-                             "--models", str(models), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             *models, *(["--once"] if once else []), *extra], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=cwd)
     path = proc.stdout.readline().strip()
     assert path.startswith("/dev/pts/"), proc.stderr.read()
     return proc, path

@@ -1,5 +1,9 @@
-"""`impactsense emulate DATA --pty`: a pseudo-terminal that behaves like the board, running the firmware
-app (compiled natively) on recorded drops."""
+"""`impactsense emulate [DATA] --pty`: a pseudo-terminal that behaves like the board, running the firmware
+app (compiled natively) on recorded drops.
+
+It prints the pty's path (e.g. /dev/pts/5) and serves clients one after another until interrupted (Ctrl-C),
+as a board on a USB port does: `impactsense monitor --port PATH`, `pio device monitor -p PATH`, then another.
+The app's report counter and clock run on across clients; while no client is connected the drops wait."""
 
 ORDER = 61
 
@@ -10,10 +14,20 @@ def register(sub):
     p.add_argument("data", nargs="?", default=None, help="session folder (default: bundled session-1)")
     p.add_argument("--pty", action="store_true", required=True, help="serve on a pseudo-terminal")
     p.add_argument("--speed", type=float, default=1.0, help="x real time; 0 = as fast as the client reads")
-    p.add_argument("--models", default="models", help="export folder with forest_tables.npz (default models/)")
+    p.add_argument("--models", default=None, metavar="DIR|none",
+                   help="export folder with forest_tables.npz (`impactsense export`); default: the board model "
+                        "shipped with the package; 'none': no models, reports carry the physics localiser's "
+                        "position (valid=0)")
     p.add_argument("--rate", type=int, default=50000, help="per-channel sample rate of the board (Hz)")
     p.add_argument("--limit", type=int, default=None, help="only the first N drops")
     p.add_argument("--threshold", type=float, default=None, help="trigger threshold (counts)")
+    p.add_argument("--once", action="store_true",
+                   help="serve one client, one pass through the drops, then exit")
+    p.add_argument("--passes", type=int, default=None, metavar="N",
+                   help="passes through the drops before exiting (default: 1 with --once, else 0 = until "
+                        "interrupted)")
+    p.add_argument("--link", default=None, metavar="PATH",
+                   help="also make PATH a symlink to the pty (a stable name across emulator restarts)")
     p.set_defaults(func=run)
 
 
@@ -22,19 +36,32 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..data import load_session
-    from ..export import firmware_models
+    from ..errors import ConfigError
+    from ..export import firmware_models, shipped_board_model
     from ..link.emulator import Emulator, serve_pty
 
+    passes = args.passes if args.passes is not None else (1 if args.once else 0)
+    if passes < 0:
+        raise ConfigError(f"--passes must be >= 0, got {passes}")
+    if args.models is None:
+        path = shipped_board_model()
+        if path is None:
+            raise ConfigError("no shipped board model found with the package; give --models DIR or --models none")
+    else:
+        path = None if args.models == "none" else Path(args.models)
     s = load_session(args.data)
     if args.limit:
         s = s.subset(list(range(min(args.limit, len(s)))))
-    path = Path(args.models)
-    have = path.is_file() or (path / "forest_tables.npz").is_file()
-    models, signal = firmware_models(path) if have else (None, None)
-    if models is None:
-        print(f"emulate: no exported models in {args.models}; reports carry the physics localiser's position (valid=0)", file=sys.stderr)
+    models, signal = firmware_models(path) if path is not None else (None, None)
+    print(f"emulate: {len(s)} drops of {s.name}, models: "
+          f"{path if path is not None else 'none (reports carry the physics position, valid=0)'}", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
     emu = Emulator(s, models, fs_hz=args.rate, signal=signal, **extra)
-    serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True))
-    print(f"emulate: {emu.app.events} reports from {len(s)} drops", file=sys.stderr)
+    try:
+        serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True), once=args.once, passes=passes,
+                  link=args.link, connect_timeout_s=600.0 if args.once else None,
+                  log=lambda m: print(f"emulate: {m}", file=sys.stderr, flush=True))
+    except KeyboardInterrupt:
+        pass
+    print(f"emulate: {emu.app.events} reports", file=sys.stderr)
     return 0

@@ -12,10 +12,17 @@ def register(sub):
     p.add_argument("--ble", metavar="NAME_OR_ADDRESS", help="connect over BLE instead (bleak)")
     p.add_argument("--json-lines", action="store_true", help="one JSON object per report on stdout")
     p.add_argument("--reconnect", action="store_true", help="re-open the port after a disconnect")
-    p.add_argument("--baud", type=int, default=115200)
+    p.add_argument("--baud", type=int, default=115200,
+                   help="serial baud rate (default 115200; USB CDC ignores it, a UART bridge does not)")
     p.add_argument("--plot", action="store_true",
                    help="live plot of the plate: sensors, the last impacts by energy class, the uncertainty")
     p.add_argument("--plot-last", type=int, default=20, metavar="N", help="impacts shown on the plot (default 20)")
+    p.add_argument("--db", metavar="EVENTS.sqlite",
+                   help="also keep every report in this SQLite event log (appends; no duplicates; see "
+                        "`impactsense events`)")
+    p.add_argument("--board-id", default=None,
+                   help="the board's name in the event log (default: the port, or ble:NAME); give one per board "
+                        "when a board's port name can change")
     p.add_argument("--rig", default=None,
                    help="rig.json or session folder for the plot's plate and sensors (default: bundled session-1)")
     p.set_defaults(func=run)
@@ -43,7 +50,18 @@ def run(args) -> int:
         plot = open_live_plot((rig.plate_x_mm, rig.plate_y_mm), list(zip(rig.sensor_x_mm, rig.sensor_y_mm)),
                               args.plot_last)
     opener = (lambda: BleTransport(args.ble)) if args.ble else (lambda: open_serial(args.port, args.baud))
-    totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot)
+    log = None
+    if args.db:
+        from ..link.eventlog import EventLog
+
+        log = EventLog(args.db, args.board_id or (f"ble:{args.ble}" if args.ble else args.port))
+    try:
+        totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log)
+    except KeyboardInterrupt:  # Ctrl-C: every report is already in the log
+        return 0
+    finally:
+        if log is not None:
+            log.close()
     if plot is not None and plot.refresh():
         import matplotlib.pyplot as plt
 

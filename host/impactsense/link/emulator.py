@@ -140,9 +140,9 @@ def _probe_client(master: int) -> bytes | None:
         raise
 
 
-def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_timeout_s: float = 600.0) -> int:
-    """Opens a pty, announces its path, waits for a client, streams every drop, closes. Returns the number of
-    bytes written."""
+def _open_pty(link: str | None):
+    """(master fd, slave path) of a raw, non-blocking pty; with `link`, a symlink there to the slave path
+    (replaced atomically, so a monitor on the link reaches a restarted emulator)."""
     import fcntl
     import tty
 
@@ -152,41 +152,77 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
     os.close(slave)
     fl = fcntl.fcntl(master, fcntl.F_GETFL)
     fcntl.fcntl(master, fcntl.F_SETFL, fl | os.O_NONBLOCK)
-    frames = emulator.frames  # resample before announcing, so the client never waits on it
-    announce(path)
-    t_end = time.monotonic() + connect_timeout_s
+    if link:
+        tmp = f"{link}.{os.getpid()}.tmp"
+        os.symlink(path, tmp)
+        os.replace(tmp, link)
+    return master, path
+
+
+def _wait_for_client(master: int, deadline: float | None) -> bytes | None:
+    """Blocks until a client has the pty open; returns what it already sent (None: deadline passed)."""
     pending = _probe_client(master)
     while pending is None:
-        if time.monotonic() > t_end:
-            os.close(master)
-            return 0
+        if deadline is not None and time.monotonic() > deadline:
+            return None
         time.sleep(0.01)
         pending = _probe_client(master)
     time.sleep(0.05)  # let the client finish configuring the port and send its first commands
-    written = 0
-    t0 = time.monotonic()
+    return pending
+
+
+def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_timeout_s: float | None = 600.0,
+              once: bool = True, passes: int = 1, link: str | None = None, log=None) -> int:
+    """Opens a pty, announces its path and plays the drops to whoever has it open. Returns the bytes written.
+
+    once: one client, one pass through the drops, then close (the first client's timeout: connect_timeout_s).
+    Otherwise clients are served one after another, as a board on a USB port is: the app (its report
+    counter and clock) runs on across clients; while no client is connected the drops wait; after `passes`
+    passes through the drops (0: forever, until interrupted) the emulator waits until the last client has
+    read everything and returns. log(str): one line per client connect/disconnect."""
+    master, path = _open_pty(link)
+    frames = emulator.frames  # resample before announcing, so the client never waits on it
+    announce(path)
+    log = log or (lambda _msg: None)
+    written, n_drops = 0, frames.shape[0]
     per_drop_s = frames.shape[1] / emulator.fs_hz
+    total = n_drops * passes if passes > 0 else None
+    k = 0  # drops played so far, over all passes
     try:
-        for i in range(frames.shape[0]):
+        while total is None or k < total:
+            pending = _wait_for_client(master, time.monotonic() + connect_timeout_s
+                                       if connect_timeout_s is not None and k == 0 else None)
+            if pending is None:
+                break
+            log(f"client connected (drop {k % n_drops} of pass {k // n_drops + 1})")
+            t0, k0 = time.monotonic(), k
             try:
-                cmd = pending + os.read(master, 4096)
-            except BlockingIOError:
-                cmd = pending
-            pending = b""
-            out = emulator.app.rx(cmd) if cmd else b""
-            out += emulator.app.feed(frames[i])
-            _write_all(master, out)
-            written += len(out)
-            if speed and speed > 0:
-                lag = t0 + (i + 1) * per_drop_s / speed - time.monotonic()
-                if lag > 0:
-                    time.sleep(lag)
-        _drain(master)
-    except OSError as exc:
-        if exc.errno != errno.EIO:  # EIO: the client went away
-            raise
+                while total is None or k < total:
+                    more = _probe_client(master)
+                    if more is None:
+                        raise OSError(errno.EIO, "client went away")
+                    cmd = pending + more
+                    pending = b""
+                    out = emulator.app.rx(cmd) if cmd else b""
+                    out += emulator.app.feed(frames[k % n_drops])
+                    k += 1
+                    _write_all(master, out)
+                    written += len(out)
+                    if speed and speed > 0:
+                        lag = t0 + (k - k0) * per_drop_s / speed - time.monotonic()
+                        if lag > 0:
+                            time.sleep(lag)
+                _drain(master)
+            except OSError as exc:
+                if exc.errno != errno.EIO:  # EIO: the client went away
+                    raise
+                log(f"client disconnected after drop {k}")
+            if once:
+                break
     finally:
         os.close(master)
+        if link and os.path.islink(link) and os.readlink(link) == path:
+            os.unlink(link)
     return written
 
 
@@ -199,7 +235,8 @@ def _write_all(fd: int, data: bytes) -> None:
             n = os.write(fd, view)
             view = view[n:]
         except BlockingIOError:
-            select.select([], [fd], [], 0.1)
+            if not select.select([], [fd], [], 0.1)[1] and _probe_client(fd) is None:
+                raise OSError(errno.EIO, "client went away") from None
 
 
 def _drain(master: int, timeout_s: float = 10.0) -> None:

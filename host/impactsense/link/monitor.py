@@ -95,10 +95,12 @@ def read_in_thread(frames, tick, tick_s: float = 0.05):
 
 
 def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.stdout, err=sys.stderr,
-        idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30, plot=None) -> dict:
+        idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30, plot=None,
+        log=None) -> dict:
     """Prints reports until the port closes (and, with reconnect, re-opens it). Returns the counters.
 
-    plot (link.plot.LivePlot): also draws the reports; the port is then read in a thread of its own."""
+    plot (link.plot.LivePlot): also draws the reports; the port is then read in a thread of its own.
+    log (link.eventlog.EventLog): also keeps every report (and any other frame but raw data) in the event log."""
     totals: dict = {}
     retries = 0
     header_done = False
@@ -115,6 +117,8 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             break
         retries = 0
         mon = Monitor(port)
+        if log is not None:
+            log.connection_opened()
         frames = mon.frames(idle_timeout_s)
         if plot is not None:
             def tick():
@@ -125,9 +129,13 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             frames = read_in_thread(frames, tick)
         try:
             for frame in frames:
+                if log is not None and frame["kind"] not in ("report", "raw"):
+                    log.add_frame(frame["kind"], frame)
                 if frame["kind"] != "report":
                     continue
                 r = frame["report"]
+                if log is not None:
+                    log.add_report(r, mon.counters())
                 if plot is not None and state["plot"] is not None:
                     state["plot"].add(r)
                 if json_lines:
@@ -151,6 +159,9 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             state["plot"].refresh()
         for k, v in mon.counters().items():
             totals[k] = totals.get(k, 0) + v
+        if log is not None:
+            log.connection_closed(mon.counters())
+            totals.update(stored=log.stored, duplicates_ignored=log.duplicates)
         if not reconnect:
             break
         print("monitor: port closed; reconnecting", file=err)
