@@ -50,7 +50,7 @@ def plate_figure(reports: list[dict], rig) -> str:
     other = [(r["x_mm"], r["y_mm"]) for r in reports if not r["valid"] and r["x_mm"] is not None]
     if other:
         ax.plot(*np.array(other).T, "x", color="0.5", label=f"not valid ({len(other)})")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3, fontsize=8)
     ax.set_title("impacts on the plate")
     return _svg(fig)
 
@@ -121,6 +121,10 @@ def link_figure(reports: list[dict], connections: list[dict]) -> str:
            if c["closed"] is not None]
     if crc:
         ax.plot(*zip(*crc), "v", color="tab:orange", label="CRC errors per connection (at its end)")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.set_ylim(bottom=0, top=max(1.0, ax.get_ylim()[1]))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("count")
     ax.legend(fontsize=8)
     ax.set_title("link health")
