@@ -26,7 +26,7 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_second():
     assert install_test.strip() in ci
     # Debian's system Python refuses pip outside a venv (PEP 668): both commands install into one
     for cmd in (install_demo, install_test):
-        assert "python3 -m venv .venv" in cmd and "python3 -m pip install" not in cmd
+        assert "python3 -m venv --system-site-packages .venv" in cmd and "python3 -m pip install" not in cmd
 
 
 def fake_path(tmp_path, sudo: bool):
@@ -64,3 +64,27 @@ def test_setup_script_uses_sudo_and_names_the_firmware_tools(tmp_path):
     assert "sudo apt-get update" in calls and "qemu-system-arm" in calls and "gcc-arm-none-eabi" in calls
     bad = subprocess.run([shutil.which("bash"), str(SCRIPT), "--nonsense"], capture_output=True, text=True)
     assert bad.returncode == 2
+
+
+def test_progress_bars_stay_out_of_log_files():
+    import io
+
+    from impactsense.progress import progress_bar
+
+    log = io.StringIO()  # a file or a pipe: not a terminal
+    with progress_bar(total=50, file=log) as bar:
+        bar.update(50)
+    assert log.getvalue() == ""
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    with progress_bar(total=50, file=term, mininterval=0) as bar:
+        bar.update(50)
+    assert "\r" in term.getvalue() and "50/50" in term.getvalue()
+    quiet = Terminal()
+    with progress_bar(False, total=5, file=quiet) as bar:
+        bar.update(5)
+    assert quiet.getvalue() == ""
