@@ -349,7 +349,7 @@ def main() -> int:
         return 0
     out_dir = args.out or tempfile.mkdtemp(prefix="bench-calibrate-")
     data = str(resources.files("impactsense") / "data" / "session-1")
-    opts = CalibrateOptions(budget=args.budget, workers=args.workers, channel_delay_us=FINDINGS_DELAYS_US)
+    opts = CalibrateOptions(budget=args.budget, workers=args.workers, rig_delay_us=FINDINGS_DELAYS_US)
     t0 = time.perf_counter()
     cal = calibrate(data, f"{out_dir}/CAL.json", opts)
     total = time.perf_counter() - t0

@@ -58,7 +58,7 @@ extern const impactsense_twin_config impactsense_twin;
 // takes each one to the board's rate).
 typedef struct {
   float fs_hz;  // rate
-  float channel_delay_us[4];  // delay
+  float rig_delay_us[4];  // copy
   float channel_gain[4];  // copy
   int32_t baseline_samples;  // copy
   float onset_threshold_counts;  // copy

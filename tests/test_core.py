@@ -83,7 +83,7 @@ def test_difference_energies_are_the_spectral_moments_of_a_tone(synth, freq_hz):
 
 def test_channel_delay_is_subtracted(synth):
     adc = synth([300, 300, 300, 300])
-    cfg = SignalConfig(channel_delay_us=[0.0, 2.5, 5.0, 7.5])
+    cfg = SignalConfig(rig_delay_us=[0.0, 2.5, 5.0, 7.5])
     f = featurize(adc, cfg)
     assert np.allclose(f.toa_us[0, 1:] - f.toa_us[0, 0], [-2.5, -5.0, -7.5], atol=1e-3)
 

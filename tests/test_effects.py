@@ -68,7 +68,7 @@ def test_clipping_rail_found_exactly(s1, ref_and_features):
 
 
 def test_channel_delay_feeds_the_core(s1, ref_and_features):
-    """The fitted delay, given to CoreConfig.channel_delay_us, removes the channel's timing offset."""
+    """The fitted delay, given to CoreConfig.rig_delay_us, removes the channel's timing offset."""
     ref, F = ref_and_features
     eff = EFFECTS["channel_delay"]
     adc = eff.apply_signal(s1.adc, 3, {"delay_us": 30.0}, context(s1))
@@ -91,4 +91,4 @@ def test_diagnosed_effects_feed_core_and_recordings(s1, ref_and_features):
     assert abs(np.nanmedian(F2.toa_us[:, 2] - F.toa_us[:, 2]) - 20.0) <= 1.0
     assert abs(np.nanmedian(F2.log_energy[:, 0] - F.log_energy[:, 0])) < 0.01   # not significant: not applied
     cfg = core_config_with_effects(s1.rig, effects, **R.TIMING_PICKER)
-    assert list(cfg.channel_delay_us) == [0.0, 0.0, 20.0, 0.0]
+    assert list(cfg.rig_delay_us) == [0.0, 0.0, 20.0, 0.0]

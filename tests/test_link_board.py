@@ -51,7 +51,7 @@ def test_board_models_fit_the_rig_delays(s1, rig_fit, tmp_path):
     card = json.loads((d / "model_card.json").read_text())
     sig = card["signal"]
     assert card["board_fs_hz"] == 50000 and sig["fs_hz"] == 50000
-    np.testing.assert_allclose(sig["channel_delay_us"], rig_fit.channel_delay_us, atol=2.0)
+    np.testing.assert_allclose(sig["rig_delay_us"], rig_fit.rig_delay_us, atol=2.0)
     assert sig["velocity_mm_per_us"] == pytest.approx(rig_fit.velocity_mm_per_us, rel=0.03)
     split = card["split"]
     assert set(split["train_recordings"]).isdisjoint(split["test_recordings"])

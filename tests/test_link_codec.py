@@ -67,7 +67,7 @@ def test_commands_and_acks_through_the_app():
                          capture_frames=1024, dump_raw=0)]
     ack = dec.feed(app.rx(L.encode_command(L.CMD_SET_RATE, 25000)))[0]["ack"]
     assert ack["status"] == 0 and ack["fs_hz"] == 25000 and ack["capture_frames"] == 512
-    assert app.core_config.fs_hz == 25000 and app.channel_delay_us == [0, -5, -10, -15]  # read c x 5 us late: onsets early
+    assert app.core_config.fs_hz == 25000 and app.core_config.capture_delay_us == [0, -5, -10, -15]  # read c x 5 us late: onsets early
     ack = dec.feed(app.rx(L.encode_command(L.CMD_SET_RATE, 100000)))[0]["ack"]  # beyond 200 ksps
     assert ack["status"] == 1 and ack["fs_hz"] == 25000
     ack = dec.feed(app.rx(L.encode_command(L.CMD_DUMP_RAW, 1)))[0]["ack"]

@@ -55,7 +55,7 @@ def test_measured_baseline_beats_the_seed_by_far(session1, trained):
 def test_fitted_channel_delays_match_the_rig(trained):
     """The lab rig's channels 2 and 3 read ~6 us early (docs/findings.md); the fit must see it."""
     _, model, _ = trained
-    d = model.signal.channel_delay_us
+    d = model.signal.rig_delay_us
     assert d[0] == 0.0 and abs(d[1]) < 2.0 and -9.0 < d[2] < -4.0 and -9.0 < d[3] < -4.0
     assert 0.8 < model.signal.velocity_mm_per_us < 1.1
 

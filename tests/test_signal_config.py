@@ -17,8 +17,8 @@ from impactsense import residuals as R
 from impactsense.data import load_session, rig_from_dict
 from impactsense.effects import EFFECTS, context
 from impactsense.export import exported_fields, signal_c, signal_struct_c
-from impactsense.signal import (CORE_FIELDS, FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, core_config,
-                                localiser_config, settings)
+from impactsense.signal import (CORE_FIELDS, FIELDS, LOCALISER_FIELDS, SignalConfig, card_values, config_dict,
+                                core_config, localiser_config, settings)
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 
@@ -49,7 +49,7 @@ def test_binding_tables_are_the_structs():
         obj = cls()
         for f in fields:
             np.testing.assert_array_equal(np.float32(getattr(obj, f.name)), np.float32(f.default), err_msg=f.name)
-            assert f.role in {"RATE", "ACQUISITION", "DELAY", "SAMPLES", "COPY"}
+            assert f.role in {"RATE", "ACQUISITION", "SAMPLES", "COPY"}
     assert FIELDS["aic_blend"].default == 0.35   # the literal of impactcore.h, not its float32 neighbour
 
 
@@ -115,13 +115,13 @@ def test_exported_c_config_is_the_host_config(where, s1):
         header, tables = (MODELS / "impactsense_models.h").read_text(), (MODELS / "impactsense_forest_tables.c").read_text()
         card = firmware_models(MODELS)[1]
     else:
-        card = SignalConfig.for_rig(s1.rig, aic_blend=0.7, channel_delay_us=[0, -0.5, -6.5, -6.25],
+        card = SignalConfig.for_rig(s1.rig, aic_blend=0.7, rig_delay_us=[0, -0.5, -6.5, -6.25],
                                     velocity_mm_per_us=0.95, aic_before=48).to_dict()
         header, tables = signal_struct_c(), signal_c(card)
-    want = settings(**{k: v for k, v in card.items() if k in FIELDS})
+    want = settings(**card_values(card))
     members = _c_struct(header)
     assert members == [(f.name, f.count) for f in exported_fields()]
-    assert {f.name for f in FIELDS.values()} - {n for n, _ in members} == {"adc_min", "adc_max"}
+    assert {f.name for f in FIELDS.values()} - {n for n, _ in members} == {"adc_min", "adc_max", "capture_delay_us"}
     values = _c_values(tables)
     assert len(values) == len(members)
     for (name, count), got in zip(members, values):

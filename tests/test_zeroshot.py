@@ -268,8 +268,8 @@ def test_the_board_model_of_a_zero_shot_model_keeps_what_the_calibration_drops_t
     r, out, card, rows, _ = zero_shot_on_the_board
     signal = load_tables(out / "export-after" / "forest_tables.npz")["signal"]
     assert signal["fs_hz"] == 50000
-    assert signal["channel_delay_us"] == pytest.approx(card["channel_delay_from_calibration_drops_us"])
-    assert signal["channel_delay_us"][0] == 0.0 and max(abs(d) for d in signal["channel_delay_us"]) > 2.0
+    assert signal["rig_delay_us"] == pytest.approx(card["channel_delay_from_calibration_drops_us"])
+    assert signal["rig_delay_us"][0] == 0.0 and max(abs(d) for d in signal["rig_delay_us"]) > 2.0
     assert signal["channel_gain"] == pytest.approx(card["channel_gain_from_calibration_drops"])
     assert max(abs(g - 1.0) for g in signal["channel_gain"]) > 0.05
     assert signal["velocity_mm_per_us"] == pytest.approx(card["velocity_mm_per_us_from_calibration_drops"])

@@ -319,11 +319,6 @@ ia::AppConfig app_config(nb::dict d) {
     else if (k == "threshold_counts") c.threshold_counts = nb::cast<float>(v);
     else if (k == "rearm_counts") c.rearm_counts = nb::cast<float>(v);
     else if (k == "loc") c.loc = nb::cast<ic::LocaliserConfig>(v);
-    else if (k == "rig_delay_us") {
-      auto a = nb::cast<std::vector<float>>(v);
-      if (a.size() != 4) throw std::invalid_argument("rig_delay_us needs 4 values");
-      std::memcpy(c.rig_delay_us, a.data(), sizeof(c.rig_delay_us));
-    }
     else if (k == "dump_raw") c.dump_raw = nb::cast<bool>(v);
     else if (k == "core") c.core = nb::cast<ic::CoreConfig>(v);
     else throw std::invalid_argument("unknown app config key: " + k);
@@ -365,10 +360,6 @@ class PyApp {
   int capture_frames() const { return app_->capture_frames(); }
   uint32_t events() const { return app_->events(); }
   uint32_t fs_hz() const { return app_->config().fs_hz; }
-  std::vector<float> channel_delay_us() const {
-    const auto& c = app_->config().core.channel_delay_us;
-    return std::vector<float>(c, c + 4);
-  }
   ic::CoreConfig core_config() const { return app_->config().core; }
   ic::LocaliserConfig localiser_config() const { return app_->config().loc; }
   nb::dict rx_stats() const { return stats_dict(app_->rx_stats()); }
@@ -399,6 +390,9 @@ NB_MODULE(_link, m) {
   m.attr("MAX_RATE_HZ") = ia::kMaxRateHz;
   m.attr("SCAN_STEP_US") = ia::kScanStepUs;
   m.attr("LEAF") = ia::kLeaf;
+  m.def("board_core_config", &ia::board_core_config, "card"_a, "fs_hz"_a, "adc_min"_a = 0, "adc_max"_a = 4095,
+        "A model card's CoreConfig as the board runs it at fs_hz (impactapp::board_core_config): sample counts "
+        "scaled, the board's rate, SAADC scan capture delays and ADC rails.");
 
   m.def("crc32", [](nb::bytes b) {
     return il::crc32(reinterpret_cast<const uint8_t*>(b.c_str()), b.size());
@@ -522,7 +516,6 @@ NB_MODULE(_link, m) {
       .def_prop_ro("capture_frames", &PyApp::capture_frames)
       .def_prop_ro("events", &PyApp::events)
       .def_prop_ro("fs_hz", &PyApp::fs_hz)
-      .def_prop_ro("channel_delay_us", &PyApp::channel_delay_us)
       .def_prop_ro("core_config", &PyApp::core_config)
       .def_prop_ro("localiser_config", &PyApp::localiser_config)
       .def_prop_ro("rx_stats", &PyApp::rx_stats);

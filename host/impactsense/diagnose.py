@@ -224,7 +224,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     result = {"effects": effects, "before": before, "after": after,
               "baseline": str(baseline.path), "data": str(data.path),
               "reference": "nominal (first loop)" if same else "calibrated on the baseline",
-              "core_config": {"aic_blend": 1.0, "channel_delay_us": _jsonable(final.delay_us)},
+              "core_config": {"aic_blend": 1.0, "rig_delay_us": _jsonable(final.delay_us)},
               "model": {"velocity_m_s": final.velocity_m_s, "sensor_xy_mm": _jsonable(final.sensor_xy_mm),
                         "gain": _jsonable(np.exp(final.gain_log / 2)), "anisotropy": _jsonable(final.aniso),
                         "decay_per_s": final.decay0_per_s}}

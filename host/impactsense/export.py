@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ImpactSenseError
-from .signal import FIELDS, settings
+from .signal import FIELDS, card_values, settings
 
 LEAF = 0xFF
 
@@ -255,7 +255,7 @@ def signal_struct_c() -> str:
 
 def signal_c(signal: dict) -> str:
     """The model card's signal settings as the initializer of `impactsense_signal` (defaults for absent keys)."""
-    values = settings(**{k: v for k, v in signal.items() if k in FIELDS})
+    values = settings(**card_values(signal))
     vals = []
     for f in exported_fields():
         fmt = (lambda v: str(int(v))) if f.type == "int" else _c_float

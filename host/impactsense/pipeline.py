@@ -91,10 +91,11 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Sign
 
     Model: ToA_ik = t0_k + d_ik / v + delay_i at the drops' nominal positions; t0_k is eliminated by
     centring each drop's residuals; a soft-L1 loss keeps cycle-skipped picks from steering the fit.
-    Returns a copy of `cfg` with velocity and channel delays set (delays add to any known scan delay).
+    Returns a copy of `cfg` with velocity and rig_delay_us set (the capture's delays, cfg.capture_delay_us,
+    are removed from the picks first).
     """
     base = SignalConfig.from_dict(cfg.to_dict())
-    base.channel_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]
     raw = _core.extract_batch(as_int16(session.adc[rows]), base.core())
     toa = raw["toa_us"].astype(float)
     ok = np.isfinite(toa).all(1)
@@ -110,7 +111,7 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Sign
     sol = least_squares(residuals, [cfg.velocity_mm_per_us, 0.0, 0.0, 0.0], loss="soft_l1", f_scale=3.0)
     out = SignalConfig.from_dict(cfg.to_dict())
     out.velocity_mm_per_us = float(sol.x[0])
-    out.channel_delay_us = [0.0] + [float(v) for v in sol.x[1:]]
+    out.rig_delay_us = [0.0] + [float(v) for v in sol.x[1:]]
     r = residuals(sol.x)
     out.sigma_us = float(np.sqrt(np.median(r ** 2)) * 1.4826) if r.size else cfg.sigma_us
     return out

@@ -37,7 +37,7 @@ PLATEAU_SAMPLES = 4         # equal consecutive samples at the extreme that mark
 
 
 # The core's picker for timing residuals (overrides for signal.core_config): the AIC onset, no delay removed.
-TIMING_PICKER = {"aic_blend": 1.0, "channel_delay_us": [0.0, 0.0, 0.0, 0.0]}
+TIMING_PICKER = {"aic_blend": 1.0, "rig_delay_us": [0.0, 0.0, 0.0, 0.0]}
 
 
 @dataclass

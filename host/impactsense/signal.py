@@ -32,7 +32,7 @@ class ConfigField:
     type: str               # "float" or "int"
     count: int              # 1, or CHANNELS for a per-channel field
     default: object         # float | int | list of those
-    role: str               # RATE, ACQUISITION, DELAY, SAMPLES or COPY (impactcore.h explains them)
+    role: str               # RATE, ACQUISITION, SAMPLES or COPY (impactcore.h explains them)
 
     @property
     def c_type(self) -> str:
@@ -65,15 +65,27 @@ LOCALISER_FIELDS: tuple[ConfigField, ...] = _fields(_core.LOCALISER_CONFIG_FIELD
 FIELDS: dict[str, ConfigField] = {f.name: f for f in CORE_FIELDS + LOCALISER_FIELDS}
 
 
+# Names older model cards and rig.json files used: channel_delay_us held the rig's delays (the board added
+# its scan delays), now rig_delay_us beside the acquisition's capture_delay_us.
+LEGACY_NAMES = {"channel_delay_us": "rig_delay_us"}
+
+
+def card_values(d: dict) -> dict:
+    """The fields of a model card's `signal` dict (older names mapped, other keys ignored)."""
+    out = {LEGACY_NAMES.get(k, k): v for k, v in d.items() if LEGACY_NAMES.get(k, k) in FIELDS}
+    return out
+
+
 def rig_settings(rig) -> dict:
-    """What a rig's rig.json decides: sample rate, ADC rail, sensor and plate geometry, declared channel
-    delays (optional key `channel_delay_us`)."""
+    """What a rig's rig.json decides: sample rate, ADC rail, sensor and plate geometry, the rig's declared
+    channel delays (optional key `rig_delay_us`, or `channel_delay_us`)."""
     d = {"fs_hz": float(rig.fs_hz), "adc_max": int(rig.adc_max),
          "sensor_x_mm": [float(v) for v in rig.sensor_x_mm], "sensor_y_mm": [float(v) for v in rig.sensor_y_mm],
          "plate_x_mm": float(rig.plate_x_mm), "plate_y_mm": float(rig.plate_y_mm)}
-    delays = rig.raw.get("channel_delay_us") if isinstance(getattr(rig, "raw", None), dict) else None
+    raw = rig.raw if isinstance(getattr(rig, "raw", None), dict) else {}
+    delays = raw.get("rig_delay_us", raw.get("channel_delay_us"))
     if delays is not None:
-        d["channel_delay_us"] = [float(v) for v in delays]
+        d["rig_delay_us"] = [float(v) for v in delays]
     return d
 
 
@@ -105,6 +117,12 @@ def localiser_config(rig=None, **overrides) -> "_core.LocaliserConfig":
     return _fill(_core.LocaliserConfig(), LOCALISER_FIELDS, settings(rig, **overrides))
 
 
+def channel_delays_us(cfg) -> list[float]:
+    """The delay the core removes from each channel's ToA (impactcore::channel_delay_us): the rig's plus the
+    acquisition's."""
+    return [float(r) + float(c) for r, c in zip(cfg.rig_delay_us, cfg.capture_delay_us)]
+
+
 def config_dict(cfg) -> dict:
     """A CoreConfig or LocaliserConfig as {field: value} (picklable; `core_config(**d)` rebuilds it)."""
     fields = CORE_FIELDS if isinstance(cfg, _core.CoreConfig) else LOCALISER_FIELDS
@@ -121,7 +139,7 @@ class _SignalConfigMethods:
     @classmethod
     def from_dict(cls, d: dict):
         """From a model card's `signal` dict; keys that are not fields (older cards' extras) are ignored."""
-        return cls(**settings(**{k: v for k, v in d.items() if k in FIELDS}))
+        return cls(**settings(**card_values(d)))
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -151,5 +169,6 @@ SignalConfig = make_dataclass(
                           "CoreConfig and LocaliserConfig); stored in every model card."})
 SignalConfig.__module__ = __name__
 
-__all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "SignalConfig", "config_dict",
+__all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
+           "channel_delays_us", "config_dict",
            "core_config", "localiser_config", "rig_settings", "settings"]

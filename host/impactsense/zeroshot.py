@@ -78,7 +78,8 @@ def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_ad
     rig's picks travel at, v_rig, given `signal.velocity_mm_per_us` as the twin's (fitted on virtual drops).
     Returns (delays, gains, v_rig)."""
     base = SignalConfig.from_dict(signal.to_dict())
-    base.channel_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]        # picks in record time: measured and simulated drops share
+    base.capture_delay_us = [0.0, 0.0, 0.0, 0.0]    # the capture, its delays cancel in their difference
     base.channel_gain = [1.0, 1.0, 1.0, 1.0]
     meas = featurize(session.adc[rows], base)
     sim = featurize(sim_adc, base)
@@ -171,17 +172,15 @@ UNCERTAINTY_FIELDS = ("uncertainty_offset_mm", "uncertainty_scale", "uncertainty
 
 
 def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, virtual_signal: SignalConfig,
-                 site, capture_delay_us=None) -> tuple[list[float], list[float], float]:
+                 site) -> tuple[list[float], list[float], float]:
     """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
     simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
-    the rig's group velocity, and with a site map the twin's offsets and weights. capture_delay_us: the
-    delays the capture itself puts on the channels, in both the measured and the simulated drops (the
-    board's SAADC scan; none at the rig's rate): the core's delays are those plus the rig's. Returns
-    (the rig's delays, gains, velocity)."""
+    the rig's group velocity, and with a site map the twin's offsets and weights. The delays the capture
+    itself puts on the channels (the board's SAADC scan, model.signal.capture_delay_us) are in both the
+    measured and the simulated drops and stay as they are. Returns (the rig's delays, gains, velocity)."""
     delays, gains, velocity = fit_channels_on_calibration_drops(session, rows, cal_sim, virtual_signal)
-    capture = np.zeros(4) if capture_delay_us is None else np.asarray(capture_delay_us, float)
     model.signal.velocity_mm_per_us = velocity
-    model.signal.channel_delay_us = [float(c + d) for c, d in zip(capture, delays)]
+    model.signal.rig_delay_us = [float(d) for d in delays]
     model.signal.channel_gain = gains
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)
@@ -221,17 +220,17 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
 
 
 def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, site,
-                             virtual: Session, capture_delay_us=None) -> dict:
+                             virtual: Session) -> dict:
     """Everything the calibration drops teach the sim-trained `model` (fitted on the virtual drops, its signal
     their localiser), in place: the rig's channel delays and gains and group velocity (adapt_to_rig), with
     a site map the twin's offsets and weights and the uncertainty's scale (uncertainty_on_calibration_drops),
     without one the energy classifier trained again on the virtual drops' features shifted by the twin's
     spectral tilt (fit_energy_offsets). session.adc[rows] and cal_sim are the calibration drops and their
     simulated twins, and virtual.adc the virtual drops, as the model's signal reads them: the rig's
-    recordings, or the board's captures (capture_delay_us, adapt_to_rig). Returns the model card's record
+    recordings, or the board's captures (adapt_to_rig). Returns the model card's record
     of these fits and, under "_virtual_twin", the twin fit before the uncertainty's scale."""
     virtual_signal = SignalConfig.from_dict(model.signal.to_dict())
-    delays, gains, velocity = adapt_to_rig(model, session, rows, cal_sim, virtual_signal, site, capture_delay_us)
+    delays, gains, velocity = adapt_to_rig(model, session, rows, cal_sim, virtual_signal, site)
     offsets, scale, virtual_twin = {}, None, None
     if site is not None:
         scale = uncertainty_on_calibration_drops(model, session, rows, site)
@@ -410,15 +409,11 @@ def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, 
     both = np.intersect1d(meas.recording_id, sim.recording_id)
     meas = meas.subset(np.flatnonzero(np.isin(meas.recording_id, both)))
     sim_adc = sim.adc[np.isin(sim.recording_id, both)]
-    # The fits read the captures with the core's delays as the firmware sets them: the rig's plus the scan's.
-    rig_signal = model.signal.to_dict()
-    capture = signal_for_board(session.rig, {**rig_signal, "channel_delay_us": [0.0] * 4}, fs_hz).channel_delay_us
-    model.signal = signal_for_board(session.rig, rig_signal, fs_hz)
+    # The fits read the captures with the core's configuration as the firmware sets it (the scan's capture delays).
+    model.signal = signal_for_board(session.rig, model.signal.to_dict(), fs_hz)
     virtual_board = board_view(virtual.subset(train_rows), fs_hz) if board_map is None else None
-    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board, capture)
+    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board)
     fits.pop("_virtual_twin")
-    # The card's delays are the rig's own: the firmware (and the emulator) add the scan delays.
-    model.signal.channel_delay_us = [float(d - c) for d, c in zip(model.signal.channel_delay_us, capture)]
     return Path(model.save(out_dir, extra_card={
         **fits, "calibration": str(cal_path), "zero_shot": {**zs, "calibration_drops_on_the_board": len(meas)},
         "retrained_from": str(model_dir.resolve())}))

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from ..signal import core_config
+from ..signal import channel_delays_us, core_config
 from ..data import load_session
 from ..errors import ConfigError
 from . import arrival, damping, disc_bond, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
@@ -60,7 +60,7 @@ class CalibrateOptions:
     nu_max: float = 0.40
     nu_step: float = 0.001
     aic_blend: float = 1.0                 # core ToA: 1 = AIC onset (amplitude-independent), 0 = threshold
-    channel_delay_us: list | None = None   # known per-channel sampling delays; default: rig.json's, else 0
+    rig_delay_us: list | None = None       # known per-channel delays of the rig; default: rig.json's, else 0
     eq35_tol_us: float = 0.0
     eq35_margin_mm: float = 0.0
     min_reps: int = 2
@@ -162,10 +162,10 @@ def picker_overrides(opts: CalibrateOptions) -> dict:
     """The calibration's choices for the core's picker (signal.core_config overrides): its AIC blend and, when
     given, the channel delays."""
     out = {"aic_blend": float(opts.aic_blend)}
-    if opts.channel_delay_us is not None:
-        if len(opts.channel_delay_us) != 4:
-            raise ConfigError("--channel-delay-us needs four values (microseconds, channel 0..3)")
-        out["channel_delay_us"] = [float(v) for v in opts.channel_delay_us]
+    if opts.rig_delay_us is not None:
+        if len(opts.rig_delay_us) != 4:
+            raise ConfigError("--rig-delay-us needs four values (microseconds, channel 0..3)")
+        out["rig_delay_us"] = [float(v) for v in opts.rig_delay_us]
     return out
 
 
@@ -177,7 +177,7 @@ def measured_core_config(rig, opts: CalibrateOptions):
 def sim_core_config(rig, opts: CalibrateOptions):
     """The core's configuration for simulated recordings: the same picker, no channel delays (the simulator
     samples every channel at once)."""
-    return core_config(rig, **{**picker_overrides(opts), "channel_delay_us": [0.0, 0.0, 0.0, 0.0]})
+    return core_config(rig, **{**picker_overrides(opts), "rig_delay_us": [0.0, 0.0, 0.0, 0.0]})
 
 
 def sim_features(adc_u16, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
@@ -246,7 +246,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     targets, plate_targets, feats = clock.run("drops", stage_drops)
     out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
     noise = (float(np.median(targets.noise_rms)), int(opts.n_noise), int(opts.seed))
-    base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, list(cfg.channel_delay_us), noise)
+    base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, channel_delays_us(cfg), noise)
 
     # --- stage: plate grid (sub-problem 1) --------------------------------------------------------------
     e_axis, nu_axis = plate.grid_axes(opts.e_min_mpa, opts.e_max_mpa, opts.e_step_mpa, opts.nu_min,
@@ -276,7 +276,7 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
               "data_sha256": session.fingerprint(), "seed": opts.seed,
               "options": {k: v for k, v in asdict(opts).items() if k not in ("progress",)},
               "noise_added_to_simulations": {"counts_rms": noise[0], "realisations": noise[1]},
-              "core_config": {"aic_blend": cfg.aic_blend, "channel_delay_us": list(cfg.channel_delay_us),
+              "core_config": {"aic_blend": cfg.aic_blend, "rig_delay_us": list(cfg.rig_delay_us),
                               "fs_hz": cfg.fs_hz},
               "drops": targets.to_json(), "exclude_case_ids": [int(c) for c in targets.case_ids],
               "exclude_recording_ids": sorted(int(r) for rs in targets.recording_ids for r in rs),

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
+from ..signal import channel_delays_us
 from . import bands, group_delay, plate
 
 SIGMA_FLOOR_US = 0.5
@@ -65,12 +66,12 @@ def measured_targets(session, targets, feats, cfg, group_delays=False) -> PlateT
     for recs in targets.recording_ids:
         recs = np.asarray(recs, int)
         toa = feats["toa_us"][recs].astype(float)
-        t_band = bands.band_arrivals(session.adc[recs], toa, cfg.fs_hz, channel_delay_us=cfg.channel_delay_us,
+        t_band = bands.band_arrivals(session.adc[recs], toa, cfg.fs_hz, channel_delay_us=channel_delays_us(cfg),
                                      baseline_samples=cfg.baseline_samples)
         obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
                               bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)   # [r, K, 6]
         if group_delays:
-            obs = _with_group_delays(obs, session.adc[recs], toa, cfg.fs_hz, channel_delay_us=cfg.channel_delay_us,
+            obs = _with_group_delays(obs, session.adc[recs], toa, cfg.fs_hz, channel_delay_us=channel_delays_us(cfg),
                                      baseline_samples=cfg.baseline_samples)
         per_rep.append(obs)
         per_case.append(np.nanmedian(obs, axis=0))

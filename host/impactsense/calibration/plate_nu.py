@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import _core
+from ..signal import channel_delays_us
 from . import group_delay, plate, plate_fem
 
 OBSERVABLES = "group delays only"   # the AIC onsets bias nu by +0.01-0.02 even at the true positions
@@ -93,9 +94,9 @@ def measured_group_delays(session, targets, feats, cfg) -> tuple[np.ndarray, int
     """Every accepted repetition's band group delays [R, B, 6] us (cases in order), and the crop length."""
     recs = np.concatenate([np.asarray(r, int) for r in targets.recording_ids])
     toa = np.asarray(feats["toa_us"], float)[recs]
-    n = crop_samples(toa, cfg.fs_hz, session.adc.shape[-1], cfg.channel_delay_us)
+    n = crop_samples(toa, cfg.fs_hz, session.adc.shape[-1], channel_delays_us(cfg))
     gd = group_delay.group_delays(session.adc[recs][..., :n], toa, cfg.fs_hz, plate.PAIR_I, plate.PAIR_J,
-                                  channel_delay_us=cfg.channel_delay_us, baseline_samples=cfg.baseline_samples)
+                                  channel_delay_us=channel_delays_us(cfg), baseline_samples=cfg.baseline_samples)
     return gd, n
 
 

@@ -26,8 +26,8 @@ def register(sub) -> None:
     p.add_argument("--e-step", type=float, default=250.0, help="E step of the plate grid, MPa (default 250)")
     p.add_argument("--aic-blend", type=float, default=1.0,
                    help="core ToA for Eq. 16: 1 = AIC onset (default, amplitude independent), 0 = threshold")
-    p.add_argument("--channel-delay-us", default=None,
-                   help="four per-channel sampling delays in us (default: rig.json's channel_delay_us, else 0)")
+    p.add_argument("--rig-delay-us", "--channel-delay-us", dest="rig_delay_us", default=None,
+                   help="the rig's four per-channel delays in us (default: rig.json's rig_delay_us, else 0)")
     p.add_argument("--surrogate-trials", type=int, default=8, help="hyper-parameter candidates per surrogate")
     p.add_argument("--nu-rounds", type=int, default=2,
                    help="rounds of the nu stage (E, nu, D_s from the band group delays with each drop's position "
@@ -127,14 +127,14 @@ def run(args) -> int:
         from importlib import resources
         data = str(resources.files("impactsense") / "data" / "session-1")
     delays = None
-    if args.channel_delay_us:
+    if args.rig_delay_us:
         try:
-            delays = [float(v) for v in args.channel_delay_us.split(",")]
+            delays = [float(v) for v in args.rig_delay_us.split(",")]
         except ValueError:
-            raise ConfigError(f"--channel-delay-us needs four numbers, got {args.channel_delay_us!r}") from None
+            raise ConfigError(f"--rig-delay-us needs four numbers, got {args.rig_delay_us!r}") from None
     opts = CalibrateOptions(drops=_drops(args.drops), budget=args.budget, seed=args.seed, workers=args.workers,
                             progress=not args.quiet, nu_step=args.nu_step, e_step_mpa=args.e_step,
-                            aic_blend=args.aic_blend, channel_delay_us=delays,
+                            aic_blend=args.aic_blend, rig_delay_us=delays,
                             surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
                             nu_rounds=args.nu_rounds, support=args.support,
                             rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond)

@@ -62,7 +62,7 @@ def run(args) -> int:
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
           f"held out {len(split['test_recordings'])} drops")
     print(f"physics localiser: v = {sig.velocity_mm_per_us * 1000:.0f} m/s, channel delays (us) = "
-          f"{', '.join(f'{d:+.2f}' for d in sig.channel_delay_us)}")
+          f"{', '.join(f'{d:+.2f}' for d in sig.rig_delay_us)}")
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
           + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
     print(f"wrote {args.out}")

@@ -2,7 +2,7 @@
 
 Physical meaning: channel i's samples are taken `delay_us` later than the model assumes, so every ToA
 picked on channel i is late by that much (negative: early). Observable: the mean of channel i's centred
-ToA residual. Feeds CoreConfig.channel_delay_us (the core subtracts it from every pick).
+ToA residual. Feeds CoreConfig.rig_delay_us (the core subtracts it from every pick).
 """
 
 import numpy as np
@@ -31,9 +31,9 @@ class ChannelDelay(Effect):
         return shift_channels(adc, s, ctx)
 
     def core_overrides(self, values, sensor, params):
-        d = list(values["channel_delay_us"])
+        d = list(values["rig_delay_us"])
         d[sensor] += params["delay_us"]
-        return {**values, "channel_delay_us": d}
+        return {**values, "rig_delay_us": d}
 
     def material(self, params):
         return abs(params["delay_us"]) >= self.min_delay_us

@@ -108,10 +108,6 @@ def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2
     return board
 
 
-def _scan_delays_us() -> np.ndarray:
-    return -_link.SCAN_STEP_US * np.arange(4)
-
-
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
@@ -124,7 +120,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     (row indices) is given; the card lists the held-out recording ids (`test_recording_ids`, and `split`
     as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
     site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
-    The card's channel delays are the rig's own: the firmware (and the emulator) add the scan delays."""
+    The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own)."""
     from ..models import ForestSettings, ImpactModel
     from ..pipeline import featurize, fit_localiser
     from ..split import case_split
@@ -139,13 +135,12 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows])
-    sig = fit_localiser(board, np.flatnonzero(is_train), sig)  # total delays: the rig's plus the scan's
+    sig = fit_localiser(board, np.flatnonzero(is_train), sig)  # the rig's delays; the scan's are the capture's
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
                             site_map=site_map)
-    model.signal.channel_delay_us = [float(v) for v in np.asarray(sig.channel_delay_us) - _scan_delays_us()]
     ids = session.recording_id
     split = {
         "data_path": str(session.path),

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import _core  # noqa: F401
 from .. import _link
+from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, rig_settings
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
@@ -75,29 +76,19 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
 
 
 def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
-    """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig), sample
-    counts scaled from the training rate to the board's, the board rate and the SAADC scan delays (what
-    impactapp_models.h does on the board)."""
-    from ..signal import SignalConfig
-
-    cfg = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
-    scale = fs_hz / float(cfg.fs_hz)
-    cfg.aic_before = int(cfg.aic_before * scale + 0.5)
-    cfg.aic_after = int(cfg.aic_after * scale + 0.5)
-    cfg.fs_hz = float(fs_hz)
-    # channel c is read c * scan_step after channel 0: its onsets read early, a delay of -c * scan_step
-    cfg.channel_delay_us = [float(d) - _link.SCAN_STEP_US * c for c, d in enumerate(cfg.channel_delay_us)]
-    cfg.adc_max = rig.adc_max
-    cfg.sensor_x_mm = [float(v) for v in rig.sensor_x_mm]
-    cfg.sensor_y_mm = [float(v) for v in rig.sensor_y_mm]
-    cfg.plate_x_mm, cfg.plate_y_mm = rig.plate_x_mm, rig.plate_y_mm
-    return cfg
+    """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig) taken to
+    the board's rate and acquisition by the firmware's own function (impactapp::board_core_config: sample
+    counts scaled, the board rate, the SAADC scan's capture delays), the rig's ADC rail and geometry."""
+    card = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
+    board = config_dict(_link.board_core_config(card.core(), int(fs_hz), card.adc_min, int(rig.adc_max)))
+    changed = {f.name: board[f.name] for f in CORE_FIELDS if f.role != "COPY"}
+    geometry = {k: v for k, v in rig_settings(rig).items() if k in {f.name for f in LOCALISER_FIELDS}}
+    return SignalConfig.from_dict({**card.to_dict(), **changed, **geometry})
 
 
 def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
     sig = signal_for_board(rig, signal, fs_hz)
-    rig_delay = (signal or {}).get("channel_delay_us", [0.0] * 4)
-    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser(), "rig_delay_us": list(rig_delay)}
+    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
     cfg.update(extra)
     return cfg
 

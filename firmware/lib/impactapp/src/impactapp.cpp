@@ -85,6 +85,15 @@ App::App(Hal& hal, const Models* models, const AppConfig& cfg)
   if (!configure(cfg)) configure(AppConfig());
 }
 
+ic::CoreConfig board_acquisition(uint32_t fs_hz, int adc_min, int adc_max) {
+  ic::CoreConfig a;
+  a.fs_hz = static_cast<float>(fs_hz);
+  for (int c = 0; c < 4; ++c) a.capture_delay_us[c] = static_cast<float>(-c) * kScanStepUs;
+  a.adc_min = adc_min;
+  a.adc_max = adc_max;
+  return a;
+}
+
 bool App::configure(const AppConfig& cfg) {
   if (cfg.fs_hz < kMinRateHz || cfg.fs_hz > kMaxRateHz) return false;
   const float fs = static_cast<float>(cfg.fs_hz);
@@ -98,13 +107,9 @@ bool App::configure(const AppConfig& cfg) {
     return false;
   }
   cfg_ = cfg;
-  cfg_.core.fs_hz = fs;
-  for (int c = 0; c < 4; ++c) {
-    // Channel c is converted c * kScanStepUs after channel 0, so its sample k shows the wave that late:
-    // its onsets read early by that much (a delay of -c * kScanStepUs in the core's convention,
-    // toa = index / fs - delay).
-    cfg_.core.channel_delay_us[c] = cfg.rig_delay_us[c] - kScanStepUs * static_cast<float>(c);
-  }
+  const ic::CoreConfig acquisition = board_acquisition(cfg.fs_hz, cfg.core.adc_min, cfg.core.adc_max);
+  cfg_.core.fs_hz = acquisition.fs_hz;
+  for (int c = 0; c < 4; ++c) cfg_.core.capture_delay_us[c] = acquisition.capture_delay_us[c];
   pre_frames_ = pre;
   capture_frames_ = cap;
   trig_cfg_ = ic::TriggerConfig();

@@ -119,6 +119,18 @@ class TableModels : public Models {
   TwinSpec twin_{};
 };
 
+// The board's acquisition as the core sees it: the rate, the SAADC scan order's capture delays (channel c
+// is converted c * kScanStepUs after channel 0, so its sample k shows the wave that late: its onsets read
+// early by that much, a capture delay of -c * kScanStepUs) and the ADC rails.
+impactcore::CoreConfig board_acquisition(uint32_t fs_hz, int adc_min = 0, int adc_max = 4095);
+
+// A model card's core configuration (trained at card.fs_hz) as the board runs it at fs_hz: sample counts
+// scaled, the board's acquisition (impactcore::for_acquisition). The emulator calls this too.
+inline impactcore::CoreConfig board_core_config(const impactcore::CoreConfig& card, uint32_t fs_hz,
+                                                int adc_min = 0, int adc_max = 4095) {
+  return impactcore::for_acquisition(card, board_acquisition(fs_hz, adc_min, adc_max));
+}
+
 struct AppConfig {
   uint32_t fs_hz = 50000;            // per channel
   float pretrigger_us = 1920.0f;     // 96 frames at 50 kHz
@@ -127,8 +139,8 @@ struct AppConfig {
   float quiet_us = 2000.0f;          // re-arm after all channels stayed below rearm_counts this long
   float threshold_counts = 60.0f;
   float rearm_counts = 20.0f;
-  float rig_delay_us[4] = {0, 0, 0, 0};  // measured delays of the sensors/wiring (model card), added to ...
-  impactcore::CoreConfig core;       // ... the SAADC scan delays: configure() sets fs_hz and channel_delay_us
+  impactcore::CoreConfig core;       // the model card's; configure() sets the acquisition's fields (fs_hz,
+                                     // capture_delay_us: board_acquisition)
   impactcore::LocaliserConfig loc;   // geometry, group velocity, Eq. 35 tolerances
   bool dump_raw = false;
 };

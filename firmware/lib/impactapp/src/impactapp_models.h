@@ -61,31 +61,21 @@ inline TableModels exported_models() {
 #endif
 }
 
-// How the board takes one field of the model card (impactcore.h's roles): a plain copy, a sample count
-// scaled from the training rate to the board's, the rig's channel delays (configure() adds the scan's).
-template <typename T>
-inline void take_copy(T& dst, const T& src) { dst = src; }
-template <typename T, int N>
-inline void take_copy(T (&dst)[N], const T (&src)[N]) {
-  for (int c = 0; c < N; ++c) dst[c] = src[c];
-}
-inline void take_samples(int& dst, int src, float scale) { dst = static_cast<int>(src * scale + 0.5f); }
+#define IMPACTAPP_CARD_FIELD(kind, type, name, def, role) IMPACTAPP_CARD_##role(name)
+#define IMPACTAPP_CARD_COPY(name) memcpy(&card.name, &s.name, sizeof(card.name));
+#define IMPACTAPP_CARD_SAMPLES(name) IMPACTAPP_CARD_COPY(name)
+#define IMPACTAPP_CARD_RATE(name) IMPACTAPP_CARD_COPY(name)
+#define IMPACTAPP_CARD_ACQUISITION(name)  // the board's own acquisition; not in the card
+#define IMPACTAPP_LOC_FIELD(kind, type, name, def, role) memcpy(&cfg.loc.name, &s.name, sizeof(cfg.loc.name));
 
-#define IMPACTAPP_TAKE_COPY(dst, src) take_copy(dst, src);
-#define IMPACTAPP_TAKE_SAMPLES(dst, src) take_samples(dst, src, scale);
-#define IMPACTAPP_TAKE_DELAY(dst, src) take_copy(cfg.rig_delay_us, src);
-#define IMPACTAPP_TAKE_RATE(dst, src)         // the board samples at its own rate (cfg.fs_hz)
-#define IMPACTAPP_TAKE_ACQUISITION(dst, src)  // the board's own ADC; not in the card
-#define IMPACTAPP_TAKE_CORE(kind, type, name, def, role) IMPACTAPP_TAKE_##role(cfg.core.name, s.name)
-#define IMPACTAPP_TAKE_LOC(kind, type, name, def, role) IMPACTAPP_TAKE_##role(cfg.loc.name, s.name)
-
-// The signal and localiser settings of the model card (every field of impactcore.h's lists), with sample
-// counts scaled to the board rate.
+// The signal and localiser settings of the model card (every field of impactcore.h's lists the exporter
+// writes), taken to the board's rate and acquisition by board_core_config.
 inline AppConfig exported_config(AppConfig cfg) {
   const impactsense_signal_config& s = impactsense_signal;
-  const float scale = static_cast<float>(cfg.fs_hz) / s.fs_hz;
-  IMPACTCORE_CONFIG_FIELDS(IMPACTAPP_TAKE_CORE)
-  IMPACTCORE_LOCALISER_FIELDS(IMPACTAPP_TAKE_LOC)
+  impactcore::CoreConfig card;
+  IMPACTCORE_CONFIG_FIELDS(IMPACTAPP_CARD_FIELD)
+  cfg.core = board_core_config(card, cfg.fs_hz, cfg.core.adc_min, cfg.core.adc_max);
+  IMPACTCORE_LOCALISER_FIELDS(IMPACTAPP_LOC_FIELD)
   return cfg;
 }
 

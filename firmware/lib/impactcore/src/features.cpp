@@ -429,7 +429,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   } else {
     f->flags |= kFlagAicFallback;
   }
-  f->toa_us = toa * (1.0e6f / cfg.fs_hz) - cfg.channel_delay_us[c];
+  f->toa_us = toa * (1.0e6f / cfg.fs_hz) - channel_delay_us(cfg, c);
 
   const int ipk = first_extremum(x, n, base, icross);
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base);

@@ -59,14 +59,16 @@ enum ChannelFlag : uint8_t {
 //   type    float or int
 //   role    how the board takes the field from a model card trained at another sample rate:
 //           RATE       the sample rate itself (the card's is the training rate; the board runs its own)
-//           ACQUISITION set by the acquisition that made the samples (ADC rails), not by the card
-//           DELAY      the rig's channel delays (the board adds its capture's own; impactapp.cpp)
+//           ACQUISITION set by the acquisition that made the samples (ADC rails, capture delays), not by
+//                      the card
 //           SAMPLES    a sample count at the training rate, scaled to the board's rate
 //           COPY       taken as is
 #define IMPACTCORE_CONFIG_FIELDS(X)                                                                      \
   X(ONE, float, fs_hz, 100000.0f, RATE)  /* per-channel sample rate */                                 \
-  X(PER_CHANNEL, float, channel_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), DELAY) /* known sampling delay of  \
-    each channel (scan order); removed from the ToA */                                                   \
+  X(PER_CHANNEL, float, rig_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* what the rig does: a channel \
+    whose wave shows d us late (sensor, wiring) has d > 0; removed from the ToA */                        \
+  X(PER_CHANNEL, float, capture_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), ACQUISITION) /* what the           \
+    acquisition does (the board's SAADC reads channel c c x 5 us late: -5c); removed from the ToA too */  \
   X(PER_CHANNEL, float, channel_gain, (1.0f, 1.0f, 1.0f, 1.0f), COPY) /* sensor/front-end gain g:       \
     amplitudes / g, energies / g^2, onset threshold x g */                                               \
   X(ONE, int, baseline_samples, 64, COPY)  /* samples at the capture start for baseline and noise */   \
@@ -101,6 +103,29 @@ enum ChannelFlag : uint8_t {
 struct CoreConfig {
   IMPACTCORE_CONFIG_FIELDS(IMPACTCORE_DECLARE)
 };
+
+// The delay the core removes from channel c's ToA: the rig's plus the acquisition's.
+inline float channel_delay_us(const CoreConfig& cfg, int c) { return cfg.rig_delay_us[c] + cfg.capture_delay_us[c]; }
+
+// A model card's configuration (trained at card.fs_hz) as an acquisition at another rate runs it: the
+// acquisition's RATE and ACQUISITION fields, the card's SAMPLES fields scaled by the rates' ratio (rounded),
+// the card's COPY fields as they are. The one place a configuration changes rate (board, emulator).
+inline CoreConfig for_acquisition(const CoreConfig& card, const CoreConfig& acquisition) {
+  CoreConfig out = acquisition;
+  const float scale = acquisition.fs_hz / card.fs_hz;
+#define IMPACTCORE_TAKE_RATE(name)
+#define IMPACTCORE_TAKE_ACQUISITION(name)
+#define IMPACTCORE_TAKE_SAMPLES(name) out.name = static_cast<int>(card.name * scale + 0.5f);
+#define IMPACTCORE_TAKE_COPY(name) memcpy(&out.name, &card.name, sizeof(out.name));
+#define IMPACTCORE_TAKE(kind, type, name, def, role) IMPACTCORE_TAKE_##role(name)
+  IMPACTCORE_CONFIG_FIELDS(IMPACTCORE_TAKE)
+#undef IMPACTCORE_TAKE
+#undef IMPACTCORE_TAKE_COPY
+#undef IMPACTCORE_TAKE_SAMPLES
+#undef IMPACTCORE_TAKE_ACQUISITION
+#undef IMPACTCORE_TAKE_RATE
+  return out;
+}
 
 struct ChannelFeatures {
   float baseline;          // counts
