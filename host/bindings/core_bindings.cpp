@@ -117,13 +117,17 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
 }
 
 nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
-                        float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us) {
+                        float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us,
+                        std::vector<float> travel_metric) {
   if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
   if (use.ndim() != 2 || use.shape(0) != toa.shape(0) || use.shape(1) != 4) {
     throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
   }
   four(sx, "sensor_x_mm");
   four(sy, "sensor_y_mm");
+  if (!travel_metric.empty() && travel_metric.size() != 3) {
+    throw std::invalid_argument("travel_metric must be [Q_xx, Q_xy, Q_yy] (or empty: isotropic)");
+  }
   const size_t r = toa.shape(0);
   auto x = make_array<float>({r});
   auto y = make_array<float>({r});
@@ -133,7 +137,8 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
   auto status = make_array<int32_t>({r});
   for (size_t k = 0; k < r; ++k) {
     const auto res = ic::localise_tdoa(toa.data() + 4 * k, use.data() + 4 * k, sx.data(), sy.data(), v,
-                                       sigma_us, plate_x_mm, plate_y_mm, huber_us);
+                                       sigma_us, plate_x_mm, plate_y_mm, huber_us,
+                                       travel_metric.empty() ? nullptr : travel_metric.data());
     x.data()[k] = res.x_mm;
     y.data()[k] = res.y_mm;
     t0.data()[k] = res.t0_us;
@@ -448,7 +453,8 @@ NB_MODULE(_core, m) {
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,
-        "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a, "huber_us"_a = 4.0f);
+        "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a, "huber_us"_a = 4.0f,
+        "travel_metric"_a = std::vector<float>());
   m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
         "tol_us"_a, "margin_mm"_a);
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from . import _core
 from .data import Session
@@ -87,31 +86,21 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
 
 
 def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
-    """Fits the group velocity and per-channel delays (relative to channel 0) on training drops.
+    """Fits the physics localiser on training drops (travel.py): the onset threshold the core picks with,
+    the group velocity, the per-channel delays (relative to channel 0) and, on a plate whose material is not
+    a known isotropic one, the travel metric of its elliptical wavefronts.
 
-    Model: ToA_ik = t0_k + d_ik / v + delay_i at the drops' nominal positions; t0_k is eliminated by
-    centring each drop's residuals; a soft-L1 loss keeps cycle-skipped picks from steering the fit.
-    Returns a copy of `cfg` with velocity and rig_delay_us set (the capture's delays, cfg.capture_delay_us,
-    are removed from the picks first).
-    """
-    base = SignalConfig.from_dict(cfg.to_dict())
-    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]
-    raw = _core.extract_batch(as_int16(session.adc[rows]), base.core())
-    toa = raw["toa_us"].astype(float)
-    ok = np.isfinite(toa).all(1)
-    if ok.sum() < 8:
-        raise ValueError(f"only {int(ok.sum())} training drops have an onset on every channel")
-    d = distances_mm(session.xy_mm[rows], cfg)[ok]
-    toa = toa[ok]
+    Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
+    `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
+    from the picks first)."""
+    from .travel import choose_threshold, wants_metric
 
-    def residuals(p):
-        r = toa - d / p[0] - np.r_[0.0, p[1:]][None]
-        return (r - r.mean(1, keepdims=True)).ravel()
-
-    sol = least_squares(residuals, [cfg.velocity_mm_per_us, 0.0, 0.0, 0.0], loss="soft_l1", f_scale=3.0)
+    aniso = wants_metric(session.rig)
+    thr, fit, _ = choose_threshold(session.adc[rows], session.xy_mm[rows], cfg, aniso)
     out = SignalConfig.from_dict(cfg.to_dict())
-    out.velocity_mm_per_us = float(sol.x[0])
-    out.rig_delay_us = [0.0] + [float(v) for v in sol.x[1:]]
-    r = residuals(sol.x)
-    out.sigma_us = float(np.sqrt(np.median(r ** 2)) * 1.4826) if r.size else cfg.sigma_us
+    out.onset_threshold_counts = thr
+    out.velocity_mm_per_us = fit.velocity_mm_per_us
+    out.rig_delay_us = list(fit.delays_us)
+    out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = fit.metric
+    out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
     return out

@@ -63,6 +63,9 @@ def run(args) -> int:
           f"held out {len(split['test_recordings'])} drops")
     print(f"physics localiser: v = {sig.velocity_mm_per_us * 1000:.0f} m/s, channel delays (us) = "
           f"{', '.join(f'{d:+.2f}' for d in sig.rig_delay_us)}")
+    q = (sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy)
+    print(f"onset threshold {sig.onset_threshold_counts:g} counts; travel metric Q = "
+          + ("identity (isotropic)" if q == (1.0, 0.0, 1.0) else f"[{q[0]:.3f} {q[1]:+.3f}; {q[1]:+.3f} {q[2]:.3f}]"))
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
           + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
     print(f"wrote {args.out}")

@@ -93,7 +93,10 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, plate_x_mm, 320.0f, COPY)                                                               \
   X(ONE, float, plate_y_mm, 317.0f, COPY)                                                               \
   X(ONE, float, accept_tol_us, 5.0f, COPY)  /* acceptance rule: tolerance on ToA */                     \
-  X(ONE, float, accept_margin_mm, 10.0f, COPY)  /* ... only pairs whose distances differ this much */
+  X(ONE, float, accept_margin_mm, 10.0f, COPY)  /* ... only pairs whose distances differ this much */     \
+  X(ONE, float, travel_metric_xx, 1.0f, COPY)  /* travel time = sqrt(d^T Q d) / v: Q of an anisotropic */  \
+  X(ONE, float, travel_metric_xy, 0.0f, COPY)  /* plate (elliptical wavefronts; identity = isotropic,  */  \
+  X(ONE, float, travel_metric_yy, 1.0f, COPY)  /* bit for bit the Euclidean localiser)                 */
 
 #define IMPACTCORE_UNPAREN(...) __VA_ARGS__
 #define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
@@ -279,7 +282,7 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 // than sensor j by at least margin_mm.
 bool accept_eq35(const float toa_us[kChannels], const float sensor_x_mm[kChannels],
                  const float sensor_y_mm[kChannels], float x_mm, float y_mm, float tol_us,
-                 float margin_mm);
+                 float margin_mm, const float* travel_metric = nullptr);
 
 // --- physics localiser: TDOA least squares ---
 
@@ -292,15 +295,18 @@ struct LocaliserResult {
   int32_t status;
 };
 
-// Solves toa_i = t0 + |p - s_i| / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
+// Solves toa_i = t0 + |p - s_i|_Q / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
 // (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from one start:
 // the lowest Huber cost of a 4 x 4 grid of cell centres over the plate; at most 10 iterations (a bounded
 // cost per event); p stays on the plate. Channels whose `use` flag is 0 are left out (at least 3 needed).
-// velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance.
+// velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance;
+// travel_metric {Q_xx, Q_xy, Q_yy} (positive definite; nullptr or the identity: |d|_Q = |d|) makes the
+// travel distance sqrt(d^T Q d): the elliptical wavefronts of an orthotropic plate.
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
-                              float plate_y_mm, float huber_us = 4.0f);
+                              float plate_y_mm, float huber_us = 4.0f,
+                              const float* travel_metric = nullptr);
 
 
 // --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---

@@ -52,13 +52,22 @@ struct Problem {
   float inv_v;
   float huber;
   float lx, ly;
+  bool iso;              // no travel metric: plain distances (bit for bit the isotropic localiser)
+  float qxx, qxy, qyy;   // travel metric (impactcore.h travel_metric_*)
 };
+
+// The travel distance sqrt(d^T Q d) of the offset (dx, dy) from a sensor (the Euclidean one when iso).
+inline float travel(const Problem& p, float dx, float dy) {
+  if (p.iso) return dist(dx, dy);
+  const float q = p.qxx * dx * dx + 2.0f * p.qxy * dx * dy + p.qyy * dy * dy;
+  return vsqrt_f32(q > 0.0f ? q : 0.0f);
+}
 
 // The ToA residuals r[k] = toa[k] - |(x, y) - sensor k| / v; returns their mean (the least-squares t0).
 float residuals(const Problem& p, float x, float y, float* r) {
   float mean = 0.0f;
   for (int k = 0; k < p.m; ++k) {
-    r[k] = p.toa[k] - dist(x - p.sx[k], y - p.sy[k]) * p.inv_v;
+    r[k] = p.toa[k] - travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_v;
     mean += r[k];
   }
   return mean / static_cast<float>(p.m);
@@ -110,7 +119,7 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
   for (int k = 0; k < p.m; ++k) {
     const float dx = x - p.sx[k];
     const float dy = y - p.sy[k];
-    float d = dist(dx, dy);
+    float d = travel(p, dx, dy);
     if (d < 1e-3f) d = 1e-3f;
     const float e = p.toa[k] - (t0 + d * p.inv_v);
     const float ae = fabsf(e);
@@ -122,8 +131,9 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
       cost += p.huber * (ae - 0.5f * p.huber);
     }
     const float s = p.inv_v / d;
-    const float jx = dx * s;  // d(model)/dx
-    const float jy = dy * s;  // d(model)/dy; d(model)/dt0 = 1
+    // d(model)/dx, d(model)/dy (Q d / |d|_Q / v; d / |d| / v when iso); d(model)/dt0 = 1
+    const float jx = p.iso ? dx * s : (p.qxx * dx + p.qxy * dy) * s;
+    const float jy = p.iso ? dy * s : (p.qxy * dx + p.qyy * dy) * s;
     const float wjx = w * jx;
     const float wjy = w * jy;
     a0 += wjx * jx;
@@ -214,10 +224,15 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
-                              float plate_y_mm, float huber_us) {
+                              float plate_y_mm, float huber_us, const float* travel_metric) {
   LocaliserResult res = {};
   res.status = kOk;
   Problem p;
+  p.iso = travel_metric == nullptr ||
+          (travel_metric[0] == 1.0f && travel_metric[1] == 0.0f && travel_metric[2] == 1.0f);
+  p.qxx = travel_metric ? travel_metric[0] : 1.0f;
+  p.qxy = travel_metric ? travel_metric[1] : 0.0f;
+  p.qyy = travel_metric ? travel_metric[2] : 1.0f;
   p.m = 0;
   p.v = velocity_mm_per_us;
   p.inv_v = 1.0f / velocity_mm_per_us;
@@ -232,8 +247,9 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
       ++p.m;
     }
   }
-  if (p.m < 3 || !(velocity_mm_per_us > 0.0f) || !(plate_x_mm > 0.0f) || !(plate_y_mm > 0.0f)) {
-    res.status = p.m < 3 ? kErrTooFewSamples : kErrBadConfig;
+  const bool metric_ok = p.qxx > 0.0f && p.qyy > 0.0f && p.qxx * p.qyy > p.qxy * p.qxy;
+  if (p.m < 3 || !metric_ok || !(velocity_mm_per_us > 0.0f) || !(plate_x_mm > 0.0f) || !(plate_y_mm > 0.0f)) {
+    res.status = p.m < 3 && metric_ok ? kErrTooFewSamples : kErrBadConfig;
     res.x_mm = res.y_mm = res.t0_us = NAN;
     res.cov_xx = res.cov_xy = res.cov_yy = NAN;
     res.rms_residual_us = NAN;
@@ -273,7 +289,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   refine(p, &x, &y, &t0, &iterations, &evaluations, jtj);
   float ss = 0.0f;
   for (int k = 0; k < p.m; ++k) {
-    const float e = p.toa[k] - (t0 + dist(x - p.sx[k], y - p.sy[k]) * p.inv_v);
+    const float e = p.toa[k] - (t0 + travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_v);
     ss += e * e;
   }
   res.x_mm = x;

@@ -1,0 +1,142 @@
+"""The physics localiser's travel-time model, fitted on training drops: velocity, channel delays, the travel
+metric of an anisotropic plate, and the onset threshold the core picks with.
+
+Model (docs/method.md "Travel-time model"): ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i, with
+|d|_Q = sqrt(d^T Q d), Q = [[1 + a, b], [b, 1 - a]] (trace 2: v stays the mean speed; Q = I on an isotropic
+plate). On an orthotropic plate flexural wavefronts are close to ellipses whose axes are the material's; Q
+carries them into the core's localiser (impactcore.h travel_metric_*). t0_k is eliminated by centring each
+drop's residuals; a soft-L1 loss keeps cycle-skipped picks from steering the fit.
+
+The onset threshold: a dispersive plate (a stiff metal, a laminate) sends a weak, fast precursor ahead of the
+main flexural arrival; a threshold near the noise catches one cycle of it or another from drop to drop. The
+threshold is chosen from a few multiples of the rig's default by how well the fitted model explains the
+training drops' picks (robust residual spread in mm, i.e. times the velocity), so the core's own picker
+decides and nothing is tuned to one plate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from . import _core
+from .signal import SignalConfig
+
+THRESHOLD_FACTORS = (1.0, 2.0, 3.0, 5.0, 8.0)
+# A candidate threshold replaces the default only when it explains the training picks this much better.
+THRESHOLD_GAIN = 0.85
+VELOCITY_SCAN_MM_PER_US = np.geomspace(0.2, 10.0, 120)
+
+
+@dataclass
+class TravelFit:
+    velocity_mm_per_us: float
+    delays_us: list[float]          # channel 0 first (0), relative
+    metric: tuple[float, float, float]   # Q_xx, Q_xy, Q_yy
+    spread_us: float                # robust sd of the residuals (1.4826 MAD)
+    n: int
+
+    @property
+    def spread_mm(self) -> float:
+        return self.spread_us * self.velocity_mm_per_us
+
+
+def metric_of(a: float, b: float) -> tuple[float, float, float]:
+    return (1.0 + a, b, 1.0 - a)
+
+
+def travel_distances(xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, metric=(1.0, 0.0, 1.0)) -> np.ndarray:
+    """|p - s_i|_Q for every position [R, 2] and sensor [4, 2] -> [R, 4]."""
+    dx = np.asarray(xy_mm, float)[:, None, 0] - sensor_xy_mm[None, :, 0]
+    dy = np.asarray(xy_mm, float)[:, None, 1] - sensor_xy_mm[None, :, 1]
+    qxx, qxy, qyy = metric
+    return np.sqrt(np.maximum(qxx * dx * dx + 2 * qxy * dx * dy + qyy * dy * dy, 0.0))
+
+
+def _centred(r: np.ndarray) -> np.ndarray:
+    return r - r.mean(1, keepdims=True)
+
+
+def _start_slowness(toa: np.ndarray, d: np.ndarray) -> float:
+    """The slowness (us/mm) of least median |residual| over a log scan of velocities: a start that does not
+    depend on the plate's material."""
+    best, best_s = np.inf, 1.0
+    for v in VELOCITY_SCAN_MM_PER_US:
+        r = _centred(toa - d / v)
+        r = _centred(r - np.median(r, 0, keepdims=True))   # channel delays, roughly
+        score = float(np.median(np.abs(r)))
+        if score < best:
+            best, best_s = score, 1.0 / v
+    return best_s
+
+
+def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
+               anisotropic: bool) -> TravelFit:
+    """Velocity, channel delays (relative to channel 0) and, when anisotropic, the metric's a, b."""
+    toa = np.asarray(toa_us, float)
+    ok = np.isfinite(toa).all(1)
+    if ok.sum() < 8:
+        raise ValueError(f"only {int(ok.sum())} training drops have an onset on every channel")
+    toa, xy = toa[ok], np.asarray(xy_mm, float)[ok]
+    d0 = travel_distances(xy, sensor_xy_mm)
+    s0 = _start_slowness(toa, d0)
+
+    def unpack(p):
+        a, b = (p[4], p[5]) if anisotropic else (0.0, 0.0)
+        return p[0], np.r_[0.0, p[1:4]], metric_of(a, b)
+
+    def residuals(p):
+        s, delay, q = unpack(p)
+        d = d0 if not anisotropic else travel_distances(xy, sensor_xy_mm, q)
+        return _centred(toa - d * s - delay[None]).ravel()
+
+    p0 = [s0, 0.0, 0.0, 0.0] + ([0.0, 0.0] if anisotropic else [])
+    lo = [1e-3, -np.inf, -np.inf, -np.inf] + ([-0.9, -0.9] if anisotropic else [])
+    hi = [np.inf, np.inf, np.inf, np.inf] + ([0.9, 0.9] if anisotropic else [])
+    sol = least_squares(residuals, p0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0)
+    s, delay, q = unpack(sol.x)
+    r = residuals(sol.x)
+    return TravelFit(velocity_mm_per_us=float(1.0 / s), delays_us=[float(v) for v in delay],
+                     metric=tuple(float(v) for v in q), spread_us=float(1.4826 * np.median(np.abs(r))),
+                     n=int(ok.sum()))
+
+
+def wants_metric(rig) -> bool:
+    """Fit the travel metric unless the rig's material is a known isotropic one (materials.py)."""
+    from .materials import material_for_rig
+
+    mat = material_for_rig(rig)
+    return mat.orthotropic or not mat.known
+
+
+def picks(adc: np.ndarray, cfg: SignalConfig, **overrides) -> np.ndarray:
+    """The core's ToA (us) with the rig's delays off (the capture's still removed) and `overrides`: [R, 4]."""
+    from .pipeline import as_int16
+
+    trial = SignalConfig.from_dict({**cfg.to_dict(), "rig_delay_us": [0.0] * 4, **overrides})
+    return _core.extract_batch(as_int16(adc), trial.core())["toa_us"].astype(float)
+
+
+def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
+                     anisotropic: bool) -> tuple[float, TravelFit, list[dict]]:
+    """The onset threshold (counts) among THRESHOLD_FACTORS x the configured one whose travel fit explains
+    the training picks best (robust spread in mm); the configured one unless another is clearly better."""
+    base = float(cfg.onset_threshold_counts)
+    trials = []
+    for f in THRESHOLD_FACTORS:
+        thr = base * f
+        try:
+            fit = fit_travel(picks(adc, cfg, onset_threshold_counts=thr), xy_mm, cfg.sensor_xy_mm, anisotropic)
+        except ValueError:
+            continue
+        trials.append({"onset_threshold_counts": thr, "spread_mm": fit.spread_mm, "fit": fit})
+    if not trials:
+        raise ValueError("no onset threshold gives an onset on every channel of 8 training drops")
+    chosen = trials[0]
+    best = min(trials, key=lambda t: t["spread_mm"])
+    if chosen["onset_threshold_counts"] != base or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
+        chosen = best
+    table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
+    return chosen["onset_threshold_counts"], chosen["fit"], table
