@@ -134,7 +134,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     caps, rows, sig = board_captures(session, fs_hz)
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
-    board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows])
+    board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
     sig = fit_localiser(board, np.flatnonzero(is_train), sig)  # the rig's delays; the scan's are the capture's
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
