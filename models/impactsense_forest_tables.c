@@ -17763,5 +17763,8 @@ const impactsense_signal_config impactsense_signal = {
   320.0f,
   317.0f,
   5.0f,
-  10.0f
+  10.0f,
+  1.0f,
+  0.0f,
+  1.0f
 };

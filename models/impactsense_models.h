@@ -78,6 +78,9 @@ typedef struct {
   float plate_y_mm;  // copy
   float accept_tol_us;  // copy
   float accept_margin_mm;  // copy
+  float travel_metric_xx;  // copy
+  float travel_metric_xy;  // copy
+  float travel_metric_yy;  // copy
 } impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 
