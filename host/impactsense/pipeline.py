@@ -85,18 +85,23 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
     return np.hypot(xy_mm[:, None, 0] - s[None, :, 0], xy_mm[:, None, 1] - s[None, :, 1])
 
 
-def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True) -> SignalConfig:
     """Fits the physics localiser on training drops (travel.py): the onset threshold the core picks with,
     the group velocity, the per-channel delays (relative to channel 0) and, on a plate whose material is not
     a known isotropic one, the travel metric of its elliptical wavefronts.
 
     Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
-    from the picks first)."""
-    from .travel import choose_threshold, wants_metric
+    from the picks first). choose_threshold False keeps cfg's onset threshold."""
+    from .travel import fit_travel, picks, wants_metric
+    from .travel import choose_threshold as choose
 
     aniso = wants_metric(session.rig)
-    thr, fit, _ = choose_threshold(session.adc[rows], session.xy_mm[rows], cfg, aniso)
+    if choose_threshold:
+        thr, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso)
+    else:
+        thr = float(cfg.onset_threshold_counts)
+        fit = fit_travel(picks(session.adc[rows], cfg), session.xy_mm[rows], cfg.sensor_xy_mm, aniso)
     out = SignalConfig.from_dict(cfg.to_dict())
     out.onset_threshold_counts = thr
     out.velocity_mm_per_us = fit.velocity_mm_per_us
