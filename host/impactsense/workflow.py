@@ -43,11 +43,16 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
 
 
 def evaluation_rows(session: Session, model: ImpactModel) -> tuple[np.ndarray, str]:
-    """On the model's own session only its held-out drops; on any other session every drop."""
+    """On the model's own session only its held-out drops; on the session a sim-trained model's calibration
+    came from, its drops but the calibration drops; on any other session every drop."""
     split = model.card.get("split", {})
     if split.get("data_hash") and split["data_hash"] == session.fingerprint():
         rows = np.asarray(split.get("test_recordings", []), int)
         return rows, "held-out drops of the training session"
+    zero = model.card.get("zero_shot", {})
+    if zero.get("data_hash") and zero["data_hash"] == session.fingerprint():
+        rows = np.asarray(zero.get("test_recordings", []), int)
+        return rows, "the calibrated session's drops but the calibration drops (a sim-trained model)"
     return np.arange(len(session)), "all drops (another session)"
 
 

@@ -55,6 +55,10 @@ def run(args) -> int:
                "second_touches": int(np.sum(res["contacts"] > 1)),
                "contact_us_median": float(np.median(res["contact_s"]) * 1e6)}
     (out / "sim_params.json").write_text(json.dumps(summary, indent=1))
+    if args.calibration:   # train on this folder then fits the calibration drops' rig effects (chain.py)
+        from ..chain import record_calibration
+
+        record_calibration(out, args.calibration)
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
     clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
     print(f"{args.n} drops in {elapsed:.1f} s ({args.method}); mesh {summary['model']['nx']} x "

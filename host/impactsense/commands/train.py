@@ -18,8 +18,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="split and forest seed (default 0)")
     p.add_argument("--trees", type=int, default=100, help="trees per forest (default 100)")
     p.add_argument("--site-map", default="auto", metavar="auto|none|site-map.npz",
-                   help="the twin's site map for the energy class (`impactsense sitemap`); auto = the bundled "
-                        "twin's when the rig is the bundled rig, else none (energy forest on summed energies)")
+                   help="the twin's site map (`impactsense sitemap`); auto = for a virtual session made by "
+                        "`simulate-dataset --calibration` its calibrated twin's (built once, cached in the "
+                        "folder), else the bundled twin's when the rig is the bundled rig, else none")
     p.add_argument("--exclude", default=None,
                    help="comma-separated recording ids to leave out (e.g. calibration drops), or a CAL.json")
     p.set_defaults(func=run)
@@ -55,9 +56,21 @@ def run(args) -> int:
     session = load_session(args.data)
     from ..sitemap import resolve_site_map
 
-    site = resolve_site_map(args.site_map, session.rig)
-    model, split = train(session, args.out, args.test_fraction, args.seed, parse_exclude(args.exclude),
-                         ForestSettings(n_estimators=args.trees, seed=args.seed), site_map=site)
+    from ..chain import adapt, session_calibration
+    from ..chain import site_map as calibrated_site_map
+
+    cal = session_calibration(session)   # a virtual session made by simulate-dataset --calibration
+    if cal is not None and args.site_map in (None, "auto"):
+        site = calibrated_site_map(session, cal)
+    else:
+        site = resolve_site_map(args.site_map, session.rig)
+    settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
+    model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
+                         parse_exclude(args.exclude), settings, site_map=site)
+    if cal is not None:
+        print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
+              + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
+        model.save(args.out, extra_card={"split": split, **adapt(model, session, cal, args.seed)})
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
           f"held out {len(split['test_recordings'])} drops")

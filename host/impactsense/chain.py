@@ -1,0 +1,90 @@
+"""The step-by-step zero-shot chain: a virtual session that remembers the calibration it was made from.
+
+    impactsense calibrate DATA --out CAL.json
+    impactsense simulate-dataset --calibration CAL.json --n 490 --out V
+    impactsense train V --out M --test-fraction 0          # --site-map auto
+    impactsense evaluate DATA --model M --json OUT.json
+
+`simulate-dataset --calibration` writes CAL.json into V (`calibration.json`, with the file's path and hash).
+`train` on such a session does what `demo --zero-shot` does (zeroshot.run_zero_shot): the forests and the
+localiser from the virtual drops, the twin's site map (`--site-map auto`: the calibrated twin's, built once
+and cached in V), and then everything the four calibration drops teach the model about the rig
+(zeroshot.fit_on_calibration_drops: channel delays and gains, the rig's group velocity at the picks, the
+twin's fingerprint offsets and weights, the uncertainty's scale), read from the measured session CAL.json
+names. The model card records that session and its drops other than the calibration drops, so `evaluate`
+on it scores those drops only (the chain's figure), and `export` can make the model again for the board.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .data import Session, load_session
+from .errors import DataError
+
+CALIBRATION_FILE = "calibration.json"
+
+
+def record_calibration(session_dir: str | Path, cal_path: str | Path) -> Path:
+    """Writes CAL.json into the virtual session folder, with where it came from (path and SHA-256)."""
+    from .zeroshot import read_calibration
+
+    cal_path = Path(cal_path).resolve()
+    cal = read_calibration(cal_path)
+    cal["source"] = {"path": str(cal_path), "sha256": hashlib.sha256(cal_path.read_bytes()).hexdigest()}
+    out = Path(session_dir) / CALIBRATION_FILE
+    tmp = out.with_name(out.name + ".part")
+    tmp.write_text(json.dumps(cal, indent=1))
+    tmp.replace(out)
+    return out
+
+
+def session_calibration(session: Session) -> Path | None:
+    """The calibration a virtual session was made from (its copy in the folder), or None."""
+    path = Path(session.path) / CALIBRATION_FILE
+    return path if path.is_file() else None
+
+
+def measured_session(cal_path: Path) -> tuple[Session, dict]:
+    """The measured session CAL.json was fitted on (its `data`), checked against its hash."""
+    from .zeroshot import read_calibration
+
+    cal = read_calibration(cal_path)
+    if "data" not in cal:
+        raise DataError(cal_path, "data", "missing key (the calibration's measured session)")
+    session = load_session(cal["data"])
+    want = cal.get("data_sha256")
+    if want and want != session.fingerprint():
+        raise DataError(cal_path, "data_sha256", f"the session {cal['data']} changed since it was calibrated")
+    return session, cal
+
+
+def site_map(virtual: Session, cal_path: Path, progress: bool = True):
+    """The calibrated twin's site map (the bundled twin's when CAL.json is that twin), cached in the folder."""
+    from .sim import SimParams
+    from .zeroshot import twin_site_map
+
+    session, _ = measured_session(cal_path)
+    return twin_site_map(SimParams.from_json(cal_path), session, Path(virtual.path), progress)
+
+
+def adapt(model, virtual: Session, cal_path: Path, seed: int, workers: int = 2) -> dict:
+    """Fits what the calibration drops teach the virtual-trained `model` (in place, as demo --zero-shot);
+    returns the model card's record (the fits, the zero-shot record with the measured session's drops that
+    are not calibration drops as its test drops)."""
+    from .sim import SimParams
+    from .zeroshot import calibration_rows, calibration_twins, fit_on_calibration_drops, zero_shot_card
+
+    session, cal = measured_session(cal_path)
+    params = SimParams.from_json(cal_path)
+    rows = calibration_rows(session, cal)
+    cal_sim = calibration_twins(params, session, rows, seed, workers)
+    fits = fit_on_calibration_drops(model, session, rows, cal_sim, model.site_map, virtual)
+    fits.pop("_virtual_twin", None)
+    test_rows = np.setdiff1d(np.arange(len(session)), rows)
+    return {"trained_on": str(virtual.path), **fits,
+            **zero_shot_card(cal_path, session, rows, test_rows, seed, len(virtual))}
