@@ -92,7 +92,7 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "forest_xy": pred["forest_xy_mm"],
                          "phys_xy": feats.phys_xy_mm,
                          "spread": pred["spread_mm"], "energy_class": pred["energy_class"], "label": label,
-                         "accepted": feats.accepted}
+                         "accepted": feats.accepted, "flags": feats.flags}
     return report
 
 

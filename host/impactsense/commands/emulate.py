@@ -28,6 +28,9 @@ def register(sub):
                         "interrupted)")
     p.add_argument("--link", default=None, metavar="PATH",
                    help="also make PATH a symlink to the pty (a stable name across emulator restarts)")
+    p.add_argument("--inject", default=None, metavar="hum=40,glitch=0.1,offset=8,...",
+                   help="put lab faults into the drops first (the fields of `impactsense inject`: hum, hum_hz, "
+                        "offset, glitch, drift, noise, dead_channel, debond, debond_hz, seed)")
     p.set_defaults(func=run)
 
 
@@ -52,6 +55,12 @@ def run(args) -> int:
     s = load_session(args.data)
     if args.limit:
         s = s.subset(list(range(min(args.limit, len(s)))))
+    if args.inject:
+        from ..faults import inject_session, parse_spec
+
+        spec = parse_spec(args.inject)
+        s = inject_session(s, spec)
+        print(f"emulate: faults {spec.describe() or 'none'}", file=sys.stderr)
     models, signal = firmware_models(path) if path is not None else (None, None)
     print(f"emulate: {len(s)} drops of {s.name}, models: "
           f"{path if path is not None else 'none (reports carry the physics position, valid=0)'}", file=sys.stderr)

@@ -1,0 +1,119 @@
+"""Lab faults against the pipeline: fault -> MAE / accepted / class, on fault sessions made with
+`impactsense.faults` (the code behind `impactsense inject`) from session-1's held-out split (the model is
+trained on session-1's training split, as `impactsense train bundled` does) and from all of session-2.
+
+Rows: clean; the issue's mix (hum <= 50 counts at 50 Hz, per-record offsets sd 8, glitches in 10 % of
+records, 2 % gain drift, 2 counts of noise); 150 counts of 60 Hz hum with 4 counts of noise; one dead
+channel; one debonded channel (x0.4, first-order 3..5 kHz low-pass); each with --draws fault draws
+(seeds), the channel of the dead / debonded rows changing with the seed. Columns: MAE (whole plate, mean
+of the x and y MAE, mm) and its ratio to the clean row, the share of drops with a position (predicted),
+the share accepted by Eq. 35, energy class accuracy, and the share of drops whose report flags the bad
+channel (dead / debonded rows).
+
+Targets (issue 14), checked on every draw, exit 1 when one is missed:
+  mix:       MAE <= 1.3 x clean, accepted >= 0.95, class >= 0.95
+  dead:      MAE <= 2 x clean, flagged 1.00
+  debond:    MAE <= 1.5 x clean, flagged >= 0.95
+
+    python benchmarks/bench_faults.py [--draws 2] [--trees 100] [--no-targets] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+from impactsense.data import load_session
+from impactsense.faults import FaultSpec, inject_session
+from impactsense.models import ForestSettings
+from impactsense.sitemap import resolve_site_map
+from impactsense.workflow import evaluate, train
+
+SCENARIOS = {
+    "clean": lambda s: FaultSpec(seed=s),
+    "mix: hum 50 + offset 8 + glitch 0.1 + drift 2% + noise 2":
+        lambda s: FaultSpec(hum=50, offset=8, glitch=0.1, drift=0.02, noise=2, seed=s),
+    "hum 150 @ 60 Hz + noise 4": lambda s: FaultSpec(hum=150, hum_hz=60, noise=4, seed=s),
+    "dead channel": lambda s: FaultSpec(dead_channel=s % 4, noise=1, seed=s),
+    "debonded channel": lambda s: FaultSpec(debond=(s + 2) % 4, seed=s),
+}
+TARGETS = {"mix": (1.3, 0.95, 0.95), "dead": (2.0, None, None), "debond": (1.5, None, None)}
+
+
+def flagged_share(report: dict, channel: int) -> float:
+    flags = report.get("_arrays", {}).get("flags")
+    if flags is None or channel < 0:
+        return float("nan")
+    return float(np.mean(flags[:, channel] != 0))
+
+
+def score(model, session, spec: FaultSpec) -> dict:
+    s = inject_session(session, spec) if spec.active() else session
+    rep = evaluate(s, model, rows=np.arange(len(s)))
+    bad = spec.dead_channel if spec.dead_channel >= 0 else spec.debond
+    return {"mae_mm": rep["all"]["mae_mm"], "predicted": rep["predicted"] / rep["n"],
+            "accepted": rep["accepted"] / rep["n"], "class": rep["energy_class_accuracy"],
+            "flagged": flagged_share(rep, bad), "n": rep["n"]}
+
+
+def check(name: str, v: dict, clean_mae: float) -> list[str]:
+    key = next((k for k in TARGETS if name.startswith(k)), None)
+    if key is None:
+        return []
+    ratio, acc, cls = TARGETS[key]
+    miss = []
+    if not v["mae_mm"] <= ratio * clean_mae:
+        miss.append(f"MAE {v['mae_mm']:.2f} > {ratio} x {clean_mae:.2f}")
+    if acc is not None and not v["accepted"] >= acc:
+        miss.append(f"accepted {v['accepted']:.3f} < {acc}")
+    if cls is not None and not v["class"] >= cls:
+        miss.append(f"class {v['class']:.3f} < {cls}")
+    if key in ("dead", "debond") and not v["flagged"] >= (1.0 if key == "dead" else 0.95):
+        miss.append(f"flagged {v['flagged']:.2f}")
+    return miss
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--draws", type=int, default=2, help="fault draws (seeds) per scenario")
+    ap.add_argument("--trees", type=int, default=100)
+    ap.add_argument("--no-targets", action="store_true", help="print only, exit 0")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    t0 = time.time()
+    s1 = load_session("bundled")
+    model, split = train(s1, None, 0.2, 0, settings=ForestSettings(n_estimators=args.trees, seed=0),
+                         site_map=resolve_site_map("auto", s1.rig))
+    sessions = {"session-1 held-out": s1.subset(np.asarray(split["test_recordings"], int)),
+                "session-2": load_session("bundled:session-2")}
+    print(f"model trained on {len(split['train_recordings'])} drops of session-1 ({time.time() - t0:.0f} s)")
+    print(f"{'session / fault':<80} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5}")
+    out, misses = {}, []
+    for sname, sess in sessions.items():
+        clean = None
+        for name, make in SCENARIOS.items():
+            for d in range(1 if name == "clean" else args.draws):
+                v = score(model, sess, make(d))
+                clean = v["mae_mm"] if name == "clean" else clean
+                label = f"{sname}: {name}" + ("" if name == "clean" else f" (draw {d})")
+                print(f"{label:<80} {v['mae_mm']:7.2f} {v['mae_mm'] / clean:7.2f} {v['predicted']:5.2f} "
+                      f"{v['accepted']:6.2f} {v['class']:6.3f} {v['flagged']:5.2f}", flush=True)
+                out[label] = v
+                misses += [f"{label}: {m}" for m in check(name, v, clean)]
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+    print(f"({time.time() - t0:.0f} s)")
+    if misses and not args.no_targets:
+        print("MISSED TARGETS:\n  " + "\n  ".join(misses))
+        return 1
+    print("all targets met" if not misses else f"{len(misses)} targets missed (--no-targets)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""Fault injection (impactsense.faults, `impactsense inject`): each fault has the size and shape it claims."""
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from impactsense.errors import ConfigError
+from impactsense.faults import FaultSpec, inject, parse_spec
+
+FS = 100000.0
+BIAS = 2048.0
+
+
+def quiet(n_rec=40, n=5000):
+    return np.full((n_rec, 4, n), int(BIAS), np.uint16)
+
+
+def test_hum_amplitude_frequency_and_random_phase():
+    y = inject(quiet(), FaultSpec(hum=100, hum_hz=60, seed=3), FS, BIAS, 4095).astype(float) - BIAS
+    amp = y.max(axis=2)
+    assert np.all(amp <= 100 * 1.1 + 1) and np.all(amp >= 100 * 0.5 * 0.9 - 1)   # 0.5..1 x, +-10 % change
+    spec = np.abs(np.fft.rfft(y[0, 0]))
+    assert np.fft.rfftfreq(y.shape[2], 1 / FS)[np.argmax(spec)] == pytest.approx(60, abs=20)
+    phases = np.angle(np.fft.rfft(y[:, 0], axis=-1)[:, 3])   # bin 3 = 60 Hz over 50 ms
+    assert np.std(np.exp(1j * phases)) > 0.5                   # phases spread over the circle
+
+
+def test_glitches_are_short_large_and_in_the_stated_share():
+    y = inject(quiet(400), FaultSpec(glitch=0.25, seed=1), FS, BIAS, 4095).astype(float) - BIAS
+    hit = np.abs(y).max(axis=(1, 2))
+    assert 0.18 < np.mean(hit > 0) < 0.32
+    assert np.all((hit == 0) | ((hit >= 200) & (hit <= 2000)))
+    width = (np.abs(y) > 0).sum(axis=(1, 2))
+    assert set(np.unique(width[hit > 0])) <= {1, 2}
+
+
+def test_dead_and_debonded_channels():
+    rng = np.random.default_rng(0)
+    x = np.clip(BIAS + 300 * rng.standard_normal((8, 4, 4096)), 0, 4095).astype(np.uint16)
+    y = inject(x, FaultSpec(dead_channel=1, debond=2, debond_hz=4000, seed=0), FS, BIAS, 4095).astype(float) - BIAS
+    assert np.all(y[:, 1] == 0)
+    np.testing.assert_array_equal(y[:, [0, 3]], x[:, [0, 3]].astype(float) - BIAS)
+    f, pin = signal.welch(x[:, 2].astype(float) - BIAS, FS, nperseg=512)
+    _, pout = signal.welch(y[:, 2], FS, nperseg=512)
+    gain2 = pout.mean(0) / pin.mean(0)
+    assert gain2[1] == pytest.approx(0.16, rel=0.1)                       # x0.4 in the pass band
+    k = np.argmin(np.abs(f - 4000))
+    assert gain2[k] == pytest.approx(0.16 / 2, rel=0.15)                  # -3 dB at the cut-off
+
+
+def test_seeded_and_parsed():
+    a = inject(quiet(5), FaultSpec(hum=40, offset=8, noise=2, seed=7), FS, BIAS, 4095)
+    b = inject(quiet(5), parse_spec("hum=40,offset=8,noise=2,seed=7"), FS, BIAS, 4095)
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(ConfigError, match="hum"):
+        parse_spec("hum=-1")
+    with pytest.raises(ConfigError, match="NAME=VALUE"):
+        parse_spec("humm=1")
+
+
+def test_inject_cli_writes_a_session_and_rejects_bad_input(tmp_path, capsys):
+    from impactsense.cli import main
+    from impactsense.data import load_session
+
+    out = tmp_path / "faulty"
+    assert main(["inject", "bundled", "--out", str(out), "--rows", "test", "--hum", "20", "--glitch", "0.1"]) == 0
+    s, ref = load_session(out), load_session("bundled")
+    assert 100 < len(s) < len(ref)
+    assert main(["inject", "bundled", "--out", str(tmp_path / "x"), "--debond", "4"]) == 2
+    assert "debond" in capsys.readouterr().err
