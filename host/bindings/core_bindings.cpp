@@ -60,6 +60,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   auto peak = make_array<float>({r, 4});
   auto fpeak = make_array<float>({r, 4});
   auto noise = make_array<float>({r, 4});
+  auto hum = make_array<float>({r, 4});
   auto base = make_array<float>({r, 4});
   auto n2 = make_array<int32_t>({r, 4});
   auto status = make_array<int32_t>({r});
@@ -87,6 +88,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
         peak.data()[i] = ok ? f.peak : NAN;
         fpeak.data()[i] = ok ? f.first_peak : NAN;
         noise.data()[i] = ok ? f.noise_rms : NAN;
+        hum.data()[i] = ok ? f.hum_counts : NAN;
         base.data()[i] = ok ? f.baseline : NAN;
         n2.data()[i] = ok ? f.n2 : -1;
       }
@@ -110,6 +112,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   out["peak"] = peak;
   out["first_peak"] = fpeak;
   out["noise_rms"] = noise;
+  out["hum_counts"] = hum;
   out["baseline"] = base;
   out["n2"] = n2;
   out["status"] = status;
@@ -390,6 +393,8 @@ NB_MODULE(_core, m) {
   m.attr("FLAG_DEAD") = static_cast<int>(ic::kFlagDead);
   m.attr("FLAG_NO_ONSET") = static_cast<int>(ic::kFlagNoOnset);
   m.attr("FLAG_AIC_FALLBACK") = static_cast<int>(ic::kFlagAicFallback);
+  m.attr("FLAG_HUM") = static_cast<int>(ic::kFlagHum);
+  m.attr("FLAG_GLITCH") = static_cast<int>(ic::kFlagGlitch);
   m.attr("STATUS_OK") = static_cast<int>(ic::kOk);
   m.attr("STATUS_NO_TRIGGER") = static_cast<int>(ic::kErrNoTrigger);
   m.def("status_name", &ic::status_name);

@@ -361,18 +361,211 @@ int energy_reaches(const Channel& ch, int64_t target) {
   return ch.n - 1;
 }
 
+// The hum model's per-block departures d_k (block means of c0 + c1 cos + c2 sin) and the correction that
+// turns the constant-baseline energies of Channel into energies about the model: for a block,
+// sum (x - base - d)^2 = sum (x - base)^2 - 2 d sum (x - base) + m d^2. corr[k]: that correction summed
+// over blocks [0, k) (counts^2). Used only when the hum is modelled.
+struct HumEnergy {
+  const Channel* ch;
+  const Baseline* bl;
+  float base;
+  float gain16;    // mean of a unit sinusoid over a block
+  float corr[kMaxBlocks + 1];
+
+  float block_d(int k) const {
+    float s, c;
+    sin_cos(bl->w * (static_cast<float>(k * kBlock) + 0.5f * (kBlock - 1)), &s, &c);
+    return bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
+  }
+  void build(const Channel& channel, const Baseline& b, float level) {
+    ch = &channel;
+    bl = &b;
+    base = level;
+    float sh, chw, sl, cl;
+    sin_cos(0.5f * b.w, &sh, &chw);
+    sin_cos(0.5f * b.w * kBlock, &sl, &cl);
+    gain16 = sh > 0.0f ? sl / (kBlock * sh) : 1.0f;
+    float rs, rc, s, c;
+    sin_cos(b.w * kBlock, &rs, &rc);
+    sin_cos(b.w * 0.5f * (kBlock - 1), &s, &c);
+    corr[0] = 0.0f;
+    for (int k = 0; k < channel.nblk; ++k) {
+      const int m = channel.block_end(k) - k * kBlock;
+      const float d = b.c0 + gain16 * (b.c1 * c + b.c2 * s);
+      const float dev = static_cast<float>(channel.prefix[k + 1].s1 - channel.prefix[k].s1) - m * base;
+      corr[k + 1] = corr[k] + d * (static_cast<float>(m) * d - 2.0f * dev);
+      const float cn = c * rc - s * rs;
+      s = s * rc + c * rs;
+      c = cn;
+    }
+  }
+  // Energy about the model of x[0 .. k kBlock) and of x[0 .. i).
+  float to_block(int k) const { return ch->to_energy(ch->energy_to_block(k)) + corr[k]; }
+  float to(int i) const {
+    const int k = i / kBlock, m = i - k * kBlock;
+    float e = ch->to_energy(ch->energy_to(i)) + corr[k];
+    if (m > 0) {
+      const float d = block_d(k);
+      const Sums p = prefix_at(ch->x, ch->prefix, ch->n, i);
+      const float dev = static_cast<float>(p.s1 - ch->prefix[k].s1) - m * base;
+      e += d * (static_cast<float>(m) * d - 2.0f * dev);
+    }
+    return e;
+  }
+  // The first sample where the energy about the model reaches target (energy_reaches about the model).
+  int reaches(float target) const {
+    if (to_block(ch->nblk) < target) return ch->n - 1;
+    int lo = 0, hi = ch->nblk;
+    while (hi - lo > 1) {
+      const int mid = (lo + hi) / 2;
+      if (to_block(mid) < target) lo = mid; else hi = mid;
+    }
+    float cum = to_block(lo);
+    const float d = base + block_d(lo);
+    for (int i = lo * kBlock; i < ch->n; ++i) {
+      const float v = static_cast<float>(ch->x[i]) - d;
+      cum += v * v;
+      if (cum >= target) return i;
+    }
+    return ch->n - 1;
+  }
+};
+
+// The hum model near the onset: the global fit misses a hum whose amplitude drifts by up to a few counts,
+// more than an onset threshold allows, so the scan tracks the residual (block mean - model) of the last
+// kLocalBlocks quiet blocks, a straight line through them extrapolated: b(i) = level + hum_at(i) + r +
+// slope (i - t).
+constexpr int kLocalBlocks = 4;
+struct LocalHum {
+  const Baseline* bl;
+  float r = 0.0f, slope = 0.0f, t = 0.0f;  // the line: value r at sample t, per-sample slope
+  float rs[kLocalBlocks], ts[kLocalBlocks];
+  int quiet = 0;                           // quiet blocks seen
+  float model(float i) const { return bl->level + hum_at(*bl, i) + r + slope * (i - t); }
+  void add_block(const Channel& ch, int k) {
+    const int a = k * kBlock, e = ch.block_end(k);
+    const float centre = 0.5f * static_cast<float>(a + e - 1);
+    const float mean = static_cast<float>(ch.prefix[k + 1].s1 - ch.prefix[k].s1) / static_cast<float>(e - a);
+    const int slot = quiet % kLocalBlocks;
+    rs[slot] = mean - bl->level - hum_at(*bl, centre);
+    ts[slot] = centre;
+    ++quiet;
+    const int m = quiet < kLocalBlocks ? quiet : kLocalBlocks;
+    float st = 0.0f, sr = 0.0f;
+    for (int j = 0; j < m; ++j) {
+      st += ts[j];
+      sr += rs[j];
+    }
+    t = st / static_cast<float>(m);
+    r = sr / static_cast<float>(m);
+    float stt = 0.0f, str = 0.0f;
+    for (int j = 0; j < m; ++j) {
+      stt += (ts[j] - t) * (ts[j] - t);
+      str += (ts[j] - t) * (rs[j] - r);
+    }
+    slope = m >= 3 && stt > 0.0f ? str / stt : 0.0f;
+  }
+};
+
+// The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
+// residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
+// counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
+float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, int* at, int* spikes,
+                   LocalHum* local) {
+  if (start < 1) start = 1;
+  local->bl = &bl;
+  // The residual from the quiet blocks before start (a block that reaches the threshold about the global
+  // model, a glitch or the onset, is left out).
+  for (int k = 0; k < start / kBlock; ++k) {
+    int32_t lo, hi;
+    const int a = k * kBlock, e = ch.block_end(k);
+    range_extremes(ch.x, a, e, &lo, &hi);
+    if (static_cast<float>(hi - lo) < 2.0f * thr + 2.0f * fabsf(hum_at(bl, a) - hum_at(bl, e - 1))) local->add_block(ch, k);
+  }
+  int resume = start;
+  for (int k = start / kBlock; k < ch.nblk; ++k) {
+    const int a = k * kBlock > start ? k * kBlock : start;
+    const int e = ch.block_end(k);
+    if (e - a < 1) continue;
+    const float ba = local->model(static_cast<float>(a));
+    const float be = local->model(static_cast<float>(e - 1));
+    int32_t lo, hi;
+    range_extremes(ch.x, a, e, &lo, &hi);
+    const float blo = (ba < be ? ba : be) - 0.5f, bhi = (ba > be ? ba : be) + 0.5f;
+    if (static_cast<float>(hi) - blo < thr && bhi - static_cast<float>(lo) < thr) {
+      if (a == k * kBlock) local->add_block(ch, k);
+      continue;
+    }
+    const float slope = e - 1 > a ? (be - ba) / static_cast<float>(e - 1 - a) : 0.0f;
+    bool glitched = false;
+    for (int i = a > resume ? a : resume; i < e; ++i) {
+      const float bi = ba + slope * static_cast<float>(i - a);
+      if (fabsf(static_cast<float>(ch.x[i]) - bi) < thr) continue;
+      if (is_transient(ch.x, ch.n, i, bi, thr)) {
+        ++*spikes;
+        resume = i + 3;
+        i += 2;
+        glitched = true;
+        continue;
+      }
+      *at = i;
+      return crossing_subsample(ch.x, i, bi, thr);
+    }
+    if (a == k * kBlock && !glitched) local->add_block(ch, k);  // every sample stayed below: quiet
+  }
+  *at = -1;
+  return -1.0f;
+}
+
+// The AIC onset on a copy of the window with the baseline model taken out and the glitches before the
+// crossing (samples at or beyond the threshold there) set to the baseline; (begin, end, search_from) as
+// aic_pick_subsample. Returns the onset in samples of the capture, or -1.
+float aic_on_clean_copy(const int16_t* x, const LocalHum& bl, int begin, int end, int icross, float thr,
+                        int search_from) {
+  int16_t buf[kMaxAicWindow];
+  const int len = end - begin;
+  const float b0 = bl.model(static_cast<float>(begin));
+  const float bm = bl.model(0.5f * static_cast<float>(begin + end - 1));
+  const float b1 = bl.model(static_cast<float>(end - 1));
+  const float half = 0.5f * static_cast<float>(len - 1);
+  // quadratic through the window's ends and middle: b(u) = bm + p u + q u^2, u = j - centre
+  const float p = half > 0.0f ? (b1 - b0) / (2.0f * half) : 0.0f;
+  const float q = half > 0.0f ? (b1 + b0 - 2.0f * bm) / (2.0f * half * half) : 0.0f;
+  for (int j = 0; j < len; ++j) {
+    const float u = static_cast<float>(j) - half;
+    float v = static_cast<float>(x[begin + j]) - (bm + u * (p + q * u));
+    if (begin + j < icross && fabsf(v) >= thr) v = 0.0f;
+    buf[j] = static_cast<int16_t>(floor_to_int(v + 0.5f));
+  }
+  const float r = aic_pick_subsample(buf, 0, len, search_from - begin);
+  return r >= 0.0f ? r + static_cast<float>(begin) : -1.0f;
+}
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, ChannelFeatures* f) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
   ch.n = n;
   ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
-  const Sums base_sums = prefix_at(x, ch.prefix, n, cfg.baseline_samples);
-  ch.set_baseline(cfg.baseline_samples, base_sums.s1);
+  Baseline bl;
+  fit_baseline(x, n, ch.prefix, cfg.baseline_samples, cfg.fs_hz, &bl);
+  ch.set_baseline(bl.kept_n, bl.kept.s1);
   ch.set_centre();
-  baseline_from_sums(base_sums, ch.nb, &f->baseline, &f->noise_rms);
+  f->baseline = bl.level;
+  f->noise_rms = bl.noise_rms;
+  f->hum_counts = 0.0f;
   const float base = f->baseline;
-  f->flags = 0;
+  f->flags = bl.glitch_parts > 0 ? kFlagGlitch : 0;
+  if (bl.hum) {
+    // The hum's slope inflates the baseline's rms: the noise floor is the parts' rms about their own
+    // means less a sinusoid's mean variance about a part's mean, (w A)^2 (L^2 - 1) / 24.
+    const float len = static_cast<float>(cfg.baseline_samples) / 4.0f;
+    const float ramp = bl.w * bl.hum_amp * bl.w * bl.hum_amp * (len * len - 1.0f) / 24.0f;
+    const float v = bl.within_rms * bl.within_rms;
+    f->noise_rms = vsqrt_f32(v - ramp > 0.1f * v ? v - ramp : 0.1f * v);
+    f->hum_counts = bl.hum_amp;
+    f->flags |= kFlagHum;
+  }
 
   // Onset threshold crossing (sub-sample). The threshold is in unit-gain counts: a channel with gain g
   // crosses at the same wave phase.
@@ -380,15 +573,32 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   float thr = cfg.onset_threshold_counts * gain;
   const float noise_thr = cfg.onset_noise_factor * f->noise_rms;
   if (noise_thr > thr) thr = noise_thr;
-  int at = -1;
-  const float cross = ch.fits32 ? crossing<true>(ch, base, thr, cfg.baseline_samples, &at)
-                                 : crossing<false>(ch, base, thr, cfg.baseline_samples, &at);
+  int at = -1, spikes = 0;
+  float cross = -1.0f;
+  LocalHum local;
+  local.bl = &bl;
+  local.r = base - bl.level;  // 0: without a hum the local model is the level
+  if (bl.hum) {
+    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local);
+  } else {
+    for (int from = cfg.baseline_samples;;) {
+      cross = ch.fits32 ? crossing<true>(ch, base, thr, from, &at) : crossing<false>(ch, base, thr, from, &at);
+      if (at < 0 || !is_transient(x, n, at, base, thr)) break;
+      ++spikes;
+      from = at + 3;
+    }
+  }
+  if (spikes > 0) f->flags |= kFlagGlitch;
 
   // Energy, peak and clipping over the whole capture.
   const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
-  const float energy = ch.to_energy(energy_scaled);
-  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, cfg.baseline_samples)
-                                : peak_abs<false>(ch, base, at, cfg.baseline_samples);
+  HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
+  if (bl.hum) hum_e.build(ch, bl, base);
+  const float energy = bl.hum ? hum_e.to_block(ch.nblk) : ch.to_energy(energy_scaled);
+  // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
+  // transient was passed over and the baseline is the level.
+  const int below_from = (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
+  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
   f->energy = energy;
   f->peak = peak;
   if (ch.fits32 ? clipped<true>(ch, base, peak, cfg.adc_min, cfg.adc_max)
@@ -421,7 +631,14 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   // The onset is sought in the last third of the samples before the crossing (the AIC minimum lies within
   // 3.1 samples of it at 50 kHz, 6.1 at 100 kHz, over session-1's 3084 picks); the earlier two thirds
   // give the noise variance. Same picks as the whole-window search there, at half the logarithms.
-  const float aic = aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 3);
+  bool clean_copy = bl.hum != 0;
+  if (!clean_copy && icross > begin) {   // a glitch before the crossing would set the AIC's noise variance
+    int32_t lo, hi;
+    range_extremes(x, begin, icross, &lo, &hi);
+    clean_copy = static_cast<float>(hi) - base >= thr || base - static_cast<float>(lo) >= thr;
+  }
+  const float aic = clean_copy ? aic_on_clean_copy(x, local, begin, end, icross, thr, icross - cfg.aic_before / 3)
+                               : aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 3);
   float toa = cross;
   if (aic >= 0.0f && aic <= cross + 1.0f) {
     f->toa_aic = aic;
@@ -431,22 +648,33 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   }
   f->toa_us = toa * (1.0e6f / cfg.fs_hz) - channel_delay_us(cfg, c);
 
-  const int ipk = first_extremum(x, n, base, icross);
-  f->first_peak = fabsf(static_cast<float>(x[ipk]) - base);
+  const float base_on = local.model(cross);
+  const int ipk = first_extremum(x, n, base_on, icross);
+  f->first_peak = fabsf(static_cast<float>(x[ipk]) - base_on);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
-  const int n2 = energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
+  const int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)
+                        : energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
   const int start = static_cast<int>(toa);
   const int span = n2 + 1 - start;
   if (span >= kEnergyWindows) {
-    int64_t at = ch.energy_to(start);
-    for (int w = 0; w < kEnergyWindows; ++w) {
-      const int b = start + (span * (w + 1)) / kEnergyWindows;
-      const int64_t next = ch.energy_to(b);
-      f->window_energy[w] = ch.to_energy(next - at);
-      at = next;
+    if (bl.hum) {
+      float at = hum_e.to(start);
+      for (int w = 0; w < kEnergyWindows; ++w) {
+        const float next = hum_e.to(start + (span * (w + 1)) / kEnergyWindows);
+        f->window_energy[w] = next - at;
+        at = next;
+      }
+    } else {
+      int64_t at = ch.energy_to(start);
+      for (int w = 0; w < kEnergyWindows; ++w) {
+        const int b = start + (span * (w + 1)) / kEnergyWindows;
+        const int64_t next = ch.energy_to(b);
+        f->window_energy[w] = ch.to_energy(next - at);
+        at = next;
+      }
     }
     f->residual_ratio = energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / energy : kNaN;
   }

@@ -45,6 +45,8 @@ enum ChannelFlag : uint8_t {
   kFlagDead = 1u << 1,      // no signal above the noise floor (or a flat line)
   kFlagNoOnset = 1u << 2,   // the channel never crossed its onset threshold
   kFlagAicFallback = 1u << 3,  // AIC refinement failed; threshold pick kept
+  kFlagHum = 1u << 4,       // a mains hum was fitted and removed (ChannelFeatures.hum_counts)
+  kFlagGlitch = 1u << 5,    // a 1-2 sample spike was found and left out (baseline, onset or energies)
 };
 
 // --- configuration: every field, its type, default and board role, declared once ---
@@ -147,6 +149,7 @@ struct ChannelFeatures {
   // faster with the impact speed than the total and is less coloured by the plate's modes at the site.
   float diff_energy[kDiffOrders];
   int32_t n2;              // sample where the cumulative energy stops growing
+  float hum_counts;        // amplitude of the fitted mains hum (counts; 0 when none was modelled)
   uint8_t flags;           // ChannelFlag bits
 };
 
@@ -200,6 +203,46 @@ int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
 
 // sum over i in [a, b) of (Delta^k x[i])^2 for k = 1 .. kDiffOrders, exact in int64 (needs a >= kDiffOrders: the products reach back to x[a - 3]).
 void difference_energies(const int16_t* x, int a, int b, int64_t out[kDiffOrders]);
+
+// --- the baseline: level, noise floor and mains hum (baseline.cpp) ---
+//
+// A capture's baseline is a level plus, when the lab's mains couples in, a hum: b(i) = level + c0 +
+// c1 cos(w i) + c2 sin(w i), i the sample index, w = 2 pi f_mains / fs with f_mains 50 or 60 Hz (whichever
+// fits better). The level and the noise floor come from the baseline segment (the capture's first
+// baseline_samples) in four parts, leaving out a part whose variance about its own mean stands out (a
+// glitch there). The hum is fitted by weighted least squares to the means of groups of kHumGroupBlocks
+// blocks over the whole capture, each weighted by 1 / (its variance about its mean + the noise floor^2):
+// the plate's ringing has a zero mean and a large variance, so the quiet stretches before the arrival
+// and the rung-down tail set the fit. It is used (hum = 1) only when its amplitude reaches kHumMinCounts
+// and twice the noise floor, so a clean capture keeps the plain level.
+constexpr float kMainsHz[2] = {50.0f, 60.0f};
+constexpr int kHumGroupBlocks = 8;
+constexpr float kHumMinCounts = 4.0f;
+
+struct Baseline {
+  float level;        // counts: mean of the kept baseline parts
+  float noise_rms;    // rms about that mean over the kept parts
+  float within_rms;   // rms about each part's own mean (a hum's slope barely enters it)
+  Sums kept;          // sums of the kept baseline samples ...
+  int32_t kept_n;     // ... and how many
+  int32_t glitch_parts;  // baseline parts left out
+  float hum_hz;       // the better-fitting mains frequency (0: too few groups to fit)
+  float hum_amp;      // sqrt(c1^2 + c2^2), counts
+  float c0, c1, c2;   // the model above (c0: the hum fit's own offset from the level)
+  float w;            // rad per sample
+  uint8_t hum;        // the hum is modelled
+};
+void fit_baseline(const int16_t* x, int n, const Sums* prefix, int baseline_samples, float fs_hz,
+                  Baseline* out);
+// sin and cos of a (|error| < 1e-6; no libm).
+void sin_cos(float a, float* s, float* c);
+// The model's departure from the level at sample i: c0 + c1 cos(w i) + c2 sin(w i) (0 without hum).
+inline float hum_at(const Baseline& b, float i) {
+  if (!b.hum) return 0.0f;
+  float s, c;
+  sin_cos(b.w * i, &s, &c);
+  return b.c0 + b.c1 * c + b.c2 * s;
+}
 
 // --- pickers: plain functions of a buffer (vallenae style) ---
 
@@ -259,8 +302,18 @@ inline int32_t ceil_to_int(float v) {
   return static_cast<float>(t) < v ? t + 1 : t;
 }
 
-// First index i >= start with |x[i] - base| >= thr, refined to a sub-sample position by linear
-// interpolation between i-1 and i. Returns -1 if none.
+// A crossing at sample i (|x[i] - b| >= thr, x[i - 1] below) is a transient, not an arrival, when the
+// excursion is over within two samples and the kTransientQuiet samples after it stay below the
+// threshold, and either it reached kGlitchRatio x the threshold (a glitch: a spike of any size) or those
+// samples stay below half of it (a lone noise peak: an arrival that just reaches the threshold keeps its
+// neighbours near it). An arrival's first lobe may be a one-sample blip, but its next lobes follow
+// within a sample or two.
+constexpr float kGlitchRatio = 2.0f;
+constexpr int kTransientQuiet = 4;
+bool is_transient(const int16_t* x, int n, int i, float b, float thr);
+
+// First index i >= start with |x[i] - base| >= thr that is not a transient (is_transient; the scan goes on
+// after one), refined to a sub-sample position by linear interpolation between i-1 and i. -1 if none.
 float threshold_crossing(const int16_t* x, int n, float base, float thr, int start);
 // That sub-sample position when i (>= 1) is the first index at or above the threshold.
 float crossing_subsample(const int16_t* x, int i, float base, float thr);

@@ -38,10 +38,31 @@ float crossing_subsample(const int16_t* x, int i, float base, float thr) {
   return static_cast<float>(i - 1) + (frac < 0.0f ? 0.0f : frac);
 }
 
+bool is_transient(const int16_t* x, int n, int i, float b, float thr) {
+  const auto dev = [x, b](int j) { return fabsf(static_cast<float>(x[j]) - b); };
+  if (i + 2 + kTransientQuiet >= n) return false;
+  int end = i + 1;                       // first sample after the excursion
+  if (dev(end) >= thr) ++end;
+  if (dev(end) >= thr) return false;     // three samples or more: not a transient
+  const float peak = dev(i) > dev(i + 1) ? dev(i) : dev(i + 1);
+  float after = 0.0f;
+  for (int j = end; j < end + kTransientQuiet; ++j) {
+    const float d = dev(j);
+    if (d >= thr) return false;
+    if (d > after) after = d;
+  }
+  return peak >= kGlitchRatio * thr || after < 0.5f * thr;
+}
+
 float threshold_crossing(const int16_t* x, int n, float base, float thr, int start) {
   if (start < 1) start = 1;
   for (int i = start; i < n; ++i) {
-    if (fabsf(static_cast<float>(x[i]) - base) >= thr) return crossing_subsample(x, i, base, thr);
+    if (fabsf(static_cast<float>(x[i]) - base) < thr) continue;
+    if (is_transient(x, n, i, base, thr)) {
+      i += 2;
+      continue;
+    }
+    return crossing_subsample(x, i, base, thr);
   }
   return -1.0f;
 }

@@ -1,0 +1,191 @@
+// The baseline of a channel: a level and a noise floor from the quiet start of the capture that a glitch
+// cannot move, and a mains-hum model fitted to the whole capture (impactcore.h, "baseline").
+//
+// Cost: a few group sums read from the prefix table (no pass over the samples): the baseline segment in
+// four parts, the capture in groups of kHumGroupBlocks blocks, for 50 and 60 Hz.
+#include <math.h>
+#include <stdint.h>
+
+#include "impactcore.h"
+
+namespace impactcore {
+
+void sin_cos(float a, float* s, float* c) {
+  // a reduced to [-pi, pi], then to [-pi/2, pi/2] by sin(pi - a) = sin a, cos(pi - a) = -cos a; odd and
+  // even Taylor series to a^11 and a^12: |error| < 1e-6 there.
+  constexpr float kPi = 3.14159265f, kTwoPi = 6.28318531f;
+  const float turns = a * (1.0f / kTwoPi);
+  a -= kTwoPi * static_cast<float>(floor_to_int(turns + 0.5f));
+  float sign_c = 1.0f;
+  if (a > 0.5f * kPi) {
+    a = kPi - a;
+    sign_c = -1.0f;
+  } else if (a < -0.5f * kPi) {
+    a = -kPi - a;
+    sign_c = -1.0f;
+  }
+  const float a2 = a * a;
+  *s = a * (1.0f - a2 / 6.0f * (1.0f - a2 / 20.0f * (1.0f - a2 / 42.0f * (1.0f - a2 / 72.0f * (1.0f - a2 / 110.0f)))));
+  *c = sign_c * (1.0f - a2 / 2.0f * (1.0f - a2 / 12.0f * (1.0f - a2 / 30.0f * (1.0f - a2 / 56.0f * (1.0f - a2 / 90.0f * (1.0f - a2 / 132.0f))))));
+}
+
+namespace {
+
+// sum (x - c)^2 over a range, exact, as float (c an integer near the level).
+float centred_s2(const Sums& s, int m, int32_t c) {
+  return int64_to_float(s.s2 - 2 * static_cast<int64_t>(c) * s.s1 + static_cast<int64_t>(m) * c * c);
+}
+
+Sums range_sums(const int16_t* x, const Sums* prefix, int n, int a, int b) {
+  const Sums pa = prefix_at(x, prefix, n, a), pb = prefix_at(x, prefix, n, b);
+  return Sums{pb.s2 - pa.s2, pb.s1 - pa.s1};
+}
+
+// Weighted least squares of y_g = c0 + c1 D cos(w t_g) + c2 D sin(w t_g) over the groups (D: a group's
+// mean of a unit sinusoid). Returns the weighted residual sum of squares; coef[3] the solution.
+struct HumFit {
+  float a[6] = {0, 0, 0, 0, 0, 0};  // normal matrix (00, 01, 02, 11, 12, 22)
+  float r[3] = {0, 0, 0};
+  float yy = 0.0f;
+  void add(float w, float y, float c, float s) {
+    const float wc = w * c, ws = w * s;
+    a[0] += w;
+    a[1] += wc;
+    a[2] += ws;
+    a[3] += wc * c;
+    a[4] += wc * s;
+    a[5] += ws * s;
+    r[0] += w * y;
+    r[1] += wc * y;
+    r[2] += ws * y;
+    yy += w * y * y;
+  }
+  // Cramer's rule on the symmetric 3 x 3 system; false when singular.
+  bool solve(float coef[3], float* rss, float* var12) const {
+    const float m00 = a[3] * a[5] - a[4] * a[4], m01 = a[2] * a[4] - a[1] * a[5], m02 = a[1] * a[4] - a[2] * a[3];
+    const float det = a[0] * m00 + a[1] * m01 + a[2] * m02;
+    if (!(fabsf(det) > 1e-12f * (a[0] * a[3] * a[5] + 1e-30f))) return false;
+    const float m11 = a[0] * a[5] - a[2] * a[2], m12 = a[1] * a[2] - a[0] * a[4], m22 = a[0] * a[3] - a[1] * a[1];
+    const float inv = 1.0f / det;
+    coef[0] = (m00 * r[0] + m01 * r[1] + m02 * r[2]) * inv;
+    coef[1] = (m01 * r[0] + m11 * r[1] + m12 * r[2]) * inv;
+    coef[2] = (m02 * r[0] + m12 * r[1] + m22 * r[2]) * inv;
+    *rss = yy - (coef[0] * r[0] + coef[1] * r[1] + coef[2] * r[2]);
+    *var12 = (m11 + m22) * inv;  // trace of the (c1, c2) block of the inverse normal matrix
+    return true;
+  }
+};
+
+// The baseline segment in kBaselineParts parts; a part whose variance about its own mean exceeds
+// kGlitchVarianceRatio x the quietest part's (+ 1 count^2) holds a glitch (or the onset) and is left out.
+constexpr int kBaselineParts = 4;
+constexpr float kGlitchVarianceRatio = 16.0f;
+
+void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline* out) {
+  Sums part[kBaselineParts];
+  int len[kBaselineParts];
+  float var[kBaselineParts];
+  float vmin = INFINITY;
+  for (int p = 0; p < kBaselineParts; ++p) {
+    const int a = nb * p / kBaselineParts, b = nb * (p + 1) / kBaselineParts;
+    part[p] = range_sums(x, prefix, n, a, b);
+    len[p] = b - a;
+    const int32_t c = len[p] > 0 ? part[p].s1 / len[p] : 0;
+    var[p] = len[p] > 0 ? centred_s2(part[p], len[p], c) / static_cast<float>(len[p]) : 0.0f;
+    const float mc = len[p] > 0 ? static_cast<float>(part[p].s1 - c * len[p]) / static_cast<float>(len[p]) : 0.0f;
+    var[p] -= mc * mc;
+    if (var[p] < vmin) vmin = var[p];
+  }
+  Sums kept = {0, 0};
+  int m = 0;
+  float within = 0.0f;
+  out->glitch_parts = 0;
+  for (int p = 0; p < kBaselineParts; ++p) {
+    if (var[p] > kGlitchVarianceRatio * vmin + 1.0f) {
+      ++out->glitch_parts;
+      continue;
+    }
+    kept.s1 += part[p].s1;
+    kept.s2 += part[p].s2;
+    m += len[p];
+    within += var[p] * static_cast<float>(len[p]);
+  }
+  out->kept = kept;
+  out->kept_n = m;
+  baseline_from_sums(kept, m, &out->level, &out->noise_rms);
+  out->within_rms = m > kBaselineParts ? vsqrt_f32(within / static_cast<float>(m - kBaselineParts)) : out->noise_rms;
+}
+
+}  // namespace
+
+void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, Baseline* out) {
+  robust_level(x, prefix, n, nb, out);
+  out->hum = 0;
+  out->hum_hz = 0.0f;
+  out->hum_amp = 0.0f;
+  out->c0 = out->c1 = out->c2 = 0.0f;
+  out->w = 0.0f;
+  constexpr int kGroup = kHumGroupBlocks * kBlock;
+  const int groups = n / kGroup;
+  if (groups < 4 || !(fs_hz > 0.0f)) return;
+  const int32_t lc = floor_to_int(out->level + 0.5f);
+  const float v0 = out->within_rms * out->within_rms + 1.0f;
+  HumFit fit[2];
+  float w[2], rot_c[2], rot_s[2], cg[2], sg[2], gain[2];
+  for (int f = 0; f < 2; ++f) {
+    w[f] = 6.28318531f * kMainsHz[f] / fs_hz;
+    sin_cos(w[f] * static_cast<float>(kGroup), &rot_s[f], &rot_c[f]);
+    sin_cos(w[f] * 0.5f * static_cast<float>(kGroup - 1), &sg[f], &cg[f]);  // phase at group 0's centre
+    float sh, ch;
+    sin_cos(0.5f * w[f], &sh, &ch);
+    float sl, cl;
+    sin_cos(0.5f * w[f] * static_cast<float>(kGroup), &sl, &cl);
+    gain[f] = sh > 0.0f ? sl / (static_cast<float>(kGroup) * sh) : 1.0f;  // D: the group mean of a unit sinusoid
+  }
+  const float inv_len = 1.0f / static_cast<float>(kGroup);
+  for (int g = 0; g < groups; ++g) {
+    const int k0 = g * kHumGroupBlocks, k1 = k0 + kHumGroupBlocks;
+    const Sums s = {prefix[k1].s2 - prefix[k0].s2, prefix[k1].s1 - prefix[k0].s1};
+    const float mean = static_cast<float>(s.s1 - lc * kGroup) * inv_len;  // about the integer level
+    const float var = centred_s2(s, kGroup, lc) * inv_len - mean * mean;
+    const float wt = 1.0f / ((var > 0.0f ? var : 0.0f) + v0);
+    const float y = mean + static_cast<float>(lc) - out->level;
+    for (int f = 0; f < 2; ++f) {
+      fit[f].add(wt, y, gain[f] * cg[f], gain[f] * sg[f]);
+      const float c = cg[f] * rot_c[f] - sg[f] * rot_s[f];
+      sg[f] = sg[f] * rot_c[f] + cg[f] * rot_s[f];
+      cg[f] = c;
+    }
+  }
+  float best_rss = INFINITY, coef[3], best[3] = {0, 0, 0}, best_var = 0.0f;
+  int pick = -1;
+  for (int f = 0; f < 2; ++f) {
+    float rss, var12;
+    if (fit[f].solve(coef, &rss, &var12) && rss < best_rss) {
+      best_rss = rss;
+      // The coefficients' variance: the inverse normal matrix times the residual's scale per degree of
+      // freedom, at least a group mean's noise (its samples' variance / kGroup, what the weights expect):
+      // a leak of the plate's own signal into the group means widens it.
+      const float dof_scale = groups > 3 ? rss / static_cast<float>(groups - 3) : INFINITY;
+      best_var = var12 * (dof_scale > inv_len ? dof_scale : inv_len);
+      pick = f;
+      best[0] = coef[0];
+      best[1] = coef[1];
+      best[2] = coef[2];
+    }
+  }
+  if (pick < 0) return;
+  out->hum_hz = kMainsHz[pick];
+  out->hum_amp = vsqrt_f32(best[1] * best[1] + best[2] * best[2]);
+  out->c0 = best[0];
+  out->c1 = best[1];
+  out->c2 = best[2];
+  out->w = w[pick];
+  // A hum is modelled when it stands out of what a quiet capture's fit gives: kHumMinCounts, twice the
+  // noise floor (the plate's own low modes stay below this), and four standard errors of the fit.
+  const float floor_counts = 2.0f * out->within_rms;
+  out->hum = (out->hum_amp >= kHumMinCounts && out->hum_amp >= floor_counts &&
+              out->hum_amp * out->hum_amp >= 16.0f * best_var) ? 1 : 0;
+}
+
+}  // namespace impactcore
