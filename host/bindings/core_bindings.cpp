@@ -414,10 +414,20 @@ NB_MODULE(_core, m) {
       .def_rw("rearm_quiet_frames", &ic::TriggerConfig::rearm_quiet_frames)
       .def_rw("holdoff_frames", &ic::TriggerConfig::holdoff_frames)
       .def_rw("pretrigger_frames", &ic::TriggerConfig::pretrigger_frames)
-      .def_rw("baseline_alpha", &ic::TriggerConfig::baseline_alpha);
+      .def_rw("baseline_alpha", &ic::TriggerConfig::baseline_alpha)
+      .def_rw("noise_factor", &ic::TriggerConfig::noise_factor)
+      .def_rw("fire_frames", &ic::TriggerConfig::fire_frames)
+      .def_rw("noise_alpha", &ic::TriggerConfig::noise_alpha);
 
   nb::class_<ic::Trigger>(m, "Trigger")
       .def(nb::init<const ic::TriggerConfig&, float>(), "config"_a, "initial_baseline"_a = 2048.0f)
+      .def(
+          "__init__",
+          [](ic::Trigger* t, const ic::TriggerConfig& cfg, std::vector<float> base) {
+            if (base.size() != ic::kChannels) throw std::invalid_argument("one initial baseline per channel");
+            new (t) ic::Trigger(cfg, base.data());
+          },
+          "config"_a, "initial_baselines"_a)
       .def("feed",
            [](ic::Trigger& t, std::vector<int> frame) {
              if (frame.size() != 4) throw std::invalid_argument("a frame has 4 samples");
@@ -428,6 +438,14 @@ NB_MODULE(_core, m) {
       .def_prop_ro("armed", &ic::Trigger::armed)
       .def_prop_ro("frames_seen", &ic::Trigger::frames_seen)
       .def_prop_ro("fired_at", &ic::Trigger::fired_at)
+      .def_prop_ro("threshold", &ic::Trigger::threshold)
+      .def(
+          "noise_rms",
+          [](const ic::Trigger& t, int channel) {
+            if (channel < 0 || channel >= ic::kChannels) throw std::out_of_range("channel is 0..3");
+            return t.noise_rms(channel);
+          },
+          "channel"_a)
       .def(
           "baseline",
           [](const ic::Trigger& t, int channel) {

@@ -160,12 +160,17 @@ void App::on_samples(const int16_t* data, int n_frames) {
     memcpy(ring_[ring_pos_], frame, sizeof(ring_[0]));
     ring_pos_ = (ring_pos_ + 1) % pre_frames_;
     if (state_ == kWarmup && ++ring_fill_ == pre_frames_) {
-      // Arm with the mean of the first pre-trigger window as the baseline.
-      float sum = 0.0f;
-      for (int k = 0; k < pre_frames_; ++k) {
-        for (int c = 0; c < 4; ++c) sum += static_cast<float>(ring_[k][c]);
+      // Arm with each channel's mean of the last kArmFrames frames as its baseline (short enough that a
+      // mains hum barely moves over it: the trigger then follows it).
+      constexpr int kArmFrames = 8;
+      float base[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+      const int m = pre_frames_ < kArmFrames ? pre_frames_ : kArmFrames;
+      for (int j = 1; j <= m; ++j) {
+        const int k = (ring_pos_ - j + pre_frames_) % pre_frames_;
+        for (int c = 0; c < 4; ++c) base[c] += static_cast<float>(ring_[k][c]);
       }
-      trigger_ = ic::Trigger(trig_cfg_, sum / static_cast<float>(4 * pre_frames_));
+      for (int c = 0; c < 4; ++c) base[c] /= static_cast<float>(m);
+      trigger_ = ic::Trigger(trig_cfg_, base);
       state_ = kListening;
     }
   }

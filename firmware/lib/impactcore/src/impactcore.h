@@ -390,33 +390,51 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
 
 // --- streaming trigger (the only stateful part) ---
 
-// Threshold trigger with hysteresis and hold-off on the sum-free per-frame max |x - baseline|.
+// Threshold trigger with hysteresis and hold-off on the per-frame max over channels of |x - baseline|.
 // Feed it frames of kChannels samples; it reports when a capture should start and where the pre-trigger
 // begins. The board keeps a ring buffer of `pretrigger` frames; the host runs it over a recording.
+// Made for a real lab: the baseline is a fast tracker (baseline_alpha ~ 1/8 frame: it follows mains hum
+// and drifting offsets, a 2-5 kHz arrival passes), a channel's threshold is the larger of
+// threshold_counts and noise_factor x its tracked noise rms (the quiet frames' rms about the baseline,
+// noise_alpha), and the trigger fires only when fire_frames of the last kTriggerHistory frames were above
+// the threshold: a glitch of one or two samples never fires it, an arrival's oscillation does.
+constexpr int kTriggerHistory = 16;
 struct TriggerConfig {
-  float threshold_counts = 60;   // arm -> fire when any channel's |x - baseline| exceeds this
+  float threshold_counts = 60;   // arm -> fire when any channel's |x - baseline| exceeds this ...
+  float noise_factor = 8;        // ... or this many of its tracked noise rms, whichever is larger
+  int fire_frames = 3;           // frames above the threshold among the last kTriggerHistory to fire
   float rearm_counts = 20;       // hysteresis: re-arm only after all channels stay below this ...
   int rearm_quiet_frames = 200;  // ... for this many frames
   int holdoff_frames = 2000;     // after firing, ignore everything for this many frames
   int pretrigger_frames = 256;   // frames kept before the firing frame
-  float baseline_alpha = 1.0f / 1024.0f;  // exponential baseline tracker (every frame but the firing one)
+  float baseline_alpha = 1.0f / 8.0f;     // exponential baseline tracker (every frame but the firing one)
+  float noise_alpha = 1.0f / 8192.0f;     // tracker of the noise variance (quiet armed frames)
 };
 
 class Trigger {
  public:
   explicit Trigger(const TriggerConfig& cfg, float initial_baseline = 2048.0f);
+  // Each channel's own starting baseline (the board: the mean of its last pre-trigger frames, so a hum or
+  // a channel's offset does not fire it when it arms).
+  Trigger(const TriggerConfig& cfg, const float initial_baseline[kChannels]);
   // Returns true on the frame that fires.
   bool feed(const int16_t frame[kChannels]);
   bool armed() const { return state_ == kArmed; }
   long frames_seen() const { return frames_; }
   long fired_at() const { return fired_at_; }
   float baseline(int c) const { return baseline_[c]; }
+  float noise_rms(int c) const;
+  // The threshold in force (the largest of the channels'): what the status frame reports.
+  float threshold() const;
 
  private:
   enum State { kArmed, kHoldoff, kWaitQuiet };
   TriggerConfig cfg_;
   State state_ = kArmed;
   float baseline_[kChannels];
+  float noise_var_[kChannels];
+  float thr_[kChannels];
+  uint32_t above_ = 0;           // bit k: frame (now - k) was above the threshold
   long frames_ = 0;
   long fired_at_ = -1;
   int counter_ = 0;

@@ -6,26 +6,61 @@
 namespace impactcore {
 
 Trigger::Trigger(const TriggerConfig& cfg, float initial_baseline) : cfg_(cfg) {
-  for (int c = 0; c < kChannels; ++c) baseline_[c] = initial_baseline;
+  for (int c = 0; c < kChannels; ++c) {
+    baseline_[c] = initial_baseline;
+    noise_var_[c] = 0.0f;
+    thr_[c] = cfg_.threshold_counts;
+  }
+}
+
+Trigger::Trigger(const TriggerConfig& cfg, const float initial_baseline[kChannels]) : Trigger(cfg, 0.0f) {
+  for (int c = 0; c < kChannels; ++c) baseline_[c] = initial_baseline[c];
+}
+
+float Trigger::noise_rms(int c) const { return vsqrt_f32(noise_var_[c]); }
+
+float Trigger::threshold() const {
+  float t = thr_[0];
+  for (int c = 1; c < kChannels; ++c) t = thr_[c] > t ? thr_[c] : t;
+  return t;
 }
 
 bool Trigger::feed(const int16_t frame[kChannels]) {
   float level = 0.0f;
+  bool above = false;
+  float dev[kChannels];
   for (int c = 0; c < kChannels; ++c) {
-    const float a = fabsf(static_cast<float>(frame[c]) - baseline_[c]);
+    dev[c] = static_cast<float>(frame[c]) - baseline_[c];
+    const float a = fabsf(dev[c]);
     if (a > level) level = a;
+    above |= a >= thr_[c];
   }
   const long now = frames_++;
+  above_ = (above_ << 1) | (above ? 1u : 0u);
   switch (state_) {
-    case kArmed:
-      if (level >= cfg_.threshold_counts) {
+    case kArmed: {
+      int count = 0;
+      for (uint32_t h = above_ & ((1u << kTriggerHistory) - 1u); h != 0; h &= h - 1) ++count;
+      if (count >= cfg_.fire_frames) {
         fired_at_ = now;
         state_ = kHoldoff;
         counter_ = 0;
         return true;
       }
+      if (!above) {
+        // The noise floor from the quiet frames: each channel's threshold follows it. A frame adds at most
+        // (threshold / 2)^2: a slowly rising arrival cannot raise the threshold it has to cross.
+        for (int c = 0; c < kChannels; ++c) {
+          const float cap = 0.25f * thr_[c] * thr_[c];
+          const float d2 = dev[c] * dev[c] < cap ? dev[c] * dev[c] : cap;
+          noise_var_[c] += cfg_.noise_alpha * (d2 - noise_var_[c]);
+          const float t = cfg_.noise_factor * vsqrt_f32(noise_var_[c]);
+          thr_[c] = t > cfg_.threshold_counts ? t : cfg_.threshold_counts;
+        }
+      }
       track_baseline(frame);
       return false;
+    }
     case kHoldoff:
       track_baseline(frame);
       if (++counter_ >= cfg_.holdoff_frames) {
@@ -38,10 +73,19 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       // was wrong when armed -- a hit during warm-up, a drifting bias -- converges, so the trigger re-arms
       // instead of waiting for a quiet that its stale baseline never shows.
       track_baseline(frame);
-      counter_ = (level < cfg_.rearm_counts) ? counter_ + 1 : 0;
+      {
+        // Quiet: every channel below rearm_counts, or half its threshold when the noise floor raised it.
+        bool quiet = true;
+        for (int c = 0; c < kChannels; ++c) {
+          const float q = 0.5f * thr_[c] > cfg_.rearm_counts ? 0.5f * thr_[c] : cfg_.rearm_counts;
+          quiet &= fabsf(dev[c]) < q;
+        }
+        counter_ = quiet ? counter_ + 1 : 0;
+      }
       if (counter_ >= cfg_.rearm_quiet_frames) {
         state_ = kArmed;
         counter_ = 0;
+        above_ = 0;
       }
       return false;
   }
@@ -49,8 +93,12 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
 }
 
 void Trigger::track_baseline(const int16_t frame[kChannels]) {
+  // Each step is limited to the channel's threshold: a glitch of any size moves the baseline by at most
+  // baseline_alpha x threshold (a fraction of it), a hum or an offset is followed, a stale start recovers.
   for (int c = 0; c < kChannels; ++c) {
-    baseline_[c] += cfg_.baseline_alpha * (static_cast<float>(frame[c]) - baseline_[c]);
+    float d = static_cast<float>(frame[c]) - baseline_[c];
+    d = d > thr_[c] ? thr_[c] : (d < -thr_[c] ? -thr_[c] : d);
+    baseline_[c] += cfg_.baseline_alpha * d;
   }
 }
 
