@@ -121,6 +121,15 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
     return out
 
 
+def three_channel_rows(features: Features) -> np.ndarray:
+    """Rows the core processed with exactly one channel without an onset and a physics position from the
+    other three."""
+    from . import _core
+
+    return ((features.status == _core.STATUS_OK) & (features.no_onset.sum(1) == 1)
+            & np.isfinite(features.phys_xy_mm).all(1))
+
+
 @dataclass
 class ImpactModel:
     signal: SignalConfig
@@ -206,12 +215,17 @@ class ImpactModel:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
                "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
+        # One channel without an onset (dead, disconnected): the physics localiser's three-sensor position
+        # starts the twin, which matches the other three channels' energies (its usable mask).
+        three = three_channel_rows(features) & ~use
+        xy[three] = features.phys_xy_mm[three]
+        out["three_channel"] = three
         if self.site_map is not None:
             out["xy_mm"] = np.full((n, 2), np.nan)
             out["height_mm"] = np.full(n, np.nan)
             out["twin_spread_mm"] = np.full(n, np.nan)
             out["twin_misfit"] = np.full(n, np.nan)
-            rows = np.flatnonzero(use)
+            rows = np.flatnonzero(use | three)
             if rows.size:
                 feats, usable = twin_features(features.take(rows))
                 twin = twin_estimate(self.site_map, self.twin_fit, feats, usable, xy[rows])
