@@ -2,7 +2,8 @@
 rate), the C sources, the emulator's tables and export.json are staged next to OUT and moved in only when
 every step succeeded. A failure deep in the path (the zero-shot model's calibration-drop fit, after the
 virtual drops' board model was written; the m2cgen source, after the node tables were written) leaves no
-half-written file and OUT's earlier contents byte for byte, and says so."""
+half-written file and OUT's earlier contents byte for byte, and says so. A folder holding files impactsense
+did not write is refused unless --force, and with --force none of them is lost."""
 
 import json
 from pathlib import Path
@@ -39,13 +40,22 @@ def test_a_successful_export_replaces_board_model_whole_and_keeps_other_files(ze
     (out / "board-model").mkdir(parents=True)
     (out / "board-model" / "stale.joblib").write_text("from an earlier model")
     (out / "notes.txt").write_text("mine")
-    assert main(["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen"]) == 0
-    assert not (out / "board-model" / "stale.joblib").exists()
+    before = files(out)
+    args = ["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen"]
+    assert main(args) == 2          # a folder with files impactsense did not write: refused, untouched
+    assert files(out) == before and leftovers(tmp_path) == []
+    assert main(args + ["--force"]) == 0
+    assert [p.name for p in out.glob("board-model.replaced-*/stale.joblib")] == ["stale.joblib"]  # kept aside
     card = json.loads((out / "board-model" / "model_card.json").read_text())
     assert card["board_fs_hz"] == 50000 and "zero_shot" in card
     assert (out / "notes.txt").read_text() == "mine"
     assert "board_held_out" in json.loads((out / "export.json").read_text())
     assert leftovers(tmp_path) == [] and leftovers(out) == []
+    # impactsense's own folder: replaced whole, no --force needed
+    own = tmp_path / "own"
+    assert main(["export", str(zero_shot_model), "--out", str(own), "--trees", "5", "--no-m2cgen"]) == 0
+    assert main(["export", str(zero_shot_model), "--out", str(own), "--trees", "3", "--no-m2cgen"]) == 0
+    assert json.loads((own / "export.json").read_text())["trees"]["x"] == 3 and leftovers(tmp_path) == []
 
 
 def test_a_failing_calibration_drop_fit_leaves_out_as_it_was(zero_shot_model, tmp_path, monkeypatch, capsys):
@@ -59,12 +69,12 @@ def test_a_failing_calibration_drop_fit_leaves_out_as_it_was(zero_shot_model, tm
     half_written = []
 
     def fail(*args, **kwargs):   # by now the virtual drops' board model is written (staged)
-        half_written.extend(str(p) for p in tmp_path.glob(".out.*.part/board-model/*.joblib"))
+        half_written.extend(str(p) for p in tmp_path.glob(".out.*.part/board-model/*.npz"))
         raise RuntimeError("forced failure in the calibration-drop fit")
 
     monkeypatch.setattr(zeroshot, "fit_on_calibration_drops", fail)
     capsys.readouterr()
-    assert main(["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen"]) == 2
+    assert main(["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen", "--force"]) == 2
     err = capsys.readouterr().err
     assert "forced failure in the calibration-drop fit" in err
     assert f"{out}: export failed (RuntimeError" in err and "nothing was written" in err

@@ -29,18 +29,21 @@ from .errors import DataError
 CALIBRATION_FILE = "calibration.json"
 
 
-def record_calibration(session_dir: str | Path, cal_path: str | Path) -> Path:
-    """Writes CAL.json into the virtual session folder, with where it came from (path and SHA-256)."""
+def calibration_record(cal_path: str | Path) -> str:
+    """CAL.json's text for a virtual session folder, with where it came from (path and SHA-256)."""
     from .zeroshot import read_calibration
 
     cal_path = Path(cal_path).resolve()
     cal = read_calibration(cal_path)
     cal["source"] = {"path": str(cal_path), "sha256": hashlib.sha256(cal_path.read_bytes()).hexdigest()}
-    out = Path(session_dir) / CALIBRATION_FILE
-    tmp = out.with_name(out.name + ".part")
-    tmp.write_text(json.dumps(cal, indent=1))
-    tmp.replace(out)
-    return out
+    return json.dumps(cal, indent=1)
+
+
+def record_calibration(session_dir: str | Path, cal_path: str | Path) -> Path:
+    """Writes CAL.json into the virtual session folder (calibration_record), through outputs.write_file."""
+    from .outputs import write_file
+
+    return write_file(Path(session_dir) / CALIBRATION_FILE, calibration_record(cal_path))
 
 
 def session_calibration(session: Session) -> Path | None:

@@ -48,6 +48,42 @@ def main(argv: list[str] | None = None) -> int:
     except ImpactSenseError as exc:
         print(f"impactsense {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:     # the reader of our output went away (`| head`)
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except KeyboardInterrupt:
+        print(f"impactsense {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001  (a bug or an unforeseen input: one line, the details in a log)
+        log = _log_traceback(argv)
+        print(f"impactsense {args.command}: internal error: {type(exc).__name__}: {str(exc)[:300]} "
+              f"(details in {log})", file=sys.stderr)
+        return 1
+
+
+def _log_traceback(argv) -> str:
+    """Appends the current exception's traceback to the error log; returns its path."""
+    import os
+    import tempfile
+    import time
+    import traceback
+    from pathlib import Path
+
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "impactsense"
+    for folder in (base, Path(tempfile.gettempdir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / "impactsense-errors.log"
+            with open(path, "a") as fh:
+                fh.write(f"--- {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} impactsense "
+                         f"{' '.join(map(str, argv if argv is not None else sys.argv[1:]))}\n")
+                fh.write(traceback.format_exc())
+            return str(path)
+        except OSError:
+            continue
+    return "(no writable log folder)"
 
 
 if __name__ == "__main__":

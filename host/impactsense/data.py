@@ -10,8 +10,8 @@ import csv
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -143,6 +143,12 @@ class Session:
                     h.update(block)
         return h.hexdigest()
 
+    def recordings_hash(self) -> str:
+        """SHA-256 of the recordings' content (the ADC counts and their shape), whatever the files' text."""
+        h = hashlib.sha256(repr(self.adc.shape).encode())
+        h.update(np.ascontiguousarray(self.adc, dtype="<u2").tobytes())
+        return h.hexdigest()
+
     def subset(self, rows: np.ndarray) -> "Session":
         rows = np.asarray(rows)
         return Session(self.path, self.rig, self.recording_id[rows], self.case_id[rows],
@@ -172,8 +178,10 @@ def read_json(path: str | os.PathLike, missing: str = "file not found") -> dict:
     if not path.is_file():
         raise DataError(path, None, missing)
     try:
-        raw = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise DataError(path, None, "not valid JSON (nested too deeply)") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DataError(path, None, f"not valid JSON ({exc})") from None
     if not isinstance(raw, dict):
         raise DataError(path, None, "must hold a JSON object")
@@ -234,6 +242,7 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
             raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")
         sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
     _check_inner_region(raw.get("inner_region_mm"), values, path)
+    _check_rig_sanity(path, values, sensors)
     return Rig(sensors=tuple(sensors), raw=dict(raw), **values)
 
 
@@ -248,16 +257,43 @@ def _check_inner_region(region, values: dict, path) -> None:
         raise DataError(path, "inner_region_mm", "must lie on the plate with x0 <= x1 and y0 <= y1")
 
 
+# A data logger's plausible sample rates per channel (Hz): below, no wave front is resolved; above, no ADC.
+FS_HZ_RANGE = (1e3, 1e8)
+
+
+def _check_rig_sanity(path, values: dict, sensors: list) -> None:
+    """Facts no real rig has: overlapping sensor discs, an implausible sample rate, a bias outside the ADC."""
+    lo, hi = FS_HZ_RANGE
+    if not lo <= values["fs_hz"] <= hi:
+        raise DataError(path, "fs_hz", f"{values['fs_hz']:g} Hz is not a plausible sample rate ({lo:g}..{hi:g})")
+    if values["adc_bits"] > 16:
+        raise DataError(path, "adc_bits", f"must be at most 16 (uint16 recordings), got {values['adc_bits']}")
+    if values["bias_counts"] >= (1 << values["adc_bits"]):
+        raise DataError(path, "bias_counts", f"{values['bias_counts']} lies outside the {values['adc_bits']}-bit "
+                                             f"ADC range 0..{(1 << values['adc_bits']) - 1}")
+    for i in range(len(sensors)):
+        for j in range(i):
+            d = float(np.hypot(sensors[i].x_mm - sensors[j].x_mm, sensors[i].y_mm - sensors[j].y_mm))
+            if d < values["sensor_diameter_mm"]:
+                raise DataError(path, f"sensors[{i}]", f"{d:.1f} mm from sensors[{j}]: closer than the discs' "
+                                f"diameter ({values['sensor_diameter_mm']:g} mm), two discs cannot be there")
+
+
 def _read_impacts(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise DataError(path, None, "file not found")
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        for col in IMPACT_COLUMNS:
-            if col not in header:
-                raise DataError(path, col, "missing column")
-        rows = list(reader)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            for col in IMPACT_COLUMNS:
+                if col not in header:
+                    raise DataError(path, col, "missing column")
+            rows = list(reader)
+    except UnicodeDecodeError as exc:
+        raise DataError(path, None, f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except (csv.Error, OSError) as exc:
+        raise DataError(path, None, f"not a readable CSV file ({exc})") from None
     if not rows:
         raise DataError(path, None, "no impacts")
     out: dict[str, np.ndarray] = {}
@@ -266,10 +302,15 @@ def _read_impacts(path: Path) -> dict[str, np.ndarray]:
         vals = []
         for line, row in enumerate(rows, start=2):
             text = (row.get(col) or "").strip()
+            if not text and not is_int:    # unknown (a recorded drop whose truth was not given)
+                vals.append(np.nan)
+                continue
             try:
                 v = int(text) if is_int else float(text)
             except ValueError:
                 raise DataError(path, col, f"line {line}: {text!r} is not a number") from None
+            if is_int and abs(v) >= 2 ** 31:
+                raise DataError(path, col, f"line {line}: {text[:20]!r} is out of range (|id| < 2^31)")
             if not is_int and not np.isfinite(v):
                 raise DataError(path, col, f"line {line}: value is {text} (not finite)")
             vals.append(v)
@@ -281,7 +322,7 @@ def _read_impacts(path: Path) -> dict[str, np.ndarray]:
                         f"ids must be 0..N-1 in order; line {bad + 2} has {rid[bad]}, expected {bad}")
     if np.any(out["repetition"] < 0) or np.any(out["case_id"] < 0):
         raise DataError(path, "case_id/repetition", "must be non-negative")
-    if np.any(out["height_mm"] <= 0):
+    if np.any(out["height_mm"] <= 0):  # NaN (unknown) passes
         raise DataError(path, "height_mm", "must be positive")
     return out
 
@@ -296,7 +337,8 @@ def _read_adc(path: Path, rig: Rig, n_rows: int) -> np.ndarray:
             adc = npz["adc"]
     except DataError:
         raise
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError, NotImplementedError,
+            RuntimeError, MemoryError) as exc:
         raise DataError(path, "adc", f"unreadable or truncated ({exc})") from exc
     if adc.dtype != np.uint16:
         raise DataError(path, "adc", f"dtype must be uint16 (raw ADC counts), got {adc.dtype}")
@@ -332,8 +374,11 @@ def load_session(path: str | os.PathLike | None = None) -> Session:
 
 
 def write_session(path: str | os.PathLike, rig: dict | Rig, x_mm, y_mm, height_mm, adc,
-                  case_id=None, repetition=None) -> Path:
-    """Writes a session folder atomically (a temporary folder renamed into place)."""
+                  case_id=None, repetition=None, force: bool = False, extra_files: dict | None = None) -> Path:
+    """Writes a session folder through the package's output writer (outputs.output_folder: staged, swapped in
+    whole; a folder with a user's files is refused unless force, and no user's file is ever deleted)."""
+    from .outputs import output_folder
+
     path = Path(path)
     raw = rig.to_dict() if isinstance(rig, Rig) else dict(rig)
     rig_from_dict(raw)  # validate before writing anything
@@ -347,29 +392,24 @@ def write_session(path: str | os.PathLike, rig: dict | Rig, x_mm, y_mm, height_m
     if any(c.shape != (n,) for c in [*cols, case_id, repetition]):
         raise DataError(path / IMPACTS_FILE, None, f"every column needs {n} values")
     raw["samples"] = int(adc.shape[2])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    try:
-        (tmp / RIG_FILE).write_text(json.dumps(raw, indent=1))
-        with open(tmp / IMPACTS_FILE, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(IMPACT_COLUMNS)
-            for i in range(n):
-                w.writerow([i, int(case_id[i]), int(repetition[i]), f"{cols[0][i]:.3f}",
-                            f"{cols[1][i]:.3f}", f"{cols[2][i]:g}"])
-        np.savez_compressed(tmp / RECORDINGS_FILE, adc=adc)
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            for f in old.iterdir():
-                f.unlink()
-            old.rmdir()
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        for f in tmp.iterdir():
-            f.unlink()
-        tmp.rmdir()
-        raise
+    with output_folder(path, force, tool="impactsense session") as tmp:
+        write_session_files(tmp, raw, cols, case_id, repetition, adc)
+        for name, text in (extra_files or {}).items():
+            (tmp / name).write_text(text)
     return path
+
+
+def write_session_files(folder: Path, raw: dict, cols, case_id, repetition, adc) -> None:
+    """rig.json, impacts.csv (x, y, height: NaN written empty, i.e. unknown) and recordings.npz into folder."""
+    (folder / RIG_FILE).write_text(json.dumps(raw, indent=1))
+    with open(folder / IMPACTS_FILE, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(IMPACT_COLUMNS)
+        for i in range(len(adc)):
+            w.writerow([i, int(case_id[i]), int(repetition[i]), *(_num(cols[k][i], f) for k, f in
+                                                                   ((0, ".3f"), (1, ".3f"), (2, "g")))])
+    np.savez_compressed(folder / RECORDINGS_FILE, adc=adc)
+
+
+def _num(v: float, fmt: str) -> str:
+    return format(v, fmt) if np.isfinite(v) else ""

@@ -24,12 +24,8 @@ float32 rounding of the leaf sums.
 from __future__ import annotations
 
 import hashlib
-import json
-import os
 import re
-import secrets
-import shutil
-import tempfile
+import json
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,9 +78,13 @@ def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
     from .sitemap import SiteMap
     from .twin import TwinFit
 
+    from .modelfolder import verified_path
+
     t = card["twin"]
     try:
-        site = SiteMap.load(model_dir / t.get("site_map", SITE_MAP_FILE))
+        if not isinstance(t, dict):
+            raise DataError(card_path, "twin", "must be an object")
+        site = SiteMap.load(verified_path(model_dir, card, card_path, t.get("site_map", SITE_MAP_FILE), "twin.site_map"))
         fit = TwinFit.from_dict({k: v for k, v in t.items() if k not in ("site_map", "site_map_sha", "ref_height_mm")})
     except DataError as exc:
         raise ExportError(f"{card_path} [twin]: {exc}") from None
@@ -93,48 +93,19 @@ def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
     return twin_arrays(site, fit)
 
 
-def _find_models(model_dir: Path, card: dict) -> dict:
-    """Maps role -> joblib path: from the card's `files`/`models` if given, else by estimator type/name."""
-    import joblib
-
-    for key in ("files", "models", "model_files"):
-        files = card.get(key)
-        if isinstance(files, dict):
-            roles = {}
-            for role, name in files.items():
-                r = role.lower()
-                r = ("x" if r in ("x", "x_mm", "model_x", "rf_x") else
-                     "y" if r in ("y", "y_mm", "model_y", "rf_y") else
-                     "energy" if "energy" in r or "class" in r else r)
-                roles[r] = model_dir / str(name)
-            if {"x", "y", "energy"} <= roles.keys():
-                return roles
-    roles = {}
-    for path in sorted(model_dir.glob("*.joblib")):
-        est = joblib.load(path)
-        stem = path.stem.lower()
-        if hasattr(est, "predict_proba"):
-            roles.setdefault("energy", path)
-        elif re.search(r"(^|[_-])x($|[_-])|x_mm", stem):
-            roles.setdefault("x", path)
-        elif re.search(r"(^|[_-])y($|[_-])|y_mm", stem):
-            roles.setdefault("y", path)
-    missing = {"x", "y", "energy"} - roles.keys()
-    if missing:
-        raise ExportError(f"{model_dir}: no joblib model found for {sorted(missing)}")
-    return roles
-
-
 def load_models(model_dir) -> ModelSet:
-    import joblib
+    """The forests and settings of a model folder, read through modelfolder.py (named files only, checksums
+    checked, no pickles); problems are ExportErrors naming the file and field."""
+    from .errors import DataError
+    from .modelfolder import load_forests, read_card
 
     model_dir = Path(model_dir)
-    card_path = model_dir / "model_card.json"
-    if not card_path.is_file():
-        raise ExportError(f"{card_path}: model card not found")
-    card = json.loads(card_path.read_text())
-    roles = _find_models(model_dir, card)
-    models = {r: joblib.load(p) for r, p in roles.items()}
+    try:
+        card, card_path = read_card(model_dir)
+        roles = {r: card["files"].get(r) for r in ("x", "y", "energy")}
+        models = load_forests(model_dir, card, card_path, ("x", "y", "energy"))
+    except DataError as exc:
+        raise ExportError(str(exc)) from None
     for role in ("x", "y"):
         if not hasattr(models[role], "estimators_") or getattr(models[role], "n_outputs_", 1) != 1:
             raise ExportError(f"{roles[role]}: need a single-output random forest regressor")
@@ -475,48 +446,31 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
 
 
 @contextmanager
-def staged_output(out_dir):
-    """A fresh folder next to out_dir to write an export into. When the block ends normally its entries replace
-    out_dir's entries of the same name (files by os.replace, folders by two renames) and the other entries of
-    out_dir are left alone; when it raises, the folder is removed and out_dir is as it was (created only on
-    success). Errors other than the package's own come out as an ExportError saying so."""
+def staged_output(out_dir, force: bool = False):
+    """outputs.output_folder for an export: a fresh folder next to out_dir that becomes out_dir when the block
+    ends normally; when it raises, out_dir is as it was. Errors other than the package's own come out as an
+    ExportError saying so."""
+    from .outputs import output_folder
+
     out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = out.parent / f".{out.name}.{os.getpid()}-{secrets.token_hex(4)}.part"
-    stage.mkdir()       # not mkdtemp: on success this becomes out, with the umask's permissions
     try:
-        yield stage
-    except BaseException as exc:
-        shutil.rmtree(stage, ignore_errors=True)
-        if isinstance(exc, Exception) and not isinstance(exc, ImpactSenseError):
-            raise ExportError(f"{out}: export failed ({type(exc).__name__}: {exc}); nothing was written, "
-                              f"{out} is as it was") from exc
+        with output_folder(out, force, tool="impactsense export") as stage:
+            yield stage
+    except ImpactSenseError:
         raise
-    _commit(stage, out)
-
-
-def _commit(stage: Path, out: Path) -> None:
-    """Moves stage's entries into out (see staged_output) and removes stage."""
-    if not out.exists():
-        stage.rename(out)
-        return
-    if not out.is_dir():
-        shutil.rmtree(stage, ignore_errors=True)
-        raise ExportError(f"{out}: exists and is not a folder; nothing was written")
-    old = Path(tempfile.mkdtemp(prefix=".replaced.", dir=stage))
-    for entry in sorted(p for p in stage.iterdir() if p != old):
-        target = out / entry.name
-        if target.is_dir() and not target.is_symlink():
-            target.rename(old / entry.name)
-        os.replace(entry, target)
-    shutil.rmtree(stage, ignore_errors=True)
+    except Exception as exc:
+        raise ExportError(f"{out}: export failed ({type(exc).__name__}: {exc}); nothing was written, "
+                          f"{out} is as it was") from exc
 
 
 def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_eval=None,
-                  write_m2cgen: bool = True, phys_eval=None, twin_eval=None) -> dict:
+                  write_m2cgen: bool = True, phys_eval=None, twin_eval=None, into_stage: bool = False) -> dict:
     """Writes the C sources, the emulator's tables and export.json into out_dir (all of them or, on an error,
     none: staged_output); returns the summary."""
     models = load_models(model_dir)
+    if into_stage:      # out_dir is already a staging folder (outputs.output_folder) the caller commits
+        return _write_export(models, model_dir, Path(out_dir), trees, X_eval, xy_eval, write_m2cgen, phys_eval,
+                             twin_eval)
     with staged_output(out_dir) as stage:
         return _write_export(models, model_dir, stage, trees, X_eval, xy_eval, write_m2cgen, phys_eval, twin_eval)
 
@@ -570,7 +524,9 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "tree_sweep": sweep,
     }
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
-    (out_dir / "export.json").write_text(json.dumps(summary, indent=1))
+    from .outputs import json_text
+
+    (out_dir / "export.json").write_text(json_text(summary))
     return summary
 
 

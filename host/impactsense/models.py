@@ -18,14 +18,14 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import joblib
 import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from sklearn.model_selection import GroupKFold
 
 from . import __version__
-from .data import MODEL_CARD_MISSING, read_json
 from .errors import DataError
+from .forestfile import save_forest
+from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
@@ -41,12 +41,12 @@ LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa
 ARRIVAL_ENERGY_FEATURES = ["log_arrival_energy_sum", "log_diff1_energy_sum", "log_diff2_energy_sum",
                            "log_diff3_energy_sum"]
 ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
-MODEL_FILES = {"x": "forest_dx.joblib", "y": "forest_dy.joblib", "energy": "forest_energy.joblib"}
+MODEL_FILES = {"x": "forest_dx.npz", "y": "forest_dy.npz", "energy": "forest_energy.npz"}   # forestfile.py
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
 # i.e. a threshold on log10 height learned with its uncertainty.
 TWIN_ENERGY_FEATURES = ["twin_log10_height_mm"]
-CARD_FILE = "model_card.json"
+from .modelfolder import CARD_FILE  # noqa: E402
 
 
 def impact_energy_j(height_mm: np.ndarray, ball_mass_g: float) -> np.ndarray:
@@ -242,19 +242,25 @@ class ImpactModel:
         return out
 
     # ----- persistence -----
-    def save(self, out_dir: str | Path, extra_card: dict | None = None) -> Path:
+    def save(self, out_dir: str | Path, extra_card: dict | None = None, force: bool = False) -> Path:
+        """The model folder (modelfolder.py), written whole through outputs.output_folder."""
+        from .outputs import output_folder
+
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        joblib.dump(self.forest_dx, out / MODEL_FILES["x"])
-        joblib.dump(self.forest_dy, out / MODEL_FILES["y"])
-        joblib.dump(self.forest_energy, out / MODEL_FILES["energy"])
+        with output_folder(out, force, tool="impactsense model") as stage:
+            self.write_into(stage, extra_card)
+        return out
+
+    def write_into(self, stage: Path, extra_card: dict | None = None) -> None:
+        """The model's files and card into `stage` (a staging folder of outputs.output_folder)."""
+        for role, forest in (("x", self.forest_dx), ("y", self.forest_dy), ("energy", self.forest_energy)):
+            save_forest(stage / MODEL_FILES[role], forest)
         twin = {}
         if self.site_map is not None:
-            self.site_map.save(out / SITE_MAP_FILE)
+            self.site_map.save(stage / SITE_MAP_FILE)
             twin = {"twin": {"site_map": SITE_MAP_FILE, "site_map_sha": self.site_map.fingerprint(),
                              "ref_height_mm": self.site_map.ref_height_mm, **self.twin_fit.to_dict()}}
-        elif (out / SITE_MAP_FILE).exists():
-            (out / SITE_MAP_FILE).unlink()
+        names = [*MODEL_FILES.values(), *([SITE_MAP_FILE] if twin else [])]
         card = {
             "package": "impactsense",
             "package_version": __version__,
@@ -270,37 +276,44 @@ class ImpactModel:
             "energy_classes": {"0": "low", "1": "high"},
             "files": MODEL_FILES,
             "signal": self.signal.to_dict(),
-            **{k: v for k, v in self.card.items() if k != "twin"},
+            **{k: v for k, v in self.card.items() if k not in ("twin", "sha256")},
             **twin,
             **(extra_card or {}),
+            "sha256": file_hashes(stage, names),
         }
-        (out / CARD_FILE).write_text(json.dumps(card, indent=1))
+        (stage / CARD_FILE).write_text(json.dumps(card, indent=1))
         self.card = card
-        return out
 
     @classmethod
     def load(cls, model_dir: str | Path) -> "ImpactModel":
+        """Reads a model folder; only the files its card names, each checked against the card's sha256, none
+        of them a pickle (modelfolder.py: the trust boundary)."""
         d = Path(model_dir)
-        card_path = d / CARD_FILE
-        card = read_json(card_path, MODEL_CARD_MISSING)
+        card, card_path = read_card(d)
         for key in ("signal", "energy_threshold_j", "feature_names"):
             if key not in card:
                 raise DataError(card_path, key, "missing key")
         if card["feature_names"] != FEATURE_NAMES:
             raise DataError(card_path, "feature_names", "model was trained on another feature set; retrain")
-        forests = []
-        for key in ("x", "y", "energy"):
-            p = d / MODEL_FILES[key]
-            if not p.is_file():
-                raise DataError(p, None, "model file not found")
-            forests.append(joblib.load(p))
+        if not isinstance(card["signal"], dict) or isinstance(card["energy_threshold_j"], bool) \
+                or not isinstance(card["energy_threshold_j"], (int, float)):
+            raise DataError(card_path, "signal/energy_threshold_j", "wrong type")
+        f = load_forests(d, card, card_path, ("x", "y", "energy"))
+        forests = [f["x"], f["y"], f["energy"]]
         site_map = twin_fit = None
         if "twin" in card:
-            site_map = SiteMap.load(d / card["twin"].get("site_map", SITE_MAP_FILE))
+            if not isinstance(card["twin"], dict):
+                raise DataError(card_path, "twin", "must be an object")
+            site_map = SiteMap.load(verified_path(d, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
+                                                  "twin.site_map"))
             if site_map.fingerprint() != card["twin"].get("site_map_sha"):
                 raise DataError(d / SITE_MAP_FILE, None, "site map differs from the one the model was trained with")
             twin_fit = TwinFit.from_dict({k: v for k, v in card["twin"].items()
                                           if k not in ("site_map", "site_map_sha", "ref_height_mm")})
-        return cls(signal=SignalConfig.from_dict(card["signal"]), forest_dx=forests[0], forest_dy=forests[1],
+        try:
+            signal = SignalConfig.from_dict(card["signal"])
+        except TypeError as exc:
+            raise DataError(card_path, "signal", str(exc)) from None
+        return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit)

@@ -82,10 +82,10 @@ class SiteMap:
         meta = dict(format=FORMAT, x0_mm=self.x0_mm, y0_mm=self.y0_mm, step_mm=self.step_mm, nx=self.nx,
                     ny=self.ny, ref_height_mm=self.ref_height_mm, feature_names=TWIN_FEATURE_NAMES,
                     source=self.source)
-        tmp = path.with_name(path.name + ".part")
-        with open(tmp, "wb") as fh:
+        from .outputs import atomic_file
+
+        with atomic_file(path) as fh:
             np.savez_compressed(fh, base=self.base, scale=self.scale, q=self.q, meta=np.array(json.dumps(meta)))
-        tmp.replace(path)
         return path
 
     @classmethod

@@ -18,9 +18,18 @@ from .split import case_split
 def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0.2, seed: int = 0,
           exclude_rows: np.ndarray | None = None, settings: ForestSettings | None = None,
           signal: SignalConfig | None = None, extra_card: dict | None = None,
-          site_map=None) -> tuple[ImpactModel, dict]:
+          site_map=None, force: bool = False) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given."""
+    from .checks import require_labels, rig_summary
+
+    require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
+    if test_fraction > 0 and len(test_rows) == 0:
+        from .data import IMPACTS_FILE
+        from .errors import DataError
+
+        raise DataError(session.path / IMPACTS_FILE, "case_id", f"no case can be held out: the drops are in "
+                        f"{session.n_cases} case(s) (give more cases, or --test-fraction 0)")
     cfg = signal or SignalConfig.for_rig(session.rig)
     cfg = fit_localiser(session, train_rows, cfg)
     feats = featurize(session.adc, cfg)
@@ -29,6 +38,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     split = {
         "data_path": str(session.path),
         "data_hash": session.fingerprint(),
+        "recordings_hash": session.recordings_hash(),
         "test_fraction": test_fraction,
         "seed": seed,
         "train_recordings": session.recording_id[train_rows].tolist(),
@@ -36,9 +46,10 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
         "excluded_recordings": [] if exclude_rows is None else session.recording_id[np.asarray(exclude_rows)].tolist(),
     }
     if out_dir is not None:
-        model.save(out_dir, extra_card={"split": split, **(extra_card or {})})
+        model.save(out_dir, extra_card={"split": split, "rig": rig_summary(session.rig), **(extra_card or {})},
+                   force=force)
     else:
-        model.card["split"] = split
+        model.card.update(split=split, rig=rig_summary(session.rig))
     return model, split
 
 
@@ -46,7 +57,10 @@ def evaluation_rows(session: Session, model: ImpactModel) -> tuple[np.ndarray, s
     """On the model's own session only its held-out drops; on the session a sim-trained model's calibration
     came from, its drops but the calibration drops; on any other session every drop."""
     split = model.card.get("split", {})
-    if split.get("data_hash") and split["data_hash"] == session.fingerprint():
+    split = split if isinstance(split, dict) else {}
+    own = (split["recordings_hash"] == session.recordings_hash() if split.get("recordings_hash")
+           else bool(split.get("data_hash")) and split["data_hash"] == session.fingerprint())
+    if own:
         rows = np.asarray(split.get("test_recordings", []), int)
         return rows, "held-out drops of the training session"
     zero = model.card.get("zero_shot", {})
@@ -62,7 +76,13 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     if rows is None:
         rows, scope = evaluation_rows(session, model)
     if len(rows) == 0:
-        raise ValueError("no drops to evaluate (the model was trained with --test-fraction 0 on this session)")
+        from .errors import DataError
+
+        raise DataError(session.path, None, "no drops to evaluate (the model was trained with --test-fraction 0 "
+                                            "on this session)")
+    from .checks import require_labels
+
+    require_labels(session, rows)
     feats = featurize(session.adc[rows], model.signal)
     pred = model.predict(feats)
     true_xy = session.xy_mm[rows]
@@ -102,5 +122,6 @@ def public(report: dict) -> dict:
 
 
 def write_json(report: dict, path: str | Path) -> None:
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text(json.dumps(public(report), indent=1))
+    from .outputs import json_text, write_file
+
+    write_file(path, json_text(public(report)))

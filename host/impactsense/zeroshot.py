@@ -142,6 +142,10 @@ def twin_site_map(params, session: Session, out: Path, progress: bool = True):
     path = out / "site-map.npz"
     site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress)
     site.save(path)
+    from .outputs import MANIFEST, adopt
+
+    if (out / MANIFEST).is_file():      # a cache in a folder the tool wrote (a virtual session): still the tool's
+        adopt(out, [path.name])
     return site
 
 
@@ -291,8 +295,7 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
         rng = np.random.default_rng(seed)
         adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
                              workers=workers, progress=progress)
-        write_session(sim_dir, session.rig, x, y, h, adc)
-        stamp.write_text(json.dumps(made_with, indent=1))
+        write_session(sim_dir, session.rig, x, y, h, adc, extra_files={stamp.name: json.dumps(made_with, indent=1)})
     return load_session(sim_dir), cached
 
 
@@ -374,8 +377,9 @@ def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, 
     from .sitemap import SiteMap
 
     model_dir = Path(model_dir)
-    card_path = model_dir / "model_card.json"
-    card = read_json(card_path, MODEL_CARD_MISSING)
+    from .modelfolder import read_card, verified_path
+
+    card, card_path = read_card(model_dir)
     zs = card.get("zero_shot")
     if not isinstance(zs, dict):
         raise DataError(card_path, "zero_shot", "missing key (not a sim-trained model of `impactsense demo "
@@ -394,7 +398,8 @@ def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, 
     if "twin" not in card:
         board_map = None
     elif board_map is None:
-        source = SiteMap.load(model_dir / card["twin"].get("site_map", SITE_MAP_FILE))
+        source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
+                                            "twin.site_map"))
         board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache, workers=workers)
     forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
     # The virtual drops as the board captures them: localiser, forests, the twin's fit (the virtual set's card).
@@ -490,7 +495,9 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "uncertainty": uncertainty,
         "wall_time_s": wall,
     }
-    (out / "zero-shot.json").write_text(json.dumps(result, indent=1))
+    from .outputs import write_file
+
+    write_file(out / "zero-shot.json", json.dumps(result, indent=1))
     result["_reports"] = {"sim": rep_sim, "measured": rep_meas}
     return result
 

@@ -124,17 +124,9 @@ def _model_key(params: dict) -> tuple:
 
 
 def _write_json_atomic(path: Path, obj: dict):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=1, default=_jsonable)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from ..outputs import write_file
+
+    write_file(path, json.dumps(obj, indent=1, default=_jsonable) + "\n")
 
 
 def _jsonable(o):
@@ -557,9 +549,10 @@ def _subproblem2(opts, rig, params, targets, simulate, cfg_sim, cache, base_key,
                 u_all[done] = z["u"][done]
 
     def save():
-        tmp = str(path) + ".tmp.npz"
-        np.savez(tmp, key=key, energy=energy, ratio=ratio, done=done, u=u_all, x=_unit_to_params(np.nan_to_num(u_all)))
-        os.replace(tmp, path)
+        from ..outputs import atomic_file
+
+        with atomic_file(path) as fh:
+            np.savez(fh, key=key, energy=energy, ratio=ratio, done=done, u=u_all, x=_unit_to_params(np.nan_to_num(u_all)))
 
     bar = progress_bar(opts.progress, total=n + 1, initial=int(done.sum()), desc="FEM runs (design, infill, confirm)",
                        unit="run")

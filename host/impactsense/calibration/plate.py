@@ -87,10 +87,11 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
 
     def save():
         if cache_path:
-            tmp = cache_path + ".tmp.npz"
-            np.savez(tmp, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas,
-                     noise=float(noise_counts) * 1000 + n_noise)
-            os.replace(tmp, cache_path)
+            from ..outputs import atomic_file
+
+            with atomic_file(cache_path) as fh:
+                np.savez(fh, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas,
+                         noise=float(noise_counts) * 1000 + n_noise)
 
     bar = progress_bar(progress, total=len(todo), desc="plate grid (E, nu)", unit="chunk")
     tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx], noise_counts, n_noise, seed)

@@ -129,10 +129,10 @@ class Evaluations:
         if k not in self.obs:
             self.obs[k] = np.asarray(self.run_obs(*k), float)
             if self.path:
-                tmp = str(self.path) + ".tmp"
-                with open(tmp, "w") as f:
-                    json.dump({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist() for kk, v in self.obs.items()}}, f)
-                os.replace(tmp, self.path)
+                from ..outputs import write_file
+
+                write_file(self.path, json.dumps({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist()
+                                                                          for kk, v in self.obs.items()}}))
             self.bar.update(1)
         return self.obs[k]
 

@@ -22,6 +22,7 @@ def register(sub) -> None:
                                    "the seed's Tables 7-9 and writes plots and JSON.")
     p.add_argument("--data", default="bundled", help="session folder of any rig (default: bundled session-1)")
     p.add_argument("--out", default="impactsense-demo", help="output folder (default ./impactsense-demo)")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files (kept)")
     p.add_argument("--seed", type=int, default=0, help="seed of the case split and the forests (default 0)")
     p.add_argument("--zero-shot", action="store_true",
                    help="also the seed's central experiment: calibrate the twin on four drops, train on N "
@@ -56,7 +57,9 @@ def run(args) -> int:
         from ..zeroshot import read_calibration
 
         read_calibration(args.calibration)
-    out = Path(args.out)
+    from ..outputs import adopt, check_output_folder
+
+    out = check_output_folder(args.out, args.force)
     out.mkdir(parents=True, exist_ok=True)
     session = load_session(args.data)
     print(f"training on 80 % of the cases of {session.name} ({len(session)} drops, {session.n_cases} cases) ...")
@@ -103,6 +106,9 @@ def run(args) -> int:
         print("  (run `impactsense diagnose` to find what changed)")
     if args.zero_shot:
         run_zero_shot_part(args, session, out)
+    adopt(out, ["model", "plots", "evaluate-session-1.json", "evaluate-session-2.json",
+                *(["zero-shot"] if args.zero_shot else []),
+                *(["CAL.json"] if args.zero_shot and not args.calibration else [])])
     print(f"\nwrote {out}/ (model/, plots/, evaluate-*.json) in {time.time() - t0:.1f} s")
     return 0
 

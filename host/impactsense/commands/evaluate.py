@@ -44,8 +44,11 @@ def run(args) -> int:
     from ..plots import evaluation_plots
     from ..workflow import evaluate, write_json
 
+    from ..checks import check_rig
+
     session = load_session(args.data)
     model = ImpactModel.load(args.model)
+    check_rig(model.card, session.rig, f"{args.model}/model_card.json", session.path)
     report = evaluate(session, model)
     write_json(report, args.json_out)
     print(f"{session.name}: {report['scope']}: n = {report['n']}, accepted {report['accepted']}, "

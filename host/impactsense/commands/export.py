@@ -11,7 +11,8 @@ then fitted on its calibration drops, both as the board captures them, and score
 `--rate native` exports MODEL_DIR's forests as they are. The held-out drops
 are then run through the emulated board (the firmware app with the exported tables) and scored.
 All of it is written into a folder next to OUT and moved in only when every step has succeeded: a failure
-midway leaves OUT (an earlier board-model, C sources, tables) as it was; OUT's other files are never touched."""
+midway leaves OUT (an earlier board-model, C sources, tables) as it was (impactsense's one output writer:
+a folder holding files impactsense did not write is refused unless --force, and never loses them)."""
 
 ORDER = 60
 
@@ -19,7 +20,7 @@ ORDER = 60
 def register(sub):
     p = sub.add_parser("export", help="export trained forests to C for the firmware (float32, per-tree)",
                        description=__doc__)
-    p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + joblib)")
+    p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + forest .npz files)")
     p.add_argument("--out", default="models", help="output folder (default: models/)")
     from ..export import TWIN_MAX_TREES
 
@@ -31,6 +32,7 @@ def register(sub):
                    help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
                         "'native' exports MODEL_DIR's forests unchanged")
     p.add_argument("--no-m2cgen", action="store_true", help="write only the node tables")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files (kept)")
     p.set_defaults(func=run)
 
 
@@ -41,8 +43,11 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..export import staged_output
 
+    from ..outputs import check_output_folder
+
     out = Path(args.out)
     card = _card(Path(args.model_dir))
+    check_output_folder(out, args.force)
     rate = None
     if args.rate != "native":
         try:
@@ -52,7 +57,7 @@ def run(args) -> int:
     # Everything (OUT/board-model, the C sources, the tables, export.json) is written into a folder next to
     # OUT and moved into OUT only when all of it is done: a failure midway leaves OUT as it was. The board's
     # site map is a cache (written whole, keyed by its source map and rate) and stays in OUT.
-    with staged_output(out) as stage:
+    with staged_output(out, args.force) as stage:
         s, card, model_dir = _export(args, card, rate, stage, out)
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {out}")
@@ -78,7 +83,11 @@ def _export(args, card, rate, stage, out):
     if rate is not None and int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
         from ..link.boardmodel import BOARD_SITE_MAP, retrain_for_board
 
-        model_dir = retrain_for_board(model_dir, stage / "board-model", rate, site_map_cache=out / BOARD_SITE_MAP)
+        if (out / BOARD_SITE_MAP).is_file():    # the cache goes along into the new OUT
+            import shutil
+
+            shutil.copy2(out / BOARD_SITE_MAP, stage / BOARD_SITE_MAP)
+        model_dir = retrain_for_board(model_dir, stage / "board-model", rate, site_map_cache=stage / BOARD_SITE_MAP)
         card = _card(model_dir)
         how = ("sim-trained: the virtual drops, then the calibration drops' fits" if "zero_shot" in card
                else "same split")
@@ -88,7 +97,7 @@ def _export(args, card, rate, stage, out):
     if args.trees == "auto":
         X, phys, xy, twin = _held_out(model_dir)
     s = export_models(model_dir, stage, trees=args.trees, X_eval=X, xy_eval=xy, phys_eval=phys,
-                      write_m2cgen=not args.no_m2cgen, twin_eval=twin)
+                      write_m2cgen=not args.no_m2cgen, twin_eval=twin, into_stage=True)
     for row in s["tree_sweep"]:
         forest = f" (the forests' {row['forest_mean_distance_mm']:.2f} mm)" if "forest_mean_distance_mm" in row else ""
         print(f"  {row['trees']:>4} trees: mean distance {row['mean_distance_mm']:.2f} mm{forest}, "
@@ -96,7 +105,9 @@ def _export(args, card, rate, stage, out):
     acc = _board_accuracy(model_dir, card, stage)
     if acc is not None:
         s["board_held_out"] = acc
-        (stage / "export.json").write_text(json.dumps(s, indent=1))
+        from ..outputs import json_text
+
+        (stage / "export.json").write_text(json_text(s))
     return s, card, model_dir
 
 

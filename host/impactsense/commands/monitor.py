@@ -68,4 +68,6 @@ def run(args) -> int:
         print("monitor: port closed; close the plot window to exit", file=sys.stderr)
         plt.ioff()
         plt.show()
+    if totals.get("open_failed"):
+        return 2
     return 0 if totals.get("reports", 0) or not totals.get("crc_errors") else 1

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 ORDER = 51
@@ -22,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--baseline", required=True, help="reference session folder (or 'bundled')")
     p.add_argument("--data", required=True, help="the changed session")
     p.add_argument("--out", required=True, help="model folder to write")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files (kept)")
     p.add_argument("--test-fraction", type=float, default=0.2, help="cases of DATA_REF held out (default 0.2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the case split and the forests (default 0)")
     p.add_argument("--trees", type=int, default=100, help="trees per forest (default 100)")
@@ -57,6 +57,10 @@ def run(args) -> int:
 
     if not 0.0 <= args.test_fraction < 1.0:
         raise ConfigError(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
+    from ..checks import exclude_rows
+    from ..outputs import check_output_folder, json_text, output_folder
+
+    check_output_folder(args.out, args.force)
     base = load_session(args.baseline)
     same = resolve_session_path(args.baseline).resolve() == resolve_session_path(args.data).resolve()
     data = base if same else load_session(args.data)
@@ -65,7 +69,7 @@ def run(args) -> int:
     # twin's offsets, weights and uncertainty are fitted on them (a gain moves that channel's offsets by
     # 2 log10 g; a delay leaves the energies, which start at the arrival, as they were).
     site = resolve_site_map(args.site_map, base.rig)
-    exclude = parse_exclude(args.exclude)
+    exclude = exclude_rows(parse_exclude(args.exclude), base, "--exclude")
     result, details = diagnose(base, data, same=same)
     accepted = [] if same else details["accepted"]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
@@ -78,21 +82,22 @@ def run(args) -> int:
     plain, _ = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
     rows["baseline model"] = score(data, plain)
     train_on = base
-    if accepted:
-        # The recordings the model is trained on are kept in OUT (the card's split points there), so
-        # `impactsense export OUT` can train the board's model again on the same drops at the board rate
-        # (an absolute path: export may run from another folder).
-        adc = augment(base, accepted, details["ref"], args.seed)
-        path = write_session(out.resolve() / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
-                             base.case_id, base.repetition)
-        train_on = load_session(path)
-    elif (out / TRAINING_DATA).is_dir():   # an earlier retrain's, into the same OUT
-        shutil.rmtree(out / TRAINING_DATA)
-    model, _ = train(train_on, out, args.test_fraction, args.seed, exclude, settings=settings,
-                     extra_card=card, site_map=site)
-    rows["retrained model"] = score(data, model)
-    on_data = {k: {f: (None if isinstance(v, float) and v != v else v) for f, v in r.items()} for k, r in rows.items()}
-    (out / "retrain.json").write_text(json.dumps({**card, "on_data": on_data}, indent=1))
+    with output_folder(out, args.force, tool="impactsense retrain") as stage:
+        if accepted:
+            # The recordings the model is trained on are kept in OUT (the card's split points there), so
+            # `impactsense export OUT` can train the board's model again on the same drops at the board rate
+            # (an absolute path: export may run from another folder).
+            adc = augment(base, accepted, details["ref"], args.seed)
+            path = write_session(stage / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
+                                 base.case_id, base.repetition)
+            train_on = load_session(path)
+        model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
+                             extra_card=card, site_map=site)
+        if accepted:
+            split["data_path"] = str(out.resolve() / TRAINING_DATA)
+        model.write_into(stage, extra_card=card)
+        rows["retrained model"] = score(data, model)
+        (stage / "retrain.json").write_text(json_text({**card, "on_data": rows}))
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
     print(f"energy class and position from {'the twin (site map)' if site is not None else 'the forests'}")
     print(f"{'on ' + data.name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "

@@ -18,6 +18,7 @@ def register(sub) -> None:
     p.add_argument("--n", type=int, default=490, help="number of drops (default 490)")
     add_param_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="session folder to write")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files (kept)")
     p.add_argument("--seed", type=int, default=0, help="Sobol scramble and noise seed")
     p.add_argument("--no-noise", dest="noise", action="store_false", help="noise-free counts")
     p.add_argument("--method", choices=("fast", "direct"), default="fast",
@@ -40,6 +41,9 @@ def run(args) -> int:
 
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    from ..outputs import check_output_folder
+
+    check_output_folder(args.out, args.force)
     params, rig = load_inputs(args)
     x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
     t0 = time.perf_counter()
@@ -49,16 +53,16 @@ def run(args) -> int:
     raw = dict(rig.to_dict())
     raw["notes"] = (f"SIMULATED by impactsense simulate-dataset ({args.method} path, seed {args.seed}); "
                     "parameters in sim_params.json. " + str(raw.get("notes", "")))
-    out = write_session(args.out, raw, x, y, h, adc)
     summary = {"drops": int(args.n), "seconds": round(elapsed, 2), "method": args.method,
                "model": res["model"].describe(), "sim_params": params.to_dict(),
                "second_touches": int(np.sum(res["contacts"] > 1)),
                "contact_us_median": float(np.median(res["contact_s"]) * 1e6)}
-    (out / "sim_params.json").write_text(json.dumps(summary, indent=1))
+    extra = {"sim_params.json": json.dumps(summary, indent=1)}
     if args.calibration:   # train on this folder then fits the calibration drops' rig effects (chain.py)
-        from ..chain import record_calibration
+        from ..chain import CALIBRATION_FILE, calibration_record
 
-        record_calibration(out, args.calibration)
+        extra[CALIBRATION_FILE] = calibration_record(args.calibration)
+    out = write_session(args.out, raw, x, y, h, adc, force=args.force, extra_files=extra)
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
     clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
     print(f"{args.n} drops in {elapsed:.1f} s ({args.method}); mesh {summary['model']['nx']} x "

@@ -13,6 +13,7 @@ def register(sub) -> None:
                                    "JSON model card.")
     p.add_argument("data", help="session folder (or 'bundled')")
     p.add_argument("--out", required=True, help="model folder to write")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files (kept)")
     p.add_argument("--test-fraction", type=float, default=0.2,
                    help="fraction of cases held out for evaluate (0 trains on everything; default 0.2)")
     p.add_argument("--seed", type=int, default=0, help="split and forest seed (default 0)")
@@ -36,12 +37,19 @@ def parse_exclude(text):
     if not text:
         return None
     if text.endswith(".json"):
+        from ..errors import DataError
+
         cal = read_json(text)
-        ids = cal.get("drops") or cal.get("calibration_drops") or []
-        return np.asarray(ids, int)
+        key = "drops" if "drops" in cal else "calibration_drops"
+        ids = cal.get(key) or []
+        if not isinstance(ids, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in ids):
+            raise DataError(text, key, "must be a list of recording ids (integers)")
+        if not all(abs(v) < 2 ** 62 for v in ids):
+            raise DataError(text, key, "recording id out of range")
+        return np.asarray(ids, np.int64)
     try:
-        return np.asarray([int(v) for v in text.split(",") if v.strip()], int)
-    except ValueError:
+        return np.asarray([int(v) for v in text.split(",") if v.strip()], np.int64)
+    except (ValueError, OverflowError):
         raise ConfigError(f"--exclude: {text!r} is not a list of recording ids") from None
 
 
@@ -53,6 +61,10 @@ def run(args) -> int:
 
     if not 0.0 <= args.test_fraction < 1.0:
         raise ConfigError(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
+    from ..checks import exclude_rows
+    from ..outputs import check_output_folder
+
+    check_output_folder(args.out, args.force)
     session = load_session(args.data)
     from ..sitemap import resolve_site_map
 
@@ -65,12 +77,13 @@ def run(args) -> int:
     else:
         site = resolve_site_map(args.site_map, session.rig)
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
+    exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
-                         parse_exclude(args.exclude), settings, site_map=site)
+                         exclude, settings, site_map=site, force=args.force)
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
-        model.save(args.out, extra_card={"split": split, **adapt(model, session, cal, args.seed)})
+        model.save(args.out, extra_card={"split": split, **adapt(model, session, cal, args.seed)}, force=args.force)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
           f"held out {len(split['test_recordings'])} drops")

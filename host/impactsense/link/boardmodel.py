@@ -168,8 +168,9 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     from ..errors import DataError
     from ..models import ForestSettings
 
-    card_path = Path(model_dir) / "model_card.json"
-    card = read_json(card_path, MODEL_CARD_MISSING)
+    from ..modelfolder import read_card
+
+    card, card_path = read_card(model_dir)
     if "zero_shot" in card:   # sim-trained: the virtual drops, then the calibration drops' fits, at the board rate
         from ..zeroshot import board_model
 
@@ -191,7 +192,10 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
         from ..models import SITE_MAP_FILE
         from ..sitemap import SiteMap
 
-        source = SiteMap.load(Path(model_dir) / card["twin"].get("site_map", SITE_MAP_FILE))
+        from ..modelfolder import verified_path
+
+        source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
+                                            "twin.site_map"))
         board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache)
     return train_board_models(session, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
                               exclude_rows=rows("excluded_recordings"), train_rows=rows("train_recordings"),

@@ -114,6 +114,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                 time.sleep(retry_s)
                 continue
             print(f"monitor: cannot open the port: {exc}", file=err)
+            totals["open_failed"] = 1
             break
         retries = 0
         mon = Monitor(port)
@@ -150,6 +151,11 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                           f"{r['uncertainty_mm']:>6.1f} {r['energy_class']:>2} {order:>5} "
                           f"{'y' if r['accepted'] else 'n':>3} {r['clipped']:04b} {r['dead']:04b}",
                           file=out, flush=True)
+        except KeyboardInterrupt:
+            reconnect = False
+            print("monitor: stopped (Ctrl-C)", file=err)
+        else:
+            print("monitor: the link ended (port closed or board unplugged)", file=err)
         finally:
             try:
                 port.close()
