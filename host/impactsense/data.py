@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import math
 import os
 import zipfile
 import zlib
@@ -198,6 +199,14 @@ def load_rig(path: str | os.PathLike) -> Rig:
     return rig_from_dict(read_json(path), path)
 
 
+def _finite(v) -> bool:
+    """A finite number that fits a float (JSON integers can be any size)."""
+    try:
+        return math.isfinite(float(v))
+    except (OverflowError, ValueError, TypeError):
+        return False
+
+
 def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
     def need(key):
         if key not in raw:
@@ -207,7 +216,7 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
     values: dict = {}
     for key in _RIG_NUMBERS:
         v = need(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or v <= 0:
             raise DataError(path, key, f"must be a positive finite number, got {v!r}")
         values[key] = float(v)
     for key in _RIG_INTS:
@@ -236,7 +245,7 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
             raise DataError(path, f"sensors[{k}].channel", f"must be {k} (channel k = sensor k+1)")
         for key in ("x_mm", "y_mm"):
             v = s[key]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
                 raise DataError(path, f"sensors[{k}].{key}", f"must be a finite number, got {v!r}")
         if not (0 <= s["x_mm"] <= values["plate_x_mm"] and 0 <= s["y_mm"] <= values["plate_y_mm"]):
             raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")

@@ -112,6 +112,10 @@ def load_models(model_dir) -> ModelSet:
     if len(getattr(models["energy"], "classes_", [])) != 2:
         raise ExportError(f"{roles['energy']}: the energy classifier must have two classes")
     names = card.get("feature_names")
+    for key, want in (("feature_names", list), ("location_features", list), ("energy_features", list),
+                      ("signal", dict), ("twin", dict)):
+        if card.get(key) is not None and not isinstance(card[key], want):
+            raise ExportError(f"{card_path} [{key}]: must be a JSON {'list' if want is list else 'object'}")
     n = len(names) if names else int(models["x"].n_features_in_)
     twin = _load_twin(model_dir, card, card_path) if "twin" in card else None
     inputs = {}
@@ -124,7 +128,11 @@ def load_models(model_dir) -> ModelSet:
                                   f"['twin_log10_height_mm'], the card lists {sel}")
             idx = [n]
         else:
-            idx = [names.index(f) for f in sel] if sel and names else list(range(int(models[role].n_features_in_)))
+            try:
+                idx = ([names.index(f) for f in sel] if sel and names else
+                       list(range(int(models[role].n_features_in_))))
+            except (ValueError, TypeError, AttributeError):
+                raise ExportError(f"{card_path} [{key}]: names a feature not in feature_names") from None
         if len(idx) != models[role].n_features_in_:
             raise ExportError(f"{card_path}: {key} lists {len(idx)} features, the {role} forest reads "
                               f"{models[role].n_features_in_}")

@@ -61,7 +61,7 @@ def load_forest(path, data: bytes | None = None):
         raise DataError(path, None, f"not a forest file (unreadable or truncated: {exc})") from None
     try:
         return _build(arrays)
-    except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError, RecursionError) as exc:
         raise DataError(path, None, f"not a valid forest file ({type(exc).__name__}: {exc})") from None
 
 

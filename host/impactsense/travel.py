@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from . import _core
+from .errors import DataError  # a ValueError too
 from .signal import SignalConfig
 
 THRESHOLD_FACTORS = (1.0, 2.0, 3.0, 5.0, 8.0)
@@ -78,7 +79,8 @@ def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
     toa = np.asarray(toa_us, float)
     ok = np.isfinite(toa).all(1)
     if ok.sum() < 8:
-        raise ValueError(f"only {int(ok.sum())} training drops have an onset on every channel")
+        raise DataError("training drops", "adc", f"only {int(ok.sum())} have an onset on every channel (need 8: "
+                        "a dead or clipped channel in every drop?)")
     toa, xy = toa[ok], np.asarray(xy_mm, float)[ok]
     d0 = travel_distances(xy, sensor_xy_mm)
     s0 = _start_slowness(toa, d0)
@@ -133,7 +135,8 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
             continue
         trials.append({"onset_threshold_counts": thr, "spread_mm": fit.spread_mm, "fit": fit})
     if not trials:
-        raise ValueError("no onset threshold gives an onset on every channel of 8 training drops")
+        raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel of 8 of them "
+                        "(a dead or clipped channel in every drop?)")
     chosen = trials[0]
     best = min(trials, key=lambda t: t["spread_mm"])
     if chosen["onset_threshold_counts"] != base or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:

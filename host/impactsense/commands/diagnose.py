@@ -40,8 +40,9 @@ def run(args) -> int:
     result, details = diagnose(base, data, progress=_progress, same=same)
     if sys.stderr.isatty():
         print(file=sys.stderr)
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(result, indent=1))
+    from ..outputs import json_text, write_file
+
+    write_file(args.json, json_text(result))
     if args.report:
         write_report(result, details, args.report)
     print(f"reference: {result['reference']}")

@@ -72,6 +72,8 @@ def run(args) -> int:
         print(f"  {c['channel']:2d} {c['sensor']:>6s} {c['clipped_drops']:8d} {c['dead_drops']:5d} "
               f"{c['noise_rms_counts']:10.2f} {c['peak_counts_median']:12.0f} {c['snr_db_median']:7.1f}")
     if args.json_out:
-        Path(args.json_out).write_text(json.dumps(s, indent=1))
+        from ..outputs import json_text, write_file
+
+        write_file(args.json_out, json_text(s))
         print(f"wrote {args.json_out}")
     return 0

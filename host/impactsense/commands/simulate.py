@@ -60,10 +60,13 @@ def run(args) -> int:
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
     elapsed = time.perf_counter() - t0
     model = res["model"]
-    np.savez_compressed(args.out, adc=adc, volts=res["volts"].astype(np.float32),
-                        force_n=res["force_n"][0].astype(np.float32), dt_s=model.dt_s,
-                        x_mm=args.x, y_mm=args.y, height_mm=args.height,
-                        sim_params=json.dumps(params.to_dict()), model=json.dumps(model.describe()))
+    from ..outputs import atomic_file
+
+    with atomic_file(args.out) as fh:
+        np.savez_compressed(fh, adc=adc, volts=res["volts"].astype(np.float32),
+                            force_n=res["force_n"][0].astype(np.float32), dt_s=model.dt_s,
+                            x_mm=args.x, y_mm=args.y, height_mm=args.height,
+                            sim_params=json.dumps(params.to_dict()), model=json.dumps(model.describe()))
     desc = model.describe()
     print(f"mesh {desc['nx']} x {desc['ny']} ({desc['element_mm'][0]:.2f} mm), dt {desc['dt_us']:.3f} us, "
           f"method {args.method}, {elapsed:.2f} s")

@@ -242,6 +242,12 @@ def held_out_rows(card: dict):
         ids = card.get("test_recording_ids")
     data = split.get("data_path") or card.get("data")
     s = load_session(data if data and Path(str(data)).is_dir() else None)
+    want = split.get("recordings_hash"), split.get("data_hash")
+    if any(want) and not (want[0] and want[0] == s.recordings_hash()) and not (want[1] and want[1] == s.fingerprint()):
+        from ..errors import DataError
+
+        raise DataError("model card", "split.data_path", f"the model's session {data!r} is not there or has other "
+                        f"recordings now ({s.path} read instead): its held-out drops cannot be scored")
     if ids is None:
         return s, None
     index = {int(r): k for k, r in enumerate(s.recording_id)}
