@@ -89,11 +89,9 @@ def _write_page(args, db, reports, summary) -> None:
     conns = [{"board_id": b, "opened": o, "closed": c, "counters": json.loads(k) if k else {}}
              for b, o, c, k in db.execute("SELECT board_id, opened, closed, counters FROM connections")]
     text = page(reports, summary, conns, rig, str(args.db))
-    out = Path(args.html)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, out)  # whole or not at all
+    from ..outputs import write_file
+
+    out = write_file(args.html, text.encode("utf-8"))  # whole or not at all
     print(f"wrote {out} ({len(reports)} reports)", file=sys.stderr)
 
 
