@@ -405,9 +405,9 @@ def test_an_unforeseen_exception_is_one_line_with_the_log_path(monkeypatch, tmp_
 
 # ----- monitor and record -----
 
-def test_monitor_exits_non_zero_when_the_port_cannot_be_opened(capsys):
+def test_monitor_exits_non_zero_when_the_port_cannot_be_opened(capfd):
     assert main(["monitor", "--port", "/dev/no-such-port"]) == 2
-    assert "cannot open" in capsys.readouterr().err
+    assert "cannot open" in capfd.readouterr().err
 
 
 def test_monitor_says_when_the_link_ends_and_stops_quietly_on_ctrl_c():

@@ -260,7 +260,9 @@ class ImpactModel:
             self.site_map.save(stage / SITE_MAP_FILE)
             twin = {"twin": {"site_map": SITE_MAP_FILE, "site_map_sha": self.site_map.fingerprint(),
                              "ref_height_mm": self.site_map.ref_height_mm, **self.twin_fit.to_dict()}}
-        names = [*MODEL_FILES.values(), *([SITE_MAP_FILE] if twin else [])]
+        # every file of the model folder gets its checksum in the card (modelfolder.read_verified)
+        names = [p.name for p in stage.iterdir()
+                 if p.is_file() and not p.name.startswith(".") and p.name != CARD_FILE]
         card = {
             "package": "impactsense",
             "package_version": __version__,
@@ -312,7 +314,7 @@ class ImpactModel:
                                           if k not in ("site_map", "site_map_sha", "ref_height_mm")})
         try:
             signal = SignalConfig.from_dict(card["signal"])
-        except TypeError as exc:
+        except (TypeError, ValueError, KeyError, OverflowError) as exc:
             raise DataError(card_path, "signal", str(exc)) from None
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
