@@ -70,7 +70,7 @@ def test_inject_cli_writes_a_session_and_rejects_bad_input(tmp_path, capsys):
     assert "debond" in capsys.readouterr().err
 
 
-def test_a_dead_channel_is_localised_and_classified_from_the_other_three():
+def test_a_dead_or_debonded_channel_is_left_out_and_the_drop_localised_from_the_other_three():
     """A channel without signal: every drop still gets a position (the physics localiser's three-sensor
     start, the twin's match on the other three channels' energies) and a class, the channel is flagged,
     and the error stays within 3x the four-channel figure (bench_faults: 1.8-2.2x)."""
@@ -90,3 +90,10 @@ def test_a_dead_channel_is_localised_and_classified_from_the_other_three():
     assert np.all(dead["_arrays"]["flags"][:, 1] != 0)
     assert dead["all"]["mae_mm"] < 3.0 * clean["all"]["mae_mm"]
     assert dead["energy_class_accuracy"] > 0.85
+    # a debonded channel (x0.4 behind a 4 kHz low-pass): the twin cannot explain its energies with the
+    # others', the models leave it out (FLAG_INCONSISTENT) and localise from the other three
+    deb = evaluate(inject_session(test, FaultSpec(debond=2, debond_hz=4000)), model, rows=np.arange(len(test)))
+    from impactsense import _core
+    assert np.mean(deb["_arrays"]["flags"][:, 2] & _core.FLAG_INCONSISTENT != 0) > 0.9
+    assert not np.any(clean["_arrays"]["flags"] & _core.FLAG_INCONSISTENT)
+    assert deb["all"]["mae_mm"] < 3.0 * clean["all"]["mae_mm"]

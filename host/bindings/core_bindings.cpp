@@ -395,6 +395,7 @@ NB_MODULE(_core, m) {
   m.attr("FLAG_AIC_FALLBACK") = static_cast<int>(ic::kFlagAicFallback);
   m.attr("FLAG_HUM") = static_cast<int>(ic::kFlagHum);
   m.attr("FLAG_GLITCH") = static_cast<int>(ic::kFlagGlitch);
+  m.attr("FLAG_INCONSISTENT") = static_cast<int>(ic::kFlagInconsistent);
   m.attr("STATUS_OK") = static_cast<int>(ic::kOk);
   m.attr("STATUS_NO_TRIGGER") = static_cast<int>(ic::kErrNoTrigger);
   m.def("status_name", &ic::status_name);

@@ -121,6 +121,13 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
     return out
 
 
+# A twin misfit above BAD_MISFIT_REF x the training's reference misfit makes the event suspect; leaving one
+# channel out must lower it BAD_MISFIT_GAIN-fold to be believed (clean drops: misfit ~1 x the reference, a
+# channel at x0.4 gain behind a 4 kHz low-pass: ~500 x, ~1.5 x without it).
+BAD_MISFIT_REF = 20.0
+BAD_MISFIT_GAIN = 10.0
+
+
 def three_channel_rows(features: Features) -> np.ndarray:
     """Rows the core processed with exactly one channel without an onset and a physics position from the
     other three."""
@@ -239,7 +246,50 @@ class ImpactModel:
                 out["twin_spread_mm"][rows[ok]] = spread
                 out["twin_misfit"][rows[ok]] = misfit
                 out["uncertainty_mm"][rows[ok]] = calibrated_uncertainty(self.twin_fit, spread, misfit)
+                out["bad_channel"] = np.full(n, -1)
+                self._drop_inconsistent_channel(features, rows, feats, usable, twin, out, energy_class)
         return out
+
+    def _drop_inconsistent_channel(self, features, rows, feats, usable, twin, out, energy_class) -> None:
+        """A channel whose energies the twin cannot explain with the others (a debonded or cracked disc: a
+        misfit far above the training's) is left out: each channel in turn is dropped, the three-sensor
+        physics position starts the twin on the other channels' energies, and when one drop explains the
+        event far better (misfit / BAD_MISFIT_GAIN) its position, class and flag (bad_channel) are kept."""
+        from . import _core
+
+        misfit = np.asarray(twin["misfit"], float)
+        ref = max(float(getattr(self.twin_fit, "uncertainty_misfit_ref", 0.0) or 0.0), 0.1)
+        suspect = np.flatnonzero(np.isfinite(misfit) & (misfit > BAD_MISFIT_REF * ref))
+        if suspect.size == 0:
+            return
+        r, sig = rows[suspect], self.signal
+        toa = np.ascontiguousarray(features.toa_us[r], np.float32)
+        metric = [getattr(sig, k, d) for k, d in (("travel_metric_xx", 1.0), ("travel_metric_xy", 0.0),
+                                                 ("travel_metric_yy", 1.0))]
+        best = misfit[suspect].copy()
+        for c in range(4):
+            use = np.ones((r.size, 4), np.uint8)
+            use[:, c] = 0
+            loc = _core.localise_batch(toa, use, np.asarray(sig.sensor_x_mm, np.float32),
+                                       np.asarray(sig.sensor_y_mm, np.float32), sig.velocity_mm_per_us,
+                                       sig.sigma_us, sig.plate_x_mm, sig.plate_y_mm, sig.huber_us, metric)
+            start = np.stack([loc["x_mm"], loc["y_mm"]], 1).astype(float)
+            mask = (usable[suspect] & ~np.uint16(0xF << (4 * c))).astype(usable.dtype)
+            t = twin_estimate(self.site_map, self.twin_fit, feats[suspect], mask, start)
+            m = np.asarray(t["misfit"], float)
+            est = np.asarray(t["log10_height_mm"], float)
+            better = (np.asarray(t["status"]) == 0) & np.isfinite(est) & (m * BAD_MISFIT_GAIN < best)
+            if better.any():
+                b = r[better]
+                best[better] = m[better]
+                out["bad_channel"][b] = c
+                out["xy_mm"][b] = np.asarray(t["xy_mm"], float)[better]
+                out["height_mm"][b] = 10.0 ** est[better]
+                energy_class[b] = self.forest_energy.predict(est[better, None])
+                out["twin_misfit"][b] = m[better]
+                sp = np.asarray(t["spread_mm"], float)[better]
+                out["twin_spread_mm"][b] = sp
+                out["uncertainty_mm"][b] = calibrated_uncertainty(self.twin_fit, sp, m[better])
 
     # ----- persistence -----
     def save(self, out_dir: str | Path, extra_card: dict | None = None, force: bool = False) -> Path:

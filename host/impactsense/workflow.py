@@ -112,8 +112,19 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "forest_xy": pred["forest_xy_mm"],
                          "phys_xy": feats.phys_xy_mm,
                          "spread": pred["spread_mm"], "energy_class": pred["energy_class"], "label": label,
-                         "accepted": feats.accepted, "flags": feats.flags}
+                         "accepted": feats.accepted, "flags": channel_flags(feats.flags, pred)}
     return report
+
+
+def channel_flags(flags: np.ndarray, pred: dict) -> np.ndarray:
+    """The core's channel flags with FLAG_INCONSISTENT where the models left a channel out (bad_channel)."""
+    from . import _core
+
+    out = np.array(flags, copy=True)
+    bad = np.asarray(pred.get("bad_channel", np.full(len(out), -1)))
+    rows = np.flatnonzero(bad >= 0)
+    out[rows, bad[rows]] |= _core.FLAG_INCONSISTENT
+    return out
 
 
 def public(report: dict) -> dict:

@@ -47,6 +47,8 @@ enum ChannelFlag : uint8_t {
   kFlagAicFallback = 1u << 3,  // AIC refinement failed; threshold pick kept
   kFlagHum = 1u << 4,       // a mains hum was fitted and removed (ChannelFeatures.hum_counts)
   kFlagGlitch = 1u << 5,    // a 1-2 sample spike was found and left out (baseline, onset or energies)
+  kFlagInconsistent = 1u << 6,  // the models left it out: its energies disagree with the other channels'
+                                // (a debonded or cracked disc; the host's twin check, models.py)
 };
 
 // --- configuration: every field, its type, default and board role, declared once ---
