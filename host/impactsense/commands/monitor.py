@@ -56,7 +56,8 @@ def run(args) -> int:
 
         log = EventLog(args.db, args.board_id or (f"ble:{args.ble}" if args.ble else args.port))
     try:
-        totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log)
+        totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log,
+                             out=sys.stdout, err=sys.stderr)
     except KeyboardInterrupt:  # Ctrl-C: every report is already in the log
         return 0
     finally:
