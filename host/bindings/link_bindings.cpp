@@ -81,6 +81,29 @@ nb::dict stats_dict(const il::DecoderStats& s) {
   return d;
 }
 
+nb::dict status_dict(const il::Status& s) {
+  nb::dict d;
+  d["uptime_ms"] = s.uptime_ms;
+  d["buffers"] = s.buffers;
+  d["overruns"] = s.overruns;
+  d["events"] = s.events;
+  d["dropped_reports"] = s.dropped_reports;
+  d["dropped_bytes"] = s.dropped_bytes;
+  d["event_cycles_last"] = s.event_cycles_last;
+  d["event_cycles_max"] = s.event_cycles_max;
+  d["buffer_cycles_max"] = s.buffer_cycles_max;
+  d["idle_load"] = s.idle_load_permille == 0xFFFFu ? nb::cast(NAN) : nb::cast(s.idle_load_permille * 1e-3);
+  d["threshold_counts"] = s.threshold_counts;
+  d["health"] = std::vector<int>(s.health, s.health + 4);
+  std::vector<double> noise(4);
+  for (int c = 0; c < 4; ++c) noise[c] = s.noise_x10[c] == 0xFFFFu ? NAN : s.noise_x10[c] * 0.1;
+  d["noise_counts"] = noise;
+  d["raw_dropped"] = s.raw_dropped;
+  d["dump_raw"] = (s.flags & il::kStatusDumpRaw) != 0;
+  d["cycle_counter"] = (s.flags & il::kStatusCycleCounter) != 0;
+  return d;
+}
+
 // A decoded frame as a Python object: (type, dict) for known bodies.
 nb::object frame_object(const il::Frame& f) {
   nb::dict d;
@@ -91,6 +114,13 @@ nb::object frame_object(const il::Frame& f) {
       il::unpack_report(f.body, f.len, &r);  // the decoder only emits well-formed reports
       d["kind"] = "report";
       d["report"] = report_dict(r);
+      break;
+    }
+    case il::kTypeStatus: {
+      il::Status st;
+      il::unpack_status(f.body, f.len, &st);
+      d["kind"] = "status";
+      d["status"] = status_dict(st);
       break;
     }
     case il::kTypeAck: {
@@ -298,7 +328,12 @@ struct BufferHal : ia::Hal {
   std::string out;
   std::string ble;
   uint32_t last_rate = 0;
-  void write(const uint8_t* d, size_t n) override { out.append(reinterpret_cast<const char*>(d), n); }
+  size_t accept = static_cast<size_t>(-1);  // bytes the host takes (writable()); the emulator limits it
+  size_t writable() override { return accept; }
+  void write(const uint8_t* d, size_t n) override {
+    out.append(reinterpret_cast<const char*>(d), n);
+    if (accept != static_cast<size_t>(-1)) accept -= n;
+  }
   void notify(const uint8_t* d, size_t n) override { ble.append(reinterpret_cast<const char*>(d), n); }
   bool apply_rate(uint32_t hz) override {
     last_rate = hz;
@@ -320,6 +355,7 @@ ia::AppConfig app_config(nb::dict d) {
     else if (k == "rearm_counts") c.rearm_counts = nb::cast<float>(v);
     else if (k == "loc") c.loc = nb::cast<ic::LocaliserConfig>(v);
     else if (k == "dump_raw") c.dump_raw = nb::cast<bool>(v);
+    else if (k == "status_period_ms") c.status_period_ms = nb::cast<uint32_t>(v);
     else if (k == "core") c.core = nb::cast<ic::CoreConfig>(v);
     else throw std::invalid_argument("unknown app config key: " + k);
   }
@@ -334,17 +370,38 @@ class PyApp {
     app_.reset(new ia::App(hal_, models_, ia::AppConfig()));
     if (!app_->configure(app_config(config))) throw std::invalid_argument("app configuration out of range");
   }
-  // Interleaved int16 frames [n, 4]; returns the serial bytes written meanwhile.
-  nb::bytes feed(In16 frames) {
+  // Interleaved int16 frames [n, 4], in buffers of `buffer` frames with the board's service() between them;
+  // returns the serial bytes the host took meanwhile: all of them, or at most `accept` bytes (None: no
+  // limit; 0: a host that does not read), the rest staying queued or dropped as on the board.
+  nb::bytes feed(In16 frames, int buffer, nb::object accept) {
     if (frames.ndim() != 2 || frames.shape(1) != 4) throw std::invalid_argument("frames must be int16 [n, 4]");
+    if (buffer < 1) throw std::invalid_argument("buffer must be >= 1 frame");
+    hal_.accept = accept.is_none() ? static_cast<size_t>(-1) : nb::cast<size_t>(accept);
     {
       nb::gil_scoped_release release;
-      app_->on_samples(frames.data(), static_cast<int>(frames.shape(0)));
+      const int n = static_cast<int>(frames.shape(0));
+      for (int off = 0; off < n; off += buffer) {
+        app_->on_samples(frames.data() + 4 * off, n - off < buffer ? n - off : buffer);
+        while (app_->service()) {
+        }
+      }
     }
+    hal_.accept = static_cast<size_t>(-1);
     return take();
   }
   nb::bytes rx(nb::bytes data) {
     app_->on_rx(reinterpret_cast<const uint8_t*>(data.c_str()), data.size());
+    while (app_->service()) {
+    }
+    return take();
+  }
+  void add_overruns(uint32_t n) { app_->add_overruns(n); }
+  // What the host takes now: at most max_bytes of the transmit queue (raw dump chunks are queued meanwhile).
+  nb::bytes pull(size_t max_bytes) {
+    hal_.accept = max_bytes;
+    while (app_->service()) {
+    }
+    hal_.accept = static_cast<size_t>(-1);
     return take();
   }
   nb::bytes take() {
@@ -384,6 +441,9 @@ NB_MODULE(_link, m) {
   m.attr("CMD_DUMP_RAW") = static_cast<int>(il::kCmdDumpRaw);
   m.attr("CMD_GET_CONFIG") = static_cast<int>(il::kCmdGetConfig);
   m.attr("REPORT_FRAME_BYTES") = il::kReportFrame;
+  m.attr("TYPE_STATUS") = static_cast<int>(il::kTypeStatus);
+  m.attr("STATUS_FRAME_BYTES") = il::kStatusFrame;
+  m.attr("TX_QUEUE_BYTES") = ia::kTxQueueBytes;
   m.attr("REPORT_BODY_BYTES") = il::kReportBody;
   m.attr("BLE_PAYLOAD_BYTES") = il::kBlePayload;
   m.attr("MAX_FRAME_BYTES") = il::kMaxFrame;
@@ -510,7 +570,11 @@ NB_MODULE(_link, m) {
 
   nb::class_<PyApp>(m, "App")
       .def(nb::init<nb::dict, nb::object>(), "config"_a = nb::dict(), "models"_a = nb::none())
-      .def("feed", &PyApp::feed, "frames"_a, "Feeds interleaved frames int16 [n, 4]; returns the serial bytes.")
+      .def("feed", &PyApp::feed, "frames"_a, "buffer"_a = 256, "accept"_a = nb::none(),
+           "Feeds interleaved frames int16 [n, 4] in DMA-sized buffers, servicing the transmit queue between "
+           "them as the board's loop() does; returns the serial bytes the host took (at most `accept`).")
+      .def("add_overruns", &PyApp::add_overruns, "n"_a, "Acquisition buffers lost (the board's DMA ring).")
+      .def("pull", &PyApp::pull, "max_bytes"_a, "At most max_bytes of the queued serial bytes (the host reads).")
       .def("rx", &PyApp::rx, "data"_a, "Bytes from the host (commands); returns the serial bytes.")
       .def("take_ble", &PyApp::take_ble)
       .def_prop_ro("capture_frames", &PyApp::capture_frames)

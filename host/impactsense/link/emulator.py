@@ -115,6 +115,20 @@ class Emulator:
         for i in range(self.frames.shape[0]):
             yield i, self.app.feed(self.frames[i])
 
+    def stream(self, reading=lambda t_s: True, buffer: int = 256, drops=None):
+        """The recordings back to back as the board acquires them, one DMA buffer at a time, with a host that
+        reads only while reading(t) holds (t: sample-clock seconds); yields the bytes the host got per buffer.
+        While the host does not read, the app's transmit queue fills and then drops whole frames (counted in
+        the status frame); acquisition never waits."""
+        frames = self.frames if drops is None else self.frames[drops]
+        n = 0
+        for rec in frames:
+            for off in range(0, rec.shape[0], buffer):
+                t = n / self.fs_hz
+                chunk = rec[off:off + buffer]
+                n += chunk.shape[0]
+                yield self.app.feed(chunk, buffer, None if reading(t) else 0)
+
     def real_time_s(self) -> float:
         return self.frames.shape[0] * self.frames.shape[1] / self.fs_hz
 

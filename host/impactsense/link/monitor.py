@@ -44,6 +44,23 @@ class Monitor:
         return s
 
 
+REPORT_HEADER = (f"{'seq':>6} {'t_ms':>9} {'x_mm':>7} {'y_mm':>7} {'±mm':>6} {'E':>2} "
+                 f"{'order':>5} {'acc':>3} clip dead")
+
+
+def report_line(r: dict) -> str:
+    order = "".join(str(c) for c in r["order"])
+    return (f"{r['seq']:>6} {r['timestamp_ms']:>9} {r['x_mm']:>7.1f} {r['y_mm']:>7.1f} "
+            f"{r['uncertainty_mm']:>6.1f} {r['energy_class']:>2} {order:>5} "
+            f"{'y' if r['accepted'] else 'n':>3} {r['clipped']:04b} {r['dead']:04b}")
+
+
+def _json_safe(d: dict) -> dict:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else
+                [None if isinstance(x, float) and math.isnan(x) else x for x in v] if isinstance(v, list) else v)
+            for k, v in d.items()}
+
+
 def report_json(r: dict) -> str:
     d = dict(r)
     if isinstance(d.get("uncertainty_mm"), float) and math.isnan(d["uncertainty_mm"]):
@@ -52,6 +69,21 @@ def report_json(r: dict) -> str:
         if d.get(k) is not None:
             d[k] = round(float(d[k]), 1)
     return json.dumps(d, sort_keys=True)
+
+
+_HEALTH = ((1, "dead"), (2, "clipped"), (4, "no-onset"))  # impactlink.h ChannelHealth
+
+
+def status_line(s: dict) -> str:
+    """The board's once-a-second status frame as one line."""
+    load = "?" if math.isnan(s["idle_load"]) else f"{100 * s['idle_load']:.1f}%"
+    cyc = (f"event {s['event_cycles_last']:,}/{s['event_cycles_max']:,} cyc, idle buffer "
+           f"{s['buffer_cycles_max']:,} cyc ({load})" if s["cycle_counter"] else "no cycle counter")
+    noise = " ".join("?" if math.isnan(n) else f"{n:.1f}" for n in s["noise_counts"])
+    health = " ".join("+".join(n for b, n in _HEALTH if h & b) or "ok" for h in s["health"])
+    return (f"status t={s['uptime_ms'] / 1000:.0f}s events={s['events']} overruns={s['overruns']} "
+            f"dropped_reports={s['dropped_reports']} {cyc} threshold={s['threshold_counts']} "
+            f"noise=[{noise}] health=[{health}]" + (f" raw_dropped={s['raw_dropped']}" if s["raw_dropped"] else ""))
 
 
 _END = object()
@@ -132,6 +164,11 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             for frame in frames:
                 if log is not None and frame["kind"] not in ("report", "raw"):
                     log.add_frame(frame["kind"], frame)
+                if frame["kind"] == "status":
+                    st = frame["status"]
+                    print(json.dumps({"status": _json_safe(st)}, sort_keys=True) if json_lines else status_line(st),
+                          file=out if json_lines else err, flush=True)
+                    continue
                 if frame["kind"] != "report":
                     continue
                 r = frame["report"]
@@ -143,14 +180,9 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                     print(report_json(r), file=out, flush=True)
                 else:
                     if not header_done:
-                        print(f"{'seq':>6} {'t_ms':>9} {'x_mm':>7} {'y_mm':>7} {'±mm':>6} {'E':>2} "
-                              f"{'order':>5} {'acc':>3} clip dead", file=out)
+                        print(REPORT_HEADER, file=out)
                         header_done = True
-                    order = "".join(str(c) for c in r["order"])
-                    print(f"{r['seq']:>6} {r['timestamp_ms']:>9} {r['x_mm']:>7.1f} {r['y_mm']:>7.1f} "
-                          f"{r['uncertainty_mm']:>6.1f} {r['energy_class']:>2} {order:>5} "
-                          f"{'y' if r['accepted'] else 'n':>3} {r['clipped']:04b} {r['dead']:04b}",
-                          file=out, flush=True)
+                    print(report_line(r), file=out, flush=True)
         except KeyboardInterrupt:
             reconnect = False
             print("monitor: stopped (Ctrl-C)", file=err)

@@ -130,6 +130,9 @@ void App::restart() {
 }
 
 void App::on_samples(const int16_t* data, int n_frames) {
+  const uint32_t c0 = hal_.cycles();
+  event_cycles_in_buffer_ = 0;
+  bool had_event = false;
   for (int i = 0; i < n_frames; ++i) {
     const int16_t* frame = data + 4 * i;
     const uint64_t now = frame_count_++;
@@ -140,12 +143,19 @@ void App::on_samples(const int16_t* data, int n_frames) {
       memcpy(ring_[ring_pos_], frame, sizeof(ring_[0]));  // the ring always holds the latest frames
       ring_pos_ = (ring_pos_ + 1) % pre_frames_;
       if (cap_pos_ == capture_frames_) {
+        const uint32_t e0 = hal_.cycles();
         process_capture();
+        const uint32_t de = hal_.cycles() - e0;
+        event_cycles_in_buffer_ += de;
+        event_cycles_last_ = de;
+        if (de > event_cycles_max_) event_cycles_max_ = de;
+        had_event = true;
         state_ = kListening;
       }
       continue;
     }
     if (state_ == kListening && trigger_.feed(frame)) {
+      if (raw_pending_) finish_raw(true);  // capture_ is about to be overwritten
       // Pre-trigger: the ring's frames, oldest first, then this frame.
       for (int k = 0; k < pre_frames_; ++k) {
         const int16_t* f = ring_[(ring_pos_ + k) % pre_frames_];
@@ -174,6 +184,83 @@ void App::on_samples(const int16_t* data, int n_frames) {
       state_ = kListening;
     }
   }
+  account_buffer(hal_.cycles() - c0, n_frames, had_event);
+}
+
+// Status accounting of one buffer; a status frame when its period has passed.
+void App::account_buffer(uint32_t cycles, int n_frames, bool had_event) {
+  ++buffers_;
+  if (!had_event) {
+    ++idle_buffers_;
+    idle_cycles_sum_ += cycles;
+    idle_frames_sum_ += static_cast<uint64_t>(n_frames);
+    if (cycles > idle_cycles_max_) idle_cycles_max_ = cycles;
+  }
+  if (cfg_.status_period_ms == 0 || frame_count_ < next_status_frame_) return;
+  send_status();
+  next_status_frame_ = frame_count_ + static_cast<uint64_t>(cfg_.status_period_ms) * cfg_.fs_hz / 1000u;
+}
+
+void App::send_status() {
+  il::Status& s = status_;
+  s.uptime_ms = static_cast<uint32_t>(frame_count_ * 1000u / cfg_.fs_hz);
+  s.buffers = buffers_;
+  s.overruns = overruns_;
+  s.events = seq_;
+  s.dropped_reports = dropped_reports_;
+  s.dropped_bytes = txq_.dropped_bytes();
+  s.event_cycles_last = event_cycles_last_;
+  s.event_cycles_max = event_cycles_max_;
+  s.buffer_cycles_max = idle_cycles_max_;
+  const uint32_t hz = hal_.cycles_hz();
+  s.idle_load_permille = 0xFFFFu;
+  if (hz > 0 && idle_frames_sum_ > 0) {
+    // busy cycles / (the buffers' duration in cycles), permille
+    const uint64_t period = idle_frames_sum_ * hz / cfg_.fs_hz;
+    const uint64_t pm = idle_cycles_sum_ * 1000u / (period > 0 ? period : 1);
+    s.idle_load_permille = static_cast<uint16_t>(pm < 0xFFFEu ? pm : 0xFFFEu);
+  }
+  const float t = trigger_threshold();
+  s.threshold_counts = t <= 0.0f ? 0 : (t >= 65535.0f ? 65535 : static_cast<uint16_t>(t + 0.5f));
+  for (int c = 0; c < 4; ++c) {
+    // The last event's view of each channel (none yet: unknown noise, health 0).
+    s.health[c] = 0;
+    s.noise_x10[c] = 0xFFFFu;
+    if (seq_ == 0) continue;
+    const ic::ChannelFeatures& ch = ev_.features.ch[c];
+    if (ch.flags & ic::kFlagDead) s.health[c] |= il::kHealthDead;
+    if (ch.flags & ic::kFlagClipped) s.health[c] |= il::kHealthClipped;
+    if (ch.flags & ic::kFlagNoOnset) s.health[c] |= il::kHealthNoOnset;
+    const float nx = ch.noise_rms * 10.0f + 0.5f;
+    if (nx >= 0.0f) s.noise_x10[c] = static_cast<uint16_t>(nx < 65534.0f ? nx : 65534.0f);
+  }
+  s.raw_dropped = raw_dropped_;
+  s.flags = static_cast<uint8_t>((cfg_.dump_raw ? il::kStatusDumpRaw : 0) | (hz > 0 ? il::kStatusCycleCounter : 0));
+  idle_buffers_ = 0;
+  idle_cycles_max_ = 0;
+  idle_cycles_sum_ = 0;
+  idle_frames_sum_ = 0;
+  emit(il::encode_status(s, tx_, sizeof(tx_)));
+}
+
+void App::emit(size_t n) {
+  if (n > 0) txq_.push(tx_, n);
+}
+
+bool App::service() {
+  bool progress = false;
+  while (raw_pending_ && txq_.room() >= il::kHeaderBytes + il::kRawHeader + 2u * kRawChunk + il::kCrcBytes) {
+    if (!send_raw_chunk()) finish_raw(false);
+    progress = true;
+  }
+  const uint8_t* p;
+  const size_t n = txq_.peek(&p);
+  const size_t sent = n > 0 ? hal_.write_some(p, n) : 0;
+  if (sent > 0) {
+    txq_.consume(sent);
+    progress = true;
+  }
+  return progress;
 }
 
 void App::process_capture() {
@@ -204,24 +291,43 @@ void App::process_capture() {
   if (st == ic::kOk && models_ != nullptr) {
     r.valid = models_->predict_with_uncertainty(ev_, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm);
   }
-  if (cfg_.dump_raw) send_raw();
-  size_t n = il::encode_report(r, tx_, sizeof(tx_));
-  hal_.write(tx_, n);
   uint8_t ble[il::kBlePayload];
-  n = il::ble_payload(r, ble);
-  hal_.notify(ble, n);
+  const size_t nb = il::ble_payload(r, ble);
+  hal_.notify(ble, nb);
+  if (cfg_.dump_raw) {
+    // The capture goes out as raw chunks first (service(), paced by the queue's room), then its report.
+    if (raw_pending_) finish_raw(true);
+    raw_pending_ = true;
+    raw_ch_ = 0;
+    raw_off_ = 0;
+    return;
+  }
+  send_report();
 }
 
-void App::send_raw() {
-  for (int c = 0; c < 4; ++c) {
-    for (int off = 0; off < capture_frames_; off += kRawChunk) {
-      const int cnt = capture_frames_ - off < kRawChunk ? capture_frames_ - off : kRawChunk;
-      const size_t n = il::encode_raw(report_.seq, static_cast<uint8_t>(c),
-                                      static_cast<uint16_t>(capture_frames_), static_cast<uint16_t>(off),
-                                      capture_[c] + off, static_cast<uint16_t>(cnt), tx_, sizeof(tx_));
-      hal_.write(tx_, n);
-    }
+void App::send_report() {
+  const size_t n = il::encode_report(report_, tx_, sizeof(tx_));
+  if (!txq_.push(tx_, n)) ++dropped_reports_;
+}
+
+bool App::send_raw_chunk() {
+  if (raw_ch_ >= 4) return false;
+  const int cnt = capture_frames_ - raw_off_ < kRawChunk ? capture_frames_ - raw_off_ : kRawChunk;
+  emit(il::encode_raw(report_.seq, static_cast<uint8_t>(raw_ch_), static_cast<uint16_t>(capture_frames_),
+                      static_cast<uint16_t>(raw_off_), capture_[raw_ch_] + raw_off_, static_cast<uint16_t>(cnt),
+                      tx_, sizeof(tx_)));
+  raw_off_ += cnt;
+  if (raw_off_ >= capture_frames_) {
+    raw_off_ = 0;
+    ++raw_ch_;
   }
+  return true;
+}
+
+void App::finish_raw(bool dropped) {
+  if (dropped && raw_dropped_ < 0xFFFFu) ++raw_dropped_;
+  raw_pending_ = false;
+  send_report();
 }
 
 void App::on_rx(const uint8_t* data, size_t n) {
@@ -275,8 +381,7 @@ void App::send_ack(uint8_t command, uint8_t status) {
   a.threshold_counts = t <= 0.0f ? 0 : (t >= 65535.0f ? 65535 : static_cast<uint16_t>(t + 0.5f));
   a.capture_frames = static_cast<uint16_t>(capture_frames_);
   a.dump_raw = cfg_.dump_raw ? 1 : 0;
-  const size_t n = il::encode_ack(a, tx_, sizeof(tx_));
-  hal_.write(tx_, n);
+  emit(il::encode_ack(a, tx_, sizeof(tx_)));
 }
 
 }  // namespace impactapp

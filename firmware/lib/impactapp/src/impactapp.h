@@ -27,6 +27,7 @@
 #include "impactcore.h"
 #include "impactlink.h"
 #include "twin.h"
+#include "txqueue.h"
 
 namespace impactapp {
 
@@ -36,12 +37,26 @@ constexpr uint32_t kMaxRateHz = 50000;  // SAADC: 200 ksps in all over 4 channel
 constexpr uint32_t kMinRateHz = 5000;
 constexpr float kScanStepUs = 5.0f;     // SAADC TACQ 3 us + conversion <= 2 us per channel in a scan
 constexpr int kRawChunk = 256;          // samples per raw-capture frame
+constexpr size_t kTxQueueBytes = 4096;  // serial transmit queue (frames are dropped, never waited for)
 
 // Board services the app needs.
 class Hal {
  public:
   virtual ~Hal() {}
-  virtual void write(const uint8_t* data, size_t n) = 0;             // USB serial
+  // USB serial: write() must take n <= writable() bytes without blocking (App::service() never offers more).
+  virtual void write(const uint8_t* data, size_t n) = 0;
+  virtual size_t writable() { return static_cast<size_t>(-1); }
+  // Writes what the port takes now, at most n bytes, without blocking; returns how many. The default writes
+  // min(n, writable()) with write(); a board whose port reports no free space ahead overrides it.
+  virtual size_t write_some(const uint8_t* data, size_t n) {
+    const size_t w = writable();
+    if (n > w) n = w;
+    if (n > 0) write(data, n);
+    return n;
+  }
+  // A free-running CPU cycle counter (the board's DWT CYCCNT) and its rate; 0 Hz: none (status reports 0).
+  virtual uint32_t cycles() { return 0; }
+  virtual uint32_t cycles_hz() { return 0; }
   virtual void notify(const uint8_t* payload, size_t n) { (void)payload; (void)n; }  // BLE report
   virtual bool apply_rate(uint32_t fs_hz) { (void)fs_hz; return true; }  // retime the sampling TIMER
 };
@@ -139,6 +154,7 @@ struct AppConfig {
   float quiet_us = 2000.0f;          // re-arm after all channels stayed below rearm_counts this long
   float threshold_counts = 60.0f;
   float rearm_counts = 20.0f;
+  uint32_t status_period_ms = 1000;  // a status frame this often (sample clock); 0: none
   impactcore::CoreConfig core;       // the model card's; configure() sets the acquisition's fields (fs_hz,
                                      // capture_delay_us: board_acquisition)
   impactcore::LocaliserConfig loc;   // geometry, group velocity, Eq. 35 tolerances
@@ -158,6 +174,12 @@ class App {
   void on_samples(const int16_t* data, int n_frames);
   // Bytes from the host: commands.
   void on_rx(const uint8_t* data, size_t n);
+  // Outside acquisition (the board's loop(), when no buffer waits): emits the pending raw dump as far as the
+  // transmit queue has room, and hands queued bytes to Hal::write within Hal::writable(). True while it made
+  // progress (call again).
+  bool service();
+  // Acquisition buffers the board lost (its DMA ring overran): counted in the status frame.
+  void add_overruns(uint32_t n) { overruns_ += n; }
 
   // Processes the capture in capture_ now (called by on_samples; public for the tests and the bench).
   void process_capture();
@@ -165,6 +187,11 @@ class App {
   State state() const { return state_; }
   uint32_t events() const { return seq_; }
   uint32_t overruns() const { return overruns_; }
+  // The trigger threshold in use (counts).
+  float trigger_threshold() const { return cfg_.threshold_counts; }
+  const impactlink::Status& status() const { return status_; }  // the last status frame sent
+  uint32_t event_cycles_max() const { return event_cycles_max_; }
+  uint32_t idle_cycles_max() const { return idle_cycles_max_; }  // since the last status frame
   int capture_frames() const { return capture_frames_; }
   const int16_t* capture(int c) const { return capture_[c]; }
   const impactcore::EventResult& last_result() const { return ev_; }
@@ -174,7 +201,12 @@ class App {
  private:
   void handle_command(const impactlink::Frame& f);
   void send_ack(uint8_t command, uint8_t status);
-  void send_raw();
+  void emit(size_t n);              // queues tx_[0..n) as one frame
+  void send_report();
+  bool send_raw_chunk();            // the next raw chunk, if the queue has room; false when none left
+  void finish_raw(bool dropped);    // the report held back by a raw dump goes out
+  void send_status();
+  void account_buffer(uint32_t cycles, int n_frames, bool had_event);
   void restart();
 
   Hal& hal_;
@@ -190,6 +222,18 @@ class App {
   int cap_pos_ = 0;
   uint64_t frame_count_ = 0, trigger_frame_ = 0;
   uint32_t seq_ = 0, overruns_ = 0;
+  // raw dump in progress (channel, offset) and the report it holds back
+  bool raw_pending_ = false;
+  int raw_ch_ = 0, raw_off_ = 0;
+  uint16_t raw_dropped_ = 0;
+  // status accounting
+  uint64_t next_status_frame_ = 0;
+  uint32_t buffers_ = 0, dropped_reports_ = 0;
+  uint32_t event_cycles_last_ = 0, event_cycles_max_ = 0, event_cycles_in_buffer_ = 0;
+  uint32_t idle_buffers_ = 0, idle_cycles_max_ = 0;
+  uint64_t idle_cycles_sum_ = 0, idle_frames_sum_ = 0;
+  impactlink::Status status_{};
+  TxQueue<kTxQueueBytes> txq_;
   impactcore::EventResult ev_;
   impactlink::Report report_;
   uint8_t tx_[impactlink::kMaxFrame];

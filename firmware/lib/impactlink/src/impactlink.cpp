@@ -114,6 +114,37 @@ bool unpack_ack(const uint8_t* b, size_t len, Ack* a) {
   return true;
 }
 
+void pack_status(const Status& s, uint8_t* b) {
+  const uint32_t u32[9] = {s.uptime_ms, s.buffers, s.overruns, s.events, s.dropped_reports,
+                           s.dropped_bytes, s.event_cycles_last, s.event_cycles_max, s.buffer_cycles_max};
+  for (int i = 0; i < 9; ++i) put32(b + 4 * i, u32[i]);
+  put16(b + 36, s.idle_load_permille);
+  put16(b + 38, s.threshold_counts);
+  for (int c = 0; c < 4; ++c) {
+    b[40 + c] = s.health[c];
+    put16(b + 44 + 2 * c, s.noise_x10[c]);
+  }
+  put16(b + 52, s.raw_dropped);
+  b[54] = s.flags;
+  b[55] = 0;
+}
+
+bool unpack_status(const uint8_t* b, size_t len, Status* s) {
+  if (b == nullptr || len != kStatusBody) return false;
+  uint32_t* u32[9] = {&s->uptime_ms, &s->buffers, &s->overruns, &s->events, &s->dropped_reports,
+                      &s->dropped_bytes, &s->event_cycles_last, &s->event_cycles_max, &s->buffer_cycles_max};
+  for (int i = 0; i < 9; ++i) *u32[i] = get32(b + 4 * i);
+  s->idle_load_permille = get16(b + 36);
+  s->threshold_counts = get16(b + 38);
+  for (int c = 0; c < 4; ++c) {
+    s->health[c] = b[40 + c];
+    s->noise_x10[c] = get16(b + 44 + 2 * c);
+  }
+  s->raw_dropped = get16(b + 52);
+  s->flags = b[54];
+  return true;
+}
+
 bool unpack_raw(const uint8_t* b, size_t len, RawChunk* c) {
   if (!body_length_ok(kTypeRaw, len, b)) return false;
   c->event_seq = get32(b);
@@ -130,6 +161,7 @@ int expected_body_length(uint8_t type) {
     case kTypeReport: return static_cast<int>(kReportBody);
     case kTypeRaw: return static_cast<int>(kRawHeader);
     case kTypeAck: return static_cast<int>(kAckBody);
+    case kTypeStatus: return static_cast<int>(kStatusBody);
     case kCmdSetThreshold: return 2;
     case kCmdSetRate: return 4;
     case kCmdDumpRaw: return 1;
@@ -171,6 +203,12 @@ size_t encode_ack(const Ack& a, uint8_t* out, size_t cap) {
   uint8_t body[kAckBody];
   pack_ack(a, body);
   return encode_frame(kTypeAck, body, kAckBody, out, cap);
+}
+
+size_t encode_status(const Status& s, uint8_t* out, size_t cap) {
+  uint8_t body[kStatusBody];
+  pack_status(s, body);
+  return encode_frame(kTypeStatus, body, kStatusBody, out, cap);
 }
 
 size_t encode_raw(uint32_t event_seq, uint8_t channel, uint16_t total, uint16_t offset,

@@ -20,6 +20,25 @@
 //  16  status u8          bit0 accepted (Eq. 35), bit1 valid (features + models ran); other bits 0
 //  17  channels u8        bits 0-3 clipped per channel, bits 4-7 dead / no onset per channel
 //
+// Status body (kStatusBody = 56 bytes), sent once a second of sample clock:
+//   0  uptime_ms u32          sample-clock time
+//   4  buffers u32            acquisition buffers processed since boot
+//   8  overruns u32           acquisition buffers lost (the app was too late for them)
+//  12  events u32             captures processed
+//  16  dropped_reports u32    reports the transmit queue had no room for (the host did not read)
+//  20  dropped_bytes u32      bytes of all frames dropped (reports, raw chunks, status, acks)
+//  24  event_cycles_last u32  CPU cycles of the last event's processing (0: no cycle counter)
+//  28  event_cycles_max u32   the most since boot
+//  32  buffer_cycles_max u32  the most an acquisition buffer without an event took, over the last period
+//  36  idle_load u16          permille of the buffer period those buffers took on average (0xFFFF unknown)
+//  38  threshold u16          the trigger threshold in use, counts
+//  40  health u8[4]           per channel: bit0 dead (flat / no signal), bit1 clipped, bit2 no onset in the
+//                             last event; bits 3-7 reserved (0)
+//  44  noise u16[4]           per channel baseline noise RMS of the last event, 0.1 counts (0xFFFF unknown)
+//  52  raw_dropped u16        raw dumps cut short by the next capture
+//  54  flags u8               bit0 dump raw on, bit1 cycle counter present
+//  55  reserved u8            0
+//
 // Commands (host -> board): set threshold (u16 counts), set rate (u32 Hz per channel), dump raw
 // (u8 0/1: send each capture as raw chunks before its report), get config (empty). The board answers
 // each command with an ack carrying its configuration.
@@ -41,6 +60,8 @@ constexpr size_t kReportBody = 18;
 constexpr size_t kReportFrame = kHeaderBytes + kReportBody + kCrcBytes;  // 28 bytes
 constexpr size_t kBlePayload = 1 + kReportBody;                          // 19 bytes
 constexpr size_t kAckBody = 12;
+constexpr size_t kStatusBody = 56;
+constexpr size_t kStatusFrame = kHeaderBytes + kStatusBody + kCrcBytes;  // 66 bytes
 constexpr size_t kRawHeader = 11;
 constexpr size_t kMaxRawSamples = (kMaxBody - kRawHeader) / 2;  // 506 int16 per chunk
 
@@ -48,6 +69,7 @@ enum FrameType : uint8_t {
   kTypeReport = 0x01,
   kTypeRaw = 0x02,
   kTypeAck = 0x03,
+  kTypeStatus = 0x04,
   kCmdSetThreshold = 0x10,
   kCmdSetRate = 0x11,
   kCmdDumpRaw = 0x12,
@@ -88,6 +110,27 @@ struct Ack {
   uint8_t dump_raw;
 };
 
+// Once a second: the board's health (see the body layout above).
+struct Status {
+  uint32_t uptime_ms;
+  uint32_t buffers;
+  uint32_t overruns;
+  uint32_t events;
+  uint32_t dropped_reports;
+  uint32_t dropped_bytes;
+  uint32_t event_cycles_last;
+  uint32_t event_cycles_max;
+  uint32_t buffer_cycles_max;
+  uint16_t idle_load_permille;  // 0xFFFF: unknown (no cycle counter)
+  uint16_t threshold_counts;
+  uint8_t health[4];
+  uint16_t noise_x10[4];        // 0xFFFF: unknown
+  uint16_t raw_dropped;
+  uint8_t flags;
+};
+enum StatusFlags : uint8_t { kStatusDumpRaw = 1u << 0, kStatusCycleCounter = 1u << 1 };
+enum ChannelHealth : uint8_t { kHealthDead = 1u << 0, kHealthClipped = 1u << 1, kHealthNoOnset = 1u << 2 };
+
 // --- CRC and bodies ---
 uint32_t crc32(const uint8_t* data, size_t n, uint32_t crc = 0);
 void pack_report(const Report& r, uint8_t body[kReportBody]);
@@ -95,6 +138,8 @@ bool unpack_report(const uint8_t* body, size_t len, Report* r);  // false: not a
 void pack_ack(const Ack& a, uint8_t body[kAckBody]);
 bool unpack_ack(const uint8_t* body, size_t len, Ack* a);
 bool unpack_raw(const uint8_t* body, size_t len, RawChunk* c);
+void pack_status(const Status& s, uint8_t body[kStatusBody]);
+bool unpack_status(const uint8_t* body, size_t len, Status* s);
 
 // Body length a type must have; for raw chunks the minimum (kRawHeader). -1: unknown type.
 int expected_body_length(uint8_t type);
@@ -104,6 +149,7 @@ bool body_length_ok(uint8_t type, size_t len, const uint8_t* body_head /* >= kRa
 size_t encode_frame(uint8_t type, const uint8_t* body, size_t len, uint8_t* out, size_t cap);
 size_t encode_report(const Report& r, uint8_t* out, size_t cap);
 size_t encode_ack(const Ack& a, uint8_t* out, size_t cap);
+size_t encode_status(const Status& s, uint8_t* out, size_t cap);
 size_t encode_raw(uint32_t event_seq, uint8_t channel, uint16_t total, uint16_t offset,
                   const int16_t* samples, uint16_t count, uint8_t* out, size_t cap);
 size_t encode_command(uint8_t type, uint32_t value, uint8_t* out, size_t cap);
