@@ -111,7 +111,11 @@ def ini_env(name: str) -> dict:
         merged = dict(cp[base.strip()])
         merged.update(sec)
         sec = merged
-    return sec
+
+    def ref(m):  # ${section.option} (PlatformIO's interpolation; options hold no dots here)
+        section, option = m.group(1).rsplit(".", 1)
+        return cp[section][option]
+    return {k: re.sub(r"\$\{([^}]+)\}", ref, v) for k, v in sec.items()}
 
 
 def framework_env(core: Path, ini: dict) -> Env:
@@ -151,9 +155,9 @@ def src_filter_extra(ini: dict) -> list[Path]:
     """The files build_src_filter adds from outside src/ (the models)."""
     out = []
     for m in re.finditer(r"\+<([^>]+)>", ini.get("build_src_filter", "")):
-        p = (ROOT / "firmware" / "src" / m.group(1)).resolve()
-        if p.is_file():
-            out.append(p)
+        p = (ROOT / "firmware" / "src" / m.group(1)).resolve()  # an absolute path stays as it is
+        if p.suffix in (".c", ".cpp"):
+            out.append(p)  # a missing file is reported as an error of the env (compile_all)
     return out
 
 
@@ -162,6 +166,10 @@ def compile_all(jobs: list[tuple[str, Path, Env, bool]], out: Path) -> list[dict
         group, src, env, ours = job
         obj = out / group / (src.stem + ".o")
         obj.parent.mkdir(parents=True, exist_ok=True)
+        if not src.is_file():
+            msg = f"{src}: error: missing (platformio.ini build_src_filter names it; `impactsense export` writes it)"
+            return {"group": group, "src": src, "obj": obj, "ours": ours, "ok": False, "warnings": 0, "errors": 1,
+                    "log": msg, "cmd": []}
         p = subprocess.run(env.command(src, obj), capture_output=True, text=True)
         text = p.stderr
         return {"group": group, "src": src, "obj": obj, "ours": ours, "ok": p.returncode == 0,
@@ -213,8 +221,11 @@ def framework_sources(core: Path, ble: Path) -> list[tuple[str, Path]]:
     return srcs
 
 
-def build_env(name: str, core: Path, ble: Path, out: Path, framework: bool) -> dict:
+def build_env(name: str, core: Path, ble: Path, out: Path, framework: bool, models: Path | None = None) -> dict:
     ini = ini_env(name)
+    if models is not None:  # the export's folder stands in for models/ (its include path and its C files)
+        ini["build_flags"] = re.sub(r"-I\s*models\b", f"-I {models}", ini.get("build_flags", ""))
+        ini["build_src_filter"] = re.sub(r"\.\./\.\./models/", f"{models}/", ini.get("build_src_filter", ""))
     base = framework_env(core, ini)
     libs = sorted(p for p in (ROOT / "firmware" / "lib").iterdir() if (p / "src").is_dir())
     lib_inc = [p / "src" for p in libs]
@@ -299,6 +310,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "build" / "board")
     ap.add_argument("--env", action="append", help="platformio.ini env (default: every nano33ble* env)")
     ap.add_argument("--no-framework", action="store_true", help="compile only our units")
+    ap.add_argument("--models", type=Path, help="an export folder to compile instead of models/ (both forms)")
     ap.add_argument("--json", type=Path, help="also write the summary here")
     a = ap.parse_args(argv)
     for d, what in ((a.core / "variants" / VARIANT / "cxxflags.txt", "--core"), (a.ble / "src", "--ble")):
@@ -313,7 +325,8 @@ def main(argv=None) -> int:
     print(f"variant prebuilt archives: {ref['fp_arch']}, float args {ref['vfp_args']}")
     all_ok, summary = True, {}
     for i, name in enumerate(envs):
-        b = build_env(name, a.core.resolve(), a.ble.resolve(), a.out.resolve(), not a.no_framework and i == 0)
+        b = build_env(name, a.core.resolve(), a.ble.resolve(), a.out.resolve(), not a.no_framework and i == 0,
+                      a.models.resolve() if a.models else None)
         ok, s = report(b, ref)
         all_ok &= ok
         summary[name] = s

@@ -195,7 +195,11 @@ class BoardHal : public impactapp::Hal {
 };
 
 BoardHal g_hal;
-impactapp::TableModels g_models = impactapp::exported_models();
+#if IMPACTSENSE_MODELS_M2CGEN
+impactapp::M2cModels g_models;  // env nano33ble_m2cgen: the m2cgen C form (one function per tree)
+#else
+impactapp::TableModels g_models = impactapp::exported_models();  // the node tables
+#endif
 impactapp::App g_app(g_hal, &g_models, impactapp::exported_config(impactapp::AppConfig()));
 uint8_t g_rx[64];
 

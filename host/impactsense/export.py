@@ -246,13 +246,19 @@ def signal_c(signal: dict) -> str:
 def tables_c(tabs: dict[str, dict], models: "ModelSet", header: str) -> str:
     out = [header, '#include "impactsense_models.h"\n\n']
     for role, t in tabs.items():
+        # The m2cgen build (IMPACTSENSE_MODELS_M2CGEN) keeps the inputs and drops the node tables.
+        out.append("#ifndef IMPACTSENSE_MODELS_M2CGEN\n")
         out.append(_c_array("int32_t", f"{role}_roots", t["roots"], str))
         out.append(_c_array("uint8_t", f"{role}_feature", t["feature"], str))
         out.append(_c_array("float", f"{role}_value", t["value"], _c_float))
         out.append(_c_array("uint16_t", f"{role}_right", t["right"], str))
         out.append(_c_array("uint8_t", f"{role}_inputs", models.inputs[role], str))
         out.append(f"const impactsense_model impactsense_model_{role} = {{{{{len(t['roots'])}, {role}_roots, "
-                   f"{role}_feature, {role}_value, {role}_right}}, {role}_inputs, {len(models.inputs[role])}}};\n\n")
+                   f"{role}_feature, {role}_value, {role}_right}}, {role}_inputs, {len(models.inputs[role])}}};\n")
+        out.append("#else\n")
+        out.append(_c_array("uint8_t", f"{role}_inputs", models.inputs[role], str))
+        out.append(f"const impactsense_model impactsense_model_{role} = {{{{0, 0, 0, 0, 0}}, {role}_inputs, "
+                   f"{len(models.inputs[role])}}};\n#endif\n\n")
     if models.twin is not None:
         out.append(twin_c(models.twin))
     out.append(signal_c(models.signal))

@@ -32,6 +32,8 @@ int main(int argc, char** argv) {
     for (long off = 0; off < n; off += 256) {
       const long m = n - off < 256 ? n - off : 256;
       app.on_samples(frames.data() + (k * n + off) * 4, static_cast<int>(m));
+      while (app.service()) {  // the board's loop(): raw chunks and queued frames out between buffers
+      }
     }
   }
   // decode everything, then a corrupted copy

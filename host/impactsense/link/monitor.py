@@ -164,10 +164,10 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             for frame in frames:
                 if log is not None and frame["kind"] not in ("report", "raw"):
                     log.add_frame(frame["kind"], frame)
-                if frame["kind"] == "status":
+                if frame["kind"] == "status":  # the board's health, once a second: beside the reports (stderr)
                     st = frame["status"]
                     print(json.dumps({"status": _json_safe(st)}, sort_keys=True) if json_lines else status_line(st),
-                          file=out if json_lines else err, flush=True)
+                          file=err, flush=True)
                     continue
                 if frame["kind"] != "report":
                     continue

@@ -3,6 +3,8 @@
 // with. Header-only; include it only where the generated models are compiled in (board, qemu image).
 #pragma once
 
+#include <math.h>
+
 #include "impactapp.h"
 #include "impactsense_models.h"
 
@@ -60,6 +62,50 @@ inline TableModels exported_models() {
                      exported_spec(impactsense_model_energy), IMPACTSENSE_RESIDUAL_XY != 0);
 #endif
 }
+
+// The m2cgen export (impactsense_models_m2c.c, one function per tree) behind the same interface: gathers its
+// inputs like TableModels, the twin's estimate at the forests' x, y for IMPACTSENSE_TWIN_INPUT, then reports
+// the twin's position as TableModels does. The firmware's env nano33ble_m2cgen builds with it
+// (IMPACTSENSE_MODELS_M2CGEN: the node tables are left out, their inputs kept).
+class M2cModels : public Models {
+ public:
+  bool predict(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c) const override {
+    float in[kMaxModelInputs];
+    if (ev.status != impactcore::kOk) return false;
+    if (IMPACTSENSE_RESIDUAL_XY && ev.phys.status != impactcore::kOk) return false;
+    if (!gather(impactsense_model_x, ev.vector, NAN, in)) return false;
+    *x = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f) + impactsense_m2c_x(in);
+    if (!gather(impactsense_model_y, ev.vector, NAN, in)) return false;
+    *y = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f) + impactsense_m2c_y(in);
+    float twin = NAN;
+#if IMPACTSENSE_TWIN
+    float f[impactcore::kTwinFeatures];
+    const uint16_t usable = impactcore::twin_features(ev.features, f);
+    const impactcore::TwinEstimate t = impactcore::twin_estimate(f, usable, *x, *y, twin_.map, twin_.cfg);
+    if (t.status != impactcore::kOk) return false;
+    twin = t.log10_height_mm;
+    *x = t.x_mm;
+    *y = t.y_mm;
+#endif
+    if (!gather(impactsense_model_energy, ev.vector, twin, in)) return false;
+    *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
+    return true;
+  }
+
+ private:
+#if IMPACTSENSE_TWIN
+  TwinSpec twin_ = exported_twin();
+#endif
+  static bool gather(const impactsense_model& m, const float* v, float twin, float* out) {
+    if (m.n_inputs > kMaxModelInputs) return false;
+    for (int32_t k = 0; k < m.n_inputs; ++k) {
+      const float a = m.inputs[k] == IMPACTSENSE_TWIN_INPUT ? twin : v[m.inputs[k]];
+      if (!(a == a) || a - a != 0.0f) return false;  // NaN or inf: the event is not usable
+      out[k] = a;
+    }
+    return true;
+  }
+};
 
 #define IMPACTAPP_CARD_FIELD(kind, type, name, def, role) IMPACTAPP_CARD_##role(name)
 #define IMPACTAPP_CARD_COPY(name) memcpy(&card.name, &s.name, sizeof(card.name));
