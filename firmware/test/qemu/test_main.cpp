@@ -220,10 +220,23 @@ int main() {
   g_hal.decode = false;
   g_app.process_capture();
   const uint64_t t5 = ticks();
-  while (g_app.service()) {
-  }
   g_hal.decode = true;
   const uint64_t t6 = ticks();
+  while (g_app.service()) {  // the report of the timed event out to the HAL (not timed)
+  }
+  const uint64_t c0 = ticks();  // calibration: exactly 200,000 instructions (100,000 x subs + bne)
+  {
+    uint32_t n = 100000;
+    __asm volatile("1: subs %0, %0, #1\n bne 1b" : "+r"(n) : : "cc");
+  }
+  const uint64_t c1 = ticks();
+  put_int("TICKS calib_200000_instructions", static_cast<long long>(c1 - c0));
+  put_int("TICKS features", static_cast<long long>(t1 - t0));
+  put_int("TICKS process_event", static_cast<long long>(t2 - t1));
+  put_int("TICKS models_tables", static_cast<long long>(t3 - t2));
+  put_int("TICKS models_m2cgen", static_cast<long long>(t4 - t3));
+  put_int("TICKS event_total", static_cast<long long>(t5 - t4));
+  put_int("TICKS empty", static_cast<long long>(t6 - t5));
   // The app's own accounting over every buffer fed above (the status frame's figures): the slowest event
   // inside on_samples, and the slowest buffer without one (warm-up, listening, capturing frames).
   put_int("TICKS app_event_max", static_cast<long long>(g_app.event_cycles_max()));
