@@ -249,8 +249,14 @@ void App::emit(size_t n) {
 
 bool App::service() {
   bool progress = false;
-  while (raw_pending_ && txq_.room() >= il::kHeaderBytes + il::kRawHeader + 2u * kRawChunk + il::kCrcBytes) {
-    if (!send_raw_chunk()) finish_raw(false);
+  while (raw_pending_) {
+    if (raw_ch_ >= 4) {  // the whole capture is queued: its report follows
+      finish_raw(false);
+      progress = true;
+      break;
+    }
+    if (txq_.room() < il::kHeaderBytes + il::kRawHeader + 2u * kRawChunk + il::kCrcBytes) break;
+    send_raw_chunk();
     progress = true;
   }
   const uint8_t* p;
@@ -310,8 +316,7 @@ void App::send_report() {
   if (!txq_.push(tx_, n)) ++dropped_reports_;
 }
 
-bool App::send_raw_chunk() {
-  if (raw_ch_ >= 4) return false;
+void App::send_raw_chunk() {
   const int cnt = capture_frames_ - raw_off_ < kRawChunk ? capture_frames_ - raw_off_ : kRawChunk;
   emit(il::encode_raw(report_.seq, static_cast<uint8_t>(raw_ch_), static_cast<uint16_t>(capture_frames_),
                       static_cast<uint16_t>(raw_off_), capture_[raw_ch_] + raw_off_, static_cast<uint16_t>(cnt),
@@ -321,7 +326,6 @@ bool App::send_raw_chunk() {
     raw_off_ = 0;
     ++raw_ch_;
   }
-  return true;
 }
 
 void App::finish_raw(bool dropped) {

@@ -203,7 +203,7 @@ class App {
   void send_ack(uint8_t command, uint8_t status);
   void emit(size_t n);              // queues tx_[0..n) as one frame
   void send_report();
-  bool send_raw_chunk();            // the next raw chunk, if the queue has room; false when none left
+  void send_raw_chunk();            // the next raw chunk of the capture (raw_ch_ < 4)
   void finish_raw(bool dropped);    // the report held back by a raw dump goes out
   void send_status();
   void account_buffer(uint32_t cycles, int n_frames, bool had_event);
