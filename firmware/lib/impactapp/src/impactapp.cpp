@@ -250,7 +250,8 @@ void App::emit(size_t n) {
 bool App::service() {
   bool progress = false;
   while (raw_pending_) {
-    if (raw_ch_ >= 4) {  // the whole capture is queued: its report follows
+    if (raw_ch_ >= 4) {  // the whole capture is queued: its report follows, once it fits
+      if (txq_.room() < il::kReportFrame) break;
       finish_raw(false);
       progress = true;
       break;
