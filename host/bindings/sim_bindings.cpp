@@ -58,7 +58,8 @@ NB_MODULE(_sim, m) {
       .def(
           "__init__",
           [](is::Plate* self, int nx, int ny, double hx_m, double hy_m, double nu, InD d_elem, InD s_elem,
-             InD mass_w, InD mass_r, InU8 fix_w, InU8 fix_bx, InU8 fix_by, double damping_per_s) {
+             InD mass_w, InD mass_r, InU8 fix_w, InU8 fix_bx, InU8 fix_by, double damping_per_s,
+             nb::object material) {
             is::PlateSpec s;
             s.nx = nx;
             s.ny = ny;
@@ -73,10 +74,14 @@ NB_MODULE(_sim, m) {
             s.fix_bx = vec<uint8_t>(fix_bx);
             s.fix_by = vec<uint8_t>(fix_by);
             s.damping_per_s = damping_per_s;
+            s.material = opt(material);
             new (self) is::Plate(std::move(s));
           },
           "nx"_a, "ny"_a, "hx_m"_a, "hy_m"_a, "nu"_a, "d_elem"_a, "s_elem"_a, "mass_w"_a, "mass_r"_a,
-          "fix_w"_a, "fix_bx"_a, "fix_by"_a, "damping_per_s"_a)
+          "fix_w"_a, "fix_bx"_a, "fix_by"_a, "damping_per_s"_a, "material"_a = nb::none(),
+          "material: None (isotropic, nu) or float64[9] ratios d11, d12, d22, d66, d16, d26, sxx, syy, sxy: element "
+          "e's bending matrix is d_elem[e] x [[d11, d12, d16], [d12, d22, d26], [d16, d26, d66]], its shear "
+          "matrix s_elem[e] x [[sxx, sxy], [sxy, syy]] (plate axes).")
       .def_prop_ro("nodes", &is::Plate::nodes)
       .def_prop_ro("elements", &is::Plate::elements)
       .def(
@@ -195,9 +200,9 @@ NB_MODULE(_sim, m) {
 
   m.def(
       "element_stiffness",
-      [](double hx_m, double hy_m, double d, double nu, double s) {
-        return to_numpy(is::element_stiffness(hx_m, hy_m, d, nu, s), {12, 12});
+      [](double hx_m, double hy_m, double d, double nu, double s, nb::object material) {
+        return to_numpy(is::element_stiffness(hx_m, hy_m, d, nu, s, opt(material)), {12, 12});
       },
-      "hx_m"_a, "hy_m"_a, "d"_a, "nu"_a, "s"_a,
+      "hx_m"_a, "hy_m"_a, "d"_a, "nu"_a, "s"_a, "material"_a = nb::none(),
       "12x12 element stiffness (dofs node-major w, bx, by; nodes (-,-), (+,-), (+,+), (-,+)) from the stepper's kernel.");
 }

@@ -23,31 +23,64 @@ namespace impactsim {
 
 int version();
 
+// The plate's material as ratios to the per-element scalars of PlateSpec: element e's bending matrix (moments
+// M_xx, M_yy, M_xy from the curvatures beta_x,x, beta_y,y, beta_x,y + beta_y,x) is
+// d_elem[e] [[d11, d12, d16], [d12, d22, d26], [d16, d26, d66]] and its transverse shear matrix (Q_x, Q_y from
+// gamma_xz, gamma_yz) s_elem[e] [[sxx, sxy], [sxy, syy]], in the plate's x, y axes. Isotropic (Poisson
+// ratio nu): d11 = d22 = 1, d12 = nu, d66 = (1 - nu) / 2, sxx = syy = 1, the couplings d16, d26, sxy zero.
+struct Material {
+  double d11 = 1, d12 = 0.3, d22 = 1, d66 = 0.35, d16 = 0, d26 = 0;
+  double sxx = 1, syy = 1, sxy = 0;
+  static Material isotropic(double nu) {
+    Material m;
+    m.d12 = nu;
+    m.d66 = (1 - nu) / 2;
+    return m;
+  }
+  // bending-twisting (d16, d26) or shear (sxy) coupling: material axes not along x, y
+  bool coupled() const { return d16 != 0 || d26 != 0 || sxy != 0; }
+};
+
 namespace detail {
 // Constants of one MITC4 rectangle (see src/element.h): linear in the bending stiffness D and the shear
-// stiffness S, so K(D, S) - K(D0, S0) = K(D - D0, S - S0).
+// stiffness S, so K(D, S) - K(D0, S0) = K(D - D0, S - S0) for one material.
 template <typename Real>
-struct Coef {  // element constants for bending stiffness D and shear stiffness S (linear in both)
+struct Coef {  // element constants for bending stiffness d x material and shear stiffness s x material
   Real ka, kb;                // 1/a, 1/b
-  Real sa, sa3;               // shear: S ab / 4, S ab / 12
+  Real sa, sa3;               // shear along x: S_xx ab / 4, S_xx ab / 12
+  Real sb, sb3;               // shear along y: S_yy ab / 4, S_yy ab / 12
   Real b11, b12, b22;         // bending centre: g1x = b11 C1x + b12 C2y, g2y = b12 C1x + b22 C2y
   Real c11, c12, c22;         // twist: g2x += c22 C2x + c12 C1y, g1y += c12 C2x + c11 C1y
   Real h3x, h3y;              // hourglass: g3x = h3x C3x, g3y = h3y C3y
+  // couplings (zero unless Material::coupled): shear qx0 += sc (gamma_yz part), qy0 += sc (gamma_xz part);
+  // bending g1x += e16 C2x + f16 C1y, g2y += f26 C2x + e26 C1y, twist g2x += e16 C1x + f26 C2y,
+  // g1y += f16 C1x + e26 C2y; hourglass g3x += h3c C3y, g3y += h3c C3x
+  Real sc, e16, f16, e26, f26, h3c;
+  bool coupled = false;
   Coef() = default;
-  Coef(double hx, double hy, double nu, double d, double s) {
-    const double a = hx / 2, b = hy / 2, h = (1 - nu) / 2;
+  Coef(double hx, double hy, const Material& m, double d, double s) {
+    const double a = hx / 2, b = hy / 2, h = m.d66;
     ka = Real(1 / a);
     kb = Real(1 / b);
-    sa = Real(s * a * b / 4);
-    sa3 = Real(s * a * b / 12);
-    b11 = Real(d * b / (4 * a));
-    b12 = Real(d * nu / 4);
-    b22 = Real(d * a / (4 * b));
+    sa = Real(s * m.sxx * a * b / 4);
+    sa3 = Real(s * m.sxx * a * b / 12);
+    sb = Real(s * m.syy * a * b / 4);
+    sb3 = Real(s * m.syy * a * b / 12);
+    b11 = Real(d * m.d11 * b / (4 * a));
+    b12 = Real(d * m.d12 / 4);
+    b22 = Real(d * m.d22 * a / (4 * b));
     c11 = Real(d * h * b / (4 * a));
     c12 = Real(d * h / 4);
     c22 = Real(d * h * a / (4 * b));
-    h3x = Real(d * a * b / 12 * (h / (b * b) + 1 / (a * a)));
-    h3y = Real(d * a * b / 12 * (1 / (b * b) + h / (a * a)));
+    h3x = Real(d * a * b / 12 * (h / (b * b) + m.d11 / (a * a)));
+    h3y = Real(d * a * b / 12 * (m.d22 / (b * b) + h / (a * a)));
+    sc = Real(s * m.sxy * a * b / 4);
+    e16 = Real(d * m.d16 / 4);
+    f16 = Real(d * m.d16 * b / (4 * a));
+    e26 = Real(d * m.d26 / 4);
+    f26 = Real(d * m.d26 * a / (4 * b));
+    h3c = Real(d * a * b / 12 * (m.d26 / (b * b) + m.d16 / (a * a)));
+    coupled = m.coupled();
   }
 };
 }  // namespace detail
@@ -57,7 +90,9 @@ using Real = float;  // state precision (vectorised); energies and outputs are a
 struct PlateSpec {
   int nx = 0, ny = 0;                // elements along x and y
   double hx_m = 0, hy_m = 0;         // element size
-  double nu = 0.3;                   // Poisson ratio (bending)
+  double nu = 0.3;                   // Poisson ratio (bending) of the isotropic material
+  std::vector<double> material;      // empty: isotropic (nu); else Material's d11, d12, d22, d66, d16, d26,
+                                     // sxx, syy, sxy (ratios to d_elem, s_elem)
   std::vector<double> d_elem;        // bending stiffness D per element [N m] (size nx*ny)
   std::vector<double> s_elem;        // shear stiffness kappa G t per element [N/m] (size nx*ny)
   std::vector<double> mass_w;        // lumped translational mass per node [kg]
@@ -152,6 +187,9 @@ class Plate {
   const std::vector<int64_t>& spring_nodes() const { return spring_node_; }
   double spring_k(size_t r) const { return spring_k_[r]; }
 
+  // One explicit run: Run's setup (validated config, padded state, sub-cycled patches, sensors), then its
+  // step per time step (contact and loads, outputs on the record grid, the central-difference update), then
+  // its result.
   RunResult run(const RunConfig& cfg) const;
 
   // Elements whose (D, S) differ from the base (most common) pair: stepped as the base element plus
@@ -165,7 +203,11 @@ class Plate {
   const std::vector<int64_t>& row_start() const { return row_start_; }  // special()[row_start[j]..row_start[j+1])
 
  private:
+  class Run;  // the state of one run (src/run.h)
   PlateSpec s_;
+  detail::Coef<Real> coef_f(double d, double s) const;
+  detail::Coef<double> coef_d(double d, double s) const;
+  Material material_;
   double d0_ = 0, s0_ = 0;             // base element
   detail::Coef<Real> base_f_;
   detail::Coef<double> base_d_;
@@ -184,6 +226,7 @@ class Plate {
 
 // 12 x 12 stiffness of one element (dof order: node-major w, bx, by for nodes 1..4 counter-clockwise from
 // (-,-)), built by probing the same kernel the stepper uses.
-std::vector<double> element_stiffness(double hx_m, double hy_m, double d, double nu, double s);
+std::vector<double> element_stiffness(double hx_m, double hy_m, double d, double nu, double s,
+                                      const std::vector<double>& material = {});
 
 }  // namespace impactsim

@@ -9,6 +9,9 @@
 // centre term (weight 4ab) and the xi- and eta-linear "hourglass" terms (weight 4ab/3).
 // MITC4 shear: gamma_xz = (c1w/a + c0x) + eta (c3w/a + c2x) (tied at edge midpoints xi = 0, eta = +-1),
 //              gamma_yz = (c2w/b + c0y) + xi  (c3w/b + c1y).
+// Material (impactsim.h Material): moments M = D k, shear forces Q = S gamma; the centre terms carry every
+// coupling; the hourglass terms couple C3x and C3y through D16 / a^2 + D26 / b^2; the shear's linear parts
+// (eta in gamma_xz, xi in gamma_yz) integrate to zero against each other, so S_xy enters the centre only.
 // Element nodal forces dU/du: f_n = g0 + xi_n g1 + eta_n g2 + xi_n eta_n g3 (the g below carry every 1/4).
 // Assembly in edge form: per field, the bottom edge of element (i, j) adds B0 = g0 - g2, B1 = g1 - g3 to the
 // accumulators P, Q of node row j at edge i, the top edge T0 = g0 + g2, T1 = g1 + g3 to those of row j + 1;
@@ -63,8 +66,9 @@ IMPACTSIM_INLINE void element_row(int n, const RowIn<Real>& in, const Coef<Real>
   Real* __restrict hqx = hi.qx;
   Real* __restrict hpy = hi.py;
   Real* __restrict hqy = hi.qy;
-  const Real ka = k.ka, kb = k.kb, sa = k.sa, sa3 = k.sa3, b11 = k.b11, b12 = k.b12, b22 = k.b22, c11 = k.c11,
-             c12 = k.c12, c22 = k.c22, h3x = k.h3x, h3y = k.h3y;
+  const Real ka = k.ka, kb = k.kb, sa = k.sa, sa3 = k.sa3, sb = k.sb, sb3 = k.sb3, b11 = k.b11, b12 = k.b12,
+             b22 = k.b22, c11 = k.c11, c12 = k.c12, c22 = k.c22, h3x = k.h3x, h3y = k.h3y, sc = k.sc,
+             e16 = k.e16, f16 = k.f16, e26 = k.e26, f26 = k.f26, h3c = k.h3c;
 #pragma omp simd
   for (int i = 0; i < n; ++i) {
     const Real dwb = w0[i + 1] - w0[i], dwt = w1[i + 1] - w1[i], swb = w0[i] + w0[i + 1], swt = w1[i] + w1[i + 1];
@@ -74,12 +78,15 @@ IMPACTSIM_INLINE void element_row(int n, const RowIn<Real>& in, const Coef<Real>
     const Real c0x = sxb + sxt, c1x = dxb + dxt, c2x = sxt - sxb, c3x = dxt - dxb;
     const Real c0y = syb + syt, c1y = dyb + dyt, c2y = syt - syb, c3y = dyt - dyb;
     // shear (MITC4)
-    const Real qx0 = sa * (c1w * ka + c0x), qy0 = sa * (c2w * kb + c0y);
-    const Real qx1 = sa3 * (c3w * ka + c2x), qy1 = sa3 * (c3w * kb + c1y);
-    // generalised forces
+    const Real gx0 = c1w * ka + c0x, gy0 = c2w * kb + c0y;
+    const Real qx0 = sa * gx0 + sc * gy0, qy0 = sb * gy0 + sc * gx0;
+    const Real qx1 = sa3 * (c3w * ka + c2x), qy1 = sb3 * (c3w * kb + c1y);
+    // generalised forces (the coupling terms last: zero for an isotropic or axis-aligned material)
     const Real g1w = qx0 * ka, g2w = qy0 * kb, g3w = qx1 * ka + qy1 * kb;
-    const Real g1x = b11 * c1x + b12 * c2y, g2x = qx1 + c22 * c2x + c12 * c1y, g3x = h3x * c3x;
-    const Real g1y = qy1 + c12 * c2x + c11 * c1y, g2y = b12 * c1x + b22 * c2y, g3y = h3y * c3y;
+    const Real g1x = b11 * c1x + b12 * c2y + e16 * c2x + f16 * c1y;
+    const Real g2x = qx1 + c22 * c2x + c12 * c1y + e16 * c1x + f26 * c2y, g3x = h3x * c3x + h3c * c3y;
+    const Real g1y = qy1 + c12 * c2x + c11 * c1y + f16 * c1x + e26 * c2y;
+    const Real g2y = b12 * c1x + b22 * c2y + f26 * c2x + e26 * c1y, g3y = h3y * c3y + h3c * c3x;
     lpw[i] -= g2w;
     lqw[i] += g1w - g3w;
     lpx[i] += qx0 - g2x;

@@ -67,7 +67,8 @@ IMPACTSIM_INLINE void update_block(int i0, v16 p, v16 q, v16& carry, float alpha
 }
 
 // Scaled: element i has bending stiffness ds[i] D0 and shear stiffness ss[i] S0 (disc elements).
-template <bool Masked, bool Scaled>
+// Coupled: the material's coupling terms (Coef::coupled: material axes not along x, y).
+template <bool Masked, bool Scaled, bool Coupled>
 IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, float alpha, const FusedRow& r,
                                     const float* ds, const float* ss, v16 carry[3]) {
   const v16 w0 = vload(r.u0[0] + i0), w0n = vload(r.u0[0] + i0 + 1);
@@ -82,21 +83,32 @@ IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, floa
   const v16 c1w = dwb + dwt, c2w = swt - swb, c3w = dwt - dwb;
   const v16 c0x = sxb + sxt, c1x = dxb + dxt, c2x = sxt - sxb, c3x = dxt - dxb;
   const v16 c0y = syb + syt, c1y = dyb + dyt, c2y = syt - syb, c3y = dyt - dyb;
-  v16 sa = k.sa + v16{}, sa3 = k.sa3 + v16{}, h3x = k.h3x + v16{}, h3y = k.h3y + v16{};
-  v16 dsc = 1.0f + v16{};
+  v16 sa = k.sa + v16{}, sa3 = k.sa3 + v16{}, sb = k.sb + v16{}, sb3 = k.sb3 + v16{};
+  v16 h3x = k.h3x + v16{}, h3y = k.h3y + v16{};
+  v16 dsc = 1.0f + v16{}, sv = 1.0f + v16{};
   if (Scaled) {
-    const v16 sv = vload(ss + i0);
+    sv = vload(ss + i0);
     dsc = vload(ds + i0);
-    sa *= sv, sa3 *= sv, h3x *= dsc, h3y *= dsc;
+    sa *= sv, sa3 *= sv, sb *= sv, sb3 *= sv, h3x *= dsc, h3y *= dsc;
   }
-  const v16 qx0 = sa * (c1w * k.ka + c0x), qy0 = sa * (c2w * k.kb + c0y);
-  const v16 qx1 = sa3 * (c3w * k.ka + c2x), qy1 = sa3 * (c3w * k.kb + c1y);
-  const v16 g1w = qx0 * k.ka, g2w = qy0 * k.kb, g3w = qx1 * k.ka + qy1 * k.kb;
+  const v16 gx0 = c1w * k.ka + c0x, gy0 = c2w * k.kb + c0y;
+  v16 qx0 = sa * gx0, qy0 = sb * gy0;
+  const v16 qx1 = sa3 * (c3w * k.ka + c2x), qy1 = sb3 * (c3w * k.kb + c1y);
   v16 g1x = k.b11 * c1x + k.b12 * c2y, g2y = k.b12 * c1x + k.b22 * c2y;
   v16 tx = k.c22 * c2x + k.c12 * c1y, ty = k.c12 * c2x + k.c11 * c1y;
+  v16 g3x = h3x * c3x, g3y = h3y * c3y;
+  if (Coupled) {
+    const v16 sc = Scaled ? k.sc * sv : k.sc + v16{};
+    qx0 += sc * gy0, qy0 += sc * gx0;
+    g1x += k.e16 * c2x + k.f16 * c1y, g2y += k.f26 * c2x + k.e26 * c1y;
+    tx += k.e16 * c1x + k.f26 * c2y, ty += k.f16 * c1x + k.e26 * c2y;
+    const v16 h3c = Scaled ? k.h3c * dsc : k.h3c + v16{};
+    g3x += h3c * c3y, g3y += h3c * c3x;
+  }
   if (Scaled) g1x *= dsc, g2y *= dsc, tx *= dsc, ty *= dsc;
-  const v16 g2x = qx1 + tx, g3x = h3x * c3x;
-  const v16 g1y = qy1 + ty, g3y = h3y * c3y;
+  const v16 g1w = qx0 * k.ka, g2w = qy0 * k.kb, g3w = qx1 * k.ka + qy1 * k.kb;
+  const v16 g2x = qx1 + tx;
+  const v16 g1y = qy1 + ty;
   v16 bpw = -g2w, bqw = g1w - g3w, tpw = g2w, tqw = g1w + g3w;
   v16 bpx = qx0 - g2x, bqx = g1x - g3x, tpx = qx0 + g2x, tqx = g1x + g3x;
   v16 bpy = qy0 - g2y, bqy = g1y - g3y, tpy = qy0 + g2y, tqy = g1y + g3y;
@@ -121,26 +133,25 @@ IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, floa
                db + 2 * kLanes);
 }
 
-// Element row j (nx elements) and node row j (nodes 0..nx). scaled: null, or one flag per block (then ds, ss
-// hold the row's stiffness ratios, see element_block).
-IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const FusedRow& r, const uint8_t* scaled,
-                                const float* ds, const float* ss) {
+template <bool Coupled>
+IMPACTSIM_INLINE void fused_row_of(int nx, const Coef<float>& k, float alpha, const FusedRow& r,
+                                   const uint8_t* scaled, const float* ds, const float* ss) {
   v16 carry[3] = {v16{}, v16{}, v16{}};
   const int full = nx / kLanes;
   for (int b = 0; b < full; ++b) {
     if (scaled && scaled[b])
-      element_block<false, true>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
+      element_block<false, true, Coupled>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
     else
-      element_block<false, false>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
+      element_block<false, false, Coupled>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
   }
   const int rest = nx - full * kLanes;
   if (rest > 0) {  // elements past nx masked; node nx lies in this block
     v16 mask{};
     for (int l = 0; l < rest; ++l) mask[l] = 1.0f;
     if (scaled && scaled[full])
-      element_block<true, true>(full * kLanes, mask, k, alpha, r, ds, ss, carry);
+      element_block<true, true, Coupled>(full * kLanes, mask, k, alpha, r, ds, ss, carry);
     else
-      element_block<true, false>(full * kLanes, mask, k, alpha, r, ds, ss, carry);
+      element_block<true, false, Coupled>(full * kLanes, mask, k, alpha, r, ds, ss, carry);
   } else {  // node nx: only element nx - 1 (lane 15 of the carry)
     for (int fld = 0; fld < 3; ++fld) {
       const float f = carry[fld][kLanes - 1];
@@ -150,6 +161,16 @@ IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const
       r.u0[fld][nx] += dn;
     }
   }
+}
+
+// Element row j (nx elements) and node row j (nodes 0..nx). scaled: null, or one flag per block (then ds, ss
+// hold the row's stiffness ratios, see element_block).
+IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const FusedRow& r, const uint8_t* scaled,
+                                const float* ds, const float* ss) {
+  if (k.coupled)
+    fused_row_of<true>(nx, k, alpha, r, scaled, ds, ss);
+  else
+    fused_row_of<false>(nx, k, alpha, r, scaled, ds, ss);
 }
 
 // The last node row (ny): forces from element row ny - 1 only (r.in), nodes 0..nx.

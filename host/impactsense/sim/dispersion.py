@@ -25,7 +25,13 @@ def _consts(e_pa, nu, rho, t_m, kappa):
 
 def a0_wavenumber(f_hz, e_pa, nu, rho_kg_m3, t_m, kappa=KAPPA_MINDLIN):
     """A0 wavenumber k [rad/m] at frequency f_hz (array-like)."""
-    d, s, i, m = _consts(e_pa, nu, rho_kg_m3, t_m, kappa)
+    return a0_wavenumber_ds(f_hz, *_consts(e_pa, nu, rho_kg_m3, t_m, kappa))
+
+
+def a0_wavenumber_ds(f_hz, d, s, i, m):
+    """A0 wavenumber from the plate's bending stiffness d [N m], shear stiffness s [N/m], rotary inertia i
+    [kg] and mass m [kg/m^2] per area: along a principal axis of an orthotropic plate, d = D11 (or D22) and
+    s = S_xx (or S_yy)."""
     w2 = (2 * np.pi * np.asarray(f_hz, float)) ** 2
     b = w2 * (i / d + m / s)
     c = m * w2 / d * (1 - i * w2 / s)
@@ -72,3 +78,31 @@ def ss_plate_frequencies(a_m, b_m, e_pa, nu, rho_kg_m3, t_m, kappa=KAPPA_MINDLIN
             out.append((math.sqrt(lam.min()) / (2 * np.pi), (mi, ni)))
     out.sort()
     return np.array([f for f, _ in out[:count]]), [mn for _, mn in out[:count]]
+
+
+def ss_orthotropic_frequencies(a_m, b_m, dm, sm, rho_kg_m3, t_m, count=10, max_index=12):
+    """Lowest natural frequencies [Hz] of a hard simply supported, specially orthotropic (D16 = D26 = 0,
+    S_xy = 0) rectangular plate: Mindlin (Navier modes, 3x3 per (m, n)) and Kirchhoff
+    f_mn = (pi / 2) sqrt(D11 (m/a)^4 + 2 (D12 + 2 D66) (m/a)^2 (n/b)^2 + D22 (n/b)^4) / sqrt(rho t).
+    dm: 3x3 bending matrix [N m], sm: 2x2 shear matrix [N/m]. Returns (mindlin, kirchhoff, [(m, n)]) in the
+    order of the Mindlin frequencies."""
+    d11, d12, d22, d66 = dm[0][0], dm[0][1], dm[1][1], dm[2][2]
+    sx, sy = sm[0][0], sm[1][1]
+    mass, i = rho_kg_m3 * t_m, rho_kg_m3 * t_m ** 3 / 12
+    out = []
+    for mi in range(1, max_index + 1):
+        for ni in range(1, max_index + 1):
+            al, be = mi * np.pi / a_m, ni * np.pi / b_m
+            k = np.array([
+                [sx * al ** 2 + sy * be ** 2, sx * al, sy * be],
+                [sx * al, d11 * al ** 2 + d66 * be ** 2 + sx, (d12 + d66) * al * be],
+                [sy * be, (d12 + d66) * al * be, d66 * al ** 2 + d22 * be ** 2 + sy],
+            ])
+            mm = np.array([mass, i, i])
+            lam = np.linalg.eigvalsh(k / np.sqrt(np.outer(mm, mm)))
+            f_k = math.pi / 2 * math.sqrt(d11 * (mi / a_m) ** 4 + 2 * (d12 + 2 * d66) * (mi / a_m) ** 2 * (ni / b_m) ** 2
+                                          + d22 * (ni / b_m) ** 4) / math.sqrt(mass)
+            out.append((math.sqrt(lam.min()) / (2 * np.pi), f_k, (mi, ni)))
+    out.sort()
+    out = out[:count]
+    return np.array([o[0] for o in out]), np.array([o[1] for o in out]), [o[2] for o in out]

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _sim
 from ..errors import ConfigError
-from . import dispersion
+from . import dispersion, material
 from .params import SimParams
 
 EPS0 = 8.8541878128e-12
@@ -30,7 +30,8 @@ SUBCYCLE_LAYER = 0   # rings of bare-plate nodes added around each disc's elemen
 
 def hertz_k(params: SimParams, ball_radius_m: float) -> float:
     """Hertz constant k of F = k delta^1.5 for the ball on the plate (both materials elastic)."""
-    e_star = 1.0 / ((1 - params.nu ** 2) / params.e_pa + (1 - params.ball_nu ** 2) / params.ball_e_pa)
+    e_plate, nu_plate = material.contact_modulus(params)
+    e_star = 1.0 / ((1 - nu_plate ** 2) / e_plate + (1 - params.ball_nu ** 2) / params.ball_e_pa)
     return 4.0 / 3.0 * e_star * math.sqrt(ball_radius_m)
 
 
@@ -108,17 +109,16 @@ class Model:
 
 
 def plate_constants(p: SimParams):
-    t = p.thickness_mm * 1e-3
-    g = p.e_pa / (2 * (1 + p.nu))
-    d = p.e_pa * t ** 3 / (12 * (1 - p.nu ** 2))
-    s = p.shear_factor * g * t
-    return t, d, s
+    """(t, d, s): thickness and the reference bending and shear stiffness (isotropic: D and kappa G t;
+    orthotropic: D11 and S_xx in the plate's axes, the rest as `material.element_constants` ratios)."""
+    d, s, _ = material.element_constants(p)
+    return p.thickness_mm * 1e-3, d, s
 
 
-def element_dt_crit(hx, hy, d, nu, s, m_node, i_node) -> float:
+def element_dt_crit(hx, hy, d, nu, s, m_node, i_node, ratios=None) -> float:
     """Stability limit 2 / omega_max with omega_max from the element eigenproblem (an upper bound on the
     assembled one for lumped mass: Irons' theorem), i.e. a conservative dt."""
-    k = np.asarray(_sim.element_stiffness(hx, hy, d, nu, s), float)
+    k = np.asarray(_sim.element_stiffness(hx, hy, d, nu, s, ratios), float)
     m = np.tile([m_node, i_node, i_node], 4)
     lam = np.linalg.eigvalsh(k / np.sqrt(np.outer(m, m)))
     return 2.0 / math.sqrt(lam.max())
@@ -204,7 +204,8 @@ def node_areas(nx: int, ny: int, hx: float, hy: float) -> np.ndarray:
 def uniform_plate(nx: int, ny: int, hx: float, hy: float, params: SimParams, masks=None):
     """A bare plate (no discs) with params' material and support (or explicit masks (fix_w, fix_bx,
     fix_by)); returns (_sim.Plate, mass_w, mass_r, dt_crit_s). Used by the validation tests."""
-    t, d, s = plate_constants(params)
+    t = params.thickness_mm * 1e-3
+    d, s, ratios = material.element_constants(params)
     rho = params.rho_kg_m3
     i_rot = rho * t ** 3 / 12 * params.rotary_inertia_scale
     area = node_areas(nx, ny, hx, hy)
@@ -212,9 +213,9 @@ def uniform_plate(nx: int, ny: int, hx: float, hy: float, params: SimParams, mas
     mass_w, mass_r = rho * t * area, i_rot * area
     plate = _sim.Plate(nx, ny, hx, hy, params.nu, np.full(nx * ny, d), np.full(nx * ny, s), mass_w.ravel(),
                        mass_r.ravel(), *(np.ascontiguousarray(m, np.uint8).ravel() for m in masks),
-                       params.damping_per_s)
+                       params.damping_per_s, ratios)
     _set_rim(plate, nx, ny, hx, hy, params)
-    dt_crit = element_dt_crit(hx, hy, d, params.nu, s, rho * t * hx * hy / 4, i_rot * hx * hy / 4)
+    dt_crit = element_dt_crit(hx, hy, d, params.nu, s, rho * t * hx * hy / 4, i_rot * hx * hy / 4, ratios)
     return plate, mass_w.ravel(), mass_r.ravel(), dt_crit
 
 
@@ -237,10 +238,22 @@ def _disc_fraction(model_h, centre, radius, n_sub=8):
     return out
 
 
+def mesh_element_m(p: SimParams, f_max_hz: float) -> float:
+    """Eq. 1: a tenth of the shortest A0 wavelength at f_max_hz (an orthotropic plate: along its softest
+    direction, `material.softest`)."""
+    t = p.thickness_mm * 1e-3
+    if not material.orthotropic(p):
+        return float(dispersion.a0_wavelength(f_max_hz, p.e_pa, p.nu, p.rho_kg_m3, t, p.shear_factor)) / 10
+    d_min, s_min = material.softest(p)
+    k = dispersion.a0_wavenumber_ds(f_max_hz, d_min, s_min, p.rho_kg_m3 * t ** 3 / 12, p.rho_kg_m3 * t)
+    return float(2 * np.pi / k) / 10
+
+
 def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> Model:
     p = params
     lx, ly = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3
-    t, d, s = plate_constants(p)
+    t = p.thickness_mm * 1e-3
+    d, s, ratios = material.element_constants(p)
     rho = p.rho_kg_m3
     fs = float(rig.fs_hz)
     ball_r = rig.ball_diameter_mm * 0.5e-3
@@ -257,7 +270,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     if p.element_mm is not None:
         le = p.element_mm * 1e-3
     else:
-        le = float(dispersion.a0_wavelength(f_max, p.e_pa, p.nu, rho, t, p.shear_factor)) / 10
+        le = mesh_element_m(p, f_max)
     nx, ny = max(int(math.ceil(lx / le - 1e-9)), 2), max(int(math.ceil(ly / le - 1e-9)), 2)
     hx, hy = lx / nx, ly / ny
     if nx * ny > 4_000_000:
@@ -307,7 +320,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
 
     plate = _sim.Plate(nx, ny, hx, hy, p.nu, np.ascontiguousarray(d_elem.ravel()),
                        np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
-                       fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s)
+                       fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s, ratios)
     _set_rim(plate, nx, ny, hx, hy, p)
 
     # time step: the assembled plate's stability limit and Eq. 2, snapped to divide 1/fs; sub-cycled (fine

@@ -4,6 +4,9 @@ Geometry (plate size, sensor centres, disc diameter, ball size and mass, samplin
 the rig (`impactsense.data.Rig`); `SimParams.from_rig` also copies the plate's density, thickness and support.
 
 Defaults (documented, see method.md):
+- material: isotropic (e_pa, nu); with e2_pa and g12_pa set the plate is orthotropic (a laminate's smeared
+  constants): e_pa is E1 and nu is nu12 along the material's axis 1, which lies material_axes_deg from the
+  plate's x axis; g13_pa / g23_pa (transverse shear) default to g12_pa (`material.py`).
 - plate: PMMA, E = 5000 MPa, nu = 0.32 (the seed's calibrated values), rho and t from the rig (1157 kg/m3,
   4.2 mm), Mindlin shear factor kappa = pi^2/12; support "simply_supported" (the rig's plate rests on a
   rubber rim: its edges cannot lift against the ball's load on the first arrivals we use, and they rotate
@@ -75,8 +78,13 @@ METHODS = ("auto", "fast", "direct")
 @dataclass(frozen=True)
 class SimParams:
     # plate
-    e_pa: float = 5.0e9
-    nu: float = 0.32
+    e_pa: float = 5.0e9                    # E (isotropic) or E1, along the material's axis 1 (orthotropic)
+    nu: float = 0.32                       # nu (isotropic) or nu12 (orthotropic)
+    e2_pa: float | None = None             # orthotropic: E2 across axis 1 (None: the plate is isotropic)
+    g12_pa: float | None = None            # orthotropic: in-plane shear modulus G12
+    g13_pa: float | None = None            # orthotropic: transverse shear moduli (None: G12)
+    g23_pa: float | None = None
+    material_axes_deg: float = 0.0         # orthotropic: axis 1 (the fibres) at this angle from the plate's x axis
     rho_kg_m3: float = 1157.0
     thickness_mm: float = 4.2
     support: str = "simply_supported"
@@ -190,6 +198,24 @@ class SimParams:
         return dataclasses.replace(self, **changes)
 
     # ---- validation ---------------------------------------------------------------------------------
+    def _validate_orthotropic(self, num) -> None:
+        num("material_axes_deg")
+        if self.e2_pa is None:
+            extra = [n for n in ("g12_pa", "g13_pa", "g23_pa") if getattr(self, n) is not None]
+            if extra:
+                raise ConfigError(f"{', '.join(extra)} set without e2_pa: an orthotropic plate needs e2_pa and "
+                                  "g12_pa (e_pa is then E1, nu is nu12)")
+            return
+        num("e2_pa", 0)
+        if self.g12_pa is None:
+            raise ConfigError("an orthotropic plate (e2_pa set) needs g12_pa")
+        num("g12_pa", 0)
+        num("g13_pa", 0, allow_none=True)
+        num("g23_pa", 0, allow_none=True)
+        if self.nu ** 2 >= self.e_pa / self.e2_pa:
+            raise ConfigError(f"nu12 = {self.nu!r} with E1/E2 = {self.e_pa / self.e2_pa:.3g}: the material is not "
+                              "positive definite (needs nu12^2 < E1 / E2)")
+
     def validate(self) -> None:
         def num(name, lo=None, hi=None, lo_open=True, hi_open=True, allow_none=False):
             v = getattr(self, name)
@@ -204,6 +230,7 @@ class SimParams:
 
         num("e_pa", 0)
         num("nu", -1, 0.5)
+        self._validate_orthotropic(num)
         num("rho_kg_m3", 0)
         num("thickness_mm", 0)
         num("shear_factor", 0, 1, hi_open=False)

@@ -1,0 +1,271 @@
+// Plate::Run's step (contact and loads, outputs on the record grid, the central-difference update of the
+// plate and of its sub-cycled patches, the ball), its result, and Plate::run.
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "run.h"
+
+namespace impactsim {
+
+using detail::Accumulators;
+using detail::AlignedFloats;
+using detail::db_index;
+using detail::kDbBeta;
+using detail::need;
+using detail::StepArgs;
+using detail::DenormalGuard;
+using detail::sweep;
+
+// Hertz contact at t_n: the force (0 when apart) and the overlap delta; the force's loads on the contact nodes.
+double Plate::Run::contact(double t, double& delta) {
+  double force = 0, wp = 0;
+  for (int a = 0; a < 4; ++a) wp += cp_.wt[a] * u_[cp_at_[a]];
+  delta = zb_ - wp;
+  if (delta > 0) {
+    force = c_.ball.k_hertz * delta * std::sqrt(delta);
+    if (!in_contact_) {
+      ++res_.contacts;
+      if (t_first_ < 0) t_first_ = t;
+    }
+    in_contact_ = true;
+    t_last_ = t;
+  } else {
+    in_contact_ = false;
+  }
+  if (force > 0)
+    for (int a = 0; a < 4; ++a) loads_.push_back({cp_at_[a], 0, Real(cp_.wt[a] * force)});
+  res_.force_n.push_back(force);
+  return force;
+}
+
+// The hat load (reciprocity runs) and the node springs and dashpots (-k w_n - c v_{n-1/2}); loads sorted.
+void Plate::Run::add_loads(double t) {
+  const double delta_rec = c_.record_every * c_.dt_s;
+  if (c_.hat_load) {
+    const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec) / delta_rec);
+    if (phi > 0) {
+      for (size_t k = 0; k < hat_.node.size(); ++k) {
+        loads_.push_back({hat_.node[k], 1, Real(phi * hat_.wx[k])});
+        loads_.push_back({hat_.node[k], 2, Real(phi * hat_.wy[k])});
+      }
+    }
+  }
+  for (size_t r = 0; r < p_.spring_node_.size(); ++r) {
+    const int64_t k = p_.spring_node_[r];
+    const size_t o = at(k);
+    const double v = double(db_[d_at(0, k)]) / c_.dt_s;
+    loads_.push_back({static_cast<int64_t>(o), 0, Real(-p_.spring_k_[r] * double(u_[o]) - p_.spring_c_[r] * v)});
+  }
+  if (loads_.size() > 1)
+    std::sort(loads_.begin(), loads_.end(), [](const Load& x, const Load& y) { return x.node < y.node; });
+}
+
+// Outputs at t_n = (q m + r) dt onto the record grid (hat weights on samples q and q + 1).
+void Plate::Run::record(int64_t q, int r) {
+  const int m = c_.record_every;
+  const int64_t nrec = c_.n_record;
+  const double frac = double(r) / m;
+  const double w_lo = (1 - frac) / m, w_hi = frac / m;
+  const bool hi_ok = r > 0 && q + 1 < nrec;
+  for (size_t si = 0; si < sensors_.size(); ++si) {
+    const double val = sensors_[si](u_ + np_, u_ + 2 * np_);
+    res_.sensors[si * nrec + q] += w_lo * val;
+    if (hi_ok) res_.sensors[si * nrec + q + 1] += w_hi * val;
+  }
+  if (!c_.record_field) return;
+  float* lo = res_.field.data() + static_cast<size_t>(q) * nn_;
+  const float a = float(w_lo), b = float(w_hi);
+  for (int j = 0; j <= ny_; ++j) {
+    const Real* row = u_ + static_cast<size_t>(j) * rs_;
+    float* lo_j = lo + static_cast<size_t>(j) * rl_;
+    for (int i = 0; i < rl_; ++i) lo_j[i] += a * row[i];
+    if (hi_ok) {
+      float* hi_j = lo_j + nn_;
+      for (int i = 0; i < rl_; ++i) hi_j[i] += b * row[i];
+    }
+  }
+}
+
+// u_n of each patch's ring; the step's loads on the patch's nodes.
+void Plate::Run::patch_loads() {
+  for (auto& gp : grids_) {
+    PatchGrid& g = *gp;
+    const size_t nr = g.ring_l.size();
+    for (int f = 0; f < 3; ++f)
+      for (size_t r = 0; r < nr; ++r) g.ring0[f * nr + r] = u_[f * np_ + g.ring_g[r]];
+    g.load_l.clear();
+    g.load_f.clear();
+    g.load_v.clear();
+    const Patch& pt = *g.pt;
+    for (const Load& ld : loads_) {
+      const int j = static_cast<int>(ld.node / rs_), i = static_cast<int>(ld.node % rs_);
+      if (i < pt.i0 || i > pt.i1 || j < pt.j0 || j > pt.j1) continue;
+      g.load_l.push_back((j - pt.ej0) * g.rs + (i - pt.ei0));
+      g.load_f.push_back(ld.field);
+      g.load_v.push_back(ld.value);
+    }
+  }
+}
+
+// The plate's step: the fused pass and then the loads (u_{n+1} += beta P, d += beta P); on energy steps the
+// portable pass with the loads inside and the strain and kinetic energy accumulated (record sample q).
+void Plate::Run::advance_plate(bool energy, int64_t q) {
+  float* const u = u_;
+  float* const db = db_;
+  const size_t np = np_;
+  const int64_t rs = rs_;
+  if (!energy) {
+    detail::step_fast(args_);
+    for (const Load& l : loads_) {
+      const size_t k = static_cast<size_t>(l.field) * np + l.node;
+      float* const dk = db + (l.node / rs) * 6 * rs + db_index(l.node % rs, l.field);
+      const Real inc = dk[kDbBeta] * l.value;
+      dk[0] += inc;
+      u[k] += inc;
+    }
+    return;
+  }
+  double se = 0, ke = 0;
+  size_t li = 0;
+  const int rl = rl_;
+  const Real alpha = alpha_;
+  std::vector<Real>& frow = frow_;
+  sweep<Real>(nx_, ny_, rs, p_.base_f_, p_.special_.data(), p_.row_start_.data(), u, u + np, u + 2 * np, acc_,
+              [&](int j, const detail::RowAcc<Real>& a) {
+                const int64_t row0 = static_cast<int64_t>(j) * rs;
+                const Real* const p[3] = {a.pw, a.px, a.py};
+                const Real* const qq[3] = {a.qw, a.qx, a.qy};
+                for (int fld = 0; fld < 3; ++fld)
+                  for (int i = 0; i < rl; ++i) {
+                    frow[fld * rl + i] = detail::node_force(p[fld], qq[fld], i);
+                    se += double(u[fld * np + row0 + i]) * frow[fld * rl + i];
+                  }
+                while (li < loads_.size() && loads_[li].node < row0 + rl) {
+                  frow[loads_[li].field * rl + (loads_[li].node - row0)] -= loads_[li].value;
+                  ++li;
+                }
+                for (int fld = 0; fld < 3; ++fld)
+                  for (int i = 0; i < rl; ++i) {
+                    const size_t k = fld * np + row0 + i;
+                    float* const dk = db + static_cast<size_t>(j) * 6 * rs + db_index(i, fld);
+                    const Real dn = alpha * dk[0] - dk[kDbBeta] * frow[fld * rl + i];
+                    ke += double(mass_[k]) * dk[0] * dn;
+                    dk[0] = dn;
+                    u[k] += dn;
+                  }
+              });
+  for (size_t r = 0; r < p_.spring_node_.size(); ++r) {  // spring energy at u_n (springs are part of K)
+    const double wn = double(u[at(p_.spring_node_[r])]) - double(db[d_at(0, p_.spring_node_[r])]);
+    se += p_.spring_k_[r] * wn * wn;
+  }
+  res_.energy[q * 4 + 0] = 0.5 * ke / (c_.dt_s * c_.dt_s);
+  res_.energy[q * 4 + 1] = 0.5 * se;
+}
+
+// The sub-cycled patches: msub steps of dt / msub, the ring interpolated in time; returns their kinetic
+// energy term (2 x KE x dts^2) on energy steps.
+double Plate::Run::advance_patches(bool energy) {
+  double ke_sub = 0;
+  for (auto& gp : grids_) {
+    PatchGrid& g = *gp;
+    const size_t nr = g.ring_l.size(), ni = g.in_l.size();
+    float* const lu = g.u.p;
+    for (int f = 0; f < 3; ++f)  // u_{n+1} of the ring
+      for (size_t r = 0; r < nr; ++r) g.ring1[f * nr + r] = u_[f * np_ + g.ring_g[r]];
+    for (int k = 0; k < msub_; ++k) {
+      const Real th = Real(k) / Real(msub_);
+      for (int f = 0; f < 3; ++f)
+        for (size_t r = 0; r < nr; ++r)
+          lu[f * g.np + g.ring_l[r]] = g.ring0[f * nr + r] + th * (g.ring1[f * nr + r] - g.ring0[f * nr + r]);
+      const bool energy_now = energy && k == 0;
+      if (energy_now)
+        for (int f = 0; f < 3; ++f)
+          for (size_t r = 0; r < ni; ++r) g.d_old[f * ni + r] = g.db.p[g.d_of(g.in_l[r], f)];
+      detail::step_fast(g.args);
+      for (size_t l = 0; l < g.load_l.size(); ++l) {  // the step's loads at every sub-step (impulse dt P)
+        float* const dk = g.db.p + g.d_of(g.load_l[l], g.load_f[l]);
+        const Real inc = dk[kDbBeta] * g.load_v[l];
+        dk[0] += inc;
+        lu[g.load_f[l] * g.np + g.load_l[l]] += inc;
+      }
+      if (energy_now)
+        for (int f = 0; f < 3; ++f)
+          for (size_t r = 0; r < ni; ++r)
+            ke_sub += double(g.mass[f * ni + r]) * g.d_old[f * ni + r] * g.db.p[g.d_of(g.in_l[r], f)];
+    }
+    for (int f = 0; f < 3; ++f)
+      for (size_t r = 0; r < ni; ++r) u_[f * np_ + g.in_g[r]] = lu[f * g.np + g.in_l[r]];
+  }
+  return ke_sub;
+}
+
+void Plate::Run::check(int64_t n) const {
+  const int every = c_.nan_check_every;
+  if (every <= 0 || ((n + 1) % every != 0 && n + 1 != c_.n_steps)) return;
+  if (std::isfinite(zb_) && std::isfinite(vb_) && detail::all_finite(u_, 3 * np_)) return;
+  std::ostringstream os;
+  os << "numerical blow-up (NaN/Inf) detected at step " << (n + 1) << " of " << c_.n_steps
+     << " (t = " << (n + 1) * c_.dt_s * 1e6 << " us, checked every " << every << " steps, dt = " << c_.dt_s * 1e6
+     << " us)";
+  throw std::runtime_error(os.str());
+}
+
+bool Plate::Run::step(int64_t n) {
+  const RunConfig& c = c_;
+  const double t = n * c.dt_s;
+  const int m = c.record_every;
+  const int64_t q = n / m;
+  const int r = static_cast<int>(n % m);
+  const bool want_energy = c.record_energy && r == 0 && q < c.n_record;
+  loads_.clear();
+  double force = 0, delta = 0;
+  if (c.ball.enabled) force = contact(t, delta);
+  add_loads(t);
+  if (q < c.n_record) record(q, r);
+  patch_loads();
+  advance_plate(want_energy, q);
+  const double ke_sub = advance_patches(want_energy);
+  if (want_energy) res_.energy[q * 4 + 0] += 0.5 * ke_sub / (dts_ * dts_);
+  if (c.ball.enabled) {
+    const double vb_old = vb_;
+    vb_ += c.dt_s * (c.ball.g_m_s2 - force / c.ball.mass_kg);
+    if (want_energy) {
+      res_.energy[q * 4 + 2] = 0.5 * c.ball.mass_kg * vb_old * vb_;
+      res_.energy[q * 4 + 3] = (delta > 0 ? 0.4 * c.ball.k_hertz * delta * delta * std::sqrt(delta) : 0.0) -
+                               c.ball.mass_kg * c.ball.g_m_s2 * zb_;
+    }
+    zb_ += c.dt_s * vb_;
+  }
+  res_.steps_done = n + 1;
+  check(n);
+  return !(c.stop_after_contact && t_first_ >= 0 && !in_contact_ && vb_ < 0 &&
+           t - t_last_ > std::max(c.quiet_after_contact_s, t_last_ - t_first_));
+}
+
+RunResult Plate::Run::result() {
+  res_.ball_z_m = zb_;
+  res_.ball_v_m_s = vb_;
+  res_.contact_start_s = t_first_;
+  res_.contact_end_s = t_last_;
+  res_.w.resize(nn_);
+  res_.bx.resize(nn_);
+  res_.by.resize(nn_);
+  for (size_t k = 0; k < nn_; ++k) {
+    res_.w[k] = u_[at(k)];
+    res_.bx[k] = u_[np_ + at(k)];
+    res_.by[k] = u_[2 * np_ + at(k)];
+  }
+  return std::move(res_);
+}
+
+RunResult Plate::run(const RunConfig& c) const {
+  DenormalGuard ftz;
+  Run r(*this, c);
+  for (int64_t n = 0; n < c.n_steps; ++n)
+    if (!r.step(n)) break;
+  return r.result();
+}
+
+}  // namespace impactsim
