@@ -175,3 +175,40 @@ def test_stability_limit_of_rotated_laminate_is_sharp():
 
     assert peak(0.98) < 100 * np.abs(w0).max()
     assert peak(1.02) > 1e6 * np.abs(w0).max()
+
+
+def _rig(material: str, **extra):
+    from impactsense.data import bundled_session_path, read_json, rig_from_dict
+
+    raw = read_json(bundled_session_path() / "rig.json")
+    return rig_from_dict({**raw, "plate_material": material, **extra})
+
+
+def test_twin_material_from_rig_json():
+    """rig.json's plate_material sets the twin's material (the materials table's typical values): a laminate
+    with its fibre angle, a metal's E; a material whose priors hold the defaults keeps them."""
+    from impactsense.materials import material_for_rig
+
+    cfrp = _rig("carbon-fibre laminate, fibres mostly along y", material_axes={"fibre_angle_deg": 90.0})
+    p = SimParams.from_rig(cfrp)
+    typ = material_for_rig(cfrp).typical()
+    assert (p.e_pa, p.e2_pa, p.g12_pa, p.nu) == (typ["e1_pa"], typ["e2_pa"], typ["g12_pa"], typ["nu12"])
+    assert p.material_axes_deg == 90.0
+    dm = material.bending_matrix(p)
+    assert dm[1, 1] > 2 * dm[0, 0]                       # stiffer along y, where the fibres run
+    alu = SimParams.from_rig(_rig("aluminium 6061-T6"))
+    assert alu.e2_pa is None and 65e9 <= alu.e_pa <= 75e9
+    keep = SimParams.from_rig(_rig("PMMA"))
+    assert (keep.e_pa, keep.nu) == (SimParams().e_pa, SimParams().nu)
+    assert SimParams.from_rig(_rig("aluminium"), e_pa=71e9).e_pa == 71e9   # explicit values win
+
+
+def test_mesh_no_finer_than_the_logger_sees():
+    """f_max (Eq. 1) is capped at the logger's Nyquist frequency: a stiff plate's short contact would ask for
+    elements the record cannot use."""
+    from impactsense.sim.model import build_model
+
+    rig = _rig("steel")
+    p = SimParams.from_rig(rig, thickness_mm=1.0, element_mm=20.0)   # the mesh size itself is given here
+    m = build_model(p, rig)
+    assert m.f_max_hz == pytest.approx(rig.fs_hz / 2)

@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from ..materials import material_for_rig
+
 
 def _q_matrix(e1, e2, g12, nu12):
     nu21 = nu12 * e2 / e1
@@ -108,3 +110,17 @@ def contact_modulus(p) -> tuple[float, float]:
     """(E, nu) of the plate for the Hertz contact: E (isotropic) or the transverse modulus E2 with nu12 (a
     laminate's indentation stiffness is set by its matrix-dominated through-thickness modulus, ~E2)."""
     return (p.e2_pa if orthotropic(p) else p.e_pa), p.nu
+
+
+def fields_for_rig(rig, defaults) -> dict:
+    """SimParams fields for the rig's plate material (`materials.material_for_rig`: rig.json plate_material,
+    optional material_axes / material_properties): an orthotropic material's typical E1, E2, G12, nu12 and its
+    fibre angle; an isotropic material's typical E and nu, unless the defaults (`defaults`, a SimParams) lie
+    inside the material's priors, which keeps them (the defaults are a calibrated plate's values)."""
+    mat = material_for_rig(rig)
+    typ = mat.typical()
+    if mat.orthotropic:
+        return dict(e_pa=typ["e1_pa"], nu=typ["nu12"], e2_pa=typ["e2_pa"], g12_pa=typ["g12_pa"],
+                    material_axes_deg=float(mat.axis_deg))
+    inside = all(getattr(mat, n).lo <= getattr(defaults, n) <= getattr(mat, n).hi for n in ("e_pa", "nu"))
+    return {} if inside else dict(e_pa=typ["e_pa"], nu=typ["nu"])

@@ -266,7 +266,7 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
         f_max = float(p.f_max_hz)
     else:
         tc = hertz_duration_s(k, ball_m, float(impact_velocity(p, p.max_height_mm)))
-        f_max = p.f_max_factor / tc
+        f_max = min(p.f_max_factor / tc, fs / 2)   # no finer than the logger's band can tell
     if p.element_mm is not None:
         le = p.element_mm * 1e-3
     else:

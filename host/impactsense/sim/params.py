@@ -50,9 +50,10 @@ Defaults (documented, see method.md):
 - circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
   ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
 - ball: steel E = 210 GPa, nu = 0.30.
-- numerics: element size by Eq. 1 (L_e = lambda_A0(f_max) / 10, f_max = 3 / T_contact of a Hertz impact
-  from `max_height_mm` on a rigid-backed half space of the plate material, where the half-sine force
-  spectrum's envelope is 30 dB down; about 2.1 mm for the rig. With 2 / T_contact (2.6 mm) the core's
+- numerics: element size by Eq. 1 (L_e = lambda_A0(f_max) / 10 along the plate's softest direction, f_max =
+  3 / T_contact of a Hertz impact from `max_height_mm` on a rigid-backed half space of the plate material,
+  where the half-sine force spectrum's envelope is 30 dB down, but at most the logger's Nyquist frequency
+  fs / 2: a stiff plate's short contact excites more than the logger records; about 2.1 mm for the rig. With 2 / T_contact (2.6 mm) the core's
   threshold ToA at far sensors moved up to 13 us against a 1 mm mesh; at 2.0 mm they agree within 3 us), dt by Eq. 2 and the assembled plate's stability limit (largest eigenvalue of M^-1 K by Lanczos; safety
   0.97, see `model.assembled_dt_crit`), snapped to divide the ADC period (1 mm mesh: limit 0.348 us, dt
   0.333 us; Eq. 2 would allow 1.6 us);
@@ -69,6 +70,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from ..errors import ConfigError
+from .material import fields_for_rig
 
 FORMAT = "impactsense-sim-params"
 SUPPORTS = ("free", "simply_supported", "simply_supported_soft", "clamped", "elastic_rim")
@@ -174,7 +176,7 @@ class SimParams:
 
     @classmethod
     def from_rig(cls, rig, **overrides) -> "SimParams":
-        """Defaults with the rig's plate density, thickness and support."""
+        """Defaults with the rig's plate density, thickness, support and material (`material.fields_for_rig`)."""
         text = str(getattr(rig, "plate_support", "")).lower()
         if "clamp" in text:
             support = "clamped"
@@ -183,6 +185,7 @@ class SimParams:
         else:  # resting on a rim / simply supported
             support = "simply_supported"
         base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support)
+        base.update(fields_for_rig(rig, cls()))
         base.update(overrides)
         return cls.from_dict(base, "SimParams.from_rig")
 
