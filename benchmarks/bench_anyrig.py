@@ -142,7 +142,8 @@ def main() -> int:
         twin(d, a.twin_drops)
         if not a.no_chain:
             ok &= chain(d, a.work, a.n)
-    print("targets met" if ok else "a target was missed")
+    scope = "frequencies only (no chain run)" if a.no_chain or not rigs else "frequencies and zero-shot chain"
+    print(f"targets met: {scope}" if ok else f"a target was missed ({scope})")
     return 0 if ok else 1
 
 

@@ -24,6 +24,8 @@ import math
 import re
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from .errors import DataError
 
 ISOTROPIC = "isotropic"
@@ -184,6 +186,22 @@ def material_for_rig(rig, path="rig.json") -> Material:
     return mat
 
 
+def equivalent_isotropic_ratio(mat) -> float:
+    """E_eq / E1 of a `materials.Material`'s typical values: the isotropic plate (Poisson nu12) whose
+    Kirchhoff flexural slowness equals the laminate's averaged over directions, D_eq^(-1/4) = mean_phi
+    D(phi)^(-1/4); 1 for an isotropic material."""
+    if not mat.orthotropic:
+        return 1.0
+    e1, e2, g12, nu12 = (mat.e1_pa.value, mat.e2_pa.value, mat.g12_pa.value, mat.nu12.value)
+    q = 1.0 - nu12 * nu12 * e2 / e1
+    d11, d22, d12, d66 = e1 / q, e2 / q, nu12 * e2 / q, g12
+    phi = np.radians(np.arange(0.0, 180.0, 1.0))
+    c, s = np.cos(phi), np.sin(phi)
+    d_phi = d11 * c ** 4 + 2 * (d12 + 2 * d66) * c ** 2 * s ** 2 + d22 * s ** 4
+    d_eq = float(np.mean(d_phi ** -0.25)) ** -4.0
+    return d_eq * (1.0 - nu12 ** 2) / e1
+
+
 def density_warning(rig, mat: Material) -> str | None:
     """A line when rig.json's density lies outside the material's range (a typo or another material)."""
     rho = float(getattr(rig, "density_kg_m3", float("nan")))
@@ -215,4 +233,5 @@ def flexural_group_velocity_mm_per_us(mat: Material, thickness_mm: float, densit
 
 
 __all__ = ["Prior", "Material", "TABLE", "UNKNOWN", "lookup", "material_for_rig", "density_warning",
+           "equivalent_isotropic_ratio",
            "flexural_group_velocity_mm_per_us", "ISOTROPIC", "ORTHOTROPIC"]

@@ -41,7 +41,7 @@ from .. import _core
 from ..signal import channel_delays_us, core_config
 from ..data import load_session
 from ..errors import ConfigError
-from . import arrival, damping, disc_bond, drops as drops_mod, fem, plate, plate_fem, plate_nu, screening, surrogates
+from . import arrival, damping, disc_bond, drops as drops_mod, fem, plate, plate_fem, plate_nu, priors, screening, surrogates
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
 
@@ -53,11 +53,11 @@ class CalibrateOptions:
     seed: int = 0
     workers: int = 2
     progress: bool = True
-    e_min_mpa: float = 1500.0
-    e_max_mpa: float = 65000.0
+    e_min_mpa: float | None = None         # the plate grid's range; None: the rig material's priors (priors.py)
+    e_max_mpa: float | None = None
     e_step_mpa: float = 250.0
-    nu_min: float = 0.30
-    nu_max: float = 0.40
+    nu_min: float | None = None
+    nu_max: float | None = None
     nu_step: float = 0.001
     aic_blend: float = 1.0                 # core ToA: 1 = AIC onset (amplitude-independent), 0 = threshold
     rig_delay_us: list | None = None       # known per-channel delays of the rig; default: rig.json's, else 0
@@ -82,9 +82,13 @@ class CalibrateOptions:
             raise ConfigError(f"--budget {self.budget} is too small for the sub-problem-2 design: the 70/15/15 "
                               f"split and the factor screening of {len(fem.FACTORS)} factors need at least "
                               f"{MIN_BUDGET} FEM runs")
-        if self.e_step_mpa <= 0 or self.nu_step <= 0 or self.e_max_mpa < self.e_min_mpa or self.nu_max < self.nu_min:
-            raise ConfigError("the E / nu grid needs positive steps and max >= min")
-        if self.e_min_mpa <= 0 or not (0.0 <= self.nu_min and self.nu_max < 0.5):
+        if self.e_step_mpa <= 0 or self.nu_step <= 0:
+            raise ConfigError("the E / nu grid needs positive steps")
+        e_lo, e_hi = (1.0 if v is None else v for v in (self.e_min_mpa, self.e_max_mpa))
+        nu_lo, nu_hi = (0.0 if v is None else v for v in (self.nu_min, self.nu_max))
+        if (self.e_max_mpa is not None and self.e_max_mpa < e_lo) or (self.nu_max is not None and nu_hi < nu_lo):
+            raise ConfigError("the E / nu grid needs max >= min")
+        if e_lo <= 0 or e_hi <= 0 or not (0.0 <= nu_lo and nu_hi < 0.5):
             raise ConfigError("the E / nu grid must stay physical: E > 0, 0 <= nu < 0.5")
         if self.workers < 1:
             raise ConfigError("--workers must be >= 1")
@@ -241,8 +245,9 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     base_key = _key(session.fingerprint(), targets.to_json(), opts.aic_blend, channel_delays_us(cfg), noise)
 
     # --- stage: plate grid (sub-problem 1) --------------------------------------------------------------
-    e_axis, nu_axis = plate.grid_axes(opts.e_min_mpa, opts.e_max_mpa, opts.e_step_mpa, opts.nu_min,
-                                      opts.nu_max, opts.nu_step)
+    rng = {k: (v if getattr(opts, k) is None else getattr(opts, k)) for k, v in priors.plate_grid_range(rig).items()}
+    e_axis, nu_axis = plate.grid_axes(rng["e_min_mpa"], rng["e_max_mpa"], opts.e_step_mpa, rng["nu_min"],
+                                      rng["nu_max"], opts.nu_step)
     setup = arrival.setup_from_rig(rig, targets.x_mm, targets.y_mm, targets.height_mm, n_fft=opts.fast_n_fft)
     grid_path = cache("stage1-grid.npz")
     loss = clock.run("plate_grid", plate.run_grid, setup, cfg_sim, int(rig.bias_counts), targets.peak,

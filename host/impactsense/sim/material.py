@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ..materials import material_for_rig
+from ..materials import equivalent_isotropic_ratio, material_for_rig
 
 
 def _q_matrix(e1, e2, g12, nu12):
@@ -112,15 +112,26 @@ def contact_modulus(p) -> tuple[float, float]:
     return (p.e2_pa if orthotropic(p) else p.e_pa), p.nu
 
 
-def fields_for_rig(rig, defaults) -> dict:
-    """SimParams fields for the rig's plate material (`materials.material_for_rig`: rig.json plate_material,
-    optional material_axes / material_properties): an orthotropic material's typical E1, E2, G12, nu12 and its
-    fibre angle; an isotropic material's typical E and nu, unless the defaults (`defaults`, a SimParams) lie
-    inside the material's priors, which keeps them (the defaults are a calibrated plate's values)."""
+MATERIAL_FIELDS = ("e_pa", "nu", "e2_pa", "g12_pa", "g13_pa", "g23_pa", "material_axes_deg")
+
+
+def fields_for_rig(rig, defaults, overrides: dict) -> dict:
+    """SimParams' material fields for the rig's plate (`materials.material_for_rig`: rig.json plate_material,
+    optional material_axes / material_properties) with `overrides` applied: an orthotropic material's typical
+    E1, E2, G12, nu12 and fibre angle; an isotropic material's typical E and nu, unless the defaults
+    (`defaults`, a SimParams) lie inside the material's priors, which keeps them (they are a calibrated
+    plate's values). A laminate given a bare e_pa (no e2_pa: the calibration's plate modulus, which its
+    isotropic first-arrival grid fits) takes it as the isotropic-equivalent modulus
+    (`equivalent_isotropic_ratio`): the table's laminate, every modulus scaled alike."""
     mat = material_for_rig(rig)
     typ = mat.typical()
-    if mat.orthotropic:
-        return dict(e_pa=typ["e1_pa"], nu=typ["nu12"], e2_pa=typ["e2_pa"], g12_pa=typ["g12_pa"],
-                    material_axes_deg=float(mat.axis_deg))
-    inside = all(getattr(mat, n).lo <= getattr(defaults, n) <= getattr(mat, n).hi for n in ("e_pa", "nu"))
-    return {} if inside else dict(e_pa=typ["e_pa"], nu=typ["nu"])
+    given = {k: overrides[k] for k in MATERIAL_FIELDS if k in overrides}
+    if not mat.orthotropic:
+        inside = all(getattr(mat, n).lo <= getattr(defaults, n) <= getattr(mat, n).hi for n in ("e_pa", "nu"))
+        return {**({} if inside else dict(e_pa=typ["e_pa"], nu=typ["nu"])), **given}
+    out = dict(e_pa=typ["e1_pa"], nu=typ["nu12"], e2_pa=typ["e2_pa"], g12_pa=typ["g12_pa"],
+               material_axes_deg=float(mat.axis_deg))
+    if "e_pa" in given and "e2_pa" not in given:
+        scale = given.pop("e_pa") / (typ["e1_pa"] * equivalent_isotropic_ratio(mat))
+        out.update(e_pa=typ["e1_pa"] * scale, e2_pa=typ["e2_pa"] * scale, g12_pa=typ["g12_pa"] * scale)
+    return {**out, **given}

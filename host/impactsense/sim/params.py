@@ -185,8 +185,8 @@ class SimParams:
         else:  # resting on a rim / simply supported
             support = "simply_supported"
         base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support)
-        base.update(fields_for_rig(rig, cls()))
         base.update(overrides)
+        base.update(fields_for_rig(rig, cls(), overrides))
         return cls.from_dict(base, "SimParams.from_rig")
 
     def to_dict(self) -> dict:
