@@ -398,8 +398,9 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
 // Made for a real lab: the baseline is a fast tracker (baseline_alpha ~ 1/8 frame: it follows mains hum
 // and drifting offsets, a 2-5 kHz arrival passes), a channel's threshold is the larger of
 // threshold_counts and noise_factor x its tracked noise rms (the quiet frames' rms about the baseline,
-// noise_alpha), and the trigger fires only when fire_frames of the last kTriggerHistory frames were above
-// the threshold: a glitch of one or two samples never fires it, an arrival's oscillation does.
+// noise_alpha), and the trigger fires only when fire_frames of a channel's last kTriggerHistory frames were
+// above its threshold: a glitch of one or two samples never fires it (nor two on different channels), an
+// arrival's oscillation does.
 constexpr int kTriggerHistory = 16;
 struct TriggerConfig {
   float threshold_counts = 60;   // arm -> fire when any channel's |x - baseline| exceeds this ...
@@ -436,7 +437,7 @@ class Trigger {
   float baseline_[kChannels];
   float noise_var_[kChannels];
   float thr_[kChannels];
-  uint32_t above_ = 0;           // bit k: frame (now - k) was above the threshold
+  uint32_t above_[kChannels];    // bit k: frame (now - k) was above the channel's threshold
   long frames_ = 0;
   long fired_at_ = -1;
   int counter_ = 0;

@@ -10,6 +10,7 @@ Trigger::Trigger(const TriggerConfig& cfg, float initial_baseline) : cfg_(cfg) {
     baseline_[c] = initial_baseline;
     noise_var_[c] = 0.0f;
     thr_[c] = cfg_.threshold_counts;
+    above_[c] = 0;
   }
 }
 
@@ -29,18 +30,21 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
   float level = 0.0f;
   bool above = false;
   float dev[kChannels];
+  int count = 0;  // the most frames above the threshold of one channel among the last kTriggerHistory
   for (int c = 0; c < kChannels; ++c) {
     dev[c] = static_cast<float>(frame[c]) - baseline_[c];
     const float a = fabsf(dev[c]);
     if (a > level) level = a;
-    above |= a >= thr_[c];
+    const bool up = a >= thr_[c];
+    above |= up;
+    above_[c] = ((above_[c] << 1) | (up ? 1u : 0u)) & ((1u << kTriggerHistory) - 1u);
+    int k = 0;
+    for (uint32_t h = above_[c]; h != 0; h &= h - 1) ++k;
+    if (k > count) count = k;
   }
   const long now = frames_++;
-  above_ = (above_ << 1) | (above ? 1u : 0u);
   switch (state_) {
     case kArmed: {
-      int count = 0;
-      for (uint32_t h = above_ & ((1u << kTriggerHistory) - 1u); h != 0; h &= h - 1) ++count;
       if (count >= cfg_.fire_frames) {
         fired_at_ = now;
         state_ = kHoldoff;
@@ -85,7 +89,7 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       if (counter_ >= cfg_.rearm_quiet_frames) {
         state_ = kArmed;
         counter_ = 0;
-        above_ = 0;
+        for (int c = 0; c < kChannels; ++c) above_[c] = 0;
       }
       return false;
   }
