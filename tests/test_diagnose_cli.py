@@ -39,6 +39,8 @@ def test_diagnose_json_schema_and_report(small, tmp_path, capsys):
         assert e["sensor"] is None or e["sensor"] in range(4)
     assert (tmp_path / "rep" / "summary.md").is_file()
     assert (tmp_path / "rep" / "dtoa_residual_map_before.png").is_file()
+    page = (tmp_path / "rep" / "report.html").read_text()   # one self-contained page: the figures inside
+    assert page.count("data:image/png;base64,") == 4 and "Tried and rejected" in page and "src='http" not in page
     assert "before" in capsys.readouterr().out
 
 

@@ -1,17 +1,23 @@
 """Close the loop: residuals of a session against a reference model, the effect that explains them, the
 error before and after adding it.
 
+The reference (calibrated on DATA_REF) is the physics model of `residuals` plus its site terms
+(`site_reference`: each channel's ToA and log-energy residual as smooth functions of the impact's position
+and height, learned on DATA_REF, with cross-fitted residual scales), so an unchanged session sits at the
+pick noise and a few-µs signature stands out.
+
 Selection (forward, greedy): every candidate (effect x sensor) is fitted on 4/5 of the cases and scored on
 the held-out fifth (5 folds, split by case so repetitions never straddle train and test). The score is
 the held-out log-likelihood gain over the current model, summed over drops (nats). A candidate is
 significant when (1) its per-case held-out gains are positive by a one-sided t-test at
-alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05; the
-held-out gain is second order in the effect size, so this is conservative: a 7 µs delay on one channel
-needs ~150 drops), (2) it is material (its size exceeds the rig tolerance the
-effect states) and (3) for an effect that contains a simpler one (sensor_position contains
-channel_delay) it also beats that simpler one by the same test. The best significant candidate is added
-to the model (parameters refitted on all drops) and the search repeats; it stops when nothing is
-significant. Nothing significant at all: the answer is `none`.
+alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), (2) it is
+material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
+simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
+sensor and a constant delay on the same channel) are compared by their held-out gains: the better one is
+named and the other is reported as tried and rejected, with the held-out log-likelihood difference. The
+best significant candidate is added to the model (parameters refitted on all drops) and the search
+repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
+Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
 PROBE_DROPS = 48
+RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
 
 
 @dataclass
@@ -43,6 +50,7 @@ class Candidate:
     material: bool
     significant: bool
     fold_params: list
+    rival: dict | None = None   # the rival on the same sensor: its name, held-out gain difference, p
 
 
 def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
@@ -126,6 +134,12 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
             c.significant = bool(ok)
+        for c in results:
+            rv = RIVALS.get(c.effect)
+            if rv is not None and (rv, c.sensor) in gains:
+                diff = gains[(c.effect, c.sensor)] - gains[(rv, c.sensor)]
+                c.rival = {"effect": rv, "score_difference": float(diff.sum()),
+                           "p_value": _one_sided_p(_case_sums(diff, F.case_id))}
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -189,6 +203,13 @@ def _param_se(c: Candidate) -> dict:
     return out
 
 
+def _param_ci(c: Candidate, se: dict) -> dict:
+    """95 % interval of each parameter: value +- t(0.975, folds - 1) x jackknife standard error."""
+    t = float(stats.t.ppf(0.975, max(len(c.fold_params) - 1, 1)))
+    return {k: [float(c.params[k] - t * v), float(c.params[k] + t * v)] for k, v in se.items()
+            if isinstance(c.params.get(k), (int, float))}
+
+
 def diagnose(baseline: Session, data: Session, progress=None, same: bool | None = None):
     """The whole loop. Returns (result dict in the JSON schema of issue 5, details for the report)."""
     if same is None:
@@ -197,17 +218,21 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     Fn = Fb if same else R.extract(data)
     ref = R.fit_reference(Fb, "nominal" if same else "calibrated")
     ref.probe = make_probe(baseline)
-    if same:
-        # the first loop: the nominal model's velocity is refitted per fold inside the metrics below
-        pass
+    if not same:   # the reference at the noise floor: its site terms ride with both sessions' features
+        from .site_reference import noise_floor_reference
+        site, sigma = noise_floor_reference(ref, Fb)
+        ref.sigma.update(sigma)
+        Fn = site.attach(Fn)
     before = R.metrics(ref, Fn)
     accepted, final, last_round = select(ref, Fn, progress)
     after = out_of_fold_metrics(ref, Fn, accepted) if accepted else dict(before)
     effects = []
     for c in sorted(accepted, key=lambda c: -c.score):
+        se = _param_se(c)
         effects.append({"effect": c.effect, "sensor": c.sensor, "params": _jsonable(c.params),
                         "score": c.score, "significant": True, "p_value": c.p_value,
-                        "param_se": _param_se(c), "units": EFFECTS[c.effect].units})
+                        "param_se": se, "param_ci95": _param_ci(c, se), "units": EFFECTS[c.effect].units,
+                        "rival": c.rival})
     if not effects:
         effects.append({"effect": "none", "sensor": None, "params": {}, "score": 0.0,
                         "significant": False})
@@ -220,7 +245,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
         families.add(c.effect)
         effects.append({"effect": c.effect, "sensor": c.sensor, "params": _jsonable(c.params),
                         "score": c.score, "significant": False, "p_value": c.p_value,
-                        "units": EFFECTS[c.effect].units})
+                        "units": EFFECTS[c.effect].units, "rival": c.rival})
     result = {"effects": effects, "before": before, "after": after,
               "baseline": str(baseline.path), "data": str(data.path),
               "reference": "nominal (first loop)" if same else "calibrated on the baseline",
@@ -278,66 +303,9 @@ def repeatability(F: R.Features) -> dict:
     return {"dtoa_within_case_rms_us": (np.sqrt(dev / max(dof, 1))).tolist(), "dof": int(dof)}
 
 
-# ---- report ---------------------------------------------------------------------------------------
-def write_report(result: dict, details: dict, out_dir: str | Path) -> Path:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+# ---- report ----------------------------------------------------------------------------------------
+def write_report(result: dict, details: dict, out_dir: str | Path, loop: dict | None = None) -> Path:
+    """summary.md, the figures and report.html (self-contained) in out_dir: see `impactsense.loop_report`."""
+    from .loop_report import write_report as _write
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    F, ref, final = details["F"], details["ref"], details["final"]
-    for tag, m in (("before", ref), ("after", final)):
-        pred = m.toa_pred(F)
-        r = (F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]) - (pred[:, R.PAIR_I] - pred[:, R.PAIR_J])
-        fig, axes = plt.subplots(2, 3, figsize=(12, 7.5), constrained_layout=True)
-        lim = np.nanpercentile(np.abs(r), 95)
-        for p, ax in enumerate(axes.ravel()):
-            sc = ax.scatter(F.x_mm, F.y_mm, c=r[:, p], cmap="coolwarm", vmin=-lim, vmax=lim, s=12)
-            ax.set_title(f"DToA S{R.PAIR_I[p] + 1}-S{R.PAIR_J[p] + 1}: mean {np.nanmean(r[:, p]):+.1f} µs")
-            ax.set_aspect("equal")
-            ax.plot(m.sensor_xy_mm[:, 0], m.sensor_xy_mm[:, 1], "k^")
-        fig.colorbar(sc, ax=axes, label="measured - predicted DToA (µs)")
-        fig.savefig(out / f"dtoa_residual_map_{tag}.png", dpi=80)
-        plt.close(fig)
-        d, *_ = m.geometry(F)
-        rt = m.toa_resid(F)
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
-        for c in range(4):
-            axes[0].plot(d[:, c], rt[:, c], ".", ms=3, label=f"S{c + 1}")
-            axes[1].hist(rt[:, c], bins=40, histtype="step", label=f"S{c + 1} mean {np.nanmean(rt[:, c]):+.2f}")
-        axes[0].set_xlabel("distance (mm)")
-        axes[0].set_ylabel("ToA residual, drop-centred (µs)")
-        axes[1].set_xlabel("ToA residual (µs)")
-        for ax in axes:
-            ax.legend()
-        fig.savefig(out / f"toa_residual_vs_distance_{tag}.png", dpi=80)
-        plt.close(fig)
-    lines = ["# impactsense diagnose", "", f"- baseline: {result['baseline']}", f"- data: {result['data']}",
-             f"- reference: {result['reference']}", "", "| effect | sensor | params | score (nats) | significant |",
-             "|---|---|---|---|---|"]
-    for e in result["effects"]:
-        ps = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items() if isinstance(v, (int, float)))
-        s = "-" if e["sensor"] is None else f"S{e['sensor'] + 1} (ch{e['sensor']})"
-        lines.append(f"| {e['effect']} | {s} | {ps} | {e['score']:.1f} | {e['significant']} |")
-    lines += ["", "| metric | before | after |", "|---|---|---|"]
-    for k in ("dtoa_rms_us", "mae_mm", "energy_rms"):
-        lines.append(f"| {k} | {result['before'][k]:.3f} | {result['after'][k]:.3f} |")
-    res = result.get("residuals", {})
-    if res:
-        lines += ["", "Residual dependence before the effects (slope per 1 SD of the regressor, µs; |t| > 3 in bold):",
-                  "", "| channel | " + " | ".join(res["dependence_before"]["regressors"]) + " |",
-                  "|---" * 7 + "|"]
-        for c, row in enumerate(res["dependence_before"]["toa_us"]):
-            cells = [(f"**{b:+.2f}**" if abs(b) > 3 * se else f"{b:+.2f}") for b, se in zip(row["slope"], row["se"])]
-            lines.append(f"| S{c + 1} ToA | " + " | ".join(cells) + " |")
-        rep = res["repeatability"]["dtoa_within_case_rms_us"]
-        lines += ["", "DToA within-case repeatability (µs rms, pairs 01 02 03 12 13 23): "
-                      + " ".join(f"{v:.1f}" for v in rep),
-                  "noise floor (counts rms): " + " ".join(f"{v:.2f}" for v in res["noise_rms_counts"]),
-                  "hum 50/60 Hz (counts): " + " ".join(f"{a:.2f}/{b:.2f}" for a, b in res["hum_counts_50_60hz"]),
-                  f"clipped drops per channel: {res['clipped_drops']}"]
-    lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
-              "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
-    return out
+    return _write(result, details, out_dir, loop)

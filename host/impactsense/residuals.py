@@ -62,6 +62,9 @@ class Features:
     plate_mm: tuple
     fs_hz: float
     adc_max: int
+    # the reference's smooth site terms at these drops (`impactsense.site_reference`), None when not learned
+    site_toa_us: np.ndarray | None = None
+    site_log_energy: np.ndarray | None = None
 
     def __len__(self):
         return len(self.x_mm)
@@ -206,8 +209,9 @@ class Reference:
 
     def toa_pred(self, F: Features) -> np.ndarray:
         d, th, _, _ = self.geometry(F)
+        site = 0.0 if F.site_toa_us is None else F.site_toa_us
         return self.slowness_us_per_mm * d * (1 + self.aniso[0] * np.cos(2 * th)
-                                              + self.aniso[1] * np.sin(2 * th)) + self.delay_us
+                                              + self.aniso[1] * np.sin(2 * th)) + self.delay_us + site
 
     def toa_resid(self, F: Features) -> np.ndarray:
         return centre(F.toa_us - self.toa_pred(F))
@@ -226,6 +230,8 @@ class Reference:
     def energy_resid(self, F: Features) -> np.ndarray:
         d, *_ = self.geometry(F)
         pred = self.alpha * d + self.beta * np.log(d) + self.gain_log
+        if F.site_log_energy is not None:
+            pred = pred + F.site_log_energy
         return centre(F.log_energy - pred, ~self.clip_mask(F))
 
     def cent_resid(self, F: Features) -> np.ndarray:

@@ -29,6 +29,12 @@ def register(sub) -> None:
                    help="the twin's site map, as in `impactsense train` (auto = the bundled twin's when the rig "
                         "is the bundled rig): the twin's position, energy class and calibrated uncertainty, "
                         "its offsets, weights and uncertainty fitted on the recordings with the effects put in")
+    p.add_argument("--twin", default=None, metavar="CAL.json",
+                   help="also train a model on DATA_REF's declared drops simulated by this calibrated twin with the "
+                        "diagnosed plate and sensor effects in the FEM (moved disc, E, damping) and the rest at the "
+                        "signal level: zero-shot from the corrected twin (OUT/twin-model)")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="the diagnosis's report (report.html, summary.md, figures) with the models' MAE before/after")
     p.add_argument("--exclude", default=None,
                    help="recording ids of DATA_REF to leave out of training (comma-separated, or a CAL.json)")
     p.set_defaults(func=run)
@@ -97,7 +103,13 @@ def run(args) -> int:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
+        if args.twin:
+            rows["twin-corrected model"] = twin_model(args, base, data, details, settings, exclude, site, stage)
         (stage / "retrain.json").write_text(json_text({**card, "on_data": rows}))
+    if args.report:
+        from ..diagnose import write_report
+        write_report(result, details, args.report,
+                     {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
     print(f"energy class and position from {'the twin (site map)' if site is not None else 'the forests'}")
     print(f"{'on ' + data.name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "
@@ -107,6 +119,25 @@ def run(args) -> int:
               f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
     print(f"model written to {out}")
     return 0
+
+
+def twin_model(args, base, data, details, settings, exclude, site, out: Path) -> dict:
+    """A model trained on DATA_REF's declared drops simulated by the corrected twin; its score on DATA_NEW."""
+    from ..data import read_json
+    from ..errors import ConfigError
+    from ..loop import effect_dicts, twin_training_session
+    from ..sim import SimParams
+    from ..workflow import train
+
+    cal = read_json(args.twin)
+    if "sim_params" not in cal:
+        raise ConfigError(f"{args.twin} [sim_params]: missing key (a CAL.json from `impactsense calibrate`)")
+    params = SimParams.from_dict(cal["sim_params"], args.twin)
+    sess = twin_training_session(base, params, effect_dicts(details["accepted"]), out.resolve() / "twin-training-data",
+                                 details["ref"].slowness_us_per_mm, args.seed)
+    model, _ = train(sess, out / "twin-model", args.test_fraction, args.seed, exclude, settings=settings,
+                     site_map=site)
+    return score(data, model)
 
 
 def score(session, model) -> dict:

@@ -1,0 +1,227 @@
+"""Test sessions for the closed loop: one known change each, made from physics, plus unchanged controls.
+
+    python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
+        [--element-mm 3.0] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
+
+Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
+positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
+
+- `ref`                   the reference session (the twin of the rig as declared)
+- `same-1 .. same-5`      unchanged: other positions, other position jitter and noise draws
+- `move-<deg>`            FEM: one sensor glued 5-10 mm away in direction <deg> (0, 45, ..., 315), rig.json
+                          still declaring the old centre; the sensor rotates with the direction, so some moves
+                          point along the sensor's look direction (nearly a constant delay) and some across
+- `stiffness`             FEM: plate E -8 %
+- `damping`               FEM: plate damping D_s +20 %
+- `bond`                  one disc's bond: a first-order shear-lag low-pass (RC, not the library's Butterworth)
+                          with a gain loss, on FEM drops
+- `delay`, `gain`, `hum`, `noise`  signal level on FEM drops: a channel's cubic-spline time shift, a
+                          channel's gain, 50 Hz mains on every channel, extra white noise
+
+Nothing here calls the effect library (`impactsense.effects`): the changes are made by the FEM or by signal
+operations written here, so a diagnosis that recovers them is not fitting its own forward model.
+Drops: `--cases` positions (Sobol, away from edges and sensors) x `--reps` repetitions, each repetition hit
+within `--jitter-mm` (rms) of the declared position; heights 100..200 mm. FEM cost: one plate model per
+physical variant (the base, 8 moves, E, D_s) at `--element-mm` (3 mm: ~10-20 s a model on a quiet core).
+Sessions already in OUT with the same settings are kept (cache).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+DIRECTIONS_DEG = tuple(range(0, 360, 45))
+N_SAME = 5
+
+
+def spec_list(seed: int) -> list[dict]:
+    """Every session's truth (drawn from `seed`: the kinds are fixed, the sizes and sensors are drawn)."""
+    rng = np.random.default_rng(seed + 1000)
+    specs = [{"name": "ref", "kind": "none", "seed": seed}]
+    specs += [{"name": f"same-{k}", "kind": "none", "seed": seed + k} for k in range(1, N_SAME + 1)]
+    for j, deg in enumerate(DIRECTIONS_DEG):
+        r = float(rng.uniform(5.0, 10.0))
+        th = np.deg2rad(deg)
+        specs.append({"name": f"move-{deg}", "kind": "fem", "seed": seed + 10 + j,
+                      "truth": {"effect": "sensor_position", "sensor": j % 4,
+                                "params": {"dx_mm": round(r * np.cos(th), 3), "dy_mm": round(r * np.sin(th), 3)}}})
+    specs.append({"name": "stiffness", "kind": "fem", "seed": seed + 20,
+                  "truth": {"effect": "wave_speed", "sensor": None, "params": {"e_scale": 0.92}}})
+    specs.append({"name": "damping", "kind": "fem", "seed": seed + 21,
+                  "truth": {"effect": "damping", "sensor": None, "params": {"damping_scale": 1.20}}})
+    specs.append({"name": "bond", "kind": "signal", "seed": seed + 22,
+                  "truth": {"effect": "channel_lowpass", "sensor": int(rng.integers(4)),
+                            "params": {"fc_hz": round(float(rng.uniform(2500, 5000)), 1),
+                                       "gain": round(float(rng.uniform(0.6, 0.8)), 3)}}})
+    specs.append({"name": "delay", "kind": "signal", "seed": seed + 23,
+                  "truth": {"effect": "channel_delay", "sensor": int(rng.integers(4)),
+                            "params": {"delay_us": round(float(rng.choice([-1, 1]) * rng.uniform(4, 9)), 2)}}})
+    specs.append({"name": "gain", "kind": "signal", "seed": seed + 24,
+                  "truth": {"effect": "sensor_gain", "sensor": int(rng.integers(4)),
+                            "params": {"gain": round(float(rng.uniform(0.7, 0.85)), 3)}}})
+    specs.append({"name": "hum", "kind": "signal", "seed": seed + 25,
+                  "truth": {"effect": "noise", "sensor": None,
+                            "params": {"hum_hz": 50.0, "hum_counts": round(float(rng.uniform(15, 40)), 1)}}})
+    specs.append({"name": "noise", "kind": "signal", "seed": seed + 26,
+                  "truth": {"effect": "noise", "sensor": None,
+                            "params": {"noise_counts_rms": round(float(rng.uniform(5, 10)), 2)}}})
+    return specs
+
+
+# ---- signal-level changes (independent of impactsense.effects) ------------------------------------------
+def spline_delay(a: np.ndarray, delay_samples: float) -> np.ndarray:
+    """Each row of a (float) delayed by delay_samples via a cubic spline (edge values held)."""
+    from scipy.interpolate import CubicSpline
+
+    n = a.shape[-1]
+    t = np.arange(n)
+    cs = CubicSpline(t, a, axis=-1)
+    return cs(np.clip(t - delay_samples, 0, n - 1))
+
+
+def shear_lag(a: np.ndarray, fc_hz: float, gain: float, fs_hz: float) -> np.ndarray:
+    """A compliant bond as a first-order RC (shear-lag) low-pass with a gain loss (bilinear transform)."""
+    from scipy import signal
+
+    b, den = signal.bilinear([1.0], [1.0 / (2 * np.pi * fc_hz), 1.0], fs=fs_hz)
+    return gain * signal.lfilter(b, den, a, axis=-1)
+
+
+def signal_change(adc: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed + 77)
+    a = adc.astype(np.float64) - rig.bias_counts
+    p, s = truth["params"], truth["sensor"]
+    if truth["effect"] == "channel_delay":
+        a[:, s] = spline_delay(a[:, s], p["delay_us"] * 1e-6 * rig.fs_hz)
+    elif truth["effect"] == "sensor_gain":
+        a[:, s] *= p["gain"]
+    elif truth["effect"] == "channel_lowpass":
+        a[:, s] = shear_lag(a[:, s], p["fc_hz"], p["gain"], rig.fs_hz)
+    elif "hum_hz" in p:
+        t = np.arange(a.shape[-1]) / rig.fs_hz
+        ph = rng.uniform(0, 2 * np.pi, (a.shape[0], 1, 1))
+        amp = p["hum_counts"] * rng.uniform(0.8, 1.2, (1, a.shape[1], 1))
+        a += amp * np.sin(2 * np.pi * p["hum_hz"] * t + ph)
+    elif "noise_counts_rms" in p:
+        a += rng.normal(0.0, p["noise_counts_rms"], a.shape)
+    return np.clip(np.rint(a + rig.bias_counts), 0, rig.adc_max).astype(np.uint16)
+
+
+# ---- drops ------------------------------------------------------------------------------------------------
+def declared_drops(rig, cases: int, reps: int, seed: int, jitter_mm: float):
+    """Declared (x, y, h, case, rep) and the true hit positions (declared + jitter)."""
+    from impactsense.sim.doe import virtual_drops
+
+    x, y, h = virtual_drops(rig, cases, seed, 20.0, 32.0)
+    rng = np.random.default_rng(seed + 5)
+    case = np.repeat(np.arange(cases), reps)
+    rep = np.tile(np.arange(reps), cases)
+    xd, yd, hd = x[case], y[case], h[case]
+    xt = xd + rng.normal(0, jitter_mm, xd.size)
+    yt = yd + rng.normal(0, jitter_mm, yd.size)
+    return xd, yd, hd, case, rep, xt, yt
+
+
+def physical(params, rig, truth):
+    """(SimParams, rig) of the changed plate: the rig.json a moved sensor really has, E or D_s scaled."""
+    from impactsense.data import rig_from_dict
+
+    if truth is None:
+        return params, rig
+    p = truth["params"]
+    if truth["effect"] == "sensor_position":
+        raw = json.loads(json.dumps(rig.to_dict()))
+        sen = raw["sensors"][truth["sensor"]]
+        sen["x_mm"] += p["dx_mm"]
+        sen["y_mm"] += p["dy_mm"]
+        return params, rig_from_dict(raw)
+    if "e_scale" in p:
+        return dataclasses.replace(params, e_pa=params.e_pa * p["e_scale"]), rig
+    if "damping_scale" in p:
+        return dataclasses.replace(params, damping_per_s=params.damping_per_s * p["damping_scale"]), rig
+    return params, rig
+
+
+def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
+    from impactsense.sim import simulate_drops
+
+    truth = spec.get("truth")
+    cases = args.ref_cases if spec["name"] == "ref" else args.cases
+    xd, yd, hd, case, rep, xt, yt = declared_drops(rig, cases, args.reps, spec["seed"], args.jitter_mm)
+    params, sim_rig = physical(base_params, rig, truth if spec["kind"] == "fem" else None)
+    adc = simulate_drops(params, sim_rig, xt, yt, hd, noise=True, seed=spec["seed"], workers=args.workers,
+                         progress=False)
+    if spec["kind"] == "signal":
+        adc = signal_change(adc, truth, rig, spec["seed"])
+    return (xd, yd, hd, case, rep), adc
+
+
+def settings_key(args) -> dict:
+    return {"cases": args.cases, "ref_cases": args.ref_cases, "reps": args.reps, "element_mm": args.element_mm, "jitter_mm": args.jitter_mm,
+            "rig": str(args.rig), "calibration": str(args.calibration), "seed": args.seed}
+
+
+def generate(args) -> dict:
+    from impactsense.data import load_session, write_session
+    from impactsense.sim import SimParams
+
+    rig = load_session(args.rig).rig
+    cal = json.loads(Path(args.calibration).read_text())
+    base = SimParams.from_dict(cal["sim_params"], str(args.calibration))
+    base = dataclasses.replace(base, element_mm=args.element_mm, method="fast")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    man_path = out / "manifest.json"
+    man = json.loads(man_path.read_text()) if man_path.exists() else {}
+    if man.get("settings") != settings_key(args):
+        man = {"settings": settings_key(args), "sessions": {}}
+    only = set(args.only.split(",")) if args.only else None
+    for spec in spec_list(args.seed):
+        if only and spec["name"] not in only:
+            continue
+        if spec["name"] in man["sessions"] and (out / spec["name"] / "recordings.npz").exists():
+            continue
+        print(f"  {spec['name']}: {spec.get('truth', 'unchanged')}", flush=True)
+        (xd, yd, hd, case, rep), adc = make_session(spec, base, rig, args)
+        write_session(out / spec["name"], rig, xd, yd, hd, adc, case, rep)
+        man["sessions"][spec["name"]] = spec
+        man_path.write_text(json.dumps(man, indent=1))
+    return man
+
+
+def parse(argv=None):
+    from impactsense.data import bundled_session_path
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default="/tmp/impactsense-loop")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cases", type=int, default=40)
+    ap.add_argument("--ref-cases", type=int, default=80, help="positions of the reference session")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--jitter-mm", type=float, default=1.0)
+    ap.add_argument("--element-mm", type=float, default=3.0)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--rig", default=str(bundled_session_path("session-1")), help="session folder whose rig.json is used")
+    ap.add_argument("--calibration", default=None, help="CAL.json (default: the bundled twin)")
+    ap.add_argument("--only", default=None, help="comma-separated session names")
+    args = ap.parse_args(argv)
+    if args.calibration is None:
+        args.calibration = str(Path(bundled_session_path("session-1")).parent / "twin" / "calibration.json")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    man = generate(args)
+    print(f"{len(man['sessions'])} sessions in {args.out} (manifest.json)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

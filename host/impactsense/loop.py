@@ -1,0 +1,80 @@
+"""The "after" of the loop: diagnosed effects into the twin (plate and sensors in the FEM) and into recordings.
+
+`diagnose` names effects on the residual reference; here they become physics again:
+- in the FEM twin: `sensor_position` moves the disc in the simulated rig; `wave_speed` scales the plate's E
+  (the first arrival is the flexural A0 packet, whose group velocity at a fixed frequency goes as E^(1/4):
+  E_new / E_old = (v_new / v_old)^4); `damping` raises the twin's mass-proportional D_s by twice the
+  envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
+- at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
+  clipping, by each effect's own `apply_signal`.
+`twin_training_session` simulates DATA_REF's declared drops with the corrected twin: the training data of a
+model that needs no new drops (zero-shot from the corrected twin).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+
+TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
+
+
+def split_effects(effects) -> tuple[list, list]:
+    """(effects the FEM twin carries, effects put in at the signal level); only significant entries."""
+    sig = [e for e in effects if e.get("significant", True) and e["effect"] != "none"]
+    return ([e for e in sig if e["effect"] in TWIN_EFFECTS], [e for e in sig if e["effect"] not in TWIN_EFFECTS])
+
+
+def corrected_twin(params, rig, effects):
+    """(SimParams, Rig) with the twin effects of `effects` put in (others ignored)."""
+    from .data import rig_from_dict
+
+    twin, _ = split_effects(effects)
+    raw = json.loads(json.dumps(rig.to_dict()))
+    for e in twin:
+        p = e["params"]
+        if e["effect"] == "sensor_position":
+            sen = raw["sensors"][e["sensor"]]
+            sen["x_mm"] = float(sen["x_mm"]) + p["dx_mm"]
+            sen["y_mm"] = float(sen["y_mm"]) + p["dy_mm"]
+        elif e["effect"] == "wave_speed":
+            params = dataclasses.replace(params, e_pa=params.e_pa * (1.0 + p["change_pct"] / 100.0) ** 4)
+        elif e["effect"] == "damping":
+            params = dataclasses.replace(params, damping_per_s=params.damping_per_s + 2.0 * p["extra_decay_per_s"])
+    return params, rig_from_dict(raw)
+
+
+def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
+                          workers: int = 2):
+    """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after;
+    written as a session folder (DATA_REF's rig.json: the declared rig) and returned loaded."""
+    from .data import load_session, write_session
+    from .effects import context
+    from .effects.apply import apply_effects
+    from .sim import simulate_drops
+
+    p, sim_rig = corrected_twin(params, base.rig, effects)
+    adc = simulate_drops(p, sim_rig, base.x_mm, base.y_mm, base.height_mm, noise=True, seed=seed,
+                         workers=workers, progress=False)
+    _, signal = split_effects(effects)
+    adc = apply_effects(adc, signal, context(base, slowness_us_per_mm), seed)
+    path = write_session(out_dir, base.rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
+                         base.repetition)
+    return load_session(path)
+
+
+def effect_dicts(accepted) -> list[dict]:
+    return [{"effect": c.effect, "sensor": c.sensor, "params": c.params, "significant": True} for c in accepted]
+
+
+def measured_training_session(base, accepted, ref, out_dir, seed: int = 0):
+    """DATA_REF's recordings with every diagnosed effect's signal model put in, written and loaded."""
+    from .commands.retrain import augment
+    from .data import load_session, write_session
+
+    adc = augment(base, accepted, ref, seed) if accepted else np.asarray(base.adc)
+    path = write_session(out_dir, base.rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
+                         base.repetition)
+    return load_session(path)

@@ -1,0 +1,157 @@
+"""The reference at the noise floor: each channel's arrival time and energy as smooth functions of where the
+ball hit, learned from the reference session.
+
+The physics reference (`residuals.Reference`: straight rays, one velocity, per-channel delays and gains)
+leaves a residual that depends on the impact's position and height (the picked onset's dispersion with
+distance and amplitude, the plate's edges, the disc's aperture). That systematic part is larger than a moved
+sensor's signature, so it is learned: one Gaussian process per channel and group (the drop-centred ToA
+residual in µs, the drop-centred log-energy residual) on (x, y, height), fitted to the reference session's
+case means (kernel: constant x anisotropic RBF + white noise, hyper-parameters by marginal likelihood).
+Its prediction at a session's declared positions rides with the features (`Features.site_toa_us`,
+`Features.site_log_energy`) and is added to the physics prediction.
+
+The residual scales the likelihood uses are cross-fitted: each half of the reference's cases is scored
+with the terms learned on the other half, so an unchanged session is not judged against an in-sample
+(too small) scale. `halves()` gives the same split's DToA residual, the within-case repeatability (the
+pick noise no reference can go below) and the reference's own excess over it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import residuals as R
+
+SCALE_MM = 100.0   # inputs in units of 100 mm: the RBF length-scale bounds below are in these units
+
+
+def _gp(X, y):
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+
+    k = (ConstantKernel(1.0, (1e-3, 1e2)) * RBF([1.0, 1.0, 1.0], (0.3, 30.0))
+         + WhiteKernel(0.3, (1e-4, 10.0)))
+    with warnings.catch_warnings():   # a length-scale at its bound is an answer (flat or rough), not a fault
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return GaussianProcessRegressor(k, normalize_y=True, n_restarts_optimizer=0, random_state=0).fit(X, y)
+
+
+def _inputs(F: R.Features) -> np.ndarray:
+    return np.stack([F.x_mm, F.y_mm, F.height_mm], axis=1) / SCALE_MM
+
+
+def _case_means(F: R.Features, r: np.ndarray, mask: np.ndarray):
+    """Per case: mean inputs and the mean of each channel's residual over its masked-in drops."""
+    ids, inv = np.unique(F.case_id, return_inverse=True)
+    X = np.zeros((len(ids), 3))
+    np.add.at(X, inv, _inputs(F))
+    X /= np.bincount(inv)[:, None]
+    m = mask & np.isfinite(r)
+    num = np.zeros((len(ids), 4))
+    den = np.zeros((len(ids), 4))
+    np.add.at(num, inv, np.where(m, r, 0.0))
+    np.add.at(den, inv, m.astype(float))
+    return X, num / np.maximum(den, 1), den > 0
+
+
+@dataclass
+class SiteTerms:
+    """Per-channel GPs of the ToA (µs) and log-energy residuals of a reference model."""
+
+    toa: list
+    energy: list
+
+    def predict(self, F: R.Features) -> tuple[np.ndarray, np.ndarray]:
+        X = _inputs(F)
+        t = np.stack([g.predict(X) for g in self.toa], axis=1)
+        e = np.stack([g.predict(X) for g in self.energy], axis=1)
+        return t - t.mean(axis=1, keepdims=True), e
+
+    def attach(self, F: R.Features) -> R.Features:
+        t, e = self.predict(F)
+        return replace(F, site_toa_us=t, site_log_energy=e)
+
+
+def fit_site(ref: R.Reference, F: R.Features) -> SiteTerms:
+    """The site terms of `ref` learned on the session `F` (features without site terms)."""
+    ok = np.all(np.isfinite(F.toa_us), axis=1)
+    rt = np.where(ok[:, None], ref.toa_resid(F), np.nan)
+    re = ref.energy_resid(F)
+    unclipped = ~ref.clip_mask(F)
+    X, mt, okt = _case_means(F, rt, np.ones_like(unclipped))
+    Xe, me, oke = _case_means(F, re, unclipped)
+    toa = [_gp(X[okt[:, c]], mt[okt[:, c], c]) for c in range(4)]
+    energy = [_gp(Xe[oke[:, c]], me[oke[:, c], c]) for c in range(4)]
+    return SiteTerms(toa, energy)
+
+
+def _half_split(case_id: np.ndarray, seed: int):
+    cases = np.unique(case_id)
+    rng = np.random.default_rng(seed)
+    a = rng.permutation(cases)[: len(cases) // 2]
+    in_a = np.isin(case_id, a)
+    return np.flatnonzero(in_a), np.flatnonzero(~in_a)
+
+
+def cross_fitted(ref: R.Reference, F: R.Features, seed: int = 0) -> R.Features:
+    """F with each half's site terms predicted by the terms learned on the other half."""
+    a, b = _half_split(F.case_id, seed)
+    t = np.zeros((len(F), 4))
+    e = np.zeros((len(F), 4))
+    for train, test in ((a, b), (b, a)):
+        site = fit_site(ref, F.subset(train))
+        t[test], e[test] = site.predict(F.subset(test))
+    return replace(F, site_toa_us=t, site_log_energy=e)
+
+
+def noise_floor_reference(ref: R.Reference, F: R.Features, seed: int = 0) -> tuple[SiteTerms, dict]:
+    """Site terms learned on all of F, and the cross-fitted residual scales that go with them
+    (sigma['timing'], sigma['energy'] for `ref.sigma`)."""
+    Fx = cross_fitted(ref, F, seed)
+    rt = ref.toa_resid(Fx)
+    sig = {"timing": R.robust_sigma(rt[np.all(np.isfinite(rt), axis=1)]),
+           "energy": R.robust_sigma(ref.energy_resid(Fx)[~ref.clip_mask(Fx)])}
+    return fit_site(ref, F), sig
+
+
+def dtoa_rms(ref: R.Reference, F: R.Features) -> float:
+    pred = ref.toa_pred(F)
+    r = (F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]) - (pred[:, R.PAIR_I] - pred[:, R.PAIR_J])
+    return float(np.sqrt(np.nanmean(r ** 2)))
+
+
+def within_case_dtoa_rms(F: R.Features) -> float:
+    """The DToA scatter of repeated drops at one declared position (all pairs pooled): the pick noise plus
+    the ball's landing scatter, the floor no reference can go below on single drops."""
+    dt = F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]
+    dev, dof = 0.0, 0
+    for c in np.unique(F.case_id):
+        x = dt[F.case_id == c]
+        if len(x) > 1:
+            dev += float(np.nansum((x - np.nanmean(x, axis=0)) ** 2))
+            dof += (len(x) - 1) * x.shape[1]
+    return float(np.sqrt(dev / dof)) if dof else float("nan")
+
+
+def halves(F: R.Features, seed: int = 0) -> dict:
+    """The reference's DToA residual on held-out halves of one session (reference and site terms fitted on
+    one half of the cases, scored on the other, both ways), against the physics reference alone."""
+    a, b = _half_split(F.case_id, seed)
+    sq = {"physics": 0.0, "site": 0.0}
+    for train, test in ((a, b), (b, a)):
+        Ftr, Fte = F.subset(train), F.subset(test)
+        ref = R.fit_reference(Ftr, "calibrated")
+        sq["physics"] += dtoa_rms(ref, Fte) ** 2 * len(test)
+        sq["site"] += dtoa_rms(ref, fit_site(ref, Ftr).attach(Fte)) ** 2 * len(test)
+    out = {k: float(np.sqrt(v / len(F))) for k, v in sq.items()}
+    floor = within_case_dtoa_rms(F)
+    out["within_case"] = floor
+    out["excess_physics"] = float(np.sqrt(max(out["physics"] ** 2 - floor ** 2, 0.0)))
+    out["excess_site"] = float(np.sqrt(max(out["site"] ** 2 - floor ** 2, 0.0)))
+    return out
