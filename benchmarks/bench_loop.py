@@ -4,6 +4,7 @@ loop, and the unchanged sessions' MAE. One HTML report per diagnose in OUT/repor
 
     python3 benchmarks/bench_loop.py [--sessions /tmp/impactsense-loop] [--out /tmp/impactsense-loop-bench]
         [--trees 60] [--only NAME,NAME] [--seed 0] [any loop_sessions.py option]
+    python3 benchmarks/bench_loop.py --merge OUT1/bench_loop.json OUT2/bench_loop.json   (split runs)
 
 Models: the reference model is trained on all of `ref` (forests and physics localiser, no site map: a
 plain measured-trained model). After the loop, two models are trained on `ref`'s declared drops:
@@ -149,8 +150,9 @@ def run(args) -> dict:
         rows.append(row)
         print(f"  {name}: named {row['named']} MAE {row['before']['mae_mm']:.2f} -> {row['after']['mae_mm']:.2f}"
               f" ({row['seconds']} s)", flush=True)
-        (work / "bench_loop.json").write_text(json.dumps(rows, indent=1, default=float))
-    return {"rows": rows, "D_s": sim_params.damping_per_s}
+        out = {"rows": rows, "D_s": sim_params.damping_per_s}
+        (work / "bench_loop.json").write_text(json.dumps(out, indent=1, default=float))
+    return out
 
 
 def table(out: dict) -> int:
@@ -193,8 +195,15 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--only", default=None)
+    ap.add_argument("--merge", nargs="+", default=None, metavar="BENCH_LOOP.json",
+                    help="print the table of earlier runs' OUT/bench_loop.json (split runs), nothing recomputed")
     args, gen = ap.parse_known_args(argv)
     args.gen = gen
+    if args.merge:
+        parts = [json.loads(Path(p).read_text()) for p in args.merge]
+        parts = [p if isinstance(p, dict) else {"rows": p} for p in parts]
+        ds = next((p["D_s"] for p in parts if "D_s" in p), float("nan"))
+        return table({"rows": [r for p in parts for r in p["rows"]], "D_s": ds})
     return table(run(args))
 
 
