@@ -17,7 +17,7 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
 "after" is the twin model when a plate or sensor effect was named, else the measured-trained one.
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
-move 2 mm, gain 0.05, E 1 %, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
+move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_for_speed`, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
 whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model.
 """
 
@@ -38,7 +38,7 @@ RATIO = 1.2
 TOL = {"delay_us": 1.0, "move_mm": 2.0, "gain": 0.05, "e_pct": 1.0, "ds_frac": 0.05}
 
 
-def size_check(truth: dict, e: dict | None, ds_ref: float) -> tuple[str, bool | None]:
+def size_check(truth: dict, e: dict | None, ds_ref: float, twin=None) -> tuple[str, bool | None]:
     """(the fitted size against the truth, within tolerance or None when the issue states none)."""
     if e is None:
         return "-", False
@@ -51,7 +51,9 @@ def size_check(truth: dict, e: dict | None, ds_ref: float) -> tuple[str, bool | 
     if truth["effect"] == "sensor_gain" and e["effect"] == "sensor_gain":
         return f"x{p['gain']:.3f} vs x{t['gain']:.3f}", abs(p["gain"] - t["gain"]) <= TOL["gain"]
     if "e_scale" in t and e["effect"] == "wave_speed":
-        got = 100 * ((1 + p["change_pct"] / 100) ** 4 - 1)
+        from impactsense.loop import e_scale_for_speed
+        v_ref = p["velocity_m_s"] / (1 + p["change_pct"] / 100)
+        got = 100 * (e_scale_for_speed(twin, v_ref, p["change_pct"]) - 1)
         want = 100 * (t["e_scale"] - 1)
         return f"E {got:+.1f} % vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"]
     if "damping_scale" in t and e["effect"] == "damping":
@@ -155,8 +157,14 @@ def run(args) -> dict:
     return out
 
 
+def _twin_params():
+    from impactsense.sim import SimParams
+    cal = json.loads(Path(loop_sessions.parse([]).calibration).read_text())
+    return SimParams.from_dict(cal["sim_params"])
+
+
 def table(out: dict) -> int:
-    rows, ds = out["rows"], out["D_s"]
+    rows, ds, twin = out["rows"], out["D_s"], _twin_params()
     same = [r for r in rows if r["truth"] is None]
     base = float(np.mean([r["before"]["mae_mm"] for r in same])) if same else float("nan")
     print(f"\n| change | named | size | MAE before | after (measured / twin) | unchanged | ok |")
@@ -170,7 +178,7 @@ def table(out: dict) -> int:
             ok = not sig
             size, after = "-", "-"
         else:
-            size, size_ok = size_check(t, sig[0] if sig else None, ds)
+            size, size_ok = size_check(t, sig[0] if sig else None, ds, twin)
             loop_ok = r["after"]["mae_mm"] <= RATIO * base
             ok = named_ok(t, sig) and size_ok is not False and loop_ok
             after = f"{r.get('measured', r['after'])['mae_mm']:.2f}" + (

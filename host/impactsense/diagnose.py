@@ -10,7 +10,8 @@ Selection (forward, greedy): every candidate (effect x sensor) is fitted on 4/5 
 the held-out fifth (5 folds, split by case so repetitions never straddle train and test). The score is
 the held-out log-likelihood gain over the current model, summed over drops (nats). A candidate is
 significant when (1) its per-case held-out gains are positive by a one-sided t-test at
-alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), (2) it is
+alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), or its
+held-out likelihood ratio exceeds n_candidates / alpha with the t-test at plain alpha (`_evidence`), (2) it is
 material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
 simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
 sensor and a constant delay on the same channel) are compared by their held-out gains: the better one is
@@ -75,6 +76,16 @@ def _one_sided_p(case_gains: np.ndarray) -> float:
     return float(t.pvalue)
 
 
+def _evidence(score: float, p_value: float, n_cands: int) -> bool:
+    """Significant: the per-case held-out gains pass the Bonferroni t-test, or the held-out likelihood ratio
+    itself exceeds n_cands / alpha (exp(score): under no change its expectation is at most 1, so by Markov's
+    inequality each candidate passes with probability <= alpha / n_cands) with the per-case gains positive at
+    plain alpha (the gain is not one case's doing)."""
+    if score <= 0:
+        return False
+    return p_value < ALPHA / n_cands or (score >= np.log(n_cands / ALPHA) and p_value < ALPHA)
+
+
 def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor):
     """Held-out per-drop log-likelihood gain of one candidate over `ref`, and its per-fold params."""
     eff = EFFECTS[effect_name]
@@ -128,7 +139,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
         for c in results:
-            ok = c.p_value < thr and c.material and c.score > 0
+            ok = _evidence(c.score, c.p_value, len(cands)) and c.material
             nest = EFFECTS[c.effect].nests
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]

@@ -2,8 +2,10 @@
 
 `diagnose` names effects on the residual reference; here they become physics again:
 - in the FEM twin: `sensor_position` moves the disc in the simulated rig; `wave_speed` scales the plate's E
-  (the first arrival is the flexural A0 packet, whose group velocity at a fixed frequency goes as E^(1/4):
-  E_new / E_old = (v_new / v_old)^4); `damping` raises the twin's mass-proportional D_s by twice the
+  (`e_scale_for_speed`: the picked arrival travels at the Mindlin A0 group velocity of some frequency f*, the
+  one where the twin's v_g(f*) equals the reference's pick velocity; at fixed f*, v_g ~ E^n with
+  n = d ln v_g / d ln E between 1/4 (thin plate) and 1/2 (shear limit), so E_new / E_old =
+  (v_new / v_old)^(1/n)); `damping` raises the twin's mass-proportional D_s by twice the
   envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
 - at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
   clipping, by each effect's own `apply_signal`.
@@ -27,6 +29,22 @@ def split_effects(effects) -> tuple[list, list]:
     return ([e for e in sig if e["effect"] in TWIN_EFFECTS], [e for e in sig if e["effect"] not in TWIN_EFFECTS])
 
 
+def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
+    """E_new / E_old of the twin's plate for a pick velocity change of change_pct % (see the module doc)."""
+    from scipy.optimize import brentq
+
+    from .sim.dispersion import a0_group_velocity
+
+    def vg(f, e=params.e_pa):
+        return float(a0_group_velocity(f, e, params.nu, params.rho_kg_m3, params.thickness_mm * 1e-3,
+                                       params.shear_factor))
+
+    lo, hi = 50.0, 200e3
+    f = lo if v_ref_m_s <= vg(lo) else hi if v_ref_m_s >= vg(hi) else brentq(lambda x: vg(x) - v_ref_m_s, lo, hi)
+    n = np.log(vg(f, params.e_pa * 1.01) / vg(f)) / np.log(1.01)
+    return float((1.0 + change_pct / 100.0) ** (1.0 / n))
+
+
 def corrected_twin(params, rig, effects):
     """(SimParams, Rig) with the twin effects of `effects` put in (others ignored)."""
     from .data import rig_from_dict
@@ -40,7 +58,8 @@ def corrected_twin(params, rig, effects):
             sen["x_mm"] = float(sen["x_mm"]) + p["dx_mm"]
             sen["y_mm"] = float(sen["y_mm"]) + p["dy_mm"]
         elif e["effect"] == "wave_speed":
-            params = dataclasses.replace(params, e_pa=params.e_pa * (1.0 + p["change_pct"] / 100.0) ** 4)
+            v_ref = p["velocity_m_s"] / (1.0 + p["change_pct"] / 100.0)
+            params = dataclasses.replace(params, e_pa=params.e_pa * e_scale_for_speed(params, v_ref, p["change_pct"]))
         elif e["effect"] == "damping":
             params = dataclasses.replace(params, damping_per_s=params.damping_per_s + 2.0 * p["extra_decay_per_s"])
     return params, rig_from_dict(raw)
