@@ -17,7 +17,7 @@ from impactsense import _core  # noqa: F401
 from impactsense import _link
 from impactsense.data import load_session
 from impactsense.export import export_models, firmware_models
-from impactsense.link.boardmodel import train_board_models
+from impactsense.board.models import train_board_models
 from impactsense.link.emulator import Emulator
 
 

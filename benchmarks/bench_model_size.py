@@ -1,7 +1,7 @@
 """Accuracy against model size, one forest in four C forms the Cortex-M4F can run.
 
 The models `impactsense export` ships (trained on the board's 4 x 50 kHz captures of session-1's training
-drops, link.boardmodel), with the first k trees of each coordinate forest (a prefix of a random forest is a
+drops, board.models), with the first k trees of each coordinate forest (a prefix of a random forest is a
 random forest) and the full energy classifier, as:
 
 - ours, node tables (impactsense_forest_tables.c: u8 feature, f32 threshold/leaf, u16 right child; 7 B a node)
@@ -35,7 +35,8 @@ import numpy as np
 
 from impactsense.data import load_session
 from impactsense.export import export_models, load_models
-from impactsense.link.boardmodel import held_out_features, train_board_models
+from impactsense.board.scores import held_out_features
+from impactsense.board.models import train_board_models
 from impactsense.metrics import localisation_metrics
 from impactsense.models import impact_energy_j
 
@@ -133,8 +134,8 @@ def main() -> None:
         label = (impact_energy_j(height, s.rig.ball_mass_g) >= card["energy_threshold_j"]).astype(int)
         train_ids = np.asarray(card["split"]["train_recordings"])
         from impactsense.pipeline import featurize  # the training features, for emlearn's int16 ranges
-        from impactsense.link.boardmodel import board_captures
-        from impactsense.link.emulator import signal_for_board
+        from impactsense.board.capture import board_captures
+        from impactsense.board.capture import signal_for_board
 
         caps, got, _ = board_captures(s.subset(train_ids), 50000, card["signal"])
         X_train = featurize(caps, signal_for_board(s.rig, card["signal"])).vector.astype(np.float32)

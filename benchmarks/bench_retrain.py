@@ -43,7 +43,7 @@ def row(label, v) -> str:
 def board_score(export_dir: Path, s) -> dict:
     """The exported tables through the emulated board over every drop of `s`."""
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import board_reports
+    from impactsense.board.scores import board_reports
     from impactsense.metrics import region_metrics
     from impactsense.models import impact_energy_j
 

@@ -78,7 +78,7 @@ def host(splits: int) -> None:
 
 def board_figures(export_dir: Path, data: str, card: Path | None = None) -> tuple:
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import board_reports, held_out_rows
+    from impactsense.board.scores import board_reports, held_out_rows
 
     s = load_session(data)
     keep = None

@@ -472,7 +472,7 @@ def test_two_pass_aic_picks_equal_a_one_pass_scan_on_random_onsets(fs_hz, before
 def test_two_pass_aic_picks_equal_a_one_pass_scan_on_measured_board_captures():
     """Session-1 drops as the board captures them (4 x 50 kHz, scan delays), every 8th drop."""
     from impactsense.data import load_session
-    from impactsense.link.boardmodel import board_captures
+    from impactsense.board.capture import board_captures
 
     s1 = load_session()
     caps, _, sig = board_captures(s1.subset(np.arange(0, len(s1), 8)), 50000)

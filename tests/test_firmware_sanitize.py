@@ -10,14 +10,14 @@ import pytest
 
 from impactsense.data import load_session
 from impactsense.export import export_models
-from impactsense.link.emulator import board_samples
+from impactsense.board.capture import board_samples
 
 ROOT = Path(__file__).resolve().parents[1]
 CXX = shutil.which("g++") or shutil.which("c++")
 
 
 def build_and_run(tmp_path, rows, n_trees=5, data=None):
-    from impactsense.link.boardmodel import board_site_map, train_board_models
+    from impactsense.board.models import board_site_map, train_board_models
     from impactsense.sitemap import BUNDLED, SiteMap
 
     s = load_session()

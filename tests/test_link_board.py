@@ -28,8 +28,8 @@ def test_scan_delays_are_removed(s1, rig_fit):
     """On the board, channel c is read c x 5 us after channel 0, so its onsets come c x 5 us early in the
     capture; with the board's config the core's DToA equal the 100 kHz DToA (no per-channel bias: a sign
     error would leave 10, 20, 30 us)."""
-    from impactsense.link.boardmodel import board_captures
-    from impactsense.link.emulator import signal_for_board
+    from impactsense.board.capture import board_captures
+    from impactsense.board.capture import signal_for_board
 
     rows = np.arange(0, len(s1), 4)
     caps, got, _ = board_captures(s1.subset(rows), 50000)
@@ -45,7 +45,7 @@ def test_scan_delays_are_removed(s1, rig_fit):
 def test_board_models_fit_the_rig_delays(s1, rig_fit, tmp_path):
     """The localiser fitted on the board's picks finds the same rig delays as at 100 kHz (channels 2 and 3
     about 6-7 us early); the card keeps only the rig's part (the firmware adds the scan delays)."""
-    from impactsense.link.boardmodel import train_board_models
+    from impactsense.board.models import train_board_models
 
     d = train_board_models(s1, tmp_path / "m", n_trees=5)
     card = json.loads((d / "model_card.json").read_text())

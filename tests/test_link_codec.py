@@ -79,7 +79,7 @@ def test_commands_and_acks_through_the_app():
 
 def test_raw_chunks_rebuild_the_capture():
     from impactsense.data import load_session
-    from impactsense.link.emulator import board_samples
+    from impactsense.board.capture import board_samples
     from impactsense.link.record import CaptureAssembler
 
     s = load_session().subset([0, 1])
@@ -103,7 +103,7 @@ def test_raw_chunks_rebuild_the_capture():
 
 def test_board_samples_follow_the_saadc_scan():
     """Channel c of frame k is the signal at k / fs + c * 5 us (a slow sine, interior samples)."""
-    from impactsense.link.emulator import board_samples
+    from impactsense.board.capture import board_samples
 
     t_in = np.arange(5000) / 100000.0
     f_hz = 1000.0

@@ -20,7 +20,7 @@ from impactsense.link.transport import BleTransport, PortClosed, open_serial
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    from impactsense.link.boardmodel import board_site_map, train_board_models
+    from impactsense.board.models import board_site_map, train_board_models
     from impactsense.sitemap import BUNDLED, SiteMap
 
     root = tmp_path_factory.mktemp("fw")
@@ -79,7 +79,7 @@ def check_against_host(exported, n_drops):
     assert counters["crc_errors"] == 0 and counters["seq_gaps"] == 0
     assert [r["seq"] for r in reports] == list(range(n_drops))
     from impactsense.export import firmware_models
-    from impactsense.link.emulator import signal_for_board
+    from impactsense.board.capture import signal_for_board
 
     s = load_session()
     signal = signal_for_board(s.rig, firmware_models(out)[1], 50000)  # what the board runs

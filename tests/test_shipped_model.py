@@ -40,7 +40,7 @@ def test_shipped_model_on_the_emulated_board_scores_session_2(shipped):
     the project's whole-plate target (MAE <= 5 mm) and an energy class well above the seed's 0.78."""
     from impactsense.data import load_session
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import board_accuracy
+    from impactsense.board.scores import board_accuracy
 
     models, signal = firmware_models(MODELS)
     s2 = load_session("bundled:session-2")

@@ -113,7 +113,7 @@ def test_shipped_board_model_reports_a_1_sigma_on_session_2():
     160 drops, as the emulated board reports them: 0.63 +- 0.1 of the errors within the reported uncertainty
     (0.64), >= 90 % within 2x (0.96)."""
     from impactsense.export import firmware_models
-    from impactsense.link.boardmodel import board_reports
+    from impactsense.board.scores import board_reports
     models, signal = firmware_models(Path(__file__).resolve().parents[1] / "models")
     s2 = load_session("bundled:session-2")
     got = board_reports(s2, models, signal)

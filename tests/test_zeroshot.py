@@ -235,14 +235,15 @@ def zero_shot_on_the_board(bundled_zero_shot, session1):
     virtual drops alone (train_board_models), both exported (10 trees) and run on the emulated board over
     the measured test split; the twin's board-rate site map at 10 mm to keep it quick."""
     from impactsense.export import export_models, firmware_models
-    from impactsense.link.boardmodel import board_accuracy, board_site_map, held_out_rows, train_board_models
+    from impactsense.board.scores import board_accuracy, held_out_rows
+    from impactsense.board.models import board_site_map, train_board_models
     from impactsense.models import ForestSettings
     from impactsense.sitemap import BUNDLED, SiteMap
-    from impactsense.zeroshot import board_model
+    from impactsense.board.models import sim_trained_for_board
 
     r, out = bundled_zero_shot
     board_map = board_site_map(SiteMap.load(BUNDLED), session1.rig, 50000, step_mm=10.0, progress=False)
-    after = board_model(out / "model-sim", out / "board-model", board_map=board_map)
+    after = sim_trained_for_board(out / "model-sim", out / "board-model", board_map=board_map)
     card = json.loads((after / "model_card.json").read_text())
     virtual = load_session(out / "virtual-160")
     before = train_board_models(virtual, out / "board-virtual-only", settings=ForestSettings(**card["forest"]),
@@ -298,13 +299,13 @@ def test_the_zero_shot_board_model_locates_measured_drops(zero_shot_on_the_board
 
 
 def test_export_of_a_zero_shot_model_checks_its_calibration(bundled_zero_shot, tmp_path):
-    """`impactsense export` of a sim-trained model (link.boardmodel.retrain_for_board) rebuilds it from the
+    """`impactsense export` of a sim-trained model (board.models.retrain_for_board) rebuilds it from the
     calibration its card names: a calibration file changed since is an error naming the card's field, raised
     before anything is trained."""
     import shutil
 
     from impactsense.errors import DataError
-    from impactsense.link.boardmodel import retrain_for_board
+    from impactsense.board.models import retrain_for_board
 
     _, out = bundled_zero_shot
     model = tmp_path / "model-sim"

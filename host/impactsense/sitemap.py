@@ -178,7 +178,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     of the match instead (twin.h).
 
     capture: how a device other than the lab logger takes the drops, e.g. the board
-    (link.boardmodel.board_capture: resampled to 4 x 50 kHz with the SAADC scan delays, cut by the firmware
+    (board.capture.board_capture: resampled to 4 x 50 kHz with the SAADC scan delays, cut by the firmware
     app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
     counts as the rig records them."""

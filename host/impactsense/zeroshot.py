@@ -49,9 +49,15 @@ from scipy.stats import spearmanr
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
+from .outputs import MANIFEST, adopt, write_file
 from .pipeline import distances_mm, featurize
+from .seed import SEED_ROWS
+from .sim import SimParams, simulate_drops
+from .sim.doe import virtual_drops
 from .signal import SignalConfig
+from .sitemap import BUNDLED, SiteMap, build_site_map, twin_features
 from .split import case_split
+from .twin import fit_twin
 from .workflow import evaluate, train
 
 
@@ -122,12 +128,6 @@ def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, 
 
 def twin_site_map(params, session: Session, out: Path, progress: bool = True):
     """The calibrated twin's site map, cached in out/site-map.npz (rebuilt when the twin changed)."""
-    from .sitemap import SiteMap, build_site_map
-
-    from .sitemap import BUNDLED
-
-    from .sim import SimParams
-
     def same_twin(site) -> bool:   # parameters added since the map was made take their defaults
         try:
             return SimParams.from_dict(dict(site.source.get("sim_params") or {})) == params
@@ -142,8 +142,6 @@ def twin_site_map(params, session: Session, out: Path, progress: bool = True):
     path = out / "site-map.npz"
     site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress)
     site.save(path)
-    from .outputs import MANIFEST, adopt
-
     if (out / MANIFEST).is_file():      # a cache in a folder the tool wrote (a virtual session): still the tool's
         adopt(out, [path.name])
     return site
@@ -161,9 +159,6 @@ def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, sit
     measured drop but the calibration ones the class accuracy goes 0.95 -> 0.96-0.97 and on the test
     split the twin's MAE 1.5-1.7 -> 1.4-1.6 mm (`python3 benchmarks/bench_zeroshot_class.py`). Rescaled weights keep their shape, so the fit is the same
     when model.twin_fit is already one of these."""
-    from .sitemap import twin_features
-    from .twin import fit_twin
-
     meas = featurize(session.adc[rows], model.signal)
     feats, usable = twin_features(meas)
     old = model.twin_fit
@@ -280,9 +275,6 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
     simulated with this twin and seed (a set from another twin would be tested under this calibration's
     name); `made_with.json` is written last, so an interrupted run leaves no set that counts as made.
     Returns (the set, whether it came from the cache)."""
-    from .sim import simulate_drops
-    from .sim.doe import virtual_drops
-
     made_with = {"sim_params": params.to_dict(), "seed": seed, "layout": "sim.doe.virtual_drops"}
     stamp = sim_dir / "made_with.json"
     try:
@@ -310,8 +302,6 @@ def read_calibration(cal_path: str | Path) -> dict:
 
 def calibration_twins(params, session: Session, rows: np.ndarray, seed: int, workers: int = 2) -> np.ndarray:
     """The calibration drops `rows` simulated with the twin `params` (noise seeded by `seed`): uint16 [R, 4, n]."""
-    from .sim import simulate_drops
-
     return simulate_drops(params, session.rig, session.x_mm[rows], session.y_mm[rows], session.height_mm[rows],
                           noise=True, seed=seed, workers=workers, progress=False)
 
@@ -334,101 +324,10 @@ def zero_shot_card(cal_path: str | Path, session: Session, cal_rows: np.ndarray,
         "seed": int(seed)}}   # the noise seed of the calibration drops' simulated twins (calibration_twins)
 
 
-def board_view(session: Session, fs_hz: int) -> Session:
-    """`session` as the board captures it: the firmware app's captures (link.boardmodel.board_captures:
-    resampled to 4 x fs_hz with the SAADC scan delays, triggered and cut by the app) as its adc; drops the
-    app did not capture are left out."""
-    from .link.boardmodel import board_captures
-
-    caps, rows, _ = board_captures(session, fs_hz)
-    return replace(session.subset(rows), adc=caps)
-
-
-def _card_session(card_path: Path, field: str, record: dict) -> Session:
-    path = record.get("data_path")
-    if not path or not Path(path).is_dir():
-        raise DataError(card_path, f"{field}.data_path", f"session folder {path!r} not found")
-    session = load_session(path)
-    if record.get("data_hash") and record["data_hash"] != session.fingerprint():
-        raise DataError(card_path, f"{field}.data_hash", f"{path} changed since the model was trained")
-    return session
-
-
-def _card_rows(card_path: Path, field: str, session: Session, ids) -> np.ndarray:
-    index = {int(r): k for k, r in enumerate(session.recording_id)}
-    if ids is None or any(int(r) not in index for r in ids):
-        raise DataError(card_path, field, f"missing, or names recordings {session.path} does not have")
-    return np.asarray([index[int(r)] for r in ids], int)
-
-
-def board_model(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, site_map_cache=None,
-                board_map=None, workers: int = 2) -> Path:
-    """The sim-trained model of MODEL_DIR (run_zero_shot's model-sim) made again for the board, with all the
-    calibration drops taught it: the virtual drops' localiser, forests and twin fit trained on the board's
-    captures of the virtual drops (link.boardmodel.train_board_models, with the twin's board-rate site map,
-    board_site_map, cached in site_map_cache; board_map: one made already), then fit_on_calibration_drops
-    on the board's captures of the calibration drops and of their simulated twins (board_view), exactly as
-    run_zero_shot does at the rig's rate. Written to out_dir; the card keeps the zero-shot record (the
-    measured test split, on which `impactsense export` scores the emulated board)."""
-    from .link.boardmodel import board_site_map, train_board_models
-    from .link.emulator import signal_for_board
-    from .models import SITE_MAP_FILE, ForestSettings, ImpactModel
-    from .sim import SimParams
-    from .sitemap import SiteMap
-
-    model_dir = Path(model_dir)
-    from .modelfolder import read_card, verified_path
-
-    card, card_path = read_card(model_dir)
-    zs = card.get("zero_shot")
-    if not isinstance(zs, dict):
-        raise DataError(card_path, "zero_shot", "missing key (not a sim-trained model of `impactsense demo "
-                        "--zero-shot`, or one made before the card recorded its calibration: run it again)")
-    cal_path = Path(str(zs.get("calibration")))
-    if not cal_path.is_file():
-        raise DataError(card_path, "zero_shot.calibration", f"calibration file {str(cal_path)!r} not found")
-    if hashlib.sha256(cal_path.read_bytes()).hexdigest() != zs.get("calibration_sha256"):
-        raise DataError(card_path, "zero_shot.calibration_sha256", f"{cal_path} changed since the model was trained")
-    params = SimParams.from_json(cal_path)
-    session = _card_session(card_path, "zero_shot", zs)
-    split = card.get("split") or {}
-    virtual = _card_session(card_path, "split", split)
-    cal_rows = _card_rows(card_path, "zero_shot.calibration_recordings", session, zs.get("calibration_recordings"))
-    train_rows = _card_rows(card_path, "split.train_recordings", virtual, split.get("train_recordings"))
-    if "twin" not in card:
-        board_map = None
-    elif board_map is None:
-        source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
-                                            "twin.site_map"))
-        board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache, workers=workers)
-    forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
-    # The virtual drops as the board captures them: localiser, forests, the twin's fit (the virtual set's card).
-    train_board_models(virtual, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
-                       train_rows=train_rows, test_fraction=0.0, seed=int(split.get("seed", 0)))
-    model = ImpactModel.load(out_dir)
-    model.card = {k: v for k, v in model.card.items() if k not in ("signal", "energy_threshold_j", "created_utc")}
-    # The calibration drops and their twins as the board captures them (both with the scan delays).
-    meas = board_view(session.subset(cal_rows), fs_hz)
-    sim = board_view(replace(session.subset(cal_rows), adc=calibration_twins(params, session, cal_rows,
-                                                                              int(zs.get("seed", 0)), workers)), fs_hz)
-    both = np.intersect1d(meas.recording_id, sim.recording_id)
-    meas = meas.subset(np.flatnonzero(np.isin(meas.recording_id, both)))
-    sim_adc = sim.adc[np.isin(sim.recording_id, both)]
-    # The fits read the captures with the core's configuration as the firmware sets it (the scan's capture delays).
-    model.signal = signal_for_board(session.rig, model.signal.to_dict(), fs_hz)
-    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if board_map is None else None
-    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board)
-    fits.pop("_virtual_twin")
-    return Path(model.save(out_dir, extra_card={
-        **fits, "calibration": str(cal_path), "zero_shot": {**zs, "calibration_drops_on_the_board": len(meas)},
-        "retrained_from": str(model_dir.resolve())}))
-
 
 def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n_virtual: int = 490,
                   seed: int = 0, test_fraction: float = 0.2, workers: int = 2, progress: bool = True,
                   use_twin: bool = True) -> dict:
-    from .sim import SimParams
-
     cal_path = Path(cal_path)
     cal = read_calibration(cal_path)
     params = SimParams.from_json(cal_path)
@@ -495,16 +394,12 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         "uncertainty": uncertainty,
         "wall_time_s": wall,
     }
-    from .outputs import write_file
-
     write_file(out / "zero-shot.json", json.dumps(result, indent=1))
     result["_reports"] = {"sim": rep_sim, "measured": rep_meas}
     return result
 
 
 def zero_shot_table(result: dict) -> str:
-    from .commands.demo import SEED_ROWS
-
     lines = [f"{'':46s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
     for region, label in (("all", "whole plate"), ("inner", "inner region")):
         for kind, key in (("sim-trained", "sim_trained"), ("measured-trained", "measured_trained")):
@@ -536,3 +431,4 @@ def uncertainty_lines(unc: dict) -> list[str]:
         lines.append(f"  sim-trained scale x{s['factor']:.2f} from {s['n']} calibration drops, each of their "
                      f"{s['positions']} positions held out in turn (rms error {s['rms_error_mm']:.2f} mm)")
     return lines
+

@@ -2,16 +2,9 @@
 
 from __future__ import annotations
 
+from ..seed import SEED_ROWS
+
 ORDER = 5
-
-# The seed's Tables 7-9 (method.md): R2, RMSE mm, MAE mm, class accuracy.
-SEED_ROWS = {
-    "measured-trained, whole plate": (0.82, 30.0, 22.4, 0.78),
-    "measured-trained, inner region": (0.90, 18.5, 14.9, 0.83),
-    "sim-trained, whole plate": (0.81, 30.4, 22.4, 0.78),
-    "sim-trained, inner region": (0.90, 20.1, 15.5, 0.78),
-}
-
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="train on 80 %% of a session's cases (default the bundled session-1), evaluate "

@@ -81,7 +81,7 @@ def _export(args, card, rate, stage, out):
 
     model_dir = Path(args.model_dir)
     if rate is not None and int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
-        from ..link.boardmodel import BOARD_SITE_MAP, retrain_for_board
+        from ..board.models import BOARD_SITE_MAP, retrain_for_board
 
         if (out / BOARD_SITE_MAP).is_file():    # the cache goes along into the new OUT
             import shutil
@@ -122,7 +122,7 @@ def _card(model_dir):
 def _board_accuracy(model_dir, card, out):
     """The exported tables on the emulated board over the held-out drops (None without held-out drops)."""
     from ..export import firmware_models
-    from ..link.boardmodel import board_accuracy, held_out_rows
+    from ..board.scores import board_accuracy, held_out_rows
 
     s, rows = held_out_rows(card)
     if rows is None or rows.size == 0 or "energy_threshold_j" not in card:
@@ -139,7 +139,7 @@ def _held_out(model_dir):
     only scores it)."""
     import numpy as np
 
-    from ..link.boardmodel import held_out_features
+    from ..board.scores import held_out_features
     from ..sitemap import twin_features
 
     card = _card(model_dir)

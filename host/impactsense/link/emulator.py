@@ -12,85 +12,9 @@ from __future__ import annotations
 import errno
 import os
 import time
-from fractions import Fraction
 
-import numpy as np
-
-from .. import _core  # noqa: F401
 from .. import _link
-from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, rig_settings
-
-
-def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
-                  adc_max: int = 4095, adc_min: int = 0) -> np.ndarray:
-    """What the board's SAADC would read: int16 [R, n, 4] interleaved frames of each recording.
-
-    The recording is interpolated (band-limited, polyphase) onto the scan grid, 1/scan_step = 200 kHz, and
-    channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
-    channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
-    above fs/2 is removed: it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the
-    SAADC's range; the int16 range keeps simulated drops whole)."""
-    from scipy.signal import resample_poly
-
-    grid_hz = 1e6 / scan_step_us
-    up = Fraction(grid_hz / fs_in_hz).limit_denominator(1000)
-    d = grid_hz / fs_hz
-    if abs(d - round(d)) > 1e-9 or round(d) < 4:
-        raise ValueError(f"board rate {fs_hz} Hz must divide the {grid_hz:.0f} Hz scan grid at least 4 times")
-    d = int(round(d))
-    x = np.asarray(adc, dtype=np.float32)
-    r, _, n = x.shape
-    n_out = (int(n * up) - 3) // d
-    y = np.empty((r, n_out, 4), dtype=np.int16)
-    if up == 2:
-        # Fast path (the rig's 100 kHz onto a 200 kHz grid): even grid points are the recorded samples,
-        # odd ones the half-sample band-limited interpolation (a Kaiser-windowed sinc, 32 taps).
-        k = np.arange(-15, 17) - 0.5
-        h = (np.sinc(k) * np.kaiser(k.size, 8.0)).astype(np.float32)
-        h /= h.sum()
-        for c in range(4):
-            g0 = d * np.arange(n_out) + c
-            if g0[0] % 2 == 0 and d % 2 == 0:
-                v = x[:, c, g0 // 2]
-            else:
-                mean = x[:, c, :].mean(axis=1, keepdims=True)
-                xp = np.pad(x[:, c, :] - mean, ((0, 0), (15, 16 + d)), mode="edge")  # xp[i + 15] = x[i]
-                i0 = g0 // 2  # x at i0 + 0.5 = sum_j h[j] x[i0 - 15 + j]
-                half = np.zeros((x.shape[0], n_out), dtype=np.float32)
-                if d % 2 == 0:  # i0 advances by d/2: strided slices, one multiply-add a tap
-                    step = d // 2
-                    for j in range(h.size):
-                        half += h[j] * xp[:, i0[0] + j:i0[0] + j + step * n_out:step]
-                else:
-                    for j in range(h.size):
-                        half += h[j] * xp[:, i0 + j]
-                half += mean
-                v = half if np.all(g0 % 2) else np.where(g0 % 2 == 0, x[:, c, np.minimum(i0, n - 1)], half)
-            y[:, :, c] = np.clip(np.rint(v), adc_min, adc_max)
-        return y
-    mean = x.mean(axis=2, keepdims=True)
-    g = resample_poly(x - mean, up.numerator, up.denominator, axis=2) + mean if up != 1 else x
-    for c in range(4):
-        y[:, :, c] = np.clip(np.rint(g[:, c, c::d][:, :n_out]), adc_min, adc_max)
-    return y
-
-
-def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
-    """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig) taken to
-    the board's rate and acquisition by the firmware's own function (impactapp::board_core_config: sample
-    counts scaled, the board rate, the SAADC scan's capture delays), the rig's ADC rail and geometry."""
-    card = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
-    board = config_dict(_link.board_core_config(card.core(), int(fs_hz), card.adc_min, int(rig.adc_max)))
-    changed = {f.name: board[f.name] for f in CORE_FIELDS if f.role != "COPY"}
-    geometry = {k: v for k, v in rig_settings(rig).items() if k in {f.name for f in LOCALISER_FIELDS}}
-    return SignalConfig.from_dict({**card.to_dict(), **changed, **geometry})
-
-
-def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
-    sig = signal_for_board(rig, signal, fs_hz)
-    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
-    cfg.update(extra)
-    return cfg
+from ..board.capture import app_config, board_samples, signal_for_board
 
 
 class Emulator:

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 
+from ..data import write_session
 from . import protocol
 from .monitor import Monitor
 

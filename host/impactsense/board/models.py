@@ -5,7 +5,7 @@ The trainer (impactsense.workflow.train) fits on the lab's 100 kHz recordings; t
 where the onset picks scatter more and energies and sample counts differ, so a 100 kHz model loses most of
 its accuracy on the board. Until sessions are recorded on the board (`impactsense record`), this trains the
 same model type, with the same split and settings, on what the emulated board captures: the recordings
-resampled onto the scan grid, channel c read c x 5 us after channel 0 (link.emulator.board_samples),
+resampled onto the scan grid, channel c read c x 5 us after channel 0 (board.capture.board_samples),
 triggered and cut by the firmware app itself. `impactsense export` ships such models by default.
 
 A model with the twin's site map (`impactsense train --site-map`: position and energy class from the twin's
@@ -15,60 +15,24 @@ grid, a few minutes on 2 cores, cached in the export folder).
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from .. import _link
-from .emulator import Emulator, app_config, board_samples, signal_for_board
-from .record import CaptureAssembler
+from ..data import load_session
+from ..errors import DataError
+from ..modelfolder import read_card, verified_path
+from ..models import SITE_MAP_FILE, ForestSettings, ImpactModel
+from ..pipeline import featurize, fit_localiser
+from ..sim.params import SimParams
+from ..sitemap import SiteMap, build_site_map
+from ..split import case_split
+from ..zeroshot import board_view, calibration_twins, fit_on_calibration_drops
+from .capture import board_capture, board_captures, signal_for_board
 
 BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
-
-
-def _captures(drops) -> tuple[list, list]:
-    """The raw captures a dump-raw app wrote, from (index, serial bytes) per drop: (captures, indices)."""
-    dec = _link.Decoder()
-    asm = CaptureAssembler()
-    caps, rows = [], []
-    for i, data in drops:
-        for f in dec.feed(data):
-            if f["kind"] == "raw":
-                asm.add(f["raw"])
-            elif f["kind"] == "report":
-                cap = asm.take(f["report"]["seq"])
-                if cap is not None:
-                    caps.append(cap)
-                    rows.append(i)
-    return caps, rows
-
-
-def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
-    """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app."""
-    emu = Emulator(session, None, fs_hz=fs_hz, signal=signal, dump_raw=True)
-    caps, rows = _captures(emu.drops())
-    if not caps:
-        raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
-    return np.stack(caps), np.asarray(rows), emu.signal
-
-
-def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
-    """The board as a capture hook (sitemap.build_site_map's `capture`): counts int16 [R, 4, n] at the rig's
-    rate -> (captures int16 [R', 4, m], rows [R']) as the firmware app takes them at fs_hz: board_samples
-    (resampled, SAADC scan delays) with the int16 range kept instead of the ADC's, then the app's trigger,
-    pre-trigger and window (the emulator's path for recorded drops)."""
-    cfg = app_config(rig, fs_hz, signal, dump_raw=True)
-
-    def capture(counts: np.ndarray):
-        frames = board_samples(counts, rig.fs_hz, fs_hz, adc_max=32767, adc_min=-32768)
-        app = _link.App(cfg, None)
-        caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
-        if not caps:
-            return np.zeros((0, 4, app.capture_frames), np.int16), np.zeros(0, int)
-        return np.stack(caps), np.asarray(rows, int)
-
-    return capture
 
 
 def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2, progress: bool = True,
@@ -79,10 +43,6 @@ def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2
     (the source map's settings at fs_hz, scan delays). Read from / written to `cache` (reused when made from
     the same source map at the same rate). step_mm: another grid step than the source's (coarse maps for
     tests)."""
-    from ..errors import DataError
-    from ..sim.params import SimParams
-    from ..sitemap import SiteMap, build_site_map
-
     step = float(step_mm or source.step_mm)
     key = {"from_site_map_sha": source.fingerprint(), "board_fs_hz": int(fs_hz), "step_mm": step}
     if cache is not None and Path(cache).is_file():
@@ -121,10 +81,6 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
     site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
     The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own)."""
-    from ..models import ForestSettings, ImpactModel
-    from ..pipeline import featurize, fit_localiser
-    from ..split import case_split
-
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -164,17 +120,9 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     """The model of MODEL_DIR (a 100 kHz `impactsense train` model) trained again on the board's captures of
     the same training drops, with the same forest settings; the held-out drops stay held out. A model with
     the twin's site map gets the board's site map (board_site_map, cached in site_map_cache)."""
-    from ..data import MODEL_CARD_MISSING, load_session, read_json
-    from ..errors import DataError
-    from ..models import ForestSettings
-
-    from ..modelfolder import read_card
-
     card, card_path = read_card(model_dir)
     if "zero_shot" in card:   # sim-trained: the virtual drops, then the calibration drops' fits, at the board rate
-        from ..zeroshot import board_model
-
-        return board_model(model_dir, out_dir, fs_hz, site_map_cache=site_map_cache)
+        return sim_trained_for_board(model_dir, out_dir, fs_hz, site_map_cache=site_map_cache)
     split = card.get("split")
     if not split or "train_recordings" not in split:
         raise DataError(card_path, "split", "missing key (needed to retrain on the same drops at the board rate)")
@@ -189,11 +137,6 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
     board_map = None
     if "twin" in card:
-        from ..models import SITE_MAP_FILE
-        from ..sitemap import SiteMap
-
-        from ..modelfolder import verified_path
-
         source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
                                             "twin.site_map"))
         board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache)
@@ -203,71 +146,73 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
                               extra_card={"retrained_from": str(Path(model_dir).resolve())})
 
 
-def board_reports(session, models, signal: dict, fs_hz: int = 50000) -> dict:
-    """The firmware app (emulated board, exported node tables) over `session`'s drops: {drop row: the first
-    valid report it sent, decoded from the wire}; drops without a valid report are absent."""
-    dec, got = _link.Decoder(), {}
-    for i, data in Emulator(session, models, fs_hz=fs_hz, signal=signal).drops():
-        for f in dec.feed(data):
-            if f["kind"] == "report" and f["report"].get("valid", True):
-                got.setdefault(i, f["report"])
-    return got
+def _card_session(card_path: Path, field: str, record: dict) -> Session:
+    path = record.get("data_path")
+    if not path or not Path(path).is_dir():
+        raise DataError(card_path, f"{field}.data_path", f"session folder {path!r} not found")
+    session = load_session(path)
+    if record.get("data_hash") and record["data_hash"] != session.fingerprint():
+        raise DataError(card_path, f"{field}.data_hash", f"{path} changed since the model was trained")
+    return session
 
 
-def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_hz: int = 50000) -> dict:
-    """The firmware app (emulated board, exported node tables) over `session`'s drops, scored against the true
-    positions and energy classes: Eq. 36 metrics of the reports with valid positions, their class accuracy,
-    and how many drops gave a report."""
-    from ..metrics import region_metrics
-    from ..models import impact_energy_j
-
-    got = board_reports(session, models, signal, fs_hz)
-    rows = np.asarray(sorted(got), int)
-    pred = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
-    label = (impact_energy_j(session.height_mm, session.rig.ball_mass_g) >= energy_threshold_j).astype(int)
-    cls = np.array([got[i]["energy_class"] for i in rows], int)
-    return {"n": len(session), "reported": int(rows.size), "fs_hz": int(fs_hz),
-            **region_metrics(session.xy_mm[rows], pred, session.rig.inner_region_mm),
-            "energy_class_accuracy": float(np.mean(cls == label[rows])) if rows.size else float("nan")}
+def _card_rows(card_path: Path, field: str, session: Session, ids) -> np.ndarray:
+    index = {int(r): k for k, r in enumerate(session.recording_id)}
+    if ids is None or any(int(r) not in index for r in ids):
+        raise DataError(card_path, field, f"missing, or names recordings {session.path} does not have")
+    return np.asarray([index[int(r)] for r in ids], int)
 
 
-def held_out_rows(card: dict):
-    """(session, row indices of the model card's held-out drops), rows None when the card lists none. A
-    sim-trained model's (zeroshot) are the measured test split, the calibration drops never in it."""
-    from ..data import load_session
-
-    split = card.get("zero_shot") or card.get("split") or {}
-    ids = split.get("test_recordings")
-    if ids is None:
-        ids = card.get("test_recording_ids")
-    data = split.get("data_path") or card.get("data")
-    s = load_session(data if data and Path(str(data)).is_dir() else None)
-    want = split.get("recordings_hash"), split.get("data_hash")
-    if any(want) and not (want[0] and want[0] == s.recordings_hash()) and not (want[1] and want[1] == s.fingerprint()):
-        from ..errors import DataError
-
-        raise DataError("model card", "split.data_path", f"the model's session {data!r} is not there or has other "
-                        f"recordings now ({s.path} read instead): its held-out drops cannot be scored")
-    if ids is None:
-        return s, None
-    index = {int(r): k for k, r in enumerate(s.recording_id)}
-    return s, np.asarray([index[int(r)] for r in ids if int(r) in index], dtype=int)
-
-
-def held_out_features(card: dict):
-    """(Features, true xy [R, 2], heights [R]) of the card's held-out drops (all drops if it lists none) as
-    the model sees them: a board-rate model's through the emulated board's captures."""
-    from ..pipeline import featurize
-    from ..signal import SignalConfig
-
-    s, rows = held_out_rows(card)
-    rows = np.arange(len(s)) if rows is None else rows
-    signal = card.get("signal") or {}
-    board_fs = card.get("board_fs_hz")
-    if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:
-        caps, got, sig = board_captures(s.subset(rows), int(board_fs), signal)
-        rows = rows[got]
-        f = featurize(caps, sig)
-    else:
-        f = featurize(s.adc[rows], SignalConfig.from_dict(signal))
-    return f, s.xy_mm[rows], s.height_mm[rows]
+def sim_trained_for_board(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, site_map_cache=None,
+                board_map=None, workers: int = 2) -> Path:
+    """The sim-trained model of MODEL_DIR (run_zero_shot's model-sim) made again for the board, with all the
+    calibration drops taught it: the virtual drops' localiser, forests and twin fit trained on the board's
+    captures of the virtual drops (train_board_models, with the twin's board-rate site map,
+    board_site_map, cached in site_map_cache; board_map: one made already), then fit_on_calibration_drops
+    on the board's captures of the calibration drops and of their simulated twins (board_view), exactly as
+    run_zero_shot does at the rig's rate. Written to out_dir; the card keeps the zero-shot record (the
+    measured test split, on which `impactsense export` scores the emulated board)."""
+    model_dir = Path(model_dir)
+    card, card_path = read_card(model_dir)
+    zs = card.get("zero_shot")
+    if not isinstance(zs, dict):
+        raise DataError(card_path, "zero_shot", "missing key (not a sim-trained model of `impactsense demo "
+                        "--zero-shot`, or one made before the card recorded its calibration: run it again)")
+    cal_path = Path(str(zs.get("calibration")))
+    if not cal_path.is_file():
+        raise DataError(card_path, "zero_shot.calibration", f"calibration file {str(cal_path)!r} not found")
+    if hashlib.sha256(cal_path.read_bytes()).hexdigest() != zs.get("calibration_sha256"):
+        raise DataError(card_path, "zero_shot.calibration_sha256", f"{cal_path} changed since the model was trained")
+    params = SimParams.from_json(cal_path)
+    session = _card_session(card_path, "zero_shot", zs)
+    split = card.get("split") or {}
+    virtual = _card_session(card_path, "split", split)
+    cal_rows = _card_rows(card_path, "zero_shot.calibration_recordings", session, zs.get("calibration_recordings"))
+    train_rows = _card_rows(card_path, "split.train_recordings", virtual, split.get("train_recordings"))
+    if "twin" not in card:
+        board_map = None
+    elif board_map is None:
+        source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
+                                            "twin.site_map"))
+        board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache, workers=workers)
+    forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
+    # The virtual drops as the board captures them: localiser, forests, the twin's fit (the virtual set's card).
+    train_board_models(virtual, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
+                       train_rows=train_rows, test_fraction=0.0, seed=int(split.get("seed", 0)))
+    model = ImpactModel.load(out_dir)
+    model.card = {k: v for k, v in model.card.items() if k not in ("signal", "energy_threshold_j", "created_utc")}
+    # The calibration drops and their twins as the board captures them (both with the scan delays).
+    meas = board_view(session.subset(cal_rows), fs_hz)
+    sim = board_view(replace(session.subset(cal_rows), adc=calibration_twins(params, session, cal_rows,
+                                                                              int(zs.get("seed", 0)), workers)), fs_hz)
+    both = np.intersect1d(meas.recording_id, sim.recording_id)
+    meas = meas.subset(np.flatnonzero(np.isin(meas.recording_id, both)))
+    sim_adc = sim.adc[np.isin(sim.recording_id, both)]
+    # The fits read the captures with the core's configuration as the firmware sets it (the scan's capture delays).
+    model.signal = signal_for_board(session.rig, model.signal.to_dict(), fs_hz)
+    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if board_map is None else None
+    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board)
+    fits.pop("_virtual_twin")
+    return Path(model.save(out_dir, extra_card={
+        **fits, "calibration": str(cal_path), "zero_shot": {**zs, "calibration_drops_on_the_board": len(meas)},
+        "retrained_from": str(model_dir.resolve())}))

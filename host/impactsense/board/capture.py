@@ -1,0 +1,146 @@
+"""The board's view of drops: what the firmware app captures at the board rate.
+
+The board samples 4 channels with one SAADC, 4 x 50 kHz, channel c read c x 5 us after channel 0 (the scan
+order). board_samples turns recordings made at the rig's rate (channels sampled together) into those
+frames; the natively compiled firmware app (firmware/lib/impactapp via `impactsense._link.App`) triggers on
+them and cuts its captures (board_captures, board_capture, board_view); signal_for_board is the model card's
+configuration as the firmware runs it (impactapp::board_core_config). The emulator (link.emulator) and the
+board-rate models (board.models) are built on these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from fractions import Fraction
+
+import numpy as np
+from scipy.signal import resample_poly
+
+from .. import _core  # noqa: F401  (registers CoreConfig for _link)
+from .. import _link
+from ..link.record import CaptureAssembler
+from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, rig_settings
+
+
+def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
+                  adc_max: int = 4095, adc_min: int = 0) -> np.ndarray:
+    """What the board's SAADC would read: int16 [R, n, 4] interleaved frames of each recording.
+
+    The recording is interpolated (band-limited, polyphase) onto the scan grid, 1/scan_step = 200 kHz, and
+    channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
+    channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
+    above fs/2 is removed: it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the
+    SAADC's range; the int16 range keeps simulated drops whole)."""
+    grid_hz = 1e6 / scan_step_us
+    up = Fraction(grid_hz / fs_in_hz).limit_denominator(1000)
+    d = grid_hz / fs_hz
+    if abs(d - round(d)) > 1e-9 or round(d) < 4:
+        raise ValueError(f"board rate {fs_hz} Hz must divide the {grid_hz:.0f} Hz scan grid at least 4 times")
+    d = int(round(d))
+    x = np.asarray(adc, dtype=np.float32)
+    r, _, n = x.shape
+    n_out = (int(n * up) - 3) // d
+    y = np.empty((r, n_out, 4), dtype=np.int16)
+    if up == 2:
+        # Fast path (the rig's 100 kHz onto a 200 kHz grid): even grid points are the recorded samples,
+        # odd ones the half-sample band-limited interpolation (a Kaiser-windowed sinc, 32 taps).
+        k = np.arange(-15, 17) - 0.5
+        h = (np.sinc(k) * np.kaiser(k.size, 8.0)).astype(np.float32)
+        h /= h.sum()
+        for c in range(4):
+            g0 = d * np.arange(n_out) + c
+            if g0[0] % 2 == 0 and d % 2 == 0:
+                v = x[:, c, g0 // 2]
+            else:
+                mean = x[:, c, :].mean(axis=1, keepdims=True)
+                xp = np.pad(x[:, c, :] - mean, ((0, 0), (15, 16 + d)), mode="edge")  # xp[i + 15] = x[i]
+                i0 = g0 // 2  # x at i0 + 0.5 = sum_j h[j] x[i0 - 15 + j]
+                half = np.zeros((x.shape[0], n_out), dtype=np.float32)
+                if d % 2 == 0:  # i0 advances by d/2: strided slices, one multiply-add a tap
+                    step = d // 2
+                    for j in range(h.size):
+                        half += h[j] * xp[:, i0[0] + j:i0[0] + j + step * n_out:step]
+                else:
+                    for j in range(h.size):
+                        half += h[j] * xp[:, i0 + j]
+                half += mean
+                v = half if np.all(g0 % 2) else np.where(g0 % 2 == 0, x[:, c, np.minimum(i0, n - 1)], half)
+            y[:, :, c] = np.clip(np.rint(v), adc_min, adc_max)
+        return y
+    mean = x.mean(axis=2, keepdims=True)
+    g = resample_poly(x - mean, up.numerator, up.denominator, axis=2) + mean if up != 1 else x
+    for c in range(4):
+        y[:, :, c] = np.clip(np.rint(g[:, c, c::d][:, :n_out]), adc_min, adc_max)
+    return y
+
+
+def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
+    """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig) taken to
+    the board's rate and acquisition by the firmware's own function (impactapp::board_core_config: sample
+    counts scaled, the board rate, the SAADC scan's capture delays), the rig's ADC rail and geometry."""
+    card = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
+    board = config_dict(_link.board_core_config(card.core(), int(fs_hz), card.adc_min, int(rig.adc_max)))
+    changed = {f.name: board[f.name] for f in CORE_FIELDS if f.role != "COPY"}
+    geometry = {k: v for k, v in rig_settings(rig).items() if k in {f.name for f in LOCALISER_FIELDS}}
+    return SignalConfig.from_dict({**card.to_dict(), **changed, **geometry})
+
+
+def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
+    sig = signal_for_board(rig, signal, fs_hz)
+    cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
+    cfg.update(extra)
+    return cfg
+
+
+def _captures(drops) -> tuple[list, list]:
+    """The raw captures a dump-raw app wrote, from (index, serial bytes) per drop: (captures, indices)."""
+    dec = _link.Decoder()
+    asm = CaptureAssembler()
+    caps, rows = [], []
+    for i, data in drops:
+        for f in dec.feed(data):
+            if f["kind"] == "raw":
+                asm.add(f["raw"])
+            elif f["kind"] == "report":
+                cap = asm.take(f["report"]["seq"])
+                if cap is not None:
+                    caps.append(cap)
+                    rows.append(i)
+    return caps, rows
+
+
+def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
+    """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app from the
+    session's drops as the board samples them (board_samples), one drop after the other."""
+    app = _link.App(app_config(session.rig, fs_hz, signal, dump_raw=True), None)
+    frames = board_samples(session.adc, session.rig.fs_hz, fs_hz, adc_max=session.rig.adc_max)
+    caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
+    if not caps:
+        raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
+    return np.stack(caps), np.asarray(rows), signal_for_board(session.rig, signal, fs_hz)
+
+
+def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
+    """The board as a capture hook (sitemap.build_site_map's `capture`): counts int16 [R, 4, n] at the rig's
+    rate -> (captures int16 [R', 4, m], rows [R']) as the firmware app takes them at fs_hz: board_samples
+    (resampled, SAADC scan delays) with the int16 range kept instead of the ADC's, then the app's trigger,
+    pre-trigger and window (the emulator's path for recorded drops)."""
+    cfg = app_config(rig, fs_hz, signal, dump_raw=True)
+
+    def capture(counts: np.ndarray):
+        frames = board_samples(counts, rig.fs_hz, fs_hz, adc_max=32767, adc_min=-32768)
+        app = _link.App(cfg, None)
+        caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
+        if not caps:
+            return np.zeros((0, 4, app.capture_frames), np.int16), np.zeros(0, int)
+        return np.stack(caps), np.asarray(rows, int)
+
+    return capture
+
+
+def board_view(session, fs_hz: int):
+    """`session` as the board captures it: the firmware app's captures (board_captures:
+    resampled to 4 x fs_hz with the SAADC scan delays, triggered and cut by the app) as its adc; drops the
+    app did not capture are left out."""
+    caps, rows, _ = board_captures(session, fs_hz)
+    return replace(session.subset(rows), adc=caps)
