@@ -29,8 +29,8 @@ from ..pipeline import featurize, fit_localiser
 from ..sim.params import SimParams
 from ..sitemap import SiteMap, build_site_map
 from ..split import case_split
-from ..zeroshot import board_view, calibration_twins, fit_on_calibration_drops
-from .capture import board_capture, board_captures, signal_for_board
+from ..zeroshot import calibration_twins, fit_on_calibration_drops
+from .capture import board_capture, board_captures, board_view, signal_for_board
 
 BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
 
@@ -164,7 +164,7 @@ def _card_rows(card_path: Path, field: str, session: Session, ids) -> np.ndarray
 
 
 def sim_trained_for_board(model_dir: str | Path, out_dir: str | Path, fs_hz: int = 50000, site_map_cache=None,
-                board_map=None, workers: int = 2) -> Path:
+                          board_map=None, workers: int = 2) -> Path:
     """The sim-trained model of MODEL_DIR (run_zero_shot's model-sim) made again for the board, with all the
     calibration drops taught it: the virtual drops' localiser, forests and twin fit trained on the board's
     captures of the virtual drops (train_board_models, with the twin's board-rate site map,
