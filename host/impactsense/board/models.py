@@ -91,7 +91,6 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
-    board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
     # the rig's delays (the scan's are the capture's); the board's onset threshold as configured (its picks
     # at 50 kHz are coarser than the rig's: a threshold chosen on them would move the rig's delays)
     sig = fit_localiser(board, np.flatnonzero(is_train), sig, choose_threshold=False)
