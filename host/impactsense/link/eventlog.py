@@ -23,6 +23,8 @@ import sqlite3
 import time
 from pathlib import Path
 
+from ..errors import DataError
+
 SCHEMA_VERSION = 1
 COLUMNS = ("seq", "timestamp_ms", "x_mm", "y_mm", "uncertainty_mm", "energy_class", "accepted", "valid")
 
@@ -75,8 +77,6 @@ def _num(v):
 def connect(path, create: bool = False) -> sqlite3.Connection:
     """An open event log; create=True makes the file and its tables if missing. A file that is not an event log
     is an error naming it (DataError)."""
-    from ..errors import DataError
-
     p = Path(path)
     if not create and not p.is_file():
         raise DataError(p, None, "event log not found")

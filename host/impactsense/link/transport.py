@@ -11,6 +11,7 @@ import asyncio
 import queue
 import threading
 
+from ..errors import ConfigError
 from . import protocol
 
 
@@ -62,8 +63,6 @@ class BleTransport:
             try:
                 from bleak import BleakClient, BleakScanner
             except ImportError:
-                from ..errors import ConfigError
-
                 raise ConfigError("--ble needs the bleak package: pip install 'impactsense[ble]' "
                                   "(or pip install bleak)") from None
 
