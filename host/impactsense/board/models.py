@@ -16,12 +16,13 @@ grid, a few minutes on 2 cores, cached in the export folder).
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from ..data import load_session
+from ..data import Session, load_session
 from ..errors import DataError
 from ..modelfolder import read_card, verified_path
 from ..models import SITE_MAP_FILE, ForestSettings, ImpactModel

@@ -13,6 +13,8 @@ import errno
 import os
 import time
 
+import numpy as np
+
 from .. import _link
 from ..board.capture import app_config, board_samples, signal_for_board
 
