@@ -45,10 +45,11 @@ class CoreFeatures(TransformerMixin, BaseEstimator):
 
     def fit(self, X, y=None):
         adc = _recordings(X)
-        cfg = SignalConfig.for_rig(_rig(self.rig))
+        rig = _rig(self.rig)
+        cfg = SignalConfig.for_rig(rig)
         if y is not None and self.fit_localiser:
             xy = np.asarray(y, float).reshape(len(adc), -1)[:, :2]
-            cfg = fit_localiser(SimpleNamespace(adc=adc, xy_mm=xy), np.arange(len(adc)), cfg)
+            cfg = fit_localiser(SimpleNamespace(adc=adc, xy_mm=xy, rig=rig), np.arange(len(adc)), cfg)
         self.signal_ = cfg
         self.feature_names_out_ = np.array(FEATURE_NAMES)
         return self
