@@ -1,4 +1,4 @@
-"""Surrogates of the calibration's sub-problem 2: the search stays in method.md's ranges, every fit runs on
+"""Surrogates of the calibration's sub-problem 2: the search stays in docs/method.md's ranges, every fit runs on
 one BLAS thread, and the tuned surrogates predict a smooth response of a Sobol design like the pipeline's."""
 
 import numpy as np

@@ -1,6 +1,6 @@
 """Zero-shot: models trained only on the calibrated twin's virtual drops, tested on measured drops.
 
-The seed's central claim (method.md, Tables 7-9). The flow:
+The seed's central claim (docs/method.md, Tables 7-9). The flow:
   calibrate on four measured drops (CAL.json) -> simulate N virtual drops -> train on them (all) ->
   evaluate on the measured test split, which excludes the calibration drops; the measured-trained model is
   trained on the rest of the same session with the same split, so both rows see the same test drops.

@@ -1,7 +1,7 @@
 // impactsim: explicit finite-element dynamics of a rectangular Mindlin-Reissner plate struck by a rigid
 // Hertzian ball, sensed by surface-bonded PZT discs.
 //
-// Pieces (each a named part of the code, see method.md):
+// Pieces (each a named part of the code, see docs/method.md):
 //   Mesh       structured nx x ny grid of 4-node rectangles, node (i, j) at (i*hx_m, j*hy_m), row-major.
 //   Element    MITC4 Mindlin-Reissner quad: bilinear w, beta_x, beta_y (u = z beta_x, v = z beta_y);
 //              bending integrated exactly (2x2 Gauss, written as centre + hourglass terms), transverse shear

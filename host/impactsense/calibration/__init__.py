@@ -1,4 +1,4 @@
-"""Calibration of the FEM twin on four measured drops (issue 4; method.md, Calibration).
+"""Calibration of the FEM twin on four measured drops (issue 4; docs/method.md, Calibration).
 
     from impactsense.calibration import CalibrateOptions, calibrate
     cal = calibrate("session-folder", "CAL.json", CalibrateOptions(budget=64))

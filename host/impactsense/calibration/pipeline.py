@@ -1,4 +1,4 @@
-"""`impactsense calibrate`: fit the twin to four measured drops (method.md, Calibration).
+"""`impactsense calibrate`: fit the twin to four measured drops (docs/method.md, Calibration).
 
 Stages (each cached next to CAL.json as `<stem>.<stage>.*`, keyed by the inputs that determine it, so an
 interrupted run resumes and a finished one is not recomputed):
@@ -16,7 +16,7 @@ interrupted run resumes and a finished one is not recomputed):
             (chi^2 / dof, sd(nu)), else the grid's nu and the decay's D_s are kept, and CAL.json says so
   plate_fem_refit  E refitted to the AIC DToA (Eq. 16) at the nu and D_s now held
   design    sub-problem 2: Sobol design over the PZT block and D_s, the FEM at every point; outputs f2
-            (sensor energies) and f3 (last-window residual-energy ratios), method.md
+            (sensor energies) and f3 (last-window residual-energy ratios), docs/method.md
   surrogate RF, GPR, NN and SVD-polynomial surrogates of log10 f2 and log10 f3, tuned on a 70/15/15 split;
             Welch factor screening; surrogate optimisation of the PZT block with D_s held at the decay
             estimate; a confirming FEM run

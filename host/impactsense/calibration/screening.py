@@ -1,4 +1,4 @@
-"""Factor screening by Welch's t-test (method.md): main effects and two-factor interactions.
+"""Factor screening by Welch's t-test (docs/method.md): main effects and two-factor interactions.
 
 Main effect of factor i: runs split at the median of x_i into low and high halves; effect = mean(y | high)
 - mean(y | low), significance by Welch's unequal-variance t-test. Interaction i x j: runs split by the sign

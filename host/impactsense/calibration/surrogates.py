@@ -1,8 +1,8 @@
-"""Surrogate models for sub-problem 2 and their hyper-parameter search (method.md ranges).
+"""Surrogate models for sub-problem 2 and their hyper-parameter search (docs/method.md ranges).
 
 Four families: random forest, Gaussian process (Kriging), neural network (scikit-learn) and an SVD
 polynomial (numpy least squares via the SVD, `np.linalg.lstsq` with a relative singular-value cut-off).
-Tuning: a seeded random search inside method.md's ranges, each candidate fitted on the training split and
+Tuning: a seeded random search inside docs/method.md's ranges, each candidate fitted on the training split and
 scored by R2 on the validation split (an equivalent of the seed's Bayesian optimisation at this budget);
 the winner's R2 on the untouched test split is reported.
 
@@ -159,7 +159,7 @@ def _r2(y, p):
 
 
 def tune(kind, x_tr, y_tr, x_va, y_va, x_te, y_te, *, trials=10, seed=0) -> Fitted:
-    """Random search within method.md's ranges; best validation R2 wins; test R2 of the winner."""
+    """Random search within docs/method.md's ranges; best validation R2 wins; test R2 of the winner."""
     rng = np.random.default_rng(seed)
     best = None
     for k in range(trials):

@@ -7,7 +7,7 @@ ORDER = 45
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "calibrate", help="calibrate the simulator on four measured drops (method.md, Calibration)",
+        "calibrate", help="calibrate the simulator on four measured drops (docs/method.md, Calibration)",
         description="Picks four repeatable drops (or takes --drops), fits plate E and nu on the full factorial "
                     "grid (Eq. 16, fast first-arrival model, FEM-confirmed), D_s from the envelope decay, nu with E and D_s "
                     "from the band group delays (claimed only when the twin explains them), then the "
@@ -22,7 +22,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the Sobol design and the surrogates (default 0)")
     p.add_argument("--workers", type=int, default=2, help="FEM runs in parallel processes (default 2)")
     p.add_argument("--nu-step", type=float, default=0.001,
-                   help="nu step of the plate grid (default 0.001: 255 x 101 = 25,755 points; method.md lists 0.01)")
+                   help="nu step of the plate grid (default 0.001: 255 x 101 = 25,755 points; docs/method.md lists 0.01)")
     p.add_argument("--e-step", type=float, default=250.0, help="E step of the plate grid, MPa (default 250)")
     p.add_argument("--aic-blend", type=float, default=1.0,
                    help="core ToA for Eq. 16: 1 = AIC onset (default, amplitude independent), 0 = threshold")

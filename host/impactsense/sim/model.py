@@ -2,7 +2,7 @@
 sensing functionals, Hertz constant and time step (Eq. 2 + stability). All SI inside; `_mm`/`_us` at the edges.
 
 Sensing law (open circuit, thin disc perfectly bonded to the plate's top surface, strain-charge form of
-method.md): the disc takes the plate's in-plane surface strain S1, S2; with E3 small compared to the
+docs/method.md): the disc takes the plate's in-plane surface strain S1, S2; with E3 small compared to the
 strain-driven stress (first order in the coupling), sigma1 + sigma2 = E11 (S1 + S2) / (1 - nu12), and
 open circuit (integral of D3 over the electrode = 0) gives E3 = -d31 (sigma1 + sigma2) / eps33, so
     U = -E3 t_p = t_p d31 E11 / ((1 - nu12) eps33) * <S1 + S2>_disc,      S1 + S2 = z_s (beta_x,x + beta_y,y)

@@ -3,7 +3,7 @@
 Geometry (plate size, sensor centres, disc diameter, ball size and mass, sampling rate, ADC) always comes from
 the rig (`impactsense.data.Rig`); `SimParams.from_rig` also copies the plate's density, thickness and support.
 
-Defaults (documented, see method.md):
+Defaults (documented, see docs/method.md):
 - material: isotropic (e_pa, nu); with e2_pa and g12_pa set the plate is orthotropic (a laminate's smeared
   constants): e_pa is E1 and nu is nu12 along the material's axis 1, which lies material_axes_deg from the
   plate's x axis; g13_pa / g23_pa (transverse shear) default to g12_pa (`material.py`).
@@ -95,7 +95,7 @@ class SimParams:
     rim_inset_mm: float = 0.0             # elastic_rim: the rim's line this far inside the edges (overhang)
     shear_factor: float = math.pi ** 2 / 12
     damping_per_s: float = 1086.0          # D_s
-    # PZT disc (method.md block; relative permittivities, pC/N, MPa)
+    # PZT disc (docs/method.md block; relative permittivities, pC/N, MPa)
     pzt_rho_kg_m3: float = 7531.4
     pzt_e11_mpa: float = 75200.0
     pzt_e33_mpa: float = 55200.0

@@ -20,7 +20,7 @@ namespace impactcore {
 constexpr int kChannels = 4;
 constexpr int kPairs = 6;            // sensor pairs (0,1) (0,2) (0,3) (1,2) (1,3) (2,3)
 constexpr int kMaxSamples = 8192;    // longest capture per channel the core accepts
-constexpr int kEnergyWindows = 5;    // windows between ToA and n2 (method.md, Fig. 8 of the seed)
+constexpr int kEnergyWindows = 5;    // windows between ToA and n2 (docs/method.md, Fig. 8 of the seed)
 constexpr int kDiffOrders = 3;       // difference energies sum (Delta^k x)^2, k = 1..3, from ToA to n2
 constexpr int kMaxAicWindow = 512;   // samples in the AIC refinement window (stack scratch)
 
