@@ -39,7 +39,7 @@ BUFFER_CYCLES = 256 / 50000 * 64e6  # 327,680 (one instruction a cycle: flash wa
 
 def run(build: Path, extra: list[str], qemu_log: Path | None = None) -> tuple[dict, dict, str]:
     qemu = "-icount shift=4" + (f" -d in_asm,exec,nochain -D {qemu_log}" if qemu_log else "")
-    env = dict(os.environ, QEMU_EXTRA=qemu)
+    env = dict(os.environ, QEMU_EXTRA=qemu, PYTHON=sys.executable)
     p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(build), *extra], env=env,
                        capture_output=True, text=True, timeout=1200)
     if p.returncode != 0:

@@ -59,7 +59,7 @@ def test_a_successful_export_replaces_board_model_whole_and_keeps_other_files(ze
 
 
 def test_a_failing_calibration_drop_fit_leaves_out_as_it_was(zero_shot_model, tmp_path, monkeypatch, capsys):
-    import impactsense.zeroshot as zeroshot
+    import impactsense.board.models as board_models  # the board rebuild calls the calibration-drop fit from here
 
     out = tmp_path / "out"
     assert main(["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen"]) == 0
@@ -72,7 +72,7 @@ def test_a_failing_calibration_drop_fit_leaves_out_as_it_was(zero_shot_model, tm
         half_written.extend(str(p) for p in tmp_path.glob(".out.*.part/board-model/*.npz"))
         raise RuntimeError("forced failure in the calibration-drop fit")
 
-    monkeypatch.setattr(zeroshot, "fit_on_calibration_drops", fail)
+    monkeypatch.setattr(board_models, "fit_on_calibration_drops", fail)
     capsys.readouterr()
     assert main(["export", str(zero_shot_model), "--out", str(out), "--trees", "5", "--no-m2cgen", "--force"]) == 2
     err = capsys.readouterr().err

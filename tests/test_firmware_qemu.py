@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.skipif(
 def test_qemu_image_matches_host(tmp_path):
     p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path), "--drops", "6", "--trees", "8",
                         "--site-map-step", "20"],
-                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA=""))
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
     out = p.stdout + p.stderr
     assert p.returncode == 0, out
     assert "FAILURES 0" in out

@@ -7,7 +7,7 @@ scikit-learn's predictions).
 
 --trees: the localisation forests' trees exported (the energy forest is exported whole, as `impactsense export` does).
 
-Without --model-dir it trains small forests on the firmware's own captures (impactsense.link.boardmodel),
+Without --model-dir it trains small forests on the firmware's own captures (impactsense.board.models),
 with the energy class on the twin's site map as the board sees it (made from --site-map, by default the
 bundled twin's map, at --site-map-step, default the map's own 5 mm: a few minutes, cached in
 --site-map-cache, default BUILD_DIR/board-site-map.npz).
@@ -19,13 +19,12 @@ import argparse
 import json
 from pathlib import Path
 
-import joblib
 import numpy as np
 
 from impactsense import _link
 from impactsense.data import load_session
 from impactsense.export import export_models, firmware_models
-from impactsense.link.emulator import app_config, board_samples, signal_for_board
+from impactsense.board.capture import app_config, board_samples, signal_for_board
 from impactsense.models import ImpactModel
 from impactsense.pipeline import featurize
 from impactsense.link.record import CaptureAssembler
@@ -56,7 +55,7 @@ def main(argv=None):
     s = load_session()
     model_dir = Path(args.model_dir) if args.model_dir else None
     if model_dir is None:
-        from impactsense.link.boardmodel import board_site_map, train_board_models
+        from impactsense.board.models import board_site_map, train_board_models
         from impactsense.sitemap import resolve_site_map
 
         source = resolve_site_map(args.site_map, s.rig)
