@@ -13,7 +13,8 @@ significant when (1) its per-case held-out gains are positive by a one-sided t-t
 alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), or its
 held-out likelihood ratio exceeds n_candidates / alpha with the t-test at plain alpha (`_evidence`), (2) it is
 material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
-simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
+simpler one (`Effect.nests`) it also beats that simpler one by the same test, and a moved sensor beats a
+constant delay on its channel by the evidence rule (`SIMPLER_RIVAL`). Rivals (`RIVALS`: a moved
 sensor and a constant delay on the same channel) are compared by their held-out gains: the better one is
 named and the other is reported as tried and rejected, with the held-out log-likelihood difference. The
 best significant candidate is added to the model (parameters refitted on all drops) and the search
@@ -39,6 +40,9 @@ FOLDS = 5
 MAX_EFFECTS = 6
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
+# Of two rivals, the one with more parameters must beat the simpler one by the evidence rule (Occam): a
+# 2-D move is named over a constant delay only where the data tell its direction dependence.
+SIMPLER_RIVAL = {"sensor_position": "channel_delay"}
 
 
 @dataclass
@@ -144,6 +148,10 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
+            simpler = SIMPLER_RIVAL.get(c.effect)
+            if ok and simpler is not None and (simpler, c.sensor) in gains:
+                diff = gains[(c.effect, c.sensor)] - gains[(simpler, c.sensor)]
+                ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
             c.significant = bool(ok)
         for c in results:
             rv = RIVALS.get(c.effect)
