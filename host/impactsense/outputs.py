@@ -131,10 +131,14 @@ def _remove_ours(old: Path, home: Path) -> None:
     """Deletes the entries of `old` its manifest lists unchanged; moves the others into `home`."""
     listed = read_manifest(old)
     for p in list(old.iterdir()):
-        if p.name == MANIFEST or (p.name in listed and entry_sha256(p) == listed[p.name]):
+        if p.name == MANIFEST:
+            continue
+        if p.name in listed and entry_sha256(p) == listed[p.name]:
             _remove(p)
         elif home.is_dir() and not (home / p.name).exists():
             os.rename(p, home / p.name)
+    # the manifest goes last: a run killed in this loop leaves a folder the next run still knows as ours
+    (old / MANIFEST).unlink(missing_ok=True)
     try:
         old.rmdir()
     except OSError:
