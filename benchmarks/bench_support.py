@@ -362,7 +362,7 @@ def run_suspect(a, sup, sim_over, rig, gd, meas, refs, flat, x, y, h, tgt, cfg_s
 
     def aic_rms(p):
         f = sim_features(simulate(p, rig, tgt.x_mm, tgt.y_mm, tgt.height_mm), cfg_sim, *noise)
-        return float(np.sqrt(plate.eq16_loss(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
+        return float(np.sqrt(plate.delay_misfit(f["dtoa_us"], tgt.dtoa_us) / tgt.dtoa_us.size))
 
     # the window's own scale: the rig-noise sigma and the spread (rms) of the measured group delays per band, so
     # that residuals under different windows compare (a short window pulls the four centroids together)

@@ -36,7 +36,7 @@ def load_design(path: Path):
     with np.load(path, allow_pickle=False) as z:
         energy, ratio, done, u = z["energy"], z["ratio"], z["done"], z["u"]
     n = len(done) - 1                   # the last row is the confirming run
-    n_init = n - n // 4                 # pipeline._subproblem2: budget - infill runs
+    n_init = n - n // 4                 # calibration.design.run: budget - infill runs
     if not done[:n_init].all():
         raise SystemExit(f"{path} [done]: only {int(done[:n_init].sum())} of the {n_init} design runs are done")
     e = energy[:n_init].reshape(n_init, 16)

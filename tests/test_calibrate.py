@@ -292,7 +292,7 @@ def test_auto_drops_on_session1_are_spread_accepted_and_repeatable():
     assert len(set(t.case_ids)) == 4
     quadrants = {(x < s.rig.plate_x_mm / 2, y < s.rig.plate_y_mm / 2) for x, y in zip(t.x_mm, t.y_mm)}
     assert len(quadrants) == 4
-    ok = drops.accept_eq35(s, feats, 0.0, 0.0)
+    ok = drops.arrival_order_accepted(s, feats, 0.0, 0.0)
     for recs in t.recording_ids:
         assert len(recs) >= 2 and ok[recs].all()
     rows, _ = drops.case_table(s, feats)
@@ -319,12 +319,12 @@ def test_fast_model_arrival_speed_matches_group_velocity(rig):
     assert (r_mm[1] - r_mm[0]) * 1e-3 / dt_s == pytest.approx(cg, rel=0.05)
 
 
-def test_eq16_loss_is_zero_for_perfect_match_and_penalises_missing_picks():
+def test_delay_misfit_is_zero_for_perfect_match_and_penalises_missing_picks():
     d = np.arange(24.0).reshape(4, 6)
-    assert plate.eq16_loss(d, d) == 0
+    assert plate.delay_misfit(d, d) == 0
     bad = d.copy()
     bad[0, 0] = np.nan
-    assert plate.eq16_loss(bad, d) == pytest.approx(1e6)
+    assert plate.delay_misfit(bad, d) == pytest.approx(1e6)
 
 
 def test_svd_polynomial_recovers_a_quadratic():

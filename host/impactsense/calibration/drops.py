@@ -26,7 +26,7 @@ def extract(session, cfg=None) -> dict:
     return _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
 
 
-def accept_eq35(session, feats, tol_us: float, margin_mm: float) -> np.ndarray:
+def arrival_order_accepted(session, feats, tol_us: float, margin_mm: float) -> np.ndarray:
     rig = session.rig
     return _core.accept_batch(np.ascontiguousarray(feats["toa_us"], dtype=np.float32),
                               [float(v) for v in rig.sensor_x_mm], [float(v) for v in rig.sensor_y_mm],
@@ -66,7 +66,7 @@ class DropTargets:
 
 def case_table(session, feats, *, tol_us=0.0, margin_mm=0.0, min_reps=2, sensor_clearance_mm=40.0):
     """Per-case usability and repeatability. Returns (dict case -> row dict, n_accepted_recordings)."""
-    ok_rec = accept_eq35(session, feats, tol_us, margin_mm)
+    ok_rec = arrival_order_accepted(session, feats, tol_us, margin_mm)
     good_ch = ((feats["flags"] & BAD_FLAGS) == 0).all(axis=1) & (feats["status"] == _core.STATUS_OK)
     sens = session.rig.sensor_xy_mm.astype(float)
     rows = {}

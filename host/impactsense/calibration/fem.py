@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import ConfigError
 
-# Sub-problem 2 factors (docs/method.md): SimParams name, low, high, step, unit
+# The design stage's factors (docs/method.md): SimParams name, low, high, step, unit
 FACTORS = (
     ("pzt_rho_kg_m3", 7500.0, 7800.0, 150.0, "kg/m3"),
     ("pzt_e11_mpa", 55000.0, 85000.0, 5000.0, "MPa"),
@@ -31,7 +31,12 @@ FACTORS = (
 )
 FACTOR_NAMES = tuple(f[0] for f in FACTORS)
 
-# Starting point before sub-problem 2: the seed's fitted PZT and damping (docs/method.md).
+
+def factor_range(name: str) -> tuple:
+    """The design's (low, high) of factor `name`."""
+    return FACTORS[FACTOR_NAMES.index(name)][1:3]
+
+# Starting point before the design stage: the seed's fitted PZT and damping (docs/method.md).
 SEED_PZT = {
     "pzt_rho_kg_m3": 7531.4, "pzt_e11_mpa": 75200.0, "pzt_e33_mpa": 55200.0, "pzt_nu12": 0.30,
     "pzt_nu13": 0.34, "pzt_g12_mpa": 24800.0, "pzt_g13_mpa": 24900.0, "pzt_d15_pc_n": 50.0,

@@ -28,7 +28,7 @@ def grid_axes(e_min_mpa=1500.0, e_max_mpa=65000.0, e_step_mpa=250.0, nu_min=0.30
     return e, nu
 
 
-def eq16_loss(dtoa_sim_us: np.ndarray, dtoa_meas_us: np.ndarray) -> np.ndarray:
+def delay_misfit(dtoa_sim_us: np.ndarray, dtoa_meas_us: np.ndarray) -> np.ndarray:
     """Eq. 16 over drops and pairs; dtoa_sim [..., D, 6], dtoa_meas [D, 6]. A missing pick costs (1 ms)^2."""
     err = dtoa_sim_us - dtoa_meas_us
     err = np.where(np.isfinite(err), err, 1000.0)
@@ -55,7 +55,7 @@ def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu, noise_counts=0.0, n_
         toas.append(out["toa_us"].reshape(unit.shape[:-1]).astype(float))
     toa = np.mean(toas, axis=0)
     dtoa = toa[..., PAIR_I] - toa[..., PAIR_J]
-    return eq16_loss(dtoa, dtoa_meas), dtoa
+    return delay_misfit(dtoa, dtoa_meas), dtoa
 
 
 def cfg_state(cfg, bias):

@@ -166,6 +166,17 @@ def max_evaluations(rounds: int, max_nfev: int = MAX_NFEV) -> int:
     return rounds * (1 + 3 * POSITION_ITERS + 4 + 4 * max_nfev + 3)
 
 
+def gauss_newton_sd(jm, chi2, dof) -> np.ndarray:
+    """Standard deviations of the parameters from the Jacobian jm of the standardised residuals, scaled by
+    max(1, chi^2 / dof) (model error); infinite when jm^T jm is singular."""
+    scale = max(1.0, chi2 / max(dof, 1))
+    try:
+        cov = np.linalg.inv(jm.T @ jm) * scale
+        return np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        return np.full(jm.shape[1], np.inf)
+
+
 def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
         nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=MAX_NFEV, progress=None) -> NuFit:
     """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
@@ -233,13 +244,7 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
         n_data = r.size - (ds_prior is not None)
         dof = n_data - 2 * per_rep.shape[0] - 3
         chi2 = float(np.sum(r[:n_data] ** 2))
-        jm = jac(theta)
-        scale = max(1.0, chi2 / max(dof, 1))
-        try:
-            cov = np.linalg.inv(jm.T @ jm) * scale
-            sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-        except np.linalg.LinAlgError:
-            sd = np.full(3, np.inf)
+        sd = gauss_newton_sd(jac(theta), chi2, dof)
         log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
                     "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache)})
     if progress is not None and runs[0] < max_evaluations(rounds, max_nfev):
