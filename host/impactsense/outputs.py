@@ -178,20 +178,24 @@ def _exchange(a: Path, b: Path) -> bool:
     return True
 
 
+def _fsync_path(p: Path) -> None:
+    """fsync a file or folder, best effort (a path that cannot be opened or synced is left as it is)."""
+    try:
+        fd = os.open(p, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 def _fsync_tree(folder: Path) -> None:
     for p in [*folder.rglob("*"), folder]:
-        if p.is_symlink():
-            continue
-        try:
-            fd = os.open(p, os.O_RDONLY)
-        except OSError:
-            continue
-        try:
-            os.fsync(fd)
-        except OSError:
-            pass
-        finally:
-            os.close(fd)
+        if not p.is_symlink():
+            _fsync_path(p)
 
 
 def _stage_name(path: Path, kind: str = "part") -> Path:
@@ -251,7 +255,7 @@ def _commit(stage: Path, path: Path, force: bool, tool: str) -> None:
         os.rename(path, old)
         os.rename(stage, path)
         _remove_ours(old, path)
-    _fsync_dir(path.parent)
+    _fsync_path(path.parent)
 
 
 def _merge_into(stage: Path, path: Path, tool: str) -> None:
@@ -279,19 +283,6 @@ def _merge_into(stage: Path, path: Path, tool: str) -> None:
     tmp.write_text(json.dumps({"written_by": tool, "files": {**kept, **ours_now}}, indent=1) + "\n")
     os.replace(tmp, path / MANIFEST)
     _remove(stage)
-
-
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def adopt(folder: str | os.PathLike, names) -> None:

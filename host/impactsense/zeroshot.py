@@ -153,12 +153,9 @@ def fit_twin_on_calibration_drops(model, session: Session, rows: np.ndarray, sit
     cannot tell 16 offsets and four variances well (twin.fit_twin): the offsets are a channel + kind table
     (the rig's channel gains, the twin's spectral tilt), and the weights keep the virtual drops' shape (how
     much each kind of energy varies from site to site, which the twin knows) with one scale from the
-    calibration drops' residuals. Each calibration position held out in turn (session-1, bundled
-    or a fresh calibration, split seeds 0-3), its height error is 0.002-0.003 rms in log10 h, against
-    0.006-0.007 with the many-drop estimator (16 free offsets, in-sample per-kind weights); on every
-    measured drop but the calibration ones the class accuracy goes 0.95 -> 0.96-0.97 and on the test
-    split the twin's MAE 1.5-1.7 -> 1.4-1.6 mm (`python3 benchmarks/bench_zeroshot_class.py`). Rescaled weights keep their shape, so the fit is the same
-    when model.twin_fit is already one of these."""
+    calibration drops' residuals (what it gains over the many-drop estimator, measured with
+    `python3 benchmarks/bench_zeroshot_class.py`: docs/findings.md, "Numbers from the code's docstrings").
+    Rescaled weights keep their shape, so the fit is the same when model.twin_fit is already one of these."""
     meas = featurize(session.adc[rows], model.signal)
     feats, usable = twin_features(meas)
     old = model.twin_fit
@@ -193,9 +190,8 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
     the maximum-likelihood scale of a Rayleigh error with E r^2 = (k u)^2. The forests are the virtual
     drops' in every fold (they never saw a measured drop); the channel delays, gains and group velocity are
     the model's, from all four positions, as the final model's are: refitted from three they cost a
-    held-out position more than the fourth position costs the final model, and k read ~25 % high (session-1,
-    bundled twin, seed 0: held-out drops 3.3 mm rms with them refitted, 2.9 mm with the twin alone held
-    out; the final model on the measured test split 2.7 mm). Returns factor, n (held-out drops with an
+    held-out position more than the fourth position costs the final model, and k reads high
+    (docs/findings.md, "Numbers from the code's docstrings"). Returns factor, n (held-out drops with an
     estimate), positions and rms_error_mm (of those drops)."""
     xy = session.xy_mm[rows]
     groups = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()

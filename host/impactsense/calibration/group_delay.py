@@ -17,10 +17,10 @@ constant: the centroid sits ~0.85 ms after the onsets). It moves by ~0.2 us per 
 core's ToA_i - ToA_j order). The rig's per-channel delays are removed as the core removes them from its ToA.
 
 Tried first and dropped (`--position-scan`, FEM drops made with 1 mm jitter):
-- the lag of the envelopes' cross-correlation maximum: smooth in 1-4 kHz, jumps up to 300 us in 2-5 kHz when
-  two correlation peaks swap;
+- the lag of the envelopes' cross-correlation maximum: smooth in the lowest band, but it jumps by hundreds of
+  us in others when two correlation peaks swap;
 - a mean shift to the nearest mode of the kernel-smoothed energy: smooth along the scan, but between
-  repetitions 1 mm apart it lands in different modes (jumps of 400 us).
+  repetitions 1 mm apart it lands in different modes (docs/findings.md, "Numbers from the code's docstrings").
 """
 
 from __future__ import annotations

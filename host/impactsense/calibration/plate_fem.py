@@ -182,7 +182,7 @@ def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_l
     nu at fixed bending stiffness D ~ E / (1 - nu^2) (4 FEM runs), then the Fisher information of nu with E
     profiled out, for independent errors of the targets' standard errors (a best case: the jitter of a drop's
     position moves all its observables together) scaled by max(1, chi^2 / dof) (model error).
-    On drops the FEM made with known values the end-to-end errors of nu were ~3x this best case
+    On drops the FEM made with known values the end-to-end errors of nu went well past this best case
     (docs/findings.md): it bounds what the drops can tell, it does not certify a fitted nu."""
     nu_c = float(np.clip(nu, nu_bounds[0] + d_nu, nu_bounds[1] - d_nu))
     stiff = e_mpa / (1 - nu ** 2)

@@ -15,7 +15,8 @@ Why this shape:
 Per round: positions at the current (E, nu, D_s); FEM position derivatives there; then a bounded least squares
 (scipy `least_squares`, forward FEM differences with fixed steps) over (ln E, nu, D_s) of the projected,
 standardised residuals plus the prior's term. The uncertainty is the Gauss-Newton covariance at the optimum,
-scaled by max(1, chi^2 / dof) (model error); on FEM-made drops the errors of nu reached ~4 of these sd. A nu the data cannot support is not claimed (`identified`).
+scaled by max(1, chi^2 / dof) (model error); how far the errors of nu on FEM-made drops went past it:
+docs/findings.md, "Can four drops tell nu?". A nu the data cannot support is not claimed (`identified`).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from . import group_delay, plate, plate_fem
 
 OBSERVABLES = "group delays only"   # the AIC onsets bias nu by +0.01-0.02 even at the true positions
 # records are cut this long after the latest measured onset before the group delays (measured and twin alike):
-# the windows end < 5.5 ms after the onsets, so 8 ms leaves the zero-phase filters' and the Hilbert transform's
-# edge effects outside them, and costs a quarter of the full 50 ms record
+# long enough that the group-delay windows (group_delay.BANDS) end well before the cut, leaving the zero-phase
+# filters' and the Hilbert transform's edge effects outside them, and far shorter than a full capture
 CROP_AFTER_ONSET_MS = 8.0
 STEPS = (0.004, 0.004, 8.0)         # forward-difference steps of (ln E, nu, D_s 1/s)
 MAX_NFEV = 12                       # trial points of each round's trust-region fit of (ln E, nu, D_s)

@@ -257,8 +257,8 @@ def _plate_fem_refit(problem: CalibrationProblem, _key) -> dict:
     ev = plate_evaluations(problem, dict(params, damping_per_s=held(problem)["damping_per_s"]), "fem-ds")
     e_aic, scan = plate_fem.e_scan(ev, problem.plate_targets, float(params["e_pa"]) / 1e6, nu_used,
                                    problem.e_bounds, ratios=(0.97, 1.0, 1.03), walk=1.03, observables=[0])
-    # with nu identified, E is the group-delay fit's (it moves the delays by ~2 us per 1 %; the AIC DToA
-    # step by 10 us and fix E only to a few %, docs/findings.md); else the delay misfit's at the grid's nu
+    # with nu identified, E is the group-delay fit's (the group delays move smoothly with E; the AIC DToA
+    # move in whole samples and fix E more loosely, docs/findings.md); else the delay misfit's at the grid's nu
     e_mpa = round(float(nu_fit["E_mpa"]), 1) if nu_fit["identified"] else e_aic
     ident = plate_fem.nu_identifiability(ev, problem.plate_targets, e_mpa, nu_used, nu_bounds=problem.nu_bounds)
     return {"E_mpa": e_mpa, "E_aic_mpa": e_aic, "scan": scan, "nu_identifiability": ident,

@@ -249,19 +249,10 @@ def mesh_element_m(p: SimParams, f_max_hz: float) -> float:
     return float(2 * np.pi / k) / 10
 
 
-def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> Model:
-    p = params
-    lx, ly = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3
-    t = p.thickness_mm * 1e-3
-    d, s, ratios = material.element_constants(p)
-    rho = p.rho_kg_m3
-    fs = float(rig.fs_hz)
-    ball_r = rig.ball_diameter_mm * 0.5e-3
-    ball_m = rig.ball_mass_g * 1e-3
-    k = hertz_k(p, ball_r)
-    disc_r = rig.sensor_diameter_mm * 0.5e-3
-
-    # Eq. 1: element size from the shortest A0 wavelength in the contact's spectrum
+def _mesh(p: SimParams, rig, k: float, ball_m: float) -> tuple:
+    """Eq. 1: (f_max, nx, ny, hx, hy), the element size from the shortest A0 wavelength in the contact's
+    spectrum (or SimParams f_max_hz / element_mm)."""
+    lx, ly, fs = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3, float(rig.fs_hz)
     if p.f_max_hz is not None:
         f_max = float(p.f_max_hz)
     else:
@@ -272,31 +263,19 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     else:
         le = mesh_element_m(p, f_max)
     nx, ny = max(int(math.ceil(lx / le - 1e-9)), 2), max(int(math.ceil(ly / le - 1e-9)), 2)
-    hx, hy = lx / nx, ly / ny
     if nx * ny > 4_000_000:
         raise ConfigError(f"mesh of {nx} x {ny} elements is too large (element_mm = {le * 1e3:.3g})")
+    return f_max, nx, ny, lx / nx, ly / ny
 
-    # per-element stiffness; discs add their bending stiffness about the plate's mid-plane
-    d_elem = np.full((ny, nx), d)
-    s_elem = np.full((ny, nx), s)
-    tp = p.pzt_thickness_mm * 1e-3
-    e11 = p.pzt_e11_mpa * 1e6
-    d_disc = e11 / (1 - p.pzt_nu12 ** 2) * ((t / 2 + tp) ** 3 - (t / 2) ** 3) / 3
-    sensors_xy = np.asarray(rig.sensor_xy_mm, float) * 1e-3
-    fractions = [_disc_fraction((hx, hy, nx, ny), c, disc_r) for c in sensors_xy]   # the sensing circles
-    # the plate the ceramic loads mechanically (SimParams.disc_patch_diameter_mm; None: the sensing disc)
-    patches = fractions if p.disc_patch_diameter_mm is None else \
-        [_disc_fraction((hx, hy, nx, ny), c, p.disc_patch_diameter_mm * 0.5e-3) for c in sensors_xy]
-    if p.disc_stiffness:
-        d_disc = d_disc * p.disc_stiffness_scale
-        for fr in patches:
-            for (i, j), f in fr.items():
-                d_elem[j, i] += f * d_disc
 
-    # lumped masses: a quarter of each element's mass to each of its nodes
+def _disc_masses(p: SimParams, patches, d_elem, d: float, grid: tuple) -> tuple:
+    """Lumped masses (w, rotations) per node: a quarter of each element's mass to each of its nodes, plus the
+    ceramic's under the disc patches."""
+    nx, ny, hx, hy = grid
+    t, tp = p.thickness_mm * 1e-3, p.pzt_thickness_mm * 1e-3
     area_node = node_areas(nx, ny, hx, hy)
-    i_rot = rho * t ** 3 / 12 * p.rotary_inertia_scale
-    mass_w = rho * t * area_node
+    i_rot = p.rho_kg_m3 * t ** 3 / 12 * p.rotary_inertia_scale
+    mass_w = p.rho_kg_m3 * t * area_node
     mass_r = i_rot * area_node
     mp = p.pzt_rho_kg_m3 * tp * p.disc_mass_scale if p.disc_mass else 0.0
     ip = mp * (t / 2 + tp / 2) ** 2
@@ -314,18 +293,13 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
                 for di in (0, 1):
                     mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
                     mass_r[j + dj, i + di] += 0.25 * hx * hy * (f * ip + extra)
+    return mass_w, mass_r
 
-    # supports
-    fix_w, fix_bx, fix_by = support_masks(nx, ny, p.support)
 
-    plate = _sim.Plate(nx, ny, hx, hy, p.nu, np.ascontiguousarray(d_elem.ravel()),
-                       np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
-                       fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s, ratios)
-    _set_rim(plate, nx, ny, hx, hy, p)
-
-    # time step: the assembled plate's stability limit and Eq. 2, snapped to divide 1/fs; sub-cycled (fine
-    # meshes, see SimParams.subcycle), the disc patches take sub-steps under cfl_safety x the whole plate's
-    # limit and dt is bound by the rest of the plate
+def _time_step(p: SimParams, plate, hx: float, hy: float, f_max: float, fs: float) -> tuple:
+    """(dt, dt_crit, steps per ADC sample): the assembled plate's stability limit and Eq. 2, snapped to divide
+    1/fs; sub-cycled (fine meshes, see SimParams.subcycle), the disc patches take sub-steps under cfl_safety x
+    the whole plate's limit and dt is bound by the rest of the plate."""
     dt_crit = assembled_dt_crit(plate)
     if p.subcycle and max(hx, hy) <= p.subcycle_max_element_mm * 1e-3:
         plate.set_subcycling(p.cfl_safety * dt_crit, SUBCYCLE_LAYER)
@@ -341,12 +315,14 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
     else:
         dt_req = min(p.cfl_safety * dt_crit, dt_eq2)
     m = max(int(math.ceil(t_sample / dt_req - 1e-9)), 1)
-    dt = t_sample / m
+    return t_sample / m, dt_crit, m
 
-    dur = (p.duration_ms if duration_ms is None else duration_ms) * 1e-3
-    n_record = int(round(dur * fs))
 
-    # sensing functionals: U = C <beta_x,x + beta_y,y>_disc, gradients at element centres
+def _sensing_functionals(p: SimParams, fractions, grid: tuple) -> list:
+    """Per disc (nodes, weights on beta_x, weights on beta_y): U = C <beta_x,x + beta_y,y>_disc, gradients at
+    element centres."""
+    nx, ny, hx, hy = grid
+    t, tp, e11 = p.thickness_mm * 1e-3, p.pzt_thickness_mm * 1e-3, p.pzt_e11_mpa * 1e6
     z_s = -t / 2
     c_volt = tp * (p.pzt_d31_pc_n * 1e-12) * e11 / ((1 - p.pzt_nu12) * p.pzt_eps33_rel * EPS0) * z_s
     r = nx + 1
@@ -364,8 +340,47 @@ def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> 
                 e[1] += wgt * sy / (2 * hy)
         nodes = np.array(sorted(acc), dtype=np.int64)
         sensors.append((nodes, np.array([acc[k][0] for k in nodes]), np.array([acc[k][1] for k in nodes])))
+    return sensors
 
+
+def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> Model:
+    p = params
+    lx, ly = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3
+    t = p.thickness_mm * 1e-3
+    d, s, ratios = material.element_constants(p)
+    fs = float(rig.fs_hz)
+    ball_r = rig.ball_diameter_mm * 0.5e-3
+    ball_m = rig.ball_mass_g * 1e-3
+    k = hertz_k(p, ball_r)
+    disc_r = rig.sensor_diameter_mm * 0.5e-3
+    f_max, nx, ny, hx, hy = _mesh(p, rig, k, ball_m)
+
+    # per-element stiffness; discs add their bending stiffness about the plate's mid-plane
+    d_elem = np.full((ny, nx), d)
+    s_elem = np.full((ny, nx), s)
+    tp = p.pzt_thickness_mm * 1e-3
+    d_disc = p.pzt_e11_mpa * 1e6 / (1 - p.pzt_nu12 ** 2) * ((t / 2 + tp) ** 3 - (t / 2) ** 3) / 3
+    sensors_xy = np.asarray(rig.sensor_xy_mm, float) * 1e-3
+    fractions = [_disc_fraction((hx, hy, nx, ny), c, disc_r) for c in sensors_xy]   # the sensing circles
+    # the plate the ceramic loads mechanically (SimParams.disc_patch_diameter_mm; None: the sensing disc)
+    patches = fractions if p.disc_patch_diameter_mm is None else \
+        [_disc_fraction((hx, hy, nx, ny), c, p.disc_patch_diameter_mm * 0.5e-3) for c in sensors_xy]
+    if p.disc_stiffness:
+        d_disc = d_disc * p.disc_stiffness_scale
+        for fr in patches:
+            for (i, j), f in fr.items():
+                d_elem[j, i] += f * d_disc
+    mass_w, mass_r = _disc_masses(p, patches, d_elem, d, (nx, ny, hx, hy))
+
+    fix_w, fix_bx, fix_by = support_masks(nx, ny, p.support)
+    plate = _sim.Plate(nx, ny, hx, hy, p.nu, np.ascontiguousarray(d_elem.ravel()),
+                       np.ascontiguousarray(s_elem.ravel()), mass_w.ravel(), mass_r.ravel(),
+                       fix_w.ravel(), fix_bx.ravel(), fix_by.ravel(), p.damping_per_s, ratios)
+    _set_rim(plate, nx, ny, hx, hy, p)
+    dt, dt_crit, m = _time_step(p, plate, hx, hy, f_max, fs)
+    dur = (p.duration_ms if duration_ms is None else duration_ms) * 1e-3
     return Model(params=p, plate=plate, nx=nx, ny=ny, hx_m=hx, hy_m=hy, lx_m=lx, ly_m=ly, dt_s=dt,
-                 dt_crit_s=dt_crit, record_every=m, n_record=n_record, sensors=sensors,
+                 dt_crit_s=dt_crit, record_every=m, n_record=int(round(dur * fs)),
+                 sensors=_sensing_functionals(p, fractions, (nx, ny, hx, hy)),
                  sensor_xy_m=sensors_xy, disc_radius_m=disc_r, ball_radius_m=ball_r, ball_mass_kg=ball_m,
                  k_hertz=k, f_max_hz=f_max, fs_hz=fs, mass_w=mass_w.ravel(), mass_r=mass_r.ravel())
