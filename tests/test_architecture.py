@@ -122,3 +122,79 @@ def test_no_local_imports_of_the_package_in_board_emulator_zeroshot():
     assert len(checked) >= 5
     local = [x for m in checked for x in _local_imports(MODULES[m], m)]
     assert local == []
+
+
+# --- size: small modules and functions (issue 21) ------------------------------------------------------------
+
+MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 500
+SIM_SOURCES = ROOT.parents[1] / "sim"
+
+
+def _long_functions(tree, limit):
+    return [(node.name, node.lineno, node.end_lineno - node.lineno + 1) for node in ast.walk(tree)
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > limit]
+
+
+def test_no_python_function_over_80_lines_and_no_module_over_500():
+    long_functions, long_modules = [], []
+    for module, path in MODULES.items():
+        text = path.read_text()
+        if text.count("\n") > MAX_MODULE_LINES:
+            long_modules.append((module, text.count("\n")))
+        long_functions += [(module, *f) for f in _long_functions(ast.parse(text), MAX_FUNCTION_LINES)]
+    assert long_modules == [] and long_functions == []
+
+
+def test_the_size_check_finds_a_long_function():
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    tree = ast.parse(f"def short():\n    return 1\n\n\ndef long():\n{body}\n    return 0\n")
+    assert _long_functions(tree, MAX_FUNCTION_LINES) == [("long", 5, MAX_FUNCTION_LINES + 2)]
+
+
+_CONTAINER = ("namespace", "struct", "class", "enum", "union", 'extern "C"')
+
+
+def _cpp_long_functions(text: str, limit: int) -> list[tuple[int, int]]:
+    """(first line, length) of the C++ function bodies in text longer than limit lines, by their braces: a
+    brace opened at namespace / struct / class level, by a statement that is not one of those, starts a body."""
+    import re
+
+    stack, head, found = [], "", []
+    for number, line in enumerate(text.splitlines(), 1):
+        code = re.sub(r'"(\\.|[^"\\])*"', '""', re.sub(r"//.*", "", line))
+        for ch in code:
+            if ch == "{":
+                if not stack or stack[-1][0] == "container":
+                    statement = head.split(";")[-1].split("}")[-1].strip()
+                    kind = "container" if re.search(r"\b(namespace|struct|class|enum|union)\b[^()]*$", statement) \
+                        or statement.startswith('extern "C"') else "function"
+                    stack.append((kind, number))
+                else:
+                    stack.append(("block", number))
+                head = ""
+            elif ch == "}":
+                if stack:
+                    kind, start = stack.pop()
+                    if kind == "function" and number - start + 1 > limit:
+                        found.append((start, number - start + 1))
+                head = ""
+            elif not stack or stack[-1][0] == "container":
+                head += ch
+        head += " "
+    return found
+
+
+def test_no_sim_cpp_function_over_80_lines():
+    sources = sorted(p for ext in ("*.cpp", "*.h") for p in SIM_SOURCES.rglob(ext))
+    if not sources:
+        return          # an installed package without the source tree
+    long = [(p.name, *f) for p in sources for f in _cpp_long_functions(p.read_text(), MAX_FUNCTION_LINES)]
+    assert long == []
+
+
+def test_the_cpp_size_check_sees_functions_inside_namespaces_and_structs():
+    body = "\n".join(f"  x += {i};" for i in range(MAX_FUNCTION_LINES))
+    text = ("namespace a {\nstruct S {\n  int f() { return 1; }\n};\n"
+            f"int long_one(int x) {{\n{body}\n  return x;\n}}\n}}  // namespace a\n")
+    assert _cpp_long_functions(text, MAX_FUNCTION_LINES) == [(5, MAX_FUNCTION_LINES + 3)]

@@ -25,6 +25,7 @@ import numpy as np
 
 from .data import Session, load_session
 from .errors import DataError
+from .outputs import write_file
 
 CALIBRATION_FILE = "calibration.json"
 
@@ -41,8 +42,6 @@ def calibration_record(cal_path: str | Path) -> str:
 
 def record_calibration(session_dir: str | Path, cal_path: str | Path) -> Path:
     """Writes CAL.json into the virtual session folder (calibration_record), through outputs.write_file."""
-    from .outputs import write_file
-
     return write_file(Path(session_dir) / CALIBRATION_FILE, calibration_record(cal_path))
 
 

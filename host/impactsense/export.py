@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ImpactSenseError
+from .errors import DataError, ImpactSenseError
 from .export_c import (HEADER_H, LEAF, ExportError, _c_float, exported_fields, f32_floor, forest_tables,  # noqa: F401
                        m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
+from .outputs import json_text, output_folder
 
 
 @dataclass
@@ -68,7 +69,6 @@ def twin_arrays(site, fit) -> dict:
 
 
 def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
-    from .errors import DataError
     from .models import SITE_MAP_FILE
     from .sitemap import SiteMap
     from .twin import TwinFit
@@ -91,7 +91,6 @@ def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
 def load_models(model_dir) -> ModelSet:
     """The forests and settings of a model folder, read through modelfolder.py (named files only, checksums
     checked, no pickles); problems are ExportErrors naming the file and field."""
-    from .errors import DataError
     from .modelfolder import load_forests, read_card
 
     model_dir = Path(model_dir)
@@ -206,8 +205,6 @@ def staged_output(out_dir, force: bool = False):
     """outputs.output_folder for an export: a fresh folder next to out_dir that becomes out_dir when the block
     ends normally; when it raises, out_dir is as it was. Errors other than the package's own come out as an
     ExportError saying so."""
-    from .outputs import output_folder
-
     out = Path(out_dir)
     try:
         with output_folder(out, force, tool="impactsense export") as stage:
@@ -280,7 +277,6 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "tree_sweep": sweep,
     }
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
-    from .outputs import json_text
 
     (out_dir / "export.json").write_text(json_text(summary))
     return summary

@@ -7,9 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import Session
+from . import _core
+from .checks import require_labels, rig_summary
+from .data import IMPACTS_FILE, Session
+from .errors import DataError
 from .metrics import region_metrics
 from .models import ForestSettings, ImpactModel, impact_energy_j
+from .outputs import json_text, write_file
 from .pipeline import featurize, fit_localiser
 from .signal import SignalConfig
 from .split import case_split
@@ -20,14 +24,9 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
           signal: SignalConfig | None = None, extra_card: dict | None = None,
           site_map=None, force: bool = False) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given."""
-    from .checks import require_labels, rig_summary
-
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
-        from .data import IMPACTS_FILE
-        from .errors import DataError
-
         raise DataError(session.path / IMPACTS_FILE, "case_id", f"no case can be held out: the drops are in "
                         f"{session.n_cases} case(s) (give more cases, or --test-fraction 0)")
     cfg = signal or SignalConfig.for_rig(session.rig)
@@ -76,11 +75,8 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     if rows is None:
         rows, scope = evaluation_rows(session, model)
     if len(rows) == 0:
-        from .errors import DataError
-
         raise DataError(session.path, None, "no drops to evaluate (the model was trained with --test-fraction 0 "
                                             "on this session)")
-    from .checks import require_labels
 
     require_labels(session, rows)
     feats = featurize(session.adc[rows], model.signal)
@@ -118,8 +114,6 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
 
 def channel_flags(flags: np.ndarray, pred: dict) -> np.ndarray:
     """The core's channel flags with FLAG_INCONSISTENT where the models left a channel out (bad_channel)."""
-    from . import _core
-
     out = np.array(flags, copy=True)
     bad = np.asarray(pred.get("bad_channel", np.full(len(out), -1)))
     rows = np.flatnonzero(bad >= 0)
@@ -133,6 +127,4 @@ def public(report: dict) -> dict:
 
 
 def write_json(report: dict, path: str | Path) -> None:
-    from .outputs import json_text, write_file
-
     write_file(path, json_text(public(report)))

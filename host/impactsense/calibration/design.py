@@ -46,13 +46,6 @@ def _named(u) -> dict:
     return dict(zip(fem.FACTOR_NAMES, (float(v) for v in unit_to_params(u))))
 
 
-def misfits(feat, targets) -> tuple[float, float]:
-    """(energy misfit, residual-ratio misfit) of one simulation's features against the drops' targets."""
-    e = np.where(np.isfinite(feat["energy"]), feat["energy"], 0.0)
-    r = np.where(np.isfinite(feat["residual_ratio"]), feat["residual_ratio"], 1.0)
-    return float(np.sum((targets.energy - e) ** 2)), float(np.sum((targets.residual_ratio - r) ** 2))
-
-
 @dataclass
 class DesignRuns:
     """The design's FEM runs (n design and infill points + 1 confirming run): unit points, the 4 x 4 energies
@@ -269,8 +262,8 @@ def summary(problem, runs: DesignRuns, n_init: int, n_infill: int, weights, damp
     it (a lone lucky point of the global design is not a fit: the energy misfit is flat along gain x D_s).
     `surrogate`: the surrogates' part of the block (optima, R2 table, split, screening)."""
     targets, n = problem.targets, len(runs.done) - 1
-    _, f2_all, f3_all = runs.outputs(n + 1, targets)
-    j_all = weights[0] * np.log10(f2_all + 1e-30) + weights[1] * np.log10(f3_all + 1e-30)
+    _, energy_misfit, ratio_misfit = runs.outputs(n + 1, targets)
+    j_all = weights[0] * np.log10(energy_misfit + 1e-30) + weights[1] * np.log10(ratio_misfit + 1e-30)
     i_best = int(np.argmin(j_all))
     i_fit = n_init + int(np.argmin(j_all[n_init:n + 1]))
     e_norm = float(np.sum(targets.energy.reshape(16) ** 2))
@@ -285,9 +278,10 @@ def summary(problem, runs: DesignRuns, n_init: int, n_infill: int, weights, damp
         "fitted": _named(runs.u[i_fit]), "budget": n,
         "chosen": f"best FEM run near the surrogate optimum (run {i_fit}; {n_init}..{n - 1} infill, {n} final optimum)",
         "runs": {"design": n_init, "infill": n_infill, "confirm": 1},
-        "f2": float(f2_all[i_fit]), "f3": float(f3_all[i_fit]), "f2_rel": float(f2_all[i_fit]) / e_norm,
+        "f2": float(energy_misfit[i_fit]), "f3": float(ratio_misfit[i_fit]),
+        "f2_rel": float(energy_misfit[i_fit]) / e_norm,
         "best_fem_evaluated_point": {"run": i_best, "objective": float(j_all[i_best]),
-                                     "f2_rel": float(f2_all[i_best]) / e_norm, "f3": float(f3_all[i_best]),
+                                     "f2_rel": float(energy_misfit[i_best]) / e_norm, "f3": float(ratio_misfit[i_best]),
                                      "params": _named(runs.u[i_best])},
         "first_surrogate_optimum": surrogate["first_surrogate_optimum"],
         "final_surrogate_optimum": surrogate["final_surrogate_optimum"],
@@ -295,8 +289,9 @@ def summary(problem, runs: DesignRuns, n_init: int, n_infill: int, weights, damp
                      + ("; D_s held at the envelope-decay estimate" if damping_held else ""),
         "objective_weights": {"f2": weights[0], "f3": weights[1]},
         "surrogate_predicted_objective": surrogate["surrogate_predicted_objective"],
-        "fem_confirm": {"f2": float(f2_all[n]), "f3": float(f3_all[n]), "objective": float(j_all[n])},
-        "best_initial_design_point": {"index": int(np.argmin(j_all[:n_init])), "objective": float(j_all[:n_init].min())},
+        "fem_confirm": {"f2": float(energy_misfit[n]), "f3": float(ratio_misfit[n]), "objective": float(j_all[n])},
+        "best_initial_design_point": {"index": int(np.argmin(j_all[:n_init])),
+                                      "objective": float(j_all[:n_init].min())},
         **{k: surrogate[k] for k in ("surrogate_r2_test", "best_surrogate", "split", "screening", "screening_png")},
         "outputs": "surrogates model the 16 (drop, sensor) log10 energies and residual ratios (R2 = mean over "
                    "the 16); f2 = sum (E meas - E sim)^2 [counts^4], f2_rel = f2 / sum E_meas^2; f3 = sum "

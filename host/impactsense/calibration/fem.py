@@ -89,7 +89,7 @@ def fem_simulator(workers: int = 2, **overrides) -> Simulator:
     `overrides` are extra SimParams fields (e.g. element_mm for a coarse mesh)."""
     if not available():
         raise ConfigError("the FEM simulator (impactsense.sim) is not available in this build; calibration "
-                          "needs it to confirm the plate and for sub-problem 2 (or run with --no-fem)")
+                          "needs it to confirm the plate and for the PZT design (or run with --no-fem)")
     from ..sim import SimParams, simulate_drops
 
     def simulate(flat, rig, x_mm, y_mm, height_mm):

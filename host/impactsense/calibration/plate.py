@@ -15,6 +15,8 @@ import numpy as np
 
 from .. import _core
 from ..signal import config_dict, core_config
+from ..outputs import atomic_file
+from ..progress import progress_bar
 from . import arrival
 
 PAIR_I = np.array(_core.PAIR_I)
@@ -70,7 +72,6 @@ def _chunk_task(args):
 def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,
              chunk=48, progress=True, noise_counts=0.0, n_noise=1, seed=0):
     """Loss over the full grid [len(e_axis), len(nu_axis)]; resumable from `cache_path` (npz)."""
-    from ..progress import progress_bar
     ee, nn = np.meshgrid(e_axis, nu_axis, indexing="ij")
     e_flat, nu_flat = ee.ravel(), nn.ravel()
     loss = np.full(e_flat.size, np.nan)
@@ -87,8 +88,6 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
 
     def save():
         if cache_path:
-            from ..outputs import atomic_file
-
             with atomic_file(cache_path) as fh:
                 np.savez(fh, loss=loss.reshape(ee.shape), e_axis=e_axis, nu_axis=nu_axis, dtoa_meas=dtoa_meas,
                          noise=float(noise_counts) * 1000 + n_noise)

@@ -27,6 +27,8 @@ import numpy as np
 
 from .. import _core
 from ..signal import channel_delays_us
+from ..outputs import write_file
+from ..progress import progress_bar
 from . import bands, group_delay, plate
 
 SIGMA_FLOOR_US = 0.5
@@ -112,7 +114,6 @@ class Evaluations:
     """FEM evaluations of the observables {(E, nu): [D, K, 6]}, cached in a JSON file (resumable)."""
 
     def __init__(self, run_obs, cache_path=None, key="", progress=False, desc="FEM plate (E, nu)"):
-        from ..progress import progress_bar
         self.run_obs, self.path, self.key = run_obs, cache_path, key
         self.obs = {}
         if cache_path and Path(cache_path).exists():
@@ -129,8 +130,6 @@ class Evaluations:
         if k not in self.obs:
             self.obs[k] = np.asarray(self.run_obs(*k), float)
             if self.path:
-                from ..outputs import write_file
-
                 write_file(self.path, json.dumps({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist()
                                                                           for kk, v in self.obs.items()}}))
             self.bar.update(1)

@@ -1,4 +1,4 @@
-"""Surrogate models for sub-problem 2 and their hyper-parameter search (docs/method.md ranges).
+"""Surrogate models for the PZT design (`design`) and their hyper-parameter search (docs/method.md ranges).
 
 Four families: random forest, Gaussian process (Kriging), neural network (scikit-learn) and an SVD
 polynomial (numpy least squares via the SVD, `np.linalg.lstsq` with a relative singular-value cut-off).

@@ -18,7 +18,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="calibration JSON to write (CAL.json)")
     p.add_argument("--drops", default="auto",
                    help="'auto' (default) or four comma-separated case ids (case_id column of impacts.csv)")
-    p.add_argument("--budget", type=int, default=64, help="FEM runs in the sub-problem-2 Sobol design (default 64)")
+    p.add_argument("--budget", type=int, default=64, help="FEM runs in the PZT Sobol design (default 64)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Sobol design and the surrogates (default 0)")
     p.add_argument("--workers", type=int, default=2, help="FEM runs in parallel processes (default 2)")
     p.add_argument("--nu-step", type=float, default=0.001,
@@ -44,7 +44,7 @@ def register(sub) -> None:
                         "the scale in [0.2, 1] whose band group delays fit best (positions fitted), into sim_params; "
                         "recorded in CAL.json disc_bond")
     p.add_argument("--no-fem", action="store_true",
-                   help="sub-problem 1 only (no FEM confirmation, no sub-problem 2; the seed's PZT block is kept)")
+                   help="the plate grid only (no FEM confirmation, no PZT design; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
