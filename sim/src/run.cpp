@@ -10,13 +10,6 @@
 
 namespace impactsim {
 
-using detail::Accumulators;
-using detail::AlignedFloats;
-using detail::db_index;
-using detail::kDbBeta;
-using detail::need;
-using detail::StepArgs;
-
 void Plate::Run::validate() const {
   const RunConfig& c = c_;
   need(c.dt_s > 0 && std::isfinite(c.dt_s), "time step must be positive");

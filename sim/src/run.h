@@ -82,6 +82,14 @@ struct Segmented {
 
 }  // namespace detail
 
+// The helpers Plate::Run's setup (run.cpp) and step (step.cpp) both use, by their short names.
+using detail::Accumulators;
+using detail::AlignedFloats;
+using detail::db_index;
+using detail::kDbBeta;
+using detail::need;
+using detail::StepArgs;
+
 // The state of one run. Layout: u = [w | bx | by], d = dt * v at half steps, likewise; rows padded to rs
 // floats (64-byte aligned), so node k = j * rl + i lives at j * rs + i; d and beta block-interleaved
 // (stepper.h db_index).

@@ -9,12 +9,6 @@
 
 namespace impactsim {
 
-using detail::Accumulators;
-using detail::AlignedFloats;
-using detail::db_index;
-using detail::kDbBeta;
-using detail::need;
-using detail::StepArgs;
 using detail::DenormalGuard;
 using detail::sweep;
 
