@@ -261,14 +261,15 @@ def fit_joint(sim, truth, rig, cfg_sim, noise, meas, targets, session, feats, cf
     import numpy as np
 
     from impactsense.calibration import plate_fem, plate_nu
+    from impactsense.calibration.problem import DropsAndTwin
     stiff0 = e_true / (1 - nu_true ** 2)             # only the scan's start (E is then fitted)
     ev0 = plate_fem.Evaluations(lambda e, nu: plate_fem.sim_observables(
         sim(dict(truth, e_pa=e * 1e6, nu=nu, damping_per_s=ds_start), rig, targets.x_mm, targets.y_mm,
             targets.height_mm), cfg_sim, *noise))
     e_c, _ = plate_fem.e_scan(ev0, meas, stiff0 * (1 - 0.35 ** 2), 0.35, (1000.0, 9000.0), observables=[0])
     prior = (ds_start, prior_frac * ds_start) if prior_frac > 0 else None
-    res = plate_nu.run(sim, dict(truth, e_pa=e_c * 1e6, nu=0.35, damping_per_s=ds_start), rig, session, targets,
-                       feats, cfg, cfg_sim, noise[:3], ds_prior=prior)
+    drops = DropsAndTwin(session, targets, feats, cfg, cfg_sim, sim, noise[:3])
+    res = plate_nu.run(drops, dict(truth, e_pa=e_c * 1e6, nu=0.35, damping_per_s=ds_start), ds_prior=prior)
     pos = np.sqrt(np.mean((np.asarray(res["x_mm"]) - xj[recs]) ** 2 + (np.asarray(res["y_mm"]) - yj[recs]) ** 2))
     pos0 = np.sqrt(np.mean((x[recs] - xj[recs]) ** 2 + (y[recs] - yj[recs]) ** 2))
     for r in res["rounds"]:

@@ -47,10 +47,12 @@ def _session(tmp_path, rig, simulate, truth, *, n_cases=16, reps=3, jitter_mm=1.
     return path
 
 
-def fem_calibration_drops(tmp_path, rig, truth, *, reps, element_mm=5.0, tol_us=0.0):
+def fem_calibration_drops(tmp_path, rig, truth, *, reps, element_mm=5.0, tol_us=0.0, noise=(1.5, 4, 0)):
     """Four cases the project's FEM made with `truth` (12 ms records, rig noise, 1 mm position jitter, the
-    coarse mesh), as a calibration stage sees them: (session, targets, feats, cfg, cfg_sim, the twin's FEM
-    simulator on the same mesh). `tol_us` is Eq. 35's tolerance for choosing the four cases."""
+    coarse mesh), as a calibration stage sees them (`problem.DropsAndTwin`: the twin is the FEM simulator on
+    the same mesh, `noise` the rig noise put on its records). `tol_us` is Eq. 35's tolerance for choosing the
+    four cases."""
+    from impactsense.calibration.problem import DropsAndTwin
     from impactsense.sim import SimParams, simulate_drops
 
     mesh = {"element_mm": element_mm}
@@ -63,7 +65,8 @@ def fem_calibration_drops(tmp_path, rig, truth, *, reps, element_mm=5.0, tol_us=
     cfg = pipeline.measured_core_config(rig, pipeline.CalibrateOptions())
     feats = drops.extract(session, cfg)
     targets = drops.select_drops(session, feats, [0, 1, 2, 3], tol_us=tol_us)
-    return session, targets, feats, cfg, pipeline.sim_core_config(rig, pipeline.CalibrateOptions()), fem.fem_simulator(2, **mesh)
+    return DropsAndTwin(session, targets, feats, cfg, pipeline.sim_core_config(rig, pipeline.CalibrateOptions()),
+                        fem.fem_simulator(2, **mesh), noise)
 
 
 def _standin_noisy(truth, rig, x, y, h):

@@ -70,9 +70,9 @@ def test_disc_bond_recovers_the_scale_that_made_the_drops(tmp_path):
                  disc_stiffness_scale=0.4)
     # Eq. 35 with 20 us of tolerance: case 3's sensors 1 and 3 are near-equidistant, and the coarse mesh's picks
     # there are 10-20 us apart in two of three repetitions (the test is about the group delays, not the rule)
-    session, targets, feats, cfg, cfg_sim, twin = fem_calibration_drops(tmp_path, rig, truth, reps=3, tol_us=20.0)
+    drops = fem_calibration_drops(tmp_path, rig, truth, reps=3, tol_us=20.0)
     start = {k: v for k, v in truth.items() if k != disc_bond.FIELD}
-    out = disc_bond.fit(twin, start, rig, session, targets, feats, cfg, cfg_sim, (1.5, 4, 0))
+    out = disc_bond.fit(drops, start)
     assert abs(out["scale"] - 0.4) < 0.03, out["chi2_dof"]
     assert out["chi2_dof_fit"] < 3.0, out["chi2_dof"]
     assert out["chi2_dof_bonded"] > 20 * out["chi2_dof_fit"], out["chi2_dof"]

@@ -164,13 +164,12 @@ def test_choose_support_finds_the_support_that_made_the_drops(tmp_path):
     rig = load_session(Path(__file__).resolve().parents[1] / "host/impactsense/data/session-1").rig
     truth = dict(fem.base_params(rig, 4500.0, 0.35), damping_per_s=800.0, support="elastic_rim",
                  rim_stiffness_n_m2=1.0e8)
-    session, targets, feats, cfg, cfg_sim, twin = fem_calibration_drops(tmp_path, rig, truth, reps=2)
+    drops = fem_calibration_drops(tmp_path, rig, truth, reps=2)
     candidates = ({"support": "simply_supported"}, {"support": "free"}, {"support": "clamped"},
                   {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e8},
                   {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e10})
     start = {k: v for k, v in truth.items() if not k.startswith("rim_") and k != "support"}
-    out = plate_nu.choose_support(twin, start, rig, session, targets, feats, cfg, cfg_sim,
-                                  (1.5, 4, 0), candidates=candidates)
+    out = plate_nu.choose_support(drops, start, candidates=candidates)
     chi = {c["label"]: c["chi2_dof"] for c in out["candidates"]}
     assert out["fields"] == {"support": "elastic_rim", "rim_stiffness_n_m2": 1.0e8}, chi
     assert chi[out["chosen"]] < 10.0, chi

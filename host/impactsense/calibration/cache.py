@@ -12,12 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..outputs import write_file
-from . import disc_bond
-
-# The twin's model choices a stage's result depends on beyond E, nu and D_s: set by --support, the `support`
-# stage or the `disc_bond` stage. Absent (the rig's support, the bonded disc) they leave the keys as they were.
-MODEL_FIELDS = ("support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", disc_bond.FIELD,
-                "disc_mass_scale", "disc_patch_diameter_mm")
+from .fem import MODEL_FIELDS
 
 
 def key(*parts) -> str:

@@ -14,9 +14,10 @@ import time
 
 import numpy as np
 
-from . import plate_nu
+from . import fem, plate_nu
+from .problem import DropsAndTwin
 
-FIELD = "disc_stiffness_scale"
+FIELD = fem.DISC_BOND_FIELD
 BOUNDS = (0.2, 1.0)
 COARSE = (0.25, 0.5, 0.75, 1.0)
 REFINE = 3              # parabola steps after the coarse scan
@@ -58,17 +59,16 @@ def search(chi2_dof, bounds=BOUNDS, coarse=COARSE, refine=REFINE, xtol=XTOL) -> 
     return best, dict(sorted(seen.items()))
 
 
-def fit(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, bounds=BOUNDS, coarse=COARSE,
-        refine=REFINE, progress=None) -> dict:
+def fit(drops: DropsAndTwin, params: dict, *, bounds=BOUNDS, coarse=COARSE, refine=REFINE, progress=None) -> dict:
     """CAL.json's `disc_bond` block: the fitted scale, chi^2 / dof per evaluated scale (each with every
     repetition's position fitted at params' E, nu, D_s), chi^2 / dof at 1 (the bonded disc) and at the fit,
     and the seconds it took. progress(): called after each evaluated scale (at most len(coarse) + refine)."""
     t0 = time.perf_counter()
-    problem = plate_nu.group_delay_problem(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise)
+    setup = plate_nu.GroupDelaySetup.build(drops, params)
     rows = {}
 
     def chi2_dof(s):
-        rows[s] = plate_nu.score_candidate(simulate, params, {FIELD: s}, rig, problem, cfg_sim, noise)
+        rows[s] = plate_nu.score_candidate(drops, setup, params, {FIELD: s})
         if progress is not None:
             progress()
         return rows[s]["chi2_dof"]
@@ -78,7 +78,7 @@ def fit(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, 
     return {"scale": best, "chi2_dof": {f"{s:.4g}": v for s, v in table.items()},
             "chi2_dof_bonded": at_one, "chi2_dof_fit": table[best],
             "position_shift_rms_mm": rows[best]["position_shift_rms_mm"], "rms_us_fit": rows[best]["rms_us"],
-            "bounds": list(bounds), "repetitions": int(problem["per_rep"].shape[0]),
+            "bounds": list(bounds), "repetitions": int(setup.per_rep.shape[0]),
             "seconds": round(time.perf_counter() - t0, 3),
             "method": f"SimParams {FIELD} in [{bounds[0]:g}, {bounds[1]:g}]: every accepted repetition's position "
                       "fitted to its band group delays at the plate's E, nu and D_s, chi^2 / dof against the rig's "

@@ -32,6 +32,15 @@ FACTORS = (
 FACTOR_NAMES = tuple(f[0] for f in FACTORS)
 
 
+# The SimParams field `calibrate --disc-bond fit` fits (`disc_bond`).
+DISC_BOND_FIELD = "disc_stiffness_scale"
+# The twin's model choices a stage's result depends on beyond E, nu and D_s: set by --support, the `support`
+# stage or the `disc_bond` stage. Absent (the rig's support, the bonded disc) they leave the cache keys as they
+# were.
+MODEL_FIELDS = ("support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", DISC_BOND_FIELD,
+                "disc_mass_scale", "disc_patch_diameter_mm")
+
+
 def factor_range(name: str) -> tuple:
     """The design's (low, high) of factor `name`."""
     return FACTORS[FACTOR_NAMES.index(name)][1:3]

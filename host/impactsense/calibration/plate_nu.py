@@ -29,6 +29,7 @@ from scipy.optimize import least_squares
 from .. import _core
 from ..signal import channel_delays_us
 from . import group_delay, plate, plate_fem
+from .problem import DropsAndTwin
 
 OBSERVABLES = "group delays only"   # the AIC onsets bias nu by +0.01-0.02 even at the true positions
 # records are cut this long after the latest measured onset before the group delays (measured and twin alike):
@@ -125,23 +126,50 @@ def noise_sigma(adc, cfg_sim, n_samples, noise_counts, n_noise=4, n_seeds=4) -> 
     return np.maximum(np.nan_to_num(sd, nan=SIGMA_FLOOR_US), SIGMA_FLOOR_US)
 
 
-def run(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise, *, ds_prior=None,
-        e_bounds=(1000.0, 9000.0), nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2,
-        progress=None) -> dict:
-    """The nu stage on a session's chosen cases: every accepted repetition's group delays against the twin
-    `simulate(params, rig, x, y, h)` (params: the flat dict; its e_pa, nu, damping_per_s are the start), with
-    the rig's noise (noise = (counts rms, realisations, seed)). Returns CAL.json's `plate.nu_fit` block.
-    progress(n): called as `fit` runs the twin, n adding up to max_evaluations(rounds) (a tqdm bar's update)."""
-    per_rep, n = measured_group_delays(session, targets, feats, cfg)
-    n_rep = [len(r) for r in targets.recording_ids]
-    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
+@dataclass
+class GroupDelaySetup:
+    """What comparing twins on the band group delays needs, computed once: every accepted repetition's measured
+    group delays per_rep [R, B, 6], the crop length n, the declared x, y, h [R] and the rig-noise sigma [B] (one
+    FEM run: the same sigma for every twin compared)."""
+
+    per_rep: np.ndarray
+    n: int
+    x: np.ndarray
+    y: np.ndarray
+    h: np.ndarray
+    sigma: np.ndarray
+    names: tuple
+
+    @classmethod
+    def build(cls, drops: DropsAndTwin, params: dict) -> "GroupDelaySetup":
+        targets, cfg_sim, noise = drops.targets, drops.cfg_sim, drops.noise
+        per_rep, n = measured_group_delays(drops.session, targets, drops.feats, drops.cfg)
+        n_rep = [len(r) for r in targets.recording_ids]
+        x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
+        sigma = noise_sigma(drops.simulate(params, drops.rig, x, y, h), cfg_sim, n, noise[0], noise[1])
+        return cls(per_rep, n, x, y, h, sigma, group_delay.names())
+
+    def twin(self, drops: DropsAndTwin, params: dict):
+        """obs(x, y, h) -> the twin's group delays [R, B, 6] with `params` at those positions."""
+        def obs(xx, yy, hh):
+            return twin_group_delays(drops.simulate(params, drops.rig, xx, yy, hh), drops.cfg_sim, self.n,
+                                     *drops.noise)
+        return obs
+
+
+def run(drops: DropsAndTwin, params: dict, *, ds_prior=None, e_bounds=(1000.0, 9000.0), nu_bounds=(0.30, 0.40),
+        ds_bounds=(200.0, 1200.0), rounds=2, progress=None) -> dict:
+    """The nu stage on the chosen drops: every accepted repetition's group delays against the twin with
+    `params` (SimParams fields; its e_pa, nu, damping_per_s are the start) and the rig's noise. Returns
+    CAL.json's `plate.nu_fit` block. progress(n): called as `fit` runs the twin, n adding up to
+    max_evaluations(rounds) (a tqdm bar's update)."""
+    setup = GroupDelaySetup.build(drops, params)
+    per_rep, n, x, y, h, sigma, names = (setup.per_rep, setup.n, setup.x, setup.y, setup.h, setup.sigma,
+                                         setup.names)
 
     def run_obs(e_mpa, nu, d_s, xx, yy, hh):
-        p = dict(params, e_pa=e_mpa * 1e6, nu=nu, damping_per_s=d_s)
-        return twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+        return setup.twin(drops, dict(params, e_pa=e_mpa * 1e6, nu=nu, damping_per_s=d_s))(xx, yy, hh)
 
-    sigma = noise_sigma(simulate(params, rig, x, y, h), cfg_sim, n, noise[0], noise[1])
-    names = group_delay.names()
     res = fit(run_obs, per_rep, sigma, names, x, y, h,
               (float(params["e_pa"]) / 1e6, float(params["nu"]), float(params["damping_per_s"])),
               ds_prior=ds_prior, e_bounds=e_bounds, nu_bounds=nu_bounds, ds_bounds=ds_bounds, rounds=rounds,
@@ -270,28 +298,15 @@ def support_label(fields: dict) -> str:
     return str(fields["support"])
 
 
-def group_delay_problem(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise) -> dict:
-    """What a comparison of twins on the band group delays needs, computed once: every accepted repetition's
-    measured group delays per_rep [R, B, 6], the crop length n, the declared x, y, h [R] and the rig-noise sigma
-    [B] (one FEM run of `params`: the same sigma for every candidate)."""
-    per_rep, n = measured_group_delays(session, targets, feats, cfg)
-    n_rep = [len(r) for r in targets.recording_ids]
-    x, y, h = (np.repeat(np.asarray(v, float), n_rep) for v in (targets.x_mm, targets.y_mm, targets.height_mm))
-    sigma = noise_sigma(simulate(params, rig, x, y, h), cfg_sim, n, noise[0], noise[1])
-    return {"per_rep": per_rep, "n": n, "x": x, "y": y, "h": h, "sigma": sigma, "names": group_delay.names()}
-
-
-def score_candidate(simulate, params, fields, rig, problem, cfg_sim, noise) -> dict:
+def score_candidate(drops: DropsAndTwin, setup: GroupDelaySetup, params: dict, fields: dict) -> dict:
     """One candidate twin (params with SimParams `fields` on top): every repetition's position fitted to its
     group delays (`plate_fem.fit_positions`), then chi^2 / dof (dof = observables - 2 x repetitions), the rms
     residual per band and the positions' rms shift."""
-    per_rep, sigma, names, n = problem["per_rep"], problem["sigma"], problem["names"], problem["n"]
-    x, y, h = problem["x"], problem["y"], problem["h"]
+    per_rep, sigma, names = setup.per_rep, setup.sigma, setup.names
+    x, y, h = setup.x, setup.y, setup.h
     p = {k: v for k, v in params.items() if not k.startswith("rim_")}
     p.update(fields)
-
-    def obs(xx, yy, hh):
-        return twin_group_delays(simulate(p, rig, xx, yy, hh), cfg_sim, n, *noise)
+    obs = setup.twin(drops, p)
     xf, yf = plate_fem.fit_positions(obs, per_rep, sigma, x, y, h, list(range(len(names))))
     r = obs(xf, yf, h) - per_rep
     ok = np.isfinite(r)
@@ -303,22 +318,20 @@ def score_candidate(simulate, params, fields, rig, problem, cfg_sim, noise) -> d
             "position_shift_rms_mm": float(np.sqrt(np.mean((xf - x) ** 2 + (yf - y) ** 2)))}
 
 
-def choose_support(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise,
-                   candidates=SUPPORT_CANDIDATES, progress=None) -> dict:
+def choose_support(drops: DropsAndTwin, params: dict, candidates=SUPPORT_CANDIDATES, progress=None) -> dict:
     """The plate support that best explains the rig's band group delays: for each candidate (SimParams
     fields), every accepted repetition's position fitted (`plate_fem.fit_positions`) at params' E, nu and D_s,
     then chi^2 / dof of the group delays (rig-noise sigma, the same for every candidate; dof = observables - 2
     x repetitions) and the rms residual per band. Returns the table and the candidate with the lowest chi^2."""
-    problem = group_delay_problem(simulate, params, rig, session, targets, feats, cfg, cfg_sim, noise)
+    setup = GroupDelaySetup.build(drops, params)
     table = []
     for fields in candidates:
-        table.append({"label": support_label(fields),
-                      **score_candidate(simulate, params, fields, rig, problem, cfg_sim, noise)})
+        table.append({"label": support_label(fields), **score_candidate(drops, setup, params, fields)})
         if progress is not None:
             progress()
     best = min(table, key=lambda row: row["chi2_dof"])
     return {"chosen": best["label"], "fields": best["fields"], "candidates": table,
-            "sigma_us": dict(zip(problem["names"], problem["sigma"].tolist())),
-            "repetitions": int(problem["per_rep"].shape[0]),
+            "sigma_us": dict(zip(setup.names, setup.sigma.tolist())),
+            "repetitions": int(setup.per_rep.shape[0]),
             "method": "each candidate support: every accepted repetition's position fitted to its band group delays "
                       "at the plate's E, nu and D_s, chi^2 / dof of the group delays (rig-noise sigma); lowest wins"}

@@ -62,20 +62,31 @@ def sim_features(adc_u16, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
 
 
 @dataclass
-class CalibrationProblem:
+class DropsAndTwin:
+    """What comparing the twin with the chosen drops needs: the session, the drops' targets, the core's features
+    of every recording and its configurations, the twin's simulator and the rig noise put on its records."""
+
+    session: object
+    targets: drops_mod.DropTargets  # the four drops' measured quantities
+    feats: dict                     # the core's features of every recording
+    cfg: object                     # the core's configuration for the rig's records ...
+    cfg_sim: object                 # ... and for the twin's (no channel delays)
+    simulate: object                # fem.Simulator `simulate(params, rig, x, y, h)`, or None without the FEM
+    noise: tuple                    # the rig noise added to simulations: (counts rms, realisations, seed)
+
+    @property
+    def rig(self):
+        return self.session.rig
+
+
+@dataclass(kw_only=True)
+class CalibrationProblem(DropsAndTwin):
     """One calibration: its inputs (fixed once the drops are chosen) and the state the stages advance."""
 
     opts: CalibrateOptions
     data: str
     out: Path                       # CAL.json
-    session: object
-    cfg: object                     # the core's configuration for the rig's records ...
-    cfg_sim: object                 # ... and for the twin's (no channel delays)
-    simulate: object                # fem.Simulator, or None without the FEM
-    feats: dict                     # the core's features of every recording
-    targets: drops_mod.DropTargets  # the four drops' measured quantities
     plate_targets: plate_fem.PlateTargets
-    noise: tuple                    # the rig noise added to simulations: (counts rms, realisations, seed)
     base_key: str                   # the cache key of the inputs every stage depends on
     e_axis: np.ndarray              # the plate grid
     nu_axis: np.ndarray
@@ -84,10 +95,6 @@ class CalibrationProblem:
     plate: dict = field(default_factory=dict)       # CAL.json "plate"
     cal: dict = field(default_factory=dict)         # CAL.json's other blocks, in the stages' order
     stage_results: dict = field(default_factory=dict)   # each stage's result by stage name
-
-    @property
-    def rig(self):
-        return self.session.rig
 
     @property
     def stem(self) -> Path:

@@ -176,8 +176,7 @@ def _support_key(problem: CalibrationProblem) -> str:
 
 
 def _support(problem: CalibrationProblem, _key) -> dict:
-    return plate_nu.choose_support(problem.simulate, _params_at_decay(problem), problem.rig, problem.session,
-                                   problem.targets, problem.feats, problem.cfg, problem.cfg_sim, problem.noise)
+    return plate_nu.choose_support(problem, _params_at_decay(problem))
 
 
 def _apply_support(problem: CalibrationProblem, res: dict) -> None:
@@ -196,8 +195,7 @@ def _disc_bond_key(problem: CalibrationProblem) -> str:
 def _disc_bond(problem: CalibrationProblem, _key) -> dict:
     bar = progress_bar(problem.opts.progress, desc="FEM disc bond (scale, positions)", unit="scale",
                        total=len(disc_bond.COARSE) + disc_bond.REFINE)
-    res = disc_bond.fit(problem.simulate, _params_at_decay(problem), problem.rig, problem.session, problem.targets,
-                        problem.feats, problem.cfg, problem.cfg_sim, problem.noise, progress=bar.update)
+    res = disc_bond.fit(problem, _params_at_decay(problem), progress=bar.update)
     bar.close()
     return res
 
@@ -227,10 +225,9 @@ def _plate_nu(problem: CalibrationProblem, stage_key) -> dict:
     prior = (ds0, float(np.hypot(decay(problem)["se_per_s"], plate_nu.DS_SYSTEMATIC * ds0)))
     bar = progress_bar(opts.progress, desc="FEM nu fit (E, nu, D_s, positions)", unit="run",
                        total=plate_nu.max_evaluations(opts.nu_rounds))
-    out = plate_nu.run(problem.simulate, _params_at_decay(problem), problem.rig, problem.session, problem.targets,
-                       problem.feats, problem.cfg, problem.cfg_sim, problem.noise, ds_prior=prior,
-                       e_bounds=problem.e_bounds, nu_bounds=problem.nu_bounds,
-                       ds_bounds=fem.factor_range("damping_per_s"), rounds=int(opts.nu_rounds), progress=bar.update)
+    out = plate_nu.run(problem, _params_at_decay(problem), ds_prior=prior, e_bounds=problem.e_bounds,
+                       nu_bounds=problem.nu_bounds, ds_bounds=fem.factor_range("damping_per_s"),
+                       rounds=int(opts.nu_rounds), progress=bar.update)
     bar.close()
     return out
 
