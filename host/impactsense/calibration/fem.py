@@ -1,8 +1,9 @@
-"""The calibration's view of the simulator: a flat parameter dict and `simulate(params, rig, x, y, h)`.
+"""The calibration's view of the simulator: the fitted `SimParams` fields and `simulate(params, rig, x, y, h)`.
 
-The flat dict uses `impactsense.sim.SimParams` field names (e_pa, nu, damping_per_s, pzt_*), so
-`SimParams.from_rig(rig, **flat)` builds the simulator's parameters and CAL.json's "sim_params" is its
-`to_dict()` (what `SimParams.from_json(CAL.json)` / `simulate-dataset --calibration` loads).
+The calibration carries the fields it fits (e_pa, nu, damping_per_s, pzt_*, the model choices) by their
+`impactsense.sim.SimParams` names and nothing else: `SimParams.from_rig(rig, **params)` is the simulator's
+parameter set (the simulator's one parameter form), and CAL.json's "sim_params" its `to_dict()` (what
+`SimParams.from_json(CAL.json)` / `simulate-dataset --calibration` loads).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..sim import SimParams, simulate_drops
 
 # The design stage's factors (docs/method.md): SimParams name, low, high, step, unit
 FACTORS = (
@@ -61,16 +62,12 @@ def base_params(rig, e_mpa: float = 5000.0, nu: float = 0.32) -> dict:
 
 
 def available() -> bool:
-    try:
-        from .. import sim
-        return hasattr(sim, "simulate_drops") and hasattr(sim, "SimParams")
-    except Exception:
-        return False
+    """Whether the FEM runs here (the simulator is built with the package; tests ask before FEM runs)."""
+    return callable(simulate_drops)
 
 
 def rig_support(rig) -> str:
     """The support `SimParams.from_rig` reads from rig.json's plate_support text."""
-    from ..sim import SimParams
     return SimParams.from_rig(rig).support
 
 
@@ -81,13 +78,8 @@ def _fields(flat: dict) -> dict:
 
 def sim_params_json(flat: dict, rig) -> dict:
     """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()` (the support: flat's, else the
-    rig's text through `SimParams.from_rig`); without the simulator in this build, the same keys written by hand
-    (the support then flat's or "simply_supported": the rig's text rule lives in SimParams)."""
-    if available():
-        from ..sim import SimParams
-        return SimParams.from_rig(rig, **_fields(flat)).to_dict()
-    return {"format": "impactsense-sim-params", "version": 1, "support": "simply_supported", **_fields(flat),
-            "rho_kg_m3": float(rig.density_kg_m3), "thickness_mm": float(rig.thickness_mm)}
+    rig's text through `SimParams.from_rig`)."""
+    return SimParams.from_rig(rig, **_fields(flat)).to_dict()
 
 
 Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -96,11 +88,6 @@ Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndar
 def fem_simulator(workers: int = 2, **overrides) -> Simulator:
     """`simulate(flat, rig, x_mm, y_mm, height_mm) -> uint16 [n, 4, samples]` with the project's FEM.
     `overrides` are extra SimParams fields (e.g. element_mm for a coarse mesh)."""
-    if not available():
-        raise ConfigError("the FEM simulator (impactsense.sim) is not available in this build; calibration "
-                          "needs it to confirm the plate and for the PZT design (or run with --no-fem)")
-    from ..sim import SimParams, simulate_drops
-
     def simulate(flat, rig, x_mm, y_mm, height_mm):
         p = SimParams.from_rig(rig, **{**_fields(flat), **overrides})
         return np.asarray(simulate_drops(p, rig, np.asarray(x_mm, float), np.asarray(y_mm, float),

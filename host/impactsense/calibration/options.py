@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..sim.params import SUPPORTS
 from . import fem
 
 MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split and the screening can use
@@ -60,10 +61,6 @@ class CalibrateOptions:
             raise ConfigError("--workers must be >= 1")
         if not isinstance(self.nu_rounds, (int, np.integer)) or self.nu_rounds < 0:
             raise ConfigError(f"nu_rounds must be a whole number >= 0, got {self.nu_rounds!r}")
-        try:
-            from ..sim.params import SUPPORTS
-        except ImportError:                 # a build without the simulator
-            SUPPORTS = ("free", "simply_supported", "simply_supported_soft", "clamped", "elastic_rim")
         if self.support not in ("rig", "auto", *SUPPORTS):
             raise ConfigError(f"--support must be one of {('rig', 'auto', *SUPPORTS)}, got {self.support!r}")
         if self.support == "elastic_rim" and not (self.rim_stiffness_n_m2 is not None and self.rim_stiffness_n_m2 >= 0):
