@@ -127,8 +127,7 @@ def run(args) -> dict:
     gen_args = loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed)] + gen_only + args.gen)
     man = loop_sessions.generate(gen_args)
     cal = json.loads(Path(gen_args.calibration).read_text())
-    sim_params = dataclasses.replace(SimParams.from_dict(cal["sim_params"]), element_mm=gen_args.element_mm,
-                                     method="fast")
+    sim_params = loop_sessions.twin_params(SimParams.from_dict(cal["sim_params"]), gen_args)
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
     ref = load_session(Path(args.sessions) / "ref")

@@ -1,7 +1,7 @@
 """Test sessions for the closed loop: one known change each, made from physics, plus unchanged controls.
 
     python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
-        [--element-mm 3.0] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
+        [--element-mm 3.0] [--duration-ms 10] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
 
 Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
 positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
@@ -17,6 +17,8 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
                           with a gain loss, on FEM drops
 - `delay`, `gain`, `hum`, `noise`  signal level on FEM drops: a channel's cubic-spline time shift, a
                           channel's gain, 50 Hz mains on every channel, extra white noise
+Signal-level changes act on the clean FEM signal; the rig's noise and the ADC's rounding come after (a
+delay or a bond acts on the disc's signal, not on the amplifier's noise).
 
 Nothing here calls the effect library (`impactsense.effects`): the changes are made by the FEM or by signal
 operations written here, so a diagnosis that recovers them is not fitting its own forward model.
@@ -93,9 +95,11 @@ def shear_lag(a: np.ndarray, fc_hz: float, gain: float, fs_hz: float) -> np.ndar
     return gain * signal.lfilter(b, den, a, axis=-1)
 
 
-def signal_change(adc: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
+def signal_change(counts: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
+    """The change on clean counts (float, bias removed) of the FEM drops: before the noise, as on a rig
+    (a delay, a bond or a gain acts on the disc's signal; the amplifier and ADC noise comes after)."""
     rng = np.random.default_rng(seed + 77)
-    a = adc.astype(np.float64) - rig.bias_counts
+    a = counts.copy()
     p, s = truth["params"], truth["sensor"]
     if truth["effect"] == "channel_delay":
         a[:, s] = spline_delay(a[:, s], p["delay_us"] * 1e-6 * rig.fs_hz)
@@ -110,7 +114,7 @@ def signal_change(adc: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
         a += amp * np.sin(2 * np.pi * p["hum_hz"] * t + ph)
     elif "noise_counts_rms" in p:
         a += rng.normal(0.0, p["noise_counts_rms"], a.shape)
-    return np.clip(np.rint(a + rig.bias_counts), 0, rig.adc_max).astype(np.uint16)
+    return a
 
 
 # ---- drops ------------------------------------------------------------------------------------------------
@@ -150,21 +154,33 @@ def physical(params, rig, truth):
 
 def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
     from impactsense.sim import simulate_drops
+    from impactsense.sim.simulate import simulate_voltages, to_adc
 
     truth = spec.get("truth")
     cases = args.ref_cases if spec["name"] == "ref" else args.cases
     xd, yd, hd, case, rep, xt, yt = declared_drops(rig, cases, args.reps, spec["seed"], args.jitter_mm)
     params, sim_rig = physical(base_params, rig, truth if spec["kind"] == "fem" else None)
-    adc = simulate_drops(params, sim_rig, xt, yt, hd, noise=True, seed=spec["seed"], workers=args.workers,
-                         progress=False)
-    if spec["kind"] == "signal":
-        adc = signal_change(adc, truth, rig, spec["seed"])
+    if spec["kind"] != "signal":
+        adc = simulate_drops(params, sim_rig, xt, yt, hd, noise=True, seed=spec["seed"], workers=args.workers,
+                             progress=False)
+    else:   # the change on the clean signal, then the rig's own noise and the ADC's rounding and rails
+        volts = simulate_voltages(params, sim_rig, xt, yt, hd, workers=args.workers)["volts"]
+        clean = to_adc(volts, params, sim_rig, noise=False, clip=False).astype(np.float64) - rig.bias_counts
+        a = signal_change(clean, truth, rig, spec["seed"])
+        a += np.random.default_rng(spec["seed"]).normal(0.0, params.noise_counts_rms, a.shape)
+        adc = np.clip(np.rint(a + rig.bias_counts), 0, rig.adc_max).astype(np.uint16)
     return (xd, yd, hd, case, rep), adc
 
 
 def settings_key(args) -> dict:
     return {"cases": args.cases, "ref_cases": args.ref_cases, "reps": args.reps, "element_mm": args.element_mm, "jitter_mm": args.jitter_mm,
+            "duration_ms": args.duration_ms, "signal_change": "before the noise",
             "rig": str(args.rig), "calibration": str(args.calibration), "seed": args.seed}
+
+
+def twin_params(params, args):
+    """The twin's SimParams at the benchmark's mesh and simulated window (the generator's and the loop's)."""
+    return dataclasses.replace(params, element_mm=args.element_mm, method="fast", duration_ms=args.duration_ms)
 
 
 def generate(args) -> dict:
@@ -174,7 +190,7 @@ def generate(args) -> dict:
     rig = load_session(args.rig).rig
     cal = json.loads(Path(args.calibration).read_text())
     base = SimParams.from_dict(cal["sim_params"], str(args.calibration))
-    base = dataclasses.replace(base, element_mm=args.element_mm, method="fast")
+    base = twin_params(base, args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     man_path = out / "manifest.json"
@@ -207,6 +223,8 @@ def parse(argv=None):
     ap.add_argument("--jitter-mm", type=float, default=1.0)
     ap.add_argument("--element-mm", type=float, default=3.0)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--duration-ms", type=float, default=10.0,
+                    help="simulated time after the first touch (the decay observable reads 1-8 ms after the onset)")
     ap.add_argument("--rig", default=str(bundled_session_path("session-1")), help="session folder whose rig.json is used")
     ap.add_argument("--calibration", default=None, help="CAL.json (default: the bundled twin)")
     ap.add_argument("--only", default=None, help="comma-separated session names")

@@ -5,7 +5,8 @@ The reference model (`Reference`) predicts, at a drop's declared position p_k an
             (t0_k is eliminated by centring each drop's four residuals, so only DToA information is used)
 - energy:   log E_ik = e_k + α d_ik + β log d_ik + g_i          (e_k eliminated the same way; g_i = 2 log gain)
 - spectrum: log centroid_ik = c0 + c1 d_ik + c_i                (2 ms after the onset)
-- decay:    decay_ik = λ + λ_i                                   [1/s, log-envelope slope 1..8 ms after onset]
+- decay:    decay_ik = λ + λ_i                                   [1/s, log-envelope slope 1..8 ms after onset,
+            of the signal above the noise: hum and noise power taken out; nan when under 3 blocks are above it]
 - noise:    log rms_ik = n_i ; hum amplitude (50/60 Hz lock-in over the tail) = h_i
 - rails:    per-channel clipping rails lo_i, hi_i               [counts]
 Each group has a residual scale σ estimated on the reference data; the effect library (`impactsense.effects`)
@@ -32,6 +33,7 @@ HUM_HZ = (50.0, 60.0)
 CENTROID_S = 2e-3           # spectral-centroid window after the onset
 CENTROID_LEAD_S = 5e-5      # ... starting this long before the onset
 DECAY_BLOCKS_S = (1e-3, 8e-3, 1e-3)  # envelope blocks after the onset: start, stop, width
+DECAY_MIN_SNR = 1.0         # a decay block counts when its power above the noise is at least this x the noise
 TAIL_START_S = 25e-3        # tail used for the hum lock-in (signal decayed by e^-10)
 PLATEAU_SAMPLES = 4         # equal consecutive samples at the extreme that mark clipping
 
@@ -104,25 +106,43 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     p = np.abs(np.fft.rfft(seg * np.hanning(m), axis=2)) ** 2
     f = np.fft.rfftfreq(m, 1.0 / fs_hz)
     centroid = (p * f).sum(axis=2) / np.maximum(p.sum(axis=2), 1e-12)
-    # decay: slope of the log RMS envelope in blocks
-    b0, b1, bw = (samples(v) for v in DECAY_BLOCKS_S)
-    starts = np.arange(b0, b1, bw)
-    offsets = (starts[:, None] + np.arange(bw)[None, :]).reshape(-1)
-    idx = np.clip(on[..., None] + offsets, 0, n - 1)
-    blk = np.take_along_axis(a, idx.reshape(r, c, -1), axis=2).reshape(r, c, len(starts), bw)
-    env = np.log(np.sqrt((blk ** 2).mean(axis=3)) + 1e-3)
-    t = (starts + bw / 2) / fs_hz
-    tc = t - t.mean()
-    decay = -(env * tc).sum(axis=2) / (tc ** 2).sum()
     # hum: least-squares lock-in at 50 and 60 Hz over the tail (with offset and trend)
-    tail = a[:, :, samples(TAIL_START_S):]
+    t0 = samples(TAIL_START_S)
+    tail = a[:, :, t0:]
     tt = np.arange(tail.shape[2]) / fs_hz
     cols = [np.ones_like(tt), tt - tt.mean()]
     for hz in HUM_HZ:
         cols += [np.cos(2 * np.pi * hz * tt), np.sin(2 * np.pi * hz * tt)]
     X = np.stack(cols, axis=1)
-    coef = np.linalg.lstsq(X, tail.reshape(-1, tail.shape[2]).T, rcond=None)[0].T.reshape(r, c, -1)
+    flat = tail.reshape(-1, tail.shape[2]).T
+    coef_flat, *_ = np.linalg.lstsq(X, flat, rcond=None)
+    coef = coef_flat.T.reshape(r, c, -1)
     hum = np.stack([np.hypot(coef[..., 2], coef[..., 3]), np.hypot(coef[..., 4], coef[..., 5])], axis=2)
+    noise_ms = ((flat - X @ coef_flat) ** 2).mean(axis=0).reshape(r, c)   # what is left of the tail
+    # decay: slope of the log RMS envelope in blocks, of the signal alone: the tail's offset and hum (extended
+    # over the record) are taken out and the tail's noise power is subtracted from each block's mean square;
+    # a block that is not above the noise (power SNR < DECAY_MIN_SNR) is left out of the slope
+    ta = (np.arange(n) - t0) / fs_hz
+    base = coef[..., :1]   # the offset (the tail's trend is not extended back)
+    for k, hz in enumerate(HUM_HZ):
+        base = base + coef[..., 2 + 2 * k, None] * np.cos(2 * np.pi * hz * ta) \
+            + coef[..., 3 + 2 * k, None] * np.sin(2 * np.pi * hz * ta)
+    b0, b1, bw = (samples(v) for v in DECAY_BLOCKS_S)
+    starts = np.arange(b0, b1, bw)
+    offsets = (starts[:, None] + np.arange(bw)[None, :]).reshape(-1)
+    idx = np.clip(on[..., None] + offsets, 0, n - 1)
+    sig = a - base.astype(np.float32)
+    blk = np.take_along_axis(sig, idx.reshape(r, c, -1), axis=2).reshape(r, c, len(starts), bw)
+    power = (blk.astype(np.float64) ** 2).mean(axis=3) - noise_ms[..., None]
+    use = power > DECAY_MIN_SNR * noise_ms[..., None]
+    env = 0.5 * np.log(np.maximum(power, 1e-6))
+    t = np.broadcast_to((starts + bw / 2) / fs_hz, env.shape)
+    w = use.astype(float)
+    nw = w.sum(axis=2)
+    tm = (w * t).sum(axis=2) / np.maximum(nw, 1)
+    tc = (t - tm[..., None]) * w
+    den = (tc * (t - tm[..., None])).sum(axis=2)
+    decay = np.where((nw >= 3) & (den > 0), -(tc * env).sum(axis=2) / np.maximum(den, 1e-12), np.nan)
     return np.log(np.maximum(centroid, 1.0)), decay, hum
 
 
@@ -248,7 +268,7 @@ class Reference:
             "timing": huber_ll(self.toa_resid(F) / s["timing"]).sum(axis=1),
             "energy": (huber_ll(self.energy_resid(F) / s["energy"]) * ~self.clip_mask(F)).sum(axis=1),
             "spectrum": huber_ll(self.cent_resid(F) / s["spectrum"]).sum(axis=1),
-            "decay": huber_ll(self.decay_resid(F) / s["decay"]).sum(axis=1),
+            "decay": np.nan_to_num(huber_ll(self.decay_resid(F) / s["decay"])).sum(axis=1),   # nan: no decay
             "noise": huber_ll((F.log_noise - self.log_noise) / s["noise"]).sum(axis=1),
         }
         hum_pred = np.sqrt(self.hum2)[None]
@@ -329,8 +349,8 @@ def fit_reference(F: Features, mode: str = "calibrated") -> Reference:
     ref.sigma["spectrum"] = robust_sigma(res)
     # decay, noise, hum
     if per_ch:
-        ref.decay_off = np.median(F.decay_per_s, axis=0) - np.median(F.decay_per_s)
-    ref.decay0_per_s = float(np.median(F.decay_per_s))
+        ref.decay_off = np.nanmedian(F.decay_per_s, axis=0) - np.nanmedian(F.decay_per_s)
+    ref.decay0_per_s = float(np.nanmedian(F.decay_per_s))
     ref.sigma["decay"] = robust_sigma(F.decay_per_s - ref.decay0_per_s - ref.decay_off)
     ref.log_noise = (np.median(F.log_noise, axis=0) if per_ch
                      else np.full(4, np.median(F.log_noise)))

@@ -17,7 +17,7 @@ class Damping(Effect):
     min_change_pct = 5.0
 
     def fit(self, ref, F, sensor):
-        d = float(np.median(ref.decay_resid(F)))
+        d = float(np.nanmedian(ref.decay_resid(F)))
         return {"extra_decay_per_s": d, "decay_per_s": float(ref.decay0_per_s + d),
                 "change_pct": float(100 * d / ref.decay0_per_s)}
 
