@@ -146,6 +146,20 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     return np.log(np.maximum(centroid, 1.0)), decay, hum
 
 
+def hum_white_gain(fs_hz: float, samples: int) -> np.ndarray:
+    """E[lock-in amplitude^2] at 50 and 60 Hz per unit white-noise power (counts^2): the tail's lock-in
+    (offset, trend, 50 and 60 Hz; a few cycles, so the regressors are far from orthogonal) reads white noise
+    of variance v as v x this gain."""
+    t0 = int(round(TAIL_START_S * fs_hz))
+    tt = np.arange(max(samples - t0, 8)) / fs_hz
+    cols = [np.ones_like(tt), tt - tt.mean()]
+    for hz in HUM_HZ:
+        cols += [np.cos(2 * np.pi * hz * tt), np.sin(2 * np.pi * hz * tt)]
+    X = np.stack(cols, axis=1)
+    cov = np.diag(np.linalg.pinv(X.T @ X))
+    return np.array([cov[2] + cov[3], cov[4] + cov[5]])
+
+
 def extract(session: Session) -> Features:
     """Features of every drop of a session: core features (AIC onset) plus host diagnostics."""
     rig = session.rig
@@ -195,6 +209,12 @@ class Reference:
     aniso: np.ndarray = field(default_factory=lambda: np.zeros(2))
     alpha: float = 0.0
     beta: float = 0.0
+    # what a raised noise floor does to the core's picks and energies, per channel: ToA later by
+    # noise_toa_us + noise_toa_us_per_mm x distance, log-energy by noise_log_energy_per_mm x distance
+    # (measured on the reference's own recordings with the noise put in: `effects.noise`)
+    noise_toa_us: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    noise_toa_us_per_mm: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    noise_log_energy_per_mm: np.ndarray = field(default_factory=lambda: np.zeros(4))
     gain_log: np.ndarray = field(default_factory=lambda: np.zeros(4))   # log energy offsets
     c0: float = 8.0
     c1: float = 0.0
@@ -231,7 +251,8 @@ class Reference:
         d, th, _, _ = self.geometry(F)
         site = 0.0 if F.site_toa_us is None else F.site_toa_us
         return self.slowness_us_per_mm * d * (1 + self.aniso[0] * np.cos(2 * th)
-                                              + self.aniso[1] * np.sin(2 * th)) + self.delay_us + site
+                                              + self.aniso[1] * np.sin(2 * th)) + self.delay_us + site \
+            + self.noise_toa_us + self.noise_toa_us_per_mm * d
 
     def toa_resid(self, F: Features) -> np.ndarray:
         return centre(F.toa_us - self.toa_pred(F))
@@ -249,7 +270,7 @@ class Reference:
 
     def energy_resid(self, F: Features) -> np.ndarray:
         d, *_ = self.geometry(F)
-        pred = self.alpha * d + self.beta * np.log(d) + self.gain_log
+        pred = self.alpha * d + self.beta * np.log(d) + self.gain_log + self.noise_log_energy_per_mm * d
         if F.site_log_energy is not None:
             pred = pred + F.site_log_energy
         return centre(F.log_energy - pred, ~self.clip_mask(F))

@@ -3,12 +3,71 @@
 Physical meaning: a ground loop, a longer cable, a noisy supply. Observables: the core's pre-trigger noise
 RMS (white part) and a least-squares lock-in at 50 and 60 Hz over the quiet tail (the pre-trigger is
 1.3 ms, too short to see 50 Hz; the baseline removal hides it there). sensor None: every channel.
+
+A raised noise floor also moves the core's picks (a weak, far arrival is picked later) and energies: that
+forward model is measured, not assumed: white noise of a grid of levels is added to a few reference
+recordings and the core's ToA and energy changes are fitted per channel as a + b x distance
+(`noise_table`), so a noisy session's slower-looking picks are explained by the noise, not named a slower
+plate.
 """
+
+from dataclasses import replace as dc_replace
 
 import numpy as np
 
-from ..residuals import HUM_HZ
+from ..residuals import HUM_HZ, hum_white_gain
 from ._base import Effect, to_adc, to_float
+
+WHITE_GRID_COUNTS = np.array([0.0, 1.0, 2.0, 4.0, 8.0, 16.0])
+NOISE_DRAWS = 2
+_TABLES: dict = {}
+
+
+def noise_table(probe, chans: tuple) -> dict:
+    """Per white level of WHITE_GRID_COUNTS added on `chans`, each channel's (ToA shift at zero distance µs,
+    ToA shift per mm, log-energy shift per mm): robust fits over the probe's drops and NOISE_DRAWS draws."""
+    import hashlib
+
+    from ..residuals import _robust_lstsq, extract
+    sess = probe["session"]
+    key = (hashlib.sha1(np.ascontiguousarray(sess.adc).tobytes()).hexdigest(), chans)
+    if key in _TABLES:
+        return _TABLES[key]
+    base = extract(sess)
+    sxy = sess.rig.sensor_xy_mm.astype(float)
+    d = np.hypot(base.x_mm[:, None] - sxy[None, :, 0], base.y_mm[:, None] - sxy[None, :, 1])
+    bias = float(sess.rig.bias_counts)
+    rng = np.random.default_rng(0)
+    tab = np.zeros((len(WHITE_GRID_COUNTS), 4, 3))
+    for k, w in enumerate(WHITE_GRID_COUNTS[1:], start=1):
+        dt, de, dd, ok_e = [], [], [], []
+        for _ in range(NOISE_DRAWS):
+            a = to_float(sess.adc, bias)
+            a[:, list(chans)] += rng.normal(0.0, w, a[:, list(chans)].shape)
+            F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)))
+            dt.append(F.toa_us - base.toa_us)
+            de.append(F.log_energy - base.log_energy)
+            ok_e.append(~(F.clipped | base.clipped))
+            dd.append(d)
+        dt, de, dd, ok_e = (np.concatenate(v) for v in (dt, de, dd, ok_e))
+        for c in chans:
+            ok = np.isfinite(dt[:, c])
+            X = np.stack([np.ones(ok.sum()), dd[ok, c]], axis=1)
+            (a0, a1), _ = _robust_lstsq(X, dt[ok, c])
+            ok = ok_e[:, c] & np.isfinite(de[:, c])
+            X = np.stack([np.ones(ok.sum()), dd[ok, c]], axis=1)
+            (_, b1), _ = _robust_lstsq(X, de[ok, c])
+            tab[k, c] = (a0, a1, b1)
+    _TABLES[key] = {"white_counts": WHITE_GRID_COUNTS, "shift": tab}
+    return _TABLES[key]
+
+
+def _white_gain(ref) -> np.ndarray:
+    """The hum lock-in's reading per unit white-noise power (0 without the reference's recordings)."""
+    if ref.probe is None:
+        return np.zeros(len(HUM_HZ))
+    rig = ref.probe["session"].rig
+    return hum_white_gain(rig.fs_hz, rig.samples)
 
 
 class Noise(Effect):
@@ -29,7 +88,8 @@ class Noise(Effect):
         rms2 = np.exp(2 * F.log_noise[:, ch]).mean()
         ref2 = np.exp(2 * ref.log_noise[ch]).mean()
         white = float(np.sqrt(max(rms2 - ref2, 0.0)))
-        a2 = (F.hum_counts[:, ch, :] ** 2).mean(axis=(0, 1)) - ref.hum2[ch].mean(axis=0)
+        a2 = (F.hum_counts[:, ch, :] ** 2).mean(axis=(0, 1)) - ref.hum2[ch].mean(axis=0) \
+            - white ** 2 * _white_gain(ref)
         k = int(np.argmax(a2))
         return {"white_rms_counts": white, "hum_counts": float(np.sqrt(max(a2[k], 0.0))),
                 "hum_hz": float(HUM_HZ[k])}
@@ -40,6 +100,15 @@ class Noise(Effect):
         out.log_noise[ch] = 0.5 * np.log(np.exp(2 * out.log_noise[ch]) + params["white_rms_counts"] ** 2)
         k = HUM_HZ.index(params["hum_hz"])
         out.hum2[ch, k] += params["hum_counts"] ** 2
+        out.hum2[ch] += params["white_rms_counts"] ** 2 * _white_gain(ref)   # the lock-in reads white noise too
+        if ref.probe is not None and params["white_rms_counts"] > 0:
+            tab = noise_table(ref.probe, tuple(ch))
+            w = np.clip(params["white_rms_counts"], 0.0, tab["white_counts"][-1])
+            for c in ch:
+                a0, a1, b1 = (float(np.interp(w, tab["white_counts"], tab["shift"][:, c, j])) for j in range(3))
+                out.noise_toa_us[c] += a0
+                out.noise_toa_us_per_mm[c] += a1
+                out.noise_log_energy_per_mm[c] += b1
         return out
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
