@@ -8,6 +8,8 @@ import numpy as np
 
 from ._base import Effect, to_adc, to_float
 
+PRETRIGGER_NOISE_SAMPLES = 64   # the record's first samples: before any impact (the noise level)
+
 
 class Damping(Effect):
     name = "damping"
@@ -27,10 +29,16 @@ class Damping(Effect):
         return out
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
+        """The wave field decays faster after the onset; the amplifier's noise does not: what the decay takes
+        from the recorded noise is given back as fresh noise of the pre-trigger's level."""
+        rng = np.random.default_rng(rng)
         a = to_float(adc, ctx["bias"])
         on = ctx["onset_samples"]  # [R, 4] from the core
         t = (np.arange(a.shape[-1])[None, None, :] - on[..., None]) / ctx["fs_hz"]
-        a *= np.exp(-params["extra_decay_per_s"] * np.clip(t, 0, None))
+        g = np.exp(-params["extra_decay_per_s"] * np.clip(t, 0, None))
+        pre = a[..., :PRETRIGGER_NOISE_SAMPLES]
+        sigma = pre.std(axis=-1, keepdims=True)
+        a = a * g + sigma * np.sqrt(np.clip(1.0 - g ** 2, 0.0, None)) * rng.standard_normal(a.shape)
         return to_adc(a, ctx["bias"], ctx["adc_max"])
 
     def material(self, params):
