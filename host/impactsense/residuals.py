@@ -226,6 +226,9 @@ class Reference:
     rail_lo: np.ndarray = field(default_factory=lambda: np.zeros(4))
     rail_hi: np.ndarray = field(default_factory=lambda: np.full(4, 4095.0))
     plateau_rate: float = 0.0   # rate of non-rail plateaus per drop-channel on the reference
+    # where the energy model puts the discs when it differs from the timing's (`effects.sensor_position`
+    # moves a disc for the timing only); None: sensor_xy_mm
+    energy_sensor_xy_mm: np.ndarray | None = None
     sigma: dict = field(default_factory=dict)
     mode: str = "calibrated"
     probe: object = field(default=None, repr=False)   # a few reference recordings (forward models)
@@ -269,7 +272,7 @@ class Reference:
         return hi | lo
 
     def energy_resid(self, F: Features) -> np.ndarray:
-        d, *_ = self.geometry(F)
+        d, *_ = self.geometry(F, self.energy_sensor_xy_mm)
         pred = self.alpha * d + self.beta * np.log(d) + self.gain_log + self.noise_log_energy_per_mm * d
         if F.site_log_energy is not None:
             pred = pred + F.site_log_energy

@@ -23,6 +23,15 @@ def lowpass(a: np.ndarray, fc_hz: float, fs_hz: float) -> np.ndarray:
     return signal.lfilter(b, a_, a, axis=-1)
 
 
+def lowpass_signal(a: np.ndarray, fc_hz: float, fs_hz: float, rng=None) -> np.ndarray:
+    """The bond's low-pass on recordings a [..., samples] (bias removed): it filters the disc's signal, not the
+    amplifier's noise, so the noise it takes from the recording is given back (fresh noise of the first
+    samples' level, through the complement of the filter)."""
+    sigma = a[..., :PRETRIGGER_NOISE_SAMPLES].std(axis=-1, keepdims=True)
+    fresh = np.random.default_rng(rng).standard_normal(a.shape)
+    return lowpass(a, fc_hz, fs_hz) + sigma * (fresh - lowpass(fresh, fc_hz, fs_hz))
+
+
 _TABLES: dict = {}
 
 
@@ -41,11 +50,8 @@ def forward_table(probe) -> dict:
     bias = float(sess.rig.bias_counts)
     rows = []
     raw = to_float(sess.adc, bias)
-    sigma = raw[..., :PRETRIGGER_NOISE_SAMPLES].std(axis=-1, keepdims=True)
-    fresh = np.random.default_rng(0).standard_normal(raw.shape)
     for fc in FC_GRID_HZ:
-        # the bond filters the disc's signal, not the amplifier's noise: the noise it took is given back
-        a = lowpass(raw, fc, sess.rig.fs_hz) + sigma * (fresh - lowpass(fresh, fc, sess.rig.fs_hz))
+        a = lowpass_signal(raw, fc, sess.rig.fs_hz, rng=0)
         F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)))
         rows.append([np.nanmedian(F.toa_us - base.toa_us), np.nanmedian(F.log_energy - base.log_energy),
                      np.nanmedian(F.log_centroid - base.log_centroid),
@@ -88,7 +94,7 @@ class ChannelLowpass(Effect):
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
         a = to_float(adc, ctx["bias"])
-        a[:, sensor] = lowpass(a[:, sensor], params["fc_hz"], ctx["fs_hz"])
+        a[:, sensor] = lowpass_signal(a[:, sensor], params["fc_hz"], ctx["fs_hz"], rng)
         return to_adc(a, ctx["bias"], ctx["adc_max"])
 
     def material(self, params):

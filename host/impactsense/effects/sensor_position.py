@@ -1,14 +1,18 @@
 """sensor_position: the disc is not where rig.json says. Units: mm.
 
 Physical meaning: a bonding offset moves sensor i by (dx, dy). Its ToA changes by -s (u_x dx + u_y dy), u
-the unit vector from the sensor to the impact, and its path length, hence its energy (the reference's
-alpha d + beta log d), changes with it: a direction-dependent signature in timing and energy. A shift along
-the sensor's mean look direction is nearly a constant delay; the two are rivals, not nested: the selection
+the unit vector from the sensor to the impact: a direction-dependent timing signature. A shift along the
+sensor's mean look direction is nearly a constant delay; the two are rivals, not nested: the selection
 compares their held-out log-likelihoods (`channel_delay` on the same sensor), so a move is named only where
 the data tell its direction dependence from a constant delay.
 
-Fit: the linearised timing least squares gives (dx, dy); a 2-D search of the timing + energy
-log-likelihood around it refines them (the energy term is non-linear in the offset).
+The energy model keeps the declared position (`Reference.energy_sensor_xy_mm`): a re-glued disc's energy
+did not follow the moved path lengths (on FEM sessions with a known move the true offset's energy term,
+geometric law or the reference's site map shifted with the disc, scored below no move at all:
+docs/findings.md), so the move is told by its timing alone.
+
+Fit: the linearised timing least squares gives (dx, dy); a 2-D search of the timing log-likelihood (Huber)
+around it refines them.
 """
 
 import numpy as np
@@ -35,7 +39,7 @@ class SensorPosition(Effect):
         def nll(v):
             m = self.add(ref, sensor, {"dx_mm": v[0], "dy_mm": v[1]})
             g = m.ll_groups(F)
-            return -float(g["timing"].sum() + g["energy"].sum())
+            return -float(g["timing"].sum())
 
         res = optimize.minimize(nll, [dx0, dy0], method="Nelder-Mead",
                                 options={"xatol": 0.05, "fatol": 0.01, "maxiter": 120})
@@ -44,6 +48,8 @@ class SensorPosition(Effect):
 
     def add(self, ref, sensor, params):
         out = ref.copy()
+        if out.energy_sensor_xy_mm is None:
+            out.energy_sensor_xy_mm = ref.sensor_xy_mm.copy()
         out.sensor_xy_mm[sensor] += [params["dx_mm"], params["dy_mm"]]
         return out
 
