@@ -23,7 +23,6 @@ whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MA
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import sys
 import time
@@ -121,16 +120,14 @@ def run(args) -> dict:
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose
-    from impactsense.sim import SimParams
 
     gen_only = ["--only", "ref," + args.only] if args.only else []
     gen_args = loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed)] + gen_only + args.gen)
     man = loop_sessions.generate(gen_args)
-    cal = json.loads(Path(gen_args.calibration).read_text())
-    sim_params = loop_sessions.twin_params(SimParams.from_dict(cal["sim_params"]), gen_args)
+    ref = load_session(Path(args.sessions) / "ref")
+    sim_params = loop_sessions.twin_params(loop_sessions.base_params(gen_args, ref.rig), gen_args)
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
-    ref = load_session(Path(args.sessions) / "ref")
     ref_model, _ = train_score(ref, args.trees, args.seed)
     only = set(args.only.split(",")) if args.only else None
     rows = []
@@ -151,19 +148,22 @@ def run(args) -> dict:
         rows.append(row)
         print(f"  {name}: named {row['named']} MAE {row['before']['mae_mm']:.2f} -> {row['after']['mae_mm']:.2f}"
               f" ({row['seconds']} s)", flush=True)
-        out = {"rows": rows, "D_s": sim_params.damping_per_s}
+        out = {"rows": rows, "D_s": sim_params.damping_per_s, "twin": sim_params.to_dict()}
         (work / "bench_loop.json").write_text(json.dumps(out, indent=1, default=float))
     return out
 
 
-def _twin_params():
+def _twin_params(out: dict):
+    """The run's twin (stored with its rows; runs before it was stored: the bundled twin)."""
     from impactsense.sim import SimParams
+    if "twin" in out:
+        return SimParams.from_dict(out["twin"])
     cal = json.loads(Path(loop_sessions.parse([]).calibration).read_text())
     return SimParams.from_dict(cal["sim_params"])
 
 
 def table(out: dict) -> int:
-    rows, ds, twin = out["rows"], out["D_s"], _twin_params()
+    rows, ds, twin = out["rows"], out["D_s"], _twin_params(out)
     same = [r for r in rows if r["truth"] is None]
     base = float(np.mean([r["before"]["mae_mm"] for r in same])) if same else float("nan")
     print(f"\n| change | named | size | MAE before | after (measured / twin) | unchanged | ok |")
@@ -210,7 +210,9 @@ def main(argv=None) -> int:
         parts = [json.loads(Path(p).read_text()) for p in args.merge]
         parts = [p if isinstance(p, dict) else {"rows": p} for p in parts]
         ds = next((p["D_s"] for p in parts if "D_s" in p), float("nan"))
-        return table({"rows": [r for p in parts for r in p["rows"]], "D_s": ds})
+        merged = {"rows": [r for p in parts for r in p["rows"]], "D_s": ds}
+        merged.update({"twin": p["twin"] for p in parts[:1] if "twin" in p})
+        return table(merged)
     return table(run(args))
 
 

@@ -183,14 +183,23 @@ def twin_params(params, args):
     return dataclasses.replace(params, element_mm=args.element_mm, method="fast", duration_ms=args.duration_ms)
 
 
+def base_params(args, rig):
+    """The twin's SimParams: a calibration file's, or (`--calibration rig`) the rig's own material defaults
+    (`SimParams.from_rig`: an uncalibrated twin of any rig)."""
+    from impactsense.sim import SimParams
+
+    if args.calibration == "rig":
+        return SimParams.from_rig(rig)
+    cal = json.loads(Path(args.calibration).read_text())
+    return SimParams.from_dict(cal["sim_params"], str(args.calibration))
+
+
 def generate(args) -> dict:
     from impactsense.data import load_session, write_session
     from impactsense.sim import SimParams
 
     rig = load_session(args.rig).rig
-    cal = json.loads(Path(args.calibration).read_text())
-    base = SimParams.from_dict(cal["sim_params"], str(args.calibration))
-    base = twin_params(base, args)
+    base = twin_params(base_params(args, rig), args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     man_path = out / "manifest.json"
@@ -226,11 +235,15 @@ def parse(argv=None):
     ap.add_argument("--duration-ms", type=float, default=10.0,
                     help="simulated time after the first touch (the decay observable reads 1-8 ms after the onset)")
     ap.add_argument("--rig", default=str(bundled_session_path("session-1")), help="session folder whose rig.json is used")
-    ap.add_argument("--calibration", default=None, help="CAL.json (default: the bundled twin)")
+    ap.add_argument("--calibration", default=None,
+                    help="CAL.json, or 'rig' for the rig's material defaults (default: the bundled twin for the "
+                         "bundled rig, 'rig' for any other --rig)")
     ap.add_argument("--only", default=None, help="comma-separated session names")
     args = ap.parse_args(argv)
     if args.calibration is None:
-        args.calibration = str(Path(bundled_session_path("session-1")).parent / "twin" / "calibration.json")
+        bundled = Path(bundled_session_path("session-1"))
+        args.calibration = str(bundled.parent / "twin" / "calibration.json") \
+            if Path(args.rig).resolve() == bundled.resolve() else "rig"
     return args
 
 
