@@ -37,29 +37,44 @@ RATIO = 1.2
 TOL = {"delay_us": 1.0, "move_mm": 2.0, "gain": 0.05, "e_pct": 1.0, "ds_frac": 0.05}
 
 
+def _ci(e: dict, key: str, scale: float = 1.0, fmt: str = "{:+.1f}") -> str:
+    """' [lo, hi]': the parameter's 95 % interval (diagnose's delete-a-fold jackknife), '' without one."""
+    ci = (e.get("param_ci95") or {}).get(key)
+    return "" if not ci else " [" + ", ".join(fmt.format(v * scale) for v in ci) + "]"
+
+
 def size_check(truth: dict, e: dict | None, ds_ref: float, twin=None) -> tuple[str, bool | None]:
-    """(the fitted size against the truth, within tolerance or None when the issue states none)."""
+    """(the fitted size with its 95 % interval against the truth, within tolerance or None when the issue
+    states none)."""
     if e is None:
         return "-", False
+    text, ok = _size_check(truth, e, ds_ref, twin)
+    return text, ok
+
+
+def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bool | None]:
     t, p = truth["params"], e["params"]
     if truth["effect"] == "sensor_position" and e["effect"] == "sensor_position":
         err = float(np.hypot(p["dx_mm"] - t["dx_mm"], p["dy_mm"] - t["dy_mm"]))
-        return f"({p['dx_mm']:+.1f},{p['dy_mm']:+.1f}) mm vs ({t['dx_mm']:+.1f},{t['dy_mm']:+.1f})", err <= TOL["move_mm"]
+        return (f"({p['dx_mm']:+.1f}{_ci(e, 'dx_mm')}, {p['dy_mm']:+.1f}{_ci(e, 'dy_mm')}) mm vs "
+                f"({t['dx_mm']:+.1f}, {t['dy_mm']:+.1f})", err <= TOL["move_mm"])
     if truth["effect"] == "channel_delay" and e["effect"] == "channel_delay":
-        return f"{p['delay_us']:+.2f} us vs {t['delay_us']:+.2f}", abs(p["delay_us"] - t["delay_us"]) <= TOL["delay_us"]
+        return f"{p['delay_us']:+.2f}{_ci(e, 'delay_us')} us vs {t['delay_us']:+.2f}", abs(p["delay_us"] - t["delay_us"]) <= TOL["delay_us"]
     if truth["effect"] == "sensor_gain" and e["effect"] == "sensor_gain":
-        return f"x{p['gain']:.3f} vs x{t['gain']:.3f}", abs(p["gain"] - t["gain"]) <= TOL["gain"]
+        return f"x{p['gain']:.3f}{_ci(e, 'gain', fmt='{:.3f}')} vs x{t['gain']:.3f}", abs(p["gain"] - t["gain"]) <= TOL["gain"]
     if "e_scale" in t and e["effect"] == "wave_speed":
         from impactsense.loop import e_scale_for_speed
         v_ref = p["velocity_m_s"] / (1 + p["change_pct"] / 100)
         got = 100 * (e_scale_for_speed(twin, v_ref, p["change_pct"]) - 1)
         want = 100 * (t["e_scale"] - 1)
-        return f"E {got:+.1f} % vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"]
+        return f"E {got:+.1f} % (pick velocity {p['change_pct']:+.2f}{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"]
     if "damping_scale" in t and e["effect"] == "damping":
         got = 2 * p["extra_decay_per_s"] / ds_ref
         want = t["damping_scale"] - 1
-        return f"D_s {100 * got:+.1f} % vs {100 * want:+.1f} %", abs(got - want) <= TOL["ds_frac"]
-    vals = ", ".join(f"{k}={v:.3g}" for k, v in p.items() if isinstance(v, (int, float)))
+        return (f"D_s {100 * got:+.1f}{_ci(e, 'extra_decay_per_s', 200 / ds_ref)} % vs {100 * want:+.1f} %",
+                abs(got - want) <= TOL["ds_frac"])
+    vals = ", ".join(f"{k}={v:.3g}{_ci(e, k, fmt='{:.3g}')}" for k, v in p.items()
+                     if isinstance(v, (int, float)) and k != "hum_hz")
     return vals, None
 
 
