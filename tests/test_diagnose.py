@@ -97,6 +97,17 @@ def test_injected_effect_is_named(sessions, name, sensor, params, key, tol):
     assert res["after"]["dtoa_rms_us"] <= res["before"]["dtoa_rms_us"] + 0.2
 
 
+def test_white_noise_is_named_noise_and_nothing_else(sessions):
+    """6 counts of white noise on every channel: the picks come later with distance and the hum lock-in reads
+    the noise, which `noise` itself predicts, so no slower plate, damping or hum is named beside it."""
+    new = _inject(sessions["new"], "noise", None, {"white_rms_counts": 6.0, "hum_counts": 0.0, "hum_hz": 50.0})
+    res, _ = D.diagnose(sessions["base"], new, same=False)
+    top, sig = _top(res)
+    assert (top["effect"], top["sensor"]) == ("noise", None), [(e["effect"], e["sensor"]) for e in sig]
+    assert abs(top["params"]["white_rms_counts"] - 6.0) <= 0.6, top["params"]
+    assert {e["effect"] for e in sig} == {"noise"}, [(e["effect"], e["sensor"], e["params"]) for e in sig]
+
+
 def test_lowpass_named_with_cutoff(sessions):
     new = _inject(sessions["new"], "channel_lowpass", 1, {"fc_hz": 4000.0})
     res, _ = D.diagnose(sessions["base"], new, same=False)

@@ -8,7 +8,7 @@ A raised noise floor also moves the core's picks (a weak, far arrival is picked 
 forward model is measured, not assumed: white noise of a grid of levels is added to a few reference
 recordings and the core's ToA and energy changes are fitted per channel as a + b x distance
 (`noise_table`), so a noisy session's slower-looking picks are explained by the noise, not named a slower
-plate.
+plate; the decay rate's change (fewer blocks above a higher noise) is measured the same way.
 """
 
 from dataclasses import replace as dc_replace
@@ -25,7 +25,8 @@ _TABLES: dict = {}
 
 def noise_table(probe, chans: tuple) -> dict:
     """Per white level of WHITE_GRID_COUNTS added on `chans`, each channel's (ToA shift at zero distance µs,
-    ToA shift per mm, log-energy shift per mm): robust fits over the probe's drops and NOISE_DRAWS draws."""
+    ToA shift per mm, log-energy shift per mm, decay-rate shift 1/s): robust fits (the decay: the median)
+    over the probe's drops and NOISE_DRAWS draws."""
     import hashlib
 
     from ..residuals import _robust_lstsq, extract
@@ -38,18 +39,19 @@ def noise_table(probe, chans: tuple) -> dict:
     d = np.hypot(base.x_mm[:, None] - sxy[None, :, 0], base.y_mm[:, None] - sxy[None, :, 1])
     bias = float(sess.rig.bias_counts)
     rng = np.random.default_rng(0)
-    tab = np.zeros((len(WHITE_GRID_COUNTS), 4, 3))
+    tab = np.zeros((len(WHITE_GRID_COUNTS), 4, 4))
     for k, w in enumerate(WHITE_GRID_COUNTS[1:], start=1):
-        dt, de, dd, ok_e = [], [], [], []
+        dt, de, dd, ok_e, dk = [], [], [], [], []
         for _ in range(NOISE_DRAWS):
             a = to_float(sess.adc, bias)
             a[:, list(chans)] += rng.normal(0.0, w, a[:, list(chans)].shape)
             F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)))
             dt.append(F.toa_us - base.toa_us)
             de.append(F.log_energy - base.log_energy)
+            dk.append(F.decay_per_s - base.decay_per_s)
             ok_e.append(~(F.clipped | base.clipped))
             dd.append(d)
-        dt, de, dd, ok_e = (np.concatenate(v) for v in (dt, de, dd, ok_e))
+        dt, de, dd, ok_e, dk = (np.concatenate(v) for v in (dt, de, dd, ok_e, dk))
         for c in chans:
             ok = np.isfinite(dt[:, c])
             X = np.stack([np.ones(ok.sum()), dd[ok, c]], axis=1)
@@ -57,7 +59,8 @@ def noise_table(probe, chans: tuple) -> dict:
             ok = ok_e[:, c] & np.isfinite(de[:, c])
             X = np.stack([np.ones(ok.sum()), dd[ok, c]], axis=1)
             (_, b1), _ = _robust_lstsq(X, de[ok, c])
-            tab[k, c] = (a0, a1, b1)
+            decay = dk[:, c][np.isfinite(dk[:, c])]
+            tab[k, c] = (a0, a1, b1, float(np.median(decay)) if decay.size else 0.0)
     _TABLES[key] = {"white_counts": WHITE_GRID_COUNTS, "shift": tab}
     return _TABLES[key]
 
@@ -105,10 +108,11 @@ class Noise(Effect):
             tab = noise_table(ref.probe, tuple(ch))
             w = np.clip(params["white_rms_counts"], 0.0, tab["white_counts"][-1])
             for c in ch:
-                a0, a1, b1 = (float(np.interp(w, tab["white_counts"], tab["shift"][:, c, j])) for j in range(3))
+                a0, a1, b1, k1 = (float(np.interp(w, tab["white_counts"], tab["shift"][:, c, j])) for j in range(4))
                 out.noise_toa_us[c] += a0
                 out.noise_toa_us_per_mm[c] += a1
                 out.noise_log_energy_per_mm[c] += b1
+                out.decay_off[c] += k1
         return out
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
