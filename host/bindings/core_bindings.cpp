@@ -256,6 +256,27 @@ void copy16(float* dst, InF src, const char* name) {
 }
 
 // twin_estimate over every row: features [R,16], usable [R] (uint16 masks), xy_mm [R,2] model positions.
+// The site map and the twin's configuration from the binding's arguments (q stays the caller's array).
+void twin_setup(InU8 q, int nx, int ny, float x0_mm, float y0_mm, float step_mm, InF base, InF scale,
+                InF offset, InF slope, InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
+                float temperature, ic::SiteMap* map, ic::TwinConfig* cfg) {
+  if (nx < 1 || ny < 1 || q.ndim() != 2 || q.shape(0) != static_cast<size_t>(nx) * ny ||
+      q.shape(1) != ic::kTwinFeatures) {
+    throw std::invalid_argument("site map q must be uint8 [nx*ny, 16]");
+  }
+  *map = ic::SiteMap{nx, ny, x0_mm, y0_mm, step_mm, {}, {}, q.data()};
+  copy16(map->base, base, "base");
+  copy16(map->scale, scale, "scale");
+  *cfg = ic::TwinConfig();
+  copy16(cfg->offset, offset, "offset");
+  copy16(cfg->slope, slope, "slope");
+  copy16(cfg->weight, weight, "weight");
+  cfg->ref_log10_height_mm = ref_log10_height_mm;
+  cfg->prior_mm = prior_mm;
+  cfg->cutoff_mm = cutoff_mm;
+  cfg->temperature = temperature;
+}
+
 nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int nx, int ny, float x0_mm,
                              float y0_mm, float step_mm, InF base, InF scale, InF offset, InF slope,
                              InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
@@ -265,21 +286,10 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
       usable.shape(0) != r || xy_mm.ndim() != 2 || xy_mm.shape(0) != r || xy_mm.shape(1) != 2) {
     throw std::invalid_argument("features [R,16] float32, usable [R] uint16 and xy_mm [R,2] float32 needed");
   }
-  if (nx < 1 || ny < 1 || q.ndim() != 2 || q.shape(0) != static_cast<size_t>(nx) * ny ||
-      q.shape(1) != ic::kTwinFeatures) {
-    throw std::invalid_argument("site map q must be uint8 [nx*ny, 16]");
-  }
-  ic::SiteMap map{nx, ny, x0_mm, y0_mm, step_mm, {}, {}, q.data()};
-  copy16(map.base, base, "base");
-  copy16(map.scale, scale, "scale");
+  ic::SiteMap map;
   ic::TwinConfig cfg;
-  copy16(cfg.offset, offset, "offset");
-  copy16(cfg.slope, slope, "slope");
-  copy16(cfg.weight, weight, "weight");
-  cfg.ref_log10_height_mm = ref_log10_height_mm;
-  cfg.prior_mm = prior_mm;
-  cfg.cutoff_mm = cutoff_mm;
-  cfg.temperature = temperature;
+  twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
+             cutoff_mm, temperature, &map, &cfg);
   auto lh = make_array<float>({r});
   auto pos = make_array<float>({r, 2});
   auto spread = make_array<float>({r});
@@ -307,6 +317,77 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   out["misfit"] = misfit;
   out["n_points"] = npts;
   out["status"] = status;
+  return out;
+}
+
+// twin_match (twin.h) over every row of featurize()'s arrays: the twin's match around xy_mm [R,2] (the
+// forests' position; NaN rows: the forests did not run), with a dead or inconsistent channel left out.
+nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::cpu> status, InU8 flags,
+                          InF toa_us, InF window_energy, InF diff_energy, InF phys_xy_mm, InF xy_mm,
+                          const ic::LocaliserConfig& loc, InU8 q, int nx, int ny, float x0_mm, float y0_mm,
+                          float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
+                          float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
+                          float misfit_ref) {
+  const size_t r = status.ndim() == 1 ? status.shape(0) : 0;
+  auto rows2 = [r](InF a, size_t k) { return a.ndim() == 2 && a.shape(0) == r && a.shape(1) == k; };
+  auto rows3 = [r](InF a, size_t k, size_t m) {
+    return a.ndim() == 3 && a.shape(0) == r && a.shape(1) == ic::kChannels && a.shape(2) == m;
+  };
+  if (status.ndim() != 1 || flags.ndim() != 2 || flags.shape(0) != r || flags.shape(1) != ic::kChannels ||
+      !rows2(toa_us, ic::kChannels) || !rows3(window_energy, ic::kChannels, ic::kEnergyWindows) ||
+      !rows3(diff_energy, ic::kChannels, ic::kDiffOrders) || !rows2(phys_xy_mm, 2) || !rows2(xy_mm, 2)) {
+    throw std::invalid_argument("status [R] int32, flags [R,4] uint8, toa_us [R,4], window_energy [R,4,5], "
+                                "diff_energy [R,4,3], phys_xy_mm [R,2], xy_mm [R,2] float32 needed");
+  }
+  ic::SiteMap map;
+  ic::TwinConfig cfg;
+  twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
+             cutoff_mm, temperature, &map, &cfg);
+  auto lh = make_array<float>({r});
+  auto pos = make_array<float>({r, 2});
+  auto spread = make_array<float>({r});
+  auto misfit = make_array<float>({r});
+  auto st = make_array<int32_t>({r});
+  auto left = make_array<int32_t>({r});
+  auto reason = make_array<int32_t>({r});
+  {
+    nb::gil_scoped_release release;
+    ic::EventResult ev;
+    std::memset(&ev, 0, sizeof(ev));
+    for (size_t k = 0; k < r; ++k) {
+      ev.status = status.data()[k];
+      for (int c = 0; c < ic::kChannels; ++c) {
+        ic::ChannelFeatures& ch = ev.features.ch[c];
+        for (int w = 0; w < ic::kEnergyWindows; ++w)
+          ch.window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
+        for (int d = 0; d < ic::kDiffOrders; ++d)
+          ch.diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+        ch.flags = flags.data()[k * ic::kChannels + c];
+        ch.toa_us = toa_us.data()[k * ic::kChannels + c];
+      }
+      ev.phys.x_mm = phys_xy_mm.data()[2 * k];
+      ev.phys.y_mm = phys_xy_mm.data()[2 * k + 1];
+      ev.phys.status = ev.phys.x_mm == ev.phys.x_mm && ev.phys.y_mm == ev.phys.y_mm ? ic::kOk : ic::kErrSingular;
+      const ic::TwinMatch m =
+          ic::twin_match(ev, xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], &loc, map, cfg, misfit_ref);
+      lh.data()[k] = m.est.log10_height_mm;
+      pos.data()[2 * k] = m.est.x_mm;
+      pos.data()[2 * k + 1] = m.est.y_mm;
+      spread.data()[k] = m.est.spread_mm;
+      misfit.data()[k] = m.est.misfit;
+      st.data()[k] = m.est.status;
+      left.data()[k] = m.left_out;
+      reason.data()[k] = m.reason;
+    }
+  }
+  nb::dict out;
+  out["log10_height_mm"] = lh;
+  out["xy_mm"] = pos;
+  out["spread_mm"] = spread;
+  out["misfit"] = misfit;
+  out["status"] = st;
+  out["left_out"] = left;
+  out["reason"] = reason;
   return out;
 }
 
@@ -474,6 +555,13 @@ NB_MODULE(_core, m) {
         "ny"_a, "x0_mm"_a, "y0_mm"_a, "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a,
         "ref_log10_height_mm"_a, "prior_mm"_a, "cutoff_mm"_a, "temperature"_a,
         "The twin's energy fingerprint (twin.h) of every row: log10 height, position, spread, misfit, status.");
+  m.def("twin_match_batch", &twin_match_batch, "status"_a, "flags"_a, "toa_us"_a, "window_energy"_a,
+        "diff_energy"_a, "phys_xy_mm"_a, "xy_mm"_a, "localiser"_a, "q"_a, "nx"_a, "ny"_a, "x0_mm"_a, "y0_mm"_a,
+        "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
+        "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a,
+        "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
+  m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
+  m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

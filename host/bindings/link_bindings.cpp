@@ -46,6 +46,7 @@ nb::dict report_dict(const il::Report& r) {
   d["valid"] = r.valid;
   d["clipped"] = r.clipped;
   d["dead"] = r.dead;
+  d["left_out"] = static_cast<int>(r.left_out);
   return d;
 }
 
@@ -66,6 +67,7 @@ il::Report report_from(nb::dict d) {
   r.valid = d.contains("valid") ? nb::cast<bool>(d["valid"]) : true;
   r.clipped = d.contains("clipped") ? nb::cast<uint8_t>(d["clipped"]) : 0;
   r.dead = d.contains("dead") ? nb::cast<uint8_t>(d["dead"]) : 0;
+  r.left_out = d.contains("left_out") ? nb::cast<int8_t>(d["left_out"]) : static_cast<int8_t>(-1);
   return r;
 }
 
@@ -320,6 +322,10 @@ struct PyModels : ia::Models {
   bool predict_with_uncertainty(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c,
                                 float* u) const override {
     return impl->predict_with_uncertainty(ev, xm, ym, c, u);
+  }
+  bool predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* xm, float* ym, uint8_t* c,
+                     float* u, int8_t* left_out) const override {
+    return impl->predict_event(ev, loc, xm, ym, c, u, left_out);
   }
 };
 

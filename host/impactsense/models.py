@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from sklearn.model_selection import GroupKFold
 
-from . import __version__
+from . import __version__, _core
 from .errors import DataError
 from .forestfile import save_forest
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
@@ -121,20 +121,30 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
     return out
 
 
-# A twin misfit above BAD_MISFIT_REF x the training's reference misfit makes the event suspect; leaving one
-# channel out must lower it BAD_MISFIT_GAIN-fold to be believed (clean drops: misfit ~1 x the reference, a
-# channel at x0.4 gain behind a 4 kHz low-pass: ~500 x, ~1.5 x without it).
-BAD_MISFIT_REF = 20.0
-BAD_MISFIT_GAIN = 10.0
 
 
 def three_channel_rows(features: Features) -> np.ndarray:
     """Rows the core processed with exactly one channel without an onset and a physics position from the
     other three."""
-    from . import _core
-
     return ((features.status == _core.STATUS_OK) & (features.no_onset.sum(1) == 1)
             & np.isfinite(features.phys_xy_mm).all(1))
+
+
+def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.ndarray, signal: SignalConfig) -> dict:
+    """The core's twin_match (twin.h; the board's TableModels runs the same) of every row: the twin's match
+    around start_xy_mm (the forests' position; NaN rows: the forests did not run, and with one channel
+    without an onset the physics three-sensor position starts it), leaving out a channel whose energies
+    the twin cannot explain with the others'. Returns log10_height_mm, xy_mm, spread_mm, misfit, status,
+    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row."""
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    raw = features.raw
+    misfit_ref = float(getattr(fit, "uncertainty_misfit_ref", 0.0) or 0.0)
+    return _core.twin_match_batch(
+        np.ascontiguousarray(features.status, np.int32), np.ascontiguousarray(features.flags, np.uint8),
+        f32(features.toa_us), f32(raw["window_energy"]), f32(raw["diff_energy"]), f32(features.phys_xy_mm),
+        f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
+        site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
+        f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref)
 
 
 @dataclass
@@ -222,8 +232,9 @@ class ImpactModel:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
                "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
-        # One channel without an onset (dead, disconnected): the physics localiser's three-sensor position
-        # starts the twin, which matches the other three channels' energies (its usable mask).
+        # One channel without an onset (dead, disconnected): without a site map the physics localiser's
+        # three-sensor position; with one, twin_match (the core's, the board's too) starts the twin there
+        # and matches the other three channels' energies.
         three = three_channel_rows(features) & ~use
         xy[three] = features.phys_xy_mm[three]
         out["three_channel"] = three
@@ -232,10 +243,11 @@ class ImpactModel:
             out["height_mm"] = np.full(n, np.nan)
             out["twin_spread_mm"] = np.full(n, np.nan)
             out["twin_misfit"] = np.full(n, np.nan)
-            rows = np.flatnonzero(use | three)
+            out["bad_channel"] = np.full(n, -1)
+            rows = np.flatnonzero(features.status == _core.STATUS_OK)
             if rows.size:
-                feats, usable = twin_features(features.take(rows))
-                twin = twin_estimate(self.site_map, self.twin_fit, feats, usable, xy[rows])
+                start = np.where(use[rows, None], xy[rows], np.nan)   # the forests' position, NaN: not run
+                twin = twin_match(self.site_map, self.twin_fit, features.take(rows), start, self.signal)
                 est = twin["log10_height_mm"]
                 ok = (np.asarray(twin["status"]) == 0) & np.isfinite(est)
                 energy_class[rows[ok]] = self.forest_energy.predict(est[ok, None])
@@ -246,50 +258,9 @@ class ImpactModel:
                 out["twin_spread_mm"][rows[ok]] = spread
                 out["twin_misfit"][rows[ok]] = misfit
                 out["uncertainty_mm"][rows[ok]] = calibrated_uncertainty(self.twin_fit, spread, misfit)
-                out["bad_channel"] = np.full(n, -1)
-                self._drop_inconsistent_channel(features, rows, feats, usable, twin, out, energy_class)
+                inconsistent = ok & (np.asarray(twin["reason"]) == _core.TWIN_INCONSISTENT)
+                out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
-
-    def _drop_inconsistent_channel(self, features, rows, feats, usable, twin, out, energy_class) -> None:
-        """A channel whose energies the twin cannot explain with the others (a debonded or cracked disc: a
-        misfit far above the training's) is left out: each channel in turn is dropped, the three-sensor
-        physics position starts the twin on the other channels' energies, and when one drop explains the
-        event far better (misfit / BAD_MISFIT_GAIN) its position, class and flag (bad_channel) are kept."""
-        from . import _core
-
-        misfit = np.asarray(twin["misfit"], float)
-        ref = max(float(getattr(self.twin_fit, "uncertainty_misfit_ref", 0.0) or 0.0), 0.1)
-        suspect = np.flatnonzero(np.isfinite(misfit) & (misfit > BAD_MISFIT_REF * ref))
-        if suspect.size == 0:
-            return
-        r, sig = rows[suspect], self.signal
-        toa = np.ascontiguousarray(features.toa_us[r], np.float32)
-        metric = [getattr(sig, k, d) for k, d in (("travel_metric_xx", 1.0), ("travel_metric_xy", 0.0),
-                                                 ("travel_metric_yy", 1.0))]
-        best = misfit[suspect].copy()
-        for c in range(4):
-            use = np.ones((r.size, 4), np.uint8)
-            use[:, c] = 0
-            loc = _core.localise_batch(toa, use, np.asarray(sig.sensor_x_mm, np.float32),
-                                       np.asarray(sig.sensor_y_mm, np.float32), sig.velocity_mm_per_us,
-                                       sig.sigma_us, sig.plate_x_mm, sig.plate_y_mm, sig.huber_us, metric)
-            start = np.stack([loc["x_mm"], loc["y_mm"]], 1).astype(float)
-            mask = (usable[suspect] & ~np.uint16(0xF << (4 * c))).astype(usable.dtype)
-            t = twin_estimate(self.site_map, self.twin_fit, feats[suspect], mask, start)
-            m = np.asarray(t["misfit"], float)
-            est = np.asarray(t["log10_height_mm"], float)
-            better = (np.asarray(t["status"]) == 0) & np.isfinite(est) & (m * BAD_MISFIT_GAIN < best)
-            if better.any():
-                b = r[better]
-                best[better] = m[better]
-                out["bad_channel"][b] = c
-                out["xy_mm"][b] = np.asarray(t["xy_mm"], float)[better]
-                out["height_mm"][b] = 10.0 ** est[better]
-                energy_class[b] = self.forest_energy.predict(est[better, None])
-                out["twin_misfit"][b] = m[better]
-                sp = np.asarray(t["spread_mm"], float)[better]
-                out["twin_spread_mm"][b] = sp
-                out["uncertainty_mm"][b] = calibrated_uncertainty(self.twin_fit, sp, m[better])
 
     # ----- persistence -----
     def save(self, out_dir: str | Path, extra_card: dict | None = None, force: bool = False) -> Path:

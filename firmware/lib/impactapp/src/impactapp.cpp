@@ -48,29 +48,47 @@ bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, u
 
 bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls,
                                            float* uncertainty_mm) const {
+  int8_t left_out = -1;
+  return predict_impl(ev, nullptr, x_mm, y_mm, cls, uncertainty_mm, &left_out);
+}
+
+bool TableModels::predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* x_mm, float* y_mm,
+                                uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const {
+  return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out);
+}
+
+bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserConfig* loc, float* x_mm, float* y_mm,
+                               uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const {
   float in[kMaxModelInputs];
+  *left_out = -1;
   if (ev.status != ic::kOk) return false;
-  if (residual_ && ev.phys.status != ic::kOk) return false;
-  if (!gather(x_, ev.vector, NAN, in)) return false;
-  const float dx = forest_mean(x_.forest, in);
-  if (!gather(y_, ev.vector, NAN, in)) return false;
-  const float dy = forest_mean(y_.forest, in);
-  float x = residual_ ? ev.phys.x_mm + dx : dx;
-  float y = residual_ ? ev.phys.y_mm + dy : dy;
+  // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
+  float x = NAN, y = NAN;
+  const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
+  if (forests) {
+    const float dx = forest_mean(x_.forest, in);
+    if (gather(y_, ev.vector, NAN, in)) {
+      const float dy = forest_mean(y_.forest, in);
+      x = residual_ ? ev.phys.x_mm + dx : dx;
+      y = residual_ ? ev.phys.y_mm + dy : dy;
+    }
+  }
   float twin = NAN, uncertainty = NAN;
   if (reads_twin(e_) && !has_twin_) return false;
   if (has_twin_) {
-    // The event's per-channel energies against the twin's site map around the forests' (x, y): how hard
-    // (log10 height, the energy forest's input kTwinInput) and where (the matched grid points' weighted
-    // mean, reported instead of the forests' position; host: models.ImpactModel.predict).
-    float f[ic::kTwinFeatures];
-    const uint16_t usable = ic::twin_features(ev.features, f);
-    const ic::TwinEstimate t = ic::twin_estimate(f, usable, x, y, twin_.map, twin_.cfg);
-    if (t.status != ic::kOk) return false;
-    twin = t.log10_height_mm;
-    x = t.x_mm;
-    y = t.y_mm;
-    uncertainty = twin_uncertainty_mm(t, twin_);
+    // The event's per-channel energies against the twin's site map around the forests' (x, y) (or the
+    // three-sensor physics position; twin_match): how hard (log10 height, the energy forest's input
+    // kTwinInput) and where (the matched grid points' weighted mean, reported instead of the forests'
+    // position; host: models.ImpactModel.predict).
+    const ic::TwinMatch m = ic::twin_match(ev, x, y, loc, twin_.map, twin_.cfg, twin_.uncertainty_misfit_ref);
+    if (m.est.status != ic::kOk) return false;
+    twin = m.est.log10_height_mm;
+    x = m.est.x_mm;
+    y = m.est.y_mm;
+    uncertainty = twin_uncertainty_mm(m.est, twin_);
+    *left_out = static_cast<int8_t>(m.left_out);
+  } else if (!(x == x) || !(y == y)) {
+    return false;
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
@@ -278,6 +296,7 @@ void App::process_capture() {
   r.seq = seq_++;
   r.timestamp_ms = static_cast<uint32_t>((trigger_frame_ * 1000u) / cfg_.fs_hz);
   r.uncertainty_mm = -1.0f;
+  r.left_out = -1;
   for (int c = 0; c < 4; ++c) r.order[c] = static_cast<uint8_t>(c);
   if (st == ic::kOk || st == ic::kErrNoTrigger) {
     for (int c = 0; c < 4; ++c) {
@@ -296,7 +315,9 @@ void App::process_capture() {
     if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
   }
   if (st == ic::kOk && models_ != nullptr) {
-    r.valid = models_->predict_with_uncertainty(ev_, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm);
+    r.valid = models_->predict_event(ev_, cfg_.loc, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm,
+                                     &r.left_out);
+    if (!r.valid) r.left_out = -1;
   }
   uint8_t ble[il::kBlePayload];
   const size_t nb = il::ble_payload(r, ble);

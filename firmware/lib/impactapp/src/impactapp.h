@@ -106,6 +106,14 @@ class Models {
     (void)uncertainty_mm;
     return predict(ev, x_mm, y_mm, energy_class);
   }
+  // predict_with_uncertainty() knowing the localiser's geometry, so that models matching the twin can leave
+  // a dead or inconsistent channel out (impactcore::twin_match); *left_out is that channel (-1: none).
+  virtual bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
+                             float* y_mm, uint8_t* energy_class, float* uncertainty_mm, int8_t* left_out) const {
+    (void)loc;
+    *left_out = -1;
+    return predict_with_uncertainty(ev, x_mm, y_mm, energy_class, uncertainty_mm);
+  }
 };
 
 // Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
@@ -125,9 +133,15 @@ class TableModels : public Models {
   // With a twin the uncertainty is its matched position's calibrated 1-sigma (twin_uncertainty_mm).
   bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls,
                                 float* uncertainty_mm) const override;
+  // With a twin: impactcore::twin_match, i.e. when the forests cannot run because one channel has no onset,
+  // the physics localiser's three-sensor position starts the twin on the other three channels; a channel
+  // whose energies the twin cannot explain is left out (the host's models.ImpactModel.predict is the same).
+  bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
+                     float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const override;
   bool has_twin() const { return has_twin_; }
-
  private:
+  bool predict_impl(const impactcore::EventResult& ev, const impactcore::LocaliserConfig* loc, float* x_mm,
+                    float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const;
   ModelSpec x_, y_, e_;
   bool residual_;
   bool has_twin_;

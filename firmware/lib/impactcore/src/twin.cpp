@@ -184,4 +184,56 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   return r;
 }
 
+TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
+                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref) {
+  TwinMatch out{{kErrTooFewSamples, NAN, NAN, NAN, NAN, NAN, 0}, -1, kTwinAllChannels};
+  if (ev.status != kOk) {
+    out.est.status = ev.status;
+    return out;
+  }
+  float feats[kTwinFeatures];
+  const uint16_t usable = twin_features(ev.features, feats);
+  uint8_t has_onset[kChannels];
+  int missing = 0, missing_channel = -1;
+  for (int c = 0; c < kChannels; ++c) {
+    has_onset[c] = (ev.features.ch[c].flags & (kFlagNoOnset | kFlagDead)) ? 0 : 1;
+    if (!has_onset[c]) {
+      ++missing;
+      missing_channel = c;
+    }
+  }
+  if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
+    if (missing != 1 || ev.phys.status != kOk) return out;
+    x_mm = ev.phys.x_mm;
+    y_mm = ev.phys.y_mm;
+    out.left_out = missing_channel;
+    out.reason = kTwinDeadChannel;
+  }
+  out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
+  const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
+  if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) return out;
+  const float metric[3] = {loc->travel_metric_xx, loc->travel_metric_xy, loc->travel_metric_yy};
+  float toa[kChannels];
+  for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
+  float best = out.est.misfit;
+  for (int c = 0; c < kChannels; ++c) {
+    if (!has_onset[c]) continue;  // already left out
+    uint8_t use[kChannels];
+    for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
+    const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
+                                            loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric);
+    if (p.status != kOk) continue;
+    const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
+    const TwinEstimate t = twin_estimate(feats, mask, p.x_mm, p.y_mm, map, cfg);
+    if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
+      continue;
+    }
+    best = t.misfit;
+    out.est = t;
+    out.left_out = c;
+    out.reason = kTwinInconsistent;
+  }
+  return out;
+}
+
 }  // namespace impactcore

@@ -65,4 +65,35 @@ uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]);
 TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
                            const SiteMap& map, const TwinConfig& cfg);
 
+// --- the twin's match of an event, with one channel left out when it must be (host and board alike) ---
+//
+// An event's reported position and height come from twin_estimate around a starting position; twin_match
+// picks the start and the channels:
+//  - the forests' position (x_mm, y_mm) when they ran; when they could not (x_mm or y_mm NaN: a channel
+//    without an onset leaves the feature vector incomplete) and exactly one channel has no onset or is
+//    dead, the physics localiser's three-sensor position (ev.phys), matched on the other three channels
+//    (their usable mask; left_out = that channel, reason kTwinDeadChannel);
+//  - a channel whose energies the twin cannot explain with the others' (a debonded or cracked disc): when
+//    the match's misfit exceeds kBadMisfitRef x the training's reference misfit, each channel c in turn is
+//    left out, the physics localiser on the other channels with an onset gives the start and the twin
+//    matches their energies; the first channel whose leaving out lowers the misfit kBadMisfitGain-fold (and
+//    below every earlier try) is kept (reason kTwinInconsistent). Clean drops have a misfit ~1 x the
+//    reference; a disc at x0.4 gain behind a 4 kHz low-pass ~500 x, ~1.5 x without it.
+// loc nullptr: no channel is left out for a misfit (the dead-channel start still applies). The board's
+// TableModels and the host's models.ImpactModel.predict (through twin_match_batch) both call this.
+constexpr float kBadMisfitRef = 20.0f;
+constexpr float kBadMisfitGain = 10.0f;
+constexpr float kMinMisfitRef = 0.1f;  // the reference misfit used when the card has none (or less)
+
+enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInconsistent = 2 };
+
+struct TwinMatch {
+  TwinEstimate est;     // status kOk: the reported position and height
+  int32_t left_out;     // the channel not matched (-1: none)
+  int32_t reason;       // TwinReason
+};
+
+TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
+                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref);
+
 }  // namespace impactcore

@@ -64,12 +64,18 @@ void pack_report(const Report& r, uint8_t b[kReportBody]) {
   for (int i = 0; i < 4; ++i) order |= static_cast<uint8_t>((r.order[i] & 3u) << (2 * i));
   b[15] = order;
   b[16] = static_cast<uint8_t>((r.accepted ? kReportAccepted : 0) | (r.valid ? kReportValid : 0));
+  if (r.left_out >= 0 && r.left_out < 4) {
+    b[16] = static_cast<uint8_t>(b[16] | kReportLeftOut | (r.left_out << kReportLeftOutShift));
+  }
   b[17] = static_cast<uint8_t>((r.clipped & 0x0Fu) | ((r.dead & 0x0Fu) << 4));
 }
 
 bool unpack_report(const uint8_t* b, size_t len, Report* r) {
   if (b == nullptr || len != kReportBody) return false;
-  if (b[16] & ~(kReportAccepted | kReportValid)) return false;  // reserved status bits
+  if (b[16] & ~(kReportAccepted | kReportValid | kReportLeftOut | (3u << kReportLeftOutShift))) {
+    return false;  // reserved status bits
+  }
+  if (!(b[16] & kReportLeftOut) && (b[16] >> kReportLeftOutShift) & 3u) return false;  // a channel, none left out
   uint8_t seen = 0;
   uint8_t order[4];
   for (int i = 0; i < 4; ++i) {
@@ -90,6 +96,7 @@ bool unpack_report(const uint8_t* b, size_t len, Report* r) {
   r->valid = (b[16] & kReportValid) != 0;
   r->clipped = b[17] & 0x0Fu;
   r->dead = b[17] >> 4;
+  r->left_out = (b[16] & kReportLeftOut) ? static_cast<int8_t>((b[16] >> kReportLeftOutShift) & 3u) : -1;
   return true;
 }
 

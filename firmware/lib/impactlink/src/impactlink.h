@@ -17,7 +17,9 @@
 //                         covariance (0xFFFF: unknown)
 //  14  energy_class u8    model class index (0 low, 1 high)
 //  15  order u8           ToA order, 2 bits a place, first arrival in bits 0-1 (a permutation of 0..3)
-//  16  status u8          bit0 accepted (Eq. 35), bit1 valid (features + models ran); other bits 0
+//  16  status u8          bit0 accepted (Eq. 35), bit1 valid (features + models ran), bit2 three-channel:
+//                         the models left one channel out (dead, no onset, or its energies inconsistent
+//                         with the others': impactcore::twin_match), bits 3-4 that channel; other bits 0
 //  17  channels u8        bits 0-3 clipped per channel, bits 4-7 dead / no onset per channel
 //
 // Status body (kStatusBody = 56 bytes), sent once a second of sample clock:
@@ -76,7 +78,12 @@ enum FrameType : uint8_t {
   kCmdGetConfig = 0x13,
 };
 
-enum ReportStatus : uint8_t { kReportAccepted = 1u << 0, kReportValid = 1u << 1 };
+enum ReportStatus : uint8_t {
+  kReportAccepted = 1u << 0,
+  kReportValid = 1u << 1,
+  kReportLeftOut = 1u << 2,  // bits 3-4: the channel
+};
+constexpr int kReportLeftOutShift = 3;
 
 struct Report {
   uint32_t seq;
@@ -89,6 +96,7 @@ struct Report {
   bool valid;
   uint8_t clipped;        // bit c: channel c clipped
   uint8_t dead;           // bit c: channel c dead or without onset
+  int8_t left_out = -1;   // the channel the models left out (-1: none)
 };
 
 // One capture chunk: `count` samples of one channel starting at `offset` of a `total`-sample capture.
