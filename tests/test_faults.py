@@ -97,3 +97,63 @@ def test_a_dead_or_debonded_channel_is_left_out_and_the_drop_localised_from_the_
     assert np.mean(deb["_arrays"]["flags"][:, 2] & _core.FLAG_INCONSISTENT != 0) > 0.9
     assert not np.any(clean["_arrays"]["flags"] & _core.FLAG_INCONSISTENT)
     assert deb["all"]["mae_mm"] < 3.0 * clean["all"]["mae_mm"]
+
+
+def test_the_board_localises_a_dead_channel_from_the_other_three_as_the_host_does():
+    """The firmware app (the emulated board, the shipped tables) on drops with a dead channel: every drop
+    gets a valid report flagged with that channel (dead bit, left out), and its position is the core's
+    twin_match from the physics three-sensor start, as the host computes it on the board's captures
+    (0.1 mm on the wire). A debonded channel is left out on the board as on the host (flagged)."""
+    from pathlib import Path
+
+    from impactsense import _core
+    from impactsense.board.capture import board_captures, signal_for_board
+    from impactsense.board.scores import board_reports
+    from impactsense.data import load_session
+    from impactsense.export import firmware_models, load_tables
+    from impactsense.faults import inject_session
+    from impactsense.pipeline import featurize
+
+    models_dir = Path(__file__).resolve().parents[1] / "models"
+    models, signal = firmware_models(models_dir)
+    s2 = load_session("bundled:session-2")
+    s = s2.subset(np.arange(0, len(s2), 16))
+    dead = inject_session(s, FaultSpec(dead_channel=1, noise=1, seed=1))
+    got = board_reports(dead, models, signal)
+    assert len(got) == len(s)                                   # every drop: a valid report
+    assert all(r["left_out"] == 1 and r["dead"] & 2 for r in got.values())
+    # the host's twin_match on the same captures, with the exported twin
+    caps, rows, _ = board_captures(dead, 50000, signal)
+    sig = signal_for_board(s.rig, signal, 50000)   # what the board runs
+    feats = featurize(caps, sig)
+    t = load_tables(models_dir / "forest_tables.npz")["twin"]
+    nx, ny, x0, y0, step = t["grid"]
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    m = _core.twin_match_batch(
+        np.ascontiguousarray(feats.status, np.int32), np.ascontiguousarray(feats.flags, np.uint8),
+        f32(feats.toa_us), f32(feats.raw["window_energy"]), f32(feats.raw["diff_energy"]), f32(feats.phys_xy_mm),
+        f32(np.full((len(feats), 2), np.nan)), sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16),
+        int(nx), int(ny), float(x0), float(y0), float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]),
+        f32(t["slope"]), f32(t["weight"]), *map(float, t["config"]), float(t["uncertainty"][2]))
+    assert np.all(m["status"] == 0) and np.all(m["left_out"] == 1)
+    assert np.all(m["reason"] == _core.TWIN_DEAD_CHANNEL)
+    board_xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows])
+    np.testing.assert_allclose(board_xy, m["xy_mm"], atol=0.05 + 1e-3)
+    deb = board_reports(inject_session(s, FaultSpec(debond=2, debond_hz=4000, seed=1)), models, signal)
+    assert np.mean([r["left_out"] == 2 for r in deb.values()]) > 0.8
+
+
+@pytest.mark.parametrize("left_out", [-1, 0, 1, 2, 3])
+def test_a_report_carries_the_channel_the_models_left_out(left_out):
+    """Status bit 2 of a report: one channel left out (impactcore::twin_match), bits 3-4 which."""
+    import struct
+
+    from impactsense import _core  # noqa: F401
+    from impactsense import _link
+
+    r = dict(seq=3, timestamp_ms=10, x_mm=1.0, y_mm=2.0, uncertainty_mm=1.5, energy_class=0, order=[0, 1, 2, 3],
+             accepted=True, valid=True, clipped=0, dead=0, left_out=left_out)
+    f = _link.encode_report(r)
+    st = struct.unpack("<IIhhHBBBB", f[6:-4])[7]
+    assert st == 0b11 | (0 if left_out < 0 else 0b100 | left_out << 3)
+    assert _link.Decoder().feed(f)[0]["report"]["left_out"] == left_out
