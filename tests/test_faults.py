@@ -157,3 +157,30 @@ def test_a_report_carries_the_channel_the_models_left_out(left_out):
     st = struct.unpack("<IIhhHBBBB", f[6:-4])[7]
     assert st == 0b11 | (0 if left_out < 0 else 0b100 | left_out << 3)
     assert _link.Decoder().feed(f)[0]["report"]["left_out"] == left_out
+
+
+def test_status_frame_reports_the_noise_tracked_threshold_and_the_channels_health():
+    """The board's status frame on a noisy lab (the emulated board, no models): the threshold it reports is
+    the trigger's noise-tracked one (8 x the tracked noise rms, above the configured 60 counts), the noise
+    it reports is that tracked rms (white noise of 10 counts read at the board's rate, about the trigger's
+    fast baseline: 8-12 counts), and the health names the modelled hum."""
+    from impactsense.data import load_session
+    from impactsense.faults import inject_session
+    from impactsense.link.emulator import Emulator
+    from impactsense.link.protocol import Decoder
+
+    s = load_session("bundled:session-2")
+    s = inject_session(s.subset(np.arange(0, len(s), 4)), FaultSpec(hum=40, noise=10, seed=2))
+    emu = Emulator(s, None, fs_hz=50000)
+    chunks = list(emu.stream(lambda t: True, 256)) + [emu.app.pull(1 << 20)]
+    dec, status, reports = Decoder(), [], []
+    for b in chunks:
+        for f in dec.feed(b):
+            (status if f["kind"] == "status" else reports).append(f.get("status") or f.get("report"))
+    assert len(reports) >= len(s) // 2 and len(status) >= 2
+    last = status[-1]
+    noise = np.array(last["noise_counts"])
+    assert np.all((noise > 8.0) & (noise < 12.0)), noise
+    assert last["threshold_counts"] > 60
+    assert last["threshold_counts"] == pytest.approx(8.0 * noise.max(), abs=1.0)
+    assert any(h & 8 for h in last["health"])   # HUM

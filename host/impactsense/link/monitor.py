@@ -71,7 +71,8 @@ def report_json(r: dict) -> str:
     return json.dumps(d, sort_keys=True)
 
 
-_HEALTH = ((1, "dead"), (2, "clipped"), (4, "no-onset"))  # impactlink.h ChannelHealth
+_HEALTH = ((1, "dead"), (2, "clipped"), (4, "no-onset"), (8, "hum"), (16, "glitch"),
+           (32, "inconsistent"))  # impactlink.h ChannelHealth
 
 
 def status_line(s: dict) -> str:

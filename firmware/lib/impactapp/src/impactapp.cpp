@@ -240,17 +240,27 @@ void App::send_status() {
   }
   const float t = trigger_threshold();
   s.threshold_counts = t <= 0.0f ? 0 : (t >= 65535.0f ? 65535 : static_cast<uint16_t>(t + 0.5f));
+  // The trigger's noise tracker has settled once armed for its time constant (1 / noise_alpha frames).
+  const bool live = state_ != kWarmup && trigger_.frames_seen() * trig_cfg_.noise_alpha >= 1.0f;
   for (int c = 0; c < 4; ++c) {
-    // The last event's view of each channel (none yet: unknown noise, health 0).
+    // Noise: the trigger's tracked noise rms (what its threshold follows), before it settled the last
+    // event's baseline noise (none yet: unknown). Health: the last event's view of each channel (none yet: 0).
     s.health[c] = 0;
     s.noise_x10[c] = 0xFFFFu;
-    if (seq_ == 0) continue;
+    const bool event = seq_ > 0;
     const ic::ChannelFeatures& ch = ev_.features.ch[c];
+    const float noise = live ? trigger_.noise_rms(c) : (event ? ch.noise_rms : -1.0f);
+    const float nx = noise * 10.0f + 0.5f;
+    if (noise >= 0.0f) s.noise_x10[c] = static_cast<uint16_t>(nx < 65534.0f ? nx : 65534.0f);
+    if (!event) continue;
     if (ch.flags & ic::kFlagDead) s.health[c] |= il::kHealthDead;
     if (ch.flags & ic::kFlagClipped) s.health[c] |= il::kHealthClipped;
     if (ch.flags & ic::kFlagNoOnset) s.health[c] |= il::kHealthNoOnset;
-    const float nx = ch.noise_rms * 10.0f + 0.5f;
-    if (nx >= 0.0f) s.noise_x10[c] = static_cast<uint16_t>(nx < 65534.0f ? nx : 65534.0f);
+    if (ch.flags & ic::kFlagHum) s.health[c] |= il::kHealthHum;
+    if (ch.flags & ic::kFlagGlitch) s.health[c] |= il::kHealthGlitch;
+    if (report_.valid && report_.left_out == c && !(ch.flags & (ic::kFlagDead | ic::kFlagNoOnset))) {
+      s.health[c] |= il::kHealthInconsistent;  // the models left it out for its energies (twin_match)
+    }
   }
   s.raw_dropped = raw_dropped_;
   s.flags = static_cast<uint8_t>((cfg_.dump_raw ? il::kStatusDumpRaw : 0) | (hz > 0 ? il::kStatusCycleCounter : 0));

@@ -201,8 +201,9 @@ class App {
   State state() const { return state_; }
   uint32_t events() const { return seq_; }
   uint32_t overruns() const { return overruns_; }
-  // The trigger threshold in use (counts).
-  float trigger_threshold() const { return cfg_.threshold_counts; }
+  // The trigger threshold in use (counts): the largest channel's noise-tracked threshold once armed
+  // (impactcore::Trigger::threshold, at least the configured threshold_counts), the configured one before.
+  float trigger_threshold() const { return state_ == kWarmup ? cfg_.threshold_counts : trigger_.threshold(); }
   const impactlink::Status& status() const { return status_; }  // the last status frame sent
   uint32_t event_cycles_max() const { return event_cycles_max_; }
   uint32_t idle_cycles_max() const { return idle_cycles_max_; }  // since the last status frame

@@ -184,6 +184,18 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   return r;
 }
 
+namespace {
+// A three-channel match starts from the physics localiser's three-sensor position, whose error (~5 mm on
+// the bundled rig) is comparable to the twin's position prior (prior_mm): the prior pulls the match
+// toward that start. A second match centred on the first one's answer halves that pull (bench_faults,
+// docs/findings.md "A faulty lab"). Kept when it succeeds.
+void recentre(const float feats[kTwinFeatures], uint16_t mask, const SiteMap& map, const TwinConfig& cfg,
+              TwinEstimate* est) {
+  const TwinEstimate again = twin_estimate(feats, mask, est->x_mm, est->y_mm, map, cfg);
+  if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
+}
+}  // namespace
+
 TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
                      const SiteMap& map, const TwinConfig& cfg, float misfit_ref) {
   TwinMatch out{{kErrTooFewSamples, NAN, NAN, NAN, NAN, NAN, 0}, -1, kTwinAllChannels};
@@ -211,11 +223,15 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
   const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
-  if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) return out;
+  if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
+    if (out.left_out >= 0) recentre(feats, usable, map, cfg, &out.est);
+    return out;
+  }
   const float metric[3] = {loc->travel_metric_xx, loc->travel_metric_xy, loc->travel_metric_yy};
   float toa[kChannels];
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
   float best = out.est.misfit;
+  uint16_t best_mask = usable;
   for (int c = 0; c < kChannels; ++c) {
     if (!has_onset[c]) continue;  // already left out
     uint8_t use[kChannels];
@@ -232,7 +248,9 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     out.est = t;
     out.left_out = c;
     out.reason = kTwinInconsistent;
+    best_mask = mask;
   }
+  if (out.left_out >= 0) recentre(feats, best_mask, map, cfg, &out.est);
   return out;
 }
 

@@ -79,6 +79,8 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //    matches their energies; the first channel whose leaving out lowers the misfit kBadMisfitGain-fold (and
 //    below every earlier try) is kept (reason kTwinInconsistent). Clean drops have a misfit ~1 x the
 //    reference; a disc at x0.4 gain behind a 4 kHz low-pass ~500 x, ~1.5 x without it.
+// With a channel left out, the match is done again centred on its own answer (the three-sensor start is a
+// few mm off, and the twin's prior pulls toward the start).
 // loc nullptr: no channel is left out for a misfit (the dead-channel start still applies). The board's
 // TableModels and the host's models.ImpactModel.predict (through twin_match_batch) both call this.
 constexpr float kBadMisfitRef = 20.0f;

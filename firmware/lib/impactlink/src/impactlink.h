@@ -33,10 +33,14 @@
 //  28  event_cycles_max u32   the most since boot
 //  32  buffer_cycles_max u32  the most an acquisition buffer without an event took, over the last period
 //  36  idle_load u16          permille of the buffer period those buffers took on average (0xFFFF unknown)
-//  38  threshold u16          the trigger threshold in use, counts
-//  40  health u8[4]           per channel: bit0 dead (flat / no signal), bit1 clipped, bit2 no onset in the
-//                             last event; bits 3-7 reserved (0)
-//  44  noise u16[4]           per channel baseline noise RMS of the last event, 0.1 counts (0xFFFF unknown)
+//  38  threshold u16          the trigger threshold in use, counts (the noise-tracked one: the largest
+//                             channel's max(configured, noise_factor x its tracked noise rms))
+//  40  health u8[4]           per channel, in the last event: bit0 dead (flat / no signal), bit1 clipped,
+//                             bit2 no onset, bit3 a mains hum was modelled, bit4 a 1-2 sample glitch was
+//                             left out, bit5 inconsistent (the models left it out for its energies);
+//                             bits 6-7 reserved (0)
+//  44  noise u16[4]           per channel noise RMS the trigger tracks (before it is armed: the last event's
+//                             baseline noise), 0.1 counts (0xFFFF unknown)
 //  52  raw_dropped u16        raw dumps cut short by the next capture
 //  54  flags u8               bit0 dump raw on, bit1 cycle counter present
 //  55  reserved u8            0
@@ -137,7 +141,14 @@ struct Status {
   uint8_t flags;
 };
 enum StatusFlags : uint8_t { kStatusDumpRaw = 1u << 0, kStatusCycleCounter = 1u << 1 };
-enum ChannelHealth : uint8_t { kHealthDead = 1u << 0, kHealthClipped = 1u << 1, kHealthNoOnset = 1u << 2 };
+enum ChannelHealth : uint8_t {
+  kHealthDead = 1u << 0,
+  kHealthClipped = 1u << 1,
+  kHealthNoOnset = 1u << 2,
+  kHealthHum = 1u << 3,
+  kHealthGlitch = 1u << 4,
+  kHealthInconsistent = 1u << 5,
+};
 
 // --- CRC and bodies ---
 uint32_t crc32(const uint8_t* data, size_t n, uint32_t crc = 0);
