@@ -541,6 +541,87 @@ float aic_on_clean_copy(const int16_t* x, const LocalHum& bl, int begin, int end
   return r >= 0.0f ? r + static_cast<float>(begin) : -1.0f;
 }
 
+// A glitch (a 1-2 sample spike of any size) after the onset adds its square to the capture's energy: a
+// spike of a few hundred counts in the rung-down tail holds more than 1 - n2_fraction of it, so n2 (and
+// with it the arrival's windows) jumps to the spike. spike_at tests the sample where n2 landed: taken out
+// alone or with either neighbour (replaced by the line through the samples around them, rounded), the
+// replacement that leaves the least local Delta^2 energy is kept; it is a spike when it departs from that
+// line by at least the onset threshold, the Delta^2 terms it touches carry, per term, more than
+// kSpikeRatio x the mean of the others within kSpikeReach samples, and the replacement removes more than
+// kSpikeExplained of their energy (a ringing's own samples reach neither). Bounded cost: one sample's
+// neighbourhood, only where n2 landed.
+constexpr float kSpikeRatio = 25.0f;
+constexpr float kSpikeExplained = 0.9f;
+constexpr int kSpikeReach = 8;
+constexpr int kMaxSpikes = 2;
+
+struct Spike {
+  int at = -1, width = 0;  // samples [at, at + width) replaced
+  int32_t value[2] = {0, 0};
+};
+
+// Difference energies (k = 1..3) over m in [lo, hi) (lo >= 3) of x with the spike's samples replaced.
+void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi, int64_t out[kDiffOrders]) {
+  const auto v = [&](int j) -> int64_t {
+    return (j >= sp.at && j < sp.at + sp.width) ? sp.value[j - sp.at] : static_cast<int64_t>(x[j]);
+  };
+  for (int k = 0; k < kDiffOrders; ++k) out[k] = 0;
+  for (int m = lo; m < hi; ++m) {
+    const int64_t d1 = v(m) - v(m - 1), d1p = v(m - 1) - v(m - 2), d1pp = v(m - 2) - v(m - 3);
+    const int64_t d2 = d1 - d1p, d2p = d1p - d1pp, d3 = d2 - d2p;
+    out[0] += d1 * d1;
+    out[1] += d2 * d2;
+    out[2] += d3 * d3;
+  }
+}
+
+bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
+  const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
+  const int hi = i + kSpikeReach + 3 < n ? i + kSpikeReach + 3 : n;
+  if (hi - lo < 8 || i < lo || i >= hi - 1) return false;
+  int64_t all[kDiffOrders];
+  local_difference_energies(x, Spike(), lo, hi, all);
+  const int starts[3] = {i, i, i - 1};
+  const int widths[3] = {1, 2, 2};
+  bool have = false;
+  float best_left = 0.0f, best_orig = 0.0f, best_dev = 0.0f;
+  int best_terms = 0;
+  for (int k = 0; k < 3; ++k) {
+    Spike c;
+    c.at = starts[k];
+    c.width = widths[k];
+    if (c.at - 1 < lo - kDiffOrders || c.at - 1 < 0 || c.at + c.width >= hi) continue;
+    const int32_t left = x[c.at - 1], right = x[c.at + c.width];
+    float dev = 0.0f;
+    for (int j = 0; j < c.width; ++j) {
+      // the line through the neighbours, rounded half away from zero (exact integers: host = board)
+      const int32_t num = (right - left) * (j + 1);
+      const int32_t den = c.width + 1;
+      c.value[j] = left + (2 * num + (num >= 0 ? den : -den)) / (2 * den);
+      const float d = fabsf(static_cast<float>(x[c.at + j] - c.value[j]));
+      dev = d > dev ? d : dev;
+    }
+    const int a = c.at > lo ? c.at : lo;
+    const int b = c.at + c.width + 3 < hi ? c.at + c.width + 3 : hi;
+    int64_t o[kDiffOrders], p[kDiffOrders];
+    local_difference_energies(x, Spike(), a, b, o);
+    local_difference_energies(x, c, a, b, p);
+    const float left_e = to_float(p[1]);
+    if (!have || left_e < best_left) {
+      *sp = c;
+      best_left = left_e;
+      best_orig = to_float(o[1]);
+      best_terms = b - a;
+      best_dev = dev;
+      have = true;
+    }
+  }
+  if (!have || !(best_orig > 0.0f) || best_dev < thr) return false;
+  const float rest = (to_float(all[1]) - best_orig) / static_cast<float>(hi - lo - best_terms);
+  return best_orig / static_cast<float>(best_terms) > kSpikeRatio * rest &&
+         best_orig - best_left > kSpikeExplained * best_orig;
+}
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, ChannelFeatures* f) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
@@ -653,8 +734,32 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base_on);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
-  const int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)
-                        : energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
+  int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)
+                  : energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
+  // A glitch where n2 landed: its excess energy (its square about the baseline model less the
+  // replacement's) leaves the total, and n2 is sought again (spike_at).
+  Spike late[kMaxSpikes];
+  int n_spikes = 0;
+  float excess[kMaxSpikes] = {0.0f, 0.0f};
+  float spike_energy = 0.0f;
+  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 1 && spike_at(x, n, n2, thr, &late[n_spikes])) {
+    const Spike& sp = late[n_spikes];
+    float e = 0.0f;
+    for (int j = 0; j < sp.width; ++j) {
+      const int i = sp.at + j;
+      const float b = bl.hum ? bl.level + hum_at(bl, static_cast<float>(i)) : base;
+      const float e0 = static_cast<float>(x[i]) - b, e1 = static_cast<float>(sp.value[j]) - b;
+      e += e0 * e0 - e1 * e1;
+    }
+    excess[n_spikes++] = e;
+    spike_energy += e;
+    f->flags |= kFlagGlitch;
+    const float target = cfg.n2_fraction * (energy - spike_energy);
+    n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
+  }
+  if (n_spikes > 0) {
+    f->energy = energy - spike_energy > 0.0f ? energy - spike_energy : 0.0f;
+  }
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
   const int start = static_cast<int>(toa);
@@ -676,7 +781,16 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
         at = next;
       }
     }
-    f->residual_ratio = energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / energy : kNaN;
+    for (int k = 0; k < n_spikes; ++k) {
+      const int i = late[k].at;
+      for (int w = 0; w < kEnergyWindows; ++w) {
+        if (i >= start + (span * w) / kEnergyWindows && i < start + (span * (w + 1)) / kEnergyWindows) {
+          const float e = f->window_energy[w] - excess[k];
+          f->window_energy[w] = e > 0.0f ? e : 0.0f;
+        }
+      }
+    }
+    f->residual_ratio = f->energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / f->energy : kNaN;
   }
   // Difference energies over the first diff_window_us of the arrival (at most up to n2): the only
   // per-sample pass besides the block sums. Most of the high-frequency energy arrives in the first few
@@ -687,6 +801,17 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   if (dend > start && start >= kDiffOrders) {
     int64_t d[kDiffOrders];
     difference_energies(x, start, dend, d);
+    for (int k = 0; k < n_spikes; ++k) {
+      // a spike inside the window: its terms with the replacement's samples
+      const Spike& sp = late[k];
+      const int a = sp.at > start ? sp.at : start;
+      const int b = sp.at + sp.width + 3 < dend ? sp.at + sp.width + 3 : dend;
+      if (b <= a) continue;
+      int64_t o[kDiffOrders], p[kDiffOrders];
+      local_difference_energies(x, Spike(), a, b, o);
+      local_difference_energies(x, sp, a, b, p);
+      for (int m = 0; m < kDiffOrders; ++m) d[m] += p[m] - o[m];
+    }
     for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] = to_float(d[k]);
   }
   apply_gain(f, cfg.channel_gain[c]);
