@@ -88,3 +88,37 @@ def test_dc_offsets_move_nothing(drops):
     # the arrival's energy (onset to n2; a pick rounding across a sample moves the five windows' edges)
     np.testing.assert_allclose(out["window_energy"].sum(-1)[ok], clean["window_energy"].sum(-1)[ok], rtol=1e-3)
     np.testing.assert_allclose(out["diff_energy"][ok], clean["diff_energy"][ok], rtol=1e-3)
+
+
+@pytest.mark.parametrize("size", [1000.0, 2000.0])
+def test_a_spike_after_the_arrival_leaves_the_energies(drops, size):
+    """A one- or two-sample spike in the rung-down tail (after n2) holds more than 1 - n2_fraction of the
+    capture's energy: without care n2 jumps to it and the arrival's windows take the ringing up to it. The
+    core finds the spike where n2 landed and takes it out: n2 and the arrival energy (the twin's feature)
+    stay the clean ones (n2 within 2 samples on 95 % of the hit channels, the arrival energy within 1 %),
+    the channel says GLITCH. (A smaller spike that does not hold the tail's energy moves n2 later without
+    landing on it: not found; docs/findings.md "A faulty lab".)"""
+    _, adc, cfg = drops
+    clean = features(adc, cfg)
+    rng = np.random.default_rng(int(size))
+    bad = adc.copy()
+    where = []
+    for r in range(adc.shape[0]):
+        c = int(rng.integers(4))
+        n2 = int(clean["n2"][r, c])
+        if n2 + 50 >= adc.shape[-1] - 4:
+            continue
+        i = int(rng.integers(n2 + 50, adc.shape[-1] - 4))
+        width = 1 + (r % 2)
+        bad[r, c, i:i + width] += np.int16(size * rng.choice([-1, 1]))
+        where.append((r, c))
+    out = features(bad, cfg)
+    r, c = np.array(where).T
+    assert np.mean(out["flags"][r, c] & _core.FLAG_GLITCH != 0) >= 0.9
+    assert np.percentile(np.abs(out["n2"][r, c] - clean["n2"][r, c]), 95) <= 2
+    arrival = np.log10(out["window_energy"][r, c].sum(-1) / clean["window_energy"][r, c].sum(-1))
+    assert np.percentile(np.abs(arrival), 95) < np.log10(1.01)
+    # the other channels are untouched
+    other = np.ones(out["n2"].shape, bool)
+    other[r, c] = False
+    np.testing.assert_array_equal(out["n2"][other], clean["n2"][other])

@@ -575,6 +575,19 @@ void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi
   }
 }
 
+// Necessary for spike_at(x, n, i, thr): a replaced sample departs from its line by D >= thr only if one of
+// the second differences x[m] - 2 x[m-1] + x[m-2], m = i .. i + 2, reaches D (less the rounding of the
+// line, < 1): a few instructions where n2 lands on a ringing or on noise, before spike_at's ~1k.
+bool may_be_spike(const int16_t* x, int i, float thr) {
+  int32_t big = 0;
+  for (int m = i; m <= i + 2; ++m) {
+    int32_t d = static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2];
+    d = d < 0 ? -d : d;
+    big = d > big ? d : big;
+  }
+  return static_cast<float>(big) >= thr - 2.0f;
+}
+
 bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
   const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
   const int hi = i + kSpikeReach + 3 < n ? i + kSpikeReach + 3 : n;
@@ -742,7 +755,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   int n_spikes = 0;
   float excess[kMaxSpikes] = {0.0f, 0.0f};
   float spike_energy = 0.0f;
-  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 1 && spike_at(x, n, n2, thr, &late[n_spikes])) {
+  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n2, thr) &&
+         spike_at(x, n, n2, thr, &late[n_spikes])) {
     const Spike& sp = late[n_spikes];
     float e = 0.0f;
     for (int j = 0; j < sp.width; ++j) {
