@@ -214,6 +214,10 @@ def test_energies_are_exact_sums_about_the_baseline(baseline_samples):
             assert out["baseline"][r, c] == pytest.approx(b, rel=1e-7)
             assert out["noise_rms"][r, c] == pytest.approx(x[:baseline_samples].std(), rel=1e-6)
             assert out["energy"][r, c] == pytest.approx(d2.sum(), rel=1e-6)
+            if out["flags"][r, c] & _core.FLAG_GLITCH:
+                # a lone sample in the quiet tail (the burst's peak / rail sample above) is a glitch: it
+                # leaves n2 and the windows (test_baseline.py::test_a_spike_after_the_arrival_leaves_the_energies)
+                continue
             if out["flags"][r, c] & _core.FLAG_NO_ONSET:
                 continue
             # n2: the first sample where the cumulative energy reaches 99 % (float32 target: +-1 sample)
@@ -291,7 +295,8 @@ def test_pruning_at_the_edge_of_its_bounds_equals_full_scans(seed):
             # the energies through the sums about the rounded baseline: the exact sums about the mean
             d2 = (x.astype(np.float64) - x[:64].mean()) ** 2
             assert out["energy"][r, c] == pytest.approx(d2.sum(), rel=1e-6)
-            if not out["flags"][r, c] & _core.FLAG_NO_ONSET:
+            # (a lone sample where n2 landed is a glitch: it leaves n2's total, test_baseline)
+            if not out["flags"][r, c] & (_core.FLAG_NO_ONSET | _core.FLAG_GLITCH):
                 cum = np.cumsum(d2)
                 assert abs(out["n2"][r, c] - int(np.argmax(cum >= 0.99 * cum[-1]))) <= 1
 

@@ -750,7 +750,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)
                   : energy_reaches(ch, ceil_to_int64(cfg.n2_fraction * to_float(energy_scaled)));
   // A glitch where n2 landed: its excess energy (its square about the baseline model less the
-  // replacement's) leaves the total, and n2 is sought again (spike_at).
+  // replacement's) leaves the total n2 is sought in (f->energy stays the whole capture's), and n2 is
+  // sought again (spike_at).
   Spike late[kMaxSpikes];
   int n_spikes = 0;
   float excess[kMaxSpikes] = {0.0f, 0.0f};
@@ -770,9 +771,6 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
     f->flags |= kFlagGlitch;
     const float target = cfg.n2_fraction * (energy - spike_energy);
     n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
-  }
-  if (n_spikes > 0) {
-    f->energy = energy - spike_energy > 0.0f ? energy - spike_energy : 0.0f;
   }
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
@@ -804,7 +802,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
         }
       }
     }
-    f->residual_ratio = f->energy > 0.0f ? f->window_energy[kEnergyWindows - 1] / f->energy : kNaN;
+    const float arrival_total = energy - spike_energy;  // the capture's, less the glitches' excess
+    f->residual_ratio = arrival_total > 0.0f ? f->window_energy[kEnergyWindows - 1] / arrival_total : kNaN;
   }
   // Difference energies over the first diff_window_us of the arrival (at most up to n2): the only
   // per-sample pass besides the block sums. Most of the high-frequency energy arrives in the first few
