@@ -589,11 +589,18 @@ bool may_be_spike(const int16_t* x, int i, float thr) {
 }
 
 bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
+  // Delta^2 x[m] = x[m] - 2 x[m-1] + x[m-2] over m in [lo, hi), squared in float (the same operations on
+  // host and board: the same decision).
   const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
   const int hi = i + kSpikeReach + 3 < n ? i + kSpikeReach + 3 : n;
   if (hi - lo < 8 || i < lo || i >= hi - 1) return false;
-  int64_t all[kDiffOrders];
-  local_difference_energies(x, Spike(), lo, hi, all);
+  float e2[2 * kSpikeReach + 3];
+  float all = 0.0f;
+  for (int m = lo; m < hi; ++m) {
+    const float d = static_cast<float>(static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2]);
+    e2[m - lo] = d * d;
+    all += d * d;
+  }
   const int starts[3] = {i, i, i - 1};
   const int widths[3] = {1, 2, 2};
   bool have = false;
@@ -603,7 +610,7 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
     Spike c;
     c.at = starts[k];
     c.width = widths[k];
-    if (c.at - 1 < lo - kDiffOrders || c.at - 1 < 0 || c.at + c.width >= hi) continue;
+    if (c.at - 1 < lo - 2 || c.at + c.width >= hi) continue;
     const int32_t left = x[c.at - 1], right = x[c.at + c.width];
     float dev = 0.0f;
     for (int j = 0; j < c.width; ++j) {
@@ -614,23 +621,27 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
       const float d = fabsf(static_cast<float>(x[c.at + j] - c.value[j]));
       dev = d > dev ? d : dev;
     }
+    // the Delta^2 terms the replaced samples enter: m in [at, at + width + 2)
     const int a = c.at > lo ? c.at : lo;
-    const int b = c.at + c.width + 3 < hi ? c.at + c.width + 3 : hi;
-    int64_t o[kDiffOrders], p[kDiffOrders];
-    local_difference_energies(x, Spike(), a, b, o);
-    local_difference_energies(x, c, a, b, p);
-    const float left_e = to_float(p[1]);
+    const int b = c.at + c.width + 2 < hi ? c.at + c.width + 2 : hi;
+    const auto v = [&](int j) -> int32_t { return (j >= c.at && j < c.at + c.width) ? c.value[j - c.at] : x[j]; };
+    float orig = 0.0f, left_e = 0.0f;
+    for (int m = a; m < b; ++m) {
+      orig += e2[m - lo];
+      const float d = static_cast<float>(v(m) - 2 * v(m - 1) + v(m - 2));
+      left_e += d * d;
+    }
     if (!have || left_e < best_left) {
       *sp = c;
       best_left = left_e;
-      best_orig = to_float(o[1]);
+      best_orig = orig;
       best_terms = b - a;
       best_dev = dev;
       have = true;
     }
   }
-  if (!have || !(best_orig > 0.0f) || best_dev < thr) return false;
-  const float rest = (to_float(all[1]) - best_orig) / static_cast<float>(hi - lo - best_terms);
+  if (!have || !(best_orig > 0.0f) || best_dev < thr || best_terms >= hi - lo) return false;
+  const float rest = (all - best_orig) / static_cast<float>(hi - lo - best_terms);
   return best_orig / static_cast<float>(best_terms) > kSpikeRatio * rest &&
          best_orig - best_left > kSpikeExplained * best_orig;
 }
