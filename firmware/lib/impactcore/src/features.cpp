@@ -575,17 +575,40 @@ void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi
   }
 }
 
-// Necessary for spike_at(x, n, i, thr): a replaced sample departs from its line by D >= thr only if one of
-// the second differences x[m] - 2 x[m-1] + x[m-2], m = i .. i + 2, reaches D (less the rounding of the
-// line, < 1): a few instructions where n2 lands on a ringing or on noise, before spike_at's ~1k.
-bool may_be_spike(const int16_t* x, int i, float thr) {
-  int32_t big = 0;
+// Necessary for spike_at(x, n, i, thr), a few dozen instructions where n2 lands on a ringing or on noise
+// (spike_at costs ~1.5k on the board):
+//  - a replaced sample departs from its line by D >= thr only if one of the second differences
+//    x[m] - 2 x[m-1] + x[m-2], m = i .. i + 2, reaches D (less the line's rounding, < 1);
+//  - every candidate's terms lie in m = i - 1 .. i + 3, so their mean square is at most the largest there,
+//    and the rest of the window holds at least the terms m = i - 3, i - 2, i + 4, i + 5: the ratio test
+//    needs that largest square above kSpikeRatio x their sum / the window's length (24 instead of 25
+//    leaves room for float rounding).
+inline float second_difference(const int16_t* x, int m) {
+  return static_cast<float>(static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2]);
+}
+
+bool may_be_spike(const int16_t* x, int n, int i, float thr) {
+  const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
+  const int hi = i + kSpikeReach + 3 < n ? i + kSpikeReach + 3 : n;
+  if (hi - lo < 8 || i - 1 < lo || i + 3 >= hi) return false;
+  float big = 0.0f, near = 0.0f;
   for (int m = i; m <= i + 2; ++m) {
-    int32_t d = static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2];
-    d = d < 0 ? -d : d;
+    const float d = fabsf(second_difference(x, m));
     big = d > big ? d : big;
   }
-  return static_cast<float>(big) >= thr - 2.0f;
+  if (big < thr - 2.0f) return false;
+  for (int m = i - 1; m <= i + 3; ++m) {
+    const float d = second_difference(x, m);
+    near = d * d > near ? d * d : near;
+  }
+  float far = 0.0f;
+  const int far_m[4] = {i - 3, i - 2, i + 4, i + 5};
+  for (int k = 0; k < 4; ++k) {
+    if (far_m[k] < lo || far_m[k] >= hi) continue;
+    const float d = second_difference(x, far_m[k]);
+    far += d * d;
+  }
+  return near > (kSpikeRatio - 1.0f) * far / static_cast<float>(hi - lo);
 }
 
 bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
@@ -767,7 +790,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   int n_spikes = 0;
   float excess[kMaxSpikes] = {0.0f, 0.0f};
   float spike_energy = 0.0f;
-  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n2, thr) &&
+  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n, n2, thr) &&
          spike_at(x, n, n2, thr, &late[n_spikes])) {
     const Spike& sp = late[n_spikes];
     float e = 0.0f;
