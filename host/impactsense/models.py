@@ -33,8 +33,15 @@ from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty
 from .twin import estimate as twin_estimate
 
 G_M_S2 = 9.80665
+# The forests' inputs: arrival times, the physics position, the channels' relative energies and their first
+# peaks. The first peak says which cycle of a slowly growing, dispersive arrival the onset threshold caught (a
+# late pick lands on a larger lobe): on a stiff metal or a laminate adding it lowers the held-out MAE on every
+# split tried (docs/findings.md, "Other rigs ..."). A model folder keeps the list it was trained with
+# (card "location_features"), so models trained before it still load.
 LOCATION_FEATURES = [n for n in FEATURE_NAMES if n.startswith(("dtoa_", "rel_toa_", "phys_x", "phys_y",
-                                                                "log_energy_rel_"))]
+                                                                "log_energy_rel_", "log_first_peak_"))]
+# What a card without "location_features" was trained on (models from before the first peaks were inputs).
+LEGACY_LOCATION_FEATURES = [n for n in LOCATION_FEATURES if not n.startswith("log_first_peak_")]
 # Where the plate was hit and how much energy, and how much high-frequency energy, reached the sensors
 # during the arrival (spectral moments, see impactcore.h): the per-channel energies and first peaks carry
 # the site's modal colouring, which the sums over channels and the difference energies average out.
@@ -158,6 +165,8 @@ class ImpactModel:
     # The twin's energy fingerprint (twin.py): when present, the energy classifier reads its height estimate.
     site_map: SiteMap | None = None
     twin_fit: TwinFit | None = None
+    # The feature vector's columns the position forests read, in their order (the card's location_features).
+    location_features: list[str] = field(default_factory=lambda: list(LOCATION_FEATURES))
 
     # ----- training -----
     @classmethod
@@ -223,7 +232,7 @@ class ImpactModel:
         use = features.usable
         if use.any():
             X = features.vector[use]
-            Xl = X[:, columns(LOCATION_FEATURES)]
+            Xl = X[:, columns(self.location_features)]
             for k, forest in enumerate((self.forest_dx, self.forest_dy)):
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
@@ -293,7 +302,7 @@ class ImpactModel:
             # forests' otherwise (models.ImpactModel.predict; the board does the same).
             "position_source": self.position_source,
             "feature_names": FEATURE_NAMES,
-            "location_features": LOCATION_FEATURES,
+            "location_features": self.location_features,
             "energy_features": self.energy_features,
             "energy_threshold_j": self.energy_threshold_j,
             "energy_classes": {"0": "low", "1": "high"},
@@ -337,6 +346,12 @@ class ImpactModel:
             signal = SignalConfig.from_dict(card["signal"])
         except (TypeError, ValueError, KeyError, OverflowError) as exc:
             raise DataError(card_path, "signal", str(exc)) from None
+        loc = card.get("location_features", LEGACY_LOCATION_FEATURES)
+        if not isinstance(loc, list) or not loc or any(n not in FEATURE_NAMES for n in loc):
+            raise DataError(card_path, "location_features", "must list names from feature_names")
+        if len(loc) != getattr(forests[0], "n_features_in_", len(loc)):
+            raise DataError(card_path, "location_features", f"lists {len(loc)} features, the x forest reads "
+                                                            f"{forests[0].n_features_in_}")
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
-                   site_map=site_map, twin_fit=twin_fit)
+                   site_map=site_map, twin_fit=twin_fit, location_features=list(loc))
