@@ -17766,5 +17766,8 @@ const impactsense_signal_config impactsense_signal = {
   10.0f,
   1.0f,
   0.0f,
-  1.0f
+  1.0f,
+  0.0f,
+  25000.0f,
+  1
 };

@@ -81,6 +81,9 @@ typedef struct {
   float travel_metric_xx;  // copy
   float travel_metric_xy;  // copy
   float travel_metric_yy;  // copy
+  float dispersion_exponent;  // copy
+  float dispersion_ref_hz;  // copy
+  int32_t localiser_starts;  // copy
 } impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

@@ -59,6 +59,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   auto diffe = make_array<float>({r, 4, ic::kDiffOrders});
   auto peak = make_array<float>({r, 4});
   auto fpeak = make_array<float>({r, 4});
+  auto period = make_array<float>({r, 4});
   auto noise = make_array<float>({r, 4});
   auto hum = make_array<float>({r, 4});
   auto base = make_array<float>({r, 4});
@@ -87,6 +88,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
         for (int k = 0; k < ic::kDiffOrders; ++k) diffe.data()[i * ic::kDiffOrders + k] = ok ? f.diff_energy[k] : NAN;
         peak.data()[i] = ok ? f.peak : NAN;
         fpeak.data()[i] = ok ? f.first_peak : NAN;
+        period.data()[i] = ok ? f.pick_period : NAN;
         noise.data()[i] = ok ? f.noise_rms : NAN;
         hum.data()[i] = ok ? f.hum_counts : NAN;
         base.data()[i] = ok ? f.baseline : NAN;
@@ -111,6 +113,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   out["diff_energy"] = diffe;
   out["peak"] = peak;
   out["first_peak"] = fpeak;
+  out["pick_period"] = period;
   out["noise_rms"] = noise;
   out["hum_counts"] = hum;
   out["baseline"] = base;
@@ -121,7 +124,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
 
 nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
                         float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us,
-                        std::vector<float> travel_metric) {
+                        std::vector<float> travel_metric, std::vector<float> slowness_scale, int starts) {
   if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
   if (use.ndim() != 2 || use.shape(0) != toa.shape(0) || use.shape(1) != 4) {
     throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
@@ -132,6 +135,9 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
     throw std::invalid_argument("travel_metric must be [Q_xx, Q_xy, Q_yy] (or empty: isotropic)");
   }
   const size_t r = toa.shape(0);
+  if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
+    throw std::invalid_argument("slowness_scale must be [n * 4] like toa_us (or empty: one velocity)");
+  }
   auto x = make_array<float>({r});
   auto y = make_array<float>({r});
   auto t0 = make_array<float>({r});
@@ -141,7 +147,8 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
   for (size_t k = 0; k < r; ++k) {
     const auto res = ic::localise_tdoa(toa.data() + 4 * k, use.data() + 4 * k, sx.data(), sy.data(), v,
                                        sigma_us, plate_x_mm, plate_y_mm, huber_us,
-                                       travel_metric.empty() ? nullptr : travel_metric.data());
+                                       travel_metric.empty() ? nullptr : travel_metric.data(),
+                                       slowness_scale.empty() ? nullptr : slowness_scale.data() + 4 * k, starts);
     x.data()[k] = res.x_mm;
     y.data()[k] = res.y_mm;
     t0.data()[k] = res.t0_us;
@@ -566,7 +573,7 @@ NB_MODULE(_core, m) {
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,
         "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a, "huber_us"_a = 4.0f,
-        "travel_metric"_a = std::vector<float>());
+        "travel_metric"_a = std::vector<float>(), "slowness_scale"_a = std::vector<float>(), "starts"_a = 1);
   m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
         "tol_us"_a, "margin_mm"_a);
 

@@ -87,8 +87,9 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
 
 def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True) -> SignalConfig:
     """Fits the physics localiser on training drops (travel.py): the onset threshold the core picks with,
-    the group velocity, the per-channel delays (relative to channel 0) and, on a plate whose material is not
-    a known isotropic one, the travel metric of its elliptical wavefronts.
+    the group velocity, the per-channel delays (relative to channel 0), the dispersion of the picked cycles'
+    speed with their frequency (when it explains the picks clearly better) and, on a plate whose material is
+    not a known isotropic one, the travel metric of its elliptical wavefronts.
 
     Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
@@ -101,11 +102,40 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
         thr, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso)
     else:
         thr = float(cfg.onset_threshold_counts)
-        fit = fit_travel(picks(session.adc[rows], cfg), session.xy_mm[rows], cfg.sensor_xy_mm, aniso)
+        toa, period = picks(session.adc[rows], cfg, with_period=True)
+        fit = fit_travel(toa, session.xy_mm[rows], cfg.sensor_xy_mm, aniso, period, cfg.fs_hz)
     out = SignalConfig.from_dict(cfg.to_dict())
     out.onset_threshold_counts = thr
     out.velocity_mm_per_us = fit.velocity_mm_per_us
     out.rig_delay_us = list(fit.delays_us)
     out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = fit.metric
     out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
+    out.dispersion_exponent = fit.dispersion_exponent
+    out.dispersion_ref_hz = fit.dispersion_ref_hz
+    return choose_starts(session, rows, out)
+
+
+# More localiser starts (impactcore.h localiser_starts) are kept when they lower the training drops' physics
+# MAE to this fraction of one start's: out beyond the sensors' hull the best-screened start can end in the
+# wrong Huber valley.
+STARTS_GAIN = 0.97
+STARTS_TRIED = (1, 2)
+
+
+def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+    """cfg with the localiser_starts whose physics positions of the training drops are closest to the truth
+    (the configured number unless another is clearly better)."""
+    xy = np.asarray(session.xy_mm, float)[rows]
+    score = {}
+    for n in STARTS_TRIED:
+        trial = SignalConfig.from_dict({**cfg.to_dict(), "localiser_starts": n})
+        phys = featurize(session.adc[rows], trial).phys_xy_mm.astype(float)
+        ok = np.isfinite(phys).all(1)
+        score[n] = float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
+    chosen = int(cfg.localiser_starts) if int(cfg.localiser_starts) in score else STARTS_TRIED[0]
+    best = min(score, key=score.get)
+    if score[best] < STARTS_GAIN * score[chosen]:
+        chosen = best
+    out = SignalConfig.from_dict(cfg.to_dict())
+    out.localiser_starts = chosen
     return out

@@ -7,6 +7,12 @@ plate). On an orthotropic plate flexural wavefronts are close to ellipses whose 
 carries them into the core's localiser (impactcore.h travel_metric_*). t0_k is eliminated by centring each
 drop's residuals; a soft-L1 loss keeps cycle-skipped picks from steering the fit.
 
+Dispersion: on a flexural plate higher frequencies travel faster, and the cycle a threshold catches arrives
+with its own frequency's group velocity. The core measures the period of that cycle (impactcore.h pick_period)
+and the localiser scales each channel's slowness by (f / f_ref)^-alpha, f = fs / period. alpha is fitted
+with the rest and kept only when it explains the picks clearly better (DISPERSION_GAIN); f_ref is the
+training picks' median frequency (Kirchhoff's A0 has alpha = 1/2; a noisy period attenuates the fit).
+
 The onset threshold: a dispersive plate (a stiff metal, a laminate) sends a weak, fast precursor ahead of the
 main flexural arrival; a threshold near the noise catches one cycle of it or another from drop to drop. The
 threshold is chosen from a few multiples of the rig's default by how well the fitted model explains the
@@ -29,6 +35,9 @@ THRESHOLD_FACTORS = (1.0, 2.0, 3.0, 5.0, 8.0)
 # A candidate threshold replaces the default only when it explains the training picks this much better.
 THRESHOLD_GAIN = 0.85
 VELOCITY_SCAN_MM_PER_US = np.geomspace(0.2, 10.0, 120)
+# The dispersion term is kept when it brings the robust residual spread below this fraction of the fit
+# without it.
+DISPERSION_GAIN = 0.95
 
 
 @dataclass
@@ -38,6 +47,8 @@ class TravelFit:
     metric: tuple[float, float, float]   # Q_xx, Q_xy, Q_yy
     spread_us: float                # robust sd of the residuals (1.4826 MAD)
     n: int
+    dispersion_exponent: float = 0.0   # alpha of the slowness (f / f_ref)^-alpha
+    dispersion_ref_hz: float = 25000.0
 
     @property
     def spread_mm(self) -> float:
@@ -73,9 +84,21 @@ def _start_slowness(toa: np.ndarray, d: np.ndarray) -> float:
     return best_s
 
 
+def slowness_scales(period_samples, fs_hz: float, exponent: float, ref_hz: float) -> np.ndarray:
+    """(f / ref_hz)^-exponent per pick, f = fs_hz / period (1 where the period is unknown): the travel-time
+    factors the core's localiser applies (impactcore dispersion_scales)."""
+    period = np.asarray(period_samples, float)
+    ok = np.isfinite(period) & (period > 0)
+    out = np.ones(period.shape)
+    out[ok] = (fs_hz / (period[ok] * ref_hz)) ** (-exponent)
+    return out
+
+
 def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
-               anisotropic: bool) -> TravelFit:
-    """Velocity, channel delays (relative to channel 0) and, when anisotropic, the metric's a, b."""
+               anisotropic: bool, period_samples: np.ndarray | None = None, fs_hz: float | None = None) -> TravelFit:
+    """Velocity, channel delays (relative to channel 0) and, when anisotropic, the metric's a, b; with the
+    picks' periods (samples at fs_hz) also the dispersion exponent, kept when it explains the picks clearly
+    better (DISPERSION_GAIN)."""
     toa = np.asarray(toa_us, float)
     ok = np.isfinite(toa).all(1)
     if ok.sum() < 8:
@@ -84,25 +107,42 @@ def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
     toa, xy = toa[ok], np.asarray(xy_mm, float)[ok]
     d0 = travel_distances(xy, sensor_xy_mm)
     s0 = _start_slowness(toa, d0)
+    plain = _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic, None, 25000.0)
+    if period_samples is None or fs_hz is None:
+        return plain
+    period = np.asarray(period_samples, float)[ok]
+    known = np.isfinite(period) & (period > 0)
+    if known.mean() < 0.5:
+        return plain
+    ref_hz = float(np.median(fs_hz / period[known]))
+    disp = _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic, (period, fs_hz), ref_hz)
+    return disp if disp.spread_us < DISPERSION_GAIN * plain.spread_us else plain
+
+
+def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: float) -> TravelFit:
+    n_metric = 2 if anisotropic else 0
 
     def unpack(p):
         a, b = (p[4], p[5]) if anisotropic else (0.0, 0.0)
-        return p[0], np.r_[0.0, p[1:4]], metric_of(a, b)
+        alpha = p[4 + n_metric] if periods is not None else 0.0
+        return p[0], np.r_[0.0, p[1:4]], metric_of(a, b), alpha
 
     def residuals(p):
-        s, delay, q = unpack(p)
+        s, delay, q, alpha = unpack(p)
         d = d0 if not anisotropic else travel_distances(xy, sensor_xy_mm, q)
+        if periods is not None:
+            d = d * slowness_scales(periods[0], periods[1], alpha, ref_hz)
         return _centred(toa - d * s - delay[None]).ravel()
 
-    p0 = [s0, 0.0, 0.0, 0.0] + ([0.0, 0.0] if anisotropic else [])
-    lo = [1e-3, -np.inf, -np.inf, -np.inf] + ([-0.9, -0.9] if anisotropic else [])
-    hi = [np.inf, np.inf, np.inf, np.inf] + ([0.9, 0.9] if anisotropic else [])
+    p0 = [s0, 0.0, 0.0, 0.0] + [0.0] * n_metric + ([0.0] if periods is not None else [])
+    lo = [1e-3, -np.inf, -np.inf, -np.inf] + [-0.9] * n_metric + ([0.0] if periods is not None else [])
+    hi = [np.inf, np.inf, np.inf, np.inf] + [0.9] * n_metric + ([1.0] if periods is not None else [])
     sol = least_squares(residuals, p0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0)
-    s, delay, q = unpack(sol.x)
+    s, delay, q, alpha = unpack(sol.x)
     r = residuals(sol.x)
     return TravelFit(velocity_mm_per_us=float(1.0 / s), delays_us=[float(v) for v in delay],
                      metric=tuple(float(v) for v in q), spread_us=float(1.4826 * np.median(np.abs(r))),
-                     n=int(ok.sum()))
+                     n=len(toa), dispersion_exponent=float(alpha), dispersion_ref_hz=float(ref_hz))
 
 
 def wants_metric(rig) -> bool:
@@ -113,12 +153,15 @@ def wants_metric(rig) -> bool:
     return mat.orthotropic or not mat.known
 
 
-def picks(adc: np.ndarray, cfg: SignalConfig, **overrides) -> np.ndarray:
-    """The core's ToA (us) with the rig's delays off (the capture's still removed) and `overrides`: [R, 4]."""
+def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overrides):
+    """The core's ToA (us) with the rig's delays off (the capture's still removed) and `overrides`: [R, 4];
+    with_period: also the picks' periods (samples, impactcore pick_period)."""
     from .pipeline import as_int16
 
     trial = SignalConfig.from_dict({**cfg.to_dict(), "rig_delay_us": [0.0] * 4, **overrides})
-    return _core.extract_batch(as_int16(adc), trial.core())["toa_us"].astype(float)
+    raw = _core.extract_batch(as_int16(adc), trial.core())
+    toa = raw["toa_us"].astype(float)
+    return (toa, raw["pick_period"].astype(float)) if with_period else toa
 
 
 def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
@@ -130,7 +173,8 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
     for f in THRESHOLD_FACTORS:
         thr = base * f
         try:
-            fit = fit_travel(picks(adc, cfg, onset_threshold_counts=thr), xy_mm, cfg.sensor_xy_mm, anisotropic)
+            toa, period = picks(adc, cfg, with_period=True, onset_threshold_counts=thr)
+            fit = fit_travel(toa, xy_mm, cfg.sensor_xy_mm, anisotropic, period, cfg.fs_hz)
         except ValueError:
             continue
         trials.append({"onset_threshold_counts": thr, "spread_mm": fit.spread_mm, "fit": fit})

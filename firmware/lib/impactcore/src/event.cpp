@@ -35,8 +35,13 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
     use[c] = (f.ch[c].flags & (kFlagNoOnset | kFlagDead)) ? 0 : 1;
   }
   const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
+  // A dispersive plate: each channel's slowness follows the frequency of the cycle its onset caught.
+  float scale[kChannels];
+  const bool dispersive = loc.dispersion_exponent != 0.0f;
+  if (dispersive) dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
   out->phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
-                            loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric);
+                            loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
+                            dispersive ? scale : nullptr, loc.localiser_starts);
   if (out->phys.status == kOk) {
     out->accepted = accept_eq35(toa, loc.sensor_x_mm, loc.sensor_y_mm, out->phys.x_mm, out->phys.y_mm,
                                 loc.accept_tol_us, loc.accept_margin_mm, metric)

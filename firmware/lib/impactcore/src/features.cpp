@@ -741,6 +741,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   f->toa_threshold = cross;
   f->toa_aic = kNaN;
   f->first_peak = 0.0f;
+  f->pick_period = kNaN;
   f->n2 = n - 1;
   for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] = 0.0f;
   for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] = 0.0f;
@@ -779,6 +780,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Cha
   const float base_on = local.model(cross);
   const int ipk = first_extremum(x, n, base_on, icross);
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base_on);
+  f->pick_period = pick_period(x, n, base_on, cross);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
   int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)

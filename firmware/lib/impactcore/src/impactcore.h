@@ -100,7 +100,10 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, accept_margin_mm, 10.0f, COPY)  /* ... only pairs whose distances differ this much */     \
   X(ONE, float, travel_metric_xx, 1.0f, COPY)  /* travel time = sqrt(d^T Q d) / v: Q of an anisotropic */  \
   X(ONE, float, travel_metric_xy, 0.0f, COPY)  /* plate (elliptical wavefronts; identity = isotropic,  */  \
-  X(ONE, float, travel_metric_yy, 1.0f, COPY)  /* bit for bit the Euclidean localiser)                 */
+  X(ONE, float, travel_metric_yy, 1.0f, COPY)  /* bit for bit the Euclidean localiser)                 */  \
+  X(ONE, float, dispersion_exponent, 0.0f, COPY)  /* a channel's slowness x (f / dispersion_ref_hz)^-this,*/ \
+  X(ONE, float, dispersion_ref_hz, 25000.0f, COPY) /* f = fs / pick_period (0: one velocity, bit for bit) */ \
+  X(ONE, int, localiser_starts, 1, COPY)  /* screened starts the localiser refines (1 .. kMaxStarts) */
 
 #define IMPACTCORE_UNPAREN(...) __VA_ARGS__
 #define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
@@ -142,6 +145,7 @@ struct ChannelFeatures {
   float toa_us;            // final ToA in microseconds, channel delay removed
   float peak;              // max |x| after baseline removal, divided by the channel gain (counts)
   float first_peak;        // |x| of the first extremum after the onset, divided by the gain (counts)
+  float pick_period;       // samples: period of the oscillation the onset caught (pick_period()); NaN if none
   float energy;            // sum of x^2 over the capture, divided by the gain squared (counts^2)
   float window_energy[kEnergyWindows];  // energy in five equal windows from ToA to n2
   float residual_ratio;    // window_energy[4] / energy
@@ -331,6 +335,19 @@ int aic_pick(const int16_t* x, int begin, int end);
 // search_from cost no logarithms): the arg-min over [search_from, end) of the full-window AIC.
 float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 
+// The period (samples) of the oscillation a threshold crossing at `cross` caught: zero crossings of x - base
+// (linear sub-sample), from the last one at or before `cross` over the next three (three half periods, x 2/3).
+// On a dispersive plate (flexural waves: higher frequencies run faster) the cycle the threshold catches
+// arrives with its frequency's group velocity, so the localiser can scale each channel's slowness by it
+// (dispersion_exponent). NaN when the crossings are not found within kPeriodSearch samples.
+constexpr int kPeriodSearch = 32;
+float pick_period(const int16_t* x, int n, float base, float cross);
+
+// Per-channel slowness factors (f_c / ref_hz)^-exponent, f_c = fs_hz / pick_period (1 where the period is
+// unknown): what localise_tdoa's slowness_scale takes when dispersion_exponent is not 0.
+void dispersion_scales(const EventFeatures& f, float fs_hz, float exponent, float ref_hz,
+                       float out[kChannels]);
+
 // --- acceptance rule (Eq. 35) ---
 
 // True when ToA_i <= ToA_j + tol_us for every pair where sensor i is nearer the impact (x_mm, y_mm)
@@ -356,12 +373,17 @@ struct LocaliserResult {
 // cost per event); p stays on the plate. Channels whose `use` flag is 0 are left out (at least 3 needed).
 // velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance;
 // travel_metric {Q_xx, Q_xy, Q_yy} (positive definite; nullptr or the identity: |d|_Q = |d|) makes the
-// travel distance sqrt(d^T Q d): the elliptical wavefronts of an orthotropic plate.
+// travel distance sqrt(d^T Q d): the elliptical wavefronts of an orthotropic plate. slowness_scale
+// (per channel; nullptr: all 1) multiplies channel c's travel time (dispersion_scales). starts (1 ..
+// kMaxStarts): how many of the lowest-cost screening points are refined (the lowest Huber cost wins); out
+// beyond the sensors' hull the Huber valley from the best-screened point can miss the answer.
+constexpr int kMaxStarts = 4;
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us = 4.0f,
-                              const float* travel_metric = nullptr);
+                              const float* travel_metric = nullptr,
+                              const float* slowness_scale = nullptr, int starts = 1);
 
 
 // --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---

@@ -50,6 +50,7 @@ struct Problem {
   int m;
   float v;
   float inv_v;
+  float inv_vk[kChannels];  // per used channel: inv_v x its slowness scale (inv_v itself without one)
   float huber;
   float lx, ly;
   bool iso;              // no travel metric: plain distances (bit for bit the isotropic localiser)
@@ -67,7 +68,7 @@ inline float travel(const Problem& p, float dx, float dy) {
 float residuals(const Problem& p, float x, float y, float* r) {
   float mean = 0.0f;
   for (int k = 0; k < p.m; ++k) {
-    r[k] = p.toa[k] - travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_v;
+    r[k] = p.toa[k] - travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k];
     mean += r[k];
   }
   return mean / static_cast<float>(p.m);
@@ -121,7 +122,7 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
     const float dy = y - p.sy[k];
     float d = travel(p, dx, dy);
     if (d < 1e-3f) d = 1e-3f;
-    const float e = p.toa[k] - (t0 + d * p.inv_v);
+    const float e = p.toa[k] - (t0 + d * p.inv_vk[k]);
     const float ae = fabsf(e);
     float w = 1.0f;
     if (ae <= p.huber) {
@@ -130,7 +131,7 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
       w = p.huber / ae;
       cost += p.huber * (ae - 0.5f * p.huber);
     }
-    const float s = p.inv_v / d;
+    const float s = p.inv_vk[k] / d;
     // d(model)/dx, d(model)/dy (Q d / |d|_Q / v; d / |d| / v when iso); d(model)/dt0 = 1
     const float jx = p.iso ? dx * s : (p.qxx * dx + p.qxy * dy) * s;
     const float jy = p.iso ? dy * s : (p.qxy * dx + p.qyy * dy) * s;
@@ -224,7 +225,8 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
-                              float plate_y_mm, float huber_us, const float* travel_metric) {
+                              float plate_y_mm, float huber_us, const float* travel_metric,
+                              const float* slowness_scale, int starts) {
   LocaliserResult res = {};
   res.status = kOk;
   Problem p;
@@ -244,6 +246,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
       p.toa[p.m] = toa_us[c];
       p.sx[p.m] = sensor_x_mm[c];
       p.sy[p.m] = sensor_y_mm[c];
+      p.inv_vk[p.m] = slowness_scale ? p.inv_v * slowness_scale[c] : p.inv_v;
       ++p.m;
     }
   }
@@ -263,8 +266,15 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   // from that answer on 121 of 771 board-rate drops, 86 mm off the truth on average). Cost: 20 screens
   // and at most 1 + 7 kMaxIterations normal-equation evaluations (14 at most on session-1), instead of up
   // to six Gauss-Newton runs of 25 iterations.
-  float x = 0.5f * plate_x_mm, y = 0.5f * plate_y_mm, t0 = 0.0f;
-  float screen = INFINITY;
+  // The `starts` lowest-cost screening points (kept in order, ties in screening order) are each refined
+  // and the lowest Huber cost wins; starts = 1 is the single start above, bit for bit.
+  const int n_starts = starts < 1 ? 1 : (starts > kMaxStarts ? kMaxStarts : starts);
+  float cand_x[kMaxStarts], cand_y[kMaxStarts], cand_cost[kMaxStarts];
+  for (int s = 0; s < kMaxStarts; ++s) {
+    cand_x[s] = 0.5f * plate_x_mm;
+    cand_y[s] = 0.5f * plate_y_mm;
+    cand_cost[s] = INFINITY;
+  }
   // The cell centres, then the plate's corners inset by kCornerInset (out beyond a sensor the cost valley
   // from a cell centre is flat: without these, noisy picks there could end at the sensor).
   for (int q = 0; q < kGrid * kGrid + 4; ++q) {
@@ -278,18 +288,39 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
     }
     const float gx = fx * plate_x_mm, gy = fy * plate_y_mm;
     const float c = l2_cost(p, gx, gy);
-    if (c < screen) {
-      screen = c;
-      x = gx;
-      y = gy;
+    if (c < cand_cost[n_starts - 1]) {
+      int j = n_starts - 1;
+      while (j > 0 && c < cand_cost[j - 1]) {
+        cand_x[j] = cand_x[j - 1];
+        cand_y[j] = cand_y[j - 1];
+        cand_cost[j] = cand_cost[j - 1];
+        --j;
+      }
+      cand_x[j] = gx;
+      cand_y[j] = gy;
+      cand_cost[j] = c;
     }
   }
+  float x = cand_x[0], y = cand_y[0], t0 = 0.0f;
   float jtj[6];
   int iterations = 0, evaluations = 0;
-  refine(p, &x, &y, &t0, &iterations, &evaluations, jtj);
+  float best = refine(p, &x, &y, &t0, &iterations, &evaluations, jtj);
+  for (int s = 1; s < n_starts && cand_cost[s] < INFINITY; ++s) {
+    float sx = cand_x[s], sy = cand_y[s], st0 = 0.0f, sj[6];
+    int it = 0;
+    const float cost = refine(p, &sx, &sy, &st0, &it, &evaluations, sj);
+    if (cost < best) {
+      best = cost;
+      x = sx;
+      y = sy;
+      t0 = st0;
+      iterations = it;
+      for (int q = 0; q < 6; ++q) jtj[q] = sj[q];
+    }
+  }
   float ss = 0.0f;
   for (int k = 0; k < p.m; ++k) {
-    const float e = p.toa[k] - (t0 + travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_v);
+    const float e = p.toa[k] - (t0 + travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k]);
     ss += e * e;
   }
   res.x_mm = x;

@@ -249,4 +249,46 @@ int aic_pick(const int16_t* x, int begin, int end) {
   return k < 0.0f ? -1 : static_cast<int>(k + 0.5f);
 }
 
+float pick_period(const int16_t* x, int n, float base, float cross) {
+  if (!(cross >= 0.0f)) return NAN;
+  const int at = static_cast<int>(cross);
+  // The zero crossing at or before the threshold crossing: the last sign change within kPeriodSearch
+  // samples before it (the pair around the crossing included).
+  float z[4];
+  int found = 0;
+  int lo = at - kPeriodSearch;
+  if (lo < 0) lo = 0;
+  for (int i = at + 1 < n ? at + 1 : n - 1; i > lo && found == 0; --i) {
+    const float a = static_cast<float>(x[i - 1]) - base, b = static_cast<float>(x[i]) - base;
+    if ((a < 0.0f) != (b < 0.0f)) {
+      const float zc = static_cast<float>(i - 1) + a / (a - b);
+      if (zc <= cross) {
+        z[0] = zc;
+        found = 1;
+      }
+    }
+  }
+  if (found == 0) return NAN;
+  int hi = at + kPeriodSearch;
+  if (hi > n - 1) hi = n - 1;
+  for (int i = at; i < hi && found < 4; ++i) {
+    const float a = static_cast<float>(x[i]) - base, b = static_cast<float>(x[i + 1]) - base;
+    if ((a < 0.0f) != (b < 0.0f)) {
+      const float zc = static_cast<float>(i) + a / (a - b);
+      if (zc > z[found - 1]) z[found++] = zc;
+    }
+  }
+  if (found < 4) return NAN;
+  return (z[3] - z[0]) * (2.0f / 3.0f);
+}
+
+void dispersion_scales(const EventFeatures& f, float fs_hz, float exponent, float ref_hz,
+                       float out[kChannels]) {
+  for (int c = 0; c < kChannels; ++c) {
+    const float period = f.ch[c].pick_period;
+    out[c] = 1.0f;
+    if (period > 0.0f && ref_hz > 0.0f && fs_hz > 0.0f) out[c] = powf(fs_hz / (period * ref_hz), -exponent);
+  }
+}
+
 }  // namespace impactcore
