@@ -92,6 +92,10 @@ def run(args) -> int:
     q = (sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy)
     print(f"onset threshold {sig.onset_threshold_counts:g} counts; travel metric Q = "
           + ("identity (isotropic)" if q == (1.0, 0.0, 1.0) else f"[{q[0]:.3f} {q[1]:+.3f}; {q[1]:+.3f} {q[2]:.3f}]"))
+    alpha = float(getattr(sig, "dispersion_exponent", 0.0))
+    print("dispersion: " + (f"slowness x (f / {sig.dispersion_ref_hz / 1000:.1f} kHz)^-{alpha:.3f} per channel, f the "
+                            "picked cycle's frequency" if alpha else "none (one velocity)")
+          + f"; localiser starts {int(getattr(sig, 'localiser_starts', 1))}")
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
           + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
     print(f"wrote {args.out}")
