@@ -60,6 +60,17 @@ def test_fitted_channel_delays_match_the_rig(trained):
     assert 0.8 < model.signal.velocity_mm_per_us < 1.1
 
 
+def test_the_pmma_fit_keeps_its_picker_and_finds_little_dispersion(trained):
+    """On PMMA (picked cycles at 12-25 kHz) the training fit keeps the configured threshold, AIC blend and one
+    localiser start; the picks' speed still depends a little on their cycle's frequency: exponent 0.03-0.2
+    (docs/findings.md, "The picked cycle's frequency"), referred to the picks' median frequency, 14-25 kHz."""
+    _, model, _ = trained
+    sig, default = model.signal, SignalConfig.for_rig(None)
+    assert sig.onset_threshold_counts == default.onset_threshold_counts and sig.aic_blend == default.aic_blend
+    assert sig.localiser_starts == 1
+    assert 0.03 < sig.dispersion_exponent < 0.2 and 14000 < sig.dispersion_ref_hz < 25000
+
+
 def test_model_card_records_split_hash_and_features(trained, session1):
     out, _, split = trained
     card = json.loads((out / "model_card.json").read_text())

@@ -86,26 +86,27 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
 
 
 def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True) -> SignalConfig:
-    """Fits the physics localiser on training drops (travel.py): the onset threshold the core picks with,
-    the group velocity, the per-channel delays (relative to channel 0), the dispersion of the picked cycles'
-    speed with their frequency (when it explains the picks clearly better) and, on a plate whose material is
-    not a known isotropic one, the travel metric of its elliptical wavefronts.
+    """Fits the physics localiser on training drops (travel.py): the onset threshold and AIC blend the core
+    picks with, the group velocity, the per-channel delays (relative to channel 0), the dispersion of the
+    picked cycles' speed with their frequency (when it explains the picks clearly better) and, on a plate
+    whose material is not a known isotropic one, the travel metric of its elliptical wavefronts.
 
     Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
-    from the picks first). choose_threshold False keeps cfg's onset threshold."""
+    from the picks first). choose_threshold False keeps cfg's onset threshold and AIC blend."""
     from .travel import fit_travel, picks, wants_metric
     from .travel import choose_threshold as choose
 
     aniso = wants_metric(session.rig)
     if choose_threshold:
-        thr, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso)
+        thr, blend, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso)
     else:
-        thr = float(cfg.onset_threshold_counts)
+        thr, blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
         toa, period = picks(session.adc[rows], cfg, with_period=True)
         fit = fit_travel(toa, session.xy_mm[rows], cfg.sensor_xy_mm, aniso, period, cfg.fs_hz)
     out = SignalConfig.from_dict(cfg.to_dict())
     out.onset_threshold_counts = thr
+    out.aic_blend = blend
     out.velocity_mm_per_us = fit.velocity_mm_per_us
     out.rig_delay_us = list(fit.delays_us)
     out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = fit.metric

@@ -15,8 +15,8 @@ training picks' median frequency (Kirchhoff's A0 has alpha = 1/2; a noisy period
 
 The onset threshold: a dispersive plate (a stiff metal, a laminate) sends a weak, fast precursor ahead of the
 main flexural arrival; a threshold near the noise catches one cycle of it or another from drop to drop. The
-threshold is chosen from a few multiples of the rig's default by how well the fitted model explains the
-training drops' picks (robust residual spread in mm, i.e. times the velocity), so the core's own picker
+threshold (and the AIC blend, among the configured one and AIC_BLENDS) is chosen from a few multiples of the
+rig's default by how well the fitted model explains the training drops' picks (robust residual spread in mm, i.e. times the velocity), so the core's own picker
 decides and nothing is tuned to one plate.
 """
 
@@ -35,6 +35,9 @@ THRESHOLD_FACTORS = (1.0, 2.0, 3.0, 5.0, 8.0)
 # A candidate threshold replaces the default only when it explains the training picks this much better.
 THRESHOLD_GAIN = 0.85
 VELOCITY_SCAN_MM_PER_US = np.geomspace(0.2, 10.0, 120)
+# AIC blends tried beside the configured one: with the dispersion term the threshold crossing, whose cycle's
+# period the core measures, is the consistent pick, and less of the AIC onset can explain the picks better.
+AIC_BLENDS = (0.2, 0.0)
 # The dispersion term is kept when it brings the robust residual spread below this fraction of the fit
 # without it.
 DISPERSION_GAIN = 0.95
@@ -165,25 +168,29 @@ def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overr
 
 
 def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
-                     anisotropic: bool) -> tuple[float, TravelFit, list[dict]]:
-    """The onset threshold (counts) among THRESHOLD_FACTORS x the configured one whose travel fit explains
-    the training picks best (robust spread in mm); the configured one unless another is clearly better."""
-    base = float(cfg.onset_threshold_counts)
+                     anisotropic: bool) -> tuple[float, float, TravelFit, list[dict]]:
+    """The onset threshold (counts) among THRESHOLD_FACTORS x the configured one, and the AIC blend among the
+    configured one and AIC_BLENDS, whose travel fit explains the training picks best (robust spread in mm);
+    the configured pair unless another is clearly better. Returns threshold, blend, fit, the trials."""
+    base, base_blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
+    blends = [base_blend] + [b for b in AIC_BLENDS if b != base_blend]
     trials = []
     for f in THRESHOLD_FACTORS:
         thr = base * f
-        try:
-            toa, period = picks(adc, cfg, with_period=True, onset_threshold_counts=thr)
-            fit = fit_travel(toa, xy_mm, cfg.sensor_xy_mm, anisotropic, period, cfg.fs_hz)
-        except ValueError:
-            continue
-        trials.append({"onset_threshold_counts": thr, "spread_mm": fit.spread_mm, "fit": fit})
+        for blend in blends:
+            try:
+                toa, period = picks(adc, cfg, with_period=True, onset_threshold_counts=thr, aic_blend=blend)
+                fit = fit_travel(toa, xy_mm, cfg.sensor_xy_mm, anisotropic, period, cfg.fs_hz)
+            except ValueError:
+                continue
+            trials.append({"onset_threshold_counts": thr, "aic_blend": blend, "spread_mm": fit.spread_mm, "fit": fit})
     if not trials:
         raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel of 8 of them "
                         "(a dead or clipped channel in every drop?)")
     chosen = trials[0]
     best = min(trials, key=lambda t: t["spread_mm"])
-    if chosen["onset_threshold_counts"] != base or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
+    configured = chosen["onset_threshold_counts"] == base and chosen["aic_blend"] == base_blend
+    if not configured or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
         chosen = best
     table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
-    return chosen["onset_threshold_counts"], chosen["fit"], table
+    return chosen["onset_threshold_counts"], chosen["aic_blend"], chosen["fit"], table
