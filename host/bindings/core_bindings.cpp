@@ -334,8 +334,11 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           const ic::LocaliserConfig& loc, InU8 q, int nx, int ny, float x0_mm, float y0_mm,
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
-                          float misfit_ref) {
+                          float misfit_ref, std::vector<float> slowness_scale) {
   const size_t r = status.ndim() == 1 ? status.shape(0) : 0;
+  if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
+    throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
+  }
   auto rows2 = [r](InF a, size_t k) { return a.ndim() == 2 && a.shape(0) == r && a.shape(1) == k; };
   auto rows3 = [r](InF a, size_t k, size_t m) {
     return a.ndim() == 3 && a.shape(0) == r && a.shape(1) == ic::kChannels && a.shape(2) == m;
@@ -371,6 +374,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
           ch.diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
         ch.flags = flags.data()[k * ic::kChannels + c];
         ch.toa_us = toa_us.data()[k * ic::kChannels + c];
+        ev.slowness_scale[c] = slowness_scale.empty() ? 1.0f : slowness_scale[k * ic::kChannels + c];
       }
       ev.phys.x_mm = phys_xy_mm.data()[2 * k];
       ev.phys.y_mm = phys_xy_mm.data()[2 * k + 1];
@@ -565,7 +569,7 @@ NB_MODULE(_core, m) {
   m.def("twin_match_batch", &twin_match_batch, "status"_a, "flags"_a, "toa_us"_a, "window_energy"_a,
         "diff_energy"_a, "phys_xy_mm"_a, "xy_mm"_a, "localiser"_a, "q"_a, "nx"_a, "ny"_a, "x0_mm"_a, "y0_mm"_a,
         "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
-        "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a,
+        "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a, "slowness_scale"_a = std::vector<float>(),
         "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);

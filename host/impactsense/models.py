@@ -151,7 +151,19 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         f32(features.toa_us), f32(raw["window_energy"]), f32(raw["diff_energy"]), f32(features.phys_xy_mm),
         f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
         site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
-        f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref)
+        f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
+        _slowness_scales(features, signal))
+
+
+def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:
+    """The localiser's per-channel travel-time factors of every row (impactcore dispersion_scales), flat; empty
+    without dispersion (all 1)."""
+    if not getattr(signal, "dispersion_exponent", 0.0):
+        return []
+    from .travel import slowness_scales
+
+    return slowness_scales(features.raw["pick_period"], signal.fs_hz, signal.dispersion_exponent,
+                           signal.dispersion_ref_hz).astype(np.float32).ravel().tolist()
 
 
 @dataclass

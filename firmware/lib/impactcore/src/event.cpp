@@ -25,6 +25,7 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   if (out == nullptr) return kErrNullInput;
   out->accepted = 0;
   for (int k = 0; k < kNumFeatures; ++k) out->vector[k] = NAN;
+  for (int c = 0; c < kChannels; ++c) out->slowness_scale[c] = 1.0f;
   out->status = extract_features(adc, n, cfg, &out->features);
   if (out->status != kOk) return out->status;
   const EventFeatures& f = out->features;
@@ -36,7 +37,8 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   }
   const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
   // A dispersive plate: each channel's slowness follows the frequency of the cycle its onset caught.
-  float scale[kChannels];
+  float* scale = out->slowness_scale;
+  for (int c = 0; c < kChannels; ++c) scale[c] = 1.0f;
   const bool dispersive = loc.dispersion_exponent != 0.0f;
   if (dispersive) dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
   out->phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,

@@ -406,6 +406,8 @@ struct EventResult {
   LocaliserResult phys;
   uint8_t accepted;              // Eq. 35 at the physics position
   float vector[kNumFeatures];    // model inputs; NaN where a channel has no onset
+  float slowness_scale[kChannels];  // the localiser's per-channel travel-time factors (dispersion_scales;
+                                    // 1 without dispersion)
   int32_t status;
 };
 

@@ -237,7 +237,9 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     uint8_t use[kChannels];
     for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
     const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
-                                            loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric);
+                                            loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
+                                            loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                            loc->localiser_starts);
     if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
     const TwinEstimate t = twin_estimate(feats, mask, p.x_mm, p.y_mm, map, cfg);
