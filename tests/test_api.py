@@ -34,9 +34,11 @@ def test_localiser_cross_validates_and_beats_the_physics_localiser(session):
     phys = core.transform(adc)[:, [core.feature_names_out_.tolist().index(n) for n in ("phys_x_mm", "phys_y_mm")]]
     ok = np.isfinite(phys).all(1)
     phys_err = np.hypot(*(phys[ok] - xy[ok]).T)
-    # held-out cases: a few mm, and better than the physics position even with the physics localiser's
-    # constants fitted on every drop (in-sample, in its favour): the forests learn its bias
-    assert np.median(err) < 6.0 and np.mean(err[ok]) < 0.97 * np.mean(phys_err)
+    # held-out cases: a few mm, and within 5 % of the physics position with the physics localiser's constants
+    # fitted on every drop (in-sample, in its favour). Since the dispersive localiser (docs/findings.md, "The
+    # picked cycle's frequency") the physics position on PMMA is as good as 20-tree forests on 385 drops
+    # (out of fold: 3.56 vs 3.59 mm); before it the forests beat it by > 3 %.
+    assert np.median(err) < 6.0 and np.mean(err[ok]) < 1.05 * np.mean(phys_err)
     scores = cross_val_score(est, adc, xy, groups=groups, cv=cv)  # R2 of x, y
     assert scores.shape == (3,) and scores.min() > 0.95
 
