@@ -171,7 +171,7 @@ def grid(rig, step_mm: float, margin_mm: float) -> tuple[float, float, int, int]
 
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
-                   progress: bool = True, capture=None) -> SiteMap:
+                   progress: bool = True, capture=None, solver: str | None = None) -> SiteMap:
     """Simulate a drop from ref_height_mm at every grid point (off the sensor discs) and keep the core's
     twin features. The counts are not clipped (int16 range, the core's clip detection off), so the map
     holds the whole energy even where the rig's ADC would saturate; the rig's clipped channels are left out
@@ -181,7 +181,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     (board.capture.board_capture: resampled to 4 x 50 kHz with the SAADC scan delays, cut by the firmware
     app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
-    counts as the rig records them."""
+    counts as the rig records them. solver: "direct" or "modal" (None: params.solver)."""
     from .sim import simulate_voltages, to_adc
 
     x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
@@ -201,7 +201,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     for k in range(0, todo.size, chunk):
         rows = todo[k:k + chunk]
         res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),
-                                workers=workers)
+                                workers=workers, solver=solver)
         counts = to_adc(res["volts"], params, rig, clip=False)
         got = np.arange(rows.size)
         if capture is not None:

@@ -17,7 +17,9 @@ def register(sub) -> None:
     p.add_argument("--height", type=float, required=True, metavar="MM", help="release height (mm)")
     add_param_options(p)
     p.add_argument("--method", choices=("direct", "fast"), default="direct",
-                   help="direct (default for one drop) or fast (reciprocity; pays 4 solves up front)")
+                   help="the direct solver's path: direct (default for one drop) or fast (reciprocity; pays 4 "
+                        "solves up front)")
+    add_solver_option(p)
     p.add_argument("--noise", action="store_true", help="add the ADC noise (noise_counts_rms)")
     p.add_argument("--seed", type=int, default=None, help="seed of the ADC noise (default: random)")
     p.add_argument("--out", required=True, metavar="FILE.npz", help="file to write")
@@ -30,6 +32,13 @@ def add_param_options(p) -> None:
     g.add_argument("--calibration", metavar="CAL.json", help="calibration result; its 'sim_params' are used")
     p.add_argument("--rig", default="bundled", metavar="RIG",
                    help="rig.json or a session folder for the geometry (default: bundled session-1)")
+
+
+def add_solver_option(p) -> None:
+    p.add_argument("--solver", choices=("direct", "modal"), default=None,
+                   help="direct: the explicit finite-element model (the reference; default unless the parameters "
+                        "say solver 'modal'); modal: superposition of the same model's modes (computed once per "
+                        "plate and cached on disk, $IMPACTSENSE_MODAL_CACHE or ~/.cache/impactsense/modal)")
 
 
 def load_inputs(args):
@@ -56,7 +65,8 @@ def run(args) -> int:
 
     params, rig = load_inputs(args)
     t0 = time.perf_counter()
-    res = simulate_voltages(params, rig, [args.x], [args.y], [args.height], method=args.method, workers=2)
+    res = simulate_voltages(params, rig, [args.x], [args.y], [args.height], method=args.method,
+                            solver=args.solver, workers=2)
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
     elapsed = time.perf_counter() - t0
     model = res["model"]
@@ -68,8 +78,10 @@ def run(args) -> int:
                             x_mm=args.x, y_mm=args.y, height_mm=args.height,
                             sim_params=json.dumps(params.to_dict()), model=json.dumps(model.describe()))
     desc = model.describe()
+    solver = args.solver or params.solver
+    how = f"method {args.method}" if solver == "direct" else "modal solver"
     print(f"mesh {desc['nx']} x {desc['ny']} ({desc['element_mm'][0]:.2f} mm), dt {desc['dt_us']:.3f} us, "
-          f"method {args.method}, {elapsed:.2f} s")
+          f"{how}, {elapsed:.2f} s")
     f = res["force_n"][0]
     print(f"contact {res['contact_s'][0] * 1e6:.1f} us, touches {res['contacts'][0]}, peak force {f.max():.1f} N")
     peak = np.abs(adc[0].astype(int) - rig.bias_counts).max(axis=1)

@@ -9,7 +9,7 @@ ORDER = 41
 
 
 def register(sub) -> None:
-    from .simulate import add_param_options
+    from .simulate import add_param_options, add_solver_option
 
     p = sub.add_parser("simulate-dataset", help="simulate a virtual session (Sobol positions and heights)",
                        description="Simulates N drops at Sobol positions away from the sensors and heights "
@@ -22,7 +22,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="Sobol scramble and noise seed")
     p.add_argument("--no-noise", dest="noise", action="store_false", help="noise-free counts")
     p.add_argument("--method", choices=("fast", "direct"), default="fast",
-                   help="fast (default: reciprocity, 4 solves up front, then cheap per drop) or direct (one full run a drop)")
+                   help="the direct solver's path: fast (default: reciprocity, 4 solves up front, then cheap per "
+                        "drop) or direct (one full run a drop)")
+    add_solver_option(p)
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,
@@ -47,13 +49,15 @@ def run(args) -> int:
     params, rig = load_inputs(args)
     x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
     t0 = time.perf_counter()
-    res = simulate_voltages(params, rig, x, y, h, method=args.method, workers=args.workers, progress=True)
+    res = simulate_voltages(params, rig, x, y, h, method=args.method, solver=args.solver, workers=args.workers,
+                            progress=True)
+    how = f"{args.method} path" if (args.solver or params.solver) == "direct" else "modal solver"
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
     elapsed = time.perf_counter() - t0
     raw = dict(rig.to_dict())
-    raw["notes"] = (f"SIMULATED by impactsense simulate-dataset ({args.method} path, seed {args.seed}); "
+    raw["notes"] = (f"SIMULATED by impactsense simulate-dataset ({how}, seed {args.seed}); "
                     "parameters in sim_params.json. " + str(raw.get("notes", "")))
-    summary = {"drops": int(args.n), "seconds": round(elapsed, 2), "method": args.method,
+    summary = {"drops": int(args.n), "seconds": round(elapsed, 2), "method": args.method, "solver": args.solver or params.solver,
                "model": res["model"].describe(), "sim_params": params.to_dict(),
                "second_touches": int(np.sum(res["contacts"] > 1)),
                "contact_us_median": float(np.median(res["contact_s"]) * 1e6)}
@@ -65,7 +69,7 @@ def run(args) -> int:
     out = write_session(args.out, raw, x, y, h, adc, force=args.force, extra_files=extra)
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
     clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
-    print(f"{args.n} drops in {elapsed:.1f} s ({args.method}); mesh {summary['model']['nx']} x "
+    print(f"{args.n} drops in {elapsed:.1f} s ({how}); mesh {summary['model']['nx']} x "
           f"{summary['model']['ny']}, dt {summary['model']['dt_us']:.3f} us")
     print("sensor  peak_median  peak_max  clipped")
     for c, s in enumerate(rig.sensors):

@@ -8,7 +8,7 @@ ORDER = 42
 
 
 def register(sub) -> None:
-    from .simulate import add_param_options
+    from .simulate import add_param_options, add_solver_option
 
     p = sub.add_parser("sitemap", help="the twin's site map: a simulated drop at every grid point",
                        description="Simulates a drop from --height-mm at every point of a regular grid over the "
@@ -21,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--margin-mm", type=float, default=10.0, help="first grid line from the edges (default 10)")
     p.add_argument("--height-mm", type=float, default=175.0, help="reference drop height (default 175)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    add_solver_option(p)
     p.set_defaults(func=run)
 
 
@@ -32,7 +33,7 @@ def run(args) -> int:
     params, rig = load_inputs(args)
     t0 = time.time()
     site = build_site_map(params, rig, SignalConfig.for_rig(rig), step_mm=args.step_mm, margin_mm=args.margin_mm,
-                          ref_height_mm=args.height_mm, workers=args.workers)
+                          ref_height_mm=args.height_mm, workers=args.workers, solver=args.solver)
     site.source["calibration"] = args.calibration or args.params or "defaults"
     site.save(args.out)
     print(f"site map {site.nx} x {site.ny} points ({int(site.present.sum())} off the discs), step "

@@ -47,6 +47,8 @@ Defaults (documented, see docs/method.md):
   RMS of the single-step scheme. The error sits at the patch boundary (linear interpolation of the ring) and
   grows with the element size and dt: 0.4-0.7 % at the default 2.1 mm mesh (11 steps instead of 14), so the
   default mesh is stepped plainly. subcycle = false turns it off everywhere.
+- solver "direct" (the explicit FEM, the reference) or "modal" (modal superposition of the same FEM's modes,
+  `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (modal solver only).
 - circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
   ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
 - ball: steel E = 210 GPa, nu = 0.30.
@@ -75,6 +77,7 @@ from .material import fields_for_rig
 FORMAT = "impactsense-sim-params"
 SUPPORTS = ("free", "simply_supported", "simply_supported_soft", "clamped", "elastic_rim")
 METHODS = ("auto", "fast", "direct")
+SOLVERS = ("direct", "modal")
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,8 @@ class SimParams:
     pretrigger_samples: int = 200          # record sample of the first touch
     noise_counts_rms: float = 1.5          # used only when noise is asked for
     method: str = "auto"                   # "fast" (reciprocity), "direct", "auto": direct for <= 4 drops
+    solver: str = "direct"                 # "direct": the explicit FEM (with `method`); "modal": its modes (sim.modal)
+    loss_factor: float = 0.0               # modal solver only: a loss factor eta on top of D_s (s_k += eta omega_k / 2)
 
     # ---- construction -------------------------------------------------------------------------------
     def __post_init__(self):
@@ -276,6 +281,9 @@ class SimParams:
                               f"'elastic_rim', not {self.support!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
+        num("loss_factor", 0, lo_open=False)
         num("disc_patch_diameter_mm", 0, allow_none=True)
         num("disc_stiffness_scale", 0, lo_open=False)
         num("disc_mass_scale", 0, lo_open=False)

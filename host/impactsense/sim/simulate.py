@@ -1,6 +1,9 @@
 """Simulated drops: the ball, the plate and the four discs, to raw ADC counts like the rig records.
 
-Two paths behind one API (`SimParams.method`; "auto" picks direct for up to 4 drops unless the reciprocal
+Two solvers (`solver=` or SimParams.solver): "direct", the explicit finite-element model (the reference, below),
+and "modal", the same model's modes (`modal.py`, `modal_basis.py`: computed once per plate, cached on disk).
+
+The direct solver has two paths behind one API (`SimParams.method`; "auto" picks direct for up to 4 drops unless the reciprocal
 fields are already cached, fast otherwise):
 - "direct": one explicit run per drop with the ball, the plate and the discs stepped together for the whole
   record window.
@@ -160,10 +163,64 @@ def _taper(model: Model, volts: np.ndarray) -> np.ndarray:
     return volts
 
 
+MODAL_BATCH = 512   # drops per modal batch (its working memory is ~ batch x (modes + contact steps) x 8 bytes x 8)
+
+
+def modal_basis(model: Model, *, progress: bool = False):
+    """The model's modal basis (modal_basis.load_or_compute, disk-cached), kept on the model."""
+    basis = getattr(model, "_basis", None)
+    if basis is None:
+        from .modal_basis import load_or_compute
+
+        report = None
+        if progress:
+            import sys
+
+            def report(lam):
+                print(f"  modal basis: modes found up to {math.sqrt(max(lam, 0.0)) / (2 * math.pi):.0f} Hz",
+                      file=sys.stderr, flush=True)
+        basis = load_or_compute(model, progress=report)
+        model._basis = basis
+    return basis
+
+
+def _modal_voltages(model: Model, x, y, v0, progress: bool) -> list:
+    from .modal import modal_drops
+
+    basis = modal_basis(model, progress=progress)
+    results = []
+    bar = None
+    if progress:
+        from ..progress import progress_bar
+        bar = progress_bar(total=x.size, desc="simulate (modal)", unit="drop")
+    for k in range(0, x.size, MODAL_BATCH):
+        sl = slice(k, k + MODAL_BATCH)
+        r = modal_drops(model, basis, x[sl] * 1e-3, y[sl] * 1e-3, v0[sl])
+        for b in range(r["volts"].shape[0]):
+            results.append(dict(volts=r["volts"][b], contacts=int(r["contacts"][b]), force_n=r["force_n"][b],
+                                contact_start_s=float(r["contact_start_s"][b]),
+                                contact_end_s=float(r["contact_end_s"][b])))
+        if bar is not None:
+            bar.update(r["volts"].shape[0])
+    if bar is not None:
+        bar.close()
+    return results
+
+
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
-                      workers: int = 2, progress: bool = False) -> dict:
-    """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details."""
+                      solver: str | None = None, workers: int = 2, progress: bool = False) -> dict:
+    """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details.
+    solver: "direct" (the explicit FEM; `method` picks its path) or "modal" (None: params.solver)."""
     x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
+    solver = solver or params.solver
+    if solver not in ("direct", "modal"):
+        raise ConfigError(f"solver must be 'direct' or 'modal', got {solver!r}")
+    if solver == "direct" and params.loss_factor > 0:
+        raise ConfigError("loss_factor is a modal-solver parameter: use solver 'modal' or set it to 0")
+    if solver == "modal":
+        model = get_model(params, rig)
+        results = _modal_voltages(model, x, y, impact_velocity(params, h), progress)
+        return _collect(model, results)
     method = method or params.method
     if method not in ("auto", "fast", "direct"):
         raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
@@ -196,6 +253,10 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
                 bar.update(1)
     if bar is not None:
         bar.close()
+    return _collect(model, results)
+
+
+def _collect(model: Model, results: list) -> dict:
     volts = np.stack([_taper(model, r["volts"]) for r in results])
     return dict(volts=volts, model=model, contacts=np.array([r["contacts"] for r in results]),
                 force_n=[np.asarray(r["force_n"]) for r in results], dt_s=model.dt_s,
@@ -225,7 +286,8 @@ def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, se
 
 
 def simulate_drops(params: SimParams, rig, x_mm, y_mm, height_mm, *, noise: bool = False, seed=None,
-                   workers: int = 2, progress: bool = True) -> np.ndarray:
-    """Raw ADC records uint16 [n, 4, rig.samples] of drops at (x_mm, y_mm) from height_mm, like the rig's."""
-    res = simulate_voltages(params, rig, x_mm, y_mm, height_mm, workers=workers, progress=progress)
+                   workers: int = 2, progress: bool = True, solver: str | None = None) -> np.ndarray:
+    """Raw ADC records uint16 [n, 4, rig.samples] of drops at (x_mm, y_mm) from height_mm, like the rig's.
+    solver: "direct" or "modal" (None: params.solver)."""
+    res = simulate_voltages(params, rig, x_mm, y_mm, height_mm, workers=workers, progress=progress, solver=solver)
     return to_adc(res["volts"], params, rig, noise=noise, seed=seed)

@@ -1,0 +1,206 @@
+"""Drops by modal superposition (the reduced-order twin, `solver="modal"`): the same plate, ball and discs as
+the direct finite-element run, with the plate in its modes (`modal_basis`).
+
+Each mode k (mass-normalised, natural frequency omega_k) is a damped oscillator q'' + 2 s_k q' + omega_k^2 q =
+phi_k(x_c) F(t) with s_k = D_s / 2 + eta omega_k / 2 (the FEM's mass-proportional damping D_s, plus an optional
+loss factor eta, SimParams.loss_factor); its impulse response g_k(t) = sum over its poles p of
+Re[rho_p exp(lambda_p t)] is exact, so waves propagate without the explicit scheme's dispersion.
+
+Contact (batched over drops): F(t) piecewise linear on the FEM's step tau (hats phi_j centred at t_j = j tau).
+The plate under the ball, w_c(t_n) = sum_j H(n - j) F_j + R F_n with H the point receptance to a hat
+(sum_k phi_k(x_c)^2 x the hat response of mode k, closed form) and R the residual flexibility of the modes
+above the cut-off (quasi-static); the ball z(t_n) = v0 t_n + g t_n^2 / 2 - (1 / m) sum_j F_j B(n - j) with
+B the hat's double integral. At each step the Hertz law F_n = k (z - w_c)_+^1.5 is solved for F_n
+(Newton, monotone from below). The window ends as the FEM's contact window does (the ball clearly gone).
+
+Outputs: the disc functionals applied to the modes give modal output gains c_sk; after the last force hat each
+mode decays freely, so every later record sample is a matrix product over the modes' poles, sampled with the
+FEM's own record weights (hats over its steps: the Fejer factor [sinh(m z) / (m sinh z)]^2, z = lambda tau / 2);
+the samples during the contact window are the direct convolution of F with the hat responses on the step grid.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.signal
+import scipy.sparse as sp
+
+from .model import Model
+from .modal_basis import ModalBasis
+
+QUIET_AFTER_CONTACT_S = 100e-6   # as the FEM's contact window (simulate.contact_window)
+NEWTON_ITERATIONS = 8
+CHUNK_STEPS = 256                # contact kernel columns computed at a time
+
+
+def _sinhc(z):
+    """sinh(z) / z for complex z (series near 0)."""
+    z = np.asarray(z, complex)
+    small = np.abs(z) < 1e-4
+    out = np.ones_like(z)
+    zz = np.where(small, 1.0, z)
+    out = np.where(small, 1 + z * z / 6, np.sinh(zz) / zz)
+    return out
+
+
+def _expm1_x_over_x2(x):
+    """(exp(x) - 1 - x) / x^2 (series near 0)."""
+    x = np.asarray(x, complex)
+    small = np.abs(x) < 1e-3
+    xx = np.where(small, 1.0, x)
+    return np.where(small, 0.5 + x / 6 + x * x / 24, (np.exp(xx) - 1 - xx) / (xx * xx))
+
+
+class Poles:
+    """The poles of every mode: lam [P] complex, rho [P] complex, mode [P] (index of the mode)."""
+
+    def __init__(self, omega: np.ndarray, damping_per_s: float, loss_factor: float = 0.0):
+        s = 0.5 * damping_per_s + 0.5 * loss_factor * omega
+        disc = omega ** 2 - s ** 2
+        under = disc > (1e-6 * np.maximum(s, 1.0)) ** 2
+        lam, rho, mode = [], [], []
+        k_u = np.flatnonzero(under)
+        wd = np.sqrt(disc[k_u])
+        lam.append(-s[k_u] + 1j * wd)
+        rho.append(-1j / wd)                          # g = Im(exp(lam t)) / omega_d
+        mode.append(k_u)
+        k_o = np.flatnonzero(~under)                  # rigid-body or overdamped: two real poles
+        if k_o.size:
+            r = np.sqrt(np.maximum(-disc[k_o], (1e-6 * np.maximum(s[k_o], 1.0)) ** 2))
+            lp, lm = -s[k_o] + r, -s[k_o] - r
+            lam += [lp + 0j, lm + 0j]
+            rho += [1 / (lp - lm) + 0j, -1 / (lp - lm) + 0j]
+            mode += [k_o, k_o]
+        self.lam = np.concatenate(lam)
+        self.rho = np.concatenate(rho)
+        self.mode = np.concatenate(mode)
+        n = omega.size
+        self.to_modes = sp.csr_matrix((np.ones(self.mode.size), (self.mode, np.arange(self.mode.size))),
+                                      shape=(n, self.mode.size))
+
+    def hat_response(self, tau: float, lags: np.ndarray) -> np.ndarray:
+        """Displacement of every mode at lag l tau after a unit hat force centred at 0 (half-width tau):
+        [modes, len(lags)] float64 (lag 0: the hat's first half only)."""
+        lags = np.asarray(lags)
+        z = self.lam * tau
+        full = self.rho * tau * _sinhc(z / 2) ** 2                  # rho L_tau(lam)
+        half = self.rho * tau * _expm1_x_over_x2(z)                # rho M_0(lam)
+        e = np.exp(np.outer(self.lam, lags * tau))
+        vals = (full[:, None] * e).real
+        vals[:, lags == 0] = half.real[:, None]
+        vals[:, lags < 0] = 0.0
+        return np.asarray(self.to_modes @ vals)
+
+
+def _record_weights(m: int, n_fine: int, n_q: int) -> sp.csr_matrix:
+    """The FEM's record operator: sample q = sum_n V(t_n) (1 - |n/m - q|) / m over the steps, [n_q, n_fine]."""
+    rows, cols, vals = [], [], []
+    for q in range(n_q):
+        for r in range(-(m - 1), m):
+            n = q * m + r
+            if 0 <= n < n_fine:
+                rows.append(q)
+                cols.append(n)
+                vals.append((1 - abs(r) / m) / m)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n_q, n_fine))
+
+
+def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int | None = None,
+                sensors=None) -> dict:
+    """Drops at (x_m, y_m) [n] with impact speeds v0 [n]: volts [n, sensors, n_record] on the ADC grid from
+    the first touch, the force per step [n, steps], contact start/end and touches, as the direct run."""
+    p = model.params
+    x_m = np.atleast_1d(np.asarray(x_m, float))
+    y_m = np.atleast_1d(np.asarray(y_m, float))
+    v0 = np.atleast_1d(np.asarray(v0, float))
+    n_rec = model.n_record if n_record is None else int(n_record)
+    sensors = model.sensors if sensors is None else sensors
+    tau, m = model.dt_s, model.record_every
+    n_b = x_m.size
+    poles = Poles(basis.omega, p.damping_per_s, getattr(p, "loss_factor", 0.0))
+    phi_c, resid = basis.contact(model, x_m, y_m)
+    phi2 = phi_c * phi_c
+
+    # ---- contact window ----
+    mass, k_h, g = model.ball_mass_kg, model.k_hertz, p.g_m_s2
+    max_steps = int(math.ceil(p.contact_window_ms * 1e-3 / tau))
+    force = np.zeros((n_b, min(max_steps, CHUNK_STEPS) + 1))
+    h_cols = np.zeros((n_b, 0))                       # H(l) for l = 0..
+    s0 = np.zeros(n_b)                                # sum_{j<n} F_j
+    s1 = np.zeros(n_b)                                # sum_{j<n} j F_j
+    t_first = np.full(n_b, -1.0)
+    t_last = np.full(n_b, -1.0)
+    touching = np.zeros(n_b, bool)
+    touches = np.zeros(n_b, int)
+    n = 0
+    for n in range(1, max_steps + 1):
+        if n >= h_cols.shape[1]:
+            lags = np.arange(h_cols.shape[1], h_cols.shape[1] + CHUNK_STEPS)
+            h_cols = np.hstack([h_cols, phi2 @ poles.hat_response(tau, lags)])
+        if n >= force.shape[1]:
+            force = np.hstack([force, np.zeros((n_b, CHUNK_STEPS))])
+        t = n * tau
+        hist = np.einsum("bj,bj->b", force[:, 1:n], h_cols[:, n - 1:0:-1]) if n > 1 else 0.0
+        pred = v0 * t + 0.5 * g * t * t - tau * tau / mass * (n * s0 - s1) - hist
+        comp = tau * tau / (6 * mass) + h_cols[:, 0] + resid
+        f = np.zeros(n_b)
+        on = pred > 0
+        if on.any():
+            pp, cc = pred[on], comp[on]
+            ff = np.zeros(pp.size)
+            for _ in range(NEWTON_ITERATIONS):
+                d = np.maximum(pp - cc * ff, 0.0)
+                sq = np.sqrt(d)
+                ff = ff - (ff - k_h * d * sq) / (1 + 1.5 * k_h * cc * sq)
+            f[on] = ff
+        force[:, n] = f
+        now = f > 0
+        touches += now & ~touching
+        t_first = np.where(now & (t_first < 0), t, t_first)
+        t_last = np.where(now, t, t_last)
+        touching = now
+        s0 += f
+        s1 += n * f
+        v_ball = v0 + g * t - tau / mass * (s0 - 0.5 * f)
+        gone = (t_first >= 0) & ~touching & (v_ball < 0) & \
+            (t - t_last > np.maximum(QUIET_AFTER_CONTACT_S, t_last - t_first))
+        if gone.all():
+            break
+    n_last = n
+    force = force[:, :n_last + 1]
+
+    # ---- outputs ----
+    gains = basis.sensor_gains(sensors)                      # [S, modes]
+    n_s = gains.shape[0]
+    coef = (gains[None, :, :] * phi_c[:, None, :]).reshape(n_b * n_s, -1)   # c_sk phi_k(x_c)
+    q0 = min(int(math.ceil((n_last + 1) / m)) + 1, n_rec)    # first sample after every force hat
+    volts = np.zeros((n_b, n_s, n_rec))
+    n_early = q0 * m
+    if q0 > 0:
+        g_resp = coef @ poles.hat_response(tau, np.arange(n_early))            # [B S, n_early]
+        f_rep = np.repeat(force[:, 1:], n_s, axis=0)                           # F_j, j = 1..
+        conv = scipy.signal.fftconvolve(f_rep, g_resp, axes=1)[:, :n_early]   # index i = (n - 1)
+        v_fine = np.zeros((n_b * n_s, n_early))
+        v_fine[:, 1:] = conv[:, :n_early - 1]
+        w = _record_weights(m, n_early, q0)
+        volts[:, :, :q0] = (w @ v_fine.T).T.reshape(n_b, n_s, q0)
+    if q0 < n_rec:
+        lam = poles.lam
+        t_end = n_last * tau
+        j = np.arange(1, n_last + 1)
+        e_hist = np.exp(np.outer((t_end - j * tau), lam))                  # [J, P]
+        a = force[:, 1:] @ e_hist.real + 1j * (force[:, 1:] @ e_hist.imag)   # [B, P]
+        z = lam * tau / 2
+        fejer = (np.sinh(m * z) / (m * np.sinh(np.where(np.abs(z) > 0, z, 1e-30)))) ** 2
+        fejer = np.where(np.abs(z) > 1e-12, fejer, 1.0)
+        per_pole = poles.rho * tau * _sinhc(z) ** 2 * fejer                  # rho L_tau W
+        zc = (coef[:, poles.mode] * per_pole[None, :]) * np.repeat(a, n_s, axis=0)   # [B S, P]
+        q = np.arange(q0, n_rec)
+        e_out = np.exp(np.outer(lam, q * m * tau - t_end))                  # [P, Q]
+        lhs = np.hstack([zc.real, -zc.imag]).astype(np.float32)
+        rhs = np.vstack([e_out.real, e_out.imag]).astype(np.float32)
+        volts[:, :, q0:] = (lhs @ rhs).reshape(n_b, n_s, -1)
+    return dict(volts=volts, force_n=force, contacts=touches, contact_start_s=t_first, contact_end_s=t_last,
+                steps=n_last)

@@ -1,0 +1,316 @@
+"""The plate's modes from the finite-element model's own stiffness and mass (the reduced-order twin's basis).
+
+- K is probed from the C++ kernel (`Plate.internal_force_double`, node springs included) with 9 node colours x
+  3 fields: nodes of one colour are 3 apart, so their stencils do not overlap and each probe yields whole
+  columns. No element physics is written again in Python. M is the model's lumped mass (w, beta_x, beta_y).
+- Modes of K phi = omega^2 M phi on the free dofs by shift-invert Lanczos (scipy.sparse.linalg.eigsh on
+  M^-1/2 K M^-1/2) in slices: a slice centred at sigma returns the k eigenvalues nearest sigma, so every
+  eigenvalue closer to sigma than the farthest one found is in it; the next slice is centred so that its
+  covered interval overlaps the last one's, and only eigenvalues past the last trusted one are kept.
+- Residual flexibility: the modes above the cut-off still respond quasi-statically to the ball, so the
+  contact sees the static flexibility of the truncated modes, R(a, b) = [K_s^-1 - Phi (Lambda - s)^-1
+  Phi^T](w_a, w_b) (K_s = K - s M, s < 0 a small shift: defined for free plates too). It is local (the kept
+  modes carry the long-range part), so it is probed: unit loads on the w of every node of one colour (nodes
+  `PROBE_SPACING` apart), one sparse solve per colour, and the value read at each node and its neighbours of
+  the same element. Stored per node for the offsets (0,0), (1,0), (0,1), (1,1), (1,-1).
+- Cache: on disk, keyed by a hash of everything that enters K / k_ref and M (mesh, per-element stiffness
+  ratios, material ratios, masses, supports, springs, the cut-off in units of the stiffness scale) and
+  of the sensor functionals' node set. A uniform stiffness scale (E for a plate whose every stiffness scales
+  with it) reuses the basis: the shapes are unchanged and omega scales with sqrt(scale).
+- Memory: the mode shapes are kept as float32 w at every node [nodes, modes] (memory-mapped from the cache)
+  plus float32 beta_x, beta_y at the sensor functionals' nodes; `ModalBasis.nbytes` states it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..errors import ConfigError
+from .model import Model, rim_springs, support_masks
+
+FORMAT_VERSION = 1
+PROBE_WAVELENGTHS = 2.5     # residual probes of one colour this many A0 wavelengths (at the cut-off) apart
+SLICE_MODES = 160           # eigenpairs per shift-invert slice (Lanczos memory ~ 2 x this x dofs x 8 bytes)
+DEFAULT_CUTOFF_FACTOR = 1.0  # modes up to this x the FEM's resolved band f_max (the rest: residual flexibility)
+
+
+def cache_dir() -> Path:
+    env = os.environ.get("IMPACTSENSE_MODAL_CACHE")
+    if env:
+        return Path(env)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "impactsense" / "modal"
+
+
+# ----- operators of the finite-element model -----
+
+def assembled_stiffness(plate, nx: int, ny: int) -> sp.csr_matrix:
+    """K [3 nodes, 3 nodes] (dof = field * nodes + node; fields w, beta_x, beta_y) of the C++ operator."""
+    nn = (nx + 1) * (ny + 1)
+    jj, ii = np.divmod(np.arange(nn), nx + 1)
+    rows, cols, vals = [], [], []
+    for ci in range(3):
+        for cj in range(3):
+            sel = np.flatnonzero((ii % 3 == ci) & (jj % 3 == cj))
+            for field in range(3):
+                u = np.zeros((3, nn))
+                u[field, sel] = 1
+                f = np.asarray(plate.internal_force_double(u))
+                for di in (-1, 0, 1):
+                    for dj in (-1, 0, 1):
+                        ni, nj = ii[sel] + di, jj[sel] + dj
+                        ok = (ni >= 0) & (ni <= nx) & (nj >= 0) & (nj <= ny)
+                        src, dst = sel[ok], nj[ok] * (nx + 1) + ni[ok]
+                        for g in range(3):
+                            v = f[g, dst]
+                            nz = v != 0
+                            rows.append(g * nn + dst[nz])
+                            cols.append(field * nn + src[nz])
+                            vals.append(v[nz])
+    k = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * nn, 3 * nn))
+    return (k + k.T) * 0.5   # symmetric to round-off (checked by the tests)
+
+
+def fixed_dofs(model: Model) -> np.ndarray:
+    masks = support_masks(model.nx, model.ny, model.params.support)
+    return np.concatenate([m.ravel() for m in masks]).astype(bool)
+
+
+def lumped_mass(model: Model) -> np.ndarray:
+    return np.concatenate([model.mass_w, model.mass_r, model.mass_r])
+
+
+def stiffness_reference(model: Model) -> float:
+    """The scalar the cached K is normalised by: the bare plate's bending stiffness."""
+    from .material import element_constants
+
+    return float(element_constants(model.params)[0])
+
+
+# ----- the basis -----
+
+@dataclass
+class ModalBasis:
+    omega: np.ndarray          # natural frequencies [rad/s] at this model's stiffness, float64 [modes]
+    w_nodes: np.ndarray        # mass-normalised w at every node, float32 [nodes, modes]
+    beta_nodes: np.ndarray     # beta_x, beta_y at `beta_index` nodes, float32 [2, n, modes]
+    beta_index: np.ndarray     # node numbers of beta_nodes' rows (sorted)
+    residual: np.ndarray       # residual flexibility [m/N] per node: offsets (0,0), (1,0), (0,1), (1,1), (1,-1)
+    cutoff_hz: float
+    key: str
+    stiffness_scale: float = 1.0
+
+    @property
+    def modes(self) -> int:
+        return self.omega.size
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.w_nodes.nbytes + self.beta_nodes.nbytes + self.residual.nbytes + self.omega.nbytes)
+
+    def scaled(self, scale: float) -> "ModalBasis":
+        """The basis of the same model with every stiffness x scale (shapes unchanged)."""
+        return ModalBasis(self.omega * math.sqrt(scale), self.w_nodes, self.beta_nodes, self.beta_index,
+                          self.residual / scale, self.cutoff_hz * math.sqrt(scale), self.key,
+                          self.stiffness_scale * scale)
+
+    def sensor_gains(self, sensors) -> np.ndarray:
+        """Each sensor functional (node, wx, wy) applied to every mode: [n_sensors, modes] float64."""
+        out = np.zeros((len(sensors), self.modes))
+        for s, (nodes, wx, wy) in enumerate(sensors):
+            pos = np.searchsorted(self.beta_index, nodes)
+            if np.any(pos >= self.beta_index.size) or np.any(self.beta_index[np.minimum(pos, self.beta_index.size - 1)] != nodes):
+                raise ConfigError("modal basis: a sensor functional reaches nodes outside the cached sensor nodes")
+            bx = self.beta_nodes[0, pos].astype(float)
+            by = self.beta_nodes[1, pos].astype(float)
+            out[s] = np.asarray(wx, float) @ bx + np.asarray(wy, float) @ by
+        return out
+
+    def contact(self, model: Model, x_m: np.ndarray, y_m: np.ndarray):
+        """Mode shapes at the contact points (bilinear, as the FEM's contact) [n, modes] float64 and the
+        residual flexibility there [n]."""
+        nx, ny = model.nx, model.ny
+        i = np.minimum((x_m / model.hx_m).astype(int), nx - 1)
+        j = np.minimum((y_m / model.hy_m).astype(int), ny - 1)
+        xi, eta = x_m / model.hx_m - i, y_m / model.hy_m - j
+        r = nx + 1
+        n00, n10, n11, n01 = j * r + i, j * r + i + 1, (j + 1) * r + i + 1, (j + 1) * r + i
+        w00, w10, w11, w01 = (1 - xi) * (1 - eta), xi * (1 - eta), xi * eta, (1 - xi) * eta
+        phi = np.zeros((x_m.size, self.modes))
+        for nd, wt in ((n00, w00), (n10, w10), (n11, w11), (n01, w01)):
+            phi += wt[:, None] * self.w_nodes[nd].astype(float)
+        res = self.residual
+        diag = (w00 ** 2 * res[0, n00] + w10 ** 2 * res[0, n10] + w11 ** 2 * res[0, n11] + w01 ** 2 * res[0, n01])
+        off = 2 * (w00 * w10 * res[1, n00] + w01 * w11 * res[1, n01]       # along x
+                   + w00 * w01 * res[2, n00] + w10 * w11 * res[2, n10]     # along y
+                   + w00 * w11 * res[3, n00] + w01 * w10 * res[4, n01])    # diagonals
+        return phi, diag + off
+
+
+def _shift_inverse(a: sp.csr_matrix, sigma: float):
+    """(a - sigma I)^-1 as a LinearOperator (sparse LU with a symmetric fill-reducing ordering)."""
+    lu = spla.splu((a - sigma * sp.eye(a.shape[0], format="csr")).tocsc(), permc_spec="MMD_AT_PLUS_A",
+                   diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    return spla.LinearOperator(a.shape, matvec=lu.solve, dtype=float)
+
+
+def _spectrum(a: sp.csr_matrix, lam_max: float, shift: float, progress=None):
+    """Eigenpairs of the symmetric a with eigenvalues <= lam_max (shift-invert slices); ascending."""
+    n = a.shape[0]
+    k = min(SLICE_MODES, n - 2)
+    vals, vecs = [], []
+    trusted = -np.inf          # every eigenvalue below this has been kept
+    sigma = shift
+    while trusted <= lam_max:
+        lam, vec = spla.eigsh(a, k=k, sigma=sigma, which="LM", OPinv=_shift_inverse(a, sigma))
+        reach = np.abs(lam - sigma).max()
+        lo, hi = sigma - reach, sigma + reach
+        if trusted > -np.inf and lo >= trusted:   # the slice does not reach down to what is known: a gap
+            sigma = 0.5 * (trusted + sigma)
+            continue
+        top = hi - 1e-9 * abs(hi)           # a cluster on the slice's edge may be cut: left to the next slice
+        keep = (lam >= trusted) & (lam < top)
+        vals.append(lam[keep])
+        vecs.append(vec[:, keep])
+        width = top - max(trusted, 0.0)
+        trusted = top
+        if progress:
+            progress(trusted)
+        if k >= n - 2:
+            break
+        sigma = trusted + 0.4 * width
+    lam = np.concatenate(vals)
+    vec = np.concatenate(vecs, axis=1)
+    order = np.argsort(lam)
+    lam, vec = lam[order], vec[:, order]
+    sel = lam <= lam_max
+    return lam[sel], vec[:, sel]
+
+
+def _basis_key(model: Model, k: sp.csr_matrix, k_ref: float, mass: np.ndarray, fixed: np.ndarray,
+               cutoff_rel: float, beta_index: np.ndarray) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps(dict(v=FORMAT_VERSION, nx=model.nx, ny=model.ny, hx=model.hx_m, hy=model.hy_m,
+                             probe=PROBE_WAVELENGTHS, cutoff_rel=round(cutoff_rel, 9))).encode())
+    kn = k.tocoo()
+    for arr in (kn.row.astype(np.int64), kn.col.astype(np.int64), (kn.data / k_ref).astype(np.float32),
+                mass.astype(np.float32), fixed, beta_index):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()[:32]
+
+
+def _sensor_nodes(model: Model) -> np.ndarray:
+    return np.unique(np.concatenate([np.asarray(s[0], np.int64) for s in model.sensors]))
+
+
+def probe_spacing(model: Model, cutoff_hz: float) -> int:
+    """Nodes between residual probes of one colour: PROBE_WAVELENGTHS A0 wavelengths at the cut-off."""
+    from .model import mesh_element_m
+
+    wavelength = 10 * mesh_element_m(model.params, cutoff_hz)
+    return max(4, int(math.ceil(PROBE_WAVELENGTHS * wavelength / min(model.hx_m, model.hy_m))))
+
+
+def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing):
+    """Residual flexibility of the truncated modes on w, per node and in-element offset (module doc)."""
+    nx, ny = model.nx, model.ny
+    nn = (nx + 1) * (ny + 1)
+    jj, ii = np.divmod(np.arange(nn), nx + 1)
+    a = sp.diags(1 / np.sqrt(m_free)) @ k_free @ sp.diags(1 / np.sqrt(m_free))
+    inv = _shift_inverse(a.tocsr(), shift)      # (K - s M)^-1 = M^-1/2 (A - s I)^-1 M^-1/2
+    m_isqrt = 1 / np.sqrt(m_free)
+    # mass-normalised shapes on the free dofs: phi = M^-1/2 v
+    phi = vec_free / np.sqrt(m_free)[:, None]
+    pos = np.full(3 * nn, -1)
+    pos[free] = np.arange(free.size)
+    w_pos = pos[:nn]
+    out = np.zeros((5, nn))
+    offsets = ((0, 0), (1, 0), (0, 1), (1, 1), (1, -1))
+    for ci in range(spacing):
+        for cj in range(spacing):
+            sel = np.flatnonzero((ii % spacing == ci) & (jj % spacing == cj) & (w_pos >= 0))
+            if sel.size == 0:
+                continue
+            rhs = np.zeros(free.size)
+            rhs[w_pos[sel]] = 1.0
+            static = m_isqrt * inv.matvec(m_isqrt * rhs)
+            modal = phi @ ((phi[w_pos[sel]].sum(axis=0)) / (lam - shift))
+            y = static - modal
+            for o, (di, dj) in enumerate(offsets):
+                ni, nj = ii[sel] + di, jj[sel] + dj
+                ok = (ni >= 0) & (ni <= nx) & (nj >= 0) & (nj <= ny)
+                dst = nj[ok] * (nx + 1) + ni[ok]
+                good = w_pos[dst] >= 0
+                out[o, sel[ok][good]] = y[w_pos[dst[good]]]
+    return out
+
+
+def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progress=None) -> ModalBasis:
+    """The modes of `model` up to cutoff_hz (default DEFAULT_CUTOFF_FACTOR x f_max) and the residual."""
+    cutoff_hz = DEFAULT_CUTOFF_FACTOR * model.f_max_hz if cutoff_hz is None else float(cutoff_hz)
+    k = assembled_stiffness(model.plate, model.nx, model.ny) if k is None else k
+    mass = lumped_mass(model)
+    fixed = fixed_dofs(model)
+    free = np.flatnonzero(~fixed)
+    k_free = k[free][:, free].tocsr()
+    m_free = mass[free]
+    dm = sp.diags(1 / np.sqrt(m_free))
+    a = (dm @ k_free @ dm).tocsr()
+    lam_max = (2 * np.pi * cutoff_hz) ** 2
+    # a shift below the spectrum: a few percent of the lowest Kirchhoff-like eigenvalue scale, negative
+    diag_scale = float(np.median(a.diagonal()))
+    shift = -1e-6 * diag_scale
+    lam, vec = _spectrum(a, lam_max, shift, progress)
+    lam = np.maximum(lam, 0.0)
+    res = _residual(model, k_free, m_free, free, lam, vec, shift, probe_spacing(model, cutoff_hz))
+    nn = model.nodes
+    full = np.zeros((3 * nn, lam.size))
+    full[free] = vec / np.sqrt(m_free)[:, None]
+    beta_index = _sensor_nodes(model)
+    return ModalBasis(omega=np.sqrt(lam), w_nodes=full[:nn].astype(np.float32),
+                      beta_nodes=np.stack([full[nn + beta_index], full[2 * nn + beta_index]]).astype(np.float32),
+                      beta_index=beta_index, residual=res, cutoff_hz=cutoff_hz, key="")
+
+
+def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: bool = True,
+                    progress=None) -> ModalBasis:
+    """The basis of `model`, from the disk cache when the same plate (up to a uniform stiffness scale) was
+    solved before."""
+    from ..outputs import atomic_file
+
+    cutoff_hz = DEFAULT_CUTOFF_FACTOR * model.f_max_hz if cutoff_hz is None else float(cutoff_hz)
+    k = assembled_stiffness(model.plate, model.nx, model.ny)
+    k_ref = stiffness_reference(model)
+    mass = lumped_mass(model)
+    fixed = fixed_dofs(model)
+    beta_index = _sensor_nodes(model)
+    # the cut-off relative to the stiffness scale: the same relative band is the same basis
+    cutoff_rel = cutoff_hz / math.sqrt(k_ref)
+    key = _basis_key(model, k, k_ref, mass, fixed, cutoff_rel, beta_index)
+    folder = cache_dir() / f"basis-{key}"
+    meta_path = folder / "meta.json"
+    if use_cache and meta_path.is_file():
+        meta = json.loads(meta_path.read_text())
+        arrays = {name: np.load(folder / f"{name}.npy", mmap_mode="r" if name == "w_nodes" else None)
+                  for name in ("omega", "w_nodes", "beta_nodes", "beta_index", "residual")}
+        b = ModalBasis(cutoff_hz=float(meta["cutoff_hz"]), key=key, **arrays)
+        scale = k_ref / float(meta["k_ref"])
+        return b.scaled(scale) if scale != 1.0 else b
+    b = compute_basis(model, cutoff_hz, k=k, progress=progress)
+    b.key = key
+    if use_cache:
+        for name in ("omega", "w_nodes", "beta_nodes", "beta_index", "residual"):
+            with atomic_file(folder / f"{name}.npy") as fh:
+                np.save(fh, getattr(b, name))
+        with atomic_file(meta_path, "w") as fh:   # last: its presence marks a complete entry
+            json.dump(dict(format=FORMAT_VERSION, k_ref=k_ref, cutoff_hz=b.cutoff_hz, modes=b.modes,
+                           nbytes=b.nbytes), fh)
+    return b
