@@ -37,10 +37,13 @@ import scipy.sparse.linalg as spla
 from ..errors import ConfigError
 from .model import Model, rim_springs, support_masks
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 PROBE_WAVELENGTHS = 2.5     # residual probes of one colour this many A0 wavelengths (at the cut-off) apart
 SLICE_MODES = 160           # eigenpairs per shift-invert slice (Lanczos memory ~ 2 x this x dofs x 8 bytes)
 DEFAULT_CUTOFF_FACTOR = 1.0  # modes up to this x the FEM's resolved band f_max (the rest: residual flexibility)
+
+
+ARRAYS = ("omega", "w_nodes", "beta_nodes", "beta_index", "residual", "out_residual", "out_functionals")
 
 
 def cache_dir() -> Path:
@@ -104,6 +107,8 @@ class ModalBasis:
     beta_nodes: np.ndarray     # beta_x, beta_y at `beta_index` nodes, float32 [2, n, modes]
     beta_index: np.ndarray     # node numbers of beta_nodes' rows (sorted)
     residual: np.ndarray       # residual flexibility [m/N] per node: offsets (0,0), (1,0), (0,1), (1,1), (1,-1)
+    out_residual: np.ndarray   # the sensors' residual output for a unit force on w at each node [sensors, nodes]
+    out_functionals: np.ndarray  # the sensor functionals it was computed for, dense at beta_index [S, 2, n]
     cutoff_hz: float
     key: str
     stiffness_scale: float = 1.0
@@ -114,29 +119,46 @@ class ModalBasis:
 
     @property
     def nbytes(self) -> int:
-        return int(self.w_nodes.nbytes + self.beta_nodes.nbytes + self.residual.nbytes + self.omega.nbytes)
+        return int(self.w_nodes.nbytes + self.beta_nodes.nbytes + self.residual.nbytes + self.omega.nbytes
+                   + self.out_residual.nbytes + self.out_functionals.nbytes)
 
     def scaled(self, scale: float) -> "ModalBasis":
         """The basis of the same model with every stiffness x scale (shapes unchanged)."""
         return ModalBasis(self.omega * math.sqrt(scale), self.w_nodes, self.beta_nodes, self.beta_index,
-                          self.residual / scale, self.cutoff_hz * math.sqrt(scale), self.key,
-                          self.stiffness_scale * scale)
+                          self.residual / scale, self.out_residual / scale, self.out_functionals,
+                          self.cutoff_hz * math.sqrt(scale), self.key, self.stiffness_scale * scale)
+
+    def _dense(self, sensors) -> np.ndarray:
+        """Sensor functionals as dense weights on beta_x, beta_y at beta_index nodes [S, 2, n]."""
+        out = np.zeros((len(sensors), 2, self.beta_index.size))
+        for s, (nodes, wx, wy) in enumerate(sensors):
+            nodes = np.asarray(nodes, np.int64)
+            pos = np.searchsorted(self.beta_index, nodes)
+            if np.any(pos >= self.beta_index.size) or \
+                    np.any(self.beta_index[np.minimum(pos, self.beta_index.size - 1)] != nodes):
+                raise ConfigError("modal basis: a sensor functional reaches nodes outside the cached sensor nodes")
+            np.add.at(out[s, 0], pos, np.asarray(wx, float))
+            np.add.at(out[s, 1], pos, np.asarray(wy, float))
+        return out
+
+    def output_scales(self, sensors) -> np.ndarray:
+        """Each sensor functional as a multiple of the one out_residual was computed for [S] (the PZT
+        constants scale a functional; its shape is geometry and part of the cache key)."""
+        cur = self._dense(sensors).reshape(len(sensors), -1)
+        ref = self.out_functionals.reshape(len(sensors), -1)
+        ratio = np.sum(cur * ref, axis=1) / np.sum(ref * ref, axis=1)
+        if np.any(np.abs(cur - ratio[:, None] * ref).max(axis=1) > 1e-6 * np.abs(cur).max(axis=1)):
+            raise ConfigError("modal basis: the sensor functionals differ in shape from the cached ones")
+        return ratio
 
     def sensor_gains(self, sensors) -> np.ndarray:
         """Each sensor functional (node, wx, wy) applied to every mode: [n_sensors, modes] float64."""
-        out = np.zeros((len(sensors), self.modes))
-        for s, (nodes, wx, wy) in enumerate(sensors):
-            pos = np.searchsorted(self.beta_index, nodes)
-            if np.any(pos >= self.beta_index.size) or np.any(self.beta_index[np.minimum(pos, self.beta_index.size - 1)] != nodes):
-                raise ConfigError("modal basis: a sensor functional reaches nodes outside the cached sensor nodes")
-            bx = self.beta_nodes[0, pos].astype(float)
-            by = self.beta_nodes[1, pos].astype(float)
-            out[s] = np.asarray(wx, float) @ bx + np.asarray(wy, float) @ by
-        return out
+        dense = self._dense(sensors)
+        return dense[:, 0] @ self.beta_nodes[0].astype(float) + dense[:, 1] @ self.beta_nodes[1].astype(float)
 
     def contact(self, model: Model, x_m: np.ndarray, y_m: np.ndarray):
-        """Mode shapes at the contact points (bilinear, as the FEM's contact) [n, modes] float64 and the
-        residual flexibility there [n]."""
+        """Mode shapes at the contact points (bilinear, as the FEM's contact) [n, modes] float64, the
+        residual flexibility there [n] and the sensors' residual output per unit force there [n, sensors]."""
         nx, ny = model.nx, model.ny
         i = np.minimum((x_m / model.hx_m).astype(int), nx - 1)
         j = np.minimum((y_m / model.hy_m).astype(int), ny - 1)
@@ -152,7 +174,9 @@ class ModalBasis:
         off = 2 * (w00 * w10 * res[1, n00] + w01 * w11 * res[1, n01]       # along x
                    + w00 * w01 * res[2, n00] + w10 * w11 * res[2, n10]     # along y
                    + w00 * w11 * res[3, n00] + w01 * w10 * res[4, n01])    # diagonals
-        return phi, diag + off
+        out = sum(wt[:, None] * self.out_residual[:, nd].T for nd, wt in ((n00, w00), (n10, w10), (n11, w11),
+                                                                         (n01, w01)))
+        return phi, diag + off, out
 
 
 def _shift_inverse(a: sp.csr_matrix, sigma: float):
@@ -196,13 +220,13 @@ def _spectrum(a: sp.csr_matrix, lam_max: float, shift: float, progress=None):
 
 
 def _basis_key(model: Model, k: sp.csr_matrix, k_ref: float, mass: np.ndarray, fixed: np.ndarray,
-               cutoff_rel: float, beta_index: np.ndarray) -> str:
+               cutoff_rel: float, beta_index: np.ndarray, shapes: np.ndarray) -> str:
     h = hashlib.sha256()
     h.update(json.dumps(dict(v=FORMAT_VERSION, nx=model.nx, ny=model.ny, hx=model.hx_m, hy=model.hy_m,
                              probe=PROBE_WAVELENGTHS, cutoff_rel=round(cutoff_rel, 9))).encode())
     kn = k.tocoo()
     for arr in (kn.row.astype(np.int64), kn.col.astype(np.int64), (kn.data / k_ref).astype(np.float32),
-                mass.astype(np.float32), fixed, beta_index):
+                mass.astype(np.float32), fixed, beta_index, shapes.astype(np.float32)):
         h.update(np.ascontiguousarray(arr).tobytes())
     return h.hexdigest()[:32]
 
@@ -219,8 +243,10 @@ def probe_spacing(model: Model, cutoff_hz: float) -> int:
     return max(4, int(math.ceil(PROBE_WAVELENGTHS * wavelength / min(model.hx_m, model.hy_m))))
 
 
-def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing):
-    """Residual flexibility of the truncated modes on w, per node and in-element offset (module doc)."""
+def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing, functionals):
+    """Residual flexibility of the truncated modes on w, per node and in-element offset (module doc), and the
+    sensors' residual output for a unit force on each node's w (by reciprocity: the static w under the sensor
+    functional as a load, less its kept modes) [S, nodes]."""
     nx, ny = model.nx, model.ny
     nn = (nx + 1) * (ny + 1)
     jj, ii = np.divmod(np.arange(nn), nx + 1)
@@ -250,7 +276,17 @@ def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing)
                 dst = nj[ok] * (nx + 1) + ni[ok]
                 good = w_pos[dst] >= 0
                 out[o, sel[ok][good]] = y[w_pos[dst[good]]]
-    return out
+    beta_index = _sensor_nodes(model)
+    out_res = np.zeros((functionals.shape[0], nn))
+    w_free = w_pos >= 0
+    for s_i, f in enumerate(functionals):
+        load = np.zeros(3 * nn)
+        load[nn + beta_index] = f[0]
+        load[2 * nn + beta_index] = f[1]
+        rhs = load[free]
+        y = m_isqrt * inv.matvec(m_isqrt * rhs) - phi @ ((phi.T @ rhs) / (lam - shift))
+        out_res[s_i, w_free] = y[w_pos[w_free]]
+    return out, out_res
 
 
 def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progress=None) -> ModalBasis:
@@ -270,14 +306,19 @@ def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progr
     shift = -1e-6 * diag_scale
     lam, vec = _spectrum(a, lam_max, shift, progress)
     lam = np.maximum(lam, 0.0)
-    res = _residual(model, k_free, m_free, free, lam, vec, shift, probe_spacing(model, cutoff_hz))
     nn = model.nodes
+    beta_index = _sensor_nodes(model)
+    empty = ModalBasis(np.zeros(0), np.zeros((0, 0), np.float32), np.zeros((2, 0, 0), np.float32), beta_index,
+                       np.zeros(0), np.zeros(0), np.zeros(0), 0.0, "")
+    functionals = empty._dense(model.sensors)
+    res, out_res = _residual(model, k_free, m_free, free, lam, vec, shift, probe_spacing(model, cutoff_hz),
+                             functionals)
     full = np.zeros((3 * nn, lam.size))
     full[free] = vec / np.sqrt(m_free)[:, None]
-    beta_index = _sensor_nodes(model)
     return ModalBasis(omega=np.sqrt(lam), w_nodes=full[:nn].astype(np.float32),
                       beta_nodes=np.stack([full[nn + beta_index], full[2 * nn + beta_index]]).astype(np.float32),
-                      beta_index=beta_index, residual=res, cutoff_hz=cutoff_hz, key="")
+                      beta_index=beta_index, residual=res, out_residual=out_res, out_functionals=functionals,
+                      cutoff_hz=cutoff_hz, key="")
 
 
 def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: bool = True,
@@ -294,20 +335,24 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
     beta_index = _sensor_nodes(model)
     # the cut-off relative to the stiffness scale: the same relative band is the same basis
     cutoff_rel = cutoff_hz / math.sqrt(k_ref)
-    key = _basis_key(model, k, k_ref, mass, fixed, cutoff_rel, beta_index)
+    empty = ModalBasis(np.zeros(0), np.zeros((0, 0), np.float32), np.zeros((2, 0, 0), np.float32), beta_index,
+                       np.zeros(0), np.zeros(0), np.zeros(0), 0.0, "")
+    dense = empty._dense(model.sensors)
+    shapes = dense / np.abs(dense).reshape(dense.shape[0], -1).max(axis=1)[:, None, None]   # geometry only
+    key = _basis_key(model, k, k_ref, mass, fixed, cutoff_rel, beta_index, shapes)
     folder = cache_dir() / f"basis-{key}"
     meta_path = folder / "meta.json"
     if use_cache and meta_path.is_file():
         meta = json.loads(meta_path.read_text())
         arrays = {name: np.load(folder / f"{name}.npy", mmap_mode="r" if name == "w_nodes" else None)
-                  for name in ("omega", "w_nodes", "beta_nodes", "beta_index", "residual")}
+                  for name in ARRAYS}
         b = ModalBasis(cutoff_hz=float(meta["cutoff_hz"]), key=key, **arrays)
         scale = k_ref / float(meta["k_ref"])
         return b.scaled(scale) if scale != 1.0 else b
     b = compute_basis(model, cutoff_hz, k=k, progress=progress)
     b.key = key
     if use_cache:
-        for name in ("omega", "w_nodes", "beta_nodes", "beta_index", "residual"):
+        for name in ARRAYS:
             with atomic_file(folder / f"{name}.npy") as fh:
                 np.save(fh, getattr(b, name))
         with atomic_file(meta_path, "w") as fh:   # last: its presence marks a complete entry
