@@ -40,7 +40,6 @@ from .model import Model, rim_springs, support_masks
 FORMAT_VERSION = 2
 PROBE_WAVELENGTHS = 2.5     # residual probes of one colour this many A0 wavelengths (at the cut-off) apart
 SLICE_MODES = 160           # eigenpairs per shift-invert slice (Lanczos memory ~ 2 x this x dofs x 8 bytes)
-DEFAULT_CUTOFF_FACTOR = 1.0  # modes up to this x the FEM's resolved band f_max (the rest: residual flexibility)
 
 
 ARRAYS = ("omega", "w_nodes", "beta_nodes", "beta_index", "residual", "out_residual", "out_functionals")
@@ -51,6 +50,11 @@ def cache_dir() -> Path:
     if env:
         return Path(env)
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "impactsense" / "modal"
+
+
+def default_cutoff(model: Model) -> float:
+    """SimParams.modal_cutoff_factor x the band the FEM resolves (f_max, Eq. 1)."""
+    return float(model.params.modal_cutoff_factor * model.f_max_hz)
 
 
 # ----- operators of the finite-element model -----
@@ -290,8 +294,8 @@ def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing,
 
 
 def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progress=None) -> ModalBasis:
-    """The modes of `model` up to cutoff_hz (default DEFAULT_CUTOFF_FACTOR x f_max) and the residual."""
-    cutoff_hz = DEFAULT_CUTOFF_FACTOR * model.f_max_hz if cutoff_hz is None else float(cutoff_hz)
+    """The modes of `model` up to cutoff_hz (default: `default_cutoff`) and the residual flexibility."""
+    cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
     k = assembled_stiffness(model.plate, model.nx, model.ny) if k is None else k
     mass = lumped_mass(model)
     fixed = fixed_dofs(model)
@@ -327,7 +331,7 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
     solved before."""
     from ..outputs import atomic_file
 
-    cutoff_hz = DEFAULT_CUTOFF_FACTOR * model.f_max_hz if cutoff_hz is None else float(cutoff_hz)
+    cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
     k = assembled_stiffness(model.plate, model.nx, model.ny)
     k_ref = stiffness_reference(model)
     mass = lumped_mass(model)

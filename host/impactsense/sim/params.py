@@ -48,7 +48,11 @@ Defaults (documented, see docs/method.md):
   grows with the element size and dt: 0.4-0.7 % at the default 2.1 mm mesh (11 steps instead of 14), so the
   default mesh is stepped plainly. subcycle = false turns it off everywhere.
 - solver "direct" (the explicit FEM, the reference) or "modal" (modal superposition of the same FEM's modes,
-  `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (modal solver only).
+  `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (modal solver only);
+  modal_cutoff_factor (1): the modal basis holds the modes up to this x f_max (Eq. 1's band, the band the mesh
+  resolves); the truncated modes enter as residual flexibility (contact and outputs); modal_poles "fem_step"
+  (default): each mode oscillates as the direct solver's central-difference step makes it (its numerical
+  dispersion, which the calibration absorbed), "exact": the continuous-time modes.
 - circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
   ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
 - ball: steel E = 210 GPa, nu = 0.30.
@@ -142,6 +146,8 @@ class SimParams:
     method: str = "auto"                   # "fast" (reciprocity), "direct", "auto": direct for <= 4 drops
     solver: str = "direct"                 # "direct": the explicit FEM (with `method`); "modal": its modes (sim.modal)
     loss_factor: float = 0.0               # modal solver only: a loss factor eta on top of D_s (s_k += eta omega_k / 2)
+    modal_cutoff_factor: float = 1.0       # modal solver: modes up to this x f_max (the rest as residual flexibility)
+    modal_poles: str = "fem_step"          # modal solver: "fem_step" (the direct solver's time step) or "exact"
 
     # ---- construction -------------------------------------------------------------------------------
     def __post_init__(self):
@@ -284,6 +290,9 @@ class SimParams:
         if self.solver not in SOLVERS:
             raise ConfigError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
         num("loss_factor", 0, lo_open=False)
+        num("modal_cutoff_factor", 0)
+        if self.modal_poles not in ("fem_step", "exact"):
+            raise ConfigError(f"modal_poles must be 'fem_step' or 'exact', got {self.modal_poles!r}")
         num("disc_patch_diameter_mm", 0, allow_none=True)
         num("disc_stiffness_scale", 0, lo_open=False)
         num("disc_mass_scale", 0, lo_open=False)
