@@ -126,24 +126,26 @@ def _record_weights(m: int, n_fine: int, n_q: int) -> sp.csr_matrix:
     return sp.csr_matrix((vals, (rows, cols)), shape=(n_q, n_fine))
 
 
-def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int | None = None,
-                sensors=None) -> dict:
-    """Drops at (x_m, y_m) [n] with impact speeds v0 [n]: volts [n, sensors, n_record] on the ADC grid from
-    the first touch, the force per step [n, steps], contact start/end and touches, as the direct run."""
-    p = model.params
-    x_m = np.atleast_1d(np.asarray(x_m, float))
-    y_m = np.atleast_1d(np.asarray(y_m, float))
-    v0 = np.atleast_1d(np.asarray(v0, float))
-    n_rec = model.n_record if n_record is None else int(n_record)
-    sensors = model.sensors if sensors is None else sensors
-    tau, m = model.dt_s, model.record_every
-    n_b = x_m.size
-    poles = Poles(basis.omega, p.damping_per_s, p.loss_factor,
-                  fem_step_s=tau if p.modal_poles == "fem_step" else None)
-    phi_c, resid, out_resid = basis.contact(model, x_m, y_m)
-    phi2 = phi_c * phi_c
+def _hertz_force(pred, comp, k_h):
+    """F solving F = k_h (pred - comp F)_+^1.5 per drop (Newton from 0: monotone from below, f concave)."""
+    f = np.zeros(pred.size)
+    on = pred > 0
+    if on.any():
+        pp, cc = pred[on], comp[on]
+        ff = np.zeros(pp.size)
+        for _ in range(NEWTON_ITERATIONS):
+            d = np.maximum(pp - cc * ff, 0.0)
+            sq = np.sqrt(d)
+            ff = ff - (ff - k_h * d * sq) / (1 + 1.5 * k_h * cc * sq)
+        f[on] = ff
+    return f
 
-    # ---- contact window ----
+
+def contact_window(model: Model, poles: Poles, phi_c, resid, v0) -> dict:
+    """The ball on the plate (batched) until every ball has clearly left: force per step [B, steps + 1]."""
+    p, tau = model.params, model.dt_s
+    n_b = v0.size
+    phi2 = phi_c * phi_c
     mass, k_h, g = model.ball_mass_kg, model.k_hertz, p.g_m_s2
     max_steps = int(math.ceil(p.contact_window_ms * 1e-3 / tau))
     force = np.zeros((n_b, max_steps + 1))
@@ -164,17 +166,7 @@ def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int 
         t = n * tau
         hist = np.einsum("bj,bj->b", force[:, 1:n], h_cols[:, n - 1:0:-1]) if n > 1 else 0.0
         pred = v0 * t + 0.5 * g * t * t - tau * tau / mass * (n * s0 - s1) - hist
-        comp = tau * tau / (6 * mass) + h_cols[:, 0] + resid
-        f = np.zeros(n_b)
-        on = pred > 0
-        if on.any():
-            pp, cc = pred[on], comp[on]
-            ff = np.zeros(pp.size)
-            for _ in range(NEWTON_ITERATIONS):
-                d = np.maximum(pp - cc * ff, 0.0)
-                sq = np.sqrt(d)
-                ff = ff - (ff - k_h * d * sq) / (1 + 1.5 * k_h * cc * sq)
-            f[on] = ff
+        f = _hertz_force(pred, tau * tau / (6 * mass) + h_cols[:, 0] + resid, k_h)
         force[:, n] = f
         now = f > 0
         touches += now & ~touching
@@ -188,47 +180,79 @@ def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int 
             (t - t_last > np.maximum(QUIET_AFTER_CONTACT_S, t_last - t_first))
         if gone.all():
             break
-    n_window = n
-    touched = np.flatnonzero(np.any(force[:, :n_window + 1] > 0, axis=0))
+    touched = np.flatnonzero(np.any(force[:, :n + 1] > 0, axis=0))
     n_last = int(touched[-1]) if touched.size else 1      # the last step with a force: outputs need no more
-    force = force[:, :n_last + 1]
+    return dict(force_n=force[:, :n_last + 1], contacts=touches, contact_start_s=t_first, contact_end_s=t_last,
+                steps=n)
 
-    # ---- outputs ----
+
+def _early_samples(model: Model, poles: Poles, coef, out_resid, force, q0: int) -> np.ndarray:
+    """Record samples 0..q0-1 (the force still acting): F convolved with the hat responses on the step grid,
+    plus the truncated modes' quasi-static output; [B, S, q0]."""
+    tau, m = model.dt_s, model.record_every
+    n_b, n_s = out_resid.shape
+    n_last = force.shape[1] - 1
+    n_early = q0 * m
+    g_resp = (coef.astype(np.float32) @ poles.hat_response(tau, np.arange(n_early)).astype(np.float32))
+    n_fft = scipy.fft.next_fast_len(n_early + n_last)
+    spec_f = scipy.fft.rfft(force[:, 1:], n_fft, axis=1)                   # F_j, j = 1..
+    spec_g = scipy.fft.rfft(g_resp.reshape(n_b, n_s, n_early), n_fft, axis=2)
+    conv = scipy.fft.irfft(spec_g * spec_f[:, None, :], n_fft, axis=2)[:, :, :n_early]   # index n - 1
+    v_fine = np.zeros((n_b, n_s, n_early))
+    v_fine[:, :, 1:] = conv[:, :, :n_early - 1]
+    n_f = min(force.shape[1], n_early)
+    v_fine[:, :, :n_f] += out_resid[:, :, None] * force[:, None, :n_f]
+    w = _record_weights(m, n_early, q0)
+    return (w @ v_fine.reshape(n_b * n_s, n_early).T).T.reshape(n_b, n_s, q0)
+
+
+def _late_samples(model: Model, poles: Poles, coef, force, q0: int, n_rec: int, n_s: int) -> np.ndarray:
+    """Record samples q0.. (every force hat over): each pole's free decay from its state at the last force
+    step, sampled with the FEM's record weights (Fejer factor); [B, S, n_rec - q0]."""
+    tau, m = model.dt_s, model.record_every
+    n_b = force.shape[0]
+    n_last = force.shape[1] - 1
+    lam = poles.lam
+    t_end = n_last * tau
+    j = np.arange(1, n_last + 1)
+    e_hist = np.exp(np.outer((t_end - j * tau), lam))                  # [J, P]
+    a = force[:, 1:] @ e_hist.real + 1j * (force[:, 1:] @ e_hist.imag)   # [B, P]
+    z = lam * tau / 2
+    fejer = (np.sinh(m * z) / (m * np.sinh(np.where(np.abs(z) > 0, z, 1e-30)))) ** 2
+    fejer = np.where(np.abs(z) > 1e-12, fejer, 1.0)
+    per_pole = poles.rho * tau * _sinhc(z) ** 2 * fejer                  # rho L_tau W
+    zc = ((coef.reshape(n_b, n_s, -1)[:, :, poles.mode] * per_pole) * a[:, None, :]).reshape(n_b * n_s, -1)
+    q = np.arange(q0, n_rec)
+    e_out = np.exp(np.outer(lam, q * m * tau - t_end))                  # [P, Q]
+    lhs = np.hstack([zc.real, -zc.imag]).astype(np.float32)
+    rhs = np.vstack([e_out.real, e_out.imag]).astype(np.float32)
+    return (lhs @ rhs).reshape(n_b, n_s, -1)
+
+
+def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int | None = None,
+                sensors=None) -> dict:
+    """Drops at (x_m, y_m) [n] with impact speeds v0 [n]: volts [n, sensors, n_record] on the ADC grid from
+    the first touch, the force per step [n, steps], contact start/end and touches, as the direct run."""
+    p = model.params
+    x_m = np.atleast_1d(np.asarray(x_m, float))
+    y_m = np.atleast_1d(np.asarray(y_m, float))
+    v0 = np.atleast_1d(np.asarray(v0, float))
+    n_rec = model.n_record if n_record is None else int(n_record)
+    sensors = model.sensors if sensors is None else sensors
+    poles = Poles(basis.omega, p.damping_per_s, p.loss_factor,
+                  fem_step_s=model.dt_s if p.modal_poles == "fem_step" else None)
+    phi_c, resid, out_resid = basis.contact(model, x_m, y_m)
+    out = contact_window(model, poles, phi_c, resid, v0)
+    force = out["force_n"]
     gains = basis.sensor_gains(sensors)                      # [S, modes]
     n_s = gains.shape[0]
     out_resid = out_resid * basis.output_scales(sensors)[None, :]   # [B, S]: truncated modes, quasi-static
-    coef = (gains[None, :, :] * phi_c[:, None, :]).reshape(n_b * n_s, -1)   # c_sk phi_k(x_c)
-    q0 = min(int(math.ceil((n_last + 1) / m)) + 1, n_rec)    # first sample after every force hat
-    volts = np.zeros((n_b, n_s, n_rec))
-    n_early = q0 * m
+    coef = (gains[None, :, :] * phi_c[:, None, :]).reshape(x_m.size * n_s, -1)   # c_sk phi_k(x_c)
+    q0 = min(int(math.ceil(force.shape[1] / model.record_every)) + 1, n_rec)    # first sample after the force
+    volts = np.zeros((x_m.size, n_s, n_rec))
     if q0 > 0:
-        g_resp = (coef.astype(np.float32) @ poles.hat_response(tau, np.arange(n_early)).astype(np.float32))
-        n_fft = scipy.fft.next_fast_len(n_early + n_last)
-        spec_f = scipy.fft.rfft(force[:, 1:], n_fft, axis=1)                   # F_j, j = 1..
-        spec_g = scipy.fft.rfft(g_resp.reshape(n_b, n_s, n_early), n_fft, axis=2)
-        conv = scipy.fft.irfft(spec_g * spec_f[:, None, :], n_fft, axis=2)[:, :, :n_early]   # index n - 1
-        v_fine = np.zeros((n_b, n_s, n_early))
-        v_fine[:, :, 1:] = conv[:, :, :n_early - 1]
-        n_f = min(force.shape[1], n_early)
-        v_fine[:, :, :n_f] += out_resid[:, :, None] * force[:, None, :n_f]
-        v_fine = v_fine.reshape(n_b * n_s, n_early)
-        w = _record_weights(m, n_early, q0)
-        volts[:, :, :q0] = (w @ v_fine.T).T.reshape(n_b, n_s, q0)
+        volts[:, :, :q0] = _early_samples(model, poles, coef, out_resid, force, q0)
     if q0 < n_rec:
-        lam = poles.lam
-        t_end = n_last * tau
-        j = np.arange(1, n_last + 1)
-        e_hist = np.exp(np.outer((t_end - j * tau), lam))                  # [J, P]
-        a = force[:, 1:] @ e_hist.real + 1j * (force[:, 1:] @ e_hist.imag)   # [B, P]
-        z = lam * tau / 2
-        fejer = (np.sinh(m * z) / (m * np.sinh(np.where(np.abs(z) > 0, z, 1e-30)))) ** 2
-        fejer = np.where(np.abs(z) > 1e-12, fejer, 1.0)
-        per_pole = poles.rho * tau * _sinhc(z) ** 2 * fejer                  # rho L_tau W
-        zc = ((coef.reshape(n_b, n_s, -1)[:, :, poles.mode] * per_pole) * a[:, None, :]).reshape(n_b * n_s, -1)
-        q = np.arange(q0, n_rec)
-        e_out = np.exp(np.outer(lam, q * m * tau - t_end))                  # [P, Q]
-        lhs = np.hstack([zc.real, -zc.imag]).astype(np.float32)
-        rhs = np.vstack([e_out.real, e_out.imag]).astype(np.float32)
-        volts[:, :, q0:] = (lhs @ rhs).reshape(n_b, n_s, -1)
-    return dict(volts=volts, force_n=force, contacts=touches, contact_start_s=t_first, contact_end_s=t_last,
-                steps=n_window)
+        volts[:, :, q0:] = _late_samples(model, poles, coef, force, q0, n_rec, n_s)
+    out["volts"] = volts
+    return out
