@@ -126,6 +126,14 @@ def _record_weights(m: int, n_fine: int, n_q: int) -> sp.csr_matrix:
     return sp.csr_matrix((vals, (rows, cols)), shape=(n_q, n_fine))
 
 
+def _cached(basis: ModalBasis, key, make):
+    """A value derived from the basis, kept on it (the gains of a model's sensors, across batches)."""
+    store = basis.__dict__.setdefault("_derived", {})
+    if key not in store:
+        store[key] = make()
+    return store[key]
+
+
 def _hertz_force(pred, comp, k_h):
     """F solving F = k_h (pred - comp F)_+^1.5 per drop (Newton from 0: monotone from below, f concave)."""
     f = np.zeros(pred.size)
@@ -157,6 +165,7 @@ def contact_window(model: Model, poles: Poles, phi_c, resid, v0) -> dict:
     t_last = np.full(n_b, -1.0)
     touching = np.zeros(n_b, bool)
     touches = np.zeros(n_b, int)
+    active = np.arange(n_b)                           # drops whose ball has not clearly left yet
     n = 0
     for n in range(1, max_steps + 1):
         if n >= h_done:
@@ -164,22 +173,25 @@ def contact_window(model: Model, poles: Poles, phi_c, resid, v0) -> dict:
             h_cols[:, lags] = phi2 @ poles.hat_response(tau, lags)
             h_done = lags[-1] + 1
         t = n * tau
-        hist = np.einsum("bj,bj->b", force[:, 1:n], h_cols[:, n - 1:0:-1]) if n > 1 else 0.0
-        pred = v0 * t + 0.5 * g * t * t - tau * tau / mass * (n * s0 - s1) - hist
-        f = _hertz_force(pred, tau * tau / (6 * mass) + h_cols[:, 0] + resid, k_h)
-        force[:, n] = f
+        a = active
+        hist = np.einsum("bj,bj->b", force[a, 1:n], h_cols[a, n - 1:0:-1]) if n > 1 else 0.0
+        pred = v0[a] * t + 0.5 * g * t * t - tau * tau / mass * (n * s0[a] - s1[a]) - hist
+        f = _hertz_force(pred, tau * tau / (6 * mass) + h_cols[a, 0] + resid[a], k_h)
+        force[a, n] = f
         now = f > 0
-        touches += now & ~touching
-        t_first = np.where(now & (t_first < 0), t, t_first)
-        t_last = np.where(now, t, t_last)
-        touching = now
-        s0 += f
-        s1 += n * f
-        v_ball = v0 + g * t - tau / mass * (s0 - 0.5 * f)
-        gone = (t_first >= 0) & ~touching & (v_ball < 0) & \
-            (t - t_last > np.maximum(QUIET_AFTER_CONTACT_S, t_last - t_first))
-        if gone.all():
-            break
+        touches[a] += now & ~touching[a]
+        t_first[a] = np.where(now & (t_first[a] < 0), t, t_first[a])
+        t_last[a] = np.where(now, t, t_last[a])
+        touching[a] = now
+        s0[a] += f
+        s1[a] += n * f
+        v_ball = v0[a] + g * t - tau / mass * (s0[a] - 0.5 * f)
+        gone = (t_first[a] >= 0) & ~now & (v_ball < 0) & \
+            (t - t_last[a] > np.maximum(QUIET_AFTER_CONTACT_S, t_last[a] - t_first[a]))
+        if gone.any():
+            active = a[~gone]
+            if active.size == 0:
+                break
     touched = np.flatnonzero(np.any(force[:, :n + 1] > 0, axis=0))
     n_last = int(touched[-1]) if touched.size else 1      # the last step with a force: outputs need no more
     return dict(force_n=force[:, :n_last + 1], contacts=touches, contact_start_s=t_first, contact_end_s=t_last,
@@ -244,7 +256,7 @@ def modal_drops(model: Model, basis: ModalBasis, x_m, y_m, v0, *, n_record: int 
     phi_c, resid, out_resid = basis.contact(model, x_m, y_m)
     out = contact_window(model, poles, phi_c, resid, v0)
     force = out["force_n"]
-    gains = basis.sensor_gains(sensors)                      # [S, modes]
+    gains = _cached(basis, ("gains", id(sensors)), lambda: basis.sensor_gains(sensors))   # [S, modes]
     n_s = gains.shape[0]
     out_resid = out_resid * basis.output_scales(sensors)[None, :]   # [B, S]: truncated modes, quasi-static
     coef = (gains[None, :, :] * phi_c[:, None, :]).reshape(x_m.size * n_s, -1)   # c_sk phi_k(x_c)
