@@ -89,7 +89,8 @@ def test_modal_drop_of_a_rotated_laminate_matches_the_direct_fem():
     """Orthotropic CFRP (fibres at 30 deg: bending-twisting coupling) with discs: the same agreement."""
     rig = small_rig(160.0, 140.0)
     p = SimParams.from_rig(rig, element_mm=5.0, duration_ms=1.5, taper_ms=0.2, e_pa=70e9, nu=0.30, e2_pa=20e9,
-                           g12_pa=5e9, material_axes_deg=30.0, rho_kg_m3=1550.0, thickness_mm=2.5)
+                           g12_pa=5e9, material_axes_deg=30.0, rho_kg_m3=1550.0, thickness_mm=2.5,
+                           modal_cutoff_factor=1.0)                # the cheaper basis: waveforms, not picks
     model = build_model(p, rig)
     basis = modal_basis.load_or_compute(model)
     v0 = float(impact_velocity(p, 120.0))
@@ -120,4 +121,4 @@ def test_modal_drop_matches_the_direct_fem_on_a_coarse_mesh():
     res = simulate_voltages(p, rig, [x * 1e3, 40.0], [y * 1e3, 100.0], [h, 120.0], solver="modal")
     assert res["volts"].shape == (2, 4, model.n_record)
     n = model.n_record - int(round(p.taper_ms * 1e-3 * model.fs_hz))          # before the taper
-    assert np.allclose(res["volts"][0, :, :n], vm[:, :n], rtol=0, atol=1e-6 * np.abs(vm).max())
+    assert np.allclose(res["volts"][0, :, :n], vm[:, :n], rtol=0, atol=1e-4 * np.abs(vm).max())   # float32 sums

@@ -49,8 +49,10 @@ Defaults (documented, see docs/method.md):
   default mesh is stepped plainly. subcycle = false turns it off everywhere.
 - solver "direct" (the explicit FEM, the reference) or "modal" (modal superposition of the same FEM's modes,
   `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (modal solver only);
-  modal_cutoff_factor (1): the modal basis holds the modes up to this x f_max (Eq. 1's band, the band the mesh
-  resolves); the truncated modes enter as residual flexibility (contact and outputs); modal_poles "fem_step"
+  modal_cutoff_factor (2): the modal basis holds the modes up to this x f_max (Eq. 1's band, the band the mesh
+  resolves; at 1 x the truncation rings at the cut-off ahead of the wave and onset picks move by ~3-7 us, at
+  2 x under 1 us, docs/findings.md); the truncated modes enter as residual flexibility (contact and
+  outputs); modal_poles "fem_step"
   (default): each mode oscillates as the direct solver's central-difference step makes it (its numerical
   dispersion, which the calibration absorbed), "exact": the continuous-time modes.
 - circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
@@ -146,7 +148,7 @@ class SimParams:
     method: str = "auto"                   # "fast" (reciprocity), "direct", "auto": direct for <= 4 drops
     solver: str = "direct"                 # "direct": the explicit FEM (with `method`); "modal": its modes (sim.modal)
     loss_factor: float = 0.0               # modal solver only: a loss factor eta on top of D_s (s_k += eta omega_k / 2)
-    modal_cutoff_factor: float = 1.0       # modal solver: modes up to this x f_max (the rest as residual flexibility)
+    modal_cutoff_factor: float = 2.0       # modal solver: modes up to this x f_max (the rest as residual flexibility)
     modal_poles: str = "fem_step"          # modal solver: "fem_step" (the direct solver's time step) or "exact"
 
     # ---- construction -------------------------------------------------------------------------------
