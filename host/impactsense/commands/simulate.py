@@ -34,11 +34,13 @@ def add_param_options(p) -> None:
                    help="rig.json or a session folder for the geometry (default: bundled session-1)")
 
 
-def add_solver_option(p) -> None:
-    p.add_argument("--solver", choices=("direct", "modal"), default=None,
-                   help="direct: the explicit finite-element model (the reference; default unless the parameters "
-                        "say solver 'modal'); modal: superposition of the same model's modes (computed once per "
-                        "plate and cached on disk, $IMPACTSENSE_MODAL_CACHE or ~/.cache/impactsense/modal)")
+def add_solver_option(p, default: str | None = None) -> None:
+    """--solver; default None: the parameters' `solver` (SimParams default "direct")."""
+    said = f"default {default}" if default else "default: the parameters' solver, direct unless they say modal"
+    p.add_argument("--solver", choices=("direct", "modal"), default=default,
+                   help=f"direct: the explicit finite-element model (the reference); modal: superposition of the "
+                        f"same model's modes (computed once per plate, minutes, and cached on disk: "
+                        f"$IMPACTSENSE_MODAL_CACHE or ~/.cache/impactsense/modal); {said}")
 
 
 def load_inputs(args):

@@ -325,6 +325,21 @@ def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progr
                       cutoff_hz=cutoff_hz, key="")
 
 
+MAX_CACHED = 8   # bases kept on disk (the least recently used go first); ~190 MB for the bundled twin's
+
+
+def _prune(root: Path) -> None:
+    """Keeps the MAX_CACHED - 1 most recently used bases (a basis' meta.json is touched when it is loaded)."""
+    if not root.is_dir():
+        return
+    import shutil
+
+    entries = sorted((f for f in root.glob("basis-*") if (f / "meta.json").is_file()),
+                     key=lambda f: (f / "meta.json").stat().st_mtime, reverse=True)
+    for old in entries[MAX_CACHED - 1:]:
+        shutil.rmtree(old, ignore_errors=True)
+
+
 def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: bool = True,
                     progress=None) -> ModalBasis:
     """The basis of `model`, from the disk cache when the same plate (up to a uniform stiffness scale) was
@@ -348,6 +363,10 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
     meta_path = folder / "meta.json"
     if use_cache and meta_path.is_file():
         meta = json.loads(meta_path.read_text())
+        try:
+            meta_path.touch()                    # recently used: kept by _prune
+        except OSError:
+            pass
         arrays = {name: np.load(folder / f"{name}.npy", mmap_mode="r" if name == "w_nodes" else None)
                   for name in ARRAYS}
         b = ModalBasis(cutoff_hz=float(meta["cutoff_hz"]), key=key, **arrays)
@@ -356,6 +375,7 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
     b = compute_basis(model, cutoff_hz, k=k, progress=progress)
     b.key = key
     if use_cache:
+        _prune(cache_dir())
         for name in ARRAYS:
             with atomic_file(folder / f"{name}.npy") as fh:
                 np.save(fh, getattr(b, name))
