@@ -24,7 +24,7 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("fast", "direct"), default="fast",
                    help="the direct solver's path: fast (default: reciprocity, 4 solves up front, then cheap per "
                         "drop) or direct (one full run a drop)")
-    add_solver_option(p, "modal")   # batches: the cached basis pays off (docs/findings.md)
+    add_solver_option(p)
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,

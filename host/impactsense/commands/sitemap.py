@@ -21,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("--margin-mm", type=float, default=10.0, help="first grid line from the edges (default 10)")
     p.add_argument("--height-mm", type=float, default=175.0, help="reference drop height (default 175)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    add_solver_option(p, "modal")   # batches: the cached basis pays off (docs/findings.md)
+    add_solver_option(p)
     p.set_defaults(func=run)
 
 
