@@ -325,6 +325,30 @@ def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progr
                       cutoff_hz=cutoff_hz, key="")
 
 
+MAX_BASIS_MB = 2048   # refuse a basis whose float32 shapes would exceed this (IMPACTSENSE_MODAL_MAX_MB)
+
+
+def estimated_modes(model: Model, cutoff_hz: float) -> int:
+    """Modes below cutoff_hz: Kirchhoff's count A sqrt(rho t / D) omega / (4 pi) along the softest direction,
+    x 3 (the Mindlin plate and a coarse mesh count more: 1.6 x on the bundled twin's mesh, 2.8 x on 5 mm)."""
+    from .material import softest
+
+    p = model.params
+    t = p.thickness_mm * 1e-3
+    d = softest(p)[0] if p.e2_pa is not None else p.e_pa * t ** 3 / (12 * (1 - p.nu ** 2))
+    area = model.lx_m * model.ly_m
+    return int(3 * area * math.sqrt(p.rho_kg_m3 * t / d) * 2 * math.pi * cutoff_hz / (4 * math.pi)) + 1
+
+
+def check_size(model: Model, cutoff_hz: float) -> None:
+    limit = float(os.environ.get("IMPACTSENSE_MODAL_MAX_MB", MAX_BASIS_MB))
+    mb = estimated_modes(model, cutoff_hz) * model.nodes * 4 / 2 ** 20
+    if mb > limit:
+        raise ConfigError(f"the modal basis of this plate would take ~{mb:.0f} MB (float32 w of ~"
+                          f"{estimated_modes(model, cutoff_hz)} modes at {model.nodes} nodes; limit {limit:.0f} MB, "
+                          "IMPACTSENSE_MODAL_MAX_MB): use --solver direct or a smaller modal_cutoff_factor")
+
+
 MAX_CACHED = 8   # bases kept on disk (the least recently used go first); ~190 MB for the bundled twin's
 
 
@@ -372,6 +396,7 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
         b = ModalBasis(cutoff_hz=float(meta["cutoff_hz"]), key=key, **arrays)
         scale = k_ref / float(meta["k_ref"])
         return b.scaled(scale) if scale != 1.0 else b
+    check_size(model, cutoff_hz)
     b = compute_basis(model, cutoff_hz, k=k, progress=progress)
     b.key = key
     if use_cache:
