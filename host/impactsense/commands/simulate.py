@@ -34,10 +34,12 @@ def add_param_options(p) -> None:
                    help="rig.json or a session folder for the geometry (default: bundled session-1)")
 
 
-def add_solver_option(p, default: str | None = None) -> None:
-    """--solver; default None: the parameters' `solver` (SimParams default "direct")."""
-    said = f"default {default}" if default else "default: the parameters' solver, direct unless they say modal"
-    p.add_argument("--solver", choices=("direct", "modal"), default=default,
+def add_solver_option(p, batch: bool = False) -> None:
+    """--solver; default: the parameters' `solver` (SimParams default "direct"); batches: "auto"."""
+    said = ("default auto: modal when this plate's modes are already cached, else the parameters' solver"
+            if batch else "default: the parameters' solver, direct unless they say modal")
+    p.add_argument("--solver", choices=("direct", "modal", "auto") if batch else ("direct", "modal"),
+                   default="auto" if batch else None,
                    help=f"direct: the explicit finite-element model (the reference); modal: superposition of the "
                         f"same model's modes (computed once per plate, minutes, and cached on disk: "
                         f"$IMPACTSENSE_MODAL_CACHE or ~/.cache/impactsense/modal); {said}")

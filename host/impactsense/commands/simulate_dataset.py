@@ -24,7 +24,7 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("fast", "direct"), default="fast",
                    help="the direct solver's path: fast (default: reciprocity, 4 solves up front, then cheap per "
                         "drop) or direct (one full run a drop)")
-    add_solver_option(p)
+    add_solver_option(p, batch=True)
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,
@@ -48,6 +48,9 @@ def run(args) -> int:
     check_output_folder(args.out, args.force)
     params, rig = load_inputs(args)
     x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
+    from ..sim.simulate import batch_solver
+
+    args.solver = batch_solver(params, rig, args.solver)
     t0 = time.perf_counter()
     res = simulate_voltages(params, rig, x, y, h, method=args.method, solver=args.solver, workers=args.workers,
                             progress=True)

@@ -21,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("--margin-mm", type=float, default=10.0, help="first grid line from the edges (default 10)")
     p.add_argument("--height-mm", type=float, default=175.0, help="reference drop height (default 175)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    add_solver_option(p)
+    add_solver_option(p, batch=True)
     p.set_defaults(func=run)
 
 
@@ -31,11 +31,15 @@ def run(args) -> int:
     from .simulate import load_inputs
 
     params, rig = load_inputs(args)
+    from ..sim.simulate import batch_solver
+
+    args.solver = batch_solver(params, rig, args.solver)
     t0 = time.time()
     site = build_site_map(params, rig, SignalConfig.for_rig(rig), step_mm=args.step_mm, margin_mm=args.margin_mm,
                           ref_height_mm=args.height_mm, workers=args.workers, solver=args.solver)
     site.source["calibration"] = args.calibration or args.params or "defaults"
     site.save(args.out)
     print(f"site map {site.nx} x {site.ny} points ({int(site.present.sum())} off the discs), step "
-          f"{site.step_mm:g} mm, {site.q.nbytes / 1024:.0f} KB of table, in {time.time() - t0:.0f} s -> {args.out}")
+          f"{site.step_mm:g} mm, {site.q.nbytes / 1024:.0f} KB of table, in {time.time() - t0:.0f} s "
+          f"({args.solver} solver) -> {args.out}")
     return 0

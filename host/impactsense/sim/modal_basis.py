@@ -364,17 +364,10 @@ def _prune(root: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: bool = True,
-                    progress=None) -> ModalBasis:
-    """The basis of `model`, from the disk cache when the same plate (up to a uniform stiffness scale) was
-    solved before."""
-    from ..outputs import atomic_file
-
-    cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
+def _cache_key(model: Model, cutoff_hz: float):
+    """(K, k_ref, key) of the basis of `model` up to cutoff_hz."""
     k = assembled_stiffness(model.plate, model.nx, model.ny)
     k_ref = stiffness_reference(model)
-    mass = lumped_mass(model)
-    fixed = fixed_dofs(model)
     beta_index = _sensor_nodes(model)
     # the cut-off relative to the stiffness scale: the same relative band is the same basis
     cutoff_rel = cutoff_hz / math.sqrt(k_ref)
@@ -382,7 +375,24 @@ def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: 
                        np.zeros(0), np.zeros(0), np.zeros(0), 0.0, "")
     dense = empty._dense(model.sensors)
     shapes = dense / np.abs(dense).reshape(dense.shape[0], -1).max(axis=1)[:, None, None]   # geometry only
-    key = _basis_key(model, k, k_ref, mass, fixed, cutoff_rel, beta_index, shapes)
+    key = _basis_key(model, k, k_ref, lumped_mass(model), fixed_dofs(model), cutoff_rel, beta_index, shapes)
+    return k, k_ref, key
+
+
+def is_cached(model: Model, cutoff_hz: float | None = None) -> bool:
+    """True if the basis of `model` (up to a uniform stiffness scale) is in the disk cache."""
+    cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
+    return (cache_dir() / f"basis-{_cache_key(model, cutoff_hz)[2]}" / "meta.json").is_file()
+
+
+def load_or_compute(model: Model, cutoff_hz: float | None = None, *, use_cache: bool = True,
+                    progress=None) -> ModalBasis:
+    """The basis of `model`, from the disk cache when the same plate (up to a uniform stiffness scale) was
+    solved before."""
+    from ..outputs import atomic_file
+
+    cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
+    k, k_ref, key = _cache_key(model, cutoff_hz)
     folder = cache_dir() / f"basis-{key}"
     meta_path = folder / "meta.json"
     if use_cache and meta_path.is_file():

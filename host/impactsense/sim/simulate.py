@@ -207,6 +207,17 @@ def _modal_voltages(model: Model, x, y, v0, progress: bool) -> list:
     return results
 
 
+def batch_solver(params: SimParams, rig, solver: str | None) -> str:
+    """The solver of a batch command: `solver` if given ("direct" / "modal"); "auto" (the batch commands'
+    default): modal when the plate's basis is already cached (no cold cost; it meets the accuracy targets
+    against direct, docs/findings.md), else params.solver."""
+    if solver != "auto":
+        return solver or params.solver
+    from .modal_basis import is_cached
+
+    return "modal" if is_cached(get_model(params, rig)) else params.solver
+
+
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
                       solver: str | None = None, workers: int = 2, progress: bool = False) -> dict:
     """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details.
