@@ -83,11 +83,13 @@ def main() -> int:
                                          s1.repetition))
         print(f"on session-2 ({len(s2)} drops), models trained on session-1 split {args.seed}, {args.trees} trees")
         print(HEADER)
+        scores = {}
         for name, m in (("site map none", None), ("twin", site)):
             for which, sess in (("session-1 model", s1), ("retrained", aug)):
                 out = tmp / f"{which}-{name}".replace(" ", "_") if args.board and m is not None else None
                 model, _ = train(sess, out, 0.2, args.seed, settings=settings, site_map=m)
-                print(row(f"{which}, {name}", score(s2, model)), flush=True)
+                scores[which, name] = score(s2, model)
+                print(row(f"{which}, {name}", scores[which, name]), flush=True)
         print(f"({time.perf_counter() - t0:.0f} s)")
         if args.board:
             print("emulated board (4 x 50 kHz, firmware app, exported tables, 10 trees), session-2:")
@@ -100,7 +102,14 @@ def main() -> int:
                                 "--trees", "10", "--no-m2cgen"], check=True, stdout=subprocess.DEVNULL)
                 v = board_score(out, s2)
                 print(row(f"{which}, twin ({v['reported']} reported)", v), flush=True)
-    return 0
+    # targets: retraining helps (the twin's and the forests' MAE fall), and the retrained twin model stays
+    # within 1.15x of the 2.22 mm measured when it landed (docs/findings.md); 1.3x misses
+    before, after = scores["session-1 model", "twin"], scores["retrained", "twin"]
+    ok = (after["mae_mm"] < before["mae_mm"] and after["mae_mm"] <= 2.55
+          and scores["retrained", "site map none"]["mae_mm"] < scores["session-1 model", "site map none"]["mae_mm"])
+    print(f"targets (retrained twin MAE < the session-1 model's and <= 2.55 mm; forests' MAE falls): "
+          + ("met" if ok else "MISSED"))
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

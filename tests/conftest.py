@@ -26,3 +26,38 @@ def synthetic_capture(onsets, n=2000, amp=600.0, freq_hz=20000.0, fs_hz=100000.0
         burst = np.where(tau >= 0, amp * np.sin(2 * np.pi * freq_hz * tau) * np.exp(-decay_per_s * tau), 0.0)
         out[c] = bias + burst + (rng.normal(0, noise, n) if noise else 0.0)
     return np.clip(np.round(out), 0, 4095).astype(np.uint16)
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """`impactsense demo --out DIR` run once, as the README's first command runs it (a subprocess of this
+    Python): (DIR, its stdout). DIR holds the demo's model (session-1's split 0, 100 trees, the bundled twin's
+    site map: what `impactsense train bundled` makes) and evaluate-session-1/2.json; tests that need that
+    model read it from here instead of training it again."""
+    import subprocess
+    import sys
+
+    out = tmp_path_factory.mktemp("demo") / "impactsense-demo"
+    r = subprocess.run([sys.executable, "-m", "impactsense.cli", "demo", "--out", str(out)], capture_output=True,
+                       text=True, timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return out, r.stdout
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests whose data and fit come from the same model say so in their name (`_circular`, `_same_model`)
+    and get the `circular` marker: `pytest -m "not circular"` runs only what counts as evidence."""
+    for item in items:
+        name = item.originalname if hasattr(item, "originalname") else item.name
+        if name.endswith(("_circular", "_same_model")):
+            item.add_marker(pytest.mark.circular)
+
+
+@pytest.fixture(scope="session")
+def board_site_map_20mm():
+    """The bundled twin's site map as the board sees it (4 x 50 kHz) on a coarse 20 mm grid: made once for
+    the suite (board.models.board_site_map, ~10-20 s) for the tests that export small twin models."""
+    from impactsense.board.models import board_site_map
+    from impactsense.sitemap import BUNDLED, SiteMap
+
+    return board_site_map(SiteMap.load(BUNDLED), load_session("bundled").rig, 50000, step_mm=20.0, progress=False)

@@ -98,7 +98,7 @@ def _small_opts(**kw):
 # recovery
 
 
-def test_recovers_known_parameters_standin(tmp_path, rig):
+def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     """Drops from the private stand-in (fast model + image-source edges + damping + gain), noise and 1 mm
     position jitter: the pipeline's stages, caches, figures and keys, and E within 3 %, the bending stiffness
     E / (1 - nu^2) within 4 %. D_s is not asserted here: the stand-in has one order of edge images, so no
@@ -204,7 +204,7 @@ def _assert_recovered(cal, stiff_tol, ds_tol, nu_tol=0.015, e_tol=0.03, truth=(T
 
 
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
-def test_recovers_known_parameters_fem_coarse(tmp_path, rig):
+def test_recovers_known_parameters_fem_coarse_same_model(tmp_path, rig):
     """CI variant: 5 mm mesh, the smallest design (24 runs): nu within 0.015, E and E / (1 - nu^2) within 3 %,
     D_s within 5 %. Calibrated again, the nu stage is read from its cache (same answer, ~0 s)."""
     cal, cal2 = _fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8, rerun=True)
@@ -214,10 +214,11 @@ def test_recovers_known_parameters_fem_coarse(tmp_path, rig):
     assert cal2["stage_compute_time_s"]["plate_nu"] == cal["stage_compute_time_s"]["plate_nu"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
-def test_recovers_second_truth_fem_coarse(tmp_path, rig):
+def test_recovers_second_truth_fem_coarse_same_model(tmp_path, rig):
     """A second plate and damping (E 4500 MPa, nu 0.33, D_s 800 1/s), the same tolerances: the nu stage is not
-    tuned to one truth."""
+    tuned to one truth. Slow (~30 s): the default suite keeps the first truth's recovery and resume."""
     _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8, SECOND_TRUTH), 0.03, 0.05,
                       truth=SECOND_TRUTH)
 
@@ -226,14 +227,14 @@ def test_recovers_second_truth_fem_coarse(tmp_path, rig):
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
 @pytest.mark.parametrize("truth", [(3400.0, 0.31, 650.0), (3400.0, 0.39, 650.0), (4500.0, 0.33, 650.0),
                                    (3000.0, 0.37, 950.0)])
-def test_recovers_known_parameters_fem_coarse_more_truths(tmp_path, rig, truth):
+def test_recovers_known_parameters_fem_coarse_more_truths_same_model(tmp_path, rig, truth):
     """The nu study's other truths (docs/findings.md) and a softer, more damped plate, 5 mm mesh."""
     _assert_recovered(_fem_recovery(tmp_path, rig, 5.0, pipeline.MIN_BUDGET, 8, truth), 0.03, 0.05, truth=truth)
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
-def test_recovers_known_parameters_fem(tmp_path, rig):
+def test_recovers_known_parameters_fem_same_model(tmp_path, rig):
     """The default (Eq. 1) mesh, budget 32, twelve cases: nu within 0.015, E and E / (1 - nu^2) within 3 %, D_s
     within 2 %."""
     _assert_recovered(_fem_recovery(tmp_path, rig, None, 32, 12), 0.03, 0.02)
@@ -494,7 +495,7 @@ def test_group_delays_recover_packet_delays_smoothly_and_remove_channel_delays()
 
 
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
-def test_fit_positions_finds_where_fem_drops_landed(rig):
+def test_fit_positions_finds_where_fem_drops_landed_same_model(rig):
     """Issue 4 step (b): each repetition's position fitted non-linearly to its band group delays (FEM
     re-simulated at the trial positions) lands within 0.15 mm of where the FEM drop really was, from declared
     positions 1-1.5 mm off; the edge reflections make these observables non-linear over that millimetre."""

@@ -55,7 +55,7 @@ def test_search_stays_within_bounds_when_the_minimum_is_outside(slope, edge):
     assert all(disc_bond.BOUNDS[0] <= s <= disc_bond.BOUNDS[1] for s in table)
 
 
-def test_disc_bond_recovers_the_scale_that_made_the_drops(tmp_path):
+def test_disc_bond_recovers_the_scale_that_made_the_drops_same_model(tmp_path):
     """Four cases the FEM made with discs at 0.4 of their bonded stiffness (off the coarse scan; 3 repetitions,
     rig noise, 1 mm position jitter; coarse mesh; ~20 s): the stage finds the scale within 0.03 (0.407 measured:
     the parabola steps' spacing and the position fit's noise), the twin at the fit explains the group delays to

@@ -48,7 +48,7 @@ def test_every_effect_has_units_meaning_and_candidates():
     ("wave_speed", None, {"change_pct": 5.0}, "change_pct", 1.0),
     ("noise", 0, {"white_rms_counts": 4.0, "hum_counts": 3.0, "hum_hz": 60.0}, "white_rms_counts", 0.4),
 ])
-def test_fit_recovers_applied_change(s1, ref_and_features, name, sensor, params, key, tol):
+def test_fit_recovers_applied_change_circular(s1, ref_and_features, name, sensor, params, key, tol):
     ref, _ = ref_and_features
     eff = EFFECTS[name]
     ctx = context(s1, ref.slowness_us_per_mm)
@@ -59,7 +59,7 @@ def test_fit_recovers_applied_change(s1, ref_and_features, name, sensor, params,
     assert eff.add(ref, sensor, got).ll(F).sum() > ref.ll(F).sum()
 
 
-def test_clipping_rail_found_exactly(s1, ref_and_features):
+def test_clipping_rail_found_exactly_circular(s1, ref_and_features):
     ref, _ = ref_and_features
     eff = EFFECTS["clipping"]
     adc = eff.apply_signal(s1.adc, 2, {"rail_lo_counts": 1000.0, "rail_hi_counts": 3000.0}, context(s1))

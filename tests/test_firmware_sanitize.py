@@ -16,12 +16,10 @@ ROOT = Path(__file__).resolve().parents[1]
 CXX = shutil.which("g++") or shutil.which("c++")
 
 
-def build_and_run(tmp_path, rows, n_trees=5, data=None):
-    from impactsense.board.models import board_site_map, train_board_models
-    from impactsense.sitemap import BUNDLED, SiteMap
+def build_and_run(tmp_path, rows, board_map, n_trees=5, data=None):
+    from impactsense.board.models import train_board_models
 
     s = load_session()
-    board_map = board_site_map(SiteMap.load(BUNDLED), s.rig, 50000, step_mm=20.0, progress=False)
     model_dir = train_board_models(s.subset(np.arange(0, len(s), 3)), tmp_path / "model", n_trees=n_trees,
                                    site_map=board_map)
     export_models(model_dir, tmp_path / "models", write_m2cgen=False)
@@ -50,16 +48,16 @@ def build_and_run(tmp_path, rows, n_trees=5, data=None):
 
 
 @pytest.mark.skipif(CXX is None, reason="no host C++ compiler")
-def test_sanitizers_on_some_drops(tmp_path):
-    assert build_and_run(tmp_path, np.arange(0, 771, 40)) == 20
+def test_sanitizers_on_some_drops(tmp_path, board_site_map_20mm):
+    assert build_and_run(tmp_path, np.arange(0, 771, 40), board_site_map_20mm) == 20
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(CXX is None, reason="no host C++ compiler")
-def test_sanitizers_on_all_recordings(tmp_path):
+def test_sanitizers_on_all_recordings(tmp_path, board_site_map_20mm):
     from impactsense.data import bundled_session_path
 
     for name in ("session-1", "session-2"):
         path = bundled_session_path(name)
         n = len(load_session(path))
-        assert build_and_run(tmp_path / name, np.arange(n), data=path) == n
+        assert build_and_run(tmp_path / name, np.arange(n), board_site_map_20mm, data=path) == n

@@ -19,14 +19,12 @@ from impactsense.link.transport import BleTransport, PortClosed, open_serial
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    from impactsense.board.models import board_site_map, train_board_models
-    from impactsense.sitemap import BUNDLED, SiteMap
+def exported(tmp_path_factory, board_site_map_20mm):
+    from impactsense.board.models import train_board_models
 
     root = tmp_path_factory.mktemp("fw")
     s = load_session()
-    board_map = board_site_map(SiteMap.load(BUNDLED), s.rig, 50000, step_mm=20.0, progress=False)
-    model_dir = train_board_models(s, root / "model", n_trees=10, site_map=board_map)
+    model_dir = train_board_models(s, root / "model", n_trees=10, site_map=board_site_map_20mm)
     export_models(model_dir, root / "out", write_m2cgen=False)
     return model_dir, root / "out"
 

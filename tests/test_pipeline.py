@@ -12,7 +12,7 @@ from impactsense.cli import build_parser, command_modules, main
 from impactsense.models import ImpactModel
 from impactsense.pipeline import SignalConfig, featurize
 from impactsense.split import case_split
-from impactsense.workflow import evaluate, train
+from impactsense.workflow import evaluate
 
 
 def test_every_session1_drop_has_finite_features_and_honest_flags(session1):
@@ -34,10 +34,11 @@ def test_case_split_keeps_repetitions_together_and_excludes_given_rows(session1)
 
 
 @pytest.fixture(scope="module")
-def trained(session1, tmp_path_factory):
-    out = tmp_path_factory.mktemp("model")
-    model, split = train(session1, out, 0.2, seed=0)
-    return out, model, split
+def trained(demo_run):
+    """`train(session1, out, 0.2, seed=0)`: the demo's model (conftest.demo_run), made once for the suite."""
+    out = demo_run[0] / "model"
+    model = ImpactModel.load(out)
+    return out, model, model.card["split"]
 
 
 def test_measured_baseline_beats_the_seed_by_far(session1, trained):

@@ -130,7 +130,10 @@ def test_zero_shot_end_to_end_with_the_default_twin(session1, tmp_path):
     assert r["sim_trained"]["all"]["mae_mm"] <= 5.0 and r["sim_trained"]["inner"]["mae_mm"] <= 3.5
     offsets = r["energy_feature_offsets_from_calibration_drops"]
     assert len(offsets) == 4 and all(np.isfinite(v) and abs(v) < 0.5 for v in offsets.values())
-    assert 0.5 < r["sim_trained"]["energy_class_accuracy"] <= 1.0
+    # the class must beat answering the majority class always ("low": 0.73 of the test drops): measured 0.81
+    # (the summed-energy forest of the uncalibrated twin); 1.3x its errors (0.76) fails
+    acc, high = r["sim_trained"]["energy_class_accuracy"], r["sim_trained"]["high_energy_fraction"]
+    assert 0.1 < high < 0.5 and acc >= (1.0 - high) + 0.05, (acc, high)
 
 
 @pytest.fixture(scope="module")

@@ -54,6 +54,10 @@ def run(args) -> int:
             rate = int(args.rate)
         except ValueError:
             raise ConfigError(f"--rate: {args.rate!r} is neither a rate in Hz nor 'native'") from None
+        if rate <= 0:
+            raise ConfigError(f"--rate: {args.rate!r} is not a positive rate in Hz")
+    if args.trees not in ("auto", "all") and not (args.trees.isdigit() and int(args.trees) > 0):
+        raise ConfigError(f"--trees: {args.trees!r} is neither auto, all nor a positive number of trees")
     # Everything (OUT/board-model, the C sources, the tables, export.json) is written into a folder next to
     # OUT and moved into OUT only when all of it is done: a failure midway leaves OUT as it was. The board's
     # site map is a cache (written whole, keyed by its source map and rate) and stays in OUT.

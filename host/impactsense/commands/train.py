@@ -40,7 +40,9 @@ def parse_exclude(text):
         from ..errors import DataError
 
         cal = read_json(text)
-        key = "drops" if "drops" in cal else "calibration_drops"
+        # a CAL.json of `impactsense calibrate` names its drops' recordings in exclude_recording_ids (its
+        # "drops" entry is the drops' table); a plain {"drops": [ids]} file is read as before
+        key = next((k for k in ("exclude_recording_ids", "drops", "calibration_drops") if k in cal), "drops")
         ids = cal.get(key) or []
         if not isinstance(ids, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in ids):
             raise DataError(text, key, "must be a list of recording ids (integers)")
