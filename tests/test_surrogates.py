@@ -59,14 +59,16 @@ def test_fits_and_predictions_run_on_one_thread_and_restore_the_pools():
 
 # the Gaussian process (the family the pipeline picks for the sensor energies) must all but interpolate a
 # smooth response; the others, at 34 training points in 13 dimensions, must at least beat the training mean
-@pytest.mark.parametrize("kind, r2_min", [("GPR", 0.95), ("SVD", 0.0), ("NN", 0.0), ("RF", 0.0)])
-def test_tuned_surrogates_predict_a_smooth_response_on_the_held_out_split(kind, r2_min):
+# (NN and RF with 4 trials: a search of lbfgs networks / forests is the suite's slowest here, and beating the
+# mean and the seeded repeat do not need more)
+@pytest.mark.parametrize("kind, r2_min, trials", [("GPR", 0.95, 8), ("SVD", 0.0, 8), ("NN", 0.0, 4), ("RF", 0.0, 4)])
+def test_tuned_surrogates_predict_a_smooth_response_on_the_held_out_split(kind, r2_min, trials):
     x, y = _design()
     tr, va, te = surrogates.split_indices(len(x), 0)
     assert (len(tr), len(va), len(te)) == (34, 7, 7)
-    fit = surrogates.tune(kind, x[tr], y[tr], x[va], y[va], x[te], y[te], trials=8, seed=3)
+    fit = surrogates.tune(kind, x[tr], y[tr], x[va], y[va], x[te], y[te], trials=trials, seed=3)
     assert fit.r2_test > r2_min, (kind, fit.config, fit.r2_test)
     assert fit.predict(x[te]).shape == (len(te), 16)
     # seeded: the same search picks the same settings
-    again = surrogates.tune(kind, x[tr], y[tr], x[va], y[va], x[te], y[te], trials=8, seed=3)
+    again = surrogates.tune(kind, x[tr], y[tr], x[va], y[va], x[te], y[te], trials=trials, seed=3)
     assert again.config == fit.config and again.r2_val == pytest.approx(fit.r2_val, abs=1e-9)
