@@ -1,5 +1,18 @@
-import numpy as np
-import pytest
+import os
+
+# One BLAS/OpenMP thread per process unless the caller says otherwise. The suite's linear algebra is small
+# (GP fits of the site terms, least squares): on two shared cores a second BLAS thread mostly spins against
+# the first and against the FEM's workers, several times the CPU for the same numbers (docs/findings.md,
+# "The suite's time"). Set before numpy loads its BLAS, and in the environment so that the CLI subprocesses
+# the tests start inherit it; threadpoolctl covers a BLAS already loaded.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+threadpool_limits(int(os.environ["OMP_NUM_THREADS"]))
 
 from impactsense.data import load_session
 

@@ -46,12 +46,16 @@ class _ThreadProbe:
 
 
 def test_fits_and_predictions_run_on_one_thread_and_restore_the_pools():
-    before = {p["filepath"]: p["num_threads"] for p in threadpool_info()}
-    probe = _ThreadProbe()
-    m = surrogates.SingleThread(probe).fit(np.zeros((3, 2)), np.zeros(3))
-    m.predict(np.zeros((2, 2)))
-    assert probe.fit_threads == 1 and probe.predict_threads == 1
-    assert {p["filepath"]: p["num_threads"] for p in threadpool_info()} == before
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(2):   # the suite runs on one BLAS thread (conftest): give the pools two here
+        before = {p["filepath"]: p["num_threads"] for p in threadpool_info()}
+        assert max(before.values()) == 2
+        probe = _ThreadProbe()
+        m = surrogates.SingleThread(probe).fit(np.zeros((3, 2)), np.zeros(3))
+        m.predict(np.zeros((2, 2)))
+        assert probe.fit_threads == 1 and probe.predict_threads == 1
+        assert {p["filepath"]: p["num_threads"] for p in threadpool_info()} == before
     # what the pipeline refits (surrogates.build) is wrapped the same way
     assert isinstance(surrogates.build("SVD", {"degree": 2, "tol": 1e-8, "standardise": True}, 0),
                       surrogates.SingleThread)
