@@ -1,6 +1,6 @@
 """Calibration on data a different model made: the drops come from the FEM on a finer mesh (3.5 mm) than the
-twin that fits them (5 mm), with the rig's noise and 1 mm landing scatter, the fit started from the plate
-values of the twin's own coarse mesh. Unlike tests/test_disc_bond.py (`..._same_model`: the same 5 mm FEM makes
+twin that fits them (5 mm), with the rig's noise and 1 mm landing scatter; the fit starts from the true
+plate values (as test_disc_bond does; not yet from the pipeline's own estimates). Unlike tests/test_disc_bond.py (`..._same_model`: the same 5 mm FEM makes
 and fits the drops) the mesh's discretisation error stands in for the twin's model error, so the tolerance
 is wider and stated against that error."""
 
@@ -17,10 +17,11 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.slow
 @pytest.mark.skipif(not fem.available(), reason="FEM simulator not built")
 def test_disc_bond_from_finer_mesh_drops(tmp_path):
-    """Four cases the 3.5 mm FEM made with discs at 0.4 of their bonded stiffness, fitted by the 5 mm twin:
-    the scale within 0.1 of 0.4 (the coarse twin's wave speeds differ from the fine mesh's by ~1 %, which
-    the bond's low-band shift must not absorb wholesale), and the fit explains the group delays far better
-    than the bonded disc (chi^2 / dof at least 5x lower)."""
+    """Four cases the 3.5 mm FEM made with discs at 0.4 of their bonded stiffness, fitted by the 5 mm twin
+    (~90 s): the scale within 0.05 of 0.4, and the bonded disc fits the group delays at least 1.5x worse
+    than the fit. The mesh's own error shows in the misfit: chi^2 / dof at the fit is ~80 here against ~1
+    when the same mesh makes and fits the drops (test_disc_bond's `..._same_model`, which asserts < 3 and
+    a 20x worse bonded disc: figures only an inverse crime reaches; docs/findings.md)."""
     from impactsense.calibration import drops, pipeline
     from impactsense.data import load_session
     from test_calibrate import _session
@@ -43,6 +44,6 @@ def test_disc_bond_from_finer_mesh_drops(tmp_path):
     start = {k: v for k, v in truth.items() if k != disc_bond.FIELD}
     out = disc_bond.fit(twin, start, rig, session, targets, feats, cfg,
                         pipeline.sim_core_config(rig, pipeline.CalibrateOptions()), (1.5, 4, 0))
-    assert abs(out["scale"] - 0.4) < 0.1, out["chi2_dof"]
-    assert out["chi2_dof_bonded"] > 5 * out["chi2_dof_fit"], out["chi2_dof"]
+    assert abs(out["scale"] - 0.4) < 0.05, (out["scale"], out["chi2_dof"])
+    assert out["chi2_dof_bonded"] > 1.5 * out["chi2_dof_fit"], out["chi2_dof"]
     assert np.isfinite(out["chi2_dof_fit"])
