@@ -23,6 +23,7 @@ def test_disc_bond_from_finer_mesh_drops(tmp_path):
     when the same mesh makes and fits the drops (test_disc_bond's `..._same_model`, which asserts < 3 and
     a 20x worse bonded disc: figures only an inverse crime reaches; docs/findings.md)."""
     from impactsense.calibration import drops, pipeline
+    from impactsense.calibration.problem import DropsAndTwin
     from impactsense.data import load_session
     from test_calibrate import _session
 
@@ -40,10 +41,10 @@ def test_disc_bond_from_finer_mesh_drops(tmp_path):
     cfg = pipeline.measured_core_config(rig, pipeline.CalibrateOptions())
     feats = drops.extract(session, cfg)
     targets = drops.select_drops(session, feats, [0, 1, 2, 3], tol_us=20.0)
-    twin = fem.fem_simulator(2, element_mm=5.0)
+    coarse_twin = DropsAndTwin(session, targets, feats, cfg, pipeline.sim_core_config(rig, pipeline.CalibrateOptions()),
+                               fem.fem_simulator(2, element_mm=5.0), (1.5, 4, 0))
     start = {k: v for k, v in truth.items() if k != disc_bond.FIELD}
-    out = disc_bond.fit(twin, start, rig, session, targets, feats, cfg,
-                        pipeline.sim_core_config(rig, pipeline.CalibrateOptions()), (1.5, 4, 0))
+    out = disc_bond.fit(coarse_twin, start)
     assert abs(out["scale"] - 0.4) < 0.05, (out["scale"], out["chi2_dof"])
     assert out["chi2_dof_bonded"] > 1.5 * out["chi2_dof_fit"], out["chi2_dof"]
     assert np.isfinite(out["chi2_dof_fit"])
