@@ -143,7 +143,7 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
                         lag = t0 + (k - k0) * per_drop_s / speed - time.monotonic()
                         if lag > 0:
                             time.sleep(lag)
-                _drain(master)
+                _drain(master, path)
             except OSError as exc:
                 if exc.errno != errno.EIO:  # EIO: the client went away
                     raise
@@ -170,16 +170,40 @@ def _write_all(fd: int, data: bytes) -> None:
                 raise OSError(errno.EIO, "client went away") from None
 
 
-def _drain(master: int, timeout_s: float = 10.0) -> None:
-    """Waits until the client has read what was written (the pty's queue is empty)."""
+def _unread(slave_path: str) -> int | None:
+    """Bytes the client has not read yet: the slave's input queue, read through a second, short-lived descriptor
+    of the slave (the master's own output queue reads 0 on Linux ptys). None when the slave cannot be opened."""
     import fcntl
     import struct
     import termios
 
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        buf = fcntl.ioctl(master, termios.TIOCOUTQ, struct.pack("i", 0))
-        if struct.unpack("i", buf)[0] == 0:
-            break
+    try:
+        fd = os.open(slave_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, struct.pack("i", 0)))[0]
+    finally:
+        os.close(fd)
+
+
+def _drain(master: int, slave_path: str, settle_s: float = 0.2) -> None:
+    """Waits until the client has read everything written (closing the master drops what the client has not
+    read), however long it takes; returns early only when the client goes away (then nothing can be
+    delivered). The kernel moves what is still in the pty's buffers into the slave's input queue as the
+    client reads, so the queue must stay empty for settle_s."""
+    empty_since = None
+    while True:
+        if _probe_client(master) is None:   # no client (probed while this process holds no slave descriptor)
+            return
+        n = _unread(slave_path)
+        if n is None:
+            return
+        now = time.monotonic()
+        if n:
+            empty_since = None
+        elif empty_since is None:
+            empty_since = now
+        elif now - empty_since >= settle_s:
+            return
         time.sleep(0.01)
-    time.sleep(0.1)
