@@ -19,7 +19,10 @@ A C++ unit is compiled as `g++ -c CXXFLAGS CCFLAGS -D... -I... file` (SCons CXXC
 Checks (exit 1 on any): a compiler error or warning in our units (main.cpp, firmware/lib, the models); a
 soft-float or double helper (__aeabi_f*, __aeabi_d*, __aeabi_[u]l2f/d) referenced by them; a float ABI that
 does not match the variant's prebuilt archives (they use the base calling convention with FPv4 code:
--mfloat-abi=softfp; -mfloat-abi=hard objects would not link with them); no FPU instruction where floats are.
+-mfloat-abi=softfp; -mfloat-abi=hard objects would not link with them); no FPU instruction where floats are;
+the default env's (platformio.ini default_envs: the node tables the repository ships) code + models over the
+256 KB flash budget. The m2cgen env is the comparison form of the same export: its flash is printed beside the
+default's, not gated (m2cgen's code takes ~2x the node tables' bytes).
 Framework units (core, variant, ArduinoBLE) are compiled with the same environment: errors fail, their
 warnings are counted only (not our code).
 
@@ -246,7 +249,9 @@ def build_env(name: str, core: Path, ble: Path, out: Path, framework: bool, mode
     return {"name": name, "results": compile_all(jobs, out / name), "env": src_env}
 
 
-def report(build: dict, ref: dict) -> tuple[bool, dict]:
+def report(build: dict, ref: dict, gated: bool = True) -> tuple[bool, dict]:
+    """Prints one env's objects and totals; gated: the flash budget applies (the default env: the form the
+    repository ships; the m2cgen env is the comparison form, built from the same export)."""
     ok = True
     name = build["name"]
     print(f"== env:{name} ==")
@@ -291,16 +296,20 @@ def report(build: dict, ref: dict) -> tuple[bool, dict]:
             for i, v in enumerate(size_of(r["obj"])):
                 totals["framework"][i] += v
     flash = {k: v[0] + v[1] for k, v in totals.items()}
+    total = flash["project"] + flash["models"]
     print(f"our code: text+data {flash['project']} B, bss {totals['project'][2]} B; models: {flash['models']} B; "
-          f"ours + models {flash['project'] + flash['models']} B of the {FLASH_BUDGET} B budget")
+          f"ours + models {total} B of the {FLASH_BUDGET} B budget"
+          + ("" if gated else f" (not gated: the shipped form is the default env's){' OVER' if total > FLASH_BUDGET else ''}"))
     if fw:
         print(f"framework units compiled: {len(fw) - len(fw_fail)}/{len(fw)} (core + variant + ArduinoBLE), "
               f"text+data {flash['framework']} B before --gc-sections, warnings {sum(r['warnings'] for r in fw)} "
               f"(theirs, not gated); libmbed.a (prebuilt) not counted")
     print(f"errors {errors}, warnings {warnings} in our units; framework errors {len(fw_fail)}")
     ok = ok and errors == 0 and warnings == 0 and not fw_fail
-    ok = ok and flash["project"] + flash["models"] <= FLASH_BUDGET
-    return ok, {"errors": errors, "warnings": warnings, "flash": flash, "framework_errors": len(fw_fail)}
+    if gated:
+        ok = ok and total <= FLASH_BUDGET
+    return ok, {"errors": errors, "warnings": warnings, "flash": flash, "framework_errors": len(fw_fail),
+                "flash_gated": gated}
 
 
 def main(argv=None) -> int:
@@ -320,6 +329,7 @@ def main(argv=None) -> int:
     cp = configparser.ConfigParser(interpolation=None, inline_comment_prefixes=(";",))
     cp.read(ROOT / "platformio.ini")
     envs = a.env or [s[4:] for s in cp.sections() if s.startswith("env:nano33ble")]
+    default_env = cp.get("platformio", "default_envs", fallback="nano33ble").split(",")[0].strip()
     a.out.mkdir(parents=True, exist_ok=True)
     ref = reference_abi(a.core.resolve(), a.out)
     print(f"variant prebuilt archives: {ref['fp_arch']}, float args {ref['vfp_args']}")
@@ -327,7 +337,7 @@ def main(argv=None) -> int:
     for i, name in enumerate(envs):
         b = build_env(name, a.core.resolve(), a.ble.resolve(), a.out.resolve(), not a.no_framework and i == 0,
                       a.models.resolve() if a.models else None)
-        ok, s = report(b, ref)
+        ok, s = report(b, ref, gated=name == default_env)
         all_ok &= ok
         summary[name] = s
     if len(envs) > 1:

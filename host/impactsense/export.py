@@ -161,9 +161,16 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
 # code's docstrings").
 TWIN_MAX_TREES = 15
 
+# The flash budget (issue 17) is for the project's code and models together: the models get what the firmware's
+# own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow)
+# leaves of 256 KB.
+FLASH_BUDGET_BYTES = 256 * 1024
+FIRMWARE_CODE_BYTES = 48 * 1024
+MODELS_FLASH_BUDGET = FLASH_BUDGET_BYTES - FIRMWARE_CODE_BYTES
+
 
 def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarray | None, xy: np.ndarray | None,
-                 tol_mm: float = 0.2, budget_bytes: int = 256 * 1024, twin_eval=None,
+                 tol_mm: float = 0.2, budget_bytes: int = MODELS_FLASH_BUDGET, twin_eval=None,
                  max_trees: int | None = None) -> tuple[int, list[dict]]:
     """Trees per coordinate forest: the smallest prefix within tol_mm mean distance (of the reported position from
     the truth) of the full forests on the held-out
@@ -273,7 +280,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                               + sum(len(v) for v in models.inputs.values())),
         "twin": None if models.twin is None else {
             "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
-        "flash_budget_bytes": 256 * 1024,
+        "flash_budget_bytes": MODELS_FLASH_BUDGET,   # of the 256 KB, what the firmware's code leaves
         "tree_sweep": sweep,
     }
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]

@@ -22,11 +22,12 @@ def register(sub):
                        description=__doc__)
     p.add_argument("model_dir", help="folder written by `impactsense train` (model_card.json + forest .npz files)")
     p.add_argument("--out", default="models", help="output folder (default: models/)")
-    from ..export import TWIN_MAX_TREES
+    from ..export import MODELS_FLASH_BUDGET, TWIN_MAX_TREES
 
     p.add_argument("--trees", default="auto",
                    help="trees per coordinate forest: auto (default: the smallest within 0.2 mm mean distance "
-                        "of the best on the held-out drops, within the 256 KB flash budget and, for a twin "
+                        "of the best on the held-out drops, within the flash the firmware's code leaves of 256 KB "
+                        f"({MODELS_FLASH_BUDGET // 1024} KB) and, for a twin "
                         f"model, the per-event cycle budget's {TWIN_MAX_TREES} trees), all, or N")
     p.add_argument("--rate", default="50000",
                    help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
@@ -64,7 +65,8 @@ def run(args) -> int:
     with staged_output(out, args.force) as stage:
         s, card, model_dir = _export(args, card, rate, stage, out)
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
-          f"(budget 256 KB: {'ok' if s['within_budget'] else 'OVER'}) -> {out}")
+          f"(budget {s['flash_budget_bytes'] / 1024:.0f} KB, what the firmware's code leaves of 256 KB: "
+          f"{'ok' if s['within_budget'] else 'OVER'}) -> {out}")
     acc = s.get("board_held_out")
     if acc is not None:
         which = "the measured test split" if "zero_shot" in card else "held-out drops"
