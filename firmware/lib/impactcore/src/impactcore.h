@@ -465,7 +465,7 @@ class Trigger {
   long frames_ = 0;
   long fired_at_ = -1;
   int counter_ = 0;
-  void track_baseline(const int16_t frame[kChannels]);
+  void track_baseline(const float dev[kChannels]);  // dev: the frame minus the baseline
 };
 
 // Scans a whole recording (channel-major) with a fresh Trigger; returns the firing frame or -1.

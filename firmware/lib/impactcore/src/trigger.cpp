@@ -26,25 +26,39 @@ float Trigger::threshold() const {
   return t;
 }
 
+// dev: this frame's deviation from the baseline (the baseline has not moved since it was taken).
+inline void Trigger::track_baseline(const float dev[kChannels]) {
+  // Each step is limited to the channel's threshold: a glitch of any size moves the baseline by at most
+  // baseline_alpha x threshold (a fraction of it), a hum or an offset is followed, a stale start recovers.
+  for (int c = 0; c < kChannels; ++c) {
+    const float d = dev[c] > thr_[c] ? thr_[c] : (dev[c] < -thr_[c] ? -thr_[c] : dev[c]);
+    baseline_[c] += cfg_.baseline_alpha * d;
+  }
+}
+
 bool Trigger::feed(const int16_t frame[kChannels]) {
-  float level = 0.0f;
   bool above = false;
+  uint32_t up_mask = 0;  // bit c: channel c above its threshold on this frame
   float dev[kChannels];
-  int count = 0;  // the most frames above the threshold of one channel among the last kTriggerHistory
   for (int c = 0; c < kChannels; ++c) {
     dev[c] = static_cast<float>(frame[c]) - baseline_[c];
-    const float a = fabsf(dev[c]);
-    if (a > level) level = a;
-    const bool up = a >= thr_[c];
+    const bool up = fabsf(dev[c]) >= thr_[c];
     above |= up;
+    up_mask |= (up ? 1u : 0u) << c;
     above_[c] = ((above_[c] << 1) | (up ? 1u : 0u)) & ((1u << kTriggerHistory) - 1u);
-    int k = 0;
-    for (uint32_t h = above_[c]; h != 0; h &= h - 1) ++k;
-    if (k > count) count = k;
   }
   const long now = frames_++;
   switch (state_) {
     case kArmed: {
+      // Fires when a channel has fire_frames of the last kTriggerHistory frames above its threshold. Only a
+      // channel above on this frame can have reached that count now (armed, every count was below it on the
+      // previous frame, and a frame without a new bit only shifts bits out), so only those are counted.
+      int count = 0;
+      for (uint32_t m = up_mask; m != 0; m &= m - 1) {
+        int k = 0;
+        for (uint32_t h = above_[__builtin_ctz(m)]; h != 0; h &= h - 1) ++k;
+        if (k > count) count = k;
+      }
       if (count >= cfg_.fire_frames) {
         fired_at_ = now;
         state_ = kHoldoff;
@@ -62,11 +76,11 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
           thr_[c] = t > cfg_.threshold_counts ? t : cfg_.threshold_counts;
         }
       }
-      track_baseline(frame);
+      track_baseline(dev);
       return false;
     }
     case kHoldoff:
-      track_baseline(frame);
+      track_baseline(dev);
       if (++counter_ >= cfg_.holdoff_frames) {
         state_ = kWaitQuiet;
         counter_ = 0;
@@ -76,7 +90,7 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       // The baseline keeps tracking while the plate rings down (the ringing averages out): a baseline that
       // was wrong when armed -- a hit during warm-up, a drifting bias -- converges, so the trigger re-arms
       // instead of waiting for a quiet that its stale baseline never shows.
-      track_baseline(frame);
+      track_baseline(dev);
       {
         // Quiet: every channel below rearm_counts, or half its threshold when the noise floor raised it.
         bool quiet = true;
@@ -94,16 +108,6 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       return false;
   }
   return false;
-}
-
-void Trigger::track_baseline(const int16_t frame[kChannels]) {
-  // Each step is limited to the channel's threshold: a glitch of any size moves the baseline by at most
-  // baseline_alpha x threshold (a fraction of it), a hum or an offset is followed, a stale start recovers.
-  for (int c = 0; c < kChannels; ++c) {
-    float d = static_cast<float>(frame[c]) - baseline_[c];
-    d = d > thr_[c] ? thr_[c] : (d < -thr_[c] ? -thr_[c] : d);
-    baseline_[c] += cfg_.baseline_alpha * d;
-  }
 }
 
 long find_trigger(const int16_t* const adc[kChannels], int n, const TriggerConfig& cfg) {
