@@ -78,3 +78,33 @@ def test_export_trains_the_shipped_models_at_the_board_rate(s1, tmp_path, capsys
     assert acc["all"]["mae_mm"] < 9.0
     assert acc["energy_class_accuracy"] > 0.8
     assert "held-out drops on the emulated board" in capsys.readouterr().out
+
+
+def test_coarse_to_fine_search_finds_an_impact_beyond_the_one_match_reach():
+    """twin.h coarse_cutoff_mm: an event whose energies are exactly the site map's at point P, matched from a
+    start 14 mm away (the board's 50 kHz forests are often that far off). One match within 10 mm of the start
+    cannot reach P; the coarse pass (every other grid point within 20 mm) finds it and the fine pass lands on it,
+    visiting no more points than one match of the default 15 mm reach; coarse_cutoff_mm 0 is the one match."""
+    from impactsense.sitemap import BUNDLED, SiteMap
+    from impactsense.twin import TwinFit, estimate
+
+    site = SiteMap.load(BUNDLED)
+    values = site.values()
+    i, j = site.nx // 2 - site.nx // 2 % 2, site.ny // 2 - site.ny // 2 % 2   # a point of the coarse grid
+    p = i * site.ny + j
+    assert np.isfinite(values[p]).all()
+    truth = site.xy_mm[p]
+    fit = TwinFit(offset=[0.0] * 16, slope=[1.0] * 16, weight=[1e4] * 16,  # a sharp match: misfit over prior
+                  ref_log10_height_mm=float(np.log10(site.ref_height_mm)))
+    start = truth + np.array([14.0, 0.0])
+    run = lambda **cfg: estimate(site, TwinFit(**{**fit.to_dict(), **cfg}), values[[p]], np.array([0xFFFF]),  # noqa: E731
+                                 start[None])
+    one = run(cutoff_mm=10.0)
+    c2f = run(cutoff_mm=10.0, coarse_cutoff_mm=20.0)
+    wide = run(cutoff_mm=15.0)
+    assert one["status"][0] == 0 and c2f["status"][0] == 0
+    assert np.hypot(*(np.asarray(one["xy_mm"][0]) - truth)) >= site.step_mm - 1e-3   # stuck at its window's edge
+    assert np.hypot(*(np.asarray(c2f["xy_mm"][0]) - truth)) < 0.5 * site.step_mm
+    assert c2f["n_points"][0] <= wide["n_points"][0]
+    zero = run(cutoff_mm=10.0, coarse_cutoff_mm=0.0)
+    np.testing.assert_array_equal(zero["xy_mm"], one["xy_mm"])

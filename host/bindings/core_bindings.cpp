@@ -287,7 +287,7 @@ void twin_setup(InU8 q, int nx, int ny, float x0_mm, float y0_mm, float step_mm,
 nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int nx, int ny, float x0_mm,
                              float y0_mm, float step_mm, InF base, InF scale, InF offset, InF slope,
                              InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
-                             float temperature) {
+                             float temperature, float coarse_cutoff_mm) {
   const size_t r = features.ndim() == 2 ? features.shape(0) : 0;
   if (features.ndim() != 2 || features.shape(1) != ic::kTwinFeatures || usable.ndim() != 1 ||
       usable.shape(0) != r || xy_mm.ndim() != 2 || xy_mm.shape(0) != r || xy_mm.shape(1) != 2) {
@@ -297,6 +297,7 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   ic::TwinConfig cfg;
   twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
              cutoff_mm, temperature, &map, &cfg);
+  cfg.coarse_cutoff_mm = coarse_cutoff_mm;
   auto lh = make_array<float>({r});
   auto pos = make_array<float>({r, 2});
   auto spread = make_array<float>({r});
@@ -334,7 +335,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           const ic::LocaliserConfig& loc, InU8 q, int nx, int ny, float x0_mm, float y0_mm,
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
-                          float misfit_ref, std::vector<float> slowness_scale) {
+                          float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm) {
   const size_t r = status.ndim() == 1 ? status.shape(0) : 0;
   if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
     throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
@@ -353,6 +354,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
   ic::TwinConfig cfg;
   twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
              cutoff_mm, temperature, &map, &cfg);
+  cfg.coarse_cutoff_mm = coarse_cutoff_mm;
   auto lh = make_array<float>({r});
   auto pos = make_array<float>({r, 2});
   auto spread = make_array<float>({r});
@@ -564,12 +566,13 @@ NB_MODULE(_core, m) {
         "The twin's 16 log-energies (4 channels x arrival, Delta^1..3) and usable-feature masks.");
   m.def("twin_estimate_batch", &twin_estimate_batch, "features"_a, "usable"_a, "xy_mm"_a, "q"_a, "nx"_a,
         "ny"_a, "x0_mm"_a, "y0_mm"_a, "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a,
-        "ref_log10_height_mm"_a, "prior_mm"_a, "cutoff_mm"_a, "temperature"_a,
+        "ref_log10_height_mm"_a, "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "coarse_cutoff_mm"_a = 0.0f,
         "The twin's energy fingerprint (twin.h) of every row: log10 height, position, spread, misfit, status.");
   m.def("twin_match_batch", &twin_match_batch, "status"_a, "flags"_a, "toa_us"_a, "window_energy"_a,
         "diff_energy"_a, "phys_xy_mm"_a, "xy_mm"_a, "localiser"_a, "q"_a, "nx"_a, "ny"_a, "x0_mm"_a, "y0_mm"_a,
         "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
         "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a, "slowness_scale"_a = std::vector<float>(),
+        "coarse_cutoff_mm"_a = 0.0f,
         "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);

@@ -267,7 +267,11 @@ struct Twin {
   ia::TwinSpec spec{};
   explicit Twin(nb::dict d) {
     const auto grid = floats(d, "grid", 5);  // nx, ny, x0_mm, y0_mm, step_mm
-    const auto cfg = floats(d, "config", 4);  // ref_log10_height_mm, prior_mm, cutoff_mm, temperature
+    // ref_log10_height_mm, prior_mm, cutoff_mm, temperature[, coarse_cutoff_mm] (exports before it: 4 values)
+    if (!d.contains("config")) throw std::invalid_argument("twin: missing key config");
+    auto cfg = nb::cast<std::vector<float>>(d["config"]);
+    if (cfg.size() == 4) cfg.push_back(0.0f);
+    if (cfg.size() != 5) throw std::invalid_argument("twin: config needs 5 values (4 in older exports)");
     ic::SiteMap& m = spec.map;
     m.nx = static_cast<int32_t>(grid[0]);
     m.ny = static_cast<int32_t>(grid[1]);
@@ -296,6 +300,7 @@ struct Twin {
     spec.cfg.prior_mm = cfg[1];
     spec.cfg.cutoff_mm = cfg[2];
     spec.cfg.temperature = cfg[3];
+    spec.cfg.coarse_cutoff_mm = cfg[4];
     if (d.contains("uncertainty")) {  // offset_mm, scale, misfit_ref (impactapp::twin_uncertainty_mm)
       const auto u = floats(d, "uncertainty", 3);
       spec.uncertainty_offset_mm = u[0];

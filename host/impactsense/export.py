@@ -57,14 +57,15 @@ class ModelSet:
 def twin_arrays(site, fit) -> dict:
     """The twin's site map (sitemap.SiteMap) and fit (twin.TwinFit) as the firmware's arrays: grid [nx, ny,
     x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16],
-    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature] and uncertainty [offset_mm, scale,
-    misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty)."""
+    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm] and uncertainty
+    [offset_mm, scale, misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty)."""
     f32 = lambda v: np.asarray(v, dtype=np.float32)  # noqa: E731
     return {"grid": f32([site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm]),
             "q": np.ascontiguousarray(site.q, dtype=np.uint8).reshape(-1),
             "base": f32(site.base), "scale": f32(site.scale), "offset": f32(fit.offset), "slope": f32(fit.slope),
             "weight": f32(fit.weight),
-            "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature]),
+            "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature,
+                           fit.coarse_cutoff_mm]),
             "uncertainty": f32([fit.uncertainty_offset_mm, fit.uncertainty_scale, fit.uncertainty_misfit_ref])}
 
 
@@ -145,11 +146,11 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
 
     f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
     nx, ny, x0, y0, step = (float(v) for v in twin["grid"])
-    ref, prior, cutoff, temp = (float(v) for v in twin["config"])
+    ref, prior, cutoff, temp, coarse = ([float(v) for v in twin["config"]] + [0.0])[:5]  # older exports: 4
     r = _core.twin_estimate_batch(f32(feats), np.ascontiguousarray(usable, np.uint16), f32(xy_mm),
                                   np.ascontiguousarray(twin["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), x0,
                                   y0, step, f32(twin["base"]), f32(twin["scale"]), f32(twin["offset"]),
-                                  f32(twin["slope"]), f32(twin["weight"]), ref, prior, cutoff, temp)
+                                  f32(twin["slope"]), f32(twin["weight"]), ref, prior, cutoff, temp, coarse)
     out = np.asarray(r["xy_mm"], float)
     out[np.asarray(r["status"]) != 0] = np.nan
     return out

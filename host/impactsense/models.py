@@ -152,7 +152,7 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
         site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
         f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
-        _slowness_scales(features, signal))
+        _slowness_scales(features, signal), fit.coarse_cutoff_mm)
 
 
 def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:

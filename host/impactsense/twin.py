@@ -30,6 +30,7 @@ class TwinFit:
     prior_mm: float = 7.0
     cutoff_mm: float = 15.0
     temperature: float = 0.5
+    coarse_cutoff_mm: float = 0.0   # > 0: coarse-to-fine match (twin.h TwinConfig)
     # The reported uncertainty (module doc): u = (a + b spread) * sqrt(max(1, misfit / ref)); ref 0 = no
     # inflation. The defaults (a model card from before the calibration) report the raw spread.
     uncertainty_offset_mm: float = 0.0
@@ -143,7 +144,8 @@ def estimate(site: SiteMap, fit: TwinFit, feats: np.ndarray, usable: np.ndarray,
     return _core.twin_estimate_batch(f32(feats), np.ascontiguousarray(usable, np.uint16), xy, site.q,
                                      site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm, f32(site.base),
                                      f32(site.scale), f32(fit.offset), f32(fit.slope), f32(fit.weight),
-                                     fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature)
+                                     fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature,
+                                     fit.coarse_cutoff_mm)
 
 
 def calibrated_uncertainty(fit: TwinFit, spread_mm, misfit) -> np.ndarray:

@@ -69,6 +69,51 @@ def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2
     return board
 
 
+def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings: ForestSettings,
+                       n_folds: int = 5) -> dict:
+    """How the board's twin searches the site map, chosen on the training drops out of fold (forests and twin fit
+    on the other folds, the drops grouped by position): one match within cutoff_mm of the forests' position, or
+    coarse to fine (twin.h coarse_cutoff_mm: every other grid point within 4 grid steps, then the match within 2
+    steps around that estimate; as many points as one match, so the same cost). At the board's rate the forests'
+    position is several millimetres off (coarser onset picks), often outside the one match's reach, where the
+    wider coarse pass still finds the impact. Sets model.twin_fit's search; returns the out-of-fold MAE per axis
+    of each and the choice."""
+    from sklearn.model_selection import GroupKFold
+
+    from ..models import LOCATION_FEATURES, columns
+    from ..sitemap import twin_features
+    from ..twin import TwinFit, estimate, fit_twin, position_groups
+
+    use = np.asarray(features.usable, bool)
+    X = features.vector[use][:, columns(LOCATION_FEATURES)]
+    phys = features.phys_xy_mm[use]
+    xy = np.asarray(xy_mm, float)[use]
+    h = np.asarray(height_mm, float)[use]
+    feats, usable = twin_features(features.take(np.flatnonzero(use)))
+    step = float(model.site_map.step_mm)
+    searches = {"one": {"coarse_cutoff_mm": 0.0, "cutoff_mm": model.twin_fit.cutoff_mm},
+                "coarse_to_fine": {"coarse_cutoff_mm": 4 * step, "cutoff_mm": 2 * step}}
+    groups = position_groups(xy)
+    k = min(n_folds, int(groups.max()) + 1)
+    err = {name: [] for name in searches}
+    if k >= 2:
+        for tr, va in GroupKFold(k).split(xy, groups=groups):
+            start = phys[va] + np.stack([settings.regressor().fit(X[tr], xy[tr, c] - phys[tr, c]).predict(X[va])
+                                         for c in (0, 1)], axis=1)
+            fit = fit_twin(feats[tr], usable[tr], model.site_map, xy[tr], h[tr])
+            for name, search in searches.items():
+                e = estimate(model.site_map, TwinFit.from_dict({**fit.to_dict(), **search}), feats[va], usable[va],
+                             start)
+                p = np.asarray(e["xy_mm"], float)
+                p[np.asarray(e["status"]) != 0] = np.nan
+                err[name].append(np.abs(p - xy[va]))
+    mae = {name: float(np.nanmean(np.concatenate(v))) if v else float("nan") for name, v in err.items()}
+    best = "coarse_to_fine" if mae["coarse_to_fine"] < mae["one"] else "one"
+    for key, value in searches[best].items():
+        setattr(model.twin_fit, key, value)
+    return {"out_of_fold_mae_mm": mae, "chosen": best}
+
+
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
@@ -100,6 +145,10 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
                             site_map=site_map)
+    if model.twin_fit is not None:
+        extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
+            model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
+            session.height_mm[rows][is_train], settings)}
     ids = session.recording_id
     split = {
         "data_path": str(session.path),

@@ -45,6 +45,7 @@ inline TwinSpec exported_twin() {
   t.cfg.prior_mm = c.prior_mm;
   t.cfg.cutoff_mm = c.cutoff_mm;
   t.cfg.temperature = c.temperature;
+  t.cfg.coarse_cutoff_mm = c.coarse_cutoff_mm;
   t.uncertainty_offset_mm = c.uncertainty_offset_mm;
   t.uncertainty_scale = c.uncertainty_scale;
   t.uncertainty_misfit_ref = c.uncertainty_misfit_ref;

@@ -40,52 +40,12 @@ struct Term {
   float s;      // sqrt(w) map scale (0 when not usable)
   float sigma;  // sqrt(w) slope (0 when not usable)
 };
-}  // namespace
 
-uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
-  uint16_t usable = 0;
-  for (int c = 0; c < kChannels; ++c) {
-    const ChannelFeatures& f = ev.ch[c];
-    float arrival = 0.0f;
-    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.window_energy[w];
-    float* o = out + c * kTwinPerChannel;
-    o[0] = kLog10Of2 * fast_log2(arrival + 1.0f);
-    for (int k = 0; k < kDiffOrders; ++k) o[1 + k] = kLog10Of2 * fast_log2(f.diff_energy[k] + 1.0f);
-    if ((f.flags & kUnusable) == 0) usable |= static_cast<uint16_t>(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel));
-  }
-  return usable;
-}
-
-TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
-                           const SiteMap& map, const TwinConfig& cfg) {
+// One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
+// weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
+TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
+                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
-  if (features == nullptr || map.q == nullptr) {
-    r.status = kErrNullInput;
-    return r;
-  }
-  if (map.nx < 1 || map.ny < 1 || !(map.step_mm > 0.0f) || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) ||
-      !(cfg.temperature > 0.0f) || !(x_mm == x_mm) || !(y_mm == y_mm)) {
-    r.status = kErrBadConfig;
-    return r;
-  }
-  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
-  Term term[kTwinFeatures];
-  float a = 0.0f;
-  int n_used = 0;
-  for (int k = 0; k < kTwinFeatures; ++k) {
-    const bool use = (usable >> k) & 1u;
-    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
-    Term& t = term[k];
-    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
-    t.s = sw * map.scale[k];
-    t.sigma = sw * cfg.slope[k];
-    a += t.sigma * t.sigma;
-    n_used += use ? 1 : 0;
-  }
-  if (n_used < kTwinPerChannel || !(a > 0.0f)) {
-    r.status = kErrTooFewSamples;
-    return r;
-  }
   // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
   // window of grid points within the cutoff of it.
   const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
@@ -93,33 +53,35 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
   y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
   const float inv_step = 1.0f / map.step_mm;
-  int i0 = ceil_to_int((x_mm - cfg.cutoff_mm - map.x0_mm) * inv_step);
-  int i1 = floor_to_int((x_mm + cfg.cutoff_mm - map.x0_mm) * inv_step);
-  int j0 = ceil_to_int((y_mm - cfg.cutoff_mm - map.y0_mm) * inv_step);
-  int j1 = floor_to_int((y_mm + cfg.cutoff_mm - map.y0_mm) * inv_step);
+  int i0 = ceil_to_int((x_mm - cutoff_mm - map.x0_mm) * inv_step);
+  int i1 = floor_to_int((x_mm + cutoff_mm - map.x0_mm) * inv_step);
+  int j0 = ceil_to_int((y_mm - cutoff_mm - map.y0_mm) * inv_step);
+  int j1 = floor_to_int((y_mm + cutoff_mm - map.y0_mm) * inv_step);
   if (i0 < 0) i0 = 0;
   if (j0 < 0) j0 = 0;
   if (i1 > map.nx - 1) i1 = map.nx - 1;
   if (j1 > map.ny - 1) j1 = map.ny - 1;
-  if ((i1 - i0 + 1) * (j1 - j0 + 1) > kMaxTwinPoints) {
+  i0 = (i0 + stride - 1) / stride * stride;  // the strided grid: indices that are multiples of stride
+  j0 = (j0 + stride - 1) / stride * stride;
+  if (i0 > i1 || j0 > j1 || ((i1 - i0) / stride + 1) * ((j1 - j0) / stride + 1) > kMaxTwinPoints) {
     r.status = kErrBadConfig;
     return r;
   }
   const float inv_a = 1.0f / a;
   const float inv_n = 1.0f / static_cast<float>(n_used);
   const float inv_t = 1.0f / cfg.temperature;
-  const float inv_2s2 = 0.5f / (cfg.prior_mm * cfg.prior_mm);
-  const float cut2 = cfg.cutoff_mm * cfg.cutoff_mm;
+  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
+  const float cut2 = cutoff_mm * cutoff_mm;
   // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
   // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
   float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
   uint16_t row_n[kMaxTwinPoints];
   int n = 0;
   float best_logw = -INFINITY, best_misfit = INFINITY;
-  for (int i = i0; i <= i1; ++i) {
+  for (int i = i0; i <= i1; i += stride) {
     const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
     const int row_start = n;
-    for (int j = j0; j <= j1; ++j) {
+    for (int j = j0; j <= j1; j += stride) {
       const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
       const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
       if (d2 > cut2) continue;
@@ -146,7 +108,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
       if (misfit < best_misfit) best_misfit = misfit;
       ++n;
     }
-    row_n[i - i0] = static_cast<uint16_t>(n - row_start);
+    row_n[(i - i0) / stride] = static_cast<uint16_t>(n - row_start);
   }
   r.n_points = n;
   if (n == 0) {
@@ -156,10 +118,10 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   // The weighted means, and the weighted mean squared distance from the position (the spread).
   float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
   int m = 0;
-  for (int i = i0; i <= i1; ++i) {
+  for (int i = i0; i <= i1; i += stride) {
     const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
     float row_w = 0.0f;
-    for (const int end = m + row_n[i - i0]; m < end; ++m) {
+    for (const int end = m + row_n[(i - i0) / stride]; m < end; ++m) {
       const float p = exp_nonpositive(logw[m] - best_logw);
       row_w += p;
       sd += p * shift[m];
@@ -182,6 +144,68 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
   r.misfit = best_misfit;
   return r;
+  return r;
+}
+}  // namespace
+
+uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
+  uint16_t usable = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    const ChannelFeatures& f = ev.ch[c];
+    float arrival = 0.0f;
+    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.window_energy[w];
+    float* o = out + c * kTwinPerChannel;
+    o[0] = kLog10Of2 * fast_log2(arrival + 1.0f);
+    for (int k = 0; k < kDiffOrders; ++k) o[1 + k] = kLog10Of2 * fast_log2(f.diff_energy[k] + 1.0f);
+    if ((f.flags & kUnusable) == 0) usable |= static_cast<uint16_t>(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel));
+  }
+  return usable;
+}
+
+TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
+                           const SiteMap& map, const TwinConfig& cfg) {
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
+  if (features == nullptr || map.q == nullptr) {
+    r.status = kErrNullInput;
+    return r;
+  }
+  if (map.nx < 1 || map.ny < 1 || !(map.step_mm > 0.0f) || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) ||
+      !(cfg.temperature > 0.0f) || !(cfg.coarse_cutoff_mm >= 0.0f) || !(x_mm == x_mm) || !(y_mm == y_mm)) {
+    r.status = kErrBadConfig;
+    return r;
+  }
+  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
+  Term term[kTwinFeatures];
+  float a = 0.0f;
+  int n_used = 0;
+  for (int k = 0; k < kTwinFeatures; ++k) {
+    const bool use = (usable >> k) & 1u;
+    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
+    Term& t = term[k];
+    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
+    t.s = sw * map.scale[k];
+    t.sigma = sw * cfg.slope[k];
+    a += t.sigma * t.sigma;
+    n_used += use ? 1 : 0;
+  }
+  if (n_used < kTwinPerChannel || !(a > 0.0f)) {
+    r.status = kErrTooFewSamples;
+    return r;
+  }
+  if (cfg.coarse_cutoff_mm > 0.0f) {
+    // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
+    // four times its area, the prior widened alike), then the match around that estimate.
+    const TwinEstimate c = match(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
+                                 cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
+    if (c.status == kOk) {
+      x_mm = c.x_mm;
+      y_mm = c.y_mm;
+    }
+    TwinEstimate f = match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+    f.n_points += c.n_points;
+    return f;
+  }
+  return match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
 }
 
 namespace {

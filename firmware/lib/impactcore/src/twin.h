@@ -45,6 +45,9 @@ struct TwinConfig {
   float prior_mm = 7.0f;        // sigma of the model position's error
   float cutoff_mm = 15.0f;      // grid points farther than this from the position are not visited
   float temperature = 0.5f;     // misfit scale T of the weights
+  float coarse_cutoff_mm = 0.0f;  // > 0: first a match over every other grid point within this distance
+                                 // (prior widened by coarse_cutoff_mm / cutoff_mm), then the match around
+                                 // its estimate (a start far from the impact: the board's 50 kHz picks)
 };
 
 struct TwinEstimate {
