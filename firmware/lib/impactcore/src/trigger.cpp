@@ -27,9 +27,10 @@ float Trigger::threshold() const {
 }
 
 // dev: this frame's deviation from the baseline (the baseline has not moved since it was taken).
-inline void Trigger::track_baseline(const float dev[kChannels]) {
+__attribute__((always_inline)) inline void Trigger::track_baseline(const float dev[kChannels]) {
   // Each step is limited to the channel's threshold: a glitch of any size moves the baseline by at most
   // baseline_alpha x threshold (a fraction of it), a hum or an offset is followed, a stale start recovers.
+  #pragma GCC unroll 4
   for (int c = 0; c < kChannels; ++c) {
     const float d = dev[c] > thr_[c] ? thr_[c] : (dev[c] < -thr_[c] ? -thr_[c] : dev[c]);
     baseline_[c] += cfg_.baseline_alpha * d;
@@ -40,6 +41,7 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
   bool above = false;
   uint32_t up_mask = 0;  // bit c: channel c above its threshold on this frame
   float dev[kChannels];
+  #pragma GCC unroll 4
   for (int c = 0; c < kChannels; ++c) {
     dev[c] = static_cast<float>(frame[c]) - baseline_[c];
     const bool up = fabsf(dev[c]) >= thr_[c];
@@ -68,6 +70,7 @@ bool Trigger::feed(const int16_t frame[kChannels]) {
       if (!above) {
         // The noise floor from the quiet frames: each channel's threshold follows it. A frame adds at most
         // (threshold / 2)^2: a slowly rising arrival cannot raise the threshold it has to cross.
+        #pragma GCC unroll 4
         for (int c = 0; c < kChannels; ++c) {
           const float cap = 0.25f * thr_[c] * thr_[c];
           const float d2 = dev[c] * dev[c] < cap ? dev[c] * dev[c] : cap;
