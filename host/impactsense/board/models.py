@@ -21,15 +21,17 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from sklearn.model_selection import GroupKFold
 
 from ..data import Session, load_session
 from ..errors import DataError
 from ..modelfolder import read_card, verified_path
-from ..models import SITE_MAP_FILE, ForestSettings, ImpactModel
+from ..models import LOCATION_FEATURES, SITE_MAP_FILE, ForestSettings, ImpactModel, columns
 from ..pipeline import featurize, fit_localiser
 from ..sim.params import SimParams
-from ..sitemap import SiteMap, build_site_map
+from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
+from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .capture import board_capture, board_captures, board_view, signal_for_board
 
@@ -78,12 +80,6 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
     position is several millimetres off (coarser onset picks), often outside the one match's reach, where the
     wider coarse pass still finds the impact. Sets model.twin_fit's search; returns the out-of-fold MAE per axis
     of each and the choice."""
-    from sklearn.model_selection import GroupKFold
-
-    from ..models import LOCATION_FEATURES, columns
-    from ..sitemap import twin_features
-    from ..twin import TwinFit, estimate, fit_twin, position_groups
-
     use = np.asarray(features.usable, bool)
     X = features.vector[use][:, columns(LOCATION_FEATURES)]
     phys = features.phys_xy_mm[use]
