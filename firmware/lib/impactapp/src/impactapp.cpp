@@ -302,7 +302,7 @@ void App::process_capture() {
   const int16_t* chans[4] = {capture_[0], capture_[1], capture_[2], capture_[3]};
   const int32_t st = ic::process_event(chans, capture_frames_, cfg_.core, cfg_.loc, &ev_);
   il::Report& r = report_;
-  memset(&r, 0, sizeof(r));
+  r = il::Report{};  // every field zero but its defaults (left_out -1, set below anyway)
   r.seq = seq_++;
   r.timestamp_ms = static_cast<uint32_t>((trigger_frame_ * 1000u) / cfg_.fs_hz);
   r.uncertainty_mm = -1.0f;
