@@ -135,7 +135,7 @@ def test_the_board_localises_a_dead_channel_from_the_other_three_as_the_host_doe
         f32(np.full((len(feats), 2), np.nan)), sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16),
         int(nx), int(ny), float(x0), float(y0), float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]),
         f32(t["slope"]), f32(t["weight"]), *map(float, t["config"][:4]), float(t["uncertainty"][2]),
-        *map(float, t["config"][4:]))   # config: ref height, prior, cutoff, temperature[, coarse cutoff]
+        coarse_cutoff_mm=float(t["config"][4]))   # config: ref height, prior, cutoff, temperature, coarse cutoff
     assert np.all(m["status"] == 0) and np.all(m["left_out"] == 1)
     assert np.all(m["reason"] == _core.TWIN_DEAD_CHANNEL)
     board_xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows])
