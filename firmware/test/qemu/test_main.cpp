@@ -177,10 +177,13 @@ int main() {
         toa[c] = f.ch[c].toa_us;
         use[c] = (f.ch[c].flags & (impactcore::kFlagNoOnset | impactcore::kFlagDead)) ? 0 : 1;
       }
+      // as process_event runs it: the travel metric, the dispersive slowness scales of this event, the starts
+      const float metric[3] = {cfg.loc.travel_metric_xx, cfg.loc.travel_metric_xy, cfg.loc.travel_metric_yy};
+      const float* scale = cfg.loc.dispersion_exponent != 0.0f ? g_app.last_result().slowness_scale : nullptr;
       const uint64_t l0 = ticks();
       const impactcore::LocaliserResult loc = impactcore::localise_tdoa(
           toa, use, cfg.loc.sensor_x_mm, cfg.loc.sensor_y_mm, cfg.loc.velocity_mm_per_us, cfg.loc.sigma_us,
-          cfg.loc.plate_x_mm, cfg.loc.plate_y_mm, cfg.loc.huber_us);
+          cfg.loc.plate_x_mm, cfg.loc.plate_y_mm, cfg.loc.huber_us, metric, scale, cfg.loc.localiser_starts);
       put_int("TICKS_DROP localiser", static_cast<long long>(ticks() - l0));
       check(loc.x_mm == g_app.last_result().phys.x_mm, "FAIL localiser rerun differs, drop", d);
       put_int("DROP localiser_iterations", loc.iterations);
