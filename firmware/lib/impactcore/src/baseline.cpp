@@ -118,7 +118,23 @@ void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline*
 
 }  // namespace
 
-void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, Baseline* out) {
+void HumBasis::set(float fs) {
+  constexpr int kGroup = kHumGroupBlocks * kBlock;
+  fs_hz = fs;
+  for (int f = 0; f < 2; ++f) {
+    w[f] = 6.28318531f * kMainsHz[f] / fs;
+    sin_cos(w[f] * static_cast<float>(kGroup), &rot_s[f], &rot_c[f]);
+    sin_cos(w[f] * 0.5f * static_cast<float>(kGroup - 1), &sg0[f], &cg0[f]);  // phase at group 0's centre
+    float sh, ch;
+    sin_cos(0.5f * w[f], &sh, &ch);
+    float sl, cl;
+    sin_cos(0.5f * w[f] * static_cast<float>(kGroup), &sl, &cl);
+    gain[f] = sh > 0.0f ? sl / (static_cast<float>(kGroup) * sh) : 1.0f;  // D: the group mean of a unit sinusoid
+  }
+}
+
+void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, HumBasis* basis,
+                  Baseline* out) {
   robust_level(x, prefix, n, nb, out);
   out->hum = 0;
   out->hum_hz = 0.0f;
@@ -130,33 +146,51 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
   if (groups < 4 || !(fs_hz > 0.0f)) return;
   const int32_t lc = floor_to_int(out->level + 0.5f);
   const float v0 = out->within_rms * out->within_rms + 1.0f;
-  HumFit fit[2];
-  float w[2], rot_c[2], rot_s[2], cg[2], sg[2], gain[2];
-  for (int f = 0; f < 2; ++f) {
-    w[f] = 6.28318531f * kMainsHz[f] / fs_hz;
-    sin_cos(w[f] * static_cast<float>(kGroup), &rot_s[f], &rot_c[f]);
-    sin_cos(w[f] * 0.5f * static_cast<float>(kGroup - 1), &sg[f], &cg[f]);  // phase at group 0's centre
-    float sh, ch;
-    sin_cos(0.5f * w[f], &sh, &ch);
-    float sl, cl;
-    sin_cos(0.5f * w[f] * static_cast<float>(kGroup), &sl, &cl);
-    gain[f] = sh > 0.0f ? sl / (static_cast<float>(kGroup) * sh) : 1.0f;  // D: the group mean of a unit sinusoid
-  }
   const float inv_len = 1.0f / static_cast<float>(kGroup);
+  // The groups' means about the level (y) and weights, then a test that rules the hum out without the
+  // fit: the fit's weighted sum of squares explained by the sinusoid (ESS) is at most T, the weighted
+  // sum of squares of y about its weighted mean (the fit has a constant), and with M the (c1, c2) block's
+  // Schur complement, amp^2 <= ESS / lambda_min(M) <= ESS trace(M^-1) = ESS var12 (exact arithmetic). A
+  // modelled hum needs amp^2 >= 16 var12 max(rss / dof, inv_len) below, hence ESS >= 16 inv_len: a T
+  // below three quarters of that has no hum (the quarter covers the float rounding of both sides, which
+  // matters only for a near-singular fit). Most clean board captures stop here: no normal equations.
+  constexpr int kMaxGroups = kMaxBlocks / kHumGroupBlocks + 1;
+  float ys[kMaxGroups], wts[kMaxGroups];
+  float sw = 0.0f, swy = 0.0f;
   for (int g = 0; g < groups; ++g) {
     const int k0 = g * kHumGroupBlocks, k1 = k0 + kHumGroupBlocks;
     const Sums s = {prefix[k1].s2 - prefix[k0].s2, prefix[k1].s1 - prefix[k0].s1};
     const float mean = static_cast<float>(s.s1 - lc * kGroup) * inv_len;  // about the integer level
     const float var = centred_s2(s, kGroup, lc) * inv_len - mean * mean;
-    const float wt = 1.0f / ((var > 0.0f ? var : 0.0f) + v0);
-    const float y = mean + static_cast<float>(lc) - out->level;
-    for (int f = 0; f < 2; ++f) {
-      fit[f].add(wt, y, gain[f] * cg[f], gain[f] * sg[f]);
-      const float c = cg[f] * rot_c[f] - sg[f] * rot_s[f];
-      sg[f] = sg[f] * rot_c[f] + cg[f] * rot_s[f];
-      cg[f] = c;
-    }
+    wts[g] = 1.0f / ((var > 0.0f ? var : 0.0f) + v0);
+    ys[g] = mean + static_cast<float>(lc) - out->level;
+    sw += wts[g];
+    swy += wts[g] * ys[g];
   }
+  const float ybar = swy / sw;
+  float spread = 0.0f;  // T
+  for (int g = 0; g < groups; ++g) {
+    const float d = ys[g] - ybar;
+    spread += wts[g] * d * d;
+  }
+  if (spread < 0.75f * 16.0f * inv_len) return;
+  // The sinusoids' values at the groups' centres, by rotation from group 0's phase. One frequency at a
+  // time (the groups in the same order: the same sums), so the sums and the rotation stay in registers.
+  if (basis->fs_hz != fs_hz) basis->set(fs_hz);
+  HumFit fit[2];
+  for (int f = 0; f < 2; ++f) {
+    const float rot_c = basis->rot_c[f], rot_s = basis->rot_s[f], gain = basis->gain[f];
+    float cg = basis->cg0[f], sg = basis->sg0[f];
+    HumFit acc;
+    for (int g = 0; g < groups; ++g) {
+      acc.add(wts[g], ys[g], gain * cg, gain * sg);
+      const float c = cg * rot_c - sg * rot_s;
+      sg = sg * rot_c + cg * rot_s;
+      cg = c;
+    }
+    fit[f] = acc;
+  }
+  const float* w = basis->w;
   float best_rss = INFINITY, coef[3], best[3] = {0, 0, 0}, best_var = 0.0f;
   int pick = -1;
   for (int f = 0; f < 2; ++f) {

@@ -669,14 +669,15 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
          best_orig - best_left > kSpikeExplained * best_orig;
 }
 
-void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, ChannelFeatures* f) {
+void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
+                      ChannelFeatures* f) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
   ch.n = n;
   ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
   Baseline bl;
-  fit_baseline(x, n, ch.prefix, cfg.baseline_samples, cfg.fs_hz, &bl);
+  fit_baseline(x, n, ch.prefix, cfg.baseline_samples, cfg.fs_hz, basis, &bl);
   ch.set_baseline(bl.kept_n, bl.kept.s1);
   ch.set_centre();
   f->baseline = bl.level;
@@ -886,8 +887,9 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
     return out->status = kErrBadConfig;
   }
   int onsets = 0;
+  HumBasis basis;  // filled by the first channel whose hum is fitted
   for (int c = 0; c < kChannels; ++c) {
-    channel_features(adc[c], n, cfg, c, &out->ch[c]);
+    channel_features(adc[c], n, cfg, c, &basis, &out->ch[c]);
     if (!(out->ch[c].flags & kFlagNoOnset)) ++onsets;
   }
   for (int p = 0; p < kPairs; ++p) {

@@ -238,8 +238,19 @@ struct Baseline {
   float w;            // rad per sample
   uint8_t hum;        // the hum is modelled
 };
+// What the hum fit needs of the sample rate alone (8 sin_cos), computed once per rate: set(fs) fills it,
+// fit_baseline calls set when fs_hz differs (a fresh HumBasis{} has fs_hz 0), so one event's channels
+// share it.
+struct HumBasis {
+  float fs_hz = 0.0f;
+  float w[2], rot_c[2], rot_s[2], cg0[2], sg0[2], gain[2];  // per kMainsHz: rad/sample, a group's rotation,
+                                                             // group 0's phase, a group mean's gain
+  void set(float fs);
+};
+// When a cheap bound on the fit rules the hum out (most clean captures), hum_hz, hum_amp, c0..c2 and w
+// stay 0 (they are read only when hum = 1).
 void fit_baseline(const int16_t* x, int n, const Sums* prefix, int baseline_samples, float fs_hz,
-                  Baseline* out);
+                  HumBasis* basis, Baseline* out);
 // sin and cos of a (|error| < 1e-6; no libm).
 void sin_cos(float a, float* s, float* c);
 // The model's departure from the level at sample i: c0 + c1 cos(w i) + c2 sin(w i) (0 without hum).
