@@ -36,11 +36,6 @@ float centred_s2(const Sums& s, int m, int32_t c) {
   return int64_to_float(s.s2 - 2 * static_cast<int64_t>(c) * s.s1 + static_cast<int64_t>(m) * c * c);
 }
 
-Sums range_sums(const int16_t* x, const Sums* prefix, int n, int a, int b) {
-  const Sums pa = prefix_at(x, prefix, n, a), pb = prefix_at(x, prefix, n, b);
-  return Sums{pb.s2 - pa.s2, pb.s1 - pa.s1};
-}
-
 // Weighted least squares of y_g = c0 + c1 D cos(w t_g) + c2 D sin(w t_g) over the groups (D: a group's
 // mean of a unit sinusoid). Returns the weighted residual sum of squares; coef[3] the solution.
 struct HumFit {
@@ -86,9 +81,13 @@ void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline*
   int len[kBaselineParts];
   float var[kBaselineParts];
   float vmin = INFINITY;
+  // The parts' boundaries' prefix sums once each (a part ends where the next begins).
+  Sums at = prefix_at(x, prefix, n, 0);
   for (int p = 0; p < kBaselineParts; ++p) {
     const int a = nb * p / kBaselineParts, b = nb * (p + 1) / kBaselineParts;
-    part[p] = range_sums(x, prefix, n, a, b);
+    const Sums next = prefix_at(x, prefix, n, b);
+    part[p] = Sums{next.s2 - at.s2, next.s1 - at.s1};
+    at = next;
     len[p] = b - a;
     const int32_t c = len[p] > 0 ? part[p].s1 / len[p] : 0;
     var[p] = len[p] > 0 ? centred_s2(part[p], len[p], c) / static_cast<float>(len[p]) : 0.0f;

@@ -198,7 +198,11 @@ struct Sums {
 int block_prefix_sums(const int16_t* x, int n, Sums* prefix);
 // Sums over x[0 .. i) from the prefix table of x[0 .. n) (0 <= i <= n): the nearer block boundary's sums
 // plus or minus the samples in between (at most kBlock / 2).
-Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i);
+Sums prefix_at_partial(const int16_t* x, const Sums* prefix, int n, int i);
+inline Sums prefix_at(const int16_t* x, const Sums* prefix, int n, int i) {
+  // On a block boundary the table holds the sums (i <= n): no call, no loop (the baseline's parts).
+  return (i & (kBlock - 1)) == 0 ? prefix[i / kBlock] : prefix_at_partial(x, prefix, n, i);
+}
 // sum x[a .. b) (|sum| < 2^31: b - a <= 65536), two samples an instruction on the DSP extension.
 int32_t range_sum(const int16_t* x, int a, int b);
 // Smallest and largest sample of x[a .. b) (b > a): exact integers, two samples an instruction pair on
