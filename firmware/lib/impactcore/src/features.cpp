@@ -97,7 +97,7 @@ struct Channel {
     c2 = static_cast<int64_t>(n_b) * n_b;
     c1 = 2 * static_cast<int64_t>(n_b) * sum_b;
     sb2 = static_cast<int64_t>(sum_b) * sum_b;
-    nb2 = static_cast<float>(c2);
+    nb2 = int64_to_float(c2);  // nb^2 < 2^17: VCVT, not libgcc's 64-bit conversion
   }
   IC_INLINE int64_t form(int64_t s2, int32_t s1, int m) const { return c2 * s2 - c1 * s1 + m * sb2; }
   // form() of a prefix x[0 .. m), through the sums about c when fits32 (set_centre). With y = x - c and
