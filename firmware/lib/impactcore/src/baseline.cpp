@@ -2,7 +2,8 @@
 // cannot move, and a mains-hum model fitted to the whole capture (impactcore.h, "baseline").
 //
 // Cost: a few group sums read from the prefix table (no pass over the samples): the baseline segment in
-// four parts, the capture in groups of kHumGroupBlocks blocks, for 50 and 60 Hz.
+// four parts, the capture in groups of kHumGroupBlocks blocks; the 50 and 60 Hz fits only where a bound on
+// what they could explain (the groups' weighted spread) does not already rule a hum out.
 #include <math.h>
 #include <stdint.h>
 
