@@ -647,11 +647,17 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
     // the Delta^2 terms the replaced samples enter: m in [at, at + width + 2)
     const int a = c.at > lo ? c.at : lo;
     const int b = c.at + c.width + 2 < hi ? c.at + c.width + 2 : hi;
-    const auto v = [&](int j) -> int32_t { return (j >= c.at && j < c.at + c.width) ? c.value[j - c.at] : x[j]; };
+    // The samples those terms read, x[a - 2 .. b) with the replacement in (at most width + 4 = 6), copied
+    // once: the terms below then read an array, not a per-access test of the replaced range.
+    int32_t y[2 * 2 + 2];
+    for (int j = a - 2; j < b; ++j) {
+      y[j - (a - 2)] = (j >= c.at && j < c.at + c.width) ? c.value[j - c.at] : x[j];
+    }
     float orig = 0.0f, left_e = 0.0f;
     for (int m = a; m < b; ++m) {
       orig += e2[m - lo];
-      const float d = static_cast<float>(v(m) - 2 * v(m - 1) + v(m - 2));
+      const int32_t* q = y + (m - a);  // q[0], q[1], q[2] = the values at m - 2, m - 1, m
+      const float d = static_cast<float>(q[2] - 2 * q[1] + q[0]);
       left_e += d * d;
     }
     if (!have || left_e < best_left) {
