@@ -144,11 +144,19 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     assert cal2["stage_compute_time_s"]["sum"] >= cal2["stage_compute_time_s"]["design_fem"]
     # another twin (a support chosen by hand) is not served from those caches: the plate FEM, damping and
     # design stages run again (the stand-in ignores the support, so the answer may repeat, but not the reads)
+    runs = []  # the twins the stand-in is asked to simulate (its support), in call order
+
+    def counting(p, *args):
+        runs.append(p["support"])
+        return _standin_clean(p, *args)
+
     cal3 = pipeline.calibrate(data, out, _small_opts(budget=48, nu_rounds=0, support="clamped"),
-                              simulate=_standin_clean)
+                              simulate=counting)
     assert cal3["sim_params"]["support"] == "clamped"
-    for stage in ("plate_fem", "damping", "design_fem"):
-        assert cal3["wall_time_s"][stage] > 0.3 * cal["wall_time_s"][stage], (stage, cal3["wall_time_s"])
+    # every stage that simulates runs again on the clamped twin: the design alone is 48 runs (a wall-time
+    # comparison, as this check was, fails on a loaded machine; a count does not)
+    assert len(runs) >= 48 and set(runs) == {"clamped"}, (len(runs), set(runs))
+    assert cal3["stage_compute_time_s"]["design_fem"] != cal["stage_compute_time_s"]["design_fem"]
 
 
 def _fem_recovery(tmp_path, rig, element_mm, budget, n_cases, truth=(TRUTH_E, TRUTH_NU, TRUTH_DS), rerun=False):
