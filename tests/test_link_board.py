@@ -42,21 +42,53 @@ def test_scan_delays_are_removed(s1, rig_fit):
     assert np.all(np.abs(bias) < 2.0), bias  # 2 us: a tenth of a board sample period
 
 
+def apparent_speed(cfg: SignalConfig, adc: np.ndarray, xy_mm: np.ndarray) -> float:
+    """The speed (mm/us) at which cfg's localiser model has its travel times grow with distance over these drops:
+    the least-squares slope of travel distance on the model's travel time (both centred over a drop's four
+    channels), each pick's slowness scaled by the dispersion at the frequency of the cycle cfg's core picks."""
+    from impactsense.travel import picks, slowness_scales, travel_distances
+
+    _, period = picks(adc, cfg, with_period=True)
+    metric = (cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)
+    d = travel_distances(xy_mm, cfg.sensor_xy_mm, metric)
+    t = d * slowness_scales(period, cfg.fs_hz, cfg.dispersion_exponent, cfg.dispersion_ref_hz) / cfg.velocity_mm_per_us
+    dc, tc = d - d.mean(1, keepdims=True), t - t.mean(1, keepdims=True)
+    return float((dc * dc).sum() / (dc * tc).sum())
+
+
 def test_board_models_fit_the_rig_delays(s1, rig_fit, tmp_path):
     """The localiser fitted on the board's picks finds the same rig delays as at 100 kHz (channels 2 and 3
-    about 6-7 us early); the card keeps only the rig's part (the firmware adds the scan delays)."""
+    about 6-7 us early); the card keeps only the rig's part (the firmware adds the scan delays).
+
+    Speed: with the dispersion term a fit's velocity_mm_per_us is the speed at its own reference frequency (the
+    median of its picks': ~17 kHz at 100 kHz, ~15 kHz on the board, with the board's own exponent), so the two
+    are compared as each model times the same drops (apparent_speed). Session-1: 0.921 vs 0.944 mm/us (2.5 %;
+    without a dispersion term the board's picks are 2.0 % slower than the 100 kHz ones too: their threshold
+    crossings at 20 us sampling come later on the weaker, farther arrivals); the board's velocity 3 % low or its
+    dispersion dropped fails (5.4, 7.3 %). And the fitted speed is the board's: on the held-out drops the
+    physics localiser with it is closer to the truth than with it 3 % off either way (4.91 vs 5.18 / 5.39 mm;
+    the 100 kHz speed and dispersion moved to the board: 5.49 mm). A scan-delay error moves the delays by
+    5-15 us."""
+    from impactsense.board.capture import board_captures
     from impactsense.board.models import train_board_models
+    from impactsense.pipeline import featurize
 
     d = train_board_models(s1, tmp_path / "m", n_trees=5)
     card = json.loads((d / "model_card.json").read_text())
     sig = card["signal"]
     assert card["board_fs_hz"] == 50000 and sig["fs_hz"] == 50000
     np.testing.assert_allclose(sig["rig_delay_us"], rig_fit.rig_delay_us, atol=2.0)
-    assert sig["velocity_mm_per_us"] == pytest.approx(rig_fit.velocity_mm_per_us, rel=0.03)
-    split = card["split"]
-    assert set(split["train_recordings"]).isdisjoint(split["test_recordings"])
-    train_cases = set(s1.case_id[split["train_recordings"]])
-    assert train_cases.isdisjoint(s1.case_id[split["test_recordings"]])  # split by case
+    caps, got, board = board_captures(s1, 50000, sig)
+    board_speed = apparent_speed(board, caps, s1.xy_mm[got])
+    assert board_speed == pytest.approx(apparent_speed(rig_fit, s1.adc[got], s1.xy_mm[got]), rel=0.03)
+    held_out = np.isin(s1.recording_id[got], card["split"]["test_recordings"])
+
+    def physics_mae(velocity_factor):
+        cfg = SignalConfig.from_dict({**board.to_dict(),
+                                      "velocity_mm_per_us": board.velocity_mm_per_us * velocity_factor})
+        xy = featurize(caps[held_out], cfg).phys_xy_mm.astype(float)
+        return float(np.nanmean(np.abs(xy - s1.xy_mm[got][held_out])))
+    assert physics_mae(1.0) < min(physics_mae(0.97), physics_mae(1.03))
 
 
 def test_export_trains_the_shipped_models_at_the_board_rate(s1, tmp_path, capsys):
