@@ -75,8 +75,7 @@ def run(workdir, drops: int | None, passes: int, restarts: int, models: str | No
             else:
                 emu.wait(timeout_s)
             err.close()
-        final = (work / f"emulate-{restarts}.err").read_text()
-        expected_total = int(final.strip().splitlines()[-1].split()[1])  # "emulate: N reports"
+        expected_total = _closing_count(work / f"emulate-{restarts}.err", emu.returncode)
         _wait(lambda: _count(db) >= expected_total, 60, "the monitor did not store every report")
         time.sleep(0.5)
     finally:
@@ -97,6 +96,19 @@ def run(workdir, drops: int | None, passes: int, restarts: int, models: str | No
             "crc_errors": sum(x.get("crc_errors", 0) for x in conns),
             "bytes_skipped": sum(x.get("bytes_skipped", 0) for x in conns), "wall_s": wall,
             "monitor_stderr": (work / "monitor.err").read_text()[-2000:], "pid": os.getpid()}
+
+
+def _closing_count(err_path: Path, returncode: int) -> int:
+    """N from the emulator's closing line "emulate: N reports"; a clear error with its exit code and stderr
+    when the line is missing (the emulator did not end normally)."""
+    text = err_path.read_text()
+    lines = text.strip().splitlines()
+    words = lines[-1].split() if lines else []
+    if returncode != 0 or len(words) != 3 or words[0] != "emulate:" or words[2] != "reports" \
+            or not words[1].isdigit():
+        raise RuntimeError(f"the last emulator (exit code {returncode}) did not end with 'emulate: N reports'; "
+                           f"its stderr ({err_path}):\n{text[-4000:]}")
+    return int(words[1])
 
 
 def expected_share(drops: int | None, passes: int, restarts: int) -> int:
