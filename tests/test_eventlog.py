@@ -130,3 +130,21 @@ def test_emulate_serves_clients_in_turn_with_the_shipped_model(tmp_path):
     seqs = [s for s, _ in seen]
     assert seqs[:3] == [0, 1, 2] and seqs[3] >= 3 and seqs == sorted(seqs)  # counted on, not restarted
     assert len(seqs) >= 15 and all(v for _, v in seen[:3])
+
+
+def test_emulate_stopped_by_sigterm_closes_like_ctrl_c(tmp_path):
+    """SIGTERM (a service stop, a stray kill): the --link symlink is removed, the closing line printed and the
+    exit code says why (128 + 15), so a harness never reads a log without its closing line as a normal end."""
+    import signal
+
+    link = tmp_path / "board"
+    proc = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--limit", "3",
+                             "--models", "none", "--link", str(link)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    path = proc.stdout.readline().strip()
+    assert path.startswith("/dev/pts/") and link.is_symlink(), proc.stderr.read()
+    proc.send_signal(signal.SIGTERM)
+    err = proc.stderr.read()
+    assert proc.wait(30) == 128 + signal.SIGTERM, err
+    assert "emulate: stopped by SIGTERM" in err and err.strip().splitlines()[-1] == "emulate: 0 reports", err
+    assert not link.is_symlink()
