@@ -284,6 +284,34 @@ void twin_setup(InU8 q, int nx, int ny, float x0_mm, float y0_mm, float step_mm,
   cfg->temperature = temperature;
 }
 
+// The per-row arrays every twin binding returns (one TwinEstimate a row), and their dict keys.
+struct EstimateArrays {
+  size_t r;
+  nb::ndarray<nb::numpy, float> lh = make_array<float>({r});
+  nb::ndarray<nb::numpy, float> pos = make_array<float>({r, 2});
+  nb::ndarray<nb::numpy, float> spread = make_array<float>({r});
+  nb::ndarray<nb::numpy, float> misfit = make_array<float>({r});
+  nb::ndarray<nb::numpy, int32_t> status = make_array<int32_t>({r});
+
+  void set(size_t k, const ic::TwinEstimate& e) {
+    lh.data()[k] = e.log10_height_mm;
+    pos.data()[2 * k] = e.x_mm;
+    pos.data()[2 * k + 1] = e.y_mm;
+    spread.data()[k] = e.spread_mm;
+    misfit.data()[k] = e.misfit;
+    status.data()[k] = e.status;
+  }
+  nb::dict dict() const {
+    nb::dict out;
+    out["log10_height_mm"] = lh;
+    out["xy_mm"] = pos;
+    out["spread_mm"] = spread;
+    out["misfit"] = misfit;
+    out["status"] = status;
+    return out;
+  }
+};
+
 nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int nx, int ny, float x0_mm,
                              float y0_mm, float step_mm, InF base, InF scale, InF offset, InF slope,
                              InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
@@ -298,33 +326,19 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
   twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
              cutoff_mm, temperature, &map, &cfg);
   cfg.coarse_cutoff_mm = coarse_cutoff_mm;
-  auto lh = make_array<float>({r});
-  auto pos = make_array<float>({r, 2});
-  auto spread = make_array<float>({r});
-  auto misfit = make_array<float>({r});
+  EstimateArrays est{r};
   auto npts = make_array<int32_t>({r});
-  auto status = make_array<int32_t>({r});
   {
     nb::gil_scoped_release release;
     for (size_t k = 0; k < r; ++k) {
       const ic::TwinEstimate e = ic::twin_estimate(features.data() + k * ic::kTwinFeatures, usable.data()[k],
                                                    xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], map, cfg);
-      lh.data()[k] = e.log10_height_mm;
-      pos.data()[2 * k] = e.x_mm;
-      pos.data()[2 * k + 1] = e.y_mm;
-      spread.data()[k] = e.spread_mm;
-      misfit.data()[k] = e.misfit;
+      est.set(k, e);
       npts.data()[k] = e.n_points;
-      status.data()[k] = e.status;
     }
   }
-  nb::dict out;
-  out["log10_height_mm"] = lh;
-  out["xy_mm"] = pos;
-  out["spread_mm"] = spread;
-  out["misfit"] = misfit;
+  nb::dict out = est.dict();
   out["n_points"] = npts;
-  out["status"] = status;
   return out;
 }
 
@@ -355,11 +369,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
   twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
              cutoff_mm, temperature, &map, &cfg);
   cfg.coarse_cutoff_mm = coarse_cutoff_mm;
-  auto lh = make_array<float>({r});
-  auto pos = make_array<float>({r, 2});
-  auto spread = make_array<float>({r});
-  auto misfit = make_array<float>({r});
-  auto st = make_array<int32_t>({r});
+  EstimateArrays est{r};
   auto left = make_array<int32_t>({r});
   auto reason = make_array<int32_t>({r});
   {
@@ -383,22 +393,12 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
       ev.phys.status = ev.phys.x_mm == ev.phys.x_mm && ev.phys.y_mm == ev.phys.y_mm ? ic::kOk : ic::kErrSingular;
       const ic::TwinMatch m =
           ic::twin_match(ev, xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], &loc, map, cfg, misfit_ref);
-      lh.data()[k] = m.est.log10_height_mm;
-      pos.data()[2 * k] = m.est.x_mm;
-      pos.data()[2 * k + 1] = m.est.y_mm;
-      spread.data()[k] = m.est.spread_mm;
-      misfit.data()[k] = m.est.misfit;
-      st.data()[k] = m.est.status;
+      est.set(k, m.est);
       left.data()[k] = m.left_out;
       reason.data()[k] = m.reason;
     }
   }
-  nb::dict out;
-  out["log10_height_mm"] = lh;
-  out["xy_mm"] = pos;
-  out["spread_mm"] = spread;
-  out["misfit"] = misfit;
-  out["status"] = st;
+  nb::dict out = est.dict();
   out["left_out"] = left;
   out["reason"] = reason;
   return out;
