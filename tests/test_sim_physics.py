@@ -15,6 +15,8 @@ from impactsense.data import bundled_session_path, load_rig, rig_from_dict
 from impactsense.errors import ConfigError
 from impactsense.sim import SimParams, dispersion, simulate_voltages
 from impactsense.sim.model import build_model, hertz_duration_s, hertz_k, impact_velocity, uniform_plate
+# the kernel's operator as it applies it (not symmetrised: its symmetry is one of the checks below)
+from impactsense.sim.modal_basis import probed_stiffness as assembled_stiffness
 
 PMMA = dict(e_pa=5.0e9, nu=0.32, rho_kg_m3=1157.0, thickness_mm=4.2)
 
@@ -22,34 +24,6 @@ PMMA = dict(e_pa=5.0e9, nu=0.32, rho_kg_m3=1157.0, thickness_mm=4.2)
 @pytest.fixture(scope="module")
 def rig():
     return load_rig(bundled_session_path())
-
-
-def assembled_stiffness(plate, nx, ny):
-    """K of the C++ operator, probed with 9 node colours x 3 fields (nodes of one colour are 3 apart, so
-    their stencils do not overlap)."""
-    nn = (nx + 1) * (ny + 1)
-    jj, ii = np.divmod(np.arange(nn), nx + 1)
-    rows, cols, vals = [], [], []
-    for ci in range(3):
-        for cj in range(3):
-            sel = np.flatnonzero((ii % 3 == ci) & (jj % 3 == cj))
-            for field in range(3):
-                u = np.zeros((3, nn))
-                u[field, sel] = 1
-                f = np.asarray(plate.internal_force_double(u))
-                for di in (-1, 0, 1):
-                    for dj in (-1, 0, 1):
-                        ni, nj = ii[sel] + di, jj[sel] + dj
-                        ok = (ni >= 0) & (ni <= nx) & (nj >= 0) & (nj <= ny)
-                        src = sel[ok]
-                        dst = nj[ok] * (nx + 1) + ni[ok]
-                        for g in range(3):
-                            rows.append(g * nn + dst)
-                            cols.append(field * nn + src)
-                            vals.append(f[g, dst])
-    k = sp.csr_matrix((np.concatenate(vals).astype(float), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(3 * nn, 3 * nn))
-    return k
 
 
 def test_simply_supported_frequencies_within_1pct():

@@ -60,7 +60,15 @@ def default_cutoff(model: Model) -> float:
 # ----- operators of the finite-element model -----
 
 def assembled_stiffness(plate, nx: int, ny: int) -> sp.csr_matrix:
-    """K [3 nodes, 3 nodes] (dof = field * nodes + node; fields w, beta_x, beta_y) of the C++ operator."""
+    """K [3 nodes, 3 nodes] (dof = field * nodes + node; fields w, beta_x, beta_y) of the C++ operator,
+    made symmetric to round-off (the probed operator's symmetry is checked by the tests)."""
+    k = probed_stiffness(plate, nx, ny)
+    return (k + k.T) * 0.5
+
+
+def probed_stiffness(plate, nx: int, ny: int) -> sp.csr_matrix:
+    """K of the C++ operator as the kernel applies it: probed with 9 node colours x 3 fields (nodes of one
+    colour are 3 apart, so their stencils do not overlap)."""
     nn = (nx + 1) * (ny + 1)
     jj, ii = np.divmod(np.arange(nn), nx + 1)
     rows, cols, vals = [], [], []
@@ -82,8 +90,7 @@ def assembled_stiffness(plate, nx: int, ny: int) -> sp.csr_matrix:
                             rows.append(g * nn + dst[nz])
                             cols.append(field * nn + src[nz])
                             vals.append(v[nz])
-    k = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * nn, 3 * nn))
-    return (k + k.T) * 0.5   # symmetric to round-off (checked by the tests)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * nn, 3 * nn))
 
 
 def fixed_dofs(model: Model) -> np.ndarray:
