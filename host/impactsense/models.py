@@ -48,6 +48,13 @@ LEGACY_LOCATION_FEATURES = [n for n in LOCATION_FEATURES if not n.startswith("lo
 ARRIVAL_ENERGY_FEATURES = ["log_arrival_energy_sum", "log_diff1_energy_sum", "log_diff2_energy_sum",
                            "log_diff3_energy_sum"]
 ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
+# What the measured-trained classifier without a site map reads: ENERGY_FEATURES plus each channel's relative
+# energy, their mean and first peaks (the site's colouring per channel): on an aluminium rig it lifts the held-out
+# class accuracy on every split it moves, a laminate's little (docs/findings.md, "Other rigs: picks in one
+# band ..."). Sim-trained classifiers (zeroshot.py) keep ENERGY_FEATURES; a card without "energy_features"
+# was trained on ENERGY_FEATURES.
+MEASURED_ENERGY_FEATURES = ENERGY_FEATURES + [n for n in FEATURE_NAMES if n.startswith(
+    ("log_energy_rel_", "log_energy_mean", "log_first_peak_"))]
 MODEL_FILES = {"x": "forest_dx.npz", "y": "forest_dy.npz", "energy": "forest_energy.npz"}   # forestfile.py
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
@@ -179,6 +186,8 @@ class ImpactModel:
     twin_fit: TwinFit | None = None
     # The feature vector's columns the position forests read, in their order (the card's location_features).
     location_features: list[str] = field(default_factory=lambda: list(LOCATION_FEATURES))
+    # The feature vector's columns the energy classifier reads without a site map (the card's energy_features).
+    energy_class_features: list[str] = field(default_factory=lambda: list(MEASURED_ENERGY_FEATURES))
 
     # ----- training -----
     @classmethod
@@ -198,7 +207,7 @@ class ImpactModel:
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         if site_map is None:
-            fe, threshold = fit_energy_classifier(X[:, columns(ENERGY_FEATURES)], energy_j, settings)
+            fe, threshold = fit_energy_classifier(X[:, columns(MEASURED_ENERGY_FEATURES)], energy_j, settings)
         else:
             # The twin's height estimate of each training drop at its physics position (an error like the
             # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
@@ -217,7 +226,7 @@ class ImpactModel:
 
     @property
     def energy_features(self) -> list[str]:
-        return TWIN_ENERGY_FEATURES if self.site_map is not None else ENERGY_FEATURES
+        return TWIN_ENERGY_FEATURES if self.site_map is not None else self.energy_class_features
 
     @property
     def position_source(self) -> str:
@@ -250,7 +259,7 @@ class ImpactModel:
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
                 spread[use, k] = per_tree.std(0)
             if self.site_map is None:
-                energy_class[use] = self.forest_energy.predict(X[:, columns(ENERGY_FEATURES)])
+                energy_class[use] = self.forest_energy.predict(X[:, columns(self.energy_class_features)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
                "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
         # One channel without an onset (dead, disconnected): without a site map the physics localiser's
@@ -364,6 +373,13 @@ class ImpactModel:
         if len(loc) != getattr(forests[0], "n_features_in_", len(loc)):
             raise DataError(card_path, "location_features", f"lists {len(loc)} features, the x forest reads "
                                                             f"{forests[0].n_features_in_}")
+        energy = ENERGY_FEATURES if site_map is not None else card.get("energy_features", ENERGY_FEATURES)
+        if not isinstance(energy, list) or not energy or any(n not in FEATURE_NAMES for n in energy):
+            raise DataError(card_path, "energy_features", "must list names from feature_names")
+        if site_map is None and len(energy) != getattr(forests[2], "n_features_in_", len(energy)):
+            raise DataError(card_path, "energy_features", f"lists {len(energy)} features, the energy forest "
+                                                          f"reads {forests[2].n_features_in_}")
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
-                   site_map=site_map, twin_fit=twin_fit, location_features=list(loc))
+                   site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
+                   energy_class_features=list(energy))

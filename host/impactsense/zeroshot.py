@@ -255,6 +255,7 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
             X[:, k] += offsets.get(name, 0.0)
         model.forest_energy, model.energy_threshold_j = fit_energy_classifier(
             X, impact_energy_j(virtual.height_mm[use], virtual.rig.ball_mass_g))
+        model.energy_class_features = list(ENERGY_FEATURES)
     return {"channel_delay_from_calibration_drops_us": delays, "channel_gain_from_calibration_drops": gains,
             "velocity_mm_per_us_virtual_drops": virtual_signal.velocity_mm_per_us,
             "velocity_mm_per_us_from_calibration_drops": velocity,
