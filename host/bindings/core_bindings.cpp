@@ -64,6 +64,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   auto hum = make_array<float>({r, 4});
   auto base = make_array<float>({r, 4});
   auto n2 = make_array<int32_t>({r, 4});
+  auto toa_band = make_array<float>({r, 4});
   auto status = make_array<int32_t>({r});
   const int16_t* data = adc.data();
   ic::EventFeatures ev;
@@ -93,6 +94,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
         hum.data()[i] = ok ? f.hum_counts : NAN;
         base.data()[i] = ok ? f.baseline : NAN;
         n2.data()[i] = ok ? f.n2 : -1;
+        toa_band.data()[i] = ok ? f.toa_band_us : NAN;
       }
       for (int p = 0; p < 6; ++p) {
         const bool ok = status.data()[k] == ic::kOk || status.data()[k] == ic::kErrNoTrigger;
@@ -118,6 +120,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
   out["hum_counts"] = hum;
   out["baseline"] = base;
   out["n2"] = n2;
+  out["toa_band_us"] = toa_band;
   out["status"] = status;
   return out;
 }
@@ -196,6 +199,7 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
   auto vec = make_array<float>({r, static_cast<size_t>(ic::kNumFeatures)});
   auto phys = make_array<float>({r, 2});
+  auto band = make_array<float>({r, 2});
   auto cov = make_array<float>({r, 3});
   auto accepted = make_array<uint8_t>({r});
   auto status = make_array<int32_t>({r});
@@ -210,6 +214,9 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
       std::memcpy(vec.data() + k * ic::kNumFeatures, ev.vector, sizeof(ev.vector));
       phys.data()[2 * k] = ev.phys.x_mm;
       phys.data()[2 * k + 1] = ev.phys.y_mm;
+      const bool band_ok = status.data()[k] == ic::kOk && ev.band.status == ic::kOk;
+      band.data()[2 * k] = band_ok ? ev.band.x_mm : NAN;
+      band.data()[2 * k + 1] = band_ok ? ev.band.y_mm : NAN;
       cov.data()[3 * k] = ev.phys.cov_xx;
       cov.data()[3 * k + 1] = ev.phys.cov_xy;
       cov.data()[3 * k + 2] = ev.phys.cov_yy;
@@ -222,6 +229,7 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   nb::dict out;
   out["vector"] = vec;
   out["phys_xy_mm"] = phys;
+  out["band_xy_mm"] = band;   // the band picks' own position (NaN: not run); phys_xy_mm is then the mean
   out["phys_cov"] = cov;
   out["accepted"] = accepted;
   out["status"] = status;

@@ -113,7 +113,7 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
     out.dispersion_exponent = fit.dispersion_exponent
     out.dispersion_ref_hz = fit.dispersion_ref_hz
-    return choose_starts(session, rows, out)
+    return choose_band(session, rows, choose_starts(session, rows, out))
 
 
 # More localiser starts (impactcore.h localiser_starts) are kept when they lower the training drops' physics
@@ -140,3 +140,54 @@ def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Sign
     out = SignalConfig.from_dict(cfg.to_dict())
     out.localiser_starts = chosen
     return out
+
+
+# The band picks (impactcore band_onset) are kept when the mean of their position and the threshold picks'
+# brings the training drops' physics MAE to this fraction of the threshold picks' alone (the same rule as
+# localiser_starts'). Their peak is sought over this many times the longest sensor-to-sensor travel time.
+BAND_GAIN = 0.97
+BAND_WINDOW_TRAVELS = 2.0
+
+
+def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig | None:
+    """cfg with the band picks on: their frequency the training picks' median (fs / pick_period), their
+    travel model (velocity, delays, metric on a plate that wants one) fitted on the training drops; None when
+    the picks give no frequency or too few band picks."""
+    from .travel import fit_travel, travel_distances, wants_metric
+
+    a16 = as_int16(session.adc[rows])
+    period = _core.extract_batch(a16, cfg.core())["pick_period"].astype(float)
+    known = np.isfinite(period) & (period > 0)
+    if known.mean() < 0.5:
+        return None
+    trial = SignalConfig.from_dict(cfg.to_dict())
+    trial.band_pick_hz = float(np.median(cfg.fs_hz / period[known]))
+    sensors = cfg.sensor_xy_mm
+    metric = (cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)
+    longest = max(float(travel_distances(sensors[i:i + 1], sensors, metric).max()) for i in range(len(sensors)))
+    trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
+    toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
+    if np.isfinite(toa).all(1).sum() < 8:
+        return None
+    fit = fit_travel(toa, np.asarray(session.xy_mm, float)[rows], sensors, wants_metric(session.rig))
+    trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
+    trial.band_delay_us = list(fit.delays_us)
+    trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
+    return trial
+
+
+def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+    """cfg with the band picks when they bring the training drops' physics positions clearly closer to the
+    truth (BAND_GAIN), else cfg with them off."""
+    off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0})
+    trial = band_config(session, rows, off)
+    if trial is None:
+        return off
+    xy = np.asarray(session.xy_mm, float)[rows]
+
+    def mae(c: SignalConfig) -> float:
+        phys = featurize(session.adc[rows], c).phys_xy_mm.astype(float)
+        ok = np.isfinite(phys).all(1)
+        return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
+
+    return trial if mae(trial) < BAND_GAIN * mae(off) else off

@@ -50,6 +50,29 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
                         ? 1
                         : 0;
   }
+  // The band picks' own position, averaged with the threshold picks' (their errors are partly independent:
+  // docs/findings.md "Picks in one band"). Every channel needs a band pick; otherwise phys stays as is.
+  out->band = LocaliserResult{};
+  out->band.x_mm = out->band.y_mm = NAN;
+  out->band.status = kErrBadConfig;
+  if (cfg.band_pick_hz > 0.0f && loc.band_velocity_mm_per_us > 0.0f && out->phys.status == kOk) {
+    float toa_band[kChannels];
+    uint8_t all = 1;
+    for (int c = 0; c < kChannels; ++c) {
+      toa_band[c] = f.ch[c].toa_band_us - loc.band_delay_us[c];
+      if (!use[c] || !(toa_band[c] == toa_band[c])) all = 0;
+    }
+    if (all) {
+      const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
+      out->band = localise_tdoa(toa_band, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.band_velocity_mm_per_us,
+                                loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
+                                loc.localiser_starts);
+      if (out->band.status == kOk) {
+        out->phys.x_mm = 0.5f * (out->phys.x_mm + out->band.x_mm);
+        out->phys.y_mm = 0.5f * (out->phys.y_mm + out->band.y_mm);
+      }
+    }
+  }
   float* v = out->vector;
   float tmin = INFINITY;
   for (int c = 0; c < kChannels; ++c) {

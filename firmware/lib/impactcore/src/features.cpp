@@ -901,6 +901,19 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   for (int p = 0; p < kPairs; ++p) {
     out->dtoa_us[p] = out->ch[kPairI[p]].toa_us - out->ch[kPairJ[p]].toa_us;
   }
+  // The band picks, all in one window from the first threshold crossing (band_onset; off by default).
+  float first = INFINITY;
+  for (int c = 0; c < kChannels; ++c) {
+    out->ch[c].toa_band_us = kNaN;
+    if (!(out->ch[c].flags & kFlagNoOnset) && out->ch[c].toa_threshold < first) first = out->ch[c].toa_threshold;
+  }
+  if (cfg.band_pick_hz > 0.0f && first < INFINITY) {
+    for (int c = 0; c < kChannels; ++c) {
+      if (out->ch[c].flags & (kFlagNoOnset | kFlagDead)) continue;
+      const float s = band_onset(adc[c], n, out->ch[c].baseline, out->ch[c].noise_rms, static_cast<int>(first), cfg);
+      out->ch[c].toa_band_us = s * (1.0e6f / cfg.fs_hz) - cfg.capture_delay_us[c];
+    }
+  }
   // ToA order: insertion sort, channels without an onset last.
   for (int c = 0; c < kChannels; ++c) out->order[c] = static_cast<uint8_t>(c);
   for (int a = 1; a < kChannels; ++a) {

@@ -86,7 +86,10 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, dead_rms_counts, 3.0f, COPY)  /* post-onset RMS below this: the channel is dead */      \
   X(ONE, float, n2_fraction, 0.99f, COPY)  /* n2: cumulative energy reaches this fraction */            \
   X(ONE, float, diff_window_us, 2500.0f, COPY)  /* difference energies: ToA .. min(n2, ToA + this);     \
-    0 = up to n2 */
+    0 = up to n2 */                                                                                       \
+  X(ONE, float, band_pick_hz, 0.0f, COPY)  /* band pick (band_onset) at this frequency; 0: off */         \
+  X(ONE, float, band_pick_fraction, 0.1f, COPY)  /* ... where its envelope reaches this of its peak */    \
+  X(ONE, float, band_window_us, 600.0f, COPY)  /* ... peak sought up to this after the first onset */
 
 #define IMPACTCORE_LOCALISER_FIELDS(X)                                                                   \
   X(ONE, float, velocity_mm_per_us, 0.93f, COPY)  /* fitted group velocity of the picked arrival */     \
@@ -103,7 +106,12 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, travel_metric_yy, 1.0f, COPY)  /* bit for bit the Euclidean localiser)                 */  \
   X(ONE, float, dispersion_exponent, 0.0f, COPY)  /* a channel's slowness x (f / dispersion_ref_hz)^-this,*/ \
   X(ONE, float, dispersion_ref_hz, 25000.0f, COPY) /* f = fs / pick_period (0: one velocity, bit for bit) */ \
-  X(ONE, int, localiser_starts, 1, COPY)  /* screened starts the localiser refines (1 .. kMaxStarts) */
+  X(ONE, int, localiser_starts, 1, COPY)  /* screened starts the localiser refines (1 .. kMaxStarts) */  \
+  X(ONE, float, band_velocity_mm_per_us, 0.0f, COPY)  /* the band picks' own travel model; > 0 (and   */ \
+  X(PER_CHANNEL, float, band_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* band_pick_hz > 0): the   */ \
+  X(ONE, float, band_metric_xx, 1.0f, COPY)  /* physics position is the mean of the threshold picks' */   \
+  X(ONE, float, band_metric_xy, 0.0f, COPY)  /* and the band picks' (process_event)                   */   \
+  X(ONE, float, band_metric_yy, 1.0f, COPY)
 
 #define IMPACTCORE_UNPAREN(...) __VA_ARGS__
 #define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
@@ -157,6 +165,7 @@ struct ChannelFeatures {
   int32_t n2;              // sample where the cumulative energy stops growing
   float hum_counts;        // amplitude of the fitted mains hum (counts; 0 when none was modelled)
   uint8_t flags;           // ChannelFlag bits
+  float toa_band_us;       // band_onset in us, the capture delay removed (not the rig's); NaN: off or too weak
 };
 
 struct EventFeatures {
@@ -416,9 +425,29 @@ struct LocaliserConfig {
 constexpr int kNumFeatures = 6 + 4 + 2 + 4 + 1 + 4 + 4 + 1 + 1 + kDiffOrders;
 extern const char* const kFeatureNames[kNumFeatures];
 
+// --- the band pick (bandpick.cpp) ---
+//
+// A pick that does not hang on which cycle of a weak, fast precursor a threshold catches (stiff plates,
+// docs/findings.md "Picks in one band"): x demodulated at f0 = cfg.band_pick_hz (x cos, x sin by a
+// rotating phasor), each part low-passed by kBandPoles one-pole stages at f0 / kBandCutoffDivisor, the
+// envelope |I + jQ|; the pick is the first sample of [anchor - kBandBeforeUs, anchor + band_window_us)
+// where the envelope reaches band_pick_fraction of its peak there (linear between samples), or
+// kBandNoiseFactor x noise_rms if that is higher. The filter's delay is the same on every channel. NaN:
+// off (band_pick_hz <= 0 or >= kBandMaxRate x fs), a peak below twice that noise floor, a bad window.
+// Cost: (window + settling) samples x ~30 float operations per channel (~150 samples at 100 kHz).
+constexpr int kBandPoles = 4;
+constexpr float kBandCutoffDivisor = 6.0f;
+constexpr float kBandBeforeUs = 300.0f;
+constexpr float kBandNoiseFactor = 3.0f;
+constexpr float kBandMaxRate = 0.45f;
+constexpr int kBandMaxWindow = 512;   // samples of the envelope kept (the window is cut there)
+// Returns the pick in samples from the capture start.
+float band_onset(const int16_t* x, int n, float baseline, float noise_rms, int anchor, const CoreConfig& cfg);
+
 struct EventResult {
   EventFeatures features;
-  LocaliserResult phys;
+  LocaliserResult phys;          // with the band picks' travel model: the mean of the two positions
+  LocaliserResult band;          // the band picks' own position (status kErrBadConfig when not run)
   uint8_t accepted;              // Eq. 35 at the physics position
   float vector[kNumFeatures];    // model inputs; NaN where a channel has no onset
   float slowness_scale[kChannels];  // the localiser's per-channel travel-time factors (dispersion_scales;
