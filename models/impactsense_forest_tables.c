@@ -14860,6 +14860,9 @@ const impactsense_signal_config impactsense_signal = {
   3.0f,
   0.99000001f,
   2500.0f,
+  0.0f,
+  0.100000001f,
+  600.0f,
   0.876729608f,
   8.24207687f,
   4.0f,
@@ -14874,5 +14877,10 @@ const impactsense_signal_config impactsense_signal = {
   1.0f,
   0.138945431f,
   15245.7988f,
-  1
+  1,
+  0.0f,
+  {0.0f, 0.0f, 0.0f, 0.0f},
+  1.0f,
+  0.0f,
+  1.0f
 };

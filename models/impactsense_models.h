@@ -69,6 +69,9 @@ typedef struct {
   float dead_rms_counts;  // copy
   float n2_fraction;  // copy
   float diff_window_us;  // copy
+  float band_pick_hz;  // copy
+  float band_pick_fraction;  // copy
+  float band_window_us;  // copy
   float velocity_mm_per_us;  // copy
   float sigma_us;  // copy
   float huber_us;  // copy
@@ -84,6 +87,11 @@ typedef struct {
   float dispersion_exponent;  // copy
   float dispersion_ref_hz;  // copy
   int32_t localiser_starts;  // copy
+  float band_velocity_mm_per_us;  // copy
+  float band_delay_us[4];  // copy
+  float band_metric_xx;  // copy
+  float band_metric_xy;  // copy
+  float band_metric_yy;  // copy
 } impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

@@ -69,6 +69,7 @@ def test_the_pmma_fit_keeps_its_picker_and_finds_little_dispersion(trained):
     sig, default = model.signal, SignalConfig.for_rig(None)
     assert sig.onset_threshold_counts == default.onset_threshold_counts and sig.aic_blend == default.aic_blend
     assert sig.localiser_starts == 1
+    assert sig.band_pick_hz == 0 and sig.band_velocity_mm_per_us == 0   # band picks: no gain on PMMA, left off
     assert 0.03 < sig.dispersion_exponent < 0.2 and 14000 < sig.dispersion_ref_hz < 25000
 
 

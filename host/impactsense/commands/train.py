@@ -98,6 +98,9 @@ def run(args) -> int:
     print("dispersion: " + (f"slowness x (f / {sig.dispersion_ref_hz / 1000:.1f} kHz)^-{alpha:.3f} per channel, f the "
                             "picked cycle's frequency" if alpha else "none (one velocity)")
           + f"; localiser starts {int(getattr(sig, 'localiser_starts', 1))}")
+    band = float(getattr(sig, "band_velocity_mm_per_us", 0.0)) > 0 and float(getattr(sig, "band_pick_hz", 0.0)) > 0
+    print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us; the physics "
+                            "position is the mean of both localisers'" if band else "off (threshold picks only)"))
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
           + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
     print(f"wrote {args.out}")
