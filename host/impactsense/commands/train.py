@@ -102,6 +102,6 @@ def run(args) -> int:
     print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us; the physics "
                             "position is the mean of both localisers'" if band else "off (threshold picks only)"))
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
-          + ("the twin's height estimate (site map)" if site is not None else "the summed arrival energies"))
+          + ("the twin's height estimate (site map)" if site is not None else "the channels' energies and first peaks"))
     print(f"wrote {args.out}")
     return 0
