@@ -113,14 +113,16 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
     out.dispersion_exponent = fit.dispersion_exponent
     out.dispersion_ref_hz = fit.dispersion_ref_hz
-    return choose_band(session, rows, choose_starts(session, rows, out))
+    out = choose_band(session, rows, choose_starts(session, rows, out))
+    # the band picks' localiser shares localiser_starts: chosen again with them on
+    return choose_starts(session, rows, out) if out.band_velocity_mm_per_us > 0 else out
 
 
 # More localiser starts (impactcore.h localiser_starts) are kept when they lower the training drops' physics
 # MAE to this fraction of one start's: out beyond the sensors' hull the best-screened start can end in the
 # wrong Huber valley.
 STARTS_GAIN = 0.97
-STARTS_TRIED = (1, 2)
+STARTS_TRIED = (1, 2, 4)
 
 
 def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
