@@ -161,6 +161,7 @@ struct ChannelFeatures {
   // squared (counts^2). By Parseval these are the spectral moments of the arrival, weighted by
   // (2 sin(pi f / fs))^(2k): they carry how much high-frequency energy the contact put in, which grows
   // faster with the impact speed than the total and is less coloured by the plate's modes at the site.
+  // Less the white noise floor's expected share, C(2k, k) noise_rms^2 a sample (floored at 0).
   float diff_energy[kDiffOrders];
   int32_t n2;              // sample where the cumulative energy stops growing
   float hum_counts;        // amplitude of the fitted mains hum (counts; 0 when none was modelled)
