@@ -557,6 +557,11 @@ constexpr float kSpikeRatio = 25.0f;
 constexpr float kSpikeExplained = 0.9f;
 constexpr int kSpikeReach = 8;
 constexpr int kMaxSpikes = 2;
+constexpr float kArrivalSpikeRatio = 3.0f;  // extract_features: a channel's Delta^3 / Delta^1 over the others'
+// Inside the arrival (a channel whose Delta^3 / Delta^1 already stands out) the spike's Delta^2 terms need
+// only this ratio to the neighbourhood's (the arrival's own ringing is there; the replacement must still
+// explain kSpikeExplained of them, which a ringing's own sample does not).
+constexpr float kArrivalSpikeTermRatio = 4.0f;
 
 struct Spike {
   int at = -1, width = 0;  // samples [at, at + width) replaced
@@ -590,7 +595,7 @@ inline float second_difference(const int16_t* x, int m) {
   return static_cast<float>(static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2]);
 }
 
-bool may_be_spike(const int16_t* x, int n, int i, float thr) {
+bool may_be_spike(const int16_t* x, int n, int i, float thr, float ratio = kSpikeRatio) {
   const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
   const int hi = i + kSpikeReach + 3 < n ? i + kSpikeReach + 3 : n;
   if (hi - lo < 8 || i - 1 < lo || i + 3 >= hi) return false;
@@ -611,10 +616,10 @@ bool may_be_spike(const int16_t* x, int n, int i, float thr) {
     const float d = second_difference(x, far_m[k]);
     far += d * d;
   }
-  return near > (kSpikeRatio - 1.0f) * far / static_cast<float>(hi - lo);
+  return near > (ratio - 1.0f) * far / static_cast<float>(hi - lo);
 }
 
-bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
+bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp, float ratio = kSpikeRatio) {
   // Delta^2 x[m] = x[m] - 2 x[m-1] + x[m-2] over m in [lo, hi), squared in float (the same operations on
   // host and board: the same decision).
   const int lo = i - kSpikeReach > kDiffOrders ? i - kSpikeReach : kDiffOrders;
@@ -674,12 +679,12 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp) {
   }
   if (!have || !(best_orig > 0.0f) || best_dev < thr || best_terms >= hi - lo) return false;
   const float rest = (all - best_orig) / static_cast<float>(hi - lo - best_terms);
-  return best_orig / static_cast<float>(best_terms) > kSpikeRatio * rest &&
+  return best_orig / static_cast<float>(best_terms) > ratio * rest &&
          best_orig - best_left > kSpikeExplained * best_orig;
 }
 
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
-                      ChannelFeatures* f) {
+                      ChannelFeatures* f, bool hunt_arrival_spike = false) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
@@ -802,8 +807,12 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int n_spikes = 0;
   float excess[kMaxSpikes] = {0.0f, 0.0f};
   float spike_energy = 0.0f;
-  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n, n2, thr) &&
-         spike_at(x, n, n2, thr, &late[n_spikes])) {
+  // Takes the spike late[n_spikes] out of the energies: its excess leaves the total and n2 is sought again
+  // (a spike inside the arrival also leaves the cumulative energy beyond it: the target gains its excess
+  // while n2 stays beyond it).
+  float inside_excess = 0.0f;
+  int inside_at = n;
+  const auto take_spike = [&](bool inside) {
     const Spike& sp = late[n_spikes];
     float e = 0.0f;
     for (int j = 0; j < sp.width; ++j) {
@@ -812,11 +821,51 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
       const float e0 = static_cast<float>(x[i]) - b, e1 = static_cast<float>(sp.value[j]) - b;
       e += e0 * e0 - e1 * e1;
     }
+    if (inside) {
+      inside_excess = e;
+      inside_at = sp.at;
+    }
     excess[n_spikes++] = e;
     spike_energy += e;
     f->flags |= kFlagGlitch;
     const float target = cfg.n2_fraction * (energy - spike_energy);
-    n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
+    const auto reaches = [&](float t) {
+      return bl.hum ? hum_e.reaches(t) : energy_reaches(ch, ceil_to_int64(t * ch.nb2));
+    };
+    n2 = reaches(target + inside_excess);
+    if (n2 < inside_at) n2 = reaches(target);
+  };
+  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n, n2, thr) &&
+         spike_at(x, n, n2, thr, &late[n_spikes])) {
+    take_spike(false);
+  }
+  // A glitch inside the arrival (extract_features asks when this channel's Delta^3 / Delta^1 energy ratio
+  // stands out from the other channels'): the sample before the largest |Delta^2| of the difference
+  // window, tested like a late one. One scan of that window, only on such channels.
+  if (hunt_arrival_spike && n_spikes < kMaxSpikes) {
+    const int lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
+    int hi = n2 + 1;
+    const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
+    if (cap > 0 && lo + cap < hi) hi = lo + cap;
+    if (hi > n - 1) hi = n - 1;
+    float big = 0.0f;
+    int at = -1;
+    for (int m = lo + 2; m < hi; ++m) {
+      const float d = fabsf(second_difference(x, m));
+      if (d > big) {
+        big = d;
+        at = m - 1;
+      }
+    }
+    // a lone spike's largest |Delta^2| is the term after it, a two-sample spike's one of the four it enters
+    // (equal but for the arrival's own); spike_at(i) tries [i], [i, i + 1] and [i - 1, i]
+    for (int i = at - 1; i <= at + 2; ++i) {
+      if (i > icross && i < n - 3 && may_be_spike(x, n, i, thr, kArrivalSpikeTermRatio) &&
+          spike_at(x, n, i, thr, &late[n_spikes], kArrivalSpikeTermRatio)) {
+        take_spike(true);
+        break;
+      }
+    }
   }
   f->n2 = n2;
   // Five equal windows from the onset to n2; the last one is the residual energy.
@@ -907,6 +956,42 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   HumBasis basis;  // filled by the first channel whose hum is fitted
   for (int c = 0; c < kChannels; ++c) {
     channel_features(adc[c], n, cfg, c, &basis, &out->ch[c]);
+  }
+  // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
+  // an arrival's is set by the contact and the plate, alike on every channel: on the bundled sessions, clean
+  // or with noise and hum, at most 2.7 x the median of the other channels'): a channel above
+  // kArrivalSpikeRatio x that median is done again hunting the spike (channel_features). Four divisions an
+  // event; the scan only on such channels.
+  float ratio[kChannels];
+  int n_ratio = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    const ChannelFeatures& f = out->ch[c];
+    ratio[c] = NAN;
+    if ((f.flags & (kFlagNoOnset | kFlagClipped | kFlagDead)) == 0 && f.diff_energy[0] > 0.0f) {
+      ratio[c] = f.diff_energy[2] / f.diff_energy[0];
+      ++n_ratio;
+    }
+  }
+  if (n_ratio >= 3) {
+    for (int c = 0; c < kChannels; ++c) {
+      if (!(ratio[c] == ratio[c])) continue;
+      float o[kChannels - 1];
+      int m = 0;
+      for (int k = 0; k < kChannels; ++k) {
+        if (k != c && ratio[k] == ratio[k]) o[m++] = ratio[k];
+      }
+      // the median of the others (of two, the larger)
+      float med;
+      if (m == 3) {
+        const float lo = o[0] < o[1] ? o[0] : o[1], hi = o[0] < o[1] ? o[1] : o[0];
+        med = o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
+      } else {
+        med = o[0] > o[1] ? o[0] : o[1];
+      }
+      if (ratio[c] > kArrivalSpikeRatio * med) channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], true);
+    }
+  }
+  for (int c = 0; c < kChannels; ++c) {
     if (!(out->ch[c].flags & kFlagNoOnset)) ++onsets;
   }
   for (int p = 0; p < kPairs; ++p) {
