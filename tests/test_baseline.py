@@ -122,3 +122,38 @@ def test_a_spike_after_the_arrival_leaves_the_energies(drops, size):
     other = np.ones(out["n2"].shape, bool)
     other[r, c] = False
     np.testing.assert_array_equal(out["n2"][other], clean["n2"][other])
+
+
+@pytest.mark.parametrize("size", [400.0, 1500.0])
+def test_a_spike_inside_the_arrival_leaves_the_energies(drops, size):
+    """A one- or two-sample spike within the difference window (10..200 samples after the onset) adds ~20
+    size^2 to the channel's Delta^3 energy: its Delta^3 / Delta^1 then stands out from the other channels'
+    and the core hunts the spike there and takes it out of the windows, n2 and the difference energies
+    (the channel says GLITCH); the other channels are untouched. The spike points toward the baseline so
+    that it does not reach the rail; channels clipped without it are left alone (no twin features)."""
+    _, adc, cfg = drops
+    clean = features(adc, cfg)
+    rng = np.random.default_rng(int(size))
+    bad = adc.copy()
+    where = []
+    for r in range(adc.shape[0]):
+        c = int(rng.integers(4))
+        if clean["flags"][r, c] & _core.FLAG_CLIPPED:   # no twin features, no ratio test: another case
+            continue
+        i = int(clean["toa_threshold"][r, c]) + int(rng.integers(10, 200))
+        width = 1 + (r % 2)
+        sign = -1 if bad[r, c, i] > 2048 else 1
+        bad[r, c, i:i + width] = np.clip(bad[r, c, i:i + width] + sign * size, 0, 4095).astype(np.int16)
+        where.append((r, c))
+    out = features(bad, cfg)
+    r, c = np.array(where).T
+    assert np.mean(out["flags"][r, c] & _core.FLAG_GLITCH != 0) >= 0.9
+    delta3 = np.abs(np.log10(out["diff_energy"][r, c, 2] / clean["diff_energy"][r, c, 2]))
+    arrival = np.abs(np.log10(out["window_energy"][r, c].sum(-1) / clean["window_energy"][r, c].sum(-1)))
+    # raw, the spike would raise Delta^3 by log10(1 + 20 size^2 / E3) (~0.3..2 here)
+    assert np.percentile(delta3, 90) < np.log10(1.05) and np.percentile(arrival, 90) < np.log10(1.02)
+    assert np.percentile(np.abs(out["n2"][r, c] - clean["n2"][r, c]), 90) <= 2
+    other = np.ones(out["n2"].shape, bool)
+    other[r, c] = False
+    for key in ("n2", "toa_us", "diff_energy", "window_energy", "flags"):
+        np.testing.assert_array_equal(out[key][other], clean[key][other])
