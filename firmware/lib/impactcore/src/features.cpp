@@ -685,6 +685,18 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp, float ratio 
          best_orig - best_left > kSpikeExplained * best_orig;
 }
 
+// A spike's excess energy: its samples' squares about the baseline model less its replacement's.
+float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float base) {
+  float e = 0.0f;
+  for (int j = 0; j < sp.width; ++j) {
+    const int i = sp.at + j;
+    const float b = bl.hum ? bl.level + hum_at(bl, static_cast<float>(i)) : base;
+    const float e0 = static_cast<float>(x[i]) - b, e1 = static_cast<float>(sp.value[j]) - b;
+    e += e0 * e0 - e1 * e1;
+  }
+  return e;
+}
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
                       ChannelFeatures* f, bool hunt_arrival_spike = false) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
@@ -809,42 +821,19 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int n_spikes = 0;
   float excess[kMaxSpikes] = {0.0f, 0.0f};
   float spike_energy = 0.0f;
-  // Takes the spike late[n_spikes] out of the energies: its excess leaves the total and n2 is sought again
-  // (a spike inside the arrival also leaves the cumulative energy beyond it: the target gains its excess
-  // while n2 stays beyond it).
-  float inside_excess = 0.0f;
-  int inside_at = n;
-  const auto take_spike = [&](bool inside) {
-    const Spike& sp = late[n_spikes];
-    float e = 0.0f;
-    for (int j = 0; j < sp.width; ++j) {
-      const int i = sp.at + j;
-      const float b = bl.hum ? bl.level + hum_at(bl, static_cast<float>(i)) : base;
-      const float e0 = static_cast<float>(x[i]) - b, e1 = static_cast<float>(sp.value[j]) - b;
-      e += e0 * e0 - e1 * e1;
-    }
-    late[n_spikes].inside = inside;
-    if (inside) {
-      inside_excess = e;
-      inside_at = sp.at;
-    }
+  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n, n2, thr) &&
+         spike_at(x, n, n2, thr, &late[n_spikes])) {
+    const float e = spike_excess(x, late[n_spikes], bl, base);
     excess[n_spikes++] = e;
     spike_energy += e;
     f->flags |= kFlagGlitch;
     const float target = cfg.n2_fraction * (energy - spike_energy);
-    const auto reaches = [&](float t) {
-      return bl.hum ? hum_e.reaches(t) : energy_reaches(ch, ceil_to_int64(t * ch.nb2));
-    };
-    n2 = reaches(target + inside_excess);
-    if (n2 < inside_at) n2 = reaches(target);
-  };
-  while (n_spikes < kMaxSpikes && n2 > icross && n2 < n - 3 && may_be_spike(x, n, n2, thr) &&
-         spike_at(x, n, n2, thr, &late[n_spikes])) {
-    take_spike(false);
+    n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
   }
   // A glitch inside the arrival (extract_features asks when this channel's Delta^3 / Delta^1 energy ratio
   // stands out from the other channels'): the sample before the largest |Delta^2| of the difference
-  // window, tested like a late one. One scan of that window, only on such channels.
+  // window, tested like a late one. One scan of that window, only on such channels. Its excess also
+  // leaves the cumulative energy beyond it: n2's target gains it while n2 stays beyond the spike.
   if (hunt_arrival_spike && n_spikes < kMaxSpikes) {
     const int lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
     int hi = n2 + 1;
@@ -863,9 +852,17 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     // a lone spike's largest |Delta^2| is the term after it, a two-sample spike's one of the four it enters
     // (equal but for the arrival's own); spike_at(i) tries [i], [i, i + 1] and [i - 1, i]
     for (int i = at - 1; i <= at + 2; ++i) {
+      Spike& sp = late[n_spikes];
       if (i > icross && i < n - 3 && may_be_spike(x, n, i, thr, kArrivalSpikeTermRatio) &&
-          spike_at(x, n, i, thr, &late[n_spikes], kArrivalSpikeTermRatio)) {
-        take_spike(true);
+          spike_at(x, n, i, thr, &sp, kArrivalSpikeTermRatio)) {
+        sp.inside = true;
+        const float e = spike_excess(x, sp, bl, base);
+        excess[n_spikes++] = e;
+        spike_energy += e;
+        f->flags |= kFlagGlitch;
+        const float target = cfg.n2_fraction * (energy - spike_energy);
+        n2 = bl.hum ? hum_e.reaches(target + e) : energy_reaches(ch, ceil_to_int64((target + e) * ch.nb2));
+        if (n2 < sp.at) n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
         break;
       }
     }
