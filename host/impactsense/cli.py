@@ -44,6 +44,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        if getattr(args, "scheduler", None):
+            from .sim import executor
+
+            executor.set_scheduler(args.scheduler)
         return int(args.func(args) or 0)
     except ImpactSenseError as exc:
         print(f"impactsense {args.command}: error: {exc}", file=sys.stderr)

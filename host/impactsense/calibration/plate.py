@@ -9,7 +9,6 @@ Eq. 16: sum over drops and the six sensor pairs of (DToA measured - DToA simulat
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
@@ -17,6 +16,7 @@ from .. import _core
 from ..signal import config_dict, core_config
 from ..outputs import atomic_file
 from ..progress import progress_bar
+from ..sim.executor import Executor
 from . import arrival
 
 PAIR_I = np.array(_core.PAIR_I)
@@ -95,19 +95,11 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
     bar = progress_bar(progress, total=len(todo), desc="plate grid (E, nu)", unit="chunk")
     tasks = [(setup, state, peak, dtoa_meas, e_flat[idx], nu_flat[idx], noise_counts, n_noise, seed)
              for idx in todo]
-    if workers > 1 and len(tasks) > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for k, (idx, res) in enumerate(zip(todo, pool.map(_chunk_task, tasks))):
-                loss[idx] = res
-                bar.update(1)
-                if k % 50 == 49:
-                    save()
-    else:
-        for k, (idx, t) in enumerate(zip(todo, tasks)):
-            loss[idx] = _chunk_task(t)
-            bar.update(1)
-            if k % 50 == 49:
-                save()
+    for k, (idx, res) in enumerate(zip(todo, Executor(workers=workers, kind="processes").map(_chunk_task, tasks))):
+        loss[idx] = res
+        bar.update(1)
+        if k % 50 == 49:
+            save()
     bar.close()
     save()
     return loss.reshape(ee.shape)

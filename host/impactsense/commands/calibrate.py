@@ -47,6 +47,9 @@ def register(sub) -> None:
                    help="the plate grid only (no FEM confirmation, no PZT design; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    from .simulate import add_scheduler_option
+
+    add_scheduler_option(p)
     p.set_defaults(func=run)
 
 

@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--calibration", default=None,
                    help="with --zero-shot: an existing CAL.json (default: OUT/CAL.json, calibrated if missing)")
     p.add_argument("--virtual", type=int, default=490, help="with --zero-shot: virtual drops (default 490)")
+    from .simulate import add_scheduler_option
+
+    add_scheduler_option(p)
     p.set_defaults(func=run)
 
 

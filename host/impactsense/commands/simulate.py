@@ -45,6 +45,14 @@ def add_solver_option(p, batch: bool = False) -> None:
                         f"$IMPACTSENSE_MODAL_CACHE or ~/.cache/impactsense/modal); {said}")
 
 
+def add_scheduler_option(p) -> None:
+    """--scheduler ADDRESS: the batch's simulations on a Dask cluster (impactsense.sim.executor)."""
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run the batch's simulations on the Dask cluster whose scheduler is at ADDRESS (e.g. "
+                        "tcp://host:8786; needs impactsense[cluster] here and on the workers; default: this "
+                        "machine)")
+
+
 def load_inputs(args):
     from pathlib import Path
 

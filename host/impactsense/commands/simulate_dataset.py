@@ -9,7 +9,7 @@ ORDER = 41
 
 
 def register(sub) -> None:
-    from .simulate import add_param_options, add_solver_option
+    from .simulate import add_param_options, add_scheduler_option, add_solver_option
 
     p = sub.add_parser("simulate-dataset", help="simulate a virtual session (Sobol positions and heights)",
                        description="Simulates N drops at Sobol positions away from the sensors and heights "
@@ -25,6 +25,7 @@ def register(sub) -> None:
                    help="the direct solver's path: fast (default: reciprocity, 4 solves up front, then cheap per "
                         "drop) or direct (one full run a drop)")
     add_solver_option(p, batch=True)
+    add_scheduler_option(p)
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,

@@ -8,7 +8,7 @@ ORDER = 42
 
 
 def register(sub) -> None:
-    from .simulate import add_param_options, add_solver_option
+    from .simulate import add_param_options, add_scheduler_option, add_solver_option
 
     p = sub.add_parser("sitemap", help="the twin's site map: a simulated drop at every grid point",
                        description="Simulates a drop from --height-mm at every point of a regular grid over the "
@@ -22,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("--height-mm", type=float, default=175.0, help="reference drop height (default 175)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     add_solver_option(p, batch=True)
+    add_scheduler_option(p)
     p.set_defaults(func=run)
 
 

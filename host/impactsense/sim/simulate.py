@@ -28,6 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..errors import ConfigError, ImpactSenseError
+from . import executor
 from .model import Model, build_model, impact_velocity
 from .params import SimParams
 
@@ -219,27 +220,30 @@ def batch_solver(params: SimParams, rig, solver: str | None) -> str:
 
 
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
-                      solver: str | None = None, workers: int = 2, progress: bool = False) -> dict:
+                      solver: str | None = None, workers: int = 2, progress: bool = False,
+                      scheduler: str | None = None) -> dict:
     """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details.
-    solver: "direct" (the explicit FEM; `method` picks its path) or "modal" (None: params.solver)."""
+    solver: "direct" (the explicit FEM; `method` picks its path) or "modal" (None: params.solver).
+    scheduler: a Dask scheduler's address (None: executor.scheduler(), the process's; "" : here)."""
     x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
     solver = solver or params.solver
     if solver not in ("direct", "modal"):
         raise ConfigError(f"solver must be 'direct' or 'modal', got {solver!r}")
     if solver == "direct" and params.loss_factor > 0:
         raise ConfigError("loss_factor is a modal-solver parameter: use solver 'modal' or set it to 0")
-    if solver == "modal":
-        model = get_model(params, rig)
-        results = _modal_voltages(model, x, y, impact_velocity(params, h), progress)
-        return _collect(model, results)
     method = method or params.method
     if method not in ("auto", "fast", "direct"):
         raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
+    address = executor.scheduler() if scheduler is None else scheduler
+    if address:
+        return _on_cluster(address, params, rig, x, y, h, method, solver, progress)
+    model = get_model(params, rig)
+    v0 = impact_velocity(params, h)
+    if solver == "modal":
+        return _collect(model, _modal_voltages(model, x, y, v0, progress))
     if method == "auto":  # the fast path costs one full solve per disc up front
         cached = getattr(_CACHE.get((params, _rig_key(rig))), "_fields", None) is not None
         method = "fast" if (x.size > 4 or cached) else "direct"
-    model = get_model(params, rig)
-    v0 = impact_velocity(params, h)
     fields = reciprocal_fields(model, workers=workers) if method == "fast" else None
 
     def one(k):
@@ -250,21 +254,58 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
         keep = ("volts", "contacts", "force_n", "contact_start_s", "contact_end_s")
         return {key: r[key] for key in keep}   # not the final plate state (3 x nodes per drop)
 
-    results = [None] * x.size
     bar = None
     if progress:
         from ..progress import progress_bar
         bar = progress_bar(total=x.size, desc=f"simulate ({method})", unit="drop")
-    with ThreadPoolExecutor(max_workers=max(1, workers)) as ex:
-        futs = {ex.submit(one, k): k for k in range(x.size)}
-        for fut in futs:
-            k = futs[fut]
-            results[k] = fut.result()
-            if bar is not None:
-                bar.update(1)
+    results = []
+    for r in executor.Executor("", workers=workers).map(one, range(x.size)):
+        results.append(r)
+        if bar is not None:
+            bar.update(1)
     if bar is not None:
         bar.close()
     return _collect(model, results)
+
+
+def _simulate_chunk(task) -> dict:
+    """A cluster worker's share of a batch: simulate_voltages here, without the (unpicklable) model."""
+    params, rig, x, y, h, method, solver = task
+    res = simulate_voltages(params, rig, x, y, h, method=method, solver=solver, workers=1, scheduler="")
+    return {key: res[key] for key in ("volts", "contacts", "force_n", "contact_s")}
+
+
+def _on_cluster(address: str, params, rig, x, y, h, method, solver, progress) -> dict:
+    """simulate_voltages on a Dask cluster: the drops in chunks, ~2 per worker thread (modal: at most
+    MODAL_BATCH). A modal basis is loaded or computed here first, so workers sharing this machine's cache
+    (IMPACTSENSE_MODAL_CACHE) load it instead of solving it again."""
+    model = get_model(params, rig)
+    if solver == "modal":
+        modal_basis(model, progress=progress)
+    pool = executor.Executor(address)
+    n_chunks = max(1, min(x.size, 2 * pool.parallelism()))
+    size = int(math.ceil(x.size / n_chunks))
+    if solver == "modal":
+        size = min(size, MODAL_BATCH)
+    if method == "auto":      # each worker pays the fast path's 4 solves once: only for big chunks
+        method = "fast" if size > 4 else "direct"
+    tasks = [(params, rig, x[k:k + size], y[k:k + size], h[k:k + size], method, solver)
+             for k in range(0, x.size, size)]
+    bar = None
+    if progress:
+        from ..progress import progress_bar
+        bar = progress_bar(total=x.size, desc=f"simulate ({solver}, cluster)", unit="drop")
+    parts = []
+    for part in pool.map(_simulate_chunk, tasks):
+        parts.append(part)
+        if bar is not None:
+            bar.update(part["volts"].shape[0])
+    if bar is not None:
+        bar.close()
+    return dict(volts=np.concatenate([p["volts"] for p in parts]), model=model,
+                contacts=np.concatenate([p["contacts"] for p in parts]),
+                force_n=[f for p in parts for f in p["force_n"]], dt_s=model.dt_s,
+                contact_s=np.concatenate([p["contact_s"] for p in parts]))
 
 
 def _collect(model: Model, results: list) -> dict:
