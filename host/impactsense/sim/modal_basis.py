@@ -35,11 +35,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ConfigError
+from . import modal_slices
+from .executor import Executor
 from .model import Model, rim_springs, support_masks
 
 FORMAT_VERSION = 2
 PROBE_WAVELENGTHS = 2.5     # residual probes of one colour this many A0 wavelengths (at the cut-off) apart
-SLICE_MODES = 160           # eigenpairs per shift-invert slice (Lanczos memory ~ 2 x this x dofs x 8 bytes)
 
 
 ARRAYS = ("omega", "w_nodes", "beta_nodes", "beta_index", "residual", "out_residual", "out_functionals")
@@ -190,46 +191,6 @@ class ModalBasis:
         return phi, diag + off, out
 
 
-def _shift_inverse(a: sp.csr_matrix, sigma: float):
-    """(a - sigma I)^-1 as a LinearOperator (sparse LU with a symmetric fill-reducing ordering)."""
-    lu = spla.splu((a - sigma * sp.eye(a.shape[0], format="csr")).tocsc(), permc_spec="MMD_AT_PLUS_A",
-                   diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    return spla.LinearOperator(a.shape, matvec=lu.solve, dtype=float)
-
-
-def _spectrum(a: sp.csr_matrix, lam_max: float, shift: float, progress=None):
-    """Eigenpairs of the symmetric a with eigenvalues <= lam_max (shift-invert slices); ascending."""
-    n = a.shape[0]
-    k = min(SLICE_MODES, n - 2)
-    vals, vecs = [], []
-    trusted = -np.inf          # every eigenvalue below this has been kept
-    sigma = shift
-    while trusted <= lam_max:
-        lam, vec = spla.eigsh(a, k=k, sigma=sigma, which="LM", OPinv=_shift_inverse(a, sigma))
-        reach = np.abs(lam - sigma).max()
-        lo, hi = sigma - reach, sigma + reach
-        if trusted > -np.inf and lo >= trusted:   # the slice does not reach down to what is known: a gap
-            sigma = 0.5 * (trusted + sigma)
-            continue
-        top = hi - 1e-9 * abs(hi)           # a cluster on the slice's edge may be cut: left to the next slice
-        keep = (lam >= trusted) & (lam < top)
-        vals.append(lam[keep])
-        vecs.append(vec[:, keep])
-        width = top - max(trusted, 0.0)
-        trusted = top
-        if progress:
-            progress(trusted)
-        if k >= n - 2:
-            break
-        sigma = trusted + 0.4 * width
-    lam = np.concatenate(vals)
-    vec = np.concatenate(vecs, axis=1)
-    order = np.argsort(lam)
-    lam, vec = lam[order], vec[:, order]
-    sel = lam <= lam_max
-    return lam[sel], vec[:, sel]
-
-
 def _basis_key(model: Model, k: sp.csr_matrix, k_ref: float, mass: np.ndarray, fixed: np.ndarray,
                cutoff_rel: float, beta_index: np.ndarray, shapes: np.ndarray) -> str:
     h = hashlib.sha256()
@@ -254,54 +215,62 @@ def probe_spacing(model: Model, cutoff_hz: float) -> int:
     return max(4, int(math.ceil(PROBE_WAVELENGTHS * wavelength / min(model.hx_m, model.hy_m))))
 
 
-def _residual(model: Model, k_free, m_free, free, lam, vec_free, shift, spacing, functionals):
+RESIDUAL_BLOCK = 64   # probe right-hand sides solved at once (a block solve is ~2x cheaper per vector)
+
+
+def _residual(model: Model, solve, m_free, free, lam, vec_free, shift, spacing, functionals):
     """Residual flexibility of the truncated modes on w, per node and in-element offset (module doc), and the
     sensors' residual output for a unit force on each node's w (by reciprocity: the static w under the sensor
-    functional as a load, less its kept modes) [S, nodes]."""
+    functional as a load, less its kept modes) [S, nodes]. solve: X -> (A - s I)^-1 X, A = M^-1/2 K M^-1/2."""
     nx, ny = model.nx, model.ny
     nn = (nx + 1) * (ny + 1)
     jj, ii = np.divmod(np.arange(nn), nx + 1)
-    a = sp.diags(1 / np.sqrt(m_free)) @ k_free @ sp.diags(1 / np.sqrt(m_free))
-    inv = _shift_inverse(a.tocsr(), shift)      # (K - s M)^-1 = M^-1/2 (A - s I)^-1 M^-1/2
     m_isqrt = 1 / np.sqrt(m_free)
-    # mass-normalised shapes on the free dofs: phi = M^-1/2 v
-    phi = vec_free / np.sqrt(m_free)[:, None]
+    phi = vec_free / np.sqrt(m_free)[:, None]           # mass-normalised shapes on the free dofs
     pos = np.full(3 * nn, -1)
     pos[free] = np.arange(free.size)
     w_pos = pos[:nn]
+
+    def static(rhs):                                     # (K - s M)^-1 rhs
+        return m_isqrt[:, None] * solve(m_isqrt[:, None] * rhs)
+
+    inv_gap = 1 / (lam - shift)
+    colours = [np.flatnonzero((ii % spacing == ci) & (jj % spacing == cj) & (w_pos >= 0))
+               for ci in range(spacing) for cj in range(spacing)]
+    colours = [c for c in colours if c.size]
     out = np.zeros((5, nn))
     offsets = ((0, 0), (1, 0), (0, 1), (1, 1), (1, -1))
-    for ci in range(spacing):
-        for cj in range(spacing):
-            sel = np.flatnonzero((ii % spacing == ci) & (jj % spacing == cj) & (w_pos >= 0))
-            if sel.size == 0:
-                continue
-            rhs = np.zeros(free.size)
-            rhs[w_pos[sel]] = 1.0
-            static = m_isqrt * inv.matvec(m_isqrt * rhs)
-            modal = phi @ ((phi[w_pos[sel]].sum(axis=0)) / (lam - shift))
-            y = static - modal
+    for b0 in range(0, len(colours), RESIDUAL_BLOCK):
+        block = colours[b0:b0 + RESIDUAL_BLOCK]
+        rhs = np.zeros((free.size, len(block)))
+        for c, sel in enumerate(block):
+            rhs[w_pos[sel], c] = 1.0
+        ys = static(rhs)
+        for c, sel in enumerate(block):
+            coef = phi[w_pos[sel]].sum(axis=0) * inv_gap     # the kept modes' part, read only where needed
             for o, (di, dj) in enumerate(offsets):
                 ni, nj = ii[sel] + di, jj[sel] + dj
                 ok = (ni >= 0) & (ni <= nx) & (nj >= 0) & (nj <= ny)
                 dst = nj[ok] * (nx + 1) + ni[ok]
                 good = w_pos[dst] >= 0
-                out[o, sel[ok][good]] = y[w_pos[dst[good]]]
+                rows = w_pos[dst[good]]
+                out[o, sel[ok][good]] = ys[rows, c] - phi[rows] @ coef
     beta_index = _sensor_nodes(model)
+    loads = np.zeros((3 * nn, functionals.shape[0]))
+    loads[nn + beta_index] = functionals[:, 0].T
+    loads[2 * nn + beta_index] = functionals[:, 1].T
+    rhs = loads[free]
+    ys = static(rhs) - phi @ ((phi.T @ rhs) * inv_gap[:, None])
     out_res = np.zeros((functionals.shape[0], nn))
     w_free = w_pos >= 0
-    for s_i, f in enumerate(functionals):
-        load = np.zeros(3 * nn)
-        load[nn + beta_index] = f[0]
-        load[2 * nn + beta_index] = f[1]
-        rhs = load[free]
-        y = m_isqrt * inv.matvec(m_isqrt * rhs) - phi @ ((phi.T @ rhs) / (lam - shift))
-        out_res[s_i, w_free] = y[w_pos[w_free]]
+    out_res[:, w_free] = ys[w_pos[w_free]].T
     return out, out_res
 
 
-def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progress=None) -> ModalBasis:
-    """The modes of `model` up to cutoff_hz (default: `default_cutoff`) and the residual flexibility."""
+def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progress=None,
+                  workers: int = 2) -> ModalBasis:
+    """The modes of `model` up to cutoff_hz (default: `default_cutoff`) and the residual flexibility; the
+    spectrum's slices run `workers` at a time (or on the process's Dask cluster, executor.set_scheduler)."""
     cutoff_hz = default_cutoff(model) if cutoff_hz is None else float(cutoff_hz)
     k = assembled_stiffness(model.plate, model.nx, model.ny) if k is None else k
     mass = lumped_mass(model)
@@ -315,15 +284,18 @@ def compute_basis(model: Model, cutoff_hz: float | None = None, *, k=None, progr
     # a shift below the spectrum: a few percent of the lowest Kirchhoff-like eigenvalue scale, negative
     diag_scale = float(np.median(a.diagonal()))
     shift = -1e-6 * diag_scale
-    lam, vec = _spectrum(a, lam_max, shift, progress)
-    lam = np.maximum(lam, 0.0)
+    order = modal_slices.dof_order(model.nx, model.ny, free)
+    lam, vec = modal_slices.spectrum(a, order, lam_max, shift, Executor(workers=workers, kind="processes"),
+                                     progress)
+    sel = lam <= lam_max
+    lam, vec = np.maximum(lam[sel], 0.0), vec[:, sel]
     nn = model.nodes
     beta_index = _sensor_nodes(model)
     empty = ModalBasis(np.zeros(0), np.zeros((0, 0), np.float32), np.zeros((2, 0, 0), np.float32), beta_index,
                        np.zeros(0), np.zeros(0), np.zeros(0), 0.0, "")
     functionals = empty._dense(model.sensors)
-    res, out_res = _residual(model, k_free, m_free, free, lam, vec, shift, probe_spacing(model, cutoff_hz),
-                             functionals)
+    res, out_res = _residual(model, modal_slices.shifted_solver(a, order, shift), m_free, free, lam, vec, shift,
+                             probe_spacing(model, cutoff_hz), functionals)
     full = np.zeros((3 * nn, lam.size))
     full[free] = vec / np.sqrt(m_free)[:, None]
     return ModalBasis(omega=np.sqrt(lam), w_nodes=full[:nn].astype(np.float32),
