@@ -1,6 +1,7 @@
 """One executor for batches (impactsense.sim.executor): local threads / processes, or a Dask cluster.
 
-- local: results in the tasks' order, for threads and processes;
+- local: results in the tasks' order, for threads and processes; inside a daemonic worker process the
+  "processes" tasks run in turn (such a process may not start children);
 - a Dask LocalCluster (one worker process, so every task and result crosses a process boundary as it would on
   a real cluster): the same drops simulated through `--scheduler` are bit for bit the local ones for the
   direct FEM (the drops split into chunks over the worker's threads), and within float32 rounding (1e-5 of the
@@ -42,6 +43,18 @@ def test_local_executor_keeps_the_tasks_order(kind):
     assert list(Executor("", workers=1).map(_square, [3])) == [9]
     with pytest.raises(ValueError):
         Executor("", kind="fibres")
+
+
+def _nested_map(n):
+    return list(Executor("", workers=2, kind="processes").map(_square, range(n)))
+
+
+def test_processes_inside_a_worker_process_run_in_turn():
+    """A daemonic worker (a Dask worker computing a basis, a Pool worker) may not start processes."""
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        assert pool.apply(_nested_map, (4,)) == [0, 1, 4, 9]
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,8 @@
 - A Dask cluster when a scheduler address is given (`--scheduler ADDRESS` on the batch commands, or
   `set_scheduler` for the whole process): the tasks go to the cluster's workers (dask.distributed; the
   optional extra `impactsense[cluster]`). A task is a module-level function and picklable arguments.
+- Inside a worker process (daemonic: a Dask worker computing a basis its cache lacks), "processes" runs the
+  tasks one after the other instead.
 
 Results come back in the order of the tasks either way.
 """
@@ -52,6 +54,13 @@ def cluster_threads(address: str) -> int:
     return max(1, sum(client(address).nthreads().values()))
 
 
+def _daemonic() -> bool:
+    """True inside a daemonic process (a Dask or multiprocessing worker), which may not start processes."""
+    import multiprocessing
+
+    return bool(multiprocessing.current_process().daemon)
+
+
 class Executor:
     """map(fn, tasks): fn(task) for every task, results in order (module doc)."""
 
@@ -81,7 +90,7 @@ class Executor:
                 for fut in futures:
                     fut.cancel()
             return
-        if self.workers == 1 or len(tasks) <= 1:
+        if self.workers == 1 or len(tasks) <= 1 or (self.kind == "processes" and _daemonic()):
             for t in tasks:
                 yield fn(t)
             return
