@@ -7,7 +7,8 @@
   direct FEM (the drops split into chunks over the worker's threads), and within float32 rounding (1e-5 of the
   peak) for the modal solver (the basis computed here first, loaded from the shared cache by the worker; a
   modal batch's float32 sums depend on which drops share it); `simulate-dataset --scheduler` writes the same
-  session as without. Skipped with a reason when dask.distributed is not installed (`impactsense[cluster]`;
+  session as without; with a process-wide scheduler the basis' inertia counts and slices run on the cluster
+  and give the local basis. Skipped with a reason when dask.distributed is not installed (`impactsense[cluster]`;
   the test extra installs it).
 """
 
@@ -108,3 +109,27 @@ def test_simulate_dataset_with_scheduler_writes_the_local_session(cluster, tmp_p
     assert main(common + ["--out", str(tmp_path / "local")]) == 0
     a, b = load_session(tmp_path / "remote"), load_session(tmp_path / "local")
     assert np.array_equal(a.adc, b.adc) and a.adc.shape[0] == 6
+
+
+def test_basis_slices_on_a_dask_cluster_give_the_local_basis(cluster):
+    """With a process-wide scheduler (the CLI's --scheduler) the basis' inertia counts and slices run on the
+    cluster: the same modes as in local processes."""
+    from impactsense.sim import modal_basis
+    from impactsense.sim.model import build_model
+
+    rig = small_rig()
+    model = build_model(SimParams.from_rig(rig, element_mm=6.0, duration_ms=1.0, taper_ms=0.2), rig)
+    local = modal_basis.compute_basis(model)
+    from distributed import get_task_stream
+
+    executor.set_scheduler(cluster)
+    try:
+        with get_task_stream(client=executor.client(cluster)) as stream:
+            remote = modal_basis.compute_basis(model)
+    finally:
+        executor.set_scheduler(None)
+    ran = {str(t["key"]).split("-")[0].strip("('\"") for t in stream.data}
+    assert {"_count_task", "_slice_task"} <= ran
+    assert remote.modes == local.modes > 20
+    assert np.allclose(remote.omega, local.omega, rtol=1e-9, atol=0)
+    assert np.allclose(remote.residual, local.residual, rtol=0, atol=1e-6 * np.abs(local.residual).max())
