@@ -9,7 +9,8 @@ loop, and the unchanged sessions' MAE. One HTML report per diagnose in OUT/repor
 Models: the reference model is trained on all of `ref` (forests and physics localiser, no site map: a
 plain measured-trained model). After the loop, two models are trained on `ref`'s declared drops:
 - measured-trained: `ref`'s recordings with every diagnosed effect's signal model put in (as `impactsense
-  retrain`);
+  retrain`: `impactsense.loop.measured_training_session`, several draws of a random effect, and the pick
+  settings `impactsense.loop.pick_settings` re-chooses for a raised noise floor);
 - twin: the same drops simulated again by the twin with the diagnosed plate and sensor effects in the FEM
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
   own FEM (an inverse crime for this path: the data and the corrected twin are the same simulator; the
@@ -86,20 +87,21 @@ def named_ok(truth: dict, sig: list[dict]) -> bool:
     return top["effect"] in want and (truth["sensor"] is None or top["sensor"] == truth["sensor"])
 
 
-def train_score(session, trees: int, seed: int):
+def train_score(session, trees: int, seed: int, signal=None):
     from impactsense.commands.retrain import score
     from impactsense.models import ForestSettings
     from impactsense.workflow import train
 
     model, _ = train(session, None, 0.0, seed, None, settings=ForestSettings(n_estimators=trees, seed=seed),
-                     site_map=None)
+                     signal=signal, site_map=None)
     return model, score
 
 
 def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dict:
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
-    from impactsense.loop import effect_dicts, measured_training_session, split_effects, twin_training_session
+    from impactsense.loop import (effect_dicts, measured_training_session, pick_settings, split_effects,
+                                  twin_training_session)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -112,7 +114,7 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         accepted = det["accepted"]
         slow = det["ref"].slowness_us_per_mm
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed)
-        m_model, _ = train_score(m_sess, args.trees, args.seed)
+        m_model, _ = train_score(m_sess, args.trees, args.seed, pick_settings(m_sess, accepted))
         row["measured"] = score(sess, m_model)
         loop["rows"]["measured-trained, effects put in"] = row["measured"]
         twin, _ = split_effects(effect_dicts(accepted))

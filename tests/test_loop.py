@@ -96,3 +96,28 @@ def test_corrected_twin_carries_plate_and_sensor_effects():
     assert p2.damping_per_s == pytest.approx(p.damping_per_s + 100.0)   # envelope decays at D_s / 2
     twin, signal = split_effects(effects)
     assert [e["effect"] for e in signal] == ["channel_delay"] and len(twin) == 3
+
+
+def _noise_candidate(white):
+    return D.Candidate("noise", None, {"white_rms_counts": white, "hum_counts": 0.0, "hum_hz": 50.0}, 10.0, 0.0,
+                       True, True, [])
+
+
+def test_measured_training_data_carries_independent_noise_draws(tmp_path):
+    """A diagnosed noise floor goes into NOISE_DRAWS copies of each reference drop, each its own draw at the
+    diagnosed level (same case, so a case split keeps them together); a deterministic effect gives one copy."""
+    from impactsense.loop import NOISE_DRAWS, measured_training_session, pick_settings
+    base = load_session("bundled:session-1").subset(np.arange(24))
+    ref = R.fit_reference(R.extract(base))
+    out = measured_training_session(base, [_noise_candidate(6.0)], ref, tmp_path / "noisy")
+    n = len(base)
+    assert len(out) == NOISE_DRAWS * n and np.array_equal(out.case_id, np.tile(base.case_id, NOISE_DRAWS))
+    pre = slice(0, 60)   # the pre-trigger: noise only
+    added = [np.asarray(out.adc[k * n:(k + 1) * n, :, pre], float) - np.asarray(base.adc[:, :, pre], float)
+             for k in range(NOISE_DRAWS)]
+    for a in added:
+        assert np.std(a) == pytest.approx(6.0, rel=0.05)   # 24 x 4 x 60 samples: 1 % standard error
+    assert abs(np.corrcoef(added[0].ravel(), added[1].ravel())[0, 1]) < 0.05   # independent draws
+    gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
+    assert len(measured_training_session(base, [gain], ref, tmp_path / "gain")) == n
+    assert pick_settings(out, [gain]) is None   # the rig's settings unless the noise floor rose

@@ -11,6 +11,13 @@
   clipping, by each effect's own `apply_signal`.
 `twin_training_session` simulates DATA_REF's declared drops with the corrected twin: the training data of a
 model that needs no new drops (zero-shot from the corrected twin).
+
+A diagnosed noise floor is random: one draw per reference drop shows the forests one pick scatter per drop,
+so `measured_training_session` puts NOISE_DRAWS independent draws of it into copies of every drop (same case,
+so a case split keeps the copies together). And a raised floor changes which onset threshold gives stable
+picks: `pick_settings` re-chooses the core's noise-relative threshold (`onset_noise_factor`, a few fractions
+of the configured one) on those training drops by the travel fit's spread (`travel.choose_threshold`, which
+chooses the absolute threshold and AIC blend with it). Measured: docs/findings.md (issue 16).
 """
 
 from __future__ import annotations
@@ -21,6 +28,10 @@ import json
 import numpy as np
 
 TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
+RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random draw
+NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
+NOISE_FACTOR_SCALES = (0.6, 0.8, 1.0)  # onset_noise_factor tried, as fractions of the configured one
+CLEARLY_BETTER = 0.98                  # ... another one is kept when its travel spread is below this x the best
 
 
 def split_effects(effects) -> tuple[list, list]:
@@ -88,12 +99,45 @@ def effect_dicts(accepted) -> list[dict]:
     return [{"effect": c.effect, "sensor": c.sensor, "params": c.params, "significant": True} for c in accepted]
 
 
+def training_draws(accepted) -> int:
+    """Copies of each reference drop in the measured training data: NOISE_DRAWS with a random effect, else 1."""
+    return NOISE_DRAWS if any(c.effect in RANDOM_EFFECTS for c in accepted) else 1
+
+
 def measured_training_session(base, accepted, ref, out_dir, seed: int = 0):
-    """DATA_REF's recordings with every diagnosed effect's signal model put in, written and loaded."""
+    """DATA_REF's recordings with every diagnosed effect's signal model put in (`training_draws` copies, each
+    with its own random draws), written and loaded."""
     from .commands.retrain import augment
     from .data import load_session, write_session
 
-    adc = augment(base, accepted, ref, seed) if accepted else np.asarray(base.adc)
-    path = write_session(out_dir, base.rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
-                         base.repetition)
+    k = training_draws(accepted) if accepted else 1
+    adc = np.concatenate([augment(base, accepted, ref, seed + j) for j in range(k)]) if accepted \
+        else np.asarray(base.adc)
+    rep = np.asarray(base.repetition)
+    reps = np.concatenate([rep + j * (int(rep.max()) + 1) for j in range(k)])
+    path = write_session(out_dir, base.rig, np.tile(base.x_mm, k), np.tile(base.y_mm, k),
+                         np.tile(base.height_mm, k), adc, np.tile(base.case_id, k), reps)
     return load_session(path)
+
+
+def pick_settings(session, accepted):
+    """The core's settings to train on `session` (a measured training session) with: None (the rig's) unless a
+    raised noise floor was diagnosed; then the onset_noise_factor among NOISE_FACTOR_SCALES x the configured
+    one whose travel fit (with its own absolute threshold and AIC blend) has the smallest robust spread on
+    the training drops, kept only when CLEARLY_BETTER than the one before it (ties keep the configured one)."""
+    from .signal import SignalConfig
+    from .travel import choose_threshold, wants_metric
+
+    if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) > 0 for c in accepted):
+        return None
+    base = SignalConfig.for_rig(session.rig)
+    best, best_spread = None, np.inf
+    for scale in sorted(NOISE_FACTOR_SCALES, reverse=True):   # the configured one first: ties keep it
+        cfg = SignalConfig.for_rig(session.rig, onset_noise_factor=float(base.onset_noise_factor) * scale)
+        try:
+            _, _, fit, _ = choose_threshold(session.adc, session.xy_mm, cfg, wants_metric(session.rig))
+        except ValueError:
+            continue
+        if fit.spread_mm < CLEARLY_BETTER * best_spread:
+            best, best_spread = cfg, fit.spread_mm
+    return best

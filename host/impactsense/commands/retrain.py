@@ -50,9 +50,12 @@ def augment(base, accepted, ref, seed: int = 0):
 
 
 def run(args) -> int:
-    from ..data import load_session, resolve_session_path, write_session
+    import numpy as np
+
+    from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
+    from ..loop import measured_training_session, pick_settings
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -93,12 +96,11 @@ def run(args) -> int:
             # The recordings the model is trained on are kept in OUT (the card's split points there), so
             # `impactsense export OUT` can train the board's model again on the same drops at the board rate
             # (an absolute path: export may run from another folder).
-            adc = augment(base, accepted, details["ref"], args.seed)
-            path = write_session(stage / TRAINING_DATA, base.rig, base.x_mm, base.y_mm, base.height_mm, adc,
-                                 base.case_id, base.repetition)
-            train_on = load_session(path)
+            train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed)
+        if exclude is not None and len(train_on) != len(base):   # the copies of an excluded drop go too
+            exclude = np.flatnonzero(np.isin(np.arange(len(train_on)) % len(base), exclude))
         model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
-                             extra_card=card, site_map=site)
+                             signal=pick_settings(train_on, accepted), extra_card=card, site_map=site)
         if accepted:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
         model.write_into(stage, extra_card=card)
