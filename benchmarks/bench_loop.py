@@ -201,6 +201,14 @@ def table(out: dict) -> int:
                 f" / {r['twin']['mae_mm']:.2f}" if "twin" in r else "")
             s = t["sensor"]
             names = f"{names} (truth {t['effect']}{'' if s is None else f'[{s}]'})"
+            rival = (sig[0].get("rival") or {}) if sig else {}
+            if sig and rival.get("effect") == t["effect"] and sig[0]["effect"] != t["effect"]:
+                names += f" (the truth's held-out gain over it: {-rival['score_difference']:+.1f} nats)"
+            if not sig:   # the truth's best rejected candidate: how far below the evidence bar
+                e = next((e for e in r["effects"] if e["effect"] == t["effect"]), None)
+                if e is not None:
+                    names += (f" (best {e['effect']}[{e['sensor']}]: held-out {e['score']:+.1f} nats, "
+                              f"p {e.get('p_value', float('nan')):.2g})")
         misses += not ok
         print(f"| {r['session']} | {names} | {size} | {r['before']['mae_mm']:.2f} | {after} | "
               f"{base:.2f} | {'yes' if ok else '**no**'} |")
