@@ -19,7 +19,9 @@ from ..residuals import HUM_HZ, hum_white_gain
 from ._base import Effect, to_adc, to_float
 
 WHITE_GRID_COUNTS = np.array([0.0, 1.0, 2.0, 4.0, 8.0, 16.0])
-NOISE_DRAWS = 6   # draws per level: with 2 the table's slope per mm scattered by ~0.03 us/mm at 10 counts (docs/findings.md, issue 16)
+# draws per level: with 2 the table's ToA slope per mm scattered by ~0.03 us/mm at 10 counts, and a noisy
+# session was also named a slower plate (docs/findings.md, issue 16)
+NOISE_DRAWS = 6
 _TABLES: dict = {}
 
 
