@@ -121,3 +121,18 @@ def test_measured_training_data_carries_independent_noise_draws(tmp_path):
     gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
     assert len(measured_training_session(base, [gain], ref, tmp_path / "gain")) == n
     assert pick_settings(out, [gain]) is None   # the rig's settings unless the noise floor rose
+
+
+def test_pick_settings_only_for_a_material_white_floor():
+    """The onset settings are re-chosen only when the diagnosed white noise is material (the noise effect's
+    own min_white_counts); hum alone, or a white part under it, keeps the rig's settings."""
+    from impactsense.effects import EFFECTS
+    from impactsense.loop import NOISE_FACTOR_SCALES, pick_settings
+    from impactsense.signal import SignalConfig
+    base = load_session("bundled:session-1").subset(np.arange(40))
+    small = EFFECTS["noise"].min_white_counts * 0.5
+    assert pick_settings(base, [_noise_candidate(small)]) is None
+    cfg = pick_settings(base, [_noise_candidate(6.0)])
+    configured = float(SignalConfig.for_rig(base.rig).onset_noise_factor)
+    assert cfg is not None and any(float(cfg.onset_noise_factor) == pytest.approx(configured * s)
+                                   for s in NOISE_FACTOR_SCALES)

@@ -122,13 +122,16 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0):
 
 def pick_settings(session, accepted):
     """The core's settings to train on `session` (a measured training session) with: None (the rig's) unless a
-    raised noise floor was diagnosed; then the onset_noise_factor among NOISE_FACTOR_SCALES x the configured
-    one whose travel fit (with its own absolute threshold and AIC blend) has the smallest robust spread on
-    the training drops, kept only when CLEARLY_BETTER than the one before it (ties keep the configured one)."""
+    raised white noise floor was diagnosed (material: >= the noise effect's min_white_counts); then the
+    onset_noise_factor among NOISE_FACTOR_SCALES x the configured one whose travel fit (with its own absolute
+    threshold and AIC blend) has the smallest robust spread on the training drops, kept only when
+    CLEARLY_BETTER than the one before it (ties keep the configured one)."""
+    from .effects import EFFECTS
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
-    if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) > 0 for c in accepted):
+    floor = EFFECTS["noise"].min_white_counts   # the white part the noise effect calls material
+    if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) >= floor for c in accepted):
         return None
     base = SignalConfig.for_rig(session.rig)
     best, best_spread = None, np.inf
