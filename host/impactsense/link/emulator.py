@@ -111,15 +111,15 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
     counter and clock) runs on across clients; while no client is connected the drops wait; after `passes`
     passes through the drops (0: forever, until interrupted) the emulator waits until the last client has
     read everything and returns. log(str): one line per client connect/disconnect."""
-    master, path = _open_pty(link)
-    frames = emulator.frames  # resample before announcing, so the client never waits on it
-    announce(path)
     log = log or (lambda _msg: None)
+    frames = emulator.frames  # resample before announcing, so the client never waits on it
     written, n_drops = 0, frames.shape[0]
     per_drop_s = frames.shape[1] / emulator.fs_hz
     total = n_drops * passes if passes > 0 else None
     k = 0  # drops played so far, over all passes
-    try:
+    master, path = _open_pty(link)
+    try:  # from the link's creation on: a signal raised at any point below still closes the pty and removes it
+        announce(path)
         while total is None or k < total:
             pending = _wait_for_client(master, time.monotonic() + connect_timeout_s
                                        if connect_timeout_s is not None and k == 0 else None)
