@@ -101,38 +101,69 @@ def synth_unit(setup: ArrivalSetup, e_pa, nu) -> np.ndarray:
     """
     e_pa = np.atleast_1d(np.asarray(e_pa, float))[:, None]
     nu = np.atleast_1d(np.asarray(nu, float))[:, None]
-    n = setup.n_fft
-    f = np.fft.rfftfreq(n, 1.0 / setup.fs_hz)[1:]            # skip DC
-    w = 2 * np.pi * f[None, :]
+    f, w = _band(setup)
     k1, k1sq, d, s, m = a0_wavenumber(w, e_pa, nu, setup.density_kg_m3, setup.thickness_m)
     # second root for the partial-fraction coefficient (exact product of roots)
     g = e_pa / (2 * (1 + nu))
-    a = setup.density_kg_m3 * w ** 2 / (KAPPA * g)
+    amp = _branch_amplitude(setup, w, k1sq, d, s, m, KAPPA * g)
+    tc = hertz_duration_s(e_pa[:, :, None], nu[:, :, None], setup.height_m[None, :, None],
+                          setup.ball_radius_m, setup.ball_mass_kg)          # [P, D, 1]
+    return _synthesise(setup, f, w, k1[:, None, None, :], amp[:, None, None, :], tc)
+
+
+def synth_unit_paths(setup: ArrivalSetup, k1, d, s, tc) -> np.ndarray:
+    """Unit-gain synthetic signals when every drop-to-sensor path has its own plate: the A0 wavenumber
+    k1 [P, D, 4, F] on the model's band (`band_hz`), and that path's bending stiffness d [P, D, 4, 1], shear
+    stiffness s [P, D, 4, 1] and the drops' Hertz contact durations tc [P, D, 1] (a laminate's rays,
+    `calibration.laminate`). Returns float64 [P, D, 4, n_fft] like `synth_unit`."""
+    f, w = _band(setup)
+    m = setup.density_kg_m3 * setup.thickness_m
+    amp = _branch_amplitude(setup, w, k1 * k1, d, s, m, s / setup.thickness_m)
+    return _synthesise(setup, f, w, k1, amp, tc)
+
+
+def band_hz(setup: ArrivalSetup) -> np.ndarray:
+    """The model's frequencies (the rFFT bins without DC) [F]."""
+    return _band(setup)[0]
+
+
+def _band(setup: ArrivalSetup):
+    f = np.fft.rfftfreq(setup.n_fft, 1.0 / setup.fs_hz)[1:]            # skip DC
+    return f, 2 * np.pi * f[None, :]
+
+
+def _branch_amplitude(setup, w, k1sq, d, s, m, kappa_g):
+    """The propagating branch's coefficient of the Green function times the disc's strain factor."""
+    a = setup.density_kg_m3 * w ** 2 / kappa_g
     inertia = setup.density_kg_m3 * setup.thickness_m ** 3 / 12
     k2sq = (a * inertia * w ** 2 - m * w ** 2) / (d * k1sq)
-    amp = (1.0 + d * k1sq / s - inertia * w ** 2 / s) / (d * (k1sq - k2sq)) * (k1sq - m * w ** 2 / s)
+    return (1.0 + d * k1sq / s - inertia * w ** 2 / s) / (d * (k1sq - k2sq)) * (k1sq - m * w ** 2 / s)
+
+
+def _synthesise(setup, f, w, k1, amp, tc):
+    """Signals [P, D, 4, n] from the branch k1 and amplitude (both broadcast to [P, D, 4, F]) and the contact
+    durations tc [P, D, 1]: disc aperture, electrical high-pass, Hertz pulse, far-field H0, causal front."""
+    n = setup.n_fft
     ka = k1 * setup.disc_radius_m
     from scipy.special import j1
     aperture = 2.0 * j1(ka) / ka
     hp = np.clip((f - 0.5 * setup.highpass_hz) / (0.5 * setup.highpass_hz), 0.0, 1.0)
     hp = 0.5 - 0.5 * np.cos(np.pi * hp)
-    spec_common = amp * aperture * hp[None, :]                # [P, F]
-    tc = hertz_duration_s(e_pa[:, :, None], nu[:, :, None], setup.height_m[None, :, None],
-                          setup.ball_radius_m, setup.ball_mass_kg)          # [P, D, 1]
+    spec_common = amp * aperture * hp                                        # [P | 1, D | 1, 4 | 1, F]
     force = _half_sine_spectrum(w[:, None, :], tc)                           # [P, D, F]
-    kr = k1[:, None, None, :] * setup.r_m[None, :, :, None]                  # [P, D, 4, F]
+    kr = k1 * setup.r_m[None, :, :, None]                                    # [P, D, 4, F]
     # H0^(2)(x) ~ sqrt(2/(pi x)) exp(-i(x - pi/4)) (1 + i/(8x)) ; outgoing for e^{+i w t}
     h0 = np.sqrt(2.0 / (np.pi * kr)) * np.exp(-1j * (kr - np.pi / 4)) * (1 + 1j / (8 * kr))
     delay = np.exp(-1j * w * setup.t_impact_s)                               # [1, F]
-    spec = (-0.25j) * h0 * (spec_common * delay)[:, None, None, :] * force[:, :, None, :]
+    spec = (-0.25j) * h0 * (spec_common * delay) * force[:, :, None, :]
     full = np.zeros(spec.shape[:-1] + (n // 2 + 1,), complex)
     full[..., 1:] = spec
     sig = np.fft.irfft(full, n=n, axis=-1)
     # causality: nothing arrives before the fastest A0 component of the band (group velocity at the top
     # frequency); this removes the circular wrap-around of the slow low-frequency tail
-    cg_max = (w[:, -1] - w[:, -2]) / (k1[:, -1] - k1[:, -2])                 # [P]
+    cg_max = (w[0, -1] - w[0, -2]) / (k1[..., -1] - k1[..., -2])             # [P | 1, D | 1, 4 | 1]
     t = np.arange(n) / setup.fs_hz
-    t_front = setup.t_impact_s + setup.r_m[None, :, :] / cg_max[:, None, None]  # [P, D, 4]
+    t_front = setup.t_impact_s + setup.r_m[None, :, :] / cg_max               # [P, D, 4]
     ramp = np.clip((t[None, None, None, :] - t_front[..., None]) * setup.fs_hz / 4.0 + 1.0, 0.0, 1.0)
     return sig * ramp
 

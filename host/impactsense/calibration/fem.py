@@ -38,7 +38,7 @@ DISC_BOND_FIELD = "disc_stiffness_scale"
 # The twin's model choices a stage's result depends on beyond E, nu and D_s: set by --support, the `support`
 # stage or the `disc_bond` stage. Absent (the rig's support, the bonded disc) they leave the cache keys as they
 # were.
-MODEL_FIELDS = ("support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", DISC_BOND_FIELD,
+MODEL_FIELDS = ("laminate_e2_over_e1", "laminate_g12_over_e1", "support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", DISC_BOND_FIELD,
                 "disc_mass_scale", "disc_patch_diameter_mm")
 
 
@@ -71,9 +71,27 @@ def rig_support(rig) -> str:
     return SimParams.from_rig(rig).support
 
 
+# A laminate's fitted shape (stage `plate_laminate`): with these in the flat dict, its e_pa is the
+# isotropic-equivalent modulus the other stages scale, and E1, E2, G12 follow from it (`_fields`).
+LAMINATE_FIELDS = ("laminate_e2_over_e1", "laminate_g12_over_e1")
+
+
+def laminate_moduli(e_equivalent_pa: float, nu12: float, e2_over_e1: float, g12_over_e1: float) -> dict:
+    """SimParams' e_pa (E1), e2_pa, g12_pa of the laminate of that shape whose isotropic-equivalent modulus
+    (`materials.equivalent_isotropic_ratio`) is e_equivalent_pa."""
+    from .laminate import Laminate
+    ratio = Laminate(1.0, e2_over_e1, g12_over_e1, nu12, 0.0).equivalent_ratio()
+    e1 = e_equivalent_pa / ratio
+    return {"e_pa": e1, "e2_pa": e1 * e2_over_e1, "g12_pa": e1 * g12_over_e1}
+
+
 def _fields(flat: dict) -> dict:
-    """The flat dict as SimParams fields: numbers as floats, the support (a name) as it is."""
-    return {k: (v if isinstance(v, str) else float(v)) for k, v in flat.items()}
+    """The flat dict as SimParams fields: numbers as floats, the support (a name) as it is; a laminate's shape
+    (LAMINATE_FIELDS) turns e_pa into E1, E2 and G12."""
+    out = {k: (v if isinstance(v, str) else float(v)) for k, v in flat.items() if k not in LAMINATE_FIELDS}
+    if all(k in flat for k in LAMINATE_FIELDS):
+        out.update(laminate_moduli(out["e_pa"], out["nu"], *(float(flat[k]) for k in LAMINATE_FIELDS)))
+    return out
 
 
 def sim_params_json(flat: dict, rig) -> dict:

@@ -43,8 +43,14 @@ def fast_loss(setup, cfg_state, peak, dtoa_meas, e_mpa, nu, noise_counts=0.0, n_
     The rig's noise (`noise_counts` rms) is added before picking, `n_noise` seeded realisations (the same for
     every plate: common random numbers keep the loss surface smooth) and the ToAs averaged: the AIC onset of
     a noiseless record is not the onset the picker finds in a real one."""
-    cfg = core_config(**{k: v for k, v in cfg_state.items() if k != "bias"})
     unit = arrival.synth_unit(setup, np.asarray(e_mpa) * 1e6, np.asarray(nu))
+    return picked_loss(unit, cfg_state, peak, dtoa_meas, noise_counts, n_noise, seed)
+
+
+def picked_loss(unit, cfg_state, peak, dtoa_meas, noise_counts=0.0, n_noise=1, seed=0):
+    """Eq. 16 of unit-gain synthetic signals [P, D, 4, S] scaled to the measured peaks, the rig's noise added,
+    quantised and picked by the signal core (`fast_loss`); returns loss [P] and dtoa [P, D, 6]."""
+    cfg = core_config(**{k: v for k, v in cfg_state.items() if k != "bias"})
     peak_unit = np.abs(unit).max(axis=-1)
     gain = peak[None] / np.where(peak_unit > 0, peak_unit, 1.0)
     clean = unit * gain[..., None] + cfg_state.get("bias", 2048)

@@ -156,9 +156,11 @@ def build_problem(data, out, opts: CalibrateOptions, simulate=None) -> Calibrati
     out.parent.mkdir(parents=True, exist_ok=True)   # only now: bad input has been rejected above
     noise = (float(np.median(targets.noise_rms)), int(opts.n_noise), int(opts.seed))
     base_key = key(session.fingerprint(), targets.to_json(), opts.aic_blend, channel_delays_us(cfg), noise)
-    rng = {k: (v if getattr(opts, k) is None else getattr(opts, k)) for k, v in priors.plate_grid_range(rig).items()}
+    prior = priors.plate_grid_range(rig)
+    nu_step = max(opts.nu_step, prior.pop("nu_step_min", 0.0))
+    rng = {k: (v if getattr(opts, k) is None else getattr(opts, k)) for k, v in prior.items()}
     e_axis, nu_axis = plate.grid_axes(rng["e_min_mpa"], rng["e_max_mpa"], opts.e_step_mpa, rng["nu_min"],
-                                      rng["nu_max"], opts.nu_step)
+                                      rng["nu_max"], nu_step)
     return CalibrationProblem(opts=opts, data=data, out=out, session=session, cfg=cfg, cfg_sim=cfg_sim,
                               simulate=simulate, feats=feats, targets=targets, plate_targets=plate_targets,
                               noise=noise, base_key=base_key, e_axis=e_axis, nu_axis=nu_axis, clock=clock)

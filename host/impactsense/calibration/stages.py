@@ -15,7 +15,8 @@ from typing import Callable
 import numpy as np
 
 from ..progress import progress_bar
-from . import arrival, damping, design, disc_bond, fem, plate, plate_fem, plate_nu
+from ..materials import material_for_rig
+from . import arrival, damping, design, disc_bond, fem, laminate, plate, plate_fem, plate_nu
 from .cache import cached, key, model_key
 from .problem import CalibrationProblem
 
@@ -66,7 +67,8 @@ def _apply_plate_grid(problem: CalibrationProblem, res: dict) -> None:
         "E_mpa": res["E_mpa"], "nu": res["nu"], "loss_eq16_us2": res["loss_eq16_us2"],
         "rms_dtoa_error_us": float(np.sqrt(res["loss_eq16_us2"] / problem.targets.dtoa_us.size)),
         "grid": {"E_mpa": [float(e_axis[0]), float(e_axis[-1]), opts.e_step_mpa],
-                 "nu": [float(nu_axis[0]), float(nu_axis[-1]), opts.nu_step], "points": int(loss.size)},
+                 "nu": [float(nu_axis[0]), float(nu_axis[-1]),
+                                        round(float(np.diff(nu_axis).mean()), 6) if nu_axis.size > 1 else opts.nu_step], "points": int(loss.size)},
         "near_optimal": plate.near_optimal_ranges(loss, e_axis, nu_axis),
         "model": "infinite Mindlin plate, Hertz pulse, core picker (calibration.arrival)",
         "contour_png": str(fig9)})
@@ -76,6 +78,45 @@ def _apply_plate_grid(problem: CalibrationProblem, res: dict) -> None:
         if opts.support == "elastic_rim":
             params["rim_stiffness_n_m2"] = float(opts.rim_stiffness_n_m2)
     problem.params = params
+
+
+# --- plate_laminate: a laminate's E1, E2, G12 from the same DToA, each path along its ray ------------------------
+
+def _laminate_key(problem: CalibrationProblem) -> str:
+    grid = problem.stage_results["plate_grid"]
+    return key(problem.base_key, grid["E_mpa"], grid["nu"], problem.opts.fast_n_fft, laminate.COARSE,
+               laminate.REFINE, "laminate-v1")
+
+
+def _plate_laminate(problem: CalibrationProblem, _key) -> dict:
+    targets, rig, opts = problem.targets, problem.rig, problem.opts
+    mat = material_for_rig(rig)
+    nu12 = float(problem.plate["nu"])
+    guess = laminate.pick_anisotropy(rig, targets.x_mm, targets.y_mm, targets.dtoa_us, mat.axis_deg)
+    setup = arrival.setup_from_rig(rig, targets.x_mm, targets.y_mm, targets.height_mm, n_fft=opts.fast_n_fft)
+    theta = laminate.ray_angles(rig, targets.x_mm, targets.y_mm)
+    bar = progress_bar(opts.progress, desc="laminate E1, E2, G12", unit="plate",
+                       total=int(np.prod(laminate.COARSE) + np.prod(laminate.REFINE)))
+    res = laminate.fit(setup, theta, mat, nu12, guess, problem.plate["E_mpa"] * 1e6,
+                       plate.cfg_state(problem.cfg_sim, int(rig.bias_counts)), targets.peak, targets.dtoa_us,
+                       noise=problem.noise, workers=opts.workers, progress=bar.update)
+    bar.close()
+    return res
+
+
+def _apply_plate_laminate(problem: CalibrationProblem, res: dict) -> None:
+    """The twin's plate becomes the fitted laminate: e_pa its isotropic-equivalent modulus (what the later
+    stages scale), the shape E2 / E1 and G12 / E1 kept (`fem.LAMINATE_FIELDS`)."""
+    problem.plate["laminate"] = res
+    problem.plate["E_grid_mpa"] = problem.plate["E_mpa"]
+    problem.plate["E_mpa"] = float(res["E_equivalent_mpa"])
+    problem.params.update({"e_pa": float(res["E_equivalent_mpa"]) * 1e6, "nu": float(res["nu12"]),
+                           "laminate_e2_over_e1": float(res["E2_mpa"] / res["E1_mpa"]),
+                           "laminate_g12_over_e1": float(res["G12_mpa"] / res["E1_mpa"])})
+
+
+def _laminate_wanted(problem: CalibrationProblem) -> bool:
+    return material_for_rig(problem.rig).orthotropic
 
 
 # --- plate_fem: E on the twin at the grid's nu, from the AIC DToA ----------------------------------------------
@@ -208,7 +249,7 @@ def _apply_disc_bond(problem: CalibrationProblem, res: dict) -> None:
 # --- plate_nu: E, nu and D_s from every repetition's band group delays, positions fitted ------------------------
 
 def _plate_nu_key(problem: CalibrationProblem) -> str | None:
-    if problem.opts.nu_rounds == 0:
+    if problem.opts.nu_rounds == 0 or _laminate_wanted(problem):   # a laminate's nu12 is held
         return None
     d = decay(problem)
     return key(problem.base_key, problem.params, d["damping_per_s"], d["se_per_s"], problem.nu_bounds,
@@ -220,7 +261,8 @@ def _plate_nu(problem: CalibrationProblem, stage_key) -> dict:
     prior (its SE and a systematic `plate_nu.DS_SYSTEMATIC` in quadrature)."""
     opts = problem.opts
     if stage_key is None:
-        return {"identified": False, "rule": "the nu stage was skipped (nu_rounds 0)", "skipped": True}
+        why = "a laminate's nu12 is held" if _laminate_wanted(problem) else "nu_rounds 0"
+        return {"identified": False, "rule": f"the nu stage was skipped ({why})", "skipped": True}
     ds0 = float(decay(problem)["damping_per_s"])
     prior = (ds0, float(np.hypot(decay(problem)["se_per_s"], plate_nu.DS_SYSTEMATIC * ds0)))
     bar = progress_bar(opts.progress, desc="FEM nu fit (E, nu, D_s, positions)", unit="run",
@@ -295,6 +337,8 @@ def _apply_design(problem: CalibrationProblem, res: dict) -> None:
 
 STAGES = (
     Stage("plate_grid", _plate_grid, _apply_plate_grid, wanted=lambda problem: True),
+    Stage("plate_laminate", _plate_laminate, _apply_plate_laminate, key=_laminate_key, cache="laminate.json",
+          wanted=_laminate_wanted),
     Stage("plate_fem", _plate_fem, _apply_plate_fem),
     Stage("damping", _damping, _apply_damping, key=_damping_key, cache="damping.json"),
     Stage("support", _support, _apply_support, key=_support_key, cache="support.json",

@@ -74,6 +74,14 @@ def summary(cal: dict) -> str:
              f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl.get('nu_grid', pl['nu']):.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
              f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
              f"within 1.25 x min: E {pl['near_optimal']['E_mpa']}, nu {pl['near_optimal']['nu']}"]
+    lam = pl.get("laminate")
+    if lam:
+        g = lam["guess"]
+        lines.append(f"plate, laminate (fibres at {lam['axis_deg']:.0f} deg): E1 = {lam['E1_mpa']:.0f}, E2 = "
+                     f"{lam['E2_mpa']:.0f}, G12 = {lam['G12_mpa']:.0f} MPa (E1/E2 {lam['E1_over_E2']:.2f}, nu12 "
+                     f"{lam['nu12']:.2f}); Eq. 16 rms {lam['rms_dtoa_error_us']:.1f} us (the table's shape "
+                     f"{lam['rms_dtoa_error_us_typical_shape']:.1f} us); first guess from the picks E1/E2 "
+                     f"{g['E1_over_E2']:.2f}")
     if "fem_loss_eq16_us2" in pl:
         scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
         lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
