@@ -38,8 +38,8 @@ DISC_BOND_FIELD = "disc_stiffness_scale"
 # The twin's model choices a stage's result depends on beyond E, nu and D_s: set by --support, the `support`
 # stage or the `disc_bond` stage. Absent (the rig's support, the bonded disc) they leave the cache keys as they
 # were.
-MODEL_FIELDS = ("laminate_e2_over_e1", "laminate_g12_over_e1", "support", "rim_stiffness_n_m2", "rim_damping_n_s_m2", "rim_inset_mm", DISC_BOND_FIELD,
-                "disc_mass_scale", "disc_patch_diameter_mm")
+MODEL_FIELDS = ("laminate_e2_over_e1", "laminate_g12_over_e1", "element_mm", "support", "rim_stiffness_n_m2",
+                "rim_damping_n_s_m2", "rim_inset_mm", DISC_BOND_FIELD, "disc_mass_scale", "disc_patch_diameter_mm")
 
 
 def factor_range(name: str) -> tuple:
@@ -98,6 +98,22 @@ def sim_params_json(flat: dict, rig) -> dict:
     """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()` (the support: flat's, else the
     rig's text through `SimParams.from_rig`)."""
     return SimParams.from_rig(rig, **_fields(flat)).to_dict()
+
+
+def capped_mesh(flat: dict, rig, max_elements: int | None) -> dict:
+    """The twin's mesh rule for the chain: Eq. 1's element size (`sim.model.mesh_size`), but no finer than the
+    square element that puts `max_elements` on the rig's plate, sqrt(plate area / max_elements) (the
+    calibration, the virtual drops, the site map and the calibration drops' twins then run on that mesh).
+    Returns {"element_mm": size} when the cap binds, else {} (the twin keeps Eq. 1's mesh). An element_mm
+    already in `flat` is kept."""
+    from ..sim.model import mesh_size
+
+    if not max_elements or "element_mm" in flat:
+        return {}
+    _, nx, ny, _, _ = mesh_size(SimParams.from_rig(rig, **_fields(flat)), rig)
+    if nx * ny <= max_elements:
+        return {}
+    return {"element_mm": float(np.ceil(100 * np.sqrt(rig.plate_x_mm * rig.plate_y_mm / max_elements)) / 100)}
 
 
 Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndarray]

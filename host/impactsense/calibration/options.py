@@ -43,6 +43,9 @@ class CalibrateOptions:
     rim_stiffness_n_m2: float | None = None  # support "elastic_rim": the rim's stiffness per metre of edge
     # the discs' bond: "off" (the bonded ceramic, disc_stiffness_scale 1) or "fit" (stage `disc_bond`)
     disc_bond: str = "off"
+    # the twin's mesh: Eq. 1's, but at most this many elements (fem.capped_mesh; written into CAL.json's
+    # sim_params as element_mm when it binds); None: Eq. 1's mesh whatever its size
+    max_elements: int | None = 30_000
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -57,6 +60,9 @@ class CalibrateOptions:
             raise ConfigError("the E / nu grid needs max >= min")
         if e_lo <= 0 or e_hi <= 0 or not (0.0 <= nu_lo and nu_hi < 0.5):
             raise ConfigError("the E / nu grid must stay physical: E > 0, 0 <= nu < 0.5")
+        if self.max_elements is not None and not (isinstance(self.max_elements, (int, np.integer))
+                                                  and self.max_elements >= 100):
+            raise ConfigError(f"--max-elements must be a whole number >= 100, got {self.max_elements!r}")
         if self.workers < 1:
             raise ConfigError("--workers must be >= 1")
         if not isinstance(self.nu_rounds, (int, np.integer)) or self.nu_rounds < 0:

@@ -77,6 +77,8 @@ def _apply_plate_grid(problem: CalibrationProblem, res: dict) -> None:
         params["support"] = opts.support
         if opts.support == "elastic_rim":
             params["rim_stiffness_n_m2"] = float(opts.rim_stiffness_n_m2)
+    if not _laminate_wanted(problem):          # a laminate's mesh follows its fitted shape (plate_laminate)
+        params.update(fem.capped_mesh(params, problem.rig, opts.max_elements))
     problem.params = params
 
 
@@ -113,6 +115,7 @@ def _apply_plate_laminate(problem: CalibrationProblem, res: dict) -> None:
     problem.params.update({"e_pa": float(res["E_equivalent_mpa"]) * 1e6, "nu": float(res["nu12"]),
                            "laminate_e2_over_e1": float(res["E2_mpa"] / res["E1_mpa"]),
                            "laminate_g12_over_e1": float(res["G12_mpa"] / res["E1_mpa"])})
+    problem.params.update(fem.capped_mesh(problem.params, problem.rig, problem.opts.max_elements))
 
 
 def _laminate_wanted(problem: CalibrationProblem) -> bool:

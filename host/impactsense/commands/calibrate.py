@@ -46,6 +46,10 @@ def register(sub) -> None:
     p.add_argument("--no-fem", action="store_true",
                    help="the plate grid only (no FEM confirmation, no PZT design; the seed's PZT block is kept)")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
+    p.add_argument("--max-elements", type=int, default=30_000,
+                   help="the twin's mesh: Eq. 1's element size, but at most this many elements on the plate "
+                        "(default 30000; 0: no cap); written into CAL.json's sim_params (element_mm) when it "
+                        "binds, so the virtual drops and the site map use that mesh too")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     from .simulate import add_scheduler_option
 
@@ -148,7 +152,8 @@ def run(args) -> int:
                             aic_blend=args.aic_blend, rig_delay_us=delays,
                             surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
                             nu_rounds=args.nu_rounds, support=args.support,
-                            rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond)
+                            rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond,
+                            max_elements=args.max_elements or None)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator

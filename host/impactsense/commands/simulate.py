@@ -30,8 +30,9 @@ def add_param_options(p) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--params", metavar="PARAMS.json", help="SimParams JSON (default: documented defaults)")
     g.add_argument("--calibration", metavar="CAL.json", help="calibration result; its 'sim_params' are used")
-    p.add_argument("--rig", default="bundled", metavar="RIG",
-                   help="rig.json or a session folder for the geometry (default: bundled session-1)")
+    p.add_argument("--rig", default=None, metavar="RIG",
+                   help="rig.json or a session folder for the geometry (default: with --calibration the "
+                        "session it was fitted on, else bundled session-1)")
 
 
 def add_solver_option(p, batch: bool = False) -> None:
@@ -59,7 +60,12 @@ def load_inputs(args):
     from ..data import load_rig, resolve_session_path
     from ..sim import SimParams
 
-    rig_path = Path(args.rig) if args.rig.endswith(".json") else resolve_session_path(args.rig)
+    rig_arg = args.rig
+    if rig_arg is None and args.calibration:    # the rig the calibration was fitted on
+        from ..zeroshot import read_calibration
+        rig_arg = str(read_calibration(Path(args.calibration)).get("data") or "bundled")
+    rig_arg = rig_arg or "bundled"
+    rig_path = Path(rig_arg) if rig_arg.endswith(".json") else resolve_session_path(rig_arg)
     rig = load_rig(rig_path)
     if args.calibration:
         params = SimParams.from_json(args.calibration)  # a calibration file: its 'sim_params'

@@ -268,6 +268,11 @@ def _mesh(p: SimParams, rig, k: float, ball_m: float) -> tuple:
     return f_max, nx, ny, lx / nx, ly / ny
 
 
+def mesh_size(p: SimParams, rig) -> tuple:
+    """Eq. 1's mesh of the plate `p` on the rig: (f_max, nx, ny, hx, hy) as `build_model` makes it."""
+    return _mesh(p, rig, hertz_k(p, rig.ball_diameter_mm * 0.5e-3), rig.ball_mass_g * 1e-3)
+
+
 def _disc_masses(p: SimParams, patches, d_elem, d: float, grid: tuple) -> tuple:
     """Lumped masses (w, rotations) per node: a quarter of each element's mass to each of its nodes, plus the
     ceramic's under the disc patches."""
