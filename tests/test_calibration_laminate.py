@@ -111,3 +111,37 @@ def test_laminate_recovered_from_fem_drops():
     e_eq = truth.e1_pa * truth.equivalent_ratio() / 1e6
     assert res["E_equivalent_mpa"] == pytest.approx(e_eq, rel=0.15)
     assert res["loss_eq16_us2"] < res["loss_eq16_us2_typical_shape"]
+
+
+def test_twin_keeps_the_fitted_shape_and_scales_its_equivalent_modulus():
+    """With the laminate's shape in the calibration's parameters, e_pa is the isotropic-equivalent modulus:
+    the simulator's E1, E2, G12 keep the shape and their equivalent modulus is e_pa (the later stages' E
+    scans scale every modulus alike)."""
+    from impactsense.calibration import fem
+
+    rig = laminate_rig()
+    flat = {"e_pa": 30e9, "nu": 0.3, "laminate_e2_over_e1": 0.2, "laminate_g12_over_e1": 0.05}
+    sp = fem.sim_params_json(flat, rig)
+    assert sp["e2_pa"] / sp["e_pa"] == pytest.approx(0.2) and sp["g12_pa"] / sp["e_pa"] == pytest.approx(0.05)
+    lam = laminate.Laminate(sp["e_pa"], sp["e2_pa"], sp["g12_pa"], 0.3, 0.0)
+    assert sp["e_pa"] * lam.equivalent_ratio() == pytest.approx(30e9, rel=1e-9)
+    doubled = fem.sim_params_json(dict(flat, e_pa=60e9), rig)
+    assert all(doubled[k] == pytest.approx(2 * sp[k]) for k in ("e_pa", "e2_pa", "g12_pa"))
+
+
+def test_twin_mesh_cap():
+    """The chain's twin mesh is Eq. 1's unless it has more than max_elements elements; then the square element
+    that puts max_elements on the plate (from the rig's plate size, nothing else)."""
+    from impactsense.calibration import fem
+    from impactsense.sim import SimParams
+    from impactsense.sim.model import mesh_size
+
+    rig = laminate_rig()
+    flat = {"e_pa": 30e9, "nu": 0.3, "laminate_e2_over_e1": 0.2, "laminate_g12_over_e1": 0.05}
+    _, nx, ny, _, _ = mesh_size(SimParams.from_rig(rig, **fem._fields(flat)), rig)
+    assert fem.capped_mesh(flat, rig, nx * ny) == {}
+    cap = fem.capped_mesh(flat, rig, nx * ny // 2)["element_mm"]
+    assert cap == pytest.approx(math.sqrt(450.0 * 350.0 / (nx * ny // 2)), abs=0.01)
+    _, nx2, ny2, _, _ = mesh_size(SimParams.from_rig(rig, **fem._fields(dict(flat, element_mm=cap))), rig)
+    assert nx2 * ny2 <= nx * ny // 2
+    assert fem.capped_mesh(dict(flat, element_mm=5.0), rig, 100) == {}    # a given mesh is kept

@@ -43,6 +43,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         stage(problem)
     if not problem.opts.fem:
         problem.cal["pzt_damping"] = {"skipped": "run without the FEM (--no-fem): seed's PZT block and D_s kept"}
+    elif problem.opts.plate_only:
+        problem.cal["pzt_damping"] = {"skipped": "the plate stages only (--plate-only): seed's PZT block and D_s kept"}
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,
               "sim_params": fem.sim_params_json(problem.params, problem.rig),

@@ -28,7 +28,7 @@ class Stage:
     apply: Callable[[CalibrationProblem, dict], None]
     key: Callable[[CalibrationProblem], str | None] = lambda problem: None   # None: nothing to key on
     cache: str | None = None        # JSON cache file tag; None: the stage caches (or not) by itself
-    wanted: Callable[[CalibrationProblem], bool] = lambda problem: problem.opts.fem
+    wanted: Callable[[CalibrationProblem], bool] = lambda problem: problem.opts.fem and not problem.opts.plate_only
     clocked: bool = True            # False: the stage clocks its own parts
 
     def __call__(self, problem: CalibrationProblem) -> None:
@@ -61,14 +61,14 @@ def _plate_grid(problem: CalibrationProblem, _key) -> dict:
 
 def _apply_plate_grid(problem: CalibrationProblem, res: dict) -> None:
     opts, e_axis, nu_axis, loss = problem.opts, problem.e_axis, problem.nu_axis, res.pop("loss")
+    nu_step = round(float(np.diff(nu_axis).mean()), 6) if nu_axis.size > 1 else opts.nu_step
     fig9 = problem.cache("fig9-plate-loss.png")
     plate.contour_plot(loss, e_axis, nu_axis, (res["E_mpa"], res["nu"]), fig9)
     problem.plate.update({
         "E_mpa": res["E_mpa"], "nu": res["nu"], "loss_eq16_us2": res["loss_eq16_us2"],
         "rms_dtoa_error_us": float(np.sqrt(res["loss_eq16_us2"] / problem.targets.dtoa_us.size)),
         "grid": {"E_mpa": [float(e_axis[0]), float(e_axis[-1]), opts.e_step_mpa],
-                 "nu": [float(nu_axis[0]), float(nu_axis[-1]),
-                                        round(float(np.diff(nu_axis).mean()), 6) if nu_axis.size > 1 else opts.nu_step], "points": int(loss.size)},
+                 "nu": [float(nu_axis[0]), float(nu_axis[-1]), nu_step], "points": int(loss.size)},
         "near_optimal": plate.near_optimal_ranges(loss, e_axis, nu_axis),
         "model": "infinite Mindlin plate, Hertz pulse, core picker (calibration.arrival)",
         "contour_png": str(fig9)})
@@ -342,12 +342,12 @@ STAGES = (
     Stage("plate_grid", _plate_grid, _apply_plate_grid, wanted=lambda problem: True),
     Stage("plate_laminate", _plate_laminate, _apply_plate_laminate, key=_laminate_key, cache="laminate.json",
           wanted=_laminate_wanted),
-    Stage("plate_fem", _plate_fem, _apply_plate_fem),
+    Stage("plate_fem", _plate_fem, _apply_plate_fem, wanted=lambda problem: problem.opts.fem),
     Stage("damping", _damping, _apply_damping, key=_damping_key, cache="damping.json"),
     Stage("support", _support, _apply_support, key=_support_key, cache="support.json",
-          wanted=lambda problem: problem.opts.fem and problem.opts.support == "auto"),
+          wanted=lambda problem: problem.opts.fem and not problem.opts.plate_only and problem.opts.support == "auto"),
     Stage("disc_bond", _disc_bond, _apply_disc_bond, key=_disc_bond_key, cache="disc-bond.json",
-          wanted=lambda problem: problem.opts.fem and problem.opts.disc_bond == "fit"),
+          wanted=lambda problem: problem.opts.fem and not problem.opts.plate_only and problem.opts.disc_bond == "fit"),
     Stage("plate_nu", _plate_nu, _apply_plate_nu, key=_plate_nu_key, cache="plate-nu.json"),
     Stage("plate_fem_refit", _plate_fem_refit, _apply_plate_fem_refit),
     Stage("design", lambda problem, _key: design.run(problem, held(problem)["damping_per_s"]), _apply_design,
