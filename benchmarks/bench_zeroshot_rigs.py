@@ -2,7 +2,7 @@
 naive reference, with its time.
 
     python3 benchmarks/bench_zeroshot_rigs.py [DATA ...] [--rigs-dir DIR] [--work DIR] [--n 490]
-                                              [--calibrate-args "--no-fem"] [--no-measured] [--json OUT.json]
+                                              [--calibrate-args=--no-fem] [--no-measured] [--json OUT.json]
 
 Per rig (each DATA folder, else the session folders under --rigs-dir / $IMPACTSENSE_RIGS_DIR / shared/data
 beside the clone, as bench_rigs.py finds them), the commands a user runs:
@@ -87,7 +87,7 @@ def main() -> int:
     ap.add_argument("--rigs-dir", default=None)
     ap.add_argument("--work", type=Path, default=Path("bench-zeroshot-rigs"))
     ap.add_argument("--n", type=int, default=490)
-    ap.add_argument("--calibrate-args", default="", help="extra calibrate options, e.g. \"--no-fem\"")
+    ap.add_argument("--calibrate-args", default="", help="extra calibrate options, e.g. --calibrate-args=--no-fem")
     ap.add_argument("--no-measured", action="store_true", help="skip the measured-trained model and naive reference")
     ap.add_argument("--trees", type=int, default=100)
     ap.add_argument("--json", type=Path, default=None)

@@ -104,6 +104,26 @@ def test_cli_simulate_and_dataset(tmp_path, rig, coarse):
     assert d.min() >= 25.0
 
 
+def test_cli_dataset_from_a_calibration_takes_its_rig(tmp_path, rig, coarse):
+    """simulate-dataset --calibration CAL.json makes the drops on the rig of the session CAL.json was fitted
+    on (its `data`), not the bundled one; --rig still overrides it."""
+    other = tmp_path / "other-rig"
+    other.mkdir()
+    raw = json.loads((bundled_session_path() / "rig.json").read_text())
+    raw.update(plate_x_mm=400.0, plate_y_mm=350.0)
+    (other / "rig.json").write_text(json.dumps(raw))
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"data": str(other), "sim_params": coarse.to_dict()}))
+    ds = tmp_path / "virtual"
+    assert cli.main(["simulate-dataset", "--n", "2", "--calibration", str(cal), "--out", str(ds)]) == 0
+    made = load_session(ds).rig
+    assert (made.plate_x_mm, made.plate_y_mm) == (400.0, 350.0)
+    ds2 = tmp_path / "virtual2"
+    assert cli.main(["simulate-dataset", "--n", "2", "--calibration", str(cal), "--rig", "bundled",
+                     "--out", str(ds2)]) == 0
+    assert load_session(ds2).rig.plate_x_mm == rig.plate_x_mm
+
+
 def test_cli_bad_inputs_exit_2(tmp_path):
     bad = tmp_path / "cal.json"
     bad.write_text(json.dumps({"plate": {}}))
