@@ -16,7 +16,7 @@ bool accept_eq35(const float toa_us[kChannels], const float sensor_x_mm[kChannel
       dist[c] = hypotf(dx, dy);
     } else {  // the travel distance sqrt(d^T Q d): "nearer" in time on an anisotropic plate
       const float q = travel_metric[0] * dx * dx + 2.0f * travel_metric[1] * dx * dy + travel_metric[2] * dy * dy;
-      dist[c] = sqrtf(q > 0.0f ? q : 0.0f);
+      dist[c] = vsqrt_f32(q > 0.0f ? q : 0.0f);  // the FPU instruction: sqrtf's result, no libm call
     }
   }
   for (int i = 0; i < kChannels; ++i) {

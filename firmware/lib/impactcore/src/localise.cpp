@@ -57,31 +57,47 @@ struct Problem {
   float qxx, qxy, qyy;   // travel metric (impactcore.h travel_metric_*)
 };
 
+#if defined(__GNUC__)
+#define IC_INLINE inline __attribute__((always_inline))
+#else
+#define IC_INLINE inline
+#endif
+
+// The functions below are templates on the problem's shape: M used channels (0: p.m, read at run time) and
+// kIso (true: no travel metric; false: p.iso read at run time). localise_tdoa runs <4, true> for the
+// usual event (four channels, isotropic plate: loops of a known length, unrolled, no metric tests) and
+// <0, false> otherwise; both do the same float operations in the same order, so the same numbers.
+template <int M>
+IC_INLINE int used(const Problem& p) { return M > 0 ? M : p.m; }
+
 // The travel distance sqrt(d^T Q d) of the offset (dx, dy) from a sensor (the Euclidean one when iso).
-inline float travel(const Problem& p, float dx, float dy) {
-  if (p.iso) return dist(dx, dy);
+template <bool kIso>
+IC_INLINE float travel(const Problem& p, float dx, float dy) {
+  if (kIso || p.iso) return dist(dx, dy);
   const float q = p.qxx * dx * dx + 2.0f * p.qxy * dx * dy + p.qyy * dy * dy;
   return vsqrt_f32(q > 0.0f ? q : 0.0f);
 }
 
 // The ToA residuals r[k] = toa[k] - |(x, y) - sensor k| / v; returns their mean (the least-squares t0).
-float residuals(const Problem& p, float x, float y, float* r) {
+template <int M, bool kIso>
+IC_INLINE float residuals(const Problem& p, float x, float y, float* r) {
   float mean = 0.0f;
-  for (int k = 0; k < p.m; ++k) {
-    r[k] = p.toa[k] - travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k];
+  for (int k = 0; k < used<M>(p); ++k) {
+    r[k] = p.toa[k] - travel<kIso>(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k];
     mean += r[k];
   }
-  return mean / static_cast<float>(p.m);
+  return mean / static_cast<float>(used<M>(p));
 }
 
 // Huber cost of (x, y) with t0 at its weighted optimum; also returns that t0.
+template <int M, bool kIso>
 float huber_cost(const Problem& p, float x, float y, float* t0_out) {
   float r[kChannels];
-  float t0 = residuals(p, x, y, r);
+  float t0 = residuals<M, kIso>(p, x, y, r);
   // Two reweighting passes for t0 (the median-like centre under Huber weights).
   for (int pass = 0; pass < 2; ++pass) {
     float sw = 0.0f, swr = 0.0f;
-    for (int k = 0; k < p.m; ++k) {
+    for (int k = 0; k < used<M>(p); ++k) {
       const float e = fabsf(r[k] - t0);
       const float w = e <= p.huber ? 1.0f : p.huber / e;
       sw += w;
@@ -90,7 +106,7 @@ float huber_cost(const Problem& p, float x, float y, float* t0_out) {
     t0 = swr / sw;
   }
   float cost = 0.0f;
-  for (int k = 0; k < p.m; ++k) {
+  for (int k = 0; k < used<M>(p); ++k) {
     const float e = fabsf(r[k] - t0);
     cost += e <= p.huber ? 0.5f * e * e : p.huber * (e - 0.5f * p.huber);
   }
@@ -99,11 +115,12 @@ float huber_cost(const Problem& p, float x, float y, float* t0_out) {
 }
 
 // Sum of squared ToA residuals at (x, y) with t0 at its least-squares value (the residuals' mean).
-float l2_cost(const Problem& p, float x, float y) {
+template <int M, bool kIso>
+IC_INLINE float l2_cost(const Problem& p, float x, float y) {
   float r[kChannels];
-  const float mean = residuals(p, x, y, r);
+  const float mean = residuals<M, kIso>(p, x, y, r);
   float ss = 0.0f;
-  for (int k = 0; k < p.m; ++k) ss += (r[k] - mean) * (r[k] - mean);
+  for (int k = 0; k < used<M>(p); ++k) ss += (r[k] - mean) * (r[k] - mean);
   return ss;
 }
 
@@ -115,12 +132,13 @@ struct Normal {
   float cost;
 };
 
+template <int M, bool kIso>
 void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
   float a0 = 0, a1 = 0, a2 = 0, a3 = 0, a4 = 0, a5 = 0, g0 = 0, g1 = 0, g2 = 0, cost = 0;
-  for (int k = 0; k < p.m; ++k) {
+  for (int k = 0; k < used<M>(p); ++k) {
     const float dx = x - p.sx[k];
     const float dy = y - p.sy[k];
-    float d = travel(p, dx, dy);
+    float d = travel<kIso>(p, dx, dy);
     if (d < 1e-3f) d = 1e-3f;
     const float e = p.toa[k] - (t0 + d * p.inv_vk[k]);
     const float ae = fabsf(e);
@@ -133,8 +151,8 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
     }
     const float s = p.inv_vk[k] / d;
     // d(model)/dx, d(model)/dy (Q d / |d|_Q / v; d / |d| / v when iso); d(model)/dt0 = 1
-    const float jx = p.iso ? dx * s : (p.qxx * dx + p.qxy * dy) * s;
-    const float jy = p.iso ? dy * s : (p.qxy * dx + p.qyy * dy) * s;
+    const float jx = (kIso || p.iso) ? dx * s : (p.qxx * dx + p.qxy * dy) * s;
+    const float jy = (kIso || p.iso) ? dy * s : (p.qxy * dx + p.qyy * dy) * s;
     const float wjx = w * jx;
     const float wjy = w * jy;
     a0 += wjx * jx;
@@ -173,11 +191,12 @@ constexpr float kCornerInset = 0.04f;  // of the plate size
 // times), so the iteration cannot cycle (undamped IRLS can flip t0 back and forth between two Huber weight
 // patterns); full steps, the usual case, are plain Gauss-Newton. Returns the Huber cost at the end (t0
 // the Gauss-Newton one) and J^T W J there (upper triangle); *evals counts the normal-equation evaluations.
+template <int M, bool kIso>
 float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iters, int* evals, float jtj[6]) {
   float x = *x_io, y = *y_io, t0 = 0.0f;
-  huber_cost(p, x, y, &t0);
+  huber_cost<M, kIso>(p, x, y, &t0);
   Normal ne;
-  normal_eqs(p, x, y, t0, &ne);
+  normal_eqs<M, kIso>(p, x, y, t0, &ne);
   ++*evals;
   ++*evals;
   int it = 0;
@@ -198,7 +217,7 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
       ny = clampf(y + lam * step[1], 0.0f, p.ly);
       nt0 = t0 + lam * step[2];
       moved = fabsf(nx - x) + fabsf(ny - y);
-      normal_eqs(p, nx, ny, nt0, &trial);
+      normal_eqs<M, kIso>(p, nx, ny, nt0, &trial);
       ++*evals;
       accepted = trial.cost <= ne.cost || moved < kStepTolMm;
     }
@@ -218,6 +237,71 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
   *t0_io = t0;
   *iters = it;
   return ne.cost;
+}
+
+// The screening and the refinement from the best screened start(s) (localise_tdoa): the position, t0,
+// J^T W J there, the iterations and evaluations, and the sum of squared ToA residuals at the end.
+struct Solution {
+  float x, y, t0, ss;
+  int iterations, evaluations;
+};
+template <int M, bool kIso>
+Solution solve(const Problem& p, int starts, float plate_x_mm, float plate_y_mm, float jtj[6]) {
+  const int n_starts = starts < 1 ? 1 : (starts > kMaxStarts ? kMaxStarts : starts);
+  float cand_x[kMaxStarts], cand_y[kMaxStarts], cand_cost[kMaxStarts];
+  for (int s = 0; s < kMaxStarts; ++s) {
+    cand_x[s] = 0.5f * plate_x_mm;
+    cand_y[s] = 0.5f * plate_y_mm;
+    cand_cost[s] = INFINITY;
+  }
+  // The cell centres, then the plate's corners inset by kCornerInset (out beyond a sensor the cost valley
+  // from a cell centre is flat: without these, noisy picks there could end at the sensor).
+  for (int q = 0; q < kGrid * kGrid + 4; ++q) {
+    float fx, fy;
+    if (q < kGrid * kGrid) {
+      fx = (static_cast<float>(q / kGrid) + 0.5f) / kGrid;
+      fy = (static_cast<float>(q % kGrid) + 0.5f) / kGrid;
+    } else {
+      fx = (q - kGrid * kGrid) & 1 ? 1.0f - kCornerInset : kCornerInset;
+      fy = (q - kGrid * kGrid) & 2 ? 1.0f - kCornerInset : kCornerInset;
+    }
+    const float gx = fx * plate_x_mm, gy = fy * plate_y_mm;
+    const float c = l2_cost<M, kIso>(p, gx, gy);
+    if (c < cand_cost[n_starts - 1]) {
+      int j = n_starts - 1;
+      while (j > 0 && c < cand_cost[j - 1]) {
+        cand_x[j] = cand_x[j - 1];
+        cand_y[j] = cand_y[j - 1];
+        cand_cost[j] = cand_cost[j - 1];
+        --j;
+      }
+      cand_x[j] = gx;
+      cand_y[j] = gy;
+      cand_cost[j] = c;
+    }
+  }
+  float x = cand_x[0], y = cand_y[0], t0 = 0.0f;
+  int iterations = 0, evaluations = 0;
+  float best = refine<M, kIso>(p, &x, &y, &t0, &iterations, &evaluations, jtj);
+  for (int s = 1; s < n_starts && cand_cost[s] < INFINITY; ++s) {
+    float sx = cand_x[s], sy = cand_y[s], st0 = 0.0f, sj[6];
+    int it = 0;
+    const float cost = refine<M, kIso>(p, &sx, &sy, &st0, &it, &evaluations, sj);
+    if (cost < best) {
+      best = cost;
+      x = sx;
+      y = sy;
+      t0 = st0;
+      iterations = it;
+      for (int q = 0; q < 6; ++q) jtj[q] = sj[q];
+    }
+  }
+  float ss = 0.0f;
+  for (int k = 0; k < used<M>(p); ++k) {
+    const float e = p.toa[k] - (t0 + travel<kIso>(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k]);
+    ss += e * e;
+  }
+  return Solution{x, y, t0, ss, iterations, evaluations};
 }
 
 }  // namespace
@@ -268,65 +352,15 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   // to six Gauss-Newton runs of 25 iterations.
   // The `starts` lowest-cost screening points (kept in order, ties in screening order) are each refined
   // and the lowest Huber cost wins; starts = 1 is the single start above, bit for bit.
-  const int n_starts = starts < 1 ? 1 : (starts > kMaxStarts ? kMaxStarts : starts);
-  float cand_x[kMaxStarts], cand_y[kMaxStarts], cand_cost[kMaxStarts];
-  for (int s = 0; s < kMaxStarts; ++s) {
-    cand_x[s] = 0.5f * plate_x_mm;
-    cand_y[s] = 0.5f * plate_y_mm;
-    cand_cost[s] = INFINITY;
-  }
-  // The cell centres, then the plate's corners inset by kCornerInset (out beyond a sensor the cost valley
-  // from a cell centre is flat: without these, noisy picks there could end at the sensor).
-  for (int q = 0; q < kGrid * kGrid + 4; ++q) {
-    float fx, fy;
-    if (q < kGrid * kGrid) {
-      fx = (static_cast<float>(q / kGrid) + 0.5f) / kGrid;
-      fy = (static_cast<float>(q % kGrid) + 0.5f) / kGrid;
-    } else {
-      fx = (q - kGrid * kGrid) & 1 ? 1.0f - kCornerInset : kCornerInset;
-      fy = (q - kGrid * kGrid) & 2 ? 1.0f - kCornerInset : kCornerInset;
-    }
-    const float gx = fx * plate_x_mm, gy = fy * plate_y_mm;
-    const float c = l2_cost(p, gx, gy);
-    if (c < cand_cost[n_starts - 1]) {
-      int j = n_starts - 1;
-      while (j > 0 && c < cand_cost[j - 1]) {
-        cand_x[j] = cand_x[j - 1];
-        cand_y[j] = cand_y[j - 1];
-        cand_cost[j] = cand_cost[j - 1];
-        --j;
-      }
-      cand_x[j] = gx;
-      cand_y[j] = gy;
-      cand_cost[j] = c;
-    }
-  }
-  float x = cand_x[0], y = cand_y[0], t0 = 0.0f;
   float jtj[6];
-  int iterations = 0, evaluations = 0;
-  float best = refine(p, &x, &y, &t0, &iterations, &evaluations, jtj);
-  for (int s = 1; s < n_starts && cand_cost[s] < INFINITY; ++s) {
-    float sx = cand_x[s], sy = cand_y[s], st0 = 0.0f, sj[6];
-    int it = 0;
-    const float cost = refine(p, &sx, &sy, &st0, &it, &evaluations, sj);
-    if (cost < best) {
-      best = cost;
-      x = sx;
-      y = sy;
-      t0 = st0;
-      iterations = it;
-      for (int q = 0; q < 6; ++q) jtj[q] = sj[q];
-    }
-  }
-  float ss = 0.0f;
-  for (int k = 0; k < p.m; ++k) {
-    const float e = p.toa[k] - (t0 + travel(p, x - p.sx[k], y - p.sy[k]) * p.inv_vk[k]);
-    ss += e * e;
-  }
+  const Solution sol = p.m == 4 && p.iso ? solve<4, true>(p, starts, plate_x_mm, plate_y_mm, jtj)
+                                         : solve<0, false>(p, starts, plate_x_mm, plate_y_mm, jtj);
+  const float x = sol.x, y = sol.y, t0 = sol.t0, ss = sol.ss;
+  const int iterations = sol.iterations, evaluations = sol.evaluations;
   res.x_mm = x;
   res.y_mm = y;
   res.t0_us = t0;
-  res.rms_residual_us = sqrtf(ss / static_cast<float>(p.m));
+  res.rms_residual_us = vsqrt_f32(ss / static_cast<float>(p.m));
   res.iterations = iterations;
   res.evaluations = evaluations;
   // Covariance of (x, y): sigma^2 times the (x, y) block of (J^T W J)^-1.
