@@ -510,7 +510,7 @@ def test_two_pass_aic_picks_equal_a_one_pass_scan_on_measured_board_captures():
 
 
 def test_localiser_screened_start_reaches_every_position_within_its_iteration_cap():
-    """One Gauss-Newton run (at most 10 iterations) from a screened start: exact ToAs from anywhere on the
+    """One Gauss-Newton run (at most 6 iterations) from a screened start: exact ToAs from anywhere on the
     plate (corners out beyond the sensors, edges, next to a sensor) give the position back; with 1 us of
     pick noise the error stays at the geometry's level (no run ends in a wrong basin or at a sensor)."""
     g = np.linspace(3.0, 314.0, 17)

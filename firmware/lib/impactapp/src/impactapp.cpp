@@ -67,7 +67,7 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
   const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
   if (forests) {
     const float dx = forest_mean(x_.forest, in);
-    if (gather(y_, ev.vector, NAN, in)) {
+    if (same_xy_inputs_ || gather(y_, ev.vector, NAN, in)) {
       const float dy = forest_mean(y_.forest, in);
       x = residual_ ? ev.phys.x_mm + dx : dx;
       y = residual_ ? ev.phys.y_mm + dy : dy;

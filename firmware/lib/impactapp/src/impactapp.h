@@ -126,7 +126,9 @@ class TableModels : public Models {
  public:
   TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
               const TwinSpec* twin = nullptr)
-      : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr) {
+      : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr),
+        same_xy_inputs_(x.n_inputs == y.n_inputs && x.inputs != nullptr && y.inputs != nullptr &&
+                        memcmp(x.inputs, y.inputs, static_cast<size_t>(x.n_inputs)) == 0) {
     if (twin != nullptr) twin_ = *twin;
   }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
@@ -145,6 +147,7 @@ class TableModels : public Models {
   ModelSpec x_, y_, e_;
   bool residual_;
   bool has_twin_;
+  bool same_xy_inputs_;  // the y forest reads the x forest's inputs (as `impactsense train` makes them): gathered once
   TwinSpec twin_{};
 };
 

@@ -178,10 +178,11 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
 }
 
 // Gauss-Newton iterations from the screened start; a step that moves the position less than this ends them.
-// At most kMaxIterations: the cost of an event is bounded, and on session-1 the drops that would iterate
-// longer are the poorly fitting ones, whose IRLS creeps along a flat Huber valley (at the board rate,
-// 10 iterations give a lower physics MAE than 25: 10.2 vs 10.4 mm).
-constexpr int kMaxIterations = 10;
+// At most kMaxIterations: the cost of an event is bounded, and the drops that would iterate longer are the
+// poorly fitting ones, whose IRLS creeps along a flat Huber valley away from the impact: at the board rate
+// the physics position's error falls as the cap falls (docs/findings.md, "The per-event cost"), at the
+// rig's 100 kHz the picks fit and nearly every drop stops before the cap.
+constexpr int kMaxIterations = 6;
 constexpr float kStepTolMm = 0.01f;
 // Screening grid: the Huber cost at the centres of kGrid x kGrid cells over the plate.
 constexpr int kGrid = 4;
@@ -239,6 +240,36 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
   return ne.cost;
 }
 
+// The screening's cost at a point: l2_cost<M, kIso>. For the usual four-channel isotropic problem, the same
+// operations in the same order with the channels' constants held in registers over the 20 points.
+template <int M, bool kIso>
+struct ScreenCost {
+  const Problem& p;
+  explicit ScreenCost(const Problem& problem) : p(problem) {}
+  IC_INLINE float operator()(float x, float y) const { return l2_cost<M, kIso>(p, x, y); }
+};
+template <>
+struct ScreenCost<4, true> {
+  float t0, t1, t2, t3, x0, x1, x2, x3, y0, y1, y2, y3, v0, v1, v2, v3;
+  explicit ScreenCost(const Problem& p)
+      : t0(p.toa[0]), t1(p.toa[1]), t2(p.toa[2]), t3(p.toa[3]), x0(p.sx[0]), x1(p.sx[1]), x2(p.sx[2]),
+        x3(p.sx[3]), y0(p.sy[0]), y1(p.sy[1]), y2(p.sy[2]), y3(p.sy[3]), v0(p.inv_vk[0]), v1(p.inv_vk[1]),
+        v2(p.inv_vk[2]), v3(p.inv_vk[3]) {}
+  IC_INLINE float operator()(float x, float y) const {
+    const float r0 = t0 - dist(x - x0, y - y0) * v0;
+    const float r1 = t1 - dist(x - x1, y - y1) * v1;
+    const float r2 = t2 - dist(x - x2, y - y2) * v2;
+    const float r3 = t3 - dist(x - x3, y - y3) * v3;
+    const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
+    float ss = 0.0f;
+    ss += (r0 - mean) * (r0 - mean);
+    ss += (r1 - mean) * (r1 - mean);
+    ss += (r2 - mean) * (r2 - mean);
+    ss += (r3 - mean) * (r3 - mean);
+    return ss;
+  }
+};
+
 // The screening and the refinement from the best screened start(s) (localise_tdoa): the position, t0,
 // J^T W J there, the iterations and evaluations, and the sum of squared ToA residuals at the end.
 struct Solution {
@@ -256,6 +287,7 @@ Solution solve(const Problem& p, int starts, float plate_x_mm, float plate_y_mm,
   }
   // The cell centres, then the plate's corners inset by kCornerInset (out beyond a sensor the cost valley
   // from a cell centre is flat: without these, noisy picks there could end at the sensor).
+  const ScreenCost<M, kIso> l2_cost_at(p);
   for (int q = 0; q < kGrid * kGrid + 4; ++q) {
     float fx, fy;
     if (q < kGrid * kGrid) {
@@ -266,7 +298,7 @@ Solution solve(const Problem& p, int starts, float plate_x_mm, float plate_y_mm,
       fy = (q - kGrid * kGrid) & 2 ? 1.0f - kCornerInset : kCornerInset;
     }
     const float gx = fx * plate_x_mm, gy = fy * plate_y_mm;
-    const float c = l2_cost<M, kIso>(p, gx, gy);
+    const float c = l2_cost_at(gx, gy);
     if (c < cand_cost[n_starts - 1]) {
       int j = n_starts - 1;
       while (j > 0 && c < cand_cost[j - 1]) {
