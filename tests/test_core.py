@@ -343,7 +343,7 @@ def test_aic_with_fast_log2_has_the_natural_log_minimum(seed):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_core_aic_onset_is_the_whole_window_minimum(seed):
-    """extract_features seeks the AIC minimum only over the last third of the samples before the crossing
+    """extract_features seeks the AIC minimum only over the last quarter of the samples before the crossing
     (the earlier ones still set the noise variance): on noisy onsets it is the whole window's minimum."""
     rng = np.random.default_rng(seed)
     n, cfg = 1024, SignalConfig(fs_hz=50000.0, aic_before=30, aic_after=6)
@@ -479,9 +479,9 @@ def _check_picks_equal_the_one_pass_scan(adc, cfg):
         if np.any(np.abs(v[before]) >= thr):  # a transient before the crossing: the core's clean copy
             v[before & (np.abs(v) >= thr)] = 0
             w = np.floor(v + F32(0.5)).astype(np.int16)
-            want = _aic_one_pass(w, 0, len(w), i - cfg.aic_before // 3 - max(b, 0)) + F32(max(b, 0))
+            want = _aic_one_pass(w, 0, len(w), i - cfg.aic_before // 4 - max(b, 0)) + F32(max(b, 0))
         else:
-            want = _aic_one_pass(x, b, e, i - cfg.aic_before // 3)
+            want = _aic_one_pass(x, b, e, i - cfg.aic_before // 4)
         got = out["toa_aic"][r, c]
         if want <= out["toa_threshold"][r, c] + 1.0:  # the core keeps a pick up to a sample past the crossing
             assert F32(got).tobytes() == want.tobytes(), (r, c, got, want)

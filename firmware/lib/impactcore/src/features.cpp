@@ -786,17 +786,18 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   if (begin < 0) begin = 0;
   int end = icross + cfg.aic_after + 1;
   if (end > n) end = n;
-  // The onset is sought in the last third of the samples before the crossing (the AIC minimum lies within
-  // 3.1 samples of it at 50 kHz, 6.1 at 100 kHz, over session-1's 3084 picks); the earlier two thirds
-  // give the noise variance. Same picks as the whole-window search there, at half the logarithms.
+  // The onset is sought in the last quarter of the samples before the crossing (7 samples at 50 kHz, 15 at
+  // 100 kHz: the AIC minimum lies within 3.1 samples of it at 50 kHz, 6.1 at 100 kHz, over session-1's 3084
+  // picks); the earlier samples give the noise variance. Same picks as the whole-window search there, at
+  // less than half the logarithms (docs/findings.md, "The per-event cost").
   bool clean_copy = bl.hum != 0;
   if (!clean_copy && icross > begin) {   // a glitch before the crossing would set the AIC's noise variance
     int32_t lo, hi;
     range_extremes(x, begin, icross, &lo, &hi);
     clean_copy = static_cast<float>(hi) - base >= thr || base - static_cast<float>(lo) >= thr;
   }
-  const float aic = clean_copy ? aic_on_clean_copy(x, local, begin, end, icross, thr, icross - cfg.aic_before / 3)
-                               : aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 3);
+  const float aic = clean_copy ? aic_on_clean_copy(x, local, begin, end, icross, thr, icross - cfg.aic_before / 4)
+                               : aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 4);
   float toa = cross;
   if (aic >= 0.0f && aic <= cross + 1.0f) {
     f->toa_aic = aic;

@@ -25,11 +25,6 @@ inline void add_sample(Sums* s, const int16_t* x, int i) {
 // x0 * 1 + x1 * 1 to the 32-bit one. Integer arithmetic: the same numbers as the portable loop (which
 // is add_sample), bit for bit.
 #if defined(__ARM_FEATURE_DSP)
-__attribute__((always_inline)) inline void add_pair(int32_t w, Sums* run) {  // w: x[j] in the low half, x[j + 1] in the high half
-  run->s2 = __smlald(w, w, run->s2);
-  run->s1 = __smlad(w, 0x00010001, run->s1);
-}
-
 // Eight samples (b word aligned) in four registers by two LDRD: one load instruction per four samples
 // (GCC splits a 64-bit load from a word-aligned address into two LDR; LDRD needs word alignment only).
 typedef uint32_t __attribute__((may_alias)) Word;
@@ -39,30 +34,54 @@ __attribute__((always_inline)) inline void load8(const int16_t* b, int32_t& w0, 
           : "r"(b), "m"(*reinterpret_cast<const Word(*)[4]>(b)));
 }
 
+// Eight samples into the running sums (b word aligned when kAligned).
+template <bool kAligned>
+__attribute__((always_inline)) inline void add8(const int16_t* b, int64_t& s2, int32_t& s1) {
+  int32_t w0, w1, w2, w3;
+  if (kAligned) {
+    load8(b, w0, w1, w2, w3);
+  } else {
+    memcpy(&w0, b, sizeof(w0));
+    memcpy(&w1, b + 2, sizeof(w1));
+    memcpy(&w2, b + 4, sizeof(w2));
+    memcpy(&w3, b + 6, sizeof(w3));
+  }
+  s2 = __smlald(w0, w0, s2);
+  s1 = __smlad(w0, 0x00010001, s1);
+  s2 = __smlald(w1, w1, s2);
+  s1 = __smlad(w1, 0x00010001, s1);
+  s2 = __smlald(w2, w2, s2);
+  s1 = __smlad(w2, 0x00010001, s1);
+  s2 = __smlald(w3, w3, s2);
+  s1 = __smlad(w3, 0x00010001, s1);
+}
+
+// The blocks two at a time (the sums in registers, pointers walked: fewer loop instructions a block).
 template <bool kAligned>
 inline Sums dsp_blocks(const int16_t* x, int blocks, Sums run, Sums* prefix) {
-  static_assert(kBlock % 8 == 0, "the DSP kernel takes samples in eights");
-  for (int k = 0; k < blocks; ++k) {
-    const int16_t* b = x + k * kBlock;
-#pragma GCC unroll 2
-    for (int j = 0; j < kBlock; j += 8) {
-      int32_t w0, w1, w2, w3;
-      if (kAligned) {
-        load8(b + j, w0, w1, w2, w3);
-      } else {
-        memcpy(&w0, b + j, sizeof(w0));
-        memcpy(&w1, b + j + 2, sizeof(w1));
-        memcpy(&w2, b + j + 4, sizeof(w2));
-        memcpy(&w3, b + j + 6, sizeof(w3));
-      }
-      add_pair(w0, &run);
-      add_pair(w1, &run);
-      add_pair(w2, &run);
-      add_pair(w3, &run);
-    }
-    prefix[k + 1] = run;
+  static_assert(kBlock == 16, "the DSP kernel takes a block as two eights");
+  int64_t s2 = run.s2;
+  int32_t s1 = run.s1;
+  const int16_t* b = x;
+  Sums* out = prefix + 1;
+  Sums* const pairs_end = out + (blocks & ~1);
+  for (; out < pairs_end; out += 2, b += 2 * kBlock) {
+    add8<kAligned>(b, s2, s1);
+    add8<kAligned>(b + 8, s2, s1);
+    out[0].s2 = s2;
+    out[0].s1 = s1;
+    add8<kAligned>(b + 16, s2, s1);
+    add8<kAligned>(b + 24, s2, s1);
+    out[1].s2 = s2;
+    out[1].s1 = s1;
   }
-  return run;
+  if (blocks & 1) {
+    add8<kAligned>(b, s2, s1);
+    add8<kAligned>(b + 8, s2, s1);
+    out[0].s2 = s2;
+    out[0].s1 = s1;
+  }
+  return Sums{s2, s1};
 }
 #endif
 
