@@ -199,7 +199,11 @@ def main() -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export,
                                                "per_drop": per_drop, "rows": rows}, indent=1))
-    return 0 if max(event_max, ins["app_event_max"]) <= TARGET and idle <= IDLE_TARGET else 1
+    worst = max(event_max, ins["app_event_max"])
+    event_ok, idle_ok = worst <= TARGET, idle <= IDLE_TARGET
+    print(f"RESULT slowest event {worst:,} instructions (target <= {TARGET:,}: {'met' if event_ok else 'MISSED'}); "
+          f"idle buffer {100 * idle:.1f} % (target <= {100 * IDLE_TARGET:.0f} %: {'met' if idle_ok else 'MISSED'})")
+    return 0 if event_ok and idle_ok else 1
 
 
 if __name__ == "__main__":

@@ -101,6 +101,7 @@ static impactapp::TableModels g_models = impactapp::exported_models();
 static impactapp::App g_app(g_hal, &g_models, impactapp::exported_config(impactapp::AppConfig()));
 static impactapp::M2cModels g_m2c;  // the m2cgen export behind the same interface
 
+static int g_dead_channel_reports = 0;  // drops reported with one channel flattened, that channel left out
 static bool near(float a, float b, float tol) { return fabsf(a - b) <= tol; }
 
 int main() {
@@ -154,6 +155,28 @@ int main() {
     check(g_m2c.predict(host, &x, &y, &cls), "FAIL m2cgen models did not run, drop", d);
     check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL m2cgen x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL m2cgen class vs sklearn, drop", d);
+    {  // One channel dead (a flat line): both model forms take twin_match's three-channel path alike.
+      static int16_t flat[4][2048];
+      const int n = g_app.capture_frames();
+      const int dead = d % 4;
+      for (int c = 0; c < 4; ++c) {
+        for (int i = 0; i < n && i < 2048; ++i) flat[c][i] = c == dead ? static_cast<int16_t>(2048) : g_app.capture(c)[i];
+      }
+      const int16_t* ch[4] = {flat[0], flat[1], flat[2], flat[3]};
+      static impactcore::EventResult ev3;
+      impactcore::process_event(ch, n, g_app.config().core, g_app.config().loc, &ev3);
+      float xt = NAN, yt = NAN, xm = NAN, ym = NAN, ut = -1.0f, um = -1.0f;
+      uint8_t ct = 9, cm = 9;
+      int8_t lt = -2, lm = -2;
+      const bool okt = g_models.predict_event(ev3, g_app.config().loc, &xt, &yt, &ct, &ut, &lt);
+      const bool okm = g_m2c.predict_event(ev3, g_app.config().loc, &xm, &ym, &cm, &um, &lm);
+      check(okt == okm, "FAIL dead channel: table and m2cgen forms disagree on reporting, drop", d);
+      if (okt && okm) {
+        check(xt == xm && yt == ym && ct == cm && ut == um && lt == lm,
+              "FAIL dead channel: table and m2cgen forms differ, drop", d);
+        if (lt == dead) ++g_dead_channel_reports;
+      }
+    }
     // This drop's whole event again, timed (the cost depends on the drop through the localiser).
     g_hal.decode = false;
     const uint64_t e0 = ticks();
@@ -202,6 +225,10 @@ int main() {
     }
   }
   put_int("TICKS event_max_over_drops", static_cast<long long>(event_max));
+#if IMPACTSENSE_TWIN
+  put_int("DEAD_CHANNEL_REPORTS", g_dead_channel_reports);
+  check(2 * g_dead_channel_reports >= FIX_N_DROPS, "FAIL dead channel: too few three-channel reports", g_dead_channel_reports);
+#endif
   check(g_heap_calls == 0, "FAIL heap allocations", g_heap_calls);
 
   // Per-event cost on the last capture, in SysTick ticks (bench_firmware_cost.py converts to instructions).

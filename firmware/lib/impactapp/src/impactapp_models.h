@@ -64,36 +64,66 @@ inline TableModels exported_models() {
 #endif
 }
 
-// The m2cgen export (impactsense_models_m2c.c, one function per tree) behind the same interface: gathers its
-// inputs like TableModels, the twin's estimate at the forests' x, y for IMPACTSENSE_TWIN_INPUT, then reports
-// the twin's position as TableModels does. The firmware's env nano33ble_m2cgen builds with it
-// (IMPACTSENSE_MODELS_M2CGEN: the node tables are left out, their inputs kept).
+// The m2cgen export (impactsense_models_m2c.c, one function per tree) behind the same interface and with the
+// same logic as TableModels: gathers its inputs like TableModels, then impactcore::twin_match at the forests'
+// x, y (the reported position, its calibrated uncertainty, the twin's estimate for IMPACTSENSE_TWIN_INPUT;
+// a dead channel: the physics localiser's three-sensor position on the other three channels; an inconsistent
+// one left out, with the localiser's geometry, predict_event). The firmware's env nano33ble_m2cgen builds
+// with it (IMPACTSENSE_MODELS_M2CGEN: the node tables are left out, their inputs kept).
 class M2cModels : public Models {
  public:
   bool predict(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c) const override {
-    float in[kMaxModelInputs];
-    if (ev.status != impactcore::kOk) return false;
-    if (IMPACTSENSE_RESIDUAL_XY && ev.phys.status != impactcore::kOk) return false;
-    if (!gather(impactsense_model_x, ev.vector, NAN, in)) return false;
-    *x = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f) + impactsense_m2c_x(in);
-    if (!gather(impactsense_model_y, ev.vector, NAN, in)) return false;
-    *y = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f) + impactsense_m2c_y(in);
-    float twin = NAN;
-#if IMPACTSENSE_TWIN
-    float f[impactcore::kTwinFeatures];
-    const uint16_t usable = impactcore::twin_features(ev.features, f);
-    const impactcore::TwinEstimate t = impactcore::twin_estimate(f, usable, *x, *y, twin_.map, twin_.cfg);
-    if (t.status != impactcore::kOk) return false;
-    twin = t.log10_height_mm;
-    *x = t.x_mm;
-    *y = t.y_mm;
-#endif
-    if (!gather(impactsense_model_energy, ev.vector, twin, in)) return false;
-    *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
-    return true;
+    float uncertainty = 0.0f;
+    int8_t left_out = -1;
+    return predict_impl(ev, nullptr, x, y, c, &uncertainty, &left_out);
+  }
+  bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c,
+                                float* uncertainty_mm) const override {
+    int8_t left_out = -1;
+    return predict_impl(ev, nullptr, x, y, c, uncertainty_mm, &left_out);
+  }
+  bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x,
+                     float* y, uint8_t* c, float* uncertainty_mm, int8_t* left_out) const override {
+    return predict_impl(ev, &loc, x, y, c, uncertainty_mm, left_out);
   }
 
  private:
+  bool predict_impl(const impactcore::EventResult& ev, const impactcore::LocaliserConfig* loc, float* x_mm,
+                    float* y_mm, uint8_t* c, float* uncertainty_mm, int8_t* left_out) const {
+    float in[kMaxModelInputs];
+    *left_out = -1;
+    if (ev.status != impactcore::kOk) return false;
+    // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
+    float x = NAN, y = NAN;
+    if (!(IMPACTSENSE_RESIDUAL_XY && ev.phys.status != impactcore::kOk) && gather(impactsense_model_x, ev.vector, NAN, in)) {
+      const float dx = impactsense_m2c_x(in);
+      if (gather(impactsense_model_y, ev.vector, NAN, in)) {
+        x = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f) + dx;
+        y = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f) + impactsense_m2c_y(in);
+      }
+    }
+    float twin = NAN;
+#if IMPACTSENSE_TWIN
+    const impactcore::TwinMatch m = impactcore::twin_match(ev, x, y, loc, twin_.map, twin_.cfg,
+                                                           twin_.uncertainty_misfit_ref);
+    if (m.est.status != impactcore::kOk) return false;
+    twin = m.est.log10_height_mm;
+    x = m.est.x_mm;
+    y = m.est.y_mm;
+    *uncertainty_mm = twin_uncertainty_mm(m.est, twin_);
+    *left_out = static_cast<int8_t>(m.left_out);
+#else
+    (void)loc;
+    (void)uncertainty_mm;
+    if (!(x == x) || !(y == y)) return false;
+#endif
+    if (!gather(impactsense_model_energy, ev.vector, twin, in)) return false;
+    *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
+    *x_mm = x;
+    *y_mm = y;
+    return true;
+  }
+
 #if IMPACTSENSE_TWIN
   TwinSpec twin_ = exported_twin();
 #endif
