@@ -18,6 +18,10 @@ arithmetic (our forms equal scikit-learn to float32, tests/test_firmware_export.
 host-compiled C).
 
     python benchmarks/bench_model_size.py [--trees 5,10,20,30] [--forest 30] [--seed 0] [--json OUT]
+
+Targets (issue 6, exit 1 on a miss): the smallest forest of our node tables within 0.2 mm MAE of the best
+fits the models' flash budget, 256 KB (flash bytes with the toolchain, else the tables' bytes); our node
+tables take <= 7 bytes a node (the tables' bytes over all nodes).
 """
 
 from __future__ import annotations
@@ -38,6 +42,11 @@ from impactsense.export import export_models, load_models
 from impactsense.board.scores import held_out_features
 from impactsense.board.models import train_board_models
 from impactsense.metrics import localisation_metrics
+
+FLASH_BUDGET_B = 256 * 1024      # issue 6: all models
+WITHIN_BEST_MM = 0.2             # issue 6: ship the smallest forest within 0.2 mm MAE of the best
+TABLE_B_PER_NODE = 7.0
+OURS = "ours node tables"
 from impactsense.models import impact_energy_j
 
 ARM_FLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-Os", "-std=c99",
@@ -113,7 +122,7 @@ def emlearn_forms(models, k, X_train, X_eval, tmp: Path):
     return out
 
 
-def main() -> None:
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trees", default="5,10,20,30", help="trees per coordinate forest to compare")
     ap.add_argument("--forest", type=int, default=30, help="trees of the trained forests (energy: all of them)")
@@ -172,8 +181,26 @@ def main() -> None:
           f"({len(models.energy.estimators_)} trees); B/node = flash (or tables) / nodes")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
+    missed = target_misses(rows)
+    print(f"target (issue 6): the smallest forest within {WITHIN_BEST_MM} mm MAE of the best <= {FLASH_BUDGET_B:,} B, "
+          f"node tables <= {TABLE_B_PER_NODE} B a node: " + ("met" if not missed else "MISSED: " + "; ".join(missed)))
+    return 1 if missed else 0
+
+
+def target_misses(rows: list[dict]) -> list[str]:
+    """Issue 6's targets on our node tables' rows (empty: met)."""
+    ours = [r for r in rows if r["form"] == OURS]
+    best = min(r["mae_mm"] for r in ours)
+    pick = min((r for r in ours if r["mae_mm"] <= best + WITHIN_BEST_MM), key=lambda r: r["trees"])
+    size = pick["flash_bytes"] or pick["table_bytes"]
+    out = [] if size <= FLASH_BUDGET_B else [f"{pick['trees']} trees take {size:,} B"]
+    out += [f"{r['trees']} trees: {r['table_bytes'] / r['nodes']:.2f} B a node" for r in ours
+            if r["table_bytes"] / r["nodes"] > TABLE_B_PER_NODE]
+    print(f"smallest forest within {WITHIN_BEST_MM} mm of the best ({best:.2f} mm): {pick['trees']} trees, "
+          f"MAE {pick['mae_mm']:.2f} mm, {size:,} B")
+    return out
 
 
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONHASHSEED", "0")
-    main()
+    raise SystemExit(main())
