@@ -51,6 +51,24 @@ def test_hum_of_150_counts_at_any_phase_leaves_picks_and_energies(drops, hz):
         assert np.percentile(np.abs(arrival), 95) < np.log10(1.01)
 
 
+def spiked(adc, size: float, window):
+    """adc with a one- or two-sample spike of +-size counts on one random channel of each drop, starting at a
+    random sample in window(r, c) = [lo, hi) (None: that drop stays clean); returns (adc, [(r, c) spiked])."""
+    rng = np.random.default_rng(int(size))
+    bad = adc.copy()
+    where = []
+    for r in range(adc.shape[0]):
+        c = int(rng.integers(4))
+        span = window(r, c)
+        if span is None:
+            continue
+        i = int(rng.integers(*span))
+        width = 1 + (r % 2)
+        bad[r, c, i:i + width] += np.int16(size * rng.choice([-1, 1]))
+        where.append((r, c))
+    return bad, where
+
+
 @pytest.mark.parametrize("size", [25.0, 200.0, 2000.0])
 def test_a_spike_before_the_arrival_is_never_the_pick(drops, size):
     """A one- or two-sample spike anywhere between the capture start and the arrival, of any size from
@@ -58,16 +76,7 @@ def test_a_spike_before_the_arrival_is_never_the_pick(drops, size):
     segment or the AIC window is left out of them, which moves them by less), the channel says GLITCH."""
     _, adc, cfg = drops
     clean = features(adc, cfg)
-    rng = np.random.default_rng(int(size))
-    bad = adc.copy()
-    where = []
-    for r in range(adc.shape[0]):
-        c = int(rng.integers(4))
-        onset = int(clean["toa_threshold"][r, c])
-        i = int(rng.integers(1, onset - 8))
-        width = 1 + (r % 2)
-        bad[r, c, i:i + width] += np.int16(size * rng.choice([-1, 1]))
-        where.append((r, c))
+    bad, where = spiked(adc, size, lambda r, c: (1, int(clean["toa_threshold"][r, c]) - 8))
     out = features(bad, cfg)
     for r, c in where:
         assert out["toa_us"][r, c] == pytest.approx(clean["toa_us"][r, c], abs=10.0), (r, c)
@@ -100,18 +109,9 @@ def test_a_spike_after_the_arrival_leaves_the_energies(drops, size):
     landing on it: not found; docs/findings.md "A faulty lab".)"""
     _, adc, cfg = drops
     clean = features(adc, cfg)
-    rng = np.random.default_rng(int(size))
-    bad = adc.copy()
-    where = []
-    for r in range(adc.shape[0]):
-        c = int(rng.integers(4))
-        n2 = int(clean["n2"][r, c])
-        if n2 + 50 >= adc.shape[-1] - 4:
-            continue
-        i = int(rng.integers(n2 + 50, adc.shape[-1] - 4))
-        width = 1 + (r % 2)
-        bad[r, c, i:i + width] += np.int16(size * rng.choice([-1, 1]))
-        where.append((r, c))
+    end = adc.shape[-1] - 4
+    bad, where = spiked(adc, size, lambda r, c: (int(clean["n2"][r, c]) + 50, end)
+                        if int(clean["n2"][r, c]) + 50 < end else None)
     out = features(bad, cfg)
     r, c = np.array(where).T
     assert np.mean(out["flags"][r, c] & _core.FLAG_GLITCH != 0) >= 0.9
