@@ -58,10 +58,11 @@ def arm_size(c_file: Path, include: list[Path]) -> int | None:
     """text + data bytes of the compiled object, or None without arm-none-eabi-gcc."""
     if not shutil.which("arm-none-eabi-gcc"):
         return None
-    obj = c_file.with_suffix(".o")
-    subprocess.run(["arm-none-eabi-gcc", *ARM_FLAGS, *(f"-I{p}" for p in include), "-c", str(c_file), "-o", str(obj)],
-                   check=True, capture_output=True, text=True)
-    out = subprocess.run(["arm-none-eabi-size", str(obj)], check=True, capture_output=True, text=True).stdout
+    with tempfile.TemporaryDirectory() as tmp:    # not beside the C: export's next write refuses foreign files
+        obj = Path(tmp) / c_file.with_suffix(".o").name
+        subprocess.run(["arm-none-eabi-gcc", *ARM_FLAGS, *(f"-I{p}" for p in include), "-c", str(c_file), "-o",
+                        str(obj)], check=True, capture_output=True, text=True)
+        out = subprocess.run(["arm-none-eabi-size", str(obj)], check=True, capture_output=True, text=True).stdout
     text, data = (int(v) for v in out.splitlines()[1].split()[:2])
     return text + data
 
