@@ -156,3 +156,43 @@ def test_headline_figures_over_ten_case_splits():
     summary = bench_splits.summarise([bench_splits.split_figures(seed) for seed in range(10)])
     assert all(r["ok"] for r in summary.values()), {k: (v["mean"], v["worst"]) for k, v in summary.items()}
     assert np.isfinite([r["mean"] for r in summary.values()]).all()
+
+
+# zero-shot over case splits (slow test below): bound on the mean and on the worst of ZERO_SHOT_SEEDS
+ZERO_SHOT_SEEDS = (0, 1, 2, 3)
+ZERO_SHOT_LIMITS = {   # figure -> (bound on the mean, bound on the worst split); see the test's docstring
+    "mae_mm": (1.73, 1.84),
+    "inner_mae_mm": (1.71, 1.76),
+    "class_error": (0.0234, 0.0624),
+}
+
+
+@pytest.mark.slow
+def test_zero_shot_figures_over_four_case_splits(tmp_path):
+    """The sim-trained model from the shipped calibration, made as `impactsense demo --zero-shot --calibration
+    host/impactsense/data/twin/calibration.json` makes it (zeroshot.run_zero_shot: 490 virtual drops, the four
+    calibration cases; no calibration is run), on seeds 0-3 (each seeds the virtual set and the case split; the
+    calibration drops are never tested). Measured (docs/findings.md "The suite's time and what it proves"):
+    MAE 1.54 / 1.42 / 1.60 / 1.46 mm (mean 1.51, worst 1.60), inner 1.42 / 1.46 / 1.53 / 1.53 (1.49, 1.53), class
+    0.987 / 0.987 / 1.000 / 0.948 (2, 2, 0 and 9 drops wrong: error mean 0.0195, worst 0.052; seed 3 misses
+    issue 4's 0.95, as bench_zeroshot_class.py says). Bounds: 1.15x the MAE's mean and worst, 1.2x the class's
+    error rate (mean <= 15 of 630 drops wrong, worst <= 10 of 173): a 1.3x regression of any misses. ~9 min
+    on 2 cores under load ~15 (virtual sets 70 s a seed)."""
+    from impactsense.data import load_session
+    from impactsense.sitemap import BUNDLED
+    from impactsense.zeroshot import run_zero_shot
+
+    session = load_session("bundled:session-1")
+    rows = []
+    for seed in ZERO_SHOT_SEEDS:
+        r = run_zero_shot(session, BUNDLED.parent / "calibration.json", tmp_path / f"seed-{seed}", n_virtual=490,
+                          seed=seed, progress=False)
+        sim = r["sim_trained"]
+        assert not set(r["test_recordings"]) & set(r["calibration_recordings"])
+        # not by answering the majority class: the split has both classes, the high class the minority
+        assert 0.1 < sim["high_energy_fraction"] < 0.5
+        rows.append({"mae_mm": sim["all"]["mae_mm"], "inner_mae_mm": sim["inner"]["mae_mm"],
+                     "class_error": 1.0 - sim["energy_class_accuracy"]})
+    for key, (mean_bound, worst_bound) in ZERO_SHOT_LIMITS.items():
+        got = np.array([row[key] for row in rows])
+        assert got.mean() <= mean_bound and got.max() <= worst_bound, (key, got)
