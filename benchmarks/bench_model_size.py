@@ -17,7 +17,10 @@ board rate: Eq. 36 MAE of x and y (mm) and energy class accuracy, each form pred
 arithmetic (our forms equal scikit-learn to float32, tests/test_firmware_export.py; emlearn's through its
 host-compiled C).
 
-    python benchmarks/bench_model_size.py [--trees 5,10,20,30] [--forest 30] [--seed 0] [--json OUT]
+    python benchmarks/bench_model_size.py [--trees 5,10,20,30] [--forest 30] [--seed 0] [--json OUT] [--quick]
+
+--quick: our node tables only (the form the targets read; no m2cgen or emlearn C to compile: ~22 min -> a
+few on 2 loaded cores).
 
 Targets (issue 6, exit 1 on a miss): the smallest forest of our node tables within 0.2 mm MAE of the best
 fits the models' flash budget, 256 KB (flash bytes with the toolchain, else the tables' bytes); our node
@@ -129,6 +132,7 @@ def main() -> int:
     ap.add_argument("--forest", type=int, default=30, help="trees of the trained forests (energy: all of them)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", help="write the rows here")
+    ap.add_argument("--quick", action="store_true", help="our node tables only (what the targets read)")
     args = ap.parse_args()
     ks = sorted({min(int(v), args.forest) for v in args.trees.split(",")})
     s = load_session()
@@ -147,26 +151,26 @@ def main() -> int:
         from impactsense.board.capture import board_captures
         from impactsense.board.capture import signal_for_board
 
-        caps, got, _ = board_captures(s.subset(train_ids), 50000, card["signal"])
-        X_train = featurize(caps, signal_for_board(s.rig, card["signal"])).vector.astype(np.float32)
+        if not args.quick:
+            caps, got, _ = board_captures(s.subset(train_ids), 50000, card["signal"])
+            X_train = featurize(caps, signal_for_board(s.rig, card["signal"])).vector.astype(np.float32)
         inc = [tmp / "out"]
         print(f"held-out drops at 4 x 50 kHz: {len(X)}; Eq. 36 MAE (mm), energy class accuracy, flash bytes "
               f"(arm-none-eabi-gcc -Os, Cortex-M4F{'' if shutil.which('arm-none-eabi-gcc') else ': toolchain absent'})")
         print(f"{'trees':>5}  {'form':<22} {'nodes':>6} {'flash B':>8} {'tables B':>9} {'B/node':>6} {'MAE mm':>7} {'class':>6}")
         for k in ks:
             out = tmp / "out"
-            summary = export_models(model_dir, out, trees=k)
+            summary = export_models(model_dir, out, trees=k, write_m2cgen=not args.quick)
             nodes = sum(summary["nodes"].values())
             base = phys if models.residual_xy else 0.0
             sk = np.stack([prefix(models.x, k).predict(X[:, models.inputs["x"]]),
                            prefix(models.y, k).predict(X[:, models.inputs["y"]])], 1) + base
             energy = models.energy.predict(X[:, models.inputs["energy"]])
-            ours = {
-                "ours node tables": (arm_size(out / "impactsense_forest_tables.c", inc), summary["table_bytes_total"]),
-                "ours m2cgen float32": (arm_size(out / "impactsense_models_m2c.c", inc), None),
-            }
+            ours = {OURS: (arm_size(out / "impactsense_forest_tables.c", inc), summary["table_bytes_total"])}
+            if not args.quick:
+                ours["ours m2cgen float32"] = (arm_size(out / "impactsense_models_m2c.c", inc), None)
             forms = {name: (size, table, sk, energy) for name, (size, table) in ours.items()}
-            for name, (size, table, p) in emlearn_forms(models, k, X_train, X, tmp).items():
+            for name, (size, table, p) in ({} if args.quick else emlearn_forms(models, k, X_train, X, tmp)).items():
                 forms[name] = (size, table, np.stack([p["x"], p["y"]], 1) + base, p["energy"])
             for name, (size, table, pxy, pe) in forms.items():
                 m = localisation_metrics(xy, pxy)

@@ -30,7 +30,7 @@ CHECKED = {
     "bench_uncertainty": ["--splits", "10"],          # u reads as a 1-sigma on held-out cases
     "bench_zeroshot_class": ["--no-measured", "--no-session2"],   # zero-shot MAE / class on 4 seeds (issue 4)
     "bench_board_accuracy": [],                       # board / host MAE <= 1.5x
-    "bench_model_size": [],                           # smallest forest within 0.2 mm of the best <= 256 KB
+    "bench_model_size": ["--quick"],                  # smallest forest within 0.2 mm of the best <= 256 KB
     "bench_link": ["--frames", "200000"],             # emulator >= 100x real time, 0 false reports
     "bench_fuzz_loaders": ["--n", "2000", "--seed", "23"],   # 0 tracebacks
     "bench_quiet_stream": ["--minutes", "2"],         # 0 reports from a quiet, faulty lab
