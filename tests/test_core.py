@@ -524,3 +524,28 @@ def test_localiser_screened_start_reaches_every_position_within_its_iteration_ca
     r = _core.localise_batch(noisy, use, SX, SY, 0.9, 1.0, 320.0, 317.0)
     err = np.hypot(r["x_mm"] - xy[:, 0], r["y_mm"] - xy[:, 1])
     assert np.median(err) < 2.0 and err.max() < 10.0
+
+
+def test_the_batch_bindings_refuse_arrays_of_another_shape():
+    """Every batch binding checks its arrays' shapes before reading them: a wrong rank, a wrong channel count,
+    rows that do not match or a capture over MAX_SAMPLES is a ValueError naming what it needs; the right
+    shapes (any number of rows, even none) are taken."""
+    cfg, z = _core.CoreConfig(), np.zeros
+    for bad in (z((2, 3, 100), np.int16), z((4, 100), np.int16), z((1, 4, _core.MAX_SAMPLES + 1), np.int16)):
+        with pytest.raises(ValueError, match="adc must be|kMaxSamples"):
+            _core.extract_batch(bad, cfg)
+    assert _core.extract_batch(z((0, 4, 100), np.int16), cfg)["toa_us"].shape == (0, 4)
+    sx, sy = [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="toa_us"):
+        _core.accept_batch(z((3, 5), np.float32), sx, sy, z((3, 2), np.float32), 10.0, 0.0)
+    with pytest.raises(ValueError, match="xy_mm"):
+        _core.accept_batch(z((3, 4), np.float32), sx, sy, z((2, 2), np.float32), 10.0, 0.0)
+    assert _core.accept_batch(z((3, 4), np.float32), sx, sy, z((3, 2), np.float32), 10.0, 0.0).shape == (3,)
+    we, de, fl = z((2, 4, 5), np.float32), z((2, 4, 3), np.float32), z((2, 4), np.uint8)
+    for args in ((z((2, 4, 4), np.float32), de, fl), (we, z((3, 4, 3), np.float32), fl), (we, de, z((2, 3), np.uint8))):
+        with pytest.raises(ValueError, match="window_energy"):
+            _core.twin_features_batch(*args)
+    feats, usable = _core.twin_features_batch(we, de, fl)
+    assert feats.shape == (2, 16) and usable.shape == (2,)
+    with pytest.raises(ValueError, match=r"int16 \[4, n\]"):
+        _core.find_trigger(z((3, 100), np.int16), _core.TriggerConfig())

@@ -35,18 +35,43 @@ nb::ndarray<nb::numpy, T> make_array(std::vector<size_t> shape) {
   return nb::ndarray<nb::numpy, T>(data, shape.size(), shape.data(), owner);
 }
 
+// Argument checks: an array's shape, with kAny for a dimension of any size (ndim must match).
+constexpr size_t kAny = static_cast<size_t>(-1);
+
+template <typename A>
+bool has_shape(const A& a, std::initializer_list<size_t> dims) {
+  if (a.ndim() != dims.size()) return false;
+  size_t k = 0;
+  for (size_t d : dims) {
+    if (d != kAny && a.shape(k) != d) return false;
+    ++k;
+  }
+  return true;
+}
+
+template <typename A>
+size_t rows_of(const A& a) {
+  return a.ndim() >= 1 ? a.shape(0) : 0;
+}
+
+// (recordings, samples) of a batch of captures, checked: int16 [recording, 4, sample], sample <= kMaxSamples.
+std::pair<size_t, int> capture_batch(const In16& adc) {
+  if (!has_shape(adc, {kAny, ic::kChannels, kAny})) {
+    throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
+  }
+  if (adc.shape(2) > static_cast<size_t>(ic::kMaxSamples)) {
+    throw std::invalid_argument("capture longer than the core's kMaxSamples");
+  }
+  return {adc.shape(0), static_cast<int>(adc.shape(2))};
+}
+
 std::vector<float> four(const std::vector<float>& v, const char* name) {
   if (v.size() != ic::kChannels) throw std::invalid_argument(std::string(name) + " needs 4 values");
   return v;
 }
 
 nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
-  if (adc.ndim() != 3 || adc.shape(1) != ic::kChannels) {
-    throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
-  }
-  const size_t r = adc.shape(0);
-  const int n = static_cast<int>(adc.shape(2));
-  if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
+  const auto [r, n] = capture_batch(adc);
   auto toa = make_array<float>({r, 4});
   auto toa_thr = make_array<float>({r, 4});
   auto toa_aic = make_array<float>({r, 4});
@@ -128,8 +153,8 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
 nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
                         float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us,
                         std::vector<float> travel_metric, std::vector<float> slowness_scale, int starts) {
-  if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
-  if (use.ndim() != 2 || use.shape(0) != toa.shape(0) || use.shape(1) != 4) {
+  if (!has_shape(toa, {kAny, 4})) throw std::invalid_argument("toa_us must be float32 [n, 4]");
+  if (!has_shape(use, {toa.shape(0), 4})) {
     throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
   }
   four(sx, "sensor_x_mm");
@@ -173,8 +198,8 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
 
 nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std::vector<float> sy,
                                             InF xy, float tol_us, float margin_mm) {
-  if (toa.ndim() != 2 || toa.shape(1) != 4) throw std::invalid_argument("toa_us must be float32 [n, 4]");
-  if (xy.ndim() != 2 || xy.shape(1) != 2 || xy.shape(0) != toa.shape(0)) {
+  if (!has_shape(toa, {kAny, 4})) throw std::invalid_argument("toa_us must be float32 [n, 4]");
+  if (!has_shape(xy, {toa.shape(0), 2})) {
     throw std::invalid_argument("xy_mm must be float32 [n, 2] like toa_us");
   }
   four(sx, "sensor_x_mm");
@@ -191,12 +216,7 @@ nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std
 }
 
 nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserConfig& loc) {
-  if (adc.ndim() != 3 || adc.shape(1) != ic::kChannels) {
-    throw std::invalid_argument("adc must be int16 [recording, 4, sample]");
-  }
-  const size_t r = adc.shape(0);
-  const int n = static_cast<int>(adc.shape(2));
-  if (n > ic::kMaxSamples) throw std::invalid_argument("capture longer than the core's kMaxSamples");
+  const auto [r, n] = capture_batch(adc);
   auto vec = make_array<float>({r, static_cast<size_t>(ic::kNumFeatures)});
   auto phys = make_array<float>({r, 2});
   auto band = make_array<float>({r, 2});
@@ -238,11 +258,9 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
 
 // The twin's per-channel log-energies of every recording, from extract_batch's arrays (twin.h).
 nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
-  const size_t r = flags.ndim() == 2 ? flags.shape(0) : 0;
-  if (flags.ndim() != 2 || flags.shape(1) != ic::kChannels || window_energy.ndim() != 3 ||
-      window_energy.shape(0) != r || window_energy.shape(1) != ic::kChannels ||
-      window_energy.shape(2) != ic::kEnergyWindows || diff_energy.ndim() != 3 || diff_energy.shape(0) != r ||
-      diff_energy.shape(1) != ic::kChannels || diff_energy.shape(2) != ic::kDiffOrders) {
+  const size_t r = rows_of(flags);
+  if (!has_shape(flags, {r, ic::kChannels}) || !has_shape(window_energy, {r, ic::kChannels, ic::kEnergyWindows}) ||
+      !has_shape(diff_energy, {r, ic::kChannels, ic::kDiffOrders})) {
     throw std::invalid_argument("window_energy [R,4,5], diff_energy [R,4,3] float32 and flags [R,4] uint8 needed");
   }
   auto feats = make_array<float>({r, static_cast<size_t>(ic::kTwinFeatures)});
@@ -265,7 +283,7 @@ nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
 using InU16 = nb::ndarray<const uint16_t, nb::c_contig, nb::device::cpu>;
 
 void copy16(float* dst, InF src, const char* name) {
-  if (src.ndim() != 1 || src.shape(0) != ic::kTwinFeatures)
+  if (!has_shape(src, {ic::kTwinFeatures}))
     throw std::invalid_argument(std::string(name) + " needs 16 float32 values");
   std::memcpy(dst, src.data(), sizeof(float) * ic::kTwinFeatures);
 }
@@ -275,8 +293,7 @@ void copy16(float* dst, InF src, const char* name) {
 void twin_setup(InU8 q, int nx, int ny, float x0_mm, float y0_mm, float step_mm, InF base, InF scale,
                 InF offset, InF slope, InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
                 float temperature, ic::SiteMap* map, ic::TwinConfig* cfg) {
-  if (nx < 1 || ny < 1 || q.ndim() != 2 || q.shape(0) != static_cast<size_t>(nx) * ny ||
-      q.shape(1) != ic::kTwinFeatures) {
+  if (nx < 1 || ny < 1 || !has_shape(q, {static_cast<size_t>(nx) * ny, ic::kTwinFeatures})) {
     throw std::invalid_argument("site map q must be uint8 [nx*ny, 16]");
   }
   *map = ic::SiteMap{nx, ny, x0_mm, y0_mm, step_mm, {}, {}, q.data()};
@@ -324,9 +341,8 @@ nb::dict twin_estimate_batch(InF features, InU16 usable, InF xy_mm, InU8 q, int 
                              float y0_mm, float step_mm, InF base, InF scale, InF offset, InF slope,
                              InF weight, float ref_log10_height_mm, float prior_mm, float cutoff_mm,
                              float temperature, float coarse_cutoff_mm) {
-  const size_t r = features.ndim() == 2 ? features.shape(0) : 0;
-  if (features.ndim() != 2 || features.shape(1) != ic::kTwinFeatures || usable.ndim() != 1 ||
-      usable.shape(0) != r || xy_mm.ndim() != 2 || xy_mm.shape(0) != r || xy_mm.shape(1) != 2) {
+  const size_t r = rows_of(features);
+  if (!has_shape(features, {r, ic::kTwinFeatures}) || !has_shape(usable, {r}) || !has_shape(xy_mm, {r, 2})) {
     throw std::invalid_argument("features [R,16] float32, usable [R] uint16 and xy_mm [R,2] float32 needed");
   }
   ic::SiteMap map;
@@ -358,17 +374,14 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
                           float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm) {
-  const size_t r = status.ndim() == 1 ? status.shape(0) : 0;
+  const size_t r = rows_of(status);
   if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
     throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
   }
-  auto rows2 = [r](InF a, size_t k) { return a.ndim() == 2 && a.shape(0) == r && a.shape(1) == k; };
-  auto rows3 = [r](InF a, size_t k, size_t m) {
-    return a.ndim() == 3 && a.shape(0) == r && a.shape(1) == ic::kChannels && a.shape(2) == m;
-  };
-  if (status.ndim() != 1 || flags.ndim() != 2 || flags.shape(0) != r || flags.shape(1) != ic::kChannels ||
-      !rows2(toa_us, ic::kChannels) || !rows3(window_energy, ic::kChannels, ic::kEnergyWindows) ||
-      !rows3(diff_energy, ic::kChannels, ic::kDiffOrders) || !rows2(phys_xy_mm, 2) || !rows2(xy_mm, 2)) {
+  if (!has_shape(status, {r}) || !has_shape(flags, {r, ic::kChannels}) || !has_shape(toa_us, {r, ic::kChannels}) ||
+      !has_shape(window_energy, {r, ic::kChannels, ic::kEnergyWindows}) ||
+      !has_shape(diff_energy, {r, ic::kChannels, ic::kDiffOrders}) || !has_shape(phys_xy_mm, {r, 2}) ||
+      !has_shape(xy_mm, {r, 2})) {
     throw std::invalid_argument("status [R] int32, flags [R,4] uint8, toa_us [R,4], window_energy [R,4,5], "
                                 "diff_energy [R,4,3], phys_xy_mm [R,2], xy_mm [R,2] float32 needed");
   }
@@ -560,7 +573,7 @@ NB_MODULE(_core, m) {
   m.def(
       "find_trigger",
       [](In16 adc, const ic::TriggerConfig& cfg) {
-        if (adc.ndim() != 2 || adc.shape(0) != 4) throw std::invalid_argument("adc must be int16 [4, n]");
+        if (!has_shape(adc, {4, kAny})) throw std::invalid_argument("adc must be int16 [4, n]");
         const int n = static_cast<int>(adc.shape(1));
         const int16_t* ch[4];
         for (int c = 0; c < 4; ++c) ch[c] = adc.data() + static_cast<size_t>(c) * n;
