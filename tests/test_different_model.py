@@ -21,7 +21,9 @@ def test_disc_bond_from_finer_mesh_drops(tmp_path):
     (~90 s): the scale within 0.05 of 0.4, and the bonded disc fits the group delays at least 1.5x worse
     than the fit. The mesh's own error shows in the misfit: chi^2 / dof at the fit is ~80 here against ~1
     when the same mesh makes and fits the drops (test_disc_bond's `..._same_model`, which asserts < 3 and
-    a 20x worse bonded disc: figures only an inverse crime reaches; docs/findings.md)."""
+    a 20x worse bonded disc: figures only an inverse crime reaches; docs/findings.md). The misfit sits in the
+    5-15 kHz band (21 us rms against ~3 us in 1-3 and 2-5 kHz): a 5 mm mesh does not resolve it, and no E
+    takes it away (E x0.94-1.03 all fit worse), so the bands it resolves are held to 4 us."""
     from impactsense.calibration import drops, pipeline
     from impactsense.calibration.problem import DropsAndTwin
     from impactsense.data import load_session
@@ -48,3 +50,7 @@ def test_disc_bond_from_finer_mesh_drops(tmp_path):
     assert abs(out["scale"] - 0.4) < 0.05, (out["scale"], out["chi2_dof"])
     assert out["chi2_dof_bonded"] > 1.5 * out["chi2_dof_fit"], out["chi2_dof"]
     assert np.isfinite(out["chi2_dof_fit"])
+    # the bands the 5 mm mesh resolves fit to ~3 us (bonded disc: 8.3 / 6.1 us); the 5-15 kHz band's ~21 us
+    # is the mesh's own dispersion error, the same at any E or bond (docs/findings.md)
+    low = [v for k, v in out["rms_us_fit"].items() if "5-15" not in k]
+    assert len(low) == 2 and max(low) <= 4.0, out["rms_us_fit"]
