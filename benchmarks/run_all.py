@@ -1,5 +1,5 @@
 """Runs the benchmarks one after another and prints one table: each script's exit status against the target it
-states (exit 0: met; non-zero: missed or failed), its wall time and its last line.
+states (exit 0: met; non-zero: missed or failed), its wall and CPU time and its last line.
 
     python3 benchmarks/run_all.py [--only NAME,NAME] [--list]
     python3 -m pytest -m bench            (the same list, one test per benchmark: tests/test_benchmarks.py)
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -53,7 +54,7 @@ PRINT_ONLY = {
 
 
 def run(name: str, args: list[str], timeout_s: float = 3600) -> dict:
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _children_cpu_s()
     # one BLAS / OpenMP thread, as the tests run (tests/conftest.py): on 2 shared cores a second one spins
     env = {**{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}, **os.environ}
     try:
@@ -63,8 +64,14 @@ def run(name: str, args: list[str], timeout_s: float = 3600) -> dict:
     except subprocess.TimeoutExpired:
         rc, out = -1, f"timed out after {timeout_s:.0f} s"
     lines = [ln for ln in out.splitlines() if ln.strip()]
-    return {"name": name, "rc": rc, "seconds": time.perf_counter() - t0, "last": lines[-1] if lines else "",
-            "output": out}
+    return {"name": name, "rc": rc, "seconds": time.perf_counter() - t0, "cpu_seconds": _children_cpu_s() - c0,
+            "last": lines[-1] if lines else "", "output": out}
+
+
+def _children_cpu_s() -> float:
+    """User + system CPU seconds of the finished child processes (the machine's load does not inflate it)."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def main(argv=None) -> int:
@@ -88,13 +95,15 @@ def main(argv=None) -> int:
         if args.log:
             Path(args.log).mkdir(parents=True, exist_ok=True)
             (Path(args.log) / f"{name}.log").write_text(r["output"] + f"\nexit {r['rc']} in {r['seconds']:.0f} s\n")
-        print(f"... {name}: exit {r['rc']} in {r['seconds']:.0f} s", file=sys.stderr, flush=True)
-    print(f"{'benchmark':22s} {'target':>10s} {'s':>6s}  last line")
+        print(f"... {name}: exit {r['rc']} in {r['seconds']:.0f} s ({r['cpu_seconds']:.0f} s CPU)", file=sys.stderr,
+              flush=True)
+    print(f"{'benchmark':22s} {'target':>10s} {'s':>6s} {'CPU s':>6s}  last line")
     for r in rows:
         verdict = ("met" if r["rc"] == 0 else "MISSED" if r["rc"] > 0 else "FAILED") if r["name"] in CHECKED \
             else "no check"
-        print(f"{r['name']:22s} {verdict:>10s} {r['seconds']:6.0f}  {r['last'][:110]}")
-    print(f"total {sum(r['seconds'] for r in rows) / 60:.1f} min, load average {os.getloadavg()[0]:.1f} at the end")
+        print(f"{r['name']:22s} {verdict:>10s} {r['seconds']:6.0f} {r['cpu_seconds']:6.0f}  {r['last'][:110]}")
+    print(f"total {sum(r['seconds'] for r in rows) / 60:.1f} min wall, {sum(r['cpu_seconds'] for r in rows) / 60:.1f} "
+          f"min CPU; load average {os.getloadavg()[0]:.1f} at the end")
     return 0 if all(r["rc"] == 0 for r in rows if r["name"] in CHECKED) else 1
 
 
