@@ -13,7 +13,7 @@ forward model nor the twin's mesh made the drops.
 Tolerances: issue 16's damping +-5 % of D_s holds. Its E +-1 % does not at this size: the diagnosis's own 95 %
 interval (delete-a-fold jackknife over 40 positions x 3 drops) is ~+-2.6 % in E, and the fit read E -9.6 % for
 -8 % (docs/findings.md "The suite's time and what it proves"); the E test asserts the truth inside that
-interval and the estimate within 2.5 %. ~6.5 min for the three (2 cores under load ~10)."""
+interval and the estimate within 2.5 %. 85 s for the three on 2 cores at load ~10 (392 s at load ~17)."""
 
 from __future__ import annotations
 

@@ -176,8 +176,8 @@ def test_zero_shot_figures_over_four_case_splits(tmp_path):
     MAE 1.54 / 1.42 / 1.60 / 1.46 mm (mean 1.51, worst 1.60), inner 1.42 / 1.46 / 1.53 / 1.53 (1.49, 1.53), class
     0.987 / 0.987 / 1.000 / 0.948 (2, 2, 0 and 9 drops wrong: error mean 0.0195, worst 0.052; seed 3 misses
     issue 4's 0.95, as bench_zeroshot_class.py says). Bounds: 1.15x the MAE's mean and worst, 1.2x the class's
-    error rate (mean <= 15 of 630 drops wrong, worst <= 10 of 173): a 1.3x regression of any misses. ~9 min
-    on 2 cores under load ~15 (virtual sets 70 s a seed)."""
+    error rate (mean <= 15 of 630 drops wrong, worst <= 10 of 173): a 1.3x regression of any misses. 4 min
+    on 2 cores at load ~11, 10 min at ~20 (a seed's 490 virtual drops take most of it)."""
     from impactsense.data import load_session
     from impactsense.sitemap import BUNDLED
     from impactsense.zeroshot import run_zero_shot
