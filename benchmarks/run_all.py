@@ -36,6 +36,7 @@ CHECKED = {
     "bench_fuzz_loaders": ["--n", "2000", "--seed", "23"],   # 0 tracebacks
     "bench_quiet_stream": ["--minutes", "2"],         # 0 reports from a quiet, faulty lab
     "bench_faults": ["--draws", "1"],                 # lab faults within their stated factors of clean
+    "bench_arrival_glitch": ["--draws", "1"],         # a spike inside an arrival: MAE <= 1.3x clean, class >= 0.95
     "bench_firmware_cost": ["--drops", "6"],          # <= 64,000 instructions an event (needs qemu)
     "bench_eventlog": ["--reports", "2000"],          # every report stored exactly once
     "bench_rigs": [],                                 # bundled rig (other rigs with --rigs-dir)
@@ -44,6 +45,7 @@ CHECKED = {
     "bench_anyrig": ["--no-chain"],                   # orthotropic FEM against analytic frequencies
     "bench_calibrate": [],                            # full calibration <= 10 min on 2 cores
     "bench_loop": [],                                 # issue 16's closed loop on FEM sessions
+    "bench_reference_floor": [],                      # the residual reference's DToA near the repeated drops' floor
 }
 # studies that print figures without a target (nothing to miss): run with --print-only
 PRINT_ONLY = {
