@@ -12,6 +12,7 @@ import pytest
 
 from impactsense.calibration import pipeline
 from impactsense.calibration.cache import StageClock
+from impactsense.calibration.options import CalibrateOptions
 from impactsense.calibration.stages import STAGES, Stage
 from impactsense.data import load_session
 
@@ -20,9 +21,14 @@ from test_calibrate import SESSION1, _session, _small_opts, _standin_clean, _sta
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "method.md"
 
 
+def _options(**opts):
+    """calibrate's defaults (every field a stage may read) with these set; a stage's own test field may be added."""
+    return SimpleNamespace(**{**vars(CalibrateOptions()), **opts})
+
+
 def _problem(tmp_path, **opts):
     stem = tmp_path / "CAL"
-    return SimpleNamespace(opts=SimpleNamespace(fem=True, **opts), clock=StageClock(), stage_results={},
+    return SimpleNamespace(opts=_options(fem=True, **opts), clock=StageClock(), stage_results={},
                            cache=lambda tag: Path(f"{stem}.{tag}"), applied=[])
 
 
@@ -61,7 +67,7 @@ def test_the_stages_are_docs_method_order_and_the_optional_ones_run_only_when_as
 
     def wants(name, **opts):
         base = dict(fem=True, support="rig", disc_bond="off")
-        return by_name[name].wanted(SimpleNamespace(opts=SimpleNamespace(**{**base, **opts})))
+        return by_name[name].wanted(SimpleNamespace(opts=_options(**{**base, **opts})))
     assert not wants("support") and wants("support", support="auto") and not wants("support", support="clamped")
     assert not wants("disc_bond") and wants("disc_bond", disc_bond="fit")
     assert wants("plate_grid", fem=False) and not wants("plate_fem", fem=False) and not wants("design", fem=False)

@@ -329,7 +329,11 @@ class ImpactModel:
             "energy_classes": {"0": "low", "1": "high"},
             "files": MODEL_FILES,
             "signal": self.signal.to_dict(),
-            **{k: v for k, v in self.card.items() if k not in ("twin", "sha256")},
+        }
+        # what the card carried from before (training settings, provenance); what the model holds now wins
+        card = {
+            **card,
+            **{k: v for k, v in self.card.items() if k not in card and k not in ("twin", "sha256")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
