@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -31,6 +30,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
+
+from benchlib import run_logged  # noqa: E402
 
 
 def frequencies() -> bool:
@@ -92,29 +93,18 @@ def twin(data: Path, n_drops: int) -> None:
           f"{np.median(np.abs(err)):.2f} us over {int(ok.sum())} drops")
 
 
-def run(cmd: list[str], log: Path) -> float:
-    t0 = time.perf_counter()
-    with open(log, "a") as fh:
-        fh.write("$ " + " ".join(cmd) + "\n")
-        fh.flush()
-        res = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT)
-    if res.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({res.returncode}); see {log}")
-    return time.perf_counter() - t0
-
-
 def chain(data: Path, work: Path, n: int) -> bool:
     exe = str(Path(sys.executable).with_name("impactsense"))
     w = work / data.name
     w.mkdir(parents=True, exist_ok=True)
     log = w / "chain.log"
     cal, virt, model, ev = w / "CAL.json", w / "V", w / "M", w / "E.json"
-    times = {"calibrate": run([exe, "calibrate", str(data), "--out", str(cal)], log)}
-    times["simulate-dataset"] = run([exe, "simulate-dataset", "--calibration", str(cal), "--n", str(n),
-                                     "--out", str(virt)], log)
-    times["train"] = run([exe, "train", str(virt), "--out", str(model), "--test-fraction", "0",
-                          "--site-map", "auto"], log)
-    run([exe, "evaluate", str(data), "--model", str(model), "--json", str(ev)], log)
+    steps = {"calibrate": [exe, "calibrate", str(data), "--out", str(cal)],
+             "simulate-dataset": [exe, "simulate-dataset", "--calibration", str(cal), "--n", str(n),
+                                  "--out", str(virt)],
+             "train": [exe, "train", str(virt), "--out", str(model), "--test-fraction", "0", "--site-map", "auto"]}
+    times = {name: run_logged(cmd, log)[0] for name, cmd in steps.items()}  # wall seconds
+    run_logged([exe, "evaluate", str(data), "--model", str(model), "--json", str(ev)], log)
     rep = json.loads(ev.read_text())
     total = sum(times.values())
     mae, cls = rep["all"]["mae_mm"], rep.get("energy_class_accuracy")

@@ -21,11 +21,11 @@ import time
 import numpy as np
 
 from impactsense import _core
-from impactsense.data import load_session
-from impactsense.models import ForestSettings, impact_energy_j
+from impactsense.models import impact_energy_j
 from impactsense.pipeline import featurize
-from impactsense.sitemap import resolve_site_map
-from impactsense.workflow import train
+
+from bench_faults import bundled_model_and_sessions
+from benchlib import targets_exit_code
 
 
 def with_arrival_glitch(adc: np.ndarray, onset: np.ndarray, seed: int, adc_max: int):
@@ -47,11 +47,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-targets", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.time()
-    s1 = load_session("bundled")
-    model, split = train(s1, None, 0.2, 0, settings=ForestSettings(n_estimators=args.trees, seed=0),
-                         site_map=resolve_site_map("auto", s1.rig))
-    sessions = {"session-1 held-out": s1.subset(np.asarray(split["test_recordings"], int)),
-                "session-2": load_session("bundled:session-2")}
+    model, sessions, _ = bundled_model_and_sessions(args.trees)
     print(f"{'session / draw':<28} {'MAE mm':>7} {'x clean':>7} {'class':>6} {'glitch':>6} {'moved':>6}")
     misses = []
     for name, s in sessions.items():
@@ -76,12 +72,7 @@ def main(argv=None) -> int:
                 misses.append(f"{name} draw {d}: MAE {mae:.2f} > 1.3 x {clean:.2f}")
             if not cls >= 0.95:
                 misses.append(f"{name} draw {d}: class {cls:.3f} < 0.95")
-    print(f"({time.time() - t0:.0f} s)")
-    if misses and not args.no_targets:
-        print("MISSED TARGETS:\n  " + "\n  ".join(misses))
-        return 1
-    print("all targets met" if not misses else f"{len(misses)} targets missed (--no-targets)")
-    return 0
+    return targets_exit_code(misses, args.no_targets, t0)
 
 
 if __name__ == "__main__":

@@ -25,37 +25,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import shlex
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from benchlib import run_logged  # noqa: E402
 
 TARGET_MAE_MM = 4.0
 TARGET_MAE_BUNDLED_MM = 1.6
 TARGET_CLASS = 0.95
 TARGET_CHAIN_S = 600.0
-
-
-def _cpu_children() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
-def run(cmd: list[str], log: Path) -> tuple[float, float]:
-    """(wall s, CPU s) of one command, its output appended to `log`."""
-    t0, c0 = time.perf_counter(), _cpu_children()
-    with open(log, "a") as fh:
-        fh.write("$ " + " ".join(cmd) + "\n")
-        fh.flush()
-        res = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT)
-    if res.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({res.returncode}); see {log}")
-    return time.perf_counter() - t0, _cpu_children() - c0
 
 
 def chain(data: str, work: Path, n: int, calibrate_args: list[str]) -> dict:
@@ -70,8 +51,8 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str]) -> dict:
                              "--force"],
         "train": [exe, "train", str(virt), "--out", str(model), "--test-fraction", "0", "--site-map", "auto"],
     }
-    times = {name: run(cmd, log) for name, cmd in steps.items()}
-    run([exe, "evaluate", data, "--model", str(model), "--json", str(ev)], log)
+    times = {name: run_logged(cmd, log) for name, cmd in steps.items()}
+    run_logged([exe, "evaluate", data, "--model", str(model), "--json", str(ev)], log)
     rep = json.loads(ev.read_text())
     calj = json.loads(cal.read_text())
     return {"zero_shot_mae_mm": rep["all"]["mae_mm"], "zero_shot_inner_mae_mm": rep["inner"]["mae_mm"],

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from benchlib import children_cpu_s  # noqa: E402
 
 # name -> arguments; every one exits non-zero when its stated target is missed
 CHECKED = {
@@ -56,7 +57,7 @@ PRINT_ONLY = {
 
 
 def run(name: str, args: list[str], timeout_s: float = 3600) -> dict:
-    t0, c0 = time.perf_counter(), _children_cpu_s()
+    t0, c0 = time.perf_counter(), children_cpu_s()
     # one BLAS / OpenMP thread, as the tests run (tests/conftest.py): on 2 shared cores a second one spins
     env = {**{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}, **os.environ}
     try:
@@ -66,14 +67,8 @@ def run(name: str, args: list[str], timeout_s: float = 3600) -> dict:
     except subprocess.TimeoutExpired:
         rc, out = -1, f"timed out after {timeout_s:.0f} s"
     lines = [ln for ln in out.splitlines() if ln.strip()]
-    return {"name": name, "rc": rc, "seconds": time.perf_counter() - t0, "cpu_seconds": _children_cpu_s() - c0,
+    return {"name": name, "rc": rc, "seconds": time.perf_counter() - t0, "cpu_seconds": children_cpu_s() - c0,
             "last": lines[-1] if lines else "", "output": out}
-
-
-def _children_cpu_s() -> float:
-    """User + system CPU seconds of the finished child processes (the machine's load does not inflate it)."""
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
 
 
 def main(argv=None) -> int:

@@ -19,23 +19,15 @@ import json
 import numpy as np
 import pytest
 
-from impactsense.data import bundled_session_path, read_json, rig_from_dict
 from impactsense.sim import SimParams, simulate_voltages
 from impactsense.sim import executor
 from impactsense.sim.executor import Executor
 
+from test_sim_modal import small_rig
+
 
 def _square(v):
     return v * v
-
-
-def small_rig(x_mm=120.0, y_mm=100.0):
-    raw = read_json(bundled_session_path() / "rig.json")
-    raw = {**raw, "plate_x_mm": x_mm, "plate_y_mm": y_mm}
-    for s, (sx, sy) in zip(raw["sensors"], ((20, 20), (x_mm - 20, 20), (x_mm - 20, y_mm - 20), (20, y_mm - 20))):
-        s["x_mm"], s["y_mm"] = sx, sy
-    raw["sensor_diameter_mm"] = 10.0
-    return rig_from_dict(raw)
 
 
 @pytest.mark.parametrize("kind", ["threads", "processes"])

@@ -29,6 +29,8 @@ from impactsense.sim.simulate import direct_drop
 
 
 def small_rig(x_mm=120.0, y_mm=100.0):
+    """The bundled rig on a small plate (x_mm by y_mm, sensors 20 mm in from each corner, 10 mm discs): seconds a
+    drop on a coarse mesh."""
     raw = read_json(bundled_session_path() / "rig.json")
     raw = {**raw, "plate_x_mm": x_mm, "plate_y_mm": y_mm}
     for s, (sx, sy) in zip(raw["sensors"], ((20, 20), (x_mm - 20, 20), (x_mm - 20, y_mm - 20), (20, y_mm - 20))):

@@ -1,0 +1,39 @@
+"""Helpers the benchmark scripts share (imported from their folder: `python3 benchmarks/NAME.py` puts it on
+sys.path)."""
+
+from __future__ import annotations
+
+import resource
+import subprocess
+import time
+from pathlib import Path
+
+
+def children_cpu_s() -> float:
+    """User + system CPU seconds of the finished child processes (the machine's load does not inflate it)."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def run_logged(cmd: list[str], log: Path) -> tuple[float, float]:
+    """Runs one command, its output appended to `log`: (wall s, CPU s of it and its workers). RuntimeError
+    naming the log when it fails."""
+    t0, c0 = time.perf_counter(), children_cpu_s()
+    with open(log, "a") as fh:
+        fh.write("$ " + " ".join(cmd) + "\n")
+        fh.flush()
+        res = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT)
+    if res.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({res.returncode}); see {log}")
+    return time.perf_counter() - t0, children_cpu_s() - c0
+
+
+def targets_exit_code(misses: list[str], no_targets: bool, t0: float) -> int:
+    """Prints the run's time (since time.time() t0) and the missed targets: 1 when one was missed (0 with
+    --no-targets, the misses still counted), else 0."""
+    print(f"({time.time() - t0:.0f} s)")
+    if misses and not no_targets:
+        print("MISSED TARGETS:\n  " + "\n  ".join(misses))
+        return 1
+    print("all targets met" if not misses else f"{len(misses)} targets missed (--no-targets)")
+    return 0
