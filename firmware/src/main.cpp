@@ -196,7 +196,7 @@ class BoardHal : public impactapp::Hal {
 
 BoardHal g_hal;
 #if IMPACTSENSE_MODELS_M2CGEN
-impactapp::M2cModels g_models;  // env nano33ble_m2cgen: the m2cgen C form (one function per tree)
+impactapp::TableModels g_models = impactapp::exported_m2cgen_models();  // env nano33ble_m2cgen: the m2cgen C form
 #else
 impactapp::TableModels g_models = impactapp::exported_models();  // the node tables
 #endif

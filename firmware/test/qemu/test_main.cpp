@@ -99,7 +99,7 @@ struct TestHal : impactapp::Hal {
 static TestHal g_hal;
 static impactapp::TableModels g_models = impactapp::exported_models();
 static impactapp::App g_app(g_hal, &g_models, impactapp::exported_config(impactapp::AppConfig()));
-static impactapp::M2cModels g_m2c;  // the m2cgen export behind the same interface
+static impactapp::TableModels g_m2c = impactapp::exported_m2cgen_models();  // the m2cgen export, same logic
 
 static int g_dead_channel_reports = 0;  // drops reported with one channel flattened, that channel left out
 static bool near(float a, float b, float tol) { return fabsf(a - b) <= tol; }

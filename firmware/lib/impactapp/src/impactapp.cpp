@@ -66,9 +66,9 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
   float x = NAN, y = NAN;
   const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
   if (forests) {
-    const float dx = forest_mean(x_.forest, in);
+    const float dx = x_.evaluate(x_.forest, in);
     if (same_xy_inputs_ || gather(y_, ev.vector, NAN, in)) {
-      const float dy = forest_mean(y_.forest, in);
+      const float dy = y_.evaluate(y_.forest, in);
       x = residual_ ? ev.phys.x_mm + dx : dx;
       y = residual_ ? ev.phys.y_mm + dy : dy;
     }
@@ -91,7 +91,7 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     return false;
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
-  *cls = forest_mean(e_.forest, in) > 0.5f ? 1 : 0;
+  *cls = e_.evaluate(e_.forest, in) > 0.5f ? 1 : 0;
   *x_mm = x;
   *y_mm = y;
   if (has_twin_) *uncertainty_mm = uncertainty;

@@ -68,12 +68,17 @@ constexpr int kMaxModelInputs = 32;
 constexpr uint8_t kTwinInput = static_cast<uint8_t>(impactcore::kNumFeatures);
 static_assert(impactcore::kNumFeatures < 255, "kTwinInput must fit a u8 input index");
 
+// What evaluates a forest for its gathered inputs (the mean of its trees): forest_mean over its node tables,
+// or the m2cgen export's code for it (impactsense_models_m2c.c, one function per tree; the tables unused).
+typedef float (*ForestEvaluator)(const ForestTables& tables, const float* inputs);
+
 // One forest and the indices of the impactcore feature-vector entries it reads (model_card.json's
 // location_features / energy_features), in the order the forest was trained on.
 struct ModelSpec {
   ForestTables forest;
   const uint8_t* inputs;
   int32_t n_inputs;
+  ForestEvaluator evaluate = forest_mean;  // the node-table walk, or the m2cgen code (exported_m2cgen_models)
 };
 
 // The twin's site map and how the rig's events relate to it (the model card's "twin").
@@ -116,7 +121,8 @@ class Models {
   }
 };
 
-// Models as forest tables (forest.h): a regressor per coordinate (of the correction to the physics
+// Models as forests (forest.h's node tables, or the m2cgen form's code: ModelSpec::evaluate; the logic around
+// them is the same): a regressor per coordinate (of the correction to the physics
 // localiser's position when residual_xy, as `impactsense train` fits them) and a binary classifier. With a
 // twin (copied), twin_estimate() runs at the forests' position: the reported x, y are its matched position
 // (the site map's grid points weighted by how well they explain the event's energies) and an energy

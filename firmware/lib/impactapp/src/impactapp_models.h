@@ -1,6 +1,6 @@
 // Glue between the generated models (models/impactsense_models.h, written by `impactsense export`) and
-// impactapp: the TableModels over the exported tables and the signal configuration the models were trained
-// with. Header-only; include it only where the generated models are compiled in (board, qemu image).
+// impactapp: the TableModels over the exported forests (node tables, or the m2cgen code) and the signal
+// configuration the models were trained with. Header-only; include it only where the generated models are compiled in (board, qemu image).
 #pragma once
 
 #include <math.h>
@@ -13,9 +13,10 @@ namespace impactapp {
 static_assert(IMPACTSENSE_N_FEATURES == impactcore::kNumFeatures,
               "models exported for another feature vector: re-export them with this core");
 
-inline ModelSpec exported_spec(const impactsense_model& m) {
+// One exported forest, evaluated by `evaluate` (forest_mean: its node tables).
+inline ModelSpec exported_spec(const impactsense_model& m, ForestEvaluator evaluate) {
   return ModelSpec{ForestTables{m.forest.n_trees, m.forest.roots, m.forest.feature, m.forest.value, m.forest.right},
-                   m.inputs, m.n_inputs};
+                   m.inputs, m.n_inputs, evaluate};
 }
 
 #if IMPACTSENSE_TWIN
@@ -53,90 +54,28 @@ inline TwinSpec exported_twin() {
 }
 #endif
 
-inline TableModels exported_models() {
+// The exported models, their forests (x, y, energy) evaluated by the given functions.
+inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, ForestEvaluator energy) {
 #if IMPACTSENSE_TWIN
   const TwinSpec twin = exported_twin();
-  return TableModels(exported_spec(impactsense_model_x), exported_spec(impactsense_model_y),
-                     exported_spec(impactsense_model_energy), IMPACTSENSE_RESIDUAL_XY != 0, &twin);
+  return TableModels(exported_spec(impactsense_model_x, x), exported_spec(impactsense_model_y, y),
+                     exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0, &twin);
 #else
-  return TableModels(exported_spec(impactsense_model_x), exported_spec(impactsense_model_y),
-                     exported_spec(impactsense_model_energy), IMPACTSENSE_RESIDUAL_XY != 0);
+  return TableModels(exported_spec(impactsense_model_x, x), exported_spec(impactsense_model_y, y),
+                     exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0);
 #endif
 }
 
-// The m2cgen export (impactsense_models_m2c.c, one function per tree) behind the same interface and with the
-// same logic as TableModels: gathers its inputs like TableModels, then impactcore::twin_match at the forests'
-// x, y (the reported position, its calibrated uncertainty, the twin's estimate for IMPACTSENSE_TWIN_INPUT;
-// a dead channel: the physics localiser's three-sensor position on the other three channels; an inconsistent
-// one left out, with the localiser's geometry, predict_event). The firmware's env nano33ble_m2cgen builds
-// with it (IMPACTSENSE_MODELS_M2CGEN: the node tables are left out, their inputs kept).
-class M2cModels : public Models {
- public:
-  bool predict(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c) const override {
-    float uncertainty = 0.0f;
-    int8_t left_out = -1;
-    return predict_impl(ev, nullptr, x, y, c, &uncertainty, &left_out);
-  }
-  bool predict_with_uncertainty(const impactcore::EventResult& ev, float* x, float* y, uint8_t* c,
-                                float* uncertainty_mm) const override {
-    int8_t left_out = -1;
-    return predict_impl(ev, nullptr, x, y, c, uncertainty_mm, &left_out);
-  }
-  bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x,
-                     float* y, uint8_t* c, float* uncertainty_mm, int8_t* left_out) const override {
-    return predict_impl(ev, &loc, x, y, c, uncertainty_mm, left_out);
-  }
+// The node-table form (forest.h).
+inline TableModels exported_models() { return exported_models_with(forest_mean, forest_mean, forest_mean); }
 
- private:
-  bool predict_impl(const impactcore::EventResult& ev, const impactcore::LocaliserConfig* loc, float* x_mm,
-                    float* y_mm, uint8_t* c, float* uncertainty_mm, int8_t* left_out) const {
-    float in[kMaxModelInputs];
-    *left_out = -1;
-    if (ev.status != impactcore::kOk) return false;
-    // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
-    float x = NAN, y = NAN;
-    if (!(IMPACTSENSE_RESIDUAL_XY && ev.phys.status != impactcore::kOk) && gather(impactsense_model_x, ev.vector, NAN, in)) {
-      const float dx = impactsense_m2c_x(in);
-      if (gather(impactsense_model_y, ev.vector, NAN, in)) {
-        x = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.x_mm : 0.0f) + dx;
-        y = (IMPACTSENSE_RESIDUAL_XY ? ev.phys.y_mm : 0.0f) + impactsense_m2c_y(in);
-      }
-    }
-    float twin = NAN;
-#if IMPACTSENSE_TWIN
-    const impactcore::TwinMatch m = impactcore::twin_match(ev, x, y, loc, twin_.map, twin_.cfg,
-                                                           twin_.uncertainty_misfit_ref);
-    if (m.est.status != impactcore::kOk) return false;
-    twin = m.est.log10_height_mm;
-    x = m.est.x_mm;
-    y = m.est.y_mm;
-    *uncertainty_mm = twin_uncertainty_mm(m.est, twin_);
-    *left_out = static_cast<int8_t>(m.left_out);
-#else
-    (void)loc;
-    (void)uncertainty_mm;
-    if (!(x == x) || !(y == y)) return false;
-#endif
-    if (!gather(impactsense_model_energy, ev.vector, twin, in)) return false;
-    *c = impactsense_m2c_energy(in) > 0.5f ? 1 : 0;
-    *x_mm = x;
-    *y_mm = y;
-    return true;
-  }
-
-#if IMPACTSENSE_TWIN
-  TwinSpec twin_ = exported_twin();
-#endif
-  static bool gather(const impactsense_model& m, const float* v, float twin, float* out) {
-    if (m.n_inputs > kMaxModelInputs) return false;
-    for (int32_t k = 0; k < m.n_inputs; ++k) {
-      const float a = m.inputs[k] == IMPACTSENSE_TWIN_INPUT ? twin : v[m.inputs[k]];
-      if (!(a == a) || a - a != 0.0f) return false;  // NaN or inf: the event is not usable
-      out[k] = a;
-    }
-    return true;
-  }
-};
+// The m2cgen form (impactsense_models_m2c.c, one function per tree): the same TableModels logic (the inputs
+// gathered, impactcore::twin_match, the energy class) with the forests run as that code. The firmware's env
+// nano33ble_m2cgen builds it (IMPACTSENSE_MODELS_M2CGEN: the node tables are left out, their inputs kept).
+inline float m2cgen_x(const ForestTables&, const float* in) { return impactsense_m2c_x(in); }
+inline float m2cgen_y(const ForestTables&, const float* in) { return impactsense_m2c_y(in); }
+inline float m2cgen_energy(const ForestTables&, const float* in) { return impactsense_m2c_energy(in); }
+inline TableModels exported_m2cgen_models() { return exported_models_with(m2cgen_x, m2cgen_y, m2cgen_energy); }
 
 #define IMPACTAPP_CARD_FIELD(kind, type, name, def, role) IMPACTAPP_CARD_##role(name)
 #define IMPACTAPP_CARD_COPY(name) memcpy(&card.name, &s.name, sizeof(card.name));
