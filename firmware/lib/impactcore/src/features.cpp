@@ -11,6 +11,10 @@
 
 #include "impactcore.h"
 
+#if defined(__ARM_FEATURE_SIMD32)
+#include <arm_acle.h>
+#endif
+
 namespace impactcore {
 namespace {
 
@@ -210,11 +214,46 @@ struct Channel {
   }
 };
 
+// The peak scan's result: max |float(x) - base| over the capture and the block where it was reached (-1:
+// none read).
+struct Peak {
+  float peak = 0.0f;
+  int block = -1;
+};
+
+// range_extremes of the kBlock samples at b, inline: with SIMD32 two samples a word (SSUB16 + SEL, as
+// range_extremes), unrolled, without its call and range set-up.
+IC_INLINE void block_extremes(const int16_t* b, int32_t* lo, int32_t* hi) {
+#if defined(__ARM_FEATURE_SIMD32)
+  int32_t w;
+  memcpy(&w, b, sizeof(w));
+  int16x2_t pmx = w, pmn = w;
+#pragma GCC unroll 8
+  for (int j = 2; j < kBlock; j += 2) {
+    memcpy(&w, b + j, sizeof(w));
+    __ssub16(w, pmx);
+    pmx = __sel(w, pmx);
+    __ssub16(pmn, w);
+    pmn = __sel(w, pmn);
+  }
+  const int32_t mx0 = static_cast<int16_t>(pmx & 0xFFFF), mx1 = static_cast<int16_t>(pmx >> 16);
+  const int32_t mn0 = static_cast<int16_t>(pmn & 0xFFFF), mn1 = static_cast<int16_t>(pmn >> 16);
+  *hi = mx0 > mx1 ? mx0 : mx1;
+  *lo = mn0 < mn1 ? mn0 : mn1;
+#else
+  range_extremes(b, 0, kBlock, lo, hi);
+#endif
+}
+
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
 // over the samples (float subtraction is monotone in x), from the block's integer extremes.
 void scan_peak(const Channel& ch, int k, float base, float* peak) {
   int32_t lo, hi;
-  range_extremes(ch.x, k * kBlock, ch.block_end(k), &lo, &hi);
+  if ((k + 1) * kBlock <= ch.n) {
+    block_extremes(ch.x + k * kBlock, &lo, &hi);
+  } else {
+    range_extremes(ch.x, k * kBlock, ch.n, &lo, &hi);
+  }
   const float a = fabsf(static_cast<float>(hi) - base);
   const float b = fabsf(static_cast<float>(lo) - base);
   if (a > *peak) *peak = a;
@@ -227,20 +266,27 @@ void scan_peak(const Channel& ch, int k, float base, float* peak) {
 // and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
 constexpr int kArrivalBlocks = 3;
 template <bool kFits32>
-IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
-  float peak = 0.0f;
+IC_NOINLINE Peak peak_abs(const Channel& ch, float base, int at, int start) {
+  Peak p;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
-  for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
-  Channel::Level lim = ch.level<kFits32>(peak);
+  for (int k = kc; k >= 0 && k < ka; ++k) {
+    const float before = p.peak;
+    scan_peak(ch, k, base, &p.peak);
+    if (p.peak > before) p.block = k;
+  }
+  Channel::Level lim = ch.level<kFits32>(p.peak);
   // The blocks of group [g, gend) that can hold a larger sample than the peak so far.
   const auto blocks = [&](int g, int gend) {
     for (int k = g; k < gend; ++k) {
       if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
-      const float before = peak;
-      scan_peak(ch, k, base, &peak);
-      if (peak > before) lim = ch.level<kFits32>(peak);
+      const float before = p.peak;
+      scan_peak(ch, k, base, &p.peak);
+      if (p.peak > before) {
+        lim = ch.level<kFits32>(p.peak);
+        p.block = k;
+      }
     }
   };
   // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
@@ -266,15 +312,25 @@ IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
     if (ch.reaches<kFits32>(g, gend, base, lim)) blocks(g, gend);
   }
-  return peak;
+  return p;
 }
 
-// Any sample at or beyond a rail: only blocks whose energy reaches the distance from the baseline to the
-// nearer rail can hold one (reaches, in groups of four blocks first, as the peak scan).
+// Any sample at or beyond a rail. None when the peak is closer to the baseline than both rails (a sample
+// at or beyond a rail is at least that far: float subtraction is monotone in x). Otherwise a clipped
+// channel's rail is mostly in the peak's own block (one block read); failing that, only blocks whose
+// energy reaches the distance from the baseline to the nearer rail can hold one (reaches, in groups of
+// four blocks first, as the peak scan).
 template <bool kFits32>
-bool clipped(const Channel& ch, float base, float peak, int adc_min, int adc_max) {
+bool clipped(const Channel& ch, float base, const Peak& pk, int adc_min, int adc_max) {
+  const float peak = pk.peak;
   const float room_lo = base - static_cast<float>(adc_min);
   const float room_hi = static_cast<float>(adc_max) - base;
+  if (peak < room_lo && peak < room_hi) return false;
+  if (pk.block >= 0) {
+    int32_t lo, hi;
+    range_extremes(ch.x, pk.block * kBlock, ch.block_end(pk.block), &lo, &hi);
+    if (lo <= adc_min || hi >= adc_max) return true;
+  }
   const float room = room_lo < room_hi ? room_lo : room_hi;
   if (room > 1.001f * peak + 1.0f) return false;
   const Channel::Level lim = ch.level<kFits32>(room);
@@ -755,11 +811,12 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
   const int below_from = (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
-  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
+  const Peak pk = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
+  const float peak = pk.peak;
   f->energy = energy;
   f->peak = peak;
-  if (ch.fits32 ? clipped<true>(ch, base, peak, cfg.adc_min, cfg.adc_max)
-                 : clipped<false>(ch, base, peak, cfg.adc_min, cfg.adc_max)) {
+  if (ch.fits32 ? clipped<true>(ch, base, pk, cfg.adc_min, cfg.adc_max)
+                 : clipped<false>(ch, base, pk, cfg.adc_min, cfg.adc_max)) {
     f->flags |= kFlagClipped;
   }
 

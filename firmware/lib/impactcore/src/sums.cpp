@@ -56,6 +56,15 @@ __attribute__((always_inline)) inline void add8(const int16_t* b, int64_t& s2, i
   s1 = __smlad(w3, 0x00010001, s1);
 }
 
+// One block (two eights) into the running sums, and the sums after it into *out.
+template <bool kAligned>
+__attribute__((always_inline)) inline void add_block(const int16_t* b, int64_t& s2, int32_t& s1, Sums* out) {
+  add8<kAligned>(b, s2, s1);
+  add8<kAligned>(b + 8, s2, s1);
+  out->s2 = s2;
+  out->s1 = s1;
+}
+
 // The blocks four at a time (the sums in registers, pointers walked: fewer loop instructions a block).
 template <bool kAligned>
 inline Sums dsp_blocks(const int16_t* x, int blocks, Sums run, Sums* prefix) {
@@ -66,40 +75,17 @@ inline Sums dsp_blocks(const int16_t* x, int blocks, Sums run, Sums* prefix) {
   Sums* out = prefix + 1;
   Sums* const quads_end = out + (blocks & ~3);
   for (; out < quads_end; out += 4, b += 4 * kBlock) {
-    add8<kAligned>(b, s2, s1);
-    add8<kAligned>(b + 8, s2, s1);
-    out[0].s2 = s2;
-    out[0].s1 = s1;
-    add8<kAligned>(b + 16, s2, s1);
-    add8<kAligned>(b + 24, s2, s1);
-    out[1].s2 = s2;
-    out[1].s1 = s1;
-    add8<kAligned>(b + 32, s2, s1);
-    add8<kAligned>(b + 40, s2, s1);
-    out[2].s2 = s2;
-    out[2].s1 = s1;
-    add8<kAligned>(b + 48, s2, s1);
-    add8<kAligned>(b + 56, s2, s1);
-    out[3].s2 = s2;
-    out[3].s1 = s1;
+    add_block<kAligned>(b, s2, s1, out);
+    add_block<kAligned>(b + kBlock, s2, s1, out + 1);
+    add_block<kAligned>(b + 2 * kBlock, s2, s1, out + 2);
+    add_block<kAligned>(b + 3 * kBlock, s2, s1, out + 3);
   }
   Sums* const pairs_end = out + (blocks & 2);
   for (; out < pairs_end; out += 2, b += 2 * kBlock) {
-    add8<kAligned>(b, s2, s1);
-    add8<kAligned>(b + 8, s2, s1);
-    out[0].s2 = s2;
-    out[0].s1 = s1;
-    add8<kAligned>(b + 16, s2, s1);
-    add8<kAligned>(b + 24, s2, s1);
-    out[1].s2 = s2;
-    out[1].s1 = s1;
+    add_block<kAligned>(b, s2, s1, out);
+    add_block<kAligned>(b + kBlock, s2, s1, out + 1);
   }
-  if (blocks & 1) {
-    add8<kAligned>(b, s2, s1);
-    add8<kAligned>(b + 8, s2, s1);
-    out[0].s2 = s2;
-    out[0].s1 = s1;
-  }
+  if (blocks & 1) add_block<kAligned>(b, s2, s1, out);
   return Sums{s2, s1};
 }
 #endif
