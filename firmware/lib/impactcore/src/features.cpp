@@ -247,7 +247,7 @@ IC_INLINE void block_extremes(const int16_t* b, int32_t* lo, int32_t* hi) {
 
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
 // over the samples (float subtraction is monotone in x), from the block's integer extremes.
-void scan_peak(const Channel& ch, int k, float base, float* peak) {
+IC_INLINE void scan_peak(const Channel& ch, int k, float base, float* peak) {
   int32_t lo, hi;
   if ((k + 1) * kBlock <= ch.n) {
     block_extremes(ch.x + k * kBlock, &lo, &hi);
