@@ -271,9 +271,7 @@ IC_NOINLINE Peak peak_abs(const Channel& ch, float base, int at, int start) {
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) {
-    const float before = p.peak;
     scan_peak(ch, k, base, &p.peak);
-    if (p.peak > before) p.block = k;
   }
   Channel::Level lim = ch.level<kFits32>(p.peak);
   // The blocks of group [g, gend) that can hold a larger sample than the peak so far.
@@ -283,10 +281,7 @@ IC_NOINLINE Peak peak_abs(const Channel& ch, float base, int at, int start) {
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
       const float before = p.peak;
       scan_peak(ch, k, base, &p.peak);
-      if (p.peak > before) {
-        lim = ch.level<kFits32>(p.peak);
-        p.block = k;
-      }
+      if (p.peak > before) lim = ch.level<kFits32>(p.peak);
     }
   };
   // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
