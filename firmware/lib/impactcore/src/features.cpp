@@ -641,11 +641,22 @@ void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi
 //  - a replaced sample departs from its line by D >= thr only if one of the second differences
 //    x[m] - 2 x[m-1] + x[m-2], m = i .. i + 2, reaches D (less the line's rounding, < 1);
 //  - every candidate's terms lie in m = i - 1 .. i + 3, so their mean square is at most the largest there,
-//    and the rest of the window holds at least the terms m = i - 3, i - 2, i + 4, i + 5: the ratio test
-//    needs that largest square above kSpikeRatio x their sum / the window's length (24 instead of 25
-//    leaves room for float rounding).
+//    and the rest of the window holds at least every term outside them (summed exactly): the ratio test
+//    needs that largest square above ratio x their sum / the window's length. The margins: ratio - 1 for
+//    the float terms and the mean, and 1e-4 of the window's whole sum (at most that sum and 5 x the
+//    largest) for spike_at's float sum less the candidate's (its rounding is ~1e-6 of the whole).
 inline float second_difference(const int16_t* x, int m) {
   return static_cast<float>(static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2]);
+}
+
+// sum of (Delta^2 x[m])^2 over m in [a, b), exact (|Delta^2 x| < 2^18: int64 sums).
+int64_t second_difference_energy(const int16_t* x, int a, int b) {
+  int64_t s = 0;
+  for (int m = a; m < b; ++m) {
+    const int32_t d = static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2];
+    s += static_cast<int64_t>(d) * d;
+  }
+  return s;
 }
 
 bool may_be_spike(const int16_t* x, int n, int i, float thr, float ratio = kSpikeRatio) {
@@ -662,14 +673,9 @@ bool may_be_spike(const int16_t* x, int n, int i, float thr, float ratio = kSpik
     const float d = second_difference(x, m);
     near = d * d > near ? d * d : near;
   }
-  float far = 0.0f;
-  const int far_m[4] = {i - 3, i - 2, i + 4, i + 5};
-  for (int k = 0; k < 4; ++k) {
-    if (far_m[k] < lo || far_m[k] >= hi) continue;
-    const float d = second_difference(x, far_m[k]);
-    far += d * d;
-  }
-  return near > (ratio - 1.0f) * far / static_cast<float>(hi - lo);
+  const float far = int64_to_float(second_difference_energy(x, lo, i - 1) + second_difference_energy(x, i + 4, hi));
+  const float rest = far - 1e-4f * (far + 5.0f * near);
+  return near > (ratio - 1.0f) * rest / static_cast<float>(hi - lo);
 }
 
 bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp, float ratio = kSpikeRatio) {
