@@ -214,13 +214,6 @@ struct Channel {
   }
 };
 
-// The peak scan's result: max |float(x) - base| over the capture and the block where it was reached (-1:
-// none read).
-struct Peak {
-  float peak = 0.0f;
-  int block = -1;
-};
-
 // range_extremes of the kBlock samples at b, inline: with SIMD32 two samples a word (SSUB16 + SEL, as
 // range_extremes), unrolled, without its call and range set-up.
 IC_INLINE void block_extremes(const int16_t* b, int32_t* lo, int32_t* hi) {
@@ -266,22 +259,22 @@ IC_INLINE void scan_peak(const Channel& ch, int k, float base, float* peak) {
 // and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
 constexpr int kArrivalBlocks = 3;
 template <bool kFits32>
-IC_NOINLINE Peak peak_abs(const Channel& ch, float base, int at, int start) {
-  Peak p;
+IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
+  float peak = 0.0f;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) {
-    scan_peak(ch, k, base, &p.peak);
+    scan_peak(ch, k, base, &peak);
   }
-  Channel::Level lim = ch.level<kFits32>(p.peak);
+  Channel::Level lim = ch.level<kFits32>(peak);
   // The blocks of group [g, gend) that can hold a larger sample than the peak so far.
   const auto blocks = [&](int g, int gend) {
     for (int k = g; k < gend; ++k) {
       if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
-      const float before = p.peak;
-      scan_peak(ch, k, base, &p.peak);
-      if (p.peak > before) lim = ch.level<kFits32>(p.peak);
+      const float before = peak;
+      scan_peak(ch, k, base, &peak);
+      if (peak > before) lim = ch.level<kFits32>(peak);
     }
   };
   // Groups of kGroup blocks first: a group too weak for the peak rules out all of its blocks.
@@ -307,37 +300,36 @@ IC_NOINLINE Peak peak_abs(const Channel& ch, float base, int at, int start) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
     if (ch.reaches<kFits32>(g, gend, base, lim)) blocks(g, gend);
   }
-  return p;
+  return peak;
 }
 
 // Any sample at or beyond a rail. None when the peak is closer to the baseline than both rails (a sample
-// at or beyond a rail is at least that far: float subtraction is monotone in x). Otherwise a clipped
-// channel's rail is mostly in the peak's own block (one block read); failing that, only blocks whose
-// energy reaches the distance from the baseline to the nearer rail can hold one (reaches, in groups of
-// four blocks first, as the peak scan).
+// at or beyond a rail is at least that far: float subtraction is monotone in x). Otherwise only blocks
+// whose energy reaches the distance from the baseline to the nearer rail can hold one (reaches, in groups
+// of four blocks first, as the peak scan), taken from the crossing's group on (where a clipped arrival
+// reaches the rail), then the groups before it.
 template <bool kFits32>
-bool clipped(const Channel& ch, float base, const Peak& pk, int adc_min, int adc_max) {
-  const float peak = pk.peak;
+bool clipped(const Channel& ch, float base, float peak, int at, int adc_min, int adc_max) {
   const float room_lo = base - static_cast<float>(adc_min);
   const float room_hi = static_cast<float>(adc_max) - base;
   if (peak < room_lo && peak < room_hi) return false;
-  if (pk.block >= 0) {
-    int32_t lo, hi;
-    range_extremes(ch.x, pk.block * kBlock, ch.block_end(pk.block), &lo, &hi);
-    if (lo <= adc_min || hi >= adc_max) return true;
-  }
   const float room = room_lo < room_hi ? room_lo : room_hi;
   if (room > 1.001f * peak + 1.0f) return false;
   const Channel::Level lim = ch.level<kFits32>(room);
   constexpr int kGroup = 4;
-  for (int g = 0; g < ch.nblk; g += kGroup) {
+  const int g0 = at >= 0 ? at / kBlock / kGroup * kGroup : 0;
+  for (int j = 0, g = g0; j < ch.nblk; j += kGroup, g = g + kGroup < ch.nblk ? g + kGroup : 0) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
     if (!ch.reaches<kFits32>(g, gend, base, lim)) continue;
     for (int k = g; k < gend; ++k) {
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
-      for (int i = k * kBlock, end = ch.block_end(k); i < end; ++i) {
-        if (ch.x[i] <= adc_min || ch.x[i] >= adc_max) return true;
+      int32_t lo, hi;
+      if ((k + 1) * kBlock <= ch.n) {
+        block_extremes(ch.x + k * kBlock, &lo, &hi);
+      } else {
+        range_extremes(ch.x, k * kBlock, ch.n, &lo, &hi);
       }
+      if (lo <= adc_min || hi >= adc_max) return true;
     }
   }
   return false;
@@ -812,12 +804,11 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
   const int below_from = (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
-  const Peak pk = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
-  const float peak = pk.peak;
+  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
   f->energy = energy;
   f->peak = peak;
-  if (ch.fits32 ? clipped<true>(ch, base, pk, cfg.adc_min, cfg.adc_max)
-                 : clipped<false>(ch, base, pk, cfg.adc_min, cfg.adc_max)) {
+  if (ch.fits32 ? clipped<true>(ch, base, peak, at, cfg.adc_min, cfg.adc_max)
+                 : clipped<false>(ch, base, peak, at, cfg.adc_min, cfg.adc_max)) {
     f->flags |= kFlagClipped;
   }
 
