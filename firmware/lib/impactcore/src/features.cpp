@@ -263,9 +263,7 @@ IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
   float peak = 0.0f;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
-  for (int k = kc; k >= 0 && k < ka; ++k) {
-    scan_peak(ch, k, base, &peak);
-  }
+  for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
   Channel::Level lim = ch.level<kFits32>(peak);
   // The blocks of group [g, gend) that can hold a larger sample than the peak so far.
   const auto blocks = [&](int g, int gend) {
@@ -314,7 +312,6 @@ bool clipped(const Channel& ch, float base, float peak, int at, int adc_min, int
   const float room_hi = static_cast<float>(adc_max) - base;
   if (peak < room_lo && peak < room_hi) return false;
   const float room = room_lo < room_hi ? room_lo : room_hi;
-  if (room > 1.001f * peak + 1.0f) return false;
   const Channel::Level lim = ch.level<kFits32>(room);
   constexpr int kGroup = 4;
   const int g0 = at >= 0 ? at / kBlock / kGroup * kGroup : 0;
@@ -628,8 +625,8 @@ void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi
   }
 }
 
-// Necessary for spike_at(x, n, i, thr), a few dozen instructions where n2 lands on a ringing or on noise
-// (spike_at costs ~1.5k on the board):
+// Necessary for spike_at(x, n, i, thr), ~160 instructions where n2 lands on a ringing or on noise (spike_at
+// costs ~1.1k on the board):
 //  - a replaced sample departs from its line by D >= thr only if one of the second differences
 //    x[m] - 2 x[m-1] + x[m-2], m = i .. i + 2, reaches D (less the line's rounding, < 1);
 //  - every candidate's terms lie in m = i - 1 .. i + 3, so their mean square is at most the largest there,
