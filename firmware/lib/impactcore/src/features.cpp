@@ -11,10 +11,6 @@
 
 #include "impactcore.h"
 
-#if defined(__ARM_FEATURE_SIMD32)
-#include <arm_acle.h>
-#endif
-
 namespace impactcore {
 namespace {
 
@@ -213,30 +209,6 @@ struct Channel {
     return s2 - 2u * uc * s1 + m * uc2 >= l.q2;
   }
 };
-
-// range_extremes of the kBlock samples at b, inline: with SIMD32 two samples a word (SSUB16 + SEL, as
-// range_extremes), unrolled, without its call and range set-up.
-IC_INLINE void block_extremes(const int16_t* b, int32_t* lo, int32_t* hi) {
-#if defined(__ARM_FEATURE_SIMD32)
-  int32_t w;
-  memcpy(&w, b, sizeof(w));
-  int16x2_t pmx = w, pmn = w;
-#pragma GCC unroll 8
-  for (int j = 2; j < kBlock; j += 2) {
-    memcpy(&w, b + j, sizeof(w));
-    __ssub16(w, pmx);
-    pmx = __sel(w, pmx);
-    __ssub16(pmn, w);
-    pmn = __sel(w, pmn);
-  }
-  const int32_t mx0 = static_cast<int16_t>(pmx & 0xFFFF), mx1 = static_cast<int16_t>(pmx >> 16);
-  const int32_t mn0 = static_cast<int16_t>(pmn & 0xFFFF), mn1 = static_cast<int16_t>(pmn >> 16);
-  *hi = mx0 > mx1 ? mx0 : mx1;
-  *lo = mn0 < mn1 ? mn0 : mn1;
-#else
-  range_extremes(b, 0, kBlock, lo, hi);
-#endif
-}
 
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
 // over the samples (float subtraction is monotone in x), from the block's integer extremes.

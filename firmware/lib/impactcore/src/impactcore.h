@@ -15,6 +15,10 @@
 #include <stdint.h>
 #include <string.h>
 
+#if defined(__ARM_FEATURE_SIMD32)
+#include <arm_acle.h>
+#endif
+
 namespace impactcore {
 
 constexpr int kChannels = 4;
@@ -218,6 +222,43 @@ int32_t range_sum(const int16_t* x, int a, int b);
 // Smallest and largest sample of x[a .. b) (b > a): exact integers, two samples an instruction pair on
 // the DSP extension (SSUB16 + SEL), a plain loop elsewhere.
 void range_extremes(const int16_t* x, int a, int b, int32_t* lo, int32_t* hi);
+#if defined(__ARM_FEATURE_SIMD32)
+// A running max and min of int16 pairs: SSUB16 sets each half's GE flags where the (full-precision)
+// difference is >= 0, SEL then takes that half from its first operand (unaligned word loads: the M4).
+struct PairExtremes {
+  int16x2_t mx, mn;
+  __attribute__((always_inline)) explicit PairExtremes(const int16_t* p) {
+    int32_t w;
+    memcpy(&w, p, sizeof(w));
+    mx = mn = w;
+  }
+  __attribute__((always_inline)) void add(const int16_t* p) {
+    int32_t w;
+    memcpy(&w, p, sizeof(w));
+    __ssub16(w, mx);
+    mx = __sel(w, mx);
+    __ssub16(mn, w);
+    mn = __sel(w, mn);
+  }
+  __attribute__((always_inline)) void get(int32_t* lo, int32_t* hi) const {
+    const int32_t mx0 = static_cast<int16_t>(mx & 0xFFFF), mx1 = static_cast<int16_t>(mx >> 16);
+    const int32_t mn0 = static_cast<int16_t>(mn & 0xFFFF), mn1 = static_cast<int16_t>(mn >> 16);
+    *hi = mx0 > mx1 ? mx0 : mx1;
+    *lo = mn0 < mn1 ? mn0 : mn1;
+  }
+};
+#endif
+// range_extremes of the kBlock samples at b, inline (unrolled, without the call and range set-up).
+__attribute__((always_inline)) inline void block_extremes(const int16_t* b, int32_t* lo, int32_t* hi) {
+#if defined(__ARM_FEATURE_SIMD32)
+  PairExtremes e(b);
+#pragma GCC unroll 8
+  for (int j = 2; j < kBlock; j += 2) e.add(b + j);
+  e.get(lo, hi);
+#else
+  range_extremes(b, 0, kBlock, lo, hi);
+#endif
+}
 // n_b^2 * sum over a range of m samples of (x - sum_b / n_b)^2, exact (see above).
 int64_t scaled_energy(const Sums& range, int m, int n_b, int32_t sum_b);
 

@@ -235,36 +235,15 @@ void range_extremes(const int16_t* x, int a, int b, int32_t* lo, int32_t* hi) {
   int32_t mn = x[a], mx = x[a];
   int i = a;
 #if defined(__ARM_FEATURE_SIMD32)
-  // Two samples a word: SSUB16 sets each half's GE flags where the (full-precision) difference is >= 0,
-  // SEL then takes that half from its first operand: a running pairwise max and min. A full block is
-  // kBlock / 2 words, unrolled.
+  // Two samples a word (PairExtremes); a full block unrolled (block_extremes).
+  if (b - a == kBlock) {
+    block_extremes(x + a, lo, hi);
+    return;
+  }
   if (b - a >= 2) {
-    int32_t w;
-    memcpy(&w, x + a, sizeof(w));
-    int16x2_t pmx = w, pmn = w;
-    i = a + 2;
-    if (b - a == kBlock) {
-#pragma GCC unroll 8
-      for (int j = 2; j < kBlock; j += 2) {
-        memcpy(&w, x + a + j, sizeof(w));
-        __ssub16(w, pmx);
-        pmx = __sel(w, pmx);
-        __ssub16(pmn, w);
-        pmn = __sel(w, pmn);
-      }
-      i = b;
-    }
-    for (; i + 2 <= b; i += 2) {
-      memcpy(&w, x + i, sizeof(w));
-      __ssub16(w, pmx);
-      pmx = __sel(w, pmx);
-      __ssub16(pmn, w);
-      pmn = __sel(w, pmn);
-    }
-    const int32_t mx0 = static_cast<int16_t>(pmx & 0xFFFF), mx1 = static_cast<int16_t>(pmx >> 16);
-    const int32_t mn0 = static_cast<int16_t>(pmn & 0xFFFF), mn1 = static_cast<int16_t>(pmn >> 16);
-    mx = mx0 > mx1 ? mx0 : mx1;
-    mn = mn0 < mn1 ? mn0 : mn1;
+    PairExtremes e(x + a);
+    for (i = a + 2; i + 2 <= b; i += 2) e.add(x + i);
+    e.get(&mn, &mx);
   }
 #endif
   for (; i < b; ++i) {
