@@ -22,6 +22,8 @@ import time
 from impactsense.data import load_session
 from impactsense.diagnose import diagnose
 
+from benchlib import misses_exit_code
+
 TOL = {"delay_us": 1.0, "gain": 0.05}          # issue 16
 # (effect, sensor) -> (parameter, the README's value): what each diagnosis must name
 EXPECTED = {
@@ -85,11 +87,7 @@ def main(argv=None) -> int:
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
-    if missed:
-        print("MISSED TARGETS:\n  " + "\n  ".join(missed))
-        return 1
-    print("targets met")
-    return 0
+    return misses_exit_code(missed)
 
 
 if __name__ == "__main__":

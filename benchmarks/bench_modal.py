@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchlib import misses_exit_code
+
 ROOT = Path(__file__).resolve().parents[1]
 NOISE_SEEDS = 3
 TARGETS = dict(corr=0.99, dtoa_rms_us=1.0, energy=0.02, sitemap_s=10.0, virtual_s=3.0)
@@ -163,11 +165,7 @@ def main(argv=None) -> int:
                 misses.append(f"{name}: virtual set {r['virtual_s']} s")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
-    if misses:
-        print("MISSED: " + "; ".join(misses))
-        return 1
-    print("all targets met")
-    return 0
+    return misses_exit_code(misses)
 
 
 if __name__ == "__main__":
