@@ -5,14 +5,18 @@ Runs firmware/test/qemu/run.sh with `-icount shift=4` (every guest instruction a
 instructions, so instructions = ticks x 200,000 / calibration ticks (resolution ~2.5 instructions).
 Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
 
-    python benchmarks/bench_firmware_cost.py [--model-dir MODEL_DIR] [--trees 12] [--drops 6 | --all]
+    python benchmarks/bench_firmware_cost.py [--data SESSION] [--model-dir MODEL_DIR [--trees 12] | --export OUT]
+                                             [--drops 6 | --all]
                                              [--site-map auto|none|FILE] [--site-map-step MM] [--profile]
 
 Without --model-dir the fixture trains its own board-rate forests (--trees per localisation forest) with the
 energy class on the twin's site map as the board sees it (--site-map auto: the bundled twin's; the board's
 5 mm map takes a few minutes the first time and is cached in build/bench-cache/). --model-dir MODEL_DIR
-exports that board model instead (e.g. OUT/board-model from `impactsense export`). --all times every
-session-1 drop, 100 to a test image (the image's 4 MB flash holds the recordings as data). --profile adds
+exports that board model instead (e.g. OUT/board-model from `impactsense export`); --export OUT takes
+OUT/board-model with the trees that export chose (its export.json). --data SESSION replays that
+session's drops (default: the bundled session-1) through the image: with a model trained on that rig
+(--model-dir OUT/board-model of `impactsense export`), the cost on another rig; drops the board does not
+report once or the model cannot read are left out and listed. --all times every drop, 100 to a test image (the image's 4 MB flash holds the recordings as data). --profile adds
 the instructions each function executes (where the features' cost goes; the image runs every stage of
 each drop, and its checks, so shares are of the whole run).
 """
@@ -101,12 +105,16 @@ def obj_size(build: Path, name: str) -> int:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", help="session folder whose drops are replayed (default: the bundled session)")
     ap.add_argument("--model-dir")
+    ap.add_argument("--export", help="an `impactsense export` folder: its board-model with the trees it exported "
+                                     "(instead of --model-dir / --trees)")
+    ap.add_argument("--energy-trees", type=int, help="the energy forest's trees (default: all)")
     ap.add_argument("--trees", type=int, default=12)
     ap.add_argument("--drops", type=int, default=6,
-                    help="session-1 drops in the fixture, evenly spaced (each one's whole event is timed)")
+                    help="drops in the fixture, evenly spaced (each one's whole event is timed)")
     ap.add_argument("--all", action="store_true",
-                    help="every session-1 drop, in fixtures of --chunk rows (the test image holds ~100 drops)")
+                    help="every drop of the session, in fixtures of --chunk rows (the test image holds ~100 drops)")
     ap.add_argument("--chunk", type=int, default=100)
     ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
@@ -120,15 +128,21 @@ def main() -> int:
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
         print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
+    if args.export:
+        done = json.loads((Path(args.export) / "export.json").read_text())
+        args.model_dir = str(Path(args.export) / "board-model")
+        args.trees, args.energy_trees = int(done["trees"]["x"]), int(done["trees"]["energy"])
     extra = ["--trees", str(args.trees)]
+    extra += ["--energy-trees", str(args.energy_trees)] if args.energy_trees else []
     extra += ["--model-dir", args.model_dir] if args.model_dir else []
+    extra += ["--data", args.data] if args.data else []
     cache = ROOT / "build" / "bench-cache" / f"board-site-map-{args.site_map_step or 'default'}.npz"
     cache.parent.mkdir(parents=True, exist_ok=True)
     extra += ["--site-map", args.site_map, "--site-map-cache", str(cache)]
     extra += ["--site-map-step", str(args.site_map_step)] if args.site_map_step else []
     if args.all:
         from impactsense.data import load_session
-        n = len(load_session())
+        n = len(load_session(args.data) if args.data else load_session())
         fixtures = [["--rows", f"{a}:{min(a + args.chunk, n)}"] for a in range(0, n, args.chunk)]
     else:
         fixtures = [["--drops", str(args.drops)]]
@@ -169,7 +183,7 @@ def main() -> int:
     for k in ("features", "process_event", "models_tables", "models_m2cgen", "event_total", "event_max_over_drops"):
         print(f"{k:<22}{ins[k]:>14,}{ins[k] / TARGET:>9.2f}{sizes.get(k, 0) or '':>13}")
     ev, fe = np.array(per_drop["event"]), np.array(per_drop["features"])
-    print(f"per drop ({len(ev)} session-1 drops, rows {rows[0]}..{rows[-1]}"
+    print(f"per drop ({len(ev)} drops of {Path(args.data).name if args.data else 'the bundled session'}, rows {rows[0]}..{rows[-1]}"
           f"{'' if args.all else ' evenly spaced'}): whole event "
           f"min {ev.min():,} median {int(np.median(ev)):,} p95 {int(np.percentile(ev, 95)):,} max {ev.max():,}; "
           f"features min {fe.min():,} max {fe.max():,}; the rest (localiser, Eq. 35, vector, models, "

@@ -172,14 +172,17 @@ MODELS_FLASH_BUDGET = FLASH_BUDGET_BYTES - FIRMWARE_CODE_BYTES
 
 def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarray | None, xy: np.ndarray | None,
                  tol_mm: float = 0.2, budget_bytes: int = MODELS_FLASH_BUDGET, twin_eval=None,
-                 max_trees: int | None = None) -> tuple[int, list[dict]]:
+                 max_trees: int | None = None, max_instructions: int | None = None) -> tuple[int, list[dict]]:
     """Trees per coordinate forest: the smallest prefix within tol_mm mean distance (of the reported position from
     the truth) of the full forests on the held-out
     drops (vector: the core's feature vectors, usable rows only), shrunk further if the tables would
     exceed the flash budget or the prefix would exceed max_trees (the cycle budget's bound). A prefix of a
     random forest is itself a random forest. With the twin (and twin_eval = (twin features [R, 16], usable
     masks [R]) of the same drops) the distance is the reported position's: the twin's match around each prefix's
-    position (mean_distance_mm; the forests' own: forest_mean_distance_mm). Each row says whether it fits both budgets."""
+    position (mean_distance_mm; the forests' own: forest_mean_distance_mm). max_instructions: what the event
+    budget leaves the forests (board.cost): the energy forest then takes the same prefix as the coordinates'
+    (energy_trees) and a row fits when the forests' estimated cost on the slowest of these drops
+    (instructions) is within it. Each row says whether it fits the budgets."""
     n_all = len(models.x.estimators_)
     if vector is None or len(vector) == 0:
         return n_all, []
@@ -187,10 +190,20 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     base = np.asarray(phys_xy, float) if models.residual_xy else np.zeros((len(X), 2))
     px = np.stack([t.predict(X[:, models.inputs["x"]]) for t in models.x.estimators_])
     py = np.stack([t.predict(X[:, models.inputs["y"]]) for t in models.y.estimators_])
+    n_energy = len(models.energy.estimators_)
     e_bytes = table_bytes(forest_tables(models.energy)) + table_bytes(models.twin)
+    nodes = None
+    sizes = (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all)
+    if max_instructions is not None:
+        from .board.cost import forest_nodes
+        nodes = {r: forest_nodes(f, X[:, models.inputs[r]])
+                 for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))}
+        sizes = (1, 2, 3, 4, *sizes)
     rows = []
-    for k in sorted({k for k in (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all) if k <= n_all}):
+    for k in sorted({k for k in sizes if k <= n_all}):
         pos = base + np.c_[px[:k].mean(0), py[:k].mean(0)]
+        if nodes is not None:
+            e_bytes = table_bytes(forest_tables(models.energy, min(k, n_energy))) + table_bytes(models.twin)
         b = table_bytes(forest_tables(models.x, k)) + table_bytes(forest_tables(models.y, k)) + e_bytes
         row = {"trees": k, "mean_distance_mm": float(np.mean(np.hypot(*(pos - xy).T))), "table_bytes": b}
         if models.twin is not None and twin_eval is not None:
@@ -199,6 +212,11 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
             row.update(forest_mean_distance_mm=row["mean_distance_mm"],
                        mean_distance_mm=float(np.mean(np.hypot(*(tw[ok] - xy[ok]).T))))
         row["within_budgets"] = b <= budget_bytes and (max_trees is None or k <= max_trees)
+        if nodes is not None:
+            from .board.cost import forests_instructions
+            row["energy_trees"] = min(k, n_energy)
+            row["instructions"] = forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]})
+            row["within_budgets"] = row["within_budgets"] and row["instructions"] <= max_instructions
         rows.append(row)
     best = min(r["mean_distance_mm"] for r in rows)
     chosen = min(r["trees"] for r in rows if r["mean_distance_mm"] <= best + tol_mm)
@@ -225,30 +243,45 @@ def staged_output(out_dir, force: bool = False):
 
 
 def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_eval=None,
-                  write_m2cgen: bool = True, phys_eval=None, twin_eval=None, into_stage: bool = False) -> dict:
+                  write_m2cgen: bool = True, phys_eval=None, twin_eval=None, into_stage: bool = False,
+                  energy_trees: int | None = None) -> dict:
     """Writes the C sources, the emulator's tables and export.json into out_dir (all of them or, on an error,
-    none: staged_output); returns the summary."""
+    none: staged_output); returns the summary. energy_trees: the energy forest's prefix with a number of trees
+    (default: whole; with trees auto the event budget may choose one)."""
     models = load_models(model_dir)
     if into_stage:      # out_dir is already a staging folder (outputs.output_folder) the caller commits
         return _write_export(models, model_dir, Path(out_dir), trees, X_eval, xy_eval, write_m2cgen, phys_eval,
-                             twin_eval)
+                             twin_eval, energy_trees)
     with staged_output(out_dir) as stage:
-        return _write_export(models, model_dir, stage, trees, X_eval, xy_eval, write_m2cgen, phys_eval, twin_eval)
+        return _write_export(models, model_dir, stage, trees, X_eval, xy_eval, write_m2cgen, phys_eval, twin_eval,
+                             energy_trees)
 
 
 def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, write_m2cgen, phys_eval,
-                  twin_eval) -> dict:
+                  twin_eval, energy_trees: int | None = None) -> dict:
     card_bytes = (Path(model_dir) / "model_card.json").read_bytes()
     model_hash = hashlib.sha256(card_bytes).hexdigest()[:16]
     sweep = []
+    n_energy = len(models.energy.estimators_) if energy_trees is None else min(int(energy_trees),
+                                                                                len(models.energy.estimators_))
+    signal_cost = None
     if trees == "auto":
+        # a model without the twin: its forests get what the event budget leaves after the signal's options
+        # (board.cost; a twin model's forests are capped at TWIN_MAX_TREES, measured with the twin's match)
+        if models.twin is None:
+            from .board.cost import EVENT_BUDGET, signal_instructions
+            from .signal import SignalConfig
+            signal_cost = signal_instructions(SignalConfig.from_dict(models.signal))
         k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval,
-                                max_trees=TWIN_MAX_TREES if models.twin is not None else None)
+                                max_trees=TWIN_MAX_TREES if models.twin is not None else None,
+                                max_instructions=None if signal_cost is None else EVENT_BUDGET - signal_cost["total"])
+        row = next((r for r in sweep if r["trees"] == k), {})
+        n_energy = row.get("energy_trees", n_energy)
     elif trees == "all":
         k = len(models.x.estimators_)
     else:
         k = min(int(trees), len(models.x.estimators_))
-    n_trees = {"x": k, "y": min(k, len(models.y.estimators_)), "energy": len(models.energy.estimators_)}
+    n_trees = {"x": k, "y": min(k, len(models.y.estimators_)), "energy": n_energy}
     tabs = {"x": forest_tables(models.x, n_trees["x"]), "y": forest_tables(models.y, n_trees["y"]),
             "energy": forest_tables(models.energy, n_trees["energy"])}
     head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
@@ -284,6 +317,10 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "flash_budget_bytes": MODELS_FLASH_BUDGET,   # of the 256 KB, what the firmware's code leaves
         "tree_sweep": sweep,
     }
+    row = next((r for r in sweep if r["trees"] == k and "instructions" in r), None)
+    if signal_cost is not None and row is not None:   # the board's per-event cost, estimated (board.cost)
+        summary["event_instructions_estimate"] = {**signal_cost, "models": row["instructions"],
+                                                  "total": signal_cost["total"] + row["instructions"]}
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
 
     (out_dir / "export.json").write_text(json_text(summary))

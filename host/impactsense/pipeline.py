@@ -85,7 +85,8 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
     return np.hypot(xy_mm[:, None, 0] - s[None, :, 0], xy_mm[:, None, 1] - s[None, :, 1])
 
 
-def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True) -> SignalConfig:
+def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True,
+                  fits=None) -> SignalConfig:
     """Fits the physics localiser on training drops (travel.py): the onset threshold and AIC blend the core
     picks with, the group velocity, the per-channel delays (relative to channel 0), the dispersion of the
     picked cycles' speed with their frequency (when it explains the picks clearly better) and, on a plate
@@ -93,7 +94,9 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
 
     Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
-    from the picks first). choose_threshold False keeps cfg's onset threshold and AIC blend."""
+    from the picks first). choose_threshold False keeps cfg's onset threshold and AIC blend. fits: a test
+    SignalConfig -> bool of the options (band picks, localiser starts) a target can afford (the board's event
+    budget: board.cost.signal_fits); options it rejects are not tried."""
     from .travel import fit_travel, picks, wants_metric
     from .travel import choose_threshold as choose
 
@@ -113,9 +116,9 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
     out.dispersion_exponent = fit.dispersion_exponent
     out.dispersion_ref_hz = fit.dispersion_ref_hz
-    out = choose_band(session, rows, choose_starts(session, rows, out))
+    out = choose_band(session, rows, choose_starts(session, rows, out, fits), fits)
     # the band picks' localiser shares localiser_starts: chosen again with them on
-    return choose_starts(session, rows, out) if out.band_velocity_mm_per_us > 0 else out
+    return choose_starts(session, rows, out, fits) if out.band_velocity_mm_per_us > 0 else out
 
 
 # More localiser starts (impactcore.h localiser_starts) are kept when they lower the training drops' physics
@@ -125,17 +128,20 @@ STARTS_GAIN = 0.97
 STARTS_TRIED = (1, 2, 4)
 
 
-def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
     """cfg with the localiser_starts whose physics positions of the training drops are closest to the truth
-    (the configured number unless another is clearly better)."""
+    (the configured number unless another is clearly better); fits (fit_localiser): only those it accepts
+    (one start always)."""
     xy = np.asarray(session.xy_mm, float)[rows]
     score = {}
     for n in STARTS_TRIED:
         trial = SignalConfig.from_dict({**cfg.to_dict(), "localiser_starts": n})
+        if fits is not None and n > 1 and not fits(trial):
+            continue
         phys = featurize(session.adc[rows], trial).phys_xy_mm.astype(float)
         ok = np.isfinite(phys).all(1)
         score[n] = float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
-    chosen = int(cfg.localiser_starts) if int(cfg.localiser_starts) in score else STARTS_TRIED[0]
+    chosen = int(cfg.localiser_starts) if int(cfg.localiser_starts) in score else min(score)
     best = min(score, key=score.get)
     if score[best] < STARTS_GAIN * score[chosen]:
         chosen = best
@@ -178,11 +184,16 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Signal
     return trial
 
 
-def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig:
+def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
     """cfg with the band picks when they bring the training drops' physics positions clearly closer to the
-    truth (BAND_GAIN), else cfg with them off."""
+    truth (BAND_GAIN), else cfg with them off. fits (fit_localiser): the band picks only where it accepts
+    them (with one localiser start if cfg's starts do not fit)."""
     off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0})
     trial = band_config(session, rows, off)
+    if trial is not None and fits is not None and not fits(trial):
+        trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})
+        if not fits(trial):
+            return off
     if trial is None:
         return off
     xy = np.asarray(session.xy_mm, float)[rows]

@@ -2,10 +2,15 @@
 board rate and the host's expected values (the natively compiled app's reports, the C++ core's features,
 scikit-learn's predictions).
 
-    python gen_fixture.py BUILD_DIR [--model-dir MODEL_DIR] [--drops 6] [--trees 12]
+    python gen_fixture.py BUILD_DIR [--data SESSION] [--model-dir MODEL_DIR] [--drops 6] [--trees 12]
                           [--site-map auto|none|FILE] [--site-map-step MM] [--site-map-cache FILE]
 
---trees: the localisation forests' trees exported (the energy forest is exported whole, as `impactsense export` does).
+--data: the session folder whose drops the image replays (default: the bundled session); its rig.json sets the
+board's capture (rate conversion, channels' layout) and the model should be one trained on that rig.
+With --rows or --data, drops the board does not report once or the models cannot read are left out (listed
+in fixture.json's skipped_rows); on the default session every fixture drop must be reported and usable.
+
+--trees: the localisation forests' trees exported; --energy-trees the energy forest's (default: whole).
 
 Without --model-dir it trains small forests on the firmware's own captures (impactsense.board.models),
 with the energy class on the twin's site map as the board sees it (made from --site-map, by default the
@@ -41,10 +46,12 @@ def c_array(ctype, name, a, fmt):
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("build")
+    ap.add_argument("--data", default=None, help="session folder (default: the bundled session)")
     ap.add_argument("--model-dir")
     ap.add_argument("--drops", type=int, default=6)
-    ap.add_argument("--rows", default=None, help="session-1 rows A:B instead of --drops evenly spaced ones")
+    ap.add_argument("--rows", default=None, help="the session's rows A:B instead of --drops evenly spaced ones")
     ap.add_argument("--trees", type=int, default=12)
+    ap.add_argument("--energy-trees", type=int, default=None, help="the energy forest's trees (default: all)")
     ap.add_argument("--fs", type=int, default=50000)
     ap.add_argument("--site-map", default="auto", help="auto (the bundled twin's), none, or a site map file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step, mm")
@@ -52,7 +59,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     build = Path(args.build)
     build.mkdir(parents=True, exist_ok=True)
-    s = load_session()
+    s = load_session(args.data) if args.data else load_session()
+    lenient = bool(args.rows or args.data)   # leave out drops the board or the models cannot take
     model_dir = Path(args.model_dir) if args.model_dir else None
     if model_dir is None:
         from impactsense.board.models import board_site_map, train_board_models
@@ -64,17 +72,19 @@ def main(argv=None):
             board_map = board_site_map(source, s.rig, args.fs, step_mm=args.site_map_step,
                                        cache=Path(args.site_map_cache or build / "board-site-map.npz"))
         model_dir = train_board_models(s, build / "model", n_trees=args.trees, fs_hz=args.fs, site_map=board_map)
-    export_models(model_dir, build / "models", trees=args.trees)
+    export_models(model_dir, build / "models", trees=args.trees, energy_trees=args.energy_trees)
     model = ImpactModel.load(model_dir)
     for forest in (model.forest_dx, model.forest_dy):  # the exported prefix (a random forest itself)
         forest.estimators_ = forest.estimators_[:args.trees]
+    if args.energy_trees:
+        model.forest_energy.estimators_ = model.forest_energy.estimators_[:args.energy_trees]
     fm, signal = firmware_models(build / "models")
 
     if args.rows:
         a, b = (int(v) for v in args.rows.split(":"))
         rows = np.arange(max(a, 0), min(b, len(s)))
         if rows.size == 0:
-            raise SystemExit(f"--rows {args.rows}: no session-1 rows in that range (0..{len(s) - 1})")
+            raise SystemExit(f"--rows {args.rows}: no rows of the session in that range (0..{len(s) - 1})")
     else:
         rows = np.linspace(0, len(s) - 1, args.drops).round().astype(int)
     cfg = app_config(s.rig, args.fs, signal, dump_raw=True)
@@ -101,7 +111,7 @@ def main(argv=None):
 
     frames, bodies, caps, one = replay(rows)
     skipped = []
-    if args.rows and not one.all():   # a range of rows: keep the drops the board reports and the models read
+    if lenient and not one.all():   # a range of rows: keep the drops the board reports and the models read
         skipped = rows[~one].tolist()
         rows = rows[one]
         frames, bodies, caps, one = replay(rows)
@@ -111,7 +121,7 @@ def main(argv=None):
     feats = featurize(caps, board_signal)
     pred = model.predict(feats)
     good = feats.usable & (pred["energy_class"] >= 0)
-    if args.rows and not good.all():
+    if lenient and not good.all():
         skipped += rows[~good].tolist()
         rows = rows[good]
         frames, bodies, caps, one = replay(rows)

@@ -34,6 +34,7 @@ from ..split import case_split
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .capture import board_capture, board_captures, board_view, signal_for_board
+from .cost import signal_fits
 
 BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
 
@@ -122,7 +123,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     (row indices) is given; the card lists the held-out recording ids (`test_recording_ids`, and `split`
     as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
     site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
-    The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own)."""
+    The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own).
+    The band picks and localiser starts are chosen among those within the board's event budget
+    (board.cost.signal_fits)."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -134,8 +137,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     is_test = ~is_train & ~excluded[rows]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
     # the rig's delays (the scan's are the capture's); the board's onset threshold as configured (its picks
-    # at 50 kHz are coarser than the rig's: a threshold chosen on them would move the rig's delays)
-    sig = fit_localiser(board, np.flatnonzero(is_train), sig, choose_threshold=False)
+    # at 50 kHz are coarser than the rig's: a threshold chosen on them would move the rig's delays); the band
+    # picks and localiser starts only where the event budget affords them (board.cost)
+    sig = fit_localiser(board, np.flatnonzero(is_train), sig, choose_threshold=False, fits=signal_fits)
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],

@@ -106,8 +106,16 @@ def _export(args, card, rate, stage, out):
                       write_m2cgen=not args.no_m2cgen, twin_eval=twin, into_stage=True)
     for row in s["tree_sweep"]:
         forest = f" (the forests' {row['forest_mean_distance_mm']:.2f} mm)" if "forest_mean_distance_mm" in row else ""
+        cost = f", ~{row['instructions']:,} instructions an event" if "instructions" in row else ""
         print(f"  {row['trees']:>4} trees: mean distance {row['mean_distance_mm']:.2f} mm{forest}, "
-              f"{row['table_bytes'] / 1024:.1f} KB of tables{'' if row['within_budgets'] else ', over a budget'}")
+              f"{row['table_bytes'] / 1024:.1f} KB of tables{cost}{'' if row['within_budgets'] else ', over a budget'}")
+    est = s.get("event_instructions_estimate")
+    if est is not None:
+        from ..board.cost import EVENT_BUDGET
+
+        print(f"per-event cost on the board, estimated (board.cost): {est['total']:,} instructions (features and "
+              f"report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, forests "
+              f"{est['models']:,}; budget {EVENT_BUDGET:,}: {'ok' if est['total'] <= EVENT_BUDGET else 'OVER'})")
     acc = _board_accuracy(model_dir, card, stage)
     if acc is not None:
         s["board_held_out"] = acc

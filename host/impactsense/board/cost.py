@@ -1,0 +1,83 @@
+"""The board's per-event cost (issues 15/17: <= 64,000 instructions an event on the Cortex-M4F), estimated on
+the host from what an export chooses, so that the board's refit and `impactsense export` choose within it.
+
+The event is the features (with or without the band picks), the physics localiser (one run, a second with
+the band picks' own travel model, each with `localiser_starts` starts), Eq. 35, the feature vector and the
+report, and the models (the forests' node tables; the twin's match where the model has one). The cost of
+each part is a measured rate (instructions under qemu -icount, the image bench_firmware_cost.py builds:
+`python3 benchmarks/bench_firmware_cost.py --data DATA --model-dir OUT/board-model`; figures in
+docs/findings.md, "The board's options within the event budget"):
+
+- BASE_INSTRUCTIONS: the features without the band picks, Eq. 35, the vector and the report on the slowest
+  drops measured on three rigs' board captures (the features alone up to ~47.4k);
+- band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
+  first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
+- localiser: LOCALISER_FIRST_START for a run's first start (the slowest measured: a metric plate, dispersive
+  picks, 6 iterations), LOCALISER_EXTRA_START for each further start;
+- forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
+  on actual feature vectors (the slowest row), plus FOREST_FIXED (the inputs' gathering, the calls, the vote).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+EVENT_BUDGET = 64000
+BASE_INSTRUCTIONS = 50000
+BAND_PER_SAMPLE = 80
+LOCALISER_FIRST_START = 9000
+LOCALISER_EXTRA_START = 3000
+FOREST_PER_NODE = 11
+FOREST_PER_TREE = 30
+FOREST_FIXED = 800
+# What the board's refit leaves the models when it chooses the signal's options: about ten trees in each of the
+# three forests (export.select_trees then fits the forests into what the chosen options leave).
+MODELS_ALLOWANCE = 5000
+
+# impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
+# its cut-off divisor, the longest window kept.
+_BAND_BEFORE_US = 300.0
+_BAND_POLES = 4
+_BAND_CUTOFF_DIVISOR = 6.0
+_BAND_MAX_WINDOW = 512
+
+
+def band_samples(cfg) -> int:
+    """Samples one channel's band pick filters (settling + window), 0 when the band picks are off."""
+    fs, f0 = float(cfg.fs_hz), float(cfg.band_pick_hz)
+    if not (f0 > 0 and fs > 0 and float(cfg.band_velocity_mm_per_us) > 0):
+        return 0
+    wc = 2 * math.pi * (f0 / _BAND_CUTOFF_DIVISOR) / fs
+    alpha = wc / (1 + wc)
+    window = int(_BAND_BEFORE_US * 1e-6 * fs + 0.5) + int(float(cfg.band_window_us) * 1e-6 * fs + 0.5)
+    return min(window, _BAND_MAX_WINDOW) + int(2 * _BAND_POLES / alpha + 0.5)
+
+
+def signal_instructions(cfg, channels: int = 4) -> dict:
+    """The event's cost without the models (instructions): {'base', 'band', 'localiser', 'total'} for the
+    signal configuration cfg (pipeline.SignalConfig) at its rate."""
+    band = channels * BAND_PER_SAMPLE * band_samples(cfg)
+    starts = max(1, int(cfg.localiser_starts))
+    runs = 2 if band else 1
+    loc = runs * (LOCALISER_FIRST_START + (starts - 1) * LOCALISER_EXTRA_START)
+    return {"base": BASE_INSTRUCTIONS, "band": band, "localiser": loc, "total": BASE_INSTRUCTIONS + band + loc}
+
+
+def signal_fits(cfg) -> bool:
+    """Whether cfg's options leave the models their allowance of the event budget."""
+    return signal_instructions(cfg)["total"] + MODELS_ALLOWANCE <= EVENT_BUDGET
+
+
+def forest_nodes(forest, X: np.ndarray) -> np.ndarray:
+    """Nodes each tree of a scikit-learn forest visits for each row of X (leaf included): int [trees, rows]."""
+    X = np.asarray(X, dtype=np.float32)
+    return np.stack([np.asarray(t.decision_path(X).sum(axis=1)).ravel() for t in forest.estimators_])
+
+
+def forests_instructions(nodes: dict, trees: dict) -> int:
+    """The models' cost for the prefixes `trees` (role -> number of trees) of forests whose node counts are
+    `nodes` (role -> forest_nodes): the slowest row."""
+    per_row = sum(FOREST_PER_NODE * nodes[r][:k].sum(axis=0) + FOREST_PER_TREE * k for r, k in trees.items())
+    return FOREST_FIXED + (int(np.max(per_row)) if np.size(per_row) else 0)
