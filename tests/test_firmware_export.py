@@ -163,6 +163,15 @@ def test_cli_export(exported, tmp_path):
     assert next(r for r in sweep if r["trees"] == chosen)["within_budgets"]
     if twin:
         assert all(r["within_budgets"] == (r["trees"] <= TWIN_MAX_TREES) for r in sweep)
+    else:   # the forests, the energy forest's prefix with them, within what the event budget leaves (board.cost)
+        from impactsense.board.cost import EVENT_BUDGET
+
+        done = json.loads((tmp_path / "m" / "export.json").read_text())
+        est = done["event_instructions_estimate"]
+        left = EVENT_BUDGET - (est["base"] + est["band"] + est["localiser"])
+        assert all(r["within_budgets"] <= (r["instructions"] <= left) for r in sweep)
+        assert [r["instructions"] for r in sweep] == sorted(r["instructions"] for r in sweep)
+        assert done["trees"]["energy"] == min(chosen, 15) and est["total"] <= EVENT_BUDGET
 
 
 def test_export_rejects_incomplete_model_dir(tmp_path):

@@ -1,0 +1,84 @@
+"""The board's per-event cost estimate (impactsense.board.cost) and the choices made within it: the refit's
+band picks and localiser starts (pipeline.fit_localiser's fits), the exported forests' prefix."""
+
+import numpy as np
+from sklearn.ensemble import RandomForestRegressor
+
+from impactsense import pipeline
+from impactsense.board import cost
+from impactsense.data import load_session
+from impactsense.signal import SignalConfig
+
+
+def board_cfg(**kw) -> SignalConfig:
+    cfg = SignalConfig()
+    cfg.fs_hz = 50000.0
+    for k, v in kw.items():
+        setattr(cfg, k, v)
+    return cfg
+
+
+def test_band_picks_and_starts_add_their_cost():
+    """Off, the event is the base and one localiser run; the band picks add the samples their demodulator
+    filters on four channels (window from 300 us before the onset + settling of four poles at f0 / 6) and a
+    second localiser run; each start beyond the first adds its refinement to every run."""
+    plain = cost.signal_instructions(board_cfg())
+    assert plain["band"] == 0 and plain["total"] == cost.BASE_INSTRUCTIONS + cost.LOCALISER_FIRST_START
+    band = board_cfg(band_pick_hz=10000.0, band_window_us=500.0, band_velocity_mm_per_us=1.5)
+    alpha = (2 * np.pi * 10000.0 / 6 / 50000.0) / (1 + 2 * np.pi * 10000.0 / 6 / 50000.0)
+    assert cost.band_samples(band) == 15 + 25 + round(8 / alpha)
+    with_band = cost.signal_instructions(band)
+    assert with_band["band"] == 4 * cost.BAND_PER_SAMPLE * cost.band_samples(band)
+    assert with_band["localiser"] == 2 * cost.LOCALISER_FIRST_START
+    longer = board_cfg(band_pick_hz=10000.0, band_window_us=1000.0, band_velocity_mm_per_us=1.5)
+    assert cost.signal_instructions(longer)["band"] > with_band["band"]
+    # no band travel model: the core does not run them for the position (process_event), nor counts them here
+    assert cost.band_samples(board_cfg(band_pick_hz=10000.0)) == 0
+    four = cost.signal_instructions(board_cfg(localiser_starts=4))
+    assert four["localiser"] == cost.LOCALISER_FIRST_START + 3 * cost.LOCALISER_EXTRA_START
+    assert cost.signal_fits(board_cfg()) and not cost.signal_fits(band)
+
+
+def test_forest_cost_counts_the_nodes_each_tree_walks():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(300, 3)).astype(np.float32)
+    forest = RandomForestRegressor(n_estimators=6, max_depth=3, random_state=0).fit(X, X[:, 0] + X[:, 1] ** 2)
+    nodes = cost.forest_nodes(forest, X[:40])
+    assert nodes.shape == (6, 40)
+    assert nodes.min() >= 2 and nodes.max() <= 4       # root .. leaf of a tree 3 splits deep
+    tree = forest.estimators_[2].tree_     # one row's path by hand
+    i, n = 0, 1
+    while tree.children_left[i] != -1:
+        i = tree.children_left[i] if X[5, tree.feature[i]] <= tree.threshold[i] else tree.children_right[i]
+        n += 1
+    assert nodes[2, 5] == n
+    few = cost.forests_instructions({"x": nodes}, {"x": 2})
+    assert few == cost.FOREST_FIXED + int((cost.FOREST_PER_NODE * nodes[:2].sum(0) + 2 * cost.FOREST_PER_TREE).max())
+    assert cost.forests_instructions({"x": nodes}, {"x": 6}) > few
+
+
+def test_fit_localiser_tries_only_the_options_that_fit(monkeypatch):
+    """With fits rejecting more than one start and the band picks, no such configuration is ever scored
+    (featurized); without fits the same fit scores more starts (so the spy can see them)."""
+    s = load_session()
+    rows = np.arange(0, len(s), 12)
+    seen = []
+    real = pipeline.featurize
+
+    def spy(adc, cfg):
+        seen.append((int(cfg.localiser_starts), float(cfg.band_velocity_mm_per_us)))
+        return real(adc, cfg)
+
+    monkeypatch.setattr(pipeline, "featurize", spy)
+    cfg = SignalConfig.for_rig(s.rig)
+
+    def fits(c):
+        return int(c.localiser_starts) == 1 and not float(c.band_velocity_mm_per_us) > 0
+
+    out = pipeline.fit_localiser(s, rows, cfg, choose_threshold=False, fits=fits)
+    assert out.localiser_starts == 1 and out.band_velocity_mm_per_us == 0
+    assert seen and all(fits(SignalConfig.from_dict({**cfg.to_dict(), "localiser_starts": n,
+                                                     "band_velocity_mm_per_us": v})) for n, v in seen)
+    seen.clear()
+    pipeline.fit_localiser(s, rows, cfg, choose_threshold=False)
+    assert any(n > 1 for n, _ in seen)
