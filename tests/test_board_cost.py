@@ -82,3 +82,24 @@ def test_fit_localiser_tries_only_the_options_that_fit(monkeypatch):
     seen.clear()
     pipeline.fit_localiser(s, rows, cfg, choose_threshold=False)
     assert any(n > 1 for n, _ in seen)
+
+
+def test_the_board_refit_takes_the_given_onset_threshold_and_stays_within_the_budget(tmp_path):
+    """train_board_models with an onset threshold (retrain_for_board passes the rig's model's): the board's
+    picks use it (its card and the picks of a drop whose first crossing depends on it), and the options it
+    keeps leave the models their share of the event budget."""
+    import json
+
+    from impactsense.board.capture import board_captures
+    from impactsense.board.models import train_board_models
+
+    s = load_session()
+    sub = s.subset(np.arange(0, len(s), 6))
+    d = train_board_models(sub, tmp_path / "m", n_trees=3, onset_threshold_counts=37.0)
+    sig = SignalConfig.from_dict(json.loads((d / "model_card.json").read_text())["signal"])
+    assert sig.onset_threshold_counts == 37.0
+    assert cost.signal_fits(sig)
+    caps, _, board = board_captures(sub)
+    low = pipeline.featurize(caps[:20], board).toa_us.astype(float)
+    high = pipeline.featurize(caps[:20], SignalConfig.from_dict({**board.to_dict(), "onset_threshold_counts": 37.0}))
+    assert np.nanmean(high.toa_us.astype(float) - low) > 0    # a higher threshold crosses later

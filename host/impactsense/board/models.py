@@ -114,7 +114,7 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
-                       site_map=None) -> Path:
+                       site_map=None, onset_threshold_counts: float | None = None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -125,7 +125,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
     The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own).
     The band picks and localiser starts are chosen among those within the board's event budget
-    (board.cost.signal_fits)."""
+    (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
+    configured one); retrain_for_board passes the one the rig's own model chose."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -133,12 +134,16 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     if exclude_rows is not None and len(exclude_rows):
         excluded[np.asarray(exclude_rows, int)] = True
     caps, rows, sig = board_captures(session, fs_hz)
+    if onset_threshold_counts is not None:
+        sig.onset_threshold_counts = float(onset_threshold_counts)
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
-    # the rig's delays (the scan's are the capture's); the board's onset threshold as configured (its picks
-    # at 50 kHz are coarser than the rig's: a threshold chosen on them would move the rig's delays); the band
-    # picks and localiser starts only where the event budget affords them (board.cost)
+    # the rig's delays (the scan's are the capture's); the onset threshold as given (its picks at 50 kHz are
+    # coarser than the rig's: a threshold chosen on them would move the rig's delays; the threshold is in ADC
+    # counts, above the channels' noise and offsets, which the board's resampling keeps: the rig's model's
+    # choice carries over, the AIC blend stays the board's); the band picks and localiser starts only where
+    # the event budget affords them (board.cost)
     sig = fit_localiser(board, np.flatnonzero(is_train), sig, choose_threshold=False, fits=signal_fits)
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
@@ -189,7 +194,9 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
         source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
                                             "twin.site_map"))
         board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache)
+    threshold = (card.get("signal") or {}).get("onset_threshold_counts")
     return train_board_models(session, out_dir, fs_hz=fs_hz, settings=ForestSettings(**forest), site_map=board_map,
+                              onset_threshold_counts=None if threshold is None else float(threshold),
                               exclude_rows=rows("excluded_recordings"), train_rows=rows("train_recordings"),
                               test_fraction=float(split.get("test_fraction", 0.2)), seed=int(split.get("seed", 0)),
                               extra_card={"retrained_from": str(Path(model_dir).resolve())})
