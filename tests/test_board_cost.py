@@ -103,3 +103,30 @@ def test_the_board_refit_takes_the_given_onset_threshold_and_stays_within_the_bu
     low = pipeline.featurize(caps[:20], board).toa_us.astype(float)
     high = pipeline.featurize(caps[:20], SignalConfig.from_dict({**board.to_dict(), "onset_threshold_counts": 37.0}))
     assert np.nanmean(high.toa_us.astype(float) - low) > 0    # a higher threshold crosses later
+
+
+def test_select_trees_fits_the_forests_into_the_instructions_left():
+    """export.select_trees with max_instructions: the chosen prefix's estimated cost is within it (the energy
+    forest cut to the same prefix), more instructions never give fewer trees, and with none left the
+    cheapest forests (one tree) rather than the most accurate."""
+    from sklearn.ensemble import RandomForestClassifier
+
+    from impactsense.export import ModelSet, select_trees
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(400, 4)).astype(np.float32)
+    xy = np.c_[X[:, 0] * 50 + 200, X[:, 1] * 40 + 150]
+    fx = RandomForestRegressor(n_estimators=30, random_state=0).fit(X[:300], xy[:300, 0])
+    fy = RandomForestRegressor(n_estimators=30, random_state=1).fit(X[:300], xy[:300, 1])
+    fe = RandomForestClassifier(n_estimators=30, random_state=2).fit(X[:300], X[:300, 2] > 0)
+    models = ModelSet(fx, fy, fe, {}, 4, {"x": [0, 1, 2, 3], "y": [0, 1, 2, 3], "energy": [0, 1, 2, 3]}, False, {})
+    chosen = {}
+    for left in (0, 3000, 6000, 10**7):
+        k, rows = select_trees(models, X[300:], None, xy[300:], max_instructions=left)
+        row = next(r for r in rows if r["trees"] == k)
+        assert row["energy_trees"] == k
+        if left:
+            assert row["within_budgets"] and row["instructions"] <= left
+        chosen[left] = k
+    assert chosen[0] == 1 and chosen[0] <= chosen[3000] <= chosen[6000] <= chosen[10**7]
+    assert chosen[10**7] > chosen[3000]

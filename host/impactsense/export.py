@@ -223,6 +223,8 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     fits = [r["trees"] for r in rows if r["within_budgets"]]
     if fits and chosen > max(fits):
         chosen = max(fits)
+    elif not fits and nodes is not None:   # nothing within the event budget: the cheapest forests
+        chosen = min(r["trees"] for r in rows)
     return chosen, rows
 
 
