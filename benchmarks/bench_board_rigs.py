@@ -107,7 +107,8 @@ def main() -> int:
             misses.append(f"{r['rig']}: {r['instructions_max']:,} instructions > {INSTRUCTIONS_TARGET:,}")
         fl = f"{flash:,} ({r['flash_code_bytes']:,} + {r['flash_models_bytes']:,})" if flash else "-"
         print(f"{r['rig']:12s} {t['x']:>4}/{t['y']}/{t['energy']:<4} {fl:>26s} {r['instructions_max']:>10,} "
-              f"{r['estimate'] or 0:>9,} {acc.get('all', {}).get('mae_mm', float('nan')):9.2f} "
+              f"{format(r['estimate'], ',') if r['estimate'] else '- (twin)':>9} "
+              f"{acc.get('all', {}).get('mae_mm', float('nan')):9.2f} "
               f"{acc.get('energy_class_accuracy', float('nan')):6.3f}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
