@@ -155,12 +155,21 @@ def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=No
 # localiser_starts'). Their peak is sought over this many times the longest sensor-to-sensor travel time.
 BAND_GAIN = 0.97
 BAND_WINDOW_TRAVELS = 2.0
+# The band's frequency (times the training picks' median frequency) and the fraction of its envelope's peak
+# the pick takes, tried on the training drops: the pair whose band travel model explains the training band
+# picks best (robust residual spread in mm, as choose_threshold scores thresholds) is the one tried against
+# the threshold picks. Below the picks' median frequency and low on the envelope's rise the pick sits ahead
+# of the edge reflections that reshape the envelope near its peak (docs/findings.md "Band picks: the
+# fraction and the frequency").
+BAND_FREQUENCY_FACTORS = (1.0, 0.7)
+BAND_FRACTIONS = (0.1, 0.05, 0.03)
 
 
 def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig | None:
-    """cfg with the band picks on: their frequency the training picks' median (fs / pick_period), their
-    travel model (velocity, delays, metric on a plate that wants one) fitted on the training drops; None when
-    the picks give no frequency or too few band picks."""
+    """cfg with the band picks on: their frequency a multiple of the training picks' median (fs / pick_period)
+    and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose travel model fits the
+    training band picks best), their travel model (velocity, delays, metric on a plate that wants one) fitted
+    on the training drops; None when the picks give no frequency or too few band picks."""
     from .travel import fit_travel, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows])
@@ -168,20 +177,28 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Signal
     known = np.isfinite(period) & (period > 0)
     if known.mean() < 0.5:
         return None
-    trial = SignalConfig.from_dict(cfg.to_dict())
-    trial.band_pick_hz = float(np.median(cfg.fs_hz / period[known]))
+    median_hz = float(np.median(cfg.fs_hz / period[known]))
     sensors = cfg.sensor_xy_mm
     metric = (cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)
     longest = max(float(travel_distances(sensors[i:i + 1], sensors, metric).max()) for i in range(len(sensors)))
-    trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
-    toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
-    if np.isfinite(toa).all(1).sum() < 8:
-        return None
-    fit = fit_travel(toa, np.asarray(session.xy_mm, float)[rows], sensors, wants_metric(session.rig))
-    trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
-    trial.band_delay_us = list(fit.delays_us)
-    trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
-    return trial
+    xy = np.asarray(session.xy_mm, float)[rows]
+    best, best_spread = None, np.inf
+    for factor in BAND_FREQUENCY_FACTORS:
+        for fraction in BAND_FRACTIONS:
+            trial = SignalConfig.from_dict(cfg.to_dict())
+            trial.band_pick_hz = factor * median_hz
+            trial.band_pick_fraction = fraction
+            trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
+            toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
+            if np.isfinite(toa).all(1).sum() < 8:
+                continue
+            fit = fit_travel(toa, xy, sensors, wants_metric(session.rig))
+            if fit.spread_mm < best_spread:
+                trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
+                trial.band_delay_us = list(fit.delays_us)
+                trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
+                best, best_spread = trial, fit.spread_mm
+    return best
 
 
 def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
