@@ -165,11 +165,12 @@ BAND_FREQUENCY_FACTORS = (1.0, 0.7)
 BAND_FRACTIONS = (0.1, 0.05, 0.03)
 
 
-def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> SignalConfig | None:
+def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig | None:
     """cfg with the band picks on: their frequency a multiple of the training picks' median (fs / pick_period)
     and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose travel model fits the
-    training band picks best), their travel model (velocity, delays, metric on a plate that wants one) fitted
-    on the training drops; None when the picks give no frequency or too few band picks."""
+    training band picks best; with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
+    travel model (velocity, delays, metric on a plate that wants one) fitted on the training drops; None when
+    the picks give no frequency or too few band picks."""
     from .travel import fit_travel, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows])
@@ -193,11 +194,15 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig) -> Signal
             if np.isfinite(toa).all(1).sum() < 8:
                 continue
             fit = fit_travel(toa, xy, sensors, wants_metric(session.rig))
-            if fit.spread_mm < best_spread:
-                trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
-                trial.band_delay_us = list(fit.delays_us)
-                trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
-                best, best_spread = trial, fit.spread_mm
+            if fit.spread_mm >= best_spread:
+                continue
+            trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
+            trial.band_delay_us = list(fit.delays_us)
+            trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
+            if fits is not None and not (fits(trial) or fits(SignalConfig.from_dict(
+                    {**trial.to_dict(), "localiser_starts": 1}))):
+                continue
+            best, best_spread = trial, fit.spread_mm
     return best
 
 
@@ -206,7 +211,7 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     truth (BAND_GAIN), else cfg with them off. fits (fit_localiser): the band picks only where it accepts
     them (with one localiser start if cfg's starts do not fit)."""
     off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0})
-    trial = band_config(session, rows, off)
+    trial = band_config(session, rows, off, fits)
     if trial is not None and fits is not None and not fits(trial):
         trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})
         if not fits(trial):
