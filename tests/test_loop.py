@@ -120,7 +120,11 @@ def test_measured_training_data_carries_independent_noise_draws(tmp_path):
     assert abs(np.corrcoef(added[0].ravel(), added[1].ravel())[0, 1]) < 0.05   # independent draws
     gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
     assert len(measured_training_session(base, [gain], ref, tmp_path / "gain")) == n
-    assert pick_settings(out, [gain]) is None   # the rig's settings unless the noise floor rose
+    # a gain: the rig's settings with the channel's gain told to the core (its onset threshold scales with it)
+    from impactsense.signal import SignalConfig
+    cfg = pick_settings(out, [gain])
+    assert list(cfg.channel_gain) == pytest.approx([0.8, 1.0, 1.0, 1.0])
+    assert cfg.onset_noise_factor == SignalConfig.for_rig(base.rig).onset_noise_factor
 
 
 def test_pick_settings_only_for_a_material_white_floor():
@@ -136,3 +140,50 @@ def test_pick_settings_only_for_a_material_white_floor():
     configured = float(SignalConfig.for_rig(base.rig).onset_noise_factor)
     assert cfg is not None and any(float(cfg.onset_noise_factor) == pytest.approx(configured * s)
                                    for s in NOISE_FACTOR_SCALES)
+
+
+def test_channel_lowpass_orders_and_where_the_noise_is():
+    """The bond's low-pass signal model: order 1 is scipy's first-order Butterworth (-3 dB at fc), order 2 the
+    effect's default; with noise_filtered the record is filtered whole, otherwise the noise it took is given
+    back (the pre-trigger rms stays within 10 % of the input's)."""
+    from scipy import signal as sps
+
+    from impactsense.effects.channel_lowpass import lowpass, lowpass_signal
+    fs, fc = 100_000.0, 4000.0
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((8, 4096)) * 2.0
+    b, a = sps.butter(1, fc, fs=fs)
+    assert np.allclose(lowpass(x, fc, fs, order=1), sps.lfilter(b, a, x, axis=-1))
+    tone = np.sin(2 * np.pi * fc * np.arange(4096) / fs)
+    assert np.std(lowpass(tone, fc, fs, order=1)[1000:]) / np.std(tone[1000:]) == pytest.approx(2 ** -0.5, rel=0.03)
+    assert np.std(lowpass(tone, fc, fs, order=2)[1000:]) / np.std(tone[1000:]) == pytest.approx(2 ** -0.5, rel=0.03)
+    given = lowpass_signal(x, fc, fs, rng=1, order=1)
+    filtered = lowpass_signal(x, fc, fs, rng=1, order=1, give_back=False)
+    assert np.std(given[:, :64]) == pytest.approx(np.std(x[:, :64]), rel=0.1)
+    # white noise through a first-order low-pass keeps sqrt(pi fc / fs) of its rms (~0.35 at 4 kHz)
+    assert np.std(filtered) / np.std(x) == pytest.approx(np.sqrt(np.pi * fc / fs), rel=0.1)
+
+
+@pytest.mark.slow
+def test_fit_bond_sizes_a_debonded_channel_the_injector_made():
+    """A channel debonded by impactsense.faults (x0.45, first-order 4 kHz low-pass on the whole recording, not
+    the effect library's model) and diagnosed as a gain loss: fit_bond finds a first-order low-pass within 25 %
+    of the cut-off, the filtered-noise model and the gain within 0.07, and drops a delay named on that channel;
+    a pure gain loss (x0.7) gets no low-pass (~1 min)."""
+    from impactsense.faults import FaultSpec, inject_session
+    from impactsense.loop import fit_bond
+    s = load_session("bundled:session-1")
+    base, new = s.subset(np.flatnonzero(s.case_id % 2 == 0)), s.subset(np.flatnonzero(s.case_id % 2 == 1))
+    cand = lambda e, p: D.Candidate(e, 2, p, 10.0, 0.0, True, True, [])  # noqa: E731
+    bad = inject_session(new, FaultSpec(debond=2, debond_gain=0.45, debond_hz=4000.0, seed=3))
+    got = {c.effect: c.params for c in fit_bond(base, bad, [cand("sensor_gain", {"gain": 0.35}),
+                                                             cand("channel_delay", {"delay_us": 9.0})])}
+    assert "channel_delay" not in got
+    assert got["channel_lowpass"]["order"] == 1 and got["channel_lowpass"]["noise_filtered"]
+    assert got["channel_lowpass"]["fc_hz"] == pytest.approx(4000.0, rel=0.25)
+    assert got["sensor_gain"]["gain"] == pytest.approx(0.45, abs=0.07)
+    weak = dataclasses.replace(new, adc=np.clip(np.rint((np.asarray(new.adc, float) - new.rig.bias_counts)
+                                                        * np.array([1, 1, 0.7, 1])[None, :, None]
+                                                        + new.rig.bias_counts), 0, new.rig.adc_max).astype(np.uint16))
+    got = {c.effect: c.params for c in fit_bond(base, weak, [cand("sensor_gain", {"gain": 0.7})])}
+    assert "channel_lowpass" not in got and got["sensor_gain"]["gain"] == pytest.approx(0.7, abs=0.05)

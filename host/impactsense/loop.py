@@ -18,6 +18,15 @@ so a case split keeps the copies together). And a raised floor changes which ons
 picks: `pick_settings` re-chooses the core's noise-relative threshold (`onset_noise_factor`, a few fractions
 of the configured one) on those training drops by the travel fit's spread (`travel.choose_threshold`, which
 chooses the absolute threshold and AIC blend with it). Measured: docs/findings.md (issue 16).
+
+A partly debonded disc (a gain loss, with or without a low-pass named on its channel) is not only a gain: the
+bond's low-pass tilts the channel's spectrum, so the twin's difference energies of that channel fall more than
+its arrival energy and a model trained on a gain alone leaves the channel out. `fit_bond` sizes the bond on the
+recordings themselves: the channel_lowpass (first or second order, a grid of cut-offs, or none) and gain whose
+signal models, put into a sample of DATA_REF's drops, give the channel the median spectral tilt (Delta^1..3 over
+the arrival energy, the core's twin features) and level (arrival energy against the other channels') DATA_NEW
+shows. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
+it, so the weak channel is picked at the same wave amplitude as the others).
 """
 
 from __future__ import annotations
@@ -32,6 +41,11 @@ RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random 
 NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
 NOISE_FACTOR_SCALES = (0.6, 0.8, 1.0)  # onset_noise_factor tried, as fractions of the configured one
 CLEARLY_BETTER = 0.98                  # ... another one is kept when its travel spread is below this x the best
+BOND_FC_HZ = np.geomspace(1000.0, 16000.0, 25)   # the bond's cut-offs tried (above ~15 kHz: no first-arrival change)
+BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and the effect's second order
+BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
+BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
+PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
 
 
 def split_effects(effects) -> tuple[list, list]:
@@ -130,13 +144,18 @@ def pick_settings(session, accepted):
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
+    gains = [1.0] * 4
+    for c in accepted:
+        if c.effect == "sensor_gain":
+            gains[c.sensor] *= float(c.params["gain"])
+    given = {"channel_gain": gains} if gains != [1.0] * 4 else {}
     floor = EFFECTS["noise"].min_white_counts   # the white part the noise effect calls material
     if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) >= floor for c in accepted):
-        return None
-    base = SignalConfig.for_rig(session.rig)
+        return SignalConfig.for_rig(session.rig, **given) if given else None
+    base = SignalConfig.for_rig(session.rig, **given)
     best, best_spread = None, np.inf
     for scale in sorted(NOISE_FACTOR_SCALES, reverse=True):   # the configured one first: ties keep it
-        cfg = SignalConfig.for_rig(session.rig, onset_noise_factor=float(base.onset_noise_factor) * scale)
+        cfg = SignalConfig.for_rig(session.rig, onset_noise_factor=float(base.onset_noise_factor) * scale, **given)
         try:
             _, _, fit, _ = choose_threshold(session.adc, session.xy_mm, cfg, wants_metric(session.rig))
         except ValueError:
@@ -144,3 +163,105 @@ def pick_settings(session, accepted):
         if fit.spread_mm < CLEARLY_BETTER * best_spread:
             best, best_spread = cfg, fit.spread_mm
     return best
+
+
+def _bond_stats(session, cfg, channel: int) -> tuple[np.ndarray, np.ndarray]:
+    """The channel's medians over usable drops, and their standard errors: log10 Delta^1..3 minus arrival
+    energy (the tilt), log10 arrival energy minus the other channels' mean (the level), and its onset minus
+    the others' mean, less the travel model's difference for the declared position (us)."""
+    from .pipeline import featurize
+    from .sitemap import twin_features
+
+    F = featurize(session.adc, cfg)
+    feats, usable = twin_features(F)
+    kinds = 4
+    cols = channel * kinds + np.arange(kinds)          # bit i of the mask: feature i usable
+    ok = ((np.asarray(usable, np.int64)[:, None] >> cols[None, :]) & 1).all(1) & np.isfinite(F.toa_us).all(1)
+    if ok.sum() < 5:
+        return np.full(5, np.nan), np.full(5, np.nan)
+    f, toa = feats[ok], np.asarray(F.toa_us, float)[ok]
+    d = np.linalg.norm(session.xy_mm[ok][:, None, :] - np.asarray(cfg.sensor_xy_mm, float)[None], axis=2)
+    travel = toa - d / float(cfg.velocity_mm_per_us)
+    others = [c for c in range(4) if c != channel]
+    arrival = f[:, channel * kinds]
+    cols = [f[:, channel * kinds + k] - arrival for k in range(1, kinds)]
+    cols += [arrival - f[:, [c * kinds for c in others]].mean(1), travel[:, channel] - travel[:, others].mean(1)]
+    x = np.stack(cols, 1)
+    med = np.median(x, 0)
+    se = 1.2533 * 1.4826 * np.median(np.abs(x - med), 0) / np.sqrt(len(x))   # the median's standard error
+    return med, np.maximum(se, 1e-6)
+
+
+def _noise_rms(adc, channel: int) -> float:
+    """Median over records of the channel's rms about the mean over the record's first samples (counts)."""
+    return float(np.median(np.asarray(adc[:, channel, :PRETRIGGER_SAMPLES], float).std(axis=-1))) + 1e-9
+
+
+def bond_channels(accepted) -> list[int]:
+    """Channels with a diagnosed gain loss or low-pass (a partly debonded disc's signature)."""
+    return sorted({c.sensor for c in accepted if (c.effect == "sensor_gain" and c.params["gain"] < 1.0)
+                   or c.effect == "channel_lowpass"})
+
+
+def fit_bond(base, data, accepted, seed: int = 0) -> list:
+    """`accepted` with each bond channel's gain and low-pass sized on the recordings (see the module doc):
+    the channel's sensor_gain and channel_lowpass entries replaced by the fitted ones (the low-pass left out
+    when none removes BOND_MIN_TILT_GAIN of the tilt misfit of no low-pass)."""
+    from .diagnose import Candidate
+    from .effects import context
+    from .effects.apply import apply_effects
+    from .signal import SignalConfig
+
+    channels = bond_channels(accepted)
+    if not channels:
+        return list(accepted)
+    from .pipeline import fit_localiser
+
+    rng = np.random.default_rng(seed)
+    rows = np.sort(rng.choice(len(base), min(BOND_PROBE_DROPS, len(base)), replace=False))
+    probe = base.subset(rows)
+    cfg = fit_localiser(probe, np.arange(len(probe)), SignalConfig.for_rig(base.rig), choose_threshold=False)
+    ctx = context(probe)
+    # the bond's low-pass delays the channel's onset: a delay named on that channel is the low-pass's
+    bonded = ("sensor_gain", "channel_lowpass", "channel_delay")
+    out = [c for c in accepted if c.sensor not in channels or c.effect not in bonded]
+    for ch in channels:
+        target, target_se = _bond_stats(data, cfg, ch)
+        gain0 = next((c.params["gain"] for c in accepted if c.effect == "sensor_gain" and c.sensor == ch), 1.0)
+        skip = [True, True, True, False, True]   # tilt and timing: the level is the gain's, fitted after
+
+        def trial(lowpass):
+            eff = ([{"effect": "channel_lowpass", "sensor": ch, "params": lowpass}] if lowpass else []) + \
+                  [{"effect": "sensor_gain", "sensor": ch, "params": {"gain": gain0}}]
+            got, se = _bond_stats(dataclasses.replace(probe, adc=apply_effects(probe.adc, eff, ctx, seed)), cfg, ch)
+            z = (got - target) / np.hypot(se, target_se)
+            return float(np.sum(z[skip] ** 2)), got
+
+        none_err, none_got = trial(None)
+        variants = []   # per noise model (given back: the amplifier's noise after the bond; or filtered)
+        for filtered in (False, True):
+            best = (none_err, None, none_got)
+            for order in BOND_ORDERS:
+                for fc in BOND_FC_HZ:
+                    lp = {"fc_hz": float(fc), "order": order, "noise_filtered": filtered}
+                    err, got = trial(lp)
+                    if err < best[0]:
+                        best = (err, lp, got)
+            variants.append(best)
+        # the noise model whose channel noise is DATA_NEW's (log of the pre-trigger rms, median over drops)
+        def noise_misfit(lp):
+            eff = ([{"effect": "channel_lowpass", "sensor": ch, "params": lp}] if lp else []) + \
+                  [{"effect": "sensor_gain", "sensor": ch, "params": {"gain": gain0}}]
+            return abs(np.log(_noise_rms(apply_effects(probe.adc, eff, ctx, seed), ch)) - np.log(target_noise))
+        target_noise = _noise_rms(data.adc, ch)
+        best_err, best_lp, best_got = min(variants, key=lambda v: noise_misfit(v[1]))
+        if best_lp is not None and not best_err <= (1.0 - BOND_MIN_TILT_GAIN) * none_err:
+            best_lp, best_got = None, none_got
+        # the level: energies go as gain^2 (log10 energy: 2 log10 gain)
+        gain = float(gain0 * 10.0 ** ((target[3] - best_got[3]) / 2.0)) if np.isfinite(target[3] - best_got[3]) \
+            else gain0
+        common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
+        if best_lp is not None:
+            out.append(Candidate("channel_lowpass", ch, best_lp, **common))
+        out.append(Candidate("sensor_gain", ch, {"gain": gain}, **common))
+    return out

@@ -55,7 +55,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import measured_training_session, pick_settings
+    from ..loop import fit_bond, measured_training_session, pick_settings
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -80,7 +80,8 @@ def run(args) -> int:
     site = resolve_site_map(args.site_map, base.rig)
     exclude = exclude_rows(parse_exclude(args.exclude), base, "--exclude")
     result, details = diagnose(base, data, same=same)
-    accepted = [] if same else details["accepted"]
+    # a gain loss or low-pass on a channel (a partly debonded disc): its low-pass and gain sized on the recordings
+    accepted = [] if same else fit_bond(base, data, details["accepted"], args.seed)
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     card = {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
             "retrain": {"baseline": str(base.path), "data": str(data.path),

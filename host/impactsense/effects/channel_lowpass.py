@@ -1,7 +1,9 @@
 """channel_lowpass: one channel loses its high frequencies (a partial debond, a cracked disc). Unit: Hz.
 
 Physical meaning: a compliant bond line acts as a low-pass between plate and disc; modelled as a
-second-order Butterworth low-pass with cut-off `fc_hz` on channel i. It lowers the spectral centroid,
+second-order Butterworth low-pass with cut-off `fc_hz` on channel i (params may give `order` 1: an RC-like
+first-order bond; the diagnosis's forward table is the second order's; and `noise_filtered` true when the
+channel's noise is behind the low-pass too, not given back). It lowers the spectral centroid,
 delays the onset (group delay) and lowers the energy. The forward model is measured, not assumed: the
 effect filters a few reference recordings at a grid of cut-offs and reads the core's features, so the
 fit explains the centroid, timing, energy and decay residuals of channel i jointly.
@@ -18,18 +20,21 @@ FC_GRID_HZ = np.geomspace(1000.0, 40000.0, 23)
 PRETRIGGER_NOISE_SAMPLES = 64   # the record's first samples: before any impact (the noise level)
 
 
-def lowpass(a: np.ndarray, fc_hz: float, fs_hz: float) -> np.ndarray:
-    b, a_ = signal.butter(2, min(fc_hz, 0.45 * fs_hz), fs=fs_hz)
+def lowpass(a: np.ndarray, fc_hz: float, fs_hz: float, order: int = 2) -> np.ndarray:
+    b, a_ = signal.butter(int(order), min(fc_hz, 0.45 * fs_hz), fs=fs_hz)
     return signal.lfilter(b, a_, a, axis=-1)
 
 
-def lowpass_signal(a: np.ndarray, fc_hz: float, fs_hz: float, rng=None) -> np.ndarray:
+def lowpass_signal(a: np.ndarray, fc_hz: float, fs_hz: float, rng=None, order: int = 2,
+                   give_back: bool = True) -> np.ndarray:
     """The bond's low-pass on recordings a [..., samples] (bias removed): it filters the disc's signal, not the
     amplifier's noise, so the noise it takes from the recording is given back (fresh noise of the first
     samples' level, through the complement of the filter)."""
+    if not give_back:
+        return lowpass(a, fc_hz, fs_hz, order)
     sigma = a[..., :PRETRIGGER_NOISE_SAMPLES].std(axis=-1, keepdims=True)
     fresh = np.random.default_rng(rng).standard_normal(a.shape)
-    return lowpass(a, fc_hz, fs_hz) + sigma * (fresh - lowpass(fresh, fc_hz, fs_hz))
+    return lowpass(a, fc_hz, fs_hz, order) + sigma * (fresh - lowpass(fresh, fc_hz, fs_hz, order))
 
 
 _TABLES: dict = {}
@@ -94,7 +99,8 @@ class ChannelLowpass(Effect):
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
         a = to_float(adc, ctx["bias"])
-        a[:, sensor] = lowpass_signal(a[:, sensor], params["fc_hz"], ctx["fs_hz"], rng)
+        a[:, sensor] = lowpass_signal(a[:, sensor], params["fc_hz"], ctx["fs_hz"], rng, params.get("order", 2),
+                                      not params.get("noise_filtered", False))
         return to_adc(a, ctx["bias"], ctx["adc_max"])
 
     def material(self, params):
