@@ -44,7 +44,7 @@ typedef struct {
   float offset[IMPACTSENSE_TWIN_FEATURES];
   float slope[IMPACTSENSE_TWIN_FEATURES];
   float weight[IMPACTSENSE_TWIN_FEATURES];
-  float ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm;
+  float ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm, weak_channel;
   // The reported 1-sigma radial uncertainty (mm): (offset + scale * spread) * sqrt(max(1, misfit / misfit_ref))
   float uncertainty_offset_mm, uncertainty_scale, uncertainty_misfit_ref;
 } impactsense_twin_config;

@@ -185,3 +185,52 @@ def test_status_frame_reports_the_noise_tracked_threshold_and_the_channels_healt
     assert last["threshold_counts"] > 60
     assert last["threshold_counts"] == pytest.approx(8.0 * noise.max(), abs=1.0)
     assert any(h & 8 for h in last["health"])   # HUM
+
+
+def test_a_weak_channel_is_matched_with_and_without_it_and_flagged():
+    """twin_match with TwinConfig.weak_channel (a disc `retrain` found partly debonded): on clean drops the
+    reported position is the mean of the four-channel match and a three-channel one without that channel, the
+    height stays the four-channel one, and the channel is reported as left out (reason TWIN_WEAK_CHANNEL);
+    the implied three-channel position is a real match (its error within 3 x the four-channel one's, the
+    three-sensor start's scale: bench_faults)."""
+    from pathlib import Path
+
+    from impactsense import _core
+    from impactsense.board.capture import board_captures, signal_for_board
+    from impactsense.data import load_session
+    from impactsense.export import load_tables
+    from impactsense.pipeline import featurize
+
+    models_dir = Path(__file__).resolve().parents[1] / "models"
+    t = load_tables(models_dir / "forest_tables.npz")["twin"]
+    s2 = load_session("bundled:session-2")
+    s = s2.subset(np.arange(0, len(s2), 4))
+    from impactsense.export import firmware_models
+    _, signal = firmware_models(models_dir)
+    caps, rows, _ = board_captures(s, 50000, signal)
+    sig = signal_for_board(s.rig, signal, 50000)
+    feats = featurize(caps, sig)
+    nx, ny, x0, y0, step = t["grid"]
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+
+    def match(weak):
+        return _core.twin_match_batch(
+            np.ascontiguousarray(feats.status, np.int32), np.ascontiguousarray(feats.flags, np.uint8),
+            f32(feats.toa_us), f32(feats.raw["window_energy"]), f32(feats.raw["diff_energy"]),
+            f32(feats.phys_xy_mm), f32(feats.phys_xy_mm), sig.localiser(),
+            np.asarray(t["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), float(x0), float(y0), float(step),
+            f32(t["base"]), f32(t["scale"]), f32(t["offset"]), f32(t["slope"]), f32(t["weight"]),
+            *map(float, t["config"][:4]), float(t["uncertainty"][2]), coarse_cutoff_mm=float(t["config"][4]),
+            weak_channel=weak)
+
+    four, weak = match(-1), match(2)
+    ok = (np.asarray(four["status"]) == 0) & (np.asarray(four["left_out"]) == -1)
+    assert ok.mean() > 0.9
+    assert np.all(np.asarray(weak["left_out"])[ok] == 2)
+    assert np.all(np.asarray(weak["reason"])[ok] == _core.TWIN_WEAK_CHANNEL)
+    np.testing.assert_array_equal(np.asarray(weak["log10_height_mm"])[ok], np.asarray(four["log10_height_mm"])[ok])
+    truth = s.xy_mm[rows][ok]
+    xy4, xyw = np.asarray(four["xy_mm"], float)[ok], np.asarray(weak["xy_mm"], float)[ok]
+    xy3 = 2 * xyw - xy4
+    assert np.mean(np.abs(xyw - xy4)) > 0.05                     # the three-channel match moved it
+    assert np.mean(np.abs(xy3 - truth)) < 3 * np.mean(np.abs(xy4 - truth))

@@ -373,7 +373,8 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           const ic::LocaliserConfig& loc, InU8 q, int nx, int ny, float x0_mm, float y0_mm,
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
-                          float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm) {
+                          float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm,
+                          int weak_channel) {
   const size_t r = rows_of(status);
   if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
     throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
@@ -390,6 +391,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
   twin_setup(q, nx, ny, x0_mm, y0_mm, step_mm, base, scale, offset, slope, weight, ref_log10_height_mm, prior_mm,
              cutoff_mm, temperature, &map, &cfg);
   cfg.coarse_cutoff_mm = coarse_cutoff_mm;
+  cfg.weak_channel = weak_channel;
   EstimateArrays est{r};
   auto left = make_array<int32_t>({r});
   auto reason = make_array<int32_t>({r});
@@ -593,10 +595,11 @@ NB_MODULE(_core, m) {
         "diff_energy"_a, "phys_xy_mm"_a, "xy_mm"_a, "localiser"_a, "q"_a, "nx"_a, "ny"_a, "x0_mm"_a, "y0_mm"_a,
         "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
         "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a, "slowness_scale"_a = std::vector<float>(),
-        "coarse_cutoff_mm"_a = 0.0f,
+        "coarse_cutoff_mm"_a = 0.0f, "weak_channel"_a = -1,
         "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);
+  m.attr("TWIN_WEAK_CHANNEL") = static_cast<int>(ic::kTwinWeakChannel);
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

@@ -267,11 +267,13 @@ struct Twin {
   ia::TwinSpec spec{};
   explicit Twin(nb::dict d) {
     const auto grid = floats(d, "grid", 5);  // nx, ny, x0_mm, y0_mm, step_mm
-    // ref_log10_height_mm, prior_mm, cutoff_mm, temperature[, coarse_cutoff_mm] (exports before it: 4 values)
+    // ref_log10_height_mm, prior_mm, cutoff_mm, temperature[, coarse_cutoff_mm[, weak_channel]] (older
+    // exports: 4 or 5 values)
     if (!d.contains("config")) throw std::invalid_argument("twin: missing key config");
     auto cfg = nb::cast<std::vector<float>>(d["config"]);
     if (cfg.size() == 4) cfg.push_back(0.0f);
-    if (cfg.size() != 5) throw std::invalid_argument("twin: config needs 5 values (4 in older exports)");
+    if (cfg.size() == 5) cfg.push_back(-1.0f);
+    if (cfg.size() != 6) throw std::invalid_argument("twin: config needs 6 values (4 or 5 in older exports)");
     ic::SiteMap& m = spec.map;
     m.nx = static_cast<int32_t>(grid[0]);
     m.ny = static_cast<int32_t>(grid[1]);
@@ -301,6 +303,7 @@ struct Twin {
     spec.cfg.cutoff_mm = cfg[2];
     spec.cfg.temperature = cfg[3];
     spec.cfg.coarse_cutoff_mm = cfg[4];
+    spec.cfg.weak_channel = static_cast<int32_t>(cfg[5]);
     if (d.contains("uncertainty")) {  // offset_mm, scale, misfit_ref (impactapp::twin_uncertainty_mm)
       const auto u = floats(d, "uncertainty", 3);
       spec.uncertainty_offset_mm = u[0];

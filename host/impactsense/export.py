@@ -57,7 +57,7 @@ class ModelSet:
 def twin_arrays(site, fit) -> dict:
     """The twin's site map (sitemap.SiteMap) and fit (twin.TwinFit) as the firmware's arrays: grid [nx, ny,
     x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16],
-    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm] and uncertainty
+    config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm, weak_channel] and uncertainty
     [offset_mm, scale, misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty)."""
     f32 = lambda v: np.asarray(v, dtype=np.float32)  # noqa: E731
     return {"grid": f32([site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm]),
@@ -65,7 +65,7 @@ def twin_arrays(site, fit) -> dict:
             "base": f32(site.base), "scale": f32(site.scale), "offset": f32(fit.offset), "slope": f32(fit.slope),
             "weight": f32(fit.weight),
             "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature,
-                           fit.coarse_cutoff_mm]),
+                           fit.coarse_cutoff_mm, fit.weak_channel]),
             "uncertainty": f32([fit.uncertainty_offset_mm, fit.uncertainty_scale, fit.uncertainty_misfit_ref])}
 
 

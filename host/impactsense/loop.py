@@ -26,7 +26,9 @@ recordings themselves: the channel_lowpass (first or second order, a grid of cut
 signal models, put into a sample of DATA_REF's drops, give the channel the median spectral tilt (Delta^1..3 over
 the arrival energy, the core's twin features) and level (arrival energy against the other channels') DATA_NEW
 shows. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
-it, so the weak channel is picked at the same wave amplitude as the others).
+it, so the weak channel is picked at the same wave amplitude as the others). Its onset and energies stay the
+least certain: the retrained model's twin reports the mean of its four-channel match and the three-channel
+match without that channel (`weak_channel`, twin.h twin_match), and flags the channel.
 """
 
 from __future__ import annotations
@@ -195,6 +197,13 @@ def _bond_stats(session, cfg, channel: int) -> tuple[np.ndarray, np.ndarray]:
 def _noise_rms(adc, channel: int) -> float:
     """Median over records of the channel's rms about the mean over the record's first samples (counts)."""
     return float(np.median(np.asarray(adc[:, channel, :PRETRIGGER_SAMPLES], float).std(axis=-1))) + 1e-9
+
+
+def weak_channel(effects) -> int:
+    """The channel the models treat as weak (twin.h TwinConfig.weak_channel): the one channel a bond low-pass
+    was put on (fit_bond), else -1."""
+    chans = sorted({c.sensor for c in effects if c.effect == "channel_lowpass"})
+    return chans[0] if len(chans) == 1 else -1
 
 
 def bond_channels(accepted) -> list[int]:

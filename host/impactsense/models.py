@@ -159,7 +159,7 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
         site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
         f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
-        _slowness_scales(features, signal), fit.coarse_cutoff_mm)
+        _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)))
 
 
 def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:
@@ -288,7 +288,7 @@ class ImpactModel:
                 out["twin_spread_mm"][rows[ok]] = spread
                 out["twin_misfit"][rows[ok]] = misfit
                 out["uncertainty_mm"][rows[ok]] = calibrated_uncertainty(self.twin_fit, spread, misfit)
-                inconsistent = ok & (np.asarray(twin["reason"]) == _core.TWIN_INCONSISTENT)
+                inconsistent = ok & np.isin(np.asarray(twin["reason"]), (_core.TWIN_INCONSISTENT, _core.TWIN_WEAK_CHANNEL))
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
 

@@ -31,6 +31,7 @@ class TwinFit:
     cutoff_mm: float = 15.0
     temperature: float = 0.5
     coarse_cutoff_mm: float = 0.0   # > 0: coarse-to-fine match (twin.h TwinConfig)
+    weak_channel: int = -1          # >= 0: a partly debonded channel the models were retrained for (twin.h)
     # The reported uncertainty (module doc): u = (a + b spread) * sqrt(max(1, misfit / ref)); ref 0 = no
     # inflation. The defaults (a model card from before the calibration) report the raw spread.
     uncertainty_offset_mm: float = 0.0

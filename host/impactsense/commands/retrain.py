@@ -55,7 +55,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import fit_bond, measured_training_session, pick_settings
+    from ..loop import fit_bond, measured_training_session, pick_settings, weak_channel
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -104,6 +104,8 @@ def run(args) -> int:
                              signal=pick_settings(train_on, accepted), extra_card=card, site_map=site)
         if accepted:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
+        if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
+            model.twin_fit.weak_channel = weak_channel(accepted)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
         if args.twin:

@@ -47,6 +47,7 @@ inline TwinSpec exported_twin() {
   t.cfg.cutoff_mm = c.cutoff_mm;
   t.cfg.temperature = c.temperature;
   t.cfg.coarse_cutoff_mm = c.coarse_cutoff_mm;
+  t.cfg.weak_channel = static_cast<int32_t>(c.weak_channel);
   t.uncertainty_offset_mm = c.uncertainty_offset_mm;
   t.uncertainty_scale = c.uncertainty_scale;
   t.uncertainty_misfit_ref = c.uncertainty_misfit_ref;

@@ -247,13 +247,37 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
   const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
-  if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
-    if (out.left_out >= 0) recentre(feats, usable, map, cfg, &out.est);
-    return out;
-  }
-  const float metric[3] = {loc->travel_metric_xx, loc->travel_metric_xy, loc->travel_metric_yy};
+  const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
+                           loc ? loc->travel_metric_yy : 1.0f};
   float toa[kChannels];
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
+  if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
+    if (out.left_out >= 0) {
+      recentre(feats, usable, map, cfg, &out.est);
+    } else if (loc != nullptr && out.est.status == kOk && cfg.weak_channel >= 0 && cfg.weak_channel < kChannels &&
+               missing == 0) {
+      const int w = cfg.weak_channel;
+      uint8_t use[kChannels];
+      for (int k = 0; k < kChannels; ++k) use[k] = k != w ? 1 : 0;
+      const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
+                                              loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
+                                              loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                              loc->localiser_starts);
+      if (p.status == kOk) {
+        const uint16_t mask =
+            static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (w * kTwinPerChannel)));
+        TwinEstimate t = twin_estimate(feats, mask, p.x_mm, p.y_mm, map, cfg);
+        if (t.status == kOk && t.log10_height_mm == t.log10_height_mm) {
+          recentre(feats, mask, map, cfg, &t);
+          out.est.x_mm = 0.5f * (out.est.x_mm + t.x_mm);
+          out.est.y_mm = 0.5f * (out.est.y_mm + t.y_mm);
+          out.left_out = w;
+          out.reason = kTwinWeakChannel;
+        }
+      }
+    }
+    return out;
+  }
   float best = out.est.misfit;
   uint16_t best_mask = usable;
   for (int c = 0; c < kChannels; ++c) {

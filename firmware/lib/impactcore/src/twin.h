@@ -48,6 +48,7 @@ struct TwinConfig {
   float coarse_cutoff_mm = 0.0f;  // > 0: first a match over every other grid point within this distance
                                  // (prior widened by coarse_cutoff_mm / cutoff_mm), then the match around
                                  // its estimate (a start far from the impact: the board's 50 kHz picks)
+  int32_t weak_channel = -1;    // >= 0: a channel known to be partly debonded (`retrain`): see twin_match
 };
 
 struct TwinEstimate {
@@ -84,13 +85,18 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //    reference; a disc at x0.4 gain behind a 4 kHz low-pass ~500 x, ~1.5 x without it.
 // With a channel left out, the match is done again centred on its own answer (the three-sensor start is a
 // few mm off, and the twin's prior pulls toward the start).
+//  - a weak channel (cfg.weak_channel: a disc the diagnosis found partly debonded, the models retrained with
+//    its low-pass and gain): when the four-channel match is consistent, the reported position is the mean of
+//    it and the three-channel match without that channel (the physics three-sensor start, recentred); the
+//    height stays the four-channel one; left_out = that channel, reason kTwinWeakChannel (the report flags
+//    it). Its onset and energies are the least certain: the two matches' errors are partly independent.
 // loc nullptr: no channel is left out for a misfit (the dead-channel start still applies). The board's
 // TableModels and the host's models.ImpactModel.predict (through twin_match_batch) both call this.
 constexpr float kBadMisfitRef = 20.0f;
 constexpr float kBadMisfitGain = 10.0f;
 constexpr float kMinMisfitRef = 0.1f;  // the reference misfit used when the card has none (or less)
 
-enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInconsistent = 2 };
+enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInconsistent = 2, kTwinWeakChannel = 3 };
 
 struct TwinMatch {
   TwinEstimate est;     // status kOk: the reported position and height
