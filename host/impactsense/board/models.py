@@ -114,7 +114,8 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
-                       site_map=None, onset_threshold_counts: float | None = None) -> Path:
+                       site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
+                       weak_channel: int = -1) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -126,7 +127,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own).
     The band picks and localiser starts are chosen among those within the board's event budget
     (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
-    configured one); retrain_for_board passes the one the rig's own model chose."""
+    configured one); retrain_for_board passes the one the rig's own model chose. channel_gain and
+    weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -138,6 +140,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         sig.onset_threshold_counts = float(onset_threshold_counts)
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
+    if channel_gain is not None:
+        sig.channel_gain = [float(g) for g in channel_gain]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
     # the rig's delays (the scan's are the capture's); the onset threshold as given (its picks at 50 kHz are
     # coarser than the rig's: a threshold chosen on them would move the rig's delays; the threshold is in ADC
@@ -151,6 +155,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
                             site_map=site_map)
     if model.twin_fit is not None:
+        model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
             model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
             session.height_mm[rows][is_train], settings)}
@@ -199,7 +204,9 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
                               onset_threshold_counts=None if threshold is None else float(threshold),
                               exclude_rows=rows("excluded_recordings"), train_rows=rows("train_recordings"),
                               test_fraction=float(split.get("test_fraction", 0.2)), seed=int(split.get("seed", 0)),
-                              extra_card={"retrained_from": str(Path(model_dir).resolve())})
+                              extra_card={"retrained_from": str(Path(model_dir).resolve())},
+                              channel_gain=(card.get("signal") or {}).get("channel_gain"),
+                              weak_channel=int((card.get("twin") or {}).get("weak_channel", -1)))
 
 
 def _card_session(card_path: Path, field: str, record: dict) -> Session:
