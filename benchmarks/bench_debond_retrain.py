@@ -89,8 +89,8 @@ def main(argv=None) -> int:
                 retrained.twin_fit.weak_channel = weak_channel(effects)
             after = evaluate(bad, retrained, rows)
             b, a = before["all"]["mae_mm"], after["all"]["mae_mm"]
-            named = ", ".join(f"{c.effect}[{c.sensor}]" + "".join(
-                f" {k}={v:.3g}" for k, v in c.params.items() if isinstance(v, float)) for c in effects)
+            named = ", ".join(f"{c.effect}[{c.sensor}]" + "".join(f" {k}={v:.3g}" for k, v in c.params.items())
+                              for c in effects)
             label = f"{sname}: draw {d} (ch {spec.debond}, x{spec.debond_gain:.2f}, {fc / 1e3:.2f} kHz)"
             print(f"{label:<44} {b:6.2f} {b / clean:4.2f}x {flagged(before, spec.debond):5.2f} "
                   f"{a:6.2f} {a / clean:4.2f}x {flagged(after, spec.debond):5.2f} "

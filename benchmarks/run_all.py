@@ -37,6 +37,7 @@ CHECKED = {
     "bench_fuzz_loaders": ["--n", "2000", "--seed", "23"],   # 0 tracebacks
     "bench_quiet_stream": ["--minutes", "2"],         # 0 reports from a quiet, faulty lab
     "bench_faults": ["--draws", "1"],                 # lab faults within their stated factors of clean
+    "bench_debond_retrain": ["--draws", "2"],         # a debonded channel after retrain <= 1.5x clean, flagged
     "bench_arrival_glitch": ["--draws", "1"],         # a spike inside an arrival: MAE <= 1.3x clean, class >= 0.95
     "bench_firmware_cost": ["--drops", "6"],          # <= 64,000 instructions an event (needs qemu)
     "bench_board_rigs": ["--drops", "6"],             # each rig's export: flash <= 256 KB, <= 64,000 an event
