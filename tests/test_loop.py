@@ -176,7 +176,8 @@ def test_fit_bond_sizes_a_debonded_channel_the_injector_made():
     base, new = s.subset(np.flatnonzero(s.case_id % 2 == 0)), s.subset(np.flatnonzero(s.case_id % 2 == 1))
     cand = lambda e, p: D.Candidate(e, 2, p, 10.0, 0.0, True, True, [])  # noqa: E731
     bad = inject_session(new, FaultSpec(debond=2, debond_gain=0.45, debond_hz=4000.0, seed=3))
-    got = {c.effect: c.params for c in fit_bond(base, bad, [cand("sensor_gain", {"gain": 0.35}),
+    # the diagnosis reads ~0.85 x the gain behind a 4 kHz low-pass (x0.34 for x0.40: docs/findings.md)
+    got = {c.effect: c.params for c in fit_bond(base, bad, [cand("sensor_gain", {"gain": 0.38}),
                                                              cand("channel_delay", {"delay_us": 9.0})])}
     assert "channel_delay" not in got
     assert got["channel_lowpass"]["order"] == 1   # (where the noise is: at x0.45 it is near one count's rounding)
@@ -187,4 +188,4 @@ def test_fit_bond_sizes_a_debonded_channel_the_injector_made():
                                                         * np.array([1, 1, 0.7, 1])[None, :, None]
                                                         + new.rig.bias_counts), 0, new.rig.adc_max).astype(np.uint16))
     got = {c.effect: c.params for c in fit_bond(base, weak, [cand("sensor_gain", {"gain": 0.7})])}
-    assert "channel_lowpass" not in got and got["sensor_gain"]["gain"] == pytest.approx(0.7, abs=0.05)
+    assert "channel_lowpass" not in got and got["sensor_gain"]["gain"] == 0.7   # the diagnosis's gain, kept

@@ -22,10 +22,11 @@ chooses the absolute threshold and AIC blend with it). Measured: docs/findings.m
 A partly debonded disc (a gain loss, with or without a low-pass named on its channel) is not only a gain: the
 bond's low-pass tilts the channel's spectrum, so the twin's difference energies of that channel fall more than
 its arrival energy and a model trained on a gain alone leaves the channel out. `fit_bond` sizes the bond on the
-recordings themselves: the channel_lowpass (first or second order, a grid of cut-offs, or none) and gain whose
-signal models, put into a sample of DATA_REF's drops, give the channel the median spectral tilt (Delta^1..3 over
-the arrival energy, the core's twin features) and level (arrival energy against the other channels') DATA_NEW
-shows. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
+recordings themselves: the channel_lowpass (first or second order, a grid of cut-offs, or none; the noise given
+back or filtered with it) whose signal model, put into a sample of DATA_REF's drops with the diagnosed gain, gives
+the channel the median spectral tilt (Delta^1..3 over the arrival energy, the core's twin features) and onset
+(against the travel model) DATA_NEW shows; the gain is the diagnosed one with the arrival energy the low-pass
+takes from those drops given back. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
 it, so the weak channel is picked at the same wave amplitude as the others). Its onset and energies stay the
 least certain: the retrained model's twin reports the mean of its four-channel match and the three-channel
 match without that channel (`weak_channel`, twin.h twin_match), and flags the channel.
@@ -266,9 +267,10 @@ def fit_bond(base, data, accepted, seed: int = 0) -> list:
         best_err, best_lp, best_got = min(variants, key=lambda v: noise_misfit(v[1]))
         if best_lp is not None and not best_err <= (1.0 - BOND_MIN_TILT_GAIN) * none_err:
             best_lp, best_got = None, none_got
-        # the level: energies go as gain^2 (log10 energy: 2 log10 gain)
-        gain = float(gain0 * 10.0 ** ((target[3] - best_got[3]) / 2.0)) if np.isfinite(target[3] - best_got[3]) \
-            else gain0
+        # the diagnosed gain explains DATA_NEW's level (against its position-aware reference); the low-pass takes
+        # some of it: give back what it takes on the same drops (energies go as gain^2: 2 log10 gain)
+        lost = none_got[3] - best_got[3] if best_lp is not None else 0.0
+        gain = float(gain0 * 10.0 ** (lost / 2.0)) if np.isfinite(lost) else gain0
         common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
         if best_lp is not None:
             out.append(Candidate("channel_lowpass", ch, best_lp, **common))
