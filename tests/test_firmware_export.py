@@ -86,8 +86,9 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     if model.site_map is not None:
         assert summary["inputs"]["energy"] == [len(f.vector[0])]  # the twin's estimate: one past the vector
         site = model.site_map
-        twin_bytes = site.nx * site.ny * 16 + 4 * (5 * 16 + 5 + 5 + 3)  # q; base, scale, offset, slope, weight; grid;
-        # config (ref height, prior, cutoff, temperature, coarse cutoff); uncertainty (offset, scale, misfit_ref)
+        twin_bytes = site.nx * site.ny * 16 + 4 * (5 * 16 + 5 + 6 + 3)  # q; base, scale, offset, slope, weight; grid;
+        # config (ref height, prior, cutoff, temperature, coarse cutoff, weak channel); uncertainty (offset, scale,
+        # misfit_ref)
         assert summary["trees"]["energy"] == 25 and summary["nodes"]["energy"] <= 3 * 25  # stumps
     assert summary["table_bytes_total"] == sum(7 * n for n in summary["nodes"].values()) + 4 * n_trees + n_inputs + twin_bytes
 
