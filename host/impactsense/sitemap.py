@@ -169,6 +169,15 @@ def grid(rig, step_mm: float, margin_mm: float) -> tuple[float, float, int, int]
     return margin_mm, margin_mm, nx, ny
 
 
+def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: float) -> str | None:
+    """The solver of a site map of n_drops drops: "auto" resolved by `sim.simulate.batch_solver`."""
+    if solver != "auto":
+        return solver
+    from .sim.simulate import batch_solver
+
+    return batch_solver(params, rig, solver, n_drops=n_drops, height_mm=ref_height_mm)
+
+
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
                    progress: bool = True, capture=None, solver: str | None = None) -> SiteMap:
@@ -181,7 +190,8 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     (board.capture.board_capture: resampled to 4 x 50 kHz with the SAADC scan delays, cut by the firmware
     app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
-    counts as the rig records them. solver: "direct" or "modal" (None: params.solver)."""
+    counts as the rig records them. solver: "direct", "modal" (None: params.solver) or "auto" (the cheaper
+    for this many drops, `sim.simulate.batch_solver`); the command prints the one used."""
     from .sim import simulate_voltages, to_adc
 
     x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
@@ -191,6 +201,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     d = np.hypot(xy[:, None, 0] - rig.sensor_x_mm[None], xy[:, None, 1] - rig.sensor_y_mm[None]).min(1)
     on_disc = d < rig.sensor_diameter_mm / 2 + rig.ball_diameter_mm / 2 + 0.5
     todo = np.flatnonzero(~on_disc)
+    solver = map_solver(params, rig, solver, todo.size, ref_height_mm)
     sig = SignalConfig.from_dict(signal.to_dict())
     sig.adc_min, sig.adc_max = -32768, 32767
     values = np.full((nx * ny, N_FEATURES), np.nan)

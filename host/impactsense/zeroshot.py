@@ -140,7 +140,7 @@ def twin_site_map(params, session: Session, out: Path, progress: bool = True):
             if same_twin(site):
                 return site
     path = out / "site-map.npz"
-    site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress)
+    site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto")
     site.save(path)
     if (out / MANIFEST).is_file():      # a cache in a folder the tool wrote (a virtual session): still the tool's
         adopt(out, [path.name])

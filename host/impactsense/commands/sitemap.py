@@ -32,9 +32,10 @@ def run(args) -> int:
     from .simulate import load_inputs
 
     params, rig = load_inputs(args)
-    from ..sim.simulate import batch_solver
+    from ..sitemap import grid, map_solver
 
-    args.solver = batch_solver(params, rig, args.solver)
+    nx, ny = grid(rig, args.step_mm, args.margin_mm)[2:]
+    args.solver = map_solver(params, rig, args.solver, nx * ny, args.height_mm)
     t0 = time.time()
     site = build_site_map(params, rig, SignalConfig.for_rig(rig), step_mm=args.step_mm, margin_mm=args.margin_mm,
                           ref_height_mm=args.height_mm, workers=args.workers, solver=args.solver)

@@ -208,15 +208,23 @@ def _modal_voltages(model: Model, x, y, v0, progress: bool) -> list:
     return results
 
 
-def batch_solver(params: SimParams, rig, solver: str | None) -> str:
+def batch_solver(params: SimParams, rig, solver: str | None, n_drops: int | None = None,
+                 height_mm=175.0) -> str:
     """The solver of a batch command: `solver` if given ("direct" / "modal"); "auto" (the batch commands'
-    default): modal when the plate's basis is already cached (no cold cost; it meets the accuracy targets
-    against direct, docs/findings.md), else params.solver."""
+    default): the cheaper one for this batch by `solver_cost.choose` (the modal basis counted unless it is
+    already cached: both solvers meet the accuracy targets against each other, docs/findings.md); without
+    n_drops, modal only when the basis is cached, else params.solver."""
     if solver != "auto":
         return solver or params.solver
     from .modal_basis import is_cached
 
-    return "modal" if is_cached(get_model(params, rig)) else params.solver
+    model = get_model(params, rig)
+    cached = is_cached(model)
+    if n_drops is None:
+        return "modal" if cached else params.solver
+    from .solver_cost import choose
+
+    return choose(model, int(n_drops), height_mm, cached=cached)[0]
 
 
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
