@@ -62,3 +62,23 @@ def test_max_evaluations_holds_when_the_fit_runs_out_of_trial_points():
     plate_nu.fit(counted, per_rep, np.full(3, 0.3), group_delay.names(), x, y, h, (2500.0, 0.31, 1000.0),
                  rounds=2, max_nfev=2, progress=steps.append)
     assert calls[0] <= plate_nu.max_evaluations(2, max_nfev=2) == sum(steps)
+
+
+def test_a_twin_far_off_stops_after_its_first_round():
+    """Group delays the twin cannot explain (chi^2 / dof far above the claim's limit after round 1): the later
+    rounds are not run (they refine, they cannot make nu claimable), the bar still closes at its total, and nu
+    is not claimed; a twin that explains them runs every round."""
+    rng = np.random.default_rng(3)
+    x, y, h = rng.uniform(60, 260, 6), rng.uniform(60, 260, 6), np.full(6, 150.0)
+    clean = twin(4200.0, 0.36, 800.0, x, y, h)
+    off = clean + rng.normal(0, 6.0, clean.shape)          # 20 x the sigma below, no model makes it
+    steps = []
+    res = plate_nu.fit(twin, off, np.full(3, 0.3), group_delay.names(), x, y, h, (4000.0, 0.35, 800.0),
+                       ds_prior=(800.0, 80.0), rounds=2, progress=steps.append)
+    assert len(res.rounds) == 1 and "stopped" in res.rounds[0]
+    assert res.chi2_dof > plate_nu.STOP_CHI2_DOF
+    assert sum(steps) == plate_nu.max_evaluations(2)
+    assert not res.identified((0.30, 0.40))[0]
+    good = plate_nu.fit(twin, clean + rng.normal(0, 0.3, clean.shape), np.full(3, 0.3), group_delay.names(), x, y,
+                        h, (4000.0, 0.35, 800.0), ds_prior=(800.0, 80.0), rounds=2)
+    assert len(good.rounds) == 2 and not any("stopped" in r for r in good.rounds)

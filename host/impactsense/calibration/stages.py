@@ -256,7 +256,7 @@ def _plate_nu_key(problem: CalibrationProblem) -> str | None:
         return None
     d = decay(problem)
     return key(problem.base_key, problem.params, d["damping_per_s"], d["se_per_s"], problem.nu_bounds,
-               problem.e_bounds, problem.opts.nu_rounds, "plate-nu-v1")
+               problem.e_bounds, problem.opts.nu_rounds, "plate-nu-v2")
 
 
 def _plate_nu(problem: CalibrationProblem, stage_key) -> dict:
