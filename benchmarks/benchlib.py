@@ -15,14 +15,14 @@ def children_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_logged(cmd: list[str], log: Path) -> tuple[float, float]:
-    """Runs one command, its output appended to `log`: (wall s, CPU s of it and its workers). RuntimeError
-    naming the log when it fails."""
+def run_logged(cmd: list[str], log: Path, env: dict | None = None) -> tuple[float, float]:
+    """Runs one command (in `env`, default this process's environment), its output appended to `log`: (wall s,
+    CPU s of it and its workers). RuntimeError naming the log when it fails."""
     t0, c0 = time.perf_counter(), children_cpu_s()
     with open(log, "a") as fh:
         fh.write("$ " + " ".join(cmd) + "\n")
         fh.flush()
-        res = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT)
+        res = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
     if res.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({res.returncode}); see {log}")
     return time.perf_counter() - t0, children_cpu_s() - c0
