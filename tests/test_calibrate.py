@@ -142,6 +142,13 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     # ... and still reports what each stage cost when it was computed
     assert cal2["stage_compute_time_s"]["design_fem"] == cal["stage_compute_time_s"]["design_fem"] > 0
     assert cal2["stage_compute_time_s"]["sum"] >= cal2["stage_compute_time_s"]["design_fem"]
+    # --no-design: the plate stages from the same caches, no design stage; the twin keeps the seed's PZT block
+    # and takes the plate stages' D_s (the decay's, nu not claimed)
+    nod = pipeline.calibrate(data, out, _small_opts(budget=48, nu_rounds=0, design=False), simulate=_standin_clean)
+    assert "design_fem" not in nod["wall_time_s"] and "skipped" in nod["pzt_damping"]
+    assert nod["plate"]["E_mpa"] == cal["plate"]["E_mpa"]
+    assert nod["sim_params"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    assert all(nod["sim_params"][k] == pytest.approx(v) for k, v in fem.SEED_PZT.items() if k != "damping_per_s")
     # another twin (a support chosen by hand) is not served from those caches: the plate FEM, damping and
     # design stages run again (the stand-in ignores the support, so the answer may repeat, but not the reads)
     runs = []  # the twins the stand-in is asked to simulate (its support), in call order

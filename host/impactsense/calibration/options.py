@@ -34,6 +34,7 @@ class CalibrateOptions:
     surrogate_trials: int = 8
     fem: bool = True                       # False: the plate grid only (no FEM confirmation, no PZT design)
     plate_only: bool = False               # True: the plate stages only (grid, laminate, the FEM's E scan)
+    design: bool = True                    # False: no PZT design (the seed's PZT block; D_s the plate stages')
     fast_n_fft: int = 1024
     fem_e_ratios: tuple = (0.7, 0.8, 0.9, 1.0, 1.1)   # FEM plate fit: E basin scan = fast minimum x these
     n_noise: int = 4                       # rig-noise realisations added to simulated records before picking

@@ -29,7 +29,7 @@ from . import fem
 from .cache import record_compute_times, write_json
 from .options import MIN_BUDGET, CalibrateOptions
 from .problem import build_problem, measured_core_config, picker_overrides, sim_core_config, sim_features
-from .stages import STAGES
+from .stages import STAGES, held
 
 __all__ = ["MIN_BUDGET", "CalibrateOptions", "calibrate", "measured_core_config", "picker_overrides",
            "sim_core_config", "sim_features"]
@@ -45,6 +45,10 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         problem.cal["pzt_damping"] = {"skipped": "run without the FEM (--no-fem): seed's PZT block and D_s kept"}
     elif problem.opts.plate_only:
         problem.cal["pzt_damping"] = {"skipped": "the plate stages only (--plate-only): seed's PZT block and D_s kept"}
+    elif not problem.opts.design:
+        problem.params["damping_per_s"] = float(held(problem)["damping_per_s"])
+        problem.cal["pzt_damping"] = {"skipped": "no PZT design (--no-design): seed's PZT block kept; D_s "
+                                                 f"{problem.params['damping_per_s']:.0f} 1/s from the plate stages"}
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,
               "sim_params": fem.sim_params_json(problem.params, problem.rig),

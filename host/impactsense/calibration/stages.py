@@ -351,5 +351,5 @@ STAGES = (
     Stage("plate_nu", _plate_nu, _apply_plate_nu, key=_plate_nu_key, cache="plate-nu.json"),
     Stage("plate_fem_refit", _plate_fem_refit, _apply_plate_fem_refit),
     Stage("design", lambda problem, _key: design.run(problem, held(problem)["damping_per_s"]), _apply_design,
-          clocked=False),
+          clocked=False, wanted=lambda problem: problem.opts.fem and not problem.opts.plate_only and problem.opts.design),
 )

@@ -49,6 +49,10 @@ def register(sub) -> None:
                    help="the plate stages only: the grid, a laminate's E1/E2/G12, the FEM's E scan of the four "
                         "drops (no damping, nu, support, bond or PZT design: the seed's PZT block and D_s kept); "
                         "minutes on a new rig")
+    p.add_argument("--no-design", action="store_true",
+                   help="every stage but the PZT design: the plate, the damping from the envelope decay, nu; the "
+                        "seed's PZT block kept (the chain's channel gains and the twin's fingerprint are fitted on "
+                        "the calibration drops after training all the same); about a third of a cold calibration")
     p.add_argument("--element-mm", type=float, default=None, help="FEM element size override (coarse mesh)")
     p.add_argument("--max-elements", type=int, default=30_000,
                    help="the twin's mesh: Eq. 1's element size, but at most this many elements on the plate "
@@ -157,7 +161,8 @@ def run(args) -> int:
                             surrogate_trials=args.surrogate_trials, fem=not args.no_fem,
                             nu_rounds=args.nu_rounds, support=args.support,
                             rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond,
-                            max_elements=args.max_elements or None, plate_only=args.plate_only)
+                            max_elements=args.max_elements or None, plate_only=args.plate_only,
+                            design=not args.no_design)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator
