@@ -109,7 +109,9 @@ def summary(cal: dict) -> str:
                      f"-> {db['scale']:.3f} (chi^2/dof {db['chi2_dof_bonded']:.0f} bonded, {db['chi2_dof_fit']:.0f} "
                      f"fitted; {db['seconds']:.0f} s)")
     nf = pl.get("nu_fit")
-    if nf:
+    if nf and nf.get("skipped"):
+        lines.append(f"plate, nu: {nf['rule']}; claimed: E = {pl['E_mpa']:.0f} MPa, nu = {pl['nu']:.3f} (the grid's)")
+    elif nf:
         verdict = "claimed" if nf["identified"] else "NOT claimed"
         lines.append(f"plate, group delays with positions fitted: nu = {nf['nu']:.3f} +- {nf['sd']['nu']:.3f}, "
                      f"E = {nf['E_mpa']:.0f} MPa, D_s = {nf['damping_per_s']:.0f} 1/s, chi^2/dof {nf['chi2_dof']:.2f} "
