@@ -46,6 +46,8 @@ def check_rig(card: dict, rig: Rig, card_path, session_path) -> None:
     if want.get("plate_material") not in (None, rig.plate_material):
         problems.append(f"plate_material {rig.plate_material!r} but the model's is {want['plate_material']!r}")
     adc_max = signal.get("adc_max")
+    if isinstance(adc_max, int):
+        adc_max += int(signal.get("sample_offset", 0) or 0)   # the core's rails are after the re-centring
     if isinstance(adc_max, int) and adc_max != rig.adc_max:
         problems.append(f"a {rig.adc_bits}-bit logger but the model's ADC range is 0..{adc_max}")
     if problems:

@@ -230,10 +230,14 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
             raise DataError(path, key, f"must be a string, got {v!r}")
         values[key] = v
     if values["channels"] != CHANNELS:
-        raise DataError(path, "channels", f"must be {CHANNELS}, got {values['channels']}")
+        raise DataError(path, "channels", f"must be {CHANNELS}, got {values['channels']} (impactsense supports "
+                                          f"layouts of exactly {CHANNELS} sensors)")
     sensors_raw = need("sensors")
-    if not isinstance(sensors_raw, list) or len(sensors_raw) != CHANNELS:
+    if not isinstance(sensors_raw, list):
         raise DataError(path, "sensors", f"must be a list of {CHANNELS} sensors")
+    if len(sensors_raw) != CHANNELS:
+        raise DataError(path, "sensors", f"{len(sensors_raw)} sensors: impactsense supports layouts of exactly "
+                                         f"{CHANNELS} sensors (one per channel)")
     sensors = []
     for k, s in enumerate(sensors_raw):
         if not isinstance(s, dict):

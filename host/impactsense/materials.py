@@ -7,7 +7,7 @@ G12, nu12 in the material axes, axis 1 along the fibres at `axis_deg` from the p
 (`density_kg_m3`); the table's density range only checks it. An unrecognised material gets wide priors.
 
 Optional rig.json fields read here:
-- `material_axes`: {"fibre_angle_deg": A}, the angle of material axis 1 (the fibres) from the plate's x axis,
+- `material_axes`: {"fibre_angle_deg": A} (or `material_axes_deg`: A), the angle of material axis 1 (the fibres) from the plate's x axis,
   counter-clockwise, in degrees. Absent: taken from the words ("fibres ... along x" -> 0, "along y" -> 90),
   else 0.
 - `material_properties`: known constants that replace the table's typical values (and pin their range), in
@@ -107,7 +107,8 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
         "CFRP laminate", ORTHOTROPIC, _p(1550, 1400, 1700),
         e1_pa=_p(70 * GPA, 30 * GPA, 150 * GPA), e2_pa=_p(20 * GPA, 6 * GPA, 70 * GPA),
         g12_pa=_p(5 * GPA, 2.5 * GPA, 20 * GPA), nu12=_p(0.30, 0.05, 0.45))),
-    (("gfrp", "glass-fibre", "glass fibre", "glass-fiber", "glass fiber", "fibreglass", "fiberglass"), Material(
+    (("gfrp", "glass-fibre", "glass fibre", "glass-fiber", "glass fiber", "fibreglass", "fiberglass", "e-glass",
+      "s-glass", "glass/epoxy", "glass-epoxy", "glass epoxy", "fr4", "fr-4", "g10", "g-10"), Material(
         "GFRP laminate", ORTHOTROPIC, _p(1900, 1700, 2100),
         e1_pa=_p(30 * GPA, 15 * GPA, 50 * GPA), e2_pa=_p(12 * GPA, 6 * GPA, 30 * GPA),
         g12_pa=_p(4 * GPA, 2 * GPA, 8 * GPA), nu12=_p(0.25, 0.10, 0.40))),
@@ -159,6 +160,8 @@ def material_for_rig(rig, path="rig.json") -> Material:
     text = str(raw.get("plate_material", getattr(rig, "plate_material", "")))
     mat = lookup(text)
     axes = raw.get("material_axes")
+    if axes is None and "material_axes_deg" in raw:     # the simulator's name for the same angle
+        axes = {"fibre_angle_deg": raw["material_axes_deg"]}
     if axes is not None:
         if not isinstance(axes, dict) or "fibre_angle_deg" not in axes:
             raise DataError(path, "material_axes", 'must be an object {"fibre_angle_deg": degrees}')

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import _core
 from .data import Session
-from .signal import SignalConfig
+from .signal import SignalConfig, core_samples
 
 FEATURE_NAMES: list[str] = list(_core.FEATURE_NAMES)
 PAIRS = list(zip(_core.PAIR_I, _core.PAIR_J))
@@ -60,19 +60,14 @@ class Features:
         return (self.status == _core.STATUS_OK) & ~self.no_onset.any(1) & np.isfinite(self.vector).all(1)
 
 
-def as_int16(adc: np.ndarray) -> np.ndarray:
-    """uint16 ADC counts (<= 4095 for 12 bits) as the core's int16, C-contiguous."""
-    adc = np.asarray(adc)
-    if adc.ndim == 2:
-        adc = adc[None]
-    if adc.dtype == np.uint16 and adc.size and int(adc.max()) > 32767:
-        raise ValueError("ADC counts above 32767 do not fit the core's int16 samples")
-    return np.ascontiguousarray(adc.astype(np.int16, copy=False))
+def as_int16(adc: np.ndarray, cfg: SignalConfig) -> np.ndarray:
+    """The rig's ADC counts as the core's int16 samples for cfg (signal.core_samples)."""
+    return core_samples(adc, cfg)
 
 
 def featurize(adc: np.ndarray, cfg: SignalConfig) -> Features:
     """Runs the core's per-event path (the firmware's) over every recording."""
-    a16 = as_int16(adc)
+    a16 = as_int16(adc, cfg)
     raw = _core.extract_batch(a16, cfg.core())
     ev = _core.process_batch(a16, cfg.core(), cfg.localiser())
     return Features(vector=ev["vector"], phys_xy_mm=ev["phys_xy_mm"], phys_cov=ev["phys_cov"],
@@ -173,7 +168,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     the picks give no frequency or too few band picks."""
     from .travel import fit_travel, travel_distances, wants_metric
 
-    a16 = as_int16(session.adc[rows])
+    a16 = as_int16(session.adc[rows], cfg)
     period = _core.extract_batch(a16, cfg.core())["pick_period"].astype(float)
     known = np.isfinite(period) & (period > 0)
     if known.mean() < 0.5:

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import _core
 from .data import Session
-from .signal import core_config
+from .signal import core_config, core_samples
 
 PAIR_I = np.array([0, 0, 0, 1, 1, 2])
 PAIR_J = np.array([1, 2, 3, 2, 3, 3])
@@ -163,8 +163,8 @@ def hum_white_gain(fs_hz: float, samples: int) -> np.ndarray:
 def extract(session: Session) -> Features:
     """Features of every drop of a session: core features (AIC onset) plus host diagnostics."""
     rig = session.rig
-    adc16 = np.ascontiguousarray(session.adc.astype(np.int16))
-    f = _core.extract_batch(adc16, core_config(rig, **TIMING_PICKER))
+    cfg = core_config(rig, **TIMING_PICKER)
+    f = _core.extract_batch(core_samples(session.adc, cfg), cfg)
     toa = np.asarray(f["toa_us"], float)
     onset = np.asarray(f["toa_aic"], float)
     logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts))

@@ -77,16 +77,57 @@ def card_values(d: dict) -> dict:
 
 
 def rig_settings(rig) -> dict:
-    """What a rig's rig.json decides: sample rate, ADC rail, sensor and plate geometry, the rig's declared
-    channel delays (optional key `rig_delay_us`, or `channel_delay_us`)."""
-    d = {"fs_hz": float(rig.fs_hz), "adc_max": int(rig.adc_max),
+    """What a rig's rig.json decides: sample rate, ADC rails (a 16-bit logger's re-centred, `core_offset`), the
+    count-valued defaults scaled to its ADC (`counts_per_core_count`), sensor and plate geometry, the rig's
+    declared channel delays (optional key `rig_delay_us`, or `channel_delay_us`)."""
+    offset = core_offset(int(rig.adc_max))
+    d = {"fs_hz": float(rig.fs_hz), "adc_min": -offset, "adc_max": int(rig.adc_max) - offset,
+         "sample_offset": offset,
          "sensor_x_mm": [float(v) for v in rig.sensor_x_mm], "sensor_y_mm": [float(v) for v in rig.sensor_y_mm],
          "plate_x_mm": float(rig.plate_x_mm), "plate_y_mm": float(rig.plate_y_mm)}
+    scale = counts_per_core_count(rig)
+    if scale != 1.0:   # impactcore.h's count-valued defaults are a 12-bit, 3.3 V logger's: the same volts here
+        for name in COUNT_FIELDS:
+            d[name] = float(FIELDS[name].default) * scale
     raw = rig.raw if isinstance(getattr(rig, "raw", None), dict) else {}
     delays = raw.get("rig_delay_us", raw.get("channel_delay_us"))
     if delays is not None:
         d["rig_delay_us"] = [float(v) for v in delays]
     return d
+
+
+INT16_MAX = 32767
+# The core's defaults in ADC counts (impactcore.h) are those of the reference logger (12 bits over 3.3 V, the
+# board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
+REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
+COUNT_FIELDS = ("onset_threshold_counts", "dead_rms_counts")
+
+
+def counts_per_core_count(rig) -> float:
+    """How many of the rig's ADC counts make one count of the reference logger (the same volts): 1 for a 12-bit,
+    3.3 V logger, 16 for a 16-bit one over the same range."""
+    return float(2.0 ** (int(rig.adc_bits) - REFERENCE_ADC_BITS) * (REFERENCE_VREF / float(rig.vref)))
+
+
+def core_offset(adc_max: int) -> int:
+    """Counts the host takes off a recording's samples before the core's int16: 0 for an ADC of up to 15
+    bits, half its range above (a 16-bit logger re-centred on zero at full resolution)."""
+    return 0 if int(adc_max) <= INT16_MAX else (int(adc_max) + 1) // 2
+
+
+def core_samples(counts, cfg) -> np.ndarray:
+    """Recordings in the rig's ADC counts ([R, 4, S] or [4, S], integers or floats) as the core's int16 samples
+    for `cfg` (a SignalConfig or the core's CoreConfig): rounded, less cfg.sample_offset, clipped to the rails;
+    C-contiguous. The one conversion every path into the core uses."""
+    x = np.asarray(counts)
+    if x.ndim == 2:
+        x = x[None]
+    off = int(getattr(cfg, "sample_offset", 0))
+    lo, hi = max(int(cfg.adc_min), -INT16_MAX - 1), min(int(cfg.adc_max), INT16_MAX)
+    if x.dtype.kind == "f":
+        x = np.rint(x)
+    x = np.clip(x.astype(np.int32) - off, lo, hi)
+    return np.ascontiguousarray(x.astype(np.int16))
 
 
 def settings(rig=None, **overrides) -> dict:
@@ -170,5 +211,5 @@ SignalConfig = make_dataclass(
 SignalConfig.__module__ = __name__
 
 __all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
-           "channel_delays_us", "config_dict",
+           "channel_delays_us", "config_dict", "core_offset", "core_samples", "counts_per_core_count",
            "core_config", "localiser_config", "rig_settings", "settings"]

@@ -203,7 +203,7 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     todo = np.flatnonzero(~on_disc)
     solver = map_solver(params, rig, solver, todo.size, ref_height_mm)
     sig = SignalConfig.from_dict(signal.to_dict())
-    sig.adc_min, sig.adc_max = -32768, 32767
+    sig.adc_min, sig.adc_max, sig.sample_offset = -32768, 32767, 0   # to_adc(clip=False): the core's counts
     values = np.full((nx * ny, N_FEATURES), np.nan)
     bar = None
     if progress:

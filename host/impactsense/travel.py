@@ -162,7 +162,7 @@ def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overr
     from .pipeline import as_int16
 
     trial = SignalConfig.from_dict({**cfg.to_dict(), "rig_delay_us": [0.0] * 4, **overrides})
-    raw = _core.extract_batch(as_int16(adc), trial.core())
+    raw = _core.extract_batch(as_int16(adc, trial), trial.core())
     toa = raw["toa_us"].astype(float)
     return (toa, raw["pick_period"].astype(float)) if with_period else toa
 

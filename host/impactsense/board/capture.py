@@ -19,7 +19,7 @@ from scipy.signal import resample_poly
 from .. import _core  # noqa: F401  (registers CoreConfig for _link)
 from .. import _link
 from ..link.record import CaptureAssembler
-from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, rig_settings
+from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, core_offset, rig_settings
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
@@ -30,14 +30,17 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
     channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
     channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
     above fs/2 is removed: it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the
-    SAADC's range; the int16 range keeps simulated drops whole)."""
+    SAADC's range; the int16 range keeps simulated drops whole), a 16-bit logger's re-centred first as the core
+    takes them (signal.core_offset)."""
+    off = core_offset(adc_max)
+    adc_min, adc_max = adc_min - off, adc_max - off
     grid_hz = 1e6 / scan_step_us
     up = Fraction(grid_hz / fs_in_hz).limit_denominator(1000)
     d = grid_hz / fs_hz
     if abs(d - round(d)) > 1e-9 or round(d) < 4:
         raise ValueError(f"board rate {fs_hz} Hz must divide the {grid_hz:.0f} Hz scan grid at least 4 times")
     d = int(round(d))
-    x = np.asarray(adc, dtype=np.float32)
+    x = np.asarray(adc, dtype=np.float32) - np.float32(off)
     r, _, n = x.shape
     n_out = (int(n * up) - 3) // d
     y = np.empty((r, n_out, 4), dtype=np.int16)
@@ -79,7 +82,8 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     the board's rate and acquisition by the firmware's own function (impactapp::board_core_config: sample
     counts scaled, the board rate, the SAADC scan's capture delays), the rig's ADC rail and geometry."""
     card = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
-    board = config_dict(_link.board_core_config(card.core(), int(fs_hz), card.adc_min, int(rig.adc_max)))
+    rails = rig_settings(rig)
+    board = config_dict(_link.board_core_config(card.core(), int(fs_hz), rails["adc_min"], rails["adc_max"]))
     changed = {f.name: board[f.name] for f in CORE_FIELDS if f.role != "COPY"}
     geometry = {k: v for k, v in rig_settings(rig).items() if k in {f.name for f in LOCALISER_FIELDS}}
     return SignalConfig.from_dict({**card.to_dict(), **changed, **geometry})

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _core
+from ..signal import core_samples
 
 BLOCK_MS = 1.0
 START_MS = 1.0          # after the AIC onset: the direct wave has passed
@@ -37,7 +38,7 @@ DECAY_DURATION_MS = 10.0
 def block_power(adc, cfg, bias: float) -> np.ndarray:
     """Noise-corrected mean square per 1 ms block after the onset, [R, 4, blocks] (counts^2)."""
     a = np.asarray(adc)
-    x = np.ascontiguousarray(a.astype(np.int16))
+    x = core_samples(a, cfg)
     feats = _core.extract_batch(x, cfg)
     onset = np.nan_to_num(np.asarray(feats["toa_aic"], float), nan=0.0).astype(int)
     noise2 = np.asarray(feats["noise_rms"], float) ** 2
@@ -86,7 +87,8 @@ def scaled_noisy(adc, peak, bias: float, noise_counts: float, rng, adc_max: int)
 def sim_power(adc, cfg, bias, peak, noise_counts: float, n_noise: int, seed: int) -> np.ndarray:
     """`block_power` of simulated records scaled to the measured peaks, noise added (mean of realisations)."""
     rng = np.random.default_rng(seed)
-    return np.mean([block_power(scaled_noisy(adc, peak, bias, noise_counts, rng, int(cfg.adc_max)), cfg, bias)
+    rail = int(cfg.adc_max) + int(cfg.sample_offset)   # the ADC's top in its own counts
+    return np.mean([block_power(scaled_noisy(adc, peak, bias, noise_counts, rng, rail), cfg, bias)
                     for _ in range(max(1, n_noise))], axis=0)
 
 

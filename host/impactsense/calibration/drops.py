@@ -16,14 +16,14 @@ import numpy as np
 
 from .. import _core
 from ..errors import ConfigError, DataError
-from ..signal import core_config
+from ..signal import core_config, core_samples
 
 BAD_FLAGS = _core.FLAG_CLIPPED | _core.FLAG_DEAD | _core.FLAG_NO_ONSET
 
 
 def extract(session, cfg=None) -> dict:
     cfg = cfg or core_config(session.rig)
-    return _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
+    return _core.extract_batch(core_samples(session.adc, cfg), cfg)
 
 
 def arrival_order_accepted(session, feats, tol_us: float, margin_mm: float) -> np.ndarray:

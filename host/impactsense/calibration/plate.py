@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from .. import _core
-from ..signal import config_dict, core_config
+from ..signal import config_dict, core_config, core_samples
 from ..outputs import atomic_file
 from ..progress import progress_bar
 from ..sim.executor import Executor
@@ -58,8 +58,8 @@ def picked_loss(unit, cfg_state, peak, dtoa_meas, noise_counts=0.0, n_noise=1, s
     toas = []
     for _ in range(max(1, n_noise)):
         noisy = clean + rng.normal(0.0, noise_counts, clean.shape[1:])[None] if noise_counts > 0 else clean
-        adc = np.clip(np.rint(noisy), 0, cfg.adc_max).astype(np.int16)
-        out = _core.extract_batch(np.ascontiguousarray(adc.reshape(-1, 4, unit.shape[-1])), cfg)
+        adc = core_samples(noisy.reshape(-1, 4, unit.shape[-1]), cfg)
+        out = _core.extract_batch(adc, cfg)
         toas.append(out["toa_us"].reshape(unit.shape[:-1]).astype(float))
     toa = np.mean(toas, axis=0)
     dtoa = toa[..., PAIR_I] - toa[..., PAIR_J]

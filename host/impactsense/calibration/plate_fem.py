@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from ..signal import channel_delays_us
+from ..signal import channel_delays_us, core_samples
 from ..outputs import write_file
 from ..progress import progress_bar
 from . import bands, group_delay, plate
@@ -94,8 +94,8 @@ def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0, group_del
     acc = []
     for _ in range(max(1, n_noise)):
         x = adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc
-        q = np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16)
-        toa = _core.extract_batch(np.ascontiguousarray(q), cfg_sim)["toa_us"].astype(float)
+        q = core_samples(x, cfg_sim)
+        toa = _core.extract_batch(q, cfg_sim)["toa_us"].astype(float)
         t_band = bands.band_arrivals(q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
         obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
                               bands.pair_differences(t_band, plate.PAIR_I, plate.PAIR_J)], axis=1)

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import _core
-from ..signal import channel_delays_us
+from ..signal import channel_delays_us, core_samples
 from . import group_delay, plate, plate_fem
 from .problem import DropsAndTwin
 
@@ -115,7 +115,7 @@ def twin_group_delays(adc, cfg_sim, n_samples, noise_counts=0.0, n_noise=1, seed
     acc = []
     for _ in range(max(1, n_noise)):
         x = a + rng.normal(0.0, noise_counts, a.shape) if noise_counts > 0 else a
-        q = np.ascontiguousarray(np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16))
+        q = core_samples(x, cfg_sim)
         toa = _core.extract_batch(q, cfg_sim)["toa_us"].astype(float)
         acc.append(group_delay.group_delays(q, toa, cfg_sim.fs_hz, plate.PAIR_I, plate.PAIR_J,
                                             baseline_samples=cfg_sim.baseline_samples))

@@ -16,7 +16,7 @@ import numpy as np
 from .. import _core
 from ..data import load_session
 from ..errors import ConfigError
-from ..signal import channel_delays_us, core_config
+from ..signal import channel_delays_us, core_config, core_samples
 from . import drops as drops_mod, fem, plate, plate_fem, priors
 from .cache import StageClock, key
 from .options import CalibrateOptions
@@ -52,8 +52,7 @@ def sim_features(adc_u16, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
     acc = {}
     for _ in range(max(1, n_noise)):
         x = adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc
-        x = np.clip(np.rint(x), cfg_sim.adc_min, cfg_sim.adc_max).astype(np.int16)
-        out = _core.extract_batch(np.ascontiguousarray(x), cfg_sim)
+        out = _core.extract_batch(core_samples(x, cfg_sim), cfg_sim)
         for k in ("toa_us", "energy", "residual_ratio"):
             acc.setdefault(k, []).append(out[k].astype(float))
     toa = np.mean(acc["toa_us"], axis=0)
@@ -148,7 +147,7 @@ def build_problem(data, out, opts: CalibrateOptions, simulate=None) -> Calibrati
         simulate = fem.fem_simulator(workers=opts.workers)
 
     def choose_drops():
-        feats = _core.extract_batch(np.ascontiguousarray(session.adc.astype(np.int16)), cfg)
+        feats = _core.extract_batch(core_samples(session.adc, cfg), cfg)
         t = drops_mod.select_drops(session, feats, opts.drops, tol_us=opts.eq35_tol_us,
                                    margin_mm=opts.eq35_margin_mm, min_reps=opts.min_reps)
         return t, plate_fem.measured_targets(session, t, feats, cfg), feats

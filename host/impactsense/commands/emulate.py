@@ -62,6 +62,8 @@ def run(args) -> int:
         s = inject_session(s, spec)
         print(f"emulate: faults {spec.describe() or 'none'}", file=sys.stderr)
     models, signal = firmware_models(path) if path is not None else (None, None)
+    if signal:
+        _require_models_rig(signal, s, path)
     print(f"emulate: {len(s)} drops of {s.name}, models: "
           f"{path if path is not None else 'none (reports carry the physics position, valid=0)'}", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
@@ -79,6 +81,29 @@ def run(args) -> int:
             code = 128 + exc.signum
     print(f"emulate: {emu.app.events} reports", file=sys.stderr, flush=True)
     return code
+
+
+def _require_models_rig(signal: dict, session, path) -> None:
+    """ConfigError unless the exported models were made for the session's sensors and plate (the shipped model
+    is the bundled rig's: on another rig its positions would be silently wrong)."""
+    import numpy as np
+
+    from ..checks import PLATE_TOL, SENSOR_TOL_MM
+    from ..errors import ConfigError
+
+    rig = session.rig
+    try:
+        xy = np.stack([np.asarray(signal["sensor_x_mm"], float), np.asarray(signal["sensor_y_mm"], float)], 1)
+        plate = np.array([float(signal["plate_x_mm"]), float(signal["plate_y_mm"])])
+    except (KeyError, TypeError, ValueError):
+        return
+    same = (xy.shape == rig.sensor_xy_mm.shape and np.abs(xy - rig.sensor_xy_mm).max() <= SENSOR_TOL_MM
+            and np.all(np.abs(plate - (rig.plate_x_mm, rig.plate_y_mm)) <= PLATE_TOL * plate))
+    if not same:
+        raise ConfigError(f"the board models in {path} were exported for another rig (sensors at "
+                          f"{xy.round(1).tolist()} mm, plate {plate[0]:g} x {plate[1]:g} mm) than {session.path}'s "
+                          f"(sensors at {rig.sensor_xy_mm.round(1).tolist()} mm): give --models DIR "
+                          f"(`impactsense export` of a model trained on this rig) or --models none")
 
 
 class _Stopped(Exception):

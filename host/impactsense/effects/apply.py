@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import _core
 from ..residuals import TIMING_PICKER
-from ..signal import core_config, settings
+from ..signal import core_config, core_offset, core_samples, settings
 from . import EFFECTS
 from ._base import context
 
@@ -23,8 +23,10 @@ def apply_effects(adc: np.ndarray, effects, ctx: dict, seed=0) -> np.ndarray:
     """Recordings (uint16 [R, 4, S]) with each effect's signal model applied in turn."""
     for e in _significant(effects):
         if e["effect"] == "damping":
-            cfg = core_config(fs_hz=ctx["fs_hz"], adc_max=ctx["adc_max"], **TIMING_PICKER)
-            f = _core.extract_batch(np.ascontiguousarray(adc.astype(np.int16)), cfg)
+            off = core_offset(ctx["adc_max"])
+            cfg = core_config(fs_hz=ctx["fs_hz"], adc_min=-off, adc_max=ctx["adc_max"] - off, sample_offset=off,
+                              **TIMING_PICKER)
+            f = _core.extract_batch(core_samples(adc, cfg), cfg)
             ctx = {**ctx, "onset_samples": np.nan_to_num(np.asarray(f["toa_aic"], float))}
         adc = EFFECTS[e["effect"]].apply_signal(adc, e["sensor"], e["params"], ctx, rng=seed)
     return adc

@@ -326,7 +326,8 @@ def _collect(model: Model, results: list) -> dict:
 def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, seed=None,
            clip: bool = True) -> np.ndarray:
     """Volts [n, 4, n_sim] from the first touch -> uint16 counts [n, 4, rig.samples] (bias, pre-trigger).
-    clip=False: int16 counts past the ADC's rails (the whole signal, e.g. for the twin's site map)."""
+    clip=False: int16 counts past the ADC's rails (the whole signal, e.g. for the twin's site map), as the core
+    takes them (less signal.core_offset: 0 up to 15 bits)."""
     n, c, n_sim = volts.shape
     rec = np.zeros((n, c, rig.samples))
     start = params.pretrigger_samples
@@ -338,7 +339,10 @@ def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, se
     if noise:
         rng = np.random.default_rng(seed)
         counts = counts + rng.normal(0.0, params.noise_counts_rms, counts.shape)
-    if not clip:
+    if not clip:   # the core's int16 counts: less a 16-bit logger's re-centring (signal.core_offset)
+        from ..signal import core_offset
+
+        counts = counts - core_offset(rig.adc_max)
         if counts.size and np.abs(counts).max() > 32000:
             raise ConfigError("circuit_gain: simulated counts exceed the int16 range")
         return np.rint(counts).astype(np.int16)

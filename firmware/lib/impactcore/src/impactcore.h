@@ -87,6 +87,8 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, aic_blend, 0.35f, COPY)  /* 0: ToA = threshold crossing; 1: sub-sample AIC onset */    \
   X(ONE, int, adc_min, 0, ACQUISITION)  /* rails for clipping detection (counts) */                     \
   X(ONE, int, adc_max, 4095, ACQUISITION)                                                               \
+  X(ONE, int, sample_offset, 0, ACQUISITION)  /* counts the host took off every sample to fit int16 (a  \
+    16-bit logger re-centred by half its range; adc_min/adc_max are after it); 0 on the board */        \
   X(ONE, float, dead_rms_counts, 3.0f, COPY)  /* post-onset RMS below this: the channel is dead */      \
   X(ONE, float, n2_fraction, 0.99f, COPY)  /* n2: cumulative energy reaches this fraction */            \
   X(ONE, float, diff_window_us, 2500.0f, COPY)  /* difference energies: ToA .. min(n2, ToA + this);     \

@@ -1,0 +1,113 @@
+"""A rig the project has not seen: another logger (16-bit ADC), another layout, words for the material, and the
+board model shipped for the bundled rig. Each test makes its tiny rig here from the bundled drops."""
+
+import json
+
+import numpy as np
+import pytest
+
+from impactsense.data import load_session, rig_from_dict, write_session
+from impactsense.errors import ConfigError, DataError
+from impactsense.materials import material_for_rig
+from impactsense.pipeline import featurize
+from impactsense.signal import SignalConfig
+
+ROWS = np.arange(0, 771, 13)   # 60 drops over the plate
+
+
+def sixteen_bit(session, rows=ROWS):
+    """The drops as a 16-bit logger of the same front end reads them: counts about the bias x 16 (its noise too)."""
+    raw = dict(session.rig.to_dict(), adc_bits=16, bias_counts=32768)
+    s = session.subset(rows)
+    adc16 = ((s.adc.astype(np.int32) - session.rig.bias_counts) * 16 + 32768).astype(np.uint16)
+    return raw, s, adc16
+
+
+def test_a_16_bit_logger_gives_the_12_bit_picks_and_energies_x256(session1):
+    raw, s, adc16 = sixteen_bit(session1)
+    rig16 = rig_from_dict(raw)
+    f12 = featurize(s.adc, SignalConfig.for_rig(session1.rig))
+    f16 = featurize(adc16, SignalConfig.for_rig(rig16))
+    # the re-centred samples keep the full resolution: no channel reads as clipped that did not at 12 bits (the
+    # bottom rail maps to 0; the top, 4095, to 65520, under the 16-bit rail), the same drops are usable
+    assert not (f16.clipped & ~f12.clipped).any() and np.array_equal(f16.usable, f12.usable)
+    ok = f12.usable
+    # the count-valued defaults (onset threshold, dead channel) are scaled to the same volts: the same picks but
+    # for the finer quantisation (a crossing may move by a sample where the signal grazes the threshold)
+    assert SignalConfig.for_rig(rig16).onset_threshold_counts == 16 * SignalConfig.for_rig(session1.rig).onset_threshold_counts
+    dt = np.abs(f16.toa_us[ok] - f12.toa_us[ok])
+    assert np.median(dt) < 0.2 and np.mean(dt < 2.0) > 0.95, np.percentile(dt, [50, 90, 100])
+    ratio = f16.energy[ok] / f12.energy[ok]
+    assert np.median(ratio) == pytest.approx(256.0, rel=0.02)
+
+
+def test_a_16_bit_session_trains_and_is_scored_as_its_own_rig(tmp_path, session1):
+    import impactsense as isn
+
+    raw, s, adc16 = sixteen_bit(session1, np.arange(0, 771, 8))
+    path = write_session(tmp_path / "s16", raw, s.x_mm, s.y_mm, s.height_mm, adc16, s.case_id, s.repetition)
+    s16 = load_session(path)
+    model = isn.train(s16, out=tmp_path / "m", site_map="none", trees=20)
+    rep = isn.evaluate(model, s16)
+    # the bundled rig's drops at 16 bits localise like the 12-bit ones (forests + physics: a few mm)
+    assert rep["n"] > 15 and rep["all"]["mae_mm"] < 8.0, rep["all"]
+
+
+def test_sim_counts_for_the_core_are_recentred_on_a_16_bit_logger(session1):
+    from impactsense.sim import SimParams, to_adc
+
+    rig16 = rig_from_dict(sixteen_bit(session1)[0])
+    volts = np.zeros((1, 4, 3000))
+    volts[0, :, 500:] = 1.0
+    params = SimParams.from_rig(rig16)
+    counts = to_adc(volts, params, rig16, clip=False)
+    want = params.circuit_gain * 2 ** 16 / rig16.vref   # counts of 1 V at the disc
+    assert counts.dtype == np.int16 and abs(int(counts[0, 0, 0])) == 0
+    assert counts[0, 0, 1000] == pytest.approx(want, abs=1)
+
+
+def test_emulate_refuses_board_models_of_another_rig(tmp_path, session1):
+    from impactsense.commands.emulate import _require_models_rig
+    from impactsense.export import firmware_models, shipped_board_model
+
+    path = shipped_board_model()
+    if path is None:
+        pytest.skip("no shipped board model in this install")
+    _, signal = firmware_models(path)
+    _require_models_rig(signal, session1, path)          # the bundled rig: its own model
+    raw = session1.rig.to_dict()
+    raw["sensors"] = [dict(s, x_mm=s["x_mm"] + (20 if k == 1 else 0)) for k, s in enumerate(raw["sensors"])]
+    s = session1.subset(np.arange(3))
+    other = load_session(write_session(tmp_path / "o", raw, s.x_mm, s.y_mm, s.height_mm, s.adc))
+    with pytest.raises(ConfigError, match="another rig"):
+        _require_models_rig(signal, other, path)
+
+
+@pytest.mark.parametrize("n", [3, 5])
+def test_layouts_of_other_than_four_sensors_are_a_clear_error(session1, n):
+    raw = session1.rig.to_dict()
+    sensors = [{"name": f"S{k + 1}", "channel": k, "x_mm": 40.0 + 50 * k, "y_mm": 40.0} for k in range(n)]
+    with pytest.raises(DataError, match="exactly 4 sensors"):
+        rig_from_dict({**raw, "sensors": sensors})
+    with pytest.raises(DataError, match="exactly 4 sensors"):
+        rig_from_dict({**raw, "sensors": sensors, "channels": n})
+
+
+@pytest.mark.parametrize("text", ["E-glass/epoxy laminate", "FR-4 board", "woven glass-epoxy panel"])
+def test_glass_fibre_laminates_are_not_read_as_glass(session1, text):
+    mat = material_for_rig(rig_from_dict({**session1.rig.to_dict(), "plate_material": text}))
+    assert mat.name == "GFRP laminate" and mat.orthotropic
+
+
+def test_material_axes_deg_is_read_as_the_fibre_angle(session1):
+    raw = {**session1.rig.to_dict(), "plate_material": "GFRP laminate", "material_axes_deg": 35}
+    assert material_for_rig(rig_from_dict(raw)).axis_deg == 35.0
+    with pytest.raises(DataError, match="material_axes"):
+        material_for_rig(rig_from_dict({**raw, "material_axes_deg": "x"}))
+
+
+def test_rig_json_round_trip_keeps_the_16_bit_logger(tmp_path, session1):
+    raw, s, adc16 = sixteen_bit(session1, np.arange(4))
+    path = write_session(tmp_path / "s", raw, s.x_mm, s.y_mm, s.height_mm, adc16)
+    back = json.loads((path / "rig.json").read_text())
+    assert back["adc_bits"] == 16 and load_session(path).adc.max() > 32767
