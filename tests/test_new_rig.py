@@ -111,3 +111,19 @@ def test_rig_json_round_trip_keeps_the_16_bit_logger(tmp_path, session1):
     path = write_session(tmp_path / "s", raw, s.x_mm, s.y_mm, s.height_mm, adc16)
     back = json.loads((path / "rig.json").read_text())
     assert back["adc_bits"] == 16 and load_session(path).adc.max() > 32767
+
+
+def test_virtual_drops_span_the_calibrated_sessions_heights(session1):
+    from impactsense.sim.doe import DEFAULT_HEIGHTS_MM, measured_heights, virtual_drops
+
+    assert measured_heights(session1) == DEFAULT_HEIGHTS_MM == (100.0, 200.0)   # the bundled set is unchanged
+    s = session1.subset(np.arange(6))
+    s.height_mm = np.array([52.0, 60, 80, 120, 250, 298])
+    lo, hi = measured_heights(s)
+    assert (lo, hi) == (50.0, 300.0)
+    h = virtual_drops(session1.rig, 400, 0, heights_mm=(lo, hi))[2]
+    assert h.min() == 50.0 and h.max() == 300.0 and np.all(h % 5 == 0)
+    # the class boundary (75th percentile of m g h) of a virtual set now lies where the session's drops are
+    assert 200.0 < np.percentile(h, 75) < 270.0
+    s.height_mm[:] = np.nan
+    assert measured_heights(s) == DEFAULT_HEIGHTS_MM

@@ -34,7 +34,13 @@ CENTROID_S = 2e-3           # spectral-centroid window after the onset
 CENTROID_LEAD_S = 5e-5      # ... starting this long before the onset
 DECAY_BLOCKS_S = (1e-3, 8e-3, 1e-3)  # envelope blocks after the onset: start, stop, width
 DECAY_MIN_SNR = 1.0         # a decay block counts when its power above the noise is at least this x the noise
-TAIL_START_S = 25e-3        # tail used for the hum lock-in (signal decayed by e^-10)
+TAIL_START_S = 25e-3        # tail used for the hum lock-in (signal decayed by e^-10) ...
+
+
+def tail_start(samples: int, fs_hz: float) -> int:
+    """First sample of the hum lock-in's tail: TAIL_START_S, or the record's second half when it is shorter
+    than 2 x TAIL_START_S (a short capture or a fast logger: never an empty tail)."""
+    return min(int(round(TAIL_START_S * fs_hz)), int(samples) // 2)
 PLATEAU_SAMPLES = 4         # equal consecutive samples at the extreme that mark clipping
 
 
@@ -107,7 +113,7 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     f = np.fft.rfftfreq(m, 1.0 / fs_hz)
     centroid = (p * f).sum(axis=2) / np.maximum(p.sum(axis=2), 1e-12)
     # hum: least-squares lock-in at 50 and 60 Hz over the tail (with offset and trend)
-    t0 = samples(TAIL_START_S)
+    t0 = tail_start(n, fs_hz)
     tail = a[:, :, t0:]
     tt = np.arange(tail.shape[2]) / fs_hz
     cols = [np.ones_like(tt), tt - tt.mean()]
@@ -150,7 +156,7 @@ def hum_white_gain(fs_hz: float, samples: int) -> np.ndarray:
     """E[lock-in amplitude^2] at 50 and 60 Hz per unit white-noise power (counts^2): the tail's lock-in
     (offset, trend, 50 and 60 Hz; a few cycles, so the regressors are far from orthogonal) reads white noise
     of variance v as v x this gain."""
-    t0 = int(round(TAIL_START_S * fs_hz))
+    t0 = tail_start(samples, fs_hz)
     tt = np.arange(max(samples - t0, 8)) / fs_hz
     cols = [np.ones_like(tt), tt - tt.mean()]
     for hz in HUM_HZ:

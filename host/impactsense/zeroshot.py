@@ -53,7 +53,7 @@ from .outputs import MANIFEST, adopt, write_file
 from .pipeline import distances_mm, featurize
 from .seed import SEED_ROWS
 from .sim import SimParams, simulate_drops
-from .sim.doe import virtual_drops
+from .sim.doe import DEFAULT_HEIGHTS_MM, measured_heights, virtual_drops
 from .signal import SignalConfig
 from .sitemap import BUNDLED, SiteMap, build_site_map, twin_features
 from .split import case_split
@@ -284,7 +284,10 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
     simulated with this twin and seed (a set from another twin would be tested under this calibration's
     name); `made_with.json` is written last, so an interrupted run leaves no set that counts as made.
     Returns (the set, whether it came from the cache)."""
+    heights = measured_heights(session)
     made_with = {"sim_params": params.to_dict(), "seed": seed, "layout": "sim.doe.virtual_drops"}
+    if heights != DEFAULT_HEIGHTS_MM:   # (the bundled rig's cached sets keep their stamp)
+        made_with["heights_mm"] = list(heights)
     stamp = sim_dir / "made_with.json"
     try:
         cached = (sim_dir / "recordings.npz").is_file() and json.loads(stamp.read_text()) == made_with
@@ -292,7 +295,7 @@ def virtual_set(params, session: Session, sim_dir: Path, n: int, seed: int, work
         cached = False
     if not cached:
         stamp.unlink(missing_ok=True)
-        x, y, h = virtual_drops(session.rig, n, seed)
+        x, y, h = virtual_drops(session.rig, n, seed, heights_mm=heights)
         rng = np.random.default_rng(seed)
         adc = simulate_drops(params, session.rig, x, y, h, noise=True, seed=int(rng.integers(1 << 31)),
                              workers=workers, progress=progress)

@@ -19,7 +19,8 @@ from scipy.signal import resample_poly
 from .. import _core  # noqa: F401  (registers CoreConfig for _link)
 from .. import _link
 from ..link.record import CaptureAssembler
-from ..signal import CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, core_offset, rig_settings
+from ..signal import (CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, core_offset, counts_per_core_count,
+                      rig_settings)
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
@@ -92,6 +93,10 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
 def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
     sig = signal_for_board(rig, signal, fs_hz)
     cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
+    scale = counts_per_core_count(rig)
+    if scale != 1.0:   # the trigger's counts (impactcore.h TriggerConfig, the app's defaults) at the rig's ADC
+        trig = _core.TriggerConfig()
+        cfg.update(threshold_counts=trig.threshold_counts * scale, rearm_counts=trig.rearm_counts * scale)
     cfg.update(extra)
     return cfg
 

@@ -12,8 +12,9 @@ def register(sub) -> None:
     from .simulate import add_param_options, add_scheduler_option, add_solver_option
 
     p = sub.add_parser("simulate-dataset", help="simulate a virtual session (Sobol positions and heights)",
-                       description="Simulates N drops at Sobol positions away from the sensors and heights "
-                                   "100..200 mm in 5 mm steps (like the lab's DoE) and writes a session folder "
+                       description="Simulates N drops at Sobol positions away from the sensors and heights in 5 mm "
+                                   "steps over the calibrated session's range (--calibration; else 100..200 mm, like "
+                                   "the bundled lab's DoE) and writes a session folder "
                                    "(rig.json, impacts.csv, recordings.npz) every session tool reads.")
     p.add_argument("--n", type=int, default=490, help="number of drops (default 490)")
     add_param_options(p)
@@ -39,7 +40,7 @@ def run(args) -> int:
     from ..data import write_session
     from ..errors import ConfigError
     from ..sim import simulate_voltages, to_adc
-    from ..sim.doe import virtual_drops
+    from ..sim.doe import DEFAULT_HEIGHTS_MM, virtual_drops
     from .simulate import load_inputs
 
     if args.workers < 1:
@@ -48,7 +49,10 @@ def run(args) -> int:
 
     check_output_folder(args.out, args.force)
     params, rig = load_inputs(args)
-    x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm)
+    heights = DEFAULT_HEIGHTS_MM
+    if args.calibration:   # the calibrated session's height range (its drops' class boundary and spread)
+        heights = calibrated_heights(args.calibration, heights)
+    x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm, heights_mm=heights)
     from ..sim.simulate import batch_solver
 
     args.solver = batch_solver(params, rig, args.solver, n_drops=x.size, height_mm=h)
@@ -80,3 +84,22 @@ def run(args) -> int:
         print(f"{s.name:6s}  {np.median(peak[:, c]):11.0f}  {peak[:, c].max():8d}  {str(bool(clipped[c])):>7s}")
     print(f"wrote {out} (summary in {out / 'sim_params.json'})")
     return 0
+
+
+def calibrated_heights(cal_path, default):
+    """The height range (mm) of the session a calibration was fitted on (sim.doe.measured_heights); `default`
+    when that session cannot be read."""
+    from pathlib import Path
+
+    from ..data import load_session
+    from ..errors import DataError
+    from ..sim.doe import measured_heights
+    from ..zeroshot import read_calibration
+
+    data = read_calibration(Path(cal_path)).get("data")
+    if not data:
+        return default
+    try:
+        return measured_heights(load_session(data))
+    except DataError:
+        return default
