@@ -118,11 +118,29 @@ def _captures(drops) -> tuple[list, list]:
     return caps, rows
 
 
+def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int, fs_hz: float,
+                          baseline_samples: int = 64) -> np.ndarray:
+    """Recordings long enough for the board between two drops (its capture window, then the trigger's hold-off,
+    about as long again): a record shorter than twice the window (a fast logger's or a short capture: the board
+    would cut the drop off, or sleep through the next) is continued to 2.5 windows by each channel's
+    pre-trigger baseline (the median of its first samples). Longer records are returned as they are."""
+    adc = np.asarray(adc)
+    n = adc.shape[-1]
+    window = capture_frames / float(fs_hz) * float(fs_in_hz)
+    if n >= 2.0 * window:
+        return adc
+    need = int(np.ceil(2.5 * window))
+    base = np.rint(np.median(adc[..., :max(1, min(baseline_samples, n))], axis=-1, keepdims=True))
+    tail = np.broadcast_to(base, adc.shape[:-1] + (need - n,)).astype(adc.dtype)
+    return np.concatenate([adc, tail], axis=-1)
+
+
 def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
     """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app from the
     session's drops as the board samples them (board_samples), one drop after the other."""
     app = _link.App(app_config(session.rig, fs_hz, signal, dump_raw=True), None)
-    frames = board_samples(session.adc, session.rig.fs_hz, fs_hz, adc_max=session.rig.adc_max)
+    adc = continued_for_capture(session.adc, session.rig.fs_hz, app.capture_frames, fs_hz)
+    frames = board_samples(adc, session.rig.fs_hz, fs_hz, adc_max=session.rig.adc_max)
     caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
     if not caps:
         raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
