@@ -145,3 +145,13 @@ def test_short_records_reach_the_board_and_the_diagnosis(tmp_path, session1):
     onset = featurize(short, SignalConfig.for_rig(sh.rig)).raw["toa_aic"]
     logc, decay, hum = signal_features(short, onset, sh.rig.fs_hz, float(sh.rig.bias_counts))
     assert np.isfinite(hum).all() and np.isfinite(logc).all()
+
+
+def test_sensors_on_one_line_are_a_clear_error(session1):
+    raw = session1.rig.to_dict()
+    line = [{"name": f"S{k + 1}", "channel": k, "x_mm": 40.0 + 70 * k, "y_mm": 100.0 + 0.5 * k} for k in range(4)]
+    with pytest.raises(DataError, match="one line"):
+        rig_from_dict({**raw, "sensors": line})
+    three_near_an_edge = [dict(s, y_mm=30.0 + 5 * (k % 2)) for k, s in enumerate(line[:3])] + \
+        [{"name": "S4", "channel": 3, "x_mm": 150.0, "y_mm": 280.0}]
+    assert rig_from_dict({**raw, "sensors": three_near_an_edge}).sensor_xy_mm.shape == (4, 2)

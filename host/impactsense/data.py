@@ -284,6 +284,11 @@ def _check_rig_sanity(path, values: dict, sensors: list) -> None:
     if values["bias_counts"] >= (1 << values["adc_bits"]):
         raise DataError(path, "bias_counts", f"{values['bias_counts']} lies outside the {values['adc_bits']}-bit "
                                              f"ADC range 0..{(1 << values['adc_bits']) - 1}")
+    xy = np.array([[s.x_mm, s.y_mm] for s in sensors], float)
+    across = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(sensors))
+    if across < values["sensor_diameter_mm"]:
+        raise DataError(path, "sensors", f"the {len(sensors)} sensors lie on one line (rms {across:.1f} mm off it): "
+                                         "an impact and its mirror image across that line reach them alike")
     for i in range(len(sensors)):
         for j in range(i):
             d = float(np.hypot(sensors[i].x_mm - sensors[j].x_mm, sensors[i].y_mm - sensors[j].y_mm))
