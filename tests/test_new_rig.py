@@ -34,7 +34,8 @@ def test_a_16_bit_logger_gives_the_12_bit_picks_and_energies_x256(session1):
     ok = f12.usable
     # the count-valued defaults (onset threshold, dead channel) are scaled to the same volts: the same picks but
     # for the finer quantisation (a crossing may move by a sample where the signal grazes the threshold)
-    assert SignalConfig.for_rig(rig16).onset_threshold_counts == 16 * SignalConfig.for_rig(session1.rig).onset_threshold_counts
+    thr12 = SignalConfig.for_rig(session1.rig).onset_threshold_counts
+    assert SignalConfig.for_rig(rig16).onset_threshold_counts == 16 * thr12
     dt = np.abs(f16.toa_us[ok] - f12.toa_us[ok])
     assert np.median(dt) < 0.2 and np.mean(dt < 2.0) > 0.95, np.percentile(dt, [50, 90, 100])
     ratio = f16.energy[ok] / f12.energy[ok]

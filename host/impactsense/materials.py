@@ -7,9 +7,9 @@ G12, nu12 in the material axes, axis 1 along the fibres at `axis_deg` from the p
 (`density_kg_m3`); the table's density range only checks it. An unrecognised material gets wide priors.
 
 Optional rig.json fields read here:
-- `material_axes`: {"fibre_angle_deg": A} (or `material_axes_deg`: A), the angle of material axis 1 (the fibres) from the plate's x axis,
-  counter-clockwise, in degrees. Absent: taken from the words ("fibres ... along x" -> 0, "along y" -> 90),
-  else 0.
+- `material_axes`: {"fibre_angle_deg": A} (or `material_axes_deg`: A), the angle of material axis 1 (the
+  fibres) from the plate's x axis, counter-clockwise, in degrees. Absent: taken from the words ("fibres ...
+  along x" -> 0, "along y" -> 90), else 0.
 - `material_properties`: known constants that replace the table's typical values (and pin their range), in
   SI units: {"e_pa": ..., "nu": ...} or {"e1_pa", "e2_pa", "g12_pa", "nu12"}.
 
