@@ -60,9 +60,17 @@ class Features:
         return (self.status == _core.STATUS_OK) & ~self.no_onset.any(1) & np.isfinite(self.vector).all(1)
 
 
-def as_int16(adc: np.ndarray, cfg: SignalConfig) -> np.ndarray:
-    """The rig's ADC counts as the core's int16 samples for cfg (signal.core_samples)."""
-    return core_samples(adc, cfg)
+def as_int16(adc: np.ndarray, cfg: SignalConfig | None = None) -> np.ndarray:
+    """The rig's ADC counts as the core's int16 samples for cfg (signal.core_samples: a 16-bit logger's
+    re-centred); without cfg, counts of an ADC of up to 15 bits as they are."""
+    if cfg is not None:
+        return core_samples(adc, cfg)
+    adc = np.asarray(adc)
+    if adc.ndim == 2:
+        adc = adc[None]
+    if adc.dtype == np.uint16 and adc.size and int(adc.max()) > 32767:
+        raise ValueError("ADC counts above 32767 do not fit the core's int16 samples: give the rig's SignalConfig")
+    return np.ascontiguousarray(adc.astype(np.int16, copy=False))
 
 
 def featurize(adc: np.ndarray, cfg: SignalConfig) -> Features:
