@@ -123,3 +123,46 @@ def test_training_chooses_the_envelope_fraction_ahead_of_a_late_arrival(synth):
         return fit_travel(band_picks(session.adc, trial), xy, s, False).spread_us
 
     assert spread_us(chosen.band_pick_fraction) < 0.8 * spread_us(0.1)
+
+
+def test_the_band_localiser_slowness_follows_the_summed_energy(synth):
+    """band_slowness_per_decade moves the band localiser's slowness with log10 of the channels' summed energy
+    over fs: an event whose band picks travel at v, given a band velocity 30 % too slow and the slope and
+    reference that bring this event's slowness back to 1 / v, is found where it is (exact geometry); with
+    the slope at 0 the wrong velocity puts it elsewhere."""
+    from impactsense.travel import summed_log_energy
+
+    cfg = band_cfg(20000.0)
+    v = cfg.velocity_mm_per_us
+    s = cfg.sensor_xy_mm
+    p = np.array([250.0, 90.0])
+    onsets = 300.0 + np.hypot(*(s - p).T) / v * FS * 1e-6
+    adc = synth(list(onsets), n=2000, amp=600.0, freq_hz=20000.0, noise=1.0)
+    log_e = summed_log_energy(_core.extract_batch(as_int16(adc), cfg.core())["energy"], FS)[0]
+    cfg.band_velocity_mm_per_us = 0.7 * v
+    wrong = _core.process_batch(as_int16(adc), cfg.core(), cfg.localiser())["band_xy_mm"][0]
+    cfg.band_slowness_per_decade = 0.1
+    cfg.band_log_energy_ref = log_e - (1.0 / v - 1.0 / (0.7 * v)) / 0.1
+    right = _core.process_batch(as_int16(adc), cfg.core(), cfg.localiser())["band_xy_mm"][0]
+    assert np.abs(right - p).max() < 3.0
+    assert np.abs(wrong - p).max() > 10.0
+
+
+def test_the_energy_slowness_line_is_recovered_from_training_picks():
+    """Picks whose slowness is 1 / v + k (log E - 2.5) (k = -0.06 us/mm per decade, log E over 1.5 decades),
+    with channel delays, a per-drop origin time and 0.3 us of noise: fit_energy_slowness gives k to 10 % and
+    the slowness at its reference."""
+    from impactsense.travel import fit_energy_slowness, fit_travel, travel_distances
+
+    rng = np.random.default_rng(3)
+    s = SignalConfig().sensor_xy_mm
+    xy = np.c_[rng.uniform(20, 300, 200), rng.uniform(20, 300, 200)]
+    log_e = rng.uniform(1.75, 3.25, 200)
+    v, k = 1.4, -0.06
+    slowness = 1.0 / v + k * (log_e - 2.5)
+    toa = (rng.uniform(100, 200, 200)[:, None] + travel_distances(xy, s) * slowness[:, None]
+           + np.array([0.0, 1.5, -2.0, 3.0])[None] + rng.normal(0, 0.3, (200, 4)))
+    fit = fit_travel(toa, xy, s, False)
+    v_ref, slope, ref = fit_energy_slowness(toa, xy, s, fit, log_e)
+    assert abs(slope - k) < 0.1 * abs(k)
+    assert abs((1.0 / v_ref + slope * (2.5 - ref)) - 1.0 / v) < 0.01 / v

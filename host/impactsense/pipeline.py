@@ -209,11 +209,32 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     return best
 
 
+def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfig) -> SignalConfig | None:
+    """band (band_config's) with the band localiser's slowness linear in the drops' summed log energy
+    (travel.fit_energy_slowness on the training drops' band picks; impactcore band_slowness_per_decade), or
+    None when it cannot be fitted."""
+    from .travel import fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
+
+    raw = _core.extract_batch(as_int16(session.adc[rows]), band.core())
+    toa = raw["toa_band_us"].astype(float)
+    xy = np.asarray(session.xy_mm, float)[rows]
+    if np.isfinite(toa).all(1).sum() < 8:
+        return None
+    fit = fit_travel(toa, xy, band.sensor_xy_mm, wants_metric(session.rig))
+    line = fit_energy_slowness(toa, xy, band.sensor_xy_mm, fit, summed_log_energy(raw["energy"], band.fs_hz))
+    if line is None:
+        return None
+    out = SignalConfig.from_dict(band.to_dict())
+    out.band_velocity_mm_per_us, out.band_slowness_per_decade, out.band_log_energy_ref = line
+    return out
+
+
 def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
     """cfg with the band picks when they bring the training drops' physics positions clearly closer to the
     truth (BAND_GAIN), else cfg with them off. fits (fit_localiser): the band picks only where it accepts
     them (with one localiser start if cfg's starts do not fit)."""
-    off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0})
+    off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0,
+                                  "band_slowness_per_decade": 0.0, "band_log_energy_ref": 0.0})
     trial = band_config(session, rows, off, fits)
     if trial is not None and fits is not None and not fits(trial):
         trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})
@@ -228,4 +249,11 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
         ok = np.isfinite(phys).all(1)
         return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
 
-    return trial if mae(trial) < BAND_GAIN * mae(off) else off
+    # the band localiser's energy-dependent slowness: kept when it wins by the same rule
+    best, best_mae = trial, mae(trial)
+    loud = energy_slowness_config(session, rows, trial)
+    if loud is not None and (fits is None or fits(loud)):
+        loud_mae = mae(loud)
+        if loud_mae < BAND_GAIN * best_mae:
+            best, best_mae = loud, loud_mae
+    return best if best_mae < BAND_GAIN * mae(off) else off

@@ -148,6 +148,40 @@ def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: floa
                      n=len(toa), dispersion_exponent=float(alpha), dispersion_ref_hz=float(ref_hz))
 
 
+def summed_log_energy(energy: np.ndarray, fs_hz: float) -> np.ndarray:
+    """log10(sum_c E_c / fs) per drop, E the core's channel energies [R, 4] (counts^2 samples): what the core's
+    band localiser reads (impactcore band_velocity_for); NaN where the sum is not positive."""
+    total = np.asarray(energy, float).sum(1) / float(fs_hz)
+    out = np.full(total.shape, np.nan)
+    out[total > 0] = np.log10(total[total > 0])
+    return out
+
+
+def fit_energy_slowness(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, fit: TravelFit,
+                        log_energy: np.ndarray) -> tuple[float, float, float] | None:
+    """The band picks' slowness as a line in the drops' summed log energy: each training drop's own slowness
+    (its centred residuals under `fit` regressed on its centred travel distances) fitted against log_energy
+    (least squares). Returns (velocity at the reference, slope in us/mm per decade, reference log energy: the
+    training drops' median), i.e. slowness = 1 / velocity + slope (log_energy - reference); None when fewer than
+    8 drops have every pick and an energy."""
+    toa = np.asarray(toa_us, float) - np.asarray(fit.delays_us, float)[None]
+    d = travel_distances(xy_mm, sensor_xy_mm, fit.metric)
+    r = _centred(toa - d / fit.velocity_mm_per_us)
+    dc = _centred(d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        own = (r * dc).sum(1) / (dc * dc).sum(1)
+    le = np.asarray(log_energy, float)
+    ok = np.isfinite(own) & np.isfinite(le)
+    if ok.sum() < 8:
+        return None
+    c0, c1 = np.linalg.lstsq(np.c_[np.ones(ok.sum()), le[ok]], own[ok], rcond=None)[0]
+    ref = float(np.median(le[ok]))
+    slowness = 1.0 / fit.velocity_mm_per_us + c0 + c1 * ref
+    if not slowness > 0:
+        return None
+    return float(1.0 / slowness), float(c1), ref
+
+
 def wants_metric(rig) -> bool:
     """Fit the travel metric unless the rig's material is a known isotropic one (materials.py)."""
     from .materials import material_for_rig

@@ -99,8 +99,11 @@ def run(args) -> int:
                             "picked cycle's frequency" if alpha else "none (one velocity)")
           + f"; localiser starts {int(getattr(sig, 'localiser_starts', 1))}")
     band = float(getattr(sig, "band_velocity_mm_per_us", 0.0)) > 0 and float(getattr(sig, "band_pick_hz", 0.0)) > 0
-    print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us; the physics "
-                            "position is the mean of both localisers'" if band else "off (threshold picks only)"))
+    slope = float(getattr(sig, "band_slowness_per_decade", 0.0))
+    loud = (f" (slowness {slope:+.4f} us/mm per decade of summed energy from 10^{sig.band_log_energy_ref:.2f} counts^2 s)"
+            if slope else "")
+    print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us{loud}; the "
+                            "physics position is the mean of both localisers'" if band else "off (threshold picks only)"))
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
           + ("the twin's height estimate (site map)" if site is not None else "the channels' energies and first peaks"))
     print(f"wrote {args.out}")

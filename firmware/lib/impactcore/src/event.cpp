@@ -20,6 +20,21 @@ const char* const kFeatureNames[kNumFeatures] = {
 // log10 x = log10(2) log2 x (fast_log2: no libm log10f, ~100 instructions a call on the M4F).
 constexpr float kLog10Of2 = 0.301029996f;
 
+// The band localiser's velocity for this event: 1 / (1 / v_band + slope (log10(sum_c E_c / fs) - ref)); the
+// higher the drop, the shorter the contact and the more of the faster high frequencies in the band's rise
+// (docs/findings.md "Band picks: the speed follows the drop"). v_band itself when the slope is 0, the
+// energy is not positive or the slowness would not be.
+float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc) {
+  const float v = loc.band_velocity_mm_per_us;
+  if (loc.band_slowness_per_decade == 0.0f) return v;
+  float sum = 0.0f;
+  for (int c = 0; c < kChannels; ++c) sum += f.ch[c].energy;
+  if (!(sum > 0.0f) || !(fs_hz > 0.0f)) return v;
+  const float log_e = kLog10Of2 * (fast_log2(sum) - fast_log2(fs_hz));
+  const float slowness = 1.0f / v + loc.band_slowness_per_decade * (log_e - loc.band_log_energy_ref);
+  return slowness > 0.0f ? 1.0f / slowness : v;
+}
+
 int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                       const LocaliserConfig& loc, EventResult* out) {
   if (out == nullptr) return kErrNullInput;
@@ -64,7 +79,8 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
     }
     if (all) {
       const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
-      out->band = localise_tdoa(toa_band, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.band_velocity_mm_per_us,
+      const float band_velocity = band_velocity_for(f, cfg.fs_hz, loc);
+      out->band = localise_tdoa(toa_band, use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
                                 loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
                                 loc.localiser_starts);
       if (out->band.status == kOk) {

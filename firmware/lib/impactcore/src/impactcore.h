@@ -117,7 +117,10 @@ enum ChannelFlag : uint8_t {
   X(PER_CHANNEL, float, band_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* band_pick_hz > 0): the   */ \
   X(ONE, float, band_metric_xx, 1.0f, COPY)  /* physics position is the mean of the threshold picks' */   \
   X(ONE, float, band_metric_xy, 0.0f, COPY)  /* and the band picks' (process_event)                   */   \
-  X(ONE, float, band_metric_yy, 1.0f, COPY)
+  X(ONE, float, band_metric_yy, 1.0f, COPY)                                                          \
+  X(ONE, float, band_slowness_per_decade, 0.0f, COPY)  /* the band localiser's slowness 1 / v_band +   */ \
+  X(ONE, float, band_log_energy_ref, 0.0f, COPY)  /* this x (log10 E - ref), E the channels' summed     */ \
+    /* energy over fs (counts^2 s): louder drops' band picks travel faster; 0: one velocity, bit for bit */
 
 #define IMPACTCORE_UNPAREN(...) __VA_ARGS__
 #define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
@@ -459,6 +462,10 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
 struct LocaliserConfig {
   IMPACTCORE_LOCALISER_FIELDS(IMPACTCORE_DECLARE)
 };
+
+// The band localiser's velocity for an event: band_velocity_mm_per_us, its slowness moved by
+// band_slowness_per_decade x (log10(sum_c energy_c / fs_hz) - band_log_energy_ref) when that slope is not 0.
+float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc);
 
 // The model feature vector, in this order (names in kFeatureNames):
 //   dtoa_us[6] (pair order), rel_toa_us[4] (ToA - earliest ToA), phys_x_mm, phys_y_mm,
