@@ -57,11 +57,11 @@ def baseline_work_once():
     extract, floor = R.extract, site_reference.noise_floor_reference
     features, floors = [], []     # (the array or Features object itself, result): identity, never a reused id
 
-    def extract_once(session):
-        hit = next((f for adc, f in features if adc is session.adc), None)
+    def extract_once(session, picker=None):
+        hit = next((f for adc, pk, f in features if adc is session.adc and pk == picker), None)
         if hit is None:
-            hit = extract(session)
-            features.append((session.adc, hit))
+            hit = extract(session, picker)
+            features.append((session.adc, picker, hit))
         return hit
 
     def floor_once(ref, F, seed=0):

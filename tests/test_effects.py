@@ -126,3 +126,21 @@ def test_decay_reads_the_signal_not_the_hum_or_noise():
     for rec in (clean, hum, noisy):
         _, decay, _ = R.signal_features(rec + 2048.0, onset, 100_000.0, 2048.0)
         assert np.nanmedian(decay) == pytest.approx(600.0, rel=0.05)
+
+
+def test_gain_carries_its_measured_pick_change(s1):
+    """A threshold-crossing picker (the timing picker `site_reference.choose_picker` may choose) picks a weaker
+    channel later: a gain of 0.6 on S2 reads as a ~13 us delay without the gain's measured pick change
+    (`sensor_gain.gain_table`), ~1 us with it (the picks' own scatter between drops is several us)."""
+    picker = {"onset_threshold_counts": 20.0, "aic_blend": 0.0}
+    F = R.extract(s1, picker)
+    ref = R.fit_reference(F, "calibrated")
+    ref.probe = {"session": s1.subset(np.arange(0, len(s1), 4)), "picker": picker}
+    gain, delay = EFFECTS["sensor_gain"], EFFECTS["channel_delay"]
+    weaker = R.extract(replace(s1, adc=gain.apply_signal(s1.adc, 1, {"gain": 0.6}, context(s1))), picker)
+    without = delay.fit(gain.add(replace(ref, probe=None), 1, {"gain": 0.6}), weaker, 1)["delay_us"]
+    model = gain.add(ref, 1, {"gain": 0.6})
+    left = delay.fit(model, weaker, 1)["delay_us"]
+    assert without > 5.0, without
+    assert model.pick_toa_us[1] > 0 and abs(left) < 0.25 * without, (left, without)
+    assert not np.any(model.pick_toa_us[[0, 2, 3]]), model.pick_toa_us

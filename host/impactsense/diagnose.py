@@ -234,9 +234,16 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     if same is None:
         same = Path(baseline.path).resolve() == Path(data.path).resolve() and len(baseline) == len(data)
     Fb = R.extract(baseline)
-    Fn = Fb if same else R.extract(data)
+    picker, picker_trials = None, []
+    if not same:   # the picks whose reference explains the baseline's held-out drops best
+        from .site_reference import choose_picker
+        picker, picker_trials = choose_picker(baseline, Fb)
+        if picker is not None:
+            Fb = R.repick(baseline, Fb, picker)
+    Fn = Fb if same else R.extract(data, picker)
     ref = R.fit_reference(Fb, "nominal" if same else "calibrated")
     ref.probe = make_probe(baseline)
+    ref.probe["picker"] = picker
     if not same:   # the reference at the noise floor: its site terms ride with both sessions' features
         from .site_reference import noise_floor_reference
         site, sigma = noise_floor_reference(ref, Fb)
@@ -268,7 +275,8 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     result = {"effects": effects, "before": before, "after": after,
               "baseline": str(baseline.path), "data": str(data.path),
               "reference": "nominal (first loop)" if same else "calibrated on the baseline",
-              "core_config": {"aic_blend": 1.0, "rig_delay_us": _jsonable(final.delay_us)},
+              "core_config": {**R.timing_picker(picker), "rig_delay_us": _jsonable(final.delay_us)},
+              "timing_picker": _jsonable(picker), "timing_picker_trials": _jsonable(picker_trials),
               "model": {"velocity_m_s": final.velocity_m_s, "sensor_xy_mm": _jsonable(final.sensor_xy_mm),
                         "gain": _jsonable(np.exp(final.gain_log / 2)), "anisotropy": _jsonable(final.aniso),
                         "decay_per_s": final.decay0_per_s}}

@@ -102,6 +102,13 @@ def summary_lines(result: dict) -> list[str]:
                   "noise floor (counts rms): " + " ".join(f"{v:.2f}" for v in res["noise_rms_counts"]),
                   "hum 50/60 Hz (counts): " + " ".join(f"{a:.2f}/{b:.2f}" for a, b in res["hum_counts_50_60hz"]),
                   f"clipped drops per channel: {res['clipped_drops']}"]
+    trials = result.get("timing_picker_trials") or []
+    if trials:
+        lines += ["", "Timing picks tried on the baseline (held-out DToA of its reference, µs; "
+                      f"chosen: {json.dumps(result.get('timing_picker')) if result.get('timing_picker') else 'the AIC onset'}):",
+                  "", "| onset threshold | AIC blend | dispersion exponent | held-out DToA µs |", "|---|---|---|---|"]
+        lines += [f"| {t['onset_threshold_counts']:g} | {t['aic_blend']:.2f} | {t.get('dispersion_exponent', 0.0):.3f} | "
+                  f"{t['heldout_dtoa_us']:.2f} |" for t in trials]
     lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
               "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]
     return lines

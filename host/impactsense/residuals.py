@@ -12,9 +12,12 @@ The reference model (`Reference`) predicts, at a drop's declared position p_k an
 Each group has a residual scale σ estimated on the reference data; the effect library (`impactsense.effects`)
 adds parameters to these groups, and `impactsense.diagnose` decides which additions the data supports.
 
-Timing uses the core's AIC onset (CoreConfig.aic_blend = 1): the threshold pick slides later with distance
-and amplitude (its apparent velocity is 797 m/s against 980 m/s on session-1), so a gain change would
-masquerade as a delay.
+Timing uses the core's picks with the rig's delays off. By default the AIC onset (CoreConfig.aic_blend = 1),
+which does not slide with amplitude; `site_reference.choose_picker` picks, on the reference session, the
+onset threshold and AIC blend whose reference explains held-out drops best (a threshold crossing is steadier
+on a dispersive plate), with the picked cycle's dispersion taken out where the travel fit keeps it
+(`dispersion_corrected`, the core localiser's model); the amplitude dependence of such picks is then the
+measured timing part of a gain change (`effects.sensor_gain`, `pick_toa_us`).
 """
 
 from __future__ import annotations
@@ -48,6 +51,17 @@ PLATEAU_SAMPLES = 4         # equal consecutive samples at the extreme that mark
 TIMING_PICKER = {"aic_blend": 1.0, "rig_delay_us": [0.0, 0.0, 0.0, 0.0]}
 
 
+PICK_KEYS = ("onset_threshold_counts", "aic_blend")   # a picker's core settings; its other keys are the
+# dispersion of its picks (`dispersion_corrected`)
+
+
+def timing_picker(picker: dict | None = None) -> dict:
+    """The core overrides the timing residuals are picked with: TIMING_PICKER updated by `picker`'s core
+    settings (the rig's delays stay off)."""
+    own = {k: v for k, v in (picker or {}).items() if k in PICK_KEYS}
+    return {**TIMING_PICKER, **own, "rig_delay_us": [0.0, 0.0, 0.0, 0.0]}
+
+
 @dataclass
 class Features:
     """Per-drop, per-channel observables of one session (arrays [R] or [R, 4])."""
@@ -73,6 +87,8 @@ class Features:
     # the reference's smooth site terms at these drops (`impactsense.site_reference`), None when not learned
     site_toa_us: np.ndarray | None = None
     site_log_energy: np.ndarray | None = None
+    picker: dict | None = None   # the picker toa_us was picked with (`timing_picker`; None: TIMING_PICKER)
+    pick_period: np.ndarray | None = None   # the picked cycle's period (samples, impactcore pick_period)
 
     def __len__(self):
         return len(self.x_mm)
@@ -166,12 +182,14 @@ def hum_white_gain(fs_hz: float, samples: int) -> np.ndarray:
     return np.array([cov[2] + cov[3], cov[4] + cov[5]])
 
 
-def extract(session: Session) -> Features:
-    """Features of every drop of a session: core features (AIC onset) plus host diagnostics."""
+def extract(session: Session, picker: dict | None = None) -> Features:
+    """Features of every drop of a session: core features (ToA by `timing_picker(picker)`, the AIC onset by
+    default) plus host diagnostics (their windows start at the AIC onset whatever the picker)."""
     rig = session.rig
-    cfg = core_config(rig, **TIMING_PICKER)
+    cfg = core_config(rig, **timing_picker(picker))
     f = _core.extract_batch(core_samples(session.adc, cfg), cfg)
-    toa = np.asarray(f["toa_us"], float)
+    toa = dispersion_corrected(f["toa_us"], f["pick_period"], session.x_mm, session.y_mm, rig.sensor_xy_mm,
+                               float(rig.fs_hz), picker)
     onset = np.asarray(f["toa_aic"], float)
     logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts))
     ph, pl = _plateaus(session.adc, rig.adc_max)
@@ -186,7 +204,34 @@ def extract(session: Session) -> Features:
         log_noise=np.log(np.maximum(np.asarray(f["noise_rms"], float), 1e-3)),
         hum_counts=hum, plateau_hi=ph, plateau_lo=pl,
         sensor_xy_mm=rig.sensor_xy_mm.astype(float), plate_mm=(rig.plate_x_mm, rig.plate_y_mm),
-        fs_hz=float(rig.fs_hz), adc_max=int(rig.adc_max))
+        fs_hz=float(rig.fs_hz), adc_max=int(rig.adc_max), picker=dict(picker) if picker else None,
+        pick_period=np.asarray(f["pick_period"], float))
+
+
+def dispersion_corrected(toa_us, period_samples, x_mm, y_mm, sensor_xy_mm, fs_hz: float, picker: dict | None):
+    """The picks with their cycle's dispersion taken out: on a dispersive plate the cycle a pick catches travels
+    at its own frequency's speed, so its travel time over the declared distance d is s d (f / f_ref)^-alpha
+    (f = fs / the cycle's period: `travel.slowness_scales`, the core localiser's model); the pick less
+    s d ((f / f_ref)^-alpha - 1) is the one-speed pick the reference models. Unchanged when the picker carries
+    no dispersion (dispersion_exponent, dispersion_ref_hz, dispersion_slowness_us_per_mm)."""
+    toa = np.asarray(toa_us, float)
+    alpha = float((picker or {}).get("dispersion_exponent", 0.0))
+    if alpha == 0.0:
+        return toa
+    from .travel import slowness_scales
+    sxy = np.asarray(sensor_xy_mm, float)
+    d = np.hypot(np.asarray(x_mm, float)[:, None] - sxy[None, :, 0], np.asarray(y_mm, float)[:, None] - sxy[None, :, 1])
+    scale = slowness_scales(period_samples, fs_hz, alpha, float(picker["dispersion_ref_hz"]))
+    return toa - float(picker["dispersion_slowness_us_per_mm"]) * d * (scale - 1.0)
+
+
+def repick(session: Session, F: Features, picker: dict | None) -> Features:
+    """F (features of `session`) with its ToA picked again by `timing_picker(picker)`."""
+    cfg = core_config(session.rig, **timing_picker(picker))
+    f = _core.extract_batch(core_samples(session.adc, cfg), cfg)
+    period = np.asarray(f["pick_period"], float)
+    toa = dispersion_corrected(f["toa_us"], period, F.x_mm, F.y_mm, F.sensor_xy_mm, F.fs_hz, picker)
+    return replace(F, toa_us=toa, picker=dict(picker) if picker else None, pick_period=period)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -221,6 +266,11 @@ class Reference:
     noise_toa_us: np.ndarray = field(default_factory=lambda: np.zeros(4))
     noise_toa_us_per_mm: np.ndarray = field(default_factory=lambda: np.zeros(4))
     noise_log_energy_per_mm: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    # what a changed signal does to the picks (a threshold crossing comes later on a weaker or low-passed
+    # channel), per channel: ToA later by pick_toa_us + pick_toa_us_per_mm x distance (measured:
+    # `effects.sensor_gain`, `effects.channel_lowpass`)
+    pick_toa_us: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    pick_toa_us_per_mm: np.ndarray = field(default_factory=lambda: np.zeros(4))
     gain_log: np.ndarray = field(default_factory=lambda: np.zeros(4))   # log energy offsets
     c0: float = 8.0
     c1: float = 0.0
@@ -261,7 +311,7 @@ class Reference:
         site = 0.0 if F.site_toa_us is None else F.site_toa_us
         return self.slowness_us_per_mm * d * (1 + self.aniso[0] * np.cos(2 * th)
                                               + self.aniso[1] * np.sin(2 * th)) + self.delay_us + site \
-            + self.noise_toa_us + self.noise_toa_us_per_mm * d
+            + self.noise_toa_us + self.noise_toa_us_per_mm * d + self.pick_toa_us + self.pick_toa_us_per_mm * d
 
     def toa_resid(self, F: Features) -> np.ndarray:
         return centre(F.toa_us - self.toa_pred(F))

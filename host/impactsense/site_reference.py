@@ -14,6 +14,9 @@ The residual scales the likelihood uses are cross-fitted: each half of the refer
 with the terms learned on the other half, so an unchanged session is not judged against an in-sample
 (too small) scale. `halves()` gives the same split's DToA residual, the within-case repeatability (the
 pick noise no reference can go below) and the reference's own excess over it.
+
+The picks themselves are chosen here too (`choose_picker`): among a few onset thresholds and AIC blends of the
+core, the one whose reference (physics + site terms) explains held-out halves of the reference session best.
 """
 
 from __future__ import annotations
@@ -155,3 +158,65 @@ def halves(F: R.Features, seed: int = 0) -> dict:
     out["excess_physics"] = float(np.sqrt(max(out["physics"] ** 2 - floor ** 2, 0.0)))
     out["excess_site"] = float(np.sqrt(max(out["site"] ** 2 - floor ** 2, 0.0)))
     return out
+
+
+# Timing pickers tried on the reference session: multiples of the rig's onset threshold and AIC blends (1: the
+# AIC onset, the default; the rig's configured blend; 0: the threshold crossing). Another than the default is
+# kept when its held-out DToA is below PICKER_GAIN x the default's.
+PICKER_THRESHOLD_FACTORS = (1.0, 2.0, 3.0)
+PICKER_BLENDS = (1.0, 0.0)
+PICKER_GAIN = 0.9
+_PICKERS: dict = {}
+
+
+def choose_picker(session, F: R.Features | None = None, seed: int = 0) -> tuple[dict | None, list[dict]]:
+    """The timing picker (`residuals.extract`'s: core settings and, where the travel fit keeps it, the picks'
+    dispersion; None: the default AIC onset) whose reference has the smallest held-out DToA on `session`
+    (`halves`, physics + site terms), and the trials."""
+    import hashlib
+
+    from .signal import core_config
+
+    key = (hashlib.sha1(np.ascontiguousarray(session.adc).tobytes()).hexdigest(),
+           hashlib.sha1(np.asarray([session.x_mm, session.y_mm, session.height_mm], float).tobytes()).hexdigest(),
+           repr(session.rig.to_dict()), seed)
+    if key in _PICKERS:   # a deterministic function of the session: chosen once per baseline
+        return _PICKERS[key]
+    F = R.extract(session) if F is None else F
+    cfg = core_config(session.rig)
+    base_thr, rig_blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
+    blends = list(dict.fromkeys([float(b) for b in (PICKER_BLENDS[0], rig_blend) + PICKER_BLENDS[1:]]))
+    trials = []
+    for f in PICKER_THRESHOLD_FACTORS:
+        for blend in blends:
+            picker = {"onset_threshold_counts": base_thr * f, "aic_blend": blend}
+            Fp = F if (f == 1.0 and blend == R.TIMING_PICKER["aic_blend"]) else R.repick(session, F, picker)
+            if np.all(np.isfinite(Fp.toa_us), axis=1).sum() < 8:
+                continue
+            trials.append({"picker": picker, "heldout_dtoa_us": halves(Fp, seed)["site"]})
+            disp = _dispersion(Fp)
+            if disp:
+                Fd = R.repick(session, F, {**picker, **disp})
+                trials.append({"picker": Fd.picker, "heldout_dtoa_us": halves(Fd, seed)["site"]})
+    default = trials[0]
+    best = min(trials, key=lambda t: t["heldout_dtoa_us"])
+    keep = best is not default and best["heldout_dtoa_us"] < PICKER_GAIN * default["heldout_dtoa_us"]
+    table = [{**t["picker"], "heldout_dtoa_us": t["heldout_dtoa_us"]} for t in trials]
+    _PICKERS[key] = (dict(best["picker"]) if keep else None), table
+    return _PICKERS[key]
+
+
+def _dispersion(F: R.Features) -> dict:
+    """The picks' dispersion ({dispersion_exponent, dispersion_ref_hz}) when the travel fit keeps it
+    (`travel.fit_travel` with the picked cycles' periods: DISPERSION_GAIN), else {}."""
+    from .travel import fit_travel
+
+    try:
+        fit = fit_travel(F.toa_us, np.stack([F.x_mm, F.y_mm], axis=1), F.sensor_xy_mm, False, F.pick_period,
+                         F.fs_hz)
+    except ValueError:
+        return {}
+    if fit.dispersion_exponent <= 0.0:
+        return {}
+    return {"dispersion_exponent": fit.dispersion_exponent, "dispersion_ref_hz": fit.dispersion_ref_hz,
+            "dispersion_slowness_us_per_mm": 1.0 / fit.velocity_mm_per_us}

@@ -6,7 +6,8 @@ first-order bond; the diagnosis's forward table is the second order's; and `nois
 channel's noise is behind the low-pass too, not given back). It lowers the spectral centroid,
 delays the onset (group delay) and lowers the energy. The forward model is measured, not assumed: the
 effect filters a few reference recordings at a grid of cut-offs and reads the core's features, so the
-fit explains the centroid, timing, energy and decay residuals of channel i jointly.
+fit explains the centroid, timing (its median change and its growth with distance), energy and decay
+residuals of channel i jointly.
 """
 
 from dataclasses import replace as dc_replace
@@ -45,23 +46,34 @@ def forward_table(probe) -> dict:
     if "lowpass_table" in probe:
         return probe["lowpass_table"]
     import hashlib
-    key = hashlib.sha1(np.ascontiguousarray(probe["session"].adc).tobytes()).hexdigest()
+    key = (hashlib.sha1(np.ascontiguousarray(probe["session"].adc).tobytes()).hexdigest(),
+           repr(sorted((probe.get("picker") or {}).items())))
     if key in _TABLES:
         probe["lowpass_table"] = _TABLES[key]
         return _TABLES[key]
     from ..residuals import extract
     sess = probe["session"]
-    base = extract(sess)
+    from ..residuals import _robust_lstsq
+    base = extract(sess, probe.get("picker"))
     bias = float(sess.rig.bias_counts)
-    rows = []
+    sxy = sess.rig.sensor_xy_mm.astype(float)
+    d = np.hypot(base.x_mm[:, None] - sxy[None, :, 0], base.y_mm[:, None] - sxy[None, :, 1])
+    rows, slopes = [], []
     raw = to_float(sess.adc, bias)
     for fc in FC_GRID_HZ:
         a = lowpass_signal(raw, fc, sess.rig.fs_hz, rng=0)
-        F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)))
+        F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)), probe.get("picker"))
         rows.append([np.nanmedian(F.toa_us - base.toa_us), np.nanmedian(F.log_energy - base.log_energy),
                      np.nanmedian(F.log_centroid - base.log_centroid),
                      np.nanmedian(F.decay_per_s - base.decay_per_s)])
-    probe["lowpass_table"] = _TABLES[key] = {"fc_hz": FC_GRID_HZ, "shift": np.array(rows)}
+        # the pick change's growth with distance (a weaker, farther arrival is picked later still)
+        dt, dd = (F.toa_us - base.toa_us).ravel(), d.ravel()
+        ok = np.isfinite(dt)
+        (a0, a1), _ = _robust_lstsq(np.stack([np.ones(ok.sum()), dd[ok] - np.median(dd[ok])], axis=1), dt[ok])
+        slopes.append(a1)
+    probe["lowpass_table"] = _TABLES[key] = {"fc_hz": FC_GRID_HZ, "shift": np.array(rows),
+                                             "toa_us_per_mm": np.array(slopes),
+                                             "median_distance_mm": float(np.median(d))}
     return probe["lowpass_table"]
 
 
@@ -90,8 +102,11 @@ class ChannelLowpass(Effect):
 
     def add(self, ref, sensor, params):
         dt, de, dc, dd = self._shifts(ref, params["fc_hz"])
+        tab = forward_table(ref.probe)
+        slope = float(np.interp(np.log(params["fc_hz"]), np.log(tab["fc_hz"]), tab["toa_us_per_mm"]))
         out = ref.copy()
-        out.delay_us[sensor] += dt
+        out.delay_us[sensor] += dt - slope * tab["median_distance_mm"]
+        out.pick_toa_us_per_mm[sensor] += slope
         out.gain_log[sensor] += de
         out.cent_off[sensor] += dc
         out.decay_off[sensor] += dd

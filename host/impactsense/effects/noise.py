@@ -33,10 +33,11 @@ def noise_table(probe, chans: tuple) -> dict:
 
     from ..residuals import _robust_lstsq, extract
     sess = probe["session"]
-    key = (hashlib.sha1(np.ascontiguousarray(sess.adc).tobytes()).hexdigest(), chans)
+    key = (hashlib.sha1(np.ascontiguousarray(sess.adc).tobytes()).hexdigest(), chans,
+           repr(sorted((probe.get("picker") or {}).items())))
     if key in _TABLES:
         return _TABLES[key]
-    base = extract(sess)
+    base = extract(sess, probe.get("picker"))
     sxy = sess.rig.sensor_xy_mm.astype(float)
     d = np.hypot(base.x_mm[:, None] - sxy[None, :, 0], base.y_mm[:, None] - sxy[None, :, 1])
     bias = float(sess.rig.bias_counts)
@@ -47,7 +48,7 @@ def noise_table(probe, chans: tuple) -> dict:
         for _ in range(NOISE_DRAWS):
             a = to_float(sess.adc, bias)
             a[:, list(chans)] += rng.normal(0.0, w, a[:, list(chans)].shape)
-            F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)))
+            F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)), probe.get("picker"))
             dt.append(F.toa_us - base.toa_us)
             de.append(F.log_energy - base.log_energy)
             dk.append(F.decay_per_s - base.decay_per_s)
