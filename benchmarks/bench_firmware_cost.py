@@ -116,6 +116,7 @@ def main() -> int:
     ap.add_argument("--all", action="store_true",
                     help="every drop of the session, in fixtures of --chunk rows (the test image holds ~100 drops)")
     ap.add_argument("--chunk", type=int, default=100)
+    ap.add_argument("--rows", help="session-1 rows A:B in one fixture instead of --drops (e.g. to --profile the slowest)")
     ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
     ap.add_argument("--json")
@@ -144,6 +145,8 @@ def main() -> int:
         from impactsense.data import load_session
         n = len(load_session(args.data) if args.data else load_session())
         fixtures = [["--rows", f"{a}:{min(a + args.chunk, n)}"] for a in range(0, n, args.chunk)]
+    elif args.rows:
+        fixtures = [["--rows", args.rows]]
     else:
         fixtures = [["--drops", str(args.drops)]]
     per_drop: dict[str, list[int]] = {}
