@@ -3,27 +3,37 @@
 Runs firmware/test/qemu/run.sh with `-icount shift=4` (every guest instruction advances virtual time by
 16 ns); the test image reads SysTick around each stage and around a calibration loop of exactly 200,000
 instructions, so instructions = ticks x 200,000 / calibration ticks (resolution ~2.5 instructions).
-Also prints the flash each model form takes (arm-none-eabi-size). Target: <= 64,000 instructions an event.
+Also prints the flash each model form takes (arm-none-eabi-size). Targets: <= 64,000 instructions an event
+(the slowest drop of the run) and the slowest buffer without an event <= 20 % of a buffer period; exits 1
+on a miss.
 
-    python benchmarks/bench_firmware_cost.py [--data SESSION] [--model-dir MODEL_DIR [--trees 12] | --export OUT]
-                                             [--drops 6 | --all]
+    python benchmarks/bench_firmware_cost.py [--data SESSION] [--model-dir shipped|fixture|MODEL_DIR [--trees N]
+                                             | --export OUT] [--drops 6 | --rows A:B | --all]
                                              [--site-map auto|none|FILE] [--site-map-step MM] [--profile]
 
-Without --model-dir the fixture trains its own board-rate forests (--trees per localisation forest) with the
-energy class on the twin's site map as the board sees it (--site-map auto: the bundled twin's; the board's
-5 mm map takes a few minutes the first time and is cached in build/bench-cache/). --model-dir MODEL_DIR
-exports that board model instead (e.g. OUT/board-model from `impactsense export`); --export OUT takes
-OUT/board-model with the trees that export chose (its export.json). --data SESSION replays that
-session's drops (default: the bundled session-1) through the image: with a model trained on that rig
-(--model-dir OUT/board-model of `impactsense export`), the cost on another rig; drops the board does not
-report once or the model cannot read are left out and listed. --all times every drop, 100 to a test image (the image's 4 MB flash holds the recordings as data). --profile adds
-the instructions each function executes (where the features' cost goes; the image runs every stage of
-each drop, and its checks, so shares are of the whole run).
+--model-dir shipped (the default) times the shipped board models, models/: the board model they were
+exported from is made again by the README's command (`impactsense train bundled --test-fraction 0` and
+`impactsense export --trees N`, N from models/export.json; a few minutes the first time, cached in
+build/bench-cache/shipped-<tables hash>/; delete it to make it again), and every fixture's exported tables
+are checked to equal models/forest_tables.npz array for array (exit 2 when they do not: re-export models/
+as the README says). --model-dir fixture trains the bench's own board-rate forests (--trees per
+localisation forest, 12 by default) with the energy class on the twin's site map as the board sees it
+(--site-map auto: the bundled twin's; the board's 5 mm map takes a few minutes the first time and is cached
+in build/bench-cache/). --model-dir MODEL_DIR exports that board model instead (e.g. OUT/board-model from
+`impactsense export`); --export OUT takes OUT/board-model with the trees that export chose (its
+export.json). --data SESSION replays that session's drops (default: the bundled session-1; e.g.
+bundled:session-2) through the image: with a model trained on that rig (--export OUT of `impactsense
+export`), the cost on another rig; drops the board does not report once or the model cannot read are left
+out and listed. --all times every drop, 100 to a test image (the image's 4 MB flash holds the recordings
+as data); --rows A:B one fixture of those rows (the app starts cold on the first). --profile adds the
+instructions each function executes (where the features' cost goes; the image runs every stage of each
+drop, and its checks, so shares are of the whole run).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import re
@@ -98,6 +108,47 @@ def profile(log: Path, elf: Path, top: int = 25) -> None:
         print(f"{c:>12,} {100 * c / total:5.1f}% {k:>7,} {c // k if k else 0:>8,}  {name[:90]}")
 
 
+SHIPPED = ROOT / "models"
+
+
+def same_tables(a: Path, b: Path) -> bool:
+    """Two exports' node tables, site map and signal config equal array for array (the model card's hash
+    in the generated C's header comment aside, the image then runs the same numbers)."""
+    with np.load(a) as x, np.load(b) as y:
+        return set(x.files) == set(y.files) and all(
+            x[k].dtype == y[k].dtype and x[k].shape == y[k].shape and x[k].tobytes() == y[k].tobytes()
+            for k in x.files)
+
+
+def shipped_board_model(cache_root: Path) -> tuple[Path, int, int]:
+    """(the board model models/ was exported from, its localisation and energy trees), made again by the
+    README's command and cached; exits 2 when its export is not models/."""
+    tables = SHIPPED / "forest_tables.npz"
+    if not tables.is_file():
+        sys.exit(f"{tables}: no shipped board models (run `impactsense export`, README)")
+    done = json.loads((SHIPPED / "export.json").read_text())["trees"]
+    trees, energy_trees = int(done["x"]), int(done["energy"])
+    key = hashlib.sha256(tables.read_bytes()).hexdigest()[:16]
+    cache = cache_root / f"shipped-{key}"
+    board = cache / "out" / "board-model"
+    if not (board / "model_card.json").is_file():
+        print(f"making the shipped board model again (once, cached in {cache}): impactsense train bundled "
+              f"--test-fraction 0 --out M && impactsense export M --out OUT --trees {trees}", flush=True)
+        shutil.rmtree(cache, ignore_errors=True)
+        cli = "import sys; from impactsense.cli import main; sys.exit(main(sys.argv[1:]))"
+        for argv in (["train", "bundled", "--test-fraction", "0", "--out", str(cache / "model")],
+                     ["export", str(cache / "model"), "--out", str(cache / "out"), "--trees", str(trees)]):
+            p = subprocess.run([sys.executable, "-c", cli, *argv], capture_output=True, text=True)
+            if p.returncode != 0:
+                print(f"impactsense {' '.join(argv)} failed ({p.returncode}):\n{p.stdout}\n{p.stderr}", file=sys.stderr)
+                raise SystemExit(2)
+    if not same_tables(cache / "out" / "forest_tables.npz", tables):
+        print(f"{tables} is not what `impactsense train bundled --test-fraction 0` + `export --trees {trees}` "
+              f"gives with this core: re-export models/ (README), or pass --model-dir", file=sys.stderr)
+        raise SystemExit(2)
+    return board, trees, energy_trees
+
+
 def obj_size(build: Path, name: str) -> int:
     out = subprocess.run(["arm-none-eabi-size", str(build / "obj" / name)], capture_output=True, text=True).stdout
     return int(out.splitlines()[1].split()[0])
@@ -106,17 +157,20 @@ def obj_size(build: Path, name: str) -> int:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", help="session folder whose drops are replayed (default: the bundled session)")
-    ap.add_argument("--model-dir")
+    ap.add_argument("--model-dir", default="shipped",
+                    help="shipped (models/, the default), fixture (the bench's own forests) or a board MODEL_DIR")
     ap.add_argument("--export", help="an `impactsense export` folder: its board-model with the trees it exported "
                                      "(instead of --model-dir / --trees)")
     ap.add_argument("--energy-trees", type=int, help="the energy forest's trees (default: all)")
-    ap.add_argument("--trees", type=int, default=12)
+    ap.add_argument("--trees", type=int, default=None,
+                    help="localisation trees exported (shipped: models/export.json's; otherwise 12)")
     ap.add_argument("--drops", type=int, default=6,
                     help="drops in the fixture, evenly spaced (each one's whole event is timed)")
     ap.add_argument("--all", action="store_true",
                     help="every drop of the session, in fixtures of --chunk rows (the test image holds ~100 drops)")
     ap.add_argument("--chunk", type=int, default=100)
-    ap.add_argument("--rows", help="session-1 rows A:B in one fixture instead of --drops (e.g. to --profile the slowest)")
+    ap.add_argument("--rows", help="the session's rows A:B in one fixture instead of --drops (e.g. to --profile "
+                                   "the slowest)")
     ap.add_argument("--site-map", default="auto", help="twin site map source: auto, none or a file")
     ap.add_argument("--site-map-step", type=float, default=None, help="board map grid step (default: the map's)")
     ap.add_argument("--json")
@@ -129,16 +183,24 @@ def main() -> int:
     if not shutil.which("arm-none-eabi-gcc") or not shutil.which("qemu-system-arm"):
         print("needs arm-none-eabi-gcc and qemu-system-arm (scripts/setup-debian.sh)")
         return 2
+    cache_root = ROOT / "build" / "bench-cache"
+    cache_root.mkdir(parents=True, exist_ok=True)
+    shipped = args.model_dir == "shipped" and not args.export
     if args.export:
         done = json.loads((Path(args.export) / "export.json").read_text())
         args.model_dir = str(Path(args.export) / "board-model")
         args.trees, args.energy_trees = int(done["trees"]["x"]), int(done["trees"]["energy"])
-    extra = ["--trees", str(args.trees)]
+    elif shipped:
+        board, shipped_trees, shipped_energy = shipped_board_model(cache_root)
+        if args.trees not in (None, shipped_trees):
+            ap.error(f"--trees {args.trees}: the shipped models have {shipped_trees} (models/export.json)")
+        args.model_dir, args.trees, args.energy_trees = str(board), shipped_trees, shipped_energy
+    model_dir = None if args.model_dir == "fixture" else args.model_dir
+    extra = ["--trees", str(args.trees if args.trees is not None else 12)]
     extra += ["--energy-trees", str(args.energy_trees)] if args.energy_trees else []
-    extra += ["--model-dir", args.model_dir] if args.model_dir else []
+    extra += ["--model-dir", model_dir] if model_dir else []
     extra += ["--data", args.data] if args.data else []
-    cache = ROOT / "build" / "bench-cache" / f"board-site-map-{args.site_map_step or 'default'}.npz"
-    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache = cache_root / f"board-site-map-{args.site_map_step or 'default'}.npz"
     extra += ["--site-map", args.site_map, "--site-map-cache", str(cache)]
     extra += ["--site-map-step", str(args.site_map_step)] if args.site_map_step else []
     if args.all:
@@ -158,7 +220,11 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as tmp:
             build = Path(tmp)
             log = build / "qemu-exec.log" if args.profile else None
-            ticks, per_drop_ticks, _ = run(build, extra + which, log)
+            ticks, per_drop_ticks, stdout = run(build, extra + which, log)
+            if shipped and not same_tables(build / "models" / "forest_tables.npz", SHIPPED / "forest_tables.npz"):
+                print(f"the test image's exported tables are not {SHIPPED}'s", file=sys.stderr)
+                return 2
+            dwt = {m.group(1): int(m.group(2)) for m in re.finditer(r"^DWT (\S+) (\d+)$", stdout, re.M)}
             if log:
                 profile(log, build / "test.elf")
             per = 200000 / ticks.pop("calib_200000_instructions")
@@ -213,9 +279,19 @@ def main() -> int:
           f"does not model): slowest event {ins['app_event_max']:,}, slowest buffer without an event "
           f"{ins['app_idle_buffer_max']:,} instructions = {100 * idle:.1f} % of a 5.12 ms buffer at 64 MHz "
           f"(target <= {100 * IDLE_TARGET:.0f} %: {'met' if idle <= IDLE_TARGET else 'NOT met'})")
+    if dwt.get("calib_200000_instructions", 0) > 0:
+        cpi = dwt["calib_200000_instructions"] / 200000
+        print(f"DWT CYCCNT (the board's counter, as the status frame reads it): the last capture's event "
+              f"{dwt['event_total']:,} cycles ({cpi:.2f} cycles an instruction on the calibration loop)")
+    else:
+        print("DWT CYCCNT: not modelled by qemu's mps2-an386 (reads 0 after DEMCR.TRCENA and DWT_CTRL.CYCCNTENA); "
+              "the figures are instruction counts (the board's status frame reports cycles: flash wait states "
+              "come on top)")
     if args.json:
         Path(args.json).write_text(json.dumps({"instructions": ins, "flash_bytes": sizes, "export": export,
-                                               "per_drop": per_drop, "rows": rows}, indent=1))
+                                               "per_drop": per_drop, "rows": rows, "dwt": dwt,
+                                               "model_dir": "shipped" if shipped else args.model_dir,
+                                               "data": args.data or "bundled"}, indent=1))
     worst = max(event_max, ins["app_event_max"])
     event_ok, idle_ok = worst <= TARGET, idle <= IDLE_TARGET
     print(f"RESULT slowest event {worst:,} instructions (target <= {TARGET:,}: {'met' if event_ok else 'MISSED'}); "

@@ -546,10 +546,13 @@ float aic_on_clean_copy(const int16_t* x, const LocalHum& bl, int begin, int end
   // quadratic through the window's ends and middle: b(u) = bm + p u + q u^2, u = j - centre
   const float p = half > 0.0f ? (b1 - b0) / (2.0f * half) : 0.0f;
   const float q = half > 0.0f ? (b1 + b0 - 2.0f * bm) / (2.0f * half * half) : 0.0f;
-  for (int j = 0; j < len; ++j) {
-    const float u = static_cast<float>(j) - half;
-    float v = static_cast<float>(x[begin + j]) - (bm + u * (p + q * u));
-    if (begin + j < icross && fabsf(v) >= thr) v = 0.0f;
+  // u = j - centre, stepped by 1 (exact: half-integers below 2^9)
+  const int pre = icross - begin;  // samples before the crossing: a glitch there is set to the baseline
+  const int16_t* w = x + begin;
+  float u = -half;
+  for (int j = 0; j < len; ++j, u += 1.0f) {
+    float v = static_cast<float>(w[j]) - (bm + u * (p + q * u));
+    if (j < pre && fabsf(v) >= thr) v = 0.0f;
     buf[j] = static_cast<int16_t>(floor_to_int(v + 0.5f));
   }
   const float r = aic_pick_subsample(buf, 0, len, search_from - begin);
@@ -606,7 +609,7 @@ void local_difference_energies(const int16_t* x, const Spike& sp, int lo, int hi
 //    needs that largest square above ratio x their sum / the window's length. The margins: ratio - 1 for
 //    the float terms and the mean, and 1e-4 of the window's whole sum (at most that sum and 5 x the
 //    largest) for spike_at's float sum less the candidate's (its rounding is ~1e-6 of the whole).
-inline float second_difference(const int16_t* x, int m) {
+IC_INLINE float second_difference(const int16_t* x, int m) {
   return static_cast<float>(static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2]);
 }
 

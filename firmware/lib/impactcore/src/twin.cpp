@@ -88,9 +88,12 @@ TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_
       const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
       if (q[0] == kSiteMapMissing) continue;
       // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
-      float b = 0.0f, c = 0.0f;
+      // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
+      // shift and misfit below do not tell apart).
+      const float u0 = term[0].r - term[0].s * static_cast<float>(q[0]);
+      float b = term[0].sigma * u0, c = u0 * u0;
 #pragma GCC unroll 16
-      for (int k = 0; k < kTwinFeatures; ++k) {
+      for (int k = 1; k < kTwinFeatures; ++k) {
         const Term& t = term[k];
         const float u = t.r - t.s * static_cast<float>(q[k]);
         b += t.sigma * u;
