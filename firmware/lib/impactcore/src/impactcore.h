@@ -560,6 +560,10 @@ class Trigger {
   long frames_ = 0;
   long fired_at_ = -1;
   int counter_ = 0;
+  // Armed and quiet (every |dev| below its threshold), the baseline step's clamp is the identity even with
+  // the thresholds the noise update has just set, when noise_factor >= 2.5 and 0 <= noise_alpha <= 0.5
+  // (Trigger::feed): that frame then steps without it.
+  bool quiet_step_unclamped_ = false;
   void track_baseline(const float dev[kChannels]);  // dev: the frame minus the baseline
 };
 
