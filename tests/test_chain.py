@@ -1,7 +1,7 @@
 """The step-by-step zero-shot chain's bookkeeping: a virtual session remembers its calibration; evaluate scores
 a sim-trained model on the calibrated session's drops but the calibration drops. (The chain's accuracy on the
 bundled rig is measured by the chain itself (README "Zero-shot, step by step"), not here: it simulates
-hundreds of drops.)"""
+hundreds of drops; the slow tests/test_readme_commands.py runs it and holds the README's figures.)"""
 
 import json
 from types import SimpleNamespace

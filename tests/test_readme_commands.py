@@ -1,7 +1,8 @@
 """The README's command table run end to end on small data, each output checked against what the README says
 the command prints or writes: `info`, `sitemap` (a 40 mm grid), `train --site-map FILE --exclude CAL.json`,
 `export`'s error exits, `emulate --speed`. (`demo`: tests/test_headline_figures.py; `calibrate` end to end is
-minutes of FEM: the slow test at the bottom; its error exits: tests/test_calibrate.py.)"""
+minutes of FEM: the slow test at the bottom; its error exits: tests/test_calibrate.py. The zero-shot chain
+step by step on the bundled calibration, 490 FEM drops: slow, at the bottom.)"""
 
 from __future__ import annotations
 
@@ -183,3 +184,35 @@ def test_calibrate_with_the_disc_bond_stage_end_to_end(tmp_path):
     assert len(cal["exclude_case_ids"]) == 4
     assert 0.35 <= cal["sim_params"]["disc_stiffness_scale"] <= 0.65, cal["sim_params"]
     assert 3800 <= cal["plate"]["E_mpa"] <= 5200
+
+
+@pytest.mark.slow
+def test_zero_shot_step_by_step_with_the_bundled_calibration(tmp_path):
+    """README "Zero-shot, step by step" with the bundled twin's calibration (the calibrate step is the
+    shipped CAL.json): `simulate-dataset --calibration CAL.json --n 490 --out V && train V --out M
+    --test-fraction 0 && evaluate bundled --model M --json OUT.json` scores every drop but the calibration
+    drops, and gives the README's MAE, inner MAE and class (as printed there, to its last digit), within 1.15x
+    on MAE and -0.02 on class of it. A few minutes (490 FEM drops): slow."""
+    import re
+
+    text = " ".join(README.split())
+    m = re.search(r"With the bundled twin's calibration \(`host/impactsense/data/twin/calibration\.json`\): MAE "
+                  r"\*\*([\d.]+) mm\*\* whole plate \(inner ([\d.]+)\), class ([\d.]+) on all (\d+) non-calibration "
+                  r"drops", text)
+    assert m, "the README's step-by-step zero-shot figures"
+    mae, inner, acc, n = m.groups()
+    cli = [sys.executable, "-m", "impactsense.cli"]
+    for args in (["simulate-dataset", "--calibration", str(BUNDLED_CAL), "--n", "490", "--out", str(tmp_path / "V")],
+                 ["train", str(tmp_path / "V"), "--out", str(tmp_path / "M"), "--test-fraction", "0"],
+                 ["evaluate", "bundled", "--model", str(tmp_path / "M"), "--json", str(tmp_path / "OUT.json")]):
+        r = subprocess.run(cli + args, capture_output=True, text=True, timeout=3000)
+        assert r.returncode == 0, (args[0], r.stdout + r.stderr)
+    rep = json.loads((tmp_path / "OUT.json").read_text())
+    cal = json.loads(BUNDLED_CAL.read_text())
+    assert rep["n"] == int(n) == 771 - len(cal["exclude_recording_ids"]), rep["n"]
+    got = {"mae": rep["all"]["mae_mm"], "inner": rep["inner"]["mae_mm"], "class": rep["energy_class_accuracy"]}
+    assert got["mae"] <= 1.15 * float(mae) and got["class"] >= float(acc) - 0.02, got
+    readme = {"mae": mae, "inner": inner, "class": acc}
+    differ = {k: (v, round(got[k], len(v.split(".")[1]))) for k, v in readme.items()
+              if abs(got[k] - float(v)) > 0.5 * 10 ** -len(v.split(".")[1]) + 1e-9}
+    assert not differ, f"README (as printed there, as measured now): {differ}"
