@@ -67,8 +67,9 @@ def test_clipping_rail_found_exactly_circular(s1, ref_and_features):
     assert got["rail_hi_counts"] == 3000.0 and got["rail_lo_counts"] == 1000.0
 
 
-def test_channel_delay_feeds_the_core(s1, ref_and_features):
-    """The fitted delay, given to CoreConfig.rig_delay_us, removes the channel's timing offset."""
+def test_channel_delay_feeds_the_core_circular(s1, ref_and_features):
+    """The fitted delay, given to CoreConfig.rig_delay_us, removes the channel's timing offset. (Circular: the
+    effect's apply_signal makes the delay its fit reads; what it proves is the core's use of the fit.)"""
     ref, F = ref_and_features
     eff = EFFECTS["channel_delay"]
     adc = eff.apply_signal(s1.adc, 3, {"delay_us": 30.0}, context(s1))

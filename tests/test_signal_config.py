@@ -81,8 +81,9 @@ def test_every_builder_takes_the_rigs_rate(s1):
     assert localiser_config(rig).sensor_x_mm == [float(v) for v in rig.sensor_x_mm]
 
 
-def test_diagnosed_delay_does_not_halve_at_50khz(s1):
-    """A 20 us delay put on channel 2 of a 50 kHz session is diagnosed as 20 us (not 10: the timing residuals
+def test_diagnosed_delay_does_not_halve_at_50khz_circular(s1):
+    """(Circular: the effect's own apply_signal puts the delay in, its fit reads it; what it proves is the rate.)
+    A 20 us delay put on channel 2 of a 50 kHz session is diagnosed as 20 us (not 10: the timing residuals
     read the session's rate), and the reference's wave speed is near the 100 kHz one (within 15 %: the picker
     sees half the samples; a rate taken as 100 kHz would double it)."""
     s50 = _at_50khz(s1)
