@@ -1,6 +1,9 @@
 """Host link benchmarks: emulator throughput over all session-1 drops vs real time (target >= 100x), and
 the C++ stream decoder over 1e6 fuzzed frames (random, truncated, corrupted, intact).
 
+The emulator's throughput is read on the process's CPU time (one thread: the resampling and the firmware app),
+which the machine's other work does not inflate; the wall-clock figure is printed beside it.
+
     python benchmarks/bench_link.py [--frames 1000000] [--trees 30]
 """
 
@@ -27,18 +30,19 @@ def bench_emulator(trees: int) -> dict:
         model_dir = train_board_models(s, Path(tmp) / "m", n_trees=trees)
         export_models(model_dir, Path(tmp) / "out", write_m2cgen=False)
         models, signal = firmware_models(Path(tmp) / "out")
-    t0 = time.perf_counter()
+    w0, t0 = time.perf_counter(), time.process_time()
     emu = Emulator(s, models, signal=signal)
     _ = emu.frames
-    t1 = time.perf_counter()
+    t1 = time.process_time()
     dec = _link.Decoder()
     reports = 0
     for _, data in emu.drops():
         reports += dec.count(data)["reports"]
-    t2 = time.perf_counter()
+    w2, t2 = time.perf_counter(), time.process_time()
     real = emu.real_time_s()
     return {"drops": len(s), "reports": reports, "real_time_s": real, "resample_s": t1 - t0, "app_s": t2 - t1,
-            "x_real_time": real / (t2 - t0), "x_real_time_app_only": real / (t2 - t1)}
+            "x_real_time": real / (t2 - t0), "x_real_time_app_only": real / (t2 - t1), "wall_s": w2 - w0,
+            "x_real_time_wall": real / (w2 - w0)}
 
 
 def fuzz_stream(n_frames: int, seed: int = 0) -> tuple[bytes, int]:
@@ -85,8 +89,9 @@ def main() -> int:
     args = ap.parse_args()
     e = bench_emulator(args.trees)
     print(f"emulator: {e['reports']} reports from {e['drops']} drops; {e['real_time_s']:.1f} s of board time in "
-          f"{e['resample_s']:.2f} s resampling + {e['app_s']:.2f} s firmware app -> {e['x_real_time']:.0f}x real time "
-          f"({e['x_real_time_app_only']:.0f}x for the app alone; target >= 100x)")
+          f"{e['resample_s']:.2f} s resampling + {e['app_s']:.2f} s firmware app (CPU) -> {e['x_real_time']:.0f}x real "
+          f"time ({e['x_real_time_app_only']:.0f}x for the app alone; target >= 100x); wall {e['wall_s']:.2f} s, "
+          f"{e['x_real_time_wall']:.0f}x (the machine's load)")
     d = bench_decoder(args.frames)
     print(f"decoder: {d['frames_fuzzed']:,} fuzzed frames ({d['bytes'] / 1e6:.1f} MB) in {d['s']:.2f} s "
           f"({d['mb_per_s']:.1f} MB/s); {d['reports_out']:,} reports out ({d['intact_sent']:,} sent intact; a truncated "
