@@ -9,10 +9,12 @@ import time
 from pathlib import Path
 
 
-def children_cpu_s() -> float:
-    """User + system CPU seconds of the finished child processes (the machine's load does not inflate it)."""
+def children_cpu_s(include_self: bool = False) -> float:
+    """User + system CPU seconds of the finished child processes (the machine's load does not inflate it);
+    with include_self, this process's own (all its threads) too."""
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+    own = resource.getrusage(resource.RUSAGE_SELF) if include_self else None
+    return r.ru_utime + r.ru_stime + (own.ru_utime + own.ru_stime if own else 0.0)
 
 
 def run_logged(cmd: list[str], log: Path, env: dict | None = None) -> tuple[float, float]:
