@@ -66,9 +66,11 @@ def run(name: str, args: list[str], timeout_s: float = 3600) -> dict:
         p = subprocess.run([sys.executable, str(HERE / f"{name}.py"), *args], capture_output=True, text=True,
                            timeout=timeout_s, env=env)
         rc, out = p.returncode, (p.stdout + p.stderr).strip()
+        # the verdict is the script's last printed line, not a library's warning on stderr after it
+        lines = [ln for ln in p.stdout.splitlines() if ln.strip()] or [ln for ln in out.splitlines() if ln.strip()]
     except subprocess.TimeoutExpired:
         rc, out = -1, f"timed out after {timeout_s:.0f} s"
-    lines = [ln for ln in out.splitlines() if ln.strip()]
+        lines = [out]
     return {"name": name, "rc": rc, "seconds": time.perf_counter() - t0, "cpu_seconds": children_cpu_s() - c0,
             "last": lines[-1] if lines else "", "output": out}
 
