@@ -2,7 +2,9 @@
 
 The changed rig is made from session-1: drops at other positions than the baseline's, with channel 3 reading
 7 us early (session-2's change, put in by the effect's own signal model). The retrained model is scored on
-drops of the changed rig that neither the diagnosis nor the training saw.
+drops of the changed rig that neither the diagnosis nor the training saw. Session-1's own later cases already read
+channel 3 early against its first 60 (a drift within the session, ~2 us): the delay the diagnosis should find is
+the 7 us plus what `diagnose` reads on the same drops unchanged (`control_delay_us`).
 """
 
 from __future__ import annotations
@@ -49,7 +51,21 @@ def sessions(tmp_path_factory):
     return {"base": _write(d / "base", s, base),
             "changed": _write(d / "changed", s, seen, _changed(s, seen, delay)),
             "held_out": load_session(_write(d / "held", s, held, _changed(s, held, delay))),
-            "held_out_unchanged": s.subset(held)}
+            "held_out_unchanged": s.subset(held),
+            "unchanged": _write(d / "unchanged", s, seen)}
+
+
+@pytest.fixture(scope="module")
+def control_delay_us(sessions, tmp_path_factory):
+    """Channel 3's delay `diagnose` reads on the diagnosis drops without the change (the session's own drift
+    between the baseline's cases and these)."""
+    out = tmp_path_factory.mktemp("control") / "diagnosis.json"
+    assert main(["diagnose", "--baseline", str(sessions["base"]), "--data", str(sessions["unchanged"]),
+                 "--json", str(out)]) == 0
+    delays = [e for e in json.loads(out.read_text())["effects"]
+              if e["effect"] == "channel_delay" and e["sensor"] == 3]
+    assert len(delays) == 1
+    return delays[0]["params"]["delay_us"]
 
 
 @pytest.fixture(scope="module")
@@ -68,13 +84,14 @@ def _errors(model, session):
     return mae("xy_mm"), mae("forest_xy_mm"), pred
 
 
-def test_retrained_model_carries_the_twin(retrained, sessions):
+def test_retrained_model_carries_the_twin(retrained, sessions, control_delay_us):
     card = json.loads((retrained / "model_card.json").read_text())
     assert card["position_source"] == "twin" and "twin" in card
     assert card["twin"]["uncertainty_scale"] > 0
     added = card["retrain"]["effects_added"]
     assert [(e["effect"], e["sensor"]) for e in added] == [("channel_delay", 3)]
-    assert added[0]["params"]["delay_us"] == pytest.approx(DELAY_US, abs=1.5)
+    # issue 16's tolerance for a delay: +-1 us of what was put in, on top of the session's own drift
+    assert added[0]["params"]["delay_us"] == pytest.approx(DELAY_US + control_delay_us, abs=1.0)
     # The model is trained on the recordings with the delay put in, kept in OUT for the board's retraining.
     assert Path(card["split"]["data_path"]) == (retrained / "training-data").resolve()
     kept = load_session(card["split"]["data_path"])   # what export's retrain_for_board checks and reads
