@@ -298,3 +298,29 @@ def test_zero_shot_board_figure_is_the_readmes(zero_shot_demo, tmp_path):
     readme = {"mae": mae, "inner": inner, "class": acc}
     differ = {k: (readme[k], printed[k]) for k in readme if not same_printed(readme[k], printed[k])}
     assert not differ, f"README (as printed there, as printed now): {differ}"
+
+
+@pytest.mark.slow
+def test_cold_zero_shot_demo_is_the_readmes(tmp_path):
+    """`impactsense demo --zero-shot` with no calibration given (the README's "cold" run: it calibrates the twin
+    anew on the four calibration drops, writes OUT/CAL.json, then trains on 490 virtual drops only) prints the
+    README's sim-trained MAE, inner MAE and class for it within 1.15x on the MAEs and -0.02 on the class (the
+    bounds of the other README checks here; a fresh calibration lands within the calibration's own spread, so
+    the figures are held to a bound, not to the printed digits). 5-10 CPU-min (the calibration's FEM)."""
+    import subprocess
+    import sys
+
+    text = " ".join(README.split())
+    m = re.search(r"A cold `impactsense demo --zero-shot` \(calibrating anew: .*?\) gives \*\*([\d.]+) / ([\d.]+) "
+                  r"mm\*\* and class accuracy \*\*([\d.]+)\*\*", text)
+    assert m, "the README's cold zero-shot figure (section 'The closed loop, in numbers')"
+    mae, inner, acc = (float(g) for g in m.groups())
+    out = tmp_path / "demo"
+    p = subprocess.run([sys.executable, "-m", "impactsense.cli", "demo", "--zero-shot", "--out", str(out)],
+                       capture_output=True, text=True, timeout=3600)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert (out / "CAL.json").is_file(), "the cold demo keeps the calibration it made"
+    printed = printed_zero_shot_figures(p.stdout)
+    assert float(printed["sim_mae"]) <= 1.15 * mae, (printed, mae)
+    assert float(printed["sim_inner"]) <= 1.15 * inner, (printed, inner)
+    assert float(printed["sim_class"]) >= acc - 0.02, (printed, acc)
