@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from bench_rigs import rig_folders
-from benchlib import misses_exit_code, run_logged
+from benchlib import distinct_sessions, misses_exit_code, run_logged
 
 ROOT = Path(__file__).resolve().parents[1]
 FLASH_TARGET = 256 * 1024
@@ -85,15 +85,7 @@ def main() -> int:
     misses, rows = [], []
     print(f"{'rig':12s} {'trees x/y/e':>12s} {'flash B (code + models)':>26s} {'instr. max':>10s} {'estimate':>9s} "
           f"{'board MAE':>9s} {'class':>6s}  targets: flash <= {FLASH_TARGET:,} B, <= {INSTRUCTIONS_TARGET:,} an event")
-    from impactsense.data import load_session
-
-    seen = set()
-    for data in paths:
-        digest = load_session(data).fingerprint()
-        if digest in seen:    # the same session under another folder (e.g. a copy of the bundled one)
-            print(f"{data}: skipped, the same data as a session already measured")
-            continue
-        seen.add(digest)
+    for data in distinct_sessions(paths):
         r = measure(data, args.work / Path(data).name, args.core, args.ble, args.drops)
         rows.append(r)
         t = r["trees"]

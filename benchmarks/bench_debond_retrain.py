@@ -20,7 +20,6 @@ Target (issue 14): debonded <= 1.5 x clean after retrain, flagged >= 0.95, on ev
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -36,7 +35,7 @@ from impactsense.sitemap import resolve_site_map
 from impactsense.split import case_split
 from impactsense.workflow import evaluate, train
 
-from benchlib import targets_exit_code
+from benchlib import targets_exit_code, write_json
 
 TARGET = 1.5
 
@@ -102,9 +101,7 @@ def main(argv=None) -> int:
                 misses.append(f"{label}: after retrain {a:.2f} > {TARGET} x {clean:.2f}")
             if not flagged(after, spec.debond) >= 0.95:
                 misses.append(f"{label}: after retrain flagged {flagged(after, spec.debond):.2f} < 0.95")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(out, fh, indent=1)
+    write_json(args.json, out)
     return targets_exit_code(misses, args.no_targets, t0)
 
 

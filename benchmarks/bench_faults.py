@@ -21,7 +21,6 @@ Targets (issue 14), checked on every draw, exit 1 when one is missed:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
@@ -33,7 +32,7 @@ from impactsense.models import ForestSettings
 from impactsense.sitemap import resolve_site_map
 from impactsense.workflow import evaluate, train
 
-from benchlib import targets_exit_code
+from benchlib import targets_exit_code, write_json
 
 SCENARIOS = {
     "clean": lambda s: FaultSpec(seed=s),
@@ -113,9 +112,7 @@ def main(argv=None) -> int:
                       f"{v['accepted']:6.2f} {v['class']:6.3f} {v['flagged']:5.2f}", flush=True)
                 out[label] = v
                 misses += [f"{label}: {m}" for m in check(name, v, clean)]
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(out, fh, indent=1)
+    write_json(args.json, out)
     return targets_exit_code(misses, args.no_targets, t0)
 
 

@@ -22,6 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import distinct_sessions  # noqa: E402
+
 TARGET_MAE_MM = 3.0
 TARGET_CLASS = 0.95
 
@@ -103,15 +106,7 @@ def main() -> int:
     print(f"{'rig':12s} {'material':34s} {'MAE mm':>7s} {'inner':>6s} {'phys':>6s} {'class':>6s} "
           f"{'naive':>6s} {'time s':>7s}  target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
     missed = []
-    from impactsense.data import load_session
-
-    seen = set()
-    for p in paths:
-        digest = load_session(p).fingerprint()
-        if digest in seen:    # the same session under another folder (e.g. a copy of the bundled one)
-            print(f"{p}: skipped, the same data as a session already scored")
-            continue
-        seen.add(digest)
+    for p in distinct_sessions(paths, "scored"):
         r = score(p, args.trees, args.seed)
         rows.append(r)
         ok = r["mae_mm"] <= TARGET_MAE_MM and r["class_accuracy"] >= TARGET_CLASS

@@ -3,6 +3,7 @@ sys.path)."""
 
 from __future__ import annotations
 
+import json
 import resource
 import subprocess
 import time
@@ -47,3 +48,25 @@ def targets_exit_code(misses: list[str], no_targets: bool, t0: float) -> int:
         print(f"{len(misses)} targets missed (--no-targets)")
         return 0
     return misses_exit_code(misses)
+
+
+def distinct_sessions(paths, what: str = "measured"):
+    """The session folders of `paths` whose data differ (by the session's fingerprint), in order; a folder with
+    the same data as one before it (e.g. a copy of the bundled session) is skipped with a line saying so."""
+    from impactsense.data import load_session
+
+    seen = set()
+    for path in paths:
+        digest = load_session(path).fingerprint()
+        if digest in seen:
+            print(f"{path}: skipped, the same data as a session already {what}")
+            continue
+        seen.add(digest)
+        yield path
+
+
+def write_json(path, result) -> None:
+    """Writes a benchmark's result dict to `path` (its --json option) when one is given."""
+    if path:
+        with open(path, "w") as fh:
+            json.dump(result, fh, indent=1)
