@@ -9,7 +9,8 @@ loop, and the unchanged sessions' MAE. One HTML report per diagnose in OUT/repor
 Models: the reference model is trained on all of `ref` (forests and physics localiser, no site map: a
 plain measured-trained model). After the loop, two models are trained on `ref`'s declared drops:
 - measured-trained: `ref`'s recordings with every diagnosed effect's signal model put in (as `impactsense
-  retrain`: `impactsense.loop.measured_training_session`, several draws of a random effect, and the pick
+  retrain`: a debonded channel's low-pass and gain sized on the recordings by `impactsense.loop.fit_bond`,
+  `impactsense.loop.measured_training_session`, several draws of a random effect, and the pick
   settings `impactsense.loop.pick_settings` re-chooses for a raised noise floor);
 - twin: the same drops simulated again by the twin with the diagnosed plate and sensor effects in the FEM
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
@@ -79,6 +80,18 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
     return vals, None
 
 
+def _bond_put_in(truth: dict, added: list[dict]) -> str:
+    """For a bond truth: the low-pass and gain the loop put in (fit_bond) against the truth's, else ''."""
+    lp = next((e["params"] for e in added if e["effect"] == "channel_lowpass"), None)
+    gain = next((e["params"]["gain"] for e in added if e["effect"] == "sensor_gain"), None)
+    if truth["effect"] != "channel_lowpass" or lp is None:
+        return ""
+    t = truth["params"]
+    return (f"; put in: order {lp.get('order', 2)} {lp['fc_hz'] / 1e3:.2f} kHz"
+            + (f" x{gain:.3f}" if gain is not None else "")
+            + f" vs {t['fc_hz'] / 1e3:.2f} kHz" + (f" x{t['gain']:.3f}" if "gain" in t else ""))
+
+
 def named_ok(truth: dict, sig: list[dict]) -> bool:
     if not sig:
         return False
@@ -100,8 +113,8 @@ def train_score(session, trees: int, seed: int, signal=None):
 def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dict:
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
-    from impactsense.loop import (effect_dicts, measured_training_session, pick_settings, split_effects,
-                                  twin_training_session)
+    from impactsense.loop import (effect_dicts, fit_bond, measured_training_session, pick_settings, split_effects,
+                                  twin_training_session, weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -111,10 +124,13 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     row["before"] = score(sess, ref_model)
     loop = {"rows": {"reference model (before)": row["before"]}}
     if sig:
-        accepted = det["accepted"]
+        # as `impactsense retrain`: a debonded channel's low-pass and gain sized on the recordings (fit_bond)
+        accepted = fit_bond(ref, sess, det["accepted"], args.seed)
         slow = det["ref"].slowness_us_per_mm
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed)
         m_model, _ = train_score(m_sess, args.trees, args.seed, pick_settings(m_sess, accepted))
+        if m_model.twin_fit is not None:
+            m_model.twin_fit.weak_channel = weak_channel(accepted)
         row["measured"] = score(sess, m_model)
         loop["rows"]["measured-trained, effects put in"] = row["measured"]
         twin, _ = split_effects(effect_dicts(accepted))
@@ -122,9 +138,12 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
             t_sess = twin_training_session(ref, sim_params, effect_dicts(accepted), work / f"{name}-twin", slow,
                                            args.seed, args.workers)
             t_model, _ = train_score(t_sess, args.trees, args.seed)
+            if t_model.twin_fit is not None:
+                t_model.twin_fit.weak_channel = weak_channel(accepted)
             row["twin"] = score(sess, t_model)
             loop["rows"]["twin-trained, corrected twin"] = row["twin"]
         row["after"] = row["twin" if twin else "measured"]
+        row["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in accepted]
     else:
         row["after"] = row["before"]
     loop["note"] = f"MAE on every drop of {name} (its own labels); models trained on all of the reference session."
@@ -195,6 +214,7 @@ def table(out: dict) -> int:
             size, after = "-", "-"
         else:
             size, size_ok = size_check(t, sig[0] if sig else None, ds, twin)
+            size += _bond_put_in(t, r.get("effects_added", []))
             loop_ok = r["after"]["mae_mm"] <= RATIO * base
             ok = named_ok(t, sig) and size_ok is not False and loop_ok
             after = f"{r.get('measured', r['after'])['mae_mm']:.2f}" + (

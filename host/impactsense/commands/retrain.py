@@ -109,7 +109,8 @@ def run(args) -> int:
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
         if args.twin:
-            rows["twin-corrected model"] = twin_model(args, base, data, details, settings, exclude, site, stage)
+            rows["twin-corrected model"] = twin_model(args, base, data, details, accepted, settings, exclude,
+                                                        site, stage)
         (stage / "retrain.json").write_text(json_text({**card, "on_data": rows}))
     if args.report:
         from ..diagnose import write_report
@@ -126,11 +127,12 @@ def run(args) -> int:
     return 0
 
 
-def twin_model(args, base, data, details, settings, exclude, site, out: Path) -> dict:
-    """A model trained on DATA_REF's declared drops simulated by the corrected twin; its score on DATA_NEW."""
+def twin_model(args, base, data, details, accepted, settings, exclude, site, out: Path) -> dict:
+    """A model trained on DATA_REF's declared drops simulated by the corrected twin (the accepted effects, a
+    debonded channel's as fit_bond sized them); its score on DATA_NEW."""
     from ..data import read_json
     from ..errors import ConfigError
-    from ..loop import effect_dicts, twin_training_session
+    from ..loop import effect_dicts, twin_training_session, weak_channel
     from ..sim import SimParams
     from ..workflow import train
 
@@ -138,10 +140,12 @@ def twin_model(args, base, data, details, settings, exclude, site, out: Path) ->
     if "sim_params" not in cal:
         raise ConfigError(f"{args.twin} [sim_params]: missing key (a CAL.json from `impactsense calibrate`)")
     params = SimParams.from_dict(cal["sim_params"], args.twin)
-    sess = twin_training_session(base, params, effect_dicts(details["accepted"]), out.resolve() / "twin-training-data",
+    sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
                                  details["ref"].slowness_us_per_mm, args.seed)
-    model, _ = train(sess, out / "twin-model", args.test_fraction, args.seed, exclude, settings=settings,
-                     site_map=site)
+    model, _ = train(sess, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
+    if model.twin_fit is not None:   # as the retrained model: the debonded channel is the twin's weak one
+        model.twin_fit.weak_channel = weak_channel(accepted)
+    model.save(out / "twin-model")
     return score(data, model)
 
 
