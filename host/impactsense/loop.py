@@ -238,6 +238,7 @@ def fit_bond(base, data, accepted, seed: int = 0) -> list:
     for ch in channels:
         target, target_se = _bond_stats(data, cfg, ch)
         gain0 = next((c.params["gain"] for c in accepted if c.effect == "sensor_gain" and c.sensor == ch), 1.0)
+        lp0 = next((c.params for c in accepted if c.effect == "channel_lowpass" and c.sensor == ch), None)
         skip = [True, True, True, False, True]   # tilt and timing: the level is the gain's, fitted after
 
         def trial(lowpass):
@@ -267,9 +268,11 @@ def fit_bond(base, data, accepted, seed: int = 0) -> list:
         best_err, best_lp, best_got = min(variants, key=lambda v: noise_misfit(v[1]))
         if best_lp is not None and not best_err <= (1.0 - BOND_MIN_TILT_GAIN) * none_err:
             best_lp, best_got = None, none_got
-        # the diagnosed gain explains DATA_NEW's level (against its position-aware reference); the low-pass takes
-        # some of it: give back what it takes on the same drops (energies go as gain^2: 2 log10 gain)
-        lost = none_got[3] - best_got[3] if best_lp is not None else 0.0
+        # the diagnosed gain, with the low-pass diagnosed with it, explains DATA_NEW's level (against its
+        # position-aware reference); the fitted low-pass takes some of it: the gain is the diagnosed one with the
+        # level difference of the two on the same drops (energies go as gain^2: 2 log10 gain)
+        diag_got = trial(lp0)[1] if lp0 is not None else none_got
+        lost = diag_got[3] - best_got[3]
         gain = float(gain0 * 10.0 ** (lost / 2.0)) if np.isfinite(lost) else gain0
         common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
         if best_lp is not None:
