@@ -26,7 +26,7 @@ recordings themselves: the channel_lowpass (first or second order, a grid of cut
 back or filtered with it) whose signal model, put into a sample of DATA_REF's drops with the diagnosed gain, gives
 the channel the median spectral tilt (Delta^1..3 over the arrival energy, the core's twin features) and onset
 (against the travel model) DATA_NEW shows; the gain is the diagnosed one with the arrival energy the low-pass
-takes from those drops given back. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
+takes from those drops, beyond what the low-pass diagnosed with that gain took, given back. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
 it, so the weak channel is picked at the same wave amplitude as the others). Its onset and energies stay the
 least certain: the retrained model's twin reports the mean of its four-channel match and the three-channel
 match without that channel (`weak_channel`, twin.h twin_match), and flags the channel.
