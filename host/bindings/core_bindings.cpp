@@ -600,6 +600,20 @@ NB_MODULE(_core, m) {
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);
   m.attr("TWIN_WEAK_CHANNEL") = static_cast<int>(ic::kTwinWeakChannel);
+  m.def(
+      "summed_log_energy_batch",
+      [](InF energy, float fs_hz) {
+        if (!has_shape(energy, {kAny, 4})) throw std::invalid_argument("energy must be float32 [R, 4]");
+        const size_t r = energy.shape(0);
+        auto out = make_array<float>({r});
+        for (size_t i = 0; i < r; ++i) {
+          float log_e;
+          out.data()[i] = ic::summed_log_energy(energy.data() + 4 * i, fs_hz, &log_e) ? log_e : NAN;
+        }
+        return out;
+      },
+      "energy"_a, "fs_hz"_a,
+      "summed_log_energy (impactcore.h) of every row of the core's channel energies: NaN where not positive.");
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

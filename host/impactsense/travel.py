@@ -149,12 +149,9 @@ def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: floa
 
 
 def summed_log_energy(energy: np.ndarray, fs_hz: float) -> np.ndarray:
-    """log10(sum_c E_c / fs) per drop, E the core's channel energies [R, 4] (counts^2 samples): what the core's
-    band localiser reads (impactcore band_velocity_for); NaN where the sum is not positive."""
-    total = np.asarray(energy, float).sum(1) / float(fs_hz)
-    out = np.full(total.shape, np.nan)
-    out[total > 0] = np.log10(total[total > 0])
-    return out
+    """log10(sum_c E_c / fs) per drop, E the core's channel energies [R, 4] (counts^2 samples): the core's own
+    number (impactcore summed_log_energy, which its band localiser reads); NaN where the sum is not positive."""
+    return _core.summed_log_energy_batch(np.ascontiguousarray(energy, np.float32), float(fs_hz)).astype(float)
 
 
 def fit_energy_slowness(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, fit: TravelFit,

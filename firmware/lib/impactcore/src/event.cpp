@@ -24,13 +24,21 @@ constexpr float kLog10Of2 = 0.301029996f;
 // higher the drop, the shorter the contact and the more of the faster high frequencies in the band's rise
 // (docs/findings.md "Band picks: the speed follows the drop"). v_band itself when the slope is 0, the
 // energy is not positive or the slowness would not be.
+bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e) {
+  float sum = 0.0f;
+  for (int c = 0; c < kChannels; ++c) sum += energy[c];
+  if (!(sum > 0.0f) || !(fs_hz > 0.0f)) return false;
+  *log_e = kLog10Of2 * (fast_log2(sum) - fast_log2(fs_hz));
+  return true;
+}
+
 float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc) {
   const float v = loc.band_velocity_mm_per_us;
   if (loc.band_slowness_per_decade == 0.0f) return v;
-  float sum = 0.0f;
-  for (int c = 0; c < kChannels; ++c) sum += f.ch[c].energy;
-  if (!(sum > 0.0f) || !(fs_hz > 0.0f)) return v;
-  const float log_e = kLog10Of2 * (fast_log2(sum) - fast_log2(fs_hz));
+  float energy[kChannels];
+  for (int c = 0; c < kChannels; ++c) energy[c] = f.ch[c].energy;
+  float log_e;
+  if (!summed_log_energy(energy, fs_hz, &log_e)) return v;
   const float slowness = 1.0f / v + loc.band_slowness_per_decade * (log_e - loc.band_log_energy_ref);
   return slowness > 0.0f ? 1.0f / slowness : v;
 }

@@ -466,6 +466,9 @@ struct LocaliserConfig {
 // The band localiser's velocity for an event: band_velocity_mm_per_us, its slowness moved by
 // band_slowness_per_decade x (log10(sum_c energy_c / fs_hz) - band_log_energy_ref) when that slope is not 0.
 float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc);
+// log10(sum_c energy[c] / fs_hz) of one event's four channel energies (what band_velocity_for reads; training
+// fits the line on the same number): false (and *log_e untouched) when the sum or fs_hz is not positive.
+bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e);
 
 // The model feature vector, in this order (names in kFeatureNames):
 //   dtoa_us[6] (pair order), rel_toa_us[4] (ToA - earliest ToA), phys_x_mm, phys_y_mm,
