@@ -166,3 +166,31 @@ def test_the_energy_slowness_line_is_recovered_from_training_picks():
     v_ref, slope, ref = fit_energy_slowness(toa, xy, s, fit, log_e)
     assert abs(slope - k) < 0.1 * abs(k)
     assert abs((1.0 / v_ref + slope * (2.5 - ref)) - 1.0 / v) < 0.01 / v
+
+
+def test_the_band_localiser_runs_on_three_channels_when_one_has_no_band_pick(synth):
+    """Channel 2's arrival is a 150-count burst at 45 kHz, far outside a 20 kHz band: it
+    has a threshold onset but no band pick. The band localiser places the drop from the other three band
+    picks (exact geometry: within 3 mm) and the physics position is the mean of the two, as with four;
+    with two channels missing it stays the threshold picks' own."""
+    cfg = band_cfg(20000.0)
+    cfg.band_velocity_mm_per_us = cfg.velocity_mm_per_us
+    s = cfg.sensor_xy_mm
+    p = np.array([140.0, 180.0])
+    onsets = 300.0 + np.hypot(*(s - p).T) / cfg.velocity_mm_per_us * FS * 1e-6
+    adc = synth(list(onsets), n=2000, amp=600.0, freq_hz=20000.0, noise=1.0)
+    off_band = synth(list(onsets), n=2000, amp=150.0, freq_hz=45000.0, noise=1.0, seed=1)
+    adc[2] = off_band[2]
+    picks = band_picks(adc, cfg)[0]
+    assert np.isfinite(picks[[0, 1, 3]]).all() and np.isnan(picks[2])
+    out = _core.process_batch(as_int16(adc), cfg.core(), cfg.localiser())
+    band = out["band_xy_mm"][0]
+    assert np.abs(band - p).max() < 3.0
+    plain = SignalConfig.from_dict({**cfg.to_dict(), "band_velocity_mm_per_us": 0.0})
+    thr = _core.process_batch(as_int16(adc), plain.core(), plain.localiser())["phys_xy_mm"][0]
+    assert np.allclose(out["phys_xy_mm"][0], 0.5 * (thr + band), atol=1e-3)
+    adc[1] = off_band[1]
+    two = _core.process_batch(as_int16(adc), cfg.core(), cfg.localiser())
+    assert np.isnan(two["band_xy_mm"][0]).all()
+    thr2 = _core.process_batch(as_int16(adc), plain.core(), plain.localiser())["phys_xy_mm"][0]
+    assert np.array_equal(two["phys_xy_mm"][0], thr2)

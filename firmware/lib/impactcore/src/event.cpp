@@ -74,21 +74,26 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
                         : 0;
   }
   // The band picks' own position, averaged with the threshold picks' (their errors are partly independent:
-  // docs/findings.md "Picks in one band"). Every channel needs a band pick; otherwise phys stays as is.
+  // docs/findings.md "Picks in one band"). Like the threshold localiser it runs on the channels that have a
+  // pick, at least three: a far channel's band peak under the noise floor gives no band pick, and the other
+  // three still place the drop (docs/findings.md "Band picks on three channels"); fewer: phys stays as is.
   out->band = LocaliserResult{};
   out->band.x_mm = out->band.y_mm = NAN;
   out->band.status = kErrBadConfig;
   if (cfg.band_pick_hz > 0.0f && loc.band_velocity_mm_per_us > 0.0f && out->phys.status == kOk) {
     float toa_band[kChannels];
-    uint8_t all = 1;
+    uint8_t band_use[kChannels];
+    int picked = 0;
     for (int c = 0; c < kChannels; ++c) {
       toa_band[c] = f.ch[c].toa_band_us - loc.band_delay_us[c];
-      if (!use[c] || !(toa_band[c] == toa_band[c])) all = 0;
+      band_use[c] = (use[c] && toa_band[c] == toa_band[c]) ? 1 : 0;
+      if (!band_use[c]) toa_band[c] = 0.0f;
+      picked += band_use[c];
     }
-    if (all) {
+    if (picked >= 3) {
       const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
       const float band_velocity = band_velocity_for(f, cfg.fs_hz, loc);
-      out->band = localise_tdoa(toa_band, use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
+      out->band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
                                 loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
                                 loc.localiser_starts);
       if (out->band.status == kOk) {
