@@ -101,6 +101,9 @@ def load_models(model_dir) -> ModelSet:
         models = load_forests(model_dir, card, card_path, ("x", "y", "energy"))
     except DataError as exc:
         raise ExportError(str(exc)) from None
+    if card.get("position_members"):
+        raise ExportError(f"{card_path} [position_members]: the board runs one forest pair on the physics position; "
+                          f"export it at the board's rate (not --rate native): that trains the board's own models")
     for role in ("x", "y"):
         if not hasattr(models[role], "estimators_") or getattr(models[role], "n_outputs_", 1) != 1:
             raise ExportError(f"{roles[role]}: need a single-output random forest regressor")

@@ -56,6 +56,14 @@ ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
 MEASURED_ENERGY_FEATURES = ENERGY_FEATURES + [n for n in FEATURE_NAMES if n.startswith(
     ("log_energy_rel_", "log_energy_mean", "log_first_peak_"))]
 MODEL_FILES = {"x": "forest_dx.npz", "y": "forest_dy.npz", "energy": "forest_energy.npz"}   # forestfile.py
+# With the band picks on (impactcore band_onset) the physics position is the mean of the threshold picks' and
+# the band picks' own; two more forest pairs then correct each of those two positions (their x, y in place of
+# the mean's in the location features) and the reported position is the mean of the three corrected ones:
+# their errors differ, and the mean is closer on every split of both other rigs (docs/findings.md, "Band
+# picks on three channels; three corrected positions"). Only the host runs them: the board's models
+# (board/models.py) keep one pair.
+POSITION_MEMBERS = ("threshold", "band")
+MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS for axis in "xy"}
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
 # i.e. a threshold on log10 height learned with its uncertainty.
@@ -162,6 +170,28 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)))
 
 
+def member_positions(features: Features) -> dict[str, np.ndarray] | None:
+    """The threshold picks' and the band picks' own positions [R, 2] (POSITION_MEMBERS; the core's physics
+    position is their mean where the band picks placed the drop, the threshold picks' alone elsewhere), NaN
+    where the band picks did not place the drop; None when no row has a band position."""
+    band = features.raw.get("band_xy_mm")
+    if band is None:
+        return None
+    band = np.asarray(band, float)
+    ok = np.isfinite(band).all(1)
+    if not ok.any():
+        return None
+    threshold = np.where(ok[:, None], 2.0 * np.asarray(features.phys_xy_mm, float) - band, np.nan)
+    return {"threshold": threshold, "band": np.where(ok[:, None], band, np.nan)}
+
+
+def _member_inputs(X_loc: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """The location features with the physics position's columns replaced by a member's position."""
+    out = np.array(X_loc, float, copy=True)
+    out[:, [LOCATION_FEATURES.index("phys_x_mm"), LOCATION_FEATURES.index("phys_y_mm")]] = base
+    return out
+
+
 def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:
     """The localiser's per-channel travel-time factors of every row (impactcore dispersion_scales), flat; empty
     without dispersion (all 1)."""
@@ -188,12 +218,16 @@ class ImpactModel:
     location_features: list[str] = field(default_factory=lambda: list(LOCATION_FEATURES))
     # The feature vector's columns the energy classifier reads without a site map (the card's energy_features).
     energy_class_features: list[str] = field(default_factory=lambda: list(MEASURED_ENERGY_FEATURES))
+    # POSITION_MEMBERS name -> (forest dx, forest dy) on that position; empty: the physics position's pair only.
+    members: dict = field(default_factory=dict)
 
     # ----- training -----
     @classmethod
     def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
             signal: SignalConfig, settings: ForestSettings | None = None,
-            site_map: SiteMap | None = None) -> "ImpactModel":
+            site_map: SiteMap | None = None, members: bool = True) -> "ImpactModel":
+        """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
+        pair)."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -204,6 +238,17 @@ class ImpactModel:
         loc_cols = columns(LOCATION_FEATURES)
         fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
         fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
+        member_forests = {}
+        positions = member_positions(features.take(np.flatnonzero(use))) if members else None
+        if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
+            for name in POSITION_MEMBERS:
+                base = positions[name]
+                rows = np.isfinite(base).all(1)
+                if rows.sum() < 10:
+                    member_forests = {}
+                    break
+                Xm = _member_inputs(X[rows][:, loc_cols], base[rows])
+                member_forests[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         if site_map is None:
@@ -222,7 +267,7 @@ class ImpactModel:
                 setattr(twin_fit, key, value)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
-                   card={"forest": settings.__dict__, "n_train_drops": int(use.sum())})
+                   card={"forest": settings.__dict__, "n_train_drops": int(use.sum())}, members=member_forests)
 
     @property
     def energy_features(self) -> list[str]:
@@ -258,6 +303,18 @@ class ImpactModel:
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
                 spread[use, k] = per_tree.std(0)
+            positions = member_positions(features) if self.members else None
+            if positions is not None:
+                # where the band picks placed the drop: the mean of the three corrected positions
+                rows = np.flatnonzero(use & np.isfinite(positions["band"]).all(1))
+                if rows.size:
+                    Xm = features.vector[rows][:, columns(self.location_features)]
+                    total = xy[rows].copy()
+                    for name in POSITION_MEMBERS:
+                        base = positions[name][rows]
+                        Xb = _member_inputs(Xm, base)
+                        total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
+                    xy[rows] = total / (1 + len(POSITION_MEMBERS))
             if self.site_map is None:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(self.energy_class_features)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
@@ -306,6 +363,9 @@ class ImpactModel:
         """The model's files and card into `stage` (a staging folder of outputs.output_folder)."""
         for role, forest in (("x", self.forest_dx), ("y", self.forest_dy), ("energy", self.forest_energy)):
             save_forest(stage / MODEL_FILES[role], forest)
+        for name, pair in self.members.items():
+            for axis, forest in zip("xy", pair):
+                save_forest(stage / MEMBER_FILES[f"{axis}_{name}"], forest)
         twin = {}
         if self.site_map is not None:
             self.site_map.save(stage / SITE_MAP_FILE)
@@ -327,9 +387,14 @@ class ImpactModel:
             "energy_features": self.energy_features,
             "energy_threshold_j": self.energy_threshold_j,
             "energy_classes": {"0": "low", "1": "high"},
-            "files": MODEL_FILES,
+            "files": {**MODEL_FILES, **{f"{a}_{n}": MEMBER_FILES[f"{a}_{n}"] for n in self.members for a in "xy"}},
             "signal": self.signal.to_dict(),
         }
+        if self.members:
+            card["position_members"] = list(self.members)
+            card["target"] = ("x = mean of phys_x_mm + forest_dx(features[location_features]) and, where the band "
+                              "picks placed the drop, each position_members' x + its forest_dx (its x, y in "
+                              "place of phys_x/y_mm); same for y")
         # what the card carried from before (training settings, provenance); what the model holds now wins
         card = {
             **card,
@@ -383,7 +448,14 @@ class ImpactModel:
         if site_map is None and len(energy) != getattr(forests[2], "n_features_in_", len(energy)):
             raise DataError(card_path, "energy_features", f"lists {len(energy)} features, the energy forest "
                                                           f"reads {forests[2].n_features_in_}")
+        names = card.get("position_members", [])
+        if not isinstance(names, list) or any(n not in POSITION_MEMBERS for n in names):
+            raise DataError(card_path, "position_members", f"must list names from {list(POSITION_MEMBERS)}")
+        if names and loc != LOCATION_FEATURES:
+            raise DataError(card_path, "position_members", "needs the current location_features")
+        extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
+        members = {n: (extra[f"x_{n}"], extra[f"y_{n}"]) for n in names}
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
-                   energy_class_features=list(energy))
+                   energy_class_features=list(energy), members=members)

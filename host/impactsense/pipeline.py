@@ -78,6 +78,7 @@ def featurize(adc: np.ndarray, cfg: SignalConfig) -> Features:
     a16 = as_int16(adc, cfg)
     raw = _core.extract_batch(a16, cfg.core())
     ev = _core.process_batch(a16, cfg.core(), cfg.localiser())
+    raw["band_xy_mm"] = ev["band_xy_mm"]     # the band picks' own position (NaN: off or not placed)
     return Features(vector=ev["vector"], phys_xy_mm=ev["phys_xy_mm"], phys_cov=ev["phys_cov"],
                     accepted=ev["accepted"].astype(bool), status=ev["status"], flags=raw["flags"],
                     toa_us=raw["toa_us"], energy=raw["energy"], raw=raw)

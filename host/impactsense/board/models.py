@@ -153,7 +153,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
-                            site_map=site_map)
+                            site_map=site_map, members=False)
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
