@@ -17,8 +17,8 @@ Per session folder (the bundled session-1 and the folders under --rigs-dir, as b
    around the 75th percentile), and the model's class on split seeds 0..N-1 (`workflow.train` + `evaluate`,
    as bench_rigs.py) beside a ridge of log height on the same core features (a candidate, not the product).
 
-Target (issue 15): class >= 0.95 on every split; exits 1 when a rig's model misses it on any seed.
-Figures: docs/findings.md, "The class on the laminate: what bounds it".
+A study: it prints the splits where the model misses issue 15's class >= 0.95 but exits 0 (the target is
+bench_rigs.py's). Figures: docs/findings.md, "The class on the laminate: what bounds it".
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from scipy.stats import norm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_rigs import rig_folders  # noqa: E402
-from benchlib import distinct_sessions, misses_exit_code  # noqa: E402
+from benchlib import distinct_sessions  # noqa: E402
 
 G = 9.80665
 TARGET_CLASS = 0.95
@@ -277,7 +277,8 @@ def main(argv=None) -> int:
                 misses.append(f"{name}: class {min(sd['model']):.3f} < {TARGET_CLASS} on a split")
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1))
-    return misses_exit_code(misses)
+    print("class below %.2f on a split: %s" % (TARGET_CLASS, "; ".join(misses) if misses else "none"))
+    return 0
 
 
 if __name__ == "__main__":

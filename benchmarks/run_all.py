@@ -55,6 +55,7 @@ PRINT_ONLY = {
     "bench_support": [],
     "bench_edge_energy": [],
     "bench_surrogates": [],
+    "bench_class_cues": ["--seeds", "1"],             # height cues besides the energy; the class's bound
 }
 
 
