@@ -2,7 +2,7 @@
 
     python3 benchmarks/bench_class_cues.py [--rigs-dir DIR] [--seeds 4] [--json OUT.json]
 
-Per session folder (the bundled session-1 and the folders under --rigs-dir, as bench_rigs.py finds them):
+Per session folder (the bundled session and the folders under --rigs-dir, as bench_rigs.py finds them):
 1. The ball's second hit: records with a later burst of high-frequency power on >= 2 channels (a one-sample
    glitch is on one channel), and the coefficient of restitution e below which the rebound (flight time
    2 e v / g, v = sqrt(2 g h)) lands inside the record at all.
