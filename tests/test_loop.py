@@ -101,6 +101,32 @@ def test_corrected_twin_carries_plate_and_sensor_effects():
     assert [e["effect"] for e in signal] == ["channel_delay"] and len(twin) == 3
 
 
+def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity():
+    """The twin's E scan inverts the picks' own velocity law: twin drops on a plate with E x 0.92 read as a pick
+    velocity change (the residual reference's slowness fit on the same drops, the AIC onset), and the scan maps
+    that change back to E within issue 16's 1 %, from a first guess (the A0 curve at one frequency) that is
+    not the answer. The picks' exponent d ln v / d ln E lies between the fixed-frequency 1/4 and the thin
+    plate's time scaling 1/2 (a margin for the pick's noise)."""
+    from impactsense.loop import _pick_slowness, e_scale_scan
+    from impactsense.sim.doe import virtual_drops
+    p = dataclasses.replace(_twin(), duration_ms=6.0)
+    base = load_session("bundled:session-1")
+    x, y, h = virtual_drops(base.rig, 24, 3, 20.0, 32.0)
+    data = Session(base.path, base.rig, np.arange(24), np.arange(24), np.zeros(24, int), x, y, h,
+                   np.zeros((24, 4, base.rig.samples), np.uint16))
+
+    def slowness(e_scale):
+        volts = sim.simulate_voltages(dataclasses.replace(p, e_pa=p.e_pa * e_scale), base.rig, x, y, h)["volts"]
+        return _pick_slowness([dataclasses.replace(data, adc=sim.to_adc(volts, p, base.rig, noise=True, seed=k))
+                               for k in range(2)], None)
+
+    change = 100.0 * (slowness(1.0) / slowness(0.92) - 1.0)
+    scan = e_scale_scan(p, data, None, change, seed=0, drops=24, draws=2)
+    assert 0.22 <= scan["exponent"] <= 0.55, scan
+    assert scan["e_scale"] == pytest.approx(0.92, abs=0.01), (change, scan)
+    assert abs(scan["first_guess"] - 0.92) > 0.003, scan   # the scan did the work, not the first guess
+
+
 def _noise_candidate(white):
     return D.Candidate("noise", None, {"white_rms_counts": white, "hum_counts": 0.0, "hum_hz": 50.0}, 10.0, 0.0,
                        True, True, [])

@@ -2,10 +2,15 @@
 
 `diagnose` names effects on the residual reference; here they become physics again:
 - in the FEM twin: `sensor_position` moves the disc in the simulated rig; `wave_speed` scales the plate's E
-  (`e_scale_for_speed`: the picked arrival travels at the Mindlin A0 group velocity of some frequency f*, the
-  one where the twin's v_g(f*) equals the reference's pick velocity; at fixed f*, v_g ~ E^n with
-  n = d ln v_g / d ln E between 1/4 (thin plate) and 1/2 (shear limit), so E_new / E_old =
-  (v_new / v_old)^(1/n)); `damping` raises the twin's mass-proportional D_s by twice the
+  by the picks' own law v ~ E^n: a pick is not one frequency's arrival. At a fixed frequency the A0 group
+  velocity goes as E^n, n between 1/4 (thin plate) and 1/2 (shear limit) (`e_scale_for_speed`: the
+  frequency f* where the twin's v_g(f*) equals the pick velocity); but a stiffer plate also shifts the cycle
+  a threshold or AIC onset catches (a thin plate's whole response scales in time as E^(-1/2); the source's
+  and the disc's bands hold the frequency back), so the picks' n lies between, and it depends on the
+  distances and the noise. `e_scale_scan` measures it on the twin: DATA_NEW's declared drops simulated at
+  the twin's E and at the first guess, with a few draws of its noise, picked as diagnose picked them;
+  E_new / E_old = (v_new / v_old)^(1/n) (`size_plate_change` puts it into the effect, `corrected_twin`
+  reads it); `damping` raises the twin's mass-proportional D_s by twice the
   envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
 - at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
   clipping, by each effect's own `apply_signal`.
@@ -49,6 +54,10 @@ BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and 
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
+E_SCAN_DROPS = 160                     # DATA_NEW drops the twin's E scan simulates (at two E)
+E_SCAN_DRAWS = 4                       # draws of the twin's noise on each (the picks' exponent depends on it)
+E_SCAN_EXPONENTS = (0.15, 0.75)        # d ln v / d ln E a flexural pick can have (1/4 at a fixed frequency, 1/2
+                                       # the thin plate's time scaling; a margin either side for the scan's noise)
 
 
 def split_effects(effects) -> tuple[list, list]:
@@ -73,6 +82,64 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
     return float((1.0 + change_pct / 100.0) ** (1.0 / n))
 
 
+def _pick_slowness(sessions, picker) -> float:
+    """The picks' slowness (us/mm) by `picker` (diagnose's timing picker) over the sessions' drops together: the
+    residual reference's robust fit."""
+    from . import residuals as R
+
+    F = [R.extract(s, picker) for s in sessions]
+    F = dataclasses.replace(F[0], **{k: np.concatenate([getattr(f, k) for f in F]) for k in
+                                     ("x_mm", "y_mm", "height_mm", "case_id", "order", "toa_us", "log_energy",
+                                      "clipped", "log_centroid", "decay_per_s", "log_noise", "hum_counts",
+                                      "plateau_hi", "plateau_lo", "pick_period")})
+    return float(R.fit_reference(F, "calibrated").slowness_us_per_mm)
+
+
+def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers: int = 2,
+                 drops: int = E_SCAN_DROPS, draws: int = E_SCAN_DRAWS) -> dict:
+    """E_new / E_old of the twin's plate for a pick velocity change of change_pct % measured on DATA_NEW (`data`),
+    by the twin's own E scan at those picks (see the module doc): up to `drops` of DATA_NEW's declared drops
+    simulated by the twin at its E and at the first guess (`e_scale_for_speed`), each with `draws` draws of
+    the twin's noise (the same at both E), picked by `picker` as diagnose picked them, give the picks' own
+    exponent n = d ln v / d ln E there; E_new / E_old = (1 + change_pct / 100)^(1 / n).
+    Returns {"e_scale", "exponent", "first_guess"}; the first guess when the scan's exponent is outside
+    E_SCAN_EXPONENTS (not a flexural pick)."""
+    from .sim.simulate import simulate_voltages, to_adc
+
+    rng = np.random.default_rng(seed)
+    sub = data.subset(np.sort(rng.choice(len(data), min(drops, len(data)), replace=False)))
+
+    def slowness(p) -> float:
+        volts = simulate_voltages(p, data.rig, sub.x_mm, sub.y_mm, sub.height_mm, workers=workers)["volts"]
+        return _pick_slowness([dataclasses.replace(sub, adc=to_adc(volts, p, data.rig, noise=True, seed=seed + k))
+                               for k in range(draws)], picker)
+
+    s0 = slowness(params)
+    guess = e_scale_for_speed(params, 1000.0 / s0, change_pct)
+    out = {"e_scale": guess, "exponent": float("nan"), "first_guess": guess}
+    if abs(np.log(guess)) < 1e-6:
+        return out
+    s1 = slowness(dataclasses.replace(params, e_pa=params.e_pa * guess))
+    n = float(np.log(s0 / s1) / np.log(guess))
+    out["exponent"] = n
+    if E_SCAN_EXPONENTS[0] <= n <= E_SCAN_EXPONENTS[1]:
+        out["e_scale"] = float((1.0 + change_pct / 100.0) ** (1.0 / n))
+    return out
+
+
+def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: int = 2) -> list:
+    """`accepted` with each wave_speed candidate's E change sized by the twin's scan on DATA_NEW's drops
+    (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in) and e_exponent."""
+    out = []
+    for c in accepted:
+        if c.effect == "wave_speed" and "e_scale" not in c.params:
+            scan = e_scale_scan(params, data, picker, c.params["change_pct"], seed, workers)
+            c = dataclasses.replace(c, params={**c.params, "e_scale": scan["e_scale"],
+                                               "e_exponent": scan["exponent"]})
+        out.append(c)
+    return out
+
+
 def corrected_twin(params, rig, effects):
     """(SimParams, Rig) with the twin effects of `effects` put in (others ignored)."""
     from .data import rig_from_dict
@@ -87,7 +154,8 @@ def corrected_twin(params, rig, effects):
             sen["y_mm"] = float(sen["y_mm"]) + p["dy_mm"]
         elif e["effect"] == "wave_speed":
             v_ref = p["velocity_m_s"] / (1.0 + p["change_pct"] / 100.0)
-            params = dataclasses.replace(params, e_pa=params.e_pa * e_scale_for_speed(params, v_ref, p["change_pct"]))
+            scale = p["e_scale"] if "e_scale" in p else e_scale_for_speed(params, v_ref, p["change_pct"])
+            params = dataclasses.replace(params, e_pa=params.e_pa * scale)
         elif e["effect"] == "damping":
             params = dataclasses.replace(params, damping_per_s=params.damping_per_s + 2.0 * p["extra_decay_per_s"])
     return params, rig_from_dict(raw)

@@ -132,7 +132,7 @@ def twin_model(args, base, data, details, accepted, settings, exclude, site, out
     debonded channel's as fit_bond sized them); its score on DATA_NEW."""
     from ..data import read_json
     from ..errors import ConfigError
-    from ..loop import effect_dicts, twin_training_session, weak_channel
+    from ..loop import effect_dicts, size_plate_change, twin_training_session, weak_channel
     from ..sim import SimParams
     from ..workflow import train
 
@@ -140,6 +140,8 @@ def twin_model(args, base, data, details, accepted, settings, exclude, site, out
     if "sim_params" not in cal:
         raise ConfigError(f"{args.twin} [sim_params]: missing key (a CAL.json from `impactsense calibrate`)")
     params = SimParams.from_dict(cal["sim_params"], args.twin)
+    # a plate speed change: its E by the twin's own scan at DATA_NEW's drops, picked as diagnose picked them
+    accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed)
     sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
                                  details["ref"].slowness_us_per_mm, args.seed)
     model, _ = train(sess, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
