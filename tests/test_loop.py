@@ -109,11 +109,12 @@ def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity()
     plate's time scaling 1/2 (a margin for the pick's noise)."""
     from impactsense.loop import _pick_slowness, e_scale_scan
     from impactsense.sim.doe import virtual_drops
+    DROPS = 24
     p = dataclasses.replace(_twin(), duration_ms=6.0)
     base = load_session("bundled:session-1")
-    x, y, h = virtual_drops(base.rig, 24, 3, 20.0, 32.0)
-    data = Session(base.path, base.rig, np.arange(24), np.arange(24), np.zeros(24, int), x, y, h,
-                   np.zeros((24, 4, base.rig.samples), np.uint16))
+    x, y, h = virtual_drops(base.rig, DROPS, 3, 20.0, 32.0)
+    data = Session(base.path, base.rig, np.arange(DROPS), np.arange(DROPS), np.zeros(DROPS, int), x, y, h,
+                   np.zeros((DROPS, 4, base.rig.samples), np.uint16))
 
     def slowness(e_scale):
         volts = sim.simulate_voltages(dataclasses.replace(p, e_pa=p.e_pa * e_scale), base.rig, x, y, h)["volts"]
@@ -121,7 +122,7 @@ def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity()
                                for k in range(2)], None)
 
     change = 100.0 * (slowness(1.0) / slowness(0.92) - 1.0)
-    scan = e_scale_scan(p, data, None, change, seed=0, drops=24, draws=2)
+    scan = e_scale_scan(p, data, None, change, seed=0, drops=DROPS, draws=2)
     assert 0.22 <= scan["exponent"] <= 0.55, scan
     assert scan["e_scale"] == pytest.approx(0.92, abs=0.01), (change, scan)
     assert abs(scan["first_guess"] - 0.92) > 0.003, scan   # the scan did the work, not the first guess

@@ -55,6 +55,7 @@ BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates ar
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
 E_SCAN_DROPS = 160                     # DATA_NEW drops the twin's E scan simulates (at two E)
+E_SCAN_STEPS = 2                       # scans: at the first guess, then at the first scan's answer
 E_SCAN_DRAWS = 4                       # draws of the twin's noise on each (the picks' exponent depends on it)
 E_SCAN_EXPONENTS = (0.15, 0.75)        # d ln v / d ln E a flexural pick can have (1/4 at a fixed frequency, 1/2
                                        # the thin plate's time scaling; a margin either side for the scan's noise)
@@ -102,8 +103,9 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
     simulated by the twin at its E and at the first guess (`e_scale_for_speed`), each with `draws` draws of
     the twin's noise (the same at both E), picked by `picker` as diagnose picked them, give the picks' own
     exponent n = d ln v / d ln E there; E_new / E_old = (1 + change_pct / 100)^(1 / n).
-    Returns {"e_scale", "exponent", "first_guess"}; the first guess when the scan's exponent is outside
-    E_SCAN_EXPONENTS (not a flexural pick)."""
+    The exponent is measured again at that answer (E_SCAN_STEPS: a pick can change its cycle between two E,
+    so n depends on the step). Returns {"e_scale", "exponent", "first_guess"}; a scan whose exponent is
+    outside E_SCAN_EXPONENTS (not a flexural pick) is not used."""
     from .sim.simulate import simulate_voltages, to_adc
 
     rng = np.random.default_rng(seed)
@@ -117,13 +119,15 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
     s0 = slowness(params)
     guess = e_scale_for_speed(params, 1000.0 / s0, change_pct)
     out = {"e_scale": guess, "exponent": float("nan"), "first_guess": guess}
-    if abs(np.log(guess)) < 1e-6:
-        return out
-    s1 = slowness(dataclasses.replace(params, e_pa=params.e_pa * guess))
-    n = float(np.log(s0 / s1) / np.log(guess))
-    out["exponent"] = n
-    if E_SCAN_EXPONENTS[0] <= n <= E_SCAN_EXPONENTS[1]:
-        out["e_scale"] = float((1.0 + change_pct / 100.0) ** (1.0 / n))
+    scale = guess
+    for _ in range(E_SCAN_STEPS):   # the exponent measured again at the last answer: picks are not smooth in E
+        if abs(np.log(scale)) < 1e-6:
+            break
+        n = float(np.log(s0 / slowness(dataclasses.replace(params, e_pa=params.e_pa * scale))) / np.log(scale))
+        if not E_SCAN_EXPONENTS[0] <= n <= E_SCAN_EXPONENTS[1]:
+            break
+        scale = float((1.0 + change_pct / 100.0) ** (1.0 / n))
+        out.update(e_scale=scale, exponent=n)
     return out
 
 
