@@ -70,8 +70,8 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
         curve = 100 * (e_scale_for_speed(twin, v_ref, p["change_pct"]) - 1)
         got = 100 * (p["e_scale"] - 1) if "e_scale" in p else curve
         want = 100 * (t["e_scale"] - 1)
-        how = (f"the twin's scan, n {p['e_exponent']:.3f}; the A0 curve's {curve:+.1f} %" if "e_scale" in p
-               else "the A0 curve")
+        how = (f"scan {100 * (p['e_scale_scan'] - 1):+.1f} % at n {p['e_exponent']:.3f}, A0 curve "
+               f"{100 * (p['e_scale_curve'] - 1):+.1f} %: their geometric mean" if "e_scale" in p else "the A0 curve")
         return (f"E {got:+.1f} % ({how}; pick velocity {p['change_pct']:+.2f}"
                 f"{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"])
     if "damping_scale" in t and e["effect"] == "damping":
@@ -135,7 +135,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         for e in res["effects"]:
             c = next((c for c in accepted if c.effect == e["effect"] == "wave_speed"), None)
             if c is not None:
-                e["params"] = {**e["params"], "e_scale": c.params["e_scale"], "e_exponent": c.params["e_exponent"]}
+                e["params"] = {**e["params"], **{k: c.params[k] for k in
+                                                 ("e_scale", "e_exponent", "e_scale_scan", "e_scale_curve")}}
         slow = det["ref"].slowness_us_per_mm
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed)
         m_model, _ = train_score(m_sess, args.trees, args.seed, pick_settings(m_sess, accepted))

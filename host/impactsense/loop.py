@@ -104,8 +104,11 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
     the twin's noise (the same at both E), picked by `picker` as diagnose picked them, give the picks' own
     exponent n = d ln v / d ln E there; E_new / E_old = (1 + change_pct / 100)^(1 / n).
     The exponent is measured again at that answer (E_SCAN_STEPS: a pick can change its cycle between two E,
-    so n depends on the step). Returns {"e_scale", "exponent", "first_guess"}; a scan whose exponent is
-    outside E_SCAN_EXPONENTS (not a flexural pick) is not used."""
+    so n depends on the step). The scan's n scatters from session to session (0.26-0.34 on four draws of one
+    rig, docs/findings.md issue 16), so the E returned is the geometric mean of the scan's and the A0
+    curve's (`e_scale_for_speed`, the fixed-frequency model): the mean of their 1 / n. Returns {"e_scale",
+    "exponent" (the scan's), "first_guess" (the curve's), "scan_e_scale"}; a scan whose exponent is outside
+    E_SCAN_EXPONENTS (not a flexural pick) is not used (the curve's alone)."""
     from .sim.simulate import simulate_voltages, to_adc
 
     rng = np.random.default_rng(seed)
@@ -128,18 +131,25 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
             break
         scale = float((1.0 + change_pct / 100.0) ** (1.0 / n))
         out.update(e_scale=scale, exponent=n)
+    if np.isfinite(out["exponent"]) and abs(np.log(guess)) > 1e-6:
+        # the scan's exponent scatters from session to session (its drops, the picks' cycles); the A0 curve's
+        # is the fixed-frequency model: E from the mean of their 1 / n (the geometric mean of the two scales)
+        out["scan_e_scale"] = out["e_scale"]
+        out["e_scale"] = float(np.sqrt(out["e_scale"] * guess))
     return out
 
 
 def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: int = 2) -> list:
     """`accepted` with each wave_speed candidate's E change sized by the twin's scan on DATA_NEW's drops
-    (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in) and e_exponent."""
+    (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in), e_exponent (the
+    scan's n), e_scale_scan and e_scale_curve (the scan's and the A0 curve's own)."""
     out = []
     for c in accepted:
         if c.effect == "wave_speed" and "e_scale" not in c.params:
             scan = e_scale_scan(params, data, picker, c.params["change_pct"], seed, workers)
-            c = dataclasses.replace(c, params={**c.params, "e_scale": scan["e_scale"],
-                                               "e_exponent": scan["exponent"]})
+            c = dataclasses.replace(c, params={**c.params, "e_scale": scan["e_scale"], "e_exponent": scan["exponent"],
+                                               "e_scale_scan": scan.get("scan_e_scale", scan["e_scale"]),
+                                               "e_scale_curve": scan["first_guess"]})
         out.append(c)
     return out
 
