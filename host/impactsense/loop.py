@@ -104,8 +104,8 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
     the twin's noise (the same at both E), picked by `picker` as diagnose picked them, give the picks' own
     exponent n = d ln v / d ln E there; E_new / E_old = (1 + change_pct / 100)^(1 / n).
     The exponent is measured again at that answer (E_SCAN_STEPS: a pick can change its cycle between two E,
-    so n depends on the step). The scan's n scatters from session to session (0.26-0.34 on four draws of one
-    rig, docs/findings.md issue 16), so the E returned is the geometric mean of the scan's and the A0
+    so n depends on the step). The scan's n scatters from session to session (docs/findings.md "E from the
+    picks' own law"), so the E returned is the geometric mean of the scan's and the A0
     curve's (`e_scale_for_speed`, the fixed-frequency model): the mean of their 1 / n. Returns {"e_scale",
     "exponent" (the scan's), "first_guess" (the curve's), "scan_e_scale"}; a scan whose exponent is outside
     E_SCAN_EXPONENTS (not a flexural pick) is not used (the curve's alone)."""
