@@ -19,7 +19,7 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
 "after" is the twin model when a plate or sensor effect was named, else the measured-trained one.
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
-move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_scan`, the twin's E scan at the session's picks, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
+move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_scan`: the geometric mean of the twin's E scan at the session's picks and the A0 curve, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
 whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model.
 """
 
