@@ -79,14 +79,11 @@ def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_ad
     """The rig's channel effects the twin lacks, from the calibration drops only:
     gain = sqrt(median of measured / simulated energy), unclipped drops only, fitted first;
     then, picked with those gains, measured minus simulated ToA of drop k on channel i as
-    c_k + delay_i + d_ik (1 / v_rig - 1 / v_twin) (d_ik the path length, c_k the drop's onset, removed by
-    centring; soft-L1 as in `fit_localiser`): the delays (relative to channel 0) and the group velocity the
-    rig's picks travel at, v_rig, given `signal.velocity_mm_per_us` as the twin's (fitted on virtual drops).
-    Returns (delays, gains, v_rig)."""
-    base = SignalConfig.from_dict(signal.to_dict())
-    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]        # picks in record time: measured and simulated drops share
-    base.capture_delay_us = [0.0, 0.0, 0.0, 0.0]    # the capture, its delays cancel in their difference
-    base.channel_gain = [1.0, 1.0, 1.0, 1.0]
+    c_k + delay_i + d_ik (1 / v_rig - 1 / v_twin) (path_misfit: d_ik the path length, c_k the drop's onset,
+    removed by centring; soft-L1 as in `fit_localiser`): the delays (relative to channel 0) and the group
+    velocity the rig's picks travel at, v_rig, given `signal.velocity_mm_per_us` as the twin's (fitted on
+    virtual drops). Returns (delays, gains, v_rig)."""
+    base = _record_time(signal)
     meas = featurize(session.adc[rows], base)
     sim = featurize(sim_adc, base)
     ok = np.isfinite(meas.toa_us).all(1) & np.isfinite(sim.toa_us).all(1)
@@ -101,16 +98,59 @@ def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_ad
     base.channel_gain = gains
     meas = featurize(session.adc[rows], base)
     diff = (meas.toa_us.astype(float) - sim.toa_us.astype(float))[ok]
-    path = distances_mm(session.xy_mm[rows], base)[ok]
+    delays, slowness = path_misfit(diff, distances_mm(session.xy_mm[rows], base)[ok])
+    velocity = 1.0 / (1.0 / signal.velocity_mm_per_us + slowness)
+    return delays, gains, velocity
 
+
+def _record_time(signal: SignalConfig) -> SignalConfig:
+    """signal picking in record time, unit gains: the measured and simulated calibration drops share the capture
+    (its delays cancel in their difference)."""
+    base = SignalConfig.from_dict(signal.to_dict())
+    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.capture_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.band_delay_us = [0.0, 0.0, 0.0, 0.0]
+    base.channel_gain = [1.0, 1.0, 1.0, 1.0]
+    return base
+
+
+def path_misfit(diff_us: np.ndarray, path_mm: np.ndarray) -> tuple[list[float], float]:
+    """Measured minus simulated ToA [K, 4] of K drops as c_k + delay_i + d_ik ds (d_ik the path length [K, 4], c_k
+    removed by centring; soft-L1): the delays relative to channel 0 and ds, the rig's slowness minus the twin's
+    (us/mm)."""
     def residuals(p):
-        r = diff - np.r_[0.0, p[:3]][None] - path * p[3]
+        r = diff_us - np.r_[0.0, p[:3]][None] - path_mm * p[3]
         return (r - r.mean(1, keepdims=True)).ravel()
 
     sol = least_squares(residuals, np.zeros(4), loss="soft_l1", f_scale=3.0)
-    delays = [0.0] + [float(v) for v in sol.x[:3]]
-    velocity = 1.0 / (1.0 / signal.velocity_mm_per_us + float(sol.x[3]))
-    return delays, gains, velocity
+    return [0.0] + [float(v) for v in sol.x[:3]], float(sol.x[3])
+
+
+def fit_band_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: np.ndarray, signal: SignalConfig,
+                                  gains: list[float]) -> tuple[list[float], float] | None:
+    """The band picks' constants as the rig reads them, when `signal` (the localiser fitted on the virtual drops)
+    has them on: measured minus simulated band ToA of the calibration drops (path_misfit, the band's travel
+    metric's path lengths), on top of the virtual drops' band delays and velocity (the twin's own), as the
+    threshold picks' are (fit_channels_on_calibration_drops). Without it the band localiser reads the rig with
+    the twin's delays, not the rig's (docs/findings.md "Zero-shot: what limits it"). Returns (band delays,
+    band velocity), or None when the band picks are off or fewer than two calibration drops have every band
+    pick in both."""
+    if not (signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0):
+        return None
+    from .travel import travel_distances
+
+    base = _record_time(signal)
+    sim = featurize(sim_adc, base).raw["toa_band_us"].astype(float)
+    base.channel_gain = list(gains)
+    meas = featurize(session.adc[rows], base).raw["toa_band_us"].astype(float)
+    ok = np.isfinite(meas).all(1) & np.isfinite(sim).all(1)
+    if ok.sum() < 2:
+        return None
+    metric = (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy)
+    path = travel_distances(np.asarray(session.xy_mm, float)[rows][ok], signal.sensor_xy_mm, metric)
+    delays, slowness = path_misfit((meas - sim)[ok], path)
+    return ([float(a + b) for a, b in zip(signal.band_delay_us, delays)],
+            float(1.0 / (1.0 / signal.band_velocity_mm_per_us + slowness)))
 
 
 def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,
@@ -178,6 +218,9 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     model.signal.velocity_mm_per_us = velocity
     model.signal.rig_delay_us = [float(d) for d in delays]
     model.signal.channel_gain = gains
+    band = fit_band_on_calibration_drops(session, rows, cal_sim, virtual_signal, gains)
+    if band is not None:
+        model.signal.band_delay_us, model.signal.band_velocity_mm_per_us = band
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)
     return delays, gains, velocity
@@ -259,6 +302,9 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
     return {"channel_delay_from_calibration_drops_us": delays, "channel_gain_from_calibration_drops": gains,
             "velocity_mm_per_us_virtual_drops": virtual_signal.velocity_mm_per_us,
             "velocity_mm_per_us_from_calibration_drops": velocity,
+            **({"band_delay_from_calibration_drops_us": model.signal.band_delay_us,
+                "band_velocity_mm_per_us_from_calibration_drops": model.signal.band_velocity_mm_per_us}
+               if model.signal.band_velocity_mm_per_us > 0 else {}),
             "energy_feature_offsets_from_calibration_drops": offsets,
             "uncertainty_factor_from_calibration_drops": scale, "_virtual_twin": virtual_twin}
 
