@@ -382,3 +382,49 @@ def test_demo_zero_shot_with_a_bad_calibration_fails_before_the_measured_half(tm
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--zero-shot", "--calibration", str(bad)]) == 2
     assert "sim_params" in capsys.readouterr().err and not out.exists()
+
+
+def _band_on(cfg: SignalConfig) -> SignalConfig:
+    """cfg with the band picks on at the session's pick frequency (as training would choose them)."""
+    return SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 11700.0, "band_pick_fraction": 0.1,
+                                   "band_window_us": 900.0, "band_velocity_mm_per_us": 0.70,
+                                   "band_delay_us": [0.0, 0.5, -1.0, 0.25]})
+
+
+def test_band_delay_recovered_from_the_calibration_drops(session1):
+    """'Simulated' drops = the measured calibration drops with channel 2 advanced by 2 samples (20 us): with the
+    band picks on, their delays must read the rig 20 us later on channel 2 on top of the virtual drops' band
+    delays (the twin's own), the band velocity stay the twin's (no path-length error put in); with the band
+    picks off there is nothing to fit."""
+    from impactsense.zeroshot import fit_band_on_calibration_drops
+
+    rows = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2]))
+    meas = session1.adc[rows]
+    sim = meas.copy()
+    sim[:, 2, :-2] = meas[:, 2, 2:]
+    cfg = _band_on(SignalConfig.for_rig(session1.rig))
+    delays, velocity = fit_band_on_calibration_drops(session1, rows, sim, cfg, [1.0] * 4)
+    assert delays[0] == 0.0
+    assert delays[2] - cfg.band_delay_us[2] == pytest.approx(20.0, abs=1.5)
+    assert abs(delays[1] - cfg.band_delay_us[1]) < 1.5 and abs(delays[3] - cfg.band_delay_us[3]) < 1.5
+    assert velocity == pytest.approx(cfg.band_velocity_mm_per_us, rel=0.02)
+    assert fit_band_on_calibration_drops(session1, rows, sim, SignalConfig.for_rig(session1.rig), [1.0] * 4) is None
+
+
+def test_travel_refit_on_calibration_drops_reads_the_measured_picks(session1):
+    """The calibration drops' own travel model: from a twin's localiser 20 % too fast with a wrong elliptical
+    metric (Q_xx 0.7) and no delays, the refit on eight calibration positions of the isotropic PMMA plate must
+    come back to a round metric and the rig's speed (~0.95 mm/us; training on all drops gives 0.946), and
+    with fewer than 8 drops with every pick it leaves the localiser as it was."""
+    from impactsense.zeroshot import refit_travel_metric
+
+    rows = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2, 60, 77, 90, 120]))
+    twin = SignalConfig.from_dict({**SignalConfig.for_rig(session1.rig).to_dict(), "velocity_mm_per_us": 1.15,
+                                   "travel_metric_xx": 0.7, "travel_metric_yy": 1.3})
+    out, record = refit_travel_metric(session1, rows, twin)
+    assert out.travel_metric_xx == pytest.approx(1.0, abs=0.12) and abs(out.travel_metric_xy) < 0.1
+    assert out.velocity_mm_per_us == pytest.approx(0.946, rel=0.08)
+    assert record["travel_metric"] == [out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy]
+    assert out.onset_threshold_counts == twin.onset_threshold_counts and out.aic_blend == twin.aic_blend
+    same, none = refit_travel_metric(session1, rows[:5], twin)
+    assert none == {} and same is twin

@@ -57,6 +57,7 @@ from .sim.doe import DEFAULT_HEIGHTS_MM, measured_heights, virtual_drops
 from .signal import SignalConfig
 from .sitemap import BUNDLED, SiteMap, build_site_map, twin_features
 from .split import case_split
+from .travel import wants_metric
 from .twin import fit_twin
 from .workflow import evaluate, train
 
@@ -153,6 +154,46 @@ def fit_band_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: n
             float(1.0 / (1.0 / signal.band_velocity_mm_per_us + slowness)))
 
 
+def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig) -> tuple[SignalConfig, dict]:
+    """On a plate whose localiser models elliptical wavefronts (travel.wants_metric: a laminate, an unknown
+    material), `signal` with its travel models fitted again on the calibration drops `rows` at their known
+    positions (travel.fit_travel: velocity, channel delays, the metric and the dispersion exponent of the
+    threshold picks; velocity, delays and metric of the band picks when they are on, at the virtual drops'
+    band frequency and fraction). The twin's anisotropy is the calibration's fast model's guess, and the FEM's
+    picks do not follow it closely (docs/findings.md "Zero-shot on rig-b / rig-c"), so on such a plate the
+    measured picks' own travel model reads the rig better than the twin's corrected by delays and a speed
+    (fit_channels_on_calibration_drops); the onset threshold, AIC blend and band choice stay the virtual
+    drops'. Returns (signal unchanged and {} when fewer than 8 drops have every pick; else the refitted
+    signal and the record of the fit)."""
+    from .travel import fit_travel, picks
+
+    toa, period = picks(session.adc[rows], signal, with_period=True)
+    xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
+    try:
+        fit = fit_travel(toa, xy, sensors, True, period, signal.fs_hz)
+    except DataError:
+        return signal, {}
+    out = SignalConfig.from_dict(signal.to_dict())
+    out.velocity_mm_per_us, out.rig_delay_us = fit.velocity_mm_per_us, list(fit.delays_us)
+    out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = fit.metric
+    out.dispersion_exponent, out.dispersion_ref_hz = fit.dispersion_exponent, fit.dispersion_ref_hz
+    record = {"velocity_mm_per_us": fit.velocity_mm_per_us, "delays_us": list(fit.delays_us),
+              "travel_metric": list(fit.metric), "dispersion_exponent": fit.dispersion_exponent}
+    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0 and not signal.band_slowness_per_decade:
+        base = SignalConfig.from_dict({**_record_time(signal).to_dict(), "channel_gain": list(signal.channel_gain),
+                                       "capture_delay_us": list(signal.capture_delay_us)})
+        band = featurize(session.adc[rows], base).raw["toa_band_us"].astype(float)
+        try:
+            bfit = fit_travel(band, xy, sensors, True)
+        except DataError:
+            return out, record
+        out.band_velocity_mm_per_us, out.band_delay_us = bfit.velocity_mm_per_us, list(bfit.delays_us)
+        out.band_metric_xx, out.band_metric_xy, out.band_metric_yy = bfit.metric
+        record.update(band_velocity_mm_per_us=bfit.velocity_mm_per_us, band_delay_us=list(bfit.delays_us),
+                      band_metric=list(bfit.metric))
+    return out, record
+
+
 def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,
                        simulated: SignalConfig) -> dict[str, float]:
     """Median over the calibration drops of measured minus simulated arrival-energy features (log10)."""
@@ -211,7 +252,9 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
                  site) -> tuple[list[float], list[float], float]:
     """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
     simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
-    the rig's group velocity, and with a site map the twin's offsets and weights. The delays the capture
+    the rig's group velocity, the band picks' delays and velocity (fit_band_on_calibration_drops), on a plate
+    with elliptical wavefronts the travel models refitted on the calibration drops (refit_travel_metric; its
+    record in model.card), and with a site map the twin's offsets and weights. The delays the capture
     itself puts on the channels (the board's SAADC scan, model.signal.capture_delay_us) are in both the
     measured and the simulated drops and stay as they are. Returns (the rig's delays, gains, velocity)."""
     delays, gains, velocity = fit_channels_on_calibration_drops(session, rows, cal_sim, virtual_signal)
@@ -221,6 +264,9 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     band = fit_band_on_calibration_drops(session, rows, cal_sim, virtual_signal, gains)
     if band is not None:
         model.signal.band_delay_us, model.signal.band_velocity_mm_per_us = band
+    if wants_metric(session.rig):
+        model.signal, refit = refit_travel_metric(session, rows, model.signal)
+        model.card["travel_refit_on_calibration_drops"] = refit
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)
     return delays, gains, velocity
@@ -305,6 +351,7 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
             **({"band_delay_from_calibration_drops_us": model.signal.band_delay_us,
                 "band_velocity_mm_per_us_from_calibration_drops": model.signal.band_velocity_mm_per_us}
                if model.signal.band_velocity_mm_per_us > 0 else {}),
+            "travel_refit_on_calibration_drops": model.card.pop("travel_refit_on_calibration_drops", None),
             "energy_feature_offsets_from_calibration_drops": offsets,
             "uncertainty_factor_from_calibration_drops": scale, "_virtual_twin": virtual_twin}
 
