@@ -2,6 +2,7 @@
 board model shipped for the bundled rig. Each test makes its tiny rig here from the bundled drops."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -156,3 +157,22 @@ def test_sensors_on_one_line_are_a_clear_error(session1):
     three_near_an_edge = [dict(s, y_mm=30.0 + 5 * (k % 2)) for k, s in enumerate(line[:3])] + \
         [{"name": "S4", "channel": 3, "x_mm": 150.0, "y_mm": 280.0}]
     assert rig_from_dict({**raw, "sensors": three_near_an_edge}).sensor_xy_mm.shape == (4, 2)
+
+
+def test_the_band_slowness_line_reads_a_16_bit_logger(session1):
+    """The band localiser's slowness line (pipeline.energy_slowness_config) on a 16-bit logger's drops: it read
+    the counts without the rig's conversion and crashed training on such a rig; it must give the 12-bit drops'
+    line (the same picks; the summed log energy and so its reference 2 log10(16) higher)."""
+    from impactsense.pipeline import band_config, energy_slowness_config
+
+    raw, s, adc16 = sixteen_bit(session1, np.arange(0, 771, 4))
+    rows = np.arange(len(s))
+    s16 = replace(s, rig=rig_from_dict(raw), adc=adc16)
+    cfg12, cfg16 = SignalConfig.for_rig(s.rig), SignalConfig.for_rig(s16.rig)
+    band12 = band_config(s, rows, cfg12)
+    band16 = SignalConfig.from_dict({**cfg16.to_dict(), **{k: v for k, v in band12.to_dict().items()
+                                                            if k.startswith("band_") or k == "velocity_mm_per_us"}})
+    line12, line16 = energy_slowness_config(s, rows, band12), energy_slowness_config(s16, rows, band16)
+    assert line12 is not None and line16 is not None
+    assert line16.band_velocity_mm_per_us == pytest.approx(line12.band_velocity_mm_per_us, rel=0.02)
+    assert line16.band_log_energy_ref - line12.band_log_energy_ref == pytest.approx(2 * np.log10(16), abs=0.05)

@@ -216,7 +216,7 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     None when it cannot be fitted."""
     from .travel import fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
 
-    raw = _core.extract_batch(as_int16(session.adc[rows]), band.core())
+    raw = _core.extract_batch(as_int16(session.adc[rows], band), band.core())
     toa = raw["toa_band_us"].astype(float)
     xy = np.asarray(session.xy_mm, float)[rows]
     if np.isfinite(toa).all(1).sum() < 8:
