@@ -11,7 +11,7 @@ the rig's electronics and bonds, which the plate model cannot know) are fitted a
 ToA, and measured over simulated energy, on those drops; so is the twin's error in the picks' group velocity
 (the part of measured minus simulated ToA that grows with the path length: the bundled twin's picks travel
 at 0.894 mm/us over the virtual drops, the rig's at 0.946; uncorrected, that 5 % scale error of the physics
-position is one the sim-trained forests cannot undo); and so is the twin's spectral tilt: the measured
+position is one the sim-trained forests cannot undo); so are the band picks' delays and speed, the same way (fit_band_on_calibration_drops), and on a plate with elliptical wavefronts the localiser's travel models themselves (refit_travel_metric: the twin's anisotropy is the weakest part of it); and so is the twin's spectral tilt: the measured
 minus simulated arrival energies and difference energies (log10, summed over sensors) of those drops, by
 which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
 mesh and sensor model lose some of the highest frequencies: a constant offset per feature, ~0.04-0.14 on
