@@ -428,3 +428,11 @@ def test_travel_refit_on_calibration_drops_reads_the_measured_picks(session1):
     assert out.onset_threshold_counts == twin.onset_threshold_counts and out.aic_blend == twin.aic_blend
     same, none = refit_travel_metric(session1, rows[:5], twin)
     assert none == {} and same is twin
+    # the band picks' travel model too, with the energy slowness's slope kept (its level refitted)
+    band_twin = SignalConfig.from_dict({**_band_on(twin).to_dict(), "band_metric_xx": 0.7, "band_metric_yy": 1.3,
+                                        "band_velocity_mm_per_us": 0.9, "band_slowness_per_decade": -0.02,
+                                        "band_log_energy_ref": 2.5})
+    out, record = refit_travel_metric(session1, rows, band_twin)
+    assert out.band_metric_xx == pytest.approx(1.0, abs=0.15) and abs(out.band_metric_xy) < 0.1
+    assert out.band_slowness_per_decade == band_twin.band_slowness_per_decade
+    assert out.band_pick_hz == band_twin.band_pick_hz and record["band_metric"][0] == out.band_metric_xx

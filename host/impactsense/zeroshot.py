@@ -159,7 +159,7 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
     material), `signal` with its travel models fitted again on the calibration drops `rows` at their known
     positions (travel.fit_travel: velocity, channel delays, the metric and the dispersion exponent of the
     threshold picks; velocity, delays and metric of the band picks when they are on, at the virtual drops'
-    band frequency and fraction). The twin's anisotropy is the calibration's fast model's guess, and the FEM's
+    band frequency and fraction, the energy slowness's slope kept). The twin's anisotropy is the calibration's fast model's guess, and the FEM's
     picks do not follow it closely (docs/findings.md "Zero-shot on rig-b / rig-c"), so on such a plate the
     measured picks' own travel model reads the rig better than the twin's corrected by delays and a speed
     (fit_channels_on_calibration_drops); the onset threshold, AIC blend and band choice stay the virtual
@@ -179,10 +179,17 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
     out.dispersion_exponent, out.dispersion_ref_hz = fit.dispersion_exponent, fit.dispersion_ref_hz
     record = {"velocity_mm_per_us": fit.velocity_mm_per_us, "delays_us": list(fit.delays_us),
               "travel_metric": list(fit.metric), "dispersion_exponent": fit.dispersion_exponent}
-    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0 and not signal.band_slowness_per_decade:
+    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
         base = SignalConfig.from_dict({**_record_time(signal).to_dict(), "channel_gain": list(signal.channel_gain),
                                        "capture_delay_us": list(signal.capture_delay_us)})
-        band = featurize(session.adc[rows], base).raw["toa_band_us"].astype(float)
+        raw = featurize(session.adc[rows], base).raw
+        band = raw["toa_band_us"].astype(float)
+        if signal.band_slowness_per_decade:     # the energy slowness's slope stays the virtual drops' (its
+            from .travel import summed_log_energy, travel_distances   # level is the refitted velocity)
+
+            d = travel_distances(xy, sensors, (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy))
+            loud = summed_log_energy(raw["energy"], signal.fs_hz) - signal.band_log_energy_ref
+            band = band - d * signal.band_slowness_per_decade * loud[:, None]
         try:
             bfit = fit_travel(band, xy, sensors, True)
         except DataError:
