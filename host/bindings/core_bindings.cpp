@@ -223,6 +223,7 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   auto cov = make_array<float>({r, 3});
   auto accepted = make_array<uint8_t>({r});
   auto status = make_array<int32_t>({r});
+  auto evals = make_array<int32_t>({r, 2});
   const int16_t* data = adc.data();
   {
     nb::gil_scoped_release release;
@@ -241,6 +242,8 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
       cov.data()[3 * k + 1] = ev.phys.cov_xy;
       cov.data()[3 * k + 2] = ev.phys.cov_yy;
       accepted.data()[k] = ev.accepted;
+      evals.data()[2 * k] = status.data()[k] == ic::kOk ? ev.phys.evaluations : 0;
+      evals.data()[2 * k + 1] = status.data()[k] == ic::kOk && ev.band.status == ic::kOk ? ev.band.evaluations : 0;
       if (status.data()[k] != ic::kOk) {
         phys.data()[2 * k] = phys.data()[2 * k + 1] = NAN;
       }
@@ -253,6 +256,8 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   out["phys_cov"] = cov;
   out["accepted"] = accepted;
   out["status"] = status;
+  // the localiser's normal-equation evaluations (its cost: board.cost), the physics run's and the band run's
+  out["localiser_evaluations"] = evals;
   return out;
 }
 

@@ -456,13 +456,16 @@ struct LocalHum {
   float r = 0.0f, slope = 0.0f, t = 0.0f;  // the line: value r at sample t, per-sample slope
   float rs[kLocalBlocks], ts[kLocalBlocks];
   int quiet = 0;                           // quiet blocks seen
-  float model(float i) const { return bl->level + hum_at(*bl, i) + r + slope * (i - t); }
-  void add_block(const Channel& ch, int k) {
+  float model(float i) const { return with_hum(i, hum_at(*bl, i)); }
+  // the model at sample i given hum_at(i) (HumSteps)
+  float with_hum(float i, float hum) const { return bl->level + hum + r + slope * (i - t); }
+  // block k is quiet: its residual joins the line; hum: hum_at at its centre (HumSteps::centre)
+  void add_block(const Channel& ch, int k, float hum) {
     const int a = k * kBlock, e = ch.block_end(k);
     const float centre = 0.5f * static_cast<float>(a + e - 1);
     const float mean = static_cast<float>(ch.prefix[k + 1].s1 - ch.prefix[k].s1) / static_cast<float>(e - a);
     const int slot = quiet % kLocalBlocks;
-    rs[slot] = mean - bl->level - hum_at(*bl, centre);
+    rs[slot] = mean - bl->level - hum;
     ts[slot] = centre;
     ++quiet;
     const int m = quiet < kLocalBlocks ? quiet : kLocalBlocks;
@@ -482,6 +485,32 @@ struct LocalHum {
   }
 };
 
+// hum_at at a block's first sample, its last and its centre, block after block from block 0: the phase
+// stepped by rotations (a sin_cos is ~70 instructions on the M4F; a hum channel's scan to its onset read
+// three a block). Full blocks only: a capture's last, shorter block takes hum_at. The rotations' rounding
+// leaves them within ~1e-6 of hum_at's amplitude over a capture (float phase arguments differ as much).
+struct HumSteps {
+  const Baseline& bl;
+  int k = 0;
+  float c = 1.0f, s = 0.0f;   // cos, sin of w k kBlock
+  float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
+  explicit HumSteps(const Baseline& b) : bl(b) {
+    sin_cos(b.w * static_cast<float>(kBlock), &rs, &rc);
+    sin_cos(b.w * static_cast<float>(kBlock - 1), &ls, &lc);
+    sin_cos(b.w * 0.5f * static_cast<float>(kBlock - 1), &ms, &mc);
+  }
+  void next() {
+    const float cn = c * rc - s * rs;
+    s = s * rc + c * rs;
+    c = cn;
+    ++k;
+  }
+  float at(float cos_, float sin_) const { return bl.c0 + bl.c1 * cos_ + bl.c2 * sin_; }
+  float first() const { return at(c, s); }
+  float last() const { return at(c * lc - s * ls, s * lc + c * ls); }
+  float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
+};
+
 // The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
 // residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
 // counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
@@ -491,24 +520,32 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
   local->bl = &bl;
   // The residual from the quiet blocks before start (a block that reaches the threshold about the global
   // model, a glitch or the onset, is left out).
-  for (int k = 0; k < start / kBlock; ++k) {
+  HumSteps hs(bl);
+  // hum_at at block k's centre (HumSteps for a full block)
+  const auto centre = [&](int k) {
+    const int e = ch.block_end(k);
+    return e - k * kBlock == kBlock ? hs.centre() : hum_at(bl, 0.5f * static_cast<float>(k * kBlock + e - 1));
+  };
+  for (int k = 0; k < start / kBlock; ++k, hs.next()) {
     int32_t lo, hi;
     const int a = k * kBlock, e = ch.block_end(k);
     range_extremes(ch.x, a, e, &lo, &hi);
-    if (static_cast<float>(hi - lo) < 2.0f * thr + 2.0f * fabsf(hum_at(bl, a) - hum_at(bl, e - 1))) local->add_block(ch, k);
+    const float span = static_cast<float>(hi - lo);
+    if (span < 2.0f * thr || span < 2.0f * thr + 2.0f * fabsf(hs.first() - hs.last())) local->add_block(ch, k, centre(k));
   }
   int resume = start;
-  for (int k = start / kBlock; k < ch.nblk; ++k) {
+  for (int k = start / kBlock; k < ch.nblk; ++k, hs.next()) {
     const int a = k * kBlock > start ? k * kBlock : start;
     const int e = ch.block_end(k);
     if (e - a < 1) continue;
-    const float ba = local->model(static_cast<float>(a));
-    const float be = local->model(static_cast<float>(e - 1));
+    const bool whole = a == k * kBlock && e - a == kBlock;
+    const float ba = local->with_hum(static_cast<float>(a), whole ? hs.first() : hum_at(bl, static_cast<float>(a)));
+    const float be = local->with_hum(static_cast<float>(e - 1), whole ? hs.last() : hum_at(bl, static_cast<float>(e - 1)));
     int32_t lo, hi;
     range_extremes(ch.x, a, e, &lo, &hi);
     const float blo = (ba < be ? ba : be) - 0.5f, bhi = (ba > be ? ba : be) + 0.5f;
     if (static_cast<float>(hi) - blo < thr && bhi - static_cast<float>(lo) < thr) {
-      if (a == k * kBlock) local->add_block(ch, k);
+      if (a == k * kBlock) local->add_block(ch, k, centre(k));
       continue;
     }
     const float slope = e - 1 > a ? (be - ba) / static_cast<float>(e - 1 - a) : 0.0f;
@@ -526,7 +563,7 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
       *at = i;
       return crossing_subsample(ch.x, i, bi, thr);
     }
-    if (a == k * kBlock && !glitched) local->add_block(ch, k);  // every sample stayed below: quiet
+    if (a == k * kBlock && !glitched) local->add_block(ch, k, centre(k));  // every sample stayed below: quiet
   }
   *at = -1;
   return -1.0f;

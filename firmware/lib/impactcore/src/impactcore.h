@@ -440,8 +440,9 @@ struct LocaliserResult {
 
 // Solves toa_i = t0 + |p - s_i|_Q / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
 // (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from one start:
-// the lowest Huber cost of a 4 x 4 grid of cell centres over the plate; at most 6 iterations (a bounded
-// cost per event); p stays on the plate. Channels whose `use` flag is 0 are left out (at least 3 needed).
+// the lowest Huber cost of a 4 x 4 grid of cell centres over the plate; at most 6 iterations and 16
+// normal-equation evaluations a start (a bounded cost per event); p stays on the plate. Channels whose
+// `use` flag is 0 are left out (at least 3 needed).
 // velocity_mm_per_us is the group velocity; sigma_us the ToA uncertainty used for the covariance;
 // travel_metric {Q_xx, Q_xy, Q_yy} (positive definite; nullptr or the identity: |d|_Q = |d|) makes the
 // travel distance sqrt(d^T Q d): the elliptical wavefronts of an orthotropic plate. slowness_scale

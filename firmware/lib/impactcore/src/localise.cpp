@@ -65,8 +65,9 @@ struct Problem {
 
 // The functions below are templates on the problem's shape: M used channels (0: p.m, read at run time) and
 // kIso (true: no travel metric; false: p.iso read at run time). localise_tdoa runs <4, true> for the
-// usual event (four channels, isotropic plate: loops of a known length, unrolled, no metric tests) and
-// <0, false> otherwise; both do the same float operations in the same order, so the same numbers.
+// usual event (four channels, isotropic plate: loops of a known length, unrolled, no metric tests), <4, false>
+// for four channels on an anisotropic plate (a laminate's travel metric) and
+// <0, false> otherwise; all do the same float operations in the same order, so the same numbers.
 template <int M>
 IC_INLINE int used(const Problem& p) { return M > 0 ? M : p.m; }
 
@@ -183,6 +184,12 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
 // the physics position's error falls as the cap falls (docs/findings.md, "The per-event cost"), at the
 // rig's 100 kHz the picks fit and nearly every drop stops before the cap.
 constexpr int kMaxIterations = 6;
+// ... and at most kMaxEvaluations normal-equation evaluations a start (the two at the start included; the
+// step halvings count): the iterations' worst case, 2 + 7 kMaxIterations = 44, is the event's largest
+// data-dependent cost on an anisotropic plate (12.7k instructions at 22); every bundled drop needs <= 15
+// at either rate, so their results are those without the cap (docs/findings.md, "The event budget's worst
+// case").
+constexpr int kMaxEvaluations = 16;
 constexpr float kStepTolMm = 0.01f;
 // Screening grid: the Huber cost at the centres of kGrid x kGrid cells over the plate.
 constexpr int kGrid = 4;
@@ -194,6 +201,7 @@ constexpr float kCornerInset = 0.04f;  // of the plate size
 // the Gauss-Newton one) and J^T W J there (upper triangle); *evals counts the normal-equation evaluations.
 template <int M, bool kIso>
 float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iters, int* evals, float jtj[6]) {
+  const int limit = *evals + kMaxEvaluations;
   float x = *x_io, y = *y_io, t0 = 0.0f;
   huber_cost<M, kIso>(p, x, y, &t0);
   Normal ne;
@@ -213,7 +221,7 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
     float nx = x, ny = y, nt0 = t0, moved = 0.0f;
     bool accepted = false;
     float lam = 1.0f;
-    for (int h = 0; h < 7 && !accepted; ++h, lam *= 0.5f) {
+    for (int h = 0; h < 7 && !accepted && *evals < limit; ++h, lam *= 0.5f) {
       nx = clampf(x + lam * step[0], 0.0f, p.lx);
       ny = clampf(y + lam * step[1], 0.0f, p.ly);
       nt0 = t0 + lam * step[2];
@@ -222,7 +230,7 @@ float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iter
       ++*evals;
       accepted = trial.cost <= ne.cost || moved < kStepTolMm;
     }
-    if (!accepted) break;  // no decrease along the step: a minimum to float precision
+    if (!accepted) break;  // no decrease along the step (a minimum to float precision) or no evaluation left
     x = nx;
     y = ny;
     t0 = nt0;
@@ -260,6 +268,35 @@ struct ScreenCost<4, true> {
     const float r1 = t1 - dist(x - x1, y - y1) * v1;
     const float r2 = t2 - dist(x - x2, y - y2) * v2;
     const float r3 = t3 - dist(x - x3, y - y3) * v3;
+    const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
+    float ss = 0.0f;
+    ss += (r0 - mean) * (r0 - mean);
+    ss += (r1 - mean) * (r1 - mean);
+    ss += (r2 - mean) * (r2 - mean);
+    ss += (r3 - mean) * (r3 - mean);
+    return ss;
+  }
+};
+
+// The four-channel anisotropic problem (localise_tdoa runs <4, false> only with a travel metric, p.iso
+// false): the same operations as l2_cost<4, false> in the same order, the metric and the channels'
+// constants in registers over the 20 points.
+template <>
+struct ScreenCost<4, false> {
+  float qxx, qxy2, qyy, t0, t1, t2, t3, x0, x1, x2, x3, y0, y1, y2, y3, v0, v1, v2, v3;
+  explicit ScreenCost(const Problem& p)
+      : qxx(p.qxx), qxy2(2.0f * p.qxy), qyy(p.qyy), t0(p.toa[0]), t1(p.toa[1]), t2(p.toa[2]), t3(p.toa[3]),
+        x0(p.sx[0]), x1(p.sx[1]), x2(p.sx[2]), x3(p.sx[3]), y0(p.sy[0]), y1(p.sy[1]), y2(p.sy[2]),
+        y3(p.sy[3]), v0(p.inv_vk[0]), v1(p.inv_vk[1]), v2(p.inv_vk[2]), v3(p.inv_vk[3]) {}
+  IC_INLINE float metric(float dx, float dy) const {
+    const float q = qxx * dx * dx + qxy2 * dx * dy + qyy * dy * dy;
+    return vsqrt_f32(q > 0.0f ? q : 0.0f);
+  }
+  IC_INLINE float operator()(float x, float y) const {
+    const float r0 = t0 - metric(x - x0, y - y0) * v0;
+    const float r1 = t1 - metric(x - x1, y - y1) * v1;
+    const float r2 = t2 - metric(x - x2, y - y2) * v2;
+    const float r3 = t3 - metric(x - x3, y - y3) * v3;
     const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
     float ss = 0.0f;
     ss += (r0 - mean) * (r0 - mean);
@@ -385,8 +422,9 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   // The `starts` lowest-cost screening points (kept in order, ties in screening order) are each refined
   // and the lowest Huber cost wins; starts = 1 is the single start above, bit for bit.
   float jtj[6];
-  const Solution sol = p.m == 4 && p.iso ? solve<4, true>(p, starts, plate_x_mm, plate_y_mm, jtj)
-                                         : solve<0, false>(p, starts, plate_x_mm, plate_y_mm, jtj);
+  const Solution sol = p.m == 4 ? (p.iso ? solve<4, true>(p, starts, plate_x_mm, plate_y_mm, jtj)
+                                         : solve<4, false>(p, starts, plate_x_mm, plate_y_mm, jtj))
+                                : solve<0, false>(p, starts, plate_x_mm, plate_y_mm, jtj);
   const float x = sol.x, y = sol.y, t0 = sol.t0, ss = sol.ss;
   const int iterations = sol.iterations, evaluations = sol.evaluations;
   res.x_mm = x;
