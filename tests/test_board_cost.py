@@ -21,21 +21,27 @@ def board_cfg(**kw) -> SignalConfig:
 def test_band_picks_and_starts_add_their_cost():
     """Off, the event is the base and one localiser run; the band picks add the samples their demodulator
     filters on four channels (window from 300 us before the onset + settling of four poles at f0 / 6) and a
-    second localiser run; each start beyond the first adds its refinement to every run."""
+    second localiser run; each start beyond the first adds its refinement to every run, at the core's cap of
+    evaluations; an anisotropic plate's localiser is the costlier form."""
     plain = cost.signal_instructions(board_cfg())
-    assert plain["band"] == 0 and plain["total"] == cost.BASE_INSTRUCTIONS + cost.LOCALISER_FIRST_START
+    one = cost.localiser_run_instructions(1, iso=True)
+    assert one == cost.LOCALISER_SCREEN[0] + cost.LOCALISER_EVALUATIONS * cost.LOCALISER_PER_EVALUATION[0]
+    assert plain["band"] == 0 and plain["total"] == cost.BASE_INSTRUCTIONS + one
+    laminate = cost.signal_instructions(board_cfg(travel_metric_xx=0.76, travel_metric_xy=-0.02,
+                                                  travel_metric_yy=1.24))
+    assert laminate["localiser"] == cost.localiser_run_instructions(1, iso=False) > one
     band = board_cfg(band_pick_hz=10000.0, band_window_us=500.0, band_velocity_mm_per_us=1.5)
     alpha = (2 * np.pi * 10000.0 / 6 / 50000.0) / (1 + 2 * np.pi * 10000.0 / 6 / 50000.0)
     assert cost.band_samples(band) == 15 + 25 + round(8 / alpha)
     with_band = cost.signal_instructions(band)
     assert with_band["band"] == 4 * cost.BAND_PER_SAMPLE * cost.band_samples(band)
-    assert with_band["localiser"] == 2 * cost.LOCALISER_FIRST_START
+    assert with_band["localiser"] == 2 * one
     longer = board_cfg(band_pick_hz=10000.0, band_window_us=1000.0, band_velocity_mm_per_us=1.5)
     assert cost.signal_instructions(longer)["band"] > with_band["band"]
     # no band travel model: the core does not run them for the position (process_event), nor counts them here
     assert cost.band_samples(board_cfg(band_pick_hz=10000.0)) == 0
     four = cost.signal_instructions(board_cfg(localiser_starts=4))
-    assert four["localiser"] == cost.LOCALISER_FIRST_START + 3 * cost.LOCALISER_EXTRA_START
+    assert four["localiser"] == one + 3 * cost.LOCALISER_EVALUATIONS * cost.LOCALISER_PER_EVALUATION[0]
     assert cost.signal_fits(board_cfg()) and not cost.signal_fits(band)
 
 
@@ -130,3 +136,32 @@ def test_select_trees_fits_the_forests_into_the_instructions_left():
         chosen[left] = k
     assert chosen[0] == 1 and chosen[0] <= chosen[3000] <= chosen[6000] <= chosen[10**7]
     assert chosen[10**7] > chosen[3000]
+
+
+def test_the_localiser_stops_at_the_evaluations_the_estimate_counts():
+    """The estimate's localiser is a bound because impactcore's refinement stops after
+    cost.LOCALISER_EVALUATIONS normal-equation evaluations a start (its step halvings included). Random,
+    inconsistent picks (a flat Huber valley: halvings pile up) on an isotropic and an anisotropic plate: no
+    run takes more than that a start, some take exactly that many (the cap binds: without it up to
+    2 + 7 x 6 = 44), and picks of a real impact still converge well before it, at the impact."""
+    from impactsense import _core
+
+    rng = np.random.default_rng(0)
+    sx, sy = [50.0, 400.0, 395.0, 60.0], [45.0, 55.0, 300.0, 290.0]
+    at_cap = 0
+    for metric in ([], [1.0, 0.1, 1.8]):
+        toa = (100.0 + rng.uniform(0.0, 200.0, size=(600, 4))).astype(np.float32)
+        use = np.ones(toa.shape, np.uint8)
+        for starts in (1, 3):
+            r = _core.localise_batch(toa, use, sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric, [], starts)
+            assert r["evaluations"].max() <= starts * cost.LOCALISER_EVALUATIONS
+            assert np.all(r["status"] == 0) and np.all(np.isfinite(r["x_mm"]))
+            at_cap += int(np.sum(r["evaluations"] == cost.LOCALISER_EVALUATIONS)) if starts == 1 else 0
+        q = np.array([[1.0, 0.0], [0.0, 1.0]]) if not metric else np.array([[1.0, 0.1], [0.1, 1.8]])
+        xy = rng.uniform([90.0, 90.0], [360.0, 260.0], size=(50, 2))   # within the sensors: one basin
+        d = xy[:, None, :] - np.c_[sx, sy][None]
+        exact = (30.0 + np.sqrt(np.einsum("rki,ij,rkj->rk", d, q, d)) / 1.5).astype(np.float32)
+        r = _core.localise_batch(exact, np.ones(exact.shape, np.uint8), sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric)
+        assert r["evaluations"].max() < cost.LOCALISER_EVALUATIONS
+        assert np.abs(np.c_[r["x_mm"], r["y_mm"]] - xy).max() < 0.2
+    assert at_cap > 0

@@ -172,6 +172,7 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
   auto cov = make_array<float>({r, 3});
   auto rms = make_array<float>({r});
   auto status = make_array<int32_t>({r});
+  auto evaluations = make_array<int32_t>({r});
   for (size_t k = 0; k < r; ++k) {
     const auto res = ic::localise_tdoa(toa.data() + 4 * k, use.data() + 4 * k, sx.data(), sy.data(), v,
                                        sigma_us, plate_x_mm, plate_y_mm, huber_us,
@@ -185,6 +186,7 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
     cov.data()[3 * k + 2] = res.cov_yy;
     rms.data()[k] = res.rms_residual_us;
     status.data()[k] = res.status;
+    evaluations.data()[k] = res.evaluations;
   }
   nb::dict out;
   out["x_mm"] = x;
@@ -193,6 +195,7 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
   out["cov"] = cov;
   out["rms_residual_us"] = rms;
   out["status"] = status;
+  out["evaluations"] = evaluations;  // normal-equation evaluations, every start's (the localiser's cost)
   return out;
 }
 

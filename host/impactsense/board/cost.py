@@ -3,17 +3,19 @@ the host from what an export chooses, so that the board's refit and `impactsense
 
 The event is the features (with or without the band picks), the physics localiser (one run, a second with
 the band picks' own travel model, each with `localiser_starts` starts), Eq. 35, the feature vector and the
-report, and the models (the forests' node tables; the twin's match where the model has one). The cost of
-each part is a measured rate (instructions under qemu -icount, the image bench_firmware_cost.py builds:
-`python3 benchmarks/bench_firmware_cost.py --data DATA --model-dir OUT/board-model`; figures in
-docs/findings.md, "The board's options within the event budget"):
+report, and the models (the forests' node tables; the twin's match where the model has one). The estimate is
+meant as a bound on every drop, the sum of each part's worst case, each part a measured rate (instructions
+under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks/bench_firmware_cost.py
+--data DATA --export OUT --all`; figures in docs/findings.md, "The event budget's worst case, per rig"):
 
 - BASE_INSTRUCTIONS: the features without the band picks, Eq. 35, the vector and the report on the slowest
-  drops measured on three rigs' board captures (the features alone up to ~47.4k);
+  drop measured over every drop of three rigs' board captures (the features alone up to 50.2k, on a drop with
+  one channel's mains hum modelled; each further such channel adds ~7.8k: not covered), plus a margin;
 - band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
-- localiser: LOCALISER_FIRST_START for a run's first start (the slowest measured: a metric plate, dispersive
-  picks, 6 iterations), LOCALISER_EXTRA_START for each further start;
+- localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
+  LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there) at
+  LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel metric) runs the costlier form;
 - forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
   on actual feature vectors (the slowest row), plus FOREST_FIXED (the inputs' gathering, the calls, the vote).
 """
@@ -25,16 +27,19 @@ import math
 import numpy as np
 
 EVENT_BUDGET = 64000
-BASE_INSTRUCTIONS = 50000
+BASE_INSTRUCTIONS = 53500
 BAND_PER_SAMPLE = 80
-LOCALISER_FIRST_START = 9000
-LOCALISER_EXTRA_START = 3000
+# impactcore localise.cpp's kMaxEvaluations (a start's normal-equation evaluations, step halvings included)
+LOCALISER_EVALUATIONS = 16
+# (isotropic, anisotropic plate): the screening's 20 points, the set-up and the covariance; one evaluation
+LOCALISER_SCREEN = (2300, 2950)
+LOCALISER_PER_EVALUATION = (280, 375)
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
-# What the board's refit leaves the models when it chooses the signal's options: about ten trees in each of the
-# three forests (export.select_trees then fits the forests into what the chosen options leave).
-MODELS_ALLOWANCE = 5000
+# What the board's refit leaves the models when it chooses the signal's options: at least the cheapest forests
+# (one tree each: ~1.4k on the measured rigs); export.select_trees then fits the forests into what is left.
+MODELS_ALLOWANCE = 1500
 
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
 # its cut-off divisor, the longest window kept.
@@ -55,13 +60,27 @@ def band_samples(cfg) -> int:
     return min(window, _BAND_MAX_WINDOW) + int(2 * _BAND_POLES / alpha + 0.5)
 
 
+def isotropic(metric) -> bool:
+    """A travel metric (Q_xx, Q_xy, Q_yy) the core reads as the Euclidean distance (localise_tdoa's iso form)."""
+    return tuple(float(q) for q in metric) == (1.0, 0.0, 1.0)
+
+
+def localiser_run_instructions(starts: int = 1, iso: bool = True) -> int:
+    """A bound on one localiser run: the screening and every start at its evaluation cap."""
+    k = 0 if iso else 1
+    return LOCALISER_SCREEN[k] + max(1, int(starts)) * LOCALISER_EVALUATIONS * LOCALISER_PER_EVALUATION[k]
+
+
 def signal_instructions(cfg, channels: int = 4) -> dict:
     """The event's cost without the models (instructions): {'base', 'band', 'localiser', 'total'} for the
     signal configuration cfg (pipeline.SignalConfig) at its rate."""
     band = channels * BAND_PER_SAMPLE * band_samples(cfg)
     starts = max(1, int(cfg.localiser_starts))
-    runs = 2 if band else 1
-    loc = runs * (LOCALISER_FIRST_START + (starts - 1) * LOCALISER_EXTRA_START)
+    loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
+                                                        cfg.travel_metric_yy)))
+    if band:
+        loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
+                                                             cfg.band_metric_yy)))
     return {"base": BASE_INSTRUCTIONS, "band": band, "localiser": loc, "total": BASE_INSTRUCTIONS + band + loc}
 
 
