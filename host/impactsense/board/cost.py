@@ -9,8 +9,8 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
 --data DATA --export OUT --all`; figures in docs/findings.md, "The event budget's worst case, per rig"):
 
 - BASE_INSTRUCTIONS: the features without the band picks, Eq. 35, the vector and the report on the slowest
-  drop measured over every drop of three rigs' board captures (the features alone up to 50.2k, on a drop with
-  one channel's mains hum modelled; each further such channel adds ~7.8k: not covered), plus a margin;
+  drop measured over every drop of three rigs' board captures (one with a channel whose mains hum is
+  modelled; a capture with more such channels is not covered), plus a margin;
 - band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
 - localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
@@ -38,7 +38,7 @@ FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
 # What the board's refit leaves the models when it chooses the signal's options: at least the cheapest forests
-# (one tree each: ~1.4k on the measured rigs); export.select_trees then fits the forests into what is left.
+# (one tree each); export.select_trees then fits the forests into what is left.
 MODELS_ALLOWANCE = 1500
 
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and

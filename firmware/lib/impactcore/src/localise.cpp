@@ -185,10 +185,9 @@ void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
 // rig's 100 kHz the picks fit and nearly every drop stops before the cap.
 constexpr int kMaxIterations = 6;
 // ... and at most kMaxEvaluations normal-equation evaluations a start (the two at the start included; the
-// step halvings count): the iterations' worst case, 2 + 7 kMaxIterations = 44, is the event's largest
-// data-dependent cost on an anisotropic plate (12.7k instructions at 22); every bundled drop needs <= 15
-// at either rate, so their results are those without the cap (docs/findings.md, "The event budget's worst
-// case").
+// step halvings count): bounded by the iterations alone (2 + 7 kMaxIterations = 44) the localiser was the
+// event's largest data-dependent cost on an anisotropic plate; the bundled drops stop before this cap, so
+// their results are those without it (docs/findings.md, "The event budget's worst case").
 constexpr int kMaxEvaluations = 16;
 constexpr float kStepTolMm = 0.01f;
 // Screening grid: the Huber cost at the centres of kGrid x kGrid cells over the plate.
