@@ -13,10 +13,14 @@ significant when (1) its per-case held-out gains are positive by a one-sided t-t
 alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), or its
 held-out likelihood ratio exceeds n_candidates / alpha with the t-test at plain alpha (`_evidence`), (2) it is
 material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
-simpler one (`Effect.nests`) it also beats that simpler one by the same test, and a moved sensor beats a
-constant delay on its channel by the evidence rule (`SIMPLER_RIVAL`). Rivals (`RIVALS`: a moved
-sensor and a constant delay on the same channel) are compared by their held-out gains: the better one is
-named and the other is reported as tried and rejected, with the held-out log-likelihood difference. The
+simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
+sensor and a constant delay on the same channel) are told apart by the one thing that differs between them:
+a delay is constant over the impacts, a move's timing change depends on the direction to each impact
+(`effects.sensor_position.direction_test`: the direction-dependent part's Wald test, with case-clustered
+errors and the reference's own uncertainty). A move is significant only when that part is, at ALPHA; where
+it is, the constant delay on that channel is not named (the data reject a constant). Where it is not, a move
+cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the test's p-value
+and `ambiguous` in the report. The held-out log-likelihood difference of the two is reported too. The
 best significant candidate is added to the model (parameters refitted on all drops) and the search
 repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
 Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
@@ -34,15 +38,13 @@ from scipy import stats
 from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
+from .effects.sensor_position import direction_test
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
-# Of two rivals, the one with more parameters must beat the simpler one by the evidence rule (Occam): a
-# 2-D move is named over a constant delay only where the data tell its direction dependence.
-SIMPLER_RIVAL = {"sensor_position": "channel_delay"}
 
 
 @dataclass
@@ -142,23 +144,31 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
+        direction = {}   # per sensor: the move-or-delay test of its timing change (`direction_test`)
         for c in results:
             ok = _evidence(c.score, c.p_value, len(cands)) and c.material
             nest = EFFECTS[c.effect].nests
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
-            simpler = SIMPLER_RIVAL.get(c.effect)
-            if ok and simpler is not None and (simpler, c.sensor) in gains:
-                diff = gains[(c.effect, c.sensor)] - gains[(simpler, c.sensor)]
-                ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
+            if ok and c.effect in RIVALS and c.sensor is not None:
+                direction.setdefault(c.sensor, direction_test(current, F, c.sensor))
+            if ok and c.effect == "sensor_position":   # a move only where its direction dependence is seen
+                ok = direction[c.sensor]["p_value"] < ALPHA
             c.significant = bool(ok)
+        moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
+        for c in results:   # a constant the data reject on its channel is not named there: the move is
+            if c.effect == "channel_delay" and c.sensor in moved:
+                c.significant = False
         for c in results:
             rv = RIVALS.get(c.effect)
             if rv is not None and (rv, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(rv, c.sensor)]
                 c.rival = {"effect": rv, "score_difference": float(diff.sum()),
                            "p_value": _one_sided_p(_case_sums(diff, F.case_id))}
+                if c.sensor in direction:
+                    c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
+                    c.rival["ambiguous"] = bool(direction[c.sensor]["p_value"] >= ALPHA)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -248,6 +258,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
         from .site_reference import noise_floor_reference
         site, sigma = noise_floor_reference(ref, Fb)
         ref.sigma.update(sigma)
+        ref.site = site
         Fn = site.attach(Fn)
     before = R.metrics(ref, Fn)
     accepted, final, last_round = select(ref, Fn, progress)

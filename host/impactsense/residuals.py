@@ -288,6 +288,9 @@ class Reference:
     sigma: dict = field(default_factory=dict)
     mode: str = "calibrated"
     probe: object = field(default=None, repr=False)   # a few reference recordings (forward models)
+    # the site terms learned on the reference (`site_reference.SiteTerms`), None when not learned: their
+    # posterior covariance is the reference's own uncertainty (`effects.sensor_position.direction_test`)
+    site: object = field(default=None, repr=False)
 
     def copy(self) -> "Reference":
         return replace(self, **{k: (v.copy() if isinstance(v, (np.ndarray, dict)) else v)

@@ -80,6 +80,16 @@ class SiteTerms:
         t, e = self.predict(F)
         return replace(F, site_toa_us=t, site_log_energy=e)
 
+    def toa_cov(self, F: R.Features, channel: int) -> np.ndarray:
+        """[R, R] posterior covariance (µs²) of channel `channel`'s ToA site term at F's drops: how far the
+        learned smooth function may be off where F hit (its white-noise part left out: that is the drops'
+        own scatter, not the reference's)."""
+        g = self.toa[channel]
+        _, cov = g.predict(_inputs(F), return_cov=True)
+        scale = float(np.atleast_1d(getattr(g, "_y_train_std", 1.0))[0]) ** 2
+        white = next((k.noise_level for k in (g.kernel_.k1, g.kernel_.k2) if hasattr(k, "noise_level")), 0.0)
+        return np.asarray(cov) - white * scale * np.eye(len(F))
+
 
 def fit_site(ref: R.Reference, F: R.Features) -> SiteTerms:
     """The site terms of `ref` learned on the session `F` (features without site terms)."""

@@ -13,10 +13,20 @@ docs/findings.md), so the move is told by its timing alone.
 
 Fit: the linearised timing least squares gives (dx, dy); a 2-D search of the timing log-likelihood (Huber)
 around it refines them.
+
+Move or delay (`direction_test`): a constant delay is exactly constant over the impacts, a move is not. The
+channel's ToA against the others' (y_k = r_ki - mean_j r_kj: what a change on channel i does to the drop-centred
+residual, t0 gone) is regressed on [1, -s u_x, -s u_y]: the constant takes whatever a delay (or a move's mean
+part) explains, and the two direction coefficients are the move's direction-dependent part. Their Wald test
+uses a standard error that knows where the noise is: the drops of one case share their pick and landing error,
+so the meat of the sandwich is summed per case (cluster-robust, not drop-level), and the reference itself is
+uncertain where the session hit (its site terms' posterior covariance at these drops,
+`site_reference.SiteTerms.toa_cov`, a smooth error shared across neighbouring cases) and is added. Hotelling's
+T² -> F(2, G - 2) with G cases.
 """
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, stats
 
 from ._base import Effect, fit_timing, geometry, shift_channels
 
@@ -62,3 +72,49 @@ class SensorPosition(Effect):
 
     def material(self, params):
         return np.hypot(params["dx_mm"], params["dy_mm"]) >= self.min_offset_mm
+
+
+def _huber_weights(r: np.ndarray, k: float = 2.5) -> np.ndarray:
+    mad = 1.4826 * np.median(np.abs(r - np.median(r))) + 1e-9
+    return 1.0 / np.maximum(1.0, np.abs(r) / (k * mad))
+
+
+def direction_test(model, F, sensor: int) -> dict:
+    """Is channel `sensor`'s timing change direction dependent (a move) or constant (a delay)? Returns the
+    p-value of the direction-dependent part (module docstring), the constant and the direction coefficients
+    (µs, mm) and the number of cases. Huber-weighted least squares (iteratively reweighted), case-clustered
+    sandwich covariance plus the reference's site-term covariance when `model.site` holds them."""
+    r = model.toa_resid(F)
+    ok = np.all(np.isfinite(r), axis=1)
+    others = [j for j in range(4) if j != sensor]
+    y = (r[:, sensor] - r[:, others].mean(axis=1))[ok]
+    _, _, ux, uy = model.geometry(F)
+    s = model.slowness_us_per_mm
+    X = np.c_[np.ones(len(F)), -s * ux[:, sensor], -s * uy[:, sensor]][ok]
+    case = np.asarray(F.case_id)[ok]
+    w = np.ones(len(y))
+    for _ in range(6):
+        b = np.linalg.lstsq(X * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+        w = _huber_weights(y - X @ b)
+    A = np.linalg.pinv((X * w[:, None]).T @ X)
+    _, inv = np.unique(case, return_inverse=True)
+    G = int(inv.max()) + 1
+    # delete-a-case jackknife (the weights held): the cluster-robust covariance with its small-sample
+    # correction (CR3), which the plain sandwich understates at ~40 cases
+    Xw = X * w[:, None]
+    XtX, Xty = Xw.T @ X, Xw.T @ y
+    loo = np.array([np.linalg.lstsq(XtX - Xw[inv == g].T @ X[inv == g], Xty - Xw[inv == g].T @ y[inv == g],
+                                    rcond=None)[0] for g in range(G)])
+    V = (G - 1) / G * (loo - loo.mean(axis=0)).T @ (loo - loo.mean(axis=0))
+    site = getattr(model, "site", None)
+    if site is not None:   # the contrast's reference error: its own channel's site term and 1/9 of the others'
+        Fo = F.subset(np.flatnonzero(ok))
+        cov = site.toa_cov(Fo, sensor) + sum(site.toa_cov(Fo, j) for j in others) / 9.0
+        B = A @ (X * w[:, None]).T
+        V = V + B @ cov @ B.T
+    out = {"delay_us": float(b[0]), "dx_mm": float(b[1]), "dy_mm": float(b[2]), "cases": G}
+    if G < 4:
+        return {**out, "p_value": 1.0}
+    t2 = float(b[1:] @ np.linalg.solve(V[1:, 1:], b[1:]))
+    out["p_value"] = float(stats.f.sf(t2 / 2.0 * (G - 2) / (G - 1), 2, G - 2))
+    return out
