@@ -74,7 +74,12 @@ def _rival(e: dict) -> str:
     rv = e.get("rival")
     if not rv:
         return ""
-    return f"vs {rv['effect']}: {rv['score_difference']:+.1f} nats held out (p {rv['p_value']:.2g})"
+    text = f"vs {rv['effect']}: {rv['score_difference']:+.1f} nats held out (p {rv['p_value']:.2g})"
+    if "direction_p_value" in rv:   # the move-or-delay test (effects.sensor_position.direction_test)
+        text += f"; direction dependence p {rv['direction_p_value']:.2g}"
+        if rv.get("ambiguous"):
+            text += ": a move along the disc's look direction would read the same (ambiguous)"
+    return text
 
 
 def summary_lines(result: dict) -> list[str]:
