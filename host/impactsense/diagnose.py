@@ -17,10 +17,11 @@ simpler one (`Effect.nests`) it also beats that simpler one by the same test. Ri
 sensor and a constant delay on the same channel) are told apart by the one thing that differs between them:
 a delay is constant over the impacts, a move's timing change depends on the direction to each impact
 (`effects.sensor_position.direction_test`: the direction-dependent part's Wald test, with case-clustered
-errors and the reference's own uncertainty). A move is significant only when that part is, at ALPHA; where
-it is, the constant delay on that channel is not named (the data reject a constant). Where it is not, a move
-cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the test's p-value
-and `ambiguous` in the report. The held-out log-likelihood difference of the two is reported too. The
+errors and the reference's own uncertainty) at ALPHA, or the move's held-out likelihood gain over the delay
+by the evidence rule (two tests of the one null "a constant": each at ALPHA). A move is significant only when
+one of them rejects the constant; then the constant delay on that channel is not named. Where neither does, a
+move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the direction
+test's p-value and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The
 best significant candidate is added to the model (parameters refitted on all drops) and the search
 repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
 Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
@@ -153,8 +154,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
             if ok and c.effect in RIVALS and c.sensor is not None:
                 direction.setdefault(c.sensor, direction_test(current, F, c.sensor))
-            if ok and c.effect == "sensor_position":   # a move only where its direction dependence is seen
+            if ok and c.effect == "sensor_position":   # a move only where the data reject a constant
                 ok = direction[c.sensor]["p_value"] < ALPHA
+                if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
+                    diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
+                    ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
             c.significant = bool(ok)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
