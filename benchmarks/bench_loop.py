@@ -234,7 +234,10 @@ def table(out: dict) -> int:
             names = f"{names} (truth {t['effect']}{'' if s is None else f'[{s}]'})"
             rival = (sig[0].get("rival") or {}) if sig else {}
             if sig and rival.get("effect") == t["effect"] and sig[0]["effect"] != t["effect"]:
-                names += f" (the truth's held-out gain over it: {-rival['score_difference']:+.1f} nats)"
+                names += f" (the truth's held-out gain over it: {-rival['score_difference']:+.1f} nats"
+                if "direction_p_value" in rival:   # diagnose's move-or-delay test
+                    names += f"; direction dependence p {rival['direction_p_value']:.2g}"
+                names += ")"
             if not sig:   # the truth's best rejected candidate: how far below the evidence bar
                 e = next((e for e in r["effects"] if e["effect"] == t["effect"]), None)
                 if e is not None:

@@ -172,7 +172,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                            "p_value": _one_sided_p(_case_sums(diff, F.case_id))}
                 if c.sensor in direction:
                     c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
-                    c.rival["ambiguous"] = bool(direction[c.sensor]["p_value"] >= ALPHA)
+                    c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
