@@ -63,9 +63,6 @@ def test_site_terms_bring_the_reference_near_the_pick_noise_fem(fem):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="a known miss of issue 16: at 30 positions the 7 mm move is not significant "
-                   "(sensor_position first, p 0.13 on f9766bc; bench_loop, 40 positions, names 3 of 8 moves); strict: "
-                   "when it passes, drop this mark")
 def test_fem_moved_sensor_named_with_its_offset(fem):
     res, _ = D.diagnose(fem["base"], fem["moved"], same=False)
     sig = [e for e in res["effects"] if e["significant"]]
