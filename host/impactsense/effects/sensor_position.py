@@ -19,8 +19,8 @@ channel's ToA against the others' (y_k = r_ki - mean_j r_kj: what a change on ch
 residual, t0 gone) is regressed on [1, -s u_x, -s u_y]: the constant takes whatever a delay (or a move's mean
 part) explains, and the two direction coefficients are the move's direction-dependent part. Their Wald test
 uses a standard error that knows where the noise is: the drops of one case share their pick and landing error,
-so the meat of the sandwich is summed per case (cluster-robust, not drop-level), and the reference itself is
-uncertain where the session hit (its site terms' posterior covariance at these drops,
+so it is a delete-a-case jackknife (cluster-robust with its small-sample correction, not drop-level), and the
+reference itself is uncertain where the session hit (its site terms' posterior covariance at these drops,
 `site_reference.SiteTerms.toa_cov`, a smooth error shared across neighbouring cases) and is added. Hotelling's
 T² -> F(2, G - 2) with G cases.
 """
@@ -82,8 +82,8 @@ def _huber_weights(r: np.ndarray, k: float = 2.5) -> np.ndarray:
 def direction_test(model, F, sensor: int) -> dict:
     """Is channel `sensor`'s timing change direction dependent (a move) or constant (a delay)? Returns the
     p-value of the direction-dependent part (module docstring), the constant and the direction coefficients
-    (µs, mm) and the number of cases. Huber-weighted least squares (iteratively reweighted), case-clustered
-    sandwich covariance plus the reference's site-term covariance when `model.site` holds them."""
+    (µs, mm) and the number of cases. Huber-weighted least squares (iteratively reweighted), a delete-a-case
+    jackknife covariance plus the reference's site-term covariance when `model.site` holds them."""
     r = model.toa_resid(F)
     ok = np.all(np.isfinite(r), axis=1)
     others = [j for j in range(4) if j != sensor]
