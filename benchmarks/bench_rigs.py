@@ -1,6 +1,7 @@
 """Measured-trained accuracy on every rig: the bundled rig and any other session folders, with a naive reference.
 
     python3 benchmarks/bench_rigs.py [--rigs-dir DIR] [--trees 100] [--seed 0] [--json OUT.json]
+                                     [--calibration-dir CALS]
 
 Per rig: `impactsense train DATA` + `evaluate` on its held-out 20 % of cases (the same calls), whole-plate
 and inner-region MAE per axis, energy-class accuracy and the time both take; and the naive reference the
@@ -9,6 +10,11 @@ axis on the six DToA, on the same split. The other rigs are the session folders 
 --rigs-dir, or the IMPACTSENSE_RIGS_DIR environment variable, or a `shared/data` folder beside the clone
 (CI's layout); absent, they are skipped with the reason. Target (issue 15): whole-plate MAE <= 3.0 mm and class
 accuracy >= 0.95 on every rig; the script exits 1 when a rig misses it.
+
+--calibration-dir CALS: a rig whose folder name has a calibration CALS/<name>/CAL.json (`impactsense calibrate
+DATA --out CALS/<name>/CAL.json`) is trained as `train DATA --calibration CALS/<name>/CAL.json` does: with that
+twin's site map (built once and cached beside CAL.json) when the training drops' out-of-fold figures keep it
+(column "twin": kept / not kept / - without a calibration).
 """
 
 from __future__ import annotations
@@ -65,7 +71,15 @@ def naive(session, train_rows, test_rows, trees: int, seed: int) -> float:
     return float(np.mean([e.mean() for e in err]))
 
 
-def score(path, trees: int, seed: int) -> dict:
+def calibration_for(session, calibration_dir: str | None) -> Path | None:
+    """CALS/<session folder name>/CAL.json when it exists."""
+    if not calibration_dir:
+        return None
+    cal = Path(calibration_dir) / Path(session.path).name / "CAL.json"
+    return cal if cal.is_file() else None
+
+
+def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> dict:
     from impactsense.data import load_session
     from impactsense.models import ForestSettings
     from impactsense.sitemap import resolve_site_map
@@ -73,9 +87,19 @@ def score(path, trees: int, seed: int) -> dict:
     from impactsense.workflow import evaluate, train
 
     session = load_session(path)
+    cal = calibration_for(session, calibration_dir)
+    t_map = 0.0
+    if cal is not None:
+        from impactsense.chain import measured_site_map
+
+        t = time.perf_counter()
+        site = measured_site_map(session, cal, progress=False)
+        t_map = time.perf_counter() - t
     t = time.perf_counter()
-    site = resolve_site_map("auto", session.rig)
-    model, split = train(session, None, 0.2, seed, None, ForestSettings(n_estimators=trees, seed=seed), site_map=site)
+    if cal is None:
+        site = resolve_site_map("auto", session.rig)
+    model, split = train(session, None, 0.2, seed, None, ForestSettings(n_estimators=trees, seed=seed), site_map=site,
+                         choose_twin=cal is not None)
     t_train = time.perf_counter() - t
     rep = evaluate(session, model)
     t_all = time.perf_counter() - t
@@ -87,7 +111,14 @@ def score(path, trees: int, seed: int) -> dict:
             "position_source": rep["position_source"], "naive_mae_mm": naive(session, train_rows, test_rows, trees, seed),
             "train_s": t_train, "train_evaluate_s": t_all, "velocity_mm_per_us": sig.velocity_mm_per_us,
             "onset_threshold_counts": sig.onset_threshold_counts,
-            "travel_metric": [sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy]}
+            "travel_metric": [sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy],
+            "calibration": None if cal is None else str(cal), "site_map_s": t_map,
+            "twin_choice": model.card.get("twin_choice")}
+
+
+def twin_column(r: dict) -> str:
+    choice = r.get("twin_choice")
+    return "-" if not choice else ("kept" if choice["use_twin"] else "not kept")
 
 
 def main() -> int:
@@ -97,6 +128,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None, help="write the rows here")
     ap.add_argument("--skip-bundled", action="store_true", help="only the other rigs")
+    ap.add_argument("--calibration-dir", default=None,
+                    help="folder of calibrations CALS/<rig folder name>/CAL.json: those rigs train with their "
+                         "calibrated twin's site map when the training drops' out-of-fold figures keep it")
     args = ap.parse_args()
     folders, why = rig_folders(args.rigs_dir)
     paths = ([] if args.skip_bundled else ["bundled"]) + [str(p) for p in folders]
@@ -104,17 +138,18 @@ def main() -> int:
         print(f"other rigs skipped: {why}")
     rows = []
     print(f"{'rig':12s} {'material':34s} {'MAE mm':>7s} {'inner':>6s} {'phys':>6s} {'class':>6s} "
-          f"{'naive':>6s} {'time s':>7s}  target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
+          f"{'naive':>6s} {'time s':>7s} {'twin':>8s}  target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
     missed = []
     for p in distinct_sessions(paths, "scored"):
-        r = score(p, args.trees, args.seed)
+        r = score(p, args.trees, args.seed, args.calibration_dir)
         rows.append(r)
         ok = r["mae_mm"] <= TARGET_MAE_MM and r["class_accuracy"] >= TARGET_CLASS
         if not ok:
             missed.append(r["rig"])
         print(f"{r['rig']:12s} {r['material'][:34]:34s} {r['mae_mm']:7.2f} {r['inner_mae_mm']:6.2f} "
               f"{r['physics_mae_mm']:6.2f} {r['class_accuracy']:6.3f} {r['naive_mae_mm']:6.2f} "
-              f"{r['train_evaluate_s']:7.1f}  {'ok' if ok else 'MISSED'}", flush=True)
+              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s}  {'ok' if ok else 'MISSED'}",
+              flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     if missed:

@@ -90,3 +90,24 @@ def adapt(model, virtual: Session, cal_path: Path, seed: int, workers: int = 2) 
     test_rows = np.setdiff1d(np.arange(len(session)), rows)
     return {"trained_on": str(virtual.path), **fits,
             **zero_shot_card(cal_path, session, rows, test_rows, seed, len(virtual))}
+
+
+def measured_site_map(session: Session, cal_path: str | Path, progress: bool = True):
+    """The site map of the twin CAL.json calibrated, for training on a measured session of the same rig
+    (`train DATA --calibration CAL.json`): built once and cached beside CAL.json (CAL.site-map.npz; rebuilt
+    when the twin changed). The session need not be the one CAL.json was fitted on, but its sensors must sit
+    where that session's did."""
+    from .sim import SimParams
+    from .sitemap import rig_matches
+    from .zeroshot import read_calibration, twin_site_map
+
+    cal_path = Path(cal_path)
+    cal = read_calibration(cal_path)
+    rig_session = session
+    if cal.get("data_sha256") != session.fingerprint():
+        rig_session, _ = measured_session(cal_path)
+        if not rig_matches({"rig_sensors_mm": rig_session.rig.sensor_xy_mm.tolist()}, session.rig):
+            raise DataError(cal_path, "data", f"calibrated on {rig_session.path}, whose sensors are not where "
+                            f"{session.path}'s are (calibrate this rig)")
+    return twin_site_map(SimParams.from_json(cal_path), rig_session, cal_path.parent, progress,
+                         name=f"{cal_path.stem}.site-map.npz")

@@ -214,20 +214,20 @@ def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, 
     return {name: float(v) for name, v in zip(ARRIVAL_ENERGY_FEATURES, diff)}
 
 
-def twin_site_map(params, session: Session, out: Path, progress: bool = True):
-    """The calibrated twin's site map, cached in out/site-map.npz (rebuilt when the twin changed)."""
+def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz"):
+    """The calibrated twin's site map, cached in out/name (rebuilt when the twin changed)."""
     def same_twin(site) -> bool:   # parameters added since the map was made take their defaults
         try:
             return SimParams.from_dict(dict(site.source.get("sim_params") or {})) == params
         except Exception:
             return False
 
-    for path in (BUNDLED, out / "site-map.npz"):   # the bundled twin's map, when this is the bundled twin
+    for path in (BUNDLED, out / name):   # the bundled twin's map, when this is the bundled twin
         if path.is_file():
             site = SiteMap.load(path)
             if same_twin(site):
                 return site
-    path = out / "site-map.npz"
+    path = out / name
     site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto")
     site.save(path)
     if (out / MANIFEST).is_file():      # a cache in a folder the tool wrote (a virtual session): still the tool's

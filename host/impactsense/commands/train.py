@@ -21,7 +21,13 @@ def register(sub) -> None:
     p.add_argument("--site-map", default="auto", metavar="auto|none|site-map.npz",
                    help="the twin's site map (`impactsense sitemap`); auto = for a virtual session made by "
                         "`simulate-dataset --calibration` its calibrated twin's (built once, cached in the "
-                        "folder), else the bundled twin's when the rig is the bundled rig, else none")
+                        "folder), else with --calibration that twin's (built once, cached beside CAL.json), "
+                        "else the bundled twin's when the rig is the bundled rig, else none")
+    p.add_argument("--calibration", default=None, metavar="CAL.json",
+                   help="this rig's calibrated twin (`impactsense calibrate DATA --out CAL.json`): with "
+                        "--site-map auto the measured-trained model reads its site map (position and energy "
+                        "class from the twin's match) when the training drops' out-of-fold figures say it "
+                        "beats the forests and the measured classifier; the model card's twin_choice records them")
     p.add_argument("--exclude", default=None,
                    help="comma-separated recording ids to leave out (e.g. calibration drops), or a CAL.json")
     p.set_defaults(func=run)
@@ -74,14 +80,27 @@ def run(args) -> int:
     from ..chain import site_map as calibrated_site_map
 
     cal = session_calibration(session)   # a virtual session made by simulate-dataset --calibration
+    measured_twin = False
     if cal is not None and args.site_map in (None, "auto"):
         site = calibrated_site_map(session, cal)
+    elif cal is None and args.calibration and args.site_map in (None, "auto"):
+        from ..chain import measured_site_map
+
+        print(f"the calibrated twin of {args.calibration}: its site map (cached beside it)")
+        site = measured_site_map(session, args.calibration)
+        measured_twin = True
     else:
         site = resolve_site_map(args.site_map, session.rig)
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
-                         exclude, settings, site_map=site, force=args.force)
+                         exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin)
+    choice = model.card.get("twin_choice")
+    if choice:
+        print(f"twin's site map {'kept' if choice['use_twin'] else 'not kept'} (training drops, out of fold): "
+              f"MAE {choice['twin_mae_mm']:.2f} mm with it / {choice['forest_mae_mm']:.2f} without, class "
+              f"{choice['twin_class_accuracy']:.3f} / {choice['measured_class_accuracy']:.3f}")
+        site = model.site_map
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
