@@ -111,3 +111,23 @@ def test_site_map_of_a_calibration_is_the_bundled_twins_and_a_moved_rig_is_refus
     path.write_text(json.dumps(cal))
     with pytest.raises(DataError, match="sensors"):
         measured_site_map(session1, path, progress=False)
+
+
+def test_train_command_reads_the_calibrations_twin_and_records_the_choice(tmp_path, capsys, session1):
+    """A later session of the calibrated rig (40 of session-1's cases in a folder of their own): the twin's map
+    is found through CAL.json's session, whose sensors sit where this one's do."""
+    from impactsense.cli import main
+    from impactsense.models import ImpactModel
+
+    rows = np.flatnonzero(session1.case_id < 40)
+    data = write_session(tmp_path / "later", session1.rig, session1.x_mm[rows], session1.y_mm[rows],
+                         session1.height_mm[rows], session1.adc[rows], case_id=session1.case_id[rows],
+                         repetition=session1.repetition[rows])
+    out = tmp_path / "M"
+    assert main(["train", str(data), "--out", str(out), "--trees", "10", "--calibration", str(CAL)]) == 0
+    printed = capsys.readouterr().out
+    assert "twin's site map kept (training drops, out of fold)" in printed
+    model = ImpactModel.load(out)
+    rec = model.card["twin_choice"]
+    assert rec["use_twin"] and rec["n_drops"] > 100 and model.position_source == "twin"
+    assert model.site_map.fingerprint() == SiteMap.load(BUNDLED).fingerprint()

@@ -26,16 +26,24 @@ def load_model(model_dir) -> ImpactModel:
 
 
 def train(session: Session, out=None, test_fraction: float = 0.2, seed: int = 0, trees: int = 100,
-          site_map="auto") -> ImpactModel:
+          site_map="auto", calibration=None) -> ImpactModel:
     """Fits the physics localiser, the forests and (site_map "auto" on the bundled rig, or a site-map file) the
     twin's fingerprint on the training cases of `session`, holding out `test_fraction` of its cases (seeded);
-    written to `out` (a model folder) if given. The model card (model.card) lists the split."""
+    written to `out` (a model folder) if given. The model card (model.card) lists the split. calibration: a
+    CAL.json of this rig (`impactsense calibrate`): with site_map "auto" its twin's site map, kept when the
+    training drops' out-of-fold figures say so (as `impactsense train --calibration`)."""
     from .sitemap import resolve_site_map
     from .workflow import train as _train
 
-    site = resolve_site_map(site_map, session.rig)
+    measured_twin = calibration is not None and site_map in (None, "auto")
+    if measured_twin:
+        from .chain import measured_site_map
+
+        site = measured_site_map(session, calibration, progress=False)
+    else:
+        site = resolve_site_map(site_map, session.rig)
     model, _ = _train(session, out, test_fraction, seed, settings=ForestSettings(n_estimators=trees, seed=seed),
-                      site_map=site)
+                      site_map=site, choose_twin=measured_twin)
     return model
 
 
