@@ -25,7 +25,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
           site_map=None, force: bool = False, choose_twin: bool = False) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given.
     choose_twin: keep the site map's twin only when the training drops' out-of-fold figures say so
-    (models.twin_choice; a measured session's calibrated twin)."""
+    (twin_oof.twin_choice; a measured session's calibrated twin)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
