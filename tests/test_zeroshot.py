@@ -8,7 +8,7 @@ import pytest
 
 from impactsense.data import load_session
 from impactsense.pipeline import SignalConfig, featurize
-from impactsense.zeroshot import calibration_rows, fit_channels_on_calibration_drops, fit_energy_offsets
+from impactsense.calibration_drops import calibration_rows, fit_channels_on_calibration_drops, fit_energy_offsets
 
 
 def test_channel_gain_divides_amplitudes_and_energies(synth):
@@ -396,7 +396,7 @@ def test_band_delay_recovered_from_the_calibration_drops(session1):
     band picks on, their delays must read the rig 20 us later on channel 2 on top of the virtual drops' band
     delays (the twin's own), the band velocity stay the twin's (no path-length error put in); with the band
     picks off there is nothing to fit."""
-    from impactsense.zeroshot import fit_band_on_calibration_drops
+    from impactsense.calibration_drops import fit_band_on_calibration_drops
 
     rows = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2]))
     meas = session1.adc[rows]
@@ -416,7 +416,7 @@ def test_travel_refit_on_calibration_drops_reads_the_measured_picks(session1):
     metric (Q_xx 0.7) and no delays, the refit on eight calibration positions of the isotropic PMMA plate must
     come back to a round metric and the rig's speed (~0.95 mm/us; training on all drops gives 0.946), and
     with fewer than 8 drops with every pick it leaves the localiser as it was."""
-    from impactsense.zeroshot import refit_travel_metric
+    from impactsense.calibration_drops import refit_travel_metric
 
     rows = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2, 60, 77, 90, 120]))
     twin = SignalConfig.from_dict({**SignalConfig.for_rig(session1.rig).to_dict(), "velocity_mm_per_us": 1.15,

@@ -43,14 +43,15 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.stats import spearmanr
 
+from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops, fit_channels_on_calibration_drops,
+                                fit_energy_offsets, refit_travel_metric)
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
-from .models import ARRIVAL_ENERGY_FEATURES, ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
+from .models import ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
 from .outputs import MANIFEST, adopt, write_file
-from .pipeline import distances_mm, featurize
+from .pipeline import featurize
 from .seed import SEED_ROWS
 from .sim import SimParams, simulate_drops
 from .sim.doe import DEFAULT_HEIGHTS_MM, measured_heights, virtual_drops
@@ -60,158 +61,6 @@ from .split import case_split
 from .travel import wants_metric
 from .twin import fit_twin
 from .workflow import evaluate, train
-
-
-def calibration_rows(session: Session, cal: dict) -> np.ndarray:
-    """Recording ids of the calibration drops (all repetitions of the calibration cases)."""
-    if cal.get("exclude_recording_ids"):
-        rows = np.asarray(cal["exclude_recording_ids"], int)
-    elif cal.get("exclude_case_ids"):
-        rows = np.flatnonzero(np.isin(session.case_id, np.asarray(cal["exclude_case_ids"], int)))
-    else:
-        raise DataError("CAL.json", "exclude_recording_ids", "calibration file names no calibration drops")
-    if rows.size == 0 or rows.max() >= len(session):
-        raise DataError("CAL.json", "exclude_recording_ids", "calibration drops do not belong to this session")
-    return rows
-
-
-def fit_channels_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: np.ndarray,
-                                      signal: SignalConfig) -> tuple[list[float], list[float], float]:
-    """The rig's channel effects the twin lacks, from the calibration drops only:
-    gain = sqrt(median of measured / simulated energy), unclipped drops only, fitted first;
-    then, picked with those gains, measured minus simulated ToA of drop k on channel i as
-    c_k + delay_i + d_ik (1 / v_rig - 1 / v_twin) (path_misfit: d_ik the path length, c_k the drop's onset,
-    removed by centring; soft-L1 as in `fit_localiser`): the delays (relative to channel 0) and the group
-    velocity the rig's picks travel at, v_rig, given `signal.velocity_mm_per_us` as the twin's (fitted on
-    virtual drops). Returns (delays, gains, v_rig)."""
-    base = _record_time(signal)
-    meas = featurize(session.adc[rows], base)
-    sim = featurize(sim_adc, base)
-    ok = np.isfinite(meas.toa_us).all(1) & np.isfinite(sim.toa_us).all(1)
-    if ok.sum() < 2:
-        raise DataError("calibration drops", None, "fewer than two calibration drops have an onset on every channel")
-    gains = []
-    for c in range(4):
-        good = ok & ~meas.clipped[:, c] & ~sim.clipped[:, c]
-        ratio = meas.energy[good, c].astype(float) / sim.energy[good, c].astype(float)
-        gains.append(float(np.sqrt(np.median(ratio))) if good.any() else 1.0)
-    # Delays with the gains applied, so the (amplitude-dependent) threshold picks see equal amplitudes.
-    base.channel_gain = gains
-    meas = featurize(session.adc[rows], base)
-    diff = (meas.toa_us.astype(float) - sim.toa_us.astype(float))[ok]
-    delays, slowness = path_misfit(diff, distances_mm(session.xy_mm[rows], base)[ok])
-    velocity = 1.0 / (1.0 / signal.velocity_mm_per_us + slowness)
-    return delays, gains, velocity
-
-
-def _record_time(signal: SignalConfig) -> SignalConfig:
-    """signal picking in record time, unit gains: the measured and simulated calibration drops share the capture
-    (its delays cancel in their difference)."""
-    base = SignalConfig.from_dict(signal.to_dict())
-    base.rig_delay_us = [0.0, 0.0, 0.0, 0.0]
-    base.capture_delay_us = [0.0, 0.0, 0.0, 0.0]
-    base.band_delay_us = [0.0, 0.0, 0.0, 0.0]
-    base.channel_gain = [1.0, 1.0, 1.0, 1.0]
-    return base
-
-
-def path_misfit(diff_us: np.ndarray, path_mm: np.ndarray) -> tuple[list[float], float]:
-    """Measured minus simulated ToA [K, 4] of K drops as c_k + delay_i + d_ik ds (d_ik the path length [K, 4], c_k
-    removed by centring; soft-L1): the delays relative to channel 0 and ds, the rig's slowness minus the twin's
-    (us/mm)."""
-    def residuals(p):
-        r = diff_us - np.r_[0.0, p[:3]][None] - path_mm * p[3]
-        return (r - r.mean(1, keepdims=True)).ravel()
-
-    sol = least_squares(residuals, np.zeros(4), loss="soft_l1", f_scale=3.0)
-    return [0.0] + [float(v) for v in sol.x[:3]], float(sol.x[3])
-
-
-def fit_band_on_calibration_drops(session: Session, rows: np.ndarray, sim_adc: np.ndarray, signal: SignalConfig,
-                                  gains: list[float]) -> tuple[list[float], float] | None:
-    """The band picks' constants as the rig reads them, when `signal` (the localiser fitted on the virtual drops)
-    has them on: measured minus simulated band ToA of the calibration drops (path_misfit, the band's travel
-    metric's path lengths), on top of the virtual drops' band delays and velocity (the twin's own), as the
-    threshold picks' are (fit_channels_on_calibration_drops). Without it the band localiser reads the rig with
-    the twin's delays, not the rig's (docs/findings.md "Zero-shot: what limits it"). Returns (band delays,
-    band velocity), or None when the band picks are off or fewer than two calibration drops have every band
-    pick in both."""
-    if not (signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0):
-        return None
-    from .travel import travel_distances
-
-    base = _record_time(signal)
-    sim = featurize(sim_adc, base).raw["toa_band_us"].astype(float)
-    base.channel_gain = list(gains)
-    meas = featurize(session.adc[rows], base).raw["toa_band_us"].astype(float)
-    ok = np.isfinite(meas).all(1) & np.isfinite(sim).all(1)
-    if ok.sum() < 2:
-        return None
-    metric = (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy)
-    path = travel_distances(np.asarray(session.xy_mm, float)[rows][ok], signal.sensor_xy_mm, metric)
-    delays, slowness = path_misfit((meas - sim)[ok], path)
-    return ([float(a + b) for a, b in zip(signal.band_delay_us, delays)],
-            float(1.0 / (1.0 / signal.band_velocity_mm_per_us + slowness)))
-
-
-def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig) -> tuple[SignalConfig, dict]:
-    """On a plate whose localiser models elliptical wavefronts (travel.wants_metric: a laminate, an unknown
-    material), `signal` with its travel models fitted again on the calibration drops `rows` at their known
-    positions (travel.fit_travel: velocity, channel delays, the metric and the dispersion exponent of the
-    threshold picks; velocity, delays and metric of the band picks when they are on, at the virtual drops'
-    band frequency and fraction, the energy slowness's slope kept). The twin's anisotropy is the calibration's fast model's guess, and the FEM's
-    picks do not follow it closely (docs/findings.md "Zero-shot on rig-b / rig-c"), so on such a plate the
-    measured picks' own travel model reads the rig better than the twin's corrected by delays and a speed
-    (fit_channels_on_calibration_drops); the onset threshold, AIC blend and band choice stay the virtual
-    drops'. Returns (signal unchanged and {} when fewer than 8 drops have every pick; else the refitted
-    signal and the record of the fit)."""
-    from .travel import fit_travel, picks
-
-    toa, period = picks(session.adc[rows], signal, with_period=True)
-    xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
-    try:
-        fit = fit_travel(toa, xy, sensors, True, period, signal.fs_hz)
-    except DataError:
-        return signal, {}
-    out = SignalConfig.from_dict(signal.to_dict())
-    out.velocity_mm_per_us, out.rig_delay_us = fit.velocity_mm_per_us, list(fit.delays_us)
-    out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = fit.metric
-    out.dispersion_exponent, out.dispersion_ref_hz = fit.dispersion_exponent, fit.dispersion_ref_hz
-    record = {"velocity_mm_per_us": fit.velocity_mm_per_us, "delays_us": list(fit.delays_us),
-              "travel_metric": list(fit.metric), "dispersion_exponent": fit.dispersion_exponent}
-    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
-        base = SignalConfig.from_dict({**_record_time(signal).to_dict(), "channel_gain": list(signal.channel_gain),
-                                       "capture_delay_us": list(signal.capture_delay_us)})
-        raw = featurize(session.adc[rows], base).raw
-        band = raw["toa_band_us"].astype(float)
-        if signal.band_slowness_per_decade:     # the energy slowness's slope stays the virtual drops' (its
-            from .travel import summed_log_energy, travel_distances   # level is the refitted velocity)
-
-            d = travel_distances(xy, sensors, (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy))
-            loud = summed_log_energy(raw["energy"], signal.fs_hz) - signal.band_log_energy_ref
-            band = band - d * signal.band_slowness_per_decade * loud[:, None]
-        try:
-            bfit = fit_travel(band, xy, sensors, True)
-        except DataError:
-            return out, record
-        out.band_velocity_mm_per_us, out.band_delay_us = bfit.velocity_mm_per_us, list(bfit.delays_us)
-        out.band_metric_xx, out.band_metric_xy, out.band_metric_yy = bfit.metric
-        record.update(band_velocity_mm_per_us=bfit.velocity_mm_per_us, band_delay_us=list(bfit.delays_us),
-                      band_metric=list(bfit.metric))
-    return out, record
-
-
-def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,
-                       simulated: SignalConfig) -> dict[str, float]:
-    """Median over the calibration drops of measured minus simulated arrival-energy features (log10)."""
-    meas = featurize(session.adc[rows], measured)
-    sim = featurize(sim_adc, simulated)
-    ok = meas.usable & sim.usable
-    if ok.sum() < 2:
-        raise DataError("calibration drops", None, "fewer than two calibration drops are usable in both")
-    cols = columns(ARRIVAL_ENERGY_FEATURES)
-    diff = np.median(meas.vector[ok][:, cols].astype(float) - sim.vector[ok][:, cols].astype(float), axis=0)
-    return {name: float(v) for name, v in zip(ARRIVAL_ENERGY_FEATURES, diff)}
 
 
 def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz"):
