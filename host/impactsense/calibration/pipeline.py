@@ -26,7 +26,7 @@ from __future__ import annotations
 import time
 
 from . import fem
-from .cache import record_compute_times, write_json
+from .cache import cpu_seconds, record_compute_times, write_json
 from .options import MIN_BUDGET, CalibrateOptions
 from .problem import build_problem, measured_core_config, picker_overrides, sim_core_config, sim_features
 from .stages import STAGES, held
@@ -37,7 +37,7 @@ __all__ = ["MIN_BUDGET", "CalibrateOptions", "calibrate", "measured_core_config"
 
 def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=None) -> dict:
     """Run the calibration of session folder `data`; writes `out` (CAL.json) and returns its dict."""
-    t_all = time.perf_counter()
+    t_all, c_all = time.perf_counter(), cpu_seconds()
     problem = build_problem(data, out, options or CalibrateOptions(), simulate)
     for stage in STAGES:
         stage(problem)
@@ -56,7 +56,9 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                   "eq16_us2_fem": problem.plate.get("fem_loss_eq16_us2"),
                                   **{k: pzt[k] for k in ("f2", "f3", "f2_rel") if k in pzt}}}
     problem.clock.seconds["total"] = round(time.perf_counter() - t_all, 3)
+    problem.clock.cpu["total"] = round(cpu_seconds() - c_all, 2)
     result["wall_time_s"] = problem.clock.seconds
+    result["cpu_time_s"] = problem.clock.cpu
     result["stage_compute_time_s"] = record_compute_times(problem.cache("stage-times.json"), problem.clock.seconds)
     write_json(problem.out, result)
     return result

@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, lsq_linear
 
 from .. import _core
 from ..signal import channel_delays_us, core_samples
@@ -47,7 +47,8 @@ SD_FRACTION_MAX = 1.0 / 3.0
 # after a round whose chi^2 / dof is above this, no further round is run: a round refines the last one's positions
 # and (E, nu, D_s) from its optimum (the rig's second round moved chi^2 / dof by 7 %, 612 -> 568), so it cannot
 # bring a twin that far off under CHI2_DOF_MAX, and nu is not claimed whatever it returns (docs/findings.md,
-# "The cold chain")
+# "The cold chain"). Likewise a round's trust-region fit is not run when the linearised fit from its start
+# (`predicted_chi2`, from the Jacobian the fit would begin with) stays above this.
 STOP_CHI2_DOF = 10 * CHI2_DOF_MAX
 DS_SYSTEMATIC = 0.03                # the decay estimate's systematic error (fraction of D_s) for its prior
 
@@ -211,6 +212,15 @@ def gauss_newton_sd(jm, chi2, dof) -> np.ndarray:
         return np.full(jm.shape[1], np.inf)
 
 
+def predicted_chi2(r0, j0, theta, lo, hi, n_data) -> float:
+    """chi^2 of the first n_data residuals at the bounded Gauss-Newton optimum of the linearised residuals
+    r0 + j0 (theta' - theta), lo <= theta' <= hi (scipy `lsq_linear`): what a fit starting at theta can expect to
+    reach when the residuals are close to linear in the parameters over the step."""
+    lin = lsq_linear(j0, -r0, bounds=(np.minimum(lo - theta, 0.0), np.maximum(hi - theta, 0.0)))
+    r = r0 + j0 @ lin.x
+    return float(np.sum(r[:n_data] ** 2))
+
+
 def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
         nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=MAX_NFEV, progress=None) -> NuFit:
     """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
@@ -271,16 +281,31 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
                 cols.append((fun(t2) - f0) / step)
             return np.stack(cols, axis=1)
 
+        # the trust-region fit's first step, predicted: its Jacobian at the start (the fit's own first one, so
+        # nothing is wasted when it goes on) and the bounded linear least squares over (ln E, nu, D_s)
+        r0, j0 = fun(theta), jac(theta)
+        n_data = r0.size - (ds_prior is not None)
+        dof = n_data - 2 * per_rep.shape[0] - 3
+        chi2_start = float(np.sum(r0[:n_data] ** 2))
+        chi2_pred = predicted_chi2(r0, j0, theta, lo, hi, n_data)
+        if chi2_pred / max(dof, 1) > STOP_CHI2_DOF:
+            chi2, sd = chi2_start, gauss_newton_sd(j0, chi2_start, dof)
+            log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
+                        "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache),
+                        "chi2_predicted": chi2_pred,
+                        "stopped": (f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the start, {chi2_pred / max(dof, 1):.1f} "
+                                    f"predicted at the fit's linearised optimum, > {STOP_CHI2_DOF:g}: no (E, nu, D_s) "
+                                    "fit can make nu claimable; not run")})
+            break
         sol = least_squares(fun, theta, jac=jac, bounds=(lo, hi), x_scale=np.array(STEPS), max_nfev=max_nfev,
                             method="trf")
         theta = sol.x
         r = fun(theta)
-        n_data = r.size - (ds_prior is not None)
-        dof = n_data - 2 * per_rep.shape[0] - 3
         chi2 = float(np.sum(r[:n_data] ** 2))
         sd = gauss_newton_sd(jac(theta), chi2, dof)
         log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
-                    "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache)})
+                    "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache),
+                    "chi2_start": chi2_start, "chi2_predicted": chi2_pred})
         if rnd + 1 < rounds and chi2 / max(dof, 1) > STOP_CHI2_DOF:
             log[-1]["stopped"] = (f"chi^2 / dof {chi2 / max(dof, 1):.1f} > {STOP_CHI2_DOF:g}: the later rounds "
                                   "cannot make nu claimable")
