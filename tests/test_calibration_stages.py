@@ -81,7 +81,7 @@ def standin_session(tmp_path_factory):
 
 def test_a_resumed_calibration_gives_the_same_cal_json(standin_session, tmp_path):
     """The plate grid alone (--no-fem, ~2 s): a second run reads the grid from its cache and writes the same
-    CAL.json but for the wall times."""
+    CAL.json but for the wall and CPU times."""
     out = tmp_path / "cal" / "CAL.json"
     first = json.loads(json.dumps(pipeline.calibrate(standin_session, out, _small_opts(fem=False, e_step_mpa=100.0),
                                                      simulate=_standin_clean)))
@@ -89,8 +89,26 @@ def test_a_resumed_calibration_gives_the_same_cal_json(standin_session, tmp_path
     assert second["wall_time_s"]["plate_grid"] < max(0.5 * first["wall_time_s"]["plate_grid"], 0.2)
     saved = json.loads(out.read_text())
     for cal in (first, saved):
-        for k in ("wall_time_s", "stage_compute_time_s"):
+        for k in ("wall_time_s", "cpu_time_s", "stage_compute_time_s"):
             cal.pop(k)
     assert saved == first
     assert list(first)[:3] == ["format", "data", "data_sha256"] and first["pzt_damping"]["skipped"]
     assert first["fitted"]["e_pa"] == pytest.approx(first["plate"]["E_mpa"] * 1e6)
+
+
+def test_the_stage_clock_counts_cpu_seconds_not_waiting():
+    """A stage that computes is charged its CPU seconds; one that waits (a loaded machine, a sleep) is not:
+    CAL.json's cpu_time_s is what the stage costs whatever else runs."""
+    import time
+
+    clock = StageClock()
+
+    def busy(seconds):
+        t = time.process_time()
+        while time.process_time() - t < seconds:
+            sum(range(1000))
+
+    clock.run("busy", busy, 0.3)
+    clock.run("idle", time.sleep, 0.3)
+    assert clock.cpu["busy"] >= 0.25 and clock.seconds["busy"] >= 0.25
+    assert clock.cpu["idle"] < 0.1 <= 0.25 <= clock.seconds["idle"]
