@@ -176,16 +176,19 @@ def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios
 
 
 def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_ln_e=0.03, d_nu=0.03,
-                       nu_bounds=(0.30, 0.40), j_pos=None) -> dict:
+                       nu_bounds=(0.30, 0.40), j_pos=None, e_ratios=None) -> dict:
     """How well the drops fix nu once E is free: central differences of the observables along ln E and along
     nu at fixed bending stiffness D ~ E / (1 - nu^2) (4 FEM runs), then the Fisher information of nu with E
     profiled out, for independent errors of the targets' standard errors (a best case: the jitter of a drop's
     position moves all its observables together) scaled by max(1, chi^2 / dof) (model error).
     On drops the FEM made with known values the end-to-end errors of nu went well past this best case
-    (docs/findings.md): it bounds what the drops can tell, it does not certify a fitted nu."""
+    (docs/findings.md): it bounds what the drops can tell, it does not certify a fitted nu.
+    e_ratios = (low, high): the ln E difference between E x low and E x high (default exp(-+d_ln_e)); an E
+    scan's own outer ratios around e_mpa make them runs the scan has already made."""
     nu_c = float(np.clip(nu, nu_bounds[0] + d_nu, nu_bounds[1] - d_nu))
     stiff = e_mpa / (1 - nu ** 2)
-    j_e = (evals(e_mpa * np.exp(d_ln_e), nu) - evals(e_mpa * np.exp(-d_ln_e), nu)) / (2 * d_ln_e)
+    lo_r, hi_r = e_ratios if e_ratios is not None else (np.exp(-d_ln_e), np.exp(d_ln_e))
+    j_e = (evals(e_mpa * hi_r, nu) - evals(e_mpa * lo_r, nu)) / float(np.log(hi_r / lo_r))
     j_nu = (evals(stiff * (1 - (nu_c + d_nu) ** 2), nu_c + d_nu)
             - evals(stiff * (1 - (nu_c - d_nu) ** 2), nu_c - d_nu)) / (2 * d_nu)
     r = residuals(evals(e_mpa, nu), meas)

@@ -294,15 +294,20 @@ def held(problem: CalibrationProblem) -> dict:
 
 # --- plate_fem_refit: E again at the nu and D_s held -----------------------------------------------------------
 
+REFIT_RATIOS = (0.97, 1.0, 1.03)      # E scan of the refit, x the E held so far
+
+
 def _plate_fem_refit(problem: CalibrationProblem, _key) -> dict:
     params, nu_fit, nu_used = problem.params, problem.plate["nu_fit"], held(problem)["nu"]
     ev = plate_evaluations(problem, dict(params, damping_per_s=held(problem)["damping_per_s"]), "fem-ds")
     e_aic, scan = plate_fem.e_scan(ev, problem.plate_targets, float(params["e_pa"]) / 1e6, nu_used,
-                                   problem.e_bounds, ratios=(0.97, 1.0, 1.03), walk=1.03, observables=[0])
+                                   problem.e_bounds, ratios=REFIT_RATIOS, walk=1.03, observables=[0])
     # with nu identified, E is the group-delay fit's (the group delays move smoothly with E; the AIC DToA
     # move in whole samples and fix E more loosely, docs/findings.md); else the delay misfit's at the grid's nu
     e_mpa = round(float(nu_fit["E_mpa"]), 1) if nu_fit["identified"] else e_aic
-    ident = plate_fem.nu_identifiability(ev, problem.plate_targets, e_mpa, nu_used, nu_bounds=problem.nu_bounds)
+    # its ln E difference on the scan's outer points: when E stayed where the scan started, two runs made already
+    ident = plate_fem.nu_identifiability(ev, problem.plate_targets, e_mpa, nu_used, nu_bounds=problem.nu_bounds,
+                                         e_ratios=(REFIT_RATIOS[0], REFIT_RATIOS[-1]))
     return {"E_mpa": e_mpa, "E_aic_mpa": e_aic, "scan": scan, "nu_identifiability": ident,
             "observables": ev(e_mpa, nu_used)}
 
