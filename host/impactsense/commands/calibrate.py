@@ -18,7 +18,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="calibration JSON to write (CAL.json)")
     p.add_argument("--drops", default="auto",
                    help="'auto' (default) or four comma-separated case ids (case_id column of impacts.csv)")
-    p.add_argument("--budget", type=int, default=64, help="FEM runs in the PZT Sobol design (default 64)")
+    p.add_argument("--budget", type=int, default=32, help="FEM runs in the PZT Sobol design (default 32)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Sobol design and the surrogates (default 0)")
     p.add_argument("--workers", type=int, default=2, help="FEM runs in parallel processes (default 2)")
     p.add_argument("--nu-step", type=float, default=0.001,
