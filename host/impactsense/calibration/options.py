@@ -16,8 +16,8 @@ MIN_BUDGET = 24   # 70/15/15 of 24 = 17/4/3 runs: the smallest design the split 
 @dataclass
 class CalibrateOptions:
     drops: object = "auto"                 # "auto" or four case ids
-    budget: int = 32                       # FEM runs in the PZT design (stage `design`; docs/findings.md, "The cold
-                                           # chain under 180 CPU-s": 64 cost 35 CPU-s more for no better chain)
+    budget: int = 32                       # FEM runs in the PZT design (stage `design`; why 32: docs/findings.md,
+                                           # "The cold chain under 180 CPU-s")
     seed: int = 0
     workers: int = 2
     progress: bool = True
