@@ -336,3 +336,24 @@ def test_subcycled_1mm_voltages_within_half_percent(rig):
          for q in (p.replace(subcycle=False), p)]
     rel = np.sqrt(((v[1] - v[0]) ** 2).mean(axis=2) / (v[0] ** 2).mean(axis=2))
     assert rel.max() < 0.005, rel
+
+
+def test_disc_fraction_covers_the_disc_area_and_stays_inside_the_plate():
+    """The elements' disc fractions add up to the disc's area (sub-cell sampling, 8 x 8 per element: the
+    sampled circle's area within 1.5 % at 5+ elements across the radius), and a disc across the plate's corner
+    keeps only the elements inside the plate."""
+    from impactsense.sim.model import _disc_fraction
+
+    hx, hy, r = 2e-3, 1.5e-3, 10e-3
+    frac = _disc_fraction((hx, hy, 200, 200), (0.13, 0.11), r)
+    area = sum(frac.values()) * hx * hy
+    assert abs(area / (np.pi * r ** 2) - 1) < 0.015
+    assert all(0 < f <= 1 for f in frac.values())
+    w = np.array(list(frac.values()))
+    ij = np.array(list(frac.keys()), float)
+    centroid = (w @ ((ij + 0.5) * (hx, hy))) / w.sum()
+    assert np.allclose(centroid, (0.13, 0.11), atol=0.05 * hy)
+    corner = _disc_fraction((hx, hy, 200, 200), (0.0, 0.0), r)
+    assert all(i >= 0 and j >= 0 for i, j in corner)
+    assert abs(sum(corner.values()) * hx * hy / (np.pi * r ** 2 / 4) - 1) < 0.03
+    assert _disc_fraction((hx, hy, 10, 10), (1.0, 1.0), r) == {}

@@ -76,3 +76,33 @@ def test_tuned_surrogates_predict_a_smooth_response_on_the_held_out_split(kind, 
     # seeded: the same search picks the same settings
     again = surrogates.tune(kind, x[tr], y[tr], x[va], y[va], x[te], y[te], trials=trials, seed=3)
     assert again.config == fit.config and again.r2_val == pytest.approx(fit.r2_val, abs=1e-9)
+
+
+@pytest.mark.parametrize("n_outputs", [1, 16])
+def test_serial_forest_predicts_the_same_floats_as_scikit_learns_forest(n_outputs):
+    """The optimiser's forest predicts in a plain loop: the trees' sum in scikit-learn's order, bit for bit."""
+    from sklearn.ensemble import RandomForestRegressor
+
+    x, y = _design()
+    y = y[:, 0] if n_outputs == 1 else y
+    forest = surrogates.build("RF", {"n_estimators": 60, "min_samples_leaf": 1}, seed=3).fit(x, y).estimator
+    probe = np.random.default_rng(4).random((200, x.shape[1]))
+    ours = forest.predict(probe)
+    theirs = RandomForestRegressor.predict(forest, probe)
+    assert ours.shape == theirs.shape and np.array_equal(ours, theirs)
+    with pytest.raises(ValueError, match="features"):
+        forest.predict(probe[:, :5])
+
+
+def test_identity_networks_are_fitted_as_one_layer_of_the_narrowest_width():
+    """Linear layers compose to one linear map of rank <= the narrowest width: the collapsed network fits a
+    linear response as well as a least-squares line; other activations keep the drawn layers."""
+    assert surrogates.hidden_layers({"hidden": [220, 204, 112], "activation": "identity"}) == (112,)
+    assert surrogates.hidden_layers({"hidden": [220, 204, 112], "activation": "tanh"}) == (220, 204, 112)
+    x = qmc.Sobol(d=13, scramble=True, seed=2).random(32)[:24]
+    y = x @ np.random.default_rng(5).normal(size=(13, 16)) + 0.3
+    net = surrogates.build("NN", {"hidden": [157, 193], "activation": "identity", "standardise": False, "d": 13},
+                           seed=0).fit(x[:17], y[:17])
+    lsq, *_ = np.linalg.lstsq(np.c_[np.ones(17), x[:17]], y[:17], rcond=None)
+    ref = np.c_[np.ones(7), x[17:]] @ lsq
+    assert np.max(np.abs(net.predict(x[17:]) - ref)) < 0.05 * np.ptp(y)

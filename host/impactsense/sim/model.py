@@ -236,6 +236,116 @@ def _disc_fraction(model_h, centre, radius, n_sub=8):
             for j in range(j0, j1) for i in range(i0, i1) if frac[j - j0, i - i0] > 0}
 
 
+def mesh_element_m(p: SimParams, f_max_hz: float) -> float:
+    """Eq. 1: a tenth of the shortest A0 wavelength at f_max_hz (an orthotropic plate: along its softest
+    direction, `material.softest`)."""
+    t = p.thickness_mm * 1e-3
+    if not material.orthotropic(p):
+        return float(dispersion.a0_wavelength(f_max_hz, p.e_pa, p.nu, p.rho_kg_m3, t, p.shear_factor)) / 10
+    d_min, s_min = material.softest(p)
+    k = dispersion.a0_wavenumber_ds(f_max_hz, d_min, s_min, p.rho_kg_m3 * t ** 3 / 12, p.rho_kg_m3 * t)
+    return float(2 * np.pi / k) / 10
+
+
+def _mesh(p: SimParams, rig, k: float, ball_m: float) -> tuple:
+    """Eq. 1: (f_max, nx, ny, hx, hy), the element size from the shortest A0 wavelength in the contact's
+    spectrum (or SimParams f_max_hz / element_mm)."""
+    lx, ly, fs = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3, float(rig.fs_hz)
+    if p.f_max_hz is not None:
+        f_max = float(p.f_max_hz)
+    else:
+        tc = hertz_duration_s(k, ball_m, float(impact_velocity(p, p.max_height_mm)))
+        f_max = min(p.f_max_factor / tc, fs / 2)   # no finer than the logger's band can tell
+    if p.element_mm is not None:
+        le = p.element_mm * 1e-3
+    else:
+        le = mesh_element_m(p, f_max)
+    nx, ny = max(int(math.ceil(lx / le - 1e-9)), 2), max(int(math.ceil(ly / le - 1e-9)), 2)
+    if nx * ny > 4_000_000:
+        raise ConfigError(f"mesh of {nx} x {ny} elements is too large (element_mm = {le * 1e3:.3g})")
+    return f_max, nx, ny, lx / nx, ly / ny
+
+
+def mesh_size(p: SimParams, rig) -> tuple:
+    """Eq. 1's mesh of the plate `p` on the rig: (f_max, nx, ny, hx, hy) as `build_model` makes it."""
+    return _mesh(p, rig, hertz_k(p, rig.ball_diameter_mm * 0.5e-3), rig.ball_mass_g * 1e-3)
+
+
+def _disc_masses(p: SimParams, patches, d_elem, d: float, grid: tuple) -> tuple:
+    """Lumped masses (w, rotations) per node: a quarter of each element's mass to each of its nodes, plus the
+    ceramic's under the disc patches."""
+    nx, ny, hx, hy = grid
+    t, tp = p.thickness_mm * 1e-3, p.pzt_thickness_mm * 1e-3
+    area_node = node_areas(nx, ny, hx, hy)
+    i_rot = p.rho_kg_m3 * t ** 3 / 12 * p.rotary_inertia_scale
+    mass_w = p.rho_kg_m3 * t * area_node
+    mass_r = i_rot * area_node
+    mp = p.pzt_rho_kg_m3 * tp * p.disc_mass_scale if p.disc_mass else 0.0
+    ip = mp * (t / 2 + tp / 2) ** 2
+    for fr in patches:
+        for (i, j), f in fr.items():
+            # rotary inertia under the disc raised by disc_inertia_factor (default 1.06), or (opt-in
+            # disc_inertia_scaling) until its D / I is the bare plate's, so the stiffer disc sets a larger
+            # stable step or no longer sets it; never past the plate's D / I
+            i_el = i_rot + f * ip
+            extra = 0.0
+            if p.disc_stiffness:
+                need = max(0.0, d_elem[j, i] / d * i_rot / i_el - 1.0)   # the raise to the plate's D / I
+                extra = (need if p.disc_inertia_scaling else min(need, p.disc_inertia_factor - 1.0)) * i_el
+            for dj in (0, 1):
+                for di in (0, 1):
+                    mass_w[j + dj, i + di] += 0.25 * f * hx * hy * mp
+                    mass_r[j + dj, i + di] += 0.25 * hx * hy * (f * ip + extra)
+    return mass_w, mass_r
+
+
+def _time_step(p: SimParams, plate, hx: float, hy: float, f_max: float, fs: float) -> tuple:
+    """(dt, dt_crit, steps per ADC sample): the assembled plate's stability limit and Eq. 2, snapped to divide
+    1/fs; sub-cycled (fine meshes, see SimParams.subcycle), the disc patches take sub-steps under cfl_safety x
+    the whole plate's limit and dt is bound by the rest of the plate."""
+    dt_crit = assembled_dt_crit(plate)
+    if p.subcycle and max(hx, hy) <= p.subcycle_max_element_mm * 1e-3:
+        plate.set_subcycling(p.cfl_safety * dt_crit, SUBCYCLE_LAYER)
+        if plate.subcycled_nodes:
+            dt_crit = 2.0 / math.sqrt(float(plate.max_eigenvalue(coarse=True)))
+    dt_eq2 = 1.0 / (20 * f_max)
+    t_sample = 1.0 / fs
+    if p.dt_us is not None:
+        dt_req = p.dt_us * 1e-6
+        if dt_req > dt_crit:
+            raise ConfigError(f"dt_us = {p.dt_us:g} is above the stability limit {dt_crit * 1e6:.4g} us "
+                              f"for this mesh ({hx * 1e3:.3g} x {hy * 1e3:.3g} mm elements)")
+    else:
+        dt_req = min(p.cfl_safety * dt_crit, dt_eq2)
+    m = max(int(math.ceil(t_sample / dt_req - 1e-9)), 1)
+    return t_sample / m, dt_crit, m
+
+
+def _sensing_functionals(p: SimParams, fractions, grid: tuple) -> list:
+    """Per disc (nodes, weights on beta_x, weights on beta_y): U = C <beta_x,x + beta_y,y>_disc, gradients at
+    element centres."""
+    nx, ny, hx, hy = grid
+    t, tp, e11 = p.thickness_mm * 1e-3, p.pzt_thickness_mm * 1e-3, p.pzt_e11_mpa * 1e6
+    z_s = -t / 2
+    c_volt = tp * (p.pzt_d31_pc_n * 1e-12) * e11 / ((1 - p.pzt_nu12) * p.pzt_eps33_rel * EPS0) * z_s
+    r = nx + 1
+    sensors = []
+    for fr in fractions:
+        a_disc = sum(fr.values()) * hx * hy
+        acc: dict[int, list] = {}
+        for (i, j), f in fr.items():
+            wgt = c_volt * f * hx * hy / a_disc
+            n1, n2, n3, n4 = j * r + i, j * r + i + 1, (j + 1) * r + i + 1, (j + 1) * r + i
+            # beta_x,x = (-b1 + b2 + b3 - b4) / (2 hx); beta_y,y = (-b1 - b2 + b3 + b4) / (2 hy)
+            for node, sx, sy in ((n1, -1, -1), (n2, 1, -1), (n3, 1, 1), (n4, -1, 1)):
+                e = acc.setdefault(node, [0.0, 0.0])
+                e[0] += wgt * sx / (2 * hx)
+                e[1] += wgt * sy / (2 * hy)
+        nodes = np.array(sorted(acc), dtype=np.int64)
+        sensors.append((nodes, np.array([acc[k][0] for k in nodes]), np.array([acc[k][1] for k in nodes])))
+    return sensors
+
+
 def build_model(params: SimParams, rig, *, duration_ms: float | None = None) -> Model:
     p = params
     lx, ly = rig.plate_x_mm * 1e-3, rig.plate_y_mm * 1e-3
