@@ -231,8 +231,8 @@ IC_INLINE void scan_peak(const Channel& ch, int k, float base, float* peak) {
 // and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
 constexpr int kArrivalBlocks = 3;
 template <bool kFits32>
-IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
-  float peak = 0.0f;
+IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start, float peak0) {
+  float peak = peak0;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
@@ -376,6 +376,37 @@ int energy_reaches(const Channel& ch, int64_t target) {
   return ch.n - 1;
 }
 
+// hum_at at a block's first sample, its last and its centre, block after block from block 0: the phase
+// stepped by rotations (a sin_cos is ~70 instructions on the M4F; a hum channel's scan to its onset read
+// three a block). Full blocks only: a capture's last, shorter block takes hum_at. The rotations' rounding
+// leaves them within ~1e-6 of hum_at's amplitude over a capture (float phase arguments differ as much).
+struct HumSteps {
+  const Baseline& bl;
+  int k = 0;
+  float c = 1.0f, s = 0.0f;   // cos, sin of w k kBlock
+  float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
+  enum Unset { kUnset };
+  HumSteps(const Baseline& b, Unset) : bl(b), rc(1.0f), rs(0.0f), lc(1.0f), ls(0.0f), mc(1.0f), ms(0.0f) {}
+  explicit HumSteps(const Baseline& b) : bl(b) {
+    sin_cos(b.w * static_cast<float>(kBlock), &rs, &rc);
+    sin_cos(b.w * static_cast<float>(kBlock - 1), &ls, &lc);
+    sin_cos(b.w * 0.5f * static_cast<float>(kBlock - 1), &ms, &mc);
+  }
+  void next() {
+    const float cn = c * rc - s * rs;
+    s = s * rc + c * rs;
+    c = cn;
+    ++k;
+  }
+  float at(float cos_, float sin_) const { return bl.c0 + bl.c1 * cos_ + bl.c2 * sin_; }
+  float first() const { return at(c, s); }
+  float last() const { return at(c * lc - s * ls, s * lc + c * ls); }
+  float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
+};
+
+// The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
+// residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
+// counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
 // The hum model's per-block departures d_k (block means of c0 + c1 cos + c2 sin) and the correction that
 // turns the constant-baseline energies of Channel into energies about the model: for a block,
 // sum (x - base - d)^2 = sum (x - base)^2 - 2 d sum (x - base) + m d^2. corr[k]: that correction summed
@@ -387,24 +418,49 @@ struct HumEnergy {
   float gain16;    // mean of a unit sinusoid over a block
   float corr[kMaxBlocks + 1];
 
+  mutable int d_block = -1;  // block_d's last block and value (reaches and the windows' ends meet there)
+  mutable float d_value = 0.0f;
+
   float block_d(int k) const {
+    if (k == d_block) return d_value;
     float s, c;
     sin_cos(bl->w * (static_cast<float>(k * kBlock) + 0.5f * (kBlock - 1)), &s, &c);
-    return bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
+    d_block = k;
+    d_value = bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
+    return d_value;
   }
-  void build(const Channel& channel, const Baseline& b, float level) {
+  // steps: HumSteps at block 0 (its rotation by w kBlock and its start w (kBlock - 1) / 2 are the sin_cos
+  // this loop needs, the same arguments)
+  void build(const Channel& channel, const Baseline& b, float level, const HumSteps& steps) {
     ch = &channel;
     bl = &b;
     base = level;
+    d_block = -1;
     float sh, chw, sl, cl;
     sin_cos(0.5f * b.w, &sh, &chw);
     sin_cos(0.5f * b.w * kBlock, &sl, &cl);
     gain16 = sh > 0.0f ? sl / (kBlock * sh) : 1.0f;
-    float rs, rc, s, c;
-    sin_cos(b.w * kBlock, &rs, &rc);
-    sin_cos(b.w * 0.5f * (kBlock - 1), &s, &c);
+    const float rs = steps.rs, rc = steps.rc;
+    float s = steps.ms, c = steps.mc;
     corr[0] = 0.0f;
-    for (int k = 0; k < channel.nblk; ++k) {
+    // Full blocks first (m = kBlock: its products hoisted, the same floats), then a shorter last block.
+    const int full = channel.n / kBlock;
+    const float mf = static_cast<float>(kBlock), mbase = mf * base;
+    const float c0 = b.c0, g1 = gain16, c1 = b.c1, c2 = b.c2;
+    float acc = 0.0f;
+    int32_t prev = channel.prefix[0].s1;
+    for (int k = 0; k < full; ++k) {
+      const float d = c0 + g1 * (c1 * c + c2 * s);
+      const int32_t next = channel.prefix[k + 1].s1;
+      const float dev = static_cast<float>(next - prev) - mbase;
+      prev = next;
+      acc = acc + d * (mf * d - 2.0f * dev);
+      corr[k + 1] = acc;
+      const float cn = c * rc - s * rs;
+      s = s * rc + c * rs;
+      c = cn;
+    }
+    for (int k = full; k < channel.nblk; ++k) {
       const int m = channel.block_end(k) - k * kBlock;
       const float d = b.c0 + gain16 * (b.c1 * c + b.c2 * s);
       const float dev = static_cast<float>(channel.prefix[k + 1].s1 - channel.prefix[k].s1) - m * base;
@@ -485,42 +541,28 @@ struct LocalHum {
   }
 };
 
-// hum_at at a block's first sample, its last and its centre, block after block from block 0: the phase
-// stepped by rotations (a sin_cos is ~70 instructions on the M4F; a hum channel's scan to its onset read
-// three a block). Full blocks only: a capture's last, shorter block takes hum_at. The rotations' rounding
-// leaves them within ~1e-6 of hum_at's amplitude over a capture (float phase arguments differ as much).
-struct HumSteps {
-  const Baseline& bl;
-  int k = 0;
-  float c = 1.0f, s = 0.0f;   // cos, sin of w k kBlock
-  float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
-  explicit HumSteps(const Baseline& b) : bl(b) {
-    sin_cos(b.w * static_cast<float>(kBlock), &rs, &rc);
-    sin_cos(b.w * static_cast<float>(kBlock - 1), &ls, &lc);
-    sin_cos(b.w * 0.5f * static_cast<float>(kBlock - 1), &ms, &mc);
+// The extremes the onset scan read: of every sample in blocks [0, covered).
+struct HumScan {
+  int covered = 0;
+  int32_t lo = INT32_MAX, hi = INT32_MIN;
+  void add(int k, int32_t l, int32_t h) {
+    if (k == covered) ++covered;
+    if (l < lo) lo = l;
+    if (h > hi) hi = h;
   }
-  void next() {
-    const float cn = c * rc - s * rs;
-    s = s * rc + c * rs;
-    c = cn;
-    ++k;
+  // their largest |x - base| (as scan_peak computes it: rounding is monotone, so the extremes' is the max)
+  float peak(float base) const {
+    const float a = fabsf(static_cast<float>(hi) - base), b = fabsf(static_cast<float>(lo) - base);
+    return a > b ? a : b;
   }
-  float at(float cos_, float sin_) const { return bl.c0 + bl.c1 * cos_ + bl.c2 * sin_; }
-  float first() const { return at(c, s); }
-  float last() const { return at(c * lc - s * ls, s * lc + c * ls); }
-  float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
 };
 
-// The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
-// residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
-// counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
 float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, int* at, int* spikes,
-                   LocalHum* local) {
+                   LocalHum* local, HumSteps hs, HumScan* scan) {
   if (start < 1) start = 1;
   local->bl = &bl;
   // The residual from the quiet blocks before start (a block that reaches the threshold about the global
   // model, a glitch or the onset, is left out).
-  HumSteps hs(bl);
   // hum_at at block k's centre (HumSteps for a full block)
   const auto centre = [&](int k) {
     const int e = ch.block_end(k);
@@ -530,6 +572,7 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
     int32_t lo, hi;
     const int a = k * kBlock, e = ch.block_end(k);
     range_extremes(ch.x, a, e, &lo, &hi);
+    scan->add(k, lo, hi);
     const float span = static_cast<float>(hi - lo);
     if (span < 2.0f * thr || span < 2.0f * thr + 2.0f * fabsf(hs.first() - hs.last())) local->add_block(ch, k, centre(k));
   }
@@ -543,6 +586,7 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
     const float be = local->with_hum(static_cast<float>(e - 1), whole ? hs.last() : hum_at(bl, static_cast<float>(e - 1)));
     int32_t lo, hi;
     range_extremes(ch.x, a, e, &lo, &hi);
+    if (a == k * kBlock) scan->add(k, lo, hi);
     const float blo = (ba < be ? ba : be) - 0.5f, bhi = (ba > be ? ba : be) + 0.5f;
     if (static_cast<float>(hi) - blo < thr && bhi - static_cast<float>(lo) < thr) {
       if (a == k * kBlock) local->add_block(ch, k, centre(k));
@@ -791,10 +835,13 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int at = -1, spikes = 0;
   float cross = -1.0f;
   LocalHum local;
+  HumScan scan;
+  // the hum's rotations (three sin_cos), read by the onset scan and HumEnergy::build
+  const HumSteps hum_steps = bl.hum ? HumSteps(bl) : HumSteps(bl, HumSteps::kUnset);
   local.bl = &bl;
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {
-    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local);
+    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_steps, &scan);
   } else {
     for (int from = cfg.baseline_samples;;) {
       cross = ch.fits32 ? crossing<true>(ch, base, thr, from, &at) : crossing<false>(ch, base, thr, from, &at);
@@ -808,12 +855,17 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // Energy, peak and clipping over the whole capture.
   const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
   HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
-  if (bl.hum) hum_e.build(ch, bl, base);
+  if (bl.hum) hum_e.build(ch, bl, base, hum_steps);
   const float energy = bl.hum ? hum_e.to_block(ch.nblk) : ch.to_energy(energy_scaled);
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
-  const int below_from = (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
-  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from) : peak_abs<false>(ch, base, at, below_from);
+  // A hum channel's onset scan read the extremes of every block before the crossing's (scan.covered of
+  // them): their largest |x - base| starts the peak, and peak_abs skips them.
+  const bool scanned = bl.hum && at >= 0 && scan.covered >= at / kBlock;
+  const int below_from = scanned ? 0 : (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
+  const float peak0 = scanned ? scan.peak(base) : 0.0f;
+  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from, peak0)
+                               : peak_abs<false>(ch, base, at, below_from, peak0);
   f->energy = energy;
   f->peak = peak;
   if (ch.fits32 ? clipped<true>(ch, base, peak, at, cfg.adc_min, cfg.adc_max)
