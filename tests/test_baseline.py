@@ -51,6 +51,22 @@ def test_hum_of_150_counts_at_any_phase_leaves_picks_and_energies(drops, hz):
         assert np.percentile(np.abs(arrival), 95) < np.log10(1.01)
 
 
+@pytest.mark.parametrize("amp", [6.0, 40.0, 400.0])
+def test_a_hum_channels_peak_is_the_whole_captures(drops, amp):
+    """A hum channel's peak (largest |x - baseline|) is taken partly from the onset scan's block extremes and
+    partly by the pruned scan after the crossing: bit for bit the full scan's, with a hum weaker than the
+    arrival, near it and stronger (the largest sample then before the crossing), and a glitch before it."""
+    _, adc, cfg = drops
+    for phase in (0.3, 2.0):
+        x = with_hum(adc, amp, 50.0, phase, offset=11)
+        x[::3, 1, 300] = 4000                              # a glitch before most onsets
+        out = features(x, cfg)
+        hum = (out["flags"] & _core.FLAG_HUM) != 0
+        assert hum.mean() > 0.5, (amp, hum.mean())
+        want = np.max(np.abs(x.astype(np.float32) - out["baseline"][..., None].astype(np.float32)), axis=-1)
+        assert np.array_equal(out["peak"], want), (amp, phase)
+
+
 def spiked(adc, size: float, window):
     """adc with a one- or two-sample spike of +-size counts on one random channel of each drop, starting at a
     random sample in window(r, c) = [lo, hi) (None: that drop stays clean); returns (adc, [(r, c) spiked])."""
