@@ -381,13 +381,16 @@ int energy_reaches(const Channel& ch, int64_t target) {
 // three a block). Full blocks only: a capture's last, shorter block takes hum_at. The rotations' rounding
 // leaves them within ~1e-6 of hum_at's amplitude over a capture (float phase arguments differ as much).
 struct HumSteps {
-  const Baseline& bl;
-  int k = 0;
-  float c = 1.0f, s = 0.0f;   // cos, sin of w k kBlock
+  // set() before use (no default values: the struct sits unused in every channel without a hum)
+  const Baseline* bl;
+  int k;
+  float c, s;                 // cos, sin of w k kBlock
   float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
-  enum Unset { kUnset };
-  HumSteps(const Baseline& b, Unset) : bl(b), rc(1.0f), rs(0.0f), lc(1.0f), ls(0.0f), mc(1.0f), ms(0.0f) {}
-  explicit HumSteps(const Baseline& b) : bl(b) {
+  void set(const Baseline& b) {
+    bl = &b;
+    k = 0;
+    c = 1.0f;
+    s = 0.0f;
     sin_cos(b.w * static_cast<float>(kBlock), &rs, &rc);
     sin_cos(b.w * static_cast<float>(kBlock - 1), &ls, &lc);
     sin_cos(b.w * 0.5f * static_cast<float>(kBlock - 1), &ms, &mc);
@@ -398,28 +401,26 @@ struct HumSteps {
     c = cn;
     ++k;
   }
-  float at(float cos_, float sin_) const { return bl.c0 + bl.c1 * cos_ + bl.c2 * sin_; }
+  float at(float cos_, float sin_) const { return bl->c0 + bl->c1 * cos_ + bl->c2 * sin_; }
   float first() const { return at(c, s); }
   float last() const { return at(c * lc - s * ls, s * lc + c * ls); }
   float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
 };
 
-// The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
-// residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
-// counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
 // The hum model's per-block departures d_k (block means of c0 + c1 cos + c2 sin) and the correction that
 // turns the constant-baseline energies of Channel into energies about the model: for a block,
 // sum (x - base - d)^2 = sum (x - base)^2 - 2 d sum (x - base) + m d^2. corr[k]: that correction summed
 // over blocks [0, k) (counts^2). Used only when the hum is modelled.
 struct HumEnergy {
+  HumSteps steps;  // set before the onset scan (which steps a copy)
   const Channel* ch;
   const Baseline* bl;
   float base;
   float gain16;    // mean of a unit sinusoid over a block
   float corr[kMaxBlocks + 1];
 
-  mutable int d_block = -1;  // block_d's last block and value (reaches and the windows' ends meet there)
-  mutable float d_value = 0.0f;
+  mutable int d_block;  // block_d's last block and value (reaches and the windows' ends meet there; build resets)
+  mutable float d_value;
 
   float block_d(int k) const {
     if (k == d_block) return d_value;
@@ -429,9 +430,9 @@ struct HumEnergy {
     d_value = bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
     return d_value;
   }
-  // steps: HumSteps at block 0 (its rotation by w kBlock and its start w (kBlock - 1) / 2 are the sin_cos
-  // this loop needs, the same arguments)
-  void build(const Channel& channel, const Baseline& b, float level, const HumSteps& steps) {
+  // steps (set for the onset scan): its rotation by w kBlock and its start w (kBlock - 1) / 2 are the
+  // sin_cos this loop needs, the same arguments
+  void build(const Channel& channel, const Baseline& b, float level) {
     ch = &channel;
     bl = &b;
     base = level;
@@ -502,6 +503,27 @@ struct HumEnergy {
   }
 };
 
+// The extremes the onset scan read: of every sample in blocks [0, covered).
+struct HumScan {
+  int covered;
+  int32_t lo, hi;
+  void reset() {
+    covered = 0;
+    lo = INT32_MAX;
+    hi = INT32_MIN;
+  }
+  void add(int k, int32_t l, int32_t h) {
+    if (k == covered) ++covered;
+    if (l < lo) lo = l;
+    if (h > hi) hi = h;
+  }
+  // their largest |x - base| (as scan_peak computes it: rounding is monotone, so the extremes' is the max)
+  float peak(float base) const {
+    const float a = fabsf(static_cast<float>(hi) - base), b = fabsf(static_cast<float>(lo) - base);
+    return a > b ? a : b;
+  }
+};
+
 // The hum model near the onset: the global fit misses a hum whose amplitude drifts by up to a few counts,
 // more than an onset threshold allows, so the scan tracks the residual (block mean - model) of the last
 // kLocalBlocks quiet blocks, a straight line through them extrapolated: b(i) = level + hum_at(i) + r +
@@ -512,6 +534,7 @@ struct LocalHum {
   float r = 0.0f, slope = 0.0f, t = 0.0f;  // the line: value r at sample t, per-sample slope
   float rs[kLocalBlocks], ts[kLocalBlocks];
   int quiet = 0;                           // quiet blocks seen
+  HumScan scan;                            // the onset scan's extremes (hum_crossing resets it)
   float model(float i) const { return with_hum(i, hum_at(*bl, i)); }
   // the model at sample i given hum_at(i) (HumSteps)
   float with_hum(float i, float hum) const { return bl->level + hum + r + slope * (i - t); }
@@ -541,24 +564,13 @@ struct LocalHum {
   }
 };
 
-// The extremes the onset scan read: of every sample in blocks [0, covered).
-struct HumScan {
-  int covered = 0;
-  int32_t lo = INT32_MAX, hi = INT32_MIN;
-  void add(int k, int32_t l, int32_t h) {
-    if (k == covered) ++covered;
-    if (l < lo) lo = l;
-    if (h > hi) hi = h;
-  }
-  // their largest |x - base| (as scan_peak computes it: rounding is monotone, so the extremes' is the max)
-  float peak(float base) const {
-    const float a = fabsf(static_cast<float>(hi) - base), b = fabsf(static_cast<float>(lo) - base);
-    return a > b ? a : b;
-  }
-};
-
+// The first crossing of |x - b(i)| >= thr from `start` on, b the level plus the hum model and its local
+// residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
+// counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
 float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, int* at, int* spikes,
-                   LocalHum* local, HumSteps hs, HumScan* scan) {
+                   LocalHum* local, HumSteps hs) {
+  HumScan* scan = &local->scan;
+  scan->reset();
   if (start < 1) start = 1;
   local->bl = &bl;
   // The residual from the quiet blocks before start (a block that reaches the threshold about the global
@@ -835,13 +847,12 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int at = -1, spikes = 0;
   float cross = -1.0f;
   LocalHum local;
-  HumScan scan;
-  // the hum's rotations (three sin_cos), read by the onset scan and HumEnergy::build
-  const HumSteps hum_steps = bl.hum ? HumSteps(bl) : HumSteps(bl, HumSteps::kUnset);
+  HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
   local.bl = &bl;
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {
-    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_steps, &scan);
+    hum_e.steps.set(bl);
+    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_e.steps);
   } else {
     for (int from = cfg.baseline_samples;;) {
       cross = ch.fits32 ? crossing<true>(ch, base, thr, from, &at) : crossing<false>(ch, base, thr, from, &at);
@@ -854,16 +865,15 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
 
   // Energy, peak and clipping over the whole capture.
   const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
-  HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
-  if (bl.hum) hum_e.build(ch, bl, base, hum_steps);
+  if (bl.hum) hum_e.build(ch, bl, base);
   const float energy = bl.hum ? hum_e.to_block(ch.nblk) : ch.to_energy(energy_scaled);
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
   // A hum channel's onset scan read the extremes of every block before the crossing's (scan.covered of
   // them): their largest |x - base| starts the peak, and peak_abs skips them.
-  const bool scanned = bl.hum && at >= 0 && scan.covered >= at / kBlock;
+  const bool scanned = bl.hum && at >= 0 && local.scan.covered >= at / kBlock;
   const int below_from = scanned ? 0 : (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
-  const float peak0 = scanned ? scan.peak(base) : 0.0f;
+  const float peak0 = scanned ? local.scan.peak(base) : 0.0f;
   const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from, peak0)
                                : peak_abs<false>(ch, base, at, below_from, peak0);
   f->energy = energy;
