@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 EVENT_BUDGET = 64000
-BASE_INSTRUCTIONS = 53500
+BASE_INSTRUCTIONS = 53000
 BAND_PER_SAMPLE = 80
 # impactcore localise.cpp's kMaxEvaluations (a start's normal-equation evaluations, step halvings included)
 LOCALISER_EVALUATIONS = 16
