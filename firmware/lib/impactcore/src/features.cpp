@@ -231,8 +231,8 @@ IC_INLINE void scan_peak(const Channel& ch, int k, float base, float* peak) {
 // and the crossing are skipped (their samples from `start` on are below the threshold, hence the peak).
 constexpr int kArrivalBlocks = 3;
 template <bool kFits32>
-IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start, float peak0) {
-  float peak = peak0;
+IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
+  float peak = 0.0f;
   const int kc = at >= 0 ? at / kBlock : -1;
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
@@ -407,12 +407,34 @@ struct HumSteps {
   float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
 };
 
+// The extremes the onset scan read: of every sample in blocks [0, covered).
+struct HumScan {
+  int covered;
+  int32_t lo, hi;
+  void reset() {
+    covered = 0;
+    lo = INT32_MAX;
+    hi = INT32_MIN;
+  }
+  void add(int k, int32_t l, int32_t h) {
+    if (k == covered) ++covered;
+    if (l < lo) lo = l;
+    if (h > hi) hi = h;
+  }
+  // their largest |x - base| (as scan_peak computes it: rounding is monotone, so the extremes' is the max)
+  float peak(float base) const {
+    const float a = fabsf(static_cast<float>(hi) - base), b = fabsf(static_cast<float>(lo) - base);
+    return a > b ? a : b;
+  }
+};
+
 // The hum model's per-block departures d_k (block means of c0 + c1 cos + c2 sin) and the correction that
 // turns the constant-baseline energies of Channel into energies about the model: for a block,
 // sum (x - base - d)^2 = sum (x - base)^2 - 2 d sum (x - base) + m d^2. corr[k]: that correction summed
 // over blocks [0, k) (counts^2). Used only when the hum is modelled.
 struct HumEnergy {
   HumSteps steps;  // set before the onset scan (which steps a copy)
+  HumScan scan;    // the onset scan's extremes (hum_crossing resets it)
   const Channel* ch;
   const Baseline* bl;
   float base;
@@ -432,7 +454,7 @@ struct HumEnergy {
   }
   // steps (set for the onset scan): its rotation by w kBlock and its start w (kBlock - 1) / 2 are the
   // sin_cos this loop needs, the same arguments
-  void build(const Channel& channel, const Baseline& b, float level) {
+  IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level) {
     ch = &channel;
     bl = &b;
     base = level;
@@ -503,26 +525,7 @@ struct HumEnergy {
   }
 };
 
-// The extremes the onset scan read: of every sample in blocks [0, covered).
-struct HumScan {
-  int covered;
-  int32_t lo, hi;
-  void reset() {
-    covered = 0;
-    lo = INT32_MAX;
-    hi = INT32_MIN;
-  }
-  void add(int k, int32_t l, int32_t h) {
-    if (k == covered) ++covered;
-    if (l < lo) lo = l;
-    if (h > hi) hi = h;
-  }
-  // their largest |x - base| (as scan_peak computes it: rounding is monotone, so the extremes' is the max)
-  float peak(float base) const {
-    const float a = fabsf(static_cast<float>(hi) - base), b = fabsf(static_cast<float>(lo) - base);
-    return a > b ? a : b;
-  }
-};
+
 
 // The hum model near the onset: the global fit misses a hum whose amplitude drifts by up to a few counts,
 // more than an onset threshold allows, so the scan tracks the residual (block mean - model) of the last
@@ -534,7 +537,6 @@ struct LocalHum {
   float r = 0.0f, slope = 0.0f, t = 0.0f;  // the line: value r at sample t, per-sample slope
   float rs[kLocalBlocks], ts[kLocalBlocks];
   int quiet = 0;                           // quiet blocks seen
-  HumScan scan;                            // the onset scan's extremes (hum_crossing resets it)
   float model(float i) const { return with_hum(i, hum_at(*bl, i)); }
   // the model at sample i given hum_at(i) (HumSteps)
   float with_hum(float i, float hum) const { return bl->level + hum + r + slope * (i - t); }
@@ -568,8 +570,7 @@ struct LocalHum {
 // residual (LocalHum; linear within a block between its ends' values), glitches (is_spike) passed over and
 // counted in *spikes. *local: the model at the crossing (for the AIC window and the first peak).
 float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, int* at, int* spikes,
-                   LocalHum* local, HumSteps hs) {
-  HumScan* scan = &local->scan;
+                   LocalHum* local, HumSteps hs, HumScan* scan) {
   scan->reset();
   if (start < 1) start = 1;
   local->bl = &bl;
@@ -623,6 +624,17 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
   }
   *at = -1;
   return -1.0f;
+}
+
+// A hum channel's peak: the onset scan read the extremes of every block before the crossing's (scan.covered
+// of them, when it reached the crossing's block): peak_abs skips them and their largest |x - base| joins
+// its result; otherwise the whole capture.
+IC_NOINLINE float hum_peak(const Channel& ch, float base, int at, const HumScan& scan) {
+  const bool scanned = at >= 0 && scan.covered >= at / kBlock;
+  const int from = scanned ? 0 : ch.n;
+  const float rest = ch.fits32 ? peak_abs<true>(ch, base, at, from) : peak_abs<false>(ch, base, at, from);
+  const float before = scanned ? scan.peak(base) : 0.0f;
+  return before > rest ? before : rest;
 }
 
 // The AIC onset on a copy of the window with the baseline model taken out and the glitches before the
@@ -852,7 +864,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {
     hum_e.steps.set(bl);
-    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_e.steps);
+    cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_e.steps, &hum_e.scan);
   } else {
     for (int from = cfg.baseline_samples;;) {
       cross = ch.fits32 ? crossing<true>(ch, base, thr, from, &at) : crossing<false>(ch, base, thr, from, &at);
@@ -869,13 +881,10 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   const float energy = bl.hum ? hum_e.to_block(ch.nblk) : ch.to_energy(energy_scaled);
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
-  // A hum channel's onset scan read the extremes of every block before the crossing's (scan.covered of
-  // them): their largest |x - base| starts the peak, and peak_abs skips them.
-  const bool scanned = bl.hum && at >= 0 && local.scan.covered >= at / kBlock;
-  const int below_from = scanned ? 0 : (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
-  const float peak0 = scanned ? local.scan.peak(base) : 0.0f;
-  const float peak = ch.fits32 ? peak_abs<true>(ch, base, at, below_from, peak0)
-                               : peak_abs<false>(ch, base, at, below_from, peak0);
+  const int below_from = (spikes > 0 || bl.hum) ? n : cfg.baseline_samples;
+  const float peak = bl.hum ? hum_peak(ch, base, at, hum_e.scan)
+                            : ch.fits32 ? peak_abs<true>(ch, base, at, below_from)
+                                        : peak_abs<false>(ch, base, at, below_from);
   f->energy = energy;
   f->peak = peak;
   if (ch.fits32 ? clipped<true>(ch, base, peak, at, cfg.adc_min, cfg.adc_max)
