@@ -525,8 +525,6 @@ struct HumEnergy {
   }
 };
 
-
-
 // The hum model near the onset: the global fit misses a hum whose amplitude drifts by up to a few counts,
 // more than an onset threshold allows, so the scan tracks the residual (block mean - model) of the last
 // kLocalBlocks quiet blocks, a straight line through them extrapolated: b(i) = level + hum_at(i) + r +
