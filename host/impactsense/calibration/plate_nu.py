@@ -221,6 +221,36 @@ def predicted_chi2(r0, j0, theta, lo, hi, n_data) -> float:
     return float(np.sum(r[:n_data] ** 2))
 
 
+def _forward_jacobian(fun, th, hi) -> np.ndarray:
+    """d fun / d theta by forward steps STEPS (backward where a step would leave the upper bound hi)."""
+    f0 = fun(th)
+    cols = []
+    for i, s in enumerate(STEPS):
+        step = s if th[i] + s <= hi[i] else -s
+        t2 = th.copy()
+        t2[i] += step
+        cols.append((fun(t2) - f0) / step)
+    return np.stack(cols, axis=1)
+
+
+def _judge_start(r0, j0, theta, lo, hi, n_data, dof) -> tuple[float, float, str | None]:
+    """(chi^2 at the start, chi^2 predicted at the linearised optimum, why the round is not run or None): a round
+    whose predicted chi^2 / dof stays above STOP_CHI2_DOF cannot make nu claimable."""
+    chi2_start = float(np.sum(r0[:n_data] ** 2))
+    chi2_pred = predicted_chi2(r0, j0, theta, lo, hi, n_data)
+    if chi2_pred / max(dof, 1) <= STOP_CHI2_DOF:
+        return chi2_start, chi2_pred, None
+    return chi2_start, chi2_pred, (f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the start, "
+                                   f"{chi2_pred / max(dof, 1):.1f} predicted at the fit's linearised optimum, > "
+                                   f"{STOP_CHI2_DOF:g}: no (E, nu, D_s) fit can make nu claimable; not run")
+
+
+def _round_record(rnd, theta, chi2, dof, fem_runs, **extra) -> dict:
+    """One round of `fit` as the calibration's log keeps it (theta = ln E, nu, D_s)."""
+    return {"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
+            "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": fem_runs, **extra}
+
+
 def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
         nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=MAX_NFEV, progress=None) -> NuFit:
     """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
@@ -271,31 +301,18 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
                 cache[k] = r
             return cache[k]
 
-        def jac(th):
-            f0 = fun(th)
-            cols = []
-            for i, s in enumerate(STEPS):
-                step = s if th[i] + s <= hi[i] else -s
-                t2 = th.copy()
-                t2[i] += step
-                cols.append((fun(t2) - f0) / step)
-            return np.stack(cols, axis=1)
+        def jac(th, fun=fun):
+            return _forward_jacobian(fun, th, hi)
 
         # the trust-region fit's first step, predicted: its Jacobian at the start (the fit's own first one, so
         # nothing is wasted when it goes on) and the bounded linear least squares over (ln E, nu, D_s)
         r0, j0 = fun(theta), jac(theta)
         n_data = r0.size - (ds_prior is not None)
         dof = n_data - 2 * per_rep.shape[0] - 3
-        chi2_start = float(np.sum(r0[:n_data] ** 2))
-        chi2_pred = predicted_chi2(r0, j0, theta, lo, hi, n_data)
-        if chi2_pred / max(dof, 1) > STOP_CHI2_DOF:
+        chi2_start, chi2_pred, stopped = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
+        if stopped:
             chi2, sd = chi2_start, gauss_newton_sd(j0, chi2_start, dof)
-            log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
-                        "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache),
-                        "chi2_predicted": chi2_pred,
-                        "stopped": (f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the start, {chi2_pred / max(dof, 1):.1f} "
-                                    f"predicted at the fit's linearised optimum, > {STOP_CHI2_DOF:g}: no (E, nu, D_s) "
-                                    "fit can make nu claimable; not run")})
+            log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_predicted=chi2_pred, stopped=stopped))
             break
         sol = least_squares(fun, theta, jac=jac, bounds=(lo, hi), x_scale=np.array(STEPS), max_nfev=max_nfev,
                             method="trf")
@@ -303,9 +320,7 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
         r = fun(theta)
         chi2 = float(np.sum(r[:n_data] ** 2))
         sd = gauss_newton_sd(jac(theta), chi2, dof)
-        log.append({"round": rnd + 1, "E_mpa": float(np.exp(theta[0])), "nu": float(theta[1]),
-                    "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": len(cache),
-                    "chi2_start": chi2_start, "chi2_predicted": chi2_pred})
+        log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_start=chi2_start, chi2_predicted=chi2_pred))
         if rnd + 1 < rounds and chi2 / max(dof, 1) > STOP_CHI2_DOF:
             log[-1]["stopped"] = (f"chi^2 / dof {chi2 / max(dof, 1):.1f} > {STOP_CHI2_DOF:g}: the later rounds "
                                   "cannot make nu claimable")
