@@ -158,6 +158,11 @@ class Plate::Run {
   detail::StepArgs args_{};
   std::vector<Real> frow_;  // energy steps: explicit forces of one node row
   std::vector<Load> loads_;
+  // The light cone: node rows that may be off rest lie in rest_lo_..rest_hi_ (empty when lo > hi). A step
+  // moves a row's neighbours only, so the fused pass steps rest_lo_ - 1 .. rest_hi_ + 1 (StepArgs j_lo, j_hi).
+  // Tracked only without initial state and sub-cycled patches (cone_); else every row is stepped.
+  bool cone_ = false;
+  int rest_lo_ = 0, rest_hi_ = -1;
   RunResult res_;
   double zb_ = 0, vb_ = 0;  // ball: position (down = into the plate), velocity at half step
   bool in_contact_ = false;
@@ -175,6 +180,7 @@ class Plate::Run {
   void record(int64_t q, int r);
   void patch_loads();
   void advance_plate(bool energy, int64_t q);
+  void widen_cone();
   double advance_patches(bool energy);
   void check(int64_t n) const;
 };

@@ -103,6 +103,19 @@ void Plate::Run::patch_loads() {
   }
 }
 
+// After a step: its rows' neighbours and the rows of its nonzero loads may be off rest (a zero load adds +-0
+// to d and u at rest, which leaves them +0).
+void Plate::Run::widen_cone() {
+  if (!cone_) return;
+  if (rest_lo_ <= rest_hi_) rest_lo_ = std::max(0, rest_lo_ - 1), rest_hi_ = std::min(ny_, rest_hi_ + 1);
+  for (const Load& l : loads_) {
+    if (l.value == 0) continue;
+    const int j = static_cast<int>(l.node / rs_);
+    rest_lo_ = rest_lo_ <= rest_hi_ ? std::min(rest_lo_, j) : j;
+    rest_hi_ = std::max(rest_hi_, j);
+  }
+}
+
 // The plate's step: the fused pass and then the loads (u_{n+1} += beta P, d += beta P); on energy steps the
 // portable pass with the loads inside and the strain and kinetic energy accumulated (record sample q).
 void Plate::Run::advance_plate(bool energy, int64_t q) {
@@ -111,7 +124,10 @@ void Plate::Run::advance_plate(bool energy, int64_t q) {
   const size_t np = np_;
   const int64_t rs = rs_;
   if (!energy) {
+    args_.j_lo = rest_lo_ - 1;
+    args_.j_hi = rest_hi_ + 1;
     detail::step_fast(args_);
+    widen_cone();
     for (const Load& l : loads_) {
       const size_t k = static_cast<size_t>(l.field) * np + l.node;
       float* const dk = db + (l.node / rs) * 6 * rs + db_index(l.node % rs, l.field);
@@ -150,6 +166,7 @@ void Plate::Run::advance_plate(bool energy, int64_t q) {
                     u[k] += dn;
                   }
               });
+  widen_cone();
   for (size_t r = 0; r < p_.spring_node_.size(); ++r) {  // spring energy at u_n (springs are part of K)
     const double wn = double(u[at(p_.spring_node_[r])]) - double(db[d_at(0, p_.spring_node_[r])]);
     se += p_.spring_k_[r] * wn * wn;

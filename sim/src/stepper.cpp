@@ -28,10 +28,12 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
 #ifdef IMPACTSIM_FUSED
   static_assert(kLanes == 16 && kBetaOffset == kDbBeta, "d/beta layout differs from fused.h");
   float* const set[2] = {a.edge, a.edge + 6 * rs};
-  std::fill(set[0], set[0] + 6 * rs, 0.0f);
+  const int j_lo = std::max(a.j_lo, 0), j_hi = std::min(a.j_hi, a.ny);
+  if (j_lo > j_hi) return;
+  std::fill(set[0], set[0] + 6 * rs, 0.0f);  // element row j_lo - 1 joins rows at rest: no forces
   int cur = 0;
   FusedRow fr;
-  for (int j = 0; j <= a.ny; ++j) {
+  for (int j = j_lo; j <= j_hi; ++j) {
     for (int f = 0; f < 3; ++f) {
       fr.u0[f] = u + f * np + j * rs;
       fr.u1[f] = u + f * np + (j < a.ny ? j + 1 : j) * rs;

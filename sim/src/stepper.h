@@ -45,6 +45,9 @@ struct StepArgs {
   const uint8_t* scaled_block;   // [scaled row][16-element block]: 1 if the block holds a special element
   const float* scale;            // [scaled row][D / D0 (rs floats), S / S0 (rs floats)]
   int64_t nblocks;
+  // fused path: the node rows to step, j_lo..j_hi (clipped to 0..ny; none when j_lo > j_hi). Rows outside
+  // must be at rest (u = d = 0): their forces are then zero, so skipping them gives the same floats.
+  int j_lo = 0, j_hi = 1 << 30;
 };
 
 void step_fast(const StepArgs& a);
