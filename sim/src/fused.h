@@ -133,12 +133,22 @@ IMPACTSIM_INLINE void element_block(int i0, v16 mask, const Coef<float>& k, floa
                db + 2 * kLanes);
 }
 
+// Blocks b_lo..b_hi only (16-node blocks; nodes outside at rest, so the carry into b_lo is zero).
 template <bool Coupled>
 IMPACTSIM_INLINE void fused_row_of(int nx, const Coef<float>& k, float alpha, const FusedRow& r,
-                                   const uint8_t* scaled, const float* ds, const float* ss) {
+                                   const uint8_t* scaled, const float* ds, const float* ss, int b_lo, int b_hi) {
   v16 carry[3] = {v16{}, v16{}, v16{}};
   const int full = nx / kLanes;
-  for (int b = 0; b < full; ++b) {
+  if (b_hi < full) {
+    for (int b = b_lo; b <= b_hi; ++b) {
+      if (scaled && scaled[b])
+        element_block<false, true, Coupled>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
+      else
+        element_block<false, false, Coupled>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
+    }
+    return;
+  }
+  for (int b = b_lo; b < full; ++b) {
     if (scaled && scaled[b])
       element_block<false, true, Coupled>(b * kLanes, v16{}, k, alpha, r, ds, ss, carry);
     else
@@ -166,17 +176,17 @@ IMPACTSIM_INLINE void fused_row_of(int nx, const Coef<float>& k, float alpha, co
 // Element row j (nx elements) and node row j (nodes 0..nx). scaled: null, or one flag per block (then ds, ss
 // hold the row's stiffness ratios, see element_block).
 IMPACTSIM_INLINE void fused_row(int nx, const Coef<float>& k, float alpha, const FusedRow& r, const uint8_t* scaled,
-                                const float* ds, const float* ss) {
+                                const float* ds, const float* ss, int b_lo, int b_hi) {
   if (k.coupled)
-    fused_row_of<true>(nx, k, alpha, r, scaled, ds, ss);
+    fused_row_of<true>(nx, k, alpha, r, scaled, ds, ss, b_lo, b_hi);
   else
-    fused_row_of<false>(nx, k, alpha, r, scaled, ds, ss);
+    fused_row_of<false>(nx, k, alpha, r, scaled, ds, ss, b_lo, b_hi);
 }
 
 // The last node row (ny): forces from element row ny - 1 only (r.in), nodes 0..nx.
-IMPACTSIM_INLINE void last_row(int nx, float alpha, const FusedRow& r) {
+IMPACTSIM_INLINE void last_row(int nx, float alpha, const FusedRow& r, int b_lo, int b_hi) {
   v16 carry[3] = {v16{}, v16{}, v16{}};
-  for (int i0 = 0; i0 <= nx; i0 += kLanes)
+  for (int i0 = b_lo * kLanes; i0 <= nx && i0 <= b_hi * kLanes; i0 += kLanes)
     for (int fld = 0; fld < 3; ++fld)
       update_block(i0, vload(r.in + 6 * i0 + 2 * fld * kLanes), vload(r.in + 6 * i0 + (2 * fld + 1) * kLanes),
                    carry[fld], alpha, r.u0[fld],

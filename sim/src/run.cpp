@@ -50,7 +50,7 @@ Plate::Run::Run(const Plate& plate, const RunConfig& c)
   init_scale_tables();
   cone_ = msub_ == 1 && c.w0.empty() && c.bx0.empty() && c.by0.empty() && c.vw0.empty() && c.vbx0.empty() &&
           c.vby0.empty();
-  if (!cone_) rest_lo_ = 0, rest_hi_ = ny_;
+  if (!cone_) rest_lo_ = 0, rest_hi_ = ny_, rest_clo_ = 0, rest_chi_ = nx_;
   args_ = StepArgs{nx_, ny_, rs_, np_, &p_.base_f_, p_.special_.data(), p_.row_start_.data(), u_, db_, alpha_,
                    &acc_, edge_.p, scaled_row_.data(), scaled_block_.data(), scale_.data(), nblocks_};
 }

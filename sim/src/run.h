@@ -158,11 +158,12 @@ class Plate::Run {
   detail::StepArgs args_{};
   std::vector<Real> frow_;  // energy steps: explicit forces of one node row
   std::vector<Load> loads_;
-  // The light cone: node rows that may be off rest lie in rest_lo_..rest_hi_ (empty when lo > hi). A step
-  // moves a row's neighbours only, so the fused pass steps rest_lo_ - 1 .. rest_hi_ + 1 (StepArgs j_lo, j_hi).
+  // The light cone: nodes that may be off rest lie in rows rest_lo_..rest_hi_ and columns rest_clo_..rest_chi_
+  // (empty when lo > hi). A step moves a node's neighbours only, so the fused pass steps one row and column
+  // more on each side (StepArgs j_lo, j_hi, b_lo, b_hi).
   // Tracked only without initial state and sub-cycled patches (cone_); else every row is stepped.
   bool cone_ = false;
-  int rest_lo_ = 0, rest_hi_ = -1;
+  int rest_lo_ = 0, rest_hi_ = -1, rest_clo_ = 0, rest_chi_ = -1;  // rows, then columns (nodes)
   RunResult res_;
   double zb_ = 0, vb_ = 0;  // ball: position (down = into the plate), velocity at half step
   bool in_contact_ = false;

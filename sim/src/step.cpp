@@ -107,12 +107,18 @@ void Plate::Run::patch_loads() {
 // to d and u at rest, which leaves them +0).
 void Plate::Run::widen_cone() {
   if (!cone_) return;
-  if (rest_lo_ <= rest_hi_) rest_lo_ = std::max(0, rest_lo_ - 1), rest_hi_ = std::min(ny_, rest_hi_ + 1);
+  if (rest_lo_ <= rest_hi_) {
+    rest_lo_ = std::max(0, rest_lo_ - 1), rest_hi_ = std::min(ny_, rest_hi_ + 1);
+    rest_clo_ = std::max(0, rest_clo_ - 1), rest_chi_ = std::min(nx_, rest_chi_ + 1);
+  }
   for (const Load& l : loads_) {
     if (l.value == 0) continue;
-    const int j = static_cast<int>(l.node / rs_);
-    rest_lo_ = rest_lo_ <= rest_hi_ ? std::min(rest_lo_, j) : j;
-    rest_hi_ = std::max(rest_hi_, j);
+    const int j = static_cast<int>(l.node / rs_), i = static_cast<int>(l.node % rs_);
+    const bool empty = rest_lo_ > rest_hi_;
+    rest_lo_ = empty ? j : std::min(rest_lo_, j);
+    rest_hi_ = empty ? j : std::max(rest_hi_, j);
+    rest_clo_ = empty ? i : std::min(rest_clo_, i);
+    rest_chi_ = empty ? i : std::max(rest_chi_, i);
   }
 }
 
@@ -126,6 +132,8 @@ void Plate::Run::advance_plate(bool energy, int64_t q) {
   if (!energy) {
     args_.j_lo = rest_lo_ - 1;
     args_.j_hi = rest_hi_ + 1;
+    args_.b_lo = std::max(0, rest_clo_ - 1) / 16;
+    args_.b_hi = rest_lo_ <= rest_hi_ ? std::min(nx_, rest_chi_ + 1) / 16 : -1;
     detail::step_fast(args_);
     widen_cone();
     for (const Load& l : loads_) {

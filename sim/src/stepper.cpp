@@ -29,7 +29,8 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
   static_assert(kLanes == 16 && kBetaOffset == kDbBeta, "d/beta layout differs from fused.h");
   float* const set[2] = {a.edge, a.edge + 6 * rs};
   const int j_lo = std::max(a.j_lo, 0), j_hi = std::min(a.j_hi, a.ny);
-  if (j_lo > j_hi) return;
+  const int b_lo = std::max(a.b_lo, 0), b_hi = std::min(a.b_hi, a.nx / kLanes);
+  if (j_lo > j_hi || b_lo > b_hi) return;
   std::fill(set[0], set[0] + 6 * rs, 0.0f);  // element row j_lo - 1 joins rows at rest: no forces
   int cur = 0;
   FusedRow fr;
@@ -42,15 +43,15 @@ IMPACTSIM_CLONES void step_fast(const StepArgs& a) {
     fr.in = set[cur];
     fr.out = set[1 - cur];
     if (j == a.ny) {
-      last_row(a.nx, alpha, fr);
+      last_row(a.nx, alpha, fr, b_lo, b_hi);
       break;
     }
     const int64_t sr = a.scaled_row[j];  // rows with disc elements: per-element stiffness on their blocks
     if (sr >= 0)
       fused_row(a.nx, *a.base, alpha, fr, a.scaled_block + sr * a.nblocks, a.scale + 2 * sr * rs,
-                        a.scale + (2 * sr + 1) * rs);
+                        a.scale + (2 * sr + 1) * rs, b_lo, b_hi);
     else
-      fused_row(a.nx, *a.base, alpha, fr, nullptr, nullptr, nullptr);
+      fused_row(a.nx, *a.base, alpha, fr, nullptr, nullptr, nullptr, b_lo, b_hi);
     cur = 1 - cur;
   }
 #else

@@ -48,6 +48,7 @@ struct StepArgs {
   // fused path: the node rows to step, j_lo..j_hi (clipped to 0..ny; none when j_lo > j_hi). Rows outside
   // must be at rest (u = d = 0): their forces are then zero, so skipping them gives the same floats.
   int j_lo = 0, j_hi = 1 << 30;
+  int b_lo = 0, b_hi = 1 << 30;  // likewise the 16-node blocks of each row (node i in block i / 16)
 };
 
 void step_fast(const StepArgs& a);
