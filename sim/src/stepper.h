@@ -17,12 +17,35 @@ namespace detail {
 constexpr int kDbBeta = 48;
 inline size_t db_index(int64_t i, int f) { return static_cast<size_t>((i / 16) * 96 + f * 16 + i % 16); }
 
-struct AlignedFloats {  // zero-initialised, 64-byte aligned
+// zero-initialised, 64-byte aligned. The storage of a run's buffers is kept per thread for the next run of
+// the thread (a batch of short runs, e.g. the contact windows, would otherwise fault fresh pages in each time).
+struct AlignedFloats {
   std::vector<float> raw;
   float* p;
-  explicit AlignedFloats(size_t n) : raw(n + 16, 0.0f) {
+  explicit AlignedFloats(size_t n) {
+    std::vector<std::vector<float>>& pool = spare();
+    for (size_t k = 0; k < pool.size(); ++k)
+      if (pool[k].capacity() >= n + 16) {
+        raw.swap(pool[k]);
+        pool.erase(pool.begin() + static_cast<std::ptrdiff_t>(k));
+        break;
+      }
+    raw.assign(n + 16, 0.0f);
     const size_t mis = reinterpret_cast<uintptr_t>(raw.data()) % 64;
     p = raw.data() + (mis ? (64 - mis) / sizeof(float) : 0);
+  }
+  ~AlignedFloats() {
+    std::vector<std::vector<float>>& pool = spare();
+    if (pool.size() < kSpare && raw.capacity() > 0) pool.push_back(std::move(raw));
+  }
+  AlignedFloats(const AlignedFloats&) = delete;
+  AlignedFloats& operator=(const AlignedFloats&) = delete;
+
+ private:
+  static constexpr size_t kSpare = 8;  // a run holds 4 (and 3 per sub-cycled patch)
+  static std::vector<std::vector<float>>& spare() {
+    thread_local std::vector<std::vector<float>> pool;
+    return pool;
   }
 };
 
