@@ -255,6 +255,17 @@ struct ScreenCost {
   explicit ScreenCost(const Problem& problem) : p(problem) {}
   IC_INLINE float operator()(float x, float y) const { return l2_cost<M, kIso>(p, x, y); }
 };
+// Four residuals' sum of squares about their mean, in l2_cost's order of operations.
+IC_INLINE float centred_ss4(float r0, float r1, float r2, float r3) {
+  const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
+  float ss = 0.0f;
+  ss += (r0 - mean) * (r0 - mean);
+  ss += (r1 - mean) * (r1 - mean);
+  ss += (r2 - mean) * (r2 - mean);
+  ss += (r3 - mean) * (r3 - mean);
+  return ss;
+}
+
 template <>
 struct ScreenCost<4, true> {
   float t0, t1, t2, t3, x0, x1, x2, x3, y0, y1, y2, y3, v0, v1, v2, v3;
@@ -267,13 +278,7 @@ struct ScreenCost<4, true> {
     const float r1 = t1 - dist(x - x1, y - y1) * v1;
     const float r2 = t2 - dist(x - x2, y - y2) * v2;
     const float r3 = t3 - dist(x - x3, y - y3) * v3;
-    const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
-    float ss = 0.0f;
-    ss += (r0 - mean) * (r0 - mean);
-    ss += (r1 - mean) * (r1 - mean);
-    ss += (r2 - mean) * (r2 - mean);
-    ss += (r3 - mean) * (r3 - mean);
-    return ss;
+    return centred_ss4(r0, r1, r2, r3);
   }
 };
 
@@ -296,13 +301,7 @@ struct ScreenCost<4, false> {
     const float r1 = t1 - metric(x - x1, y - y1) * v1;
     const float r2 = t2 - metric(x - x2, y - y2) * v2;
     const float r3 = t3 - metric(x - x3, y - y3) * v3;
-    const float mean = ((((0.0f + r0) + r1) + r2) + r3) / 4.0f;
-    float ss = 0.0f;
-    ss += (r0 - mean) * (r0 - mean);
-    ss += (r1 - mean) * (r1 - mean);
-    ss += (r2 - mean) * (r2 - mean);
-    ss += (r3 - mean) * (r3 - mean);
-    return ss;
+    return centred_ss4(r0, r1, r2, r3);
   }
 };
 
