@@ -166,10 +166,10 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
 TWIN_MAX_TREES = 15
 
 # The flash budget (issue 17) is for the project's code and models together: the models get what the firmware's
-# own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow)
-# leaves of 256 KB.
+# own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow;
+# tests/test_board_build.py holds the real code to it) leaves of 256 KB.
 FLASH_BUDGET_BYTES = 256 * 1024
-FIRMWARE_CODE_BYTES = 56 * 1024
+FIRMWARE_CODE_BYTES = 62 * 1024
 MODELS_FLASH_BUDGET = FLASH_BUDGET_BYTES - FIRMWARE_CODE_BYTES
 
 
