@@ -110,9 +110,10 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
     material), `signal` with its travel models fitted again on the calibration drops `rows` at their known
     positions (travel.fit_travel: velocity, channel delays, the metric and the dispersion exponent of the
     threshold picks; velocity, delays and metric of the band picks when they are on, at the virtual drops'
-    band frequency and fraction, the energy slowness's slope kept). The twin's anisotropy is the calibration's fast model's guess, and the FEM's
-    picks do not follow it closely (docs/findings.md "Zero-shot on rig-b / rig-c"), so on such a plate the
-    measured picks' own travel model reads the rig better than the twin's corrected by delays and a speed
+    band frequency and fraction, the energy slowness's slope kept). The twin's anisotropy is the calibration's
+    fast model's guess, and the FEM's picks do not follow it closely (docs/findings.md, the zero-shot section
+    on the laminate: the FEM twin against the measured DToA), so on such a plate the measured picks' own travel
+    model reads the rig better than the twin's corrected by delays and a speed
     (fit_channels_on_calibration_drops); the onset threshold, AIC blend and band choice stay the virtual
     drops'. Returns (signal unchanged and {} when fewer than 8 drops have every pick; else the refitted
     signal and the record of the fit)."""
