@@ -56,6 +56,7 @@ PRINT_ONLY = {
     "bench_edge_energy": [],
     "bench_surrogates": [],
     "bench_class_cues": ["--seeds", "1"],             # height cues besides the energy; the class's bound
+    "bench_move_energy": [],                          # a moved disc's energy against the distance law (issue 16)
     "bench_class_field": ["--seeds", "1"],            # late energy, a learnt position field, the heights
 }
 
