@@ -172,10 +172,19 @@ def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
     return (xd, yd, hd, case, rep), adc
 
 
-def settings_key(args) -> dict:
+def file_digest(path) -> str:
+    """The content's hash: a session folder's cache key must not change with the checkout it is built from."""
+    import hashlib
+
+    if str(path) == "rig" or not Path(path).is_file():
+        return str(path)
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def settings_key(args, rig) -> dict:
     return {"cases": args.cases, "ref_cases": args.ref_cases, "reps": args.reps, "element_mm": args.element_mm, "jitter_mm": args.jitter_mm,
             "duration_ms": args.duration_ms, "signal_change": "before the noise",
-            "rig": str(args.rig), "calibration": str(args.calibration), "seed": args.seed}
+            "rig": repr(rig), "calibration": file_digest(args.calibration), "seed": args.seed}
 
 
 def twin_params(params, args):
@@ -204,8 +213,9 @@ def generate(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     man_path = out / "manifest.json"
     man = json.loads(man_path.read_text()) if man_path.exists() else {}
-    if man.get("settings") != settings_key(args):
-        man = {"settings": settings_key(args), "sessions": {}}
+    key = settings_key(args, rig)
+    if man.get("settings") != key:
+        man = {"settings": key, "sessions": {}}
     only = set(args.only.split(",")) if args.only else None
     for spec in spec_list(args.seed):
         if only and spec["name"] not in only:
