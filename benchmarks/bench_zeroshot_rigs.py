@@ -124,10 +124,12 @@ def drop_choices(data: str, draws: int) -> list[list[int]]:
     if draws <= 1:
         return [[]]
     from impactsense.calibration.drops import case_table, extract
+    from impactsense.calibration.options import CalibrateOptions
+    from impactsense.calibration.problem import measured_core_config
     from impactsense.data import load_session
 
-    session = load_session(data)
-    cases, _ = case_table(session, extract(session))
+    session = load_session(data)       # the cases calibrate's defaults accept (its picker, Eq. 35 rule)
+    cases, _ = case_table(session, extract(session, measured_core_config(session.rig, CalibrateOptions())))
     return [[]] + [drawn_drops(session, cases, d) for d in range(1, draws)]
 
 
