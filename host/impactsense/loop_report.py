@@ -82,6 +82,11 @@ def _rival(e: dict) -> str:
     return text
 
 
+def _levels(picker: dict) -> str:
+    """A timing picker's onset threshold, or its thresholds whose picks are averaged ("10 + 20")."""
+    return " + ".join(f"{v:g}" for v in picker.get("onset_threshold_levels") or [picker["onset_threshold_counts"]])
+
+
 def summary_lines(result: dict) -> list[str]:
     lines = ["# impactsense diagnose", "", f"- baseline: {result['baseline']}", f"- data: {result['data']}",
              f"- reference: {result['reference']}", "",
@@ -111,8 +116,10 @@ def summary_lines(result: dict) -> list[str]:
     if trials:
         lines += ["", "Timing picks tried on the baseline (held-out DToA of its reference, µs; "
                       f"chosen: {json.dumps(result.get('timing_picker')) if result.get('timing_picker') else 'the AIC onset'}):",
-                  "", "| onset threshold | AIC blend | dispersion exponent | held-out DToA µs |", "|---|---|---|---|"]
-        lines += [f"| {t['onset_threshold_counts']:g} | {t['aic_blend']:.2f} | {t.get('dispersion_exponent', 0.0):.3f} | "
+                  "", "| onset threshold (a + b: their picks' mean) | AIC blend | dispersion exponent | "
+                      "held-out DToA µs |",
+                  "|---|---|---|---|"]
+        lines += [f"| {_levels(t)} | {t['aic_blend']:.2f} | {t.get('dispersion_exponent', 0.0):.3f} | "
                   f"{t['heldout_dtoa_us']:.2f} |" for t in trials]
     lines += ["", f"core_config: {json.dumps(result['core_config'])}", "",
               "Figures: dtoa_residual_map_{before,after}.png, toa_residual_vs_distance_{before,after}.png"]

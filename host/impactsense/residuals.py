@@ -17,7 +17,9 @@ which does not slide with amplitude; `site_reference.choose_picker` picks, on th
 onset threshold and AIC blend whose reference explains held-out drops best (a threshold crossing is steadier
 on a dispersive plate), with the picked cycle's dispersion taken out where the travel fit keeps it
 (`dispersion_corrected`, the core localiser's model); the amplitude dependence of such picks is then the
-measured timing part of a gain change (`effects.sensor_gain`, `pick_toa_us`).
+measured timing part of a gain change (`effects.sensor_gain`, `pick_toa_us`). A picker may carry several
+onset thresholds (`onset_threshold_levels`): the core picks at each and the pick is their mean, steadier
+than any one level (each crossing's noise is partly its own).
 """
 
 from __future__ import annotations
@@ -52,7 +54,8 @@ TIMING_PICKER = {"aic_blend": 1.0, "rig_delay_us": [0.0, 0.0, 0.0, 0.0]}
 
 
 PICK_KEYS = ("onset_threshold_counts", "aic_blend")   # a picker's core settings; its other keys are the
-# dispersion of its picks (`dispersion_corrected`)
+# dispersion of its picks (`dispersion_corrected`) and the thresholds whose picks are averaged (LEVELS_KEY)
+LEVELS_KEY = "onset_threshold_levels"
 
 
 def timing_picker(picker: dict | None = None) -> dict:
@@ -182,13 +185,33 @@ def hum_white_gain(fs_hz: float, samples: int) -> np.ndarray:
     return np.array([cov[2] + cov[3], cov[4] + cov[5]])
 
 
+def core_picks(session: Session, picker: dict | None) -> tuple[dict, np.ndarray]:
+    """The core's features by `timing_picker(picker)` and the picks (µs, [R, 4]): the core's ToA, or where the
+    picker lists onset_threshold_levels the mean of the core's ToA at each level (the other features are the
+    first level's; a channel without a crossing at some level keeps the mean of the levels it crossed)."""
+    levels = list((picker or {}).get(LEVELS_KEY) or [])
+    cfg = core_config(session.rig, **timing_picker(picker))
+    samples = core_samples(session.adc, cfg)
+    f = _core.extract_batch(samples, cfg)
+    if len(levels) < 2:
+        return f, np.asarray(f["toa_us"], float)
+    toa = [np.asarray(f["toa_us"], float)]
+    for level in levels[1:]:
+        cfg.onset_threshold_counts = float(level)
+        toa.append(np.asarray(_core.extract_batch(samples, cfg)["toa_us"], float))
+    with np.errstate(invalid="ignore"):
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # no level crossed: NaN, as the core's own
+            return f, np.nanmean(np.stack(toa), axis=0)
+
+
 def extract(session: Session, picker: dict | None = None) -> Features:
     """Features of every drop of a session: core features (ToA by `timing_picker(picker)`, the AIC onset by
-    default) plus host diagnostics (their windows start at the AIC onset whatever the picker)."""
+    default; `core_picks`) plus host diagnostics (their windows start at the AIC onset whatever the picker)."""
     rig = session.rig
-    cfg = core_config(rig, **timing_picker(picker))
-    f = _core.extract_batch(core_samples(session.adc, cfg), cfg)
-    toa = dispersion_corrected(f["toa_us"], f["pick_period"], session.x_mm, session.y_mm, rig.sensor_xy_mm,
+    f, picks = core_picks(session, picker)
+    toa = dispersion_corrected(picks, f["pick_period"], session.x_mm, session.y_mm, rig.sensor_xy_mm,
                                float(rig.fs_hz), picker)
     onset = np.asarray(f["toa_aic"], float)
     logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts))
@@ -226,11 +249,10 @@ def dispersion_corrected(toa_us, period_samples, x_mm, y_mm, sensor_xy_mm, fs_hz
 
 
 def repick(session: Session, F: Features, picker: dict | None) -> Features:
-    """F (features of `session`) with its ToA picked again by `timing_picker(picker)`."""
-    cfg = core_config(session.rig, **timing_picker(picker))
-    f = _core.extract_batch(core_samples(session.adc, cfg), cfg)
+    """F (features of `session`) with its ToA picked again by `timing_picker(picker)` (`core_picks`)."""
+    f, picks = core_picks(session, picker)
     period = np.asarray(f["pick_period"], float)
-    toa = dispersion_corrected(f["toa_us"], period, F.x_mm, F.y_mm, F.sensor_xy_mm, F.fs_hz, picker)
+    toa = dispersion_corrected(picks, period, F.x_mm, F.y_mm, F.sensor_xy_mm, F.fs_hz, picker)
     return replace(F, toa_us=toa, picker=dict(picker) if picker else None, pick_period=period)
 
 

@@ -157,12 +157,16 @@ def halves(F: R.Features, seed: int = 0) -> dict:
     one half of the cases, scored on the other, both ways), against the physics reference alone."""
     a, b = _half_split(F.case_id, seed)
     sq = {"physics": 0.0, "site": 0.0}
+    directions = []   # (physics, site) scored on the second half, then on the first
     for train, test in ((a, b), (b, a)):
         Ftr, Fte = F.subset(train), F.subset(test)
         ref = R.fit_reference(Ftr, "calibrated")
-        sq["physics"] += dtoa_rms(ref, Fte) ** 2 * len(test)
-        sq["site"] += dtoa_rms(ref, fit_site(ref, Ftr).attach(Fte)) ** 2 * len(test)
+        one = (dtoa_rms(ref, Fte), dtoa_rms(ref, fit_site(ref, Ftr).attach(Fte)))
+        directions.append(one)
+        sq["physics"] += one[0] ** 2 * len(test)
+        sq["site"] += one[1] ** 2 * len(test)
     out = {k: float(np.sqrt(v / len(F))) for k, v in sq.items()}
+    out["directions"] = directions
     floor = within_case_dtoa_rms(F)
     out["within_case"] = floor
     out["excess_physics"] = float(np.sqrt(max(out["physics"] ** 2 - floor ** 2, 0.0)))
@@ -170,10 +174,80 @@ def halves(F: R.Features, seed: int = 0) -> dict:
     return out
 
 
+
+def _null_direction(p_mm: np.ndarray, sensor_xy_mm: np.ndarray, slowness_us_per_mm: float) -> np.ndarray:
+    """The unit 4-vector of channel times no change of origin time or of impact position (to first order)
+    can make at p_mm: orthogonal to the ones and to the two columns of d ToA / d position."""
+    diff = p_mm[None, :] - sensor_xy_mm
+    grad = slowness_us_per_mm * diff / np.maximum(np.hypot(diff[:, 0], diff[:, 1]), 1e-6)[:, None]
+    q, _ = np.linalg.qr(np.column_stack([np.ones(4), grad]), mode="complete")
+    return q[:, 3]
+
+
+def floor_parts(F: R.Features, ref: R.Reference | None = None) -> dict:
+    """What the within-case floor and the reference's excess over it are made of (µs of DToA rms unless named).
+
+    Repeated drops of one case share the declared position; the ball lands a little apart. A landing offset
+    moves the four times along d ToA / d position, an origin time along the ones: the one direction left
+    (`_null_direction`) holds only timing that no position explains. With independent picks of equal spread
+    sigma per channel that direction carries sigma², so:
+    - pick_noise: sqrt(2) sigma (the picks' own DToA spread), landing: what the within-case floor holds beyond
+      it (0 when the floor is all pick noise);
+    - case_timing: the case means' excess in that direction over sigma² / n (x sqrt 2): a per-case timing
+      error no mis-marked or scattered position makes (the picks' waveform-dependent bias at that spot);
+    - case_shift_mm: the rms position shift per axis the case means ask for beyond their pick noise's share
+      (a mis-marked position);
+    - case_near / case_far: the case means' DToA residual semivariance (sqrt, less the within-case part) for
+      neighbouring cases (closer than 1.5 x the median nearest-case spacing) and for all pairs: equal means
+      the per-case error is white at the cases' spacing, which no smooth function of position learns."""
+    ref = R.fit_reference(F, "calibrated") if ref is None else ref
+    r = F.toa_us - ref.toa_pred(F)
+    ids, inv = np.unique(F.case_id, return_inverse=True)
+    null_dev, case_null, shifts, means, xy, counts = [], [], [], [], [], []
+    for c in range(len(ids)):
+        rows = np.flatnonzero(inv == c)
+        x = r[rows][np.all(np.isfinite(r[rows]), axis=1)]
+        if len(x) < 2:
+            continue
+        p = np.array([F.x_mm[rows[0]], F.y_mm[rows[0]]])
+        nvec = _null_direction(p, F.sensor_xy_mm, ref.slowness_us_per_mm)
+        m = x.mean(axis=0)
+        null_dev.append(float(np.sum(((x - m) @ nvec) ** 2)) / (len(x) - 1))
+        case_null.append(((m @ nvec) ** 2, len(x)))
+        diff = p[None, :] - F.sensor_xy_mm
+        grad = ref.slowness_us_per_mm * diff / np.hypot(diff[:, 0], diff[:, 1])[:, None]
+        design = np.column_stack([np.ones(4), grad])
+        sol = np.linalg.lstsq(design, m, rcond=None)[0]
+        # the shift's share of the case mean's pick noise (sigma² / n, sigma from the null direction below)
+        shifts.append((sol[1:] ** 2, np.diag(np.linalg.inv(design.T @ design))[1:] / len(x)))
+        means.append(m - m.mean())
+        xy.append(p)
+        counts.append(len(x))
+    sigma2 = float(np.mean(null_dev))
+    floor = within_case_dtoa_rms(F)
+    cn = np.array(case_null)
+    out = {"within_case": floor, "pick_noise": float(np.sqrt(2.0 * sigma2)),
+           "landing": float(np.sqrt(max(floor ** 2 - 2.0 * sigma2, 0.0))),
+           "case_timing": float(np.sqrt(2.0 * max(np.mean(cn[:, 0] - sigma2 / cn[:, 1]), 0.0))),
+           "case_shift_mm": float(np.sqrt(max(np.mean([sq - sigma2 * unit for sq, unit in shifts]), 0.0)))}
+    means, xy, counts = np.array(means), np.array(xy), np.array(counts, float)
+    dt = means[:, R.PAIR_I] - means[:, R.PAIR_J]
+    dist = np.hypot(xy[:, 0, None] - xy[:, 0], xy[:, 1, None] - xy[:, 1])
+    iu = np.triu_indices(len(xy), 1)
+    semi = 0.5 * np.mean((dt[:, None, :] - dt[None, :, :]) ** 2, axis=2)[iu]
+    noise = 0.5 * floor ** 2 * (1.0 / counts[:, None] + 1.0 / counts[None, :])[iu]
+    near = dist[iu] < 1.5 * np.median(np.sort(dist, axis=1)[:, 1])
+    out["case_near"] = float(np.sqrt(max(np.mean((semi - noise)[near]), 0.0))) if near.any() else float("nan")
+    out["case_far"] = float(np.sqrt(max(np.mean(semi - noise), 0.0)))
+    return out
+
+
 # Timing pickers tried on the reference session: multiples of the rig's onset threshold and AIC blends (1: the
-# AIC onset, the default; the rig's configured blend; 0: the threshold crossing). Another than the default is
-# kept when its held-out DToA is below PICKER_GAIN x the default's.
+# AIC onset, the default; the rig's configured blend; 0: the threshold crossing), and for the crossings (blend
+# < 1) the mean of the picks at several multiples (PICKER_LEVEL_SETS: `residuals.core_picks`). Another than the
+# default is kept when its held-out DToA is below PICKER_GAIN x the default's.
 PICKER_THRESHOLD_FACTORS = (1.0, 2.0, 3.0)
+PICKER_LEVEL_SETS = ((1.0, 2.0), (1.0, 1.5, 2.0, 3.0))
 PICKER_BLENDS = (1.0, 0.0)
 PICKER_GAIN = 0.9
 _PICKERS: dict = {}
@@ -196,18 +270,22 @@ def choose_picker(session, F: R.Features | None = None, seed: int = 0) -> tuple[
     cfg = core_config(session.rig)
     base_thr, rig_blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
     blends = list(dict.fromkeys([float(b) for b in (PICKER_BLENDS[0], rig_blend) + PICKER_BLENDS[1:]]))
+    candidates = [{"onset_threshold_counts": base_thr * f, "aic_blend": blend}
+                  for f in PICKER_THRESHOLD_FACTORS for blend in blends]
+    candidates += [{"onset_threshold_counts": base_thr * levels[0], "aic_blend": blend,
+                    R.LEVELS_KEY: [base_thr * f for f in levels]}
+                   for levels in PICKER_LEVEL_SETS for blend in blends if blend < 1.0]
     trials = []
-    for f in PICKER_THRESHOLD_FACTORS:
-        for blend in blends:
-            picker = {"onset_threshold_counts": base_thr * f, "aic_blend": blend}
-            Fp = F if (f == 1.0 and blend == R.TIMING_PICKER["aic_blend"]) else R.repick(session, F, picker)
-            if np.all(np.isfinite(Fp.toa_us), axis=1).sum() < 8:
-                continue
-            trials.append({"picker": picker, "heldout_dtoa_us": halves(Fp, seed)["site"]})
-            disp = _dispersion(Fp)
-            if disp:
-                Fd = R.repick(session, F, {**picker, **disp})
-                trials.append({"picker": Fd.picker, "heldout_dtoa_us": halves(Fd, seed)["site"]})
+    for picker in candidates:
+        is_default = picker == {"onset_threshold_counts": base_thr, "aic_blend": R.TIMING_PICKER["aic_blend"]}
+        Fp = F if is_default else R.repick(session, F, picker)
+        if np.all(np.isfinite(Fp.toa_us), axis=1).sum() < 8:
+            continue
+        trials.append({"picker": picker, "heldout_dtoa_us": halves(Fp, seed)["site"]})
+        disp = _dispersion(Fp)
+        if disp:
+            Fd = R.repick(session, F, {**picker, **disp})
+            trials.append({"picker": Fd.picker, "heldout_dtoa_us": halves(Fd, seed)["site"]})
     default = trials[0]
     best = min(trials, key=lambda t: t["heldout_dtoa_us"])
     keep = best is not default and best["heldout_dtoa_us"] < PICKER_GAIN * default["heldout_dtoa_us"]
