@@ -1,7 +1,9 @@
 """The residual reference's DToA floor (issue 16): the reference (physics + site terms) fitted on one half of a
 session's cases and scored on the other, both ways, against the repeated drops' own scatter.
 
-    python3 benchmarks/bench_reference_floor.py [SESSION ...]   (default: the bundled session-1 and session-2)
+    python3 benchmarks/bench_reference_floor.py [--mean-levels] [SESSION ...]
+        (default: the bundled session-1 and session-2; --mean-levels: `choose_picker` also tries the mean of the
+        core's picks at several thresholds, `site_reference.MEAN_LEVEL_SETS`, which `diagnose` does not)
 
 Prints, per session and for two timing picks (the AIC onset, and the picks `diagnose` reads:
 `impactsense.site_reference.choose_picker`: the onset threshold, or the mean of the picks at several ("10 +
@@ -25,9 +27,11 @@ TARGET_US = 3.0
 def main(argv=None) -> int:
     from impactsense import residuals as R
     from impactsense.data import load_session
-    from impactsense.site_reference import choose_picker, floor_parts, halves
+    from impactsense.site_reference import MEAN_LEVEL_SETS, choose_picker, floor_parts, halves
 
-    names = (argv if argv is not None else sys.argv[1:]) or ["bundled:session-1", "bundled:session-2"]
+    args = list(argv if argv is not None else sys.argv[1:])
+    level_sets = MEAN_LEVEL_SETS if "--mean-levels" in args else ()
+    names = [a for a in args if a != "--mean-levels"] or ["bundled:session-1", "bundled:session-2"]
     miss = 0
     print("| session | drops | picks | physics us | + site terms us (each direction) | within-case floor us | "
           "excess over floor (physics / site) us |")
@@ -36,7 +40,7 @@ def main(argv=None) -> int:
     for name in names:
         session = load_session(name)
         F = R.extract(session)
-        picker, _ = choose_picker(session, F)
+        picker, _ = choose_picker(session, F, level_sets=level_sets)
         rows = [("AIC onset", F)]
         if picker is not None:
             levels = picker.get(R.LEVELS_KEY) or [picker["onset_threshold_counts"]]

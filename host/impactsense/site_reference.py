@@ -243,27 +243,32 @@ def floor_parts(F: R.Features, ref: R.Reference | None = None) -> dict:
 
 
 # Timing pickers tried on the reference session: multiples of the rig's onset threshold and AIC blends (1: the
-# AIC onset, the default; the rig's configured blend; 0: the threshold crossing), and for the crossings (blend
-# < 1) the mean of the picks at several multiples (PICKER_LEVEL_SETS: `residuals.core_picks`). Another than the
-# default is kept when its held-out DToA is below PICKER_GAIN x the default's.
+# AIC onset, the default; the rig's configured blend; 0: the threshold crossing), and, when asked for
+# (`choose_picker`'s level_sets, e.g. MEAN_LEVEL_SETS), for the crossings (blend < 1) the mean of the picks at
+# several multiples (`residuals.core_picks`). Off in `diagnose`: it lowers the held-out DToA on every reference
+# tried, and the loop gains on the bundled sessions but loses on rig-b's (docs/findings.md, "What the
+# reference's floor is made of"). Another than the default is kept when its held-out DToA is below
+# PICKER_GAIN x the default's.
 PICKER_THRESHOLD_FACTORS = (1.0, 2.0, 3.0)
-PICKER_LEVEL_SETS = ((1.0, 2.0), (1.0, 1.5, 2.0, 3.0))
+MEAN_LEVEL_SETS = ((1.0, 2.0), (1.0, 1.5, 2.0, 3.0))
 PICKER_BLENDS = (1.0, 0.0)
 PICKER_GAIN = 0.9
 _PICKERS: dict = {}
 
 
-def choose_picker(session, F: R.Features | None = None, seed: int = 0) -> tuple[dict | None, list[dict]]:
+def choose_picker(session, F: R.Features | None = None, seed: int = 0,
+                  level_sets: tuple = ()) -> tuple[dict | None, list[dict]]:
     """The timing picker (`residuals.extract`'s: core settings and, where the travel fit keeps it, the picks'
     dispersion; None: the default AIC onset) whose reference has the smallest held-out DToA on `session`
-    (`halves`, physics + site terms), and the trials."""
+    (`halves`, physics + site terms), and the trials. level_sets (tuples of threshold multiples): also the
+    mean of the core's picks at each set's thresholds."""
     import hashlib
 
     from .signal import core_config
 
     key = (hashlib.sha1(np.ascontiguousarray(session.adc).tobytes()).hexdigest(),
            hashlib.sha1(np.asarray([session.x_mm, session.y_mm, session.height_mm], float).tobytes()).hexdigest(),
-           repr(session.rig.to_dict()), seed)
+           repr(session.rig.to_dict()), seed, tuple(map(tuple, level_sets)))
     if key in _PICKERS:   # a deterministic function of the session: chosen once per baseline
         return _PICKERS[key]
     F = R.extract(session) if F is None else F
@@ -274,7 +279,7 @@ def choose_picker(session, F: R.Features | None = None, seed: int = 0) -> tuple[
                   for f in PICKER_THRESHOLD_FACTORS for blend in blends]
     candidates += [{"onset_threshold_counts": base_thr * levels[0], "aic_blend": blend,
                     R.LEVELS_KEY: [base_thr * f for f in levels]}
-                   for levels in PICKER_LEVEL_SETS for blend in blends if blend < 1.0]
+                   for levels in level_sets for blend in blends if blend < 1.0]
     trials = []
     for picker in candidates:
         is_default = picker == {"onset_threshold_counts": base_thr, "aic_blend": R.TIMING_PICKER["aic_blend"]}
