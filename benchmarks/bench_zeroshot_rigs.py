@@ -4,7 +4,7 @@ naive reference, with its time.
     python3 benchmarks/bench_zeroshot_rigs.py [DATA ...] [--rigs-dir DIR] [--work DIR] [--n 490]
                                               [--calibrate-args=--no-fem] [--no-measured] [--json OUT.json]
                                               [--cold] [--evaluate-on SESSION ...] [--demo | --demo-split]
-                                              [--drop-draws K]
+                                              [--drop-draws K] [--trace]
 
 Per rig (each DATA folder, else the session folders under --rigs-dir / $IMPACTSENSE_RIGS_DIR / shared/data
 beside the clone, as bench_rigs.py finds them), the commands a user runs:
@@ -25,6 +25,9 @@ scored on the demo's test split (the same drops): issue 15 wants the chain to gi
 --drop-draws K: the chain on K choices of the four calibration drops (calibrate's auto choice, then K-1 seeded
 draws of one usable case per plate quadrant, passed as calibrate --drops; work folders RIG-drawK), so a figure
 does not rest on one choice; each must meet the targets, and the mean and worst are printed per rig.
+--trace: each step runs under a sampler of its process tree (cputrace.py): the wall two idle cores would take,
+from each slice's CPU and how many of the step's threads wanted a core then; the chain's target is judged on
+it instead of CPU / 2 (a stage that keeps one core busy takes its CPU, not half of it).
 Then bench_rigs.score: the measured-trained model (train + evaluate, default split) and the naive reference
 (threshold picks + random forest on the DToA, same split). Targets: zero-shot whole-plate MAE <= 4.0 mm and
 class >= 0.95 on every rig; on the bundled rig (`bundled`) MAE <= 1.6 mm; calibrate + virtual set + site map +
@@ -45,6 +48,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from benchlib import run_logged  # noqa: E402
+from cputrace import traced_run  # noqa: E402
 
 TARGET_MAE_MM = 4.0
 TARGET_MAE_BUNDLED_MM = 1.6
@@ -54,7 +58,8 @@ TARGET_CHAIN_BUNDLED_S = 90.0
 
 
 def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: bool = False,
-          evaluate_on: tuple = (), demo: bool = False, demo_split: bool = False, tag: str = "") -> dict:
+          evaluate_on: tuple = (), demo: bool = False, demo_split: bool = False, tag: str = "",
+          trace: bool = False) -> dict:
     exe = str(Path(sys.executable).with_name("impactsense"))
     w = work / (Path(data).name.replace(":", "-") + tag)
     if cold and w.exists():
@@ -69,7 +74,12 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
                              "--force"],
         "train": [exe, "train", str(virt), "--out", str(model), "--test-fraction", "0", "--site-map", "auto"],
     }
-    times = {name: run_logged(cmd, log, env=env) for name, cmd in steps.items()}
+    if trace:
+        traces = {name: traced_run(cmd, log, env=env, series_path=w / f"trace-{name}.txt")
+                  for name, cmd in steps.items()}
+        times = {name: (t["wall_s"], t["cpu_s"]) for name, t in traces.items()}
+    else:
+        times = {name: run_logged(cmd, log, env=env) for name, cmd in steps.items()}
     run_logged([exe, "evaluate", data, "--model", str(model), "--json", str(ev)], log, env=env)
     rep = json.loads(ev.read_text())
     calj = json.loads(cal.read_text())
@@ -80,6 +90,10 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
            "calibrate_stage_wall_s": calj.get("wall_time_s"), "calibrate_stage_cpu_s": calj.get("cpu_time_s"),
            "element_mm": calj["sim_params"].get("element_mm"), "laminate": calj["plate"].get("laminate"),
            "calibration_cases": calj["drops"]["case_ids"]}
+    if trace:
+        row["idle_wall_estimate_s"] = {k: round(t["idle_wall_estimate_s"], 1) for k, t in traces.items()}
+        row["busy_cores"] = {k: round(t["busy_cores"], 2) for k, t in traces.items()}
+        row["chain_idle_wall_estimate_s"] = sum(t["idle_wall_estimate_s"] for t in traces.values())
     for other in evaluate_on:
         out = w / f"E-{other.replace(':', '-').replace('/', '-')}.json"
         t = run_logged([exe, "evaluate", other, "--model", str(model), "--json", str(out)], log, env=env)
@@ -179,6 +193,8 @@ def main() -> int:
                     help="run the chain on K choices of the calibration drops: calibrate's auto choice, then K-1 "
                          "draws of one usable case per plate quadrant at random (drawn_drops); each must meet the "
                          "targets")
+    ap.add_argument("--trace", action="store_true",
+                    help="sample each step's process tree: the idle 2-core wall estimate (judged instead of CPU / 2)")
     ap.add_argument("--demo-split", action="store_true",
                     help="score the chain's model on the demo's test drops without running the demo")
     a = ap.parse_args()
@@ -198,15 +214,16 @@ def main() -> int:
         tag = f"-draw{draw}" if draw else ""
         row = {"rig": Path(data).name + tag,
                **chain(data, a.work, a.n, shlex.split(a.calibrate_args) + extra, cold=a.cold,
-                       evaluate_on=tuple(a.evaluate_on), demo=a.demo, demo_split=a.demo_split, tag=tag)}
+                       evaluate_on=tuple(a.evaluate_on), demo=a.demo, demo_split=a.demo_split, tag=tag, trace=a.trace)}
         if not a.no_measured and not draw:    # (it does not depend on the calibration drops)
             m = score(data, a.trees, 0)
             row.update(measured_mae_mm=m["mae_mm"], measured_class=m["class_accuracy"], naive_mae_mm=m["naive_mae_mm"])
         bundled = data.startswith("bundled")
         limit = TARGET_MAE_BUNDLED_MM if bundled else TARGET_MAE_MM
         chain_limit = TARGET_CHAIN_BUNDLED_S if bundled else TARGET_CHAIN_S
+        chain_s = row.get("chain_idle_wall_estimate_s", row["chain_cpu_s"] / 2)
         row["ok"] = bool(row["zero_shot_mae_mm"] <= limit and (row["zero_shot_class"] or 0) >= TARGET_CLASS
-                         and row["chain_cpu_s"] / 2 <= chain_limit)
+                         and chain_s <= chain_limit)
         if "demo" in row:      # the chain gives what the demo gives, on the demo's own test drops
             row["ok"] &= bool(row["demo"]["chain_on_its_split"]["mae_mm"] <= limit)
         if "demo_split" in row:
@@ -237,6 +254,10 @@ def main() -> int:
             print(f"{'':10s} the chain's model on the demo's test drops: MAE {same['mae_mm']:.2f} (inner "
                   f"{same['inner_mae_mm']:.2f}), class {same['class'] or float('nan'):.3f}, n {same['n']}")
         print(f"{'':10s} calibration cases {r['calibration_cases']}")
+        if "idle_wall_estimate_s" in r:
+            print(f"{'':10s} idle 2-core wall estimate {r['chain_idle_wall_estimate_s']:.0f} s: "
+                  + ", ".join(f"{k} {v:.0f} s ({r['busy_cores'][k]:.2f} cores busy)"
+                              for k, v in r["idle_wall_estimate_s"].items()))
         if r.get("calibrate_stage_cpu_s"):
             print(f"{'':10s} calibrate stages, CPU s: "
                   + ", ".join(f"{k} {v:.0f}" for k, v in r["calibrate_stage_cpu_s"].items()))
@@ -248,7 +269,8 @@ def main() -> int:
             print(f"{Path(data).name}: {len(mine)} choices of the calibration drops: MAE mean {sum(maes) / len(maes):.2f}"
                   f" (worst {max(maes):.2f}), class mean {sum(cls) / len(cls):.3f} (worst {min(cls):.3f})")
     print(f"targets: zero-shot MAE <= {TARGET_MAE_MM} mm (bundled <= {TARGET_MAE_BUNDLED_MM}, also on the demo's "
-          f"split with --demo), class >= {TARGET_CLASS}, chain CPU/2 <= {TARGET_CHAIN_S:.0f} s (bundled <= "
+          f"split with --demo), class >= {TARGET_CLASS}, chain CPU/2 (--trace: idle wall estimate) <= "
+          f"{TARGET_CHAIN_S:.0f} s (bundled <= "
           f"{TARGET_CHAIN_BUNDLED_S:.0f} s): {'met' if ok else 'MISSED'}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1))

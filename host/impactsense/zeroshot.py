@@ -63,8 +63,8 @@ from .twin import fit_twin
 from .workflow import evaluate, train
 
 
-def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz"):
-    """The calibrated twin's site map, cached in out/name (rebuilt when the twin changed)."""
+def cached_twin_site_map(params, out: Path, name: str = "site-map.npz"):
+    """The twin's site map when one is cached (the bundled twin's, or out/name made with these params), else None."""
     def same_twin(site) -> bool:   # parameters added since the map was made take their defaults
         try:
             return SimParams.from_dict(dict(site.source.get("sim_params") or {})) == params
@@ -76,8 +76,24 @@ def twin_site_map(params, session: Session, out: Path, progress: bool = True, na
             site = SiteMap.load(path)
             if same_twin(site):
                 return site
+    return None
+
+
+def build_twin_site_map(params, session: Session, progress: bool = True):
+    """The twin's site map of the session's rig (what twin_site_map builds when none is cached)."""
+    return build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto")
+
+
+def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz",
+                  built=None):
+    """The calibrated twin's site map, cached in out/name (rebuilt when the twin changed). built: the map
+    build_twin_site_map made already for these params and session (simulate-dataset makes it beside the
+    virtual drops), cached instead of building it again."""
+    site = cached_twin_site_map(params, out, name)
+    if site is not None:
+        return site
     path = out / name
-    site = build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto")
+    site = built if built is not None else build_twin_site_map(params, session, progress)
     site.save(path)
     if (out / MANIFEST).is_file():      # a cache in a folder the tool wrote (a virtual session): still the tool's
         adopt(out, [path.name])

@@ -32,6 +32,7 @@ from .cache import as_json, cpu_seconds, key, model_key, read, write_json
 from .problem import CalibrationProblem, sim_features
 
 INFILL_ROUNDS = 2
+CHUNK_RUNS = 8          # design runs simulated side by side between two saves of the design's npz
 CLOCKED = ("design_fem", "surrogates", "screening", "optimise", "infill_fem", "fem_confirm")
 
 
@@ -80,15 +81,18 @@ class DesignRuns:
     def simulate(self, problem: CalibrationProblem, idx, bar) -> None:
         """Run the FEM at the points idx not done yet (saving after each)."""
         t = problem.targets
-        for i in idx:
-            if self.done[i]:
-                continue
+
+        def run(i):
             p = dict(problem.params, **_named(self.u[i]))
-            f = sim_features(problem.simulate(p, problem.rig, t.x_mm, t.y_mm, t.height_mm), problem.cfg_sim,
-                             *problem.noise)
-            self.energy[i], self.ratio[i], self.done[i] = f["energy"], f["residual_ratio"], True
+            return sim_features(problem.simulate(p, problem.rig, t.x_mm, t.y_mm, t.height_mm), problem.cfg_sim,
+                                *problem.noise)
+        todo = [i for i in idx if not self.done[i]]
+        for chunk in range(0, len(todo), CHUNK_RUNS):     # saved after each chunk (resumable)
+            part = todo[chunk:chunk + CHUNK_RUNS]
+            for i, f in zip(part, fem.points_concurrently(run, part, problem.opts.workers)):
+                self.energy[i], self.ratio[i], self.done[i] = f["energy"], f["residual_ratio"], True
+                bar.update(1)
             self.save()
-            bar.update(1)
 
     def outputs(self, m: int, targets):
         """The first m runs as the surrogates' outputs (per drop and sensor, the seed's Table 5 rows; energies
@@ -100,22 +104,43 @@ class DesignRuns:
         return {"sensor_energies_log10": np.log10(e_sim), "residual_ratios": r_sim}, energy_misfit, ratio_misfit
 
 
+# the families' usual tuning cost, dearest first: the pool starts the networks first so that the two dearest
+# tunings run side by side instead of one after the other at the end
+_COST_ORDER = ("NN", "GPR", "RF", "SVD")
+
+
+def _tune_task(task):
+    kind, x_tr, y_tr, x_va, y_va, x_te, y_te, trials, seed = task
+    return surrogates.tune(kind, x_tr, y_tr, x_va, y_va, x_te, y_te, trials=trials, seed=seed)
+
+
 def fit_surrogates(opts, x_unit, outputs, split):
-    """Every surrogate kind tuned for every output: the R2 table and the best kind per output (validation R2)."""
+    """Every surrogate kind tuned for every output: the R2 table and the best kind per output (validation R2).
+    The (output, kind) tunings are independent (each its own seed): they run in `opts.workers` processes
+    through the batch executor; the table and the winners are the same as one after the other."""
+    from ..sim.executor import Executor
+
     tr, va, te = split
+    jobs = [(oname, m_i, kind) for oname in outputs for m_i, kind in enumerate(surrogates.MODELS)]
+    jobs.sort(key=lambda j: _COST_ORDER.index(j[2]) if j[2] in _COST_ORDER else len(_COST_ORDER))
+    tasks = [(kind, x_unit[tr], outputs[oname][tr], x_unit[va], outputs[oname][va], x_unit[te], outputs[oname][te],
+              opts.surrogate_trials, opts.seed + 17 * m_i) for oname, m_i, kind in jobs]
+    bar = progress_bar(opts.progress, total=len(jobs), desc="surrogates", unit="model")
+    fits = {}
+    for (oname, _, kind), fit in zip(jobs, Executor("", workers=opts.workers, kind="processes").map(_tune_task,
+                                                                                                     tasks)):
+        fits[oname, kind] = fit
+        bar.update(1)
+    bar.close()
     table, best = {}, {}
-    bar = progress_bar(opts.progress, total=len(outputs) * len(surrogates.MODELS), desc="surrogates", unit="model")
-    for oname, y in outputs.items():
+    for oname in outputs:                   # the winners in the families' order, as before (ties: the first)
         table[oname] = {}
-        for m_i, kind in enumerate(surrogates.MODELS):
-            fit = surrogates.tune(kind, x_unit[tr], y[tr], x_unit[va], y[va], x_unit[te], y[te],
-                                  trials=opts.surrogate_trials, seed=opts.seed + 17 * m_i)
+        for kind in surrogates.MODELS:
+            fit = fits[oname, kind]
             table[oname][kind] = {"r2_test": fit.r2_test, "r2_val": fit.r2_val,
                                   "config": {k: v for k, v in fit.config.items() if k != "d"}}
             if oname not in best or fit.r2_val > best[oname].r2_val:
                 best[oname] = fit
-            bar.update(1)
-    bar.close()
     return table, best
 
 

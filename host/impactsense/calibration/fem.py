@@ -8,6 +8,7 @@ parameter set (the simulator's one parameter form), and CAL.json's "sim_params" 
 
 from __future__ import annotations
 
+import threading
 from typing import Callable
 
 import numpy as np
@@ -119,12 +120,36 @@ def capped_mesh(flat: dict, rig, max_elements: int | None) -> dict:
 Simulator = Callable[[dict, object, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
+_point = threading.local()      # inside points_concurrently: each point's drops in one thread
+
+
 def fem_simulator(workers: int = 2, **overrides) -> Simulator:
-    """`simulate(flat, rig, x_mm, y_mm, height_mm) -> uint16 [n, 4, samples]` with the project's FEM.
+    """`simulate(flat, rig, x_mm, y_mm, height_mm) -> uint16 [n, 4, samples]` with the project's FEM, its drops
+    `workers` at a time (one at a time inside `points_concurrently`, which runs the points side by side).
     `overrides` are extra SimParams fields (e.g. element_mm for a coarse mesh)."""
     def simulate(flat, rig, x_mm, y_mm, height_mm):
         p = SimParams.from_rig(rig, **{**_fields(flat), **overrides})
         return np.asarray(simulate_drops(p, rig, np.asarray(x_mm, float), np.asarray(y_mm, float),
                                          np.asarray(height_mm, float), noise=False, seed=None,
-                                         workers=workers, progress=False))
+                                         workers=getattr(_point, "workers", workers), progress=False))
     return simulate
+
+
+def points_concurrently(fn, items, workers: int = 2):
+    """fn(item) for every item (each one FEM point: a batch of the calibration drops), `workers` items side by
+    side in threads, each item's drops one after the other in its thread; results in order. A calibration
+    point is only a few drops, so spreading each point's drops over the cores leaves them idle at every
+    point's end (drops of unequal cost, the model's build, the features); side by side, only the batch's last
+    point does. The FEM runs are the same either way (each drop is one run in one thread)."""
+    from ..sim.executor import Executor
+
+    def one(item):
+        _point.workers = 1
+        try:
+            return fn(item)
+        finally:
+            del _point.workers
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    return list(Executor("", workers=workers).map(one, items))

@@ -27,6 +27,9 @@ def register(sub) -> None:
                         "drop) or direct (one full run a drop)")
     add_solver_option(p, batch=True)
     add_scheduler_option(p)
+    p.add_argument("--no-site-map", dest="site_map", action="store_false",
+                   help="with --calibration: do not make the twin's site map (`train --site-map auto` on the folder "
+                        "makes it then); by default it is made here, its drops beside the virtual ones")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,
@@ -59,6 +62,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     res = simulate_voltages(params, rig, x, y, h, method=args.method, solver=args.solver, workers=args.workers,
                             progress=True)
+    site_map = start_site_map(args) if args.calibration and args.site_map else None
     how = f"{args.method} path" if (args.solver or params.solver) == "direct" else "modal solver"
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
     elapsed = time.perf_counter() - t0
@@ -75,6 +79,8 @@ def run(args) -> int:
 
         extra[CALIBRATION_FILE] = calibration_record(args.calibration)
     out = write_session(args.out, raw, x, y, h, adc, force=args.force, extra_files=extra)
+    if site_map is not None:
+        site_map()
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
     clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
     print(f"{args.n} drops in {elapsed:.1f} s ({how}); mesh {summary['model']['nx']} x "
@@ -84,6 +90,49 @@ def run(args) -> int:
         print(f"{s.name:6s}  {np.median(peak[:, c]):11.0f}  {peak[:, c].max():8d}  {str(bool(clipped[c])):>7s}")
     print(f"wrote {out} (summary in {out / 'sim_params.json'})")
     return 0
+
+
+def start_site_map(args):
+    """The calibrated twin's site map, which `train --site-map auto` on the folder uses (chain.site_map: the
+    measured session's rig, CAL.json's twin), started in a thread once the virtual drops are simulated: its
+    drops reuse their model (and the reciprocal fields) and keep both cores busy while the virtual drops are
+    converted and written. Returns a callable that waits for it and caches it in the folder; None when no map
+    is needed (the twin's map is cached already, e.g. the bundled twin's) or the measured session is unreadable
+    (train reports that)."""
+    import threading
+    from pathlib import Path
+
+    from ..chain import measured_session
+    from ..errors import DataError
+    from ..sim import SimParams
+    from ..zeroshot import build_twin_site_map, cached_twin_site_map, twin_site_map
+
+    try:
+        session, _ = measured_session(Path(args.calibration))
+    except DataError:
+        return None
+    params = SimParams.from_json(args.calibration)
+    if cached_twin_site_map(params, Path(args.out)) is not None:
+        return None
+    got: dict = {}
+
+    def build():
+        try:
+            got["site"] = build_twin_site_map(params, session, progress=False)
+        except BaseException as exc:        # re-raised in the main thread
+            got["error"] = exc
+
+    thread = threading.Thread(target=build, name="site-map", daemon=True)
+    thread.start()
+
+    def finish():
+        thread.join()
+        if "error" in got:
+            raise got["error"]
+        site = twin_site_map(params, session, Path(args.out), built=got["site"])
+        print(f"the twin's site map: {site.nx} x {site.ny} points, step {site.step_mm:g} mm (for train --site-map "
+              "auto)")
+    return finish
 
 
 def calibrated_heights(cal_path, default):
