@@ -113,8 +113,8 @@ def residuals(obs_sim, meas: PlateTargets) -> np.ndarray:
 class Evaluations:
     """FEM evaluations of the observables {(E, nu): [D, K, 6]}, cached in a JSON file (resumable)."""
 
-    def __init__(self, run_obs, cache_path=None, key="", progress=False, desc="FEM plate (E, nu)"):
-        self.run_obs, self.path, self.key = run_obs, cache_path, key
+    def __init__(self, run_obs, cache_path=None, key="", progress=False, desc="FEM plate (E, nu)", workers=1):
+        self.run_obs, self.path, self.key, self.workers = run_obs, cache_path, key, int(workers)
         self.obs = {}
         if cache_path and Path(cache_path).exists():
             try:
@@ -125,15 +125,35 @@ class Evaluations:
                 self.obs = {}
         self.bar = progress_bar(progress, desc=desc, unit="run")
 
+    @staticmethod
+    def _key(e_mpa, nu) -> tuple:
+        return round(float(e_mpa), 2), round(float(nu), 5)
+
+    def _save(self) -> None:
+        if self.path:
+            write_file(self.path, json.dumps({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist()
+                                                                      for kk, v in self.obs.items()}}))
+
     def __call__(self, e_mpa, nu):
-        k = (round(float(e_mpa), 2), round(float(nu), 5))
+        k = self._key(e_mpa, nu)
         if k not in self.obs:
             self.obs[k] = np.asarray(self.run_obs(*k), float)
-            if self.path:
-                write_file(self.path, json.dumps({"key": self.key, "obs": {json.dumps(list(kk)): v.tolist()
-                                                                          for kk, v in self.obs.items()}}))
+            self._save()
             self.bar.update(1)
         return self.obs[k]
+
+    def prefetch(self, points) -> None:
+        """Evaluates the (E, nu) points not cached yet side by side (`fem.points_concurrently`, `workers` at a
+        time): the same observables as one call each, one after the other."""
+        from .fem import points_concurrently
+
+        todo = list(dict.fromkeys(k for k in (self._key(e, nu) for e, nu in points) if k not in self.obs))
+        if len(todo) < 2 or self.workers < 2:
+            return
+        for k, obs in zip(todo, points_concurrently(lambda kk: self.run_obs(*kk), todo, self.workers)):
+            self.obs[k] = np.asarray(obs, float)
+            self.bar.update(1)
+        self._save()
 
 
 def chi2(obs_sim, meas: PlateTargets, observables=None) -> float:
@@ -158,6 +178,7 @@ def e_scan(evals: Evaluations, meas: PlateTargets, e_start, nu, e_bounds, ratios
             scan[e] = chi2(obs, meas, observables) if loss is None else float(loss(obs))
         return scan[e]
 
+    evals.prefetch([(float(np.clip(e_start * r, lo, hi)), nu) for r in ratios])   # independent: side by side
     for r in ratios:
         at(e_start * r)
     for _ in range(15):
@@ -188,6 +209,8 @@ def nu_identifiability(evals: Evaluations, meas: PlateTargets, e_mpa, nu, *, d_l
     nu_c = float(np.clip(nu, nu_bounds[0] + d_nu, nu_bounds[1] - d_nu))
     stiff = e_mpa / (1 - nu ** 2)
     lo_r, hi_r = e_ratios if e_ratios is not None else (np.exp(-d_ln_e), np.exp(d_ln_e))
+    evals.prefetch([(e_mpa * hi_r, nu), (e_mpa * lo_r, nu), (stiff * (1 - (nu_c + d_nu) ** 2), nu_c + d_nu),
+                    (stiff * (1 - (nu_c - d_nu) ** 2), nu_c - d_nu), (e_mpa, nu)])
     j_e = (evals(e_mpa * hi_r, nu) - evals(e_mpa * lo_r, nu)) / float(np.log(hi_r / lo_r))
     j_nu = (evals(stiff * (1 - (nu_c + d_nu) ** 2), nu_c + d_nu)
             - evals(stiff * (1 - (nu_c - d_nu) ** 2), nu_c - d_nu)) / (2 * d_nu)

@@ -135,7 +135,7 @@ def plate_evaluations(problem: CalibrationProblem, params: dict, tag: str) -> pl
     stage_key = key(problem.base_key, problem.plate_targets.to_json(), params["damping_per_s"], "plate-v3",
                     *model_key(params))
     return plate_fem.Evaluations(run_obs, problem.cache(f"stage1-{tag}.json"), stage_key,
-                                 progress=problem.opts.progress)
+                                 progress=problem.opts.progress, workers=problem.opts.workers)
 
 
 def _plate_fem(problem: CalibrationProblem, _key) -> dict:
