@@ -209,11 +209,8 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     if progress:
         from .progress import progress_bar
         bar = progress_bar(total=todo.size, desc="site map", unit="drop")
-    for k in range(0, todo.size, chunk):
-        rows = todo[k:k + chunk]
-        res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),
-                                workers=workers, solver=solver)
-        counts = to_adc(res["volts"], params, rig, clip=False)
+    def features_of(rows, volts):
+        counts = to_adc(volts, params, rig, clip=False)
         got = np.arange(rows.size)
         if capture is not None:
             counts, got = capture(counts)
@@ -223,6 +220,22 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
         values[rows[got[ok]]] = feats[ok]
         if bar is not None:
             bar.update(rows.size)
+
+    # a chunk's features (one thread: the ADC model, the core) are made while the next chunk's drops are
+    # simulated, so the cores do not wait for them between chunks; the same map either way
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1) as post:
+        pending = None
+        for k in range(0, todo.size, chunk):
+            rows = todo[k:k + chunk]
+            res = simulate_voltages(params, rig, xy[rows, 0], xy[rows, 1], np.full(rows.size, ref_height_mm),
+                                    workers=workers, solver=solver)
+            if pending is not None:
+                pending.result()
+            pending = post.submit(features_of, rows, res["volts"])
+        if pending is not None:
+            pending.result()
     if bar is not None:
         bar.close()
     m.base, m.scale, m.q = quantise(values)
