@@ -74,17 +74,48 @@ def site_map(virtual: Session, cal_path: Path, progress: bool = True):
     return twin_site_map(SimParams.from_json(cal_path), session, Path(virtual.path), progress)
 
 
-def adapt(model, virtual: Session, cal_path: Path, seed: int, workers: int = 2) -> dict:
+def start_calibration_twins(cal_path: Path, seed: int, workers: int = 1):
+    """The calibration drops' simulated twins (what `adapt` needs from the FEM), started in a thread: they
+    depend on CAL.json alone, so `train` runs them on the second core while it loads and featurizes the
+    virtual drops. Returns a callable that waits for them (uint16 [R, 4, n])."""
+    import threading
+
+    from .sim import SimParams
+    from .zeroshot import calibration_rows, calibration_twins
+
+    session, cal = measured_session(cal_path)
+    params, rows = SimParams.from_json(cal_path), calibration_rows(session, cal)
+    got: dict = {}
+
+    def run():
+        try:
+            got["adc"] = calibration_twins(params, session, rows, seed, workers)
+        except BaseException as exc:        # re-raised where they are needed
+            got["error"] = exc
+    thread = threading.Thread(target=run, name="calibration-twins", daemon=True)
+    thread.start()
+
+    def result():
+        thread.join()
+        if "error" in got:
+            raise got["error"]
+        return got["adc"]
+    return result
+
+
+def adapt(model, virtual: Session, cal_path: Path, seed: int, workers: int = 2, cal_sim=None) -> dict:
     """Fits what the calibration drops teach the virtual-trained `model` (in place, as demo --zero-shot);
     returns the model card's record (the fits, the zero-shot record with the measured session's drops that
-    are not calibration drops as its test drops)."""
+    are not calibration drops as its test drops). cal_sim: the calibration drops' twins when made already
+    (`start_calibration_twins`)."""
     from .sim import SimParams
     from .zeroshot import calibration_rows, calibration_twins, fit_on_calibration_drops, zero_shot_card
 
     session, cal = measured_session(cal_path)
     params = SimParams.from_json(cal_path)
     rows = calibration_rows(session, cal)
-    cal_sim = calibration_twins(params, session, rows, seed, workers)
+    if cal_sim is None:
+        cal_sim = calibration_twins(params, session, rows, seed, workers)
     fits = fit_on_calibration_drops(model, session, rows, cal_sim, model.site_map, virtual)
     fits.pop("_virtual_twin", None)
     test_rows = np.setdiff1d(np.arange(len(session)), rows)

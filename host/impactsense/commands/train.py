@@ -76,10 +76,11 @@ def run(args) -> int:
     session = load_session(args.data)
     from ..sitemap import resolve_site_map
 
-    from ..chain import adapt, session_calibration
+    from ..chain import adapt, session_calibration, start_calibration_twins
     from ..chain import site_map as calibrated_site_map
 
     cal = session_calibration(session)   # a virtual session made by simulate-dataset --calibration
+    cal_twins = start_calibration_twins(cal, args.seed) if cal is not None else None
     measured_twin = False
     if cal is not None and args.site_map in (None, "auto"):
         site = calibrated_site_map(session, cal)
@@ -104,7 +105,8 @@ def run(args) -> int:
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
-        model.save(args.out, extra_card={"split": split, **adapt(model, session, cal, args.seed)}, force=args.force)
+        model.save(args.out, extra_card={"split": split, **adapt(model, session, cal, args.seed, cal_sim=cal_twins())},
+                   force=args.force)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
           f"held out {len(split['test_recordings'])} drops")
