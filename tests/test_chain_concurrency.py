@@ -38,7 +38,8 @@ def test_points_side_by_side_give_the_same_records_with_one_thread_each(monkeypa
         return real(*a, **k)
     monkeypatch.setattr(fem_module, "simulate_drops", spy)
     side = fem.points_concurrently(lambda p: simulate(p, rig, x, y, h), points, workers=2)
-    assert seen == [1, 1, 1]                    # each point's drops one after the other in its thread
+    assert sorted(seen[:2]) == [1, 1]           # side by side, each point's drops one after the other
+    assert seen[2:] == [2]                      # the odd one out alone, its drops spread over the workers
     for a, b in zip(serial, side):
         np.testing.assert_array_equal(a, b)
     seen.clear()

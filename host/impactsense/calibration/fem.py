@@ -139,8 +139,10 @@ def points_concurrently(fn, items, workers: int = 2):
     """fn(item) for every item (each one FEM point: a batch of the calibration drops), `workers` items side by
     side in threads, each item's drops one after the other in its thread; results in order. A calibration
     point is only a few drops, so spreading each point's drops over the cores leaves them idle at every
-    point's end (drops of unequal cost, the model's build, the features); side by side, only the batch's last
-    point does. The FEM runs are the same either way (each drop is one run in one thread)."""
+    point's end (drops of unequal cost, the model's build, the features); side by side they are not. The
+    items that do not fill a round of `workers` (the last len % workers) run one at a time with their drops
+    spread as before: alone in a thread, a point would leave the other cores idle. The FEM runs are the same
+    either way (each drop is one run in one thread)."""
     from ..sim.executor import Executor
 
     def one(item):
@@ -150,6 +152,6 @@ def points_concurrently(fn, items, workers: int = 2):
         finally:
             del _point.workers
     items = list(items)
-    if workers <= 1 or len(items) <= 1:
-        return [fn(item) for item in items]
-    return list(Executor("", workers=workers).map(one, items))
+    n_side = len(items) - len(items) % workers if workers > 1 else 0
+    side = list(Executor("", workers=workers).map(one, items[:n_side])) if n_side else []
+    return side + [fn(item) for item in items[n_side:]]
