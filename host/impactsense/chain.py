@@ -8,7 +8,7 @@
 `simulate-dataset --calibration` writes CAL.json into V (`calibration.json`, with the file's path and hash).
 `train` on such a session does what `demo --zero-shot` does (zeroshot.run_zero_shot): the forests and the
 localiser from the virtual drops, the twin's site map (`--site-map auto`: the calibrated twin's, built once
-and cached in V), and then everything the four calibration drops teach the model about the rig
+and cached in V, by simulate-dataset beside the virtual drops unless --no-site-map), and then everything the four calibration drops teach the model about the rig
 (zeroshot.fit_on_calibration_drops: channel delays and gains, the rig's group velocity at the picks, the
 twin's fingerprint offsets and weights, the uncertainty's scale), read from the measured session CAL.json
 names. The model card records that session and its drops other than the calibration drops, so `evaluate`
