@@ -122,7 +122,8 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     out.dispersion_ref_hz = fit.dispersion_ref_hz
     out = choose_band(session, rows, choose_starts(session, rows, out, fits), fits)
     # the band picks' localiser shares localiser_starts: chosen again with them on
-    return choose_starts(session, rows, out, fits) if out.band_velocity_mm_per_us > 0 else out
+    out = choose_starts(session, rows, out, fits) if out.band_velocity_mm_per_us > 0 else out
+    return choose_posterior(session, rows, out, fits)
 
 
 # More localiser starts (impactcore.h localiser_starts) are kept when they lower the training drops' physics
@@ -152,6 +153,32 @@ def choose_starts(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=No
     out = SignalConfig.from_dict(cfg.to_dict())
     out.localiser_starts = chosen
     return out
+
+
+# The localiser's position as the posterior mean over a grid around its fit (impactcore.h posterior_grid) is
+# kept when it lowers the training drops' physics MAE to this fraction of the fit's (the rule of
+# localiser_starts): out beyond the sensors' hull the fit lands anywhere along a long, flat valley, the mean
+# over the part of it on the plate much less so (docs/findings.md "The posterior mean").
+POSTERIOR_GAIN = 0.97
+POSTERIOR_GRID = 15
+
+
+def physics_mae(session: Session, rows: np.ndarray, cfg: SignalConfig) -> float:
+    """The training drops' physics MAE per axis (mm) under cfg; inf when no drop is placed."""
+    xy = np.asarray(session.xy_mm, float)[rows]
+    phys = featurize(session.adc[rows], cfg).phys_xy_mm.astype(float)
+    ok = np.isfinite(phys).all(1)
+    return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
+
+
+def choose_posterior(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
+    """cfg with posterior_grid POSTERIOR_GRID when its physics positions of the training drops are clearly
+    closer to the truth (POSTERIOR_GAIN) and fits (fit_localiser) accepts it, else with the fit's (0)."""
+    off = SignalConfig.from_dict({**cfg.to_dict(), "posterior_grid": 0})
+    trial = SignalConfig.from_dict({**cfg.to_dict(), "posterior_grid": POSTERIOR_GRID})
+    if fits is not None and not fits(trial):
+        return off
+    return trial if physics_mae(session, rows, trial) < POSTERIOR_GAIN * physics_mae(session, rows, off) else off
 
 
 # The band picks (impactcore band_onset) are kept when the mean of their position and the threshold picks'

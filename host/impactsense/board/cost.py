@@ -34,6 +34,10 @@ LOCALISER_EVALUATIONS = 16
 # (isotropic, anisotropic plate): the screening's 20 points, the set-up and the covariance; one evaluation
 LOCALISER_SCREEN = (2300, 2950)
 LOCALISER_PER_EVALUATION = (280, 375)
+# The posterior mean (impactcore.h posterior_grid): per grid point, per localiser run, one Huber cost (four
+# travel distances, the t0 passes) and an expf; an estimate, not measured under qemu (no board model uses it:
+# 15 x 15 points cost more than the event budget).
+POSTERIOR_PER_POINT = 450
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
@@ -78,9 +82,12 @@ def signal_instructions(cfg, channels: int = 4) -> dict:
     starts = max(1, int(cfg.localiser_starts))
     loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
                                                         cfg.travel_metric_yy)))
+    grid = int(getattr(cfg, "posterior_grid", 0))
+    posterior = POSTERIOR_PER_POINT * grid * grid if grid > 1 else 0
+    loc += posterior
     if band:
         loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
-                                                             cfg.band_metric_yy)))
+                                                             cfg.band_metric_yy))) + posterior
     return {"base": BASE_INSTRUCTIONS, "band": band, "localiser": loc, "total": BASE_INSTRUCTIONS + band + loc}
 
 

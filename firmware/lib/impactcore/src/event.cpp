@@ -66,7 +66,7 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   if (dispersive) dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
   out->phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
                             loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
-                            dispersive ? scale : nullptr, loc.localiser_starts);
+                            dispersive ? scale : nullptr, loc.localiser_starts, loc.posterior_grid);
   if (out->phys.status == kOk) {
     out->accepted = accept_eq35(toa, loc.sensor_x_mm, loc.sensor_y_mm, out->phys.x_mm, out->phys.y_mm,
                                 loc.accept_tol_us, loc.accept_margin_mm, metric)
@@ -95,7 +95,7 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
       const float band_velocity = band_velocity_for(f, cfg.fs_hz, loc);
       out->band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
                                 loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
-                                loc.localiser_starts);
+                                loc.localiser_starts, loc.posterior_grid);
       if (out->band.status == kOk) {
         out->phys.x_mm = 0.5f * (out->phys.x_mm + out->band.x_mm);
         out->phys.y_mm = 0.5f * (out->phys.y_mm + out->band.y_mm);

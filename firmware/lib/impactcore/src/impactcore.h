@@ -113,6 +113,8 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, dispersion_exponent, 0.0f, COPY)  /* a channel's slowness x (f / dispersion_ref_hz)^-this,*/ \
   X(ONE, float, dispersion_ref_hz, 25000.0f, COPY) /* f = fs / pick_period (0: one velocity, bit for bit) */ \
   X(ONE, int, localiser_starts, 1, COPY)  /* screened starts the localiser refines (1 .. kMaxStarts) */  \
+  X(ONE, int, posterior_grid, 0, COPY)  /* > 1: the position is the posterior mean over this many x this  */ \
+    /* many points around the fit (localise_tdoa); 0: the Huber fit itself, bit for bit */                  \
   X(ONE, float, band_velocity_mm_per_us, 0.0f, COPY)  /* the band picks' own travel model; > 0 (and   */ \
   X(PER_CHANNEL, float, band_delay_us, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* band_pick_hz > 0): the   */ \
   X(ONE, float, band_metric_xx, 1.0f, COPY)  /* physics position is the mean of the threshold picks' */   \
@@ -449,13 +451,23 @@ struct LocaliserResult {
 // (per channel; nullptr: all 1) multiplies channel c's travel time (dispersion_scales). starts (1 ..
 // kMaxStarts): how many of the lowest-cost screening points are refined (the lowest Huber cost wins); out
 // beyond the sensors' hull the Huber valley from the best-screened point can miss the answer.
+// posterior_grid (> 1; kMaxPosteriorGrid at most): x, y are then the mean of the position's posterior, exp(-H /
+// sigma_us^2) with H the Huber cost (t0 at its optimum), over posterior_grid x posterior_grid points evenly
+// spaced on the fit's +-kPosteriorSpan standard deviations in x and y, the part of that box on the plate (the
+// prior: the impact is on the plate). Out beyond the sensors' hull the Huber fit's valley is long and flat and
+// the fit lands anywhere along it (on a laminate's near-edge drops outwards of the impact on average); the
+// mean over the part of it on the plate scatters much less (docs/findings.md "The posterior mean"). The
+// covariance, t0 and the residuals stay the fit's. Cost: posterior_grid^2 Huber costs (a host option:
+// board/cost.py counts it). 0 or 1: the fit itself, bit for bit.
 constexpr int kMaxStarts = 4;
+constexpr int kMaxPosteriorGrid = 31;
+constexpr float kPosteriorSpan = 3.0f;
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us = 4.0f,
                               const float* travel_metric = nullptr,
-                              const float* slowness_scale = nullptr, int starts = 1);
+                              const float* slowness_scale = nullptr, int starts = 1, int posterior_grid = 0);
 
 
 // --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---

@@ -371,13 +371,53 @@ Solution solve(const Problem& p, int starts, float plate_x_mm, float plate_y_mm,
   return Solution{x, y, t0, ss, iterations, evaluations};
 }
 
+// The posterior mean of the position (localise_tdoa's posterior_grid): exp(-H / sigma^2) over an n x n grid on
+// the fit's +-kPosteriorSpan sd box clipped to the plate, H the Huber cost with t0 at its optimum. The weights
+// are accumulated against the lowest cost so far (rescaled when it falls), so nothing is stored. res keeps
+// the fit's position when the covariance is not finite or no weight is positive.
+void posterior_mean(const Problem& p, int n, float sigma_us, LocaliserResult* res) {
+  if (n > kMaxPosteriorGrid) n = kMaxPosteriorGrid;
+  const float sx = sqrtf(res->cov_xx), sy = sqrtf(res->cov_yy);
+  if (!(sx > 0.0f) || !(sy > 0.0f) || !(sx < INFINITY) || !(sy < INFINITY) || !(sigma_us > 0.0f)) return;
+  const float x0 = clampf(res->x_mm - kPosteriorSpan * sx, 0.0f, p.lx);
+  const float x1 = clampf(res->x_mm + kPosteriorSpan * sx, 0.0f, p.lx);
+  const float y0 = clampf(res->y_mm - kPosteriorSpan * sy, 0.0f, p.ly);
+  const float y1 = clampf(res->y_mm + kPosteriorSpan * sy, 0.0f, p.ly);
+  const float inv_s2 = 1.0f / (sigma_us * sigma_us);
+  const float step_x = (x1 - x0) / static_cast<float>(n - 1), step_y = (y1 - y0) / static_cast<float>(n - 1);
+  float lowest = INFINITY, sw = 0.0f, swx = 0.0f, swy = 0.0f;
+  for (int i = 0; i < n; ++i) {
+    const float gx = x0 + step_x * static_cast<float>(i);
+    for (int j = 0; j < n; ++j) {
+      const float gy = y0 + step_y * static_cast<float>(j);
+      float t0;
+      const float cost = huber_cost<0, false>(p, gx, gy, &t0);
+      if (!(cost == cost)) continue;
+      if (cost < lowest) {
+        const float rescale = lowest < INFINITY ? expf((cost - lowest) * inv_s2) : 0.0f;
+        sw *= rescale;
+        swx *= rescale;
+        swy *= rescale;
+        lowest = cost;
+      }
+      const float w = expf((lowest - cost) * inv_s2);
+      sw += w;
+      swx += w * gx;
+      swy += w * gy;
+    }
+  }
+  if (!(sw > 0.0f)) return;
+  res->x_mm = swx / sw;
+  res->y_mm = swy / sw;
+}
+
 }  // namespace
 
 LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[kChannels],
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us, const float* travel_metric,
-                              const float* slowness_scale, int starts) {
+                              const float* slowness_scale, int starts, int posterior_grid) {
   LocaliserResult res = {};
   res.status = kOk;
   Problem p;
@@ -445,6 +485,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   res.cov_xx = s2 * cov[0][0];
   res.cov_xy = s2 * 0.5f * (cov[0][1] + cov[1][0]);
   res.cov_yy = s2 * cov[1][1];
+  if (posterior_grid > 1) posterior_mean(p, posterior_grid, sigma_us, &res);
   return res;
 }
 
