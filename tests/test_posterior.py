@@ -68,3 +68,16 @@ def test_inside_the_hull_no_harm():
     fit, _ = run(toa, 0)
     post, _ = run(toa, 15)
     assert np.mean(np.abs(post - truth)) < 1.05 * np.mean(np.abs(fit - truth))
+
+
+def test_the_board_budget_counts_it():
+    """The board's refit cannot choose it (15 x 15 Huber costs a run are more than the event budget); off it
+    costs what the localiser cost before."""
+    from impactsense.board.cost import signal_fits, signal_instructions
+    from impactsense.signal import SignalConfig
+
+    off = SignalConfig()
+    on = SignalConfig.from_dict({**off.to_dict(), "posterior_grid": 15})
+    assert signal_fits(off) and not signal_fits(on)
+    assert signal_instructions(on)["total"] > signal_instructions(off)["total"]
+    assert signal_instructions(SignalConfig.from_dict({**off.to_dict(), "posterior_grid": 1})) == signal_instructions(off)

@@ -104,6 +104,11 @@ def load_models(model_dir) -> ModelSet:
     if card.get("position_members"):
         raise ExportError(f"{card_path} [position_members]: the board runs one forest pair on the physics position; "
                           f"export it at the board's rate (not --rate native): that trains the board's own models")
+    signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
+    if int(signal.get("posterior_grid", 0) or 0) > 1:
+        raise ExportError(f"{card_path} [signal.posterior_grid]: the localiser's posterior mean costs more than the "
+                          f"board's event budget; export it at the board's rate (not --rate native): that trains "
+                          f"the board's own models")
     for role in ("x", "y"):
         if not hasattr(models[role], "estimators_") or getattr(models[role], "n_outputs_", 1) != 1:
             raise ExportError(f"{roles[role]}: need a single-output random forest regressor")
