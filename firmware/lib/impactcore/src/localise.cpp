@@ -394,13 +394,13 @@ void posterior_mean(const Problem& p, int n, float sigma_us, LocaliserResult* re
       const float cost = huber_cost<0, false>(p, gx, gy, &t0);
       if (!(cost == cost)) continue;
       if (cost < lowest) {
-        const float rescale = lowest < INFINITY ? expf((cost - lowest) * inv_s2) : 0.0f;
+        const float rescale = lowest < INFINITY ? exp_nonpositive((cost - lowest) * inv_s2) : 0.0f;
         sw *= rescale;
         swx *= rescale;
         swy *= rescale;
         lowest = cost;
       }
-      const float w = expf((lowest - cost) * inv_s2);
+      const float w = exp_nonpositive((lowest - cost) * inv_s2);
       sw += w;
       swx += w * gx;
       swy += w * gy;

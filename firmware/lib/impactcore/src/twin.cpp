@@ -10,28 +10,6 @@ namespace {
 constexpr float kLog10Of2 = 0.301029996f;
 constexpr uint8_t kUnusable = kFlagClipped | kFlagDead | kFlagNoOnset;
 
-// exp(x) for x <= 0, within 2 ulp of expf where it matters (x > -87; 0 below): 2^n 2^f with n the nearest
-// integer to x log2(e) and a degree-6 polynomial for 2^f on [-1/2, 1/2] (Chebyshev interpolation). About a
-// fifth of newlib's expf on the Cortex-M4F (no errno, no double). The rounding of x log2(e) moves exp(x) by
-// at most ~|x| 6e-8 relative, i.e. by < 3e-8 of the largest weight (1) for any x: float rounding of the sums.
-inline float exp_nonpositive(float x) {
-  if (!(x > -87.0f)) return 0.0f;
-  const float t = x * 1.44269504f;
-  const int n = static_cast<int>(t - 0.5f);  // round to nearest (t <= 0: truncation is toward zero)
-  const float f = t - static_cast<float>(n);
-  float p = 1.546144472e-4f;
-  p = p * f + 1.340042818e-3f;
-  p = p * f + 9.618056678e-3f;
-  p = p * f + 5.550327227e-2f;
-  p = p * f + 2.402265092e-1f;
-  p = p * f + 6.931472067e-1f;
-  p = p * f + 1.0f;
-  const uint32_t bits = static_cast<uint32_t>(n + 127) << 23;  // 2^n, n >= -126
-  float scale;
-  memcpy(&scale, &bits, sizeof(scale));
-  return p * scale;
-}
-
 // One twin feature's per-event constants, interleaved so the grid loop reads them in one pass, and
 // scaled by sqrt(weight): a grid point's residual is then u = r - s q (one multiply-subtract), the
 // misfit's sum w (r - s q)^2 is sum u^2 and the normal equation's sum w slope (r - s q) is sum sigma u.
