@@ -7,7 +7,7 @@ import numpy as np
 
 from impactsense import _core
 
-# A plate like the laminate rig's: 450 x 350 mm, sensors inset so that a strip along each edge is outside
+# A 450 x 350 mm plate with its sensors inset, so that a strip along each edge is outside
 # their hull.
 SX = [50.0, 400.0, 395.0, 60.0]
 SY = [45.0, 55.0, 300.0, 290.0]
