@@ -212,12 +212,28 @@ struct Tables {
   std::vector<float> value;
   std::vector<uint16_t> right;
   std::vector<uint8_t> inputs;
+  ia::ForestEvaluator evaluate = ia::forest_mean;  // ia::linear_terms for a linear energy estimate
   ia::ModelSpec spec() const {
     return ia::ModelSpec{ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(),
                                           value.data(), right.data()},
-                         inputs.data(), static_cast<int32_t>(inputs.size())};
+                         inputs.data(), static_cast<int32_t>(inputs.size()), evaluate};
   }
 };
+
+// The linear energy estimate in the node-table arrays (host height_class.linear_tables, impactapp::linear_terms):
+// roots[t] = 3 t, feature = the terms' factors (inputs or kLeaf), value = [coef (T), bias, offset, scale per input].
+void check_linear(const Tables& t) {
+  const size_t n_terms = t.roots.size();
+  if (t.feature.size() != 3 * n_terms || t.value.size() != n_terms + 1 + 2 * t.inputs.size()) {
+    throw std::invalid_argument("linear model arrays differ in length");
+  }
+  for (size_t k = 0; k < n_terms; ++k) {
+    if (t.roots[k] != static_cast<int32_t>(3 * k)) throw std::invalid_argument("linear model term out of place");
+  }
+  for (uint8_t f : t.feature) {
+    if (f != ia::kLeaf && f >= t.inputs.size()) throw std::invalid_argument("linear model factor out of range");
+  }
+}
 
 // allow_twin: the forest may read ia::kTwinInput (the twin's height estimate; the energy classifier only).
 Tables tables_from(nb::dict d, bool allow_twin) {
@@ -227,6 +243,17 @@ Tables tables_from(nb::dict d, bool allow_twin) {
   t.value = nb::cast<std::vector<float>>(d["value"]);
   t.right = nb::cast<std::vector<uint16_t>>(d["right"]);
   t.inputs = nb::cast<std::vector<uint8_t>>(d["inputs"]);
+  if (d.contains("kind") && nb::cast<std::string>(d["kind"]) == "linear") {
+    if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
+      throw std::invalid_argument("a linear model reads 1..32 features");
+    }
+    for (uint8_t i : t.inputs) {
+      if (i >= ia::kTwinInput) throw std::invalid_argument("linear model input beyond the core's feature vector");
+    }
+    check_linear(t);
+    t.evaluate = ia::linear_terms;
+    return t;
+  }
   const size_t n = t.feature.size();
   if (t.value.size() != n || t.right.size() != n) throw std::invalid_argument("forest arrays differ in length");
   if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {

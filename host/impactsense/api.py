@@ -43,7 +43,7 @@ def train(session: Session, out=None, test_fraction: float = 0.2, seed: int = 0,
     else:
         site = resolve_site_map(site_map, session.rig)
     model, _ = _train(session, out, test_fraction, seed, settings=ForestSettings(n_estimators=trees, seed=seed),
-                      site_map=site, choose_twin=measured_twin)
+                      site_map=site, choose_twin=measured_twin, choose_class=True)
     return model
 
 

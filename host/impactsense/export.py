@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError, ImpactSenseError
-from .export_c import (HEADER_H, LEAF, ExportError, _c_float, exported_fields, f32_floor, forest_tables,  # noqa: F401
-                       m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
+from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, ExportError, _c_float, exported_fields,  # noqa: F401
+                       f32_floor, forest_tables, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
+from .height_class import linear_tables
 from .outputs import json_text, output_folder
 
 
@@ -52,6 +53,19 @@ class ModelSet:
     residual_xy: bool
     signal: dict
     twin: dict | None = None        # the site map and twin configuration (twin_arrays), when the card has one
+
+    @property
+    def energy_linear(self) -> bool:
+        """The energy class is the linear estimate of log m g h (height_class.LinearHeightClass), not a forest."""
+        return not hasattr(self.energy, "estimators_")
+
+    def energy_tables(self, n_trees: int | None = None) -> dict:
+        """The energy model's node-table arrays: a forest prefix's, or the linear model's (linear_tables)."""
+        return linear_tables(self.energy) if self.energy_linear else forest_tables(self.energy, n_trees)
+
+    def energy_trees(self) -> int:
+        """The energy forest's trees (a linear model: its terms, the tables' n_trees)."""
+        return len(self.energy.terms) if self.energy_linear else len(self.energy.estimators_)
 
 
 def twin_arrays(site, fit) -> dict:
@@ -198,20 +212,21 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     base = np.asarray(phys_xy, float) if models.residual_xy else np.zeros((len(X), 2))
     px = np.stack([t.predict(X[:, models.inputs["x"]]) for t in models.x.estimators_])
     py = np.stack([t.predict(X[:, models.inputs["y"]]) for t in models.y.estimators_])
-    n_energy = len(models.energy.estimators_)
-    e_bytes = table_bytes(forest_tables(models.energy)) + table_bytes(models.twin)
+    n_energy = models.energy_trees()
+    e_bytes = table_bytes(models.energy_tables()) + table_bytes(models.twin)
     nodes = None
     sizes = (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all)
     if max_instructions is not None:
         from .board.cost import forest_nodes
         nodes = {r: forest_nodes(f, X[:, models.inputs[r]])
-                 for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))}
+                 for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))
+                 if r != "energy" or not models.energy_linear}
         sizes = (1, 2, 3, 4, *sizes)
     rows = []
     for k in sorted({k for k in sizes if k <= n_all}):
         pos = base + np.c_[px[:k].mean(0), py[:k].mean(0)]
         if nodes is not None:
-            e_bytes = table_bytes(forest_tables(models.energy, min(k, n_energy))) + table_bytes(models.twin)
+            e_bytes = table_bytes(models.energy_tables(min(k, n_energy))) + table_bytes(models.twin)
         b = table_bytes(forest_tables(models.x, k)) + table_bytes(forest_tables(models.y, k)) + e_bytes
         row = {"trees": k, "mean_distance_mm": float(np.mean(np.hypot(*(pos - xy).T))), "table_bytes": b}
         if models.twin is not None and twin_eval is not None:
@@ -221,9 +236,11 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
                        mean_distance_mm=float(np.mean(np.hypot(*(tw[ok] - xy[ok]).T))))
         row["within_budgets"] = b <= budget_bytes and (max_trees is None or k <= max_trees)
         if nodes is not None:
-            from .board.cost import forests_instructions
-            row["energy_trees"] = min(k, n_energy)
-            row["instructions"] = forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]})
+            from .board.cost import forests_instructions, linear_instructions
+            row["energy_trees"] = n_energy if models.energy_linear else min(k, n_energy)
+            row["instructions"] = (forests_instructions(nodes, {"x": k, "y": k}) + linear_instructions(n_energy)
+                                   if models.energy_linear else
+                                   forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]}))
             row["within_budgets"] = row["within_budgets"] and row["instructions"] <= max_instructions
         rows.append(row)
     best = min(r["mean_distance_mm"] for r in rows)
@@ -272,8 +289,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
     card_bytes = (Path(model_dir) / "model_card.json").read_bytes()
     model_hash = hashlib.sha256(card_bytes).hexdigest()[:16]
     sweep = []
-    n_energy = len(models.energy.estimators_) if energy_trees is None else min(int(energy_trees),
-                                                                                len(models.energy.estimators_))
+    n_energy = (models.energy_trees() if energy_trees is None or models.energy_linear
+                else min(int(energy_trees), models.energy_trees()))
     signal_cost = None
     if trees == "auto":
         # a model without the twin: its forests get what the event budget leaves after the signal's options
@@ -293,12 +310,13 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         k = min(int(trees), len(models.x.estimators_))
     n_trees = {"x": k, "y": min(k, len(models.y.estimators_)), "energy": n_energy}
     tabs = {"x": forest_tables(models.x, n_trees["x"]), "y": forest_tables(models.y, n_trees["y"]),
-            "energy": forest_tables(models.energy, n_trees["energy"])}
+            "energy": models.energy_tables(n_trees["energy"])}
     head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
     (out_dir / "impactsense_models.h").write_text(HEADER_H.format(model_hash=model_hash, n_features=models.n_features,
                                                                   signal_struct=signal_struct_c(),
                                                                   residual=int(models.residual_xy),
-                                                                  twin=int(models.twin is not None)))
+                                                                  twin=int(models.twin is not None),
+                                                                  energy_linear=LINEAR_DEFINE if models.energy_linear else ""))
     (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head))
     if write_m2cgen:
         (out_dir / "impactsense_models_m2c.c").write_text(m2cgen_c(models, n_trees, head))
@@ -306,11 +324,13 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
              signal=json.dumps(models.signal),
              **{f"{r}_inputs": np.asarray(models.inputs[r], dtype=np.uint8) for r in tabs},
              **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()},
-             **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()})
+             **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()},
+             **({"energy_kind": "linear"} if models.energy_linear else {}))
     summary = {
         "model_card_sha256_16": model_hash,
         "features": models.card.get("feature_names"),
         "energy_threshold_j": models.card.get("energy_threshold_j"),
+        **({"energy_model": "linear"} if models.energy_linear else {}),
         "n_train_drops": models.card.get("n_train_drops"),
         "data_hash": (models.card.get("split") or {}).get("data_hash"),
         "n_features": models.n_features,
@@ -344,6 +364,8 @@ def load_tables(path) -> dict:
            for r in ("x", "y", "energy")}
     out.update(n_features=int(z["n_features"]), residual_xy=bool(z["residual_xy"]),
                signal=json.loads(str(z["signal"])))
+    if "energy_kind" in z.files:     # the linear estimate's arrays (height_class.linear_tables)
+        out["energy"]["kind"] = str(z["energy_kind"])
     twin_keys = [k for k in z.files if k.startswith("twin_")]
     out["twin"] = {k[len("twin_"):]: z[k] for k in twin_keys} if twin_keys else None
     return out
@@ -371,6 +393,6 @@ def firmware_models(path):
     if not path.is_file():
         raise ExportError(f"{path}: no exported forest tables (run `impactsense export`)")
     t = load_tables(path)
-    spec = {r: {k: v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}
+    spec = {r: {k: v if isinstance(v, str) else v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}
     twin = None if t["twin"] is None else {k: v.tolist() for k, v in t["twin"].items()}
     return _link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin), t["signal"]

@@ -87,7 +87,12 @@ def load_forests(model_dir, card: dict, card_path, roles=None) -> dict:
         if role not in files:
             raise DataError(card_path, f"files.{role}", "missing")
         path, data = read_verified(model_dir, card, card_path, files[role], f"files.{role}")
-        out[role] = load_forest(path, data)
+        if role == "energy" and card.get("energy_model") == "linear":
+            from .height_class import LinearHeightClass   # the linear estimate's plain arrays (height_class.py)
+
+            out[role] = LinearHeightClass.load(path, data)
+        else:
+            out[role] = load_forest(path, data)
     return out
 
 

@@ -24,6 +24,8 @@ from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from . import __version__, _core
 from .errors import DataError
 from .forestfile import save_forest
+from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, LinearHeightClass, energy_class_choice,
+                           fit_linear_height_class, out_of_fold_classes)
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features
 from .signal import SignalConfig
@@ -195,10 +197,14 @@ class ImpactModel:
     @classmethod
     def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
             signal: SignalConfig, settings: ForestSettings | None = None,
-            site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False) -> "ImpactModel":
+            site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False,
+            choose_class: bool = False) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). choose_twin: with a site map, keep the twin only when the training drops' out-of-fold figures
-        say so (`twin_choice`), else train as without one; the card's "twin_choice" records them."""
+        say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
+        choose_class: without a site map, the energy class from the classifier forest or the linear estimate
+        of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
+        "energy_class_choice" records it."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -241,11 +247,18 @@ class ImpactModel:
                 card["twin_choice"] = twin_choice(oof, xy)
                 if not card["twin_choice"]["use_twin"]:
                     site_map = twin_fit = None
+        class_features = list(MEASURED_ENERGY_FEATURES)
         if site_map is None:
             fe, threshold = fit_energy_classifier(X[:, columns(MEASURED_ENERGY_FEATURES)], energy_j, settings)
+            if choose_class:
+                X_lin = X[:, columns(LINEAR_CLASS_FEATURES)]
+                card["energy_class_choice"] = energy_class_choice(out_of_fold_classes(
+                    X[:, columns(MEASURED_ENERGY_FEATURES)], X_lin, energy_j, xy, settings))
+                if card["energy_class_choice"]["use_linear"]:
+                    fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
-                   card=card, members=member_forests)
+                   card=card, members=member_forests, energy_class_features=class_features)
 
     @property
     def energy_features(self) -> list[str]:
@@ -339,8 +352,12 @@ class ImpactModel:
 
     def write_into(self, stage: Path, extra_card: dict | None = None) -> None:
         """The model's files and card into `stage` (a staging folder of outputs.output_folder)."""
+        linear = isinstance(self.forest_energy, LinearHeightClass)
         for role, forest in (("x", self.forest_dx), ("y", self.forest_dy), ("energy", self.forest_energy)):
-            save_forest(stage / MODEL_FILES[role], forest)
+            if role == "energy" and linear:
+                forest.save(stage / LINEAR_ENERGY_FILE)
+            else:
+                save_forest(stage / MODEL_FILES[role], forest)
         for name, pair in self.members.items():
             for axis, forest in zip("xy", pair):
                 save_forest(stage / MEMBER_FILES[f"{axis}_{name}"], forest)
@@ -365,9 +382,12 @@ class ImpactModel:
             "energy_features": self.energy_features,
             "energy_threshold_j": self.energy_threshold_j,
             "energy_classes": {"0": "low", "1": "high"},
-            "files": {**MODEL_FILES, **{f"{a}_{n}": MEMBER_FILES[f"{a}_{n}"] for n in self.members for a in "xy"}},
+            "files": {**MODEL_FILES, **({"energy": LINEAR_ENERGY_FILE} if linear else {}),
+                      **{f"{a}_{n}": MEMBER_FILES[f"{a}_{n}"] for n in self.members for a in "xy"}},
             "signal": self.signal.to_dict(),
         }
+        if linear:   # the energy class from height_class.LinearHeightClass (absent: a classifier forest)
+            card["energy_model"] = "linear"
         if self.members:
             card["position_members"] = list(self.members)
             card["target"] = ("x = mean of phys_x_mm + forest_dx(features[location_features]) and, where the band "
@@ -376,7 +396,7 @@ class ImpactModel:
         # what the card carried from before (training settings, provenance); what the model holds now wins
         card = {
             **card,
-            **{k: v for k, v in self.card.items() if k not in card and k not in ("twin", "sha256")},
+            **{k: v for k, v in self.card.items() if k not in card and k not in ("twin", "sha256", "energy_model")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
@@ -400,6 +420,8 @@ class ImpactModel:
             raise DataError(card_path, "signal/energy_threshold_j", "wrong type")
         f = load_forests(d, card, card_path, ("x", "y", "energy"))
         forests = [f["x"], f["y"], f["energy"]]
+        if card.get("energy_model", "forest") not in ("forest", "linear"):
+            raise DataError(card_path, "energy_model", "must be \"forest\" or \"linear\"")
         site_map = twin_fit = None
         if "twin" in card:
             if not isinstance(card["twin"], dict):

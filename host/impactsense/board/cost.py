@@ -41,6 +41,9 @@ POSTERIOR_PER_POINT = 450
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
+# A term of the linear energy estimate: the loop over three factor slots, each a load, a compare and a
+# subtract-multiply-multiply where used (not measured under qemu: a bound of ~4 instructions a slot and ~10 more)
+LINEAR_PER_TERM = 25
 # What the board's refit leaves the models when it chooses the signal's options: at least the cheapest forests
 # (one tree each); export.select_trees then fits the forests into what is left.
 MODELS_ALLOWANCE = 1500
@@ -100,6 +103,12 @@ def forest_nodes(forest, X: np.ndarray) -> np.ndarray:
     """Nodes each tree of a scikit-learn forest visits for each row of X (leaf included): int [trees, rows]."""
     X = np.asarray(X, dtype=np.float32)
     return np.stack([np.asarray(t.decision_path(X).sum(axis=1)).ravel() for t in forest.estimators_])
+
+
+def linear_instructions(n_terms: int) -> int:
+    """The linear energy estimate's cost (impactapp::linear_terms): LINEAR_PER_TERM a term (its coefficient and up
+    to three standardised factors); the inputs' gathering and the call are in FOREST_FIXED."""
+    return LINEAR_PER_TERM * int(n_terms)
 
 
 def forests_instructions(nodes: dict, trees: dict) -> int:

@@ -95,13 +95,19 @@ def run(args) -> int:
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
-                         exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin)
+                         exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin,
+                         choose_class=cal is None)
     choice = model.card.get("twin_choice")
     if choice:
         print(f"twin's site map {'kept' if choice['use_twin'] else 'not kept'} (training drops, out of fold): "
               f"MAE {choice['twin_mae_mm']:.2f} mm with it / {choice['forest_mae_mm']:.2f} without, class "
               f"{choice['twin_class_accuracy']:.3f} / {choice['measured_class_accuracy']:.3f}")
         site = model.site_map
+    energy = model.card.get("energy_class_choice")
+    if energy:
+        print(f"energy class: {'linear estimate of log m g h' if energy['use_linear'] else 'classifier forest'} "
+              f"(training drops, out of fold: linear {energy['linear_class_accuracy']:.3f} / forest "
+              f"{energy['forest_class_accuracy']:.3f})")
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")

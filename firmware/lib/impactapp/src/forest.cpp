@@ -30,4 +30,19 @@ float forest_mean(const ForestTables& f, const float* x) {
   return f.n_trees > 0 ? sum / static_cast<float>(f.n_trees) : 0.0f;
 }
 
+float linear_terms(const ForestTables& f, const float* x) {
+  const float* coef = f.value;
+  const float* standard = f.value + f.n_trees + 1;   // offset, scale per input
+  float sum = f.value[f.n_trees];
+  for (int32_t t = 0; t < f.n_trees; ++t) {
+    float p = coef[t];
+    for (int32_t m = 0; m < 3; ++m) {
+      const uint32_t k = f.feature[f.roots[t] + m];
+      if (k != kLeaf) p *= (x[k] - standard[2 * k]) * standard[2 * k + 1];
+    }
+    sum += p;
+  }
+  return 0.5f + sum;
+}
+
 }  // namespace impactapp

@@ -29,4 +29,11 @@ struct ForestTables {
 // Mean of the trees' leaf values for feature vector x.
 float forest_mean(const ForestTables& f, const float* x);
 
+// A linear model in the same arrays (host height_class.linear_tables; the energy class of a model whose card
+// chose the linear estimate of log m g h): n_trees terms; term t's factors are feature[roots[t] ..
+// roots[t] + 2] (input positions, kLeaf: none); value = [coef (n_trees), bias, offset_0, scale_0, offset_1,
+// scale_1, ...]. Returns 0.5 + bias + sum_t coef_t * prod((x[f] - offset_f) * scale_f), so that > 0.5 is
+// class 1 as for a classifier forest; right is unused.
+float linear_terms(const ForestTables& f, const float* x);
+
 }  // namespace impactapp

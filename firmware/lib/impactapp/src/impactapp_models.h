@@ -68,7 +68,13 @@ inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, Fo
 }
 
 // The node-table form (forest.h).
+// The energy class of a model that chose the linear estimate (IMPACTSENSE_ENERGY_LINEAR) is linear_terms over
+// the same arrays.
+#if defined(IMPACTSENSE_ENERGY_LINEAR) && IMPACTSENSE_ENERGY_LINEAR
+inline TableModels exported_models() { return exported_models_with(forest_mean, forest_mean, linear_terms); }
+#else
 inline TableModels exported_models() { return exported_models_with(forest_mean, forest_mean, forest_mean); }
+#endif
 
 // The m2cgen form (impactsense_models_m2c.c, one function per tree): the same TableModels logic (the inputs
 // gathered, impactcore::twin_match, the energy class) with the forests run as that code. The firmware's env
