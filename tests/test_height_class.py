@@ -135,8 +135,8 @@ def test_linear_model_folder_loads_and_the_emulator_classifies_as_the_host(linea
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="no host C compiler")
 def test_generated_c_of_a_linear_model_classifies_as_the_host(linear_model_export, tmp_path):
-    """The generated C function of the linear estimate (impactsense_models_m2c.c; the C driver's node-table
-    column walks forests, so the tables' form is checked through the emulator above)."""
+    """The generated C of the linear estimate, both forms: its node-table arrays (impactsense_forest_tables.c,
+    read as impactapp::linear_terms reads them) and its function (impactsense_models_m2c.c)."""
     from impactsense.export import load_models
 
     d, out, _, f = linear_model_export
@@ -154,5 +154,6 @@ def test_generated_c_of_a_linear_model_classifies_as_the_host(linear_model_expor
     Xe = X[:, m.inputs["energy"]]
     score = m.energy.score(Xe)
     clear = np.abs(score) > 1e-4
-    np.testing.assert_allclose(got[:, 5] - 0.5, score, atol=1e-4)
-    np.testing.assert_array_equal((got[clear, 5] > 0.5).astype(int), m.energy.predict(Xe)[clear])
+    for col in (2, 5):   # the node tables (the driver's copy of linear_terms), the generated function
+        np.testing.assert_allclose(got[:, col] - 0.5, score, atol=1e-4)
+        np.testing.assert_array_equal((got[clear, col] > 0.5).astype(int), m.energy.predict(Xe)[clear])
