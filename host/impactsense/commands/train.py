@@ -131,7 +131,10 @@ def run(args) -> int:
             if slope else "")
     print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us{loud}; the "
                             "physics position is the mean of both localisers'" if band else "off (threshold picks only)"))
+    linear = (model.card.get("energy_class_choice") or {}).get("use_linear")
     print(f"energy class threshold: {model.energy_threshold_j * 1000:.3f} mJ (75th percentile), from "
-          + ("the twin's height estimate (site map)" if site is not None else "the channels' energies and first peaks"))
+          + ("the twin's height estimate (site map)" if site is not None else
+             "a linear estimate of log m g h (summed energies, a cubic in position)" if linear else
+             "the channels' energies and first peaks"))
     print(f"wrote {args.out}")
     return 0
