@@ -14,7 +14,9 @@ accuracy >= 0.95 on every rig; the script exits 1 when a rig misses it.
 --calibration-dir CALS: a rig whose folder name has a calibration CALS/<name>/CAL.json (`impactsense calibrate
 DATA --out CALS/<name>/CAL.json`) is trained as `train DATA --calibration CALS/<name>/CAL.json` does: with that
 twin's site map (built once and cached beside CAL.json) when the training drops' out-of-fold figures keep it
-(column "twin": kept / not kept / - without a calibration).
+(column "twin": kept / not kept / - without a calibration). Without a site map the energy class is the
+classifier forest or the linear height estimate, as the training drops' out-of-fold accuracy chooses
+(height_class.py; column "class by": forest / linear / twin).
 """
 
 from __future__ import annotations

@@ -31,7 +31,8 @@ def train(session: Session, out=None, test_fraction: float = 0.2, seed: int = 0,
     twin's fingerprint on the training cases of `session`, holding out `test_fraction` of its cases (seeded);
     written to `out` (a model folder) if given. The model card (model.card) lists the split. calibration: a
     CAL.json of this rig (`impactsense calibrate`): with site_map "auto" its twin's site map, kept when the
-    training drops' out-of-fold figures say so (as `impactsense train --calibration`)."""
+    training drops' out-of-fold figures say so (as `impactsense train --calibration`). Without a site map the
+    energy class is the classifier forest or the linear height estimate, as those figures choose (height_class.py)."""
     from .sitemap import resolve_site_map
     from .workflow import train as _train
 
