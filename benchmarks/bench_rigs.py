@@ -115,7 +115,8 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> di
             "onset_threshold_counts": sig.onset_threshold_counts,
             "travel_metric": [sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy],
             "calibration": None if cal is None else str(cal), "site_map_s": t_map,
-            "twin_choice": model.card.get("twin_choice"), "energy_class_choice": model.card.get("energy_class_choice")}
+            "twin_choice": model.card.get("twin_choice"),
+            "energy_class_choice": model.card.get("energy_class_choice")}
 
 
 def twin_column(r: dict) -> str:
@@ -148,7 +149,8 @@ def main() -> int:
         print(f"other rigs skipped: {why}")
     rows = []
     print(f"{'rig':12s} {'material':34s} {'MAE mm':>7s} {'inner':>6s} {'phys':>6s} {'class':>6s} "
-          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s}  target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
+          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s}  "
+          f"target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
     missed = []
     for p in distinct_sessions(paths, "scored"):
         r = score(p, args.trees, args.seed, args.calibration_dir)
@@ -158,7 +160,8 @@ def main() -> int:
             missed.append(r["rig"])
         print(f"{r['rig']:12s} {r['material'][:34]:34s} {r['mae_mm']:7.2f} {r['inner_mae_mm']:6.2f} "
               f"{r['physics_mae_mm']:6.2f} {r['class_accuracy']:6.3f} {r['naive_mae_mm']:6.2f} "
-              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s}  {'ok' if ok else 'MISSED'}",
+              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s}  "
+              f"{'ok' if ok else 'MISSED'}",
               flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
