@@ -76,7 +76,7 @@ def main(argv=None):
     model = ImpactModel.load(model_dir)
     for forest in (model.forest_dx, model.forest_dy):  # the exported prefix (a random forest itself)
         forest.estimators_ = forest.estimators_[:args.trees]
-    if args.energy_trees:
+    if args.energy_trees and hasattr(model.forest_energy, "estimators_"):   # a linear energy estimate: whole
         model.forest_energy.estimators_ = model.forest_energy.estimators_[:args.energy_trees]
     fm, signal = firmware_models(build / "models")
 

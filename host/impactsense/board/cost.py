@@ -41,9 +41,11 @@ POSTERIOR_PER_POINT = 450
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
-# A term of the linear energy estimate: the loop over three factor slots, each a load, a compare and a
-# subtract-multiply-multiply where used (not measured under qemu: a bound of ~4 instructions a slot and ~10 more)
-LINEAR_PER_TERM = 25
+# A term of the linear energy estimate (impactapp::linear_terms): three factor slots, each a load and a compare and,
+# where used, two loads, a subtract and two multiplies; an upper estimate (qemu's models stage on a laminate's
+# export, 1 + 1 localisation trees and 14 terms, is 1,660 instructions; docs/findings.md "The energy class chosen
+# per training set")
+LINEAR_PER_TERM = 30
 # What the board's refit leaves the models when it chooses the signal's options: at least the cheapest forests
 # (one tree each); export.select_trees then fits the forests into what is left.
 MODELS_ALLOWANCE = 1500
