@@ -125,3 +125,20 @@ def test_basis_slices_on_a_dask_cluster_give_the_local_basis(cluster):
     assert remote.modes == local.modes > 20
     assert np.allclose(remote.omega, local.omega, rtol=1e-9, atol=0)
     assert np.allclose(remote.residual, local.residual, rtol=0, atol=1e-6 * np.abs(local.residual).max())
+
+
+def test_in_background_gives_the_result_and_raises_the_tasks_error_in_the_caller():
+    import threading
+
+    from impactsense.errors import DataError
+    from impactsense.sim.executor import in_background
+
+    names = []
+    done = in_background(lambda: names.append(threading.current_thread().name) or 42, "worker-a")
+    assert done() == 42 and names == ["worker-a"]          # ran in its own thread, its value returned
+
+    def broken():
+        raise DataError("x.npz", "adc", "truncated")
+    failed = in_background(broken, "worker-b")
+    with pytest.raises(DataError, match="truncated"):
+        failed()

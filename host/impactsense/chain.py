@@ -78,29 +78,13 @@ def start_calibration_twins(cal_path: Path, seed: int, workers: int = 1):
     """The calibration drops' simulated twins (what `adapt` needs from the FEM), started in a thread: they
     depend on CAL.json alone, so `train` runs them on the second core while it loads and featurizes the
     virtual drops. Returns a callable that waits for them (uint16 [R, 4, n])."""
-    import threading
-
     from .sim import SimParams
+    from .sim.executor import in_background
     from .zeroshot import calibration_rows, calibration_twins
 
     session, cal = measured_session(cal_path)
     params, rows = SimParams.from_json(cal_path), calibration_rows(session, cal)
-    got: dict = {}
-
-    def run():
-        try:
-            got["adc"] = calibration_twins(params, session, rows, seed, workers)
-        except BaseException as exc:        # re-raised where they are needed
-            got["error"] = exc
-    thread = threading.Thread(target=run, name="calibration-twins", daemon=True)
-    thread.start()
-
-    def result():
-        thread.join()
-        if "error" in got:
-            raise got["error"]
-        return got["adc"]
-    return result
+    return in_background(lambda: calibration_twins(params, session, rows, seed, workers), "calibration-twins")
 
 
 def adapt(model, virtual: Session, cal_path: Path, seed: int, workers: int = 2, cal_sim=None) -> dict:

@@ -52,13 +52,19 @@ def save_forest(target, forest) -> None:
     np.savez(target, meta=np.array(json.dumps(meta)), **arrays)
 
 
-def load_forest(path, data: bytes | None = None):
-    """The forest in `path` (or in `data`, the file's bytes, already read and checked by the caller)."""
+def read_arrays(path, data: bytes | None, what: str) -> dict:
+    """The arrays of the .npz in `path` (or in `data`, its bytes), never unpickling anything; an unreadable
+    or truncated file is a DataError naming it as `what`."""
     try:
         with np.load(io.BytesIO(data) if data is not None else path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+            return {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError, RuntimeError) as exc:
-        raise DataError(path, None, f"not a forest file (unreadable or truncated: {exc})") from None
+        raise DataError(path, None, f"not a {what} (unreadable or truncated: {exc})") from None
+
+
+def load_forest(path, data: bytes | None = None):
+    """The forest in `path` (or in `data`, the file's bytes, already read and checked by the caller)."""
+    arrays = read_arrays(path, data, "forest file")
     try:
         return _build(arrays)
     except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError, RecursionError) as exc:

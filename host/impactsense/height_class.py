@@ -18,16 +18,14 @@ records the figures.
 
 from __future__ import annotations
 
-import io
 import json
-import zipfile
-import zlib
 from dataclasses import dataclass
 from itertools import combinations_with_replacement
 
 import numpy as np
 
 from .errors import DataError
+from .forestfile import read_arrays
 
 FORMAT = "impactsense-linear-class-1"
 LINEAR_ENERGY_FILE = "linear_energy.npz"
@@ -98,11 +96,7 @@ class LinearHeightClass:
     def load(cls, path, data: bytes | None = None) -> "LinearHeightClass":
         """The model in `path` (or in `data`, its bytes already read and checked by the caller); a damaged or
         crafted file is a DataError naming it."""
-        try:
-            with np.load(io.BytesIO(data) if data is not None else path, allow_pickle=False) as z:
-                a = {k: z[k] for k in z.files}
-        except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError, RuntimeError) as exc:
-            raise DataError(path, None, f"not a linear class file ({exc})") from None
+        a = read_arrays(path, data, "linear class file")
         try:
             meta = json.loads(str(a["meta"][()]))
             if not isinstance(meta, dict) or meta.get("format") != FORMAT:

@@ -99,12 +99,12 @@ def start_site_map(args):
     converted and written. Returns a callable that waits for it and caches it in the folder; None when no map
     is needed (the twin's map is cached already, e.g. the bundled twin's) or the measured session is unreadable
     (train reports that)."""
-    import threading
     from pathlib import Path
 
     from ..chain import measured_session
     from ..errors import DataError
     from ..sim import SimParams
+    from ..sim.executor import in_background
     from ..zeroshot import build_twin_site_map, cached_twin_site_map, twin_site_map
 
     try:
@@ -114,22 +114,10 @@ def start_site_map(args):
     params = SimParams.from_json(args.calibration)
     if cached_twin_site_map(params, Path(args.out)) is not None:
         return None
-    got: dict = {}
-
-    def build():
-        try:
-            got["site"] = build_twin_site_map(params, session, progress=False)
-        except BaseException as exc:        # re-raised in the main thread
-            got["error"] = exc
-
-    thread = threading.Thread(target=build, name="site-map", daemon=True)
-    thread.start()
+    built = in_background(lambda: build_twin_site_map(params, session, progress=False), "site-map")
 
     def finish():
-        thread.join()
-        if "error" in got:
-            raise got["error"]
-        site = twin_site_map(params, session, Path(args.out), built=got["site"])
+        site = twin_site_map(params, session, Path(args.out), built=built())
         print(f"the twin's site map: {site.nx} x {site.ny} points, step {site.step_mm:g} mm (for train --site-map "
               "auto)")
     return finish

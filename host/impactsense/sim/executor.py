@@ -97,3 +97,28 @@ class Executor:
         pool_type = ThreadPoolExecutor if self.kind == "threads" else ProcessPoolExecutor
         with pool_type(max_workers=self.workers) as pool:
             yield from pool.map(fn, tasks)
+
+
+def in_background(task: Callable[[], object], name: str) -> Callable[[], object]:
+    """`task()` started in a daemon thread (the C++ kernel releases the GIL, so it takes the second core while
+    this thread goes on). Returns a callable that waits for it and gives its result, or re-raises its error
+    in the caller's thread."""
+    import threading
+
+    got: dict = {}
+
+    def run():
+        try:
+            got["result"] = task()
+        except BaseException as exc:        # re-raised where the result is needed
+            got["error"] = exc
+
+    thread = threading.Thread(target=run, name=name, daemon=True)
+    thread.start()
+
+    def result():
+        thread.join()
+        if "error" in got:
+            raise got["error"]
+        return got["result"]
+    return result
