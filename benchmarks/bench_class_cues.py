@@ -23,7 +23,6 @@ bench_rigs.py's). Figures: docs/findings.md, "The class on the laminate: what bo
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -32,8 +31,7 @@ import numpy as np
 from scipy.stats import norm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_rigs import rig_folders  # noqa: E402
-from benchlib import distinct_sessions  # noqa: E402
+from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
 
 G = 9.80665
 TARGET_CLASS = 0.95
@@ -244,17 +242,9 @@ def analyse(path, seeds: int) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rigs-dir", default=None)
-    ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--json", default=None)
-    ap.add_argument("--skip-bundled", action="store_true", help="only the other rigs")
-    a = ap.parse_args(argv)
-    folders, why = rig_folders(a.rigs_dir)
-    if why:
-        print(f"other rigs skipped: {why}")
+    a = rig_study_args(__doc__.splitlines()[0], argv)
     report, misses = {}, []
-    for path in distinct_sessions([*([] if a.skip_bundled else ["bundled"]), *map(str, folders)]):
+    for path in rig_study_sessions(a):
         name = Path(path).name
         r = analyse(path, a.seeds)
         report[name] = r

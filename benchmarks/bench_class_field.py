@@ -26,7 +26,6 @@ heights".
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections import Counter
@@ -36,8 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_class_cues import class_boundary_log, oof_log_height, position_design, ridge  # noqa: E402
-from bench_rigs import rig_folders  # noqa: E402
-from benchlib import distinct_sessions  # noqa: E402
+from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
 
 ENERGY_SUMS = ["log_arrival_energy_sum", "log_diff1_energy_sum", "log_diff2_energy_sum", "log_diff3_energy_sum",
                "log_energy_mean"]
@@ -164,17 +162,9 @@ def seed_study(session, seeds: int) -> dict:
 def main(argv=None) -> int:
     from impactsense.data import load_session
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rigs-dir", default=None)
-    ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--json", default=None)
-    ap.add_argument("--skip-bundled", action="store_true", help="only the other rigs")
-    a = ap.parse_args(argv)
-    folders, why = rig_folders(a.rigs_dir)
-    if why:
-        print(f"other rigs skipped: {why}")
+    a = rig_study_args(__doc__.splitlines()[0], argv)
     report = {}
-    for path in distinct_sessions([*([] if a.skip_bundled else ["bundled"]), *map(str, folders)]):
+    for path in rig_study_sessions(a):
         s = load_session(path)
         r = {"late": late_energy(s), **seed_study(s, a.seeds)}
         report[s.name] = r

@@ -70,3 +70,25 @@ def write_json(path, result) -> None:
     if path:
         with open(path, "w") as fh:
             json.dump(result, fh, indent=1)
+
+
+def rig_study_args(description: str, argv=None):
+    """The arguments every per-rig study takes: --rigs-dir, --seeds, --json, --skip-bundled."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--rigs-dir", default=None)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--skip-bundled", action="store_true", help="only the other rigs")
+    return ap.parse_args(argv)
+
+
+def rig_study_sessions(args):
+    """The bundled session (unless --skip-bundled) and each rig folder under --rigs-dir, the same data once."""
+    from bench_rigs import rig_folders
+
+    folders, why = rig_folders(args.rigs_dir)
+    if why:
+        print(f"other rigs skipped: {why}")
+    return distinct_sessions([*([] if args.skip_bundled else ["bundled"]), *map(str, folders)])
