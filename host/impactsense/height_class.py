@@ -3,7 +3,7 @@ classifier forest per training set.
 
 `LinearHeightClass` estimates log(m g h) as a linear function of the core's summed arrival energies, their
 channel mean and a cubic in the physics position (LINEAR_CLASS_FEATURES; docs/findings.md "Late energy, a
-learnt field, the heights": on a laminate it classifies better than the forest, on PMMA not) and calls a drop
+learnt field, the heights": on some plates better than the forest, on others not) and calls a drop
 "high" when the estimate is above the boundary between the training drops' energies either side of their 75th
 percentile. Its form is the board's too (impactapp::linear_terms): each input standardised,
 z_i = (x_i - offset_i) * scale_i, then score = bias + sum_k coef_k * prod(z of term k's factors) and class 1

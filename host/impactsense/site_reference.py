@@ -246,7 +246,7 @@ def floor_parts(F: R.Features, ref: R.Reference | None = None) -> dict:
 # AIC onset, the default; the rig's configured blend; 0: the threshold crossing), and, when asked for
 # (`choose_picker`'s level_sets, e.g. MEAN_LEVEL_SETS), for the crossings (blend < 1) the mean of the picks at
 # several multiples (`residuals.core_picks`). Off in `diagnose`: it lowers the held-out DToA on every reference
-# tried, and the loop gains on the bundled sessions but loses on rig-b's (docs/findings.md, "What the
+# tried, and the loop gains on the bundled sessions but loses on another rig's (docs/findings.md, "What the
 # reference's floor is made of"). Another than the default is kept when its held-out DToA is below
 # PICKER_GAIN x the default's.
 PICKER_THRESHOLD_FACTORS = (1.0, 2.0, 3.0)
