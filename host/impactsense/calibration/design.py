@@ -147,17 +147,16 @@ def fit_surrogates(opts, x_unit, outputs, split):
 def _surrogates_beside_screening(clock, opts, x_unit, outputs, split, png: Path):
     """fit_surrogates (worker processes) and the screening (this process, a thread) at the same time: neither
     needs the other. The clock's "surrogates" CPU seconds include the screening's; "screening" is its wall."""
-    from concurrent.futures import ThreadPoolExecutor
+    from ..sim.executor import in_background
 
     def timed_screen():
         t = time.perf_counter()
         res = screen(x_unit, outputs, png)
         clock.seconds["screening"] = round(time.perf_counter() - t, 3)
         return res
-    with ThreadPoolExecutor(max_workers=1) as side:
-        screened = side.submit(timed_screen)
-        table, best = fit_surrogates(opts, x_unit, outputs, split)
-        return table, best, screened.result()
+    screened = in_background(timed_screen, "screening")
+    table, best = fit_surrogates(opts, x_unit, outputs, split)
+    return table, best, screened()
 
 
 def screen(x_unit, outputs, png: Path):
