@@ -6,7 +6,7 @@ feature vector. The energy classifier is a random forest on the energy features;
 m g h at or above the 75th percentile of the training drops. With the twin's site map (sitemap.py) the
 classifier reads the twin's height estimate instead (twin.py, the core's twin_estimate), and the reported
 position is the twin's matched position around the forests' (the site map's grid points whose simulated
-energies explain the event; MAE 2.39 -> 1.30 mm on the demo split, 6.5 -> 2.8 mm at the board rate), and
+energies explain the event; its gain is in docs/findings.md), and
 its uncertainty a calibrated 1-sigma radial error (twin.calibrated_uncertainty), fitted on out-of-fold errors
 of the training drops (out_of_fold_twin).
 """

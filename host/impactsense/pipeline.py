@@ -282,8 +282,8 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     if not band_mae < BAND_GAIN * mae(off):
         return off
     # Kept band picks only: their localiser's slowness linear in the drop's summed log energy, kept by the same
-    # rule against one velocity. Tried where the band picks were off too, it turned them on for PMMA (session-2:
-    # steep slopes, the held-out physics positions worse; docs/findings.md "the speed follows the drop").
+    # rule against one velocity. Tried where the band picks were off too, it turned them on where their slopes were
+    # steep and the held-out physics positions worse (docs/findings.md "the speed follows the drop").
     loud = energy_slowness_config(session, rows, trial)
     if loud is not None and (fits is None or fits(loud)) and mae(loud) < BAND_GAIN * band_mae:
         return loud

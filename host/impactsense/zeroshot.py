@@ -9,13 +9,12 @@ Only the four calibration drops ever inform the sim-trained model about the rig:
 damping parameters, the per-channel timing offsets and gains (the `channel_delay` and `sensor_gain` effects of the diagnosis:
 the rig's electronics and bonds, which the plate model cannot know) are fitted as measured minus simulated
 ToA, and measured over simulated energy, on those drops; so is the twin's error in the picks' group velocity
-(the part of measured minus simulated ToA that grows with the path length: the bundled twin's picks travel
-at 0.894 mm/us over the virtual drops, the rig's at 0.946; uncorrected, that 5 % scale error of the physics
-position is one the sim-trained forests cannot undo); so are the band picks' delays and speed, the same way (fit_band_on_calibration_drops), and on a plate with elliptical wavefronts the localiser's travel models themselves (refit_travel_metric: the twin's anisotropy is the weakest part of it); and so is the twin's spectral tilt: the measured
+(the part of measured minus simulated ToA that grows with the path length: a few per cent between the twin's
+picks and the rig's, docs/findings.md; uncorrected, that scale error of the physics position is one the
+sim-trained forests cannot undo); so are the band picks' delays and speed, the same way (fit_band_on_calibration_drops), and on a plate with elliptical wavefronts the localiser's travel models themselves (refit_travel_metric: the twin's anisotropy is the weakest part of it); and so is the twin's spectral tilt: the measured
 minus simulated arrival energies and difference energies (log10, summed over sensors) of those drops, by
 which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
-mesh and sensor model lose some of the highest frequencies: a constant offset per feature, ~0.04-0.14 on
-session-1, while the features' growth with the drop height matches the rig's).
+mesh and sensor model lose some of the highest frequencies: a constant offset per feature, while the features' growth with the drop height matches the rig's).
 
 The reported uncertainty (uncertainty_mm, a calibrated 1-sigma radial error: twin.calibrated_uncertainty)
 keeps the shape a + b spread and the misfit inflation fitted on the virtual drops' out-of-fold errors, but

@@ -7,8 +7,8 @@ The fast model's grid (`plate`, Eq. 16 on the AIC DToA) gives nu and the E basin
 
 over the four drops and six pairs, sigma = the standard error of the measured target (the pooled spread of
 the drop's accepted repetitions / sqrt(repetitions), at least `SIGMA_FLOOR_US`). The twin's E is fitted (nu
-held) to the AIC part, Eq. 16: the DToA the models learn from; on session-1 the band arrivals pull E away
-from the AIC's optimum (model error), so they only measure identifiability. `nu_identifiability` measures,
+held) to the AIC part, Eq. 16: the DToA the models learn from; the band arrivals can pull E away from the
+AIC's optimum (model error), so they only measure identifiability. `nu_identifiability` measures,
 at the fit, how far one 0.01 of nu at fixed bending stiffness moves these observables against sigma, and the
 best-case standard deviation of nu with E free. On FEM-made drops (4 drops, 100 kHz) it is ~0.01 and the
 end-to-end error on FEM-made drops ~0.04: nu is not identified by these observables, E / (1 - nu^2) is

@@ -1,6 +1,6 @@
 """wave_speed: a change of the group velocity of the first arrival (temperature, ageing). Unit: m/s.
 
-Physical meaning: PMMA's stiffness falls with temperature, so the flexural wave slows on a warmer day;
+Physical meaning: a polymer plate's stiffness falls with temperature, so the flexural wave slows on a warmer day;
 every ToA changes in proportion to the travel distance. Observable: centred ToA residual ∝ distance.
 """
 

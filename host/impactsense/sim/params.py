@@ -31,8 +31,8 @@ Defaults (documented, see docs/method.md):
 - disc_inertia_factor 1.06: the rotary inertia under the discs (plate + ceramic) is raised by 6 % (never past the
   plate's D / I). The stiff disc elements set the explicit step, so the limit rises by about 3 % (at most
   sqrt(1.06)): the 1 mm mesh takes 29 steps per ADC sample instead of 30, the default mesh 14 instead of 15.
-  Disc voltages of the default mesh move by 0.04 % RMS and the DToA against session-1 stays 12.25 us (it jumps
-  to 12.8 us from a factor of 1.1: one threshold pick moves by a sample). 1.0 = the physical disc.
+  The disc voltages and the DToA against the bundled recordings hardly move (docs/findings.md); a larger factor
+  moves threshold picks by whole samples. 1.0 = the physical disc.
 - disc_inertia_scaling (off): the ceramic's bending stiffness makes the elements under a disc ~4x stiffer in
   bending than the plate, and they set the explicit step (1 mm mesh: 0.348 us; 0.456 us without them).
   Turned on, the rotary inertia under each disc is raised (x1.73 for the rig's disc) so that its D / I
@@ -55,8 +55,8 @@ Defaults (documented, see docs/method.md):
   outputs); modal_poles "fem_step"
   (default): each mode oscillates as the direct solver's central-difference step makes it (its numerical
   dispersion, which the calibration absorbed), "exact": the continuous-time modes.
-- circuit_gain 0.04: the open-circuit disc law gives ~20-25 V peaks for 150 mm drops; the rig's ADC sees
-  ~0.9 V (median peak 1100 counts in session-1): the disc's capacitance is loaded by the input network.
+- circuit_gain 0.04: the open-circuit disc law gives tens of volts for a 150 mm drop, the bundled logger's ADC
+  sees about a volt: the disc's capacitance is loaded by the input network (docs/findings.md).
 - ball: steel E = 210 GPa, nu = 0.30.
 - numerics: element size by Eq. 1 (L_e = lambda_A0(f_max) / 10 along the plate's softest direction, f_max =
   3 / T_contact of a Hertz impact from `max_height_mm` on a rigid-backed half space of the plate material,
@@ -127,7 +127,7 @@ class SimParams:
     disc_inertia_factor: float = 1.06      # rotary inertia under the discs x this (capped at the plate's D/I)
     subcycle: bool = True                  # fine meshes: the disc patches stepped with dt / m, the plate at its limit
     subcycle_max_element_mm: float = 1.5   # sub-cycle only meshes this fine (the interface error grows with h)
-    circuit_gain: float = 0.04             # ADC-input volts per disc volt (sign = wiring); fitted to session-1 peaks
+    circuit_gain: float = 0.04             # ADC-input volts per disc volt (sign = wiring); fitted to the bundled peaks
     # ball
     ball_e_pa: float = 210e9
     ball_nu: float = 0.30

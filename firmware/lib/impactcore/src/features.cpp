@@ -913,9 +913,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   if (begin < 0) begin = 0;
   int end = icross + cfg.aic_after + 1;
   if (end > n) end = n;
-  // The onset is sought in the last quarter of the samples before the crossing (7 samples at 50 kHz, 15 at
-  // 100 kHz: the AIC minimum lies within 3.1 samples of it at 50 kHz, 6.1 at 100 kHz, over session-1's 3084
-  // picks); the earlier samples give the noise variance. Same picks as the whole-window search there, at
+  // The onset is sought in the last quarter of the samples before the crossing (the AIC minimum lies a few
+  // samples before it on recorded drops); the earlier samples give the noise variance. Same picks as the whole-window search there, at
   // less than half the logarithms (docs/findings.md, "The per-event cost").
   bool clean_copy = bl.hum != 0;
   if (!clean_copy && icross > begin) {   // a glitch before the crossing would set the AIC's noise variance

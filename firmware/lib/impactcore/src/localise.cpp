@@ -450,13 +450,11 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
     return res;
   }
   // One start, screened by the sum of squared ToA residuals (t0 their mean; ~60 instructions a point):
-  // the kGrid x kGrid cell centres and four inset corners. On session-1 (771 drops) this finds the basin
-  // the former six starts (the closed-form range-difference solution, the centre, four quadrant centres,
-  // each run to convergence, the lowest Huber cost kept) found, and where they disagree it does better:
-  // physics MAE 10.5 -> 10.2 mm at 50 kHz, 4.43 -> 4.43 mm at 100 kHz (the closed-form start ended > 1 mm
-  // from that answer on 121 of 771 board-rate drops, 86 mm off the truth on average). Cost: 20 screens
-  // and at most 1 + 7 kMaxIterations normal-equation evaluations (14 at most on session-1), instead of up
-  // to six Gauss-Newton runs of 25 iterations.
+  // the kGrid x kGrid cell centres and four inset corners. It finds the basin the former six starts (the
+  // closed-form range-difference solution, the centre, four quadrant centres, each run to convergence, the
+  // lowest Huber cost kept) found, and where they disagree it does better (docs/findings.md). Cost: 20
+  // screens and at most 1 + 7 kMaxIterations normal-equation evaluations, instead of up to six Gauss-Newton
+  // runs of 25 iterations.
   // The `starts` lowest-cost screening points (kept in order, ties in screening order) are each refined
   // and the lowest Huber cost wins; starts = 1 is the single start above, bit for bit.
   float jtj[6];

@@ -285,8 +285,8 @@ float pick_period(const int16_t* x, int n, float base, float cross) {
 // 2^t from IEEE float +, -, * and the exponent's bits (2^k times a degree-7 series of e^(f ln 2) for
 // f = t - k in [-1/2, 1/2]: truncation < 6e-9 relative). With fast_log2 it gives the dispersion scales the same
 // bits on the board and the host, where libm's powf is not the same function: newlib's differed from glibc's by
-// one ulp on a session-1 drop, which moved the localiser's end in a flat Huber valley by 0.05 mm (its RMS
-// residual 7.816 vs 7.826 us), so the board's report was not the host's.
+// one ulp on a recorded drop, which moved the localiser's end along a flat Huber valley, so the board's report
+// was not the host's.
 static float portable_exp2(float t) {
   if (t > 127.0f) t = 127.0f;
   if (t < -126.0f) t = -126.0f;
