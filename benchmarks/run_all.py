@@ -58,6 +58,7 @@ PRINT_ONLY = {
     "bench_class_cues": ["--seeds", "1"],             # height cues besides the energy; the class's bound
     "bench_move_energy": [],                          # a moved disc's energy against the distance law (issue 16)
     "bench_class_field": ["--seeds", "1"],            # late energy, a learnt position field, the heights
+    "bench_class_sitefactor": ["--seeds", "1"],       # the class from the twin's site factor (rigs with a CAL.json)
 }
 
 
