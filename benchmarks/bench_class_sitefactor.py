@@ -15,11 +15,12 @@ held-out 20 % of `train`; the localiser fitted on the training cases):
   position); the per-kind median over the channels of the site-corrected energies (robust to one channel) at
   the forests' position, alone and beside the summed energies; the channels' inverse-variance mean (each
   channel's weight 1 / (the map's local variance within the position error + tau^2): the near-edge channel's
-  energy is the most site-dependent); the twin's own height estimate (twin.estimate) beside the summed energies;
-  the product's twin class (bagged stumps) for reference; and the one of the ridges the training drops'
-  out-of-fold accuracy picks;
-- bounds: the site-corrected median at the true position, and at the true position plus a Gaussian error of
-  2, 4 and 6 mm per axis (what the site factor needs of the position).
+  energy is the most site-dependent); the twin's own height estimate (twin.estimate) alone and beside the
+  summed energies; the product's twin class (bagged stumps) for reference; and the one of the ridges the
+  training drops' out-of-fold accuracy picks;
+- bounds: the site-corrected median at the true position, at the true position plus a Gaussian error of
+  2, 4 and 6 mm per axis, and at the true position plus the forests' own error scaled by 0.25, 0.5 and 0.75
+  (what the site factor needs of the position).
 
 Every ridge is height_class.fit_linear_height_class (log m g h on its inputs and a cubic in the position, the
 boundary midway in log between the heights either side of the 75th percentile); out of fold: 5 position-grouped
@@ -41,6 +42,7 @@ from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
 KINDS = 4
 CHANNELS = 4
 POSITION_ERRORS_MM = (2.0, 4.0, 6.0)
+ERROR_SCALES = (0.25, 0.5, 0.75)
 TAUS = (0.02, 0.05, 0.1)
 
 
@@ -217,6 +219,7 @@ def seed_study(session, site, seed: int) -> dict:
     est = np.asarray(twin_estimate(site, fit, feats, usable, fpos)["log10_height_mm"], float)
     est_phys = np.asarray(twin_estimate(site, fit, feats, usable, phys)["log10_height_mm"], float)
     est = np.where(np.isfinite(est), est, np.nanmedian(est))
+    cands["twin height"] = np.c_[est, fpos]
     cands["summed energies + twin height"] = np.c_[sums, est, fpos]
     rows = {name: ridge_scores(V, energy, xy, train, test) for name, V in cands.items()}
     best = max(rows, key=lambda k: rows[k]["oof_class"])
@@ -228,11 +231,16 @@ def seed_study(session, site, seed: int) -> dict:
     rows["twin class (stumps, product with a site map)"] = {
         "class": float(np.mean(stumps.predict(est[test, None]) == (energy[test] >= t)))}
     # bounds: the site factor at the true position, and with a known position error
-    rows["bound: site-corrected median, true position"] = ridge_scores(np.c_[median_at(xy), xy], energy, xy, train, test)
+    rows["bound: site-corrected median, true position"] = ridge_scores(np.c_[median_at(xy), xy], energy, xy, train,
+                                                                       test)
     rng = np.random.default_rng(seed)
     for e in POSITION_ERRORS_MM:
         noisy = xy + rng.normal(0.0, e, xy.shape)
         rows[f"bound: true position + {e:g} mm"] = ridge_scores(np.c_[median_at(noisy), noisy], energy, xy, train, test)
+    # the forests' own errors (where they are: near the edges, per case) scaled down
+    for k in ERROR_SCALES:
+        pos = xy + k * (fpos - xy)
+        rows[f"bound: forests' error x {k:g}"] = ridge_scores(np.c_[median_at(pos), pos], energy, xy, train, test)
     out["rows"] = rows
     return out
 
