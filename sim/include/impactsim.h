@@ -131,6 +131,8 @@ struct RunConfig {
   bool record_energy = false;       // energy at each record sample
   bool stop_after_contact = false;  // contact-window mode: stop once the ball has clearly left
   double quiet_after_contact_s = 100e-6;
+  // ... for at least quiet_after_contact_s and this fraction of the contact's own duration (first to last touch)
+  double quiet_after_contact_fraction = 1.0;
   int nan_check_every = 50;
   // initial state (optional; empty = at rest)
   std::vector<double> w0, bx0, by0, vw0, vbx0, vby0;

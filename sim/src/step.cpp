@@ -260,7 +260,7 @@ bool Plate::Run::step(int64_t n) {
   res_.steps_done = n + 1;
   check(n);
   return !(c.stop_after_contact && t_first_ >= 0 && !in_contact_ && vb_ < 0 &&
-           t - t_last_ > std::max(c.quiet_after_contact_s, t_last_ - t_first_));
+           t - t_last_ > std::max(c.quiet_after_contact_s, c.quiet_after_contact_fraction * (t_last_ - t_first_)));
 }
 
 RunResult Plate::Run::result() {

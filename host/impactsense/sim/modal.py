@@ -35,8 +35,7 @@ import scipy.sparse as sp
 
 from .model import Model
 from .modal_basis import ModalBasis
-
-QUIET_AFTER_CONTACT_S = 100e-6   # as the FEM's contact window (simulate.contact_window)
+from .simulate import QUIET_AFTER_CONTACT_FRACTION, QUIET_AFTER_CONTACT_S   # as the FEM's contact window
 NEWTON_ITERATIONS = 8
 CHUNK_STEPS = 256                # contact kernel columns computed at a time
 
@@ -187,7 +186,7 @@ def contact_window(model: Model, poles: Poles, phi_c, resid, v0) -> dict:
         s1[a] += n * f
         v_ball = v0[a] + g * t - tau / mass * (s0[a] - 0.5 * f)
         gone = (t_first[a] >= 0) & ~now & (v_ball < 0) & \
-            (t - t_last[a] > np.maximum(QUIET_AFTER_CONTACT_S, t_last[a] - t_first[a]))
+            (t - t_last[a] > np.maximum(QUIET_AFTER_CONTACT_S, QUIET_AFTER_CONTACT_FRACTION * (t_last[a] - t_first[a])))
         if gone.any():
             active = a[~gone]
             if active.size == 0:

@@ -11,9 +11,9 @@ fields are already cached, fast otherwise):
   with g_s(x, t) the voltage of disc s for a force at x. By reciprocity (K, M and the mass-proportional
   damping are symmetric) g_s(x, t) is the plate displacement at x when disc s's sensing functional is
   applied as a load: ONE run per disc gives g_s at every node. The force F(t) needs the local plate response,
-  so each drop still runs the ball on the plate, but only for the contact window (until the ball has left for
-  longer than the contact lasted, <= contact_window_ms), then V = sum_q F(q dT) g_s(x, t - (q - 1) dT)
-  with F expanded in hat functions on the ADC grid dT (the reciprocal run is driven by that hat). This is
+  so each drop still runs the ball on the plate, but only for the contact window (until the ball has been away
+  for 100 us and half as long as the contact lasted, <= contact_window_ms), then
+  V = sum_q F(q dT) g_s(x, t - (q - 1) dT) with F expanded in hat functions on the ADC grid dT (the reciprocal run is driven by that hat). This is
   exact for the discrete model up to the piecewise-linear expansion of F; a touch after the window is lost.
 Both paths sample the voltage with hat weights on the ADC grid (a linear-B-spline average, a 1.5 %
 attenuation at 20 kHz for 100 kHz sampling).
@@ -113,13 +113,22 @@ def direct_drop(model: Model, x_m: float, y_m: float, v0: float, *, n_record=Non
     return out
 
 
+# The fast path's contact window ends once the ball has been off the plate (and rising) for QUIET_AFTER_CONTACT_S
+# and QUIET_AFTER_CONTACT_FRACTION of the contact's own duration, whichever is longer: a touch after that is lost.
+# The second touches seen come well inside that wait (docs/findings.md, "The cold chain's CPU cut", coldchain4);
+# the late part of a window steps the whole plate, so a longer wait is the window's dearest part.
+QUIET_AFTER_CONTACT_S = 100e-6
+QUIET_AFTER_CONTACT_FRACTION = 0.5
+
+
 def contact_window(model: Model, x_m: float, y_m: float, v0: float) -> dict:
     """The ball on the plate until it has clearly left (fast path): force history per step."""
     p = model.params
     n_steps = int(math.ceil(p.contact_window_ms * 1e-3 / model.dt_s))
     return _run(model, dt_s=model.dt_s, n_steps=n_steps, record_every=model.record_every, n_record=0,
                 ball=[x_m, y_m, model.ball_mass_kg, model.k_hertz, v0, p.g_m_s2], stop_after_contact=True,
-                quiet_after_contact_s=100e-6)
+                quiet_after_contact_s=QUIET_AFTER_CONTACT_S,
+                quiet_after_contact_fraction=QUIET_AFTER_CONTACT_FRACTION)
 
 
 def reciprocal_fields(model: Model, *, workers: int = 2) -> list:

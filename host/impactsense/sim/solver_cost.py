@@ -2,7 +2,8 @@
 
 - direct (the fast path, `simulate.py`): four reciprocal runs over the whole record, then per drop the ball on
   the plate for its contact window (about twice the rigid Hertz contact time, the plate's give lengthens it,
-  plus the 100 us quiet tail), each step costing the mesh's elements x `DIRECT_S_PER_ELEMENT_STEP`;
+  plus the quiet tail of `simulate.contact_window`), each step costing the mesh's elements x
+  `DIRECT_S_PER_ELEMENT_STEP`;
 - modal: the basis when it is not cached (free dofs x modes x `BASIS_S_PER_DOF_MODE`: the inertia-planned
   Lanczos slices and the residual probes, `modal_basis.py`), else its load; per drop its modal sum (modes x
   record samples x `MODAL_S_PER_DROP_MODE_SAMPLE`).
@@ -25,17 +26,19 @@ BASIS_S_PER_DOF_MODE = 2.0e-6
 MODAL_S_PER_DROP_MODE_SAMPLE = 2.2e-9
 MODAL_LOAD_S = 1.5
 MODE_COUNT_FACTOR = 2.0
-QUIET_AFTER_CONTACT_S = 100e-6      # the fast path's contact window runs this long after the ball has left
 
 
 def contact_steps(model, height_mm) -> float:
     """Mean steps of the fast path's contact windows for drops from height_mm: 2 x the rigid Hertz contact
     time (the plate's compliance lengthens it) + the quiet tail, at most contact_window_ms."""
     from .model import impact_velocity
+    from .simulate import QUIET_AFTER_CONTACT_FRACTION, QUIET_AFTER_CONTACT_S
 
     v = np.maximum(np.asarray(impact_velocity(model.params, np.atleast_1d(height_mm)), float), 1e-3)
     depth = (5 * model.ball_mass_kg * v ** 2 / (4 * model.k_hertz)) ** 0.4
-    t = np.minimum(2 * 2.9432 * depth / v + QUIET_AFTER_CONTACT_S, model.params.contact_window_ms * 1e-3)
+    contact = 2 * 2.9432 * depth / v
+    quiet = np.maximum(QUIET_AFTER_CONTACT_S, QUIET_AFTER_CONTACT_FRACTION * contact)
+    t = np.minimum(contact + quiet, model.params.contact_window_ms * 1e-3)
     return float(np.mean(t)) / model.dt_s
 
 
