@@ -87,8 +87,10 @@ def test_a_twin_far_off_stops_after_its_first_round():
 def test_a_hopeless_round_is_judged_before_its_fit_and_a_far_start_is_not():
     """The round's trust-region fit is not run when its linearised optimum (the Jacobian it would start with)
     stays far above the claim's limit: only the position fit, the position Jacobian and the start's Jacobian
-    are paid. A start far from the truth on group delays the twin explains (chi^2 / dof in the thousands at
-    the start) is not mistaken for one: the prediction sees the fit reach them, and the fit runs."""
+    are paid, and not the position fit either when the optimum from the declared positions (their linear
+    freedom projected out) stays above a wider limit. A start far from the truth on group delays the twin
+    explains (chi^2 / dof in the thousands at the start) is not mistaken for one: the prediction sees the fit
+    reach them, and the fit runs."""
     rng = np.random.default_rng(3)
     x, y, h = rng.uniform(60, 260, 6), rng.uniform(60, 260, 6), np.full(6, 150.0)
     clean = twin(4200.0, 0.36, 800.0, x, y, h)
@@ -102,9 +104,18 @@ def test_a_hopeless_round_is_judged_before_its_fit_and_a_far_start_is_not():
     res = plate_nu.fit(counted, off, np.full(3, 0.3), group_delay.names(), x, y, h, (4000.0, 0.35, 800.0),
                        ds_prior=(800.0, 80.0), rounds=2)
     assert "stopped" in res.rounds[0] and res.rounds[0]["fem_runs"] == 4     # the start and its 3 differences
-    assert calls[0] <= 2 + 3 * plate_nu.POSITION_ITERS + 4 + 3 < plate_nu.max_evaluations(1) / 2
-    assert res.rounds[0]["chi2_predicted"] / res.dof > plate_nu.STOP_CHI2_DOF
+    # far above even the wider limit at the declared positions: the position fit is not run either (the
+    # position Jacobian's four runs, the start and its three differences)
+    assert res.rounds[0]["positions"] == "declared" and calls[0] == 4 + 1 + 3
+    assert res.rounds[0]["chi2_predicted"] / res.dof > plate_nu.EARLY_STOP_CHI2_DOF
     assert not res.identified((0.30, 0.40))[0]
+    # between the two limits: the positions are fitted and the round judged again from them, as before
+    calls[0] = 0
+    mid = plate_nu.fit(counted, clean + rng.normal(0, 2.0, clean.shape), np.full(3, 0.3), group_delay.names(), x,
+                       y, h, (4000.0, 0.35, 800.0), ds_prior=(800.0, 80.0), rounds=2)
+    assert "stopped" in mid.rounds[0] and "positions" not in mid.rounds[0]
+    assert plate_nu.STOP_CHI2_DOF < mid.rounds[0]["chi2_predicted"] / mid.dof < plate_nu.EARLY_STOP_CHI2_DOF
+    assert 8 + 1 + 3 * plate_nu.POSITION_ITERS + 4 + 4 >= calls[0] > 8 + 3 * plate_nu.POSITION_ITERS
     far = plate_nu.fit(twin, clean + rng.normal(0, 0.3, clean.shape), np.full(3, 0.3), group_delay.names(), x, y,
                        h, (2500.0, 0.31, 1000.0), ds_prior=(800.0, 80.0), rounds=2)
     assert far.rounds[0]["chi2_start"] / far.rounds[0]["dof"] > 100 * plate_nu.STOP_CHI2_DOF

@@ -50,6 +50,11 @@ SD_FRACTION_MAX = 1.0 / 3.0
 # "The cold chain"). Likewise a round's trust-region fit is not run when the linearised fit from its start
 # (`predicted_chi2`, from the Jacobian the fit would begin with) stays above this.
 STOP_CHI2_DOF = 10 * CHI2_DOF_MAX
+# The first round is judged once before its position fit too, from the declared positions with their linear
+# freedom projected out: positions move the group delays non-linearly (edge reflections), so that judgement stops
+# the round only above this wider limit; below it the round goes on as before (docs/findings.md, "The cold chain's
+# CPU cut")
+EARLY_STOP_CHI2_DOF = 3 * STOP_CHI2_DOF
 DS_SYSTEMATIC = 0.03                # the decay estimate's systematic error (fraction of D_s) for its prior
 
 
@@ -197,8 +202,9 @@ def max_evaluations(rounds: int, max_nfev: int = MAX_NFEV) -> int:
     """At most this many twin runs (run_obs calls, each every repetition through the FEM) in `fit`: per round
     the position fit (one, then three per iteration), the position Jacobian (four), the trust-region fit (at
     most max_nfev trial points, a Jacobian of three forward differences at each accepted one) and the
-    Jacobian at its end (three)."""
-    return rounds * (1 + 3 * POSITION_ITERS + 4 + 4 * max_nfev + 3)
+    Jacobian at its end (three); and once, the first round's judgement at the declared positions (their
+    position Jacobian, the start and its three differences: eight)."""
+    return rounds * (1 + 3 * POSITION_ITERS + 4 + 4 * max_nfev + 3) + 8
 
 
 def gauss_newton_sd(jm, chi2, dof) -> np.ndarray:
@@ -284,22 +290,44 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
         r = np.where(np.isfinite(o - per_rep), o - per_rep, 0.0)[:, ks] * w
         return r.reshape(r.shape[0], -1)
 
-    for rnd in range(rounds):
-        th_now = theta.copy()
-        at = lambda xx, yy, hh, th=th_now: raw(th, xx, yy)      # noqa: E731
-        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks, iters=POSITION_ITERS)
-        j_pos = plate_fem.position_jacobian(at, xf, yf, h, d_mm=0.25)
+    def position_free(th_now, xp, yp):
+        """The standardised residuals' function of theta at positions (xp, yp), their linear freedom there
+        projected out (the position Jacobian: four twin runs at th_now), and its evaluations' cache."""
+        at = lambda xx, yy, hh: raw(th_now, xx, yy)      # noqa: E731
+        j_pos = plate_fem.position_jacobian(at, xp, yp, h, d_mm=0.25)
         proj = plate_fem._position_projector(j_pos, plate_fem.PlateTargets(per_rep, sigma, names), ks)
         cache = {}
 
-        def fun(th, xf=xf, yf=yf, proj=proj, cache=cache):
+        def fun(th):
             k = tuple(np.round(th, 7))
             if k not in cache:
-                r = np.einsum("dij,dj->di", proj, standardised(raw(th, xf, yf))).ravel()
+                r = np.einsum("dij,dj->di", proj, standardised(raw(th, xp, yp))).ravel()
                 if ds_prior is not None:
                     r = np.append(r, (th[2] - ds_prior[0]) / ds_prior[1])
                 cache[k] = r
             return cache[k]
+        return fun, cache
+
+    for rnd in range(rounds):
+        th_now = theta.copy()
+        if rnd == 0:      # judged before the position fit (its ~19 twin runs) from the declared positions
+            fun, cache = position_free(th_now, xf, yf)
+            r0, j0 = fun(theta), _forward_jacobian(fun, theta, hi)
+            n_data = r0.size - (ds_prior is not None)
+            dof = n_data - 2 * per_rep.shape[0] - 3
+            chi2_start, chi2_pred, _ = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
+            if chi2_pred / max(dof, 1) > EARLY_STOP_CHI2_DOF:
+                chi2, sd = chi2_start, gauss_newton_sd(j0, chi2_start, dof)
+                log.append(_round_record(
+                    rnd, theta, chi2, dof, len(cache), chi2_predicted=chi2_pred, positions="declared",
+                    stopped=(f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the declared positions, "
+                             f"{chi2_pred / max(dof, 1):.1f} predicted at the linearised optimum over (ln E, nu, "
+                             f"D_s) and the positions, > {EARLY_STOP_CHI2_DOF:g}: no fit can make nu claimable; "
+                             "positions not fitted, not run")))
+                break
+        at = lambda xx, yy, hh, th=th_now: raw(th, xx, yy)      # noqa: E731
+        xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks, iters=POSITION_ITERS)
+        fun, cache = position_free(th_now, xf, yf)
 
         def jac(th, fun=fun):
             return _forward_jacobian(fun, th, hi)
