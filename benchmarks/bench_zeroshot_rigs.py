@@ -94,6 +94,8 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
         row["idle_wall_estimate_s"] = {k: round(t["idle_wall_estimate_s"], 1) for k, t in traces.items()}
         row["busy_cores"] = {k: round(t["busy_cores"], 2) for k, t in traces.items()}
         row["chain_idle_wall_estimate_s"] = sum(t["idle_wall_estimate_s"] for t in traces.values())
+        row["runnable_wall_estimate_s"] = {k: round(t["runnable_wall_estimate_s"], 1) for k, t in traces.items()}
+        row["chain_runnable_wall_estimate_s"] = sum(t["runnable_wall_estimate_s"] for t in traces.values())
     for other in evaluate_on:
         out = w / f"E-{other.replace(':', '-').replace('/', '-')}.json"
         t = run_logged([exe, "evaluate", other, "--model", str(model), "--json", str(out)], log, env=env)
@@ -258,6 +260,9 @@ def main() -> int:
             print(f"{'':10s} idle 2-core wall estimate {r['chain_idle_wall_estimate_s']:.0f} s: "
                   + ", ".join(f"{k} {v:.0f} s ({r['busy_cores'][k]:.2f} cores busy)"
                               for k, v in r["idle_wall_estimate_s"].items()))
+            print(f"{'':10s} counting only the threads runnable at once (GIL-bound threads as one core): "
+                  f"{r['chain_runnable_wall_estimate_s']:.0f} s: "
+                  + ", ".join(f"{k} {v:.0f} s" for k, v in r["runnable_wall_estimate_s"].items()))
         if r.get("calibrate_stage_cpu_s"):
             print(f"{'':10s} calibrate stages, CPU s: "
                   + ", ".join(f"{k} {v:.0f}" for k, v in r["calibrate_stage_cpu_s"].items()))
