@@ -257,6 +257,62 @@ def _round_record(rnd, theta, chi2, dof, fem_runs, **extra) -> dict:
             "damping_per_s": float(theta[2]), "chi2": chi2, "dof": int(dof), "fem_runs": fem_runs, **extra}
 
 
+class _TwinResiduals:
+    """`fit`'s twin runs (each one counted for the progress bar) and its standardised residuals."""
+
+    def __init__(self, run_obs, per_rep, sigma, names, ks, h, ds_prior, progress):
+        self.run_obs, self.per_rep, self.sigma, self.names, self.ks = run_obs, per_rep, sigma, names, ks
+        self.h, self.ds_prior, self.progress, self.runs = h, ds_prior, progress, 0
+        self.w = (1.0 / sigma)[ks][None, :, None]
+
+    def raw(self, th, xx, yy):
+        self.runs += 1
+        if self.progress is not None:
+            self.progress(1)
+        return self.run_obs(float(np.exp(th[0])), float(th[1]), float(th[2]), xx, yy, self.h)
+
+    def standardised(self, o):
+        r = np.where(np.isfinite(o - self.per_rep), o - self.per_rep, 0.0)[:, self.ks] * self.w
+        return r.reshape(r.shape[0], -1)
+
+    def position_free(self, th_now, xp, yp):
+        """The standardised residuals' function of theta at positions (xp, yp), their linear freedom there
+        projected out (the position Jacobian: four twin runs at th_now), and its evaluations' cache."""
+        at = lambda xx, yy, hh: self.raw(th_now, xx, yy)      # noqa: E731
+        j_pos = plate_fem.position_jacobian(at, xp, yp, self.h, d_mm=0.25)
+        proj = plate_fem._position_projector(j_pos, plate_fem.PlateTargets(self.per_rep, self.sigma, self.names),
+                                             self.ks)
+        cache = {}
+
+        def fun(th):
+            k = tuple(np.round(th, 7))
+            if k not in cache:
+                r = np.einsum("dij,dj->di", proj, self.standardised(self.raw(th, xp, yp))).ravel()
+                if self.ds_prior is not None:
+                    r = np.append(r, (th[2] - self.ds_prior[0]) / self.ds_prior[1])
+                cache[k] = r
+            return cache[k]
+        return fun, cache
+
+
+def _judge_declared(twin: _TwinResiduals, theta, lo, hi, xp, yp):
+    """The first round judged before its position fit (its ~19 twin runs), from the declared positions (xp, yp):
+    (its record, chi^2, sd, dof) when the linearised optimum stays above EARLY_STOP_CHI2_DOF, else None."""
+    fun, cache = twin.position_free(theta.copy(), xp, yp)
+    r0, j0 = fun(theta), _forward_jacobian(fun, theta, hi)
+    n_data = r0.size - (twin.ds_prior is not None)
+    dof = n_data - 2 * twin.per_rep.shape[0] - 3
+    chi2_start, chi2_pred, _ = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
+    if chi2_pred / max(dof, 1) <= EARLY_STOP_CHI2_DOF:
+        return None
+    why = (f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the declared positions, {chi2_pred / max(dof, 1):.1f} "
+           f"predicted at the linearised optimum over (ln E, nu, D_s) and the positions, > {EARLY_STOP_CHI2_DOF:g}: "
+           "no fit can make nu claimable; positions not fitted, not run")
+    record = _round_record(0, theta, chi2_start, dof, len(cache), chi2_predicted=chi2_pred, positions="declared",
+                           stopped=why)
+    return record, chi2_start, gauss_newton_sd(j0, chi2_start, dof), dof
+
+
 def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=None, e_bounds=(1000.0, 9000.0),
         nu_bounds=(0.30, 0.40), ds_bounds=(200.0, 1200.0), rounds=2, max_nfev=MAX_NFEV, progress=None) -> NuFit:
     """E, nu, D_s and every repetition's position from the repetitions' observables per_rep [R, K, 6].
@@ -273,61 +329,21 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
     sigma = np.asarray(sigma, float)
     h = np.asarray(h_mm, float)
     xf, yf = np.asarray(x_mm, float).copy(), np.asarray(y_mm, float).copy()
-    w = (1.0 / sigma)[ks][None, :, None]
     lo = np.array([np.log(e_bounds[0]), nu_bounds[0], ds_bounds[0]])
     hi = np.array([np.log(e_bounds[1]), nu_bounds[1], ds_bounds[1]])
     theta = np.clip(np.array([np.log(start[0]), start[1], start[2]], float), lo, hi)
+    twin = _TwinResiduals(run_obs, per_rep, sigma, names, ks, h, ds_prior, progress)
     log = []
-    runs = [0]
-
-    def raw(th, xx, yy):
-        runs[0] += 1
-        if progress is not None:
-            progress(1)
-        return run_obs(float(np.exp(th[0])), float(th[1]), float(th[2]), xx, yy, h)
-
-    def standardised(o):
-        r = np.where(np.isfinite(o - per_rep), o - per_rep, 0.0)[:, ks] * w
-        return r.reshape(r.shape[0], -1)
-
-    def position_free(th_now, xp, yp):
-        """The standardised residuals' function of theta at positions (xp, yp), their linear freedom there
-        projected out (the position Jacobian: four twin runs at th_now), and its evaluations' cache."""
-        at = lambda xx, yy, hh: raw(th_now, xx, yy)      # noqa: E731
-        j_pos = plate_fem.position_jacobian(at, xp, yp, h, d_mm=0.25)
-        proj = plate_fem._position_projector(j_pos, plate_fem.PlateTargets(per_rep, sigma, names), ks)
-        cache = {}
-
-        def fun(th):
-            k = tuple(np.round(th, 7))
-            if k not in cache:
-                r = np.einsum("dij,dj->di", proj, standardised(raw(th, xp, yp))).ravel()
-                if ds_prior is not None:
-                    r = np.append(r, (th[2] - ds_prior[0]) / ds_prior[1])
-                cache[k] = r
-            return cache[k]
-        return fun, cache
-
     for rnd in range(rounds):
         th_now = theta.copy()
-        if rnd == 0:      # judged before the position fit (its ~19 twin runs) from the declared positions
-            fun, cache = position_free(th_now, xf, yf)
-            r0, j0 = fun(theta), _forward_jacobian(fun, theta, hi)
-            n_data = r0.size - (ds_prior is not None)
-            dof = n_data - 2 * per_rep.shape[0] - 3
-            chi2_start, chi2_pred, _ = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
-            if chi2_pred / max(dof, 1) > EARLY_STOP_CHI2_DOF:
-                chi2, sd = chi2_start, gauss_newton_sd(j0, chi2_start, dof)
-                log.append(_round_record(
-                    rnd, theta, chi2, dof, len(cache), chi2_predicted=chi2_pred, positions="declared",
-                    stopped=(f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the declared positions, "
-                             f"{chi2_pred / max(dof, 1):.1f} predicted at the linearised optimum over (ln E, nu, "
-                             f"D_s) and the positions, > {EARLY_STOP_CHI2_DOF:g}: no fit can make nu claimable; "
-                             "positions not fitted, not run")))
-                break
-        at = lambda xx, yy, hh, th=th_now: raw(th, xx, yy)      # noqa: E731
+        early = _judge_declared(twin, theta, lo, hi, xf, yf) if rnd == 0 else None
+        if early is not None:
+            record, chi2, sd, dof = early
+            log.append(record)
+            break
+        at = lambda xx, yy, hh, th=th_now: twin.raw(th, xx, yy)      # noqa: E731
         xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks, iters=POSITION_ITERS)
-        fun, cache = position_free(th_now, xf, yf)
+        fun, cache = twin.position_free(th_now, xf, yf)
 
         def jac(th, fun=fun):
             return _forward_jacobian(fun, th, hi)
@@ -353,8 +369,8 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
             log[-1]["stopped"] = (f"chi^2 / dof {chi2 / max(dof, 1):.1f} > {STOP_CHI2_DOF:g}: the later rounds "
                                   "cannot make nu claimable")
             break
-    if progress is not None and runs[0] < max_evaluations(rounds, max_nfev):
-        progress(max_evaluations(rounds, max_nfev) - runs[0])
+    if progress is not None and twin.runs < max_evaluations(rounds, max_nfev):
+        progress(max_evaluations(rounds, max_nfev) - twin.runs)
     return NuFit(e_mpa=float(np.exp(theta[0])), nu=float(theta[1]), damping_per_s=float(theta[2]),
                  sd={"ln_E": float(sd[0]), "nu": float(sd[1]), "damping_per_s": float(sd[2])},
                  chi2=chi2, dof=int(dof), x_mm=xf, y_mm=yf, rounds=log)
