@@ -114,7 +114,8 @@ def test_a_hopeless_round_is_judged_before_its_fit_and_a_far_start_is_not():
     mid = plate_nu.fit(counted, clean + rng.normal(0, 2.0, clean.shape), np.full(3, 0.3), group_delay.names(), x,
                        y, h, (4000.0, 0.35, 800.0), ds_prior=(800.0, 80.0), rounds=2)
     assert "stopped" in mid.rounds[0] and "positions" not in mid.rounds[0]
-    assert plate_nu.STOP_CHI2_DOF < mid.rounds[0]["chi2_predicted"] / mid.dof < plate_nu.EARLY_STOP_CHI2_DOF
+    assert plate_nu.STOP_CHI2_DOF < mid.rounds[0]["chi2_predicted"] / mid.dof
+    assert mid.rounds[0]["chi2_dof_predicted_at_declared_positions"] < plate_nu.EARLY_STOP_CHI2_DOF
     assert 8 + 1 + 3 * plate_nu.POSITION_ITERS + 4 + 4 >= calls[0] > 8 + 3 * plate_nu.POSITION_ITERS
     far = plate_nu.fit(twin, clean + rng.normal(0, 0.3, clean.shape), np.full(3, 0.3), group_delay.names(), x, y,
                        h, (2500.0, 0.31, 1000.0), ds_prior=(800.0, 80.0), rounds=2)

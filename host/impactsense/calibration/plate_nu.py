@@ -52,9 +52,9 @@ SD_FRACTION_MAX = 1.0 / 3.0
 STOP_CHI2_DOF = 10 * CHI2_DOF_MAX
 # The first round is judged once before its position fit too, from the declared positions with their linear
 # freedom projected out: positions move the group delays non-linearly (edge reflections), so that judgement stops
-# the round only above this wider limit; below it the round goes on as before (docs/findings.md, "The cold chain's
-# CPU cut")
-EARLY_STOP_CHI2_DOF = 3 * STOP_CHI2_DOF
+# the round only above this far wider limit; below it the round goes on as before (docs/findings.md, "The cold
+# chain's CPU cut")
+EARLY_STOP_CHI2_DOF = 10 * STOP_CHI2_DOF
 DS_SYSTEMATIC = 0.03                # the decay estimate's systematic error (fraction of D_s) for its prior
 
 
@@ -297,14 +297,15 @@ class _TwinResiduals:
 
 def _judge_declared(twin: _TwinResiduals, theta, lo, hi, xp, yp):
     """The first round judged before its position fit (its ~19 twin runs), from the declared positions (xp, yp):
-    (its record, chi^2, sd, dof) when the linearised optimum stays above EARLY_STOP_CHI2_DOF, else None."""
+    (its record, chi^2, sd, dof) when the linearised optimum stays above EARLY_STOP_CHI2_DOF, else (None, that
+    optimum's chi^2 / dof)."""
     fun, cache = twin.position_free(theta.copy(), xp, yp)
     r0, j0 = fun(theta), _forward_jacobian(fun, theta, hi)
     n_data = r0.size - (twin.ds_prior is not None)
     dof = n_data - 2 * twin.per_rep.shape[0] - 3
     chi2_start, chi2_pred, _ = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
     if chi2_pred / max(dof, 1) <= EARLY_STOP_CHI2_DOF:
-        return None
+        return None, chi2_pred / max(dof, 1)
     why = (f"chi^2 / dof {chi2_start / max(dof, 1):.1f} at the declared positions, {chi2_pred / max(dof, 1):.1f} "
            f"predicted at the linearised optimum over (ln E, nu, D_s) and the positions, > {EARLY_STOP_CHI2_DOF:g}: "
            "no fit can make nu claimable; positions not fitted, not run")
@@ -336,11 +337,12 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
     log = []
     for rnd in range(rounds):
         th_now = theta.copy()
-        early = _judge_declared(twin, theta, lo, hi, xf, yf) if rnd == 0 else None
-        if early is not None:
+        early = _judge_declared(twin, theta, lo, hi, xf, yf) if rnd == 0 else (None, None)
+        if early[0] is not None:
             record, chi2, sd, dof = early
             log.append(record)
             break
+        declared = {} if early[1] is None else {"chi2_dof_predicted_at_declared_positions": early[1]}
         at = lambda xx, yy, hh, th=th_now: twin.raw(th, xx, yy)      # noqa: E731
         xf, yf = plate_fem.fit_positions(at, per_rep, sigma, xf, yf, h, ks, iters=POSITION_ITERS)
         fun, cache = twin.position_free(th_now, xf, yf)
@@ -356,7 +358,8 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
         chi2_start, chi2_pred, stopped = _judge_start(r0, j0, theta, lo, hi, n_data, dof)
         if stopped:
             chi2, sd = chi2_start, gauss_newton_sd(j0, chi2_start, dof)
-            log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_predicted=chi2_pred, stopped=stopped))
+            log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_predicted=chi2_pred, stopped=stopped,
+                                     **declared))
             break
         sol = least_squares(fun, theta, jac=jac, bounds=(lo, hi), x_scale=np.array(STEPS), max_nfev=max_nfev,
                             method="trf")
@@ -364,7 +367,8 @@ def fit(run_obs, per_rep, sigma, names, x_mm, y_mm, h_mm, start, *, ds_prior=Non
         r = fun(theta)
         chi2 = float(np.sum(r[:n_data] ** 2))
         sd = gauss_newton_sd(jac(theta), chi2, dof)
-        log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_start=chi2_start, chi2_predicted=chi2_pred))
+        log.append(_round_record(rnd, theta, chi2, dof, len(cache), chi2_start=chi2_start, chi2_predicted=chi2_pred,
+                                 **declared))
         if rnd + 1 < rounds and chi2 / max(dof, 1) > STOP_CHI2_DOF:
             log[-1]["stopped"] = (f"chi^2 / dof {chi2 / max(dof, 1):.1f} > {STOP_CHI2_DOF:g}: the later rounds "
                                   "cannot make nu claimable")
