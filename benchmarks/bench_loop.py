@@ -16,11 +16,15 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
   own FEM (an inverse crime for this path: the data and the corrected twin are the same simulator; the
   diagnosis is not, it sees only the features).
-"after" is the twin model when a plate or sensor effect was named, else the measured-trained one.
+"after" is the twin model when a plate or sensor effect was named, else the measured-trained one. A twin model
+is trained on the generator's own FEM drops at the declared positions, which alone lowers its MAE on these
+sessions (docs/findings.md, issue 16 loopmove4), so its yardstick is the same kind of model: the twin with no
+effect, trained once and scored on the unchanged sessions (their `twin_unchanged`).
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
 move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_scan`: the geometric mean of the twin's E scan at the session's picks and the A0 curve, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
-whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model.
+whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model, and
+a twin-trained after also <= 1.2 x the unchanged sessions' mean MAE of the twin with no effect.
 """
 
 from __future__ import annotations
@@ -167,6 +171,7 @@ def run(args) -> dict:
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose
+    from impactsense.loop import twin_training_session
 
     gen_only = ["--only", "ref," + args.only] if args.only else []
     gen_args = loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed)] + gen_only + args.gen)
@@ -178,17 +183,23 @@ def run(args) -> dict:
     ref_model, _ = train_score(ref, args.trees, args.seed)
     only = set(args.only.split(",")) if args.only else None
     rows = []
+    unchanged_twin = {}
     for name, spec in man["sessions"].items():
         if name == "ref" or (only and name not in only):
             continue
         t0 = time.time()
         if spec["kind"] == "none":
             sess = load_session(Path(args.sessions) / name)
-            res, _ = diagnose(ref, sess, same=False)
+            res, det = diagnose(ref, sess, same=False)
             sig = [e for e in res["effects"] if e["significant"]]
             row = {"session": name, "truth": None, "named": [(e["effect"], e["sensor"]) for e in sig],
                    "before": score(sess, ref_model), "effects": res["effects"]}
             row["after"] = row["before"]
+            if "twin" not in unchanged_twin:   # the twin-trained model with no effect: the twin afters' yardstick
+                t_sess = twin_training_session(ref, sim_params, [], work / "unchanged-twin",
+                                               det["ref"].slowness_us_per_mm, args.seed, args.workers)
+                unchanged_twin["twin"], _ = train_score(t_sess, args.trees, args.seed)
+            row["twin_unchanged"] = score(sess, unchanged_twin["twin"])
         else:
             row = one_changed(name, spec, ref, ref_model, sim_params, args, work)
         row["seconds"] = round(time.time() - t0, 1)
@@ -213,20 +224,32 @@ def table(out: dict) -> int:
     rows, ds, twin = out["rows"], out["D_s"], _twin_params(out)
     same = [r for r in rows if r["truth"] is None]
     base = float(np.mean([r["before"]["mae_mm"] for r in same])) if same else float("nan")
-    print(f"\n| change | named | size | MAE before | after (measured / twin) | unchanged | ok |")
-    print("|---|---|---|---|---|---|---|")
+    # a twin-trained after is a model trained on the generator's own FEM drops: its yardstick is the same kind
+    # of model on the unchanged sessions (the twin with no effect), not the measured-trained one
+    twin_same = [r["twin_unchanged"]["mae_mm"] for r in same if "twin_unchanged" in r]
+    twin_base = float(np.mean(twin_same)) if twin_same else None
+    print(f"\n| change | named | size | MAE before | after (measured / twin) | unchanged | after / its kind's unchanged | ok |")
+    print("|---|---|---|---|---|---|---|---|")
     misses = 0
     for r in rows:
         t = r["truth"]
         sig = [e for e in r["effects"] if e["significant"]]
         names = ", ".join(f"{e}[{s}]" if s is not None else e for e, s in r["named"]) or "none"
+        fair = "-"
         if t is None:
             ok = not sig
             size, after = "-", "-"
+            if "twin_unchanged" in r:
+                after = f"- / {r['twin_unchanged']['mae_mm']:.2f} (twin, no effect)"
         else:
             size, size_ok = size_check(t, sig[0] if sig else None, ds, twin)
             size += _bond_put_in(t, r.get("effects_added", []))
             loop_ok = r["after"]["mae_mm"] <= RATIO * base
+            if "twin" in r and twin_base is not None:   # judged against the twin's own unchanged MAE
+                loop_ok = loop_ok and r["after"]["mae_mm"] <= RATIO * twin_base
+                fair = f"{r['after']['mae_mm'] / twin_base:.2f} (twin)"
+            else:
+                fair = f"{r['after']['mae_mm'] / base:.2f}"
             ok = named_ok(t, sig) and size_ok is not False and loop_ok
             after = f"{r.get('measured', r['after'])['mae_mm']:.2f}" + (
                 f" / {r['twin']['mae_mm']:.2f}" if "twin" in r else "")
@@ -245,9 +268,12 @@ def table(out: dict) -> int:
                               f"p {e.get('p_value', float('nan')):.2g})")
         misses += not ok
         print(f"| {r['session']} | {names} | {size} | {r['before']['mae_mm']:.2f} | {after} | "
-              f"{base:.2f} | {'yes' if ok else '**no**'} |")
+              f"{base:.2f} | {fair} | {'yes' if ok else '**no**'} |")
+    twin_note = ("" if twin_base is None else
+                 f" (a twin-trained after: <= {RATIO} x {twin_base:.2f} = {RATIO * twin_base:.2f} mm, the twin with no "
+                 "effect on the unchanged sessions)")
     print(f"\ntarget: named first with its sensor, size in tolerance {TOL}, no false alarm, after <= "
-          f"{RATIO} x {base:.2f} = {RATIO * base:.2f} mm; misses: {misses}")
+          f"{RATIO} x {base:.2f} = {RATIO * base:.2f} mm{twin_note}; misses: {misses}")
     return 1 if misses else 0
 
 
