@@ -1,0 +1,37 @@
+"""bench_loop's verdict: a twin-trained after is held to the twin's own unchanged MAE (the same kind of model),
+a measured-trained after to the measured reference's. Rows as bench_loop.json holds them; nothing simulated."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import bench_loop  # noqa: E402
+
+
+def _mae(v):
+    return {"mae_mm": v}
+
+
+def _rows(twin_after=None, measured_after=4.0):
+    delay = {"effect": "channel_delay", "sensor": 2, "params": {"delay_us": 5.0}, "significant": True,
+             "param_ci95": {}}
+    same = [{"session": f"same-{k}", "truth": None, "named": [], "effects": [], "before": _mae(4.0),
+             "after": _mae(4.0), "twin_unchanged": _mae(3.0)} for k in (1, 2)]
+    row = {"session": "delay", "truth": {"effect": "channel_delay", "sensor": 2, "params": {"delay_us": 5.0}},
+           "named": [("channel_delay", 2)], "effects": [delay], "before": _mae(6.0),
+           "measured": _mae(measured_after), "after": _mae(measured_after)}
+    if twin_after is not None:
+        row["twin"] = row["after"] = _mae(twin_after)
+    return {"rows": same + [row], "D_s": 100.0}
+
+
+def test_a_twin_after_is_held_to_the_twin_with_no_effect_on_the_unchanged_sessions(capsys):
+    # 4.5 mm is within 1.2 x the measured controls' 4.0 but not within 1.2 x the twin's own 3.0
+    assert bench_loop.table(_rows(twin_after=4.5)) == 1
+    assert "1.50 (twin)" in capsys.readouterr().out
+    assert bench_loop.table(_rows(twin_after=3.5)) == 0
+
+
+def test_a_measured_after_keeps_the_measured_yardstick():
+    assert bench_loop.table(_rows(measured_after=4.7)) == 0     # 4.7 <= 1.2 x 4.0
+    assert bench_loop.table(_rows(measured_after=4.9)) == 1
