@@ -228,7 +228,8 @@ def table(out: dict) -> int:
     # of model on the unchanged sessions (the twin with no effect), not the measured-trained one
     twin_same = [r["twin_unchanged"]["mae_mm"] for r in same if "twin_unchanged" in r]
     twin_base = float(np.mean(twin_same)) if twin_same else None
-    print(f"\n| change | named | size | MAE before | after (measured / twin) | unchanged | after / its kind's unchanged | ok |")
+    print("\n| change | named | size | MAE before | after (measured / twin) | unchanged | "
+          "after / its kind's unchanged | ok |")
     print("|---|---|---|---|---|---|---|---|")
     misses = 0
     for r in rows:

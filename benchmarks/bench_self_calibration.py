@@ -39,7 +39,8 @@ def main(argv=None) -> int:
     ref = load_session(root / "ref")
     model, _ = train_score(ref, args.trees, args.seed)
     only = set(args.only.split(",")) if args.only else None
-    print("| session | truth | offsets us (se) | combinations kept | applied | MAE before -> with the offsets put in (applied or not) |")
+    print("| session | truth | offsets us (se) | combinations kept | applied | "
+          "MAE before -> with the offsets put in (applied or not) |")
     print("|---|---|---|---|---|---|")
     false_alarms = 0
     for name, spec in man["sessions"].items():

@@ -18,12 +18,14 @@ The law is not the plate (site terms: the reference's picks scatter several us a
 position), so the same fit on the model's own training drops does not give 0: `self_calibrate` subtracts it
 (the fit on the reference session, unlabelled as well) and reports the difference, with delete-a-block
 jackknife standard errors of both fits. Only combinations of the constants that the drops determine well are
-kept (MODE_SE_US): a constant on one channel is nearly a shift of every position (on a four-corner layout two of
-the three combinations have standard errors of 2-4 us at 5 us of pick noise and 120 drops, one about 0.5 us).
-Positions in the data are not used.
+kept (MODE_SE_US): a constant on one channel is nearly a shift of every position (on a four-corner layout at a
+few us of pick noise only one of the three combinations is fitted well: docs/findings.md). Positions in the data
+are not used.
 
 This absorbs the part of a change that is constant over the impacts; it is a refit of the model's constants,
-not a named effect: `diagnose` names effects (with labels), this only recentres a model on new data.
+not a named effect: `diagnose` names effects (with labels), this only recentres a model on new data. Measured on
+the loop's sessions it did not give accuracy back, so `retrain` and the loop do not call it (docs/findings.md,
+issue 16 loopmove4; `benchmarks/bench_self_calibration.py`).
 """
 
 from __future__ import annotations
