@@ -1,5 +1,5 @@
 """Self-calibration of a model's channel constants from a new session's own picks, without labels
-(`impactsense.self_calibration`), on the loop's sessions (benchmarks/loop_sessions.py): per session the offsets
+(`benchmarks/selfcal_study.py`, a study kept out of the package: not used by `retrain`), on the loop's sessions (benchmarks/loop_sessions.py): per session the offsets
 (centred, us, with their jackknife standard errors), whether the rule applies them, and the reference model's
 MAE before and with them (labels used only to score).
 
@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     from bench_loop import train_score
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
-    from impactsense.self_calibration import recentred, self_calibrate
+    from selfcal_study import recentred, self_calibrate
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sessions", required=True, help="a loop_sessions.py folder (with ref/ and manifest.json)")

@@ -1,14 +1,18 @@
-"""Self-calibration of the channels' ToA constants from unlabelled picks (impactsense.self_calibration).
+"""Self-calibration of the channels' ToA constants from unlabelled picks (benchmarks/selfcal_study.py: a measured study, not in the package).
 
 Picks made by the localiser's own travel law (the default rig's four corner discs, its velocity) at random
 positions with a per-pick noise, so what is asserted is the joint fit's identifiability, not the core's picks.
 """
 
+import sys
+from pathlib import Path
+
 import numpy as np
 
-from impactsense.self_calibration import MODE_SE_US, offsets_from_picks
-from impactsense.signal import SignalConfig
-from impactsense.travel import travel_distances
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from selfcal_study import MODE_SE_US, offsets_from_picks  # noqa: E402
+from impactsense.signal import SignalConfig  # noqa: E402
+from impactsense.travel import travel_distances  # noqa: E402
 
 
 def _picks(rng, cfg, n, noise_us, delay_us=(0.0, 0.0, 0.0, 0.0)):

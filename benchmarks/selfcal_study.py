@@ -65,7 +65,7 @@ class ChannelOffsets:
 
 
 def _travel(xy: np.ndarray, cfg, scale: np.ndarray) -> np.ndarray:
-    from .travel import travel_distances
+    from impactsense.travel import travel_distances
     metric = (cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)
     return travel_distances(xy, cfg.sensor_xy_mm, metric) * scale / float(cfg.velocity_mm_per_us)
 
@@ -73,7 +73,7 @@ def _travel(xy: np.ndarray, cfg, scale: np.ndarray) -> np.ndarray:
 def usable_picks(features, cfg):
     """(ToA [R, 4] us with the model's delays removed, slowness factors per pick, start positions [R, 2], rows)
     of the drops with a pick on every channel and a physics position."""
-    from .travel import slowness_scales
+    from impactsense.travel import slowness_scales
     toa = np.asarray(features.toa_us, float)
     start = np.asarray(features.phys_xy_mm, float)
     rows = np.flatnonzero(np.isfinite(toa).all(1) & np.isfinite(start).all(1))
@@ -115,7 +115,7 @@ def fit_channel_offsets(toa: np.ndarray, scale: np.ndarray, start_xy: np.ndarray
 def self_calibrate(model, reference_adc: np.ndarray, data_adc: np.ndarray) -> ChannelOffsets:
     """The channels' ToA constants of `data_adc` (unlabelled recordings) relative to the model's training
     recordings `reference_adc` (also unlabelled here), by the model's core and travel law (`offsets_from_picks`)."""
-    from .pipeline import featurize
+    from impactsense.pipeline import featurize
     cfg = model.signal
     return offsets_from_picks(usable_picks(featurize(reference_adc, cfg), cfg)[:3],
                               usable_picks(featurize(data_adc, cfg), cfg)[:3], cfg)
