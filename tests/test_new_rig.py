@@ -176,3 +176,56 @@ def test_the_band_slowness_line_reads_a_16_bit_logger(session1):
     assert line12 is not None and line16 is not None
     assert line16.band_velocity_mm_per_us == pytest.approx(line12.band_velocity_mm_per_us, rel=0.02)
     assert line16.band_log_energy_ref - line12.band_log_energy_ref == pytest.approx(2 * np.log10(16), abs=0.05)
+
+
+def short_pretrigger(session, rows, keep: int, samples: int = 2000):
+    """The drops as a logger that keeps only `keep` samples before the first arrival records them: each record
+    cut to start `keep` samples before its earliest threshold crossing (found on the full record)."""
+    from impactsense import _core
+    from impactsense.signal import core_samples
+
+    s = session.subset(rows)
+    cfg = SignalConfig.for_rig(session.rig)
+    first = np.nanmin(_core.extract_batch(core_samples(s.adc, cfg), cfg.core())["toa_threshold"], axis=1)
+    start = np.floor(first).astype(int) - keep
+    assert (start >= 0).all()
+    adc = np.stack([a[:, b:b + samples] for a, b in zip(s.adc, start)])
+    return s, adc, start
+
+
+def test_a_short_pre_trigger_is_measured_and_the_baseline_fits_before_the_hit(tmp_path, session1):
+    """A logger with 40 samples before the hit (the core's default baseline segment is 64, and the onset is
+    sought from its end): the session's quiet start is measured, the segment shortened, and the picks are the
+    full records' (shifted by the cut) instead of all landing at the segment's end."""
+    s, adc, start = short_pretrigger(session1, ROWS, keep=40)
+    path = write_session(tmp_path / "short", dict(session1.rig.to_dict(), samples=adc.shape[2]), s.x_mm, s.y_mm,
+                         s.height_mm, adc, s.case_id, s.repetition)
+    short = load_session(path)
+    assert 36 <= short.rig.pretrigger_samples <= 44
+    cfg = SignalConfig.for_rig(short.rig)
+    assert cfg.baseline_samples < 40
+    full = featurize(s.adc, SignalConfig.for_rig(session1.rig))
+    cut = featurize(adc, cfg)
+    ok = full.usable & cut.usable
+    assert ok.mean() > 0.9
+    shift_us = start[ok, None] * 1e6 / session1.rig.fs_hz
+    dt = np.abs(cut.toa_us[ok] + shift_us - full.toa_us[ok])
+    assert np.median(dt) < 0.5 and np.mean(dt < 3.0) > 0.9, np.percentile(dt, [50, 90])
+    # the default segment would have put every earliest pick at its end (64 samples = 640 us at 100 kHz)
+    stale = featurize(adc, SignalConfig.for_rig(session1.rig))
+    assert np.median(np.abs(stale.toa_us[ok] + shift_us - full.toa_us[ok])) > 5.0
+    # the twin's records start as the rig's, so a virtual set and its site map are featurized alike
+    from impactsense.sim import SimParams
+
+    assert SimParams.from_rig(short.rig).pretrigger_samples == short.rig.pretrigger_samples
+    # a long pre-trigger (the bundled rig's) keeps the default segment and the simulator's pre-trigger
+    assert SignalConfig.for_rig(session1.rig).baseline_samples == 64
+    assert SimParams.from_rig(session1.rig).pretrigger_samples == SimParams().pretrigger_samples
+
+
+def test_a_declared_pre_trigger_is_used_and_checked(session1):
+    raw = dict(session1.rig.to_dict(), pretrigger_samples=30)
+    assert SignalConfig.for_rig(rig_from_dict(raw)).baseline_samples == 22
+    for bad in (0, -3, 1.5, True, session1.rig.samples):
+        with pytest.raises(DataError, match="pretrigger_samples"):
+            rig_from_dict(dict(raw, pretrigger_samples=bad))

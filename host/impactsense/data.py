@@ -13,7 +13,7 @@ import math
 import os
 import zipfile
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
@@ -35,7 +35,9 @@ _RIG_NUMBERS = (
 _RIG_INTS = ("channels", "samples", "adc_bits", "bias_counts")
 _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # Optional rig.json fields (docs/method.md "rig.json"): inner_region_mm [x0, x1, y0, y1] (default: the
-# sensors' bounding box inset by INNER_INSET_MM); material_axes, material_properties (materials.py).
+# sensors' bounding box inset by INNER_INSET_MM); material_axes, material_properties (materials.py);
+# pretrigger_samples (the logger's samples before the hit; default: measured from the session's recordings,
+# signal.quiet_start_samples).
 INNER_INSET_MM = 30.0
 
 
@@ -69,6 +71,9 @@ class Rig:
     vref: float
     bias_counts: int
     raw: dict = field(default_factory=dict, compare=False, repr=False)
+    # The recordings' quiet start (samples before the first arrival): rig.json's `pretrigger_samples`, else
+    # what load_session measured on the session (None: not known; the core's baseline segment as declared).
+    pretrigger_samples: int | None = field(default=None, compare=False, repr=False)
 
     @property
     def sensor_x_mm(self) -> np.ndarray:
@@ -256,7 +261,10 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
         sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
     _check_inner_region(raw.get("inner_region_mm"), values, path)
     _check_rig_sanity(path, values, sensors)
-    return Rig(sensors=tuple(sensors), raw=dict(raw), **values)
+    pre = raw.get("pretrigger_samples")
+    if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):
+        raise DataError(path, "pretrigger_samples", f"must be an integer between 1 and samples - 1, got {pre!r}")
+    return Rig(sensors=tuple(sensors), raw=dict(raw), pretrigger_samples=pre, **values)
 
 
 def _check_inner_region(region, values: dict, path) -> None:
@@ -388,6 +396,10 @@ def load_session(path: str | os.PathLike | None = None) -> Session:
             bad = int(np.flatnonzero((v < 0) | (v > hi))[0])
             raise DataError(path / IMPACTS_FILE, col, f"line {bad + 2}: {v[bad]} lies off the plate")
     adc = _read_adc(path / RECORDINGS_FILE, rig, imp["recording_id"].size)
+    if rig.pretrigger_samples is None:
+        from .signal import quiet_start_samples
+
+        rig = replace(rig, pretrigger_samples=quiet_start_samples(adc, rig))
     return Session(path=path, rig=rig, adc=adc, **imp)
 
 

@@ -89,6 +89,9 @@ def rig_settings(rig) -> dict:
     if scale != 1.0:   # impactcore.h's count-valued defaults are a 12-bit, 3.3 V logger's: the same volts here
         for name in COUNT_FIELDS:
             d[name] = float(FIELDS[name].default) * scale
+    baseline = baseline_for_pretrigger(getattr(rig, "pretrigger_samples", None))
+    if baseline is not None:
+        d["baseline_samples"] = baseline
     raw = rig.raw if isinstance(getattr(rig, "raw", None), dict) else {}
     delays = raw.get("rig_delay_us", raw.get("channel_delay_us"))
     if delays is not None:
@@ -97,6 +100,43 @@ def rig_settings(rig) -> dict:
 
 
 INT16_MAX = 32767
+# The baseline segment (impactcore.h's baseline_samples) must end before the first arrival: the core seeks the
+# onset from its end. A logger that keeps fewer samples before the hit than the default needs gets a segment
+# of this fraction of its quiet start (at least MIN_BASELINE_SAMPLES).
+BASELINE_SHARE_OF_PRETRIGGER = 0.75
+MIN_BASELINE_SAMPLES = 8
+# The quiet start is measured on up to this many recordings spread over the session, by the core's own
+# threshold crossing from a short baseline segment at a strict noise factor (mains hum and glitches cannot
+# pass for an arrival there), as a low quantile of each recording's earliest channel.
+QUIET_START_RECORDINGS = 32
+QUIET_START_NOISE_FACTOR = 10.0
+QUIET_START_QUANTILE = 25.0
+
+
+def baseline_for_pretrigger(pretrigger_samples) -> int | None:
+    """The core's baseline_samples for recordings whose first arrival comes `pretrigger_samples` after their
+    start: None (the default stands) when the default segment ends well before it, else a shorter one."""
+    if pretrigger_samples is None:
+        return None
+    default = int(FIELDS["baseline_samples"].default)
+    fitting = int(BASELINE_SHARE_OF_PRETRIGGER * float(pretrigger_samples))
+    return None if fitting >= default else max(MIN_BASELINE_SAMPLES, fitting)
+
+
+def quiet_start_samples(adc, rig) -> int | None:
+    """Samples before the first arrival in a session's recordings [R, 4, S] (the logger's pre-trigger, as the
+    core sees it), or None when no recording has an onset."""
+    adc = np.asarray(adc)
+    if adc.ndim != 3 or adc.shape[0] == 0 or adc.shape[2] < 2 * MIN_BASELINE_SAMPLES + 16:
+        return None
+    rows = np.unique(np.linspace(0, adc.shape[0] - 1, min(adc.shape[0], QUIET_START_RECORDINGS)).astype(int))
+    values = settings(rig, baseline_samples=2 * MIN_BASELINE_SAMPLES, onset_noise_factor=QUIET_START_NOISE_FACTOR)
+    cfg = _fill(_core.CoreConfig(), CORE_FIELDS, values)
+    crossing = _core.extract_batch(core_samples(adc[rows], cfg), cfg)["toa_threshold"]
+    crossing = np.where(crossing >= 0, crossing, np.nan)
+    earliest = np.nanmin(np.where(np.isfinite(crossing), crossing, np.inf), axis=1)
+    earliest = earliest[np.isfinite(earliest)]
+    return int(np.percentile(earliest, QUIET_START_QUANTILE)) if earliest.size else None
 # The core's defaults in ADC counts (impactcore.h) are those of the reference logger (12 bits over 3.3 V, the
 # board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
 REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
@@ -212,4 +252,5 @@ SignalConfig.__module__ = __name__
 
 __all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
            "channel_delays_us", "config_dict", "core_offset", "core_samples", "counts_per_core_count",
-           "core_config", "localiser_config", "rig_settings", "settings"]
+           "core_config", "localiser_config", "rig_settings", "settings", "baseline_for_pretrigger",
+           "quiet_start_samples"]

@@ -37,6 +37,8 @@ def summarise(session) -> dict:
         "drops_per_height": {f"{h:g}": int(c) for h, c in zip(heights, counts)},
         "samples": int(session.adc.shape[2]),
         "fs_hz": session.rig.fs_hz,
+        "pretrigger_samples": session.rig.pretrigger_samples,
+        "baseline_samples": int(SignalConfig.for_rig(session.rig).baseline_samples),
         "channels": [
             {
                 "channel": c,
@@ -66,6 +68,9 @@ def run(args) -> int:
           f"{s['repetitions_per_case']['min']}..{s['repetitions_per_case']['max']}")
     print(f"  heights {s['heights_mm']['min']:g}..{s['heights_mm']['max']:g} mm "
           f"({s['heights_mm']['distinct']} distinct); {s['samples']} samples at {s['fs_hz']:g} Hz")
+    pre = s["pretrigger_samples"]
+    print(f"  samples before the first arrival: {'unknown' if pre is None else pre}; the core's baseline segment "
+          f"{s['baseline_samples']} samples")
     print(f"  usable drops (onset on all 4 channels): {s['usable_drops']}")
     print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'median peak':>12s} {'SNR dB':>7s}")
     for c in s["channels"]:

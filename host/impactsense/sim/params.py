@@ -78,6 +78,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..signal import baseline_for_pretrigger
 from .material import fields_for_rig
 
 FORMAT = "impactsense-sim-params"
@@ -198,6 +199,9 @@ class SimParams:
         else:  # resting on a rim / simply supported
             support = "simply_supported"
         base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support)
+        pre = getattr(rig, "pretrigger_samples", None)
+        if baseline_for_pretrigger(pre) is not None:  # a short pre-trigger: the twin's records start as the rig's
+            base["pretrigger_samples"] = int(pre)
         base.update(overrides)
         base.update(fields_for_rig(rig, cls(), overrides))
         return cls.from_dict(base, "SimParams.from_rig")
