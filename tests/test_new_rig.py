@@ -229,3 +229,48 @@ def test_a_declared_pre_trigger_is_used_and_checked(session1):
     for bad in (0, -3, 1.5, True, session1.rig.samples):
         with pytest.raises(DataError, match="pretrigger_samples"):
             rig_from_dict(dict(raw, pretrigger_samples=bad))
+
+
+def test_the_board_captures_a_short_pre_trigger_on_the_records_own_level(tmp_path, session1):
+    """Records with 40 samples before the hit and their own DC offsets, replayed to the board one after the
+    other: the board's 1.9 ms pre-trigger reaches back past them, and without a lead-in it sought the onset on
+    the step to the previous record's level. The board's picks are the host's (its scan delays removed)."""
+    from impactsense.board.capture import board_captures, continued_for_capture
+    from impactsense.faults import FaultSpec, inject
+
+    rows = np.arange(0, 771, 40)
+    s, adc, _ = short_pretrigger(session1, rows, keep=40)
+    adc = inject(adc, FaultSpec(offset=12.0, seed=2), session1.rig.fs_hz, session1.rig.bias_counts,
+                 session1.rig.adc_max)
+    raw = dict(session1.rig.to_dict(), samples=adc.shape[2])
+    short = load_session(write_session(tmp_path / "short", raw, s.x_mm, s.y_mm, s.height_mm, adc))
+    def board_against_host(session):
+        caps, got, sig = board_captures(session)
+        host = featurize(adc[got], SignalConfig.for_rig(session.rig))
+        board = featurize(caps, sig)
+        ok = host.usable & board.usable
+        assert ok.mean() > 0.8
+        return np.abs(np.diff(board.toa_us[ok], axis=1) - np.diff(host.toa_us[ok], axis=1)), sig
+
+    # the board (4 x 50 kHz, scan delays) and the host (100 kHz) differ by ~10 us in DToA on whole bundled records
+    d, sig = board_against_host(short)
+    assert np.median(d) < 15.0 and np.percentile(d, 90) < 40.0, np.percentile(d, [50, 90])
+    # without the lead-in (the session's quiet start unknown) the steps between records pass for onsets
+    d_bare, _ = board_against_host(replace(short, rig=replace(short.rig, pretrigger_samples=None)))
+    assert np.median(d_bare) > 100.0
+    # a long quiet start (the bundled records') is not led in: their board captures are as before
+    assert continued_for_capture(session1.adc[:2], session1.rig.fs_hz, 1024, 50000, 64, 96,
+                                 session1.rig.pretrigger_samples).shape == session1.adc[:2].shape
+
+
+def test_a_model_at_the_boards_own_rate_that_the_board_cannot_run_is_trained_again_not_refused():
+    """A 50 kHz rig's model that took the posterior mean (or position members): `export` used to skip the board's
+    refit (same rate) and then refuse the model, telling the user to do what they had done."""
+    from impactsense.export import needs_board_refit
+
+    plain = {"signal": {"fs_hz": 50000.0, "posterior_grid": 0}}
+    assert needs_board_refit({"signal": {"fs_hz": 50000.0, "posterior_grid": 15}}, 50000)
+    assert needs_board_refit({"position_members": ["a"], "signal": {"fs_hz": 50000.0}}, 50000)
+    assert not needs_board_refit(plain, 50000)
+    assert needs_board_refit(plain, 25000) and needs_board_refit({"signal": {"fs_hz": 100000.0}}, 50000)
+    assert not needs_board_refit({"signal": {"fs_hz": 50000.0, "posterior_grid": 15}}, None)   # --rate native

@@ -456,6 +456,7 @@ class PyApp {
     return b;
   }
   int capture_frames() const { return app_->capture_frames(); }
+  int pretrigger_frames() const { return app_->pretrigger_frames(); }
   uint32_t events() const { return app_->events(); }
   uint32_t fs_hz() const { return app_->config().fs_hz; }
   ic::CoreConfig core_config() const { return app_->config().core; }
@@ -619,6 +620,7 @@ NB_MODULE(_link, m) {
       .def("rx", &PyApp::rx, "data"_a, "Bytes from the host (commands); returns the serial bytes.")
       .def("take_ble", &PyApp::take_ble)
       .def_prop_ro("capture_frames", &PyApp::capture_frames)
+      .def_prop_ro("pretrigger_frames", &PyApp::pretrigger_frames)
       .def_prop_ro("events", &PyApp::events)
       .def_prop_ro("fs_hz", &PyApp::fs_hz)
       .def_prop_ro("core_config", &PyApp::core_config)

@@ -103,6 +103,26 @@ def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
     return twin_arrays(site, fit)
 
 
+def beyond_the_board(card: dict) -> tuple[str, str] | None:
+    """(card field, why) when a model uses what the board cannot run as it is (then `export` trains the board's
+    own models, even at the board's own rate), else None."""
+    if card.get("position_members"):
+        return "position_members", "the board runs one forest pair on the physics position"
+    signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
+    if int(signal.get("posterior_grid", 0) or 0) > 1:
+        return "signal.posterior_grid", "the localiser's posterior mean costs more than the board's event budget"
+    return None
+
+
+def needs_board_refit(card: dict, rate: int | None) -> bool:
+    """Whether `export` at board rate `rate` (None: --rate native) trains the board's own models: the model was
+    trained at another rate, or uses what the board cannot run (beyond_the_board)."""
+    if rate is None:
+        return False
+    trained_at = int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0)
+    return trained_at != int(rate) or beyond_the_board(card) is not None
+
+
 def load_models(model_dir) -> ModelSet:
     """The forests and settings of a model folder, read through modelfolder.py (named files only, checksums
     checked, no pickles); problems are ExportErrors naming the file and field."""
@@ -115,14 +135,10 @@ def load_models(model_dir) -> ModelSet:
         models = load_forests(model_dir, card, card_path, ("x", "y", "energy"))
     except DataError as exc:
         raise ExportError(str(exc)) from None
-    if card.get("position_members"):
-        raise ExportError(f"{card_path} [position_members]: the board runs one forest pair on the physics position; "
-                          f"export it at the board's rate (not --rate native): that trains the board's own models")
-    signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
-    if int(signal.get("posterior_grid", 0) or 0) > 1:
-        raise ExportError(f"{card_path} [signal.posterior_grid]: the localiser's posterior mean costs more than the "
-                          f"board's event budget; export it at the board's rate (not --rate native): that trains "
-                          f"the board's own models")
+    beyond = beyond_the_board(card)
+    if beyond is not None:
+        raise ExportError(f"{card_path} [{beyond[0]}]: {beyond[1]}; export it without --rate native: that trains "
+                          f"the board's own models (at the board's rate, on the same drops)")
     for role in ("x", "y"):
         if not hasattr(models[role], "estimators_") or getattr(models[role], "n_outputs_", 1) != 1:
             raise ExportError(f"{roles[role]}: need a single-output random forest regressor")

@@ -19,8 +19,8 @@ from scipy.signal import resample_poly
 from .. import _core  # noqa: F401  (registers CoreConfig for _link)
 from .. import _link
 from ..link.record import CaptureAssembler
-from ..signal import (CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict, core_offset, counts_per_core_count,
-                      rig_settings)
+from ..signal import (BASELINE_SHARE_OF_PRETRIGGER, CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict,
+                      core_offset, counts_per_core_count, rig_settings)
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
@@ -119,19 +119,34 @@ def _captures(drops) -> tuple[list, list]:
 
 
 def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int, fs_hz: float,
-                          baseline_samples: int = 64) -> np.ndarray:
+                          baseline_samples: int = 64, pretrigger_frames: int = 0,
+                          pretrigger_samples: int | None = None) -> np.ndarray:
     """Recordings long enough for the board between two drops (its capture window, then the trigger's hold-off,
     about as long again): a record shorter than twice the window (a fast logger's or a short capture: the board
     would cut the drop off, or sleep through the next) is continued to 2.5 windows by each channel's
-    pre-trigger baseline (the median of its first samples). Longer records are returned as they are."""
+    pre-trigger baseline (the median of its first samples). Longer records are returned as they are.
+    A record whose quiet start (`pretrigger_samples`, the session's) is so short that the board's capture
+    (`pretrigger_frames` before its trigger, at fs_hz) would reach back past its baseline segment
+    (`baseline_samples` frames) into the previous record is also led in by its quiet start: the board then seeks
+    the onset on the record's own level, not on the step to the previous record's (records carry their own
+    offsets). Its capture then starts within the lead-in."""
     adc = np.asarray(adc)
     n = adc.shape[-1]
-    window = capture_frames / float(fs_hz) * float(fs_in_hz)
-    if n >= 2.0 * window:
+    per_frame = float(fs_in_hz) / float(fs_hz)
+    window = capture_frames * per_frame
+    reach = (pretrigger_frames - baseline_samples + 16) * per_frame
+    short = pretrigger_samples is not None and pretrigger_frames > 0 and pretrigger_samples < reach
+    lead = int(np.ceil((1.25 * pretrigger_frames + 16) * per_frame)) - int(pretrigger_samples) if short else 0
+    if lead == 0 and n >= 2.0 * window:
         return adc
-    need = int(np.ceil(2.5 * window))
-    base = np.rint(np.median(adc[..., :max(1, min(baseline_samples, n))], axis=-1, keepdims=True))
-    tail = np.broadcast_to(base, adc.shape[:-1] + (need - n,)).astype(adc.dtype)
+    if lead:   # the quiet start mirrored back and forth (its noise and level, no step), as long as needed
+        quiet = adc[..., :max(2, int(BASELINE_SHARE_OF_PRETRIGGER * int(pretrigger_samples)))]
+        head = np.pad(quiet, [(0, 0)] * (adc.ndim - 1) + [(lead, 0)], mode="symmetric")[..., :lead]
+        adc = np.concatenate([head, adc], axis=-1)
+    if n + lead >= 2.0 * window:
+        return adc
+    base = np.rint(np.median(adc[..., lead:lead + max(1, min(baseline_samples, n))], axis=-1, keepdims=True))
+    tail = np.broadcast_to(base, adc.shape[:-1] + (int(np.ceil(2.5 * window)) - n - lead,)).astype(adc.dtype)
     return np.concatenate([adc, tail], axis=-1)
 
 
@@ -139,7 +154,8 @@ def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
     """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app from the
     session's drops as the board samples them (board_samples), one drop after the other."""
     app = _link.App(app_config(session.rig, fs_hz, signal, dump_raw=True), None)
-    adc = continued_for_capture(session.adc, session.rig.fs_hz, app.capture_frames, fs_hz)
+    adc = continued_for_capture(session.adc, session.rig.fs_hz, app.capture_frames, fs_hz,
+                                app.core_config.baseline_samples, app.pretrigger_frames, session.rig.pretrigger_samples)
     frames = board_samples(adc, session.rig.fs_hz, fs_hz, adc_max=session.rig.adc_max)
     caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
     if not caps:

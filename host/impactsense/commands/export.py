@@ -83,10 +83,10 @@ def _export(args, card, rate, stage, out):
     import json
     from pathlib import Path
 
-    from ..export import export_models
+    from ..export import export_models, needs_board_refit
 
     model_dir = Path(args.model_dir)
-    if rate is not None and int(card.get("board_fs_hz") or card.get("signal", {}).get("fs_hz") or 0) != rate:
+    if needs_board_refit(card, rate):
         from ..board.models import BOARD_SITE_MAP, retrain_for_board
 
         if (out / BOARD_SITE_MAP).is_file():    # the cache goes along into the new OUT

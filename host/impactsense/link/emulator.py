@@ -33,7 +33,8 @@ class Emulator:
     def frames(self) -> np.ndarray:
         if self._frames is None:
             adc = continued_for_capture(self.session.adc, self.session.rig.fs_hz, self.app.capture_frames,
-                                        self.fs_hz)
+                                        self.fs_hz, self.app.core_config.baseline_samples,
+                                        self.app.pretrigger_frames, self.session.rig.pretrigger_samples)
             self._frames = board_samples(adc, self.session.rig.fs_hz, self.fs_hz, adc_max=self.session.rig.adc_max)
         return self._frames
 

@@ -217,6 +217,7 @@ class App {
   uint32_t event_cycles_max() const { return event_cycles_max_; }
   uint32_t idle_cycles_max() const { return idle_cycles_max_; }  // since the last status frame
   int capture_frames() const { return capture_frames_; }
+  int pretrigger_frames() const { return pre_frames_; }
   const int16_t* capture(int c) const { return capture_[c]; }
   const impactcore::EventResult& last_result() const { return ev_; }
   const impactlink::Report& last_report() const { return report_; }
