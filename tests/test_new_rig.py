@@ -274,3 +274,23 @@ def test_a_model_at_the_boards_own_rate_that_the_board_cannot_run_is_trained_aga
     assert not needs_board_refit(plain, 50000)
     assert needs_board_refit(plain, 25000) and needs_board_refit({"signal": {"fs_hz": 100000.0}}, 50000)
     assert not needs_board_refit({"signal": {"fs_hz": 50000.0, "posterior_grid": 15}}, None)   # --rate native
+
+
+def test_drops_placed_without_a_class_are_counted_apart_not_scored_wrong(tmp_path, session1):
+    """A model without a site map (a new rig's default) places a drop with a dead channel by the three-sensor
+    physics position but cannot classify it: evaluate said "class acc 0.00"; it now scores the classified drops
+    and says how many have none and why."""
+    import impactsense as isn
+    from impactsense.faults import FaultSpec, inject
+    from impactsense.workflow import evaluate
+
+    s = session1.subset(np.arange(0, 771, 6))
+    model = isn.train(s, site_map="none", trees=10)
+    rows = np.asarray(model.card["split"]["test_recordings"])
+    rows = np.flatnonzero(np.isin(s.recording_id, rows))
+    dead = replace(s, adc=inject(s.adc, FaultSpec(dead_channel=2, seed=1), s.rig.fs_hz, s.rig.bias_counts,
+                                 s.rig.adc_max))
+    rep = evaluate(dead, model, rows)
+    assert rep["predicted"] == len(rows) and rep["classified"] == 0 and np.isnan(rep["energy_class_accuracy"])
+    clean = evaluate(s, model, rows)
+    assert clean["classified"] == clean["predicted"] and clean["energy_class_accuracy"] > 0.8

@@ -88,6 +88,7 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
     pred = model.predict(feats)
     true_xy = session.xy_mm[rows]
     ok = np.isfinite(pred["xy_mm"]).all(1)
+    classed = ok & (pred["energy_class"] >= 0)
     energy = impact_energy_j(session.height_mm[rows], session.rig.ball_mass_g)
     region = session.rig.inner_region_mm
     label = (energy >= model.energy_threshold_j).astype(int)
@@ -98,7 +99,10 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
         "accepted": int(feats.accepted.sum()),
         "rejected": int((~feats.accepted).sum()),
         **region_metrics(true_xy[ok], pred["xy_mm"][ok], region),
-        "energy_class_accuracy": float(np.mean(pred["energy_class"][ok] == label[ok])) if ok.any() else float("nan"),
+        # over the drops given a class (a drop placed without one: a channel without an onset and no site map)
+        "classified": int(classed.sum()),
+        "energy_class_accuracy": float(np.mean(pred["energy_class"][classed] == label[classed])) if classed.any()
+        else float("nan"),
         "physics": region_metrics(true_xy[ok], feats.phys_xy_mm[ok], region),
         # Where all/inner's positions come from ("twin": the site map's match, "forest"), and the forests'
         # own position on the same drops (the twin's starting point; equal to all/inner without a site map).

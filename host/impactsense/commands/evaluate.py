@@ -19,7 +19,7 @@ def register(sub) -> None:
 def format_table(rows: list[tuple[str, dict, float | None]]) -> str:
     lines = [f"{'':34s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
     for name, m, acc in rows:
-        acc_s = f"{acc:9.2f}" if acc is not None else f"{'':9s}"
+        acc_s = f"{acc:9.2f}" if acc is not None and acc == acc else f"{'-' if acc is not None else '':>9s}"
         lines.append(f"{name:34s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} {m['mae_mm']:7.2f} {acc_s}")
     return "\n".join(lines)
 
@@ -54,6 +54,11 @@ def run(args) -> int:
     print(f"{session.name}: {report['scope']}: n = {report['n']}, accepted {report['accepted']}, "
           f"rejected {report['rejected']} (Eq. 35)")
     print(report_table(report))
+    unclassed = report["predicted"] - report["classified"]
+    if unclassed:
+        print(f"energy class: {unclassed} of {report['predicted']} placed drops have none (class acc. is over the "
+              f"other {report['classified']}): a channel without an onset, and the model has no site map to classify "
+              f"from three channels (`impactsense calibrate DATA --out CAL.json`, then `train --calibration CAL.json`)")
     if args.plots:
         for p in evaluation_plots(report, session.rig, args.plots):
             print(f"plot: {p}")
