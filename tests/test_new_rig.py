@@ -294,3 +294,27 @@ def test_drops_placed_without_a_class_are_counted_apart_not_scored_wrong(tmp_pat
     assert rep["predicted"] == len(rows) and rep["classified"] == 0 and np.isnan(rep["energy_class_accuracy"])
     clean = evaluate(s, model, rows)
     assert clean["classified"] == clean["predicted"] and clean["energy_class_accuracy"] > 0.8
+
+
+def test_the_zero_shot_class_boundary_sits_in_the_sessions_gap_between_heights(session1):
+    """A session dropped from a few heights (here 110, 150, 190, 200 mm) has one on its classes' threshold
+    (the virtual drops' 75th percentile, 175 mm, lies between 150 and 190); the twin's classifier trained on
+    virtual drops in 5 mm steps cut just under the threshold, so drops near it were a coin toss. It is now
+    trained again with its boundary in the middle of the session's gap (150..190 mm)."""
+    import impactsense as isn
+    from impactsense.models import impact_energy_j
+    from impactsense.zeroshot import class_boundary_in_the_sessions_gap
+
+    virtual = session1.subset(np.arange(0, 771, 5))           # stands in for the virtual drops: 5 mm steps
+    model = isn.train(virtual, test_fraction=0.0, trees=10)  # the bundled twin's site map
+    assert model.site_map is not None
+    coarse = session1.subset(np.flatnonzero(np.isin(session1.height_mm, (110, 150, 190, 200))))
+    m = session1.rig.ball_mass_g
+    assert impact_energy_j(150, m) < model.energy_threshold_j <= impact_energy_j(190, m)
+    boundary = class_boundary_in_the_sessions_gap(model, coarse, virtual, model.signal, model.twin_fit)
+    assert boundary == pytest.approx(np.sqrt(impact_energy_j(150, m) * impact_energy_j(190, m)), rel=1e-6)
+    # the refitted classifier on the twin's log10 height: low below the gap's middle, high above it
+    h = np.array([150.0, 160.0, 178.0, 190.0])
+    assert model.forest_energy.predict(np.log10(h)[:, None]).tolist() == [0, 0, 1, 1]
+    # a session in the virtual drops' own steps has no wider gap: the classifier stays as trained
+    assert class_boundary_in_the_sessions_gap(model, virtual, virtual, model.signal, model.twin_fit) is None

@@ -186,6 +186,43 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
             "rms_error_mm": float(np.sqrt(np.mean(err[ok] ** 2)))}
 
 
+def class_boundary_in_the_sessions_gap(model, session: Session, virtual: Session, virtual_signal: SignalConfig,
+                                       fit) -> float | None:
+    """The twin's classifier trained again on the virtual drops (their twin height estimates with the twin
+    `fit` fitted on them) with its boundary in the calibrated session's gap between drop heights around the
+    model's threshold (height_class.class_cut), not at the threshold: a session dropped from a few heights has
+    one of them on its 75th percentile, and the virtual drops' 5 mm steps put the classifier's boundary just
+    under that height, where every drop from it is a coin toss. The drops' labels (m g h >= the threshold) are
+    unchanged. Returns the boundary (J), None when the session's heights leave no gap there."""
+    from .height_class import class_cut
+    from .models import TWIN_CLASSIFIER, twin_estimate
+
+    h = np.asarray(session.height_mm, float)
+    h = h[np.isfinite(h) & (h > 0)]
+    if h.size == 0 or fit is None:
+        return None
+    threshold = float(model.energy_threshold_j)
+    e = impact_energy_j(h, session.rig.ball_mass_g)
+    try:
+        boundary = float(np.exp(class_cut(e, threshold)))
+    except DataError:
+        return None
+    e_virtual = impact_energy_j(np.asarray(virtual.height_mm, float), virtual.rig.ball_mass_g)
+    below, above = e[e < threshold].max(), e[e >= threshold].min()
+    if not ((e_virtual > below) & (e_virtual < above)).any():
+        return None   # no virtual drop falls in the session's gap: its boundary is the virtual drops' already
+    vf = featurize(virtual.adc, virtual_signal)
+    use = np.flatnonzero(vf.usable)
+    feats, usable = twin_features(vf.take(use))
+    est = np.asarray(twin_estimate(model.site_map, fit, feats, usable, vf.phys_xy_mm[use])["log10_height_mm"], float)
+    ok = np.isfinite(est)
+    label = (impact_energy_j(virtual.height_mm[use][ok], virtual.rig.ball_mass_g) >= boundary).astype(int)
+    if np.unique(label).size < 2:
+        return None
+    model.forest_energy = TWIN_CLASSIFIER.classifier().fit(est[ok, None], label)
+    return boundary
+
+
 def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, site,
                              virtual: Session) -> dict:
     """Everything the calibration drops teach the sim-trained `model` (fitted on the virtual drops, its signal
@@ -197,9 +234,11 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
     recordings, or the board's captures (adapt_to_rig). Returns the model card's record
     of these fits and, under "_virtual_twin", the twin fit before the uncertainty's scale."""
     virtual_signal = SignalConfig.from_dict(model.signal.to_dict())
+    fitted_on_virtual = model.twin_fit
     delays, gains, velocity = adapt_to_rig(model, session, rows, cal_sim, virtual_signal, site)
-    offsets, scale, virtual_twin = {}, None, None
+    offsets, scale, virtual_twin, boundary = {}, None, None, None
     if site is not None:
+        boundary = class_boundary_in_the_sessions_gap(model, session, virtual, virtual_signal, fitted_on_virtual)
         scale = uncertainty_on_calibration_drops(model, session, rows, site)
         virtual_twin = model.twin_fit
         k = scale["factor"]
@@ -224,6 +263,7 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
                if model.signal.band_velocity_mm_per_us > 0 else {}),
             "travel_refit_on_calibration_drops": model.card.pop("travel_refit_on_calibration_drops", None),
             "energy_feature_offsets_from_calibration_drops": offsets,
+            "energy_class_boundary_j": boundary,
             "uncertainty_factor_from_calibration_drops": scale, "_virtual_twin": virtual_twin}
 
 

@@ -136,5 +136,8 @@ def run(args) -> int:
           + ("the twin's height estimate (site map)" if site is not None else
              "a linear estimate of log m g h (summed energies, a cubic in position)" if linear else
              "the channels' energies and first peaks"))
+    boundary = model.card.get("energy_class_boundary_j")
+    if boundary:
+        print(f"energy class boundary: {boundary * 1000:.3f} mJ, in the calibrated session's gap between drop heights")
     print(f"wrote {args.out}")
     return 0
