@@ -66,7 +66,8 @@ def run(args) -> int:
     if site is not None:
         print(f"position and energy class from the twin's site map ({site.nx} x {site.ny} points, "
               f"{site.step_mm:g} mm, drop height {site.ref_height_mm:g} mm)")
-    model, split = train(session, out / "model", 0.2, args.seed, site_map=site)
+    # as `impactsense train DATA` does: without a site map the energy class the training drops choose
+    model, split = train(session, out / "model", 0.2, args.seed, site_map=site, choose_class=site is None)
     report = evaluate(session, model)
     write_json(report, out / f"evaluate-{session.name}.json")
     evaluation_plots(report, session.rig, out / "plots")
