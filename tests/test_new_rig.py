@@ -318,3 +318,17 @@ def test_the_zero_shot_class_boundary_sits_in_the_sessions_gap_between_heights(s
     assert model.forest_energy.predict(np.log10(h)[:, None]).tolist() == [0, 0, 1, 1]
     # a session in the virtual drops' own steps has no wider gap: the classifier stays as trained
     assert class_boundary_in_the_sessions_gap(model, virtual, virtual, model.signal, model.twin_fit) is None
+
+
+def test_demo_on_a_new_rig_trains_the_model_train_trains(tmp_path, session1):
+    """`demo --data DATA` on a rig without a site map chooses the energy class as `train DATA` does (the card's
+    energy_class_choice), so the demo's figures are the commands'."""
+    from impactsense import cli
+
+    s = session1.subset(np.arange(0, 771, 8))
+    raw = session1.rig.to_dict()   # sensors declared 1 mm off the bundled rig's: not the bundled twin's rig
+    raw["sensors"] = [dict(c, x_mm=c["x_mm"] + 1.0) for c in raw["sensors"]]
+    data = write_session(tmp_path / "other", raw, s.x_mm, s.y_mm, s.height_mm, s.adc, s.case_id, s.repetition)
+    assert cli.main(["demo", "--data", str(data), "--out", str(tmp_path / "demo")]) == 0
+    card = json.loads((tmp_path / "demo" / "model" / "model_card.json").read_text())
+    assert "energy_class_choice" in card and "twin" not in card
