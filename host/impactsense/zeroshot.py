@@ -48,7 +48,8 @@ from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops,
                                 fit_energy_offsets, refit_travel_metric)
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
-from .models import ENERGY_FEATURES, columns, fit_energy_classifier, impact_energy_j
+from .height_class import class_cut
+from .models import ENERGY_FEATURES, TWIN_CLASSIFIER, columns, fit_energy_classifier, impact_energy_j, twin_estimate
 from .outputs import MANIFEST, adopt, write_file
 from .pipeline import featurize
 from .seed import SEED_ROWS
@@ -194,9 +195,6 @@ def class_boundary_in_the_sessions_gap(model, session: Session, virtual: Session
     one of them on its 75th percentile, and the virtual drops' 5 mm steps put the classifier's boundary just
     under that height, where every drop from it is a coin toss. The drops' labels (m g h >= the threshold) are
     unchanged. Returns the boundary (J), None when the session's heights leave no gap there."""
-    from .height_class import class_cut
-    from .models import TWIN_CLASSIFIER, twin_estimate
-
     h = np.asarray(session.height_mm, float)
     h = h[np.isfinite(h) & (h > 0)]
     if h.size == 0 or fit is None:
