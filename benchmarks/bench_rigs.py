@@ -61,7 +61,7 @@ def naive(session, train_rows, test_rows, trees: int, seed: int) -> float:
     from impactsense.signal import SignalConfig
 
     cfg = SignalConfig.for_rig(session.rig, aic_blend=0.0)
-    toa = _core.extract_batch(as_int16(session.adc), cfg.core())["toa_us"].astype(float)
+    toa = _core.extract_batch(as_int16(session.adc, cfg), cfg.core())["toa_us"].astype(float)
     pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
     X = np.stack([toa[:, i] - toa[:, j] for i, j in pairs], 1)
     X = np.nan_to_num(X, nan=0.0)
