@@ -332,3 +332,16 @@ def test_demo_on_a_new_rig_trains_the_model_train_trains(tmp_path, session1):
     assert cli.main(["demo", "--data", str(data), "--out", str(tmp_path / "demo")]) == 0
     card = json.loads((tmp_path / "demo" / "model" / "model_card.json").read_text())
     assert "energy_class_choice" in card and "twin" not in card
+
+
+def test_calibrate_says_when_a_laminate_constant_stops_at_the_materials_bound(tmp_path, session1):
+    """A laminate fit that ran to the materials table's range (E1 and G12 at their upper bounds) is named in
+    calibrate's summary instead of being printed as a fitted value."""
+    from impactsense.commands.calibrate import _at_bounds
+
+    raw = dict(session1.rig.to_dict(), plate_material="GFRP laminate (E-glass/epoxy)")
+    (tmp_path / "rig.json").write_text(json.dumps(raw))
+    cal = {"data": str(tmp_path)}
+    text = _at_bounds(cal, {"E1_mpa": 50000.0, "E2_mpa": 15560.0, "G12_mpa": 8000.0})
+    assert "E1 50000 MPa (upper)" in text and "G12 8000 MPa (upper)" in text and "E2" not in text
+    assert _at_bounds(cal, {"E1_mpa": 32000.0, "E2_mpa": 11000.0, "G12_mpa": 4200.0}) == ""

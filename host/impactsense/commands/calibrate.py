@@ -78,10 +78,33 @@ def _drops(text: str):
     return ids
 
 
+def _at_bounds(cal: dict, lam: dict) -> str:
+    """"; at the material's prior bound: ..." naming the laminate constants the fit left on a bound of the
+    materials table's range (the fit wanted beyond it: the rig's material or the table's range is off)."""
+    from ..data import load_rig
+    from ..errors import DataError
+    from ..materials import material_for_rig
+
+    try:
+        mat = material_for_rig(load_rig(cal["data"]))
+    except (DataError, KeyError, TypeError):
+        return ""
+    hit = []
+    for key, name in (("E1_mpa", "e1_pa"), ("E2_mpa", "e2_pa"), ("G12_mpa", "g12_pa")):
+        prior, v = getattr(mat, name, None), lam.get(key)
+        if prior is None or v is None:
+            continue
+        lo, hi = prior.lo / 1e6, prior.hi / 1e6
+        if min(abs(v - lo), abs(v - hi)) <= 1e-3 * (hi - lo):
+            hit.append(f"{key[:-4]} {v:.0f} MPa ({'lower' if abs(v - lo) < abs(v - hi) else 'upper'})")
+    return f"; AT THE MATERIAL'S PRIOR BOUND: {', '.join(hit)}" if hit else ""
+
+
 def summary(cal: dict) -> str:
     """A short table a person can read."""
     pl = cal["plate"]
-    e_fast = pl.get("E_fast_mpa", pl["E_mpa"])
+    # a laminate's E_mpa is its equivalent isotropic E (below); the grid's own optimum is E_grid_mpa
+    e_fast = pl.get("E_fast_mpa", pl.get("E_grid_mpa") if pl.get("laminate") else None) or pl["E_mpa"]
     lines = [f"calibration drops (cases, excluded from every test set): {cal['drops']['case_ids']}",
              f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl.get('nu_grid', pl['nu']):.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
              f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
@@ -93,7 +116,7 @@ def summary(cal: dict) -> str:
                      f"{lam['E2_mpa']:.0f}, G12 = {lam['G12_mpa']:.0f} MPa (E1/E2 {lam['E1_over_E2']:.2f}, nu12 "
                      f"{lam['nu12']:.2f}); Eq. 16 rms {lam['rms_dtoa_error_us']:.1f} us (the table's shape "
                      f"{lam['rms_dtoa_error_us_typical_shape']:.1f} us); first guess from the picks E1/E2 "
-                     f"{g['E1_over_E2']:.2f}")
+                     f"{g['E1_over_E2']:.2f}" + _at_bounds(cal, lam))
     if "fem_loss_eq16_us2" in pl:
         scan = ", ".join(f"{k}: {v:.0f}" for k, v in pl["fem_scan"].items())
         lines.append(f"plate, FEM twin: E = {pl['E_mpa']:.0f} MPa; Eq. 16 loss {pl['fem_loss_eq16_us2']:.0f} us^2 "
