@@ -345,3 +345,18 @@ def test_calibrate_says_when_a_laminate_constant_stops_at_the_materials_bound(tm
     text = _at_bounds(cal, {"E1_mpa": 50000.0, "E2_mpa": 15560.0, "G12_mpa": 8000.0})
     assert "E1 50000 MPa (upper)" in text and "G12 8000 MPa (upper)" in text and "E2" not in text
     assert _at_bounds(cal, {"E1_mpa": 32000.0, "E2_mpa": 11000.0, "G12_mpa": 4200.0}) == ""
+
+
+def test_retrain_warns_when_its_model_is_worse_than_the_baseline_on_the_session():
+    """A debonded channel on a plate whose signal sits near the bond's low-pass was diagnosed as a disc moved
+    107 mm with a 1 kHz low-pass, and the retrained model placed the session's drops 3x worse than the
+    baseline model, silently. retrain now says so."""
+    from types import SimpleNamespace
+
+    from impactsense.commands.retrain import worse_than_baseline
+
+    moved = [SimpleNamespace(effect="sensor_position", sensor=1)]
+    rows = {"baseline model": {"mae_mm": 35.6}, "retrained model": {"mae_mm": 112.4}}
+    text = worse_than_baseline(rows, moved, "F")
+    assert text.startswith("WARNING") and "sensor_position[1]" in text and "112.40" in text
+    assert worse_than_baseline({"baseline model": {"mae_mm": 35.6}, "retrained model": {"mae_mm": 20.0}}, moved, "F") is None

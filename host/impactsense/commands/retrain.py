@@ -124,7 +124,26 @@ def run(args) -> int:
         print(f"{k:<18} {v['mae_mm']:7.2f} {v['inner_mae_mm']:6.2f} {v['physics_mae_mm']:8.2f} "
               f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
     print(f"model written to {out}")
+    warning = worse_than_baseline(rows, accepted, data.name)
+    if warning:
+        print(warning)
     return 0
+
+
+# The retrained model is called worse when its MAE on DATA_NEW exceeds the baseline model's by this factor.
+WORSE_FACTOR = 1.1
+
+
+def worse_than_baseline(rows: dict, accepted, name: str) -> str | None:
+    """A warning when the retrained model places DATA_NEW's drops clearly worse than the baseline model (both
+    scored on its own labels): the diagnosed effects, as sized, do not describe the session."""
+    base, new = rows.get("baseline model"), rows.get("retrained model")
+    if not base or not new or not new["mae_mm"] > WORSE_FACTOR * base["mae_mm"]:
+        return None
+    effects = ", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"
+    return (f"WARNING: the retrained model places {name}'s drops worse than the baseline model ({new['mae_mm']:.2f} "
+            f"mm against {base['mae_mm']:.2f}): the effects added ({effects}) do not describe this session as "
+            f"sized (retrain.json holds their sizes); keep the baseline model")
 
 
 def twin_model(args, base, data, details, accepted, settings, exclude, site, out: Path) -> dict:
