@@ -311,13 +311,14 @@ def test_the_zero_shot_class_boundary_sits_in_the_sessions_gap_between_heights(s
     coarse = session1.subset(np.flatnonzero(np.isin(session1.height_mm, (110, 150, 190, 200))))
     m = session1.rig.ball_mass_g
     assert impact_energy_j(150, m) < model.energy_threshold_j <= impact_energy_j(190, m)
-    boundary = class_boundary_in_the_sessions_gap(model, coarse, virtual, model.signal, model.twin_fit)
+    boundary = class_boundary_in_the_sessions_gap(model, coarse.height_mm, m, virtual, model.signal, model.twin_fit)
     assert boundary == pytest.approx(np.sqrt(impact_energy_j(150, m) * impact_energy_j(190, m)), rel=1e-6)
     # the refitted classifier on the twin's log10 height: low below the gap's middle, high above it
     h = np.array([150.0, 160.0, 178.0, 190.0])
     assert model.forest_energy.predict(np.log10(h)[:, None]).tolist() == [0, 0, 1, 1]
     # a session in the virtual drops' own steps has no wider gap: the classifier stays as trained
-    assert class_boundary_in_the_sessions_gap(model, virtual, virtual, model.signal, model.twin_fit) is None
+    assert class_boundary_in_the_sessions_gap(model, virtual.height_mm, m, virtual, model.signal, model.twin_fit) is None
+    assert class_boundary_in_the_sessions_gap(model, coarse.height_mm, m, None, model.signal, model.twin_fit) is None
 
 
 def test_demo_on_a_new_rig_trains_the_model_train_trains(tmp_path, session1):

@@ -187,20 +187,21 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
             "rms_error_mm": float(np.sqrt(np.mean(err[ok] ** 2)))}
 
 
-def class_boundary_in_the_sessions_gap(model, session: Session, virtual: Session, virtual_signal: SignalConfig,
-                                       fit) -> float | None:
+def class_boundary_in_the_sessions_gap(model, heights_mm, ball_mass_g: float, virtual: Session | None,
+                                       virtual_signal: SignalConfig, fit) -> float | None:
     """The twin's classifier trained again on the virtual drops (their twin height estimates with the twin
     `fit` fitted on them) with its boundary in the calibrated session's gap between drop heights around the
     model's threshold (height_class.class_cut), not at the threshold: a session dropped from a few heights has
     one of them on its 75th percentile, and the virtual drops' 5 mm steps put the classifier's boundary just
     under that height, where every drop from it is a coin toss. The drops' labels (m g h >= the threshold) are
-    unchanged. Returns the boundary (J), None when the session's heights leave no gap there."""
-    h = np.asarray(session.height_mm, float)
+    unchanged. heights_mm: the calibrated session's drop heights. Returns the boundary (J), None when the
+    session's heights leave no gap there (or no virtual drops are given)."""
+    h = np.asarray(heights_mm, float)
     h = h[np.isfinite(h) & (h > 0)]
-    if h.size == 0 or fit is None:
+    if h.size == 0 or fit is None or virtual is None:
         return None
     threshold = float(model.energy_threshold_j)
-    e = impact_energy_j(h, session.rig.ball_mass_g)
+    e = impact_energy_j(h, ball_mass_g)
     try:
         boundary = float(np.exp(class_cut(e, threshold)))
     except DataError:
@@ -222,7 +223,7 @@ def class_boundary_in_the_sessions_gap(model, session: Session, virtual: Session
 
 
 def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray, site,
-                             virtual: Session) -> dict:
+                             virtual: Session | None, class_heights_mm=None) -> dict:
     """Everything the calibration drops teach the sim-trained `model` (fitted on the virtual drops, its signal
     their localiser), in place: the rig's channel delays and gains and group velocity (adapt_to_rig), with
     a site map the twin's offsets and weights and the uncertainty's scale (uncertainty_on_calibration_drops),
@@ -236,7 +237,9 @@ def fit_on_calibration_drops(model, session: Session, rows: np.ndarray, cal_sim:
     delays, gains, velocity = adapt_to_rig(model, session, rows, cal_sim, virtual_signal, site)
     offsets, scale, virtual_twin, boundary = {}, None, None, None
     if site is not None:
-        boundary = class_boundary_in_the_sessions_gap(model, session, virtual, virtual_signal, fitted_on_virtual)
+        heights = session.height_mm if class_heights_mm is None else class_heights_mm
+        boundary = class_boundary_in_the_sessions_gap(model, heights, session.rig.ball_mass_g, virtual,
+                                                      virtual_signal, fitted_on_virtual)
         scale = uncertainty_on_calibration_drops(model, session, rows, site)
         virtual_twin = model.twin_fit
         k = scale["factor"]

@@ -277,8 +277,12 @@ def sim_trained_for_board(model_dir: str | Path, out_dir: str | Path, fs_hz: int
     sim_adc = sim.adc[np.isin(sim.recording_id, both)]
     # The fits read the captures with the core's configuration as the firmware sets it (the scan's capture delays).
     model.signal = signal_for_board(session.rig, model.signal.to_dict(), fs_hz)
-    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if board_map is None else None
-    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board)
+    # the virtual drops as the board captures them: the classifier's fits read them (without a twin always;
+    # with one when the host model's boundary sits in the calibrated session's gap between heights)
+    needs_virtual = board_map is None or card.get("energy_class_boundary_j") is not None
+    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if needs_virtual else None
+    fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board,
+                                    class_heights_mm=session.height_mm)
     fits.pop("_virtual_twin")
     return Path(model.save(out_dir, extra_card={
         **fits, "calibration": str(cal_path), "zero_shot": {**zs, "calibration_drops_on_the_board": len(meas)},
