@@ -12,7 +12,7 @@ from .errors import DataError
 from .models import ARRIVAL_ENERGY_FEATURES, columns
 from .pipeline import distances_mm, featurize
 from .signal import SignalConfig
-from .travel import fit_travel, picks, summed_log_energy, travel_distances
+from .travel import fit_travel, picks, slowness_scales, summed_log_energy, travel_distances
 
 
 def calibration_rows(session: Session, cal: dict) -> np.ndarray:
@@ -130,9 +130,7 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
     record = {"velocity_mm_per_us": fit.velocity_mm_per_us, "delays_us": list(fit.delays_us),
               "travel_metric": list(fit.metric), "dispersion_exponent": fit.dispersion_exponent}
     if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
-        base = SignalConfig.from_dict({**_record_time(signal).to_dict(), "channel_gain": list(signal.channel_gain),
-                                       "capture_delay_us": list(signal.capture_delay_us)})
-        raw = featurize(session.adc[rows], base).raw
+        raw = featurize(session.adc[rows], _band_picking(signal)).raw
         band = raw["toa_band_us"].astype(float)
         if signal.band_slowness_per_decade:     # the energy slowness's slope stays the virtual drops' (its
             # level is the refitted velocity)
@@ -148,6 +146,75 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
         record.update(band_velocity_mm_per_us=bfit.velocity_mm_per_us, band_delay_us=list(bfit.delays_us),
                       band_metric=list(bfit.metric))
     return out, record
+
+
+def travel_residuals(session: Session, rows: np.ndarray, signal: SignalConfig) -> dict[str, np.ndarray]:
+    """The localiser's travel models (`signal`'s constants) on the drops `rows` at their known positions: each
+    pick set's residual, picks minus modelled arrival (ToA_ik = t0_k + |p_k - s_i|_Q s_ik + delay_i, s_ik the
+    slowness with the dispersion or energy term), centred per drop (t0_k), [R, 4] us. "threshold" always,
+    "band" when the band picks are on."""
+    xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
+    toa, period = picks(session.adc[rows], signal, with_period=True)
+    d = travel_distances(xy, sensors, (signal.travel_metric_xx, signal.travel_metric_xy, signal.travel_metric_yy))
+    d = d * slowness_scales(period, signal.fs_hz, signal.dispersion_exponent, signal.dispersion_ref_hz)
+    out = {"threshold": toa - d / signal.velocity_mm_per_us - np.asarray(signal.rig_delay_us, float)[None]}
+    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
+        raw = featurize(session.adc[rows], _band_picking(signal)).raw
+        d = travel_distances(xy, sensors, (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy))
+        slowness = 1.0 / signal.band_velocity_mm_per_us
+        if signal.band_slowness_per_decade:
+            loud = summed_log_energy(raw["energy"], signal.fs_hz) - signal.band_log_energy_ref
+            slowness = slowness + signal.band_slowness_per_decade * loud[:, None]
+        out["band"] = raw["toa_band_us"].astype(float) - d * slowness - np.asarray(signal.band_delay_us, float)[None]
+    return {k: r - r.mean(1, keepdims=True) for k, r in out.items()}
+
+
+def refit_evidence(session: Session, rows: np.ndarray, before: SignalConfig, after: SignalConfig) -> dict:
+    """Whether the calibration drops determine the travel refit (refit_travel_metric: `after`) better than the
+    constants it replaces (`before`: the virtual drops' travel models with the channel delays and speeds of the
+    calibration drops): Akaike's rule with the picks' noise known from the repetitions of each calibration
+    case. chi = sum over the pick sets of (RSS_before - RSS_after) / sigma^2, RSS the travel residuals'
+    sum of squares (travel_residuals) and sigma^2 the pooled variance of a pick between repetitions of one
+    case (per centred entry); the refit is kept when chi > 2 k, k the parameters it fits beyond the delays
+    and speed `before` already took from the same drops (the metric's two per pick set, and the threshold
+    picks' dispersion exponent when it has one). Four drops whose repetitions disagree (cycle slips, a
+    hand-release scatter) leave a refit that fits them no better than their own scatter allows: the model
+    then reads the rig with `before` (docs/findings.md, "Zero-shot: a guard on the travel refit").
+    Returns {"kept", "chi", "needed", "pick_sd_us": per pick set}; kept when no case repeats (no noise
+    estimate: nothing to judge with)."""
+    groups = np.unique(np.round(np.asarray(session.xy_mm, float)[rows], 1), axis=0, return_inverse=True)[1].ravel()
+    r_before, r_after = travel_residuals(session, rows, before), travel_residuals(session, rows, after)
+    chi, k, sd = 0.0, 0, {}
+    for name, ra in r_after.items():
+        rb = r_before[name]
+        ok = np.isfinite(ra).all(1) & np.isfinite(rb).all(1)
+        var = repeat_variance(ra[ok], groups[ok])
+        if not np.isfinite(var) or var <= 0:
+            continue
+        sd[name] = float(np.sqrt(var))
+        chi += float(((rb[ok] ** 2).sum() - (ra[ok] ** 2).sum()) / var)
+        k += 2 + (1 if name == "threshold" and after.dispersion_exponent > 0 else 0)
+    if not sd:
+        return {"kept": True, "chi": None, "needed": None, "pick_sd_us": {}}
+    return {"kept": bool(chi > 2 * k), "chi": chi, "needed": float(2 * k), "pick_sd_us": sd}
+
+
+def repeat_variance(residual: np.ndarray, groups: np.ndarray) -> float:
+    """Pooled variance between repetitions of one case of drop-centred residuals [R, 4], per entry (each
+    drop's four centred values carry three degrees of freedom); NaN when no case repeats."""
+    ss, dof = 0.0, 0
+    for g in np.unique(groups):
+        r = residual[groups == g]
+        if len(r) > 1:
+            ss += float(((r - r.mean(0)) ** 2).sum())
+            dof += 3 * (len(r) - 1)
+    return ss / dof if dof else float("nan")
+
+
+def _band_picking(signal: SignalConfig) -> SignalConfig:
+    """signal picking the band in record time with its channel gains and capture delays (refit_travel_metric)."""
+    return SignalConfig.from_dict({**_record_time(signal).to_dict(), "channel_gain": list(signal.channel_gain),
+                                   "capture_delay_us": list(signal.capture_delay_us)})
 
 
 def fit_energy_offsets(session: Session, rows: np.ndarray, sim_adc: np.ndarray, measured: SignalConfig,

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops, fit_channels_on_calibration_drops,
-                                fit_energy_offsets, refit_travel_metric)
+                                fit_energy_offsets, refit_evidence, refit_travel_metric)
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .height_class import class_cut
@@ -137,7 +137,11 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     if band is not None:
         model.signal.band_delay_us, model.signal.band_velocity_mm_per_us = band
     if wants_metric(session.rig):
-        model.signal, refit = refit_travel_metric(session, rows, model.signal)
+        refitted, refit = refit_travel_metric(session, rows, model.signal)
+        if refit:   # kept only as far as the four drops determine it (Akaike, the picks' repeat scatter)
+            refit["evidence"] = refit_evidence(session, rows, model.signal, refitted)
+            if refit["evidence"]["kept"]:
+                model.signal = refitted
         model.card["travel_refit_on_calibration_drops"] = refit
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)
