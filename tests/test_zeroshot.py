@@ -436,3 +436,28 @@ def test_travel_refit_on_calibration_drops_reads_the_measured_picks(session1):
     assert out.band_metric_xx == pytest.approx(1.0, abs=0.15) and abs(out.band_metric_xy) < 0.1
     assert out.band_slowness_per_decade == band_twin.band_slowness_per_decade
     assert out.band_pick_hz == band_twin.band_pick_hz and record["band_metric"][0] == out.band_metric_xx
+
+
+def test_travel_refit_is_kept_only_as_far_as_the_calibration_drops_determine_it(session1):
+    """The guard on the travel refit (calibration_drops.refit_evidence, Akaike with the repeat scatter): four
+    cases on one line (y ~ 185 mm across the plate) cannot pin an elliptical metric, so a refit from them does
+    not replace a localiser that already reads the rig (fitted on every 5th drop of the session): the model
+    keeps it. Against a twin 20 % too fast with a wrong metric the same four drops, and four well-spread ones,
+    are clear evidence: the refit is kept. The noise is the picks' scatter between repetitions of a case."""
+    from impactsense.calibration_drops import refit_evidence, refit_travel_metric
+
+    base = SignalConfig.for_rig(session1.rig)
+    reads_rig, record = refit_travel_metric(session1, np.arange(0, len(session1), 5), base)
+    assert record and reads_rig.travel_metric_xx == pytest.approx(1.0, abs=0.05)
+    wrong = SignalConfig.from_dict({**base.to_dict(), "velocity_mm_per_us": 1.15, "travel_metric_xx": 0.7,
+                                    "travel_metric_yy": 1.3})
+    collinear = np.flatnonzero(np.isin(session1.case_id, [45, 47, 70, 148]))
+    assert np.ptp(session1.y_mm[collinear]) < 5 and np.ptp(session1.x_mm[collinear]) > 200
+    spread = np.flatnonzero(np.isin(session1.case_id, [0, 3, 41, 2]))
+    for rows, before, kept in ((collinear, reads_rig, False), (collinear, wrong, True), (spread, wrong, True)):
+        after, record = refit_travel_metric(session1, rows, before)
+        assert record
+        evidence = refit_evidence(session1, rows, before, after)
+        assert evidence["kept"] is kept, evidence
+        assert 1.0 < evidence["pick_sd_us"]["threshold"] < 8.0   # the repeats' scatter, not the model's misfit
+    assert evidence["chi"] > 20 * evidence["needed"]              # a twin that wrong is far outside the noise
