@@ -444,7 +444,7 @@ def test_travel_refit_is_kept_only_as_far_as_the_calibration_drops_determine_it(
     not replace a localiser that already reads the rig (fitted on every 5th drop of the session): the model
     keeps it. Against a twin 20 % too fast with a wrong metric the same four drops, and four well-spread ones,
     are clear evidence: the refit is kept. The noise is the picks' scatter between repetitions of a case."""
-    from impactsense.calibration_drops import refit_evidence, refit_travel_metric
+    from impactsense.calibration_drops import determined_refit, refit_evidence, refit_travel_metric
 
     base = SignalConfig.for_rig(session1.rig)
     reads_rig, record = refit_travel_metric(session1, np.arange(0, len(session1), 5), base)
@@ -457,7 +457,10 @@ def test_travel_refit_is_kept_only_as_far_as_the_calibration_drops_determine_it(
     for rows, before, kept in ((collinear, reads_rig, False), (collinear, wrong, True), (spread, wrong, True)):
         after, record = refit_travel_metric(session1, rows, before)
         assert record
-        evidence = refit_evidence(session1, rows, before, after)
+        evidence = refit_evidence(session1, rows, before, after)["threshold"]
         assert evidence["kept"] is kept, evidence
-        assert 1.0 < evidence["pick_sd_us"]["threshold"] < 8.0   # the repeats' scatter, not the model's misfit
-    assert evidence["chi"] > 20 * evidence["needed"]              # a twin that wrong is far outside the noise
+        assert 1.0 < evidence["pick_sd_us"] < 8.0   # the repeats' scatter, not the model's misfit
+        used = determined_refit(before, after, {"threshold": evidence})
+        assert used.travel_metric_xx == (after if kept else before).travel_metric_xx
+        assert used.velocity_mm_per_us == (after if kept else before).velocity_mm_per_us
+    assert evidence["chi"] > 20 * evidence["needed"]   # a twin that wrong is far outside the noise

@@ -169,34 +169,51 @@ def travel_residuals(session: Session, rows: np.ndarray, signal: SignalConfig) -
     return {k: r - r.mean(1, keepdims=True) for k, r in out.items()}
 
 
+# The constants of each pick set's travel model that refit_travel_metric fits.
+TRAVEL_FIELDS = {
+    "threshold": ("velocity_mm_per_us", "rig_delay_us", "travel_metric_xx", "travel_metric_xy", "travel_metric_yy",
+                  "dispersion_exponent", "dispersion_ref_hz"),
+    "band": ("band_velocity_mm_per_us", "band_delay_us", "band_metric_xx", "band_metric_xy", "band_metric_yy"),
+}
+
+
 def refit_evidence(session: Session, rows: np.ndarray, before: SignalConfig, after: SignalConfig) -> dict:
-    """Whether the calibration drops determine the travel refit (refit_travel_metric: `after`) better than the
-    constants it replaces (`before`: the virtual drops' travel models with the channel delays and speeds of the
-    calibration drops): Akaike's rule with the picks' noise known from the repetitions of each calibration
-    case. chi = sum over the pick sets of (RSS_before - RSS_after) / sigma^2, RSS the travel residuals'
-    sum of squares (travel_residuals) and sigma^2 the pooled variance of a pick between repetitions of one
-    case (per centred entry); the refit is kept when chi > 2 k, k the parameters it fits beyond the delays
-    and speed `before` already took from the same drops (the metric's two per pick set, and the threshold
-    picks' dispersion exponent when it has one). Four drops whose repetitions disagree (cycle slips, a
-    hand-release scatter) leave a refit that fits them no better than their own scatter allows: the model
-    then reads the rig with `before` (docs/findings.md, "Zero-shot: a guard on the travel refit").
-    Returns {"kept", "chi", "needed", "pick_sd_us": per pick set}; kept when no case repeats (no noise
-    estimate: nothing to judge with)."""
+    """Per pick set (threshold, band), whether the calibration drops determine its travel refit
+    (refit_travel_metric: `after`) better than the constants it replaces (`before`: the virtual drops' travel
+    models with the channel delays and speeds of the calibration drops): Akaike's rule with the picks' noise
+    known from the repetitions of each calibration case. chi = (RSS_before - RSS_after) / sigma^2, RSS the
+    travel residuals' sum of squares (travel_residuals) and sigma^2 the pooled variance of a pick between
+    repetitions of one case (per centred entry); the set's refit is kept when chi > 2 k, k the parameters it
+    fits beyond the delays and speed `before` already took from the same drops (the metric's two, and the
+    threshold picks' dispersion exponent when they have one). Four drops whose repetitions disagree (cycle
+    slips, a hand-release scatter) leave a refit that fits them no better than their own scatter allows: the
+    model then reads the rig with `before` (docs/findings.md, "Zero-shot: a guard on the travel refit").
+    Returns {set: {"kept", "chi", "needed", "pick_sd_us"}}; a set whose cases do not repeat (no noise
+    estimate) is kept with chi None."""
     groups = np.unique(np.round(np.asarray(session.xy_mm, float)[rows], 1), axis=0, return_inverse=True)[1].ravel()
     r_before, r_after = travel_residuals(session, rows, before), travel_residuals(session, rows, after)
-    chi, k, sd = 0.0, 0, {}
+    out = {}
     for name, ra in r_after.items():
         rb = r_before[name]
         ok = np.isfinite(ra).all(1) & np.isfinite(rb).all(1)
         var = repeat_variance(ra[ok], groups[ok])
         if not np.isfinite(var) or var <= 0:
+            out[name] = {"kept": True, "chi": None, "needed": None, "pick_sd_us": None}
             continue
-        sd[name] = float(np.sqrt(var))
-        chi += float(((rb[ok] ** 2).sum() - (ra[ok] ** 2).sum()) / var)
-        k += 2 + (1 if name == "threshold" and after.dispersion_exponent > 0 else 0)
-    if not sd:
-        return {"kept": True, "chi": None, "needed": None, "pick_sd_us": {}}
-    return {"kept": bool(chi > 2 * k), "chi": chi, "needed": float(2 * k), "pick_sd_us": sd}
+        chi = float(((rb[ok] ** 2).sum() - (ra[ok] ** 2).sum()) / var)
+        k = 2 + (1 if name == "threshold" and after.dispersion_exponent > 0 else 0)
+        out[name] = {"kept": bool(chi > 2 * k), "chi": chi, "needed": float(2 * k), "pick_sd_us": float(np.sqrt(var))}
+    return out
+
+
+def determined_refit(before: SignalConfig, after: SignalConfig, evidence: dict) -> SignalConfig:
+    """`before` with the travel constants of each pick set whose refit the evidence keeps (refit_evidence)."""
+    fields = before.to_dict()
+    refitted = after.to_dict()
+    for name, e in evidence.items():
+        if e["kept"]:
+            fields.update({f: refitted[f] for f in TRAVEL_FIELDS[name]})
+    return SignalConfig.from_dict(fields)
 
 
 def repeat_variance(residual: np.ndarray, groups: np.ndarray) -> float:

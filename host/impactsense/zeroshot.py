@@ -44,8 +44,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops, fit_channels_on_calibration_drops,
-                                fit_energy_offsets, refit_evidence, refit_travel_metric)
+from .calibration_drops import (calibration_rows, determined_refit, fit_band_on_calibration_drops,
+                                fit_channels_on_calibration_drops, fit_energy_offsets, refit_evidence,
+                                refit_travel_metric)
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .height_class import class_cut
@@ -140,8 +141,7 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
         refitted, refit = refit_travel_metric(session, rows, model.signal)
         if refit:   # kept only as far as the four drops determine it (Akaike, the picks' repeat scatter)
             refit["evidence"] = refit_evidence(session, rows, model.signal, refitted)
-            if refit["evidence"]["kept"]:
-                model.signal = refitted
+            model.signal = determined_refit(model.signal, refitted, refit["evidence"])
         model.card["travel_refit_on_calibration_drops"] = refit
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)

@@ -113,11 +113,11 @@ def run(args) -> int:
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
         fits = adapt(model, session, cal, args.seed, cal_sim=cal_twins())
         refit = fits.get("travel_refit_on_calibration_drops") or {}
-        if refit.get("evidence"):
-            e = refit["evidence"]
-            print(f"travel models refitted on the calibration drops: {'kept' if e['kept'] else 'not kept'} (their "
-                  + (f"picks explained better by chi {e['chi']:.1f} in units of the repeats' scatter, Akaike needs > "
-                     f"{e['needed']:.0f})" if e["chi"] is not None else "cases do not repeat: no scatter to judge by)"))
+        for name, e in (refit.get("evidence") or {}).items():
+            print(f"{name} picks' travel model refitted on the calibration drops: {'kept' if e['kept'] else 'not kept'} "
+                  + (f"(explains their picks better by chi {e['chi']:.1f} in units of the repeats' scatter, "
+                     f"{e['pick_sd_us']:.1f} us; Akaike needs > {e['needed']:.0f})" if e["chi"] is not None
+                     else "(the cases do not repeat: no scatter to judge by)"))
         model.save(args.out, extra_card={"split": split, **fits}, force=args.force)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
