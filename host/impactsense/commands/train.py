@@ -61,6 +61,17 @@ def parse_exclude(text):
         raise ConfigError(f"--exclude: {text!r} is not a list of recording ids") from None
 
 
+def print_travel_refit(fits: dict) -> None:
+    """Whether each pick set's travel model refitted on the calibration drops was kept (calibration_drops.refit_evidence)."""
+    refit = fits.get("travel_refit_on_calibration_drops") or {}
+    for name, e in (refit.get("evidence") or {}).items():
+        verdict = "kept" if e["kept"] else "not kept"
+        why = (f"explains their picks better by chi {e['chi']:.1f} in units of the repeats' scatter, "
+               f"{e['pick_sd_us']:.1f} us; Akaike needs > {e['needed']:.0f}" if e["chi"] is not None
+               else "the cases do not repeat: no scatter to judge by")
+        print(f"{name} picks' travel model refitted on the calibration drops: {verdict} ({why})")
+
+
 def run(args) -> int:
     from ..data import load_session
     from ..errors import ConfigError
@@ -112,12 +123,7 @@ def run(args) -> int:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
         fits = adapt(model, session, cal, args.seed, cal_sim=cal_twins())
-        refit = fits.get("travel_refit_on_calibration_drops") or {}
-        for name, e in (refit.get("evidence") or {}).items():
-            print(f"{name} picks' travel model refitted on the calibration drops: {'kept' if e['kept'] else 'not kept'} "
-                  + (f"(explains their picks better by chi {e['chi']:.1f} in units of the repeats' scatter, "
-                     f"{e['pick_sd_us']:.1f} us; Akaike needs > {e['needed']:.0f})" if e["chi"] is not None
-                     else "(the cases do not repeat: no scatter to judge by)"))
+        print_travel_refit(fits)
         model.save(args.out, extra_card={"split": split, **fits}, force=args.force)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
