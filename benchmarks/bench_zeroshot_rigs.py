@@ -89,7 +89,9 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
            "chain_wall_s": sum(v[0] for v in times.values()), "chain_cpu_s": sum(v[1] for v in times.values()),
            "calibrate_stage_wall_s": calj.get("wall_time_s"), "calibrate_stage_cpu_s": calj.get("cpu_time_s"),
            "element_mm": calj["sim_params"].get("element_mm"), "laminate": calj["plate"].get("laminate"),
-           "calibration_cases": calj["drops"]["case_ids"]}
+           "calibration_cases": calj["drops"]["case_ids"],
+           "travel_refit_kept": {name: e["kept"] for name, e in (json.loads((model / "model_card.json").read_text())
+                                 .get("travel_refit_on_calibration_drops") or {}).get("evidence", {}).items()}}
     if trace:
         row["idle_wall_estimate_s"] = {k: round(t["idle_wall_estimate_s"], 1) for k, t in traces.items()}
         row["busy_cores"] = {k: round(t["busy_cores"], 2) for k, t in traces.items()}
@@ -255,7 +257,8 @@ def main() -> int:
             same = r["demo_split"]
             print(f"{'':10s} the chain's model on the demo's test drops: MAE {same['mae_mm']:.2f} (inner "
                   f"{same['inner_mae_mm']:.2f}), class {same['class'] or float('nan'):.3f}, n {same['n']}")
-        print(f"{'':10s} calibration cases {r['calibration_cases']}")
+        print(f"{'':10s} calibration cases {r['calibration_cases']}"
+              + (f"; travel refit kept: {r['travel_refit_kept']}" if r.get("travel_refit_kept") else ""))
         if "idle_wall_estimate_s" in r:
             print(f"{'':10s} idle 2-core wall estimate {r['chain_idle_wall_estimate_s']:.0f} s: "
                   + ", ".join(f"{k} {v:.0f} s ({r['busy_cores'][k]:.2f} cores busy)"
