@@ -25,11 +25,11 @@ scored on the demo's test split (the same drops): issue 15 wants the chain to gi
 --drop-draws K: the chain on K choices of the four calibration drops (calibrate's auto choice, then K-1 seeded
 draws of one usable case per plate quadrant, passed as calibrate --drops; work folders RIG-drawK), so a figure
 does not rest on one choice; each must meet the targets, and the mean and worst are printed per rig.
-Each row records whether the chain's model kept the travel refit on its calibration drops, per pick set
-(`travel_refit_kept`: calibration_drops.refit_evidence; only on plates whose localiser fits a travel metric).
 --trace: each step runs under a sampler of its process tree (cputrace.py): the wall two idle cores would take,
 from each slice's CPU and how many of the step's threads wanted a core then; the chain's target is judged on
 it instead of CPU / 2 (a stage that keeps one core busy takes its CPU, not half of it).
+Each row records whether the chain's model kept the travel refit on its calibration drops, per pick set
+(`travel_refit_kept`: calibration_drops.refit_evidence; only on plates whose localiser fits a travel metric).
 Then bench_rigs.score: the measured-trained model (train + evaluate, default split) and the naive reference
 (threshold picks + random forest on the DToA, same split). Targets: zero-shot whole-plate MAE <= 4.0 mm and
 class >= 0.95 on every rig; on the bundled rig (`bundled`) MAE <= 1.6 mm; calibrate + virtual set + site map +
