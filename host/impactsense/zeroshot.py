@@ -126,8 +126,9 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
     simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
     the rig's group velocity, the band picks' delays and velocity (fit_band_on_calibration_drops), on a plate
-    with elliptical wavefronts the travel models refitted on the calibration drops (refit_travel_metric; its
-    record in model.card), and with a site map the twin's offsets and weights. The delays the capture
+    with elliptical wavefronts the travel models refitted on the calibration drops (refit_travel_metric), each
+    pick set's kept only when the drops determine it (refit_evidence; the record in model.card), and with a
+    site map the twin's offsets and weights. The delays the capture
     itself puts on the channels (the board's SAADC scan, model.signal.capture_delay_us) are in both the
     measured and the simulated drops and stay as they are. Returns (the rig's delays, gains, velocity)."""
     delays, gains, velocity = fit_channels_on_calibration_drops(session, rows, cal_sim, virtual_signal)
