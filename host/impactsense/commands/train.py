@@ -61,8 +61,9 @@ def parse_exclude(text):
         raise ConfigError(f"--exclude: {text!r} is not a list of recording ids") from None
 
 
-def print_travel_refit(fits: dict) -> None:
-    """Whether each pick set's travel model refitted on the calibration drops was kept (calibration_drops.refit_evidence)."""
+def print_travel_refit(fits: dict) -> dict:
+    """Prints whether each pick set's travel model refitted on the calibration drops was kept
+    (calibration_drops.refit_evidence); returns `fits` (adapt's record)."""
     refit = fits.get("travel_refit_on_calibration_drops") or {}
     for name, e in (refit.get("evidence") or {}).items():
         verdict = "kept" if e["kept"] else "not kept"
@@ -70,6 +71,7 @@ def print_travel_refit(fits: dict) -> None:
                f"{e['pick_sd_us']:.1f} us; Akaike needs > {e['needed']:.0f}" if e["chi"] is not None
                else "the cases do not repeat: no scatter to judge by")
         print(f"{name} picks' travel model refitted on the calibration drops: {verdict} ({why})")
+    return fits
 
 
 def run(args) -> int:
@@ -122,8 +124,7 @@ def run(args) -> int:
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")
-        fits = adapt(model, session, cal, args.seed, cal_sim=cal_twins())
-        print_travel_refit(fits)
+        fits = print_travel_refit(adapt(model, session, cal, args.seed, cal_sim=cal_twins()))
         model.save(args.out, extra_card={"split": split, **fits}, force=args.force)
     sig = model.signal
     print(f"trained on {len(split['train_recordings'])} drops of {session.name}; "
