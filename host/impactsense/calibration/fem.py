@@ -95,10 +95,15 @@ def _fields(flat: dict) -> dict:
     return out
 
 
+def sim_params(flat: dict, rig) -> SimParams:
+    """The simulator's parameters of the flat dict: `SimParams.from_rig(rig, **flat)` (the support: flat's,
+    else the rig's text through `SimParams.from_rig`)."""
+    return SimParams.from_rig(rig, **_fields(flat))
+
+
 def sim_params_json(flat: dict, rig) -> dict:
-    """CAL.json's "sim_params": `SimParams.from_rig(rig, **flat).to_dict()` (the support: flat's, else the
-    rig's text through `SimParams.from_rig`)."""
-    return SimParams.from_rig(rig, **_fields(flat)).to_dict()
+    """CAL.json's "sim_params": `sim_params(flat, rig).to_dict()`."""
+    return sim_params(flat, rig).to_dict()
 
 
 def capped_mesh(flat: dict, rig, max_elements: int | None) -> dict:

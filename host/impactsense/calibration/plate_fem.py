@@ -33,6 +33,11 @@ from . import bands, group_delay, plate
 
 SIGMA_FLOOR_US = 0.5
 MISSING_US = 1000.0      # a missing pick costs (1 ms / sigma)^2, as in Eq. 16
+# The AIC DToA alone (`onset_observables`, the plate_fem stage's E scan) from a run this long after the first
+# touch (plus the end taper) while the picks lie early enough, and the margin past the AIC window's end they
+# must keep before the taper (the core looks a few samples past a crossing for a glitch)
+ONSET_WINDOW_MS = 1.5
+ONSET_MARGIN_SAMPLES = 16
 
 
 @dataclass
@@ -86,15 +91,19 @@ def measured_targets(session, targets, feats, cfg, group_delays=False) -> PlateT
     return PlateTargets(dtoa=dtoa, sigma=sigma, names=names(group_delays=group_delays), per_rep=per_rep)
 
 
+def _noisy_records(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0):
+    """The simulated records as the core takes them, once per seeded realisation of the rig's noise."""
+    adc = np.asarray(adc).astype(float)
+    rng = np.random.default_rng(seed)
+    for _ in range(max(1, n_noise)):
+        yield core_samples(adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc, cfg_sim)
+
+
 def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0, group_delays=False) -> np.ndarray:
     """The same observables [D, K, 6] of simulated records (no channel delays), with the rig's noise added
     (`n_noise` seeded realisations, averaged; the same seeds for every plate: a smooth objective)."""
-    adc = np.asarray(adc).astype(float)
-    rng = np.random.default_rng(seed)
     acc = []
-    for _ in range(max(1, n_noise)):
-        x = adc + rng.normal(0.0, noise_counts, adc.shape) if noise_counts > 0 else adc
-        q = core_samples(x, cfg_sim)
+    for q in _noisy_records(adc, cfg_sim, noise_counts, n_noise, seed):
         toa = _core.extract_batch(q, cfg_sim)["toa_us"].astype(float)
         t_band = bands.band_arrivals(q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
         obs = np.concatenate([(toa[:, plate.PAIR_I] - toa[:, plate.PAIR_J])[:, None],
@@ -103,6 +112,29 @@ def sim_observables(adc, cfg_sim, noise_counts=0.0, n_noise=1, seed=0, group_del
             obs = _with_group_delays(obs, q, toa, cfg_sim.fs_hz, baseline_samples=cfg_sim.baseline_samples)
         acc.append(obs)
     return np.mean(acc, axis=0)
+
+
+def onset_observables(run, sim, cfg_sim, n_obs, noise_counts=0.0, n_noise=1, seed=0) -> np.ndarray:
+    """`sim_observables`' AIC DToA (observable 0; the n_obs - 1 others NaN) of the drops `run(duration_ms) ->
+    adc` simulates with SimParams `sim`, from a run ONSET_WINDOW_MS after the first touch (+ sim's end taper)
+    when that is enough, else from sim's whole window. A channel's pick reads the record only up to a few
+    samples past its threshold crossing (the AIC window: aic_before samples before it, aic_after after it; the
+    energy of the whole capture only flags a dead channel, whose pick is NaN), and an explicit run's steps do
+    not depend on how long it goes on: so when every pick of every noise realisation is finite and lies
+    aic_before + aic_after + ONSET_MARGIN_SAMPLES before the short run's taper, the picks are the whole
+    window's bit for bit. Otherwise the whole window is run."""
+    fs = float(cfg_sim.fs_hz)
+    short = float(sim.taper_ms) + ONSET_WINDOW_MS
+    for ms in ((short, float(sim.duration_ms)) if short < sim.duration_ms else (float(sim.duration_ms),)):
+        toas = np.stack([_core.extract_batch(q, cfg_sim)["toa_us"].astype(float)
+                         for q in _noisy_records(run(ms), cfg_sim, noise_counts, n_noise, seed)])
+        last = (sim.pretrigger_samples + (ms - sim.taper_ms) * 1e-3 * fs
+                - (cfg_sim.aic_before + cfg_sim.aic_after + ONSET_MARGIN_SAMPLES))
+        if np.isfinite(toas).all() and float(toas.max()) * 1e-6 * fs < last:
+            break
+    obs = np.full((toas.shape[1], n_obs, len(plate.PAIR_I)), np.nan)
+    obs[:, 0] = np.mean(toas[..., plate.PAIR_I] - toas[..., plate.PAIR_J], axis=0)
+    return obs
 
 
 def residuals(obs_sim, meas: PlateTargets) -> np.ndarray:

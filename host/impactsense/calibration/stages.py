@@ -124,24 +124,33 @@ def _laminate_wanted(problem: CalibrationProblem) -> bool:
 
 # --- plate_fem: E on the twin at the grid's nu, from the AIC DToA ----------------------------------------------
 
-def plate_evaluations(problem: CalibrationProblem, params: dict, tag: str) -> plate_fem.Evaluations:
-    """The twin's DToA observables at (E, nu) with `params` otherwise, cached in `<stem>.stage1-<tag>.json`."""
+def plate_evaluations(problem: CalibrationProblem, params: dict, tag: str,
+                      onset_only: bool = False) -> plate_fem.Evaluations:
+    """The twin's DToA observables at (E, nu) with `params` otherwise, cached in `<stem>.stage1-<tag>.json`;
+    onset_only: the AIC DToA alone (the others NaN), from runs no longer than its picks need
+    (`plate_fem.onset_observables`)."""
     targets = problem.targets
 
     def run_obs(e_mpa, nu):
         p = dict(params, e_pa=e_mpa * 1e6, nu=nu)
-        adc = problem.simulate(p, problem.rig, targets.x_mm, targets.y_mm, targets.height_mm)
-        return plate_fem.sim_observables(adc, problem.cfg_sim, *problem.noise)
+
+        def run(duration_ms=None):
+            flat = p if duration_ms is None else dict(p, duration_ms=duration_ms)
+            return problem.simulate(flat, problem.rig, targets.x_mm, targets.y_mm, targets.height_mm)
+        if onset_only:
+            return plate_fem.onset_observables(run, fem.sim_params(p, problem.rig), problem.cfg_sim,
+                                               len(problem.plate_targets.names), *problem.noise)
+        return plate_fem.sim_observables(run(), problem.cfg_sim, *problem.noise)
     stage_key = key(problem.base_key, problem.plate_targets.to_json(), params["damping_per_s"], "plate-v3",
-                    *model_key(params))
+                    *model_key(params), *(("onset-only",) if onset_only else ()))
     return plate_fem.Evaluations(run_obs, problem.cache(f"stage1-{tag}.json"), stage_key,
                                  progress=problem.opts.progress, workers=problem.opts.workers)
 
 
 def _plate_fem(problem: CalibrationProblem, _key) -> dict:
-    e_fem, scan = plate_fem.e_scan(plate_evaluations(problem, problem.params, "fem"), problem.plate_targets,
-                                   problem.plate["E_mpa"], problem.plate["nu"], problem.e_bounds,
-                                   ratios=problem.opts.fem_e_ratios, observables=[0])
+    ev = plate_evaluations(problem, problem.params, "fem", onset_only=True)     # the scan's chi^2 is the AIC's
+    e_fem, scan = plate_fem.e_scan(ev, problem.plate_targets, problem.plate["E_mpa"], problem.plate["nu"],
+                                   problem.e_bounds, ratios=problem.opts.fem_e_ratios, observables=[0])
     return {"E_mpa": float(e_fem), "scan": scan}
 
 
