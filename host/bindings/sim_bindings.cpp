@@ -132,7 +132,7 @@ NB_MODULE(_sim, m) {
           [](const is::Plate& p, double dt_s, int64_t n_steps, int record_every, int64_t n_record,
              nb::object ball, nb::object load, nb::list sensors, bool record_field, bool record_energy,
              bool stop_after_contact, double quiet_after_contact_s, double quiet_after_contact_fraction,
-             int nan_check_every, nb::object w0,
+             bool force_only, int nan_check_every, nb::object w0,
              nb::object bx0, nb::object by0, nb::object vw0, nb::object vbx0, nb::object vby0) {
             is::RunConfig c;
             c.dt_s = dt_s;
@@ -161,6 +161,7 @@ NB_MODULE(_sim, m) {
             c.stop_after_contact = stop_after_contact;
             c.quiet_after_contact_s = quiet_after_contact_s;
             c.quiet_after_contact_fraction = quiet_after_contact_fraction;
+            c.force_only = force_only;
             c.nan_check_every = nan_check_every;
             c.w0 = opt(w0);
             c.bx0 = opt(bx0);
@@ -195,7 +196,7 @@ NB_MODULE(_sim, m) {
           "dt_s"_a, "n_steps"_a, "record_every"_a = 1, "n_record"_a = 0, "ball"_a = nb::none(),
           "load"_a = nb::none(), "sensors"_a = nb::list(), "record_field"_a = false, "record_energy"_a = false,
           "stop_after_contact"_a = false, "quiet_after_contact_s"_a = 100e-6,
-          "quiet_after_contact_fraction"_a = 1.0, "nan_check_every"_a = 50,
+          "quiet_after_contact_fraction"_a = 1.0, "force_only"_a = false, "nan_check_every"_a = 50,
           "w0"_a = nb::none(), "bx0"_a = nb::none(), "by0"_a = nb::none(), "vw0"_a = nb::none(),
           "vbx0"_a = nb::none(), "vby0"_a = nb::none(),
           "Explicit run; returns a dict (sensors [n_sensors, n_record] hat-sampled, field [n_record, nodes] "

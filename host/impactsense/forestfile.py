@@ -17,9 +17,6 @@ import zipfile
 import zlib
 
 import numpy as np
-from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
-from sklearn.tree import DecisionTreeClassifier, DecisionTreeRegressor
-from sklearn.tree._tree import NODE_DTYPE, Tree
 
 from .errors import DataError
 
@@ -107,6 +104,9 @@ def _build(arrays: dict):
         _check_tree(part, n, n_features)
         trees.append(_tree(part, values[start:start + n], n, int(d), n_features, n_cls, classifier, classes))
         start += n
+    from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor   # here: every CLI command
+    # imports this module (export's options), and most never build a forest
+
     forest = (RandomForestClassifier if classifier else RandomForestRegressor)()
     forest.set_params(**_settable(forest, params), n_estimators=len(trees))
     forest.estimators_ = trees
@@ -149,6 +149,9 @@ def _check_tree(part: dict, n: int, n_features: int) -> None:
 
 def _tree(part: dict, values: np.ndarray, n: int, depth: int, n_features: int, n_cls: int, classifier: bool,
           classes):
+    from sklearn.tree import DecisionTreeClassifier, DecisionTreeRegressor
+    from sklearn.tree._tree import NODE_DTYPE, Tree
+
     nodes = np.zeros(n, dtype=NODE_DTYPE)
     for f in NODE_DTYPE.names:
         nodes[f] = part[f]

@@ -133,6 +133,10 @@ struct RunConfig {
   double quiet_after_contact_s = 100e-6;
   // ... for at least quiet_after_contact_s and this fraction of the contact's own duration (first to last touch)
   double quiet_after_contact_fraction = 1.0;
+  // contact-window mode, only the force history wanted: once the ball has left, the nodes that cannot reach the
+  // contact point before the window's end are no longer stepped (the final state w, bx, by is then NaN); the
+  // force history is the same bit for bit (a touch that makes the window longer: the run is made again whole)
+  bool force_only = false;
   int nan_check_every = 50;
   // initial state (optional; empty = at rest)
   std::vector<double> w0, bx0, by0, vw0, vbx0, vby0;

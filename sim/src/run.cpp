@@ -179,8 +179,16 @@ void Plate::Run::init_outputs() {
   }
   hat_ = c_.load;
   for (auto& k : hat_.node) k = static_cast<int64_t>(at(k));
-  if (c_.ball.enabled)
-    for (int a = 0; a < 4; ++a) cp_at_[a] = static_cast<int64_t>(at(cp_.node[a]));
+  if (c_.ball.enabled) {
+    cp_jlo_ = cp_ilo_ = 1 << 30;
+    cp_jhi_ = cp_ihi_ = -1;
+    for (int a = 0; a < 4; ++a) {
+      cp_at_[a] = static_cast<int64_t>(at(cp_.node[a]));
+      const int j = static_cast<int>(cp_.node[a] / rl_), i = static_cast<int>(cp_.node[a] % rl_);
+      cp_jlo_ = std::min(cp_jlo_, j), cp_jhi_ = std::max(cp_jhi_, j);
+      cp_ilo_ = std::min(cp_ilo_, i), cp_ihi_ = std::max(cp_ihi_, i);
+    }
+  }
   const int64_t nrec = c_.n_record;
   res_.sensors.assign(sensors_.size() * nrec, 0.0);
   if (c_.record_field) res_.field.assign(static_cast<size_t>(nrec) * nn_, 0.0f);

@@ -98,6 +98,7 @@ class Plate::Run {
   Run(const Plate& plate, const RunConfig& c);  // setup
   bool step(int64_t n);                         // one time step; false: the run is over (contact window)
   RunResult result();
+  bool inexact() const { return inexact_; }     // force_only: the window outran the backward cone
 
  private:
   struct Load {  // an external load of the step: padded node, field, value
@@ -164,6 +165,14 @@ class Plate::Run {
   // Tracked only without initial state and sub-cycled patches (cone_); else every row is stepped.
   bool cone_ = false;
   int rest_lo_ = 0, rest_hi_ = -1, rest_clo_ = 0, rest_chi_ = -1;  // rows, then columns (nodes)
+  // The backward cone (RunConfig force_only, with cone_): once the ball has left, the window's last step
+  // end_step_ is known (no further touch), and step n need only update the nodes within end_step_ - n - 1 rows
+  // and columns of the contact nodes (rows cp_jlo_..cp_jhi_, columns cp_ilo_..cp_ihi_) for the contact point's
+  // displacement to be exact up to end_step_. shrunk_: a step was shrunk; inexact_: the window went on past
+  // end_step_ after that (a new touch), so its force history is not the whole run's.
+  int64_t n_ = 0, end_step_ = -1;
+  bool shrunk_ = false, inexact_ = false;
+  int cp_jlo_ = 0, cp_jhi_ = 0, cp_ilo_ = 0, cp_ihi_ = 0;
   RunResult res_;
   double zb_ = 0, vb_ = 0;  // ball: position (down = into the plate), velocity at half step
   bool in_contact_ = false;
@@ -182,6 +191,8 @@ class Plate::Run {
   void patch_loads();
   void advance_plate(bool energy, int64_t q);
   void widen_cone();
+  void backward_cone(int& j_lo, int& j_hi, int& c_lo, int& c_hi);
+  void predict_end(int64_t n);
   double advance_patches(bool energy);
   void check(int64_t n) const;
 };

@@ -2,6 +2,7 @@
 // plate and of its sub-cycled patches, the ball), its result, and Plate::run.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -122,6 +123,30 @@ void Plate::Run::widen_cone() {
   }
 }
 
+// Step n_ of a force_only window whose last step end_step_ is known: the contact point's displacement at
+// end_step_ needs the nodes within r = end_step_ - n_ - 1 rows and columns of the contact nodes updated. The
+// fused pass takes the rows and columns just outside what it steps to be at rest (no forces from there), so the
+// first row and column it steps may come out wrong: one more on each side keeps those errors r + 1 away, where
+// they reach the contact point after end_step_.
+void Plate::Run::backward_cone(int& j_lo, int& j_hi, int& c_lo, int& c_hi) {
+  const int r = static_cast<int>(std::min<int64_t>(end_step_ - n_ - 1, 1 << 29));
+  j_lo = std::max(j_lo, cp_jlo_ - r - 1);
+  j_hi = std::min(j_hi, cp_jhi_ + r + 1);
+  c_lo = std::max(c_lo, cp_ilo_ - r - 1);
+  c_hi = std::min(c_hi, cp_ihi_ + r + 1);
+  shrunk_ = true;
+}
+
+// After step n of a force_only window with the ball apart and rising: the step at which the window will end
+// (step()'s stop rule, the same floating-point test) unless it touches again.
+void Plate::Run::predict_end(int64_t n) {
+  const RunConfig& c = c_;
+  const double quiet = std::max(c.quiet_after_contact_s, c.quiet_after_contact_fraction * (t_last_ - t_first_));
+  int64_t m = n + 1;
+  while (m < c.n_steps && !(m * c.dt_s - t_last_ > quiet)) ++m;
+  end_step_ = m;
+}
+
 // The plate's step: the fused pass and then the loads (u_{n+1} += beta P, d += beta P); on energy steps the
 // portable pass with the loads inside and the strain and kinetic energy accumulated (record sample q).
 void Plate::Run::advance_plate(bool energy, int64_t q) {
@@ -130,10 +155,13 @@ void Plate::Run::advance_plate(bool energy, int64_t q) {
   const size_t np = np_;
   const int64_t rs = rs_;
   if (!energy) {
-    args_.j_lo = rest_lo_ - 1;
-    args_.j_hi = rest_hi_ + 1;
-    args_.b_lo = std::max(0, rest_clo_ - 1) / 16;
-    args_.b_hi = rest_lo_ <= rest_hi_ ? std::min(nx_, rest_chi_ + 1) / 16 : -1;
+    int j_lo = rest_lo_ - 1, j_hi = rest_hi_ + 1, c_lo = rest_clo_ - 1, c_hi = rest_chi_ + 1;
+    const bool any = rest_lo_ <= rest_hi_;
+    if (end_step_ >= 0) backward_cone(j_lo, j_hi, c_lo, c_hi);
+    args_.j_lo = j_lo;
+    args_.j_hi = j_hi;
+    args_.b_lo = std::max(0, c_lo) / 16;
+    args_.b_hi = any && c_lo <= c_hi && j_lo <= j_hi ? std::min(nx_, c_hi) / 16 : -1;
     detail::step_fast(args_);
     widen_cone();
     for (const Load& l : loads_) {
@@ -240,6 +268,7 @@ bool Plate::Run::step(int64_t n) {
   const bool want_energy = c.record_energy && r == 0 && q < c.n_record;
   loads_.clear();
   double force = 0, delta = 0;
+  n_ = n;
   if (c.ball.enabled) force = contact(t, delta);
   add_loads(t);
   if (q < c.n_record) record(q, r);
@@ -259,8 +288,18 @@ bool Plate::Run::step(int64_t n) {
   }
   res_.steps_done = n + 1;
   check(n);
-  return !(c.stop_after_contact && t_first_ >= 0 && !in_contact_ && vb_ < 0 &&
-           t - t_last_ > std::max(c.quiet_after_contact_s, c.quiet_after_contact_fraction * (t_last_ - t_first_)));
+  const bool apart = c.stop_after_contact && t_first_ >= 0 && !in_contact_ && vb_ < 0;
+  const bool over = apart && t - t_last_ > std::max(c.quiet_after_contact_s,
+                                                    c.quiet_after_contact_fraction * (t_last_ - t_first_));
+  if (end_step_ >= 0 && !over && (n >= end_step_ || in_contact_)) {  // a touch: the window goes on
+    if (shrunk_) {  // ... past what the shrunk steps kept exact
+      inexact_ = true;
+      return false;
+    }
+    end_step_ = -1;
+  }
+  if (!over && apart && end_step_ < 0 && c.force_only && cone_) predict_end(n);
+  return !over;
 }
 
 RunResult Plate::Run::result() {
@@ -271,20 +310,26 @@ RunResult Plate::Run::result() {
   res_.w.resize(nn_);
   res_.bx.resize(nn_);
   res_.by.resize(nn_);
+  const float nan = std::numeric_limits<float>::quiet_NaN();   // shrunk: nodes were left behind
   for (size_t k = 0; k < nn_; ++k) {
-    res_.w[k] = u_[at(k)];
-    res_.bx[k] = u_[np_ + at(k)];
-    res_.by[k] = u_[2 * np_ + at(k)];
+    res_.w[k] = shrunk_ ? nan : u_[at(k)];
+    res_.bx[k] = shrunk_ ? nan : u_[np_ + at(k)];
+    res_.by[k] = shrunk_ ? nan : u_[2 * np_ + at(k)];
   }
   return std::move(res_);
 }
 
 RunResult Plate::run(const RunConfig& c) const {
   DenormalGuard ftz;
-  Run r(*this, c);
-  for (int64_t n = 0; n < c.n_steps; ++n)
-    if (!r.step(n)) break;
-  return r.result();
+  {
+    Run r(*this, c);
+    for (int64_t n = 0; n < c.n_steps; ++n)
+      if (!r.step(n)) break;
+    if (!r.inexact()) return r.result();
+  }
+  RunConfig whole = c;  // a touch after the backward cone shrank: the window again, every step whole
+  whole.force_only = false;
+  return run(whole);
 }
 
 }  // namespace impactsim

@@ -122,13 +122,15 @@ QUIET_AFTER_CONTACT_FRACTION = 0.5
 
 
 def contact_window(model: Model, x_m: float, y_m: float, v0: float) -> dict:
-    """The ball on the plate until it has clearly left (fast path): force history per step."""
+    """The ball on the plate until it has clearly left (fast path): force history per step (force_only: once
+    the ball has left, the nodes too far to reach the contact point before the window's end are not stepped;
+    the final plate state is not returned, NaN)."""
     p = model.params
     n_steps = int(math.ceil(p.contact_window_ms * 1e-3 / model.dt_s))
     return _run(model, dt_s=model.dt_s, n_steps=n_steps, record_every=model.record_every, n_record=0,
                 ball=[x_m, y_m, model.ball_mass_kg, model.k_hertz, v0, p.g_m_s2], stop_after_contact=True,
                 quiet_after_contact_s=QUIET_AFTER_CONTACT_S,
-                quiet_after_contact_fraction=QUIET_AFTER_CONTACT_FRACTION)
+                quiet_after_contact_fraction=QUIET_AFTER_CONTACT_FRACTION, force_only=True)
 
 
 def reciprocal_fields(model: Model, *, workers: int = 2) -> list:
