@@ -116,6 +116,23 @@ class LinearHeightClass:
         return cls(offset, scale, terms, coef, float(bias[0]), float(bias[1]))
 
 
+# A model without a site map also keeps one linear estimate per channel left out (`three_channel_inputs`): a
+# drop with one channel without an onset (dead, disconnected) gets its class from the other three channels'
+# energies and the physics localiser's three-sensor position, as its position comes from that localiser.
+THREE_CHANNEL_FILE = "linear_energy_without_{}.npz"
+
+
+def three_channel_inputs(raw: dict, phys_xy_mm: np.ndarray, left_out: int) -> np.ndarray:
+    """LINEAR_CLASS_FEATURES over the three channels other than `left_out`, from the core's per-channel
+    energies (raw window_energy, diff_energy, energy): the summed arrival energy, the three difference energies
+    summed, the channels' mean log energy, then the physics position. [R, 7]"""
+    keep = [c for c in range(np.asarray(raw["energy"]).shape[1]) if c != left_out]
+    arrival = np.asarray(raw["window_energy"], float)[:, keep].sum(axis=(1, 2))
+    diff = np.asarray(raw["diff_energy"], float)[:, keep].sum(axis=1)
+    mean = np.log10(np.asarray(raw["energy"], float)[:, keep] + 1.0).mean(axis=1)
+    return np.column_stack([np.log10(arrival + 1.0), np.log10(diff + 1.0), mean, np.asarray(phys_xy_mm, float)])
+
+
 def class_cut(energy_j: np.ndarray, threshold_j: float) -> float:
     """log of the boundary between the two classes: the geometric mean of the lowest "high" energy and the
     highest "low" one (the drops' energies are a few discrete heights; any value between them labels the

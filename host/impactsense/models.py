@@ -24,9 +24,10 @@ from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 from . import __version__, _core
 from .errors import DataError
 from .forestfile import save_forest
-from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, LinearHeightClass, energy_class_choice,
-                           fit_linear_height_class, out_of_fold_classes)
-from .modelfolder import file_hashes, load_forests, read_card, verified_path
+from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHANNEL_FILE, LinearHeightClass,
+                           class_cut, energy_class_choice, fit_linear_height_class, out_of_fold_classes,
+                           three_channel_inputs)
+from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
@@ -117,6 +118,18 @@ def fit_energy_classifier(X: np.ndarray, energy_j: np.ndarray,
     return (settings or ForestSettings()).classifier().fit(X, label), threshold
 
 
+def fit_three_channel_classes(features: Features, energy_j: np.ndarray, threshold_j: float) -> dict:
+    """Channel -> the linear estimate of log m g h (height_class) on the other three channels' energies and the
+    physics position, fitted on the training drops (all channels with an onset) as the four-channel one; the
+    class boundary the model's own (threshold_j). {} when the drops hold one class only."""
+    try:
+        class_cut(energy_j, threshold_j)
+    except DataError:
+        return {}
+    return {c: fit_linear_height_class(three_channel_inputs(features.raw, features.phys_xy_mm, c), energy_j,
+                                       threshold_j) for c in range(features.raw["energy"].shape[1])}
+
+
 def three_channel_rows(features: Features) -> np.ndarray:
     """Rows the core processed with exactly one channel without an onset and a physics position from the
     other three."""
@@ -192,6 +205,9 @@ class ImpactModel:
     energy_class_features: list[str] = field(default_factory=lambda: list(MEASURED_ENERGY_FEATURES))
     # POSITION_MEMBERS name -> (forest dx, forest dy) on that position; empty: the physics position's pair only.
     members: dict = field(default_factory=dict)
+    # Without a site map: channel left out -> the linear estimate of log m g h on the other three channels'
+    # energies (height_class.three_channel_inputs), the class of a drop with that channel without an onset.
+    three_channel_class: dict = field(default_factory=dict)
 
     # ----- training -----
     @classmethod
@@ -256,9 +272,12 @@ class ImpactModel:
                     X[:, columns(MEASURED_ENERGY_FEATURES)], X_lin, energy_j, xy, settings))
                 if card["energy_class_choice"]["use_linear"]:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
+        three = fit_three_channel_classes(features.take(np.flatnonzero(use)), energy_j, threshold) \
+            if site_map is None else {}
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
-                   card=card, members=member_forests, energy_class_features=class_features)
+                   card=card, members=member_forests, energy_class_features=class_features,
+                   three_channel_class=three)
 
     @property
     def energy_features(self) -> list[str]:
@@ -316,6 +335,15 @@ class ImpactModel:
         three = three_channel_rows(features) & ~use
         xy[three] = features.phys_xy_mm[three]
         out["three_channel"] = three
+        if self.site_map is None and self.three_channel_class:
+            # their class from the other three channels' energies at that position (a model without them,
+            # trained before, or the board: no class)
+            left_out = np.argmax(features.no_onset, axis=1)
+            for c, estimate in self.three_channel_class.items():
+                rows = np.flatnonzero(three & (left_out == c))
+                if rows.size:
+                    energy_class[rows] = estimate.predict(three_channel_inputs(
+                        {k: v[rows] for k, v in features.raw.items()}, features.phys_xy_mm[rows], c))
         if self.site_map is not None:
             out["xy_mm"] = np.full((n, 2), np.nan)
             out["height_mm"] = np.full(n, np.nan)
@@ -361,6 +389,8 @@ class ImpactModel:
         for name, pair in self.members.items():
             for axis, forest in zip("xy", pair):
                 save_forest(stage / MEMBER_FILES[f"{axis}_{name}"], forest)
+        for c, estimate in self.three_channel_class.items():
+            estimate.save(stage / THREE_CHANNEL_FILE.format(c))
         twin = {}
         if self.site_map is not None:
             self.site_map.save(stage / SITE_MAP_FILE)
@@ -388,6 +418,8 @@ class ImpactModel:
         }
         if linear:   # the energy class from height_class.LinearHeightClass (absent: a classifier forest)
             card["energy_model"] = "linear"
+        if self.three_channel_class:   # a drop with one channel without an onset: its class from the other three
+            card["three_channel_class"] = {str(c): THREE_CHANNEL_FILE.format(c) for c in self.three_channel_class}
         if self.members:
             card["position_members"] = list(self.members)
             card["target"] = ("x = mean of phys_x_mm + forest_dx(features[location_features]) and, where the band "
@@ -396,7 +428,8 @@ class ImpactModel:
         # what the card carried from before (training settings, provenance); what the model holds now wins
         card = {
             **card,
-            **{k: v for k, v in self.card.items() if k not in card and k not in ("twin", "sha256", "energy_model")},
+            **{k: v for k, v in self.card.items()
+               if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
@@ -455,7 +488,18 @@ class ImpactModel:
             raise DataError(card_path, "position_members", "needs the current location_features")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
         members = {n: (extra[f"x_{n}"], extra[f"y_{n}"]) for n in names}
+        three = card.get("three_channel_class", {})
+        if not isinstance(three, dict) or any(k not in ("0", "1", "2", "3") or not isinstance(v, str)
+                                              for k, v in three.items()):
+            raise DataError(card_path, "three_channel_class", "must map channels 0-3 to file names")
+        three_channel = {}
+        for c, name in three.items():
+            path, data = read_verified(d, card, card_path, name, f"three_channel_class.{c}")
+            three_channel[int(c)] = LinearHeightClass.load(path, data)
+            if three_channel[int(c)].n_features_in_ != len(LINEAR_CLASS_FEATURES):
+                raise DataError(path, None, f"reads {three_channel[int(c)].n_features_in_} inputs, not "
+                                            f"{len(LINEAR_CLASS_FEATURES)}")
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
-                   energy_class_features=list(energy), members=members)
+                   energy_class_features=list(energy), members=members, three_channel_class=three_channel)
