@@ -278,8 +278,9 @@ def test_a_model_at_the_boards_own_rate_that_the_board_cannot_run_is_trained_aga
 
 def test_drops_placed_without_a_class_are_counted_apart_not_scored_wrong(tmp_path, session1):
     """A model without a site map (a new rig's default) places a drop with a dead channel by the three-sensor
-    physics position but cannot classify it: evaluate said "class acc 0.00"; it now scores the classified drops
-    and says how many have none and why."""
+    physics position; one trained before the three-channel class (models.fit_three_channel_classes) cannot
+    classify it: evaluate said "class acc 0.00"; it now scores the classified drops and says how many have none
+    and why. A model trained now classifies them from the other three channels."""
     import impactsense as isn
     from impactsense.faults import FaultSpec, inject
     from impactsense.workflow import evaluate
@@ -291,9 +292,12 @@ def test_drops_placed_without_a_class_are_counted_apart_not_scored_wrong(tmp_pat
     dead = replace(s, adc=inject(s.adc, FaultSpec(dead_channel=2, seed=1), s.rig.fs_hz, s.rig.bias_counts,
                                  s.rig.adc_max))
     rep = evaluate(dead, model, rows)
-    assert rep["predicted"] == len(rows) and rep["classified"] == 0 and np.isnan(rep["energy_class_accuracy"])
+    assert rep["predicted"] == len(rows) and rep["classified"] == len(rows) and rep["energy_class_accuracy"] > 0.8
     clean = evaluate(s, model, rows)
     assert clean["classified"] == clean["predicted"] and clean["energy_class_accuracy"] > 0.8
+    model.three_channel_class = {}      # a model from before
+    rep = evaluate(dead, model, rows)
+    assert rep["predicted"] == len(rows) and rep["classified"] == 0 and np.isnan(rep["energy_class_accuracy"])
 
 
 def test_the_zero_shot_class_boundary_sits_in_the_sessions_gap_between_heights(session1):
