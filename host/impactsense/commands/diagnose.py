@@ -51,6 +51,12 @@ def run(args) -> int:
         ps = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items() if isinstance(v, (int, float)))
         s = "-" if e["sensor"] is None else str(e["sensor"])
         print(f"{e['effect']:<16} {s:<7} {e['score']:8.1f}  {'yes' if e['significant'] else 'no ':<4} {ps}")
+    for u in result.get("unabsorbed_channels", []):
+        lo, hi = u["param_ci95"].get("offset_mm", [float("nan")] * 2)
+        print(f"channel {u['sensor']}: its timing asks for a sensor move of {u['params']['offset_mm']:.0f} mm (95 % "
+              f"{lo:.0f}..{hi:.0f}), more than a re-glued disc's {u['max_move_mm']:.0f} mm (a quarter of the nearest "
+              f"sensor spacing): not named; a change the models cannot absorb (retrain leaves the channel out: "
+              f"three-sensor position and class)")
     b, a = result["before"], result["after"]
     print(f"{'':<16} {'before':>10} {'after':>10}")
     for k in ("dtoa_rms_us", "mae_mm", "energy_rms"):

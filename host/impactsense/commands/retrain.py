@@ -82,11 +82,16 @@ def run(args) -> int:
     result, details = diagnose(base, data, same=same)
     # a gain loss or low-pass on a channel (a partly debonded disc): its low-pass and gain sized on the recordings
     accepted = [] if same else fit_bond(base, data, details["accepted"], args.seed)
+    # a channel whose change the effects cannot describe (a move beyond a re-glued disc's): no effect is put
+    # on it, the model leaves it out (the core's channel_left_out: three-sensor position and class), flagged
+    left_out = sorted(u["sensor"] for u in result.get("unabsorbed_channels", []))
+    accepted = [c for c in accepted if c.sensor not in left_out]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     card = {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
             "retrain": {"baseline": str(base.path), "data": str(data.path),
                         "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
-                                          for c in accepted]}}
+                                          for c in accepted],
+                        "channels_left_out": left_out}}
     out = Path(args.out)
     rows = {}
     plain, _ = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
@@ -106,6 +111,8 @@ def run(args) -> int:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
         if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
             model.twin_fit.weak_channel = weak_channel(accepted)
+        if left_out:
+            model.signal = leave_out(model.signal, left_out)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
         if args.twin:
@@ -117,6 +124,10 @@ def run(args) -> int:
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
+    for u in result.get("unabsorbed_channels", []):
+        print(f"channel {u['sensor']}: a change the models cannot absorb (its timing asks for a move of "
+              f"{u['params']['offset_mm']:.0f} mm, more than a re-glued disc's {u['max_move_mm']:.0f} mm): the model "
+              f"leaves it out (three-sensor position and class), flagged")
     print(f"energy class and position from {'the twin (site map)' if site is not None else 'the forests'}")
     print(f"{'on ' + data.name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "
           f"{'within 1u':>9} {'2u':>5}")
@@ -128,6 +139,13 @@ def run(args) -> int:
     if warning:
         print(warning)
     return 0
+
+
+def leave_out(signal, channels):
+    """`signal` with the core's channel_left_out set on `channels` (the core treats them as without an onset)."""
+    from dataclasses import replace
+
+    return replace(signal, channel_left_out=[int(c in channels) for c in range(len(signal.channel_left_out))])
 
 
 # The retrained model is called worse when its MAE on DATA_NEW exceeds the baseline model's by this factor.

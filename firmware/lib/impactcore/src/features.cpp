@@ -902,7 +902,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   for (int w = 0; w < kEnergyWindows; ++w) f->window_energy[w] = 0.0f;
   for (int k = 0; k < kDiffOrders; ++k) f->diff_energy[k] = 0.0f;
   f->residual_ratio = kNaN;
-  if (cross < 0.0f || (f->flags & kFlagDead)) {
+  if (cross < 0.0f || (f->flags & kFlagDead) || cfg.channel_left_out[c]) {
     f->flags |= kFlagNoOnset;
     f->toa_us = kNaN;
     apply_gain(f, cfg.channel_gain[c]);

@@ -95,7 +95,9 @@ enum ChannelFlag : uint8_t {
     0 = up to n2 */                                                                                       \
   X(ONE, float, band_pick_hz, 0.0f, COPY)  /* band pick (band_onset) at this frequency; 0: off */         \
   X(ONE, float, band_pick_fraction, 0.1f, COPY)  /* ... where its envelope reaches this of its peak */    \
-  X(ONE, float, band_window_us, 600.0f, COPY)  /* ... peak sought up to this after the first onset */
+  X(ONE, float, band_window_us, 600.0f, COPY)  /* ... peak sought up to this after the first onset */     \
+  X(PER_CHANNEL, int, channel_left_out, (0, 0, 0, 0), COPY)  /* 1: the channel is not used (a change the  \
+    models cannot absorb, e.g. a debonded disc): no onset, as a dead channel (three-sensor models) */
 
 #define IMPACTCORE_LOCALISER_FIELDS(X)                                                                   \
   X(ONE, float, velocity_mm_per_us, 0.93f, COPY)  /* fitted group velocity of the picked arrival */     \
