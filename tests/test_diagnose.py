@@ -214,3 +214,20 @@ def test_measured_recordings_with_injected_delay_circular():
     top, _ = _top(res)
     assert (top["effect"], top["sensor"]) == ("channel_delay", 1)
     assert abs(top["params"]["delay_us"] - 6.0) <= 1.5
+
+
+@pytest.mark.slow   # ~16 s of CPU (the picker choice and the selection on ~190 + 190 drops)
+def test_a_move_beyond_a_reglued_disc_is_not_named_and_the_channel_is_flagged():
+    """A channel whose timing asks for a move larger than a re-glued disc can be (a quarter of the nearest
+    sensor spacing: 63 mm on the bundled rig; a debonded channel's filtered arrivals asked for 107-141 mm on
+    another rig) names no such move; the channel is reported as one the models cannot absorb."""
+    base, new = _halves()
+    base, new = base.subset(np.arange(0, len(base), 2)), new.subset(np.arange(0, len(new), 2))
+    bound = D.max_move_mm(base.rig.sensor_xy_mm)
+    assert 60.0 < bound < 65.0
+    new = _inject(new, "sensor_position", 0, {"dx_mm": 70.0, "dy_mm": -70.0})
+    res, _ = D.diagnose(base, new, same=False)
+    named = [e for e in res["effects"] if e["significant"] and e["effect"] == "sensor_position"]
+    assert all(e["params"]["offset_mm"] <= bound for e in named), named
+    assert [u["sensor"] for u in res["unabsorbed_channels"]] == [0], res["unabsorbed_channels"]
+    assert res["unabsorbed_channels"][0]["params"]["offset_mm"] > bound

@@ -44,3 +44,26 @@ def test_the_three_channel_class_is_saved_with_its_checksum_and_loads_the_same(m
         (tmp_path / "m" / "linear_energy_without_0.npz").read_bytes())
     with pytest.raises(DataError, match="linear_energy_without_3"):
         ImpactModel.load(tmp_path / "m")
+
+
+def test_a_channel_left_out_by_the_core_is_localised_and_classified_as_a_dead_one(measured_model):
+    """The core's channel_left_out (retrain's answer to a change the models cannot absorb): the channel gets no
+    onset, the drop the physics three-sensor position a dead channel gets (the same three picks) and a class."""
+    from dataclasses import replace
+
+    from impactsense import _core
+    from impactsense.commands.retrain import leave_out
+    from impactsense.pipeline import featurize
+
+    test, model = measured_model
+    test = test.subset(np.arange(0, len(test), 3))
+    left = replace(model, signal=leave_out(model.signal, [2]))
+    f_left = featurize(test.adc, left.signal)
+    f_dead = featurize(inject_session(test, FaultSpec(dead_channel=2)).adc, model.signal)
+    assert np.all(f_left.flags[:, 2] & _core.FLAG_NO_ONSET) and not np.any(f_left.flags[:, [0, 1, 3]] & _core.FLAG_NO_ONSET)
+    np.testing.assert_allclose(f_left.phys_xy_mm, f_dead.phys_xy_mm, atol=0.05)
+    pred = left.predict(f_left)
+    assert pred["three_channel"].all() and np.all(pred["energy_class"] >= 0)
+    # nothing left out: the features are the rig's own, bit for bit
+    f_none = featurize(test.adc, leave_out(model.signal, []))
+    np.testing.assert_array_equal(f_none.vector, featurize(test.adc, model.signal).vector)

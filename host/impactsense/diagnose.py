@@ -142,6 +142,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     unabsorbed (filled when given): sensor -> the move the data asked for beyond `max_move_mm` (not named)."""
     folds = case_folds(F.case_id)
     move_bound = max_move_mm(ref.sensor_xy_mm)
+    unabsorbed = {} if unabsorbed is None else unabsorbed
     accepted: list[Candidate] = []
     current = ref
     last_round: list[Candidate] = []
@@ -175,11 +176,9 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
             if ok and c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 ok = False    # larger than a re-glued disc can be: the channel is not a moved disc
-                if unabsorbed is not None and c.sensor not in unabsorbed:
-                    se = _param_se(c)
-                    unabsorbed[c.sensor] = {"sensor": c.sensor, "effect": c.effect, "params": _jsonable(c.params),
-                                            "param_ci95": _param_ci(c, se), "max_move_mm": move_bound,
-                                            "score": c.score}
+                _flag(unabsorbed, c, move_bound)
+            if c.effect in RIVALS and c.sensor in unabsorbed:
+                ok = False    # its timing is not a disc's: neither a move nor a delay is named there
             c.significant = bool(ok)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
@@ -200,10 +199,33 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         if best is None:
             break
         accepted.append(best)
-        current, params = build(ref, F, [(c.effect, c.sensor) for c in accepted])
-        for c, p in zip(accepted, params):
-            c.params = p
+        current = _refit(ref, F, accepted)
+        # a move the joint refit took beyond the bound, and the timing effects of a channel flagged since they
+        # were named: out, the channel flagged
+        for c in accepted:
+            if c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
+                _flag(unabsorbed, c, move_bound)
+        kept = [c for c in accepted if not (c.effect in RIVALS and c.sensor in unabsorbed)]
+        if len(kept) != len(accepted):
+            accepted = kept
+            current = _refit(ref, F, accepted) if accepted else ref
     return accepted, current, last_round
+
+
+def _refit(ref, F, accepted):
+    """`build` of the accepted candidates; their params updated. Returns the model."""
+    current, params = build(ref, F, [(c.effect, c.sensor) for c in accepted])
+    for c, p in zip(accepted, params):
+        c.params = p
+    return current
+
+
+def _flag(unabsorbed: dict, c: Candidate, move_bound: float) -> None:
+    """Records channel c.sensor as one whose change the models cannot absorb (a move beyond move_bound)."""
+    if c.sensor not in unabsorbed:
+        unabsorbed[c.sensor] = {"sensor": c.sensor, "effect": c.effect, "params": _jsonable(c.params),
+                                "param_ci95": _param_ci(c, _param_se(c)), "max_move_mm": move_bound,
+                                "score": c.score}
 
 
 def out_of_fold_metrics(ref: R.Reference, F: R.Features, accepted: list[Candidate]) -> dict:
