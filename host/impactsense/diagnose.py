@@ -177,8 +177,8 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if ok and c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 ok = False    # larger than a re-glued disc can be: the channel is not a moved disc
                 _flag(unabsorbed, c, move_bound)
-            if c.effect in RIVALS and c.sensor in unabsorbed:
-                ok = False    # its timing is not a disc's: neither a move nor a delay is named there
+            if c.effect == "sensor_position" and c.sensor in unabsorbed:
+                ok = False    # its timing is not a disc's (a delay may still take its mean lag: not a move)
             c.significant = bool(ok)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
@@ -200,12 +200,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             break
         accepted.append(best)
         current = _refit(ref, F, accepted)
-        # a move the joint refit took beyond the bound, and the timing effects of a channel flagged since they
-        # were named: out, the channel flagged
+        # a move the joint refit took beyond the bound: out, its channel flagged
         for c in accepted:
             if c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 _flag(unabsorbed, c, move_bound)
-        kept = [c for c in accepted if not (c.effect in RIVALS and c.sensor in unabsorbed)]
+        kept = [c for c in accepted if not (c.effect == "sensor_position" and c.params["offset_mm"] > move_bound)]
         if len(kept) != len(accepted):
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
@@ -221,8 +220,10 @@ def _refit(ref, F, accepted):
 
 
 def _flag(unabsorbed: dict, c: Candidate, move_bound: float) -> None:
-    """Records channel c.sensor as one whose change the models cannot absorb (a move beyond move_bound)."""
-    if c.sensor not in unabsorbed:
+    """Records channel c.sensor as one whose change the models cannot absorb (a move beyond move_bound): one
+    channel at most (the three-sensor models leave one out; a second one's large move is the first one's
+    misfit spread by the per-drop centring, not named either)."""
+    if not unabsorbed:
         unabsorbed[c.sensor] = {"sensor": c.sensor, "effect": c.effect, "params": _jsonable(c.params),
                                 "param_ci95": _param_ci(c, _param_se(c)), "max_move_mm": move_bound,
                                 "score": c.score}
