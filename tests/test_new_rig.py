@@ -278,7 +278,7 @@ def test_a_model_at_the_boards_own_rate_that_the_board_cannot_run_is_trained_aga
 
 def test_drops_placed_without_a_class_are_counted_apart_not_scored_wrong(tmp_path, session1):
     """A model without a site map (a new rig's default) places a drop with a dead channel by the three-sensor
-    physics position; one trained before the three-channel class (models.fit_three_channel_classes) cannot
+    physics position; one trained before the three-channel class (height_class.fit_three_channel_classes) cannot
     classify it: evaluate said "class acc 0.00"; it now scores the classified drops and says how many have none
     and why. A model trained now classifies them from the other three channels."""
     import impactsense as isn

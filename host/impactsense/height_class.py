@@ -163,6 +163,18 @@ def fit_linear_height_class(X: np.ndarray, energy_j: np.ndarray, threshold_j: fl
     return LinearHeightClass(offset, scale, terms, coef, float(fit.intercept_ - coef @ mu - cut), cut)
 
 
+def fit_three_channel_classes(raw: dict, phys_xy_mm: np.ndarray, energy_j: np.ndarray, threshold_j: float) -> dict:
+    """Channel -> the linear estimate of log m g h on the other three channels' energies and the physics position
+    (`three_channel_inputs` of the training drops' raw core features, all channels with an onset), fitted as the
+    four-channel one with the model's class boundary (threshold_j). {} when the drops hold one class only."""
+    try:
+        class_cut(energy_j, threshold_j)
+    except DataError:
+        return {}
+    return {c: fit_linear_height_class(three_channel_inputs(raw, phys_xy_mm, c), energy_j, threshold_j)
+            for c in range(np.asarray(raw["energy"]).shape[1])}
+
+
 def position_groups(xy_mm: np.ndarray) -> np.ndarray:
     """One group per drop position (a case's repetitions share one), as twin_oof's folds."""
     return np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0, return_inverse=True)[1].ravel()

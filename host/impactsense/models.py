@@ -25,8 +25,8 @@ from . import __version__, _core
 from .errors import DataError
 from .forestfile import save_forest
 from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHANNEL_FILE, LinearHeightClass,
-                           class_cut, energy_class_choice, fit_linear_height_class, out_of_fold_classes,
-                           three_channel_inputs)
+                           energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
+                           out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
 from .signal import SignalConfig
@@ -116,18 +116,6 @@ def fit_energy_classifier(X: np.ndarray, energy_j: np.ndarray,
     if np.unique(label).size < 2:
         raise DataError("training data", "height_mm", "all drops fall in one energy class")
     return (settings or ForestSettings()).classifier().fit(X, label), threshold
-
-
-def fit_three_channel_classes(features: Features, energy_j: np.ndarray, threshold_j: float) -> dict:
-    """Channel -> the linear estimate of log m g h (height_class) on the other three channels' energies and the
-    physics position, fitted on the training drops (all channels with an onset) as the four-channel one; the
-    class boundary the model's own (threshold_j). {} when the drops hold one class only."""
-    try:
-        class_cut(energy_j, threshold_j)
-    except DataError:
-        return {}
-    return {c: fit_linear_height_class(three_channel_inputs(features.raw, features.phys_xy_mm, c), energy_j,
-                                       threshold_j) for c in range(features.raw["energy"].shape[1])}
 
 
 def three_channel_rows(features: Features) -> np.ndarray:
@@ -272,8 +260,8 @@ class ImpactModel:
                     X[:, columns(MEASURED_ENERGY_FEATURES)], X_lin, energy_j, xy, settings))
                 if card["energy_class_choice"]["use_linear"]:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
-        three = fit_three_channel_classes(features.take(np.flatnonzero(use)), energy_j, threshold) \
-            if site_map is None else {}
+        three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
+                                          energy_j, threshold) if site_map is None else {}
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,

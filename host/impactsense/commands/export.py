@@ -76,7 +76,7 @@ def run(args) -> int:
               f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
     if "three_channel_class" in card and "twin" not in card:
         print("a drop with one channel without an onset (dead, disconnected): the board reports the three-sensor "
-              "position without a class (the host's three-channel class, models.fit_three_channel_classes, is "
+              "position without a class (the host's three-channel class, height_class.fit_three_channel_classes, is "
               "not in the board's tables)")
     print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
     return 0 if s["within_budget"] else 1

@@ -123,18 +123,7 @@ def run(args) -> int:
         from ..diagnose import write_report
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
-    print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
-    for u in result.get("unabsorbed_channels", []):
-        print(f"channel {u['sensor']}: a change the models cannot absorb (its timing asks for a move of "
-              f"{u['params']['offset_mm']:.0f} mm, more than a re-glued disc's {u['max_move_mm']:.0f} mm): the model "
-              f"leaves it out (three-sensor position and class), flagged")
-    print(f"energy class and position from {'the twin (site map)' if site is not None else 'the forests'}")
-    print(f"{'on ' + data.name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "
-          f"{'within 1u':>9} {'2u':>5}")
-    for k, v in rows.items():
-        print(f"{k:<18} {v['mae_mm']:7.2f} {v['inner_mae_mm']:6.2f} {v['physics_mae_mm']:8.2f} "
-              f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
-    print(f"model written to {out}")
+    print_summary(result, accepted, rows, data.name, site is not None, out)
     warning = worse_than_baseline(rows, accepted, data.name)
     if warning:
         print(warning)
@@ -146,6 +135,22 @@ def leave_out(signal, channels):
     from dataclasses import replace
 
     return replace(signal, channel_left_out=[int(c in channels) for c in range(len(signal.channel_left_out))])
+
+
+def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out) -> None:
+    """retrain's printout: the effects put in, the channels left out, both models' scores on DATA_NEW."""
+    print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
+    for u in result.get("unabsorbed_channels", []):
+        print(f"channel {u['sensor']}: a change the models cannot absorb (its timing asks for a move of "
+              f"{u['params']['offset_mm']:.0f} mm, more than a re-glued disc's {u['max_move_mm']:.0f} mm): the model "
+              f"leaves it out (three-sensor position and class), flagged")
+    print(f"energy class and position from {'the twin (site map)' if twin else 'the forests'}")
+    print(f"{'on ' + name:<18} {'MAE mm':>7} {'inner':>6} {'phys MAE':>8} {'class acc':>9} "
+          f"{'within 1u':>9} {'2u':>5}")
+    for k, v in rows.items():
+        print(f"{k:<18} {v['mae_mm']:7.2f} {v['inner_mae_mm']:6.2f} {v['physics_mae_mm']:8.2f} "
+              f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
+    print(f"model written to {out}")
 
 
 # The retrained model is called worse when its MAE on DATA_NEW exceeds the baseline model's by this factor.
