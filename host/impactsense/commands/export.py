@@ -62,6 +62,7 @@ def run(args) -> int:
     # Everything (OUT/board-model, the C sources, the tables, export.json) is written into a folder next to
     # OUT and moved into OUT only when all of it is done: a failure midway leaves OUT as it was. The board's
     # site map is a cache (written whole, keyed by its source map and rate) and stays in OUT.
+    left_out = [c for c, v in enumerate((card.get("signal") or {}).get("channel_left_out") or []) if v]
     with staged_output(out, args.force) as stage:
         s, card, model_dir = _export(args, card, rate, stage, out)
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
@@ -75,9 +76,15 @@ def run(args) -> int:
               f"(inner {acc['inner']['mae_mm']:.2f} mm), mean distance {acc['all']['euclid_mm']:.2f} mm, "
               f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
     if "three_channel_class" in card and "twin" not in card:
-        print("a drop with one channel without an onset (dead, disconnected): the board reports the three-sensor "
-              "position without a class (the host's three-channel class, height_class.fit_three_channel_classes, is "
-              "not in the board's tables)")
+        print("a drop with one channel without an onset (dead, disconnected): the board reports it as not valid "
+              "(the host's three-sensor position and three-channel class, height_class.fit_three_channel_classes, are "
+              "not on the board without a twin)")
+    if left_out:
+        board_left = [c for c, v in enumerate((card.get("signal") or {}).get("channel_left_out") or []) if v]
+        print(f"channel(s) {left_out} left out by retrain (a change the models cannot absorb): "
+              + (f"the board leaves {board_left} out too" + ("" if "twin" in card else
+                 ": without a twin it reports no drop then (no three-channel models on the board)")
+                 if board_left else "the board's models, trained again on the captures, keep all four channels"))
     print(json.dumps({k: s[k] for k in ('trees', 'table_bytes_total', 'within_budget')}))
     return 0 if s["within_budget"] else 1
 
