@@ -161,9 +161,9 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
                               simulate=counting)
     assert cal3["sim_params"]["support"] == "clamped"
     # every stage that simulates runs again on the clamped twin: the design alone is 48 runs (a wall-time
-    # comparison, as this check was, fails on a loaded machine; a count does not)
+    # comparison fails on a loaded machine, and two runs' CPU times can coincide to the millisecond; a count
+    # of the simulations asked for does neither)
     assert len(runs) >= 48 and set(runs) == {"clamped"}, (len(runs), set(runs))
-    assert cal3["stage_compute_time_s"]["design_fem"] != cal["stage_compute_time_s"]["design_fem"]
 
 
 def _fem_recovery(tmp_path, rig, element_mm, budget, n_cases, truth=(TRUTH_E, TRUTH_NU, TRUTH_DS), rerun=False):
