@@ -66,7 +66,16 @@ MODEL_FILES = {"x": "forest_dx.npz", "y": "forest_dy.npz", "energy": "forest_ene
 # picks on three channels; three corrected positions"). Only the host runs them: the board's models
 # (board/models.py) keep one pair.
 POSITION_MEMBERS = ("threshold", "band")
-MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS for axis in "xy"}
+# With the edge correction of the arrival times kept (edge_travel.py, chosen by the training drops), three more
+# members: the physics, threshold and band positions the localiser gives on the corrected picks, each with its
+# forest pair; the reported position is then the mean over every member that placed the drop (docs/findings.md
+# "Edge images in the travel time").
+EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
+MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
+                for axis in "xy"}
+# The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
+# (the rule of pipeline.STARTS_GAIN).
+EDGE_GAIN = 0.97
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
 # i.e. a threshold on log10 height learned with its uncertainty.
@@ -158,6 +167,49 @@ def member_positions(features: Features) -> dict[str, np.ndarray] | None:
     return {"threshold": threshold, "band": np.where(ok[:, None], band, np.nan)}
 
 
+def threshold_positions(features: Features) -> np.ndarray:
+    """The threshold picks' own position of every row [R, 2]: the core's physics position where the band picks
+    did not place the drop."""
+    positions = member_positions(features)
+    phys = np.asarray(features.phys_xy_mm, float)
+    if positions is None:
+        return phys
+    return np.where(np.isfinite(positions["threshold"]).all(1)[:, None], positions["threshold"], phys)
+
+
+def edge_positions(features: Features, signal: SignalConfig, coefs: dict) -> dict[str, np.ndarray]:
+    """EDGE_MEMBERS' positions [R, 2] (NaN where that member did not place the drop): the localiser on the picks
+    corrected by edge_travel's coefficients, from the core's own positions."""
+    from .edge_travel import positions
+
+    band = member_positions(features)
+    out = positions(features.raw, signal, coefs, threshold_positions(features),
+                    None if band is None else band["band"])
+    return {"physics_edge": out["physics"], "threshold_edge": out["threshold"], "band_edge": out["band"]}
+
+
+def choose_edge_travel(features: Features, xy_mm: np.ndarray, signal: SignalConfig) -> dict | None:
+    """edge_travel's coefficients per pick set fitted on these (training) drops, when the corrected physics
+    positions are clearly closer to the truth (EDGE_GAIN), else None."""
+    from .edge_travel import fit_correction
+
+    if not features.usable.any():
+        return None
+    coefs = {"threshold": fit_correction(features.raw, xy_mm, signal, "threshold"), "band": None}
+    if coefs["threshold"] is None:
+        return None
+    if member_positions(features) is not None and float(signal.band_velocity_mm_per_us) > 0:
+        coefs["band"] = fit_correction(features.raw, xy_mm, signal, "band")
+    xy = np.asarray(xy_mm, float)
+    new = edge_positions(features, signal, coefs)["physics_edge"]
+    old = np.asarray(features.phys_xy_mm, float)
+    ok = np.isfinite(new).all(1) & np.isfinite(old).all(1)
+    if not ok.any():
+        return None
+    gain = float(np.mean(np.abs(new[ok] - xy[ok]))) < EDGE_GAIN * float(np.mean(np.abs(old[ok] - xy[ok])))
+    return coefs if gain else None
+
+
 def _member_inputs(X_loc: np.ndarray, base: np.ndarray) -> np.ndarray:
     """The location features with the physics position's columns replaced by a member's position."""
     out = np.array(X_loc, float, copy=True)
@@ -196,19 +248,24 @@ class ImpactModel:
     # Without a site map: channel left out -> the linear estimate of log m g h on the other three channels'
     # energies (height_class.three_channel_inputs), the class of a drop with that channel without an onset.
     three_channel_class: dict = field(default_factory=dict)
+    # The edge correction's coefficients per pick set (edge_travel.py; {"threshold": [...], "band": [...] or
+    # None}); empty: off. With it the members include EDGE_MEMBERS.
+    edge_travel: dict = field(default_factory=dict)
 
     # ----- training -----
     @classmethod
     def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
             signal: SignalConfig, settings: ForestSettings | None = None,
             site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False,
-            choose_class: bool = False) -> "ImpactModel":
+            choose_class: bool = False, choose_edge: bool = False) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). choose_twin: with a site map, keep the twin only when the training drops' out-of-fold figures
         say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
         choose_class: without a site map, the energy class from the classifier forest or the linear estimate
         of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
-        "energy_class_choice" records it."""
+        "energy_class_choice" records it. choose_edge: with members and without a site map, the edge correction
+        of the arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions
+        say so (choose_edge_travel)."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -262,10 +319,23 @@ class ImpactModel:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
                                           energy_j, threshold) if site_map is None else {}
+        edge = {}
+        if choose_edge and members and site_map is None:
+            train = features.take(np.flatnonzero(use))
+            edge = choose_edge_travel(train, xy, signal) or {}
+            card["edge_travel_chosen"] = bool(edge)
+            if edge:
+                for name, base in edge_positions(train, signal, edge).items():
+                    rows = np.isfinite(base).all(1)
+                    if rows.sum() < 10:
+                        continue
+                    Xm = _member_inputs(X[rows][:, loc_cols], base[rows])
+                    member_forests[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k])
+                                                 for k in range(2))
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
-                   three_channel_class=three)
+                   three_channel_class=three, edge_travel=edge)
 
     @property
     def energy_features(self) -> list[str]:
@@ -301,7 +371,8 @@ class ImpactModel:
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
                 spread[use, k] = per_tree.std(0)
-            positions = member_positions(features) if self.members else None
+            positions = member_positions(features) if any(n in self.members for n in POSITION_MEMBERS) else None
+            count = np.ones(n)
             if positions is not None:
                 # where the band picks placed the drop: the mean of the three corrected positions
                 rows = np.flatnonzero(use & np.isfinite(positions["band"]).all(1))
@@ -313,6 +384,24 @@ class ImpactModel:
                         Xb = _member_inputs(Xm, base)
                         total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
                     xy[rows] = total / (1 + len(POSITION_MEMBERS))
+                    count[rows] = 1 + len(POSITION_MEMBERS)
+            if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS):
+                # the edge members join the mean where they placed the drop
+                rows = np.flatnonzero(use)
+                edge = edge_positions(features.take(rows), self.signal, self.edge_travel)
+                Xm = features.vector[rows][:, columns(self.location_features)]
+                total, k = xy[rows] * count[rows, None], count[rows].copy()
+                for name in EDGE_MEMBERS:
+                    if name not in self.members:
+                        continue
+                    ok = np.isfinite(edge[name]).all(1)
+                    if not ok.any():
+                        continue
+                    base = edge[name][ok]
+                    Xb = _member_inputs(Xm[ok], base)
+                    total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
+                    k[ok] += 1
+                xy[rows] = total / k[:, None]
             if self.site_map is None:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(self.energy_class_features)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
@@ -408,6 +497,8 @@ class ImpactModel:
             card["energy_model"] = "linear"
         if self.three_channel_class:   # a drop with one channel without an onset: its class from the other three
             card["three_channel_class"] = {str(c): THREE_CHANNEL_FILE.format(c) for c in self.three_channel_class}
+        if self.edge_travel:   # the edge correction's coefficients (edge_travel.py) its members read
+            card["edge_travel"] = self.edge_travel
         if self.members:
             card["position_members"] = list(self.members)
             card["target"] = ("x = mean of phys_x_mm + forest_dx(features[location_features]) and, where the band "
@@ -417,7 +508,7 @@ class ImpactModel:
         card = {
             **card,
             **{k: v for k, v in self.card.items()
-               if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class")},
+               if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class", "edge_travel")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
@@ -470,8 +561,13 @@ class ImpactModel:
             raise DataError(card_path, "energy_features", f"lists {len(energy)} features, the energy forest "
                                                           f"reads {forests[2].n_features_in_}")
         names = card.get("position_members", [])
-        if not isinstance(names, list) or any(n not in POSITION_MEMBERS for n in names):
-            raise DataError(card_path, "position_members", f"must list names from {list(POSITION_MEMBERS)}")
+        if not isinstance(names, list) or any(n not in POSITION_MEMBERS + EDGE_MEMBERS for n in names):
+            raise DataError(card_path, "position_members",
+                            f"must list names from {list(POSITION_MEMBERS + EDGE_MEMBERS)}")
+        edge = card.get("edge_travel", {})
+        if any(n in EDGE_MEMBERS for n in names) and not _edge_coefficients_ok(edge):
+            raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
+                                                      "[numbers] or null} (edge_travel.N_BASES each)")
         if names and loc != LOCATION_FEATURES:
             raise DataError(card_path, "position_members", "needs the current location_features")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
@@ -490,4 +586,16 @@ class ImpactModel:
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
-                   energy_class_features=list(energy), members=members, three_channel_class=three_channel)
+                   energy_class_features=list(energy), members=members, three_channel_class=three_channel,
+                   edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {})
+
+
+def _edge_coefficients_ok(edge) -> bool:
+    from .edge_travel import N_BASES
+
+    def numbers(v) -> bool:
+        return (isinstance(v, list) and len(v) == N_BASES
+                and all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v))
+
+    return (isinstance(edge, dict) and set(edge) == {"threshold", "band"} and numbers(edge["threshold"])
+            and (edge["band"] is None or numbers(edge["band"])))
