@@ -116,6 +116,9 @@ def run(args) -> int:
               f"MAE {choice['twin_mae_mm']:.2f} mm with it / {choice['forest_mae_mm']:.2f} without, class "
               f"{choice['twin_class_accuracy']:.3f} / {choice['measured_class_accuracy']:.3f}")
         site = model.site_map
+    if "edge_travel_chosen" in model.card:
+        print("edge correction of the arrival times (training drops' physics positions): "
+              f"{'kept, three more position members' if model.card['edge_travel_chosen'] else 'not kept'}")
     energy = model.card.get("energy_class_choice")
     if energy:
         print(f"energy class: {'linear estimate of log m g h' if energy['use_linear'] else 'classifier forest'} "
