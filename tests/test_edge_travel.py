@@ -166,3 +166,11 @@ def test_a_damaged_edge_card_is_refused(edge_model, tmp_path):
     card_path.write_text(json.dumps(card))
     with pytest.raises(DataError, match="edge_travel"):
         ImpactModel.load(bad)
+
+
+def test_the_board_refits_a_model_with_edge_members(edge_model):
+    from impactsense.export import beyond_the_board
+
+    _, _, _, out = edge_model
+    card = json.loads((out / "model_card.json").read_text())
+    assert beyond_the_board(card)[0] == "position_members"

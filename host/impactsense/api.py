@@ -26,13 +26,15 @@ def load_model(model_dir) -> ImpactModel:
 
 
 def train(session: Session, out=None, test_fraction: float = 0.2, seed: int = 0, trees: int = 100,
-          site_map="auto", calibration=None) -> ImpactModel:
+          site_map="auto", calibration=None, members: bool = True) -> ImpactModel:
     """Fits the physics localiser, the forests and (site_map "auto" on the bundled rig, or a site-map file) the
     twin's fingerprint on the training cases of `session`, holding out `test_fraction` of its cases (seeded);
     written to `out` (a model folder) if given. The model card (model.card) lists the split. calibration: a
     CAL.json of this rig (`impactsense calibrate`): with site_map "auto" its twin's site map, kept when the
     training drops' out-of-fold figures say so (as `impactsense train --calibration`). Without a site map the
-    energy class is the classifier forest or the linear height estimate, as those figures choose (height_class.py)."""
+    energy class is the classifier forest or the linear height estimate, as those figures choose (height_class.py).
+    members False: one forest pair on the physics position, no position members (the band picks' or the edge
+    correction's), which `export_for_board(..., rate=None)` takes as it is."""
     from .sitemap import resolve_site_map
     from .workflow import train as _train
 
@@ -44,7 +46,7 @@ def train(session: Session, out=None, test_fraction: float = 0.2, seed: int = 0,
     else:
         site = resolve_site_map(site_map, session.rig)
     model, _ = _train(session, out, test_fraction, seed, settings=ForestSettings(n_estimators=trees, seed=seed),
-                      site_map=site, choose_twin=measured_twin, choose_class=True)
+                      site_map=site, choose_twin=measured_twin, choose_class=True, members=members)
     return model
 
 
