@@ -174,3 +174,18 @@ def test_the_board_refits_a_model_with_edge_members(edge_model):
     _, _, _, out = edge_model
     card = json.loads((out / "model_card.json").read_text())
     assert beyond_the_board(card)[0] == "position_members"
+
+
+def test_too_few_positions_are_not_tried(session1, monkeypatch):
+    """Eight shared coefficients fitted on drops at a few positions pass the rule on those same drops (they fit
+    them): under EDGE_MIN_SITES distinct positions the correction is not tried."""
+    import impactsense.models as models
+    from impactsense.pipeline import featurize
+
+    rows = np.flatnonzero(session1.case_id < 12)
+    assert len(np.unique(np.round(session1.xy_mm[rows], 1), axis=0)) < models.EDGE_MIN_SITES
+    cfg = SignalConfig.for_rig(session1.rig)
+    feats = featurize(session1.adc[rows], cfg)
+    assert models.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is None
+    monkeypatch.setattr(models, "EDGE_MIN_SITES", 0)
+    assert models.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is not None

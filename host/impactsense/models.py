@@ -74,8 +74,11 @@ EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
 MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
                 for axis in "xy"}
 # The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
-# (the rule of pipeline.STARTS_GAIN).
+# (the rule of pipeline.STARTS_GAIN). It is tried only with drops at this many distinct positions or more (five
+# per coefficient of a pick set: its bases change over the plate, near every edge): on fewer the eight numbers
+# fitted on the drops that judge them pass the rule by fitting those drops.
 EDGE_GAIN = 0.97
+EDGE_MIN_SITES = 40
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
 # i.e. a threshold on log10 height learned with its uncertainty.
@@ -190,10 +193,11 @@ def edge_positions(features: Features, signal: SignalConfig, coefs: dict) -> dic
 
 def choose_edge_travel(features: Features, xy_mm: np.ndarray, signal: SignalConfig) -> dict | None:
     """edge_travel's coefficients per pick set fitted on these (training) drops, when the corrected physics
-    positions are clearly closer to the truth (EDGE_GAIN), else None."""
+    positions are clearly closer to the truth (EDGE_GAIN), else None (also with drops at fewer than
+    EDGE_MIN_SITES positions)."""
     from .edge_travel import fit_correction
 
-    if not features.usable.any():
+    if not features.usable.any() or len(np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0)) < EDGE_MIN_SITES:
         return None
     coefs = {"threshold": fit_correction(features.raw, xy_mm, signal, "threshold"), "band": None}
     if coefs["threshold"] is None:
