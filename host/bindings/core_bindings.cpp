@@ -290,6 +290,34 @@ nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
   return nb::make_tuple(feats, usable);
 }
 
+// The three-channel class's inputs (impactcore three_channel_inputs) of every recording without channel left_out,
+// from extract_batch's arrays and the physics positions.
+nb::ndarray<nb::numpy, float> three_channel_inputs_batch(InF window_energy, InF diff_energy, InF energy,
+                                                         InF phys_xy_mm, int left_out) {
+  const size_t r = rows_of(energy);
+  if (!has_shape(energy, {r, ic::kChannels}) || !has_shape(window_energy, {r, ic::kChannels, ic::kEnergyWindows}) ||
+      !has_shape(diff_energy, {r, ic::kChannels, ic::kDiffOrders}) || !has_shape(phys_xy_mm, {r, 2})) {
+    throw std::invalid_argument("window_energy [R,4,5], diff_energy [R,4,3], energy [R,4] and phys_xy_mm [R,2] "
+                                "float32 needed");
+  }
+  if (left_out < 0 || left_out >= ic::kChannels) throw std::invalid_argument("left_out must be a channel 0..3");
+  auto out = make_array<float>({r, static_cast<size_t>(ic::kThreeChannelInputs)});
+  ic::EventFeatures ev;
+  std::memset(&ev, 0, sizeof(ev));
+  for (size_t k = 0; k < r; ++k) {
+    for (int c = 0; c < ic::kChannels; ++c) {
+      for (int w = 0; w < ic::kEnergyWindows; ++w)
+        ev.ch[c].window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
+      for (int d = 0; d < ic::kDiffOrders; ++d)
+        ev.ch[c].diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+      ev.ch[c].energy = energy.data()[k * ic::kChannels + c];
+    }
+    ic::three_channel_inputs(ev, phys_xy_mm.data()[2 * k], phys_xy_mm.data()[2 * k + 1], left_out,
+                             out.data() + k * ic::kThreeChannelInputs);
+  }
+  return out;
+}
+
 using InU16 = nb::ndarray<const uint16_t, nb::c_contig, nb::device::cpu>;
 
 void copy16(float* dst, InF src, const char* name) {
@@ -595,6 +623,11 @@ NB_MODULE(_core, m) {
 
   m.attr("TWIN_FEATURES") = ic::kTwinFeatures;
   m.attr("SITE_MAP_MISSING") = static_cast<int>(ic::kSiteMapMissing);
+  m.attr("THREE_CHANNEL_INPUTS") = ic::kThreeChannelInputs;
+  m.def("three_channel_inputs_batch", &three_channel_inputs_batch, "window_energy"_a, "diff_energy"_a, "energy"_a,
+        "phys_xy_mm"_a, "left_out"_a,
+        "The energy class's inputs without channel left_out (the other three channels' summed arrival and "
+        "difference energies, their mean log10 energy, the physics position) [R, 7] float32.");
   m.def("twin_features_batch", &twin_features_batch, "window_energy"_a, "diff_energy"_a, "flags"_a,
         "The twin's 16 log-energies (4 channels x arrival, Delta^1..3) and usable-feature masks.");
   m.def("twin_estimate_batch", &twin_estimate_batch, "features"_a, "usable"_a, "xy_mm"_a, "q"_a, "nx"_a,

@@ -125,12 +125,13 @@ THREE_CHANNEL_FILE = "linear_energy_without_{}.npz"
 def three_channel_inputs(raw: dict, phys_xy_mm: np.ndarray, left_out: int) -> np.ndarray:
     """LINEAR_CLASS_FEATURES over the three channels other than `left_out`, from the core's per-channel
     energies (raw window_energy, diff_energy, energy): the summed arrival energy, the three difference energies
-    summed, the channels' mean log energy, then the physics position. [R, 7]"""
-    keep = [c for c in range(np.asarray(raw["energy"]).shape[1]) if c != left_out]
-    arrival = np.asarray(raw["window_energy"], float)[:, keep].sum(axis=(1, 2))
-    diff = np.asarray(raw["diff_energy"], float)[:, keep].sum(axis=1)
-    mean = np.log10(np.asarray(raw["energy"], float)[:, keep] + 1.0).mean(axis=1)
-    return np.column_stack([np.log10(arrival + 1.0), np.log10(diff + 1.0), mean, np.asarray(phys_xy_mm, float)])
+    summed, the channels' mean log energy, then the physics position. [R, 7], computed by the core
+    (impactcore three_channel_inputs: the board's numbers, bit for bit)."""
+    from . import _core
+
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    return np.asarray(_core.three_channel_inputs_batch(f32(raw["window_energy"]), f32(raw["diff_energy"]),
+                                                       f32(raw["energy"]), f32(phys_xy_mm), int(left_out)), float)
 
 
 def class_cut(energy_j: np.ndarray, threshold_j: float) -> float:

@@ -20,6 +20,20 @@ const char* const kFeatureNames[kNumFeatures] = {
 // log10 x = log10(2) log2 x (fast_log2: no libm log10f, ~100 instructions a call on the M4F).
 constexpr float kLog10Of2 = 0.301029996f;
 
+// log10(1 + the arrival energy summed over the channels but `skip`) and the same of each difference order's
+// (skip -1: all four; the feature vector's log_arrival_energy_sum, log_diff{1,2,3}_energy_sum).
+static inline void summed_energies(const EventFeatures& f, int skip, float out[1 + kDiffOrders]) {
+  float arrival = 0.0f;
+  float diff[kDiffOrders] = {0.0f, 0.0f, 0.0f};
+  for (int c = 0; c < kChannels; ++c) {
+    if (c == skip) continue;
+    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.ch[c].window_energy[w];
+    for (int k = 0; k < kDiffOrders; ++k) diff[k] += f.ch[c].diff_energy[k];
+  }
+  out[0] = kLog10Of2 * fast_log2(arrival + 1.0f);
+  for (int k = 0; k < kDiffOrders; ++k) out[1 + k] = kLog10Of2 * fast_log2(diff[k] + 1.0f);
+}
+
 // The band localiser's velocity for this event: 1 / (1 / v_band + slope (log10(sum_c E_c / fs) - ref)); the
 // higher the drop, the shorter the contact and the more of the faster high frequencies in the band's rise
 // (docs/findings.md "Band picks: the speed follows the drop"). v_band itself when the slope is 0, the
@@ -124,15 +138,20 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   for (int c = 0; c < kChannels; ++c) v[21 + c] = f.ch[c].residual_ratio;
   v[25] = out->phys.rms_residual_us;
   // Energies of the arrival summed over the channels (the plate's response at all four sensors).
-  float arrival = 0.0f;
-  float diff[kDiffOrders] = {0.0f, 0.0f, 0.0f};
-  for (int c = 0; c < kChannels; ++c) {
-    for (int w = 0; w < kEnergyWindows; ++w) arrival += f.ch[c].window_energy[w];
-    for (int k = 0; k < kDiffOrders; ++k) diff[k] += f.ch[c].diff_energy[k];
-  }
-  v[26] = kLog10Of2 * fast_log2(arrival + 1.0f);
-  for (int k = 0; k < kDiffOrders; ++k) v[27 + k] = kLog10Of2 * fast_log2(diff[k] + 1.0f);
+  summed_energies(f, -1, v + 26);
   return out->status;
+}
+
+void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_mm, int left_out,
+                          float out[kThreeChannelInputs]) {
+  summed_energies(f, left_out, out);
+  float mean = 0.0f;
+  for (int c = 0; c < kChannels; ++c) {
+    if (c != left_out) mean += kLog10Of2 * fast_log2(f.ch[c].energy + 1.0f);
+  }
+  out[1 + kDiffOrders] = mean * (1.0f / 3.0f);
+  out[2 + kDiffOrders] = phys_x_mm;
+  out[3 + kDiffOrders] = phys_y_mm;
 }
 
 }  // namespace impactcore

@@ -516,6 +516,14 @@ bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e)
 constexpr int kNumFeatures = 6 + 4 + 2 + 4 + 1 + 4 + 4 + 1 + 1 + kDiffOrders;
 extern const char* const kFeatureNames[kNumFeatures];
 
+// The energy class's inputs of a drop without channel `left_out` (a dead channel, or one the model leaves out:
+// channel_left_out), the other three channels' share of the vector's energies: log10 of their summed arrival
+// energy, of their summed difference energies (Delta^1..3), their mean log10 energy, then the physics position
+// (the host's height_class.LINEAR_CLASS_FEATURES, its three-channel class; the board's the same).
+constexpr int kThreeChannelInputs = 1 + kDiffOrders + 1 + 2;
+void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_mm, int left_out,
+                          float out[kThreeChannelInputs]);
+
 // --- the band pick (bandpick.cpp) ---
 //
 // A pick that does not hang on which cycle of a weak, fast precursor a threshold catches (stiff plates,
