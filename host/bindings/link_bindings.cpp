@@ -344,12 +344,30 @@ struct PyModels : ia::Models {
   Tables x, y, e;
   bool residual;
   std::unique_ptr<Twin> twin;
+  std::vector<Tables> three;        // the three-channel classes (linear, one per channel left out), or none
+  std::vector<ia::ModelSpec> three_specs;
   std::unique_ptr<ia::TableModels> impl;
-  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin)
+  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin, nb::object dthree)
       : x(tables_from(dx, false)), y(tables_from(dy, false)), e(tables_from(de, !dtwin.is_none())),
         residual(residual_xy) {
     if (!dtwin.is_none()) twin.reset(new Twin(nb::cast<nb::dict>(dtwin)));
-    impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual, twin ? &twin->spec : nullptr));
+    if (!dthree.is_none()) {
+      if (twin) throw std::invalid_argument("three_channel: a model with a twin matches without the channel itself");
+      const nb::list items = nb::cast<nb::list>(dthree);
+      if (items.size() != static_cast<size_t>(ic::kChannels)) {
+        throw std::invalid_argument("three_channel: one linear model per channel (4)");
+      }
+      for (nb::handle d : items) {
+        Tables t = tables_from(nb::cast<nb::dict>(d), false);
+        if (t.evaluate != ia::linear_terms || t.inputs.size() != static_cast<size_t>(ic::kThreeChannelInputs)) {
+          throw std::invalid_argument("three_channel: linear models of the 7 three-channel inputs");
+        }
+        three.push_back(std::move(t));
+      }
+      for (const Tables& t : three) three_specs.push_back(t.spec());
+    }
+    impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual, twin ? &twin->spec : nullptr,
+                                   three_specs.empty() ? nullptr : three_specs.data()));
   }
   bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
     return impl->predict(ev, xm, ym, c);
@@ -544,12 +562,14 @@ NB_MODULE(_link, m) {
   m.attr("TWIN_INPUT") = static_cast<int>(ia::kTwinInput);
 
   nb::class_<PyModels>(m, "ForestModels")
-      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object>(), "x"_a, "y"_a, "energy"_a, "residual_xy"_a,
-           "twin"_a = nb::none(),
+      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object, nb::object>(), "x"_a, "y"_a, "energy"_a,
+           "residual_xy"_a, "twin"_a = nb::none(), "three_channel"_a = nb::none(),
            "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them; twin: the "
            "site map and its configuration (dict of grid [nx, ny, x0_mm, y0_mm, step_mm], q, base, scale, offset, "
            "slope, weight, config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]) when the energy "
-           "classifier reads the twin's estimate (input TWIN_INPUT).")
+           "classifier reads the twin's estimate (input TWIN_INPUT); three_channel (without a twin): a list of 4 "
+           "linear models (kind 'linear', inputs 0..6) of impactcore three_channel_inputs, the class of a drop "
+           "whose channel c has no onset.")
       .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
       .def_prop_ro("has_twin", [](const PyModels& p) { return p.twin != nullptr; })
       .def("predict", [](const PyModels& p, InF vector, InF phys_xy, nb::object window_energy,

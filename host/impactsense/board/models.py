@@ -115,7 +115,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
-                       weak_channel: int = -1, choose_class: bool = False) -> Path:
+                       weak_channel: int = -1, choose_class: bool = False, channel_left_out=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -129,7 +129,10 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
     configured one); retrain_for_board passes the one the rig's own model chose. channel_gain and
     weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept. choose_class: without a
-    site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit)."""
+    site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit).
+    channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
+    `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
+    host's does (the physics three-sensor position, the three-channel class or the twin's match without it)."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -155,6 +158,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
                             site_map=site_map, members=False, choose_class=choose_class)
+    if channel_left_out is not None and any(channel_left_out):
+        model.signal = replace(model.signal, channel_left_out=[int(bool(v)) for v in channel_left_out])
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
@@ -181,7 +186,7 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     the same training drops, with the same forest settings; the held-out drops stay held out. A model with
     the twin's site map gets the board's site map (board_site_map, cached in site_map_cache). A model whose
     energy class was chosen by the out-of-fold rule (card "energy_class_choice") has it chosen again on the
-    board's features."""
+    board's features. A channel the model leaves out (card signal.channel_left_out) stays left out."""
     card, card_path = read_card(model_dir)
     if "zero_shot" in card:   # sim-trained: the virtual drops, then the calibration drops' fits, at the board rate
         return sim_trained_for_board(model_dir, out_dir, fs_hz, site_map_cache=site_map_cache)
@@ -210,7 +215,8 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
                               extra_card={"retrained_from": str(Path(model_dir).resolve())},
                               channel_gain=(card.get("signal") or {}).get("channel_gain"),
                               weak_channel=int((card.get("twin") or {}).get("weak_channel", -1)),
-                              choose_class="energy_class_choice" in card)
+                              choose_class="energy_class_choice" in card,
+                              channel_left_out=(card.get("signal") or {}).get("channel_left_out"))
 
 
 def _card_session(card_path: Path, field: str, record: dict) -> Session:

@@ -88,7 +88,19 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     uncertainty = twin_uncertainty_mm(m.est, twin_);
     *left_out = static_cast<int8_t>(m.left_out);
   } else if (!(x == x) || !(y == y)) {
-    return false;
+    // One channel without an onset (dead, or left out: channel_left_out) and the three-channel classes: the
+    // physics localiser's three-sensor position, the class from the other three channels' energies.
+    int c = -1;
+    for (int k = 0; k < ic::kChannels; ++k) {
+      if (ev.features.ch[k].flags & ic::kFlagNoOnset) c = c < 0 ? k : ic::kChannels;
+    }
+    if (three_ == nullptr || c < 0 || c >= ic::kChannels || ev.phys.status != ic::kOk) return false;
+    ic::three_channel_inputs(ev.features, ev.phys.x_mm, ev.phys.y_mm, c, in);
+    *cls = three_[c].evaluate(three_[c].forest, in) > 0.5f ? 1 : 0;
+    *x_mm = ev.phys.x_mm;
+    *y_mm = ev.phys.y_mm;
+    *left_out = static_cast<int8_t>(c);
+    return true;
   }
   if (!gather(e_, ev.vector, twin, in)) return false;
   *cls = e_.evaluate(e_.forest, in) > 0.5f ? 1 : 0;

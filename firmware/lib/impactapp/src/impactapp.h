@@ -130,11 +130,16 @@ class Models {
 // fails (no usable channel, no map point near).
 class TableModels : public Models {
  public:
+  // three_channel (a model without a twin; nullptr: none): per channel c the energy class of a drop whose
+  // channel c has no onset (dead, or left out by the core's channel_left_out), evaluated on
+  // impactcore::three_channel_inputs (its inputs field unused); such a drop is reported at the physics
+  // localiser's three-sensor position with c left out (the host's models.ImpactModel.predict).
   TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
-              const TwinSpec* twin = nullptr)
+              const TwinSpec* twin = nullptr, const ModelSpec* three_channel = nullptr)
       : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr),
         same_xy_inputs_(x.n_inputs == y.n_inputs && x.inputs != nullptr && y.inputs != nullptr &&
-                        memcmp(x.inputs, y.inputs, static_cast<size_t>(x.n_inputs)) == 0) {
+                        memcmp(x.inputs, y.inputs, static_cast<size_t>(x.n_inputs)) == 0),
+        three_(three_channel) {
     if (twin != nullptr) twin_ = *twin;
   }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
@@ -155,6 +160,7 @@ class TableModels : public Models {
   bool has_twin_;
   bool same_xy_inputs_;  // the y forest reads the x forest's inputs (as `impactsense train` makes them): gathered once
   TwinSpec twin_{};
+  const ModelSpec* three_;  // [impactcore::kChannels] or nullptr
 };
 
 // The board's acquisition as the core sees it: the rate, the SAADC scan order's capture delays (channel c

@@ -55,6 +55,21 @@ inline TwinSpec exported_twin() {
 }
 #endif
 
+#if defined(IMPACTSENSE_THREE_CHANNEL_CLASS) && IMPACTSENSE_THREE_CHANNEL_CLASS
+// A model without a twin: per channel the energy class of a drop without that channel (linear_terms over
+// impactcore::three_channel_inputs; TableModels' three_channel).
+inline const ModelSpec* exported_three_channel() {
+  static const ModelSpec three[impactcore::kChannels] = {
+      exported_spec(impactsense_model_energy_without[0], linear_terms),
+      exported_spec(impactsense_model_energy_without[1], linear_terms),
+      exported_spec(impactsense_model_energy_without[2], linear_terms),
+      exported_spec(impactsense_model_energy_without[3], linear_terms)};
+  return three;
+}
+#else
+inline const ModelSpec* exported_three_channel() { return nullptr; }
+#endif
+
 // The exported models, their forests (x, y, energy) evaluated by the given functions.
 inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, ForestEvaluator energy) {
 #if IMPACTSENSE_TWIN
@@ -63,7 +78,8 @@ inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, Fo
                      exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0, &twin);
 #else
   return TableModels(exported_spec(impactsense_model_x, x), exported_spec(impactsense_model_y, y),
-                     exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0);
+                     exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0, nullptr,
+                     exported_three_channel());
 #endif
 }
 
