@@ -45,9 +45,11 @@ def exported(request, tmp_path_factory, session_features):
 
 
 def energies(f):
-    """What the twin reads of each event (EventFeatures): window energies, difference energies, flags."""
+    """What the twin and the three-channel classes read of each event (EventFeatures): window energies,
+    difference energies, flags, channel energies."""
     return (np.ascontiguousarray(f.raw["window_energy"], np.float32),
-            np.ascontiguousarray(f.raw["diff_energy"], np.float32), np.ascontiguousarray(f.flags, np.uint8))
+            np.ascontiguousarray(f.raw["diff_energy"], np.float32), np.ascontiguousarray(f.flags, np.uint8),
+            np.ascontiguousarray(f.raw["energy"], np.float32))
 
 
 def test_float32_floor_keeps_sklearn_decisions():
@@ -90,7 +92,12 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
         # config (ref height, prior, cutoff, temperature, coarse cutoff, weak channel); uncertainty (offset, scale,
         # misfit_ref)
         assert summary["trees"]["energy"] == 25 and summary["nodes"]["energy"] <= 3 * 25  # stumps
-    assert summary["table_bytes_total"] == sum(7 * n for n in summary["nodes"].values()) + 4 * n_trees + n_inputs + twin_bytes
+    # without a twin the three-channel classes (height_class.linear_tables per channel: T = 14 terms, 7 inputs;
+    # roots, factors, coef + bias + offset and scale per input, one unused right index)
+    three_bytes = 0 if model.site_map is not None else 4 * (4 * 14 + 3 * 14 + 4 * (14 + 1 + 2 * 7) + 2)
+    assert summary["table_bytes"].get("three_channel", 0) == three_bytes
+    assert summary["table_bytes_total"] == (sum(7 * n for n in summary["nodes"].values()) + 4 * n_trees + n_inputs
+                                            + twin_bytes + three_bytes)
 
 
 @pytest.mark.parametrize("exported", ["twin"], indirect=True)

@@ -125,7 +125,8 @@ def test_linear_model_folder_loads_and_the_emulator_classifies_as_the_host(linea
     assert "#define IMPACTSENSE_ENERGY_LINEAR 1" in (out / "impactsense_models.h").read_text()
     fm, _ = firmware_models(out)
     got = fm.predict(f.vector, f.phys_xy_mm, np.ascontiguousarray(f.raw["window_energy"], np.float32),
-                     np.ascontiguousarray(f.raw["diff_energy"], np.float32), np.ascontiguousarray(f.flags, np.uint8))
+                     np.ascontiguousarray(f.raw["diff_energy"], np.float32), np.ascontiguousarray(f.flags, np.uint8),
+                     np.ascontiguousarray(f.raw["energy"], np.float32))
     ran = f.usable
     assert ran.sum() > 200
     np.testing.assert_array_equal(got[:, 3], ran)

@@ -573,7 +573,7 @@ NB_MODULE(_link, m) {
       .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
       .def_prop_ro("has_twin", [](const PyModels& p) { return p.twin != nullptr; })
       .def("predict", [](const PyModels& p, InF vector, InF phys_xy, nb::object window_energy,
-                         nb::object diff_energy, nb::object flags) {
+                         nb::object diff_energy, nb::object flags, nb::object energy) {
         if (vector.ndim() != 2 || vector.shape(1) != static_cast<size_t>(ic::kNumFeatures)) {
           throw std::invalid_argument("vector must be float32 [n, core feature count]");
         }
@@ -583,8 +583,18 @@ NB_MODULE(_link, m) {
         const size_t r = vector.shape(0);
         // The per-channel energies and flags the twin reads (EventFeatures), when given.
         const bool energies = !window_energy.is_none();
-        InF we, de;
+        const bool channel_energy = !energy.is_none();   // EventFeatures energy (the three-channel classes read it)
+        InF we, de, en;
         InU8 fl;
+        if (energies && !channel_energy && !p.three.empty()) {
+          throw std::invalid_argument("a model with three-channel classes needs each event's energy [n, 4] too");
+        }
+        if (channel_energy) {
+          en = nb::cast<InF>(energy);
+          if (en.ndim() != 2 || en.shape(0) != r || en.shape(1) != ic::kChannels) {
+            throw std::invalid_argument("energy must be float32 [n, 4]");
+          }
+        }
         if (energies) {
           we = nb::cast<InF>(window_energy);
           de = nb::cast<InF>(diff_energy);
@@ -614,6 +624,9 @@ NB_MODULE(_link, m) {
               ch.flags = fl.data()[k * ic::kChannels + c];
             }
           }
+          if (channel_energy) {
+            for (int c = 0; c < ic::kChannels; ++c) ev->features.ch[c].energy = en.data()[k * ic::kChannels + c];
+          }
           float x = NAN, y = NAN;
           uint8_t c = 0;
           const bool ok = p.predict(*ev, &x, &y, &c);
@@ -626,9 +639,10 @@ NB_MODULE(_link, m) {
         size_t shape[2] = {r, 4};
         return nb::ndarray<nb::numpy, float>(out, 2, shape, owner);
       }, "vector"_a, "phys_xy"_a, "window_energy"_a = nb::none(), "diff_energy"_a = nb::none(),
-      "flags"_a = nb::none(),
+      "flags"_a = nb::none(), "energy"_a = nb::none(),
       "Predictions [n, 4]: x_mm, y_mm, energy_class, ran (1/0), from the firmware's forest walker. A twin model "
-      "also needs each event's window_energy [n,4,5], diff_energy [n,4,3] and flags [n,4] (featurize's raw).");
+      "also needs each event's window_energy [n,4,5], diff_energy [n,4,3] and flags [n,4] (featurize's raw); a "
+      "model with three-channel classes given flags also needs energy [n,4].");
 
   nb::class_<PyApp>(m, "App")
       .def(nb::init<nb::dict, nb::object>(), "config"_a = nb::dict(), "models"_a = nb::none())
