@@ -41,6 +41,7 @@ CHECKED = {
     "bench_arrival_glitch": ["--draws", "1"],         # a spike inside an arrival: MAE <= 1.3x clean, class >= 0.95
     "bench_firmware_cost": ["--drops", "6"],          # <= 64,000 instructions an event (needs qemu)
     "bench_board_rigs": ["--drops", "6"],             # each rig's export: flash <= 256 KB, <= 64,000 an event
+    "bench_board_left_out": [],                       # a channel left out: the board's answers are the host's
     "bench_eventlog": ["--reports", "2000"],          # every report stored exactly once
     "bench_rigs": [],                                 # bundled rig (other rigs with --rigs-dir)
     "bench_sim": ["--quick"],                         # FEM drop <= 2 s, >= 20x sparse, 490 drops <= 60 s
