@@ -266,6 +266,14 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   return out;
 }
 
+// Row k, channel c of extract_batch's window_energy [R,4,5] and diff_energy [R,4,3] into ch.
+void copy_energies(const InF& window_energy, const InF& diff_energy, size_t k, int c, ic::ChannelFeatures* ch) {
+  for (int w = 0; w < ic::kEnergyWindows; ++w)
+    ch->window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
+  for (int d = 0; d < ic::kDiffOrders; ++d)
+    ch->diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+}
+
 // The twin's per-channel log-energies of every recording, from extract_batch's arrays (twin.h).
 nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
   const size_t r = rows_of(flags);
@@ -279,10 +287,7 @@ nb::tuple twin_features_batch(InF window_energy, InF diff_energy, InU8 flags) {
   std::memset(&ev, 0, sizeof(ev));
   for (size_t k = 0; k < r; ++k) {
     for (int c = 0; c < ic::kChannels; ++c) {
-      for (int w = 0; w < ic::kEnergyWindows; ++w)
-        ev.ch[c].window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
-      for (int d = 0; d < ic::kDiffOrders; ++d)
-        ev.ch[c].diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+      copy_energies(window_energy, diff_energy, k, c, &ev.ch[c]);
       ev.ch[c].flags = flags.data()[k * ic::kChannels + c];
     }
     usable.data()[k] = ic::twin_features(ev, feats.data() + k * ic::kTwinFeatures);
@@ -306,10 +311,7 @@ nb::ndarray<nb::numpy, float> three_channel_inputs_batch(InF window_energy, InF 
   std::memset(&ev, 0, sizeof(ev));
   for (size_t k = 0; k < r; ++k) {
     for (int c = 0; c < ic::kChannels; ++c) {
-      for (int w = 0; w < ic::kEnergyWindows; ++w)
-        ev.ch[c].window_energy[w] = window_energy.data()[(k * ic::kChannels + c) * ic::kEnergyWindows + w];
-      for (int d = 0; d < ic::kDiffOrders; ++d)
-        ev.ch[c].diff_energy[d] = diff_energy.data()[(k * ic::kChannels + c) * ic::kDiffOrders + d];
+      copy_energies(window_energy, diff_energy, k, c, &ev.ch[c]);
       ev.ch[c].energy = energy.data()[k * ic::kChannels + c];
     }
     ic::three_channel_inputs(ev, phys_xy_mm.data()[2 * k], phys_xy_mm.data()[2 * k + 1], left_out,
