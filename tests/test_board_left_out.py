@@ -91,7 +91,6 @@ def test_without_the_channel_left_out_the_same_tables_report_four_channel_answer
     assert all(r["left_out"] == -1 for r in got.values())
 
 
-@pytest.mark.slow
 def test_export_of_a_retrained_model_keeps_the_channel_left_out(tmp_path, capsys):
     """`impactsense export` of a 100 kHz model with channel_left_out set (as `impactsense retrain` writes it):
     the board's models, trained again on the captures, keep it (card signal) with the three-channel classes;
