@@ -148,3 +148,34 @@ def test_the_generated_three_channel_tables_build_and_run_in_the_firmware(left_o
     assert words[words.index("twin") + 1] == "0"
     assert int(words[words.index("reports") + 1]) == len(session)
     assert int(words[words.index("valid") + 1]) == len(session)
+
+
+def test_a_twin_model_leaves_the_channel_out_on_the_board_as_the_host_does():
+    """The shipped tables (a twin model) with channel 2 left out in their signal settings: every drop of a session
+    with that channel debonded gets a valid report naming it, at the core's twin_match position on the board's
+    captures (the host's ImpactModel.predict calls the same function; 0.05 mm: the wire's 0.1 mm steps)."""
+    from impactsense.board.capture import signal_for_board
+    from impactsense.export import load_tables
+
+    models, signal = firmware_models(ROOT / "models")
+    signal = {**signal, "channel_left_out": [int(c == LEFT_OUT) for c in range(4)]}
+    s2 = load_session("bundled:session-2")
+    session = inject_session(s2.subset(np.arange(0, len(s2), 16)), FaultSpec(debond=LEFT_OUT, debond_hz=4000, seed=1))
+    got = board_reports(session, models, signal)
+    assert len(got) == len(session) and all(r["left_out"] == LEFT_OUT for r in got.values())
+    caps, rows, _ = board_captures(session, 50000, signal)
+    sig = signal_for_board(session.rig, signal, 50000)
+    f = featurize(caps, sig)
+    assert np.all(f.no_onset[:, LEFT_OUT])
+    t = load_tables(ROOT / "models" / "forest_tables.npz")["twin"]
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    nx, ny, x0, y0, step = t["grid"]
+    m = _core.twin_match_batch(
+        np.ascontiguousarray(f.status, np.int32), np.ascontiguousarray(f.flags, np.uint8), f32(f.toa_us),
+        f32(f.raw["window_energy"]), f32(f.raw["diff_energy"]), f32(f.phys_xy_mm), f32(np.full((len(f), 2), np.nan)),
+        sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), float(x0), float(y0),
+        float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]), f32(t["slope"]), f32(t["weight"]),
+        *map(float, t["config"][:4]), float(t["uncertainty"][2]), coarse_cutoff_mm=float(t["config"][4]),
+        weak_channel=int(t["config"][5]))
+    assert np.all(m["status"] == 0) and np.all(m["left_out"] == LEFT_OUT)
+    np.testing.assert_allclose(np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]), m["xy_mm"], atol=0.051)
