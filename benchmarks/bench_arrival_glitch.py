@@ -24,7 +24,7 @@ from impactsense import _core
 from impactsense.models import impact_energy_j
 from impactsense.pipeline import featurize
 
-from bench_faults import bundled_model_and_sessions
+from bench_faults import model_and_sessions
 from benchlib import targets_exit_code
 
 
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-targets", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.time()
-    model, sessions, _ = bundled_model_and_sessions(args.trees)
+    model, sessions, _ = model_and_sessions("bundled", args.trees)
     print(f"{'session / draw':<28} {'MAE mm':>7} {'x clean':>7} {'class':>6} {'glitch':>6} {'moved':>6}")
     misses = []
     for name, s in sessions.items():

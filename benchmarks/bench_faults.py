@@ -1,21 +1,26 @@
 """Lab faults against the pipeline: fault -> MAE / accepted / class, on fault sessions made with
-`impactsense.faults` (the code behind `impactsense inject`) from session-1's held-out split (the model is
-trained on session-1's training split, as `impactsense train bundled` does) and from all of session-2.
+`impactsense.faults` (the code behind `impactsense inject`) from a session's held-out split; the model is
+trained on its training split as `impactsense train DATA` does (default split, the bundled twin's site map
+on the bundled rig, none elsewhere). On the bundled data (the default) all of session-2 is scored too.
 
 Rows: clean; the issue's mix (hum <= 50 counts at 50 Hz, per-record offsets sd 8, glitches in 10 % of
-records, 2 % gain drift, 2 counts of noise); 150 counts of 60 Hz hum with 4 counts of noise; one dead
-channel; one debonded channel (x0.4, first-order 3..5 kHz low-pass); each with --draws fault draws
+records, 2 % gain drift, 2 counts of noise); 150 counts of 60 Hz hum with 4 counts of noise; 50 Hz hum of
+20, 50 and 150 counts with 2 counts of noise; one dead channel; one debonded channel (x0.4, first-order 3..5 kHz low-pass); each with --draws fault draws
 (seeds), the channel of the dead / debonded rows changing with the seed. Columns: MAE (whole plate, mean
 of the x and y MAE, mm) and its ratio to the clean row, the share of drops with a position (predicted),
 the share accepted by Eq. 35, energy class accuracy, and the share of drops whose report flags the bad
 channel (dead / debonded rows).
 
-Targets (issue 14), checked on every draw, exit 1 when one is missed:
-  mix:       MAE <= 1.3 x clean, accepted >= 0.95, class >= 0.95
+Targets (issue 14), checked on every draw against the same drops' clean row, exit 1 when one is missed:
+  mix, and hum up to the mix's 50 counts alone:
+             MAE <= 1.3 x clean, accepted >= 0.95, class >= 0.95
   dead:      MAE <= 2 x clean, flagged 1.00
   debond:    MAE <= 1.5 x clean, flagged >= 0.95
+On a session whose clean row accepts or classifies fewer than 0.95 of its drops, the accepted / class
+targets are the clean row's less one drop. The 150-count hum rows (three times the issue's level) carry no
+target; their MAE and class are printed.
 
-    python benchmarks/bench_faults.py [--draws 2] [--trees 100] [--no-targets] [--json OUT]
+    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--no-targets] [--json OUT]
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import time
 
 import numpy as np
 
-from impactsense.data import load_session
+from impactsense.data import load_session, resolve_session_path
 from impactsense.faults import FaultSpec, inject_session
 from impactsense.models import ForestSettings
 from impactsense.sitemap import resolve_site_map
@@ -39,20 +44,27 @@ SCENARIOS = {
     "mix: hum 50 + offset 8 + glitch 0.1 + drift 2% + noise 2":
         lambda s: FaultSpec(hum=50, offset=8, glitch=0.1, drift=0.02, noise=2, seed=s),
     "hum 150 @ 60 Hz + noise 4": lambda s: FaultSpec(hum=150, hum_hz=60, noise=4, seed=s),
+    "hum 20 @ 50 Hz + noise 2": lambda s: FaultSpec(hum=20, hum_hz=50, noise=2, seed=s),
+    "hum 50 @ 50 Hz + noise 2": lambda s: FaultSpec(hum=50, hum_hz=50, noise=2, seed=s),
+    "hum 150 @ 50 Hz + noise 2": lambda s: FaultSpec(hum=150, hum_hz=50, noise=2, seed=s),
     "dead channel": lambda s: FaultSpec(dead_channel=s % 4, noise=1, seed=s),
     "debonded channel": lambda s: FaultSpec(debond=(s + 2) % 4, seed=s),
 }
-TARGETS = {"mix": (1.3, 0.95, 0.95), "dead": (2.0, None, None), "debond": (1.5, None, None)}
+TARGETS = {"mix": (1.3, 0.95, 0.95), "hum 20 ": (1.3, 0.95, 0.95), "hum 50 ": (1.3, 0.95, 0.95),
+           "dead": (2.0, None, None), "debond": (1.5, None, None)}
 
 
-def bundled_model_and_sessions(trees: int):
-    """The bundled session-1's model on its default training split (`trees` trees, the bundled twin's site
-    map) and the sessions it is scored on: (model, {name: session}, training drops)."""
-    s1 = load_session("bundled")
-    model, split = train(s1, None, 0.2, 0, settings=ForestSettings(n_estimators=trees, seed=0),
-                         site_map=resolve_site_map("auto", s1.rig))
-    sessions = {"session-1 held-out": s1.subset(np.asarray(split["test_recordings"], int)),
-                "session-2": load_session("bundled:session-2")}
+def model_and_sessions(data: str, trees: int):
+    """DATA's model on its default training split (`trees` trees; the site map `train` would take: the bundled
+    twin's on the bundled rig, none elsewhere, the class as `train` chooses it) and the sessions it is scored
+    on: (model, {name: session}, training drops). The bundled data adds all of session-2."""
+    sess = load_session(data)
+    site = resolve_site_map("auto", sess.rig)
+    model, split = train(sess, None, 0.2, 0, settings=ForestSettings(n_estimators=trees, seed=0),
+                         site_map=site, choose_class=site is None)
+    sessions = {f"{sess.name} held-out": sess.subset(np.asarray(split["test_recordings"], int))}
+    if resolve_session_path(data) == resolve_session_path("bundled"):
+        sessions["session-2"] = load_session("bundled:session-2")
     return model, sessions, len(split["train_recordings"])
 
 
@@ -72,18 +84,20 @@ def score(model, session, spec: FaultSpec) -> dict:
             "flagged": flagged_share(rep, bad), "n": rep["n"]}
 
 
-def check(name: str, v: dict, clean_mae: float) -> list[str]:
+def check(name: str, v: dict, clean: dict) -> list[str]:
+    """The missed targets of one fault row against the same drops' clean row."""
     key = next((k for k in TARGETS if name.startswith(k)), None)
     if key is None:
         return []
     ratio, acc, cls = TARGETS[key]
+    one_drop = 1.0 / max(clean["n"], 1)
     miss = []
-    if not v["mae_mm"] <= ratio * clean_mae:
-        miss.append(f"MAE {v['mae_mm']:.2f} > {ratio} x {clean_mae:.2f}")
-    if acc is not None and not v["accepted"] >= acc:
-        miss.append(f"accepted {v['accepted']:.3f} < {acc}")
-    if cls is not None and not v["class"] >= cls:
-        miss.append(f"class {v['class']:.3f} < {cls}")
+    if not v["mae_mm"] <= ratio * clean["mae_mm"]:
+        miss.append(f"MAE {v['mae_mm']:.2f} > {ratio} x {clean['mae_mm']:.2f}")
+    if acc is not None and not v["accepted"] >= (acc := min(acc, clean["accepted"] - one_drop)):
+        miss.append(f"accepted {v['accepted']:.3f} < {acc:.3f}")
+    if cls is not None and not v["class"] >= (cls := min(cls, clean["class"] - one_drop)):
+        miss.append(f"class {v['class']:.3f} < {cls:.3f}")
     if key in ("dead", "debond") and not v["flagged"] >= (1.0 if key == "dead" else 0.95):
         miss.append(f"flagged {v['flagged']:.2f}")
     return miss
@@ -91,14 +105,15 @@ def check(name: str, v: dict, clean_mae: float) -> list[str]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default="bundled", help="session folder (default: the bundled session-1)")
     ap.add_argument("--draws", type=int, default=2, help="fault draws (seeds) per scenario")
     ap.add_argument("--trees", type=int, default=100)
     ap.add_argument("--no-targets", action="store_true", help="print only, exit 0")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     t0 = time.time()
-    model, sessions, n_train = bundled_model_and_sessions(args.trees)
-    print(f"model trained on {n_train} drops of session-1 ({time.time() - t0:.0f} s)")
+    model, sessions, n_train = model_and_sessions(args.data, args.trees)
+    print(f"model trained on {n_train} drops of {args.data} ({time.time() - t0:.0f} s)")
     print(f"{'session / fault':<80} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5}")
     out, misses = {}, []
     for sname, sess in sessions.items():
@@ -106,9 +121,9 @@ def main(argv=None) -> int:
         for name, make in SCENARIOS.items():
             for d in range(1 if name == "clean" else args.draws):
                 v = score(model, sess, make(d))
-                clean = v["mae_mm"] if name == "clean" else clean
+                clean = v if name == "clean" else clean
                 label = f"{sname}: {name}" + ("" if name == "clean" else f" (draw {d})")
-                print(f"{label:<80} {v['mae_mm']:7.2f} {v['mae_mm'] / clean:7.2f} {v['predicted']:5.2f} "
+                print(f"{label:<80} {v['mae_mm']:7.2f} {v['mae_mm'] / clean['mae_mm']:7.2f} {v['predicted']:5.2f} "
                       f"{v['accepted']:6.2f} {v['class']:6.3f} {v['flagged']:5.2f}", flush=True)
                 out[label] = v
                 misses += [f"{label}: {m}" for m in check(name, v, clean)]

@@ -839,11 +839,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   f->flags = bl.glitch_parts > 0 ? kFlagGlitch : 0;
   if (bl.hum) {
     // The hum's slope inflates the baseline's rms: the noise floor is the parts' rms about their own
-    // means less a sinusoid's mean variance about a part's mean, (w A)^2 (L^2 - 1) / 24.
-    const float len = static_cast<float>(cfg.baseline_samples) / 4.0f;
-    const float ramp = bl.w * bl.hum_amp * bl.w * bl.hum_amp * (len * len - 1.0f) / 24.0f;
-    const float v = bl.within_rms * bl.within_rms;
-    f->noise_rms = vsqrt_f32(v - ramp > 0.1f * v ? v - ramp : 0.1f * v);
+    // lines (hum_noise_rms).
+    f->noise_rms = hum_noise_rms(x, bl, cfg.baseline_samples);
     f->hum_counts = bl.hum_amp;
     f->flags |= kFlagHum;
   }
