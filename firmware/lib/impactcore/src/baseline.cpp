@@ -121,33 +121,24 @@ void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline*
 }  // namespace
 
 float hum_noise_rms(const int16_t* x, const Baseline& b, int nb) {
-  // Each kept part's variance about its own least-squares line: sum (x - mean)^2 - Sxt^2 / Stt with
-  // t = 2 i - (a + e - 1) (integers), Stt = L (L^2 - 1) / 3; sigma^2 = their sum / (m - 2 parts).
-  float rss = 0.0f;
+  // robust_level: within_rms^2 (m - kBaselineParts) = sum over the kept parts of their squares about their
+  // means. Each part's line takes Sxt^2 / Stt of that out, t = 2 i - (a + e - 1) (integers), Stt =
+  // L (L^2 - 1) / 3, so sigma^2 = (that sum - sum Sxt^2 / Stt) / (m - 2 parts): one multiply-add a sample.
+  float explained = 0.0f;
   int m = 0, parts = 0;
   for (int p = 0; p < kBaselineParts; ++p) {
     if (!(b.kept_parts & (1u << p))) continue;
     const int a = nb * p / kBaselineParts, e = nb * (p + 1) / kBaselineParts, len = e - a;
-    if (len < 3) continue;
-    int32_t s1 = 0, sxt = 0;
-    int64_t s2 = 0;
-    for (int i = a; i < e; ++i) {
-      s1 += x[i];
-      s2 += static_cast<int64_t>(x[i]) * x[i];
-      sxt += (2 * i - (a + e - 1)) * static_cast<int32_t>(x[i]);
-    }
-    const float l = static_cast<float>(len);
-    const int32_t c = s1 / len;
-    const float mc = static_cast<float>(s1 - c * len) / l;
-    const float ss = int64_to_float(s2 - 2 * static_cast<int64_t>(c) * s1 + static_cast<int64_t>(len) * c * c) - l * mc * mc;
-    const float sxt_f = static_cast<float>(sxt);
-    rss += ss - sxt_f * sxt_f / (l * (l * l - 1.0f) / 3.0f);
+    int32_t sxt = 0;
+    for (int i = a; i < e; ++i) sxt += (2 * i - (a + e - 1)) * static_cast<int32_t>(x[i]);
+    const float l = static_cast<float>(len), st = static_cast<float>(sxt);
+    if (len > 1) explained += st * st / (l * (l * l - 1.0f) / 3.0f);
     m += len;
     ++parts;
   }
   const float v = b.within_rms * b.within_rms;
-  if (m - 2 * parts < 2) return b.within_rms;
-  const float noise = rss / static_cast<float>(m - 2 * parts);
+  if (m - 2 * parts < 2 || m <= kBaselineParts) return b.within_rms;
+  const float noise = (v * static_cast<float>(m - kBaselineParts) - explained) / static_cast<float>(m - 2 * parts);
   return vsqrt_f32(noise > 0.1f * v ? noise : 0.1f * v);
 }
 
