@@ -77,17 +77,10 @@ struct HumFit {
 constexpr int kBaselineParts = 4;
 constexpr float kGlitchVarianceRatio = 16.0f;
 
-// A part's variance about its own mean (the sums of its len samples, centred on an integer near the mean).
-inline float part_variance(const Sums& part, int len) {
-  if (len <= 0) return 0.0f;
-  const int32_t c = part.s1 / len;
-  const float mc = static_cast<float>(part.s1 - c * len) / static_cast<float>(len);
-  return centred_s2(part, len, c) / static_cast<float>(len) - mc * mc;
-}
-
-// The baseline segment's parts: their sums, lengths and variances; returns the quietest part's variance.
-float baseline_parts(const int16_t* x, const Sums* prefix, int n, int nb, Sums part[kBaselineParts],
-                     int len[kBaselineParts], float var[kBaselineParts]) {
+void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline* out) {
+  Sums part[kBaselineParts];
+  int len[kBaselineParts];
+  float var[kBaselineParts];
   float vmin = INFINITY;
   // The parts' boundaries' prefix sums once each (a part ends where the next begins).
   Sums at = prefix_at(x, prefix, n, 0);
@@ -97,26 +90,19 @@ float baseline_parts(const int16_t* x, const Sums* prefix, int n, int nb, Sums p
     part[p] = Sums{next.s2 - at.s2, next.s1 - at.s1};
     at = next;
     len[p] = b - a;
-    var[p] = part_variance(part[p], len[p]);
+    const int32_t c = len[p] > 0 ? part[p].s1 / len[p] : 0;
+    var[p] = len[p] > 0 ? centred_s2(part[p], len[p], c) / static_cast<float>(len[p]) : 0.0f;
+    const float mc = len[p] > 0 ? static_cast<float>(part[p].s1 - c * len[p]) / static_cast<float>(len[p]) : 0.0f;
+    var[p] -= mc * mc;
     if (var[p] < vmin) vmin = var[p];
   }
-  return vmin;
-}
-
-inline bool glitch_part(float var, float vmin) { return var > kGlitchVarianceRatio * vmin + 1.0f; }
-
-void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline* out) {
-  Sums part[kBaselineParts];
-  int len[kBaselineParts];
-  float var[kBaselineParts];
-  const float vmin = baseline_parts(x, prefix, n, nb, part, len, var);
   Sums kept = {0, 0};
   int m = 0;
   float within = 0.0f;
   out->glitch_parts = 0;
   for (int p = 0; p < kBaselineParts; ++p) {
-    if (glitch_part(var[p], vmin)) {
-      ++out->glitch_parts;
+    if (var[p] > kGlitchVarianceRatio * vmin + 1.0f) {
+      out->glitch_parts |= 1 << p;
       continue;
     }
     kept.s1 += part[p].s1;
@@ -132,28 +118,25 @@ void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline*
 
 }  // namespace
 
-float hum_noise_rms(const int16_t* x, const Sums* prefix, int n, const Baseline& b, int nb) {
-  // robust_level's kept parts, each about its own least-squares line: its squares about its mean less
-  // Sxt^2 / Stt, t = 2 i - (a + e - 1) (integers), Stt = L (L^2 - 1) / 3; sigma^2 = their sum / (m - 2 parts).
-  Sums part[kBaselineParts];
-  int len[kBaselineParts];
-  float var[kBaselineParts];
-  const float vmin = baseline_parts(x, prefix, n, nb, part, len, var);
-  float rss = 0.0f;
+float hum_noise_rms(const int16_t* x, const Baseline& b, int nb) {
+  // robust_level: within_rms^2 (m - kBaselineParts) = sum over the kept parts of their squares about their
+  // means. Each part's line takes Sxt^2 / Stt of that out, t = 2 i - (a + e - 1) (integers), Stt =
+  // L (L^2 - 1) / 3, so sigma^2 = (that sum - sum Sxt^2 / Stt) / (m - 2 parts): one multiply-add a sample.
+  float explained = 0.0f;
   int m = 0, parts = 0;
   for (int p = 0; p < kBaselineParts; ++p) {
-    if (glitch_part(var[p], vmin) || len[p] < 2) continue;
-    const int a = nb * p / kBaselineParts, e = a + len[p];
+    if (b.glitch_parts & (1 << p)) continue;
+    const int a = nb * p / kBaselineParts, e = nb * (p + 1) / kBaselineParts, len = e - a;
     int32_t sxt = 0;
     for (int i = a; i < e; ++i) sxt += (2 * i - (a + e - 1)) * static_cast<int32_t>(x[i]);
-    const float l = static_cast<float>(len[p]), st = static_cast<float>(sxt);
-    rss += var[p] * l - st * st / (l * (l * l - 1.0f) / 3.0f);
-    m += len[p];
+    const float l = static_cast<float>(len), st = static_cast<float>(sxt);
+    if (len > 1) explained += st * st / (l * (l * l - 1.0f) / 3.0f);
+    m += len;
     ++parts;
   }
   const float v = b.within_rms * b.within_rms;
-  if (m - 2 * parts < 2) return b.within_rms;
-  const float noise = rss / static_cast<float>(m - 2 * parts);
+  if (m - 2 * parts < 2 || m <= kBaselineParts) return b.within_rms;
+  const float noise = (v * static_cast<float>(m - kBaselineParts) - explained) / static_cast<float>(m - 2 * parts);
   return vsqrt_f32(noise > 0.1f * v ? noise : 0.1f * v);
 }
 

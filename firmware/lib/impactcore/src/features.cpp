@@ -840,7 +840,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   if (bl.hum) {
     // The hum's slope inflates the baseline's rms: the noise floor is the parts' rms about their own
     // lines (hum_noise_rms).
-    f->noise_rms = hum_noise_rms(x, ch.prefix, n, bl, cfg.baseline_samples);
+    f->noise_rms = hum_noise_rms(x, bl, cfg.baseline_samples);
     f->hum_counts = bl.hum_amp;
     f->flags |= kFlagHum;
   }

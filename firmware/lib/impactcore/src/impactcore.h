@@ -295,7 +295,7 @@ struct Baseline {
   float within_rms;   // rms about each part's own mean (a hum's slope barely enters it)
   Sums kept;          // sums of the kept baseline samples ...
   int32_t kept_n;     // ... and how many
-  int32_t glitch_parts;  // baseline parts left out
+  int32_t glitch_parts;  // baseline parts left out (bit p: part p)
   float hum_hz;       // the better-fitting mains frequency (0: too few groups to fit)
   float hum_amp;      // sqrt(c1^2 + c2^2), counts
   float c0, c1, c2;   // the model above (c0: the hum fit's own offset from the level)
@@ -318,7 +318,7 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int baseline_samp
 // The noise floor of a hum channel (hum = 1): the kept baseline parts' rms about each part's own straight
 // line (a hum's slope at the part's phase taken out whatever the model's amplitude there), floored at
 // 0.1 x within_rms^2. Reads the baseline segment's samples again (a hum channel only).
-float hum_noise_rms(const int16_t* x, const Sums* prefix, int n, const Baseline& b, int baseline_samples);
+float hum_noise_rms(const int16_t* x, const Baseline& b, int baseline_samples);
 // sin and cos of a (|error| < 1e-6; no libm).
 void sin_cos(float a, float* s, float* c);
 // The model's departure from the level at sample i: c0 + c1 cos(w i) + c2 sin(w i) (0 without hum).
