@@ -66,3 +66,24 @@ def test_hum_and_noise_at_50khz_do_not_pick_before_the_arrival(drops_50khz):
         total += int(ok.sum())
     assert total > 0.95 * 8 * adc.shape[0] * 4
     assert early <= 0.005 * total, (early, total)
+
+
+def test_the_fault_bench_holds_each_rig_to_its_own_clean_row():
+    """bench_faults --data DATA: the factors apply to DATA's clean row; the accepted / class bars are 0.95, or
+    the clean row's less one drop when a rig's clean row is under 0.95 (a rig whose clean class is 0.90 is not
+    failed by the fault for what it never had; one drop more lost is)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_faults import check
+
+    clean = {"mae_mm": 10.0, "accepted": 0.90, "class": 0.90, "n": 20}
+    ok = {"mae_mm": 12.9, "accepted": 0.85, "class": 0.85, "flagged": float("nan")}
+    assert check("noise 2", ok, clean) == [] and check("hum 50 @ 50 Hz + noise 2", ok, clean) == []
+    worse = {**ok, "mae_mm": 13.1, "class": 0.80}
+    assert len(check("mix: hum 50 + offset 8", worse, clean)) == 2
+    assert check("hum 150 @ 60 Hz + noise 4", worse, clean) == []        # three times the issue's level: no target
+    good_rig = {"mae_mm": 1.0, "accepted": 1.0, "class": 0.99, "n": 150}
+    assert len(check("mix", {**ok, "mae_mm": 1.2, "accepted": 0.96, "class": 0.94}, good_rig)) == 1
+    assert check("dead channel", {**ok, "mae_mm": 1.9, "flagged": 0.99}, good_rig) == ["flagged 0.99"]
