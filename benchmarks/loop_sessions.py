@@ -8,11 +8,12 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
 
 - `ref`                   the reference session (the twin of the rig as declared)
 - `same-1 .. same-5`      unchanged: other positions, other position jitter and noise draws
-- `move-<deg>`            FEM: one sensor glued 5-10 mm away in direction <deg> (0, 45, ..., 315), rig.json
+- `move-<deg>`            FEM: one sensor glued 5-10 mm away in direction <deg> (0, 45, ..., 315 on seed 0;
+                          another seed rotates the eight and permutes the sensors), rig.json
                           still declaring the old centre; the sensor rotates with the direction, so some moves
                           point along the sensor's look direction (nearly a constant delay) and some across
-- `stiffness`             FEM: plate E -8 %
-- `damping`               FEM: plate damping D_s +20 %
+- `stiffness`             FEM: plate E -8 % (another seed: -6 .. -10 %)
+- `damping`               FEM: plate damping D_s +20 % (another seed: +15 .. +25 %)
 - `bond`                  one disc's bond: a first-order shear-lag low-pass (RC, not the library's Butterworth)
                           with a gain loss, on FEM drops
 - `delay`, `gain`, `hum`, `noise`  signal level on FEM drops: a channel's cubic-spline time shift, a
@@ -42,21 +43,37 @@ DIRECTIONS_DEG = tuple(range(0, 360, 45))
 N_SAME = 5
 
 
+def layout_draw(seed: int) -> tuple[float, list[int], float, float]:
+    """(rotation of the 8 move directions in deg, the sensor moved in direction j (sensors[j % 4]), E scale,
+    D_s scale). Seed 0 is the canonical draw of docs/findings.md's tables (the compass directions, sensor j % 4,
+    E -8 %, D_s +20 %); any other seed draws them (its own stream, so the sizes drawn below are the same
+    numbers for a seed either way): directions rotated by up to +-22.5 deg, the sensors permuted, E -6 .. -10 %,
+    D_s +15 .. +25 %."""
+    if seed == 0:
+        return 0.0, [0, 1, 2, 3], 0.92, 1.20
+    rng = np.random.default_rng(seed + 2000)
+    offset = round(float(rng.uniform(-22.5, 22.5)), 1)
+    sensors = [int(k) for k in rng.permutation(4)]
+    return offset, sensors, round(float(1 - rng.uniform(0.06, 0.10)), 4), round(float(1 + rng.uniform(0.15, 0.25)), 4)
+
+
 def spec_list(seed: int) -> list[dict]:
     """Every session's truth (drawn from `seed`: the kinds are fixed, the sizes and sensors are drawn)."""
     rng = np.random.default_rng(seed + 1000)
+    offset_deg, sensors, e_scale, damping_scale = layout_draw(seed)
     specs = [{"name": "ref", "kind": "none", "seed": seed}]
     specs += [{"name": f"same-{k}", "kind": "none", "seed": seed + k} for k in range(1, N_SAME + 1)]
-    for j, deg in enumerate(DIRECTIONS_DEG):
+    for j, deg0 in enumerate(DIRECTIONS_DEG):
         r = float(rng.uniform(5.0, 10.0))
+        deg = (deg0 + offset_deg) % 360
         th = np.deg2rad(deg)
-        specs.append({"name": f"move-{deg}", "kind": "fem", "seed": seed + 10 + j,
-                      "truth": {"effect": "sensor_position", "sensor": j % 4,
+        specs.append({"name": f"move-{int(round(deg)) % 360}", "kind": "fem", "seed": seed + 10 + j,
+                      "truth": {"effect": "sensor_position", "sensor": sensors[j % 4],
                                 "params": {"dx_mm": round(r * np.cos(th), 3), "dy_mm": round(r * np.sin(th), 3)}}})
     specs.append({"name": "stiffness", "kind": "fem", "seed": seed + 20,
-                  "truth": {"effect": "wave_speed", "sensor": None, "params": {"e_scale": 0.92}}})
+                  "truth": {"effect": "wave_speed", "sensor": None, "params": {"e_scale": e_scale}}})
     specs.append({"name": "damping", "kind": "fem", "seed": seed + 21,
-                  "truth": {"effect": "damping", "sensor": None, "params": {"damping_scale": 1.20}}})
+                  "truth": {"effect": "damping", "sensor": None, "params": {"damping_scale": damping_scale}}})
     specs.append({"name": "bond", "kind": "signal", "seed": seed + 22,
                   "truth": {"effect": "channel_lowpass", "sensor": int(rng.integers(4)),
                             "params": {"fc_hz": round(float(rng.uniform(2500, 5000)), 1),
