@@ -224,8 +224,10 @@ def pick_settings(session, accepted):
     raised white noise floor was diagnosed (material: >= the noise effect's min_white_counts); then the
     onset_noise_factor among NOISE_FACTOR_SCALES x the configured one whose travel fit (with its own absolute
     threshold and AIC blend) has the smallest robust spread on the training drops, kept only when
-    CLEARLY_BETTER than the one before it (ties keep the configured one)."""
+    CLEARLY_BETTER than the one before it (ties keep the configured one) and when the training drops' physics
+    MAE under it (the localiser fitted on them) is not above the one before it's."""
     from .effects import EFFECTS
+    from .pipeline import fit_localiser, physics_mae
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
@@ -238,15 +240,20 @@ def pick_settings(session, accepted):
     if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) >= floor for c in accepted):
         return SignalConfig.for_rig(session.rig, **given) if given else None
     base = SignalConfig.for_rig(session.rig, **given)
-    best, best_spread = None, np.inf
+    rows = np.arange(len(session))
+    best, best_spread, best_mae = None, np.inf, np.inf
     for scale in sorted(NOISE_FACTOR_SCALES, reverse=True):   # the configured one first: ties keep it
         cfg = SignalConfig.for_rig(session.rig, onset_noise_factor=float(base.onset_noise_factor) * scale, **given)
         try:
             _, _, fit, _ = choose_threshold(session.adc, session.xy_mm, cfg, wants_metric(session.rig))
         except ValueError:
             continue
-        if fit.spread_mm < CLEARLY_BETTER * best_spread:
-            best, best_spread = cfg, fit.spread_mm
+        # the travel spread is robust: it does not see drops whose onset was a crossing in the noise, which
+        # the positions do (a lower threshold near the noise's extremes): a factor is kept only when the
+        # training drops' physics positions, with the localiser fitted as `train` fits it, are not worse
+        mae = physics_mae(session, rows, fit_localiser(session, rows, cfg))
+        if fit.spread_mm < CLEARLY_BETTER * best_spread and mae <= best_mae:
+            best, best_spread, best_mae = cfg, fit.spread_mm, mae
     return best
 
 
