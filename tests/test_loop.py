@@ -233,3 +233,25 @@ def test_timing_picker_chosen_by_heldout_dtoa_fem(fem):
     h = halves(R.repick(fem["base"], F, picker))
     assert h["site"] < PICKER_GAIN * halves(F)["site"], (picker, trials)
     assert h["site"] >= h["within_case"] - 0.5, h
+
+
+def test_pick_settings_keeps_a_lower_noise_factor_only_when_the_positions_are_not_worse(monkeypatch):
+    """The travel spread is robust, so it does not see drops whose onset was a crossing in the noise; a lower
+    noise factor that the spread prefers is refused when the training drops' physics MAE is worse under it
+    (here both figures are stand-ins: the spread falls with the factor, the positions are set per factor)."""
+    from types import SimpleNamespace
+
+    from impactsense import loop as L
+    from impactsense import pipeline, travel
+    from impactsense.signal import SignalConfig
+    base = load_session("bundled:session-1").subset(np.arange(12))
+    configured = float(SignalConfig.for_rig(base.rig).onset_noise_factor)
+    monkeypatch.setattr(travel, "choose_threshold", lambda adc, xy, cfg, aniso: (
+        10.0, 0.35, SimpleNamespace(spread_mm=float(cfg.onset_noise_factor)), []))
+    monkeypatch.setattr(pipeline, "fit_localiser", lambda session, rows, cfg, **kw: cfg)
+    for mae_of_scale, want in (({1.0: 2.0, 0.8: 5.0, 0.6: 5.5}, 1.0),    # onsets in the noise: keep the rig's
+                               ({1.0: 2.0, 0.8: 2.0, 0.6: 1.9}, 0.6)):   # positions no worse: the spread decides
+        monkeypatch.setattr(pipeline, "physics_mae", lambda session, rows, cfg, m=mae_of_scale: m[
+            round(float(cfg.onset_noise_factor) / configured, 3)])
+        cfg = L.pick_settings(base, [_noise_candidate(6.0)])
+        assert float(cfg.onset_noise_factor) == pytest.approx(configured * want)
