@@ -28,8 +28,9 @@ does not rest on one choice; each must meet the targets, and the mean and worst 
 --trace: each step runs under a sampler of its process tree (cputrace.py): the wall two idle cores would take,
 from each slice's CPU and how many of the step's threads wanted a core then; the chain's target is judged on
 it instead of CPU / 2 (a stage that keeps one core busy takes its CPU, not half of it).
-Each row records whether the chain's model kept the travel refit on its calibration drops, per pick set
-(`travel_refit_kept`: calibration_drops.refit_evidence; only on plates whose localiser fits a travel metric).
+Each row records the travel metric's a the chain's model read from its calibration drops and its prior (the
+twin's), per pick set (`travel_refit_metric_a`: calibration_drops.map_travel_refit; only on plates whose
+localiser fits a travel metric).
 Then bench_rigs.score: the measured-trained model (train + evaluate, default split) and the naive reference
 (threshold picks + random forest on the DToA, same split). Targets: zero-shot whole-plate MAE <= 4.0 mm and
 class >= 0.95 on every rig; on the bundled rig (`bundled`) MAE <= 1.6 mm; calibrate + virtual set + site map +
@@ -92,8 +93,10 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
            "calibrate_stage_wall_s": calj.get("wall_time_s"), "calibrate_stage_cpu_s": calj.get("cpu_time_s"),
            "element_mm": calj["sim_params"].get("element_mm"), "laminate": calj["plate"].get("laminate"),
            "calibration_cases": calj["drops"]["case_ids"],
-           "travel_refit_kept": {name: e["kept"] for name, e in (json.loads((model / "model_card.json").read_text())
-                                 .get("travel_refit_on_calibration_drops") or {}).get("evidence", {}).items()}}
+           "travel_refit_metric_a": {name: [round((r["travel_metric"][0] - r["travel_metric"][2]) / 2, 3),
+                                            round(r["prior"]["metric_a"], 3)]
+                                     for name, r in (json.loads((model / "model_card.json").read_text())
+                                                     .get("travel_refit_on_calibration_drops") or {}).items()}}
     if trace:
         row["idle_wall_estimate_s"] = {k: round(t["idle_wall_estimate_s"], 1) for k, t in traces.items()}
         row["busy_cores"] = {k: round(t["busy_cores"], 2) for k, t in traces.items()}
@@ -260,7 +263,8 @@ def main() -> int:
             print(f"{'':10s} the chain's model on the demo's test drops: MAE {same['mae_mm']:.2f} (inner "
                   f"{same['inner_mae_mm']:.2f}), class {same['class'] or float('nan'):.3f}, n {same['n']}")
         print(f"{'':10s} calibration cases {r['calibration_cases']}"
-              + (f"; travel refit kept: {r['travel_refit_kept']}" if r.get("travel_refit_kept") else ""))
+              + (f"; travel metric a from the calibration drops [MAP, twin's prior]: {r['travel_refit_metric_a']}"
+                 if r.get("travel_refit_metric_a") else ""))
         if "idle_wall_estimate_s" in r:
             print(f"{'':10s} idle 2-core wall estimate {r['chain_idle_wall_estimate_s']:.0f} s: "
                   + ", ".join(f"{k} {v:.0f} s ({r['busy_cores'][k]:.2f} cores busy)"

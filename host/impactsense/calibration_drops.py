@@ -4,6 +4,8 @@ picks' constants, on an anisotropic plate the travel models themselves, and the 
 (docs/method.md, zero-shot; `zeroshot` puts them together)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -12,7 +14,8 @@ from .errors import DataError
 from .models import ARRIVAL_ENERGY_FEATURES, columns
 from .pipeline import distances_mm, featurize
 from .signal import SignalConfig
-from .travel import fit_travel, picks, slowness_scales, summed_log_energy, travel_distances
+from .travel import (TravelPrior, fit_travel, fit_travel_map, picks, slowness_scales, summed_log_energy,
+                     travel_distances)
 
 
 def calibration_rows(session: Session, cal: dict) -> np.ndarray:
@@ -145,6 +148,116 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
         out.band_metric_xx, out.band_metric_xy, out.band_metric_yy = bfit.metric
         record.update(band_velocity_mm_per_us=bfit.velocity_mm_per_us, band_delay_us=list(bfit.delays_us),
                       band_metric=list(bfit.metric))
+    return out, record
+
+
+# The dispersion exponent's prior sd: alpha lies in [0, 1] (Kirchhoff's A0: 1/2), the range +- 2 sd.
+ALPHA_SD = 0.25
+
+
+def travel_priors(signal: SignalConfig, rig) -> dict[str, TravelPrior]:
+    """The priors of the travel refit on the calibration drops (map_travel_refit), per pick set: centred on
+    `signal`'s travel models (the virtual drops', i.e. the calibrated twin's), each constant as uncertain as
+    the rig and its material leave it:
+    - the channel delays: one sample interval of the logger (1 / fs_hz): a multiplexed logger's scan skew
+      stays within one sample, and the electronics' and bonds' delays are a few us;
+    - the slowness: the material's modulus prior (E or E1, `materials`), whose range is taken as +- 2 sd,
+      through the flexural wave's slowness ~ E^(-1/4) (sd of ln slowness = ln(hi / lo) / 16);
+    - the metric's a and b: materials.travel_metric_sd (the spread of the ellipse over the material's prior
+      range of E1, E2, G12; 0 on a known isotropic plate, which never refits);
+    - the dispersion exponent: ALPHA_SD (the band picks have none)."""
+    from .materials import material_for_rig, travel_metric_sd
+
+    mat = material_for_rig(rig)
+    modulus = mat.e1_pa if mat.orthotropic else mat.e_pa
+    sd_ln_slowness = float(np.log(modulus.hi / modulus.lo) / 16.0) if modulus.hi > modulus.lo else 0.02
+    common = {"sd_ln_slowness": max(sd_ln_slowness, 0.02), "sd_delay_us": 1e6 / float(signal.fs_hz),
+              "sd_metric": travel_metric_sd(mat)}
+    out = {"threshold": TravelPrior(
+        slowness_us_per_mm=1.0 / signal.velocity_mm_per_us, delays_us=tuple(float(v) for v in signal.rig_delay_us),
+        a=(signal.travel_metric_xx - signal.travel_metric_yy) / 2, b=signal.travel_metric_xy,
+        alpha=float(signal.dispersion_exponent), ref_hz=float(signal.dispersion_ref_hz), sd_alpha=ALPHA_SD,
+        **common)}
+    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
+        out["band"] = TravelPrior(
+            slowness_us_per_mm=1.0 / signal.band_velocity_mm_per_us,
+            delays_us=tuple(float(v) for v in signal.band_delay_us),
+            a=(signal.band_metric_xx - signal.band_metric_yy) / 2, b=signal.band_metric_xy, alpha=0.0,
+            ref_hz=float(signal.dispersion_ref_hz), sd_alpha=0.0, **common)
+    return out
+
+
+def case_scatter(toa_us: np.ndarray, xy_mm: np.ndarray) -> float:
+    """The robust sd of one pick between repetitions of a case (drop-centred picks minus their case's median,
+    1.4826 MAD, with the n / (n - 1) of a median's own error); NaN when no case repeats."""
+    toa = np.asarray(toa_us, float)
+    ok = np.isfinite(toa).all(1)
+    toa, xy = toa[ok] - toa[ok].mean(1, keepdims=True), np.asarray(xy_mm, float)[ok]
+    groups = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    dev = [((toa[groups == g] - np.median(toa[groups == g], 0)) * np.sqrt(n / (n - 1))).ravel()
+           for g in np.unique(groups) for n in [int((groups == g).sum())] if n > 1]
+    return float(1.4826 * np.median(np.abs(np.concatenate(dev)))) if dev else float("nan")
+
+
+def map_travel_refit(session: Session, rows: np.ndarray, signal: SignalConfig,
+                     virtual_signal: SignalConfig) -> tuple[SignalConfig, dict]:
+    """On a plate whose localiser models elliptical wavefronts (travel.wants_metric), the travel models read
+    from the calibration drops `rows` at their known positions as far as those drops determine them and no
+    further: the maximum a posteriori fit (travel.fit_travel_map) of the threshold picks' slowness, delays,
+    metric and dispersion and of the band picks' slowness, delays and metric, with priors at the virtual drops'
+    constants (`virtual_signal`, the calibrated twin's) and the sds of travel_priors. The noise is the picks'
+    own: their scatter between repetitions of a case (case_scatter) and, shared by a case's repetitions, the
+    travel model's misfit on the virtual drops (virtual_signal.sigma_us). Four repeatable cases move the
+    constants to the rig's; four whose repetitions scatter by a cycle leave them near the twin's.
+    `signal` is the model's after the channel gains (the threshold picks depend on the amplitude); the onset
+    threshold, AIC blend, band frequency and the energy slowness's slope stay the virtual drops'. Returns the
+    signal with the refitted constants and the record (per pick set: prior, fit, posterior sd, noise)."""
+    xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
+    priors = travel_priors(virtual_signal, session.rig)
+    model_sd = float(virtual_signal.sigma_us)
+    out = SignalConfig.from_dict(signal.to_dict())
+    record = {}
+
+    def fit(name, toa, period=None):
+        pick_sd = case_scatter(toa, xy)
+        pick_sd = pick_sd if np.isfinite(pick_sd) and pick_sd > 0 else model_sd
+        f, post = fit_travel_map(toa, xy, sensors, priors[name], pick_sd, model_sd, period,
+                                 signal.fs_hz if period is not None else None)
+        p = priors[name]
+        record[name] = {"velocity_mm_per_us": f.velocity_mm_per_us, "delays_us": list(f.delays_us),
+                        "travel_metric": list(f.metric), "dispersion_exponent": f.dispersion_exponent,
+                        "posterior_sd": post, "pick_sd_us": pick_sd, "model_sd_us": model_sd,
+                        "prior": {"velocity_mm_per_us": 1.0 / p.slowness_us_per_mm, "delays_us": list(p.delays_us),
+                                  "metric_a": p.a, "metric_b": p.b, "alpha": p.alpha,
+                                  "sd_ln_slowness": p.sd_ln_slowness, "sd_delay_us": p.sd_delay_us,
+                                  "sd_metric": p.sd_metric, "sd_alpha": p.sd_alpha}}
+        return f
+
+    toa, period = picks(session.adc[rows], signal, with_period=True)
+    known = np.isfinite(period) & (period > 0)
+    if priors["threshold"].alpha == 0 and known.any():   # no dispersion in the twin: its slowness is the one
+        # at the rig's picked frequencies
+        priors["threshold"] = replace(priors["threshold"], ref_hz=float(np.median(signal.fs_hz / period[known])))
+    try:
+        f = fit("threshold", toa, period)
+    except DataError:
+        return signal, {}
+    out.velocity_mm_per_us, out.rig_delay_us = f.velocity_mm_per_us, list(f.delays_us)
+    out.travel_metric_xx, out.travel_metric_xy, out.travel_metric_yy = f.metric
+    out.dispersion_exponent, out.dispersion_ref_hz = f.dispersion_exponent, f.dispersion_ref_hz
+    if "band" in priors:
+        raw = featurize(session.adc[rows], _band_picking(signal)).raw
+        band = raw["toa_band_us"].astype(float)
+        if signal.band_slowness_per_decade:     # the energy slowness's slope stays the virtual drops'
+            d = travel_distances(xy, sensors, (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy))
+            loud = summed_log_energy(raw["energy"], signal.fs_hz) - signal.band_log_energy_ref
+            band = band - d * signal.band_slowness_per_decade * loud[:, None]
+        try:
+            bf = fit("band", band)
+        except DataError:
+            return out, record
+        out.band_velocity_mm_per_us, out.band_delay_us = bf.velocity_mm_per_us, list(bf.delays_us)
+        out.band_metric_xx, out.band_metric_xy, out.band_metric_yy = bf.metric
     return out, record
 
 

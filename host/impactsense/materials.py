@@ -205,6 +205,49 @@ def equivalent_isotropic_ratio(mat) -> float:
     return d_eq * (1.0 - nu12 ** 2) / e1
 
 
+def _ray_metrics(e1, e2, g12, nu12, axis_deg: float = 0.0) -> np.ndarray:
+    """kirchhoff_ray_metric of arrays of constants: [N, 3]."""
+    e1, e2, g12 = (np.atleast_1d(np.asarray(v, float))[:, None] for v in (e1, e2, g12))
+    q = 1.0 - nu12 * nu12 * e2 / e1
+    d11, d22, d12, d66 = e1 / q, e2 / q, nu12 * e2 / q, g12
+    phi = np.radians(np.arange(0.0, 360.0, 1.0))
+    c, s = np.cos(phi), np.sin(phi)
+    k = (d11 * c ** 4 + 2 * (d12 + 2 * d66) * c * c * s * s + d22 * s ** 4) ** -0.25          # [N, P], material axes
+    theta = np.radians(np.arange(0.0, 180.0, 2.0))
+    k_ray = np.max(k[:, None, :] * np.cos(phi[None, None, :] - theta[None, :, None]), axis=2)   # [N, T]
+    t = theta + math.radians(axis_deg)                                                      # the plate's axes
+    ct, st = np.cos(t), np.sin(t)
+    coef = np.linalg.lstsq(np.c_[ct * ct, 2 * ct * st, st * st], (k_ray ** 2).T, rcond=None)[0].T   # [N, 3]
+    return coef * (2.0 / (coef[:, 0] + coef[:, 2]))[:, None]
+
+
+def kirchhoff_ray_metric(e1_pa: float, e2_pa: float, g12_pa: float, nu12: float, axis_deg: float = 0.0,
+                         ) -> tuple[float, float, float]:
+    """The elliptical travel metric (Q_xx, Q_xy, Q_yy; trace 2, travel.py) closest to a Kirchhoff orthotropic
+    plate's flexural ray slowness: along a ray at theta the far field travels with the stationary phase of the
+    plane waves, k_ray(theta) = max_phi k(phi) cos(phi - theta), k(phi) ~ D(phi)^(-1/4) (calibration.laminate);
+    the ray's slowness squared, ~k_ray^2, is fitted by Q_xx c^2 + 2 Q_xy c s + Q_yy s^2 over the directions
+    (least squares, then scaled to trace 2). The same at every frequency (Kirchhoff's k ~ sqrt(omega) factors
+    out). An ellipse is what the localiser models; a laminate whose D66 is large departs from it (a cos 4 theta
+    part the fit leaves)."""
+    return tuple(float(v) for v in _ray_metrics(e1_pa, e2_pa, g12_pa, nu12, axis_deg)[0])
+
+
+def travel_metric_sd(mat: Material, draws: int = 400, seed: int = 0) -> float:
+    """How far a plate's elliptical travel metric may lie from what one expects of its material (1 sd of the
+    metric's a = (Q_xx - Q_yy) / 2, kirchhoff_ray_metric): an orthotropic material's E1, E2 and G12 drawn
+    log-uniformly over their prior ranges (E2 <= E1: axis 1 is the stiff one), nu12 at its value; 0 for a
+    known isotropic material (its wavefronts are circles); an unknown material gets the widest of the table's
+    orthotropic materials (it might be any of them)."""
+    if not mat.orthotropic:
+        return 0.0 if mat.known else max(travel_metric_sd(m, draws, seed) for _, m in TABLE if m.orthotropic)
+    rng = np.random.default_rng(seed)
+    e1, e2, g12 = (np.exp(rng.uniform(math.log(p.lo), math.log(p.hi), 4 * draws))
+                   for p in (mat.e1_pa, mat.e2_pa, mat.g12_pa))
+    keep = np.flatnonzero((e2 <= e1) & (mat.nu12.value ** 2 * e2 < e1))[:draws]
+    q = _ray_metrics(e1[keep], e2[keep], g12[keep], mat.nu12.value)
+    return float(np.std((q[:, 0] - q[:, 2]) / 2))
+
 def density_warning(rig, mat: Material) -> str | None:
     """A line when rig.json's density lies outside the material's range (a typo or another material)."""
     rho = float(getattr(rig, "density_kg_m3", float("nan")))
@@ -236,5 +279,5 @@ def flexural_group_velocity_mm_per_us(mat: Material, thickness_mm: float, densit
 
 
 __all__ = ["Prior", "Material", "TABLE", "UNKNOWN", "lookup", "material_for_rig", "density_warning",
-           "equivalent_isotropic_ratio",
+           "equivalent_isotropic_ratio", "kirchhoff_ray_metric", "travel_metric_sd",
            "flexural_group_velocity_mm_per_us", "ISOTROPIC", "ORTHOTROPIC"]

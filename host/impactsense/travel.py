@@ -22,6 +22,7 @@ decides and nothing is tuned to one plate.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -225,3 +226,85 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
         chosen = best
     table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
     return chosen["onset_threshold_counts"], chosen["aic_blend"], chosen["fit"], table
+
+
+@dataclass(frozen=True)
+class TravelPrior:
+    """What a travel model's constants are expected to be before a few drops at known positions are read, and
+    how far off that may be (1 sd): the slowness [us/mm] (sd in ln), the channel delays [us, channel 0 first],
+    the metric's a, b (Q = [[1 + a, b], [b, 1 - a]]) and the dispersion exponent (with its reference frequency)."""
+
+    slowness_us_per_mm: float
+    delays_us: tuple[float, float, float, float]
+    a: float
+    b: float
+    alpha: float
+    ref_hz: float
+    sd_ln_slowness: float
+    sd_delay_us: float
+    sd_metric: float
+    sd_alpha: float
+
+
+def _soft_l1_root(r: np.ndarray, scale: float) -> np.ndarray:
+    """The signed root of the soft-L1 loss 2 c^2 (sqrt(1 + (r / c)^2) - 1): r near 0, ~sqrt(2 c |r|) far out."""
+    return np.sign(r) * scale * np.sqrt(2.0 * (np.sqrt(1.0 + (r / scale) ** 2) - 1.0))
+
+
+def fit_travel_map(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, prior: TravelPrior,
+                   pick_sd_us: float, model_sd_us: float, period_samples: np.ndarray | None = None,
+                   fs_hz: float | None = None) -> tuple[TravelFit, dict]:
+    """The travel model ToA_ik = t0_k + |p_k - s_i|_Q s (f_ik / f_ref)^-alpha + delay_i (fit_travel's) from a few
+    drops at known positions, as the maximum a posteriori estimate under `prior`: the drops' centred residuals
+    weighted by their noise, each constant pulled toward the prior by its sd. Drops at one position share that
+    position's model error (model_sd_us, the travel law's own misfit), so a case of n repetitions counts as
+    one observation of variance pick_sd^2 / n + model_sd^2, not n; the residuals pass a soft-L1 at pick_sd_us
+    (a cycle slip of one drop does not steer the fit). What the drops determine moves; what they do not stays
+    at the prior. Dispersion is fitted when the picks' periods are given and the prior's alpha sd is > 0.
+    Returns the fit (its spread the robust sd of the residuals) and the posterior sd of each constant (the
+    Gauss-Newton covariance at the optimum)."""
+    toa = np.asarray(toa_us, float)
+    ok = np.isfinite(toa).all(1)
+    if ok.sum() < 2:
+        raise DataError("calibration drops", "adc", f"only {int(ok.sum())} have an onset on every channel (need 2)")
+    toa, xy = toa[ok], np.asarray(xy_mm, float)[ok]
+    groups = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    n_case = np.bincount(groups)[groups].astype(float)
+    weight = 1.0 / np.sqrt(pick_sd_us ** 2 + n_case * model_sd_us ** 2)          # [K]
+    periods = None
+    if period_samples is not None and fs_hz is not None and prior.sd_alpha > 0:
+        periods = np.asarray(period_samples, float)[ok]
+    p0 = np.r_[np.log(prior.slowness_us_per_mm), prior.delays_us[1:], prior.a, prior.b, prior.alpha]
+    sd = np.maximum(np.r_[prior.sd_ln_slowness, [prior.sd_delay_us] * 3, prior.sd_metric, prior.sd_metric,
+                          prior.sd_alpha], 1e-9)      # a zero sd pins the constant at the prior
+
+    def unpack(p):
+        return math.exp(p[0]), np.r_[0.0, p[1:4]], metric_of(p[4], p[5]), (p[6] if periods is not None else 0.0)
+
+    def centred_residuals(p):
+        s, delay, q, alpha = unpack(p)
+        d = travel_distances(xy, sensor_xy_mm, q)
+        if periods is not None:
+            d = d * slowness_scales(periods, fs_hz, alpha, prior.ref_hz)
+        return _centred(toa - d * s - delay[None])
+
+    def residuals(p):
+        r = _soft_l1_root(centred_residuals(p), pick_sd_us) * weight[:, None]
+        return np.r_[r.ravel(), (p - p0) / sd]
+
+    lo = np.r_[-np.inf, [-np.inf] * 3, -0.9, -0.9, 0.0]
+    hi = np.r_[np.inf, [np.inf] * 3, 0.9, 0.9, 1.0]
+    sol = least_squares(residuals, np.clip(p0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), x_scale=sd)
+    s, delay, q, alpha = unpack(sol.x)
+    r = centred_residuals(sol.x)
+    fit = TravelFit(velocity_mm_per_us=float(1.0 / s), delays_us=[float(v) for v in delay],
+                    metric=tuple(float(v) for v in q), spread_us=float(1.4826 * np.median(np.abs(r))),
+                    n=int(ok.sum()), dispersion_exponent=float(alpha), dispersion_ref_hz=float(prior.ref_hz))
+    try:
+        cov = np.linalg.inv(sol.jac.T @ sol.jac)
+        post = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        post = sd
+    names = ("ln_slowness", "delay_1_us", "delay_2_us", "delay_3_us", "metric_a", "metric_b", "alpha")
+    posterior = {n: float(v) for n, v in zip(names, post) if n != "alpha" or periods is not None}
+    return fit, posterior

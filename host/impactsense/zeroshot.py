@@ -44,9 +44,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from .calibration_drops import (calibration_rows, determined_refit, fit_band_on_calibration_drops,
-                                fit_channels_on_calibration_drops, fit_energy_offsets, refit_evidence,
-                                refit_travel_metric)
+from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops, fit_channels_on_calibration_drops,
+                                fit_energy_offsets, map_travel_refit)
 from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .height_class import class_cut
@@ -138,11 +137,8 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     band = fit_band_on_calibration_drops(session, rows, cal_sim, virtual_signal, gains)
     if band is not None:
         model.signal.band_delay_us, model.signal.band_velocity_mm_per_us = band
-    if wants_metric(session.rig):
-        refitted, refit = refit_travel_metric(session, rows, model.signal)
-        if refit:   # kept only as far as the four drops determine it (Akaike, the picks' repeat scatter)
-            refit["evidence"] = refit_evidence(session, rows, model.signal, refitted)
-            model.signal = determined_refit(model.signal, refitted, refit["evidence"])
+    if wants_metric(session.rig):   # as far as the four drops determine it: a MAP with the twin's as prior
+        model.signal, refit = map_travel_refit(session, rows, model.signal, virtual_signal)
         model.card["travel_refit_on_calibration_drops"] = refit
     if site is not None:
         fit_twin_on_calibration_drops(model, session, rows, site)

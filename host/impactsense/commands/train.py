@@ -62,15 +62,17 @@ def parse_exclude(text):
 
 
 def print_travel_refit(fits: dict) -> dict:
-    """Prints whether each pick set's travel model refitted on the calibration drops was kept
-    (calibration_drops.refit_evidence); returns `fits` (adapt's record)."""
+    """Prints, per pick set, the travel model read from the calibration drops against its prior, the twin's
+    (calibration_drops.map_travel_refit: what the drops determine moves, the rest stays); returns `fits`."""
     refit = fits.get("travel_refit_on_calibration_drops") or {}
-    for name, e in (refit.get("evidence") or {}).items():
-        verdict = "kept" if e["kept"] else "not kept"
-        why = (f"explains their picks better by chi {e['chi']:.1f} in units of the repeats' scatter, "
-               f"{e['pick_sd_us']:.1f} us; Akaike needs > {e['needed']:.0f}" if e["chi"] is not None
-               else "the cases do not repeat: no scatter to judge by")
-        print(f"{name} picks' travel model refitted on the calibration drops: {verdict} ({why})")
+    for name, r in refit.items():
+        p, sd = r["prior"], r["posterior_sd"]
+        a = (r["travel_metric"][0] - r["travel_metric"][2]) / 2
+        print(f"{name} picks' travel model from the calibration drops (the twin's as prior): "
+              f"v {r['velocity_mm_per_us']:.3f} mm/us (twin {p['velocity_mm_per_us']:.3f}), metric a {a:+.3f} +- "
+              f"{sd['metric_a']:.3f} (twin {p['metric_a']:+.3f} +- {p['sd_metric']:.3f}), delays "
+              f"{', '.join(f'{d:+.1f}' for d in r['delays_us'][1:])} us +- {sd['delay_1_us']:.1f} (prior sd "
+              f"{p['sd_delay_us']:.1f}); picks scatter {r['pick_sd_us']:.1f} us between repetitions")
     return fits
 
 
