@@ -11,6 +11,7 @@ from scipy.optimize import least_squares
 
 from .data import Session
 from .errors import DataError
+from .materials import material_for_rig, travel_metric_sd
 from .models import ARRIVAL_ENERGY_FEATURES, columns
 from .pipeline import distances_mm, featurize
 from .signal import SignalConfig
@@ -115,10 +116,10 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
     threshold picks; velocity, delays and metric of the band picks when they are on, at the virtual drops'
     band frequency and fraction, the energy slowness's slope kept). The twin's anisotropy is the calibration's
     fast model's guess, and the FEM's picks do not follow it closely (docs/findings.md, the zero-shot section
-    on the laminate: the FEM twin against the measured DToA), so on such a plate the measured picks' own travel
-    model reads the rig better than the twin's corrected by delays and a speed
-    (fit_channels_on_calibration_drops); the onset threshold, AIC blend and band choice stay the virtual
-    drops'. Returns (signal unchanged and {} when fewer than 8 drops have every pick; else the refitted
+    on the laminate: the FEM twin against the measured DToA). Unregularised: what many drops at known
+    positions say (bench_zeroshot_diagnosis reads it on the calibration drops plus more cases); four drops
+    go through map_travel_refit, which moves only as far as they determine. The onset threshold, AIC blend
+    and band choice stay the virtual drops'. Returns (signal unchanged and {} when fewer than 8 drops have every pick; else the refitted
     signal and the record of the fit)."""
     toa, period = picks(session.adc[rows], signal, with_period=True)
     xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
@@ -166,8 +167,6 @@ def travel_priors(signal: SignalConfig, rig) -> dict[str, TravelPrior]:
     - the metric's a and b: materials.travel_metric_sd (the spread of the ellipse over the material's prior
       range of E1, E2, G12; 0 on a known isotropic plate, which never refits);
     - the dispersion exponent: ALPHA_SD (the band picks have none)."""
-    from .materials import material_for_rig, travel_metric_sd
-
     mat = material_for_rig(rig)
     modulus = mat.e1_pa if mat.orthotropic else mat.e_pa
     sd_ln_slowness = float(np.log(modulus.hi / modulus.lo) / 16.0) if modulus.hi > modulus.lo else 0.02
@@ -259,86 +258,6 @@ def map_travel_refit(session: Session, rows: np.ndarray, signal: SignalConfig,
         out.band_velocity_mm_per_us, out.band_delay_us = bf.velocity_mm_per_us, list(bf.delays_us)
         out.band_metric_xx, out.band_metric_xy, out.band_metric_yy = bf.metric
     return out, record
-
-
-def travel_residuals(session: Session, rows: np.ndarray, signal: SignalConfig) -> dict[str, np.ndarray]:
-    """The localiser's travel models (`signal`'s constants) on the drops `rows` at their known positions: each
-    pick set's residual, picks minus modelled arrival (ToA_ik = t0_k + |p_k - s_i|_Q s_ik + delay_i, s_ik the
-    slowness with the dispersion or energy term), centred per drop (t0_k), [R, 4] us. "threshold" always,
-    "band" when the band picks are on."""
-    xy, sensors = np.asarray(session.xy_mm, float)[rows], signal.sensor_xy_mm
-    toa, period = picks(session.adc[rows], signal, with_period=True)
-    d = travel_distances(xy, sensors, (signal.travel_metric_xx, signal.travel_metric_xy, signal.travel_metric_yy))
-    d = d * slowness_scales(period, signal.fs_hz, signal.dispersion_exponent, signal.dispersion_ref_hz)
-    out = {"threshold": toa - d / signal.velocity_mm_per_us - np.asarray(signal.rig_delay_us, float)[None]}
-    if signal.band_pick_hz > 0 and signal.band_velocity_mm_per_us > 0:
-        raw = featurize(session.adc[rows], _band_picking(signal)).raw
-        d = travel_distances(xy, sensors, (signal.band_metric_xx, signal.band_metric_xy, signal.band_metric_yy))
-        slowness = 1.0 / signal.band_velocity_mm_per_us
-        if signal.band_slowness_per_decade:
-            loud = summed_log_energy(raw["energy"], signal.fs_hz) - signal.band_log_energy_ref
-            slowness = slowness + signal.band_slowness_per_decade * loud[:, None]
-        out["band"] = raw["toa_band_us"].astype(float) - d * slowness - np.asarray(signal.band_delay_us, float)[None]
-    return {k: r - r.mean(1, keepdims=True) for k, r in out.items()}
-
-
-# The constants of each pick set's travel model that refit_travel_metric fits.
-TRAVEL_FIELDS = {
-    "threshold": ("velocity_mm_per_us", "rig_delay_us", "travel_metric_xx", "travel_metric_xy", "travel_metric_yy",
-                  "dispersion_exponent", "dispersion_ref_hz"),
-    "band": ("band_velocity_mm_per_us", "band_delay_us", "band_metric_xx", "band_metric_xy", "band_metric_yy"),
-}
-
-
-def refit_evidence(session: Session, rows: np.ndarray, before: SignalConfig, after: SignalConfig) -> dict:
-    """Per pick set (threshold, band), whether the calibration drops determine its travel refit
-    (refit_travel_metric: `after`) better than the constants it replaces (`before`: the virtual drops' travel
-    models with the channel delays and speeds of the calibration drops): Akaike's rule with the picks' noise
-    known from the repetitions of each calibration case. chi = (RSS_before - RSS_after) / sigma^2, RSS the
-    travel residuals' sum of squares (travel_residuals) and sigma^2 the pooled variance of a pick between
-    repetitions of one case (per centred entry); the set's refit is kept when chi > 2 k, k the parameters it
-    fits beyond the delays and speed `before` already took from the same drops (the metric's two, and the
-    threshold picks' dispersion exponent when they have one). Four drops whose repetitions disagree (cycle
-    slips, a hand-release scatter) leave a refit that fits them no better than their own scatter allows: the
-    model then reads the rig with `before` (docs/findings.md, "Zero-shot: a guard on the travel refit").
-    Returns {set: {"kept", "chi", "needed", "pick_sd_us"}}; a set whose cases do not repeat (no noise
-    estimate) is kept with chi None."""
-    groups = np.unique(np.round(np.asarray(session.xy_mm, float)[rows], 1), axis=0, return_inverse=True)[1].ravel()
-    r_before, r_after = travel_residuals(session, rows, before), travel_residuals(session, rows, after)
-    out = {}
-    for name, ra in r_after.items():
-        rb = r_before[name]
-        ok = np.isfinite(ra).all(1) & np.isfinite(rb).all(1)
-        var = repeat_variance(ra[ok], groups[ok])
-        if not np.isfinite(var) or var <= 0:
-            out[name] = {"kept": True, "chi": None, "needed": None, "pick_sd_us": None}
-            continue
-        chi = float(((rb[ok] ** 2).sum() - (ra[ok] ** 2).sum()) / var)
-        k = 2 + (1 if name == "threshold" and after.dispersion_exponent > 0 else 0)
-        out[name] = {"kept": bool(chi > 2 * k), "chi": chi, "needed": float(2 * k), "pick_sd_us": float(np.sqrt(var))}
-    return out
-
-
-def determined_refit(before: SignalConfig, after: SignalConfig, evidence: dict) -> SignalConfig:
-    """`before` with the travel constants of each pick set whose refit the evidence keeps (refit_evidence)."""
-    fields = before.to_dict()
-    refitted = after.to_dict()
-    for name, e in evidence.items():
-        if e["kept"]:
-            fields.update({f: refitted[f] for f in TRAVEL_FIELDS[name]})
-    return SignalConfig.from_dict(fields)
-
-
-def repeat_variance(residual: np.ndarray, groups: np.ndarray) -> float:
-    """Pooled variance between repetitions of one case of drop-centred residuals [R, 4], per entry (each
-    drop's four centred values carry three degrees of freedom); NaN when no case repeats."""
-    ss, dof = 0.0, 0
-    for g in np.unique(groups):
-        r = residual[groups == g]
-        if len(r) > 1:
-            ss += float(((r - r.mean(0)) ** 2).sum())
-            dof += 3 * (len(r) - 1)
-    return ss / dof if dof else float("nan")
 
 
 def _band_picking(signal: SignalConfig) -> SignalConfig:

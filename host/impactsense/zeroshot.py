@@ -11,7 +11,7 @@ the rig's electronics and bonds, which the plate model cannot know) are fitted a
 ToA, and measured over simulated energy, on those drops; so is the twin's error in the picks' group velocity
 (the part of measured minus simulated ToA that grows with the path length: a few per cent between the twin's
 picks and the rig's, docs/findings.md; uncorrected, that scale error of the physics position is one the
-sim-trained forests cannot undo); so are the band picks' delays and speed, the same way (fit_band_on_calibration_drops), and on a plate with elliptical wavefronts the localiser's travel models themselves (refit_travel_metric: the twin's anisotropy is the weakest part of it); and so is the twin's spectral tilt: the measured
+sim-trained forests cannot undo); so are the band picks' delays and speed, the same way (fit_band_on_calibration_drops), and on a plate with elliptical wavefronts the localiser's travel models themselves, as far as the four drops determine them (map_travel_refit: a MAP with the twin's constants as the prior; the twin's anisotropy is the weakest part of it); and so is the twin's spectral tilt: the measured
 minus simulated arrival energies and difference energies (log10, summed over sensors) of those drops, by
 which the virtual drops' energy features are shifted before the energy classifier is trained (the twin's
 mesh and sensor model lose some of the highest frequencies: a constant offset per feature, while the features' growth with the drop height matches the rig's).
@@ -125,8 +125,8 @@ def adapt_to_rig(model, session: Session, rows: np.ndarray, cal_sim: np.ndarray,
     """The sim-trained model made to read the rig, from the calibration drops `rows` (cal_sim their
     simulated twins, virtual_signal the localiser fitted on the virtual drops): channel delays, gains and
     the rig's group velocity, the band picks' delays and velocity (fit_band_on_calibration_drops), on a plate
-    with elliptical wavefronts the travel models refitted on the calibration drops (refit_travel_metric), each
-    pick set's kept only when the drops determine it (refit_evidence; the record in model.card), and with a
+    with elliptical wavefronts the travel models read from the calibration drops as far as they determine
+    them (map_travel_refit: the virtual drops' constants as the prior; its record in model.card), and with a
     site map the twin's offsets and weights. The delays the capture
     itself puts on the channels (the board's SAADC scan, model.signal.capture_delay_us) are in both the
     measured and the simulated drops and stay as they are. Returns (the rig's delays, gains, velocity)."""
