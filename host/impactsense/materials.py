@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import re
+from functools import lru_cache
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -233,6 +234,7 @@ def kirchhoff_ray_metric(e1_pa: float, e2_pa: float, g12_pa: float, nu12: float,
     return tuple(float(v) for v in _ray_metrics(e1_pa, e2_pa, g12_pa, nu12, axis_deg)[0])
 
 
+@lru_cache(maxsize=32)
 def travel_metric_sd(mat: Material, draws: int = 400, seed: int = 0) -> float:
     """How far a plate's elliptical travel metric may lie from what one expects of its material (1 sd of the
     metric's a = (Q_xx - Q_yy) / 2, kirchhoff_ray_metric): an orthotropic material's E1, E2 and G12 drawn
