@@ -271,6 +271,7 @@ def fit_travel_map(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarr
     groups = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
     n_case = np.bincount(groups)[groups].astype(float)
     weight = 1.0 / np.sqrt(pick_sd_us ** 2 + n_case * model_sd_us ** 2)          # [K]
+    outlier_us = math.hypot(pick_sd_us, model_sd_us)     # a drop's residual beyond its expected size
     periods = None
     if period_samples is not None and fs_hz is not None and prior.sd_alpha > 0:
         periods = np.asarray(period_samples, float)[ok]
@@ -289,7 +290,7 @@ def fit_travel_map(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarr
         return _centred(toa - d * s - delay[None])
 
     def residuals(p):
-        r = _soft_l1_root(centred_residuals(p), pick_sd_us) * weight[:, None]
+        r = _soft_l1_root(centred_residuals(p), outlier_us) * weight[:, None]
         return np.r_[r.ravel(), (p - p0) / sd]
 
     lo = np.r_[-np.inf, [-np.inf] * 3, -0.9, -0.9, 0.0]
