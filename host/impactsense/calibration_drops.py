@@ -154,6 +154,8 @@ def refit_travel_metric(session: Session, rows: np.ndarray, signal: SignalConfig
 
 # The dispersion exponent's prior sd: alpha lies in [0, 1] (Kirchhoff's A0: 1/2), the range +- 2 sd.
 ALPHA_SD = 0.25
+# The slowness's prior sd in ln: uninformative (a factor e).
+SLOWNESS_SD_LN = 1.0
 
 
 def travel_priors(signal: SignalConfig, rig) -> dict[str, TravelPrior]:
@@ -162,15 +164,13 @@ def travel_priors(signal: SignalConfig, rig) -> dict[str, TravelPrior]:
     the rig and its material leave it:
     - the channel delays: one sample interval of the logger (1 / fs_hz): a multiplexed logger's scan skew
       stays within one sample, and the electronics' and bonds' delays are a few us;
-    - the slowness: the material's modulus prior (E or E1, `materials`), whose range is taken as +- 2 sd,
-      through the flexural wave's slowness ~ E^(-1/4) (sd of ln slowness = ln(hi / lo) / 16);
+    - the slowness: not held (SLOWNESS_SD_LN): the four drops fix it to a few per cent, while the twin's own
+      speed carries the calibration's modulus, which four unrepeatable cases can leave 2x off;
     - the metric's a and b: materials.travel_metric_sd (the spread of the ellipse over the material's prior
       range of E1, E2, G12; 0 on a known isotropic plate, which never refits);
     - the dispersion exponent: ALPHA_SD (the band picks have none)."""
     mat = material_for_rig(rig)
-    modulus = mat.e1_pa if mat.orthotropic else mat.e_pa
-    sd_ln_slowness = float(np.log(modulus.hi / modulus.lo) / 16.0) if modulus.hi > modulus.lo else 0.02
-    common = {"sd_ln_slowness": max(sd_ln_slowness, 0.02), "sd_delay_us": 1e6 / float(signal.fs_hz),
+    common = {"sd_ln_slowness": SLOWNESS_SD_LN, "sd_delay_us": 1e6 / float(signal.fs_hz),
               "sd_metric": travel_metric_sd(mat)}
     out = {"threshold": TravelPrior(
         slowness_us_per_mm=1.0 / signal.velocity_mm_per_us, delays_us=tuple(float(v) for v in signal.rig_delay_us),
