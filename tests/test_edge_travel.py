@@ -118,7 +118,7 @@ def edge_model(session1, tmp_path_factory):
 
 
 def test_the_edge_members_join_the_mean(edge_model):
-    from impactsense.models import EDGE_MEMBERS, POSITION_MEMBERS, edge_positions
+    from impactsense.position_members import EDGE_MEMBERS, POSITION_MEMBERS, edge_positions
 
     model, without, feats, _ = edge_model
     assert set(model.members) == set(POSITION_MEMBERS + EDGE_MEMBERS)
@@ -179,13 +179,13 @@ def test_the_board_refits_a_model_with_edge_members(edge_model):
 def test_too_few_positions_are_not_tried(session1, monkeypatch):
     """Eight shared coefficients fitted on drops at a few positions pass the rule on those same drops (they fit
     them): under EDGE_MIN_SITES distinct positions the correction is not tried."""
-    import impactsense.models as models
+    from impactsense import position_members
     from impactsense.pipeline import featurize
 
     rows = np.flatnonzero(session1.case_id < 12)
-    assert len(np.unique(np.round(session1.xy_mm[rows], 1), axis=0)) < models.EDGE_MIN_SITES
+    assert len(np.unique(np.round(session1.xy_mm[rows], 1), axis=0)) < position_members.EDGE_MIN_SITES
     cfg = SignalConfig.for_rig(session1.rig)
     feats = featurize(session1.adc[rows], cfg)
-    assert models.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is None
-    monkeypatch.setattr(models, "EDGE_MIN_SITES", 0)
-    assert models.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is not None
+    assert position_members.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is None
+    monkeypatch.setattr(position_members, "EDGE_MIN_SITES", 0)
+    assert position_members.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is not None

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from impactsense.export import ExportError, load_models
-from impactsense.models import LOCATION_FEATURES, POSITION_MEMBERS, ForestSettings, ImpactModel, member_positions
+from impactsense.models import LOCATION_FEATURES, ForestSettings, ImpactModel
+from impactsense.position_members import POSITION_MEMBERS, member_positions
 from impactsense.pipeline import featurize
 from impactsense.signal import SignalConfig
 

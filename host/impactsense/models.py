@@ -29,9 +29,11 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
+from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
+                               edge_coefficients_ok, edge_positions, member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
-from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty
+from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
 from .twin import estimate as twin_estimate
 from .twin_oof import out_of_fold_twin, twin_choice  # noqa: F401 (twin_choice: models' API)
 
@@ -59,26 +61,6 @@ ENERGY_FEATURES = ["phys_x_mm", "phys_y_mm", *ARRIVAL_ENERGY_FEATURES]
 MEASURED_ENERGY_FEATURES = ENERGY_FEATURES + [n for n in FEATURE_NAMES if n.startswith(
     ("log_energy_rel_", "log_energy_mean", "log_first_peak_"))]
 MODEL_FILES = {"x": "forest_dx.npz", "y": "forest_dy.npz", "energy": "forest_energy.npz"}   # forestfile.py
-# With the band picks on (impactcore band_onset) the physics position is the mean of the threshold picks' and
-# the band picks' own; two more forest pairs then correct each of those two positions (their x, y in place of
-# the mean's in the location features) and the reported position is the mean of the three corrected ones:
-# their errors differ, and the mean is closer on every split of both other rigs (docs/findings.md, "Band
-# picks on three channels; three corrected positions"). Only the host runs them: the board's models
-# (board/models.py) keep one pair.
-POSITION_MEMBERS = ("threshold", "band")
-# With the edge correction of the arrival times kept (edge_travel.py, chosen by the training drops), three more
-# members: the physics, threshold and band positions the localiser gives on the corrected picks, each with its
-# forest pair; the reported position is then the mean over every member that placed the drop (docs/findings.md
-# "Edge images in the travel time").
-EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
-MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
-                for axis in "xy"}
-# The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
-# (the rule of pipeline.STARTS_GAIN). It is tried only with drops at this many distinct positions or more (five
-# per coefficient of a pick set: its bases change over the plate, near every edge): on fewer the eight numbers
-# fitted on the drops that judge them pass the rule by fitting those drops.
-EDGE_GAIN = 0.97
-EDGE_MIN_SITES = 40
 SITE_MAP_FILE = "site_map.npz"
 # With a site map the energy classifier reads the twin's height estimate only (twin.py): bagged stumps,
 # i.e. a threshold on log10 height learned with its uncertainty.
@@ -137,83 +119,6 @@ def three_channel_rows(features: Features) -> np.ndarray:
             & np.isfinite(features.phys_xy_mm).all(1))
 
 
-def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.ndarray, signal: SignalConfig) -> dict:
-    """The core's twin_match (twin.h; the board's TableModels runs the same) of every row: the twin's match
-    around start_xy_mm (the forests' position; NaN rows: the forests did not run, and with one channel
-    without an onset the physics three-sensor position starts it), leaving out a channel whose energies
-    the twin cannot explain with the others'. Returns log10_height_mm, xy_mm, spread_mm, misfit, status,
-    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row."""
-    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
-    raw = features.raw
-    misfit_ref = float(getattr(fit, "uncertainty_misfit_ref", 0.0) or 0.0)
-    return _core.twin_match_batch(
-        np.ascontiguousarray(features.status, np.int32), np.ascontiguousarray(features.flags, np.uint8),
-        f32(features.toa_us), f32(raw["window_energy"]), f32(raw["diff_energy"]), f32(features.phys_xy_mm),
-        f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
-        site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
-        f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
-        _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)))
-
-
-def member_positions(features: Features) -> dict[str, np.ndarray] | None:
-    """The threshold picks' and the band picks' own positions [R, 2] (POSITION_MEMBERS; the core's physics
-    position is their mean where the band picks placed the drop, the threshold picks' alone elsewhere), NaN
-    where the band picks did not place the drop; None when no row has a band position."""
-    band = features.raw.get("band_xy_mm")
-    if band is None:
-        return None
-    band = np.asarray(band, float)
-    ok = np.isfinite(band).all(1)
-    if not ok.any():
-        return None
-    threshold = np.where(ok[:, None], 2.0 * np.asarray(features.phys_xy_mm, float) - band, np.nan)
-    return {"threshold": threshold, "band": np.where(ok[:, None], band, np.nan)}
-
-
-def threshold_positions(features: Features) -> np.ndarray:
-    """The threshold picks' own position of every row [R, 2]: the core's physics position where the band picks
-    did not place the drop."""
-    positions = member_positions(features)
-    phys = np.asarray(features.phys_xy_mm, float)
-    if positions is None:
-        return phys
-    return np.where(np.isfinite(positions["threshold"]).all(1)[:, None], positions["threshold"], phys)
-
-
-def edge_positions(features: Features, signal: SignalConfig, coefs: dict) -> dict[str, np.ndarray]:
-    """EDGE_MEMBERS' positions [R, 2] (NaN where that member did not place the drop): the localiser on the picks
-    corrected by edge_travel's coefficients, from the core's own positions."""
-    from .edge_travel import positions
-
-    band = member_positions(features)
-    out = positions(features.raw, signal, coefs, threshold_positions(features),
-                    None if band is None else band["band"])
-    return {"physics_edge": out["physics"], "threshold_edge": out["threshold"], "band_edge": out["band"]}
-
-
-def choose_edge_travel(features: Features, xy_mm: np.ndarray, signal: SignalConfig) -> dict | None:
-    """edge_travel's coefficients per pick set fitted on these (training) drops, when the corrected physics
-    positions are clearly closer to the truth (EDGE_GAIN), else None (also with drops at fewer than
-    EDGE_MIN_SITES positions)."""
-    from .edge_travel import fit_correction
-
-    if not features.usable.any() or len(np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0)) < EDGE_MIN_SITES:
-        return None
-    coefs = {"threshold": fit_correction(features.raw, xy_mm, signal, "threshold"), "band": None}
-    if coefs["threshold"] is None:
-        return None
-    if member_positions(features) is not None and float(signal.band_velocity_mm_per_us) > 0:
-        coefs["band"] = fit_correction(features.raw, xy_mm, signal, "band")
-    xy = np.asarray(xy_mm, float)
-    new = edge_positions(features, signal, coefs)["physics_edge"]
-    old = np.asarray(features.phys_xy_mm, float)
-    ok = np.isfinite(new).all(1) & np.isfinite(old).all(1)
-    if not ok.any():
-        return None
-    gain = float(np.mean(np.abs(new[ok] - xy[ok]))) < EDGE_GAIN * float(np.mean(np.abs(old[ok] - xy[ok])))
-    return coefs if gain else None
-
-
 def _member_inputs(X_loc: np.ndarray, base: np.ndarray) -> np.ndarray:
     """The location features with the physics position's columns replaced by a member's position."""
     out = np.array(X_loc, float, copy=True)
@@ -221,15 +126,21 @@ def _member_inputs(X_loc: np.ndarray, base: np.ndarray) -> np.ndarray:
     return out
 
 
-def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:
-    """The localiser's per-channel travel-time factors of every row (impactcore dispersion_scales), flat; empty
-    without dispersion (all 1)."""
-    if not getattr(signal, "dispersion_exponent", 0.0):
-        return []
-    from .travel import slowness_scales
-
-    return slowness_scales(features.raw["pick_period"], signal.fs_hz, signal.dispersion_exponent,
-                           signal.dispersion_ref_hz).astype(np.float32).ravel().tolist()
+def _fit_member_pairs(bases: dict, X_loc: np.ndarray, xy: np.ndarray, settings: ForestSettings,
+                      all_or_none: bool) -> dict:
+    """A forest pair per member position (name -> base [R, 2], NaN where the member did not place the drop) on
+    the rows it placed, learning the correction to the truth from the location features with the member's x, y
+    (_member_inputs); a member on fewer than 10 rows is left out (all_or_none: then none is kept)."""
+    out = {}
+    for name, base in bases.items():
+        rows = np.isfinite(base).all(1)
+        if rows.sum() < 10:
+            if all_or_none:
+                return {}
+            continue
+        Xm = _member_inputs(X_loc[rows], base[rows])
+        out[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
+    return out
 
 
 @dataclass
@@ -283,14 +194,8 @@ class ImpactModel:
         member_forests = {}
         positions = member_positions(features.take(np.flatnonzero(use))) if members else None
         if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
-            for name in POSITION_MEMBERS:
-                base = positions[name]
-                rows = np.isfinite(base).all(1)
-                if rows.sum() < 10:
-                    member_forests = {}
-                    break
-                Xm = _member_inputs(X[rows][:, loc_cols], base[rows])
-                member_forests[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
+            member_forests = _fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS},
+                                               X[:, loc_cols], xy, settings, all_or_none=True)
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
@@ -329,13 +234,8 @@ class ImpactModel:
             edge = choose_edge_travel(train, xy, signal) or {}
             card["edge_travel_chosen"] = bool(edge)
             if edge:
-                for name, base in edge_positions(train, signal, edge).items():
-                    rows = np.isfinite(base).all(1)
-                    if rows.sum() < 10:
-                        continue
-                    Xm = _member_inputs(X[rows][:, loc_cols], base[rows])
-                    member_forests[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k])
-                                                 for k in range(2))
+                member_forests.update(_fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
+                                                        settings, all_or_none=False))
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
@@ -375,37 +275,7 @@ class ImpactModel:
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
                 spread[use, k] = per_tree.std(0)
-            positions = member_positions(features) if any(n in self.members for n in POSITION_MEMBERS) else None
-            count = np.ones(n)
-            if positions is not None:
-                # where the band picks placed the drop: the mean of the three corrected positions
-                rows = np.flatnonzero(use & np.isfinite(positions["band"]).all(1))
-                if rows.size:
-                    Xm = features.vector[rows][:, columns(self.location_features)]
-                    total = xy[rows].copy()
-                    for name in POSITION_MEMBERS:
-                        base = positions[name][rows]
-                        Xb = _member_inputs(Xm, base)
-                        total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
-                    xy[rows] = total / (1 + len(POSITION_MEMBERS))
-                    count[rows] = 1 + len(POSITION_MEMBERS)
-            if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS):
-                # the edge members join the mean where they placed the drop
-                rows = np.flatnonzero(use)
-                edge = edge_positions(features.take(rows), self.signal, self.edge_travel)
-                Xm = features.vector[rows][:, columns(self.location_features)]
-                total, k = xy[rows] * count[rows, None], count[rows].copy()
-                for name in EDGE_MEMBERS:
-                    if name not in self.members:
-                        continue
-                    ok = np.isfinite(edge[name]).all(1)
-                    if not ok.any():
-                        continue
-                    base = edge[name][ok]
-                    Xb = _member_inputs(Xm[ok], base)
-                    total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
-                    k[ok] += 1
-                xy[rows] = total / k[:, None]
+            self._join_members(features, use, xy)
             if self.site_map is None:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(self.energy_class_features)])
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
@@ -448,6 +318,42 @@ class ImpactModel:
                 inconsistent = ok & np.isin(np.asarray(twin["reason"]), (_core.TWIN_INCONSISTENT, _core.TWIN_WEAK_CHANNEL))
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
+
+    def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
+        """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
+        the band and threshold picks' pairs and the edge members."""
+        n = len(features)
+        positions = member_positions(features) if any(n in self.members for n in POSITION_MEMBERS) else None
+        count = np.ones(n)
+        if positions is not None:
+            # where the band picks placed the drop: the mean of the three corrected positions
+            rows = np.flatnonzero(use & np.isfinite(positions["band"]).all(1))
+            if rows.size:
+                Xm = features.vector[rows][:, columns(self.location_features)]
+                total = xy[rows].copy()
+                for name in POSITION_MEMBERS:
+                    base = positions[name][rows]
+                    Xb = _member_inputs(Xm, base)
+                    total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
+                xy[rows] = total / (1 + len(POSITION_MEMBERS))
+                count[rows] = 1 + len(POSITION_MEMBERS)
+        if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS):
+            # the edge members join the mean where they placed the drop
+            rows = np.flatnonzero(use)
+            edge = edge_positions(features.take(rows), self.signal, self.edge_travel)
+            Xm = features.vector[rows][:, columns(self.location_features)]
+            total, k = xy[rows] * count[rows, None], count[rows].copy()
+            for name in EDGE_MEMBERS:
+                if name not in self.members:
+                    continue
+                ok = np.isfinite(edge[name]).all(1)
+                if not ok.any():
+                    continue
+                base = edge[name][ok]
+                Xb = _member_inputs(Xm[ok], base)
+                total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
+                k[ok] += 1
+            xy[rows] = total / k[:, None]
 
     # ----- persistence -----
     def save(self, out_dir: str | Path, extra_card: dict | None = None, force: bool = False) -> Path:
@@ -569,7 +475,7 @@ class ImpactModel:
             raise DataError(card_path, "position_members",
                             f"must list names from {list(POSITION_MEMBERS + EDGE_MEMBERS)}")
         edge = card.get("edge_travel", {})
-        if any(n in EDGE_MEMBERS for n in names) and not _edge_coefficients_ok(edge):
+        if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
             raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
                                                       "[numbers] or null} (edge_travel.N_BASES each)")
         if names and loc != LOCATION_FEATURES:
@@ -592,14 +498,3 @@ class ImpactModel:
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
                    energy_class_features=list(energy), members=members, three_channel_class=three_channel,
                    edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {})
-
-
-def _edge_coefficients_ok(edge) -> bool:
-    from .edge_travel import N_BASES
-
-    def numbers(v) -> bool:
-        return (isinstance(v, list) and len(v) == N_BASES
-                and all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v))
-
-    return (isinstance(edge, dict) and set(edge) == {"threshold", "band"} and numbers(edge["threshold"])
-            and (edge["band"] is None or numbers(edge["band"])))

@@ -9,6 +9,7 @@ estimate itself is the core's twin_estimate (C++, the board's code) through the 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,10 @@ from scipy.optimize import minimize
 from . import _core
 from .errors import DataError
 from .sitemap import N_FEATURES, SiteMap
+
+if TYPE_CHECKING:
+    from .pipeline import Features
+    from .signal import SignalConfig
 
 KINDS = 4   # arrival, Delta^1, Delta^2, Delta^3 per channel (channel-major features)
 
@@ -180,3 +185,32 @@ def fit_uncertainty(spread_mm, misfit, error_mm) -> dict:
     if not (res.success and a + b * s.min() > 0):
         a, b = 0.0, b0     # the plain scale (its own maximum-likelihood value)
     return {"uncertainty_offset_mm": a, "uncertainty_scale": b, "uncertainty_misfit_ref": ref}
+
+
+def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.ndarray, signal: SignalConfig) -> dict:
+    """The core's twin_match (twin.h; the board's TableModels runs the same) of every row: the twin's match
+    around start_xy_mm (the forests' position; NaN rows: the forests did not run, and with one channel
+    without an onset the physics three-sensor position starts it), leaving out a channel whose energies
+    the twin cannot explain with the others'. Returns log10_height_mm, xy_mm, spread_mm, misfit, status,
+    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row."""
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    raw = features.raw
+    misfit_ref = float(getattr(fit, "uncertainty_misfit_ref", 0.0) or 0.0)
+    return _core.twin_match_batch(
+        np.ascontiguousarray(features.status, np.int32), np.ascontiguousarray(features.flags, np.uint8),
+        f32(features.toa_us), f32(raw["window_energy"]), f32(raw["diff_energy"]), f32(features.phys_xy_mm),
+        f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
+        site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
+        f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
+        _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)))
+
+
+def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:
+    """The localiser's per-channel travel-time factors of every row (impactcore dispersion_scales), flat; empty
+    without dispersion (all 1)."""
+    if not getattr(signal, "dispersion_exponent", 0.0):
+        return []
+    from .travel import slowness_scales
+
+    return slowness_scales(features.raw["pick_period"], signal.fs_hz, signal.dispersion_exponent,
+                           signal.dispersion_ref_hz).astype(np.float32).ravel().tolist()

@@ -28,7 +28,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     choose_twin: keep the site map's twin only when the training drops' out-of-fold figures say so
     (twin_oof.twin_choice; a measured session's calibrated twin). choose_class: without a site map, the energy
     class from the classifier forest or the linear estimate, as those figures say (height_class.py), and the edge
-    correction of the arrival times when the training drops' physics positions say so (models.choose_edge_travel).
+    correction of the arrival times when the training drops' physics positions say so (position_members.choose_edge_travel).
     members False: one forest pair on the physics position (no position members: what the board runs)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)

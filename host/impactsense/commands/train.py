@@ -76,6 +76,18 @@ def print_travel_refit(fits: dict) -> dict:
     return fits
 
 
+def print_choices(card: dict) -> None:
+    """What the training drops chose for the model (its card): the edge correction, the energy class's kind."""
+    if "edge_travel_chosen" in card:
+        print("edge correction of the arrival times (training drops' physics positions): "
+              f"{'kept, three more position members' if card['edge_travel_chosen'] else 'not kept'}")
+    energy = card.get("energy_class_choice")
+    if energy:
+        print(f"energy class: {'linear estimate of log m g h' if energy['use_linear'] else 'classifier forest'} "
+              f"(training drops, out of fold: linear {energy['linear_class_accuracy']:.3f} / forest "
+              f"{energy['forest_class_accuracy']:.3f})")
+
+
 def run(args) -> int:
     from ..data import load_session
     from ..errors import ConfigError
@@ -118,14 +130,7 @@ def run(args) -> int:
               f"MAE {choice['twin_mae_mm']:.2f} mm with it / {choice['forest_mae_mm']:.2f} without, class "
               f"{choice['twin_class_accuracy']:.3f} / {choice['measured_class_accuracy']:.3f}")
         site = model.site_map
-    if "edge_travel_chosen" in model.card:
-        print("edge correction of the arrival times (training drops' physics positions): "
-              f"{'kept, three more position members' if model.card['edge_travel_chosen'] else 'not kept'}")
-    energy = model.card.get("energy_class_choice")
-    if energy:
-        print(f"energy class: {'linear estimate of log m g h' if energy['use_linear'] else 'classifier forest'} "
-              f"(training drops, out of fold: linear {energy['linear_class_accuracy']:.3f} / forest "
-              f"{energy['forest_class_accuracy']:.3f})")
+    print_choices(model.card)
     if cal is not None:
         print(f"virtual drops of the twin {cal}: fitting the rig's channel delays, gains, group velocity"
               + (" and the twin's fingerprint" if site is not None else "") + " on its calibration drops")

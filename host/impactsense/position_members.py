@@ -1,0 +1,103 @@
+"""The forests' position members: the threshold and band picks' own positions (POSITION_MEMBERS) and the
+localiser's positions on the arrival times corrected for the edges' images (EDGE_MEMBERS, edge_travel.py), with
+the rule that keeps the edge correction. models.ImpactModel trains and runs a forest pair on each member.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .pipeline import Features
+from .signal import SignalConfig
+
+# With the band picks on (impactcore band_onset) the physics position is the mean of the threshold picks' and
+# the band picks' own; two more forest pairs then correct each of those two positions (their x, y in place of
+# the mean's in the location features) and the reported position is the mean of the three corrected ones:
+# their errors differ, and the mean is closer on every split of both other rigs (docs/findings.md, "Band
+# picks on three channels; three corrected positions"). Only the host runs them: the board's models
+# (board/models.py) keep one pair.
+POSITION_MEMBERS = ("threshold", "band")
+# With the edge correction of the arrival times kept (edge_travel.py, chosen by the training drops), three more
+# members: the physics, threshold and band positions the localiser gives on the corrected picks, each with its
+# forest pair; the reported position is then the mean over every member that placed the drop (docs/findings.md
+# "Edge images in the travel time").
+EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
+MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
+                for axis in "xy"}
+# The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
+# (the rule of pipeline.STARTS_GAIN). It is tried only with drops at this many distinct positions or more (five
+# per coefficient of a pick set: its bases change over the plate, near every edge): on fewer the eight numbers
+# fitted on the drops that judge them pass the rule by fitting those drops.
+EDGE_GAIN = 0.97
+EDGE_MIN_SITES = 40
+
+
+def member_positions(features: Features) -> dict[str, np.ndarray] | None:
+    """The threshold picks' and the band picks' own positions [R, 2] (POSITION_MEMBERS; the core's physics
+    position is their mean where the band picks placed the drop, the threshold picks' alone elsewhere), NaN
+    where the band picks did not place the drop; None when no row has a band position."""
+    band = features.raw.get("band_xy_mm")
+    if band is None:
+        return None
+    band = np.asarray(band, float)
+    ok = np.isfinite(band).all(1)
+    if not ok.any():
+        return None
+    threshold = np.where(ok[:, None], 2.0 * np.asarray(features.phys_xy_mm, float) - band, np.nan)
+    return {"threshold": threshold, "band": np.where(ok[:, None], band, np.nan)}
+
+
+def threshold_positions(features: Features) -> np.ndarray:
+    """The threshold picks' own position of every row [R, 2]: the core's physics position where the band picks
+    did not place the drop."""
+    positions = member_positions(features)
+    phys = np.asarray(features.phys_xy_mm, float)
+    if positions is None:
+        return phys
+    return np.where(np.isfinite(positions["threshold"]).all(1)[:, None], positions["threshold"], phys)
+
+
+def edge_positions(features: Features, signal: SignalConfig, coefs: dict) -> dict[str, np.ndarray]:
+    """EDGE_MEMBERS' positions [R, 2] (NaN where that member did not place the drop): the localiser on the picks
+    corrected by edge_travel's coefficients, from the core's own positions."""
+    from .edge_travel import positions
+
+    band = member_positions(features)
+    out = positions(features.raw, signal, coefs, threshold_positions(features),
+                    None if band is None else band["band"])
+    return {"physics_edge": out["physics"], "threshold_edge": out["threshold"], "band_edge": out["band"]}
+
+
+def choose_edge_travel(features: Features, xy_mm: np.ndarray, signal: SignalConfig) -> dict | None:
+    """edge_travel's coefficients per pick set fitted on these (training) drops, when the corrected physics
+    positions are clearly closer to the truth (EDGE_GAIN), else None (also with drops at fewer than
+    EDGE_MIN_SITES positions)."""
+    from .edge_travel import fit_correction
+
+    if not features.usable.any() or len(np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0)) < EDGE_MIN_SITES:
+        return None
+    coefs = {"threshold": fit_correction(features.raw, xy_mm, signal, "threshold"), "band": None}
+    if coefs["threshold"] is None:
+        return None
+    if member_positions(features) is not None and float(signal.band_velocity_mm_per_us) > 0:
+        coefs["band"] = fit_correction(features.raw, xy_mm, signal, "band")
+    xy = np.asarray(xy_mm, float)
+    new = edge_positions(features, signal, coefs)["physics_edge"]
+    old = np.asarray(features.phys_xy_mm, float)
+    ok = np.isfinite(new).all(1) & np.isfinite(old).all(1)
+    if not ok.any():
+        return None
+    gain = float(np.mean(np.abs(new[ok] - xy[ok]))) < EDGE_GAIN * float(np.mean(np.abs(old[ok] - xy[ok])))
+    return coefs if gain else None
+
+
+def edge_coefficients_ok(edge) -> bool:
+    """A model card's edge_travel entry as save writes it: the two pick sets' coefficient lists (band may be None)."""
+    from .edge_travel import N_BASES
+
+    def numbers(v) -> bool:
+        return (isinstance(v, list) and len(v) == N_BASES
+                and all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v))
+
+    return (isinstance(edge, dict) and set(edge) == {"threshold", "band"} and numbers(edge["threshold"])
+            and (edge["band"] is None or numbers(edge["band"])))
