@@ -10,8 +10,8 @@ Models: the reference model is trained on all of `ref` (forests and physics loca
 plain measured-trained model). After the loop, two models are trained on `ref`'s declared drops:
 - measured-trained: `ref`'s recordings with every diagnosed effect's signal model put in (as `impactsense
   retrain`: a debonded channel's low-pass and gain sized on the recordings by `impactsense.loop.fit_bond`,
-  `impactsense.loop.measured_training_session`, several draws of a random effect, and the pick
-  settings `impactsense.loop.pick_settings` re-chooses for a raised noise floor);
+  `impactsense.loop.measured_training_session`, several draws of a random effect and the twin's drops with it
+  at new positions, and the pick settings `impactsense.loop.pick_settings` re-chooses for a raised noise floor);
 - twin: the same drops simulated again by the twin with the diagnosed plate and sensor effects in the FEM
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
   own FEM (an inverse crime for this path: the data and the corrected twin are the same simulator; the
@@ -142,7 +142,9 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
                 e["params"] = {**e["params"], **{k: c.params[k] for k in
                                                  ("e_scale", "e_exponent", "e_scale_scan", "e_scale_curve")}}
         slow = det["ref"].slowness_us_per_mm
-        m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed)
+        # as `impactsense retrain` with a twin: a random effect's drops also at the twin's new positions
+        m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed,
+                                           twin=sim_params, workers=args.workers)
         m_model, _ = train_score(m_sess, args.trees, args.seed, pick_settings(m_sess, accepted))
         if m_model.twin_fit is not None:
             m_model.twin_fit.weak_channel = weak_channel(accepted)

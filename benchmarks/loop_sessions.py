@@ -2,6 +2,7 @@
 
     python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
         [--element-mm 3.0] [--duration-ms 10] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
+        [--noise-counts C,C]
 
 Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
 positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
@@ -18,6 +19,7 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
                           with a gain loss, on FEM drops
 - `delay`, `gain`, `hum`, `noise`  signal level on FEM drops: a channel's cubic-spline time shift, a
                           channel's gain, 50 Hz mains on every channel, extra white noise
+- `noise-<C>`             (`--noise-counts C,C`) extra white noise of C counts rms, other drops and draws
 Signal-level changes act on the clean FEM signal; the rig's noise and the ADC's rounding come after (a
 delay or a bond acts on the disc's signal, not on the amplifier's noise).
 
@@ -57,8 +59,9 @@ def layout_draw(seed: int) -> tuple[float, list[int], float, float]:
     return offset, sensors, round(float(1 - rng.uniform(0.06, 0.10)), 4), round(float(1 + rng.uniform(0.15, 0.25)), 4)
 
 
-def spec_list(seed: int) -> list[dict]:
-    """Every session's truth (drawn from `seed`: the kinds are fixed, the sizes and sensors are drawn)."""
+def spec_list(seed: int, noise_counts=()) -> list[dict]:
+    """Every session's truth (drawn from `seed`: the kinds are fixed, the sizes and sensors are drawn); with
+    noise_counts, a white-noise session `noise-<counts>` more at each of those levels (its own drops and draw)."""
     rng = np.random.default_rng(seed + 1000)
     offset_deg, sensors, e_scale, damping_scale = layout_draw(seed)
     specs = [{"name": "ref", "kind": "none", "seed": seed}]
@@ -90,6 +93,9 @@ def spec_list(seed: int) -> list[dict]:
     specs.append({"name": "noise", "kind": "signal", "seed": seed + 26,
                   "truth": {"effect": "noise", "sensor": None,
                             "params": {"noise_counts_rms": round(float(rng.uniform(5, 10)), 2)}}})
+    for k, c in enumerate(noise_counts):
+        specs.append({"name": f"noise-{c:g}", "kind": "signal", "seed": seed + 30 + k,
+                      "truth": {"effect": "noise", "sensor": None, "params": {"noise_counts_rms": float(c)}}})
     return specs
 
 
@@ -234,7 +240,7 @@ def generate(args) -> dict:
     if man.get("settings") != key:
         man = {"settings": key, "sessions": {}}
     only = set(args.only.split(",")) if args.only else None
-    for spec in spec_list(args.seed):
+    for spec in spec_list(args.seed, args.noise_counts):
         if only and spec["name"] not in only:
             continue
         if spec["name"] in man["sessions"] and (out / spec["name"] / "recordings.npz").exists():
@@ -266,6 +272,8 @@ def parse(argv=None):
                     help="CAL.json, or 'rig' for the rig's material defaults (default: the bundled twin for the "
                          "bundled rig, 'rig' for any other --rig)")
     ap.add_argument("--only", default=None, help="comma-separated session names")
+    ap.add_argument("--noise-counts", type=lambda v: [float(c) for c in v.split(",")], default=[],
+                    metavar="C,C", help="white-noise sessions more (noise-<C>), one at each level (counts rms)")
     args = ap.parse_args(argv)
     if args.calibration is None:
         bundled = Path(bundled_session_path("session-1"))

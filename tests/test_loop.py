@@ -156,6 +156,37 @@ def test_measured_training_data_carries_independent_noise_draws(tmp_path):
     assert cfg.onset_noise_factor == SignalConfig.for_rig(base.rig).onset_noise_factor
 
 
+def test_a_random_effect_with_a_twin_adds_noisy_twin_drops_at_new_positions(tmp_path, monkeypatch):
+    """With a twin and a diagnosed noise floor, the training data gets the twin's drops at new positions (one
+    each, its own case, after the reference's copies) up to TWIN_TRAINING_POSITIONS distinct positions: inside
+    the reference's region (edge margin, sensor clearance, heights), each a hit, with the diagnosed white noise
+    on the twin's own (rms in quadrature); a deterministic effect or no twin adds none."""
+    import impactsense.loop as L
+    base = load_session("bundled:session-1").subset(np.arange(24))
+    ref = R.fit_reference(R.extract(base))
+    cases = len(np.unique(base.case_id))
+    monkeypatch.setattr(L, "TWIN_TRAINING_POSITIONS", cases + 3)
+    twin = dataclasses.replace(_twin(), method="direct", duration_ms=3.0)
+    out = L.measured_training_session(base, [_noise_candidate(6.0)], ref, tmp_path / "noisy", twin=twin)
+    n = L.NOISE_DRAWS * len(base)
+    assert len(out) == n + 3 and len(np.unique(out.case_id)) == cases + 3
+    assert np.all(out.case_id[n:] > base.case_id.max())
+    x, y, h = out.x_mm[n:], out.y_mm[n:], out.height_mm[n:]
+    rig = base.rig
+    edge = min(base.x_mm.min(), base.y_mm.min(), rig.plate_x_mm - base.x_mm.max(), rig.plate_y_mm - base.y_mm.max())
+    assert min(x.min(), y.min(), rig.plate_x_mm - x.max(), rig.plate_y_mm - y.max()) >= edge - 1e-6
+    near = lambda xs, ys: np.hypot(xs[:, None] - rig.sensor_x_mm, ys[:, None] - rig.sensor_y_mm).min()
+    assert near(x, y) >= near(base.x_mm, base.y_mm) - 1e-6
+    assert base.height_mm.min() <= h.min() and h.max() <= base.height_mm.max()
+    new = np.asarray(out.adc[n:], float)
+    pre = new[:, :, :60] - new[:, :, :60].mean(-1, keepdims=True)   # the pre-trigger: noise only
+    assert np.std(pre) == pytest.approx(np.hypot(6.0, twin.noise_counts_rms), rel=0.06)   # 3 x 4 x 60 samples
+    assert np.all(np.abs(new - rig.bias_counts).max(-1) > 10 * np.std(pre))   # every channel saw the hit
+    gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
+    assert len(L.measured_training_session(base, [gain], ref, tmp_path / "gain", twin=twin)) == len(base)
+    assert len(L.measured_training_session(base, [_noise_candidate(6.0)], ref, tmp_path / "no-twin")) == n
+
+
 def test_pick_settings_only_for_a_material_white_floor():
     """The onset settings are re-chosen only when the diagnosed white noise is material (the noise effect's
     own min_white_counts); hum alone, or a white part under it, keeps the rig's settings."""

@@ -23,6 +23,13 @@ so a case split keeps the copies together). And a raised floor changes which ons
 picks: `pick_settings` re-chooses the core's noise-relative threshold (`onset_noise_factor`, a few fractions
 of the configured one) on those training drops by the travel fit's spread (`travel.choose_threshold`, which
 chooses the absolute threshold and AIC blend with it). Measured: docs/findings.md (issue 16).
+More draws at the same positions do not give the forests what a noisy pick takes: their correction of the
+physics position needs more DISTINCT positions when the picks scatter. With a twin (a calibration, or the site
+map's twin), `measured_training_session` adds the twin's drops at new positions over the reference's region
+(`twin_positions`) until the training data holds TWIN_TRAINING_POSITIONS distinct positions, one drop each, with
+every diagnosed effect put in as the
+twin path puts it (`twin_drops`: plate and sensor effects in the FEM, the rest, the noise's own draw included,
+at the signal level).
 
 A partly debonded disc (a gain loss, with or without a low-pass named on its channel) is not only a gain: the
 bond's low-pass tilts the channel's spectrum, so the twin's difference energies of that channel fall more than
@@ -47,6 +54,7 @@ import numpy as np
 TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
 RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random draw
 NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
+TWIN_TRAINING_POSITIONS = 1000         # with a twin and a random effect: distinct training positions (the twin's added)
 NOISE_FACTOR_SCALES = (0.6, 0.8, 1.0)  # onset_noise_factor tried, as fractions of the configured one
 CLEARLY_BETTER = 0.98                  # ... another one is kept when its travel spread is below this x the best
 BOND_FC_HZ = np.geomspace(1000.0, 16000.0, 25)   # the bond's cut-offs tried (above ~15 kHz: no first-arrival change)
@@ -194,6 +202,39 @@ def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: fl
     return load_session(path)
 
 
+def twin_positions(base, n: int, seed: int = 0):
+    """(x_mm, y_mm, height_mm) of n new drops over DATA_REF's region: a Sobol set (`sim.doe.virtual_drops`) as far
+    from the edges and the sensors as DATA_REF's nearest declared drop, its heights in DATA_REF's range."""
+    from .sim.doe import virtual_drops
+
+    rig = base.rig
+    ok = np.isfinite(base.x_mm) & np.isfinite(base.y_mm) & np.isfinite(base.height_mm)
+    x, y, h = base.x_mm[ok], base.y_mm[ok], base.height_mm[ok]
+    edge = float(max(0.0, min(x.min(), y.min(), rig.plate_x_mm - x.max(), rig.plate_y_mm - y.max())))
+    clearance = float(np.hypot(x[:, None] - rig.sensor_x_mm, y[:, None] - rig.sensor_y_mm).min())
+    return virtual_drops(rig, n, seed, edge, clearance, (float(h.min()), float(h.max())))
+
+
+def twin_drops(params, rig, x_mm, y_mm, height_mm, effects, slowness_us_per_mm: float, seed: int = 0,
+               workers: int = 2) -> np.ndarray:
+    """ADC records of drops at the given declared positions by the corrected twin (`corrected_twin`: the plate
+    and sensor effects in the FEM), the signal-level effects put in after (each with its own draw); the batch's
+    solver as the batch commands choose it (`sim.simulate.batch_solver`: the modal basis when it pays)."""
+    from .effects.apply import apply_effects
+    from .sim import simulate_drops
+    from .sim.simulate import batch_solver
+
+    p, sim_rig = corrected_twin(params, rig, effects)
+    _, signal = split_effects(effects)
+    adc = simulate_drops(p, sim_rig, x_mm, y_mm, height_mm, noise=True, seed=seed, workers=workers, progress=False,
+                         solver=batch_solver(p, sim_rig, "auto", len(x_mm)))
+    ctx = {"x_mm": np.asarray(x_mm, float), "y_mm": np.asarray(y_mm, float),
+           "sensor_xy_mm": rig.sensor_xy_mm.astype(float), "fs_hz": float(rig.fs_hz),
+           "bias": float(rig.bias_counts), "adc_max": int(rig.adc_max), "slowness_us_per_mm": slowness_us_per_mm}
+    # the effects' draws from another stream than the twin's own noise (the same seed would repeat its numbers)
+    return apply_effects(adc, signal, ctx, [seed, 1])
+
+
 def effect_dicts(accepted) -> list[dict]:
     return [{"effect": c.effect, "sensor": c.sensor, "params": c.params, "significant": True} for c in accepted]
 
@@ -203,9 +244,19 @@ def training_draws(accepted) -> int:
     return NOISE_DRAWS if any(c.effect in RANDOM_EFFECTS for c in accepted) else 1
 
 
-def measured_training_session(base, accepted, ref, out_dir, seed: int = 0):
+def twin_positions_wanted(base, accepted, twin) -> int:
+    """New positions the twin adds to the measured training data when a random effect was diagnosed and a twin
+    is given: as many as bring DATA_REF's positions (cases) to TWIN_TRAINING_POSITIONS; else 0."""
+    if twin is None or not accepted or training_draws(accepted) == 1:
+        return 0
+    return max(0, TWIN_TRAINING_POSITIONS - len(np.unique(base.case_id)))
+
+
+def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=None, workers: int = 2):
     """DATA_REF's recordings with every diagnosed effect's signal model put in (`training_draws` copies, each
-    with its own random draws), written and loaded."""
+    with its own random draws), and with a twin (SimParams) and a random effect, `twin_positions_wanted` drops
+    of the corrected twin at new positions (`twin_positions`, `twin_drops`; each its own case, after DATA_REF's
+    rows), written and loaded."""
     from .commands.retrain import augment
     from .data import load_session, write_session
 
@@ -214,8 +265,17 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0):
         else np.asarray(base.adc)
     rep = np.asarray(base.repetition)
     reps = np.concatenate([rep + j * (int(rep.max()) + 1) for j in range(k)])
-    path = write_session(out_dir, base.rig, np.tile(base.x_mm, k), np.tile(base.y_mm, k),
-                         np.tile(base.height_mm, k), adc, np.tile(base.case_id, k), reps)
+    cols = [np.tile(base.x_mm, k), np.tile(base.y_mm, k), np.tile(base.height_mm, k)]
+    case = np.tile(base.case_id, k)
+    n = twin_positions_wanted(base, accepted, twin)
+    if n:
+        new = twin_positions(base, n, seed)
+        adc = np.concatenate([adc, twin_drops(twin, base.rig, *new, effect_dicts(accepted), ref.slowness_us_per_mm,
+                                              seed + k, workers)])
+        cols = [np.concatenate([c, v]) for c, v in zip(cols, new)]
+        case = np.concatenate([case, int(np.max(base.case_id)) + 1 + np.arange(n)])
+        reps = np.concatenate([reps, np.zeros(n, reps.dtype)])
+    path = write_session(out_dir, base.rig, *cols, adc, case, reps)
     return load_session(path)
 
 

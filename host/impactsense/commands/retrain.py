@@ -55,7 +55,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import fit_bond, measured_training_session, pick_settings, weak_channel
+    from ..loop import fit_bond, measured_training_session, pick_settings, training_draws, weak_channel
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -102,9 +102,13 @@ def run(args) -> int:
             # The recordings the model is trained on are kept in OUT (the card's split points there), so
             # `impactsense export OUT` can train the board's model again on the same drops at the board rate
             # (an absolute path: export may run from another folder).
-            train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed)
+            # a random effect (a noise floor): the twin's drops at more positions too (the calibration's twin,
+            # else the site map's)
+            train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
+                                                 twin=twin_params(args, site))
         if exclude is not None and len(train_on) != len(base):   # the copies of an excluded drop go too
-            exclude = np.flatnonzero(np.isin(np.arange(len(train_on)) % len(base), exclude))
+            rows = np.arange(training_draws(accepted) * len(base))   # the copies (the twin's new drops after them)
+            exclude = rows[np.isin(rows % len(base), exclude)]
         model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
                              signal=pick_settings(train_on, accepted), extra_card=card, site_map=site)
         if accepted:
@@ -169,19 +173,29 @@ def worse_than_baseline(rows: dict, accepted, name: str) -> str | None:
             f"sized (retrain.json holds their sizes); keep the baseline model")
 
 
+def twin_params(args, site):
+    """The twin's SimParams for the training data: --twin's CAL.json, else the site map's own (its source), else
+    None."""
+    from ..data import read_json
+    from ..errors import ConfigError
+    from ..sim import SimParams
+
+    if args.twin:
+        cal = read_json(args.twin)
+        if "sim_params" not in cal:
+            raise ConfigError(f"{args.twin} [sim_params]: missing key (a CAL.json from `impactsense calibrate`)")
+        return SimParams.from_dict(cal["sim_params"], args.twin)
+    raw = (site.source or {}).get("sim_params") if site is not None else None
+    return SimParams.from_dict(raw) if raw else None
+
+
 def twin_model(args, base, data, details, accepted, settings, exclude, site, out: Path) -> dict:
     """A model trained on DATA_REF's declared drops simulated by the corrected twin (the accepted effects, a
     debonded channel's as fit_bond sized them); its score on DATA_NEW."""
-    from ..data import read_json
-    from ..errors import ConfigError
     from ..loop import effect_dicts, size_plate_change, twin_training_session, weak_channel
-    from ..sim import SimParams
     from ..workflow import train
 
-    cal = read_json(args.twin)
-    if "sim_params" not in cal:
-        raise ConfigError(f"{args.twin} [sim_params]: missing key (a CAL.json from `impactsense calibrate`)")
-    params = SimParams.from_dict(cal["sim_params"], args.twin)
+    params = twin_params(args, None)
     # a plate speed change: its E by the twin's own scan at DATA_NEW's drops, picked as diagnose picked them
     accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed)
     sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
