@@ -146,3 +146,24 @@ def test_twin_offsets_follow_a_gain_not_a_delay(sessions):
     delayed = offsets(_changed(base, np.arange(len(base)),
                                [{"effect": "channel_delay", "sensor": 3, "params": {"delay_us": DELAY_US}}]))
     assert np.abs(delayed - plain).max() < 0.02
+
+
+def test_the_training_twin_is_the_calibrations_else_the_site_maps(tmp_path):
+    """retrain's twin for a random effect's new drops: --twin's CAL.json, else the site map's own twin (the
+    bundled rig's map carries its sim_params), else none; a CAL.json without sim_params is a clear error."""
+    from argparse import Namespace
+
+    from impactsense.commands.retrain import twin_params
+    from impactsense.errors import ConfigError
+    from impactsense.sim import SimParams
+
+    rig = load_session("bundled").rig
+    site = resolve_site_map("auto", rig)
+    assert twin_params(Namespace(twin=None), site) == SimParams.from_dict(site.source["sim_params"])
+    assert twin_params(Namespace(twin=None), None) is None
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"sim_params": {**site.source["sim_params"], "damping_per_s": 500.0}}))
+    assert twin_params(Namespace(twin=str(cal)), site).damping_per_s == 500.0
+    cal.write_text("{}")
+    with pytest.raises(ConfigError, match="sim_params"):
+        twin_params(Namespace(twin=str(cal)), site)
