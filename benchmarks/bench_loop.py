@@ -19,7 +19,9 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
 "after" is the twin model when a plate or sensor effect was named, else the measured-trained one. A twin model
 is trained on the generator's own FEM drops at the declared positions, which alone lowers its MAE on these
 sessions (docs/findings.md, issue 16 loopmove4), so its yardstick is the same kind of model: the twin with no
-effect, trained once and scored on the unchanged sessions (their `twin_unchanged`).
+effect, trained once and scored on the unchanged sessions (their `twin_unchanged`). A measured-trained after
+with the twin's drops at new positions (a random effect) is judged as measured-trained (it is `retrain`'s model);
+the table also prints its ratio to the twin's yardstick, the share the generator's own drops may carry.
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
 move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_scan`: the geometric mean of the twin's E scan at the session's picks and the A0 curve, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
@@ -122,7 +124,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
     from impactsense.loop import (effect_dicts, fit_bond, measured_training_session, pick_settings,
-                                  size_plate_change, split_effects, twin_training_session, weak_channel)
+                                  size_plate_change, split_effects, training_draws, twin_training_session,
+                                  weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -149,6 +152,7 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         if m_model.twin_fit is not None:
             m_model.twin_fit.weak_channel = weak_channel(accepted)
         row["measured"] = score(sess, m_model)
+        row["twin_drops"] = int(len(m_sess) - len(ref) * training_draws(accepted))   # the twin's new positions
         loop["rows"]["measured-trained, effects put in"] = row["measured"]
         twin, _ = split_effects(effect_dicts(accepted))
         if twin:
@@ -253,6 +257,8 @@ def table(out: dict) -> int:
                 fair = f"{r['after']['mae_mm'] / twin_base:.2f} (twin)"
             else:
                 fair = f"{r['after']['mae_mm'] / base:.2f}"
+                if r.get("twin_drops") and twin_base is not None:   # measured + the twin's drops: both kinds shown
+                    fair += f" ({r['after']['mae_mm'] / twin_base:.2f} x the twin's; {r['twin_drops']} twin drops)"
             ok = named_ok(t, sig) and size_ok is not False and loop_ok
             after = f"{r.get('measured', r['after'])['mae_mm']:.2f}" + (
                 f" / {r['twin']['mae_mm']:.2f}" if "twin" in r else "")
