@@ -172,9 +172,12 @@ class ImpactModel:
     def fit(cls, features: Features, xy_mm: np.ndarray, height_mm: np.ndarray, ball_mass_g: float,
             signal: SignalConfig, settings: ForestSettings | None = None,
             site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False,
-            choose_class: bool = False, choose_edge: bool = False) -> "ImpactModel":
+            choose_class: bool = False, choose_edge: bool = False,
+            twin_rows: np.ndarray | None = None) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
-        pair). choose_twin: with a site map, keep the twin only when the training drops' out-of-fold figures
+        pair). twin_rows: with a site map, the drops (bool per row) the twin's offsets, weights, uncertainty and
+        energy class are fitted on (None: all); the forests learn from all (a training set with simulated drops
+        keeps them out of the twin's fit to the rig's recordings). choose_twin: with a site map, keep the twin only when the training drops' out-of-fold figures
         say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
         choose_class: without a site map, the energy class from the classifier forest or the linear estimate
         of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
@@ -202,19 +205,22 @@ class ImpactModel:
         if site_map is not None:
             # The twin's height estimate of each training drop at its physics position (an error like the
             # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
-            feats, usable = twin_features(features.take(np.flatnonzero(use)))
-            twin_fit = fit_twin(feats, usable, site_map, xy, np.asarray(height_mm)[use])
-            est = twin_estimate(site_map, twin_fit, feats, usable, features.phys_xy_mm[use])["log10_height_mm"]
+            tw = np.flatnonzero(use) if twin_rows is None else np.flatnonzero(use & np.asarray(twin_rows, bool))
+            sel = np.isin(np.flatnonzero(use), tw)   # those rows among the used ones
+            t_xy, t_h, t_phys = xy[sel], np.asarray(height_mm, float)[tw], features.phys_xy_mm[tw]
+            feats, usable = twin_features(features.take(tw))
+            twin_fit = fit_twin(feats, usable, site_map, t_xy, t_h)
+            est = twin_estimate(site_map, twin_fit, feats, usable, t_phys)["log10_height_mm"]
             ok = np.isfinite(est)
-            fe, threshold = fit_energy_classifier(est[ok, None], energy_j[ok], TWIN_CLASSIFIER)
-            compare = dict(X_energy=X[:, columns(MEASURED_ENERGY_FEATURES)], energy_j=energy_j,
+            fe, threshold = fit_energy_classifier(est[ok, None], energy_j[sel][ok], TWIN_CLASSIFIER)
+            compare = dict(X_energy=X[sel][:, columns(MEASURED_ENERGY_FEATURES)], energy_j=energy_j[sel],
                            twin_classifier=TWIN_CLASSIFIER) if choose_twin else {}
-            oof = out_of_fold_twin(X[:, loc_cols], features.phys_xy_mm[use], xy, np.asarray(height_mm, float)[use],
-                                   feats, usable, site_map, settings, **compare)
+            oof = out_of_fold_twin(X[sel][:, loc_cols], t_phys, t_xy, t_h, feats, usable, site_map, settings,
+                                   **compare)
             for key, value in fit_uncertainty(oof["spread_mm"], oof["misfit"], oof["error_mm"]).items():
                 setattr(twin_fit, key, value)
             if choose_twin:
-                card["twin_choice"] = twin_choice(oof, xy)
+                card["twin_choice"] = twin_choice(oof, t_xy)
                 if not card["twin_choice"]["use_twin"]:
                     site_map = twin_fit = None
         class_features = list(MEASURED_ENERGY_FEATURES)

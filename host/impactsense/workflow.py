@@ -23,13 +23,15 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
           exclude_rows: np.ndarray | None = None, settings: ForestSettings | None = None,
           signal: SignalConfig | None = None, extra_card: dict | None = None,
           site_map=None, force: bool = False, choose_twin: bool = False,
-          choose_class: bool = False, members: bool = True) -> tuple[ImpactModel, dict]:
+          choose_class: bool = False, members: bool = True,
+          twin_rows: np.ndarray | None = None) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given.
     choose_twin: keep the site map's twin only when the training drops' out-of-fold figures say so
     (twin_oof.twin_choice; a measured session's calibrated twin). choose_class: without a site map, the energy
     class from the classifier forest or the linear estimate, as those figures say (height_class.py), and the edge
     correction of the arrival times when the training drops' physics positions say so (position_members.choose_edge_travel).
-    members False: one forest pair on the physics position (no position members: what the board runs)."""
+    members False: one forest pair on the physics position (no position members: what the board runs).
+    twin_rows: the session's rows (bool) the site map's twin is fitted on (ImpactModel.fit; None: all)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
@@ -40,7 +42,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     feats = featurize(session.adc, cfg)
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
-                            choose_class=choose_class, choose_edge=choose_class, members=members)
+                            choose_class=choose_class, choose_edge=choose_class, members=members,
+                            twin_rows=None if twin_rows is None else np.asarray(twin_rows, bool)[train_rows])
     split = {
         "data_path": str(session.path),
         "data_hash": session.fingerprint(),

@@ -109,8 +109,11 @@ def run(args) -> int:
         if exclude is not None and len(train_on) != len(base):   # the copies of an excluded drop go too
             rows = np.arange(training_draws(accepted) * len(base))   # the copies (the twin's new drops after them)
             exclude = rows[np.isin(rows % len(base), exclude)]
+        # the site map's twin is fitted on the recordings (DATA_REF's copies), not on the twin's own drops
+        measured = np.arange(len(train_on)) < (training_draws(accepted) * len(base) if accepted else len(base))
         model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
-                             signal=pick_settings(train_on, accepted), extra_card=card, site_map=site)
+                             signal=pick_settings(train_on, accepted), extra_card=card, site_map=site,
+                             twin_rows=measured)
         if accepted:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
         if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
