@@ -115,7 +115,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
-                       weak_channel: int = -1, choose_class: bool = False, channel_left_out=None) -> Path:
+                       weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
+                       simulated_rows=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -132,7 +133,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit).
     channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
     `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
-    host's does (the physics three-sensor position, the three-channel class or the twin's match without it)."""
+    host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
+    simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
+    the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -157,7 +160,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
-                            site_map=site_map, members=False, choose_class=choose_class)
+                            site_map=site_map, members=False, choose_class=choose_class,
+                            twin_rows=None if simulated_rows is None else
+                            ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
     if channel_left_out is not None and any(channel_left_out):
         model.signal = replace(model.signal, channel_left_out=[int(bool(v)) for v in channel_left_out])
     if model.twin_fit is not None:
@@ -216,7 +221,8 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
                               channel_gain=(card.get("signal") or {}).get("channel_gain"),
                               weak_channel=int((card.get("twin") or {}).get("weak_channel", -1)),
                               choose_class="energy_class_choice" in card,
-                              channel_left_out=(card.get("signal") or {}).get("channel_left_out"))
+                              channel_left_out=(card.get("signal") or {}).get("channel_left_out"),
+                              simulated_rows=rows("simulated_recordings") if "simulated_recordings" in split else None)
 
 
 def _card_session(card_path: Path, field: str, record: dict) -> Session:

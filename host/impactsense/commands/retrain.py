@@ -116,6 +116,8 @@ def run(args) -> int:
                              twin_rows=measured)
         if accepted:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
+        if not measured.all():   # the twin's own drops: `export` keeps them out of the board model's twin fit too
+            split["simulated_recordings"] = train_on.recording_id[~measured].tolist()
         if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
             model.twin_fit.weak_channel = weak_channel(accepted)
         if left_out:
