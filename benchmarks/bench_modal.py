@@ -22,7 +22,6 @@ exits 1 on a miss.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import sys

@@ -107,7 +107,7 @@ def main() -> int:
     before, after = scores["session-1 model", "twin"], scores["retrained", "twin"]
     ok = (after["mae_mm"] < before["mae_mm"] and after["mae_mm"] <= 2.55
           and scores["retrained", "site map none"]["mae_mm"] < scores["session-1 model", "site map none"]["mae_mm"])
-    print(f"targets (retrained twin MAE < the session-1 model's and <= 2.55 mm; forests' MAE falls): "
+    print("targets (retrained twin MAE < the session-1 model's and <= 2.55 mm; forests' MAE falls): "
           + ("met" if ok else "MISSED"))
     return 0 if ok else 1
 

@@ -21,7 +21,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 def main(argv=None) -> int:
     import argparse
 
-    import numpy as np
 
     from bench_loop import train_score
     from impactsense.commands.retrain import score

@@ -228,7 +228,6 @@ def base_params(args, rig):
 
 def generate(args) -> dict:
     from impactsense.data import load_session, write_session
-    from impactsense.sim import SimParams
 
     rig = load_session(args.rig).rig
     base = twin_params(base_params(args, rig), args)

@@ -130,11 +130,12 @@ def test_the_edge_members_join_the_mean(edge_model):
     assert placed.mean() > 0.8
     # where the band picks placed the drop: six members, the three of `without` among them
     total = base[use] * 3
-    from impactsense.models import LOCATION_FEATURES, _member_inputs, columns
+    from impactsense.models import LOCATION_FEATURES, columns
+    from impactsense.position_members import member_inputs
     X = feats.vector[use][:, columns(LOCATION_FEATURES)]
     for name in EDGE_MEMBERS:
         ok = np.isfinite(edge[name]).all(1)
-        pred = np.stack([f.predict(_member_inputs(X[ok], edge[name][ok])) for f in model.members[name]], 1)
+        pred = np.stack([f.predict(member_inputs(X[ok], edge[name][ok], LOCATION_FEATURES)) for f in model.members[name]], 1)
         total[ok] += edge[name][ok] + pred
     assert np.allclose(got[use][placed], total[placed] / 6, atol=1e-4)
     assert np.abs(got[use] - base[use]).max() > 0.01

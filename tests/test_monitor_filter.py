@@ -11,7 +11,6 @@ import types
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from impactsense.data import load_session
 from impactsense.link import monitor

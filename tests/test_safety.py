@@ -4,7 +4,6 @@ of the loaders. Each test is a case an attacker or a careless user tried (issue 
 
 import hashlib
 import json
-import os
 import pickle
 import random
 import signal

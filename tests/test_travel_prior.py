@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from impactsense.materials import kirchhoff_ray_metric, lookup, travel_metric_sd
-from impactsense.travel import TravelPrior, fit_travel, fit_travel_map, metric_of, travel_distances
+from impactsense.travel import TravelPrior, fit_travel, fit_travel_map, travel_distances
 
 SENSORS = np.array([[50.0, 45.0], [400.0, 55.0], [395.0, 300.0], [60.0, 290.0]])
 GPA = 1e9

@@ -15,7 +15,7 @@ from .materials import material_for_rig, travel_metric_sd
 from .models import ARRIVAL_ENERGY_FEATURES, columns
 from .pipeline import distances_mm, featurize
 from .signal import SignalConfig
-from .travel import (TravelPrior, fit_travel, fit_travel_map, picks, slowness_scales, summed_log_energy,
+from .travel import (TravelPrior, fit_travel, fit_travel_map, picks, summed_log_energy,
                      travel_distances)
 
 

@@ -29,7 +29,6 @@ Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 

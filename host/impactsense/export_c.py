@@ -8,12 +8,16 @@ Thresholds are scikit-learn's float64 split points rounded *down* to float32: fo
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import ImpactSenseError
 from .height_class import linear_c, linear_tables
 from .signal import FIELDS, card_values, settings
+
+if TYPE_CHECKING:
+    from .export import ModelSet
 
 LEAF = 0xFF
 

@@ -30,7 +30,8 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
-                               edge_coefficients_ok, edge_positions, member_positions)
+                               edge_coefficients_ok, edge_positions, fit_member_pairs, member_inputs,
+                               member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
@@ -119,30 +120,6 @@ def three_channel_rows(features: Features) -> np.ndarray:
             & np.isfinite(features.phys_xy_mm).all(1))
 
 
-def _member_inputs(X_loc: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """The location features with the physics position's columns replaced by a member's position."""
-    out = np.array(X_loc, float, copy=True)
-    out[:, [LOCATION_FEATURES.index("phys_x_mm"), LOCATION_FEATURES.index("phys_y_mm")]] = base
-    return out
-
-
-def _fit_member_pairs(bases: dict, X_loc: np.ndarray, xy: np.ndarray, settings: ForestSettings,
-                      all_or_none: bool) -> dict:
-    """A forest pair per member position (name -> base [R, 2], NaN where the member did not place the drop) on
-    the rows it placed, learning the correction to the truth from the location features with the member's x, y
-    (_member_inputs); a member on fewer than 10 rows is left out (all_or_none: then none is kept)."""
-    out = {}
-    for name, base in bases.items():
-        rows = np.isfinite(base).all(1)
-        if rows.sum() < 10:
-            if all_or_none:
-                return {}
-            continue
-        Xm = _member_inputs(X_loc[rows], base[rows])
-        out[name] = tuple(settings.regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
-    return out
-
-
 @dataclass
 class ImpactModel:
     signal: SignalConfig
@@ -176,9 +153,9 @@ class ImpactModel:
             twin_rows: np.ndarray | None = None) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). twin_rows: with a site map, the drops (bool per row) the twin's offsets, weights, uncertainty and
-        energy class are fitted on (None: all); the forests learn from all (a training set with simulated drops
-        keeps them out of the twin's fit to the rig's recordings). choose_twin: with a site map, keep the twin only when the training drops' out-of-fold figures
-        say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
+        energy class are fitted on (None: all); the forests learn from all (simulated drops stay out of the twin's
+        fit to the rig's recordings). choose_twin: with a site map, keep the twin only when the training drops'
+        out-of-fold figures say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
         choose_class: without a site map, the energy class from the classifier forest or the linear estimate
         of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
         "energy_class_choice" records it. choose_edge: with members and without a site map, the edge correction
@@ -197,8 +174,8 @@ class ImpactModel:
         member_forests = {}
         positions = member_positions(features.take(np.flatnonzero(use))) if members else None
         if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
-            member_forests = _fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS},
-                                               X[:, loc_cols], xy, settings, all_or_none=True)
+            member_forests = fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS}, X[:, loc_cols],
+                                              xy, settings.regressor, LOCATION_FEATURES, all_or_none=True)
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
@@ -240,8 +217,8 @@ class ImpactModel:
             edge = choose_edge_travel(train, xy, signal) or {}
             card["edge_travel_chosen"] = bool(edge)
             if edge:
-                member_forests.update(_fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
-                                                        settings, all_or_none=False))
+                member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
+                                                       settings.regressor, LOCATION_FEATURES, all_or_none=False))
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
@@ -339,7 +316,7 @@ class ImpactModel:
                 total = xy[rows].copy()
                 for name in POSITION_MEMBERS:
                     base = positions[name][rows]
-                    Xb = _member_inputs(Xm, base)
+                    Xb = member_inputs(Xm, base, LOCATION_FEATURES)
                     total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
                 xy[rows] = total / (1 + len(POSITION_MEMBERS))
                 count[rows] = 1 + len(POSITION_MEMBERS)
@@ -356,7 +333,7 @@ class ImpactModel:
                 if not ok.any():
                     continue
                 base = edge[name][ok]
-                Xb = _member_inputs(Xm[ok], base)
+                Xb = member_inputs(Xm[ok], base, LOCATION_FEATURES)
                 total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
                 k[ok] += 1
             xy[rows] = total / k[:, None]

@@ -101,3 +101,29 @@ def edge_coefficients_ok(edge) -> bool:
 
     return (isinstance(edge, dict) and set(edge) == {"threshold", "band"} and numbers(edge["threshold"])
             and (edge["band"] is None or numbers(edge["band"])))
+
+
+def member_inputs(X_loc: np.ndarray, base: np.ndarray, names: list[str]) -> np.ndarray:
+    """The location features (columns `names`) with the physics position's columns replaced by a member's
+    position."""
+    out = np.array(X_loc, float, copy=True)
+    out[:, [names.index("phys_x_mm"), names.index("phys_y_mm")]] = base
+    return out
+
+
+def fit_member_pairs(bases: dict, X_loc: np.ndarray, xy: np.ndarray, regressor, names: list[str],
+                     all_or_none: bool) -> dict:
+    """A forest pair (regressor(): a new regressor) per member position (name -> base [R, 2], NaN where the
+    member did not place the drop) on the rows it placed, learning the correction to the truth from the location
+    features (columns `names`) with the member's x, y; a member on fewer than 10 rows is left out (all_or_none:
+    then none is kept)."""
+    out = {}
+    for name, base in bases.items():
+        rows = np.isfinite(base).all(1)
+        if rows.sum() < 10:
+            if all_or_none:
+                return {}
+            continue
+        Xm = member_inputs(X_loc[rows], base[rows], names)
+        out[name] = tuple(regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
+    return out

@@ -46,7 +46,7 @@ from scipy.stats import spearmanr
 
 from .calibration_drops import (calibration_rows, fit_band_on_calibration_drops, fit_channels_on_calibration_drops,
                                 fit_energy_offsets, map_travel_refit)
-from .data import MODEL_CARD_MISSING, Session, load_session, read_json, write_session
+from .data import Session, load_session, read_json, write_session
 from .errors import ConfigError, DataError
 from .height_class import class_cut
 from .models import ENERGY_FEATURES, TWIN_CLASSIFIER, columns, fit_energy_classifier, impact_energy_j, twin_estimate

@@ -19,7 +19,6 @@ end-to-end error on FEM-made drops ~0.04: nu is not identified by these observab
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 

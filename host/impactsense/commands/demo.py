@@ -43,7 +43,6 @@ def comparison_table(ours: dict, seed_rows: bool = True) -> str:
 
 def run(args) -> int:
     import time
-    from pathlib import Path
 
     from ..data import load_session
     from ..plots import evaluation_plots

@@ -78,9 +78,7 @@ def run(args) -> int:
 
 def _write_page(args, db, reports, summary) -> None:
     import json
-    import os
     import sys
-    from pathlib import Path
 
     from ..data import load_rig, load_session
     from ..link.eventpage import page

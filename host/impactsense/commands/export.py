@@ -92,7 +92,6 @@ def run(args) -> int:
 
 def _export(args, card, rate, stage, out):
     """The export written into `stage` (its final place: `out`): (summary, model card, model folder)."""
-    import json
     from pathlib import Path
 
     from ..export import export_models, needs_board_refit

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 
 ORDER = 10
 
@@ -57,7 +56,6 @@ def summarise(session) -> dict:
 
 
 def run(args) -> int:
-    from pathlib import Path
 
     from ..data import load_session
 

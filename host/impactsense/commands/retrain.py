@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 ORDER = 51
@@ -50,12 +49,10 @@ def augment(base, accepted, ref, seed: int = 0):
 
 
 def run(args) -> int:
-    import numpy as np
-
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import fit_bond, measured_training_session, pick_settings, training_draws, weak_channel
+    from ..loop import fit_bond, measured_training_session, pick_settings, weak_channel
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -87,11 +84,7 @@ def run(args) -> int:
     left_out = sorted(u["sensor"] for u in result.get("unabsorbed_channels", []))
     accepted = [c for c in accepted if c.sensor not in left_out]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
-    card = {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
-            "retrain": {"baseline": str(base.path), "data": str(data.path),
-                        "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
-                                          for c in accepted],
-                        "channels_left_out": left_out}}
+    card = retrain_card(result, base, data, accepted, left_out)
     out = Path(args.out)
     rows = {}
     plain, _ = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
@@ -106,11 +99,7 @@ def run(args) -> int:
             # else the site map's)
             train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
                                                  twin=twin_params(args, site))
-        if exclude is not None and len(train_on) != len(base):   # the copies of an excluded drop go too
-            rows = np.arange(training_draws(accepted) * len(base))   # the copies (the twin's new drops after them)
-            exclude = rows[np.isin(rows % len(base), exclude)]
-        # the site map's twin is fitted on the recordings (DATA_REF's copies), not on the twin's own drops
-        measured = np.arange(len(train_on)) < (training_draws(accepted) * len(base) if accepted else len(base))
+        exclude, measured = training_rows(train_on, base, accepted, exclude)
         model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
                              signal=pick_settings(train_on, accepted), extra_card=card, site_map=site,
                              twin_rows=measured)
@@ -137,6 +126,29 @@ def run(args) -> int:
     if warning:
         print(warning)
     return 0
+
+
+def retrain_card(result, base, data, accepted, left_out) -> dict:
+    """What the model card keeps of the diagnosis and the retrain."""
+    return {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
+            "retrain": {"baseline": str(base.path), "data": str(data.path),
+                        "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
+                                          for c in accepted],
+                        "channels_left_out": left_out}}
+
+
+def training_rows(train_on, base, accepted, exclude):
+    """(excluded rows of the training session: every copy of an excluded baseline drop; the rows that are
+    recordings, DATA_REF's copies, on which the site map's twin is fitted, not the twin's own drops after them)."""
+    import numpy as np
+
+    from ..loop import training_draws
+
+    copies = training_draws(accepted) * len(base) if accepted else len(base)
+    if exclude is not None and len(train_on) != len(base):
+        rows = np.arange(copies)
+        exclude = rows[np.isin(rows % len(base), exclude)]
+    return exclude, np.arange(len(train_on)) < copies
 
 
 def leave_out(signal, channels):

@@ -150,7 +150,7 @@ def finish_session(out, journal, labels_from: str, rows: list[dict], fixed: dict
     import io
     import shutil
 
-    from ..data import rig_from_dict, write_session
+    from ..data import rig_from_dict
     from .journal import read_journal
 
     meta, events, clean = read_journal(journal)

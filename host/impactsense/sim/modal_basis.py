@@ -32,12 +32,11 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..errors import ConfigError
 from . import modal_slices
 from .executor import Executor
-from .model import Model, rim_springs, support_masks
+from .model import Model, support_masks
 
 FORMAT_VERSION = 2
 PROBE_WAVELENGTHS = 2.5     # residual probes of one colour this many A0 wavelengths (at the cut-off) apart
