@@ -7,10 +7,11 @@ trained and evaluated as a user does (`train DATA` + `evaluate DATA`: the held-o
 --seeds case splits; prints MAE (whole plate, inner) and class accuracy, mean and worst over the splits, and
 bench_rigs' naive reference (threshold picks + a forest per axis on the six DToA) on the same splits. A fourth
 kind, alu-rotated (a 6 mm aluminium plate, sensors on a turned rectangle, 50 kHz / 12 bits, 40 samples before
-the hit), is made too.
+the hit), and a fifth, pc-quad (an 8 mm polycarbonate sheet, a material the table does not know, sensors on an
+asymmetric quadrilateral, 200 kHz / 12 bits), are made too.
 Target (issue 15, measured-trained): MAE <= 3.0 mm, class >= 0.95 on the mean.
 
-    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew]
+    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew,alu-rotated,pc-quad]
 """
 
 from __future__ import annotations

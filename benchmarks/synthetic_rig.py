@@ -11,7 +11,8 @@ noise; `impactsense.faults`) and a circuit gain set so the median peak is ~1/4 o
 KIND: steel-diamond (steel, 200 kHz, 16-bit, sensors on a diamond), gfrp-edge (GFRP with fibres at 35 deg,
 50 kHz, 12-bit, three sensors near one edge), glass-skew (soda-lime glass, 100 kHz, 14-bit, a skewed
 quadrilateral, an unknown-to-the-table plate support), alu-rotated (a 6 mm aluminium plate clamped in a frame,
-sensors on a rectangle turned 20 deg, 50 kHz, 12-bit, 1024 samples, 40 of them before the hit). The mesh is coarse (--element-mm) so a rig costs
+sensors on a rectangle turned 20 deg, 50 kHz, 12-bit, 1024 samples, 40 of them before the hit), pc-quad (an 8 mm
+polycarbonate sheet, sensors on an asymmetric quadrilateral, 200 kHz, 12-bit). The mesh is coarse (--element-mm) so a rig costs
 minutes on 2 cores.
 """
 
@@ -74,6 +75,17 @@ KINDS = {
              "adc_bits": 12, "vref": 3.0, "bias_counts": 2048},
         sim=dict(e_pa=71e9, nu=0.33, pretrigger_samples=40, damping_per_s=500.0),
         heights=(50, 100, 150, 200, 250, 300)),
+    "pc-quad": dict(
+        rig={"plate_material": "polycarbonate sheet", "plate_x_mm": 560.0, "plate_y_mm": 420.0,
+             "thickness_mm": 8.0, "density_kg_m3": 1200.0, "plate_support": "edges resting on a rubber rim",
+             "sensors": _sensors([(95, 60), (470, 110), (420, 365), (150, 330)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 10.0, "ball_material": "steel",
+             "ball_diameter_mm": 10.0, "ball_mass_g": 4.07, "channels": 4, "fs_hz": 200000, "samples": 3000,
+             "adc_bits": 12, "vref": 3.3, "bias_counts": 2048},
+        # an unknown material to the table (wide, laminate-like priors): the truth given as an isotropic laminate
+        sim=dict(e_pa=2.4e9, e2_pa=2.4e9, g12_pa=2.4e9 / 2.74, nu=0.37, material_axes_deg=0.0,
+                 pretrigger_samples=200, damping_per_s=900.0),
+        heights=(70, 110, 150, 190, 230, 270)),
 }
 
 

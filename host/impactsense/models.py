@@ -29,6 +29,7 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
+from .correction_scale import scale_model_correction
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
                                edge_coefficients_ok, edge_positions, fit_member_pairs, member_inputs,
                                member_positions)
@@ -219,6 +220,9 @@ class ImpactModel:
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
                                                        settings.regressor, LOCATION_FEATURES, all_or_none=False))
+        if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
+            scale_model_correction(card, X[:, loc_cols], xy, features.take(np.flatnonzero(use)), signal, edge, fx,
+                                   fy, member_forests, settings)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,

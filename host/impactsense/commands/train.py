@@ -77,7 +77,12 @@ def print_travel_refit(fits: dict) -> dict:
 
 
 def print_choices(card: dict) -> None:
-    """What the training drops chose for the model (its card): the edge correction, the energy class's kind."""
+    """What the training drops chose for the model (its card): the forests' correction scale, the edge correction,
+    the energy class's kind."""
+    if "correction_scale" in card:
+        c = card["correction_scale"]
+        print(f"forests' correction of the physics position x {c['scale']:g} (training drops' out-of-fold MAE "
+              f"{c['out_of_fold_mae_mm'][c['scales'].index(c['scale'])]:.2f} mm; whole {c['out_of_fold_mae_mm'][-1]:.2f})")
     if "edge_travel_chosen" in card:
         print("edge correction of the arrival times (training drops' physics positions): "
               f"{'kept, three more position members' if card['edge_travel_chosen'] else 'not kept'}")

@@ -1,0 +1,134 @@
+"""The forests' correction of the physics position, scaled as the training drops say (models.ImpactModel.fit).
+
+With few training drops on a plate whose physics position is already good, the whole correction adds more
+scatter than it removes (docs/findings.md, "What limits a new user's measured-trained position"). Without a site
+map, the correction (the main pair's and every position member's) is scaled by the factor of CORRECTION_SCALES
+whose out-of-fold positions of the training drops are closest to the truth, when its gain over the whole
+correction is clear; the factor multiplies the trees' leaf values, so saved models, the board's pair and the C
+export carry it as they are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, edge_positions, fit_member_pairs, member_inputs,
+                               member_positions)
+
+CORRECTION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0)
+CORRECTION_FOLDS = 5
+CORRECTION_MIN_SITES = 20       # fewer drop sites: the whole correction, no choice
+CORRECTION_MAX_TREES = 50       # the folds' forests (the choice, not the model)
+# A smaller factor is taken only when its out-of-fold gain over the whole correction exceeds one standard error
+# of the per-site gains (the one-standard-error rule, the whole correction being the default).
+CORRECTION_GAIN_SIGMAS = 1.0
+
+
+def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                     xy: np.ndarray, settings) -> tuple:
+    """The forest pair correcting the physics position and, with `positions` (member_positions of the same rows),
+    the POSITION_MEMBERS' pairs (all or none), with `edges` (edge_positions) the EDGE_MEMBERS' pairs, as
+    ImpactModel.fit fits them. Returns (forest_dx, forest_dy, {member: (dx, dy)})."""
+    from .models import LOCATION_FEATURES
+
+    resid = xy - phys
+    fx = settings.regressor().fit(X_loc, resid[:, 0])
+    fy = settings.regressor().fit(X_loc, resid[:, 1])
+    members = {}
+    if positions is not None:
+        members = fit_member_pairs({n: positions[n] for n in POSITION_MEMBERS}, X_loc, xy, settings.regressor,
+                                   LOCATION_FEATURES, all_or_none=True)
+    if edges is not None:
+        members.update(fit_member_pairs(edges, X_loc, xy, settings.regressor, LOCATION_FEATURES, all_or_none=False))
+    return fx, fy, members
+
+
+def corrected_position(fx, fy, members: dict, X_loc: np.ndarray, phys: np.ndarray, positions: dict | None,
+                       edges: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The forests' position of rows (ImpactModel.predict's: the main pair's, then the mean over every member that
+    placed the drop) and the mean of the same members' positions before correction."""
+    from .models import LOCATION_FEATURES
+
+    def inputs(rows, base):
+        return member_inputs(X_loc[rows], base, LOCATION_FEATURES)
+
+    xy = phys + np.stack([fx.predict(X_loc), fy.predict(X_loc)], 1)
+    total, base_sum, count = xy.copy(), np.array(phys, float, copy=True), np.ones(len(phys))
+    if positions is not None and all(n in members for n in POSITION_MEMBERS):
+        placed = np.isfinite(positions["band"]).all(1)
+        for name in POSITION_MEMBERS:
+            base = positions[name][placed]
+            total[placed] += base + np.stack([f.predict(inputs(placed, base)) for f in members[name]], 1)
+            base_sum[placed] += base
+        count[placed] += len(POSITION_MEMBERS)
+    for name in EDGE_MEMBERS if edges is not None else ():
+        if name not in members:
+            continue
+        ok = np.isfinite(edges[name]).all(1)
+        if ok.any():
+            base = edges[name][ok]
+            total[ok] += base + np.stack([f.predict(inputs(ok, base)) for f in members[name]], 1)
+            base_sum[ok] += base
+            count[ok] += 1
+    return total / count[:, None], base_sum / count[:, None]
+
+
+def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                            xy: np.ndarray, settings) -> dict | None:
+    """The CORRECTION_SCALES factor whose out-of-fold positions of the training drops (every member refitted in
+    each fold) have the lowest MAE per axis when its gain over the whole correction is clear
+    (CORRECTION_GAIN_SIGMAS), else 1, with the MAE per factor; None with fewer than CORRECTION_MIN_SITES drop
+    sites. The folds group the drops by their declared position (a case's repetitions stay together), so the
+    figure is that of an unseen site, as the held-out drops are. A factor a puts a drop at b + a (corrected - b),
+    b the mean of its members' uncorrected positions: what scale_forests(a) makes the model predict."""
+    from sklearn.model_selection import GroupKFold
+
+    from .models import ForestSettings
+
+    xy = np.asarray(xy, float)
+    sites = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    if np.unique(sites).size < CORRECTION_MIN_SITES:
+        return None
+    fold_settings = ForestSettings(**{**settings.__dict__,
+                                      "n_estimators": min(settings.n_estimators, CORRECTION_MAX_TREES)})
+    oof, base = np.full_like(xy, np.nan), np.full_like(xy, np.nan)
+    take = lambda d, r: None if d is None else {k: v[r] for k, v in d.items()}  # noqa: E731
+    for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X_loc, groups=sites):
+        fx, fy, members = position_forests(X_loc[fit_rows], phys[fit_rows], take(positions, fit_rows),
+                                           take(edges, fit_rows), xy[fit_rows], fold_settings)
+        oof[held], base[held] = corrected_position(fx, fy, members, X_loc[held], phys[held], take(positions, held),
+                                                   take(edges, held))
+    ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
+    err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
+    mae = [float(e.mean()) for e in err]
+    best, whole = int(np.argmin(mae)), len(CORRECTION_SCALES) - 1
+    # the gain over the whole correction, per site (a site's drops share their error), in its standard errors
+    inverse = np.unique(sites[ok], return_inverse=True)[1].ravel()
+    gain = np.bincount(inverse, err[whole] - err[best]) / np.bincount(inverse)
+    z = float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
+    chosen = best if z > CORRECTION_GAIN_SIGMAS else whole
+    return {"scale": float(CORRECTION_SCALES[chosen]), "scales": list(CORRECTION_SCALES),
+            "out_of_fold_mae_mm": [round(m, 3) for m in mae], "best_gain_sigmas": round(z, 2),
+            "folds": CORRECTION_FOLDS}
+
+
+def scale_forests(forests, scale: float) -> None:
+    """Every tree's leaf values times `scale` (the forests' prediction times scale, exported as it is)."""
+    if scale == 1.0:
+        return
+    for forest in forests:
+        for tree in forest.estimators_:
+            tree.tree_.value[:] *= scale
+
+
+def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train, signal, edge: dict,
+                           fx, fy, members: dict, settings) -> None:
+    """ImpactModel.fit's step without a site map: the training drops' (`train`, their Features) choice of the
+    factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair."""
+    phys = np.asarray(train.phys_xy_mm, float)
+    positions = member_positions(train) if any(n in members for n in POSITION_MEMBERS) else None
+    edges = edge_positions(train, signal, edge) if edge and any(n in members for n in EDGE_MEMBERS) else None
+    choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings)
+    if choice is not None:
+        card["correction_scale"] = choice
+        scale_forests([fx, fy, *(f for pair in members.values() for f in pair)], choice["scale"])
