@@ -22,6 +22,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 
 from . import __version__, _core
+from .correction_scale import scale_model_correction
 from .errors import DataError
 from .forestfile import save_forest
 from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHANNEL_FILE, LinearHeightClass,
@@ -29,7 +30,6 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features
-from .correction_scale import scale_model_correction
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
                                edge_coefficients_ok, edge_positions, fit_member_pairs, member_inputs,
                                member_positions)
