@@ -25,32 +25,34 @@ CORRECTION_GAIN_SIGMAS = 1.0
 
 
 def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
-                     xy: np.ndarray, settings) -> tuple:
+                     xy: np.ndarray, settings, names: list[str] | None = None) -> tuple:
     """The forest pair correcting the physics position and, with `positions` (member_positions of the same rows),
     the POSITION_MEMBERS' pairs (all or none), with `edges` (edge_positions) the EDGE_MEMBERS' pairs, as
-    ImpactModel.fit fits them. Returns (forest_dx, forest_dy, {member: (dx, dy)})."""
+    ImpactModel.fit fits them; names: X_loc's columns (LOCATION_FEATURES unless a channel is left out). Returns
+    (forest_dx, forest_dy, {member: (dx, dy)})."""
     from .models import LOCATION_FEATURES
 
+    names = names or LOCATION_FEATURES
     resid = xy - phys
     fx = settings.regressor().fit(X_loc, resid[:, 0])
     fy = settings.regressor().fit(X_loc, resid[:, 1])
     members = {}
     if positions is not None:
         members = fit_member_pairs({n: positions[n] for n in POSITION_MEMBERS}, X_loc, xy, settings.regressor,
-                                   LOCATION_FEATURES, all_or_none=True)
+                                   names, all_or_none=True)
     if edges is not None:
-        members.update(fit_member_pairs(edges, X_loc, xy, settings.regressor, LOCATION_FEATURES, all_or_none=False))
+        members.update(fit_member_pairs(edges, X_loc, xy, settings.regressor, names, all_or_none=False))
     return fx, fy, members
 
 
 def corrected_position(fx, fy, members: dict, X_loc: np.ndarray, phys: np.ndarray, positions: dict | None,
-                       edges: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       edges: dict | None = None, names: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The forests' position of rows (ImpactModel.predict's: the main pair's, then the mean over every member that
     placed the drop) and the mean of the same members' positions before correction."""
     from .models import LOCATION_FEATURES
 
     def inputs(rows, base):
-        return member_inputs(X_loc[rows], base, LOCATION_FEATURES)
+        return member_inputs(X_loc[rows], base, names or LOCATION_FEATURES)
 
     xy = phys + np.stack([fx.predict(X_loc), fy.predict(X_loc)], 1)
     total, base_sum, count = xy.copy(), np.array(phys, float, copy=True), np.ones(len(phys))
@@ -74,7 +76,7 @@ def corrected_position(fx, fy, members: dict, X_loc: np.ndarray, phys: np.ndarra
 
 
 def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
-                            xy: np.ndarray, settings) -> dict | None:
+                            xy: np.ndarray, settings, names: list[str] | None = None) -> dict | None:
     """The CORRECTION_SCALES factor whose out-of-fold positions of the training drops (every member refitted in
     each fold) have the lowest MAE per axis when its gain over the whole correction is clear
     (CORRECTION_GAIN_SIGMAS), else 1, with the MAE per factor; None with fewer than CORRECTION_MIN_SITES drop
@@ -95,9 +97,9 @@ def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict
     take = lambda d, r: None if d is None else {k: v[r] for k, v in d.items()}  # noqa: E731
     for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X_loc, groups=sites):
         fx, fy, members = position_forests(X_loc[fit_rows], phys[fit_rows], take(positions, fit_rows),
-                                           take(edges, fit_rows), xy[fit_rows], fold_settings)
+                                           take(edges, fit_rows), xy[fit_rows], fold_settings, names)
         oof[held], base[held] = corrected_position(fx, fy, members, X_loc[held], phys[held], take(positions, held),
-                                                   take(edges, held))
+                                                   take(edges, held), names)
     ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
     err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
     mae = [float(e.mean()) for e in err]
@@ -125,10 +127,14 @@ def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train,
                            fx, fy, members: dict, settings) -> None:
     """ImpactModel.fit's step without a site map: the training drops' (`train`, their Features) choice of the
     factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair."""
+    from .models import LOCATION_FEATURES
+    from .pipeline import columns_reading
+
+    names = columns_reading(signal.channel_left_out, LOCATION_FEATURES)   # X_loc's columns
     phys = np.asarray(train.phys_xy_mm, float)
     positions = member_positions(train) if any(n in members for n in POSITION_MEMBERS) else None
     edges = edge_positions(train, signal, edge) if edge and any(n in members for n in EDGE_MEMBERS) else None
-    choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings)
+    choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings, names)
     if choice is not None:
         card["correction_scale"] = choice
         scale_forests([fx, fy, *(f for pair in members.values() for f in pair)], choice["scale"])

@@ -29,7 +29,7 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
-from .pipeline import FEATURE_NAMES, Features
+from .pipeline import FEATURE_NAMES, Features, columns_reading
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
                                edge_coefficients_ok, edge_positions, fit_member_pairs, member_inputs,
                                member_positions)
@@ -169,14 +169,16 @@ class ImpactModel:
         X = features.vector[use]
         xy = np.asarray(xy_mm, float)[use]
         resid = xy - features.phys_xy_mm[use]
-        loc_cols = columns(LOCATION_FEATURES)
+        # a channel left out (signal.channel_left_out): the forests read none of its arrival times
+        loc_names = columns_reading(signal.channel_left_out, LOCATION_FEATURES)
+        loc_cols = columns(loc_names)
         fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
         fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
         member_forests = {}
         positions = member_positions(features.take(np.flatnonzero(use))) if members else None
         if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
             member_forests = fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS}, X[:, loc_cols],
-                                              xy, settings.regressor, LOCATION_FEATURES, all_or_none=True)
+                                              xy, settings.regressor, loc_names, all_or_none=True)
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
@@ -219,14 +221,14 @@ class ImpactModel:
             card["edge_travel_chosen"] = bool(edge)
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
-                                                       settings.regressor, LOCATION_FEATURES, all_or_none=False))
+                                                       settings.regressor, loc_names, all_or_none=False))
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             scale_model_correction(card, X[:, loc_cols], xy, features.take(np.flatnonzero(use)), signal, edge, fx,
                                    fy, member_forests, settings)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
-                   three_channel_class=three, edge_travel=edge)
+                   three_channel_class=three, edge_travel=edge, location_features=loc_names)
 
     @property
     def energy_features(self) -> list[str]:
@@ -320,7 +322,7 @@ class ImpactModel:
                 total = xy[rows].copy()
                 for name in POSITION_MEMBERS:
                     base = positions[name][rows]
-                    Xb = member_inputs(Xm, base, LOCATION_FEATURES)
+                    Xb = member_inputs(Xm, base, self.location_features)
                     total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
                 xy[rows] = total / (1 + len(POSITION_MEMBERS))
                 count[rows] = 1 + len(POSITION_MEMBERS)
@@ -337,7 +339,7 @@ class ImpactModel:
                 if not ok.any():
                     continue
                 base = edge[name][ok]
-                Xb = member_inputs(Xm[ok], base, LOCATION_FEATURES)
+                Xb = member_inputs(Xm[ok], base, self.location_features)
                 total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
                 k[ok] += 1
             xy[rows] = total / k[:, None]
@@ -465,8 +467,9 @@ class ImpactModel:
         if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
             raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
                                                       "[numbers] or null} (edge_travel.N_BASES each)")
-        if names and loc != LOCATION_FEATURES:
-            raise DataError(card_path, "position_members", "needs the current location_features")
+        if names and loc != columns_reading(signal.channel_left_out, LOCATION_FEATURES):
+            raise DataError(card_path, "position_members", "needs the current location_features (without a "
+                                                           "left-out channel's arrival times)")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
         members = {n: (extra[f"x_{n}"], extra[f"y_{n}"]) for n in names}
         three = card.get("three_channel_class", {})

@@ -32,6 +32,7 @@ class Features:
     toa_us: np.ndarray        # float32 [R, 4] (channel delays removed)
     energy: np.ndarray        # float32 [R, 4]
     raw: dict                 # every array extract_batch returned
+    left_out: tuple = (0, 0, 0, 0)   # the config's channel_left_out: channels without an onset by design
 
     def __len__(self) -> int:
         return int(self.vector.shape[0])
@@ -40,7 +41,7 @@ class Features:
         rows = np.asarray(rows)
         return Features(self.vector[rows], self.phys_xy_mm[rows], self.phys_cov[rows], self.accepted[rows],
                         self.status[rows], self.flags[rows], self.toa_us[rows], self.energy[rows],
-                        {k: v[rows] for k, v in self.raw.items()})
+                        {k: v[rows] for k, v in self.raw.items()}, self.left_out)
 
     @property
     def clipped(self) -> np.ndarray:
@@ -56,8 +57,26 @@ class Features:
 
     @property
     def usable(self) -> np.ndarray:
-        """Rows the core processed with an onset on every channel and a finite feature vector."""
-        return (self.status == _core.STATUS_OK) & ~self.no_onset.any(1) & np.isfinite(self.vector).all(1)
+        """Rows the core processed with an onset on every channel in use (not left out) and a finite feature
+        vector but for the columns that read a left-out channel's onset (NaN by design)."""
+        use = ~np.asarray(self.left_out, bool)
+        read = columns_reading(self.left_out, FEATURE_NAMES, keep=True)
+        return ((self.status == _core.STATUS_OK) & ~self.no_onset[:, use].any(1)
+                & np.isfinite(self.vector[:, read]).all(1))
+
+
+def onset_columns(channel: int, names: list[str]) -> list[str]:
+    """The feature names that read `channel`'s onset (the core leaves them NaN when it has none): the arrival
+    time differences with it, its relative arrival time and its residual ratio."""
+    own = {f"rel_toa_{channel}_us", f"residual_ratio_{channel}"}
+    pairs = {f"dtoa_{i}{j}_us" for i, j in PAIRS if channel in (i, j)}
+    return [n for n in names if n in own | pairs]
+
+
+def columns_reading(left_out, names: list[str], keep: bool = False) -> list:
+    """The names of `names` that read no left-out channel's onset (keep: their indices in `names` instead)."""
+    drop = {n for c, v in enumerate(left_out) if v for n in onset_columns(c, names)}
+    return [k for k, n in enumerate(names) if n not in drop] if keep else [n for n in names if n not in drop]
 
 
 def as_int16(adc: np.ndarray, cfg: SignalConfig | None = None) -> np.ndarray:
@@ -81,7 +100,8 @@ def featurize(adc: np.ndarray, cfg: SignalConfig) -> Features:
     raw["band_xy_mm"] = ev["band_xy_mm"]     # the band picks' own position (NaN: off or not placed)
     return Features(vector=ev["vector"], phys_xy_mm=ev["phys_xy_mm"], phys_cov=ev["phys_cov"],
                     accepted=ev["accepted"].astype(bool), status=ev["status"], flags=raw["flags"],
-                    toa_us=raw["toa_us"], energy=raw["energy"], raw=raw)
+                    toa_us=raw["toa_us"], energy=raw["energy"], raw=raw,
+                    left_out=tuple(int(bool(v)) for v in cfg.channel_left_out))
 
 
 def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
@@ -110,7 +130,8 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     else:
         thr, blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
         toa, period = picks(session.adc[rows], cfg, with_period=True)
-        fit = fit_travel(toa, session.xy_mm[rows], cfg.sensor_xy_mm, aniso, period, cfg.fs_hz)
+        fit = fit_travel(toa, session.xy_mm[rows], cfg.sensor_xy_mm, aniso, period, cfg.fs_hz,
+                         left_out=cfg.channel_left_out)
     out = SignalConfig.from_dict(cfg.to_dict())
     out.onset_threshold_counts = thr
     out.aic_blend = blend
@@ -202,7 +223,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     training band picks best; with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
     travel model (velocity, delays, metric on a plate that wants one) fitted on the training drops; None when
     the picks give no frequency or too few band picks."""
-    from .travel import fit_travel, travel_distances, wants_metric
+    from .travel import complete_drops, fit_travel, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows], cfg)
     period = _core.extract_batch(a16, cfg.core())["pick_period"].astype(float)
@@ -222,9 +243,9 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             trial.band_pick_fraction = fraction
             trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
             toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
-            if np.isfinite(toa).all(1).sum() < 8:
+            if complete_drops(toa, cfg.channel_left_out).sum() < 8:
                 continue
-            fit = fit_travel(toa, xy, sensors, wants_metric(session.rig))
+            fit = fit_travel(toa, xy, sensors, wants_metric(session.rig), left_out=cfg.channel_left_out)
             if fit.spread_mm >= best_spread:
                 continue
             trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
@@ -241,15 +262,16 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     """band (band_config's) with the band localiser's slowness linear in the drops' summed log energy
     (travel.fit_energy_slowness on the training drops' band picks; impactcore band_slowness_per_decade), or
     None when it cannot be fitted."""
-    from .travel import fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
+    from .travel import complete_drops, fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
 
     raw = _core.extract_batch(as_int16(session.adc[rows], band), band.core())
     toa = raw["toa_band_us"].astype(float)
     xy = np.asarray(session.xy_mm, float)[rows]
-    if np.isfinite(toa).all(1).sum() < 8:
+    if complete_drops(toa, band.channel_left_out).sum() < 8:
         return None
-    fit = fit_travel(toa, xy, band.sensor_xy_mm, wants_metric(session.rig))
-    line = fit_energy_slowness(toa, xy, band.sensor_xy_mm, fit, summed_log_energy(raw["energy"], band.fs_hz))
+    fit = fit_travel(toa, xy, band.sensor_xy_mm, wants_metric(session.rig), left_out=band.channel_left_out)
+    line = fit_energy_slowness(toa, xy, band.sensor_xy_mm, fit, summed_log_energy(raw["energy"], band.fs_hz),
+                               left_out=band.channel_left_out)
     if line is None:
         return None
     out = SignalConfig.from_dict(band.to_dict())

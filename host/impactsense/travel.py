@@ -98,38 +98,59 @@ def slowness_scales(period_samples, fs_hz: float, exponent: float, ref_hz: float
     return out
 
 
-def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
-               anisotropic: bool, period_samples: np.ndarray | None = None, fs_hz: float | None = None) -> TravelFit:
-    """Velocity, channel delays (relative to channel 0) and, when anisotropic, the metric's a, b; with the
-    picks' periods (samples at fs_hz) also the dispersion exponent, kept when it explains the picks clearly
-    better (DISPERSION_GAIN)."""
+def channels_in_use(left_out, n_channels: int = 4) -> np.ndarray:
+    """[n_channels] bool: the channels a model reads (not in `left_out`, the core's channel_left_out flags)."""
+    flags = np.zeros(n_channels, bool) if left_out is None else np.asarray(left_out, bool)
+    return ~flags
+
+
+def complete_drops(toa_us: np.ndarray, left_out=None) -> np.ndarray:
+    """[R] bool: the drops with an onset on every channel in use (a left-out channel has none by design)."""
     toa = np.asarray(toa_us, float)
-    ok = np.isfinite(toa).all(1)
+    return np.isfinite(toa[:, channels_in_use(left_out, toa.shape[1])]).all(1)
+
+
+def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
+               anisotropic: bool, period_samples: np.ndarray | None = None, fs_hz: float | None = None,
+               left_out=None) -> TravelFit:
+    """Velocity, channel delays (relative to the first channel in use, channel 0 unless left out) and, when
+    anisotropic, the metric's a, b; with the picks' periods (samples at fs_hz) also the dispersion exponent,
+    kept when it explains the picks clearly better (DISPERSION_GAIN). left_out: the core's channel_left_out
+    flags; those channels are not read (their delay 0) and need no onset."""
+    toa = np.asarray(toa_us, float)
+    use = channels_in_use(left_out, toa.shape[1])
+    if use.sum() < 3:
+        raise DataError("training drops", "adc", f"only {int(use.sum())} channels in use (need 3 to place a drop)")
+    ok = complete_drops(toa, left_out)
     if ok.sum() < 8:
-        raise DataError("training drops", "adc", f"only {int(ok.sum())} have an onset on every channel (need 8: "
-                        "a dead or clipped channel in every drop?)")
-    toa, xy = toa[ok], np.asarray(xy_mm, float)[ok]
-    d0 = travel_distances(xy, sensor_xy_mm)
+        raise DataError("training drops", "adc", f"only {int(ok.sum())} have an onset on every channel in use "
+                        "(need 8: a dead or clipped channel in every drop?)")
+    toa, xy, sensors = toa[ok][:, use], np.asarray(xy_mm, float)[ok], np.asarray(sensor_xy_mm, float)[use]
+    d0 = travel_distances(xy, sensors)
     s0 = _start_slowness(toa, d0)
-    plain = _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic, None, 25000.0)
-    if period_samples is None or fs_hz is None:
-        return plain
-    period = np.asarray(period_samples, float)[ok]
-    known = np.isfinite(period) & (period > 0)
-    if known.mean() < 0.5:
-        return plain
-    ref_hz = float(np.median(fs_hz / period[known]))
-    disp = _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic, (period, fs_hz), ref_hz)
-    return disp if disp.spread_us < DISPERSION_GAIN * plain.spread_us else plain
+    fit = _fit(toa, xy, d0, s0, sensors, anisotropic, None, 25000.0)
+    if period_samples is not None and fs_hz is not None:
+        period = np.asarray(period_samples, float)[ok][:, use]
+        known = np.isfinite(period) & (period > 0)
+        if known.mean() >= 0.5:
+            ref_hz = float(np.median(fs_hz / period[known]))
+            disp = _fit(toa, xy, d0, s0, sensors, anisotropic, (period, fs_hz), ref_hz)
+            fit = disp if disp.spread_us < DISPERSION_GAIN * fit.spread_us else fit
+    if not use.all():
+        delays = np.zeros(len(use))
+        delays[use] = fit.delays_us
+        fit.delays_us = [float(v) for v in delays]
+    return fit
 
 
 def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: float) -> TravelFit:
     n_metric = 2 if anisotropic else 0
+    k = toa.shape[1]         # the channels fitted: slowness, k - 1 delays, the metric, alpha
 
     def unpack(p):
-        a, b = (p[4], p[5]) if anisotropic else (0.0, 0.0)
-        alpha = p[4 + n_metric] if periods is not None else 0.0
-        return p[0], np.r_[0.0, p[1:4]], metric_of(a, b), alpha
+        a, b = (p[k], p[k + 1]) if anisotropic else (0.0, 0.0)
+        alpha = p[k + n_metric] if periods is not None else 0.0
+        return p[0], np.r_[0.0, p[1:k]], metric_of(a, b), alpha
 
     def residuals(p):
         s, delay, q, alpha = unpack(p)
@@ -138,9 +159,9 @@ def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: floa
             d = d * slowness_scales(periods[0], periods[1], alpha, ref_hz)
         return _centred(toa - d * s - delay[None]).ravel()
 
-    p0 = [s0, 0.0, 0.0, 0.0] + [0.0] * n_metric + ([0.0] if periods is not None else [])
-    lo = [1e-3, -np.inf, -np.inf, -np.inf] + [-0.9] * n_metric + ([0.0] if periods is not None else [])
-    hi = [np.inf, np.inf, np.inf, np.inf] + [0.9] * n_metric + ([1.0] if periods is not None else [])
+    p0 = [s0] + [0.0] * (k - 1) + [0.0] * n_metric + ([0.0] if periods is not None else [])
+    lo = [1e-3] + [-np.inf] * (k - 1) + [-0.9] * n_metric + ([0.0] if periods is not None else [])
+    hi = [np.inf] * k + [0.9] * n_metric + ([1.0] if periods is not None else [])
     sol = least_squares(residuals, p0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0)
     s, delay, q, alpha = unpack(sol.x)
     r = residuals(sol.x)
@@ -156,14 +177,15 @@ def summed_log_energy(energy: np.ndarray, fs_hz: float) -> np.ndarray:
 
 
 def fit_energy_slowness(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, fit: TravelFit,
-                        log_energy: np.ndarray) -> tuple[float, float, float] | None:
+                        log_energy: np.ndarray, left_out=None) -> tuple[float, float, float] | None:
     """The band picks' slowness as a line in the drops' summed log energy: each training drop's own slowness
     (its centred residuals under `fit` regressed on its centred travel distances) fitted against log_energy
     (least squares). Returns (velocity at the reference, slope in us/mm per decade, reference log energy: the
     training drops' median), i.e. slowness = 1 / velocity + slope (log_energy - reference); None when fewer than
-    8 drops have every pick and an energy."""
-    toa = np.asarray(toa_us, float) - np.asarray(fit.delays_us, float)[None]
-    d = travel_distances(xy_mm, sensor_xy_mm, fit.metric)
+    8 drops have every pick (of the channels in use: not in left_out) and an energy."""
+    use = channels_in_use(left_out, np.asarray(toa_us).shape[1])
+    toa = (np.asarray(toa_us, float) - np.asarray(fit.delays_us, float)[None])[:, use]
+    d = travel_distances(xy_mm, np.asarray(sensor_xy_mm, float)[use], fit.metric)
     r = _centred(toa - d / fit.velocity_mm_per_us)
     dc = _centred(d)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -212,13 +234,14 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
         for blend in blends:
             try:
                 toa, period = picks(adc, cfg, with_period=True, onset_threshold_counts=thr, aic_blend=blend)
-                fit = fit_travel(toa, xy_mm, cfg.sensor_xy_mm, anisotropic, period, cfg.fs_hz)
+                fit = fit_travel(toa, xy_mm, cfg.sensor_xy_mm, anisotropic, period, cfg.fs_hz,
+                                 left_out=cfg.channel_left_out)
             except ValueError:
                 continue
             trials.append({"onset_threshold_counts": thr, "aic_blend": blend, "spread_mm": fit.spread_mm, "fit": fit})
     if not trials:
-        raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel of 8 of them "
-                        "(a dead or clipped channel in every drop?)")
+        raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel in use of 8 "
+                        "of them (a dead or clipped channel in every drop?)")
     chosen = trials[0]
     best = min(trials, key=lambda t: t["spread_mm"])
     configured = chosen["onset_threshold_counts"] == base and chosen["aic_blend"] == base_blend
