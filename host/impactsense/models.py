@@ -256,7 +256,9 @@ class ImpactModel:
         xy = np.full((n, 2), np.nan)
         spread = np.full((n, 2), np.nan)
         energy_class = np.full(n, -1, int)
-        use = features.usable
+        # a model trained on four channels does not run its forests on a drop with a channel left out (the
+        # physics three-sensor position below); one trained with it left out reads none of its arrival times
+        use = features.usable & np.isfinite(features.vector[:, columns(self.location_features)]).all(1)
         if use.any():
             X = features.vector[use]
             Xl = X[:, columns(self.location_features)]
