@@ -95,3 +95,17 @@ def test_a_four_channel_model_with_the_channel_left_out_after_training_keeps_the
     out = left.predict(f)
     assert out["three_channel"].all()
     assert np.allclose(out["xy_mm"], f.phys_xy_mm, equal_nan=True)
+
+
+def test_a_model_trained_with_a_channel_left_out_saves_and_loads(left_out_models, tmp_path):
+    """The card keeps the three-channel location features (and the members they need); the loaded model
+    predicts what the trained one does."""
+    from impactsense.models import ImpactModel
+
+    _, three, test = left_out_models
+    three.save(tmp_path / "m")
+    loaded = ImpactModel.load(tmp_path / "m")
+    assert loaded.location_features == three.location_features
+    assert loaded.members.keys() == three.members.keys()
+    f = featurize(test.adc, three.signal)
+    assert np.allclose(loaded.predict(f)["xy_mm"], three.predict(f)["xy_mm"], atol=1e-6)
