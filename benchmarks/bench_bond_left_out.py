@@ -1,0 +1,77 @@
+"""A bond the effects' signal model may not absorb: retrain's four-channel model against one trained with the
+bond's channel left out (the core's channel_left_out during training: three-sensor picks, travel fit and forests).
+
+On a loop session folder (benchmarks/loop_sessions.py: REF "ref" and the changed session, default "bond"): diagnose,
+the bond's low-pass and gain sized on the recordings (loop.fit_bond), the effects put into the reference's
+recordings (loop.measured_training_session), the core told the channel's gain (loop.pick_settings), as
+`impactsense retrain` and bench_loop do. Prints the changed session's MAE (its own labels) of the model trained
+on four channels and of the one trained with the channel left out, and a label-free candidate for the choice: the
+held-out MAE of both on the training session's own case split (TEST_FRACTION), with the reference's (four
+channels) beside it. No target: a measurement (docs/findings.md "Training with a channel left out").
+
+    python benchmarks/bench_bond_left_out.py SESSIONS [--name bond] [--seed N] [--trees 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from impactsense.commands.retrain import leave_out, score
+from impactsense.data import load_session
+from impactsense.diagnose import diagnose
+from impactsense.loop import fit_bond, measured_training_session, pick_settings, weak_channel
+from impactsense.models import ForestSettings
+from impactsense.pipeline import featurize
+from impactsense.workflow import train
+
+TEST_FRACTION = 0.3
+
+
+def held_out_mae(session, signal, settings, seed: int) -> float:
+    """MAE per axis on the session's held-out cases of a model trained on the rest."""
+    model, split = train(session, None, TEST_FRACTION, seed, None, settings=settings, signal=signal, site_map=None)
+    rows = np.flatnonzero(np.isin(session.recording_id, split["test_recordings"]))
+    out = model.predict(featurize(session.adc[rows], model.signal))
+    return float(np.nanmean(np.abs(out["xy_mm"] - session.xy_mm[rows])))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("sessions")
+    ap.add_argument("--name", default="bond")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trees", type=int, default=60)
+    args = ap.parse_args()
+    ref, sess = load_session(Path(args.sessions) / "ref"), load_session(Path(args.sessions) / args.name)
+    _, det = diagnose(ref, sess, same=False)
+    accepted = fit_bond(ref, sess, det["accepted"], args.seed)
+    channel = weak_channel(accepted)
+    if channel < 0:
+        print(f"{args.name}: no bond sized (effects {[(c.effect, c.sensor) for c in accepted]})")
+        return 0
+    settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        training = measured_training_session(ref, accepted, det["ref"], Path(tmp) / "training", args.seed)
+        four = pick_settings(training, accepted)
+        three = leave_out(four, [channel])
+        mae = {}
+        for tag, signal in (("four", four), ("three", three)):
+            model, _ = train(training, None, 0.0, args.seed, None, settings=settings, signal=signal, site_map=None)
+            mae[tag] = score(sess, model)["mae_mm"]
+        oof = {"reference": held_out_mae(ref, None, settings, args.seed),
+               "four": held_out_mae(training, four, settings, args.seed),
+               "three": held_out_mae(training, three, settings, args.seed)}
+    print(f"{args.name}: channel {channel} ({', '.join(f'{c.effect} {c.params}' for c in accepted)})")
+    print(f"  on the changed session: four channels {mae['four']:.2f} mm, channel {channel} left out "
+          f"{mae['three']:.2f} mm")
+    print(f"  training drops held out: reference {oof['reference']:.2f}, four {oof['four']:.2f} "
+          f"({oof['four'] / oof['reference']:.2f} x), three {oof['three']:.2f} ({oof['three'] / oof['four']:.2f} x four)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
