@@ -121,6 +121,32 @@ def three_channel_rows(features: Features) -> np.ndarray:
             & np.isfinite(features.phys_xy_mm).all(1))
 
 
+def _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm, energy_j, site_map, settings, choose_twin,
+                   card) -> tuple:
+    """ImpactModel.fit's twin: (site_map, twin_fit, energy classifier, threshold) fitted on the used rows among
+    twin_rows; with choose_twin the card's "twin_choice" and, when the twin is not kept, (None, None, ...)."""
+    # The twin's height estimate of each training drop at its physics position (an error like the
+    # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
+    tw = np.flatnonzero(use) if twin_rows is None else np.flatnonzero(use & np.asarray(twin_rows, bool))
+    sel = np.isin(np.flatnonzero(use), tw)   # those rows among the used ones
+    t_xy, t_h, t_phys = xy[sel], np.asarray(height_mm, float)[tw], features.phys_xy_mm[tw]
+    feats, usable = twin_features(features.take(tw))
+    twin_fit = fit_twin(feats, usable, site_map, t_xy, t_h)
+    est = twin_estimate(site_map, twin_fit, feats, usable, t_phys)["log10_height_mm"]
+    ok = np.isfinite(est)
+    fe, threshold = fit_energy_classifier(est[ok, None], energy_j[sel][ok], TWIN_CLASSIFIER)
+    compare = dict(X_energy=features.vector[use][sel][:, columns(MEASURED_ENERGY_FEATURES)], energy_j=energy_j[sel],
+                   twin_classifier=TWIN_CLASSIFIER) if choose_twin else {}
+    oof = out_of_fold_twin(X_loc[sel], t_phys, t_xy, t_h, feats, usable, site_map, settings, **compare)
+    for key, value in fit_uncertainty(oof["spread_mm"], oof["misfit"], oof["error_mm"]).items():
+        setattr(twin_fit, key, value)
+    if choose_twin:
+        card["twin_choice"] = twin_choice(oof, t_xy)
+        if not card["twin_choice"]["use_twin"]:
+            site_map = twin_fit = None
+    return site_map, twin_fit, fe, threshold
+
+
 @dataclass
 class ImpactModel:
     signal: SignalConfig
@@ -183,26 +209,8 @@ class ImpactModel:
         twin_fit = None
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
         if site_map is not None:
-            # The twin's height estimate of each training drop at its physics position (an error like the
-            # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
-            tw = np.flatnonzero(use) if twin_rows is None else np.flatnonzero(use & np.asarray(twin_rows, bool))
-            sel = np.isin(np.flatnonzero(use), tw)   # those rows among the used ones
-            t_xy, t_h, t_phys = xy[sel], np.asarray(height_mm, float)[tw], features.phys_xy_mm[tw]
-            feats, usable = twin_features(features.take(tw))
-            twin_fit = fit_twin(feats, usable, site_map, t_xy, t_h)
-            est = twin_estimate(site_map, twin_fit, feats, usable, t_phys)["log10_height_mm"]
-            ok = np.isfinite(est)
-            fe, threshold = fit_energy_classifier(est[ok, None], energy_j[sel][ok], TWIN_CLASSIFIER)
-            compare = dict(X_energy=X[sel][:, columns(MEASURED_ENERGY_FEATURES)], energy_j=energy_j[sel],
-                           twin_classifier=TWIN_CLASSIFIER) if choose_twin else {}
-            oof = out_of_fold_twin(X[sel][:, loc_cols], t_phys, t_xy, t_h, feats, usable, site_map, settings,
-                                   **compare)
-            for key, value in fit_uncertainty(oof["spread_mm"], oof["misfit"], oof["error_mm"]).items():
-                setattr(twin_fit, key, value)
-            if choose_twin:
-                card["twin_choice"] = twin_choice(oof, t_xy)
-                if not card["twin_choice"]["use_twin"]:
-                    site_map = twin_fit = None
+            site_map, twin_fit, fe, threshold = _fit_site_twin(features, use, twin_rows, X[:, loc_cols], xy, height_mm,
+                                                               energy_j, site_map, settings, choose_twin, card)
         class_features = list(MEASURED_ENERGY_FEATURES)
         if site_map is None:
             fe, threshold = fit_energy_classifier(X[:, columns(MEASURED_ENERGY_FEATURES)], energy_j, settings)
