@@ -28,6 +28,23 @@ def synth():
     return synthetic_capture
 
 
+@pytest.fixture(scope="session")
+def band_on_subset(session1):
+    """A function giving (rows, cfg, features) of every 8th session-1 drop with the core's band picks on (17 kHz,
+    a 1 ms window, the threshold picks' velocity); a new cfg each call."""
+    def make():
+        from impactsense.pipeline import featurize
+        from impactsense.signal import SignalConfig
+
+        rows = np.arange(0, len(session1), 8)
+        cfg = SignalConfig.for_rig(session1.rig)
+        cfg.band_pick_hz = 17000.0
+        cfg.band_window_us = 1000.0
+        cfg.band_velocity_mm_per_us = cfg.velocity_mm_per_us
+        return rows, cfg, featurize(session1.adc[rows], cfg)
+    return make
+
+
 def synthetic_capture(onsets, n=2000, amp=600.0, freq_hz=20000.0, fs_hz=100000.0, bias=2048, noise=0.0,
                       decay_per_s=800.0, seed=0):
     """4-channel uint16 capture: a decaying sine burst starting exactly at each channel's onset (samples)."""

@@ -89,18 +89,12 @@ def test_corrected_positions_closer_near_the_edges():
 
 
 @pytest.fixture(scope="module")
-def edge_model(session1, tmp_path_factory):
+def edge_model(session1, tmp_path_factory, band_on_subset):
     """A session-1 subset with the band picks on and the edge members forced on (the rule itself keeps them only
     when the training drops' physics positions gain: models.choose_edge_travel)."""
     import impactsense.models as models
-    from impactsense.pipeline import featurize
 
-    rows = np.arange(0, len(session1), 8)
-    cfg = SignalConfig.for_rig(session1.rig)
-    cfg.band_pick_hz = 17000.0
-    cfg.band_window_us = 1000.0
-    cfg.band_velocity_mm_per_us = cfg.velocity_mm_per_us
-    feats = featurize(session1.adc[rows], cfg)
+    rows, cfg, feats = band_on_subset()
     forced = {"threshold": fit_correction(feats.raw, session1.xy_mm[rows], cfg, "threshold"),
               "band": fit_correction(feats.raw, session1.xy_mm[rows], cfg, "band")}
     keep = models.choose_edge_travel

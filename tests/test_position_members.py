@@ -14,13 +14,8 @@ from impactsense.signal import SignalConfig
 
 
 @pytest.fixture(scope="module")
-def band_on(session1):
-    rows = np.arange(0, len(session1), 8)
-    cfg = SignalConfig.for_rig(session1.rig)
-    cfg.band_pick_hz = 17000.0
-    cfg.band_window_us = 1000.0
-    cfg.band_velocity_mm_per_us = cfg.velocity_mm_per_us
-    feats = featurize(session1.adc[rows], cfg)
+def band_on(session1, band_on_subset):
+    rows, cfg, feats = band_on_subset()
     args = (feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
             ForestSettings(n_estimators=10))
     return ImpactModel.fit(*args), ImpactModel.fit(*args, members=False), feats
