@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, edge_positions, fit_member_pairs, member_inputs,
+from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, edge_positions, fit_member_pairs, joined_position,
                                member_positions)
 
 CORRECTION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -45,36 +45,6 @@ def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None
     return fx, fy, members
 
 
-def corrected_position(fx, fy, members: dict, X_loc: np.ndarray, phys: np.ndarray, positions: dict | None,
-                       edges: dict | None = None, names: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The forests' position of rows (ImpactModel.predict's: the main pair's, then the mean over every member that
-    placed the drop) and the mean of the same members' positions before correction."""
-    from .models import LOCATION_FEATURES
-
-    def inputs(rows, base):
-        return member_inputs(X_loc[rows], base, names or LOCATION_FEATURES)
-
-    xy = phys + np.stack([fx.predict(X_loc), fy.predict(X_loc)], 1)
-    total, base_sum, count = xy.copy(), np.array(phys, float, copy=True), np.ones(len(phys))
-    if positions is not None and all(n in members for n in POSITION_MEMBERS):
-        placed = np.isfinite(positions["band"]).all(1)
-        for name in POSITION_MEMBERS:
-            base = positions[name][placed]
-            total[placed] += base + np.stack([f.predict(inputs(placed, base)) for f in members[name]], 1)
-            base_sum[placed] += base
-        count[placed] += len(POSITION_MEMBERS)
-    for name in EDGE_MEMBERS if edges is not None else ():
-        if name not in members:
-            continue
-        ok = np.isfinite(edges[name]).all(1)
-        if ok.any():
-            base = edges[name][ok]
-            total[ok] += base + np.stack([f.predict(inputs(ok, base)) for f in members[name]], 1)
-            base_sum[ok] += base
-            count[ok] += 1
-    return total / count[:, None], base_sum / count[:, None]
-
-
 def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
                             xy: np.ndarray, settings, names: list[str] | None = None) -> dict | None:
     """The CORRECTION_SCALES factor whose out-of-fold positions of the training drops (every member refitted in
@@ -85,8 +55,9 @@ def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict
     b the mean of its members' uncorrected positions: what scale_forests(a) makes the model predict."""
     from sklearn.model_selection import GroupKFold
 
-    from .models import ForestSettings
+    from .models import LOCATION_FEATURES, ForestSettings
 
+    names = names or LOCATION_FEATURES
     xy = np.asarray(xy, float)
     sites = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
     if np.unique(sites).size < CORRECTION_MIN_SITES:
@@ -98,8 +69,9 @@ def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict
     for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X_loc, groups=sites):
         fx, fy, members = position_forests(X_loc[fit_rows], phys[fit_rows], take(positions, fit_rows),
                                            take(edges, fit_rows), xy[fit_rows], fold_settings, names)
-        oof[held], base[held] = corrected_position(fx, fy, members, X_loc[held], phys[held], take(positions, held),
-                                                   take(edges, held), names)
+        main = phys[held] + np.stack([fx.predict(X_loc[held]), fy.predict(X_loc[held])], 1)
+        oof[held], base[held] = joined_position(main, phys[held], members, X_loc[held], take(positions, held),
+                                                take(edges, held), names)
     ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
     err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
     mae = [float(e.mean()) for e in err]

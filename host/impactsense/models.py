@@ -31,7 +31,7 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
 from .pipeline import FEATURE_NAMES, Features, columns_reading
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
-                               edge_coefficients_ok, edge_positions, fit_member_pairs, member_inputs,
+                               edge_coefficients_ok, edge_positions, fit_member_pairs, joined_position,
                                member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
@@ -320,39 +320,17 @@ class ImpactModel:
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
-        the band and threshold picks' pairs and the edge members."""
-        n = len(features)
-        positions = member_positions(features) if any(n in self.members for n in POSITION_MEMBERS) else None
-        count = np.ones(n)
-        if positions is not None:
-            # where the band picks placed the drop: the mean of the three corrected positions
-            rows = np.flatnonzero(use & np.isfinite(positions["band"]).all(1))
-            if rows.size:
-                Xm = features.vector[rows][:, columns(self.location_features)]
-                total = xy[rows].copy()
-                for name in POSITION_MEMBERS:
-                    base = positions[name][rows]
-                    Xb = member_inputs(Xm, base, self.location_features)
-                    total += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
-                xy[rows] = total / (1 + len(POSITION_MEMBERS))
-                count[rows] = 1 + len(POSITION_MEMBERS)
-        if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS):
-            # the edge members join the mean where they placed the drop
-            rows = np.flatnonzero(use)
-            edge = edge_positions(features.take(rows), self.signal, self.edge_travel)
-            Xm = features.vector[rows][:, columns(self.location_features)]
-            total, k = xy[rows] * count[rows, None], count[rows].copy()
-            for name in EDGE_MEMBERS:
-                if name not in self.members:
-                    continue
-                ok = np.isfinite(edge[name]).all(1)
-                if not ok.any():
-                    continue
-                base = edge[name][ok]
-                Xb = member_inputs(Xm[ok], base, self.location_features)
-                total[ok] += base + np.stack([f.predict(Xb) for f in self.members[name]], 1)
-                k[ok] += 1
-            xy[rows] = total / k[:, None]
+        the band and threshold picks' pairs and the edge members (position_members.joined_position)."""
+        if not self.members:
+            return
+        rows = np.flatnonzero(use)
+        sub = features.take(rows)
+        positions = member_positions(sub) if any(n in self.members for n in POSITION_MEMBERS) else None
+        edges = (edge_positions(sub, self.signal, self.edge_travel)
+                 if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS) else None)
+        X_loc = features.vector[rows][:, columns(self.location_features)]
+        xy[rows] = joined_position(xy[rows], sub.phys_xy_mm, self.members, X_loc, positions, edges,
+                                   self.location_features)[0]
 
     # ----- persistence -----
     def save(self, out_dir: str | Path, extra_card: dict | None = None, force: bool = False) -> Path:

@@ -127,3 +127,27 @@ def fit_member_pairs(bases: dict, X_loc: np.ndarray, xy: np.ndarray, regressor, 
         Xm = member_inputs(X_loc[rows], base[rows], names)
         out[name] = tuple(regressor().fit(Xm, xy[rows, k] - base[rows, k]) for k in range(2))
     return out
+
+
+def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc: np.ndarray,
+                    positions: dict | None, edges: dict | None, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The reported position of rows (the model's forests' position): the mean of the main pair's position
+    (main_xy) and every member's corrected position where that member placed the drop (the POSITION_MEMBERS
+    where the band picks did, the EDGE_MEMBERS where they did); and the mean of the same positions before
+    correction (phys and the members' own). X_loc: the rows' location features, columns `names`."""
+    total, base_sum, count = np.array(main_xy, float, copy=True), np.array(phys, float, copy=True), np.ones(len(phys))
+
+    def join(name, rows, base):
+        total[rows] += base + np.stack([f.predict(member_inputs(X_loc[rows], base, names)) for f in members[name]], 1)
+        base_sum[rows] += base
+        count[rows] += 1
+
+    if positions is not None and all(n in members for n in POSITION_MEMBERS):
+        placed = np.isfinite(positions["band"]).all(1)
+        for name in POSITION_MEMBERS:
+            join(name, placed, positions[name][placed])
+    for name in EDGE_MEMBERS if edges is not None else ():
+        ok = np.isfinite(edges[name]).all(1)
+        if name in members and ok.any():
+            join(name, ok, edges[name][ok])
+    return total / count[:, None], base_sum / count[:, None]
