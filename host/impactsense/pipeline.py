@@ -226,7 +226,10 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     from .travel import complete_drops, fit_travel, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows], cfg)
-    period = _core.extract_batch(a16, cfg.core())["pick_period"].astype(float)
+    raw = _core.extract_batch(a16, cfg.core())
+    period = raw["pick_period"].astype(float)
+    noise = raw["noise_rms"].astype(float)[:, np.asarray(cfg.channel_left_out) == 0]
+    noise = noise[np.isfinite(noise) & (noise > 0)]
     known = np.isfinite(period) & (period > 0)
     if known.mean() < 0.5:
         return None
@@ -241,6 +244,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             trial = SignalConfig.from_dict(cfg.to_dict())
             trial.band_pick_hz = factor * median_hz
             trial.band_pick_fraction = fraction
+            trial.band_noise_counts = float(np.median(noise)) if noise.size else 0.0
             trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
             toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
             if complete_drops(toa, cfg.channel_left_out).sum() < 8:
@@ -285,7 +289,8 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     drops' summed log energy (energy_slowness_config) when that is clearly closer again (BAND_GAIN). fits (fit_localiser): the band picks only where it accepts
     them (with one localiser start if cfg's starts do not fit)."""
     off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0,
-                                  "band_slowness_per_decade": 0.0, "band_log_energy_ref": 0.0})
+                                  "band_slowness_per_decade": 0.0, "band_log_energy_ref": 0.0,
+                                  "band_noise_counts": 0.0})
     trial = band_config(session, rows, off, fits)
     if trial is not None and fits is not None and not fits(trial):
         trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})

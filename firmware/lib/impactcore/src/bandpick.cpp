@@ -53,7 +53,17 @@ float band_onset(const int16_t* x, int n, float baseline, float noise_rms, int a
       }
     }
   }
-  const float floor = kBandNoiseFactor * noise_rms;
+  float floor = kBandNoiseFactor * noise_rms;
+  if (cfg.band_noise_counts > 0.0f) {
+    // E|envelope|^2 of white noise = noise_rms^2 x sum h^2 of the cascade, (alpha / (1 - beta z^-1))^4:
+    // alpha^8 sum C(n+3, 3)^2 beta^2n = alpha (1 + 9 b + 9 b^2 + b^3) / (2 - alpha)^7, b = beta^2.
+    static_assert(kBandPoles == 4, "the envelope's noise gain is the four-pole cascade's");
+    const float b = (1.0f - alpha) * (1.0f - alpha), d = 2.0f - alpha, d2 = d * d;
+    const float gain2 = alpha * (1.0f + b * (9.0f + b * (9.0f + b))) / (d2 * d2 * d2 * d);
+    const float env = kBandEnvFactor * noise_rms * vsqrt_f32(gain2);
+    floor = kBandNoiseFactor * cfg.band_noise_counts;
+    if (env > floor) floor = env;
+  }
   const float peak = vsqrt_f32(peak2);
   if (!(peak >= 2.0f * floor) || !(peak > 0.0f)) return nan;
   float level = cfg.band_pick_fraction * peak;

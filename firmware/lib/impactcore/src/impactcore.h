@@ -96,6 +96,8 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, band_pick_hz, 0.0f, COPY)  /* band pick (band_onset) at this frequency; 0: off */         \
   X(ONE, float, band_pick_fraction, 0.1f, COPY)  /* ... where its envelope reaches this of its peak */    \
   X(ONE, float, band_window_us, 600.0f, COPY)  /* ... peak sought up to this after the first onset */     \
+  X(ONE, float, band_noise_counts, 0.0f, COPY)  /* ... floor: kBandNoiseFactor x this noise rms (the     \
+    training drops'; kBandEnvFactor x the envelope's noise if higher); 0: x the channel's noise_rms */    \
   X(PER_CHANNEL, int, channel_left_out, (0, 0, 0, 0), COPY)  /* 1: the channel is not used (a change the  \
     models cannot absorb, e.g. a debonded disc): no onset, as a dead channel (three-sensor models) */
 
@@ -535,13 +537,17 @@ void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_
 // rotating phasor), each part low-passed by kBandPoles one-pole stages at f0 / kBandCutoffDivisor, the
 // envelope |I + jQ|; the pick is the first sample of [anchor - kBandBeforeUs, anchor + band_window_us)
 // where the envelope reaches band_pick_fraction of its peak there (linear between samples), or
-// kBandNoiseFactor x noise_rms if that is higher. The filter's delay is the same on every channel. NaN:
-// off (band_pick_hz <= 0 or >= kBandMaxRate x fs), a peak below twice that noise floor, a bad window.
+// the floor if that is higher: kBandNoiseFactor x cfg.band_noise_counts (the noise the model was trained at,
+// so that added noise does not move the pick) or kBandEnvFactor x the envelope's own noise rms at this
+// capture's noise_rms if that is higher (white noise through the cascade); with band_noise_counts 0,
+// kBandNoiseFactor x noise_rms. The filter's delay is the same on every channel. NaN: off (band_pick_hz
+// <= 0 or >= kBandMaxRate x fs), a peak below twice the floor, a bad window.
 // Cost: (window + settling) samples x ~30 float operations per channel (~150 samples at 100 kHz).
 constexpr int kBandPoles = 4;
 constexpr float kBandCutoffDivisor = 6.0f;
 constexpr float kBandBeforeUs = 300.0f;
 constexpr float kBandNoiseFactor = 3.0f;
+constexpr float kBandEnvFactor = 4.0f;   // Rayleigh: P(envelope > 4 x its rms) = exp(-16) a sample
 constexpr float kBandMaxRate = 0.45f;
 constexpr int kBandMaxWindow = 512;   // samples of the envelope kept (the window is cut there)
 // Returns the pick in samples from the capture start.
