@@ -117,6 +117,8 @@ def test_training_chooses_the_envelope_fraction_ahead_of_a_late_arrival(synth):
     chosen = pipeline.band_config(session, rows, cfg)
     assert chosen is not None and chosen.band_pick_fraction < 0.1
     assert abs(chosen.band_velocity_mm_per_us - v) < 0.02 * v
+    # the floor's noise is the training drops' (1 count of noise, rounded: sqrt(1 + 1/12) = 1.04)
+    assert 0.9 < chosen.band_noise_counts < 1.2
 
     def spread_us(fraction: float) -> float:
         trial = SignalConfig.from_dict({**chosen.to_dict(), "band_pick_fraction": fraction})
@@ -194,3 +196,32 @@ def test_the_band_localiser_runs_on_three_channels_when_one_has_no_band_pick(syn
     assert np.isnan(two["band_xy_mm"][0]).all()
     thr2 = _core.process_batch(as_int16(adc), plain.core(), plain.localiser())["phys_xy_mm"][0]
     assert np.array_equal(two["phys_xy_mm"][0], thr2)
+
+
+def test_added_noise_does_not_move_the_band_picks_at_the_training_floor(session1):
+    """Every 8th session-1 drop, band picks at 3 % of the peak (where the noise floor binds on weak
+    channels), white noise of 2, 4 and 12 counts added. With the floor at 3 x the capture's own noise rms
+    (band_noise_counts 0) 2 counts move the picks ~18 us late and lose a third of them (peak < 2 x floor);
+    with the floor at the training drops' noise (band_noise_counts) the median pick stays within 1.5 us of
+    the clean one and the share without a pick within 3 % of the clean share. 12 counts (the envelope's noise
+    rms ~2.3 counts, the floor kBandEnvFactor x that): a pick > 100 us before the clean one is noise
+    crossing the floor: at most 1 %."""
+    rows = np.arange(0, len(session1), 8)
+    cfg = SignalConfig.for_rig(session1.rig)
+    cfg.band_pick_hz, cfg.band_window_us, cfg.band_pick_fraction = 17000.0, 1000.0, 0.03
+    adc = session1.adc[rows].astype(float)
+    clean_old = _core.extract_batch(as_int16(session1.adc[rows]), cfg.core())
+    trained = SignalConfig.from_dict({**cfg.to_dict(), "band_noise_counts": float(np.median(clean_old["noise_rms"]))})
+    clean = band_picks(session1.adc[rows], trained)
+    rng = np.random.default_rng(3)
+    for sd in (2.0, 4.0, 12.0):
+        noisy = np.clip(np.rint(adc + rng.normal(0.0, sd, adc.shape)), 0, 4095).astype(np.uint16)
+        shift = band_picks(noisy, trained) - clean
+        early = np.sum(shift < -100.0) / np.isfinite(shift).sum()
+        assert early <= 0.01, (sd, early)
+        if sd > 2.0:
+            continue
+        assert abs(np.nanmedian(shift)) < 1.5
+        assert np.isnan(band_picks(noisy, trained)).mean() < np.isnan(clean).mean() + 0.03
+        old = band_picks(noisy, cfg) - clean_old["toa_band_us"].astype(float)
+        assert np.nanmedian(old) > 8.0 and np.isnan(old).mean() > 0.2
