@@ -172,6 +172,7 @@ def test_the_band_slowness_line_reads_a_16_bit_logger(session1):
     band12 = band_config(s, rows, cfg12)
     band16 = SignalConfig.from_dict({**cfg16.to_dict(), **{k: v for k, v in band12.to_dict().items()
                                                             if k.startswith("band_") or k == "velocity_mm_per_us"}})
+    band16.band_noise_counts = 16 * band12.band_noise_counts  # the floor's noise in the 16-bit logger's counts
     line12, line16 = energy_slowness_config(s, rows, band12), energy_slowness_config(s16, rows, band16)
     assert line12 is not None and line16 is not None
     assert line16.band_velocity_mm_per_us == pytest.approx(line12.band_velocity_mm_per_us, rel=0.02)
