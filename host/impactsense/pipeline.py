@@ -221,8 +221,9 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     """cfg with the band picks on: their frequency a multiple of the training picks' median (fs / pick_period)
     and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose travel model fits the
     training band picks best; with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
-    travel model (velocity, delays, metric on a plate that wants one) fitted on the training drops; None when
-    the picks give no frequency or too few band picks."""
+    noise floor from the training drops' median noise rms (band_noise_counts: a noisier lab then does not move
+    the picks), their travel model (velocity, delays, metric on a plate that wants one) fitted on the training
+    drops; None when the picks give no frequency or too few band picks."""
     from .travel import complete_drops, fit_travel, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows], cfg)

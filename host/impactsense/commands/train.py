@@ -157,6 +157,8 @@ def run(args) -> int:
     slope = float(getattr(sig, "band_slowness_per_decade", 0.0))
     loud = (f" (slowness {slope:+.4f} us/mm per decade of summed energy from 10^{sig.band_log_energy_ref:.2f} counts^2 s)"
             if slope else "")
+    floor = float(getattr(sig, "band_noise_counts", 0.0))
+    loud += f", noise floor 3 x {floor:.2f} counts (the training drops')" if floor > 0 else ""
     print("band picks: " + (f"at {sig.band_pick_hz / 1000:.1f} kHz, {sig.band_velocity_mm_per_us:.3f} mm/us{loud}; the "
                             "physics position is the mean of both localisers'" if band else "off (threshold picks only)"))
     linear = (model.card.get("energy_class_choice") or {}).get("use_linear")
