@@ -1,0 +1,216 @@
+"""The energy class without a site map: what the product's linear height estimate leaves, and seven more ways to
+read the core's outputs for it.
+
+    python3 benchmarks/bench_class_residual.py [--rigs-dir DIR] [--seeds 4] [--splits 16] [--skip-bundled]
+                                               [--json OUT.json]
+
+Per session folder (the bundled session and the folders under --rigs-dir, as bench_rigs.py finds them) and split
+seed: the localiser fitted on the training cases and the core's features of every drop, as `workflow.train` makes
+them, then the held-out class accuracy of
+- "product": the linear estimate `train` chooses on a laminate (height_class.fit_linear_height_class);
+- "+ site forest": that estimate plus a regression forest of its out-of-fold residual (position-grouped folds on
+  the training drops) on height-free descriptors of the site the core computes: each channel's energy share,
+  first peak over the square root of its arrival energy, residual ratio, the summed difference energies over the
+  summed arrival energy, and the physics position;
+- "huber", "logistic": the same 14 terms fitted robustly (Huber loss) or as a logistic classifier (C 0.1);
+- "bayes cut": the same estimate, cut where the training heights' discrete levels (their frequencies as the prior,
+  the training drops' out-of-fold rms as the error) make both classes equally likely;
+- "+ window sums", "+ low band": the linear estimate with five more inputs, the core's window energies summed over
+  the channels, or with one, a low band's energy: the sum over [ToA, n2] of the squared 16-sample block sums (the
+  boxcar the core's prefix table already holds; computed here in numpy as what a core feature would give);
+- "mix forest": the estimate's class probability (Gaussian, out-of-fold rms) averaged 3:1 with the class forest's.
+Then the same candidates over --splits more random 80/20 case splits of the first seed's features (the paired
+difference against "product"), and the lab's gain drift: the per-case mean of the product's out-of-fold residual
+against the recording order.
+
+A study: nothing here changes the product; exit 0. Figures: docs/findings.md, "The class on the laminate: site
+descriptors, robust and Bayes cuts, a low band".
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
+
+LOW_BAND_BLOCK = 16
+
+
+def low_band_energy(adc: np.ndarray, raw: dict) -> np.ndarray:
+    """[R] log10 of the sum over channels and over [threshold ToA, n2] of the squared 16-sample block sums."""
+    x = adc.astype(np.float64) - raw["baseline"].astype(np.float64)[:, :, None]
+    out = np.zeros(len(x))
+    toa = np.nan_to_num(raw["toa_threshold"].astype(float), nan=0.0).astype(int)
+    for r in range(len(x)):
+        for c in range(x.shape[1]):
+            a = toa[r, c]
+            seg = x[r, c, a:max(int(raw["n2"][r, c]), a + LOW_BAND_BLOCK)]
+            m = len(seg) // LOW_BAND_BLOCK * LOW_BAND_BLOCK
+            out[r] += np.sum(seg[:m].reshape(-1, LOW_BAND_BLOCK).sum(1) ** 2)
+    return np.log10(np.maximum(out, 1e-6))
+
+
+def site_descriptors(vector: np.ndarray, raw: dict) -> np.ndarray:
+    """Height-free numbers the core computes about the site (see the module docstring)."""
+    from impactsense.pipeline import FEATURE_NAMES
+
+    col = lambda names: vector[:, [FEATURE_NAMES.index(n) for n in names]]  # noqa: E731
+    arrival = np.log10(np.maximum(raw["window_energy"].astype(float).sum(2), 1e-6))
+    return np.hstack([col([f"log_energy_rel_{c}" for c in range(4)]),
+                      col([f"log_first_peak_{c}" for c in range(4)]) - 0.5 * arrival,
+                      col([f"residual_ratio_{c}" for c in range(4)]),
+                      col([f"log_diff{k}_energy_sum" for k in (1, 2, 3)]) - col(["log_arrival_energy_sum"]),
+                      col(["phys_x_mm", "phys_y_mm"])])
+
+
+def oof_log_energy(X, log_e, xy, threshold_j, energy_j) -> np.ndarray:
+    from sklearn.model_selection import GroupKFold
+
+    from impactsense.height_class import fit_linear_height_class, position_groups
+
+    out = np.zeros(len(X))
+    for a, b in GroupKFold(5).split(X, groups=position_groups(xy)):
+        out[b] = fit_linear_height_class(X[a], energy_j[a], threshold_j).log_energy(X[b])
+    return out
+
+
+def terms(X_tr, X):
+    """The linear estimate's standardised design (14 terms) of X, standardised as on X_tr."""
+    from impactsense.height_class import _products, design_terms
+
+    off, sd = X_tr.mean(0), X_tr.std(0)
+    sc = 1.0 / np.where(sd > 0, sd, 1.0)
+    t = design_terms(X_tr.shape[1])
+    D_tr, D = _products((X_tr - off) * sc, t), _products((X - off) * sc, t)
+    mu, s = D_tr.mean(0), D_tr.std(0)
+    s = np.where(s > 0, s, 1.0)
+    return (D_tr - mu) / s, (D - mu) / s
+
+
+def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
+    """Held-out class (bool per test drop) of each candidate; d holds the features of every drop."""
+    from scipy.stats import norm
+    from sklearn.ensemble import RandomForestRegressor
+    from sklearn.linear_model import HuberRegressor, LogisticRegression, RidgeCV
+
+    from impactsense.height_class import class_cut, fit_linear_height_class
+    from impactsense.models import ForestSettings
+
+    E, X = d["energy_j"], d["X_linear"]
+    log_e = np.log(E)
+    thr = float(np.percentile(E[tr], 75))
+    cut = class_cut(E[tr], thr)
+    label = (E >= thr).astype(int)
+    m = fit_linear_height_class(X[tr], E[tr], thr)
+    est = m.log_energy(X[te])
+    oof = oof_log_energy(X[tr], log_e[tr], d["xy"][tr], thr, E[tr])
+    sigma = float(np.std(log_e[tr] - oof))
+    out = {"product": est > cut}
+    S = d["site"]
+    forest = RandomForestRegressor(200, min_samples_leaf=5, max_features=0.5, random_state=0, n_jobs=1)
+    out["+ site forest"] = est + forest.fit(S[tr], log_e[tr] - oof).predict(S[te]) > cut
+    D_tr, D_te = terms(X[tr], X[te])
+    out["huber"] = HuberRegressor(alpha=1e-3, max_iter=2000).fit(D_tr, log_e[tr]).predict(D_te) > cut
+    out["logistic"] = LogisticRegression(C=0.1, max_iter=5000).fit(D_tr, label[tr]).predict(D_te) == 1
+    levels, counts = np.unique(np.round(log_e[tr], 9), return_counts=True)
+    like = np.exp(-0.5 * ((est[:, None] - levels[None]) / sigma) ** 2) * counts
+    high = levels >= np.log(thr) - 1e-9
+    out["bayes cut"] = like[:, high].sum(1) > like[:, ~high].sum(1)
+    for name, extra in (("+ window sums", d["window_sums"]), ("+ low band", d["low_band"][:, None])):
+        Xe = np.hstack([X[:, :-2], extra, X[:, -2:]])
+        De_tr, De_te = terms(Xe[tr], Xe[te])
+        out[name] = RidgeCV(alphas=np.logspace(-3, 3, 13)).fit(De_tr, log_e[tr]).predict(De_te) > cut
+    p_forest = ForestSettings(n_estimators=100, seed=0).classifier().fit(d["X_forest"][tr], label[tr]) \
+        .predict_proba(d["X_forest"][te])[:, 1]
+    out["mix forest"] = 0.75 * norm.cdf((est - cut) / sigma) + 0.25 * p_forest > 0.5
+    return {k: float(np.mean(v == label[te].astype(bool))) for k, v in out.items()}
+
+
+def seed_features(session, seed: int) -> tuple[dict, np.ndarray, np.ndarray]:
+    from impactsense.height_class import LINEAR_CLASS_FEATURES
+    from impactsense.models import MEASURED_ENERGY_FEATURES, columns, impact_energy_j
+    from impactsense.pipeline import featurize, fit_localiser
+    from impactsense.signal import SignalConfig
+    from impactsense.split import case_split
+
+    tr, te = case_split(session.case_id, 0.2, seed, None)
+    f = featurize(session.adc, fit_localiser(session, tr, SignalConfig.for_rig(session.rig)))
+    v = f.vector.astype(float)
+    d = {"energy_j": impact_energy_j(session.height_mm, session.rig.ball_mass_g), "xy": session.xy_mm,
+         "X_linear": v[:, columns(LINEAR_CLASS_FEATURES)], "X_forest": v[:, columns(MEASURED_ENERGY_FEATURES)],
+         "site": site_descriptors(v, f.raw), "low_band": low_band_energy(session.adc, f.raw),
+         "window_sums": np.log10(np.maximum(f.raw["window_energy"].astype(float).sum(1), 1e-6)),
+         "usable": f.usable}
+    return d, np.intersect1d(tr, np.flatnonzero(f.usable)), np.intersect1d(te, np.flatnonzero(f.usable))
+
+
+def gain_drift(session, d: dict) -> dict:
+    """Per-case mean out-of-fold residual of the linear estimate (10 position-grouped folds, all drops) against
+    the recording order: correlation, and the mean residual of each quarter of the session."""
+    use = np.flatnonzero(d["usable"])
+    E = d["energy_j"]
+    res = np.log(E[use]) - oof_log_energy(d["X_linear"][use], np.log(E[use]), d["xy"][use],
+                                          float(np.percentile(E[use], 75)), E[use])
+    _, inv = np.unique(session.case_id[use], return_inverse=True)
+    case_res = np.bincount(inv, res) / np.bincount(inv)
+    case_t = np.bincount(inv, session.recording_id[use].astype(float)) / np.bincount(inv)
+    quarters = np.array_split(np.argsort(case_t), 4)
+    return {"r_case_residual_vs_order": float(np.corrcoef(case_res, case_t)[0, 1]),
+            "quarter_mean_residual": [float(case_res[q].mean()) for q in quarters],
+            "case_sd": float(case_res.std()), "within_case_sd": float(np.std(res - case_res[inv]))}
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from impactsense.data import load_session
+
+    extra = argparse.ArgumentParser(add_help=False)
+    extra.add_argument("--splits", type=int, default=16)
+    more, rest = extra.parse_known_args(argv)
+    a = rig_study_args(__doc__.splitlines()[0], rest)
+    report = {}
+    for path in rig_study_sessions(a):
+        s = load_session(path)
+        r = {"seeds": {}, "splits": {}}
+        for seed in range(a.seeds):
+            d, tr, te = seed_features(s, seed)
+            if seed == 0:
+                first = d
+            for k, v in candidates(d, tr, te).items():
+                r["seeds"].setdefault(k, []).append(v)
+        rng = np.random.default_rng(0)
+        use = first["usable"]
+        cases = np.unique(s.case_id[use])
+        for _ in range(more.splits):
+            held = rng.choice(cases, int(round(0.2 * len(cases))), replace=False)
+            te = np.flatnonzero(use & np.isin(s.case_id, held))
+            tr = np.flatnonzero(use & ~np.isin(s.case_id, held))
+            for k, v in candidates(first, tr, te).items():
+                r["splits"].setdefault(k, []).append(v)
+        r["gain_drift"] = gain_drift(s, first)
+        report[s.name] = r
+        base = np.array(r["splits"]["product"])
+        print(f"\n== {s.name}: held-out class, split seeds 0-{a.seeds - 1} | {more.splits} random case splits: "
+              f"mean, paired difference to product (+- se), splits >= 0.95")
+        for k, v in r["seeds"].items():
+            sp = np.array(r["splits"][k])
+            print(f"  {k:15s} {' '.join(f'{x:.3f}' for x in v)}  mean {np.mean(v):.3f} | {sp.mean():.3f} "
+                  f"{np.mean(sp - base):+.3f} +- {np.std(sp - base) / np.sqrt(len(sp)):.3f}  {int(np.sum(sp >= 0.95))}/"
+                  f"{len(sp)}")
+        g = r["gain_drift"]
+        print(f"  gain drift: per-case residual vs recording order r {g['r_case_residual_vs_order']:+.2f}; quarters "
+              f"{' '.join(f'{x:+.3f}' for x in g['quarter_mean_residual'])}; per-case sd {g['case_sd']:.3f}, "
+              f"within a case {g['within_case_sd']:.3f}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
