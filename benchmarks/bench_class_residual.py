@@ -7,7 +7,8 @@ read the core's outputs for it.
 Per session folder (the bundled session and the folders under --rigs-dir, as bench_rigs.py finds them) and split
 seed: the localiser fitted on the training cases and the core's features of every drop, as `workflow.train` makes
 them, then the held-out class accuracy of
-- "product": the linear estimate `train` chooses on a laminate (height_class.fit_linear_height_class);
+- "linear estimate": the one `train` chooses on a laminate (height_class.fit_linear_height_class; on rig-c the
+  product's class);
 - "+ site forest": that estimate plus a regression forest of its out-of-fold residual (position-grouped folds on
   the training drops) on height-free descriptors of the site the core computes: each channel's energy share,
   first peak over the square root of its arrival energy, residual ratio, the summed difference energies over the
@@ -18,9 +19,15 @@ them, then the held-out class accuracy of
 - "+ window sums", "+ low band": the linear estimate with five more inputs, the core's window energies summed over
   the channels, or with one, a low band's energy: the sum over [ToA, n2] of the squared 16-sample block sums (the
   boxcar the core's prefix table already holds; computed here in numpy as what a core feature would give);
-- "mix forest": the estimate's class probability (Gaussian, out-of-fold rms) averaged 3:1 with the class forest's.
+- "mix forest": the estimate's class probability (Gaussian, out-of-fold rms) averaged 3:1 with the class forest's;
+- "+ edge offset @ P": the estimate plus a 1-D offset in the distance to the nearest plate edge: a Gaussian kernel
+  smoother (2 mm) of the training drops' out-of-fold residuals against their true edge distance, read at the test
+  drop's edge distance from position P: "true" (a bound), "reported" (what `train` + `evaluate` report: the
+  forests', or the twin's match with a site map), "physics".
 Then the same candidates over --splits more random 80/20 case splits of the first seed's features (the paired
-difference against "product"), and the lab's gain drift: the per-case mean of the product's out-of-fold residual
+difference against "linear estimate"; "reported" there is the out-of-fold position of one forest pair on the physics
+position, 5 case folds: the product's forests are trained per seed only),
+the per-case residual against the edge distance, and the lab's gain drift: the per-case mean of the product's out-of-fold residual
 against the recording order.
 
 A study: nothing here changes the product; exit 0. Figures: docs/findings.md, "The class on the laminate: site
@@ -39,6 +46,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
 
 LOW_BAND_BLOCK = 16
+EDGE_KERNEL_MM = 2.0
+
+
+def edge_distance(xy_mm: np.ndarray, plate_mm: tuple[float, float]) -> np.ndarray:
+    x, y = xy_mm[:, 0], xy_mm[:, 1]
+    return np.minimum(np.minimum(x, plate_mm[0] - x), np.minimum(y, plate_mm[1] - y))
+
+
+def edge_offset(d_train: np.ndarray, residual: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The training residuals' kernel mean at edge distances d (shrunk to 0 where no training drop is near)."""
+    w = np.exp(-0.5 * ((d[:, None] - d_train[None]) / EDGE_KERNEL_MM) ** 2)
+    return (w * residual[None]).sum(1) / (w.sum(1) + 1e-3)
 
 
 def low_band_energy(adc: np.ndarray, raw: dict) -> np.ndarray:
@@ -110,7 +129,7 @@ def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
     est = m.log_energy(X[te])
     oof = oof_log_energy(X[tr], log_e[tr], d["xy"][tr], thr, E[tr])
     sigma = float(np.std(log_e[tr] - oof))
-    out = {"product": est > cut}
+    out = {"linear estimate": est > cut}
     S = d["site"]
     forest = RandomForestRegressor(200, min_samples_leaf=5, max_features=0.5, random_state=0, n_jobs=1)
     out["+ site forest"] = est + forest.fit(S[tr], log_e[tr] - oof).predict(S[te]) > cut
@@ -128,24 +147,52 @@ def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
     p_forest = ForestSettings(n_estimators=100, seed=0).classifier().fit(d["X_forest"][tr], label[tr]) \
         .predict_proba(d["X_forest"][te])[:, 1]
     out["mix forest"] = 0.75 * norm.cdf((est - cut) / sigma) + 0.25 * p_forest > 0.5
+    d_tr = edge_distance(d["xy"][tr], d["plate_mm"])
+    for where in ("true", "reported", "physics"):
+        P = {"true": d["xy"], "reported": d["xy_reported"], "physics": d["xy_physics"]}[where]
+        out[f"+ edge offset @ {where}"] = est + edge_offset(d_tr, log_e[tr] - oof, edge_distance(P[te], d["plate_mm"])) > cut
     return {k: float(np.mean(v == label[te].astype(bool))) for k, v in out.items()}
 
 
+def oof_forest_positions(d: dict, case_id: np.ndarray) -> np.ndarray:
+    """Every usable drop's position from one forest pair (100 trees) on the physics position, out of fold (5 case
+    folds): a stand-in for the reported position on the random splits."""
+    from sklearn.ensemble import RandomForestRegressor
+    from sklearn.model_selection import GroupKFold
+
+    out = d["xy_physics"].copy()
+    use = np.flatnonzero(d["usable"])
+    X = np.nan_to_num(d["X_location"])
+    for a, b in GroupKFold(5).split(use, groups=case_id[use]):
+        for k in (0, 1):
+            f = RandomForestRegressor(100, max_features=0.5, random_state=0, n_jobs=1)
+            f.fit(X[use[a]], d["xy"][use[a], k] - out[use[a], k])
+            out[use[b], k] += f.predict(X[use[b]])
+    return out
+
+
 def seed_features(session, seed: int) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The features of every drop as `train DATA` (split seed `seed`) makes them, and its reported positions."""
     from impactsense.height_class import LINEAR_CLASS_FEATURES
-    from impactsense.models import MEASURED_ENERGY_FEATURES, columns, impact_energy_j
-    from impactsense.pipeline import featurize, fit_localiser
-    from impactsense.signal import SignalConfig
+    from impactsense.models import LOCATION_FEATURES, MEASURED_ENERGY_FEATURES, ForestSettings, columns, impact_energy_j
+    from impactsense.pipeline import featurize
+    from impactsense.sitemap import resolve_site_map
     from impactsense.split import case_split
+    from impactsense.workflow import train
 
     tr, te = case_split(session.case_id, 0.2, seed, None)
-    f = featurize(session.adc, fit_localiser(session, tr, SignalConfig.for_rig(session.rig)))
+    model, _ = train(session, None, 0.2, seed, None, ForestSettings(n_estimators=100, seed=seed),
+                     site_map=resolve_site_map("auto", session.rig), choose_class=True)
+    f = featurize(session.adc, model.signal)
     v = f.vector.astype(float)
     d = {"energy_j": impact_energy_j(session.height_mm, session.rig.ball_mass_g), "xy": session.xy_mm,
          "X_linear": v[:, columns(LINEAR_CLASS_FEATURES)], "X_forest": v[:, columns(MEASURED_ENERGY_FEATURES)],
+         "X_location": v[:, columns(LOCATION_FEATURES)],
          "site": site_descriptors(v, f.raw), "low_band": low_band_energy(session.adc, f.raw),
          "window_sums": np.log10(np.maximum(f.raw["window_energy"].astype(float).sum(1), 1e-6)),
-         "usable": f.usable}
+         "usable": f.usable, "plate_mm": (session.rig.plate_x_mm, session.rig.plate_y_mm),
+         "xy_physics": f.phys_xy_mm.astype(float), "xy_reported": np.asarray(model.predict(f)["xy_mm"], float)}
+    d["xy_reported"] = np.where(np.isfinite(d["xy_reported"]), d["xy_reported"], d["xy_physics"])
     return d, np.intersect1d(tr, np.flatnonzero(f.usable)), np.intersect1d(te, np.flatnonzero(f.usable))
 
 
@@ -165,6 +212,31 @@ def gain_drift(session, d: dict) -> dict:
             "case_sd": float(case_res.std()), "within_case_sd": float(np.std(res - case_res[inv]))}
 
 
+def edge_distance_error(d: dict, te: np.ndarray) -> dict:
+    """How far the reported position's nearest-edge distance is from the true one, held-out drops within 60 mm of
+    an edge and the others: median and 90th percentile (mm)."""
+    true = edge_distance(d["xy"][te], d["plate_mm"])
+    err = np.abs(edge_distance(d["xy_reported"][te], d["plate_mm"]) - true)
+    near = true < 60
+    return {k: [float(np.median(err[m])), float(np.percentile(err[m], 90))] if m.any() else [float("nan")] * 2
+            for k, m in (("near", near), ("interior", ~near))}
+
+
+def edge_profile(d: dict) -> dict:
+    """Per-case mean out-of-fold residual of the linear estimate (all drops, 10 folds) by the case's true distance
+    to the nearest edge: mean and sd per bin."""
+    use = np.flatnonzero(d["usable"])
+    E = d["energy_j"][use]
+    res = np.log(E) - oof_log_energy(d["X_linear"][use], np.log(E), d["xy"][use], float(np.percentile(E, 75)), E)
+    dist = edge_distance(d["xy"][use], d["plate_mm"])
+    out = {}
+    for lo, hi in ((0, 35), (35, 46), (46, 60), (60, 80), (80, np.inf)):
+        m = (dist >= lo) & (dist < hi)
+        if m.any():
+            out[f"{lo}-{hi:g} mm" if np.isfinite(hi) else f">= {lo} mm"] = {"mean": float(res[m].mean()), "sd": float(res[m].std()), "n": int(m.sum())}
+    return out
+
+
 def main(argv=None) -> int:
     import argparse
 
@@ -182,11 +254,13 @@ def main(argv=None) -> int:
             d, tr, te = seed_features(s, seed)
             if seed == 0:
                 first = d
+            r.setdefault("edge_distance_error_mm", []).append(edge_distance_error(d, te))
             for k, v in candidates(d, tr, te).items():
                 r["seeds"].setdefault(k, []).append(v)
         rng = np.random.default_rng(0)
         use = first["usable"]
         cases = np.unique(s.case_id[use])
+        first = {**first, "xy_reported": oof_forest_positions(first, s.case_id)}   # seed 0's forests saw them
         for _ in range(more.splits):
             held = rng.choice(cases, int(round(0.2 * len(cases))), replace=False)
             te = np.flatnonzero(use & np.isin(s.case_id, held))
@@ -194,15 +268,22 @@ def main(argv=None) -> int:
             for k, v in candidates(first, tr, te).items():
                 r["splits"].setdefault(k, []).append(v)
         r["gain_drift"] = gain_drift(s, first)
+        r["edge_profile"] = edge_profile(first)
         report[s.name] = r
-        base = np.array(r["splits"]["product"])
+        base = np.array(r["splits"]["linear estimate"])
         print(f"\n== {s.name}: held-out class, split seeds 0-{a.seeds - 1} | {more.splits} random case splits: "
-              f"mean, paired difference to product (+- se), splits >= 0.95")
+              f"mean, paired difference to the linear estimate (+- se), splits >= 0.95")
         for k, v in r["seeds"].items():
             sp = np.array(r["splits"][k])
-            print(f"  {k:15s} {' '.join(f'{x:.3f}' for x in v)}  mean {np.mean(v):.3f} | {sp.mean():.3f} "
+            print(f"  {k:26s} {' '.join(f'{x:.3f}' for x in v)}  mean {np.mean(v):.3f} | {sp.mean():.3f} "
                   f"{np.mean(sp - base):+.3f} +- {np.std(sp - base) / np.sqrt(len(sp)):.3f}  {int(np.sum(sp >= 0.95))}/"
                   f"{len(sp)}")
+        print("  residual by edge distance (true): " + ", ".join(
+            f"{k} {v['mean']:+.3f} (sd {v['sd']:.3f}, {v['n']})" for k, v in r["edge_profile"].items()))
+        e = r["edge_distance_error_mm"]
+        print("  reported position's edge-distance error, median / 90th pct per seed (mm): within 60 mm of an edge "
+              + ", ".join(f"{x['near'][0]:.1f}/{x['near'][1]:.1f}" for x in e) + "; further in "
+              + ", ".join(f"{x['interior'][0]:.1f}/{x['interior'][1]:.1f}" for x in e))
         g = r["gain_drift"]
         print(f"  gain drift: per-case residual vs recording order r {g['r_case_residual_vs_order']:+.2f}; quarters "
               f"{' '.join(f'{x:+.3f}' for x in g['quarter_mean_residual'])}; per-case sd {g['case_sd']:.3f}, "
