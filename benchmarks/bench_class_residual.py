@@ -26,9 +26,9 @@ them, then the held-out class accuracy of
   forests', or the twin's match with a site map), "physics".
 Then the same candidates over --splits more random 80/20 case splits of the first seed's features (the paired
 difference against "linear estimate"; "reported" there is the out-of-fold position of one forest pair on the physics
-position, 5 case folds: the product's forests are trained per seed only),
-the per-case residual against the edge distance, and the lab's gain drift: the per-case mean of the product's out-of-fold residual
-against the recording order.
+position, 5 case folds: the product's forests are trained per seed only), the per-case residual against the edge
+distance, and the lab's gain drift: the per-case mean of the linear estimate's out-of-fold residual against the
+recording order.
 
 A study: nothing here changes the product; exit 0. Figures: docs/findings.md, "The class on the laminate: site
 descriptors, robust and Bayes cuts, a low band".
@@ -150,7 +150,8 @@ def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
     d_tr = edge_distance(d["xy"][tr], d["plate_mm"])
     for where in ("true", "reported", "physics"):
         P = {"true": d["xy"], "reported": d["xy_reported"], "physics": d["xy_physics"]}[where]
-        out[f"+ edge offset @ {where}"] = est + edge_offset(d_tr, log_e[tr] - oof, edge_distance(P[te], d["plate_mm"])) > cut
+        offset = edge_offset(d_tr, log_e[tr] - oof, edge_distance(P[te], d["plate_mm"]))
+        out[f"+ edge offset @ {where}"] = est + offset > cut
     return {k: float(np.mean(v == label[te].astype(bool))) for k, v in out.items()}
 
 
@@ -233,7 +234,8 @@ def edge_profile(d: dict) -> dict:
     for lo, hi in ((0, 35), (35, 46), (46, 60), (60, 80), (80, np.inf)):
         m = (dist >= lo) & (dist < hi)
         if m.any():
-            out[f"{lo}-{hi:g} mm" if np.isfinite(hi) else f">= {lo} mm"] = {"mean": float(res[m].mean()), "sd": float(res[m].std()), "n": int(m.sum())}
+            key = f"{lo}-{hi:g} mm" if np.isfinite(hi) else f">= {lo} mm"
+            out[key] = {"mean": float(res[m].mean()), "sd": float(res[m].std()), "n": int(m.sum())}
     return out
 
 
