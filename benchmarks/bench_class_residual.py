@@ -31,7 +31,7 @@ distance, and the lab's gain drift: the per-case mean of the linear estimate's o
 recording order.
 
 A study: nothing here changes the product; exit 0. Figures: docs/findings.md, "The class on the laminate: site
-descriptors, robust and Bayes cuts, a low band".
+descriptors, robust and Bayes cuts, a low band, the edge offset".
 """
 
 from __future__ import annotations
