@@ -7,8 +7,8 @@ read the core's outputs for it.
 Per session folder (the bundled session and the folders under --rigs-dir, as bench_rigs.py finds them) and split
 seed: the localiser fitted on the training cases and the core's features of every drop, as `workflow.train` makes
 them, then the held-out class accuracy of
-- "linear estimate": the one `train` chooses on a laminate (height_class.fit_linear_height_class; on rig-c the
-  product's class);
+- "linear estimate": height_class.fit_linear_height_class, the estimate `train` keeps where the training drops'
+  out-of-fold accuracy prefers it to the class forest;
 - "+ site forest": that estimate plus a regression forest of its out-of-fold residual (position-grouped folds on
   the training drops) on height-free descriptors of the site the core computes: each channel's energy share,
   first peak over the square root of its arrival energy, residual ratio, the summed difference energies over the
