@@ -17,8 +17,12 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
 - `damping`               FEM: plate damping D_s +20 % (another seed: +15 .. +25 %)
 - `bond`                  one disc's bond: a first-order shear-lag low-pass (RC, not the library's Butterworth)
                           with a gain loss, on FEM drops
-- `delay`, `gain`, `hum`, `noise`  signal level on FEM drops: a channel's cubic-spline time shift, a
-                          channel's gain, 50 Hz mains on every channel, extra white noise
+- `delay`                 a disc's analogue signal delayed before the recorder samples it (the FEM's fast path
+                          with the disc's reciprocity run shifted: `sim.simulate.delayed_fields`), as a channel
+                          skew does; not a shift of the recorded samples (their onset is aliased on a thin metal
+                          plate, and a spline or FFT shift of them reads 1.4 x a fraction of a sample)
+- `gain`, `hum`, `noise`  signal level on FEM drops: a channel's gain, 50 Hz mains on every channel, extra white
+                          noise
 - `noise-<C>`             (`--noise-counts C,C`) extra white noise of C counts rms, other drops and draws
 Signal-level changes act on the clean FEM signal; the rig's noise and the ADC's rounding come after (a
 delay or a bond acts on the disc's signal, not on the amplifier's noise).
@@ -81,7 +85,7 @@ def spec_list(seed: int, noise_counts=()) -> list[dict]:
                   "truth": {"effect": "channel_lowpass", "sensor": int(rng.integers(4)),
                             "params": {"fc_hz": round(float(rng.uniform(2500, 5000)), 1),
                                        "gain": round(float(rng.uniform(0.6, 0.8)), 3)}}})
-    specs.append({"name": "delay", "kind": "signal", "seed": seed + 23,
+    specs.append({"name": "delay", "kind": "signal", "seed": seed + 23, "made": "analogue skew (FEM)",
                   "truth": {"effect": "channel_delay", "sensor": int(rng.integers(4)),
                             "params": {"delay_us": round(float(rng.choice([-1, 1]) * rng.uniform(4, 9)), 2)}}})
     specs.append({"name": "gain", "kind": "signal", "seed": seed + 24,
@@ -100,16 +104,6 @@ def spec_list(seed: int, noise_counts=()) -> list[dict]:
 
 
 # ---- signal-level changes (independent of impactsense.effects) ------------------------------------------
-def spline_delay(a: np.ndarray, delay_samples: float) -> np.ndarray:
-    """Each row of a (float) delayed by delay_samples via a cubic spline (edge values held)."""
-    from scipy.interpolate import CubicSpline
-
-    n = a.shape[-1]
-    t = np.arange(n)
-    cs = CubicSpline(t, a, axis=-1)
-    return cs(np.clip(t - delay_samples, 0, n - 1))
-
-
 def shear_lag(a: np.ndarray, fc_hz: float, gain: float, fs_hz: float) -> np.ndarray:
     """A compliant bond as a first-order RC (shear-lag) low-pass with a gain loss (bilinear transform)."""
     from scipy import signal
@@ -125,7 +119,7 @@ def signal_change(counts: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray
     a = counts.copy()
     p, s = truth["params"], truth["sensor"]
     if truth["effect"] == "channel_delay":
-        a[:, s] = spline_delay(a[:, s], p["delay_us"] * 1e-6 * rig.fs_hz)
+        pass   # made by the FEM (make_session: disc_delays)
     elif truth["effect"] == "sensor_gain":
         a[:, s] *= p["gain"]
     elif truth["effect"] == "channel_lowpass":
@@ -175,6 +169,15 @@ def physical(params, rig, truth):
     return params, rig
 
 
+def disc_delays(truth, rig):
+    """A channel delay's time skew per disc (s), or None."""
+    if truth is None or truth["effect"] != "channel_delay":
+        return None
+    d = [0.0] * len(rig.sensors)
+    d[truth["sensor"]] = truth["params"]["delay_us"] * 1e-6
+    return d
+
+
 def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
     from impactsense.sim import simulate_drops
     from impactsense.sim.simulate import simulate_voltages, to_adc
@@ -187,7 +190,8 @@ def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
         adc = simulate_drops(params, sim_rig, xt, yt, hd, noise=True, seed=spec["seed"], workers=args.workers,
                              progress=False)
     else:   # the change on the clean signal, then the rig's own noise and the ADC's rounding and rails
-        volts = simulate_voltages(params, sim_rig, xt, yt, hd, workers=args.workers)["volts"]
+        volts = simulate_voltages(params, sim_rig, xt, yt, hd, workers=args.workers,
+                                  disc_delays_s=disc_delays(truth, rig))["volts"]
         clean = to_adc(volts, params, sim_rig, noise=False, clip=False).astype(np.float64) - rig.bias_counts
         a = signal_change(clean, truth, rig, spec["seed"])
         a += np.random.default_rng(spec["seed"]).normal(0.0, params.noise_counts_rms, a.shape)
@@ -242,7 +246,7 @@ def generate(args) -> dict:
     for spec in spec_list(args.seed, args.noise_counts):
         if only and spec["name"] not in only:
             continue
-        if spec["name"] in man["sessions"] and (out / spec["name"] / "recordings.npz").exists():
+        if man["sessions"].get(spec["name"]) == spec and (out / spec["name"] / "recordings.npz").exists():
             continue
         print(f"  {spec['name']}: {spec.get('truth', 'unchanged')}", flush=True)
         (xd, yd, hd, case, rep), adc = make_session(spec, base, rig, args)

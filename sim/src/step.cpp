@@ -39,7 +39,7 @@ double Plate::Run::contact(double t, double& delta) {
 void Plate::Run::add_loads(double t) {
   const double delta_rec = c_.record_every * c_.dt_s;
   if (c_.hat_load) {
-    const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec) / delta_rec);
+    const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec - c_.load_delay_s) / delta_rec);
     if (phi > 0) {
       for (size_t k = 0; k < hat_.node.size(); ++k) {
         loads_.push_back({hat_.node[k], 1, Real(phi * hat_.wx[k])});

@@ -151,6 +151,32 @@ def reciprocal_fields(model: Model, *, workers: int = 2) -> list:
     return fields
 
 
+def delayed_fields(model: Model, delays_s, *, workers: int = 2) -> list:
+    """The reciprocal fields with disc s's response delayed by delays_s[s] (s): a channel's time skew acting on
+    the analogue signal before the recorder samples it, as a multiplexed ADC or a cable's delay does. The
+    fraction of a sample shifts the reciprocity run's hat load (one more solve per delayed disc), the whole
+    samples shift the record; a delay 0 keeps the cached field."""
+    fields = list(reciprocal_fields(model, workers=workers))
+    delta = model.record_every * model.dt_s
+    for s, d in enumerate(delays_s):
+        if not d:
+            continue
+        whole = int(math.floor(d / delta))
+        frac = d - whole * delta
+        f = fields[s]
+        if frac > 1e-12:
+            f = np.asarray(_run(model, dt_s=model.dt_s, n_steps=model.n_record * model.record_every,
+                                record_every=model.record_every, n_record=model.n_record, load=model.sensors[s],
+                                record_field=True, load_delay_s=frac)["field"])
+        out = np.zeros_like(f)
+        if whole >= 0:
+            out[whole:] = f[:f.shape[0] - whole]
+        else:
+            out[:whole] = f[-whole:]
+        fields[s] = out
+    return fields
+
+
 def fast_drop(model: Model, x_m: float, y_m: float, v0: float, fields: list) -> dict:
     win = contact_window(model, x_m, y_m, v0)
     force = np.asarray(win["force_n"])
@@ -240,10 +266,12 @@ def batch_solver(params: SimParams, rig, solver: str | None, n_drops: int | None
 
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
                       solver: str | None = None, workers: int = 2, progress: bool = False,
-                      scheduler: str | None = None) -> dict:
+                      scheduler: str | None = None, disc_delays_s=None) -> dict:
     """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details.
     solver: "direct" (the explicit FEM; `method` picks its path) or "modal" (None: params.solver).
-    scheduler: a Dask scheduler's address (None: executor.scheduler(), the process's; "" : here)."""
+    scheduler: a Dask scheduler's address (None: executor.scheduler(), the process's; "" : here).
+    disc_delays_s: a time skew per disc on the analogue signal (`delayed_fields`; the direct solver's fast path
+    only)."""
     x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
     solver = solver or params.solver
     if solver not in ("direct", "modal"):
@@ -253,8 +281,10 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
     method = method or params.method
     if method not in ("auto", "fast", "direct"):
         raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
+    if disc_delays_s is not None and (solver != "direct" or method != "fast"):
+        raise ConfigError("disc_delays_s needs the direct solver's fast path (method 'fast')")
     address = executor.scheduler() if scheduler is None else scheduler
-    if address:
+    if address and disc_delays_s is None:
         return _on_cluster(address, params, rig, x, y, h, method, solver, progress)
     model = get_model(params, rig)
     v0 = impact_velocity(params, h)
@@ -264,6 +294,8 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
         cached = getattr(_CACHE.get((params, _rig_key(rig))), "_fields", None) is not None
         method = "fast" if (x.size > 4 or cached) else "direct"
     fields = reciprocal_fields(model, workers=workers) if method == "fast" else None
+    if disc_delays_s is not None:
+        fields = delayed_fields(model, disc_delays_s, workers=workers)
 
     def one(k):
         if method == "fast":
