@@ -78,6 +78,8 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
         want = 100 * (t["e_scale"] - 1)
         how = (f"scan {100 * (p['e_scale_scan'] - 1):+.1f} % at n {p['e_exponent']:.3f}, A0 curve "
                f"{100 * (p['e_scale_curve'] - 1):+.1f} %: their geometric mean" if "e_scale" in p else "the A0 curve")
+        if "e_scale_lo" in p:   # the pick velocity's interval in E
+            how += f"; the picks allow [{100 * (p['e_scale_lo'] - 1):+.1f}, {100 * (p['e_scale_hi'] - 1):+.1f}] %"
         return (f"E {got:+.1f} % ({how}; pick velocity {p['change_pct']:+.2f}"
                 f"{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"])
     if "damping_scale" in t and e["effect"] == "damping":
@@ -143,7 +145,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
             c = next((c for c in accepted if c.effect == e["effect"] == "wave_speed"), None)
             if c is not None:
                 e["params"] = {**e["params"], **{k: c.params[k] for k in
-                                                 ("e_scale", "e_exponent", "e_scale_scan", "e_scale_curve")}}
+                                                 ("e_scale", "e_exponent", "e_scale_scan", "e_scale_curve",
+                                                  "e_scale_lo", "e_scale_hi") if k in c.params}}
         slow = det["ref"].slowness_us_per_mm
         # as `impactsense retrain` with a twin: a random effect's drops also at the twin's new positions
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed,

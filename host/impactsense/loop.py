@@ -150,14 +150,23 @@ def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers
 def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: int = 2) -> list:
     """`accepted` with each wave_speed candidate's E change sized by the twin's scan on DATA_NEW's drops
     (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in), e_exponent (the
-    scan's n), e_scale_scan and e_scale_curve (the scan's and the A0 curve's own)."""
+    scan's n), e_scale_scan and e_scale_curve (the scan's and the A0 curve's own), and e_scale_lo / e_scale_hi:
+    the pick velocity change's 95 % interval mapped through the exponent e_scale implies (what the picks
+    allow: E moves by the change / n, n 0.3-0.45)."""
+    from .diagnose import _param_ci, _param_se
+
     out = []
     for c in accepted:
         if c.effect == "wave_speed" and "e_scale" not in c.params:
             scan = e_scale_scan(params, data, picker, c.params["change_pct"], seed, workers)
-            c = dataclasses.replace(c, params={**c.params, "e_scale": scan["e_scale"], "e_exponent": scan["exponent"],
-                                               "e_scale_scan": scan.get("scan_e_scale", scan["e_scale"]),
-                                               "e_scale_curve": scan["first_guess"]})
+            extra = {"e_scale": scan["e_scale"], "e_exponent": scan["exponent"],
+                     "e_scale_scan": scan.get("scan_e_scale", scan["e_scale"]), "e_scale_curve": scan["first_guess"]}
+            ci = _param_ci(c, _param_se(c)).get("change_pct")
+            if ci is not None and abs(np.log(scan["e_scale"])) > 1e-9:
+                n_used = np.log1p(c.params["change_pct"] / 100.0) / np.log(scan["e_scale"])
+                lo, hi = sorted(float(np.exp(np.log1p(v / 100.0) / n_used)) for v in ci)
+                extra.update(e_scale_lo=lo, e_scale_hi=hi)
+            c = dataclasses.replace(c, params={**c.params, **extra})
         out.append(c)
     return out
 
