@@ -11,7 +11,8 @@ Prints, per session and for two timing picks (the AIC onset, and the picks `diag
 physics reference and of physics + site terms (`impactsense.site_reference.halves`; the site reference also in
 each direction: fitted on the first half and scored on the second, then the other way), the within-case floor
 (repeated drops at one declared position: pick noise plus landing scatter) and each reference's excess over
-that floor (in quadrature). A second table splits the floor and the excess (`site_reference.floor_parts`): the
+that floor (in quadrature), and the same site reference scored on each held-out case's mean over its repeated
+drops (with the share of the within-case floor such a mean keeps: floor / sqrt(repeats)). A second table splits the floor and the excess (`site_reference.floor_parts`): the
 picks' own noise against the landing scatter, the per-case timing error no position explains, the position
 shift the case means ask for, and whether the per-case error is smooth (neighbouring cases against all pairs).
 Target (exit 1 on a miss): the chosen picks' site reference held-out DToA <= 3 us rms on every session.
@@ -34,8 +35,8 @@ def main(argv=None) -> int:
     names = [a for a in args if a != "--mean-levels"] or ["bundled:session-1", "bundled:session-2"]
     miss = 0
     print("| session | drops | picks | physics us | + site terms us (each direction) | within-case floor us | "
-          "excess over floor (physics / site) us |")
-    print("|---|---|---|---|---|---|---|")
+          "excess over floor (physics / site) us | site, case means us | floor in a case mean us |")
+    print("|---|---|---|---|---|---|---|---|---|")
     parts = []
     for name in names:
         session = load_session(name)
@@ -51,7 +52,8 @@ def main(argv=None) -> int:
             h = halves(Fp)
             each = " / ".join(f"{site:.2f}" for _, site in h["directions"])
             print(f"| {name} | {len(F)} | {label} | {h['physics']:.2f} | {h['site']:.2f} ({each}) | "
-                  f"{h['within_case']:.2f} | {h['excess_physics']:.2f} / {h['excess_site']:.2f} |", flush=True)
+                  f"{h['within_case']:.2f} | {h['excess_physics']:.2f} / {h['excess_site']:.2f} | "
+                  f"{h['site_case_mean']:.2f} | {h['case_mean_floor']:.2f} |", flush=True)
             parts.append((name, label, floor_parts(Fp)))
         miss += h["site"] > TARGET_US
     print("\n| session | picks | within-case floor us | pick noise us | landing us | per-case timing us (no position "

@@ -152,23 +152,46 @@ def within_case_dtoa_rms(F: R.Features) -> float:
     return float(np.sqrt(dev / dof)) if dof else float("nan")
 
 
+def case_mean_dtoa(ref: R.Reference, F: R.Features) -> tuple[float, float]:
+    """(rms over cases of the case-mean DToA residual, the mean 1 / repeats of those cases): what a reference
+    is scored on when each position's repeated drops are averaged first (their pick noise / sqrt(repeats))."""
+    pred = ref.toa_pred(F)
+    r = (F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]) - (pred[:, R.PAIR_I] - pred[:, R.PAIR_J])
+    sq, inv_n = [], []
+    for c in np.unique(F.case_id):
+        x = r[F.case_id == c]
+        n = np.sum(np.isfinite(x), axis=0)
+        ok = n > 0
+        sq.extend((np.nansum(x[:, ok], axis=0) / n[ok]) ** 2)
+        inv_n.extend(1.0 / n[ok])
+    return float(np.sqrt(np.mean(sq))), float(np.mean(inv_n))
+
+
 def halves(F: R.Features, seed: int = 0) -> dict:
     """The reference's DToA residual on held-out halves of one session (reference and site terms fitted on
-    one half of the cases, scored on the other, both ways), against the physics reference alone."""
+    one half of the cases, scored on the other, both ways), against the physics reference alone; per drop and
+    (`site_case_mean`) on the held-out cases' means, with the share of the pick noise left in such a mean
+    (`case_mean_floor`: the within-case floor / sqrt(repeats))."""
     a, b = _half_split(F.case_id, seed)
-    sq = {"physics": 0.0, "site": 0.0}
+    sq = {"physics": 0.0, "site": 0.0, "site_case_mean": 0.0}
     directions = []   # (physics, site) scored on the second half, then on the first
+    inv_n = 0.0
     for train, test in ((a, b), (b, a)):
         Ftr, Fte = F.subset(train), F.subset(test)
         ref = R.fit_reference(Ftr, "calibrated")
-        one = (dtoa_rms(ref, Fte), dtoa_rms(ref, fit_site(ref, Ftr).attach(Fte)))
+        Fsite = fit_site(ref, Ftr).attach(Fte)
+        one = (dtoa_rms(ref, Fte), dtoa_rms(ref, Fsite))
         directions.append(one)
         sq["physics"] += one[0] ** 2 * len(test)
         sq["site"] += one[1] ** 2 * len(test)
+        cm, k = case_mean_dtoa(ref, Fsite)
+        sq["site_case_mean"] += cm ** 2 * len(test)
+        inv_n += k * len(test)
     out = {k: float(np.sqrt(v / len(F))) for k, v in sq.items()}
     out["directions"] = directions
     floor = within_case_dtoa_rms(F)
     out["within_case"] = floor
+    out["case_mean_floor"] = float(floor * np.sqrt(inv_n / len(F)))
     out["excess_physics"] = float(np.sqrt(max(out["physics"] ** 2 - floor ** 2, 0.0)))
     out["excess_site"] = float(np.sqrt(max(out["site"] ** 2 - floor ** 2, 0.0)))
     return out
