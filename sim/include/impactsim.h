@@ -127,7 +127,6 @@ struct RunConfig {
   bool hat_load = false;
   Functional load;
   double load_delay_s = 0;       // the hat centred at Delta + load_delay_s (>= 0): a disc's sub-sample delay
-
   std::vector<Functional> sensors;  // recorded on the record grid
   bool record_field = false;        // record w of every node on the record grid (reciprocity)
   bool record_energy = false;       // energy at each record sample

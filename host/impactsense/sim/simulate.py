@@ -161,10 +161,10 @@ def delayed_fields(model: Model, delays_s, *, workers: int = 2) -> list:
     for s, d in enumerate(delays_s):
         if not d:
             continue
-        whole = int(math.floor(d / delta))
+        whole = int(math.floor(d / delta + 1e-9))       # a whole number of samples within rounding: no solve
         frac = d - whole * delta
         f = fields[s]
-        if frac > 1e-12:
+        if frac > 1e-9 * delta:
             f = np.asarray(_run(model, dt_s=model.dt_s, n_steps=model.n_record * model.record_every,
                                 record_every=model.record_every, n_record=model.n_record, load=model.sensors[s],
                                 record_field=True, load_delay_s=frac)["field"])
