@@ -151,8 +151,9 @@ def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: in
     """`accepted` with each wave_speed candidate's E change sized by the twin's scan on DATA_NEW's drops
     (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in), e_exponent (the
     scan's n), e_scale_scan and e_scale_curve (the scan's and the A0 curve's own), and e_scale_lo / e_scale_hi:
-    the pick velocity change's 95 % interval mapped through the exponent e_scale implies (what the picks
-    allow: E moves by the change / n, n 0.3-0.45)."""
+    the pick velocity change's 95 % interval mapped through the scan's and the curve's exponents (E moves by the
+    change / n, n 0.3-0.45; the two exponents differ by more than the scan's noise on some plates), the range of
+    E the picks and the conversion allow."""
     from .diagnose import _param_ci, _param_se
 
     out = []
@@ -162,10 +163,11 @@ def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: in
             extra = {"e_scale": scan["e_scale"], "e_exponent": scan["exponent"],
                      "e_scale_scan": scan.get("scan_e_scale", scan["e_scale"]), "e_scale_curve": scan["first_guess"]}
             ci = _param_ci(c, _param_se(c)).get("change_pct")
-            if ci is not None and abs(np.log(scan["e_scale"])) > 1e-9:
-                n_used = np.log1p(c.params["change_pct"] / 100.0) / np.log(scan["e_scale"])
-                lo, hi = sorted(float(np.exp(np.log1p(v / 100.0) / n_used)) for v in ci)
-                extra.update(e_scale_lo=lo, e_scale_hi=hi)
+            scales = [v for v in (extra["e_scale_scan"], extra["e_scale_curve"]) if abs(np.log(v)) > 1e-9]
+            if ci is not None and scales:
+                ns = [np.log1p(c.params["change_pct"] / 100.0) / np.log(v) for v in scales]
+                ends = [float(np.exp(np.log1p(v / 100.0) / n)) for v in ci for n in ns]
+                extra.update(e_scale_lo=min(ends), e_scale_hi=max(ends))
             c = dataclasses.replace(c, params={**c.params, **extra})
         out.append(c)
     return out
