@@ -79,7 +79,7 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
         how = (f"scan {100 * (p['e_scale_scan'] - 1):+.1f} % at n {p['e_exponent']:.3f}, A0 curve "
                f"{100 * (p['e_scale_curve'] - 1):+.1f} %: their geometric mean" if "e_scale" in p else "the A0 curve")
         if "e_scale_lo" in p:   # the pick velocity's interval in E
-            how += f"; the picks allow [{100 * (p['e_scale_lo'] - 1):+.1f}, {100 * (p['e_scale_hi'] - 1):+.1f}] %"
+            how += f"; range (pick velocity interval, both exponents) [{100 * (p['e_scale_lo'] - 1):+.1f}, {100 * (p['e_scale_hi'] - 1):+.1f}] %"
         return (f"E {got:+.1f} % ({how}; pick velocity {p['change_pct']:+.2f}"
                 f"{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"])
     if "damping_scale" in t and e["effect"] == "damping":
