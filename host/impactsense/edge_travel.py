@@ -95,8 +95,11 @@ def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> list[
     return [float(c) for c in coef]
 
 
-def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray) -> np.ndarray:
+def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, without: int = -1) -> np.ndarray:
     toa, use, scale, v = pick_set_arrivals(raw, signal, pick_set)
+    if without >= 0:   # the three-sensor position: that channel's pick not read
+        use = use.copy()
+        use[:, without] = False
     toa = np.where(use, toa - correction_us, 0.0).astype(np.float32)
     scaled = pick_set == "band" or bool(signal.dispersion_exponent)
     out = _core.localise_batch(np.ascontiguousarray(toa), np.ascontiguousarray(use.astype(np.uint8)),
@@ -107,6 +110,18 @@ def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray) -> np
                                int(signal.localiser_starts), int(signal.posterior_grid))
     xy = np.stack([out["x_mm"], out["y_mm"]], 1).astype(float)
     xy[(np.asarray(out["status"]) != 0) | (use.sum(1) < 3)] = np.nan
+    return xy
+
+
+def three_sensor_positions(raw: dict, signal, channel: int) -> np.ndarray:
+    """The core's physics position [R, 2] from the picks of every channel but `channel` (NaN where the other three
+    do not place the drop): as process_event gives it with that channel left out, the threshold picks' position
+    averaged with the band picks' where those place the drop too."""
+    xy = _localise(raw, signal, "threshold", 0.0, without=channel)
+    if float(signal.band_pick_hz) > 0 and float(signal.band_velocity_mm_per_us) > 0:
+        band = _localise(raw, signal, "band", 0.0, without=channel)
+        both = np.isfinite(xy).all(1) & np.isfinite(band).all(1)
+        xy[both] = 0.5 * (xy[both] + band[both])
     return xy
 
 

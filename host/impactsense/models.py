@@ -22,6 +22,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 
 from . import __version__, _core
+from .channel_check import channel_scores, fit_channel_check, flagged_channel
 from .correction_scale import scale_model_correction
 from .errors import DataError
 from .forestfile import save_forest
@@ -230,6 +231,10 @@ class ImpactModel:
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
                                                        settings.regressor, loc_names, all_or_none=False))
+        if site_map is None:   # one channel against the other three, the twin's misfit's stand-in (channel_check.py)
+            check = fit_channel_check(features.take(np.flatnonzero(use)).raw, signal)
+            if check is not None:
+                card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             scale_model_correction(card, X[:, loc_cols], xy, features.take(np.flatnonzero(use)), signal, edge, fx,
                                    fy, member_forests, settings)
@@ -284,16 +289,25 @@ class ImpactModel:
         # and matches the other three channels' energies.
         three = three_channel_rows(features) & ~use
         xy[three] = features.phys_xy_mm[three]
+        three_xy = features.phys_xy_mm
+        left_out = np.argmax(features.no_onset, axis=1)
+        if self.site_map is None and self.card.get("channel_check") and use.any():
+            # a channel that disagrees with the other three (a debonded disc): the same three-sensor path
+            flagged, three_xy, left_out = self._check_channels(features, use, left_out)
+            out["forest_xy_mm"] = xy.copy()   # the forests' own position stays there
+            xy[flagged] = three_xy[flagged]
+            spread[flagged] = np.nan
+            three = three | flagged
+            out["bad_channel"] = np.where(flagged, left_out, -1)
         out["three_channel"] = three
         if self.site_map is None and self.three_channel_class:
             # their class from the other three channels' energies at that position (a model without them,
             # trained before, or the board: no class)
-            left_out = np.argmax(features.no_onset, axis=1)
             for c, estimate in self.three_channel_class.items():
                 rows = np.flatnonzero(three & (left_out == c))
                 if rows.size:
                     energy_class[rows] = estimate.predict(three_channel_inputs(
-                        {k: v[rows] for k, v in features.raw.items()}, features.phys_xy_mm[rows], c))
+                        {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))
         if self.site_map is not None:
             out["xy_mm"] = np.full((n, 2), np.nan)
             out["height_mm"] = np.full(n, np.nan)
@@ -317,6 +331,21 @@ class ImpactModel:
                 inconsistent = ok & np.isin(np.asarray(twin["reason"]), (_core.TWIN_INCONSISTENT, _core.TWIN_WEAK_CHANNEL))
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
+
+    def _check_channels(self, features: Features, use: np.ndarray, left_out: np.ndarray):
+        """predict's channel check (channel_check.py) over the events in the order given: (flagged [R] bool, the
+        positions of the three-sensor path [R, 2] (the core's for a channel without an onset, the three-sensor
+        position without the flagged channel otherwise), the channel each three-sensor row leaves out [R])."""
+        scores, loo_xy = channel_scores(features.raw, self.signal, self.card["channel_check"])
+        bad = flagged_channel(scores, self.card["channel_check"])
+        rows = np.flatnonzero(use & (bad >= 0))
+        rows = rows[np.isfinite(loo_xy[rows, bad[rows]]).all(1)]
+        flagged = np.zeros(len(features), bool)
+        flagged[rows] = True
+        three_xy = np.array(features.phys_xy_mm, float, copy=True)
+        three_xy[rows] = loo_xy[rows, bad[rows]]
+        left_out = np.where(flagged, bad, left_out)
+        return flagged, three_xy, left_out
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
