@@ -9,17 +9,23 @@ on four channels and of the one trained with the channel left out, and a label-f
 held-out MAE of both on the training session's own case split (TEST_FRACTION), with the reference's (four
 channels) beside it. No target: a measurement (docs/findings.md "Training with a channel left out").
 
-    python benchmarks/bench_bond_left_out.py SESSIONS [--name bond] [--seed N] [--trees 60]
+The channel check (channel_check.py) of the changed session: its bond channel's median score against a check fitted
+on the reference's drops and against the four-channel model's own (fitted on the training drops with the bond's
+effects in), the share of drops each flags, and the four-channel MAE with its check off.
+
+    python benchmarks/bench_bond_left_out.py SESSIONS [--name bond] [--seed N] [--trees 60] [--no-held-out]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from impactsense.channel_check import channel_scores, fit_channel_check, flagged_channel
 from impactsense.commands.retrain import leave_out, score
 from impactsense.data import load_session
 from impactsense.diagnose import diagnose
@@ -45,6 +51,7 @@ def main() -> int:
     ap.add_argument("--name", default="bond")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trees", type=int, default=60)
+    ap.add_argument("--no-held-out", action="store_true", help="skip the training drops' held-out candidates")
     args = ap.parse_args()
     ref, sess = load_session(Path(args.sessions) / "ref"), load_session(Path(args.sessions) / args.name)
     _, det = diagnose(ref, sess, same=False)
@@ -58,19 +65,48 @@ def main() -> int:
         training = measured_training_session(ref, accepted, det["ref"], Path(tmp) / "training", args.seed)
         four = pick_settings(training, accepted)
         three = leave_out(four, [channel])
-        mae = {}
+        mae, models = {}, {}
         for tag, signal in (("four", four), ("three", three)):
-            model, _ = train(training, None, 0.0, args.seed, None, settings=settings, signal=signal, site_map=None)
-            mae[tag] = score(sess, model)["mae_mm"]
-        oof = {"reference": held_out_mae(ref, None, settings, args.seed),
-               "four": held_out_mae(training, four, settings, args.seed),
-               "three": held_out_mae(training, three, settings, args.seed)}
+            models[tag], _ = train(training, None, 0.0, args.seed, None, settings=settings, signal=signal,
+                                   site_map=None)
+            mae[tag] = score(sess, models[tag])["mae_mm"]
+        check = channel_check_figures(ref, sess, models["four"], channel)
+        oof = None if args.no_held_out else {"reference": held_out_mae(ref, None, settings, args.seed),
+                                             "four": held_out_mae(training, four, settings, args.seed),
+                                             "three": held_out_mae(training, three, settings, args.seed)}
     print(f"{args.name}: channel {channel} ({', '.join(f'{c.effect} {c.params}' for c in accepted)})")
-    print(f"  on the changed session: four channels {mae['four']:.2f} mm, channel {channel} left out "
-          f"{mae['three']:.2f} mm")
-    print(f"  training drops held out: reference {oof['reference']:.2f}, four {oof['four']:.2f} "
-          f"({oof['four'] / oof['reference']:.2f} x), three {oof['three']:.2f} ({oof['three'] / oof['four']:.2f} x four)")
+    print(f"  on the changed session: four channels {mae['four']:.2f} mm (without the channel check "
+          f"{check['four_unchecked_mm']:.2f}), channel {channel} left out {mae['three']:.2f} mm")
+    print(f"  channel check, channel {channel}'s median score: against the reference's drops "
+          f"{check['reference_score']:.2f} (flagged {check['reference_flagged']:.2f}), against retrain's four-channel "
+          f"model's {check['four_score']:.2f} (flagged {check['four_flagged']:.2f}); the other channels' largest median "
+          f"{check['others_score']:.2f}")
+    if oof is not None:
+        print(f"  training drops held out: reference {oof['reference']:.2f}, four {oof['four']:.2f} "
+              f"({oof['four'] / oof['reference']:.2f} x), three {oof['three']:.2f} ({oof['three'] / oof['four']:.2f} x four)")
     return 0
+
+
+def channel_check_figures(ref, sess, four_model, channel: int) -> dict:
+    """The channel check's view of the bond (channel_check.py): the median score of its channel on the changed
+    session against a check fitted on the reference's drops (the four-channel model's signal) and against the
+    retrained four-channel model's own check, the shares of drops flagged on it, and that model's MAE on the
+    changed session with its check off."""
+    feats = featurize(sess.adc, four_model.signal)
+    ref_check = fit_channel_check(featurize(ref.adc, four_model.signal).raw, four_model.signal)
+    out = {}
+    for tag, check in (("reference", ref_check), ("four", four_model.card["channel_check"])):
+        scores = channel_scores(feats.raw, four_model.signal, check)[0]
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(scores, axis=0)
+        out[f"{tag}_score"] = float(med[channel])
+        out[f"{tag}_flagged"] = float(np.mean(flagged_channel(scores, check) == channel))
+        if tag == "four":
+            out["others_score"] = float(np.nanmax(np.delete(med, channel)))
+    unchecked = copy.copy(four_model)
+    unchecked.card = {k: v for k, v in four_model.card.items() if k != "channel_check"}
+    out["four_unchecked_mm"] = score(sess, unchecked)["mae_mm"]
+    return out
 
 
 if __name__ == "__main__":

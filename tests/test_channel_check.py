@@ -1,0 +1,122 @@
+"""One channel against the other three without a site map (channel_check.py): a debonded disc's channel is found on
+a model of any rig, no channel of an unchanged session is, and a flagged drop takes the three-sensor path."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from impactsense import _core
+from impactsense.channel_check import (EVENT_SCORE, RUN_EVENTS, RUN_SCORE, channel_scores, fit_channel_check,
+                                       flagged_channel)
+from impactsense.data import load_session
+from impactsense.edge_travel import three_sensor_positions
+from impactsense.faults import FaultSpec, inject_session
+from impactsense.pipeline import featurize
+from impactsense.signal import SignalConfig
+
+
+@pytest.fixture(scope="module")
+def fitted(session1):
+    """(signal, check) fitted on every 4th session-1 drop, and the held-out drops between them."""
+    cfg = SignalConfig.for_rig(session1.rig)
+    train_rows = np.arange(0, len(session1), 4)
+    check = fit_channel_check(featurize(session1.adc[train_rows], cfg).raw, cfg)
+    return cfg, check, session1.subset(np.arange(2, len(session1), 8))
+
+
+def flags(session, cfg, check):
+    scores, xy = channel_scores(featurize(session.adc, cfg).raw, cfg, check)
+    return flagged_channel(scores, check), scores, xy
+
+
+def test_the_check_is_fitted_and_clean_drops_score_low(fitted):
+    """Training drops' scores (robust sd of their own residuals) stay well under the event threshold; held-out
+    drops of the same session and of another session (session-2, with its channel-3 delay) flag nothing."""
+    cfg, check, test = fitted
+    assert check is not None and len(check["level"]) == len(check["tilt"]) == 4
+    assert max(check["training_score_max"]) < EVENT_SCORE / 1.5
+    bad, scores, _ = flags(test, cfg, check)
+    assert np.all(bad == -1) and np.nanmax(scores) < EVENT_SCORE / 1.5
+    s2 = load_session("bundled:session-2")
+    bad2, _, _ = flags(s2.subset(np.arange(0, len(s2), 6)), cfg, check)
+    assert np.all(bad2 == -1)
+
+
+@pytest.mark.parametrize("channel", [0, 3])
+def test_a_debonded_channel_is_flagged_on_every_drop(fitted, channel):
+    cfg, check, test = fitted
+    bad, scores, _ = flags(inject_session(test, FaultSpec(debond=channel, debond_hz=4000, seed=channel)), cfg, check)
+    assert np.mean(bad == channel) >= 0.95
+    others = np.delete(scores, channel, axis=1)
+    assert np.nanmax(others) < RUN_SCORE   # the other three look stronger, not weaker (the mean they meet falls)
+
+
+def test_a_gain_change_alone_or_a_delay_is_not_a_debond(fitted):
+    """A gain moves the level only (the tilt is a ratio within the channel), a delay neither: not flagged."""
+    cfg, check, test = fitted
+    adc = test.adc.astype(float)
+    base = np.median(adc[:, 1, :64], axis=-1, keepdims=True)
+    adc[:, 1] = base + 0.7 * (adc[:, 1] - base)
+    adc[:, 2] = np.roll(adc[:, 2], 2, axis=-1)   # 20 us late at 100 kHz
+    changed = replace(test, adc=np.clip(np.rint(adc), 0, test.rig.adc_max).astype(test.adc.dtype))
+    bad, _, _ = flags(changed, cfg, check)
+    assert np.all(bad == -1)
+
+
+def test_the_three_sensor_positions_are_the_cores_with_the_channel_left_out(session1):
+    cfg = SignalConfig.for_rig(session1.rig)
+    cfg.band_pick_hz, cfg.band_window_us, cfg.band_velocity_mm_per_us = 17000.0, 1000.0, cfg.velocity_mm_per_us
+    adc = session1.adc[::40]
+    raw = featurize(adc, cfg).raw
+    for c in (1, 2):
+        left = SignalConfig.from_dict(cfg.to_dict())
+        left.channel_left_out = [int(k == c) for k in range(4)]
+        core = featurize(adc, left).phys_xy_mm
+        ours = three_sensor_positions(raw, cfg, c)
+        close = np.abs(core - ours).max(1) < 0.01
+        assert close.mean() >= 0.95
+
+
+def test_a_run_flags_a_channel_whose_scores_stay_between_the_thresholds():
+    """Scores between RUN_SCORE and EVENT_SCORE flag once half a window of events shows them; a lone one does not."""
+    check = {"event_score": EVENT_SCORE, "run_score": RUN_SCORE, "run_events": RUN_EVENTS}
+    mid = 0.5 * (RUN_SCORE + EVENT_SCORE)
+    scores = np.zeros((3 * RUN_EVENTS, 4))
+    scores[:, 2] = mid
+    bad = flagged_channel(scores, check)
+    first = (RUN_EVENTS + 1) // 2 - 1
+    assert np.all(bad[:first] == -1) and np.all(bad[first:] == 2)
+    lone = np.zeros((3 * RUN_EVENTS, 4))
+    lone[RUN_EVENTS, 1] = mid
+    lone[2 * RUN_EVENTS, 3] = 2 * EVENT_SCORE
+    bad = flagged_channel(lone, check)
+    assert np.flatnonzero(bad >= 0).tolist() == [2 * RUN_EVENTS] and bad[2 * RUN_EVENTS] == 3
+    unchecked = np.full((4, 4), np.nan)
+    assert np.all(flagged_channel(unchecked, check) == -1)
+
+
+def test_the_model_flags_the_channel_and_reports_the_three_sensor_answer(session1, tmp_path):
+    """ImpactModel without a site map: the check in its card (saved and loaded), a debonded drop's position the
+    three-sensor one and its class from the other three channels; the report flags the channel."""
+    from impactsense.models import ForestSettings, ImpactModel
+    from impactsense.workflow import channel_flags
+
+    cfg = SignalConfig.for_rig(session1.rig)
+    rows = np.arange(0, len(session1), 3)
+    f = featurize(session1.adc[rows], cfg)
+    model = ImpactModel.fit(f, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
+                            ForestSettings(n_estimators=5), members=False)
+    assert "channel_check" in model.card
+    model.save(tmp_path / "m")
+    back = ImpactModel.load(tmp_path / "m")
+    test = session1.subset(np.arange(1, len(session1), 12))
+    fd = featurize(inject_session(test, FaultSpec(debond=1, debond_hz=4000, seed=2)).adc, cfg)
+    pred = back.predict(fd)
+    assert np.mean(pred["bad_channel"] == 1) >= 0.95
+    on = pred["bad_channel"] == 1
+    np.testing.assert_allclose(pred["xy_mm"][on], three_sensor_positions(fd.raw, cfg, 1)[on])
+    assert pred["three_channel"][on].all() and np.all(pred["energy_class"][on] >= 0)
+    assert np.all(channel_flags(fd.flags, pred)[on, 1] & _core.FLAG_INCONSISTENT)
+    clean = back.predict(featurize(test.adc, cfg))
+    assert np.all(clean["bad_channel"] == -1) and not clean["three_channel"].any()
