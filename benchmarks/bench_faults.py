@@ -8,8 +8,8 @@ records, 2 % gain drift, 2 counts of noise); its 2 counts of noise alone; 150 co
 20, 50 and 150 counts with 2 counts of noise; one dead channel; one debonded channel (x0.4, first-order 3..5 kHz low-pass); each with --draws fault draws
 (seeds), the channel of the dead / debonded rows changing with the seed. Columns: MAE (whole plate, mean
 of the x and y MAE, mm) and its ratio to the clean row, the share of drops with a position (predicted),
-the share accepted by Eq. 35, energy class accuracy, and the share of drops whose report flags the bad
-channel (dead / debonded rows).
+the share accepted by Eq. 35, energy class accuracy, the share of drops whose report flags the bad
+channel (dead / debonded rows), and ("wrong") the share whose report calls another channel inconsistent.
 
 Targets (issue 14), checked on every draw against the same drops' clean row, exit 1 when one is missed:
   mix, and its noise or hum (up to its 50 counts) alone:
@@ -20,7 +20,7 @@ On a session whose clean row accepts or classifies fewer than 0.95 of its drops,
 targets are the clean row's less one drop. The 150-count hum rows (three times the issue's level) carry no
 target; their MAE and class are printed.
 
-    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--no-targets] [--json OUT]
+    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--only ROWS] [--no-targets] [--json OUT]
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 
+from impactsense import _core
 from impactsense.data import load_session, resolve_session_path
 from impactsense.faults import FaultSpec, inject_session
 from impactsense.models import ForestSettings
@@ -77,13 +78,25 @@ def flagged_share(report: dict, channel: int) -> float:
     return float(np.mean(flags[:, channel] != 0))
 
 
+def wrongly_flagged_share(report: dict, channel: int) -> float:
+    """The share of drops whose report calls a channel other than the faulted one inconsistent (FLAG_INCONSISTENT:
+    the twin's misfit or the channel check left it out)."""
+    flags = report.get("_arrays", {}).get("flags")
+    if flags is None:
+        return float("nan")
+    wrong = (flags & _core.FLAG_INCONSISTENT) != 0
+    if channel >= 0:
+        wrong[:, channel] = False
+    return float(np.mean(wrong.any(1)))
+
+
 def score(model, session, spec: FaultSpec) -> dict:
     s = inject_session(session, spec) if spec.active() else session
     rep = evaluate(s, model, rows=np.arange(len(s)))
     bad = spec.dead_channel if spec.dead_channel >= 0 else spec.debond
     return {"mae_mm": rep["all"]["mae_mm"], "predicted": rep["predicted"] / rep["n"],
             "accepted": rep["accepted"] / rep["n"], "class": rep["energy_class_accuracy"],
-            "flagged": flagged_share(rep, bad), "n": rep["n"]}
+            "flagged": flagged_share(rep, bad), "wrong_flag": wrongly_flagged_share(rep, bad), "n": rep["n"]}
 
 
 def check(name: str, v: dict, clean: dict) -> list[str]:
@@ -110,23 +123,28 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default="bundled", help="session folder (default: the bundled session-1)")
     ap.add_argument("--draws", type=int, default=2, help="fault draws (seeds) per scenario")
     ap.add_argument("--trees", type=int, default=100)
+    ap.add_argument("--only", default="", help="comma-separated starts of the fault rows to run (the clean row "
+                                               "always runs), e.g. 'debonded,dead'")
     ap.add_argument("--no-targets", action="store_true", help="print only, exit 0")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     t0 = time.time()
     model, sessions, n_train = model_and_sessions(args.data, args.trees)
     print(f"model trained on {n_train} drops of {args.data} ({time.time() - t0:.0f} s)")
-    print(f"{'session / fault':<84} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5}")
+    print(f"{'session / fault':<84} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5} {'wrong':>5}")
     out, misses = {}, []
     for sname, sess in sessions.items():
         clean = None
+        only = [k.strip() for k in args.only.split(",") if k.strip()]
         for name, make in SCENARIOS.items():
+            if only and name != "clean" and not name.startswith(tuple(only)):
+                continue
             for d in range(1 if name == "clean" else args.draws):
                 v = score(model, sess, make(d))
                 clean = v if name == "clean" else clean
                 label = f"{sname}: {name}" + ("" if name == "clean" else f" (draw {d})")
                 print(f"{label:<84} {v['mae_mm']:7.2f} {v['mae_mm'] / clean['mae_mm']:7.2f} {v['predicted']:5.2f} "
-                      f"{v['accepted']:6.2f} {v['class']:6.3f} {v['flagged']:5.2f}", flush=True)
+                      f"{v['accepted']:6.2f} {v['class']:6.3f} {v['flagged']:5.2f} {v['wrong_flag']:5.2f}", flush=True)
                 out[label] = v
                 misses += [f"{label}: {m}" for m in check(name, v, clean)]
     write_json(args.json, out)

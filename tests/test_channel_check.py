@@ -52,16 +52,27 @@ def test_a_debonded_channel_is_flagged_on_every_drop(fitted, channel):
     assert np.nanmax(others) < RUN_SCORE   # the other three look stronger, not weaker (the mean they meet falls)
 
 
-def test_a_gain_change_alone_or_a_delay_is_not_a_debond(fitted):
-    """A gain moves the level only (the tilt is a ratio within the channel), a delay neither: not flagged."""
-    cfg, check, test = fitted
+def with_gain_and_delay(test, gain: float, channel: int = 1, delayed: int = 2):
+    """The session with one channel's signal about its baseline times `gain` and another's 20 us late."""
     adc = test.adc.astype(float)
-    base = np.median(adc[:, 1, :64], axis=-1, keepdims=True)
-    adc[:, 1] = base + 0.7 * (adc[:, 1] - base)
-    adc[:, 2] = np.roll(adc[:, 2], 2, axis=-1)   # 20 us late at 100 kHz
-    changed = replace(test, adc=np.clip(np.rint(adc), 0, test.rig.adc_max).astype(test.adc.dtype))
-    bad, _, _ = flags(changed, cfg, check)
+    base = np.median(adc[:, channel, :64], axis=-1, keepdims=True)
+    adc[:, channel] = base + gain * (adc[:, channel] - base)
+    adc[:, delayed] = np.roll(adc[:, delayed], 2, axis=-1)   # 20 us late at 100 kHz
+    return replace(test, adc=np.clip(np.rint(adc), 0, test.rig.adc_max).astype(test.adc.dtype))
+
+
+def test_a_moderate_gain_change_or_a_delay_is_not_a_debond(fitted):
+    """A gain moves the level only (the tilt is a ratio within the channel), a delay neither: x0.8 is not flagged."""
+    cfg, check, test = fitted
+    bad, _, _ = flags(with_gain_and_delay(test, 0.8), cfg, check)
     assert np.all(bad == -1)
+
+
+def test_a_channel_far_weaker_than_the_rest_is_flagged_whatever_its_spectrum(fitted):
+    """x0.3 without a low-pass (the level ~ -1 in log10 energy, tens of robust sd): flagged on the level alone."""
+    cfg, check, test = fitted
+    bad, _, _ = flags(with_gain_and_delay(test, 0.3), cfg, check)
+    assert np.mean(bad == 1) >= 0.95
 
 
 def test_the_three_sensor_positions_are_the_cores_with_the_channel_left_out(session1):

@@ -11,9 +11,11 @@ channel c of a drop with four onsets:
   cancels in it, a low-pass does not);
 - each less a cubic in that position fitted on the training drops, over the training residuals' robust sd
   (1.4826 MAD, at least SCALE_FLOOR): z_level, z_tilt. The card's "channel_check" keeps the fits and the scales.
-The channel's score is min(-z_level, -z_tilt): large only when it is both weaker and duller than the other three
-say it should be. Another channel's debond moves c's ratios up (the mean it is compared with falls), a gain
-change alone moves z_level only, a delay neither.
+The channel's score is the larger of min(-z_level, -z_tilt), large when it is both weaker and duller than the
+other three say it should be, and LEVEL_ALONE x -z_level: a channel far weaker than the rest whatever its spectrum
+(a bond whose cut-off lies above the plate's band, on a thick soft plate, is a gain loss there). Another channel's
+debond moves c's ratios up (the mean it is compared with falls); a moderate gain change (x0.75-0.85, the loop's)
+moves z_level only and stays under the thresholds, a delay moves neither.
 
 A channel is flagged on an event when its score is the event's largest and exceeds EVENT_SCORE, and over a run when
 the median of its last RUN_EVENTS scores (the events in the order given, this one included) exceeds RUN_SCORE. A
@@ -33,6 +35,7 @@ from .edge_travel import three_sensor_positions
 EVENT_SCORE = 5.0     # robust sd: clean held-out drops of the measured sessions score <= 2.5 (findings)
 RUN_SCORE = 3.0
 RUN_EVENTS = 8
+LEVEL_ALONE = 1.0 / 3.0   # the level alone flags from 15 robust sd on an event, 9 over a run
 SCALE_FLOOR = 0.02    # log10: ~5 % in energy, below which a residual's spread is not taken as the rig's
 MIN_DROPS = 30        # training drops with four onsets needed to fit the check
 CHECK_VERSION = 1
@@ -108,7 +111,7 @@ def channel_scores(raw: dict, signal, check: dict) -> tuple[np.ndarray, np.ndarr
         for name, value in (("level", level), ("tilt", tilt)):
             fit = check[name][c]
             z.append((value[ok, c] - basis @ np.asarray(fit["coef"]) - fit["median"]) / fit["scale"])
-        scores[ok, c] = np.minimum(-z[0], -z[1])
+        scores[ok, c] = np.maximum(np.minimum(-z[0], -z[1]), LEVEL_ALONE * -z[0])
     return scores, xy
 
 
