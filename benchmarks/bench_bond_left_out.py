@@ -10,7 +10,8 @@ held-out MAE of both on the training session's own case split (TEST_FRACTION), w
 channels) beside it. No target: a measurement (docs/findings.md "Training with a channel left out").
 
 The channel check (channel_check.py) of the changed session: its bond channel's median score against a check fitted
-on the reference's drops and against the four-channel model's own (fitted on the training drops with the bond's
+on the reference's drops (the four-channel model's signal), against a baseline model's (the reference's default
+split, as retrain trains it) and against the four-channel model's own (fitted on the training drops with the bond's
 effects in), the share of drops each flags, and the four-channel MAE with its check off.
 
     python benchmarks/bench_bond_left_out.py SESSIONS [--name bond] [--seed N] [--trees 60] [--no-held-out]
@@ -70,7 +71,7 @@ def main() -> int:
             models[tag], _ = train(training, None, 0.0, args.seed, None, settings=settings, signal=signal,
                                    site_map=None)
             mae[tag] = score(sess, models[tag])["mae_mm"]
-        check = channel_check_figures(ref, sess, models["four"], channel)
+        check = channel_check_figures(ref, sess, models["four"], channel, args.seed)
         oof = None if args.no_held_out else {"reference": held_out_mae(ref, None, settings, args.seed),
                                              "four": held_out_mae(training, four, settings, args.seed),
                                              "three": held_out_mae(training, three, settings, args.seed)}
@@ -78,7 +79,8 @@ def main() -> int:
     print(f"  on the changed session: four channels {mae['four']:.2f} mm (without the channel check "
           f"{check['four_unchecked_mm']:.2f}), channel {channel} left out {mae['three']:.2f} mm")
     print(f"  channel check, channel {channel}'s median score: against the reference's drops "
-          f"{check['reference_score']:.2f} (flagged {check['reference_flagged']:.2f}), against retrain's four-channel "
+          f"{check['reference_score']:.2f} (flagged {check['reference_flagged']:.2f}), against a baseline model's "
+          f"{check['baseline_score']:.2f} (flagged {check['baseline_flagged']:.2f}), against retrain's four-channel "
           f"model's {check['four_score']:.2f} (flagged {check['four_flagged']:.2f}); the other channels' largest median "
           f"{check['others_score']:.2f}")
     if oof is not None:
@@ -87,16 +89,20 @@ def main() -> int:
     return 0
 
 
-def channel_check_figures(ref, sess, four_model, channel: int) -> dict:
+def channel_check_figures(ref, sess, four_model, channel: int, seed: int) -> dict:
     """The channel check's view of the bond (channel_check.py): the median score of its channel on the changed
-    session against a check fitted on the reference's drops (the four-channel model's signal) and against the
-    retrained four-channel model's own check, the shares of drops flagged on it, and that model's MAE on the
+    session against a check fitted on the reference's drops (the four-channel model's signal), against the check
+    of a model of the reference as retrain's baseline is trained (default split, its own localiser fit) and against
+    the retrained four-channel model's own check, the shares of drops flagged on it, and that model's MAE on the
     changed session with its check off."""
-    feats = featurize(sess.adc, four_model.signal)
     ref_check = fit_channel_check(featurize(ref.adc, four_model.signal).raw, four_model.signal)
+    # what retrain itself holds: its baseline model (DATA_REF's default split, its own localiser fit) and its check
+    baseline, _ = train(ref, None, 0.2, seed, None, settings=ForestSettings(n_estimators=5, seed=seed), site_map=None)
     out = {}
-    for tag, check in (("reference", ref_check), ("four", four_model.card["channel_check"])):
-        scores = channel_scores(feats.raw, four_model.signal, check)[0]
+    for tag, check, signal in (("reference", ref_check, four_model.signal),
+                               ("baseline", baseline.card["channel_check"], baseline.signal),
+                               ("four", four_model.card["channel_check"], four_model.signal)):
+        scores = channel_scores(featurize(sess.adc, signal).raw, signal, check)[0]
         with np.errstate(all="ignore"):
             med = np.nanmedian(scores, axis=0)
         out[f"{tag}_score"] = float(med[channel])
