@@ -81,7 +81,8 @@ def main() -> int:
     print(f"  channel check, channel {channel}'s median score: against the reference's drops "
           f"{check['reference_score']:.2f} (flagged {check['reference_flagged']:.2f}), against a baseline model's "
           f"{check['baseline_score']:.2f} (flagged {check['baseline_flagged']:.2f}), against retrain's four-channel "
-          f"model's {check['four_score']:.2f} (flagged {check['four_flagged']:.2f}); the other channels' largest median "
+          f"model's {check['four_score']:.2f} (flagged {check['four_flagged']:.2f}); the other channels' largest "
+          f"median "
           f"{check['others_score']:.2f}")
     if oof is not None:
         print(f"  training drops held out: reference {oof['reference']:.2f}, four {oof['four']:.2f} "

@@ -131,7 +131,8 @@ def main(argv=None) -> int:
     t0 = time.time()
     model, sessions, n_train = model_and_sessions(args.data, args.trees)
     print(f"model trained on {n_train} drops of {args.data} ({time.time() - t0:.0f} s)")
-    print(f"{'session / fault':<84} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5} {'wrong':>5}")
+    print(f"{'session / fault':<84} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5} "
+          f"{'wrong':>5}")
     out, misses = {}, []
     for sname, sess in sessions.items():
         clean = None
