@@ -131,3 +131,9 @@ def test_the_model_flags_the_channel_and_reports_the_three_sensor_answer(session
     assert np.all(channel_flags(fd.flags, pred)[on, 1] & _core.FLAG_INCONSISTENT)
     clean = back.predict(featurize(test.adc, cfg))
     assert np.all(clean["bad_channel"] == -1) and not clean["three_channel"].any()
+    # `impactsense evaluate`'s report counts them per channel
+    from impactsense.workflow import evaluate
+    debonded = inject_session(test, FaultSpec(debond=1, debond_hz=4000, seed=2))
+    counts = evaluate(debonded, back, rows=np.arange(len(test)))["channels_left_out_inconsistent"]
+    assert counts[1] >= 0.95 * len(test) and counts[0] == counts[2] == counts[3] == 0
+    assert evaluate(test, back, rows=np.arange(len(test)))["channels_left_out_inconsistent"] == [0, 0, 0, 0]

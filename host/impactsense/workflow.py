@@ -118,10 +118,14 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
         "clipped_drops": int(feats.clipped.any(1).sum()),
         "inner_region_mm": list(region),
     }
+    # per channel, the drops whose report calls it inconsistent and leaves it out (the twin's misfit or, without a
+    # site map, the channel check): a debonded disc
+    flags = channel_flags(feats.flags, pred)
+    report["channels_left_out_inconsistent"] = [int(v) for v in ((flags & _core.FLAG_INCONSISTENT) != 0).sum(0)]
     report["_arrays"] = {"rows": rows, "true_xy": true_xy, "pred_xy": pred["xy_mm"], "forest_xy": pred["forest_xy_mm"],
                          "phys_xy": feats.phys_xy_mm,
                          "spread": pred["spread_mm"], "energy_class": pred["energy_class"], "label": label,
-                         "accepted": feats.accepted, "flags": channel_flags(feats.flags, pred)}
+                         "accepted": feats.accepted, "flags": flags}
     return report
 
 

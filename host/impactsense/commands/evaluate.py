@@ -59,6 +59,10 @@ def run(args) -> int:
         print(f"energy class: {unclassed} of {report['predicted']} placed drops have none (class acc. is over the "
               f"other {report['classified']}): a channel without an onset, and the model has no site map to classify "
               f"from three channels (`impactsense calibrate DATA --out CAL.json`, then `train --calibration CAL.json`)")
+    for c, n in enumerate(report.get("channels_left_out_inconsistent", [])):
+        if n:
+            print(f"channel {c}: inconsistent with the other three on {n} of {report['n']} drops (a debonded or "
+                  f"weak disc?): those drops are placed and classified from the other three channels, flagged")
     if args.plots:
         for p in evaluation_plots(report, session.rig, args.plots):
             print(f"plot: {p}")
