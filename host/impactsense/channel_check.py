@@ -142,3 +142,19 @@ def flagged_channel(scores: np.ndarray, check: dict) -> np.ndarray:
 
 def checked_any(scores: np.ndarray) -> np.ndarray:
     return np.isfinite(scores).any(1)
+
+
+def flag_events(raw: dict, phys_xy_mm: np.ndarray, use: np.ndarray, left_out: np.ndarray, signal,
+                check: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ImpactModel.predict's check over the events in the order given: (flagged [R] bool, the positions of the
+    three-sensor path [R, 2] (the core's physics position for a channel without an onset, the three-sensor
+    position without the flagged channel otherwise), the channel each three-sensor row leaves out [R])."""
+    scores, loo_xy = channel_scores(raw, signal, check)
+    bad = flagged_channel(scores, check)
+    rows = np.flatnonzero(use & (bad >= 0))
+    rows = rows[np.isfinite(loo_xy[rows, bad[rows]]).all(1)]
+    flagged = np.zeros(len(use), bool)
+    flagged[rows] = True
+    three_xy = np.array(phys_xy_mm, float, copy=True)
+    three_xy[rows] = loo_xy[rows, bad[rows]]
+    return flagged, three_xy, np.where(flagged, bad, left_out)

@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 
 from . import __version__, _core
-from .channel_check import channel_scores, fit_channel_check, flagged_channel
+from .channel_check import fit_channel_check, flag_events
 from .correction_scale import scale_model_correction
 from .errors import DataError
 from .forestfile import save_forest
@@ -293,7 +293,8 @@ class ImpactModel:
         left_out = np.argmax(features.no_onset, axis=1)
         if self.site_map is None and self.card.get("channel_check") and use.any():
             # a channel that disagrees with the other three (a debonded disc): the same three-sensor path
-            flagged, three_xy, left_out = self._check_channels(features, use, left_out)
+            flagged, three_xy, left_out = flag_events(features.raw, features.phys_xy_mm, use, left_out, self.signal,
+                                                       self.card["channel_check"])
             out["forest_xy_mm"] = xy.copy()   # the forests' own position stays there
             xy[flagged] = three_xy[flagged]
             spread[flagged] = np.nan
@@ -331,21 +332,6 @@ class ImpactModel:
                 inconsistent = ok & np.isin(np.asarray(twin["reason"]), (_core.TWIN_INCONSISTENT, _core.TWIN_WEAK_CHANNEL))
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
-
-    def _check_channels(self, features: Features, use: np.ndarray, left_out: np.ndarray):
-        """predict's channel check (channel_check.py) over the events in the order given: (flagged [R] bool, the
-        positions of the three-sensor path [R, 2] (the core's for a channel without an onset, the three-sensor
-        position without the flagged channel otherwise), the channel each three-sensor row leaves out [R])."""
-        scores, loo_xy = channel_scores(features.raw, self.signal, self.card["channel_check"])
-        bad = flagged_channel(scores, self.card["channel_check"])
-        rows = np.flatnonzero(use & (bad >= 0))
-        rows = rows[np.isfinite(loo_xy[rows, bad[rows]]).all(1)]
-        flagged = np.zeros(len(features), bool)
-        flagged[rows] = True
-        three_xy = np.array(features.phys_xy_mm, float, copy=True)
-        three_xy[rows] = loo_xy[rows, bad[rows]]
-        left_out = np.where(flagged, bad, left_out)
-        return flagged, three_xy, left_out
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
