@@ -38,7 +38,7 @@ from scipy import stats
 from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
-from .effects.sensor_position import direction_test
+from .effects.sensor_position import band_test, direction_test
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -159,17 +159,18 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
-        direction = {}   # per sensor: the move-or-delay test of its timing change (`direction_test`)
+        direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         for c in results:
             ok = _evidence(c.score, c.p_value, len(cands)) and c.material
             nest = EFFECTS[c.effect].nests
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
-            if ok and c.effect in RIVALS and c.sensor is not None:
-                direction.setdefault(c.sensor, direction_test(current, F, c.sensor))
+            if ok and c.effect in RIVALS and c.sensor is not None and c.sensor not in direction:
+                direction[c.sensor] = {**direction_test(current, F, c.sensor),
+                                       "band": band_test(current, F, c.sensor)}
             if ok and c.effect == "sensor_position":   # a move only where the data reject a constant
-                ok = direction[c.sensor]["p_value"] < ALPHA
+                ok = min(direction[c.sensor]["p_value"], direction[c.sensor]["band"]["p_value"]) < ALPHA
                 if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
                     diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
@@ -191,6 +192,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                            "p_value": _one_sided_p(_case_sums(diff, F.case_id))}
                 if c.sensor in direction:
                     c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
+                    c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
                     c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
         results.sort(key=lambda c: -c.score)
         last_round = results
@@ -208,6 +210,22 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
     return accepted, current, last_round
+
+
+def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
+    """(Fb, Fn) with the core's band picks (`band_timing`) and ref.band fitted on the baseline's."""
+    from dataclasses import replace
+
+    from .band_timing import band_picks, band_setting, fit_band
+
+    band = band_setting(Fb, ref.slowness_us_per_mm)
+    if band is None:
+        return Fb, Fn
+    Fb = replace(Fb, toa_band_us=band_picks(baseline, picker, band))
+    Fn = replace(Fn, toa_band_us=band_picks(data, picker, band))
+    fitted = fit_band(ref, Fb)
+    ref.band = None if fitted is None else {**fitted, "setting": band}
+    return Fb, Fn
 
 
 def _refit(ref, F, accepted):
@@ -299,6 +317,8 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
             Fb = R.repick(baseline, Fb, picker)
     Fn = Fb if same else R.extract(data, picker)
     ref = R.fit_reference(Fb, "nominal" if same else "calibrated")
+    if not same:   # the band picks beside the threshold picks: a move shifts each by its own slowness
+        Fb, Fn = _with_band_picks(ref, baseline, Fb, data, Fn, picker)
     ref.probe = make_probe(baseline)
     ref.probe["picker"] = picker
     if not same:   # the reference at the noise floor: its site terms ride with both sessions' features

@@ -92,6 +92,7 @@ class Features:
     site_log_energy: np.ndarray | None = None
     picker: dict | None = None   # the picker toa_us was picked with (`timing_picker`; None: TIMING_PICKER)
     pick_period: np.ndarray | None = None   # the picked cycle's period (samples, impactcore pick_period)
+    toa_band_us: np.ndarray | None = None   # the core's band picks (`band_timing`), None when not picked
 
     def __len__(self):
         return len(self.x_mm)
@@ -313,6 +314,7 @@ class Reference:
     # the site terms learned on the reference (`site_reference.SiteTerms`), None when not learned: their
     # posterior covariance is the reference's own uncertainty (`effects.sensor_position.direction_test`)
     site: object = field(default=None, repr=False)
+    band: dict | None = None   # the band picks' travel law learned on the reference (`band_timing.fit_band`)
 
     def copy(self) -> "Reference":
         return replace(self, **{k: (v.copy() if isinstance(v, (np.ndarray, dict)) else v)
