@@ -272,6 +272,8 @@ def table(out: dict) -> int:
                 names += f" (the truth's held-out gain over it: {-rival['score_difference']:+.1f} nats"
                 if "direction_p_value" in rival:   # diagnose's move-or-delay test
                     names += f"; direction dependence p {rival['direction_p_value']:.2g}"
+                if "band_p_value" in rival:   # ... and its band picks' test
+                    names += f", band picks p {rival['band_p_value']:.2g}"
                 names += ")"
             if not sig:   # the truth's best rejected candidate: how far below the evidence bar
                 e = next((e for e in r["effects"] if e["effect"] == t["effect"]), None)

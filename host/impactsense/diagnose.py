@@ -17,11 +17,14 @@ simpler one (`Effect.nests`) it also beats that simpler one by the same test. Ri
 sensor and a constant delay on the same channel) are told apart by the one thing that differs between them:
 a delay is constant over the impacts, a move's timing change depends on the direction to each impact
 (`effects.sensor_position.direction_test`: the direction-dependent part's Wald test, with case-clustered
-errors and the reference's own uncertainty) at ALPHA, or the move's held-out likelihood gain over the delay
-by the evidence rule (two tests of the one null "a constant": each at ALPHA). A move is significant only when
-one of them rejects the constant; then the constant delay on that channel is not named. Where neither does, a
-move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the direction
-test's p-value and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The
+errors and the reference's own uncertainty) at ALPHA; a delay shifts the channel's whole recording, so its
+threshold and band picks (`band_timing`) alike, where a move shifts each by its own slowness
+(`effects.sensor_position.band_test`, at ALPHA: what tells a move along a disc's look direction, nearly a
+constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
+(three tests of the one null "a constant": each at ALPHA). A move is significant only when one of them rejects
+the constant; then the constant delay on that channel is not named. Where none does, a move cannot be told
+from a delay: the delay (fewer parameters) is named, and each rival carries the two tests' p-values and
+`ambiguous` in the report, with the held-out log-likelihood difference of the two. The
 best significant candidate is added to the model (parameters refitted on all drops) and the search
 repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
 Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).

@@ -77,6 +77,8 @@ def _rival(e: dict) -> str:
     text = f"vs {rv['effect']}: {rv['score_difference']:+.1f} nats held out (p {rv['p_value']:.2g})"
     if "direction_p_value" in rv:   # the move-or-delay test (effects.sensor_position.direction_test)
         text += f"; direction dependence p {rv['direction_p_value']:.2g}"
+        if "band_p_value" in rv:   # ... and the band picks' shift against the threshold picks' (band_test)
+            text += f", band picks p {rv['band_p_value']:.2g}"
         if rv.get("ambiguous"):
             text += ": a move along the disc's look direction would read the same (ambiguous)"
     return text

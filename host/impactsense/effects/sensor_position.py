@@ -23,6 +23,11 @@ so it is a delete-a-case jackknife (cluster-robust with its small-sample correct
 reference itself is uncertain where the session hit (its site terms' posterior covariance at these drops,
 `site_reference.SiteTerms.toa_cov`, a smooth error shared across neighbouring cases) and is added. Hotelling's
 T² -> F(2, G - 2) with G cases.
+
+Move or delay by the band picks (`band_test`): a delay shifts the channel's whole recording, so its threshold
+pick and its band pick (`impactsense.band_timing`) by the same amount; a move changes the path, and each pick
+moves by its own slowness times the path change (a dispersive plate's low band travels slower). The band pick's
+shift minus the threshold pick's is zero for a delay whatever its size, along the look direction too.
 """
 
 import numpy as np
