@@ -12,7 +12,8 @@ geometric law or the reference's site map shifted with the disc, scored below no
 docs/findings.md), so the move is told by its timing alone.
 
 Fit: the linearised timing least squares gives (dx, dy); a 2-D search of the timing log-likelihood (Huber)
-around it refines them.
+around it refines them, with the band picks' log-likelihood added where the reference has them (the move
+changes their path too, at their own slowness: `impactsense.band_timing`).
 
 Move or delay (`direction_test`): a constant delay is exactly constant over the impacts, a move is not. The
 channel's ToA against the others' (y_k = r_ki - mean_j r_kj: what a change on channel i does to the drop-centred
@@ -33,6 +34,8 @@ shift minus the threshold pick's is zero for a delay whatever its size, along th
 import numpy as np
 from scipy import optimize, stats
 
+from ..band_timing import band_resid
+from ..residuals import huber_ll
 from ._base import Effect, fit_timing, geometry, shift_channels
 
 
@@ -50,11 +53,12 @@ class SensorPosition(Effect):
         cx[:, sensor] = -s * ux[:, sensor]
         cy[:, sensor] = -s * uy[:, sensor]
         dx0, dy0 = fit_timing(ref, F, [cx, cy])
+        band = band_resid(ref, F) is not None
 
         def nll(v):
             m = self.add(ref, sensor, {"dx_mm": v[0], "dy_mm": v[1]})
             g = m.ll_groups(F)
-            return -float(g["timing"].sum())
+            return -float(g["timing"].sum()) - (_band_ll(m, F) if band else 0.0)
 
         res = optimize.minimize(nll, [dx0, dy0], method="Nelder-Mead",
                                 options={"xatol": 0.05, "fatol": 0.01, "maxiter": 120})
@@ -77,6 +81,14 @@ class SensorPosition(Effect):
 
     def material(self, params):
         return np.hypot(params["dx_mm"], params["dy_mm"]) >= self.min_offset_mm
+
+
+def _band_ll(model, F) -> float:
+    """The band picks' log-likelihood (Huber, their reference scale) under `model`: a move's path change
+    moves them too, at their own slowness (`impactsense.band_timing`)."""
+    r = band_resid(model, F)
+    ok = np.all(np.isfinite(r), axis=1)
+    return float(huber_ll(r[ok] / model.band["sigma_us"]).sum())
 
 
 def _huber_weights(r: np.ndarray, k: float = 2.5) -> np.ndarray:
@@ -133,8 +145,6 @@ def band_test(model, F, sensor: int) -> dict:
     at 3 MAD; a one-sided t-test over the cases in the direction a move predicts ((s_band / s - 1) x the
     threshold picks' mean change). Returns the p-value, the mean difference and the move's predicted one (µs);
     p 1 without band picks."""
-    from ..band_timing import band_resid
-
     rb = band_resid(model, F)
     out = {"p_value": 1.0, "difference_us": 0.0, "move_predicts_us": 0.0}
     if rb is None:
