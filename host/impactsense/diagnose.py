@@ -22,10 +22,11 @@ threshold and band picks (`band_timing`) alike, where a move shifts each by its 
 (`effects.sensor_position.band_test`, at ALPHA: what tells a move along a disc's look direction, nearly a
 constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
 (three tests of the one null "a constant": each at ALPHA). A move is significant only when one of them rejects
-the constant; then the constant delay on that channel is not named. Where none does, a move cannot be told
-from a delay: the delay (fewer parameters) is named, and each rival carries the two tests' p-values and
-`ambiguous` in the report, with the held-out log-likelihood difference of the two. The
-best significant candidate is added to the model (parameters refitted on all drops) and the search
+the constant; then the constant delay on that channel is not named (and where the delay has the evidence and
+the move not, a rejected constant names the move: the channel changed, not by a constant). Where none does, a
+move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the two tests'
+p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
+significant candidate is added to the model (parameters refitted on all drops) and the search
 repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
 Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
 """
@@ -183,6 +184,12 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "sensor_position" and c.sensor in unabsorbed:
                 ok = False    # its timing is not a disc's (a delay may still take its mean lag: not a move)
             c.significant = bool(ok)
+        passed = {(c.effect, c.sensor) for c in results if c.significant}
+        for c in results:   # the channel changed (its delay's evidence) and not by a constant: its move
+            if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
+                    and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
+                dt = direction[c.sensor]
+                c.significant = bool(min(dt["p_value"], dt["band"]["p_value"]) < ALPHA)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
