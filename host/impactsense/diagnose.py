@@ -184,12 +184,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "sensor_position" and c.sensor in unabsorbed:
                 ok = False    # its timing is not a disc's (a delay may still take its mean lag: not a move)
             c.significant = bool(ok)
-        passed = {(c.effect, c.sensor) for c in results if c.significant}
-        for c in results:   # the channel changed (its delay's evidence) and not by a constant: its move
-            if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
-                    and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
-                dt = direction[c.sensor]
-                c.significant = bool(min(dt["p_value"], dt["band"]["p_value"]) < ALPHA)
+        _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
@@ -236,6 +231,17 @@ def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
     fitted = fit_band(ref, Fb)
     ref.band = None if fitted is None else {**fitted, "setting": band}
     return Fb, Fn
+
+
+def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict) -> None:
+    """Marks significant the move on a channel whose delay has the evidence and the move not, where the
+    move-or-delay tests reject a constant: the channel changed (the delay's evidence), not by a constant."""
+    passed = {(c.effect, c.sensor) for c in results if c.significant}
+    for c in results:
+        if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
+                and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
+            dt = direction[c.sensor]
+            c.significant = bool(min(dt["p_value"], dt["band"]["p_value"]) < ALPHA)
 
 
 def _refit(ref, F, accepted):
