@@ -55,10 +55,8 @@ def predict(model: ImpactModel, recordings) -> dict:
     arrays, `xy_mm` [R, 2] (NaN where the model gives no position), `energy_class` [R] (0 low, 1 high, -1
     none), `uncertainty_mm` [R] (1-sigma radial, with the twin), `accepted` [R] (Eq. 35) and the rest of
     ImpactModel.predict's keys."""
-    from .pipeline import featurize
-
     adc = recordings.adc if isinstance(recordings, Session) else np.asarray(recordings)
-    feats = featurize(adc, model.signal)
+    feats = model.featurize(adc)
     out = model.predict(feats)
     out["accepted"] = feats.accepted
     return out

@@ -45,23 +45,13 @@ def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None
     return fx, fy, members
 
 
-def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
-                            xy: np.ndarray, settings, names: list[str] | None = None) -> dict | None:
-    """The CORRECTION_SCALES factor whose out-of-fold positions of the training drops (every member refitted in
-    each fold) have the lowest MAE per axis when its gain over the whole correction is clear
-    (CORRECTION_GAIN_SIGMAS), else 1, with the MAE per factor; None with fewer than CORRECTION_MIN_SITES drop
-    sites. The folds group the drops by their declared position (a case's repetitions stay together), so the
-    figure is that of an unseen site, as the held-out drops are. A factor a puts a drop at b + a (corrected - b),
-    b the mean of its members' uncorrected positions: what scale_forests(a) makes the model predict."""
+def _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites):
+    """The training drops' out-of-fold joined positions and their uncorrected bases (5 site-grouped folds, every
+    member refitted in each fold with at most CORRECTION_MAX_TREES trees)."""
     from sklearn.model_selection import GroupKFold
 
-    from .models import LOCATION_FEATURES, ForestSettings
+    from .models import ForestSettings
 
-    names = names or LOCATION_FEATURES
-    xy = np.asarray(xy, float)
-    sites = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
-    if np.unique(sites).size < CORRECTION_MIN_SITES:
-        return None
     fold_settings = ForestSettings(**{**settings.__dict__,
                                       "n_estimators": min(settings.n_estimators, CORRECTION_MAX_TREES)})
     oof, base = np.full_like(xy, np.nan), np.full_like(xy, np.nan)
@@ -72,18 +62,80 @@ def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict
         main = phys[held] + np.stack([fx.predict(X_loc[held]), fy.predict(X_loc[held])], 1)
         oof[held], base[held] = joined_position(main, phys[held], members, X_loc[held], take(positions, held),
                                                 take(edges, held), names)
+    return oof, base
+
+
+def _per_site(err: np.ndarray, sites: np.ndarray) -> np.ndarray:
+    """The mean of err over each site's drops (a site's drops share their error)."""
+    inverse = np.unique(sites, return_inverse=True)[1].ravel()
+    return np.bincount(inverse, err) / np.bincount(inverse)
+
+
+def _gain_sigmas(gain: np.ndarray) -> float:
+    """The mean per-site gain in its standard errors (0 when the gains do not vary)."""
+    return float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
+
+
+def _sites(xy: np.ndarray) -> np.ndarray:
+    return np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+
+
+def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None, xy: np.ndarray,
+                 settings, names: list[str]) -> tuple[dict, np.ndarray, np.ndarray] | None:
+    """choose_correction_scale's choice, the out-of-fold error of each drop at the chosen factor and the drops'
+    sites; None with fewer than CORRECTION_MIN_SITES drop sites."""
+    xy = np.asarray(xy, float)
+    sites = _sites(xy)
+    if np.unique(sites).size < CORRECTION_MIN_SITES:
+        return None
+    oof, base = _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites)
     ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
     err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
     mae = [float(e.mean()) for e in err]
     best, whole = int(np.argmin(mae)), len(CORRECTION_SCALES) - 1
-    # the gain over the whole correction, per site (a site's drops share their error), in its standard errors
-    inverse = np.unique(sites[ok], return_inverse=True)[1].ravel()
-    gain = np.bincount(inverse, err[whole] - err[best]) / np.bincount(inverse)
-    z = float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
+    # the gain over the whole correction, per site, in its standard errors
+    z = _gain_sigmas(_per_site(err[whole] - err[best], sites[ok]))
     chosen = best if z > CORRECTION_GAIN_SIGMAS else whole
-    return {"scale": float(CORRECTION_SCALES[chosen]), "scales": list(CORRECTION_SCALES),
-            "out_of_fold_mae_mm": [round(m, 3) for m in mae], "best_gain_sigmas": round(z, 2),
-            "folds": CORRECTION_FOLDS}
+    drop_err = np.full(len(xy), np.nan)
+    drop_err[ok] = err[chosen]
+    return ({"scale": float(CORRECTION_SCALES[chosen]), "scales": list(CORRECTION_SCALES),
+             "out_of_fold_mae_mm": [round(m, 3) for m in mae], "best_gain_sigmas": round(z, 2),
+             "folds": CORRECTION_FOLDS}, drop_err, sites)
+
+
+def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                            xy: np.ndarray, settings, names: list[str] | None = None) -> dict | None:
+    """The CORRECTION_SCALES factor whose out-of-fold positions of the training drops (every member refitted in
+    each fold) have the lowest MAE per axis when its gain over the whole correction is clear
+    (CORRECTION_GAIN_SIGMAS), else 1, with the MAE per factor; None with fewer than CORRECTION_MIN_SITES drop
+    sites. The folds group the drops by their declared position (a case's repetitions stay together), so the
+    figure is that of an unseen site, as the held-out drops are. A factor a puts a drop at b + a (corrected - b),
+    b the mean of its members' uncorrected positions: what scale_forests(a) makes the model predict. edges:
+    name -> base position of the members beyond the POSITION_MEMBERS (the EDGE_MEMBERS, the level members)."""
+    from .models import LOCATION_FEATURES
+
+    out = scale_choice(X_loc, phys, positions, edges, xy, settings, names or LOCATION_FEATURES)
+    return None if out is None else out[0]
+
+
+def choose_level_members(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                         levels: dict, xy: np.ndarray, settings, names: list[str]) -> dict | None:
+    """Whether the level members (level_members.py; `levels`: name -> base) join: the training drops' out-of-fold
+    positions with and without them, each at its own chosen factor; kept when the per-site gain exceeds
+    CORRECTION_GAIN_SIGMAS standard errors. Returns {"keep", "out_of_fold_mae_mm": [without, with],
+    "gain_sigmas", "without": scale choice, "with": scale choice}, or None with too few sites."""
+    without = scale_choice(X_loc, phys, positions, edges, xy, settings, names)
+    if without is None:
+        return None
+    with_levels = scale_choice(X_loc, phys, positions, {**(edges or {}), **levels}, xy, settings, names)
+    ok = np.isfinite(without[1]) & np.isfinite(with_levels[1])
+    if not ok.any():
+        return None
+    z = _gain_sigmas(_per_site(without[1][ok] - with_levels[1][ok], without[2][ok]))
+    return {"keep": bool(z > CORRECTION_GAIN_SIGMAS),
+            "out_of_fold_mae_mm": [round(float(np.mean(without[1][ok])), 3),
+                                   round(float(np.mean(with_levels[1][ok])), 3)],
+            "gain_sigmas": round(z, 2), "without": without[0], "with": with_levels[0]}
 
 
 def scale_forests(forests, scale: float) -> None:
@@ -96,9 +148,11 @@ def scale_forests(forests, scale: float) -> None:
 
 
 def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train, signal, edge: dict,
-                           fx, fy, members: dict, settings) -> None:
+                           fx, fy, members: dict, settings, levels: dict | None = None) -> None:
     """ImpactModel.fit's step without a site map: the training drops' (`train`, their Features) choice of the
-    factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair."""
+    factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair.
+    levels (level_members.level_positions of train, or None): the level members join `members` (in place) when
+    the out-of-fold rule keeps them (choose_level_members; the card's "level_members")."""
     from .models import LOCATION_FEATURES
     from .pipeline import columns_reading
 
@@ -106,7 +160,15 @@ def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train,
     phys = np.asarray(train.phys_xy_mm, float)
     positions = member_positions(train) if any(n in members for n in POSITION_MEMBERS) else None
     edges = edge_positions(train, signal, edge) if edge and any(n in members for n in EDGE_MEMBERS) else None
-    choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings, names)
+    level_choice = (choose_level_members(X_loc, phys, positions, edges, levels, xy, settings, names)
+                    if levels else None)
+    if level_choice is None:
+        choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings, names)
+    else:
+        card["level_members"] = {k: v for k, v in level_choice.items() if k not in ("with", "without")}
+        choice = level_choice["with" if level_choice["keep"] else "without"]
+        if level_choice["keep"]:
+            members.update(fit_member_pairs(levels, X_loc, xy, settings.regressor, names, all_or_none=False))
     if choice is not None:
         card["correction_scale"] = choice
         scale_forests([fx, fy, *(f for pair in members.values() for f in pair)], choice["scale"])

@@ -30,7 +30,8 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes, three_channel_inputs)
 from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
-from .pipeline import FEATURE_NAMES, Features, columns_reading
+from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
+from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
                                edge_coefficients_ok, edge_positions, fit_member_pairs, joined_position,
                                member_positions)
@@ -223,9 +224,8 @@ class ImpactModel:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
                                           energy_j, threshold) if site_map is None else {}
-        edge = {}
+        edge, train = {}, features.take(np.flatnonzero(use))
         if choose_edge and members and site_map is None:
-            train = features.take(np.flatnonzero(use))
             edge = choose_edge_travel(train, xy, signal) or {}
             card["edge_travel_chosen"] = bool(edge)
             if edge:
@@ -236,8 +236,9 @@ class ImpactModel:
             if check is not None:
                 card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
-            scale_model_correction(card, X[:, loc_cols], xy, features.take(np.flatnonzero(use)), signal, edge, fx,
-                                   fy, member_forests, settings)
+            levels = level_positions(train) if choose_edge and members else None   # level_members.py
+            scale_model_correction(card, X[:, loc_cols], xy, train, signal, edge, fx, fy, member_forests, settings,
+                                   levels)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
@@ -333,6 +334,14 @@ class ImpactModel:
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
 
+    def featurize(self, adc: np.ndarray) -> Features:
+        """The recordings' features as predict reads them: pipeline.featurize under the model's signal config,
+        plus the positions at other onset thresholds when the model has level members (level_members.py)."""
+        features = featurize(adc, self.signal)
+        if any(n in self.members for n in LEVEL_MEMBERS):
+            add_level_positions(features, adc, self.signal)
+        return features
+
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
         the band and threshold picks' pairs and the edge members (position_members.joined_position)."""
@@ -342,7 +351,9 @@ class ImpactModel:
         sub = features.take(rows)
         positions = member_positions(sub) if any(n in self.members for n in POSITION_MEMBERS) else None
         edges = (edge_positions(sub, self.signal, self.edge_travel)
-                 if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS) else None)
+                 if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS) else {})
+        if any(n in self.members for n in LEVEL_MEMBERS):   # absent from features: those members do not join
+            edges.update(level_positions(sub) or {})
         X_loc = features.vector[rows][:, columns(self.location_features)]
         xy[rows] = joined_position(xy[rows], sub.phys_xy_mm, self.members, X_loc, positions, edges,
                                    self.location_features)[0]
@@ -463,9 +474,9 @@ class ImpactModel:
             raise DataError(card_path, "energy_features", f"lists {len(energy)} features, the energy forest "
                                                           f"reads {forests[2].n_features_in_}")
         names = card.get("position_members", [])
-        if not isinstance(names, list) or any(n not in POSITION_MEMBERS + EDGE_MEMBERS for n in names):
+        if not isinstance(names, list) or any(n not in POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS for n in names):
             raise DataError(card_path, "position_members",
-                            f"must list names from {list(POSITION_MEMBERS + EDGE_MEMBERS)}")
+                            f"must list names from {list(POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS)}")
         edge = card.get("edge_travel", {})
         if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
             raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "

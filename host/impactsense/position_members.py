@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .level_members import LEVEL_MEMBERS
 from .pipeline import Features
 from .signal import SignalConfig
 
@@ -23,7 +24,7 @@ POSITION_MEMBERS = ("threshold", "band")
 # "Edge images in the travel time").
 EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
 MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
-                for axis in "xy"}
+                + LEVEL_MEMBERS for axis in "xy"}
 # The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
 # (the rule of pipeline.STARTS_GAIN). It is tried only with drops at this many distinct positions or more (five
 # per coefficient of a pick set: its bases change over the plate, near every edge): on fewer the eight numbers
@@ -133,7 +134,7 @@ def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc:
                     positions: dict | None, edges: dict | None, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """The reported position of rows (the model's forests' position): the mean of the main pair's position
     (main_xy) and every member's corrected position where that member placed the drop (the POSITION_MEMBERS
-    where the band picks did, the EDGE_MEMBERS where they did); and the mean of the same positions before
+    where the band picks did; `edges`: name -> base, the EDGE_MEMBERS and LEVEL_MEMBERS, where they did); and the mean of the same positions before
     correction (phys and the members' own). X_loc: the rows' location features, columns `names`."""
     total, base_sum, count = np.array(main_xy, float, copy=True), np.array(phys, float, copy=True), np.ones(len(phys))
 
@@ -146,8 +147,8 @@ def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc:
         placed = np.isfinite(positions["band"]).all(1)
         for name in POSITION_MEMBERS:
             join(name, placed, positions[name][placed])
-    for name in EDGE_MEMBERS if edges is not None else ():
-        ok = np.isfinite(edges[name]).all(1)
+    for name, base in (edges or {}).items():   # the EDGE_MEMBERS and the level members (level_members.py)
+        ok = np.isfinite(base).all(1)
         if name in members and ok.any():
-            join(name, ok, edges[name][ok])
+            join(name, ok, base[ok])
     return total / count[:, None], base_sum / count[:, None]

@@ -10,6 +10,7 @@ from . import _core
 from .checks import require_labels, rig_summary
 from .data import IMPACTS_FILE, Session
 from .errors import DataError
+from .level_members import add_level_positions
 from .metrics import region_metrics
 from .models import ForestSettings, ImpactModel, impact_energy_j
 from .outputs import json_text, write_file
@@ -39,6 +40,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     cfg = signal or SignalConfig.for_rig(session.rig)
     cfg = fit_localiser(session, train_rows, cfg)
     feats = featurize(session.adc, cfg)
+    if choose_class and members and site_map is None:   # the level members' positions (level_members.py)
+        add_level_positions(feats, session.adc, cfg)
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
                             choose_class=choose_class, choose_edge=choose_class, members=members,
@@ -88,7 +91,7 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
                                             "on this session)")
 
     require_labels(session, rows)
-    feats = featurize(session.adc[rows], model.signal)
+    feats = model.featurize(session.adc[rows])
     pred = model.predict(feats)
     true_xy = session.xy_mm[rows]
     ok = np.isfinite(pred["xy_mm"]).all(1)

@@ -230,12 +230,11 @@ def score(session, model) -> dict:
     (NaN without a site map: the model reports none)."""
     import numpy as np
 
-    from ..pipeline import featurize
     from ..workflow import evaluate
 
     rows = np.arange(len(session))
     rep = evaluate(session, model, rows)
-    pred = model.predict(featurize(session.adc, model.signal))
+    pred = model.predict(model.featurize(session.adc))
     err = np.linalg.norm(pred["xy_mm"] - session.xy_mm, axis=1)
     u = pred["uncertainty_mm"]
     ok = np.isfinite(err) & np.isfinite(u)
