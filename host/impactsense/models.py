@@ -189,7 +189,8 @@ class ImpactModel:
         of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
         "energy_class_choice" records it. choose_edge: with members and without a site map, the edge correction
         of the arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions
-        say so (choose_edge_travel)."""
+        say so (choose_edge_travel), and the level members (level_members.py) when the features carry their
+        positions and the training drops' out-of-fold positions keep them (correction_scale.choose_level_members)."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:

@@ -134,8 +134,8 @@ def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc:
                     positions: dict | None, edges: dict | None, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """The reported position of rows (the model's forests' position): the mean of the main pair's position
     (main_xy) and every member's corrected position where that member placed the drop (the POSITION_MEMBERS
-    where the band picks did; `edges`: name -> base, the EDGE_MEMBERS and LEVEL_MEMBERS, where they did); and the mean of the same positions before
-    correction (phys and the members' own). X_loc: the rows' location features, columns `names`."""
+    where the band picks did; `edges`: name -> base, the EDGE_MEMBERS and LEVEL_MEMBERS, where they did); and
+    the mean of the same positions before correction (phys and the members' own). X_loc: the rows' location features, columns `names`."""
     total, base_sum, count = np.array(main_xy, float, copy=True), np.array(phys, float, copy=True), np.ones(len(phys))
 
     def join(name, rows, base):

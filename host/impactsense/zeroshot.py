@@ -164,7 +164,7 @@ def uncertainty_on_calibration_drops(model, session: Session, rows: np.ndarray, 
     if groups.max() < 1:
         raise DataError("calibration drops", None, "the uncertainty's scale needs calibration drops at >= 2 "
                         "positions (each is held out in turn)")
-    features = featurize(session.adc[rows], model.signal)
+    features = model.featurize(session.adc[rows])
     err, u = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
     for g in np.unique(groups):
         held = groups == g
@@ -273,7 +273,7 @@ def uncertainty_figures(session: Session, model, rows: np.ndarray) -> dict | Non
     """How the reported uncertainty u covers the radial errors r on `rows`: the fraction within 1x and 2x
     (0.63 and 0.98 for a calibrated 1-sigma of a 2-D Gaussian error), Spearman of u against r and
     rms(r / u). None for a model without a position uncertainty (no site map)."""
-    p = model.predict(featurize(session.adc[rows], model.signal))
+    p = model.predict(model.featurize(session.adc[rows]))
     err = np.linalg.norm(p["xy_mm"] - session.xy_mm[rows], axis=1)
     u = p["uncertainty_mm"]
     ok = np.isfinite(err) & np.isfinite(u) & (u > 0)
