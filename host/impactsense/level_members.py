@@ -44,9 +44,11 @@ def level_xy(adc: np.ndarray, signal: SignalConfig) -> np.ndarray:
     return np.stack(out, 1)
 
 
-def add_level_positions(features, adc: np.ndarray, signal: SignalConfig):
-    """features (pipeline.Features of adc under signal) with raw[LEVEL_KEY] set, in place; returns it."""
-    features.raw[LEVEL_KEY] = level_xy(adc, signal)
+def add_level_positions(features, adc: np.ndarray, signal: SignalConfig, members=LEVEL_MEMBERS):
+    """features (pipeline.Features of adc under signal) with raw[LEVEL_KEY] set, in place, when members names a
+    level member (a model's members: only a model that has them pays the extra core runs); returns features."""
+    if any(n in members for n in LEVEL_MEMBERS):
+        features.raw[LEVEL_KEY] = level_xy(adc, signal)
     return features
 
 

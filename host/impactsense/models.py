@@ -338,10 +338,7 @@ class ImpactModel:
     def featurize(self, adc: np.ndarray) -> Features:
         """The recordings' features as predict reads them: pipeline.featurize under the model's signal config,
         plus the positions at other onset thresholds when the model has level members (level_members.py)."""
-        features = featurize(adc, self.signal)
-        if any(n in self.members for n in LEVEL_MEMBERS):
-            add_level_positions(features, adc, self.signal)
-        return features
+        return add_level_positions(featurize(adc, self.signal), adc, self.signal, self.members)
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
@@ -474,10 +471,9 @@ class ImpactModel:
         if site_map is None and len(energy) != getattr(forests[2], "n_features_in_", len(energy)):
             raise DataError(card_path, "energy_features", f"lists {len(energy)} features, the energy forest "
                                                           f"reads {forests[2].n_features_in_}")
-        names = card.get("position_members", [])
-        if not isinstance(names, list) or any(n not in POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS for n in names):
-            raise DataError(card_path, "position_members",
-                            f"must list names from {list(POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS)}")
+        names, known = card.get("position_members", []), POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS
+        if not isinstance(names, list) or any(n not in known for n in names):
+            raise DataError(card_path, "position_members", f"must list names from {list(known)}")
         edge = card.get("edge_travel", {})
         if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
             raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
