@@ -189,8 +189,7 @@ class ImpactModel:
         of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
         "energy_class_choice" records it. choose_edge: with members and without a site map, the edge correction
         of the arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions
-        say so (choose_edge_travel), and the level members (level_members.py) when the features carry their
-        positions and the training drops' out-of-fold positions keep them (correction_scale.choose_level_members)."""
+        say so (choose_edge_travel); the level members (level_members.py) as correction_scale chooses."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -336,8 +335,7 @@ class ImpactModel:
         return out
 
     def featurize(self, adc: np.ndarray) -> Features:
-        """The recordings' features as predict reads them: pipeline.featurize under the model's signal config,
-        plus the positions at other onset thresholds when the model has level members (level_members.py)."""
+        """The recordings' features as predict reads them, with the level members' positions if it has them."""
         return add_level_positions(featurize(adc, self.signal), adc, self.signal, self.members)
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
