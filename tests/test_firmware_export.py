@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from impactsense.data import load_session
-from impactsense.export import export_models, f32_floor, firmware_models, load_models
+from impactsense.export import export_models, f32_floor, firmware_models, load_models, load_tables
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 
@@ -93,18 +93,25 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
         # misfit_ref)
         assert summary["trees"]["energy"] == 25 and summary["nodes"]["energy"] <= 3 * 25  # stumps
     # without a twin the three-channel classes (height_class.linear_tables per channel: T = 14 terms, 7 inputs;
-    # roots, factors, coef + bias + offset and scale per input, one unused right index)
-    three_bytes = 0 if model.site_map is not None else 4 * (4 * 14 + 3 * 14 + 4 * (14 + 1 + 2 * 7) + 2)
+    # roots, factors, coef + bias + offset and scale per input, no child or leaf arrays)
+    three_bytes = 0 if model.site_map is not None else 4 * (4 * 14 + 3 * 14 + 4 * (14 + 1 + 2 * 7))
     assert summary["table_bytes"].get("three_channel", 0) == three_bytes
-    assert summary["table_bytes_total"] == (sum(7 * n for n in summary["nodes"].values()) + 4 * n_trees + n_inputs
-                                            + twin_bytes + three_bytes)
+    # forest.h's layout: 7 B a split node, 2 B a leaf (one more leaf than split nodes a tree), 4 B a distinct leaf
+    # value (with min_samples_leaf=1 a regression leaf is one training drop's target: far fewer values than leaves)
+    t = load_tables(out / "forest_tables.npz")
+    splits = {r: t[r]["feature"].size for r in ("x", "y", "energy")}
+    distinct = {r: t[r]["leaf_value"].size for r in ("x", "y", "energy")}
+    assert all(t[r]["leaf"].size == splits[r] + summary["trees"][r] for r in splits)
+    assert summary["nodes"] == {r: 2 * splits[r] + summary["trees"][r] for r in splits}
+    assert all(0 < distinct[r] <= t[r]["leaf"].size for r in splits)
+    assert summary["table_bytes_total"] == (sum(7 * splits[r] + 2 * (splits[r] + summary["trees"][r]) + 4 * distinct[r]
+                                                for r in splits) + 4 * n_trees + n_inputs + twin_bytes + three_bytes)
 
 
 @pytest.mark.parametrize("exported", ["twin"], indirect=True)
 def test_firmware_walker_needs_the_twin_for_a_twin_model(exported):
     """A forest that reads the twin's estimate without a site map is refused (and so is one for x or y)."""
     from impactsense import _link
-    from impactsense.export import load_tables
 
     t = load_tables(exported[1] / "forest_tables.npz")
     spec = {r: {k: v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}

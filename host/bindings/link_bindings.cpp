@@ -205,17 +205,19 @@ class PyDecoder {
   std::unique_ptr<il::Frame> frame_;
 };
 
-// Forest tables owned by Python-side copies.
+// Forest tables owned by Python-side copies (forest.h's arrays; a linear model has roots, feature, value only).
 struct Tables {
   std::vector<int32_t> roots;
   std::vector<uint8_t> feature;
   std::vector<float> value;
-  std::vector<uint16_t> right;
+  std::vector<uint16_t> skip;
+  std::vector<uint16_t> leaf;
+  std::vector<float> leaf_value;
   std::vector<uint8_t> inputs;
   ia::ForestEvaluator evaluate = ia::forest_mean;  // ia::linear_terms for a linear energy estimate
   ia::ModelSpec spec() const {
     return ia::ModelSpec{ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(),
-                                          value.data(), right.data()},
+                                          value.data(), skip.data(), leaf.data(), leaf_value.data()},
                          inputs.data(), static_cast<int32_t>(inputs.size()), evaluate};
   }
 };
@@ -235,13 +237,43 @@ void check_linear(const Tables& t) {
   }
 }
 
+// One tree of a forest's tables is walked exactly as forest_mean walks it: its split nodes [lo, hi) and leaves
+// [lo + t, hi + t + 1) form one binary tree in preorder (each split node and each leaf reached once, in order),
+// every split reads a gathered input and every leaf a stored value. So no walk leaves its tree.
+void check_tree(const Tables& t, size_t tree, size_t lo, size_t hi) {
+  struct Item {
+    bool is_leaf;
+    size_t split, leaf;   // the split node (not a leaf), the leaf cursor
+  };
+  size_t next_split = lo, next_leaf = lo + tree;
+  std::vector<Item> todo{{false, lo, lo + tree}};   // the root is a split node (hi > lo)
+  while (!todo.empty()) {
+    const Item it = todo.back();
+    todo.pop_back();
+    if (it.is_leaf) {
+      if (it.leaf != next_leaf++ || it.leaf >= t.leaf.size() || t.leaf[it.leaf] >= t.leaf_value.size()) {
+        throw std::invalid_argument("forest leaf out of range");
+      }
+      continue;
+    }
+    const size_t i = it.split, l = it.leaf;
+    if (i != next_split++ || i >= hi || (t.feature[i] & ia::kInputMask) >= t.inputs.size() || t.skip[i] == 0) {
+      throw std::invalid_argument("forest node out of range");
+    }
+    const uint8_t k = t.feature[i];
+    const size_t s = t.skip[i];
+    todo.push_back({(k & ia::kRightLeaf) != 0, i + s, l + s});   // pushed first: the left subtree comes first
+    todo.push_back({(k & ia::kLeftLeaf) != 0, i + 1, l});
+  }
+  if (next_split != hi || next_leaf != hi + tree + 1) throw std::invalid_argument("forest tree out of place");
+}
+
 // allow_twin: the forest may read ia::kTwinInput (the twin's height estimate; the energy classifier only).
 Tables tables_from(nb::dict d, bool allow_twin) {
   Tables t;
   t.roots = nb::cast<std::vector<int32_t>>(d["roots"]);
   t.feature = nb::cast<std::vector<uint8_t>>(d["feature"]);
   t.value = nb::cast<std::vector<float>>(d["value"]);
-  t.right = nb::cast<std::vector<uint16_t>>(d["right"]);
   t.inputs = nb::cast<std::vector<uint8_t>>(d["inputs"]);
   if (d.contains("kind") && nb::cast<std::string>(d["kind"]) == "linear") {
     if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
@@ -254,8 +286,19 @@ Tables tables_from(nb::dict d, bool allow_twin) {
     t.evaluate = ia::linear_terms;
     return t;
   }
+  for (const char* key : {"skip", "leaf", "leaf_value"}) {
+    if (!d.contains(key)) {
+      throw std::invalid_argument(std::string("forest tables without ") + key +
+                                  " (an export of an older layout: export the model again)");
+    }
+  }
+  t.skip = nb::cast<std::vector<uint16_t>>(d["skip"]);
+  t.leaf = nb::cast<std::vector<uint16_t>>(d["leaf"]);
+  t.leaf_value = nb::cast<std::vector<float>>(d["leaf_value"]);
   const size_t n = t.feature.size();
-  if (t.value.size() != n || t.right.size() != n) throw std::invalid_argument("forest arrays differ in length");
+  if (t.value.size() != n || t.skip.size() != n || t.leaf.size() != n + t.roots.size()) {
+    throw std::invalid_argument("forest arrays differ in length");
+  }
   if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
     throw std::invalid_argument("a forest reads 1..32 features");
   }
@@ -265,18 +308,11 @@ Tables tables_from(nb::dict d, bool allow_twin) {
                                                       : "forest input beyond the core's feature vector");
     }
   }
-  for (int32_t r : t.roots) {
-    if (r < 0 || static_cast<size_t>(r) >= n) throw std::invalid_argument("forest root out of range");
-  }
-  // Validate every walk stays inside its tree and reads a gathered input (a bad table must not crash).
   for (size_t k = 0; k < t.roots.size(); ++k) {
-    const size_t lo = t.roots[k], hi = k + 1 < t.roots.size() ? t.roots[k + 1] : n;
-    for (size_t i = lo; i < hi; ++i) {
-      if (t.feature[i] == ia::kLeaf) continue;
-      if (t.feature[i] >= t.inputs.size() || i + 1 >= hi || lo + t.right[i] >= hi || lo + t.right[i] <= i) {
-        throw std::invalid_argument("forest node out of range");
-      }
-    }
+    const int32_t lo = t.roots[k];
+    const int32_t hi = k + 1 < t.roots.size() ? t.roots[k + 1] : static_cast<int32_t>(n);
+    if (lo < 0 || hi < lo || static_cast<size_t>(hi) > n) throw std::invalid_argument("forest root out of range");
+    check_tree(t, k, static_cast<size_t>(lo), static_cast<size_t>(hi));
   }
   return t;
 }

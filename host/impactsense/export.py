@@ -4,8 +4,10 @@ With `export_c` (the C text), the only modules that know about scikit-learn's tr
 forms, both written:
 
 - **Node tables** (`impactsense_forest_tables.c`, emlearn style, the firmware default): a forest is data —
-  per node a feature index (u8), a float32 threshold or leaf value and the right child's index (u16); the
-  left child is the next node. 7 bytes a node, walked by `impactapp::forest_mean` (firmware/lib/impactapp).
+  split nodes and leaves apart, each in preorder: per split node a feature index with two child-is-a-leaf
+  bits (u8), a float32 threshold and the leaves under its left child (u16; 7 bytes), per leaf the index of
+  its value among the forest's distinct leaf values (u16, and f32 per distinct value: the values exactly);
+  walked by `impactapp::forest_mean` (firmware/lib/impactapp, forest.h).
   The same tables go to `forest_tables.npz` for the emulator, so the emulator runs the very numbers
   the board runs.
 - **The twin's site map** (models trained with one, `impactsense train --site-map`): the uint8 table, its
@@ -34,8 +36,8 @@ import numpy as np
 
 from .errors import DataError, ImpactSenseError
 from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_CHANNEL_DEFINE,  # noqa: F401
-                       ExportError, _c_float, exported_fields,
-                       f32_floor, forest_tables, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
+                       TABLE_KEYS, ExportError, _c_float, exported_fields,
+                       f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
 from .height_class import linear_tables
 from .outputs import json_text, output_folder
 
@@ -387,7 +389,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "residual_xy": models.residual_xy,
         "signal_fs_hz": models.signal.get("fs_hz"),
         "trees": n_trees,
-        "nodes": {r: int(t["feature"].size) for r, t in tabs.items()},
+        "nodes": {r: table_nodes(t) for r, t in tabs.items()},
         "table_bytes": {**{r: table_bytes(t) for r, t in tabs.items()}, "twin": table_bytes(models.twin),
                         **({"three_channel": sum(table_bytes(t) for t in three.values())} if three else {})},
         "table_bytes_total": (sum(table_bytes(t) for t in tabs.values()) + table_bytes(models.twin)
@@ -411,7 +413,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
 def load_tables(path) -> dict:
     """The emulator's copy of the exported tables and settings."""
     z = np.load(Path(path))
-    out = {r: {k: z[f"{r}_{k}"] for k in ("roots", "feature", "value", "right", "inputs")}
+    out = {r: {k: z[f"{r}_{k}"] for k in (*TABLE_KEYS, "inputs") if f"{r}_{k}" in z.files}
            for r in ("x", "y", "energy")}
     out.update(n_features=int(z["n_features"]), residual_xy=bool(z["residual_xy"]),
                signal=json.loads(str(z["signal"])))
@@ -420,7 +422,7 @@ def load_tables(path) -> dict:
     twin_keys = [k for k in z.files if k.startswith("twin_")]
     out["twin"] = {k[len("twin_"):]: z[k] for k in twin_keys} if twin_keys else None
     # the three-channel classes (linear_tables per channel; absent: none)
-    out["three_channel"] = ({c: {k: z[f"without_{c}_{k}"] for k in ("roots", "feature", "value", "right")}
+    out["three_channel"] = ({c: {k: z[f"without_{c}_{k}"] for k in TABLE_KEYS if f"without_{c}_{k}" in z.files}
                              for c in range(4)} if "without_0_roots" in z.files else None)
     return out
 

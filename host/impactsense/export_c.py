@@ -19,7 +19,7 @@ from .signal import FIELDS, card_values, settings
 if TYPE_CHECKING:
     from .export import ModelSet
 
-LEAF = 0xFF
+LEAF = 0xFF   # impactapp kLeaf: a linear model's unused factor slot
 
 
 class ExportError(ImpactSenseError):
@@ -58,35 +58,71 @@ def _leaf_values(tree, classifier: bool) -> np.ndarray:
     return v[:, 0]
 
 
+INPUT_MASK, LEFT_LEAF, RIGHT_LEAF = 0x3F, 0x40, 0x80   # a split node's feature byte (impactapp forest.h)
+TABLE_KEYS = ("roots", "feature", "value", "skip", "leaf", "leaf_value")   # a forest's arrays, in C's order
+
+
+def _preorder(tree) -> np.ndarray:
+    """The tree's node ids in preorder (node, left subtree, right subtree)."""
+    left, right = tree.children_left, tree.children_right
+    order, stack = [], [0]
+    while stack:
+        n = stack.pop()
+        order.append(n)
+        if left[n] != -1:
+            stack += [right[n], left[n]]
+    return np.asarray(order, dtype=np.int64)
+
+
+def _tree_arrays(tree, classifier: bool) -> tuple:
+    """One tree as (feature, threshold, skip, leaf values) in forest.h's layout: split nodes and leaves apart,
+    each in preorder; skip = the leaves under the left child."""
+    left, right = tree.children_left, tree.children_right
+    is_leaf = left == -1
+    leaves_under = np.ones(tree.node_count, dtype=np.int64)
+    for n in _preorder(tree)[::-1]:       # children before their parent
+        if not is_leaf[n]:
+            leaves_under[n] = leaves_under[left[n]] + leaves_under[right[n]]
+    order = _preorder(tree)
+    split = order[~is_leaf[order]]
+    values = _leaf_values(tree, classifier).astype(np.float32)[order[is_leaf[order]]]
+    if split.size == 0:   # a single leaf: one split node whose two children are that leaf
+        return (np.array([LEFT_LEAF | RIGHT_LEAF], np.uint8), np.zeros(1, np.float32), np.ones(1, np.uint16),
+                np.repeat(values, 2))
+    if np.any(tree.feature[split] > INPUT_MASK):
+        raise ExportError(f"a split reads input {int(tree.feature[split].max())}: at most {INPUT_MASK + 1} inputs")
+    skip = leaves_under[left[split]]
+    if skip.max() > 0xFFFF:
+        raise ExportError(f"a left subtree of {int(skip.max())} leaves exceeds the u16 skip")
+    feature = (tree.feature[split] | np.where(is_leaf[left[split]], LEFT_LEAF, 0)
+               | np.where(is_leaf[right[split]], RIGHT_LEAF, 0)).astype(np.uint8)
+    return feature, f32_floor(tree.threshold[split]), skip.astype(np.uint16), values
+
+
 def forest_tables(forest, n_trees: int | None = None) -> dict:
-    """Node tables of the first n_trees trees of a fitted forest (see module doc)."""
+    """The first n_trees trees of a fitted forest as impactapp's arrays (forest.h: split nodes and leaves apart,
+    each leaf an index into the forest's distinct leaf values; see the module doc for the thresholds)."""
     classifier = hasattr(forest, "predict_proba")
     trees = forest.estimators_[: n_trees or len(forest.estimators_)]
-    roots, feature, value, right = [], [], [], []
-    for est in trees:
-        t = est.tree_
-        n = t.node_count
-        if n > 0xFFFF:
-            raise ExportError(f"a tree of {n} nodes exceeds the u16 child index")
-        leaf = t.children_left == -1
-        internal = np.flatnonzero(~leaf)
-        if np.any(t.children_left[internal] != internal + 1):
-            raise ExportError("tree is not in depth-first order (left child != next node)")
-        if np.any(t.feature[internal] >= LEAF):
-            raise ExportError("more than 254 features")
-        roots.append(len(feature))
-        f = np.where(leaf, LEAF, t.feature).astype(np.uint8)
-        vals = np.where(leaf, _leaf_values(t, classifier).astype(np.float32), f32_floor(t.threshold))
-        r = np.where(leaf, 0, t.children_right).astype(np.uint16)
-        feature.extend(f.tolist())
-        value.extend(vals.astype(np.float32).tolist())
-        right.extend(r.tolist())
+    parts = [_tree_arrays(est.tree_, classifier) for est in trees]
+    roots = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
+    values = np.concatenate([p[3] for p in parts])
+    distinct, leaf = np.unique(values, return_inverse=True)
+    if distinct.size > 0x10000:
+        raise ExportError(f"{distinct.size} distinct leaf values exceed the u16 leaf index")
     return {
         "roots": np.asarray(roots, dtype=np.int32),
-        "feature": np.asarray(feature, dtype=np.uint8),
-        "value": np.asarray(value, dtype=np.float32),
-        "right": np.asarray(right, dtype=np.uint16),
+        "feature": np.concatenate([p[0] for p in parts]).astype(np.uint8),
+        "value": np.concatenate([p[1] for p in parts]).astype(np.float32),
+        "skip": np.concatenate([p[2] for p in parts]).astype(np.uint16),
+        "leaf": leaf.astype(np.uint16).ravel(),
+        "leaf_value": distinct.astype(np.float32),
     }
+
+
+def table_nodes(tables: dict) -> int:
+    """A forest's nodes (split nodes and leaves; a linear model's factor slots)."""
+    return int(tables["feature"].size + tables.get("leaf", np.empty(0)).size)
 
 
 def table_bytes(tables: dict | None) -> int:
@@ -125,22 +161,33 @@ def signal_c(signal: dict) -> str:
     return "const impactsense_signal_config impactsense_signal = {\n  " + ",\n  ".join(vals) + "\n};\n"
 
 
+_C_TYPES = {"roots": ("int32_t", str), "feature": ("uint8_t", str), "value": ("float", _c_float),
+            "skip": ("uint16_t", str), "leaf": ("uint16_t", str), "leaf_value": ("float", _c_float)}
+
+
+def forest_c(name: str, t: dict) -> tuple[str, str]:
+    """(the arrays of one forest's tables, or of a linear model's: roots, feature, value only; the initializer of its
+    impactsense_forest: absent arrays are null pointers)."""
+    arrays = "".join(_c_array(_C_TYPES[k][0], f"{name}_{k}", t[k], _C_TYPES[k][1]) for k in TABLE_KEYS if k in t)
+    init = ", ".join([str(len(t["roots"]))] + [f"{name}_{k}" if k in t else "0" for k in TABLE_KEYS])
+    return arrays, "{" + init + "}"
+
+
 def tables_c(tabs: dict[str, dict], models, header: str) -> str:
     out = [header, '#include "impactsense_models.h"\n\n']
+    empty = "{" + ", ".join(["0"] * (1 + len(TABLE_KEYS))) + "}"
     for role, t in tabs.items():
         # The m2cgen build (IMPACTSENSE_MODELS_M2CGEN) keeps the inputs and drops the node tables.
+        arrays, init = forest_c(role, t)
+        inputs = _c_array("uint8_t", f"{role}_inputs", models.inputs[role], str)
+        n_inputs = len(models.inputs[role])
         out.append("#ifndef IMPACTSENSE_MODELS_M2CGEN\n")
-        out.append(_c_array("int32_t", f"{role}_roots", t["roots"], str))
-        out.append(_c_array("uint8_t", f"{role}_feature", t["feature"], str))
-        out.append(_c_array("float", f"{role}_value", t["value"], _c_float))
-        out.append(_c_array("uint16_t", f"{role}_right", t["right"], str))
-        out.append(_c_array("uint8_t", f"{role}_inputs", models.inputs[role], str))
-        out.append(f"const impactsense_model impactsense_model_{role} = {{{{{len(t['roots'])}, {role}_roots, "
-                   f"{role}_feature, {role}_value, {role}_right}}, {role}_inputs, {len(models.inputs[role])}}};\n")
+        out.append(arrays + inputs)
+        out.append(f"const impactsense_model impactsense_model_{role} = {{{init}, {role}_inputs, {n_inputs}}};\n")
         out.append("#else\n")
-        out.append(_c_array("uint8_t", f"{role}_inputs", models.inputs[role], str))
-        out.append(f"const impactsense_model impactsense_model_{role} = {{{{0, 0, 0, 0, 0}}, {role}_inputs, "
-                   f"{len(models.inputs[role])}}};\n#endif\n\n")
+        out.append(inputs)
+        out.append(f"const impactsense_model impactsense_model_{role} = {{{empty}, {role}_inputs, {n_inputs}}};\n"
+                   "#endif\n\n")
     if models.twin is not None:
         out.append(twin_c(models.twin))
     if models.three_channel:
@@ -154,13 +201,9 @@ def three_channel_c(tabs: dict) -> str:
     impactsense_model_energy_without[4], in both builds (the m2cgen one runs them as tables too)."""
     out, models = [], []
     for c in range(4):
-        t = tabs[c]
-        out.append(_c_array("int32_t", f"without_{c}_roots", t["roots"], str))
-        out.append(_c_array("uint8_t", f"without_{c}_feature", t["feature"], str))
-        out.append(_c_array("float", f"without_{c}_value", t["value"], _c_float))
-        out.append(_c_array("uint16_t", f"without_{c}_right", t["right"], str))
-        models.append(f"{{{{{len(t['roots'])}, without_{c}_roots, without_{c}_feature, without_{c}_value, "
-                      f"without_{c}_right}}, 0, {THREE_CHANNEL_INPUTS}}}")
+        arrays, init = forest_c(f"without_{c}", tabs[c])
+        out.append(arrays)
+        models.append(f"{{{init}, 0, {THREE_CHANNEL_INPUTS}}}")
     out.append("const impactsense_model impactsense_model_energy_without[4] = {\n  " + ",\n  ".join(models)
                + "\n};\n\n")
     return "".join(out)
@@ -255,13 +298,16 @@ HEADER_H = """// Generated by `impactsense export`; do not edit. Model card {mod
 extern "C" {{
 #endif
 
-// Node tables (impactsense_forest_tables.c): same layout as impactapp::ForestTables.
+// Node tables (impactsense_forest_tables.c): same layout as impactapp::ForestTables (forest.h). Split nodes
+// and leaves apart, each in preorder; tree t's split nodes from roots[t], its leaves from roots[t] + t.
 typedef struct {{
   int32_t n_trees;
   const int32_t* roots;
-  const uint8_t* feature;
-  const float* value;
-  const uint16_t* right;
+  const uint8_t* feature;      // split node: input index | 0x40 left child a leaf | 0x80 right child a leaf
+  const float* value;          // split node: threshold (left when input <= value); a linear model's terms
+  const uint16_t* skip;        // split node: the leaves under its left child
+  const uint16_t* leaf;        // leaf: index into leaf_value
+  const float* leaf_value;     // the forest's distinct leaf values
 }} impactsense_forest;
 
 // A forest and the indices of the feature-vector entries it reads (in training order).

@@ -227,13 +227,12 @@ def energy_class_choice(oof: dict) -> dict:
 def linear_tables(model: LinearHeightClass) -> dict:
     """The board's form of the model in the node-table arrays (impactapp::linear_terms): roots [T] = each term's
     first factor in `feature` (3 k), feature [3 T] = the factors' input positions (255: none), value = [coef
-    (T), bias, offset_0, scale_0, offset_1, scale_1, ...], right = [0] (unused)."""
+    (T), bias, offset_0, scale_0, offset_1, scale_1, ...]; no skip, leaf or leaf_value (impactapp's are null)."""
     T = len(model.terms)
     value = np.concatenate([model.coef, [model.bias], np.c_[model.offset, model.scale].ravel()])
     return {"roots": (np.arange(T) * MAX_FACTORS).astype(np.int32),
             "feature": np.asarray(model.terms, np.uint8).ravel(),
-            "value": value.astype(np.float32),
-            "right": np.zeros(1, np.uint16)}
+            "value": value.astype(np.float32)}
 
 
 def linear_tables_score(tables: dict, inputs: np.ndarray) -> np.ndarray:

@@ -14,10 +14,20 @@ static float forest_mean(const impactsense_forest* f, const float* x) {
   for (int t = 0; t < f->n_trees; ++t) {
     const uint8_t* feat = f->feature + f->roots[t];
     const float* val = f->value + f->roots[t];
-    const uint16_t* right = f->right + f->roots[t];
-    unsigned i = 0;
-    while (feat[i] != 0xFF) i = (x[feat[i]] <= val[i]) ? i + 1 : right[i];
-    sum += val[i];
+    const uint16_t* skip = f->skip + f->roots[t];
+    unsigned i = 0, l = (unsigned)(f->roots[t] + t);
+    for (;;) {
+      const unsigned k = feat[i];
+      if (x[k & 0x3F] <= val[i]) {
+        if (k & 0x40) break;
+        ++i;
+      } else {
+        l += skip[i];
+        if (k & 0x80) break;
+        i += skip[i];
+      }
+    }
+    sum += f->leaf_value[f->leaf[l]];
   }
   return sum / (float)f->n_trees;
 }

@@ -2,30 +2,37 @@
 
 namespace impactapp {
 
-// The walk is the per-event cost of every model (~12 instructions a node under qemu, 14 before): each
-// tree's three arrays are offset once (the empty asm keeps the compiler from folding the tree's root back
-// into every node's index) and the loop tests for a leaf at its bottom (-O2 rotates it; the image is -Os).
+// The walk is the per-event cost of every model (~12 instructions a split node under qemu): each tree's
+// split-node arrays are offset once (the empty asm keeps the compiler from folding the tree's root back into
+// every node's index); a step left moves to the next split node, a step right moves both cursors by skip.
 #if defined(__GNUC__) && !defined(__clang__)
 __attribute__((optimize("O2")))
 #endif
 float forest_mean(const ForestTables& f, const float* x) {
   float sum = 0.0f;
   for (int32_t t = 0; t < f.n_trees; ++t) {
-    const uint8_t* feat = f.feature + f.roots[t];
-    const float* val = f.value + f.roots[t];
-    const uint16_t* right = f.right + f.roots[t];
+    const int32_t root = f.roots[t];
+    const uint8_t* feat = f.feature + root;
+    const float* val = f.value + root;
+    const uint16_t* skip = f.skip + root;
 #if defined(__GNUC__)
-    __asm__("" : "+r"(feat), "+r"(val), "+r"(right));
+    __asm__("" : "+r"(feat), "+r"(val), "+r"(skip));
 #endif
     uint32_t i = 0;
-    uint32_t k = feat[0];
-    if (k != kLeaf) {
-      do {
-        i = (x[k] <= val[i]) ? i + 1 : right[i];
-        k = feat[i];
-      } while (k != kLeaf);
+    uint32_t l = static_cast<uint32_t>(root + t);
+    for (;;) {
+      const uint32_t k = feat[i];
+      if (x[k & kInputMask] <= val[i]) {
+        if (k & kLeftLeaf) break;
+        ++i;
+      } else {
+        const uint32_t s = skip[i];
+        l += s;
+        if (k & kRightLeaf) break;
+        i += s;
+      }
     }
-    sum += val[i];
+    sum += f.leaf_value[f.leaf[l]];
   }
   return f.n_trees > 0 ? sum / static_cast<float>(f.n_trees) : 0.0f;
 }
