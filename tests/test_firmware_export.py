@@ -105,7 +105,8 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     assert summary["nodes"] == {r: 2 * splits[r] + summary["trees"][r] for r in splits}
     assert all(0 < distinct[r] <= t[r]["leaf"].size for r in splits)
     assert summary["table_bytes_total"] == (sum(7 * splits[r] + 2 * (splits[r] + summary["trees"][r]) + 4 * distinct[r]
-                                                for r in splits) + 4 * n_trees + n_inputs + twin_bytes + three_bytes)
+                                                for r in splits) + 4 * (n_trees + len(splits))   # roots: one past the last tree
+                                            + n_inputs + twin_bytes + three_bytes)
 
 
 @pytest.mark.parametrize("exported", ["twin"], indirect=True)

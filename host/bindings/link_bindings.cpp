@@ -209,15 +209,19 @@ class PyDecoder {
 struct Tables {
   std::vector<int32_t> roots;
   std::vector<uint8_t> feature;
-  std::vector<float> value;
+  std::vector<int32_t> threshold;
   std::vector<uint16_t> skip;
   std::vector<uint16_t> leaf;
   std::vector<float> leaf_value;
+  std::vector<float> value;
   std::vector<uint8_t> inputs;
   ia::ForestEvaluator evaluate = ia::forest_mean;  // ia::linear_terms for a linear energy estimate
+  bool linear = false;
   ia::ModelSpec spec() const {
-    return ia::ModelSpec{ia::ForestTables{static_cast<int32_t>(roots.size()), roots.data(), feature.data(),
-                                          value.data(), skip.data(), leaf.data(), leaf_value.data()},
+    const int32_t n_trees = static_cast<int32_t>(roots.size()) - (linear ? 0 : 1);
+    return ia::ModelSpec{ia::ForestTables{n_trees, roots.data(), feature.data(), threshold.data(), skip.data(),
+                                          leaf.data(), leaf_value.data(), value.data(),
+                                          static_cast<int32_t>(inputs.size())},
                          inputs.data(), static_cast<int32_t>(inputs.size()), evaluate};
   }
 };
@@ -237,33 +241,32 @@ void check_linear(const Tables& t) {
   }
 }
 
-// One tree of a forest's tables is walked exactly as forest_mean walks it: its split nodes [lo, hi) and leaves
-// [lo + t, hi + t + 1) form one binary tree in preorder (each split node and each leaf reached once, in order),
-// every split reads a gathered input and every leaf a stored value. So no walk leaves its tree.
+// One tree of a forest's tables is walked exactly as forest_mean walks it: from its root (split node lo, leaf
+// cursor lo + tree, c = hi - lo split nodes under it) every split node reached reads a gathered input and has
+// 1 <= skip <= c (so c falls at every step and the walk ends), and the split nodes [lo, hi) and leaves
+// [lo + tree, hi + tree + 1) are each reached once, in order, every leaf naming a stored value.
 void check_tree(const Tables& t, size_t tree, size_t lo, size_t hi) {
   struct Item {
-    bool is_leaf;
-    size_t split, leaf;   // the split node (not a leaf), the leaf cursor
+    size_t split, leaf, c;   // split node, leaf cursor, split nodes under it (0: a leaf)
   };
   size_t next_split = lo, next_leaf = lo + tree;
-  std::vector<Item> todo{{false, lo, lo + tree}};   // the root is a split node (hi > lo)
+  std::vector<Item> todo{{lo, lo + tree, hi - lo}};
   while (!todo.empty()) {
     const Item it = todo.back();
     todo.pop_back();
-    if (it.is_leaf) {
+    if (it.c == 0) {
       if (it.leaf != next_leaf++ || it.leaf >= t.leaf.size() || t.leaf[it.leaf] >= t.leaf_value.size()) {
         throw std::invalid_argument("forest leaf out of range");
       }
       continue;
     }
-    const size_t i = it.split, l = it.leaf;
-    if (i != next_split++ || i >= hi || (t.feature[i] & ia::kInputMask) >= t.inputs.size() || t.skip[i] == 0) {
+    const size_t i = it.split;
+    if (i != next_split++ || i >= hi || t.feature[i] >= t.inputs.size() || t.skip[i] == 0 || t.skip[i] > it.c) {
       throw std::invalid_argument("forest node out of range");
     }
-    const uint8_t k = t.feature[i];
     const size_t s = t.skip[i];
-    todo.push_back({(k & ia::kRightLeaf) != 0, i + s, l + s});   // pushed first: the left subtree comes first
-    todo.push_back({(k & ia::kLeftLeaf) != 0, i + 1, l});
+    todo.push_back({i + s, it.leaf + s, it.c - s});   // pushed first: the left subtree comes first (preorder)
+    todo.push_back({i + 1, it.leaf, s - 1});
   }
   if (next_split != hi || next_leaf != hi + tree + 1) throw std::invalid_argument("forest tree out of place");
 }
@@ -273,9 +276,10 @@ Tables tables_from(nb::dict d, bool allow_twin) {
   Tables t;
   t.roots = nb::cast<std::vector<int32_t>>(d["roots"]);
   t.feature = nb::cast<std::vector<uint8_t>>(d["feature"]);
-  t.value = nb::cast<std::vector<float>>(d["value"]);
   t.inputs = nb::cast<std::vector<uint8_t>>(d["inputs"]);
   if (d.contains("kind") && nb::cast<std::string>(d["kind"]) == "linear") {
+    t.value = nb::cast<std::vector<float>>(d["value"]);
+    t.linear = true;
     if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
       throw std::invalid_argument("a linear model reads 1..32 features");
     }
@@ -286,17 +290,19 @@ Tables tables_from(nb::dict d, bool allow_twin) {
     t.evaluate = ia::linear_terms;
     return t;
   }
-  for (const char* key : {"skip", "leaf", "leaf_value"}) {
+  for (const char* key : {"threshold", "skip", "leaf", "leaf_value"}) {
     if (!d.contains(key)) {
       throw std::invalid_argument(std::string("forest tables without ") + key +
                                   " (an export of an older layout: export the model again)");
     }
   }
+  t.threshold = nb::cast<std::vector<int32_t>>(d["threshold"]);
   t.skip = nb::cast<std::vector<uint16_t>>(d["skip"]);
   t.leaf = nb::cast<std::vector<uint16_t>>(d["leaf"]);
   t.leaf_value = nb::cast<std::vector<float>>(d["leaf_value"]);
   const size_t n = t.feature.size();
-  if (t.value.size() != n || t.skip.size() != n || t.leaf.size() != n + t.roots.size()) {
+  if (t.roots.empty() || t.threshold.size() != n || t.skip.size() != n || t.leaf.size() != n + t.roots.size() - 1 ||
+      t.roots.back() != static_cast<int32_t>(n)) {
     throw std::invalid_argument("forest arrays differ in length");
   }
   if (t.inputs.empty() || t.inputs.size() > static_cast<size_t>(ia::kMaxModelInputs)) {
@@ -308,10 +314,9 @@ Tables tables_from(nb::dict d, bool allow_twin) {
                                                       : "forest input beyond the core's feature vector");
     }
   }
-  for (size_t k = 0; k < t.roots.size(); ++k) {
-    const int32_t lo = t.roots[k];
-    const int32_t hi = k + 1 < t.roots.size() ? t.roots[k + 1] : static_cast<int32_t>(n);
-    if (lo < 0 || hi < lo || static_cast<size_t>(hi) > n) throw std::invalid_argument("forest root out of range");
+  for (size_t k = 0; k + 1 < t.roots.size(); ++k) {
+    const int32_t lo = t.roots[k], hi = t.roots[k + 1];
+    if (lo < 0 || hi <= lo || static_cast<size_t>(hi) > n) throw std::invalid_argument("forest root out of range");
     check_tree(t, k, static_cast<size_t>(lo), static_cast<size_t>(hi));
   }
   return t;

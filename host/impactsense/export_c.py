@@ -58,8 +58,15 @@ def _leaf_values(tree, classifier: bool) -> np.ndarray:
     return v[:, 0]
 
 
-INPUT_MASK, LEFT_LEAF, RIGHT_LEAF = 0x3F, 0x40, 0x80   # a split node's feature byte (impactapp forest.h)
-TABLE_KEYS = ("roots", "feature", "value", "skip", "leaf", "leaf_value")   # a forest's arrays, in C's order
+# a forest's arrays (impactapp forest.h) in the C struct's order; a linear model has roots, feature and value only
+TABLE_KEYS = ("roots", "feature", "threshold", "skip", "leaf", "leaf_value", "value")
+
+
+def order_key(v) -> np.ndarray:
+    """impactapp::order_key: float32 bits as int32 keys that order as the floats do (negative: magnitude bits
+    flipped), so the board compares thresholds as integers."""
+    b = np.asarray(v, dtype=np.float32).view(np.int32)
+    return (b ^ ((b >> 31) & np.int32(0x7FFFFFFF))).astype(np.int32)
 
 
 def _preorder(tree) -> np.ndarray:
@@ -75,45 +82,42 @@ def _preorder(tree) -> np.ndarray:
 
 
 def _tree_arrays(tree, classifier: bool) -> tuple:
-    """One tree as (feature, threshold, skip, leaf values) in forest.h's layout: split nodes and leaves apart,
+    """One tree as (feature, threshold keys, skip, leaf values) in forest.h's layout: split nodes and leaves apart,
     each in preorder; skip = the leaves under the left child."""
     left, right = tree.children_left, tree.children_right
     is_leaf = left == -1
+    order = _preorder(tree)
     leaves_under = np.ones(tree.node_count, dtype=np.int64)
-    for n in _preorder(tree)[::-1]:       # children before their parent
+    for n in order[::-1]:       # children before their parent
         if not is_leaf[n]:
             leaves_under[n] = leaves_under[left[n]] + leaves_under[right[n]]
-    order = _preorder(tree)
     split = order[~is_leaf[order]]
     values = _leaf_values(tree, classifier).astype(np.float32)[order[is_leaf[order]]]
     if split.size == 0:   # a single leaf: one split node whose two children are that leaf
-        return (np.array([LEFT_LEAF | RIGHT_LEAF], np.uint8), np.zeros(1, np.float32), np.ones(1, np.uint16),
-                np.repeat(values, 2))
-    if np.any(tree.feature[split] > INPUT_MASK):
-        raise ExportError(f"a split reads input {int(tree.feature[split].max())}: at most {INPUT_MASK + 1} inputs")
+        return np.zeros(1, np.uint8), order_key(0.0).reshape(1), np.ones(1, np.uint16), np.repeat(values, 2)
+    if np.any(tree.feature[split] >= LEAF):
+        raise ExportError("more than 254 features")
     skip = leaves_under[left[split]]
     if skip.max() > 0xFFFF:
         raise ExportError(f"a left subtree of {int(skip.max())} leaves exceeds the u16 skip")
-    feature = (tree.feature[split] | np.where(is_leaf[left[split]], LEFT_LEAF, 0)
-               | np.where(is_leaf[right[split]], RIGHT_LEAF, 0)).astype(np.uint8)
-    return feature, f32_floor(tree.threshold[split]), skip.astype(np.uint16), values
+    threshold = f32_floor(tree.threshold[split]) + np.float32(0.0)   # -0 -> +0: the same decisions, one key
+    return tree.feature[split].astype(np.uint8), order_key(threshold), skip.astype(np.uint16), values
 
 
 def forest_tables(forest, n_trees: int | None = None) -> dict:
     """The first n_trees trees of a fitted forest as impactapp's arrays (forest.h: split nodes and leaves apart,
-    each leaf an index into the forest's distinct leaf values; see the module doc for the thresholds)."""
+    thresholds as order keys, each leaf an index into the forest's distinct leaf values; see the module doc)."""
     classifier = hasattr(forest, "predict_proba")
     trees = forest.estimators_[: n_trees or len(forest.estimators_)]
     parts = [_tree_arrays(est.tree_, classifier) for est in trees]
-    roots = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
     values = np.concatenate([p[3] for p in parts])
     distinct, leaf = np.unique(values, return_inverse=True)
     if distinct.size > 0x10000:
         raise ExportError(f"{distinct.size} distinct leaf values exceed the u16 leaf index")
     return {
-        "roots": np.asarray(roots, dtype=np.int32),
+        "roots": np.cumsum([0] + [len(p[0]) for p in parts]).astype(np.int32),
         "feature": np.concatenate([p[0] for p in parts]).astype(np.uint8),
-        "value": np.concatenate([p[1] for p in parts]).astype(np.float32),
+        "threshold": np.concatenate([p[1] for p in parts]).astype(np.int32),
         "skip": np.concatenate([p[2] for p in parts]).astype(np.uint16),
         "leaf": leaf.astype(np.uint16).ravel(),
         "leaf_value": distinct.astype(np.float32),
@@ -161,15 +165,17 @@ def signal_c(signal: dict) -> str:
     return "const impactsense_signal_config impactsense_signal = {\n  " + ",\n  ".join(vals) + "\n};\n"
 
 
-_C_TYPES = {"roots": ("int32_t", str), "feature": ("uint8_t", str), "value": ("float", _c_float),
-            "skip": ("uint16_t", str), "leaf": ("uint16_t", str), "leaf_value": ("float", _c_float)}
+_C_TYPES = {"roots": ("int32_t", str), "feature": ("uint8_t", str), "threshold": ("int32_t", str),
+            "skip": ("uint16_t", str), "leaf": ("uint16_t", str), "leaf_value": ("float", _c_float),
+            "value": ("float", _c_float)}
 
 
 def forest_c(name: str, t: dict) -> tuple[str, str]:
     """(the arrays of one forest's tables, or of a linear model's: roots, feature, value only; the initializer of its
     impactsense_forest: absent arrays are null pointers)."""
     arrays = "".join(_c_array(_C_TYPES[k][0], f"{name}_{k}", t[k], _C_TYPES[k][1]) for k in TABLE_KEYS if k in t)
-    init = ", ".join([str(len(t["roots"]))] + [f"{name}_{k}" if k in t else "0" for k in TABLE_KEYS])
+    n_trees = len(t["roots"]) - ("leaf" in t)   # a forest's roots end with its split-node count
+    init = ", ".join([str(n_trees)] + [f"{name}_{k}" if k in t else "0" for k in TABLE_KEYS])
     return arrays, "{" + init + "}"
 
 
@@ -298,16 +304,17 @@ HEADER_H = """// Generated by `impactsense export`; do not edit. Model card {mod
 extern "C" {{
 #endif
 
-// Node tables (impactsense_forest_tables.c): same layout as impactapp::ForestTables (forest.h). Split nodes
-// and leaves apart, each in preorder; tree t's split nodes from roots[t], its leaves from roots[t] + t.
+// Node tables (impactsense_forest_tables.c): impactapp::ForestTables' arrays (forest.h). Split nodes and leaves
+// apart, each in preorder; tree t's split nodes roots[t] .. roots[t + 1] - 1, its leaves from roots[t] + t.
 typedef struct {{
   int32_t n_trees;
   const int32_t* roots;
-  const uint8_t* feature;      // split node: input index | 0x40 left child a leaf | 0x80 right child a leaf
-  const float* value;          // split node: threshold (left when input <= value); a linear model's terms
+  const uint8_t* feature;      // split node: the input it reads
+  const int32_t* threshold;    // split node: the float32 threshold's order key (left when input <= threshold)
   const uint16_t* skip;        // split node: the leaves under its left child
   const uint16_t* leaf;        // leaf: index into leaf_value
   const float* leaf_value;     // the forest's distinct leaf values
+  const float* value;          // a linear model's terms (the forest arrays then null)
 }} impactsense_forest;
 
 // A forest and the indices of the feature-vector entries it reads (in training order).

@@ -5,35 +5,43 @@
    score) with %.9g. Used by
    tests/test_firmware_export.py to check the generated C against scikit-learn. */
 #include <stdio.h>
+#include <string.h>
 
 #include "impactsense_models.h"
 
-static float forest_mean(const impactsense_forest* f, const float* x) {
+static int32_t order_key(float v) {
+  uint32_t b;
+  memcpy(&b, &v, sizeof b);
+  return (int32_t)(b ^ ((0u - (b >> 31)) >> 1));
+}
+
+static float forest_mean(const impactsense_forest* f, const float* x, int n_inputs) {
   /* Same walk as impactapp::forest_mean (C here so the generated C is checked without C++). */
+  int32_t key[32];
+  for (int k = 0; k < n_inputs; ++k) key[k] = order_key(x[k]);
   float sum = 0.0f;
   for (int t = 0; t < f->n_trees; ++t) {
-    const uint8_t* feat = f->feature + f->roots[t];
-    const float* val = f->value + f->roots[t];
-    const uint16_t* skip = f->skip + f->roots[t];
-    unsigned i = 0, l = (unsigned)(f->roots[t] + t);
-    for (;;) {
-      const unsigned k = feat[i];
-      if (x[k & 0x3F] <= val[i]) {
-        if (k & 0x40) break;
+    const int32_t root = f->roots[t];
+    unsigned i = (unsigned)root, l = (unsigned)(root + t), c = (unsigned)(f->roots[t + 1] - root);
+    do {
+      const unsigned s = f->skip[i];
+      if (key[f->feature[i]] <= f->threshold[i]) {
         ++i;
+        c = s - 1;
       } else {
-        l += skip[i];
-        if (k & 0x80) break;
-        i += skip[i];
+        i += s;
+        l += s;
+        c -= s;
       }
-    }
+    } while (c != 0);
     sum += f->leaf_value[f->leaf[l]];
   }
   return sum / (float)f->n_trees;
 }
 
 #if defined(IMPACTSENSE_ENERGY_LINEAR) && IMPACTSENSE_ENERGY_LINEAR
-static float linear_terms(const impactsense_forest* f, const float* x) {
+static float linear_terms(const impactsense_forest* f, const float* x, int n_inputs) {
+  (void)n_inputs;
   /* Same arithmetic as impactapp::linear_terms: the energy arrays of a linear estimate of log m g h. */
   const float* standard = f->value + f->n_trees + 1;
   float sum = f->value[f->n_trees];
@@ -63,8 +71,9 @@ int main(void) {
     gather(&impactsense_model_x, v, a);
     gather(&impactsense_model_y, v, b);
     gather(&impactsense_model_energy, v, c);
-    printf("%.9g %.9g %.9g %.9g %.9g %.9g\n", forest_mean(&impactsense_model_x.forest, a),
-           forest_mean(&impactsense_model_y.forest, b), ENERGY_MODEL(&impactsense_model_energy.forest, c),
+    printf("%.9g %.9g %.9g %.9g %.9g %.9g\n", forest_mean(&impactsense_model_x.forest, a, impactsense_model_x.n_inputs),
+           forest_mean(&impactsense_model_y.forest, b, impactsense_model_y.n_inputs),
+           ENERGY_MODEL(&impactsense_model_energy.forest, c, impactsense_model_energy.n_inputs),
            impactsense_m2c_x(a), impactsense_m2c_y(b), impactsense_m2c_energy(c));
   }
   return 0;

@@ -61,7 +61,6 @@ class Hal {
   virtual bool apply_rate(uint32_t fs_hz) { (void)fs_hz; return true; }  // retime the sampling TIMER
 };
 
-constexpr int kMaxModelInputs = 32;
 // A model input index equal to kTwinInput (one past the core's feature vector) reads the twin's estimate
 // of log10(drop height / mm) (twin.h: twin_features + twin_estimate at the position the x/y forests give).
 // Only the energy classifier may read it; `impactsense export` writes it for models trained with a site map.

@@ -15,8 +15,8 @@ static_assert(IMPACTSENSE_N_FEATURES == impactcore::kNumFeatures,
 
 // One exported forest, evaluated by `evaluate` (forest_mean: its node tables).
 inline ModelSpec exported_spec(const impactsense_model& m, ForestEvaluator evaluate) {
-  return ModelSpec{ForestTables{m.forest.n_trees, m.forest.roots, m.forest.feature, m.forest.value, m.forest.skip,
-                                m.forest.leaf, m.forest.leaf_value},
+  return ModelSpec{ForestTables{m.forest.n_trees, m.forest.roots, m.forest.feature, m.forest.threshold, m.forest.skip,
+                                m.forest.leaf, m.forest.leaf_value, m.forest.value, m.n_inputs},
                    m.inputs, m.n_inputs, evaluate};
 }
 
