@@ -12,6 +12,7 @@ import pytest
 
 from impactsense.data import load_session
 from impactsense.export import export_models, f32_floor, firmware_models, load_models, load_tables
+from impactsense.export_c import _leaf_values
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 
@@ -109,6 +110,35 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
                                             + n_inputs + twin_bytes + three_bytes)
 
 
+@pytest.mark.parametrize("exported", ["summed"], indirect=True)
+def test_single_leaf_trees_and_damaged_tables(exported, session_features):
+    """forest.h's layout for a tree that is one leaf (a constant target): one split node whose two children are
+    that leaf, walked by the firmware app like any tree; tables whose walk could leave a tree are refused."""
+    from sklearn.ensemble import RandomForestRegressor
+
+    from impactsense import _link
+    from impactsense.export import forest_tables
+
+    _, f = session_features
+    t = load_tables(exported[1] / "forest_tables.npz")
+    spec = {r: {k: v.tolist() for k, v in t[r].items()} for r in ("x", "y", "energy")}
+    const = forest_tables(RandomForestRegressor(n_estimators=3, random_state=0).fit(f.vector[:50, :2], np.full(50, 1.5)))
+    assert const["feature"].size == 3 and const["leaf"].size == 6 and const["leaf_value"].tolist() == [1.5]
+    x = {**{k: v.tolist() for k, v in const.items()}, "inputs": [0, 1]}
+    got = _link.ForestModels(x, spec["y"], spec["energy"], True).predict(f.vector, f.phys_xy_mm, *energies(f))
+    ran = got[:, 3] > 0
+    assert ran.sum() > 700
+    np.testing.assert_allclose(got[ran, 0] - f.phys_xy_mm[ran, 0], 1.5, atol=1e-4)
+    damaged = [("skip", 0, 0), ("skip", 0, len(spec["y"]["feature"])), ("feature", 0, len(spec["y"]["inputs"])),
+               ("leaf", 0, len(spec["y"]["leaf_value"])), ("roots", -1, len(spec["y"]["feature"]) - 1),
+               ("roots", 1, 0)]
+    for key, i, v in damaged:
+        bad = {k: list(a) for k, a in spec["y"].items()}
+        bad[key][i] = v
+        with pytest.raises(ValueError, match="forest"):
+            _link.ForestModels(spec["x"], bad, spec["energy"], True)
+
+
 @pytest.mark.parametrize("exported", ["twin"], indirect=True)
 def test_firmware_walker_needs_the_twin_for_a_twin_model(exported):
     """A forest that reads the twin's estimate without a site map is refused (and so is one for x or y)."""
@@ -159,6 +189,15 @@ def test_generated_c_matches_sklearn_on_every_drop(exported, session_features, t
         np.testing.assert_array_equal((got[:, cols[2]] > 0.5).astype(int),
                                       m.energy.predict(X[:, m.inputs["energy"]]))
     np.testing.assert_array_equal((got[:, 2] > 0.5).astype(int), pred["energy_class"][use])
+    # The node tables give exactly the float32 mean of scikit-learn's leaves, summed tree by tree in float32
+    # (the leaf each tree reaches and its value are scikit-learn's; only the sum's rounding is the board's).
+    for col, role in enumerate(("x", "y", "energy")):
+        forest = getattr(m, role)
+        Xr = X[:, m.inputs[role]]
+        s = np.zeros(len(X), np.float32)
+        for est in forest.estimators_:
+            s = (s + _leaf_values(est.tree_, role == "energy").astype(np.float32)[est.apply(Xr)]).astype(np.float32)
+        np.testing.assert_array_equal(got[:, col].astype(np.float32), s / np.float32(len(forest.estimators_)))
 
 
 def test_cli_export(exported, tmp_path):
