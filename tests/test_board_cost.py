@@ -61,6 +61,8 @@ def test_forest_cost_counts_the_nodes_each_tree_walks():
     few = cost.forests_instructions({"x": nodes}, {"x": 2})
     assert few == cost.FOREST_FIXED + int((cost.FOREST_PER_NODE * nodes[:2].sum(0) + 2 * cost.FOREST_PER_TREE).max())
     assert cost.forests_instructions({"x": nodes}, {"x": 6}) > few
+    # and each input's order key, once a forest call
+    assert cost.forests_instructions({"x": nodes}, {"x": 2}, {"x": 20}) == few + 20 * cost.FOREST_PER_INPUT
 
 
 def test_fit_localiser_tries_only_the_options_that_fit(monkeypatch):

@@ -231,10 +231,10 @@ def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray
 TWIN_MAX_TREES = 15
 
 # The flash budget (issue 17) is for the project's code and models together: the models get what the firmware's
-# own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow;
-# tests/test_board_build.py holds the real code to it) leaves of 256 KB.
+# own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow:
+# ~62 KB now, 72 KB allowed; tests/test_board_build.py holds the real code to it) leaves of 256 KB.
 FLASH_BUDGET_BYTES = 256 * 1024
-FIRMWARE_CODE_BYTES = 62 * 1024
+FIRMWARE_CODE_BYTES = 72 * 1024
 MODELS_FLASH_BUDGET = FLASH_BUDGET_BYTES - FIRMWARE_CODE_BYTES
 
 
@@ -284,9 +284,10 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
         if nodes is not None:
             from .board.cost import forests_instructions, linear_instructions
             row["energy_trees"] = n_energy if models.energy_linear else min(k, n_energy)
-            row["instructions"] = (forests_instructions(nodes, {"x": k, "y": k}) + linear_instructions(n_energy)
+            n_inputs = {r: len(v) for r, v in models.inputs.items()}
+            row["instructions"] = (forests_instructions(nodes, {"x": k, "y": k}, n_inputs) + linear_instructions(n_energy)
                                    if models.energy_linear else
-                                   forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]}))
+                                   forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]}, n_inputs))
             row["within_budgets"] = row["within_budgets"] and row["instructions"] <= max_instructions
         rows.append(row)
     best = min(r["mean_distance_mm"] for r in rows)

@@ -17,7 +17,9 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there) at
   LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel metric) runs the costlier form;
 - forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
-  on actual feature vectors (the slowest row), plus FOREST_FIXED (the inputs' gathering, the calls, the vote).
+  on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads (impactapp's
+  forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering, the calls,
+  the vote).
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ POSTERIOR_PER_POINT = 450
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 30
 FOREST_FIXED = 800
+# forest_mean's order key of one input (load, two ALU operations, store and the loop: 7 instructions, qemu image)
+FOREST_PER_INPUT = 7
 # A term of the linear energy estimate (impactapp::linear_terms): three factor slots, each a load and a compare and,
 # where used, two loads, a subtract and two multiplies; an upper estimate (qemu's models stage on a laminate's
 # export, 1 + 1 localisation trees and 14 terms, is 1,660 instructions; docs/findings.md "The energy class chosen
@@ -113,8 +117,10 @@ def linear_instructions(n_terms: int) -> int:
     return LINEAR_PER_TERM * int(n_terms)
 
 
-def forests_instructions(nodes: dict, trees: dict) -> int:
+def forests_instructions(nodes: dict, trees: dict, inputs: dict | None = None) -> int:
     """The models' cost for the prefixes `trees` (role -> number of trees) of forests whose node counts are
-    `nodes` (role -> forest_nodes): the slowest row."""
+    `nodes` (role -> forest_nodes) and which read `inputs` (role -> number of inputs; absent: none counted): the
+    slowest row."""
     per_row = sum(FOREST_PER_NODE * nodes[r][:k].sum(axis=0) + FOREST_PER_TREE * k for r, k in trees.items())
-    return FOREST_FIXED + (int(np.max(per_row)) if np.size(per_row) else 0)
+    per_input = FOREST_PER_INPUT * sum(int((inputs or {}).get(r, 0)) for r, k in trees.items() if k > 0)
+    return FOREST_FIXED + per_input + (int(np.max(per_row)) if np.size(per_row) else 0)
