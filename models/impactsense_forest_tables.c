@@ -12599,6 +12599,7 @@ const impactsense_signal_config impactsense_signal = {
   0.0f,
   0.100000001f,
   600.0f,
+  0.0f,
   {0, 0, 0, 0},
   0.876729608f,
   8.24207687f,

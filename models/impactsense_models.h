@@ -76,6 +76,7 @@ typedef struct {
   float band_pick_hz;  // copy
   float band_pick_fraction;  // copy
   float band_window_us;  // copy
+  float band_noise_counts;  // copy
   int32_t channel_left_out[4];  // copy
   float velocity_mm_per_us;  // copy
   float sigma_us;  // copy
