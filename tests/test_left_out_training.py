@@ -92,13 +92,19 @@ def test_a_model_trained_with_a_channel_left_out_reads_the_other_three(left_out_
 
 def test_a_four_channel_model_with_the_channel_left_out_after_training_keeps_the_physics_answer(left_out_models):
     """A model trained on four channels and told to leave one out (retrain's unabsorbed channel, the board's
-    left-out export) does not feed its forests a NaN arrival time: the three-sensor physics position."""
+    left-out export) does not feed its forests a NaN arrival time: the three-sensor physics position, corrected
+    by the host's pair for that channel out (three_channel_position.py; the board's models have none)."""
+    from impactsense.three_channel_position import corrected_positions
+
     four, _, test = left_out_models
     left = replace(four, signal=leave_out(four.signal, [2]))
     f = featurize(test.adc, left.signal)
     out = left.predict(f)
-    assert out["three_channel"].all()
-    assert np.allclose(out["xy_mm"], f.phys_xy_mm, equal_nan=True)
+    assert out["three_channel"].all() and 2 in four.three_channel_position
+    assert np.allclose(replace(left, three_channel_position={}).predict(f)["xy_mm"], f.phys_xy_mm, equal_nan=True)
+    want = np.array(f.phys_xy_mm, float)
+    corrected_positions(four.three_channel_position, f.vector, np.arange(len(f)), np.full(len(f), 2), want)
+    assert np.isfinite(out["xy_mm"]).all() and np.allclose(out["xy_mm"], want)
 
 
 def test_a_model_trained_with_a_channel_left_out_saves_and_loads(left_out_models, tmp_path):

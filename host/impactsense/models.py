@@ -28,15 +28,17 @@ from .errors import DataError
 from .forestfile import save_forest
 from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHANNEL_FILE, LinearHeightClass,
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
-                           out_of_fold_classes, three_channel_inputs)
-from .modelfolder import file_hashes, load_forests, read_card, read_verified, verified_path
+                           out_of_fold_classes)
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
+from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
                                edge_coefficients_ok, edge_positions, fit_member_pairs, joined_position,
                                member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
+from .three_channel_position import (fit_three_channel_positions, load_three_sensor_path, save_three_channel_positions,
+                                     three_sensor_path)
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
 from .twin import estimate as twin_estimate
 from .twin_oof import out_of_fold_twin, twin_choice  # noqa: F401 (twin_choice: models' API)
@@ -169,6 +171,8 @@ class ImpactModel:
     # Without a site map: channel left out -> the linear estimate of log m g h on the other three channels'
     # energies (height_class.three_channel_inputs), the class of a drop with that channel without an onset.
     three_channel_class: dict = field(default_factory=dict)
+    # Without a site map, with members (host only): channel out -> the pair correcting the three-sensor position.
+    three_channel_position: dict = field(default_factory=dict)
     # The edge correction's coefficients per pick set (edge_travel.py; {"threshold": [...], "band": [...] or
     # None}); empty: off. With it the members include EDGE_MEMBERS.
     edge_travel: dict = field(default_factory=dict)
@@ -224,6 +228,11 @@ class ImpactModel:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
                                           energy_j, threshold) if site_map is None else {}
+        three_xy = {}
+        if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
+            three_xy, factors = fit_three_channel_positions(features.take(np.flatnonzero(use)), xy, signal,
+                                                            settings.seed)
+            card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         edge, train = {}, features.take(np.flatnonzero(use))
         if choose_edge and members and site_map is None:
             edge = choose_edge_travel(train, xy, signal) or {}
@@ -242,7 +251,8 @@ class ImpactModel:
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
-                   three_channel_class=three, edge_travel=edge, location_features=loc_names)
+                   three_channel_class=three, edge_travel=edge, location_features=loc_names,
+                   three_channel_position=three_xy)
 
     @property
     def energy_features(self) -> list[str]:
@@ -290,26 +300,9 @@ class ImpactModel:
         # and matches the other three channels' energies.
         three = three_channel_rows(features) & ~use
         xy[three] = features.phys_xy_mm[three]
-        three_xy = features.phys_xy_mm
-        left_out = np.argmax(features.no_onset, axis=1)
-        if self.site_map is None and self.card.get("channel_check") and use.any():
-            # a channel that disagrees with the other three (a debonded disc): the same three-sensor path
-            flagged, three_xy, left_out = flag_events(features.raw, features.phys_xy_mm, use, left_out, self.signal,
-                                                       self.card["channel_check"])
-            out["forest_xy_mm"] = xy.copy()   # the forests' own position stays there
-            xy[flagged] = three_xy[flagged]
-            spread[flagged] = np.nan
-            three = three | flagged
-            out["bad_channel"] = np.where(flagged, left_out, -1)
         out["three_channel"] = three
-        if self.site_map is None and self.three_channel_class:
-            # their class from the other three channels' energies at that position (a model without them,
-            # trained before, or the board: no class)
-            for c, estimate in self.three_channel_class.items():
-                rows = np.flatnonzero(three & (left_out == c))
-                if rows.size:
-                    energy_class[rows] = estimate.predict(three_channel_inputs(
-                        {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))
+        if self.site_map is None:   # a channel the check flags, the host's correction, the class (three_sensor_path)
+            three_sensor_path(self, features, use, out)
         if self.site_map is not None:
             out["xy_mm"] = np.full((n, 2), np.nan)
             out["height_mm"] = np.full(n, np.nan)
@@ -377,6 +370,7 @@ class ImpactModel:
                 save_forest(stage / MEMBER_FILES[f"{axis}_{name}"], forest)
         for c, estimate in self.three_channel_class.items():
             estimate.save(stage / THREE_CHANNEL_FILE.format(c))
+        three_xy = save_three_channel_positions(stage, self.three_channel_position)
         twin = {}
         if self.site_map is not None:
             self.site_map.save(stage / SITE_MAP_FILE)
@@ -406,6 +400,8 @@ class ImpactModel:
             card["energy_model"] = "linear"
         if self.three_channel_class:   # a drop with one channel without an onset: its class from the other three
             card["three_channel_class"] = {str(c): THREE_CHANNEL_FILE.format(c) for c in self.three_channel_class}
+        if three_xy:   # a drop with one channel without an onset: its three-sensor position's correction
+            card["three_channel_position"] = three_xy
         if self.edge_travel:   # the edge correction's coefficients (edge_travel.py) its members read
             card["edge_travel"] = self.edge_travel
         if self.members:
@@ -417,7 +413,8 @@ class ImpactModel:
         card = {
             **card,
             **{k: v for k, v in self.card.items()
-               if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class", "edge_travel")},
+               if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class", "edge_travel",
+                                                         "three_channel_position")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
@@ -481,19 +478,10 @@ class ImpactModel:
                                                            "left-out channel's arrival times)")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
         members = {n: (extra[f"x_{n}"], extra[f"y_{n}"]) for n in names}
-        three = card.get("three_channel_class", {})
-        if not isinstance(three, dict) or any(k not in ("0", "1", "2", "3") or not isinstance(v, str)
-                                              for k, v in three.items()):
-            raise DataError(card_path, "three_channel_class", "must map channels 0-3 to file names")
-        three_channel = {}
-        for c, name in three.items():
-            path, data = read_verified(d, card, card_path, name, f"three_channel_class.{c}")
-            three_channel[int(c)] = LinearHeightClass.load(path, data)
-            if three_channel[int(c)].n_features_in_ != len(LINEAR_CLASS_FEATURES):
-                raise DataError(path, None, f"reads {three_channel[int(c)].n_features_in_} inputs, not "
-                                            f"{len(LINEAR_CLASS_FEATURES)}")
+        three_channel, three_xy = load_three_sensor_path(d, card, card_path)
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
                    energy_class_features=list(energy), members=members, three_channel_class=three_channel,
+                   three_channel_position=three_xy,
                    edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {})

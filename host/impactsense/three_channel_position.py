@@ -1,0 +1,208 @@
+"""The position of a drop with one channel without an onset (dead, disconnected), on a model without a site map.
+
+The core then places the drop by the physics localiser on the other three channels' picks (the threshold
+picks' position, averaged with the band picks' where those place it too, as on four channels). With three
+sensors the localiser has no redundancy: that position is often several times further off than the forests'
+four-channel one. At training time, for each channel c, the training drops' own three-sensor position without
+c (the core's localiser re-run on their picks with c's left out: edge_travel's localiser, the numbers the core
+gives a drop whose channel c has no onset) and a small forest pair learning its correction to the truth from
+what a drop with c dead still carries: that position, the arrival time differences and the relative energies
+and first peaks among the other three channels (`three_channel_position_inputs`). ImpactModel.predict then
+corrects the three-sensor position of a drop by the pair of the channel that is out.
+
+Only the host runs these forests (files "three_channel_position" in the model card, forestfile's plain
+arrays); the board keeps the physics three-sensor position. Their gain is in docs/findings.md ("A dead channel
+on a model without a site map").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.ensemble import RandomForestRegressor
+
+from . import _core
+from .errors import DataError
+from .forestfile import load_forest, save_forest
+from .pipeline import FEATURE_NAMES, PAIRS, Features
+
+# Small forests: the pair only corrects a position, on the training drops' inputs for one channel out. Leaves of
+# a few drops: a three-sensor position's error is mostly its picks' noise, and single-drop leaves learn it.
+THREE_POSITION_TREES = 50
+FOLD_TREES = 20   # the factor's out-of-fold forests (the choice, not the model)
+THREE_POSITION_LEAF = 5
+THREE_POSITION_FILE = "forest_d{}_without_{}.npz"
+MIN_DROPS = 10
+N_INPUTS = 11   # three_channel_position_inputs: x, y, 3 time differences, 3 energies, 3 first peaks
+
+
+def three_sensor_positions(raw: dict, signal, channel: int) -> np.ndarray:
+    """[R, 2] the physics position the core gives these drops with `channel`'s onset missing (NaN where the
+    localiser gives none): the threshold picks' position on the other three channels, the mean with the band
+    picks' own when those place the drop (impactcore process_event)."""
+    from .edge_travel import _localise
+
+    flags = np.array(raw["flags"], copy=True)
+    flags[:, channel] |= _core.FLAG_NO_ONSET
+    masked = {**raw, "flags": flags}
+    none = np.zeros((len(flags), 4))
+    xy = _localise(masked, signal, "threshold", none)
+    if float(signal.band_pick_hz) > 0 and float(signal.band_velocity_mm_per_us) > 0 and "toa_band_us" in raw:
+        band = _localise(masked, signal, "band", none)
+        both = np.isfinite(band).all(1) & np.isfinite(xy).all(1)
+        xy = np.where(both[:, None], 0.5 * (xy + band), xy)
+    return xy
+
+
+def three_channel_position_inputs(vector: np.ndarray, position: np.ndarray, channel: int) -> np.ndarray:
+    """[R, 11] a drop's inputs without `channel`: the three-sensor position, the three arrival time differences
+    among the other channels, their log energies relative to the three's mean and their log first peaks (the
+    core's feature vector; none of them reads `channel`)."""
+    v = np.asarray(vector, float)
+    others = [k for k in range(4) if k != channel]
+    col = FEATURE_NAMES.index
+    dtoa = v[:, [col(f"dtoa_{i}{j}_us") for i, j in PAIRS if channel not in (i, j)]]
+    energy = v[:, [col(f"log_energy_rel_{k}") for k in others]]
+    peaks = v[:, [col(f"log_first_peak_{k}") for k in others]]
+    return np.column_stack([np.asarray(position, float), dtoa, energy - energy.mean(1, keepdims=True), peaks])
+
+
+def _pair(X: np.ndarray, resid: np.ndarray, seed: int, trees: int = THREE_POSITION_TREES) -> tuple:
+    return tuple(RandomForestRegressor(trees, min_samples_leaf=THREE_POSITION_LEAF, max_features=1.0,
+                                       random_state=seed, n_jobs=1).fit(X, resid[:, k]) for k in range(2))
+
+
+def correction_factor(X: np.ndarray, resid: np.ndarray, xy: np.ndarray, seed: int = 0) -> float:
+    """correction_scale's rule on one channel's pair: the CORRECTION_SCALES factor whose out-of-fold positions
+    (folds grouped by drop site) are closest to the truth when its gain over the whole correction exceeds
+    CORRECTION_GAIN_SIGMAS standard errors of the per-site gains, else 1 (also with fewer than
+    CORRECTION_MIN_SITES sites)."""
+    from sklearn.model_selection import GroupKFold
+
+    from .correction_scale import CORRECTION_FOLDS, CORRECTION_GAIN_SIGMAS, CORRECTION_MIN_SITES, CORRECTION_SCALES
+
+    sites = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    if np.unique(sites).size < CORRECTION_MIN_SITES:
+        return 1.0
+    oof = np.zeros_like(resid)
+    for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X, groups=sites):
+        oof[held] = np.stack([f.predict(X[held]) for f in _pair(X[fit_rows], resid[fit_rows], seed, FOLD_TREES)], 1)
+    err = [np.abs(resid - a * oof).mean(1) for a in CORRECTION_SCALES]
+    best, whole = int(np.argmin([e.mean() for e in err])), len(CORRECTION_SCALES) - 1
+    inverse = np.unique(sites, return_inverse=True)[1].ravel()
+    gain = np.bincount(inverse, err[whole] - err[best]) / np.bincount(inverse)
+    z = float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
+    return float(CORRECTION_SCALES[best if z > CORRECTION_GAIN_SIGMAS else whole])
+
+
+def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0) -> tuple[dict, dict]:
+    """(channel -> (forest dx, forest dy) correcting the three-sensor position without that channel, fitted on
+    the training drops (`train`: usable rows, every channel with an onset) and scaled by `correction_factor`;
+    channel -> that factor). A channel the localiser places fewer than MIN_DROPS of them without is left out."""
+    from .correction_scale import scale_forests
+
+    xy = np.asarray(xy_mm, float)
+    out, factors = {}, {}
+    for c in range(4):
+        base = three_sensor_positions(train.raw, signal, c)
+        X = three_channel_position_inputs(train.vector, base, c)
+        rows = np.isfinite(X).all(1) & np.isfinite(xy).all(1)
+        if rows.sum() < MIN_DROPS:
+            continue
+        resid = xy[rows] - base[rows]
+        out[c] = _pair(X[rows], resid, seed)
+        factors[c] = correction_factor(X[rows], resid, xy[rows], seed)
+        scale_forests(out[c], factors[c])
+    return out, factors
+
+
+def corrected_positions(pairs: dict, vector: np.ndarray, rows: np.ndarray, out_channel: np.ndarray,
+                        xy: np.ndarray) -> None:
+    """xy (in place) of `rows` (indices; xy holds their three-sensor position) corrected by the pair of the
+    channel that is out (out_channel[k] for rows[k]; vector: the core's feature vectors of all rows); rows whose
+    channel has no pair, or whose inputs are not finite, keep it."""
+    rows, out_channel = np.asarray(rows), np.asarray(out_channel)
+    for c, pair in pairs.items():
+        sel = rows[out_channel == c]
+        if not sel.size:
+            continue
+        X = three_channel_position_inputs(vector[sel], xy[sel], c)
+        ok = np.isfinite(X).all(1)
+        if ok.any():
+            xy[sel[ok]] = xy[sel[ok]] + np.stack([f.predict(X[ok]) for f in pair], 1)
+
+
+def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> None:
+    """ImpactModel.predict without a site map, on the rows without the forests' position (out["three_channel"]:
+    one channel without an onset, xy the core's three-sensor position): adds those the model's channel check
+    flags (a channel that disagrees with the other three, e.g. a debonded disc: its three-sensor position
+    without that channel, channel_check.py), corrects their positions by the pair of the channel out
+    (`corrected_positions`; none on the board) and gives them the class from the other three channels' energies
+    (height_class's three-channel classes; a model without them, trained before: no class). In place in out."""
+    from .channel_check import flag_events
+    from .height_class import three_channel_inputs
+
+    xy, three = out["xy_mm"], out["three_channel"]
+    three_xy = features.phys_xy_mm
+    left_out = np.argmax(features.no_onset, axis=1)
+    if model.card.get("channel_check") and use.any():
+        flagged, three_xy, left_out = flag_events(features.raw, features.phys_xy_mm, use, left_out, model.signal,
+                                                  model.card["channel_check"])
+        out["forest_xy_mm"] = xy.copy()   # the forests' own position stays there
+        xy[flagged] = three_xy[flagged]
+        out["spread_mm"][flagged] = np.nan
+        three = three | flagged
+        out["bad_channel"] = np.where(flagged, left_out, -1)
+    out["three_channel"] = three
+    if model.three_channel_position:
+        corrected_positions(model.three_channel_position, features.vector, np.flatnonzero(three), left_out[three], xy)
+    for c, estimate in model.three_channel_class.items():
+        rows = np.flatnonzero(three & (left_out == c))
+        if rows.size:
+            out["energy_class"][rows] = estimate.predict(three_channel_inputs(
+                {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))
+
+
+def save_three_channel_positions(stage, pairs: dict) -> dict:
+    """Writes the pairs into a model's staging folder; returns the card's "three_channel_position" entry
+    ({"c": {"x": file, "y": file}})."""
+    entry = {}
+    for c, pair in sorted(pairs.items()):
+        entry[str(c)] = {}
+        for axis, forest in zip("xy", pair):
+            name = THREE_POSITION_FILE.format(axis, c)
+            save_forest(stage / name, forest)
+            entry[str(c)][axis] = name
+    return entry
+
+
+def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict]:
+    """The card's "three_channel_class" (channel -> height_class.LinearHeightClass) and "three_channel_position"
+    (channel -> forest pair), each file checked against the card's sha256 (modelfolder.read_verified)."""
+    from .height_class import LINEAR_CLASS_FEATURES, LinearHeightClass
+    from .modelfolder import read_verified
+
+    classes = card.get("three_channel_class", {})
+    if not isinstance(classes, dict) or any(k not in ("0", "1", "2", "3") or not isinstance(v, str)
+                                            for k, v in classes.items()):
+        raise DataError(card_path, "three_channel_class", "must map channels 0-3 to file names")
+    entry = card.get("three_channel_position", {})
+    if not isinstance(entry, dict) or any(k not in ("0", "1", "2", "3") or not isinstance(v, dict)
+                                          or set(v) != {"x", "y"} for k, v in entry.items()):
+        raise DataError(card_path, "three_channel_position", "must map channels 0-3 to {\"x\": file, \"y\": file}")
+    three_class, pairs = {}, {}
+    for c, name in classes.items():
+        path, data = read_verified(model_dir, card, card_path, name, f"three_channel_class.{c}")
+        three_class[int(c)] = LinearHeightClass.load(path, data)
+        if three_class[int(c)].n_features_in_ != len(LINEAR_CLASS_FEATURES):
+            raise DataError(path, None, f"reads {three_class[int(c)].n_features_in_} inputs, not "
+                                        f"{len(LINEAR_CLASS_FEATURES)}")
+    for c, files in entry.items():
+        pair = []
+        for axis in "xy":
+            path, data = read_verified(model_dir, card, card_path, files[axis], f"three_channel_position.{c}.{axis}")
+            forest = load_forest(path, data)
+            if getattr(forest, "n_features_in_", None) != N_INPUTS:
+                raise DataError(path, None, f"reads {getattr(forest, 'n_features_in_', '?')} inputs, not {N_INPUTS}")
+            pair.append(forest)
+        pairs[int(c)] = tuple(pair)
+    return three_class, pairs
