@@ -20,7 +20,8 @@ On a session whose clean row accepts or classifies fewer than 0.95 of its drops,
 targets are the clean row's less one drop. The 150-count hum rows (three times the issue's level) carry no
 target; their MAE and class are printed.
 
-    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--only ROWS] [--no-targets] [--json OUT]
+    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--only ROWS] [--physics-three-sensor]
+        [--no-targets] [--json OUT]
 """
 
 from __future__ import annotations
@@ -127,9 +128,13 @@ def main(argv=None) -> int:
                                                "always runs), e.g. 'debonded,dead'")
     ap.add_argument("--no-targets", action="store_true", help="print only, exit 0")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--physics-three-sensor", action="store_true", help="the same model without its correction of "
+                    "the three-sensor position (three_channel_position.py): the rows as before it")
     args = ap.parse_args(argv)
     t0 = time.time()
     model, sessions, n_train = model_and_sessions(args.data, args.trees)
+    if args.physics_three_sensor:
+        model.three_channel_position = {}
     print(f"model trained on {n_train} drops of {args.data} ({time.time() - t0:.0f} s)")
     print(f"{'session / fault':<84} {'MAE mm':>7} {'x clean':>7} {'pred':>5} {'accept':>6} {'class':>6} {'flag':>5} "
           f"{'wrong':>5}")
