@@ -175,7 +175,7 @@ def test_kill_9_of_train_and_export_near_their_end_leaves_a_whole_old_or_new_out
     sess, _ = small
     m, e = tmp_path / "m", tmp_path / "e"
     train = ["train", str(sess), "--out", str(m), "--trees", "5", "--site-map", "none", "--test-fraction", "0.25"]
-    export = ["export", str(m), "--out", str(e), "--rate", "native", "--trees", "3", "--no-m2cgen"]
+    export = ["export", str(m), "--out", str(e), "--trees", "3", "--no-m2cgen"]
     t0 = time.time()
     assert subprocess.run([sys.executable, "-m", "impactsense.cli", *train], capture_output=True).returncode == 0
     t_train = time.time() - t0
