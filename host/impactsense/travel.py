@@ -222,10 +222,11 @@ def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overr
 
 
 def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
-                     anisotropic: bool) -> tuple[float, float, TravelFit, list[dict]]:
+                     anisotropic: bool, twin: bool = False) -> tuple[float, float, TravelFit, list[dict]]:
     """The onset threshold (counts) among THRESHOLD_FACTORS x the configured one, and the AIC blend among the
     configured one and AIC_BLENDS, whose travel fit explains the training picks best (robust spread in mm);
-    the configured pair unless another is clearly better. Returns threshold, blend, fit, the trials."""
+    the configured pair unless another is clearly better (`chosen_trial`; twin: the drops are a twin's virtual
+    drops). Returns threshold, blend, fit, the trials."""
     base, base_blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
     blends = [base_blend] + [b for b in AIC_BLENDS if b != base_blend]
     trials = []
@@ -242,13 +243,28 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
     if not trials:
         raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel in use of 8 "
                         "of them (a dead or clipped channel in every drop?)")
-    chosen = trials[0]
+    chosen = chosen_trial(trials, base, base_blend, twin)
+    table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
+    return chosen["onset_threshold_counts"], chosen["aic_blend"], chosen["fit"], table
+
+
+def chosen_trial(trials: list[dict], base: float, base_blend: float, twin: bool = False) -> dict:
+    """The threshold trial `choose_threshold` keeps. Measured drops: the configured pair (base, base_blend) unless
+    another explains the picks clearly better (THRESHOLD_GAIN). A twin's virtual drops (twin): the highest
+    threshold among those the drops cannot tell from the best (spread within the same THRESHOLD_GAIN), as the
+    twin is cleaner than the rig ahead of the flexural arrival (lab noise, glitches, offsets and what the
+    plate model leaves out reach a low threshold on the rig and not on the twin), so a threshold the twin
+    is indifferent to transfers to the rig better the higher it is (docs/findings.md "The zero-shot
+    localiser's onset threshold")."""
     best = min(trials, key=lambda t: t["spread_mm"])
+    if twin:
+        ties = [t for t in trials if THRESHOLD_GAIN * t["spread_mm"] <= best["spread_mm"]]
+        return max(ties, key=lambda t: (t["onset_threshold_counts"], -t["spread_mm"]))
+    chosen = trials[0]
     configured = chosen["onset_threshold_counts"] == base and chosen["aic_blend"] == base_blend
     if not configured or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
         chosen = best
-    table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
-    return chosen["onset_threshold_counts"], chosen["aic_blend"], chosen["fit"], table
+    return chosen
 
 
 @dataclass(frozen=True)

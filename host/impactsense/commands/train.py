@@ -128,7 +128,7 @@ def run(args) -> int:
     exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
                          exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin,
-                         choose_class=cal is None)
+                         choose_class=cal is None, twin_drops=cal is not None)
     choice = model.card.get("twin_choice")
     if choice:
         print(f"twin's site map {'kept' if choice['use_twin'] else 'not kept'} (training drops, out of fold): "
