@@ -110,7 +110,7 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
 
 
 def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True,
-                  fits=None, twin: bool = False) -> SignalConfig:
+                  fits=None, rig_drops: tuple[np.ndarray, np.ndarray] | None = None) -> SignalConfig:
     """Fits the physics localiser on training drops (travel.py): the onset threshold and AIC blend the core
     picks with, the group velocity, the per-channel delays (relative to channel 0), the dispersion of the
     picked cycles' speed with their frequency (when it explains the picks clearly better) and, on a plate
@@ -120,14 +120,15 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
     from the picks first). choose_threshold False keeps cfg's onset threshold and AIC blend. fits: a test
     SignalConfig -> bool of the options (band picks, localiser starts) a target can afford (the board's event
-    budget: board.cost.signal_fits); options it rejects are not tried. twin: the drops are a calibrated twin's
-    virtual drops, trained on for a rig (the onset threshold chosen for the rig: travel.chosen_trial)."""
+    budget: board.cost.signal_fits); options it rejects are not tried. rig_drops (adc, xy_mm): the session is a
+    calibrated twin's virtual drops and these the rig's calibration drops, which break the threshold's ties
+    (travel.choose_threshold)."""
     from .travel import fit_travel, picks, wants_metric
     from .travel import choose_threshold as choose
 
     aniso = wants_metric(session.rig)
     if choose_threshold:
-        thr, blend, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso, twin)
+        thr, blend, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso, rig_drops)
     else:
         thr, blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
         toa, period = picks(session.adc[rows], cfg, with_period=True)

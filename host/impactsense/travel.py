@@ -221,12 +221,15 @@ def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overr
     return (toa, raw["pick_period"].astype(float)) if with_period else toa
 
 
-def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
-                     anisotropic: bool, twin: bool = False) -> tuple[float, float, TravelFit, list[dict]]:
+def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig, anisotropic: bool,
+                     rig_drops: tuple[np.ndarray, np.ndarray] | None = None,
+                     ) -> tuple[float, float, TravelFit, list[dict]]:
     """The onset threshold (counts) among THRESHOLD_FACTORS x the configured one, and the AIC blend among the
     configured one and AIC_BLENDS, whose travel fit explains the training picks best (robust spread in mm);
-    the configured pair unless another is clearly better (`chosen_trial`; twin: the drops are a twin's virtual
-    drops). Returns threshold, blend, fit, the trials."""
+    the configured pair unless another is clearly better (`chosen_trial`). rig_drops (adc, xy_mm): the training
+    drops are a calibrated twin's virtual drops and these the rig's calibration drops; among the pairs the
+    virtual drops cannot tell apart, the one whose twin travel law explains the rig's picks best
+    (`transfer_spread_mm`). Returns threshold, blend, fit, the trials."""
     base, base_blend = float(cfg.onset_threshold_counts), float(cfg.aic_blend)
     blends = [base_blend] + [b for b in AIC_BLENDS if b != base_blend]
     trials = []
@@ -243,28 +246,60 @@ def choose_threshold(adc: np.ndarray, xy_mm: np.ndarray, cfg: SignalConfig,
     if not trials:
         raise DataError("training drops", "adc", "no onset threshold gives an onset on every channel in use of 8 "
                         "of them (a dead or clipped channel in every drop?)")
-    chosen = chosen_trial(trials, base, base_blend, twin)
+    if rig_drops is not None:
+        best = min(t["spread_mm"] for t in trials)
+        for t in trials:
+            if THRESHOLD_GAIN * t["spread_mm"] <= best:
+                toa, period = picks(rig_drops[0], cfg, with_period=True, onset_threshold_counts=t["onset_threshold_counts"],
+                                    aic_blend=t["aic_blend"])
+                t["rig_spread_mm"] = transfer_spread_mm(t["fit"], toa, rig_drops[1], cfg.sensor_xy_mm, period,
+                                                        cfg.fs_hz, cfg.channel_left_out)
+    chosen = chosen_trial(trials, base, base_blend)
     table = [{k: v for k, v in t.items() if k != "fit"} for t in trials]
     return chosen["onset_threshold_counts"], chosen["aic_blend"], chosen["fit"], table
 
 
-def chosen_trial(trials: list[dict], base: float, base_blend: float, twin: bool = False) -> dict:
-    """The threshold trial `choose_threshold` keeps. Measured drops: the configured pair (base, base_blend) unless
-    another explains the picks clearly better (THRESHOLD_GAIN). A twin's virtual drops (twin): the highest
-    threshold among those the drops cannot tell from the best (spread within the same THRESHOLD_GAIN), as the
-    twin is cleaner than the rig ahead of the flexural arrival (lab noise, glitches, offsets and what the
-    plate model leaves out reach a low threshold on the rig and not on the twin), so a threshold the twin
-    is indifferent to transfers to the rig better the higher it is (docs/findings.md "The zero-shot
-    localiser's onset threshold")."""
+def chosen_trial(trials: list[dict], base: float, base_blend: float) -> dict:
+    """The threshold trial `choose_threshold` keeps: the configured pair (base, base_blend, trials[0]) unless
+    another explains the training picks clearly better (THRESHOLD_GAIN). When the trials carry the rig's
+    `rig_spread_mm` (a twin's virtual drops, scored on the rig's calibration drops): among the trials whose
+    spread is within THRESHOLD_GAIN of the best, the one with the least rig spread. The twin is cleaner than the
+    rig ahead of the flexural arrival (lab noise, glitches, offsets and what the plate model leaves out reach a
+    low threshold on the rig, not on the twin), so which of the thresholds the twin cannot tell apart transfers
+    is for the rig's own drops to say (docs/findings.md "The zero-shot localiser's onset threshold")."""
     best = min(trials, key=lambda t: t["spread_mm"])
-    if twin:
-        ties = [t for t in trials if THRESHOLD_GAIN * t["spread_mm"] <= best["spread_mm"]]
-        return max(ties, key=lambda t: (t["onset_threshold_counts"], -t["spread_mm"]))
+    scored = [t for t in trials if np.isfinite(t.get("rig_spread_mm", np.nan))
+              and THRESHOLD_GAIN * t["spread_mm"] <= best["spread_mm"]]
+    if scored:
+        return min(scored, key=lambda t: t["rig_spread_mm"])
     chosen = trials[0]
     configured = chosen["onset_threshold_counts"] == base and chosen["aic_blend"] == base_blend
     if not configured or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
         chosen = best
     return chosen
+
+
+def transfer_spread_mm(fit: TravelFit, toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
+                       period_samples: np.ndarray, fs_hz: float, left_out=None) -> float:
+    """How well a travel law fitted on other drops (a twin's: its metric and dispersion) explains these drops'
+    picks (a rig's calibration drops) when what a rig may change is fitted: the channel delays and the
+    slowness. The robust spread of the residuals (1.4826 MAD) in mm at the fitted speed; NaN with fewer than 2
+    drops with every pick."""
+    toa = np.asarray(toa_us, float)
+    use, ok = channels_in_use(left_out, toa.shape[1]), complete_drops(toa, left_out)
+    if ok.sum() < 2:
+        return float("nan")
+    toa = toa[ok][:, use]
+    d = (travel_distances(np.asarray(xy_mm, float)[ok], np.asarray(sensor_xy_mm, float), fit.metric)[:, use]
+         * slowness_scales(np.asarray(period_samples, float)[ok][:, use], fs_hz, fit.dispersion_exponent,
+                           fit.dispersion_ref_hz))
+
+    def residuals(p):
+        return _centred(toa - d * p[0] - np.r_[0.0, p[1:]][None]).ravel()
+
+    sol = least_squares(residuals, [1.0 / fit.velocity_mm_per_us] + [0.0] * (toa.shape[1] - 1), loss="soft_l1",
+                        f_scale=3.0)
+    return float(1.4826 * np.median(np.abs(residuals(sol.x))) / sol.x[0])
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
           signal: SignalConfig | None = None, extra_card: dict | None = None,
           site_map=None, force: bool = False, choose_twin: bool = False,
           choose_class: bool = False, members: bool = True,
-          twin_rows: np.ndarray | None = None, twin_drops: bool = False) -> tuple[ImpactModel, dict]:
+          twin_rows: np.ndarray | None = None,
+          rig_drops: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given.
     choose_twin: keep the site map's twin only when the training drops' out-of-fold figures say so
     (twin_oof.twin_choice; a measured session's calibrated twin). choose_class: without a site map, the energy
@@ -32,15 +33,15 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     correction of the arrival times when the training drops' physics positions say so (position_members.choose_edge_travel).
     members False: one forest pair on the physics position (no position members: what the board runs).
     twin_rows: the session's rows (bool) the site map's twin is fitted on (ImpactModel.fit; None: all).
-    twin_drops: the session is a calibrated twin's virtual drops (simulate-dataset --calibration): the
-    localiser's onset threshold is chosen for the rig (pipeline.fit_localiser's twin)."""
+    rig_drops (adc, xy_mm): the session is a calibrated twin's virtual drops (simulate-dataset --calibration) and
+    these the rig's calibration drops: the localiser's onset threshold is chosen for the rig (fit_localiser)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
         raise DataError(session.path / IMPACTS_FILE, "case_id", f"no case can be held out: the drops are in "
                         f"{session.n_cases} case(s) (give more cases, or --test-fraction 0)")
     cfg = signal or SignalConfig.for_rig(session.rig)
-    cfg = fit_localiser(session, train_rows, cfg, twin=twin_drops)
+    cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops)
     feats = featurize(session.adc, cfg)
     if choose_class and members and site_map is None:   # the level members' positions (level_members.py)
         add_level_positions(feats, session.adc, cfg)

@@ -372,7 +372,8 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
         site = twin_site_map(params, session, out, progress) if use_twin else None
     # Sim-trained: localiser constants and forests from the virtual drops only ...
     with stage("train_sim"):
-        sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site, twin_drops=True)
+        sim_model, _ = train(virtual, None, test_fraction=0.0, seed=seed, site_map=site,
+                             rig_drops=(session.adc[cal_rows], session.xy_mm[cal_rows]))
     # ... and everything about the rig from the calibration drops (fit_on_calibration_drops).
     _, test_rows = case_split(session.case_id, test_fraction, seed, cal_rows)
     with stage("fit_on_calibration_drops"):

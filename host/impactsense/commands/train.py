@@ -126,9 +126,17 @@ def run(args) -> int:
         site = resolve_site_map(args.site_map, session.rig)
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
+    rig_drops = None
+    if cal is not None:     # the rig's calibration drops break the onset threshold's ties on the twin's drops
+        from ..calibration_drops import calibration_rows
+        from ..chain import measured_session
+
+        rig, cal_json = measured_session(cal)
+        rows = calibration_rows(rig, cal_json)
+        rig_drops = (rig.adc[rows], rig.xy_mm[rows])
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
                          exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin,
-                         choose_class=cal is None, twin_drops=cal is not None)
+                         choose_class=cal is None, rig_drops=rig_drops)
     choice = model.card.get("twin_choice")
     if choice:
         print(f"twin's site map {'kept' if choice['use_twin'] else 'not kept'} (training drops, out of fold): "
