@@ -32,6 +32,9 @@ def test_twin_drops_take_the_tie_the_rig_prefers_and_never_one_outside_the_tie()
     # liked it
     got = chosen_trial(trials(spreads, {(10, 0.35): 9.0, (20, 0.35): 5.1, (30, 0.2): 5.6, (50, 0.2): 1.0}), 10, 0.35)
     assert (got["onset_threshold_counts"], got["aic_blend"]) == (20, 0.35)
+    # the rig's best is not clearly better than the virtual drops' own choice (10 counts, 5.5 mm): that stays
+    got = chosen_trial(trials(spreads, {(10, 0.35): 5.5, (20, 0.35): 5.1, (30, 0.2): 4.8}), 10, 0.35)
+    assert got["onset_threshold_counts"] == 10
     # nothing scored on the rig: the measured drops' rule
     assert chosen_trial(trials(spreads, {(20, 0.35): float("nan")}), 10, 0.35)["onset_threshold_counts"] == 10
 

@@ -263,20 +263,23 @@ def chosen_trial(trials: list[dict], base: float, base_blend: float) -> dict:
     """The threshold trial `choose_threshold` keeps: the configured pair (base, base_blend, trials[0]) unless
     another explains the training picks clearly better (THRESHOLD_GAIN). When the trials carry the rig's
     `rig_spread_mm` (a twin's virtual drops, scored on the rig's calibration drops): among the trials whose
-    spread is within THRESHOLD_GAIN of the best, the one with the least rig spread. The twin is cleaner than the
+    spread is within THRESHOLD_GAIN of the best, the one with the least rig spread, when it is clearly less
+    (the same THRESHOLD_GAIN) than the rig spread of the trial the virtual drops chose. The twin is cleaner than the
     rig ahead of the flexural arrival (lab noise, glitches, offsets and what the plate model leaves out reach a
     low threshold on the rig, not on the twin), so which of the thresholds the twin cannot tell apart transfers
     is for the rig's own drops to say (docs/findings.md "The zero-shot localiser's onset threshold")."""
     best = min(trials, key=lambda t: t["spread_mm"])
-    scored = [t for t in trials if np.isfinite(t.get("rig_spread_mm", np.nan))
-              and THRESHOLD_GAIN * t["spread_mm"] <= best["spread_mm"]]
-    if scored:
-        return min(scored, key=lambda t: t["rig_spread_mm"])
     chosen = trials[0]
     configured = chosen["onset_threshold_counts"] == base and chosen["aic_blend"] == base_blend
     if not configured or best["spread_mm"] < THRESHOLD_GAIN * chosen["spread_mm"]:
         chosen = best
-    return chosen
+    scored = [t for t in trials if np.isfinite(t.get("rig_spread_mm", np.nan))
+              and THRESHOLD_GAIN * t["spread_mm"] <= best["spread_mm"]]
+    if not scored:
+        return chosen
+    rig_best = min(scored, key=lambda t: t["rig_spread_mm"])
+    ref = chosen.get("rig_spread_mm", np.nan)
+    return rig_best if rig_best["rig_spread_mm"] < THRESHOLD_GAIN * (ref if np.isfinite(ref) else np.inf) else chosen
 
 
 def transfer_spread_mm(fit: TravelFit, toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
