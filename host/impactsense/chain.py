@@ -74,6 +74,16 @@ def site_map(virtual: Session, cal_path: Path, progress: bool = True):
     return twin_site_map(SimParams.from_json(cal_path), session, Path(virtual.path), progress)
 
 
+def rig_calibration_drops(cal_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The rig's calibration drops of CAL.json: their recordings (adc) and positions (mm), what `train` on a
+    virtual set gives the onset threshold's choice (travel.choose_threshold's rig_drops)."""
+    from .calibration_drops import calibration_rows
+
+    session, cal = measured_session(cal_path)
+    rows = calibration_rows(session, cal)
+    return session.adc[rows], session.xy_mm[rows]
+
+
 def start_calibration_twins(cal_path: Path, seed: int, workers: int = 1):
     """The calibration drops' simulated twins (what `adapt` needs from the FEM), started in a thread: they
     depend on CAL.json alone, so `train` runs them on the second core while it loads and featurizes the

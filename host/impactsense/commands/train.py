@@ -108,7 +108,7 @@ def run(args) -> int:
     session = load_session(args.data)
     from ..sitemap import resolve_site_map
 
-    from ..chain import adapt, session_calibration, start_calibration_twins
+    from ..chain import adapt, rig_calibration_drops, session_calibration, start_calibration_twins
     from ..chain import site_map as calibrated_site_map
 
     cal = session_calibration(session)   # a virtual session made by simulate-dataset --calibration
@@ -126,14 +126,7 @@ def run(args) -> int:
         site = resolve_site_map(args.site_map, session.rig)
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     exclude = exclude_rows(parse_exclude(args.exclude), session, "--exclude")
-    rig_drops = None
-    if cal is not None:     # the rig's calibration drops break the onset threshold's ties on the twin's drops
-        from ..calibration_drops import calibration_rows
-        from ..chain import measured_session
-
-        rig, cal_json = measured_session(cal)
-        rows = calibration_rows(rig, cal_json)
-        rig_drops = (rig.adc[rows], rig.xy_mm[rows])
+    rig_drops = rig_calibration_drops(cal) if cal is not None else None   # they choose the onset threshold
     model, split = train(session, None if cal else args.out, args.test_fraction, args.seed,
                          exclude, settings, site_map=site, force=args.force, choose_twin=measured_twin,
                          choose_class=cal is None, rig_drops=rig_drops)
