@@ -92,7 +92,8 @@ def test_training_chooses_the_envelope_fraction_ahead_of_a_late_arrival(synth):
     """Drops whose arrival is followed 150-400 us later by a second one (an edge reflection) of 0.5-3 x its
     size: the envelope's peak, and with it a 10 % level, moves from drop to drop, so the 10 % picks scatter
     (~11 us) while a 3-5 % level stays on the first arrival's rise (6-8 us). pipeline.band_config keeps the
-    candidate whose travel model fits best: a fraction below 10 %, and its fitted speed is the true one."""
+    candidate whose physics positions are closest on the training drops: a fraction below 10 % (no other
+    candidate's positions closer), and its fitted speed is the true one."""
     import types
 
     from impactsense import pipeline
@@ -125,6 +126,10 @@ def test_training_chooses_the_envelope_fraction_ahead_of_a_late_arrival(synth):
         return fit_travel(band_picks(session.adc, trial), xy, s, False).spread_us
 
     assert spread_us(chosen.band_pick_fraction) < 0.8 * spread_us(0.1)
+    best = pipeline.physics_mae(session, rows, chosen)
+    for fraction in pipeline.BAND_FRACTIONS:
+        trial = SignalConfig.from_dict({**chosen.to_dict(), "band_pick_fraction": fraction})
+        assert best <= pipeline.physics_mae(session, rows, trial) + 1e-9
 
 
 def test_the_band_localiser_slowness_follows_the_summed_energy(synth):

@@ -221,8 +221,9 @@ BAND_FRACTIONS = (0.1, 0.05, 0.03)
 
 def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig | None:
     """cfg with the band picks on: their frequency a multiple of the training picks' median (fs / pick_period)
-    and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose travel model fits the
-    training band picks best; with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
+    and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose physics positions are
+    closest on the training drops (physics_mae; the travel fit's own spread chose a pair whose positions were
+    further off: docs/findings.md "The band pair chosen by the positions"); with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
     noise floor from the training drops' median noise rms (band_noise_counts: a noisier lab then does not move
     the picks), their travel model (velocity, delays, metric on a plate that wants one) fitted on the training
     drops; None when the picks give no frequency or too few band picks."""
@@ -253,16 +254,24 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             if complete_drops(toa, cfg.channel_left_out).sum() < 8:
                 continue
             fit = fit_travel(toa, xy, sensors, wants_metric(session.rig), left_out=cfg.channel_left_out)
-            if fit.spread_mm >= best_spread:
-                continue
             trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
             trial.band_delay_us = list(fit.delays_us)
             trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
             if fits is not None and not (fits(trial) or fits(SignalConfig.from_dict(
                     {**trial.to_dict(), "localiser_starts": 1}))):
                 continue
-            best, best_spread = trial, fit.spread_mm
+            spread = physics_mae(session, rows, trial)
+            if spread < best_spread:
+                best, best_spread = trial, spread
     return best
+
+
+def physics_mae(session: Session, rows: np.ndarray, cfg: SignalConfig) -> float:
+    """The core's physics positions' mean absolute error per axis on session's rows under cfg (inf if none)."""
+    phys = featurize(session.adc[rows], cfg).phys_xy_mm.astype(float)
+    xy = np.asarray(session.xy_mm, float)[rows]
+    ok = np.isfinite(phys).all(1)
+    return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
 
 
 def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfig) -> SignalConfig | None:
@@ -301,12 +310,8 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             return off
     if trial is None:
         return off
-    xy = np.asarray(session.xy_mm, float)[rows]
-
     def mae(c: SignalConfig) -> float:
-        phys = featurize(session.adc[rows], c).phys_xy_mm.astype(float)
-        ok = np.isfinite(phys).all(1)
-        return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
+        return physics_mae(session, rows, c)
 
     band_mae = mae(trial)
     if not band_mae < BAND_GAIN * mae(off):
