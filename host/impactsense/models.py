@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 
 from . import __version__, _core
-from .channel_check import fit_channel_check, flag_events
+from .channel_check import fit_channel_check
 from .correction_scale import scale_model_correction
 from .errors import DataError
 from .forestfile import save_forest

@@ -266,14 +266,6 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     return best
 
 
-def physics_mae(session: Session, rows: np.ndarray, cfg: SignalConfig) -> float:
-    """The core's physics positions' mean absolute error per axis on session's rows under cfg (inf if none)."""
-    phys = featurize(session.adc[rows], cfg).phys_xy_mm.astype(float)
-    xy = np.asarray(session.xy_mm, float)[rows]
-    ok = np.isfinite(phys).all(1)
-    return float(np.mean(np.abs(phys[ok] - xy[ok]))) if ok.any() else np.inf
-
-
 def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfig) -> SignalConfig | None:
     """band (band_config's) with the band localiser's slowness linear in the drops' summed log energy
     (travel.fit_energy_slowness on the training drops' band picks; impactcore band_slowness_per_decade), or
@@ -310,16 +302,13 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             return off
     if trial is None:
         return off
-    def mae(c: SignalConfig) -> float:
-        return physics_mae(session, rows, c)
-
-    band_mae = mae(trial)
-    if not band_mae < BAND_GAIN * mae(off):
+    band_mae = physics_mae(session, rows, trial)
+    if not band_mae < BAND_GAIN * physics_mae(session, rows, off):
         return off
     # Kept band picks only: their localiser's slowness linear in the drop's summed log energy, kept by the same
     # rule against one velocity. Tried where the band picks were off too, it turned them on where their slopes were
     # steep and the held-out physics positions worse (docs/findings.md "the speed follows the drop").
     loud = energy_slowness_config(session, rows, trial)
-    if loud is not None and (fits is None or fits(loud)) and mae(loud) < BAND_GAIN * band_mae:
+    if loud is not None and (fits is None or fits(loud)) and physics_mae(session, rows, loud) < BAND_GAIN * band_mae:
         return loud
     return trial
