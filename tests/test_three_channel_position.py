@@ -14,7 +14,7 @@ from impactsense.models import ForestSettings, ImpactModel, three_channel_rows
 from impactsense.pipeline import featurize, fit_localiser
 from impactsense.signal import SignalConfig
 from impactsense.split import case_split
-from impactsense.three_channel_position import three_sensor_positions
+from impactsense.edge_travel import three_sensor_positions
 
 
 @pytest.fixture(scope="module")

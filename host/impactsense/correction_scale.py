@@ -76,8 +76,19 @@ def _gain_sigmas(gain: np.ndarray) -> float:
     return float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
 
 
-def _sites(xy: np.ndarray) -> np.ndarray:
+def drop_sites(xy: np.ndarray) -> np.ndarray:
+    """Each drop's site index: drops at the same declared position (0.1 mm) share one."""
     return np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+
+
+def choose_factor(err: list[np.ndarray], sites: np.ndarray) -> tuple[int, list[float], float]:
+    """(the index into CORRECTION_SCALES chosen, the MAE per factor, the best factor's gain in standard errors)
+    from each factor's per-drop error err[k]: the lowest MAE when its gain over the whole correction (the last
+    factor), per site, exceeds CORRECTION_GAIN_SIGMAS, else the whole."""
+    mae = [float(e.mean()) for e in err]
+    best, whole = int(np.argmin(mae)), len(err) - 1
+    z = _gain_sigmas(_per_site(err[whole] - err[best], sites))
+    return (best if z > CORRECTION_GAIN_SIGMAS else whole), mae, z
 
 
 def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None, xy: np.ndarray,
@@ -85,17 +96,13 @@ def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, ed
     """choose_correction_scale's choice, the out-of-fold error of each drop at the chosen factor and the drops'
     sites; None with fewer than CORRECTION_MIN_SITES drop sites."""
     xy = np.asarray(xy, float)
-    sites = _sites(xy)
+    sites = drop_sites(xy)
     if np.unique(sites).size < CORRECTION_MIN_SITES:
         return None
     oof, base = _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites)
     ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
     err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
-    mae = [float(e.mean()) for e in err]
-    best, whole = int(np.argmin(mae)), len(CORRECTION_SCALES) - 1
-    # the gain over the whole correction, per site, in its standard errors
-    z = _gain_sigmas(_per_site(err[whole] - err[best], sites[ok]))
-    chosen = best if z > CORRECTION_GAIN_SIGMAS else whole
+    chosen, mae, z = choose_factor(err, sites[ok])
     drop_err = np.full(len(xy), np.nan)
     drop_err[ok] = err[chosen]
     return ({"scale": float(CORRECTION_SCALES[chosen]), "scales": list(CORRECTION_SCALES),

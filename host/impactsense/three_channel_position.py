@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 from sklearn.ensemble import RandomForestRegressor
 
-from . import _core
 from .errors import DataError
+from .edge_travel import three_sensor_positions
 from .forestfile import load_forest, save_forest
 from .pipeline import FEATURE_NAMES, PAIRS, Features
 
@@ -33,24 +33,6 @@ THREE_POSITION_LEAF = 5
 THREE_POSITION_FILE = "forest_d{}_without_{}.npz"
 MIN_DROPS = 10
 N_INPUTS = 11   # three_channel_position_inputs: x, y, 3 time differences, 3 energies, 3 first peaks
-
-
-def three_sensor_positions(raw: dict, signal, channel: int) -> np.ndarray:
-    """[R, 2] the physics position the core gives these drops with `channel`'s onset missing (NaN where the
-    localiser gives none): the threshold picks' position on the other three channels, the mean with the band
-    picks' own when those place the drop (impactcore process_event)."""
-    from .edge_travel import _localise
-
-    flags = np.array(raw["flags"], copy=True)
-    flags[:, channel] |= _core.FLAG_NO_ONSET
-    masked = {**raw, "flags": flags}
-    none = np.zeros((len(flags), 4))
-    xy = _localise(masked, signal, "threshold", none)
-    if float(signal.band_pick_hz) > 0 and float(signal.band_velocity_mm_per_us) > 0 and "toa_band_us" in raw:
-        band = _localise(masked, signal, "band", none)
-        both = np.isfinite(band).all(1) & np.isfinite(xy).all(1)
-        xy = np.where(both[:, None], 0.5 * (xy + band), xy)
-    return xy
 
 
 def three_channel_position_inputs(vector: np.ndarray, position: np.ndarray, channel: int) -> np.ndarray:
@@ -78,20 +60,16 @@ def correction_factor(X: np.ndarray, resid: np.ndarray, xy: np.ndarray, seed: in
     CORRECTION_MIN_SITES sites)."""
     from sklearn.model_selection import GroupKFold
 
-    from .correction_scale import CORRECTION_FOLDS, CORRECTION_GAIN_SIGMAS, CORRECTION_MIN_SITES, CORRECTION_SCALES
+    from .correction_scale import CORRECTION_FOLDS, CORRECTION_MIN_SITES, CORRECTION_SCALES, choose_factor, drop_sites
 
-    sites = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    sites = drop_sites(xy)
     if np.unique(sites).size < CORRECTION_MIN_SITES:
         return 1.0
     oof = np.zeros_like(resid)
     for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X, groups=sites):
         oof[held] = np.stack([f.predict(X[held]) for f in _pair(X[fit_rows], resid[fit_rows], seed, FOLD_TREES)], 1)
-    err = [np.abs(resid - a * oof).mean(1) for a in CORRECTION_SCALES]
-    best, whole = int(np.argmin([e.mean() for e in err])), len(CORRECTION_SCALES) - 1
-    inverse = np.unique(sites, return_inverse=True)[1].ravel()
-    gain = np.bincount(inverse, err[whole] - err[best]) / np.bincount(inverse)
-    z = float(gain.mean() / (gain.std(ddof=1) / np.sqrt(gain.size))) if gain.std() > 0 else 0.0
-    return float(CORRECTION_SCALES[best if z > CORRECTION_GAIN_SIGMAS else whole])
+    chosen = choose_factor([np.abs(resid - a * oof).mean(1) for a in CORRECTION_SCALES], sites)[0]
+    return float(CORRECTION_SCALES[chosen])
 
 
 def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0) -> tuple[dict, dict]:
