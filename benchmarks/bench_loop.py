@@ -274,6 +274,8 @@ def table(out: dict) -> int:
                     names += f"; direction dependence p {rival['direction_p_value']:.2g}"
                 if "band_p_value" in rival:   # ... and its band picks' test
                     names += f", band picks p {rival['band_p_value']:.2g}"
+                if "joint_p_value" in rival:   # ... and both pick sets' joint test
+                    names += f", both pick sets p {rival['joint_p_value']:.2g}"
                 names += ")"
             if not sig:   # the truth's best rejected candidate: how far below the evidence bar
                 e = next((e for e in r["effects"] if e["effect"] == t["effect"]), None)

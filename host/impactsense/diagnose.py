@@ -20,11 +20,13 @@ a delay is constant over the impacts, a move's timing change depends on the dire
 errors and the reference's own uncertainty) at ALPHA; a delay shifts the channel's whole recording, so its
 threshold and band picks (`band_timing`) alike, where a move shifts each by its own slowness
 (`effects.sensor_position.band_test`, at ALPHA: what tells a move along a disc's look direction, nearly a
-constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
-(three tests of the one null "a constant": each at ALPHA). A move is significant only when one of them rejects
+constant to the direction test); the two pick sets in one regression with a constant shared by both
+(`effects.sensor_position.joint_test`, at ALPHA: each pick set's direction dependence and the band picks' larger
+shift along the look direction, weighed together); or the move's held-out likelihood gain over the delay by the evidence rule
+(four tests of the one null "a constant": each at ALPHA). A move is significant only when one of them rejects
 the constant; then the constant delay on that channel is not named (and where the delay has the evidence and
 the move not, a rejected constant names the move: the channel changed, not by a constant). Where none does, a
-move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the two tests'
+move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the tests.
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
 significant candidate is added to the model (parameters refitted on all drops) and the search
 repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
@@ -42,7 +44,7 @@ from scipy import stats
 from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
-from .effects.sensor_position import band_test, direction_test
+from .effects.sensor_position import band_test, direction_test, joint_test
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -172,9 +174,10 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
             if ok and c.effect in RIVALS and c.sensor is not None and c.sensor not in direction:
                 direction[c.sensor] = {**direction_test(current, F, c.sensor),
-                                       "band": band_test(current, F, c.sensor)}
+                                       "band": band_test(current, F, c.sensor),
+                                       "joint": joint_test(current, F, c.sensor)}
             if ok and c.effect == "sensor_position":   # a move only where the data reject a constant
-                ok = min(direction[c.sensor]["p_value"], direction[c.sensor]["band"]["p_value"]) < ALPHA
+                ok = _constant_rejected(direction[c.sensor])
                 if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
                     diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
@@ -198,6 +201,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 if c.sensor in direction:
                     c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
                     c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
+                    c.rival["joint_p_value"] = direction[c.sensor]["joint"]["p_value"]
                     c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
         results.sort(key=lambda c: -c.score)
         last_round = results
@@ -240,8 +244,13 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
     for c in results:
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
-            dt = direction[c.sensor]
-            c.significant = bool(min(dt["p_value"], dt["band"]["p_value"]) < ALPHA)
+            c.significant = _constant_rejected(direction[c.sensor])
+
+
+def _constant_rejected(tests: dict) -> bool:
+    """A channel's timing change is not a constant: the direction test, the band test or the joint test of both
+    pick sets (`effects.sensor_position`) rejects a constant at ALPHA."""
+    return bool(min(tests["p_value"], tests["band"]["p_value"], tests["joint"]["p_value"]) < ALPHA)
 
 
 def _refit(ref, F, accepted):

@@ -79,6 +79,8 @@ def _rival(e: dict) -> str:
         text += f"; direction dependence p {rv['direction_p_value']:.2g}"
         if "band_p_value" in rv:   # ... and the band picks' shift against the threshold picks' (band_test)
             text += f", band picks p {rv['band_p_value']:.2g}"
+        if "joint_p_value" in rv:   # ... and both pick sets in one regression (joint_test)
+            text += f", both pick sets p {rv['joint_p_value']:.2g}"
         if rv.get("ambiguous"):
             text += ": a move along the disc's look direction would read the same (ambiguous)"
     return text

@@ -29,6 +29,11 @@ Move or delay by the band picks (`band_test`): a delay shifts the channel's whol
 pick and its band pick (`impactsense.band_timing`) by the same amount; a move changes the path, and each pick
 moves by its own slowness times the path change (a dispersive plate's low band travels slower). The band pick's
 shift minus the threshold pick's is zero for a delay whatever its size, along the look direction too.
+
+Both pick sets at once (`joint_test`): the threshold and the band picks' contrasts in one regression, a constant
+shared by both (a delay) and one move whose signature is each pick set's own slowness times -u. It weighs the
+direction dependence of both pick sets and the band picks' larger shift along the look direction together, so
+a move that each of the two tests above reads only weakly can still reject a constant (docs/findings.md).
 """
 
 import numpy as np
@@ -113,28 +118,41 @@ def direction_test(model, F, sensor: int) -> dict:
     for _ in range(6):
         b = np.linalg.lstsq(X * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
         w = _huber_weights(y - X @ b)
-    A = np.linalg.pinv((X * w[:, None]).T @ X)
+    V, G = _case_jackknife(X, y, w, case)
+    site = getattr(model, "site", None)
+    if site is not None:   # the contrast's reference error: its own channel's site term and 1/9 of the others'
+        cov = _contrast_site_cov(site, F.subset(np.flatnonzero(ok)), sensor)
+        B = np.linalg.pinv((X * w[:, None]).T @ X) @ (X * w[:, None]).T
+        V = V + B @ cov @ B.T
+    out = {"delay_us": float(b[0]), "dx_mm": float(b[1]), "dy_mm": float(b[2]), "cases": G}
+    return {**out, "p_value": _move_wald_p(b[1:], V[1:, 1:], G)}
+
+
+def _case_jackknife(X, y, w, case) -> tuple[np.ndarray, int]:
+    """Delete-a-case jackknife covariance of the weighted least squares (the weights held): the cluster-robust
+    covariance with its small-sample correction (CR3), which the plain sandwich understates at ~40 cases; and
+    the number of cases."""
     _, inv = np.unique(case, return_inverse=True)
     G = int(inv.max()) + 1
-    # delete-a-case jackknife (the weights held): the cluster-robust covariance with its small-sample
-    # correction (CR3), which the plain sandwich understates at ~40 cases
     Xw = X * w[:, None]
     XtX, Xty = Xw.T @ X, Xw.T @ y
     loo = np.array([np.linalg.lstsq(XtX - Xw[inv == g].T @ X[inv == g], Xty - Xw[inv == g].T @ y[inv == g],
                                     rcond=None)[0] for g in range(G)])
-    V = (G - 1) / G * (loo - loo.mean(axis=0)).T @ (loo - loo.mean(axis=0))
-    site = getattr(model, "site", None)
-    if site is not None:   # the contrast's reference error: its own channel's site term and 1/9 of the others'
-        Fo = F.subset(np.flatnonzero(ok))
-        cov = site.toa_cov(Fo, sensor) + sum(site.toa_cov(Fo, j) for j in others) / 9.0
-        B = A @ (X * w[:, None]).T
-        V = V + B @ cov @ B.T
-    out = {"delay_us": float(b[0]), "dx_mm": float(b[1]), "dy_mm": float(b[2]), "cases": G}
+    return (G - 1) / G * (loo - loo.mean(axis=0)).T @ (loo - loo.mean(axis=0)), G
+
+
+def _contrast_site_cov(site, F, sensor: int) -> np.ndarray:
+    """The reference's error on channel `sensor`'s contrast at F's drops: its own site term's posterior
+    covariance and 1/9 of each other channel's."""
+    return site.toa_cov(F, sensor) + sum(site.toa_cov(F, j) for j in range(4) if j != sensor) / 9.0
+
+
+def _move_wald_p(b: np.ndarray, V: np.ndarray, G: int) -> float:
+    """Hotelling's T² of the move's two coefficients -> F(2, G - 2) with G cases; 1 below 4 cases."""
     if G < 4:
-        return {**out, "p_value": 1.0}
-    t2 = float(b[1:] @ np.linalg.solve(V[1:, 1:], b[1:]))
-    out["p_value"] = float(stats.f.sf(t2 / 2.0 * (G - 2) / (G - 1), 2, G - 2))
-    return out
+        return 1.0
+    t2 = float(b @ np.linalg.solve(V, b))
+    return float(stats.f.sf(t2 / 2.0 * (G - 2) / (G - 1), 2, G - 2))
 
 
 def band_test(model, F, sensor: int) -> dict:
@@ -166,3 +184,48 @@ def band_test(model, F, sensor: int) -> dict:
     predicted = (model.band["slowness_us_per_mm"] / model.slowness_us_per_mm - 1.0) * float(np.mean(yo[ok]))
     t = stats.ttest_1samp(means, 0.0, alternative="greater" if predicted >= 0 else "less")
     return {"p_value": float(t.pvalue), "difference_us": float(means.mean()), "move_predicts_us": predicted}
+
+
+def joint_test(model, F, sensor: int) -> dict:
+    """Is channel `sensor`'s change a constant, on the evidence of both pick sets at once? The channel's
+    contrast on the threshold picks and on the band picks, stacked: one constant shared by both (a delay shifts
+    the whole recording: every pick alike) and one move (dx, dy) whose signature is -s u on the threshold picks
+    and -s_band u on the band picks (each pick at its own slowness). A move shows in two ways here: its
+    direction dependence on either pick set and, along the look direction, the band picks' larger shift, which a
+    shared constant cannot take. Each pick set is Huber-weighted at its own robust scale; Wald test of (dx, dy)
+    with the delete-a-case jackknife plus the reference's site-term covariance (the band picks' taken as the
+    threshold picks' at the ratio of their scales: the band picks carry no site terms of their own). Returns
+    the p-value and the move's coefficients (mm); p 1 without band picks."""
+    rb = band_resid(model, F)
+    if rb is None:
+        return {"p_value": 1.0, "dx_mm": 0.0, "dy_mm": 0.0}
+    ro = model.toa_resid(F)
+    others = [j for j in range(4) if j != sensor]
+    yo = ro[:, sensor] - ro[:, others].mean(axis=1)
+    yb = rb[:, sensor] - rb[:, others].mean(axis=1)
+    idx = np.flatnonzero(np.isfinite(yo) & np.isfinite(yb))
+    _, _, ux, uy = model.geometry(F)
+    u = np.c_[ux[idx, sensor], uy[idx, sensor]]
+    m = len(idx)
+    X = np.r_[np.c_[np.ones(m), -model.slowness_us_per_mm * u],
+              np.c_[np.ones(m), -model.band["slowness_us_per_mm"] * u]]
+    y = np.r_[yo[idx], yb[idx]]
+    band_rows = np.r_[np.zeros(m, bool), np.ones(m, bool)]
+    w, scale = np.ones(2 * m), np.ones(2 * m)
+    for _ in range(6):
+        b = np.linalg.lstsq(X * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+        r = y - X @ b
+        for rows in (~band_rows, band_rows):
+            scale[rows] = 1.4826 * np.median(np.abs(r[rows] - np.median(r[rows]))) + 1e-9
+        w = _huber_weights(r / scale) / scale ** 2
+    case = np.asarray(F.case_id)[idx]
+    V, G = _case_jackknife(X, y, w, np.r_[case, case])
+    site = getattr(model, "site", None)
+    if site is not None:
+        cov = _contrast_site_cov(site, F.subset(idx), sensor)
+        C = np.zeros((2 * m, 2 * m))
+        C[:m, :m] = cov
+        C[m:, m:] = cov * (np.median(scale[band_rows]) / np.median(scale[~band_rows])) ** 2
+        B = np.linalg.pinv((X * w[:, None]).T @ X) @ (X * w[:, None]).T
+        V = V + B @ C @ B.T
+    return {"p_value": _move_wald_p(b[1:], V[1:, 1:], G), "dx_mm": float(b[1]), "dy_mm": float(b[2])}
