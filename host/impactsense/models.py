@@ -30,6 +30,7 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes)
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
+from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
@@ -230,8 +231,8 @@ class ImpactModel:
                                           energy_j, threshold) if site_map is None else {}
         three_xy = {}
         if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
-            three_xy, factors = fit_three_channel_positions(features.take(np.flatnonzero(use)), xy, signal,
-                                                            settings.seed)
+            three_xy, factors, card["three_channel_position_levels"] = fit_three_channel_positions(
+                features.take(np.flatnonzero(use)), xy, signal, settings.seed)
             card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         edge, train = {}, features.take(np.flatnonzero(use))
         if choose_edge and members and site_map is None:
@@ -328,8 +329,10 @@ class ImpactModel:
         return out
 
     def featurize(self, adc: np.ndarray) -> Features:
-        """The recordings' features as predict reads them, with the level members' positions if it has them."""
-        return add_level_positions(featurize(adc, self.signal), adc, self.signal, self.members)
+        """The recordings' features as predict reads them, with the level members' positions if it has them and
+        the picks at the onset levels if its three-sensor path reads them (three_level_positions.py)."""
+        feats = add_level_positions(featurize(adc, self.signal), adc, self.signal, self.members)
+        return add_level_picks(feats, adc, self.signal) if self.card.get("three_channel_position_levels") else feats
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:

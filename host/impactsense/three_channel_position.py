@@ -53,44 +53,71 @@ def _pair(X: np.ndarray, resid: np.ndarray, seed: int, trees: int = THREE_POSITI
                                        random_state=seed, n_jobs=1).fit(X, resid[:, k]) for k in range(2))
 
 
-def correction_factor(X: np.ndarray, resid: np.ndarray, xy: np.ndarray, seed: int = 0) -> float:
-    """correction_scale's rule on one channel's pair: the CORRECTION_SCALES factor whose out-of-fold positions
+def correction_factor(X: np.ndarray, resid: np.ndarray, xy: np.ndarray, seed: int = 0) -> tuple[float, np.ndarray | None]:
+    """correction_scale's rule on one channel's pair: (the CORRECTION_SCALES factor whose out-of-fold positions
     (folds grouped by drop site) are closest to the truth when its gain over the whole correction exceeds
-    CORRECTION_GAIN_SIGMAS standard errors of the per-site gains, else 1 (also with fewer than
-    CORRECTION_MIN_SITES sites)."""
+    CORRECTION_GAIN_SIGMAS standard errors of the per-site gains, else 1; each drop's out-of-fold error at that
+    factor, mm). With fewer than CORRECTION_MIN_SITES sites (1, None)."""
     from sklearn.model_selection import GroupKFold
 
     from .correction_scale import CORRECTION_FOLDS, CORRECTION_MIN_SITES, CORRECTION_SCALES, choose_factor, drop_sites
 
     sites = drop_sites(xy)
     if np.unique(sites).size < CORRECTION_MIN_SITES:
-        return 1.0
+        return 1.0, None
     oof = np.zeros_like(resid)
     for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X, groups=sites):
         oof[held] = np.stack([f.predict(X[held]) for f in _pair(X[fit_rows], resid[fit_rows], seed, FOLD_TREES)], 1)
-    chosen = choose_factor([np.abs(resid - a * oof).mean(1) for a in CORRECTION_SCALES], sites)[0]
-    return float(CORRECTION_SCALES[chosen])
+    err = [np.abs(resid - a * oof).mean(1) for a in CORRECTION_SCALES]
+    chosen = choose_factor(err, sites)[0]
+    return float(CORRECTION_SCALES[chosen]), err[chosen]
 
 
-def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0) -> tuple[dict, dict]:
+def _candidate(train: Features, xy: np.ndarray, base: np.ndarray, c: int, seed: int) -> dict | None:
+    """One three-sensor position's pair for channel c: its rows, pair, factor and out-of-fold errors."""
+    X = three_channel_position_inputs(train.vector, base, c)
+    rows = np.isfinite(X).all(1) & np.isfinite(xy).all(1)
+    if rows.sum() < MIN_DROPS:
+        return None
+    resid = xy[rows] - base[rows]
+    factor, err = correction_factor(X[rows], resid, xy[rows], seed)
+    return {"rows": rows, "pair": _pair(X[rows], resid, seed), "factor": factor, "err": err}
+
+
+def _levels_better(plain: dict, levels: dict, xy: np.ndarray) -> bool:
+    """The level-mean position's out-of-fold errors beat the plain one's by more than CORRECTION_GAIN_SIGMAS
+    standard errors of the per-site gains (choose_factor, on the drops both place)."""
+    from .correction_scale import choose_factor, drop_sites
+
+    if plain["err"] is None or levels["err"] is None or not np.array_equal(plain["rows"], levels["rows"]):
+        return False
+    return choose_factor([levels["err"], plain["err"]], drop_sites(xy[plain["rows"]]))[0] == 0
+
+
+def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0) -> tuple[dict, dict, list]:
     """(channel -> (forest dx, forest dy) correcting the three-sensor position without that channel, fitted on
     the training drops (`train`: usable rows, every channel with an onset) and scaled by `correction_factor`;
-    channel -> that factor). A channel the localiser places fewer than MIN_DROPS of them without is left out."""
+    channel -> that factor; the channels whose position is the mean over the onset levels
+    (three_level_positions.py; tried when `train` carries their picks, kept when its out-of-fold positions are
+    better, `_levels_better`)). A channel the localiser places fewer than MIN_DROPS of them without is left out."""
     from .correction_scale import scale_forests
+    from .three_level_positions import has_level_picks, level_three_positions
 
     xy = np.asarray(xy_mm, float)
-    out, factors = {}, {}
+    out, factors, levels = {}, {}, []
     for c in range(4):
         base = three_sensor_positions(train.raw, signal, c)
-        X = three_channel_position_inputs(train.vector, base, c)
-        rows = np.isfinite(X).all(1) & np.isfinite(xy).all(1)
-        if rows.sum() < MIN_DROPS:
+        best = _candidate(train, xy, base, c, seed)
+        if best is None:
             continue
-        resid = xy[rows] - base[rows]
-        out[c] = _pair(X[rows], resid, seed)
-        factors[c] = correction_factor(X[rows], resid, xy[rows], seed)
+        if has_level_picks(train.raw):
+            mean = _candidate(train, xy, level_three_positions(train.raw, signal, c, base), c, seed)
+            if mean is not None and _levels_better(best, mean, xy):
+                best = mean
+                levels.append(c)
+        out[c], factors[c] = best["pair"], best["factor"]
         scale_forests(out[c], factors[c])
-    return out, factors
+    return out, factors, levels
 
 
 def corrected_positions(pairs: dict, vector: np.ndarray, rows: np.ndarray, out_channel: np.ndarray,
@@ -107,6 +134,24 @@ def corrected_positions(pairs: dict, vector: np.ndarray, rows: np.ndarray, out_c
         ok = np.isfinite(X).all(1)
         if ok.any():
             xy[sel[ok]] = xy[sel[ok]] + np.stack([f.predict(X[ok]) for f in pair], 1)
+
+
+def level_mean_positions(model, features: Features, rows: np.ndarray, out_channel: np.ndarray, xy: np.ndarray) -> None:
+    """xy (in place) of `rows` whose channel out (out_channel) the model places by the mean over the onset levels
+    (card "three_channel_position_levels"; three_level_positions.py): that mean of their three-sensor position
+    in xy and the levels'. Features without the level picks (featurize alone; ImpactModel.featurize adds them)
+    keep xy."""
+    from .three_level_positions import has_level_picks, level_three_positions
+
+    chosen = model.card.get("three_channel_position_levels") or []
+    if not chosen or not has_level_picks(features.raw):
+        return
+    rows, out_channel = np.asarray(rows), np.asarray(out_channel)
+    for c in chosen:
+        sel = rows[out_channel == c]
+        if sel.size:
+            raw = {k: v[sel] for k, v in features.raw.items()}
+            xy[sel] = level_three_positions(raw, model.signal, int(c), xy[sel])
 
 
 def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> None:
@@ -132,6 +177,7 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
         out["bad_channel"] = np.where(flagged, left_out, -1)
     out["three_channel"] = three
     if model.three_channel_position:
+        level_mean_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         corrected_positions(model.three_channel_position, features.vector, np.flatnonzero(three), left_out[three], xy)
     for c, estimate in model.three_channel_class.items():
         rows = np.flatnonzero(three & (left_out == c))
@@ -167,6 +213,9 @@ def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict
     if not isinstance(entry, dict) or any(k not in ("0", "1", "2", "3") or not isinstance(v, dict)
                                           or set(v) != {"x", "y"} for k, v in entry.items()):
         raise DataError(card_path, "three_channel_position", "must map channels 0-3 to {\"x\": file, \"y\": file}")
+    levels = card.get("three_channel_position_levels", [])
+    if not isinstance(levels, list) or any(str(c) not in entry for c in levels):
+        raise DataError(card_path, "three_channel_position_levels", "must list channels that have a position pair")
     three_class, pairs = {}, {}
     for c, name in classes.items():
         path, data = read_verified(model_dir, card, card_path, name, f"three_channel_class.{c}")

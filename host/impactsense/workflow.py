@@ -11,6 +11,7 @@ from .checks import require_labels, rig_summary
 from .data import IMPACTS_FILE, Session
 from .errors import DataError
 from .level_members import add_level_positions
+from .three_level_positions import add_level_picks
 from .metrics import region_metrics
 from .models import ForestSettings, ImpactModel, impact_energy_j
 from .outputs import json_text, write_file
@@ -45,6 +46,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     feats = featurize(session.adc, cfg)
     if choose_class and members and site_map is None:   # the level members' positions (level_members.py)
         add_level_positions(feats, session.adc, cfg)
+        add_level_picks(feats, session.adc, cfg)   # and the picks the three-sensor path may read (three_level_positions.py)
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
                             choose_class=choose_class, choose_edge=choose_class, members=members,
