@@ -8,7 +8,10 @@ c (the core's localiser re-run on their picks with c's left out: edge_travel's l
 gives a drop whose channel c has no onset) and a small forest pair learning its correction to the truth from
 what a drop with c dead still carries: that position, the arrival time differences and the relative energies
 and first peaks among the other three channels (`three_channel_position_inputs`). ImpactModel.predict then
-corrects the three-sensor position of a drop by the pair of the channel that is out.
+corrects the three-sensor position of a drop by the pair of the channel that is out. Where the training drops'
+out-of-fold positions say so, a channel's pair learns on (and corrects) the mean of that position and the
+three-sensor positions at the other onset levels instead (three_level_positions.py; card
+"three_channel_position_levels").
 
 Only the host runs these forests (files "three_channel_position" in the model card, forestfile's plain
 arrays); the board keeps the physics three-sensor position. Their gain is in docs/findings.md ("A dead channel
