@@ -7,11 +7,12 @@ import pytest
 from impactsense.data import load_session
 from impactsense.edge_travel import three_sensor_positions
 from impactsense.faults import FaultSpec, inject_session
-from impactsense.level_members import LEVEL_FACTORS, level_xy
+from impactsense.level_members import level_signal
 from impactsense.pipeline import featurize, fit_localiser
 from impactsense.signal import SignalConfig
 from impactsense.three_channel_position import _levels_better
-from impactsense.three_level_positions import add_level_picks, has_level_picks, level_three_positions
+from impactsense.three_level_positions import (THREE_LEVEL_FACTORS, add_level_picks, has_level_picks,
+                                                 level_three_positions)
 
 
 @pytest.fixture(scope="module")
@@ -27,10 +28,11 @@ def test_the_level_mean_is_the_mean_of_the_positions_the_core_gives_at_each_leve
     the levels equals the mean of the core's positions (process_event at each threshold) within float32
     rounding, and a row the trained threshold does not place stays unplaced."""
     f, dead, cfg = dead_channel_drops
-    assert has_level_picks(f.raw) and f.raw["three_level_toa_us"].shape == (len(f), len(LEVEL_FACTORS), 4)
+    assert has_level_picks(f.raw) and f.raw["three_level_toa_us"].shape == (len(f), len(THREE_LEVEL_FACTORS), 4)
     base = three_sensor_positions(f.raw, cfg, 2)
     mean = level_three_positions(f.raw, cfg, 2, base)
-    core = np.concatenate([f.phys_xy_mm[:, None].astype(float), level_xy(dead.adc, cfg)], 1)
+    core = np.stack([f.phys_xy_mm] + [featurize(dead.adc, level_signal(cfg, k)).phys_xy_mm
+                                      for k in THREE_LEVEL_FACTORS], 1).astype(float)
     rows = np.isfinite(core).all((1, 2))
     assert rows.mean() > 0.8
     np.testing.assert_allclose(mean[rows], core[rows].mean(1), atol=0.1)
