@@ -112,6 +112,7 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> di
             "physics_mae_mm": rep["physics"]["all"]["mae_mm"], "class_accuracy": rep["energy_class_accuracy"],
             "position_source": rep["position_source"], "naive_mae_mm": naive(session, train_rows, test_rows, trees, seed),
             "train_s": t_train, "train_evaluate_s": t_all, "velocity_mm_per_us": sig.velocity_mm_per_us,
+            "band_choice": model.card.get("band_choice"),
             "onset_threshold_counts": sig.onset_threshold_counts,
             "travel_metric": [sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy],
             "calibration": None if cal is None else str(cal), "site_map_s": t_map,

@@ -81,14 +81,22 @@ def drop_sites(xy: np.ndarray) -> np.ndarray:
     return np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
 
 
+def choose_by_gain(err: list[np.ndarray], sites: np.ndarray, default: int) -> tuple[int, list[float], float]:
+    """(the option chosen, the MAE per option, the best option's gain in standard errors) from each option's
+    out-of-fold per-drop error err[k] (the same drops): the lowest MAE when its per-site gain over err[default]
+    exceeds CORRECTION_GAIN_SIGMAS standard errors, else the default (the one-standard-error rule, written once:
+    the correction's factor, the level members, the band picks: band_forests.py)."""
+    mae = [float(e.mean()) for e in err]
+    best = int(np.argmin(mae))
+    z = _gain_sigmas(_per_site(err[default] - err[best], sites))
+    return (best if z > CORRECTION_GAIN_SIGMAS else default), mae, z
+
+
 def choose_factor(err: list[np.ndarray], sites: np.ndarray) -> tuple[int, list[float], float]:
     """(the index into CORRECTION_SCALES chosen, the MAE per factor, the best factor's gain in standard errors)
     from each factor's per-drop error err[k]: the lowest MAE when its gain over the whole correction (the last
-    factor), per site, exceeds CORRECTION_GAIN_SIGMAS, else the whole."""
-    mae = [float(e.mean()) for e in err]
-    best, whole = int(np.argmin(mae)), len(err) - 1
-    z = _gain_sigmas(_per_site(err[whole] - err[best], sites))
-    return (best if z > CORRECTION_GAIN_SIGMAS else whole), mae, z
+    factor), per site, exceeds CORRECTION_GAIN_SIGMAS, else the whole (choose_by_gain)."""
+    return choose_by_gain(err, sites, len(err) - 1)
 
 
 def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None, xy: np.ndarray,
@@ -125,12 +133,10 @@ def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict
     return None if out is None else out[0]
 
 
-def choose_level_members(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
-                         levels: dict, xy: np.ndarray, settings, names: list[str]) -> dict | None:
-    """Whether the level members (level_members.py; `levels`: name -> base) join: the training drops' out-of-fold
-    positions with and without them, each at its own chosen factor; kept when the per-site gain exceeds
-    CORRECTION_GAIN_SIGMAS standard errors. Returns {"keep", "out_of_fold_mae_mm": [without, with],
-    "gain_sigmas", "without": scale choice, "with": scale choice}, or None with too few sites."""
+def level_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                 levels: dict, xy: np.ndarray, settings, names: list[str]) -> tuple[dict, np.ndarray] | None:
+    """choose_level_members' choice and the out-of-fold error of each drop with the members it keeps (at their
+    chosen factor), or None."""
     without = scale_choice(X_loc, phys, positions, edges, xy, settings, names)
     if without is None:
         return None
@@ -139,10 +145,21 @@ def choose_level_members(X_loc: np.ndarray, phys: np.ndarray, positions: dict | 
     if not ok.any():
         return None
     z = _gain_sigmas(_per_site(without[1][ok] - with_levels[1][ok], without[2][ok]))
-    return {"keep": bool(z > CORRECTION_GAIN_SIGMAS),
-            "out_of_fold_mae_mm": [round(float(np.mean(without[1][ok])), 3),
-                                   round(float(np.mean(with_levels[1][ok])), 3)],
-            "gain_sigmas": round(z, 2), "without": without[0], "with": with_levels[0]}
+    keep = bool(z > CORRECTION_GAIN_SIGMAS)
+    return ({"keep": keep, "out_of_fold_mae_mm": [round(float(np.mean(without[1][ok])), 3),
+                                                  round(float(np.mean(with_levels[1][ok])), 3)],
+             "gain_sigmas": round(z, 2), "without": without[0], "with": with_levels[0]},
+            (with_levels if keep else without)[1])
+
+
+def choose_level_members(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
+                         levels: dict, xy: np.ndarray, settings, names: list[str]) -> dict | None:
+    """Whether the level members (level_members.py; `levels`: name -> base) join: the training drops' out-of-fold
+    positions with and without them, each at its own chosen factor; kept when the per-site gain exceeds
+    CORRECTION_GAIN_SIGMAS standard errors. Returns {"keep", "out_of_fold_mae_mm": [without, with],
+    "gain_sigmas", "without": scale choice, "with": scale choice}, or None with too few sites."""
+    out = level_choice(X_loc, phys, positions, edges, levels, xy, settings, names)
+    return None if out is None else out[0]
 
 
 def scale_forests(forests, scale: float) -> None:

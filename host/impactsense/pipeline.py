@@ -110,7 +110,8 @@ def distances_mm(xy_mm: np.ndarray, cfg: SignalConfig) -> np.ndarray:
 
 
 def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_threshold: bool = True,
-                  fits=None, rig_drops: tuple[np.ndarray, np.ndarray] | None = None) -> SignalConfig:
+                  fits=None, rig_drops: tuple[np.ndarray, np.ndarray] | None = None,
+                  band_choice=None) -> SignalConfig:
     """Fits the physics localiser on training drops (travel.py): the onset threshold and AIC blend the core
     picks with, the group velocity, the per-channel delays (relative to channel 0), the dispersion of the
     picked cycles' speed with their frequency (when it explains the picks clearly better) and, on a plate
@@ -122,7 +123,8 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     SignalConfig -> bool of the options (band picks, localiser starts) a target can afford (the board's event
     budget: board.cost.signal_fits); options it rejects are not tried. rig_drops (adc, xy_mm): the session is a
     calibrated twin's virtual drops and these the rig's calibration drops, which break the threshold's ties
-    (travel.choose_threshold)."""
+    (travel.choose_threshold). band_choice: a SignalConfig -> SignalConfig choosing the band picks and finishing
+    the fit (band_forests.forest_band_choice) in place of choose_band + band_finished."""
     from .travel import fit_travel, picks, wants_metric
     from .travel import choose_threshold as choose
 
@@ -143,9 +145,16 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     out.sigma_us = fit.spread_us if fit.n else cfg.sigma_us
     out.dispersion_exponent = fit.dispersion_exponent
     out.dispersion_ref_hz = fit.dispersion_ref_hz
-    out = choose_band(session, rows, choose_starts(session, rows, out, fits), fits)
-    # the band picks' localiser shares localiser_starts: chosen again with them on
-    out = choose_starts(session, rows, out, fits) if out.band_velocity_mm_per_us > 0 else out
+    out = choose_starts(session, rows, out, fits)
+    if band_choice is not None:
+        return band_choice(out)
+    return band_finished(session, rows, choose_band(session, rows, out, fits), fits)
+
+
+def band_finished(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
+    """fit_localiser's last steps once the band picks are chosen (on or off): the band picks' localiser shares
+    localiser_starts (chosen again with them on), then the posterior mean (choose_posterior)."""
+    out = choose_starts(session, rows, cfg, fits) if cfg.band_velocity_mm_per_us > 0 else cfg
     return choose_posterior(session, rows, out, fits)
 
 
@@ -287,14 +296,21 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     return out
 
 
-def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig:
+def band_off(cfg: SignalConfig) -> SignalConfig:
+    """cfg with the band picks off."""
+    return SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0,
+                                   "band_slowness_per_decade": 0.0, "band_log_energy_ref": 0.0,
+                                   "band_noise_counts": 0.0})
+
+
+def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None,
+                gain: float = BAND_GAIN) -> SignalConfig:
     """cfg with the band picks when they bring the training drops' physics positions clearly closer to the
-    truth (BAND_GAIN), else cfg with them off; with the band picks on, their localiser's slowness follows the
-    drops' summed log energy (energy_slowness_config) when that is clearly closer again (BAND_GAIN). fits (fit_localiser): the band picks only where it accepts
-    them (with one localiser start if cfg's starts do not fit)."""
-    off = SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0,
-                                  "band_slowness_per_decade": 0.0, "band_log_energy_ref": 0.0,
-                                  "band_noise_counts": 0.0})
+    truth (gain, BAND_GAIN; np.inf: on whenever band_config gives a pair), else cfg with them off; with the band
+    picks on, their localiser's slowness follows the drops' summed log energy (energy_slowness_config) when that
+    is clearly closer again (BAND_GAIN). fits (fit_localiser): the band picks only where it accepts them (with
+    one localiser start if cfg's starts do not fit)."""
+    off = band_off(cfg)
     trial = band_config(session, rows, off, fits)
     if trial is not None and fits is not None and not fits(trial):
         trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})
@@ -303,7 +319,7 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     if trial is None:
         return off
     band_mae = physics_mae(session, rows, trial)
-    if not band_mae < BAND_GAIN * physics_mae(session, rows, off):
+    if not (gain == np.inf or band_mae < gain * physics_mae(session, rows, off)):
         return off
     # Kept band picks only: their localiser's slowness linear in the drop's summed log energy, kept by the same
     # rule against one velocity. Tried where the band picks were off too, it turned them on where their slopes were

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
+from .band_forests import ForestBandChoice
 from .checks import require_labels, rig_summary
 from .data import IMPACTS_FILE, Session
 from .errors import DataError
@@ -42,7 +43,11 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
         raise DataError(session.path / IMPACTS_FILE, "case_id", f"no case can be held out: the drops are in "
                         f"{session.n_cases} case(s) (give more cases, or --test-fraction 0)")
     cfg = signal or SignalConfig.for_rig(session.rig)
-    cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops)
+    # Without a site map (nor a virtual set) the forests' position is the one reported: the band picks as the
+    # forests' out-of-fold positions of the training drops say (band_forests.py)
+    band_choice = (ForestBandChoice(session, train_rows, settings or ForestSettings(), choose_edge=choose_class)
+                   if site_map is None and rig_drops is None and members else None)
+    cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops, band_choice=band_choice)
     feats = featurize(session.adc, cfg)
     if choose_class and members and site_map is None:   # the level members' positions (level_members.py)
         add_level_positions(feats, session.adc, cfg)
@@ -51,6 +56,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
                             choose_class=choose_class, choose_edge=choose_class, members=members,
                             twin_rows=None if twin_rows is None else np.asarray(twin_rows, bool)[train_rows])
+    if band_choice is not None:
+        model.card["band_choice"] = band_choice.record
     split = {
         "data_path": str(session.path),
         "data_hash": session.fingerprint(),
