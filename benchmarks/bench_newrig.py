@@ -43,14 +43,15 @@ def main(argv=None) -> int:
 
     work = Path(a.work)
     misses = []
-    print("| rig | splits | MAE mm (mean, worst) | inner MAE mm | class (mean, worst) | naive MAE mm | train s |")
-    print("|---|---|---|---|---|---|---|")
+    print("| rig | splits | MAE mm (mean, worst) | inner MAE mm | class (mean, worst) | naive MAE mm | train s | "
+          "per split (band picks) |")
+    print("|---|---|---|---|---|---|---|---|")
     for kind in a.kinds.split(","):
         data = work / kind
         if not (data / "recordings.npz").is_file():
             make(kind, str(data), 50, 2, 0, 4.0)
         s = isn.load_session(data)
-        mae, inner, cls, secs, ref = [], [], [], [], []
+        mae, inner, cls, secs, ref, band = [], [], [], [], [], []
         for seed in range(a.seeds):
             t0 = time.perf_counter()
             model = isn.train(s, seed=seed, site_map="none")
@@ -59,12 +60,14 @@ def main(argv=None) -> int:
             mae.append(rep["all"]["mae_mm"])
             inner.append(rep["inner"]["mae_mm"])
             cls.append(rep["energy_class_accuracy"])
+            band.append("on" if float(model.signal.band_velocity_mm_per_us) > 0 else "off")
             split = model.card["split"]
             rows = {r: k for k, r in enumerate(s.recording_id)}
             ref.append(naive(s, [rows[r] for r in split["train_recordings"]],
                              [rows[r] for r in split["test_recordings"]], 100, seed))
         print(f"| {kind} | {a.seeds} | {np.mean(mae):.2f} ({max(mae):.2f}) | {np.nanmean(inner):.2f} | "
-              f"{np.mean(cls):.3f} ({min(cls):.3f}) | {np.mean(ref):.2f} | {np.mean(secs):.0f} |", flush=True)
+              f"{np.mean(cls):.3f} ({min(cls):.3f}) | {np.mean(ref):.2f} | {np.mean(secs):.0f} | "
+              f"{' / '.join(f'{m:.2f} ({b})' for m, b in zip(mae, band))} |", flush=True)
         if np.mean(mae) > MAE_MM:
             misses.append(f"{kind}: measured-trained MAE {np.mean(mae):.2f} mm > {MAE_MM}")
         if np.mean(cls) < CLASS:
