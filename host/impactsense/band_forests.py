@@ -11,6 +11,8 @@ more than one standard error per site (correction_scale.choose_by_gain, the rule
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from .correction_scale import CORRECTION_MIN_SITES, choose_by_gain, drop_sites, level_choice, scale_choice
@@ -51,7 +53,8 @@ def position_oof_error(features, xy: np.ndarray, signal: SignalConfig, settings,
 class ForestBandChoice:
     """fit_localiser's band_choice: the band picks off or the physics-chosen pair on, as the forests' out-of-fold
     positions of the training drops (`rows` of `session`) say; `record` (after the call) is the model card's
-    "band_choice": {"band_on", "tried": True, "out_of_fold_mae_mm": [off, on], "gain_sigmas"}, or
+    "band_choice": {"band_on", "tried": True, "out_of_fold_mae_mm": [off, on], "gain_sigmas", "seconds" (the
+    choice's wall time)}, or
     {"band_on", "tried": False} when no band pair could be tried (off) or the drops are at too few sites for the
     folds (pipeline.choose_band's physics rule)."""
 
@@ -75,6 +78,7 @@ class ForestBandChoice:
 
     def __call__(self, cfg: SignalConfig) -> SignalConfig:
         session, rows, fits = self.session, self.rows, self.fits
+        start = time.perf_counter()
         sites = drop_sites(np.asarray(session.xy_mm, float)[rows])
         if np.unique(sites).size < CORRECTION_MIN_SITES:   # too few sites for folds: the physics rule
             self.record = {"band_on": False, "tried": False}
@@ -92,5 +96,5 @@ class ForestBandChoice:
         ok = np.isfinite(err[0]) & np.isfinite(err[1])
         chosen, mae, z = choose_by_gain([e[ok] for e in err], sites[ok], 0)
         self.record = {"band_on": bool(chosen == 1), "tried": True, "out_of_fold_mae_mm": [round(m, 3) for m in mae],
-                       "gain_sigmas": round(z, 2)}
+                       "gain_sigmas": round(z, 2), "seconds": round(time.perf_counter() - start, 1)}
         return on if chosen == 1 else off
