@@ -10,6 +10,9 @@ export carry it as they are.
 
 from __future__ import annotations
 
+import copy
+import hashlib
+
 import numpy as np
 
 from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, edge_positions, fit_member_pairs, joined_position,
@@ -99,10 +102,41 @@ def choose_factor(err: list[np.ndarray], sites: np.ndarray) -> tuple[int, list[f
     return choose_by_gain(err, sites, len(err) - 1)
 
 
+# The last few scale_choice answers by a digest of their inputs: band_forests scores the band picks with the
+# same folds the model then runs on the chosen features (the same drops, members and settings: computed once).
+_RECENT: dict[str, tuple] = {}
+_RECENT_MAX = 4
+
+
+def _digest(*parts) -> str:
+    h = hashlib.sha1()
+    for part in parts:
+        items = sorted(part.items()) if isinstance(part, dict) else [("", part)]
+        for key, value in items:
+            h.update(repr(key).encode())
+            if isinstance(value, np.ndarray):
+                h.update(repr((value.dtype.str, value.shape)).encode())
+                h.update(np.ascontiguousarray(value).tobytes())
+            else:
+                h.update(repr(value).encode())
+        h.update(b"|")
+    return h.hexdigest()
+
+
 def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None, xy: np.ndarray,
                  settings, names: list[str]) -> tuple[dict, np.ndarray, np.ndarray] | None:
     """choose_correction_scale's choice, the out-of-fold error of each drop at the chosen factor and the drops'
-    sites; None with fewer than CORRECTION_MIN_SITES drop sites."""
+    sites; None with fewer than CORRECTION_MIN_SITES drop sites. The same inputs again: the same answer (a copy),
+    not computed twice."""
+    key = _digest(X_loc, phys, positions, edges, np.asarray(xy, float), settings.__dict__, list(names))
+    if key not in _RECENT:
+        if len(_RECENT) >= _RECENT_MAX:
+            _RECENT.pop(next(iter(_RECENT)))
+        _RECENT[key] = _scale_choice(X_loc, phys, positions, edges, xy, settings, names)
+    return copy.deepcopy(_RECENT[key])
+
+
+def _scale_choice(X_loc, phys, positions, edges, xy, settings, names):
     xy = np.asarray(xy, float)
     sites = drop_sites(xy)
     if np.unique(sites).size < CORRECTION_MIN_SITES:
