@@ -3,9 +3,9 @@
 `pipeline.choose_band` turns the band picks on when they bring the training drops' physics positions clearly
 closer; on some plates the forests' held-out positions then get worse (docs/findings.md "The band picks chosen
 by the forests"). Without a site map the reported position is the forests', so here the band picks are chosen
-by the training drops' out-of-fold positions of the forests (correction_scale's folds: 5 site-grouped folds,
-50-tree forests, every position member refitted per fold, the correction's factor and the level members chosen
-inside as the model chooses them): off (the cheaper, the default) unless the physics-chosen band pair gains
+by the training drops' out-of-fold positions of the forests the band picks feed (correction_scale's folds: 5
+site-grouped folds, 50-tree forests, the band picks' position members refitted per fold, the correction's
+factor chosen as the model chooses it): off (the cheaper, the default) unless the physics-chosen band pair gains
 more than one standard error per site (correction_scale.choose_by_gain, the rule written once).
 """
 
@@ -15,34 +15,28 @@ import time
 
 import numpy as np
 
-from .correction_scale import CORRECTION_MIN_SITES, choose_by_gain, drop_sites, level_choice, scale_choice
-from .level_members import add_level_positions, level_positions
+from .correction_scale import CORRECTION_MIN_SITES, choose_by_gain, drop_sites, scale_choice
 from .pipeline import band_finished, band_off, choose_band, columns_reading, featurize
-from .position_members import choose_edge_travel, edge_positions, member_positions
+from .position_members import member_positions
 from .signal import SignalConfig
 
 
-def position_oof_error(features, xy: np.ndarray, signal: SignalConfig, settings,
-                       choose_edge: bool = True) -> np.ndarray | None:
-    """Each training drop's out-of-fold position error (mean per axis, mm; NaN where the model places none) of
-    the forests ImpactModel.fit would fit on these features (members, without a site map): the physics position's
-    pair, the band picks' position members when they are on, the edge members when choose_edge_travel keeps them
-    and the level members as choose_level_members does, at the chosen correction factor. None with too few
-    sites (correction_scale.CORRECTION_MIN_SITES)."""
+def position_oof_error(features, xy: np.ndarray, signal: SignalConfig, settings) -> np.ndarray | None:
+    """Each training drop's out-of-fold position error (mean per axis, mm; NaN where none is placed) of the
+    forests the band picks feed: the physics position's pair and, with the band picks on, their position members
+    (POSITION_MEMBERS), at the correction factor correction_scale chooses. The edge and level members are chosen
+    afterwards on the chosen picks and partly stand in for the band members (scored with them, the band picks'
+    gain shrank below one standard error on splits whose held-out drops kept it: docs/findings.md). None with too
+    few sites (correction_scale.CORRECTION_MIN_SITES)."""
     from .models import LOCATION_FEATURES, columns
 
     xy = np.asarray(xy, float)
     use = np.flatnonzero(features.usable)
-    train, xy_use = features.take(use), xy[use]
+    train = features.take(use)
     names = columns_reading(signal.channel_left_out, LOCATION_FEATURES)
-    X_loc = train.vector[:, columns(names)]
-    phys = np.asarray(train.phys_xy_mm, float)
     positions = member_positions(train) if float(signal.band_velocity_mm_per_us) > 0 else None
-    edge = choose_edge_travel(train, xy_use, signal) if choose_edge else None
-    edges = edge_positions(train, signal, edge) if edge else None
-    levels = level_positions(train) if choose_edge else None
-    out = (level_choice(X_loc, phys, positions, edges, levels, xy_use, settings, names) if levels
-           else scale_choice(X_loc, phys, positions, edges, xy_use, settings, names))
+    out = scale_choice(train.vector[:, columns(names)], np.asarray(train.phys_xy_mm, float), positions, None,
+                       xy[use], settings, names)
     if out is None:
         return None
     err = np.full(len(xy), np.nan)
@@ -58,17 +52,13 @@ class ForestBandChoice:
     {"band_on", "tried": False} when no band pair could be tried (off) or the drops are at too few sites for the
     folds (pipeline.choose_band's physics rule)."""
 
-    def __init__(self, session, rows: np.ndarray, settings, fits=None, choose_edge: bool = True):
+    def __init__(self, session, rows: np.ndarray, settings, fits=None):
         self.session, self.rows, self.settings, self.fits = session, np.asarray(rows), settings, fits
-        self.choose_edge = choose_edge
         self.record: dict = {}
 
     def _error(self, cfg: SignalConfig) -> np.ndarray | None:
-        adc = self.session.adc[self.rows]
-        feats = featurize(adc, cfg)
-        if self.choose_edge:
-            add_level_positions(feats, adc, cfg)
-        return position_oof_error(feats, self.session.xy_mm[self.rows], cfg, self.settings, self.choose_edge)
+        return position_oof_error(featurize(self.session.adc[self.rows], cfg), self.session.xy_mm[self.rows], cfg,
+                                  self.settings)
 
     def _physics(self, cfg: SignalConfig) -> SignalConfig:
         """fit_localiser's own choice (pipeline.choose_band's physics rule), recorded."""

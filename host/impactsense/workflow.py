@@ -45,7 +45,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     cfg = signal or SignalConfig.for_rig(session.rig)
     # Without a site map (nor a virtual set) the forests' position is the one reported: the band picks as the
     # forests' out-of-fold positions of the training drops say (band_forests.py)
-    band_choice = (ForestBandChoice(session, train_rows, settings or ForestSettings(), choose_edge=choose_class)
+    band_choice = (ForestBandChoice(session, train_rows, settings or ForestSettings())
                    if site_map is None and rig_drops is None and members else None)
     cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops, band_choice=band_choice)
     feats = featurize(session.adc, cfg)
