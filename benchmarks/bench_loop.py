@@ -24,7 +24,7 @@ with the twin's drops at new positions (a random effect) is judged as measured-t
 the table also prints its ratio to the twin's yardstick, the share the generator's own drops may carry.
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
-move 2 mm, gain 0.05, E 1 % via `impactsense.loop.e_scale_scan`: the geometric mean of the twin's E scan at the session's picks and the A0 curve, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
+move 2 mm, gain 0.05, E 1 % via `impactsense.plate_scan.e_scale_scan`: the twin's own pick-velocity curve on the session's drops, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
 whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model, and
 a twin-trained after also <= 1.2 x the unchanged sessions' mean MAE of the twin with no effect.
 """
@@ -76,10 +76,14 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
         curve = 100 * (e_scale_for_speed(twin, v_ref, p["change_pct"]) - 1)
         got = 100 * (p["e_scale"] - 1) if "e_scale" in p else curve
         want = 100 * (t["e_scale"] - 1)
-        how = (f"scan {100 * (p['e_scale_scan'] - 1):+.1f} % at n {p['e_exponent']:.3f}, A0 curve "
-               f"{100 * (p['e_scale_curve'] - 1):+.1f} %: their geometric mean" if "e_scale" in p else "the A0 curve")
-        if "e_scale_lo" in p:   # the pick velocity's interval in E
-            how += f"; range (pick velocity interval, both exponents) [{100 * (p['e_scale_lo'] - 1):+.1f}, {100 * (p['e_scale_hi'] - 1):+.1f}] %"
+        how = "the A0 curve"
+        if "e_scale" in p:   # the twin's own curves: each reading, and what was put in (their weighted mean)
+            reads = ", ".join(f"{k[8:]} {100 * (p[k] - 1):+.1f}" for k in ("e_scale_pick", "e_scale_band",
+                                                                        "e_scale_change") if k in p)
+            how = (f"twin's curves: readings {reads} %, n {p['e_exponent']:.3f}; "
+                   f"A0 curve {100 * (p['e_scale_curve'] - 1):+.1f} %")
+        if "e_scale_lo" in p:   # the range of E the picks and the curve allow
+            how += f"; range [{100 * (p['e_scale_lo'] - 1):+.1f}, {100 * (p['e_scale_hi'] - 1):+.1f}] %"
         return (f"E {got:+.1f} % ({how}; pick velocity {p['change_pct']:+.2f}"
                 f"{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"])
     if "damping_scale" in t and e["effect"] == "damping":
@@ -140,13 +144,14 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         # as `impactsense retrain`: a debonded channel's low-pass and gain sized on the recordings (fit_bond)
         accepted = fit_bond(ref, sess, det["accepted"], args.seed)
         # as `impactsense retrain --twin`: a plate speed change sized in E by the twin's scan at these picks
-        accepted = size_plate_change(sim_params, sess, accepted, res["timing_picker"], args.seed, args.workers)
+        accepted = size_plate_change(sim_params, sess, accepted, res["timing_picker"], args.seed, args.workers,
+                                     base=ref)
         for e in res["effects"]:
             c = next((c for c in accepted if c.effect == e["effect"] == "wave_speed"), None)
             if c is not None:
                 e["params"] = {**e["params"], **{k: c.params[k] for k in
-                                                 ("e_scale", "e_exponent", "e_scale_scan", "e_scale_curve",
-                                                  "e_scale_lo", "e_scale_hi") if k in c.params}}
+                                                 ("e_scale", "e_exponent", "e_scale_change", "e_scale_pick",
+                                                  "e_scale_band", "e_scale_curve", "e_scale_lo", "e_scale_hi") if k in c.params}}
         slow = det["ref"].slowness_us_per_mm
         # as `impactsense retrain` with a twin: a random effect's drops also at the twin's new positions
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed,

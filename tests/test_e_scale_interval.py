@@ -1,31 +1,52 @@
-"""size_plate_change states what the picks allow in E: the pick velocity change's 95 % interval (the diagnosis's
-fold jackknife) mapped through the scan's and the A0 curve's exponents, E = (1 + change)^(1 / n)."""
+"""The twin's pick-velocity curve read backwards (plate_scan): the crossing of a curve that is flat for the first
+steps and steep after (as rig-b's picks are) is the steep part's, not a single exponent's; size_plate_change carries the readings into the wave_speed effect
+and passes other effects through."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from impactsense import loop
+from impactsense import plate_scan
 from impactsense.diagnose import Candidate, _param_ci, _param_se
 
 
-def test_the_e_interval_is_the_pick_velocity_interval_through_both_exponents(monkeypatch):
-    n, n_curve = 0.44, 0.34
-    change = -4.0
-    folds = [{"change_pct": change + d, "velocity_m_s": 800.0} for d in (-0.3, -0.1, 0.0, 0.1, 0.3)]
-    cand = Candidate("wave_speed", None, {"change_pct": change, "velocity_m_s": 800.0}, 50.0, 1e-6, True, True,
-                     folds)
-    scale, curve = (1 + change / 100) ** (1 / n), (1 + change / 100) ** (1 / n_curve)
-    monkeypatch.setattr(loop, "e_scale_scan", lambda *a, **k: {"e_scale": np.sqrt(scale * curve), "exponent": n,
-                                                                 "scan_e_scale": scale, "first_guess": curve})
-    (out,) = loop.size_plate_change(None, None, [cand], None)
+def _kinked(n=0.4, flat=0.02):
+    """ln s(ln E) of a pick that ignores the first `flat` of E and then goes as E^-n (a 0.02 grid)."""
+    scales = 1.0 - 0.02 * np.arange(8)
+    le = np.log(scales)
+    return le, -n * np.minimum(le - np.log(1 - flat), 0.0)
+
+
+def test_the_crossing_reads_the_curve_where_the_target_meets_it():
+    le, ls = _kinked()
+    for e_true in (0.95, 0.91, 0.89):
+        target = -0.4 * (np.log(e_true) - np.log(0.98))
+        got, slope = plate_scan.crossing(le, ls, target)
+        assert np.exp(got) == pytest.approx(e_true, abs=1e-3)
+        assert slope == pytest.approx(-0.4, abs=0.05)
+    # a single exponent from E to the first grid point would read a 10x larger E change (it sees the flat part)
+    n_first = -(ls[1] - ls[0]) / (le[1] - le[0])
+    assert n_first < 0.05
+
+
+def test_size_plate_change_carries_the_readings_and_passes_other_effects(monkeypatch):
+    folds = [{"change_pct": -4.0 + d, "velocity_m_s": 800.0} for d in (-0.3, -0.1, 0.0, 0.1, 0.3)]
+    cand = Candidate("wave_speed", None, {"change_pct": -4.0, "velocity_m_s": 800.0}, 50.0, 1e-6, True, True, folds)
+    seen = {}
+
+    def scan(params, data, picker, change, base, ci, seed, workers):
+        seen.update(change=change, ci=ci, base=base)
+        return {"e_scale": 0.91, "readings": {"change": 0.90, "pick": 0.92, "band": 0.905}, "exponent": 0.4,
+                "first_guess": 0.88, "e_scale_lo": 0.87, "e_scale_hi": 0.95, "curve": []}
+
+    monkeypatch.setattr(plate_scan, "e_scale_scan", scan)
+    (out,) = plate_scan.size_plate_change(None, None, [cand], None, base="REF")
+    assert seen["change"] == -4.0 and seen["base"] == "REF"
+    assert seen["ci"] == pytest.approx(_param_ci(cand, _param_se(cand))["change_pct"])
     p = out.params
-    lo, hi = _param_ci(cand, _param_se(cand))["change_pct"]
+    assert (p["e_scale"], p["e_scale_change"], p["e_scale_pick"], p["e_scale_band"], p["e_exponent"],
+            p["e_scale_curve"]) == (0.91, 0.90, 0.92, 0.905, 0.4, 0.88)
     assert p["e_scale_lo"] < p["e_scale"] < p["e_scale_hi"]
-    # the low end through the curve's smaller exponent, the high end through the scan's
-    np.testing.assert_allclose([p["e_scale_lo"], p["e_scale_hi"]],
-                               [(1 + lo / 100) ** (1 / n_curve), (1 + hi / 100) ** (1 / n)], rtol=1e-9)
-    assert p["e_scale_lo"] < curve < scale < p["e_scale_hi"]
-    # another effect is passed through untouched
     other = Candidate("damping", None, {"extra_decay_per_s": 10.0}, 5.0, 0.01, True, True, [])
-    assert loop.size_plate_change(None, None, [other], None)[0] is other
+    assert plate_scan.size_plate_change(None, None, [other], None)[0] is other

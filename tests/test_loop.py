@@ -98,33 +98,38 @@ def test_corrected_twin_carries_plate_and_sensor_effects():
     assert [e["effect"] for e in signal] == ["channel_delay"] and len(twin) == 3
 
 
+@pytest.mark.slow
 def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity():
-    """The twin's E scan inverts the picks' own velocity law: twin drops on a plate with E x 0.92 read as a pick
-    velocity change (the residual reference's slowness fit on the same drops, the AIC onset), and the scan maps
-    that change back to E within issue 16's 1 %, from a first guess (the A0 curve at one frequency) that is
-    not the answer (what the loop puts in is the geometric mean of the two: the scan scatters per session). The picks' exponent d ln v / d ln E lies between the fixed-frequency 1/4 and the thin
-    plate's time scaling 1/2 (a margin for the pick's noise)."""
-    from impactsense.loop import _pick_slowness, e_scale_scan
+    """The twin's own pick-velocity curve read backwards: DATA_NEW made by the twin on a plate with E x 0.92,
+    DATA_REF on the plate as declared at other positions; the change (the picks' slowness, the residual
+    reference's robust fit) and the data's slowness statistics against the twin's at the same drops map back to
+    E within issue 16's 1 %, from a first guess (the A0 curve at one frequency) that is not the answer. The curve's
+    exponent d ln v / d ln E lies between the fixed-frequency 1/4 and the thin plate's time scaling 1/2 (a
+    margin for the pick's noise)."""
+    from impactsense.plate_scan import e_scale_scan, pick_slowness
     from impactsense.sim.doe import virtual_drops
     DROPS = 24
     p = dataclasses.replace(_twin(), duration_ms=6.0)
     base = load_session("bundled:session-1")
-    x, y, h = virtual_drops(base.rig, DROPS, 3, 20.0, 32.0)
-    data = Session(base.path, base.rig, np.arange(DROPS), np.arange(DROPS), np.zeros(DROPS, int), x, y, h,
-                   np.zeros((DROPS, 4, base.rig.samples), np.uint16))
 
-    def slowness(e_scale):
+    def session(e_scale, seed):
+        x, y, h = virtual_drops(base.rig, DROPS, seed, 20.0, 32.0)
         volts = sim.simulate_voltages(dataclasses.replace(p, e_pa=p.e_pa * e_scale), base.rig, x, y, h)["volts"]
-        return _pick_slowness([dataclasses.replace(data, adc=sim.to_adc(volts, p, base.rig, noise=True, seed=k))
-                               for k in range(2)], None)
+        return Session(base.path, base.rig, np.arange(DROPS), np.arange(DROPS), np.zeros(DROPS, int), x, y, h,
+                       sim.to_adc(volts, p, base.rig, noise=True, seed=seed + 50))
 
-    change = 100.0 * (slowness(1.0) / slowness(0.92) - 1.0)
-    scan = e_scale_scan(p, data, None, change, seed=0, drops=DROPS, draws=2)
+    data, ref = session(0.92, 3), session(1.0, 4)
+    change = 100.0 * (pick_slowness([ref], None) / pick_slowness([data], None) - 1.0)
+    scan = e_scale_scan(p, data, None, change, base=ref, ci=(change - 0.3, change + 0.3), draws=2)
     assert 0.22 <= scan["exponent"] <= 0.55, scan
-    assert scan["scan_e_scale"] == pytest.approx(0.92, abs=0.01), (change, scan)
-    assert abs(scan["first_guess"] - 0.92) > 0.003, scan   # the scan did the work, not the first guess
-    # what the loop puts in: the geometric mean of the scan's and the A0 curve's scale
-    assert scan["e_scale"] == pytest.approx(np.sqrt(scan["scan_e_scale"] * scan["first_guess"]), rel=1e-9)
+    assert scan["e_scale"] == pytest.approx(0.92, abs=0.01), (change, scan)
+    # each reading: the change's and the threshold picks' within 1.5 %; the band picks' (a 1.7 ms window on 24
+    # drops of 6 ms: few cycles) within 3 %, and weighted by its own scatter in what is put in
+    assert scan["readings"]["change"] == pytest.approx(0.92, abs=0.015), scan
+    assert scan["readings"]["pick"] == pytest.approx(0.92, abs=0.015), scan
+    assert scan["readings"].get("band", 0.92) == pytest.approx(0.92, abs=0.03), scan
+    assert abs(scan["first_guess"] - 0.92) > 0.003, scan   # the curve did the work, not the first guess
+    assert scan["e_scale_lo"] < scan["e_scale"] < scan["e_scale_hi"]
 
 
 def _noise_candidate(white):

@@ -7,9 +7,8 @@
   frequency f* where the twin's v_g(f*) equals the pick velocity); but a stiffer plate also shifts the cycle
   a threshold or AIC onset catches (a thin plate's whole response scales in time as E^(-1/2); the source's
   and the disc's bands hold the frequency back), so the picks' n lies between, and it depends on the
-  distances and the noise. `e_scale_scan` measures it on the twin: DATA_NEW's declared drops simulated at
-  the twin's E and at the first guess, with a few draws of its noise, picked as diagnose picked them;
-  E_new / E_old = (v_new / v_old)^(1/n) (`size_plate_change` puts it into the effect, `corrected_twin`
+  distances and the noise, and it is not smooth in E. `plate_scan.e_scale_scan` reads E off the twin's own
+  pick-velocity curve on DATA_NEW's declared drops (`size_plate_change` puts it into the effect, `corrected_twin`
   reads it); `damping` raises the twin's mass-proportional D_s by twice the
   envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
 - at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
@@ -51,6 +50,8 @@ import json
 
 import numpy as np
 
+from .plate_scan import e_scale_scan, size_plate_change  # noqa: F401  (the loop's E sizing)
+
 TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
 RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random draw
 NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
@@ -62,11 +63,6 @@ BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and 
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
-E_SCAN_DROPS = 160                     # DATA_NEW drops the twin's E scan simulates (at two E)
-E_SCAN_STEPS = 2                       # scans: at the first guess, then at the first scan's answer
-E_SCAN_DRAWS = 4                       # draws of the twin's noise on each (the picks' exponent depends on it)
-E_SCAN_EXPONENTS = (0.15, 0.75)        # d ln v / d ln E a flexural pick can have (1/4 at a fixed frequency, 1/2
-                                       # the thin plate's time scaling; a margin either side for the scan's noise)
 
 
 def split_effects(effects) -> tuple[list, list]:
@@ -89,88 +85,6 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
     f = lo if v_ref_m_s <= vg(lo) else hi if v_ref_m_s >= vg(hi) else brentq(lambda x: vg(x) - v_ref_m_s, lo, hi)
     n = np.log(vg(f, params.e_pa * 1.01) / vg(f)) / np.log(1.01)
     return float((1.0 + change_pct / 100.0) ** (1.0 / n))
-
-
-def _pick_slowness(sessions, picker) -> float:
-    """The picks' slowness (us/mm) by `picker` (diagnose's timing picker) over the sessions' drops together: the
-    residual reference's robust fit."""
-    from . import residuals as R
-
-    F = [R.extract(s, picker) for s in sessions]
-    F = dataclasses.replace(F[0], **{k: np.concatenate([getattr(f, k) for f in F]) for k in
-                                     ("x_mm", "y_mm", "height_mm", "case_id", "order", "toa_us", "log_energy",
-                                      "clipped", "log_centroid", "decay_per_s", "log_noise", "hum_counts",
-                                      "plateau_hi", "plateau_lo", "pick_period")})
-    return float(R.fit_reference(F, "calibrated").slowness_us_per_mm)
-
-
-def e_scale_scan(params, data, picker, change_pct: float, seed: int = 0, workers: int = 2,
-                 drops: int = E_SCAN_DROPS, draws: int = E_SCAN_DRAWS) -> dict:
-    """E_new / E_old of the twin's plate for a pick velocity change of change_pct % measured on DATA_NEW (`data`),
-    by the twin's own E scan at those picks (see the module doc): up to `drops` of DATA_NEW's declared drops
-    simulated by the twin at its E and at the first guess (`e_scale_for_speed`), each with `draws` draws of
-    the twin's noise (the same at both E), picked by `picker` as diagnose picked them, give the picks' own
-    exponent n = d ln v / d ln E there; E_new / E_old = (1 + change_pct / 100)^(1 / n).
-    The exponent is measured again at that answer (E_SCAN_STEPS: a pick can change its cycle between two E,
-    so n depends on the step). The scan's n scatters from session to session (docs/findings.md "E from the
-    picks' own law"), so the E returned is the geometric mean of the scan's and the A0
-    curve's (`e_scale_for_speed`, the fixed-frequency model): the mean of their 1 / n. Returns {"e_scale",
-    "exponent" (the scan's), "first_guess" (the curve's), "scan_e_scale"}; a scan whose exponent is outside
-    E_SCAN_EXPONENTS (not a flexural pick) is not used (the curve's alone)."""
-    from .sim.simulate import simulate_voltages, to_adc
-
-    rng = np.random.default_rng(seed)
-    sub = data.subset(np.sort(rng.choice(len(data), min(drops, len(data)), replace=False)))
-
-    def slowness(p) -> float:
-        volts = simulate_voltages(p, data.rig, sub.x_mm, sub.y_mm, sub.height_mm, workers=workers)["volts"]
-        return _pick_slowness([dataclasses.replace(sub, adc=to_adc(volts, p, data.rig, noise=True, seed=seed + k))
-                               for k in range(draws)], picker)
-
-    s0 = slowness(params)
-    guess = e_scale_for_speed(params, 1000.0 / s0, change_pct)
-    out = {"e_scale": guess, "exponent": float("nan"), "first_guess": guess}
-    scale = guess
-    for _ in range(E_SCAN_STEPS):   # the exponent measured again at the last answer: picks are not smooth in E
-        if abs(np.log(scale)) < 1e-6:
-            break
-        n = float(np.log(s0 / slowness(dataclasses.replace(params, e_pa=params.e_pa * scale))) / np.log(scale))
-        if not E_SCAN_EXPONENTS[0] <= n <= E_SCAN_EXPONENTS[1]:
-            break
-        scale = float((1.0 + change_pct / 100.0) ** (1.0 / n))
-        out.update(e_scale=scale, exponent=n)
-    if np.isfinite(out["exponent"]) and abs(np.log(guess)) > 1e-6:
-        # the scan's exponent scatters from session to session (its drops, the picks' cycles); the A0 curve's
-        # is the fixed-frequency model: E from the mean of their 1 / n (the geometric mean of the two scales)
-        out["scan_e_scale"] = out["e_scale"]
-        out["e_scale"] = float(np.sqrt(out["e_scale"] * guess))
-    return out
-
-
-def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: int = 2) -> list:
-    """`accepted` with each wave_speed candidate's E change sized by the twin's scan on DATA_NEW's drops
-    (`e_scale_scan`): its params gain e_scale (E_new / E_old, what `corrected_twin` puts in), e_exponent (the
-    scan's n), e_scale_scan and e_scale_curve (the scan's and the A0 curve's own), and e_scale_lo / e_scale_hi:
-    the pick velocity change's 95 % interval mapped through the scan's and the curve's exponents (E moves by the
-    change / n, n 0.3-0.45; the two exponents differ by more than the scan's noise on some plates), the range of
-    E the picks and the conversion allow."""
-    from .diagnose import _param_ci, _param_se
-
-    out = []
-    for c in accepted:
-        if c.effect == "wave_speed" and "e_scale" not in c.params:
-            scan = e_scale_scan(params, data, picker, c.params["change_pct"], seed, workers)
-            extra = {"e_scale": scan["e_scale"], "e_exponent": scan["exponent"],
-                     "e_scale_scan": scan.get("scan_e_scale", scan["e_scale"]), "e_scale_curve": scan["first_guess"]}
-            ci = _param_ci(c, _param_se(c)).get("change_pct")
-            scales = [v for v in (extra["e_scale_scan"], extra["e_scale_curve"]) if abs(np.log(v)) > 1e-9]
-            if ci is not None and scales:
-                ns = [np.log1p(c.params["change_pct"] / 100.0) / np.log(v) for v in scales]
-                ends = [float(np.exp(np.log1p(v / 100.0) / n)) for v in ci for n in ns]
-                extra.update(e_scale_lo=min(ends), e_scale_hi=max(ends))
-            c = dataclasses.replace(c, params={**c.params, **extra})
-        out.append(c)
-    return out
 
 
 def corrected_twin(params, rig, effects):

@@ -214,7 +214,8 @@ def twin_model(args, base, data, details, accepted, settings, exclude, site, out
 
     params = twin_params(args, None)
     # a plate speed change: its E by the twin's own scan at DATA_NEW's drops, picked as diagnose picked them
-    accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed)
+    accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed,
+                                 base=base)
     sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
                                  details["ref"].slowness_us_per_mm, args.seed)
     model, _ = train(sess, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
