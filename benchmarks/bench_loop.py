@@ -87,9 +87,12 @@ def _size_check(truth: dict, e: dict, ds_ref: float, twin=None) -> tuple[str, bo
         return (f"E {got:+.1f} % ({how}; pick velocity {p['change_pct']:+.2f}"
                 f"{_ci(e, 'change_pct', fmt='{:+.2f}')} %) vs {want:+.1f} %", abs(got - want) <= TOL["e_pct"])
     if "damping_scale" in t and e["effect"] == "damping":
-        got = 2 * p["extra_decay_per_s"] / ds_ref
+        got = p["damping_scale"] - 1 if "damping_scale" in p else 2 * p["extra_decay_per_s"] / ds_ref
         want = t["damping_scale"] - 1
-        return (f"D_s {100 * got:+.1f}{_ci(e, 'extra_decay_per_s', 200 / ds_ref)} % vs {100 * want:+.1f} %",
+        how = "" if "damping_scale" not in p else (
+            f" (twin's decay curve; twice the extra decay: {200 * p['extra_decay_per_s'] / ds_ref:+.1f}"
+            f"{_ci(e, 'extra_decay_per_s', 200 / ds_ref)} %)")
+        return (f"D_s {100 * got:+.1f} %{how} vs {100 * want:+.1f} %",
                 abs(got - want) <= TOL["ds_frac"])
     vals = ", ".join(f"{k}={v:.3g}{_ci(e, k, fmt='{:.3g}')}" for k, v in p.items()
                      if isinstance(v, (int, float)) and k != "hum_hz")
@@ -146,12 +149,11 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         # as `impactsense retrain --twin`: a plate speed change sized in E by the twin's scan at these picks
         accepted = size_plate_change(sim_params, sess, accepted, res["timing_picker"], args.seed, args.workers,
                                      base=ref)
-        for e in res["effects"]:
-            c = next((c for c in accepted if c.effect == e["effect"] == "wave_speed"), None)
+        for e in res["effects"]:   # the plate's sizes from the twin's curves (E, D_s) into the reported effect
+            c = next((c for c in accepted if c.effect == e["effect"] and c.effect in ("wave_speed", "damping")), None)
             if c is not None:
-                e["params"] = {**e["params"], **{k: c.params[k] for k in
-                                                 ("e_scale", "e_exponent", "e_scale_change", "e_scale_pick",
-                                                  "e_scale_band", "e_scale_curve", "e_scale_lo", "e_scale_hi") if k in c.params}}
+                e["params"] = {**e["params"], **{k: v for k, v in c.params.items()
+                                                 if k.startswith(("e_scale", "e_exponent", "damping_scale"))}}
         slow = det["ref"].slowness_us_per_mm
         # as `impactsense retrain` with a twin: a random effect's drops also at the twin's new positions
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed,

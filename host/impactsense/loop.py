@@ -9,7 +9,8 @@
   and the disc's bands hold the frequency back), so the picks' n lies between, and it depends on the
   distances and the noise, and it is not smooth in E. `plate_scan.e_scale_scan` reads E off the twin's own
   pick-velocity curve on DATA_NEW's declared drops (`size_plate_change` puts it into the effect, `corrected_twin`
-  reads it); `damping` raises the twin's mass-proportional D_s by twice the
+  reads it); `damping` scales the twin's mass-proportional D_s as the twin's own decay curve reads the data
+  (`plate_scan.damping_scale_scan`, put in by `size_plate_change`), without it by twice the
   envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
 - at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
   clipping, by each effect's own `apply_signal`.
@@ -104,7 +105,9 @@ def corrected_twin(params, rig, effects):
             scale = p["e_scale"] if "e_scale" in p else e_scale_for_speed(params, v_ref, p["change_pct"])
             params = dataclasses.replace(params, e_pa=params.e_pa * scale)
         elif e["effect"] == "damping":
-            params = dataclasses.replace(params, damping_per_s=params.damping_per_s + 2.0 * p["extra_decay_per_s"])
+            d_s = params.damping_per_s * p["damping_scale"] if "damping_scale" in p else \
+                params.damping_per_s + 2.0 * p["extra_decay_per_s"]
+            params = dataclasses.replace(params, damping_per_s=d_s)
     return params, rig_from_dict(raw)
 
 

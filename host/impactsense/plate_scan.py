@@ -32,6 +32,7 @@ SCAN_MAX_STEPS = 10       # at most this many grid points beyond E (a change up 
 SCAN_PAST = 1             # grid points past the farthest crossing (the local line's other side)
 SCAN_DRAWS = 6            # draws of the twin's noise at every E
 LOCAL_HALF_WIDTH = 0.03   # ln E half-width of the least-squares line about the crossing
+DAMPING_STEP = 0.1        # the twin's D_s grid step (D_s new / D_s old - 1)
 
 
 def pick_slowness(sessions, picker) -> float:
@@ -195,12 +196,57 @@ def _interval(answer: float, got: dict, sd: dict, ci) -> dict:
     return {"e_scale_lo": float(np.exp(answer - half)), "e_scale_hi": float(np.exp(answer + half))}
 
 
+def decay_statistic(session, picker=None) -> float:
+    """The drops' envelope decay rate (1/s): the median of the core's decay_per_s over drops and channels."""
+    from . import residuals as R
+
+    return float(np.nanmedian(R.extract(session, picker).decay_per_s))
+
+
+def damping_scale_scan(params, data, picker, extra_decay_per_s: float, base=None, seed: int = 0,
+                       workers: int = 2, draws: int = 3) -> dict:
+    """D_s new / D_s old of the twin's plate from the twin's own decay curve on DATA_NEW's declared drops: the
+    twin at D_s x (1 + k DAMPING_STEP) (k = 0, 1, ... in the change's direction), the drops' median envelope
+    decay (`decay_statistic`) each; the target is DATA_NEW's own decay less the twin's miss on DATA_REF (with
+    `base`), else the twin's decay at D_s plus the diagnosis's extra decay. Every mode decays as
+    exp(-D_s t / 2), but the envelope 1-8 ms after the onset also holds the noise the faster decay reaches
+    sooner, so the decay moves by less than D_s / 2 (rig-b's twin: 0.41). Returns {"damping_scale", "readings"}."""
+    def twin(session, scale):
+        where = np.stack([session.x_mm, session.y_mm, session.height_mm], 1)
+        pos, inv = np.unique(where, axis=0, return_inverse=True)
+        p = dataclasses.replace(params, damping_per_s=params.damping_per_s * scale)
+        from .sim.simulate import simulate_voltages, to_adc
+
+        volts = simulate_voltages(p, session.rig, pos[:, 0], pos[:, 1], pos[:, 2], workers=workers)["volts"]
+        volts = volts[np.asarray(inv).ravel()]
+        return float(np.mean([decay_statistic(dataclasses.replace(session, adc=to_adc(volts, p, session.rig,
+                                                                                      noise=True, seed=seed + k)),
+                                              picker) for k in range(draws)]))
+
+    values = [twin(data, 1.0)]
+    targets = {"change": values[0] + extra_decay_per_s}
+    if base is not None:
+        targets["same_drops"] = decay_statistic(data, picker) - decay_statistic(base, picker) + twin(base, 1.0)
+    sign = 1.0 if extra_decay_per_s > 0 else -1.0
+    ln_d = [0.0]
+    for k in range(1, SCAN_MAX_STEPS + 1):
+        if all(_beyond(values, t, sign) for t in targets.values()):
+            break
+        ln_d.append(float(np.log(1.0 + sign * k * DAMPING_STEP)))
+        values.append(twin(data, float(np.exp(ln_d[-1]))))
+    got = {n: float(np.exp(crossing(np.array(ln_d), np.array(values), t, 1.5 * DAMPING_STEP)[0]))
+           for n, t in targets.items()}
+    return {"damping_scale": got["same_drops" if "same_drops" in got else "change"], "readings": got}
+
+
 def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: int = 2, base=None) -> list:
     """`accepted` with each wave_speed candidate's E change sized by the twin's own curves (`e_scale_scan`;
     `base`: DATA_REF, for the data's readings against the twin at the same drops): its params gain e_scale
     (E_new / E_old, what `corrected_twin` puts in), e_scale_<reading> for each reading (change, pick, band),
     e_exponent (-d ln s / d ln E of the threshold picks' curve at the answer), e_scale_curve (the A0 curve's
-    first guess) and e_scale_lo / e_scale_hi (the range of E a session's pick noise allows)."""
+    first guess) and e_scale_lo / e_scale_hi (the range of E a session's pick noise allows); and each damping
+    candidate's D_s change by the twin's decay curve (`damping_scale_scan`): damping_scale (D_s new / D_s old,
+    what `corrected_twin` puts in) and damping_scale_<reading>."""
     from .diagnose import _param_ci, _param_se
 
     out = []
@@ -211,6 +257,11 @@ def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: in
             extra = {"e_scale": scan["e_scale"], "e_exponent": scan["exponent"], "e_scale_curve": scan["first_guess"]}
             extra.update({f"e_scale_{name}": v for name, v in scan["readings"].items()})
             extra.update({k: scan[k] for k in ("e_scale_lo", "e_scale_hi") if k in scan})
+            c = dataclasses.replace(c, params={**c.params, **extra})
+        elif c.effect == "damping" and "damping_scale" not in c.params:
+            scan = damping_scale_scan(params, data, picker, c.params["extra_decay_per_s"], base, seed, workers)
+            extra = {"damping_scale": scan["damping_scale"]}
+            extra.update({f"damping_scale_{name}": v for name, v in scan["readings"].items()})
             c = dataclasses.replace(c, params={**c.params, **extra})
         out.append(c)
     return out
