@@ -48,5 +48,27 @@ def test_size_plate_change_carries_the_readings_and_passes_other_effects(monkeyp
     assert (p["e_scale"], p["e_scale_change"], p["e_scale_pick"], p["e_scale_band"], p["e_exponent"],
             p["e_scale_curve"]) == (0.91, 0.90, 0.92, 0.905, 0.4, 0.88)
     assert p["e_scale_lo"] < p["e_scale"] < p["e_scale_hi"]
-    other = Candidate("damping", None, {"extra_decay_per_s": 10.0}, 5.0, 0.01, True, True, [])
+    other = Candidate("channel_delay", 1, {"delay_us": 5.0}, 5.0, 0.01, True, True, [])
     assert plate_scan.size_plate_change(None, None, [other], None)[0] is other
+
+
+def test_a_damping_change_is_sized_by_the_twin_decay_curve_and_read_by_the_corrected_twin(monkeypatch):
+    """size_plate_change puts the twin's decay-curve reading into a damping candidate (damping_scale), and
+    corrected_twin scales D_s by it rather than adding twice the extra decay."""
+    import dataclasses
+
+    from impactsense.loop import corrected_twin
+    from impactsense.data import load_session
+    from impactsense.sim import SimParams
+
+    cand = Candidate("damping", None, {"extra_decay_per_s": 40.0, "change_pct": 8.0}, 20.0, 1e-6, True, True, [])
+    monkeypatch.setattr(plate_scan, "damping_scale_scan",
+                        lambda *a, **k: {"damping_scale": 1.19, "readings": {"change": 1.18, "same_drops": 1.19}})
+    (out,) = plate_scan.size_plate_change(None, None, [cand], None, base="REF")
+    assert out.params["damping_scale"] == 1.19 and out.params["damping_scale_change"] == 1.18
+    rig = load_session("bundled:session-1").rig
+    p = dataclasses.replace(SimParams.from_rig(rig), damping_per_s=400.0)
+    eff = [{"effect": "damping", "sensor": None, "params": out.params}]
+    assert corrected_twin(p, rig, eff)[0].damping_per_s == pytest.approx(476.0)
+    eff[0]["params"] = {"extra_decay_per_s": 40.0}
+    assert corrected_twin(p, rig, eff)[0].damping_per_s == pytest.approx(480.0)   # without the curve: 2 x 40

@@ -19,6 +19,7 @@ steep (docs/findings.md, issue 16 "E by the twin's own curve"). So E is read off
   (0.4-0.6 % of the slowness on rig-b's twin), and is kept as a reading for the record only;
 - E is where a least-squares line through the curve's points near the crossing meets the target; the readings'
   E are averaged with weights from their variance (a session's single draw: the twin's draw-to-draw scatter).
+A damping change is read the same way off the twin's decay curve (`damping_scale_scan`).
 """
 
 from __future__ import annotations
