@@ -132,6 +132,32 @@ def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity()
     assert scan["e_scale_lo"] < scan["e_scale"] < scan["e_scale_hi"]
 
 
+@pytest.mark.slow
+def test_damping_scale_scan_recovers_a_known_plate_damping_from_the_decay():
+    """The twin's own decay curve read backwards: DATA_NEW made by the twin with D_s x 1.2, DATA_REF as declared
+    at other positions; the same-drop reading maps back to D_s within issue 16's 5 %, and the rule it replaces
+    (twice the extra envelope decay) reads less (the envelope also holds the noise a faster decay reaches
+    sooner)."""
+    from impactsense.plate_scan import damping_scale_scan, decay_statistic
+    from impactsense.sim.doe import virtual_drops
+    DROPS = 24
+    p = _twin()
+    base = load_session("bundled:session-1")
+
+    def session(d_scale, seed):
+        x, y, h = virtual_drops(base.rig, DROPS, seed, 20.0, 32.0)
+        q = dataclasses.replace(p, damping_per_s=p.damping_per_s * d_scale)
+        volts = sim.simulate_voltages(q, base.rig, x, y, h)["volts"]
+        return Session(base.path, base.rig, np.arange(DROPS), np.arange(DROPS), np.zeros(DROPS, int), x, y, h,
+                       sim.to_adc(volts, q, base.rig, noise=True, seed=seed + 50))
+
+    data, ref = session(1.2, 3), session(1.0, 4)
+    extra = decay_statistic(data) - decay_statistic(ref)
+    scan = damping_scale_scan(p, data, None, extra, base=ref, draws=2)
+    assert scan["damping_scale"] == pytest.approx(1.2, abs=0.05), scan
+    assert 2.0 * extra / p.damping_per_s < scan["damping_scale"] - 1.0, (extra, scan)
+
+
 def _noise_candidate(white):
     return D.Candidate("noise", None, {"white_rms_counts": white, "hum_counts": 0.0, "hum_hz": 50.0}, 10.0, 0.0,
                        True, True, [])
