@@ -34,6 +34,7 @@ SCAN_PAST = 1             # grid points past the farthest crossing (the local li
 SCAN_DRAWS = 6            # draws of the twin's noise at every E
 LOCAL_HALF_WIDTH = 0.03   # ln E half-width of the least-squares line about the crossing
 DAMPING_STEP = 0.1        # the twin's D_s grid step (D_s new / D_s old - 1)
+DAMPING_MAX_STEPS = 5     # at most this many (a change up to 50 % of D_s; beyond, the local line extrapolates)
 
 
 def pick_slowness(sessions, picker) -> float:
@@ -230,7 +231,7 @@ def damping_scale_scan(params, data, picker, extra_decay_per_s: float, base=None
         targets["same_drops"] = decay_statistic(data, picker) - decay_statistic(base, picker) + twin(base, 1.0)
     sign = 1.0 if extra_decay_per_s > 0 else -1.0
     ln_d = [0.0]
-    for k in range(1, SCAN_MAX_STEPS + 1):
+    for k in range(1, DAMPING_MAX_STEPS + 1):
         if all(_beyond(values, t, sign) for t in targets.values()):
             break
         ln_d.append(float(np.log(1.0 + sign * k * DAMPING_STEP)))
