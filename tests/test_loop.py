@@ -98,7 +98,6 @@ def test_corrected_twin_carries_plate_and_sensor_effects():
     assert [e["effect"] for e in signal] == ["channel_delay"] and len(twin) == 3
 
 
-@pytest.mark.slow
 def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity():
     """The twin's own pick-velocity curve read backwards: DATA_NEW made by the twin on a plate with E x 0.92,
     DATA_REF on the plate as declared at other positions; the change (the picks' slowness, the residual
@@ -132,7 +131,6 @@ def test_e_scale_scan_recovers_a_known_plate_stiffness_from_the_picks_velocity()
     assert scan["e_scale_lo"] < scan["e_scale"] < scan["e_scale_hi"]
 
 
-@pytest.mark.slow
 def test_damping_scale_scan_recovers_a_known_plate_damping_from_the_decay():
     """The twin's own decay curve read backwards: DATA_NEW made by the twin with D_s x 1.2, DATA_REF as declared
     at other positions; the same-drop reading maps back to D_s within issue 16's 5 %, and the rule it replaces
