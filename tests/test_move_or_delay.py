@@ -160,3 +160,14 @@ def test_the_joint_test_sees_moves_along_and_across_the_look_direction():
 def test_joint_test_without_band_picks_is_silent():
     rng = np.random.default_rng(0)
     assert joint_test(_reference(), _features(rng, move=np.array([5.0, -5.0])), 2)["p_value"] == 1.0
+
+
+def test_joint_test_without_the_channels_band_picks_is_silent():
+    """A strong bond's low-pass can lose one channel's band picks on every drop: no evidence, not an error."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(0)
+    F = _with_band(rng, _features(rng, move=np.array([5.0, -5.0])), move=np.array([5.0, -5.0]))
+    tb = F.toa_band_us.copy()
+    tb[:, 2] = np.nan
+    assert joint_test(_band_reference(), replace(F, toa_band_us=tb), 2)["p_value"] == 1.0
