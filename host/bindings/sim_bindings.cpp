@@ -132,7 +132,7 @@ NB_MODULE(_sim, m) {
           [](const is::Plate& p, double dt_s, int64_t n_steps, int record_every, int64_t n_record,
              nb::object ball, nb::object load, nb::list sensors, bool record_field, bool record_energy,
              bool stop_after_contact, double quiet_after_contact_s, double quiet_after_contact_fraction,
-             bool force_only, int nan_check_every, double load_delay_s, nb::object w0,
+             bool force_only, int nan_check_every, double load_delay_s, double load_lowpass_s, nb::object w0,
              nb::object bx0, nb::object by0, nb::object vw0, nb::object vbx0, nb::object vby0) {
             is::RunConfig c;
             c.dt_s = dt_s;
@@ -156,6 +156,7 @@ NB_MODULE(_sim, m) {
               c.load = functional(load);
             }
             c.load_delay_s = load_delay_s;
+            c.load_lowpass_s = load_lowpass_s;
             for (auto s : sensors) c.sensors.push_back(functional(s));
             c.record_field = record_field;
             c.record_energy = record_energy;
@@ -198,7 +199,7 @@ NB_MODULE(_sim, m) {
           "load"_a = nb::none(), "sensors"_a = nb::list(), "record_field"_a = false, "record_energy"_a = false,
           "stop_after_contact"_a = false, "quiet_after_contact_s"_a = 100e-6,
           "quiet_after_contact_fraction"_a = 1.0, "force_only"_a = false, "nan_check_every"_a = 50,
-          "load_delay_s"_a = 0.0,
+          "load_delay_s"_a = 0.0, "load_lowpass_s"_a = 0.0,
           "w0"_a = nb::none(), "bx0"_a = nb::none(), "by0"_a = nb::none(), "vw0"_a = nb::none(),
           "vbx0"_a = nb::none(), "vby0"_a = nb::none(),
           "Explicit run; returns a dict (sensors [n_sensors, n_record] hat-sampled, field [n_record, nodes] "

@@ -127,6 +127,9 @@ struct RunConfig {
   bool hat_load = false;
   Functional load;
   double load_delay_s = 0;       // the hat centred at Delta + load_delay_s (>= 0): a disc's sub-sample delay
+  // > 0: the hat through a first-order low-pass of this time constant (exact in continuous time): a disc's bond
+  // transferring the plate's strain to the disc (docs/method.md, "The discs' bond"); 0: the hat itself
+  double load_lowpass_s = 0;
   std::vector<Functional> sensors;  // recorded on the record grid
   bool record_field = false;        // record w of every node on the record grid (reciprocity)
   bool record_energy = false;       // energy at each record sample

@@ -16,6 +16,7 @@ void Plate::Run::validate() const {
   need(c.n_steps >= 0, "n_steps must be >= 0");
   need(c.record_every >= 1, "record_every must be >= 1");
   need(c.load_delay_s >= 0, "load_delay_s must be >= 0");
+  need(c.load_lowpass_s >= 0 && std::isfinite(c.load_lowpass_s), "load_lowpass_s must be finite and >= 0");
   need(c.n_record >= 0, "n_record must be >= 0");
   need(c.load.node.size() == c.load.wx.size() && c.load.node.size() == c.load.wy.size(),
        "functional arrays differ in size");

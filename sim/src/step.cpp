@@ -36,10 +36,25 @@ double Plate::Run::contact(double t, double& delta) {
 }
 
 // The hat load (reciprocity runs) and the node springs and dashpots (-k w_n - c v_{n-1/2}); loads sorted.
+// The hat through a first-order low-pass of time constant tau: the hat is (r(s) - 2 r(s - Delta) + r(s - 2 Delta))
+// / Delta with r the unit ramp from its start s = t - load_delay_s, and the low-pass's ramp response is
+// s - tau (1 - exp(-s / tau)) for s > 0 (0 before); after the hat (s >= 2 Delta) the ramps' linear parts cancel and
+// the tail is tau exp(-(s - 2 Delta) / tau) (1 - exp(-Delta / tau))^2 / Delta, written so (no cancellation).
+static double lowpassed_hat(double s, double delta, double tau) {
+  if (s >= 2.0 * delta) {
+    const double e = -std::expm1(-delta / tau);
+    return tau * std::exp(-(s - 2.0 * delta) / tau) * e * e / delta;
+  }
+  auto ramp = [tau](double u) { return u > 0 ? u + tau * std::expm1(-u / tau) : 0.0; };
+  return (ramp(s) - 2.0 * ramp(s - delta)) / delta;
+}
+
 void Plate::Run::add_loads(double t) {
   const double delta_rec = c_.record_every * c_.dt_s;
   if (c_.hat_load) {
-    const double phi = std::max(0.0, 1.0 - std::fabs(t - delta_rec - c_.load_delay_s) / delta_rec);
+    const double phi = c_.load_lowpass_s > 0
+                           ? lowpassed_hat(t - c_.load_delay_s, delta_rec, c_.load_lowpass_s)
+                           : std::max(0.0, 1.0 - std::fabs(t - delta_rec - c_.load_delay_s) / delta_rec);
     if (phi > 0) {
       for (size_t k = 0; k < hat_.node.size(); ++k) {
         loads_.push_back({hat_.node[k], 1, Real(phi * hat_.wx[k])});

@@ -153,26 +153,42 @@ def reciprocal_fields(model: Model, *, workers: int = 2) -> list:
 
 def delayed_fields(model: Model, delays_s, *, workers: int = 2) -> list:
     """The reciprocal fields with disc s's response delayed by delays_s[s] (s): a channel's time skew acting on
-    the analogue signal before the recorder samples it, as a multiplexed ADC or a cable's delay does. The
-    fraction of a sample shifts the reciprocity run's hat load (one more solve per delayed disc), the whole
-    samples shift the record; a delay 0 keeps the cached field."""
+    the analogue signal before the recorder samples it, as a multiplexed ADC or a cable's delay does
+    (`analogue_fields`)."""
+    return analogue_fields(model, delays_s, None, workers=workers)
+
+
+def analogue_fields(model: Model, delays_s=None, bonds=None, *, workers: int = 2) -> list:
+    """The reciprocal fields with disc s's analogue signal delayed by delays_s[s] (s) and passed through
+    bonds[s] (a `bond.DiscBond`: its first-order low-pass in continuous time, then its gain; None: rigid) before
+    the recorder samples it. The fraction of a sample and the low-pass act on the reciprocity run's hat load
+    (one more solve per such disc: `load_delay_s`, `load_lowpass_s`), the whole samples shift the record; a disc
+    with neither keeps the cached field."""
     fields = list(reciprocal_fields(model, workers=workers))
+    n = len(fields)
+    delays_s = [0.0] * n if delays_s is None else list(delays_s)
+    bonds = [None] * n if bonds is None else list(bonds)
+    if len(delays_s) != n or len(bonds) != n:
+        raise ConfigError(f"disc delays and bonds need one entry per disc ({n})")
     delta = model.record_every * model.dt_s
-    for s, d in enumerate(delays_s):
-        if not d:
+    for s, (d, bond) in enumerate(zip(delays_s, bonds)):
+        tau = 0.0 if bond is None else bond.time_constant_s
+        if not d and bond is None:
             continue
         whole = int(math.floor(d / delta + 1e-9))       # a whole number of samples within rounding: no solve
         frac = d - whole * delta
         f = fields[s]
-        if frac > 1e-9 * delta:
+        if frac > 1e-9 * delta or tau > 0:
             f = np.asarray(_run(model, dt_s=model.dt_s, n_steps=model.n_record * model.record_every,
                                 record_every=model.record_every, n_record=model.n_record, load=model.sensors[s],
-                                record_field=True, load_delay_s=frac)["field"])
+                                record_field=True, load_delay_s=max(frac, 0.0), load_lowpass_s=tau)["field"])
         out = np.zeros_like(f)
         if whole >= 0:
             out[whole:] = f[:f.shape[0] - whole]
         else:
             out[:whole] = f[-whole:]
+        if bond is not None:
+            out *= np.float32(bond.gain)
         fields[s] = out
     return fields
 
@@ -266,12 +282,12 @@ def batch_solver(params: SimParams, rig, solver: str | None, n_drops: int | None
 
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,
                       solver: str | None = None, workers: int = 2, progress: bool = False,
-                      scheduler: str | None = None, disc_delays_s=None) -> dict:
+                      scheduler: str | None = None, disc_delays_s=None, disc_bonds=None) -> dict:
     """Disc voltages [n, 4, n_record] (volts, ADC grid, t = 0 at the first touch) and contact details.
     solver: "direct" (the explicit FEM; `method` picks its path) or "modal" (None: params.solver).
     scheduler: a Dask scheduler's address (None: executor.scheduler(), the process's; "" : here).
-    disc_delays_s: a time skew per disc on the analogue signal (`delayed_fields`; the direct solver's fast path
-    only)."""
+    disc_delays_s: a time skew per disc on the analogue signal; disc_bonds: a `bond.DiscBond` (or None) per disc,
+    its strain transfer on the analogue signal (`analogue_fields`; both the direct solver's fast path only)."""
     x, y, h = check_impacts(rig, params, x_mm, y_mm, height_mm)
     solver = solver or params.solver
     if solver not in ("direct", "modal"):
@@ -281,10 +297,11 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
     method = method or params.method
     if method not in ("auto", "fast", "direct"):
         raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
-    if disc_delays_s is not None and (solver != "direct" or method != "fast"):
-        raise ConfigError("disc_delays_s needs the direct solver's fast path (method 'fast')")
+    analogue = disc_delays_s is not None or disc_bonds is not None
+    if analogue and (solver != "direct" or method != "fast"):
+        raise ConfigError("disc_delays_s and disc_bonds need the direct solver's fast path (method 'fast')")
     address = executor.scheduler() if scheduler is None else scheduler
-    if address and disc_delays_s is None:
+    if address and not analogue:
         return _on_cluster(address, params, rig, x, y, h, method, solver, progress)
     model = get_model(params, rig)
     v0 = impact_velocity(params, h)
@@ -294,8 +311,8 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
         cached = getattr(_CACHE.get((params, _rig_key(rig))), "_fields", None) is not None
         method = "fast" if (x.size > 4 or cached) else "direct"
     fields = reciprocal_fields(model, workers=workers) if method == "fast" else None
-    if disc_delays_s is not None:
-        fields = delayed_fields(model, disc_delays_s, workers=workers)
+    if analogue:
+        fields = analogue_fields(model, disc_delays_s, disc_bonds, workers=workers)
 
     def one(k):
         if method == "fast":
