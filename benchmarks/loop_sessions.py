@@ -15,8 +15,11 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
                           point along the sensor's look direction (nearly a constant delay) and some across
 - `stiffness`             FEM: plate E -8 % (another seed: -6 .. -10 %)
 - `damping`               FEM: plate damping D_s +20 % (another seed: +15 .. +25 %)
-- `bond`                  one disc's bond: a first-order shear-lag low-pass (RC, not the library's Butterworth)
-                          with a gain loss, on FEM drops
+- `bond`                  one disc's compliant bond, made by the FEM: the plate's strain reaches the disc through the
+                          bond's stiffness in series with the disc's (`sim.bond.DiscBond`: a first-order strain
+                          transfer with a gain loss, in continuous time before the recorder samples it; the truth's
+                          fc_hz and gain are its -3 dB corner and low-frequency gain); not a digital filter of the
+                          recorded samples
 - `delay`                 a disc's analogue signal delayed before the recorder samples it (the FEM's fast path
                           with the disc's reciprocity run shifted: `sim.simulate.delayed_fields`), as a channel
                           skew does; not a shift of the recorded samples (their onset is aliased on a thin metal
@@ -81,7 +84,7 @@ def spec_list(seed: int, noise_counts=()) -> list[dict]:
                   "truth": {"effect": "wave_speed", "sensor": None, "params": {"e_scale": e_scale}}})
     specs.append({"name": "damping", "kind": "fem", "seed": seed + 21,
                   "truth": {"effect": "damping", "sensor": None, "params": {"damping_scale": damping_scale}}})
-    specs.append({"name": "bond", "kind": "signal", "seed": seed + 22,
+    specs.append({"name": "bond", "kind": "signal", "seed": seed + 22, "made": "analogue bond (FEM)",
                   "truth": {"effect": "channel_lowpass", "sensor": int(rng.integers(4)),
                             "params": {"fc_hz": round(float(rng.uniform(2500, 5000)), 1),
                                        "gain": round(float(rng.uniform(0.6, 0.8)), 3)}}})
@@ -104,26 +107,16 @@ def spec_list(seed: int, noise_counts=()) -> list[dict]:
 
 
 # ---- signal-level changes (independent of impactsense.effects) ------------------------------------------
-def shear_lag(a: np.ndarray, fc_hz: float, gain: float, fs_hz: float) -> np.ndarray:
-    """A compliant bond as a first-order RC (shear-lag) low-pass with a gain loss (bilinear transform)."""
-    from scipy import signal
-
-    b, den = signal.bilinear([1.0], [1.0 / (2 * np.pi * fc_hz), 1.0], fs=fs_hz)
-    return gain * signal.lfilter(b, den, a, axis=-1)
-
-
 def signal_change(counts: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
     """The change on clean counts (float, bias removed) of the FEM drops: before the noise, as on a rig
     (a delay, a bond or a gain acts on the disc's signal; the amplifier and ADC noise comes after)."""
     rng = np.random.default_rng(seed + 77)
     a = counts.copy()
     p, s = truth["params"], truth["sensor"]
-    if truth["effect"] == "channel_delay":
-        pass   # made by the FEM (make_session: disc_delays)
+    if truth["effect"] in ("channel_delay", "channel_lowpass"):
+        pass   # made by the FEM (make_session: disc_delays, disc_bonds)
     elif truth["effect"] == "sensor_gain":
         a[:, s] *= p["gain"]
-    elif truth["effect"] == "channel_lowpass":
-        a[:, s] = shear_lag(a[:, s], p["fc_hz"], p["gain"], rig.fs_hz)
     elif "hum_hz" in p:
         t = np.arange(a.shape[-1]) / rig.fs_hz
         ph = rng.uniform(0, 2 * np.pi, (a.shape[0], 1, 1))
@@ -178,6 +171,17 @@ def disc_delays(truth, rig):
     return d
 
 
+def disc_bonds(truth, rig):
+    """A bond's `DiscBond` per disc (None: rigid), or None."""
+    from impactsense.sim.bond import DiscBond
+
+    if truth is None or truth["effect"] != "channel_lowpass":
+        return None
+    bonds = [None] * len(rig.sensors)
+    bonds[truth["sensor"]] = DiscBond.from_gain_corner(truth["params"]["gain"], truth["params"]["fc_hz"])
+    return bonds
+
+
 def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
     from impactsense.sim import simulate_drops
     from impactsense.sim.simulate import simulate_voltages, to_adc
@@ -191,7 +195,7 @@ def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
                              progress=False)
     else:   # the change on the clean signal, then the rig's own noise and the ADC's rounding and rails
         volts = simulate_voltages(params, sim_rig, xt, yt, hd, workers=args.workers,
-                                  disc_delays_s=disc_delays(truth, rig))["volts"]
+                                  disc_delays_s=disc_delays(truth, rig), disc_bonds=disc_bonds(truth, rig))["volts"]
         clean = to_adc(volts, params, sim_rig, noise=False, clip=False).astype(np.float64) - rig.bias_counts
         a = signal_change(clean, truth, rig, spec["seed"])
         a += np.random.default_rng(spec["seed"]).normal(0.0, params.noise_counts_rms, a.shape)
