@@ -71,6 +71,7 @@ def main() -> int:
             models[tag], _ = train(training, None, 0.0, args.seed, None, settings=settings, signal=signal,
                                    site_map=None)
             mae[tag] = score(sess, models[tag])["mae_mm"]
+        both = mean_of_both(sess, models["four"], models["three"], channel)
         check = channel_check_figures(ref, sess, models["four"], channel, args.seed)
         oof = None if args.no_held_out else {"reference": held_out_mae(ref, None, settings, args.seed),
                                              "four": held_out_mae(training, four, settings, args.seed),
@@ -78,6 +79,10 @@ def main() -> int:
     print(f"{args.name}: channel {channel} ({', '.join(f'{c.effect} {c.params}' for c in accepted)})")
     print(f"  on the changed session: four channels {mae['four']:.2f} mm (without the channel check "
           f"{check['four_unchecked_mm']:.2f}), channel {channel} left out {mae['three']:.2f} mm")
+    print(f"  on the {both['n']} drops every way places: four {both['four']:.2f}, trained without the channel "
+          f"{both['three']:.2f}, the four-channel model's three-sensor path {both['fallback']:.2f}; mean of four and "
+          f"trained-without {both['mean']:.2f}, of four and its three-sensor path {both['mean_fallback']:.2f}; the "
+          f"four-channel model's drops flagged {both['flagged']:.2f}")
     print(f"  channel check, channel {channel}'s median score: against the reference's drops "
           f"{check['reference_score']:.2f} (flagged {check['reference_flagged']:.2f}), against a baseline model's "
           f"{check['baseline_score']:.2f} (flagged {check['baseline_flagged']:.2f}), against retrain's four-channel "
@@ -88,6 +93,26 @@ def main() -> int:
         print(f"  training drops held out: reference {oof['reference']:.2f}, four {oof['four']:.2f} "
               f"({oof['four'] / oof['reference']:.2f} x), three {oof['three']:.2f} ({oof['three'] / oof['four']:.2f} x four)")
     return 0
+
+
+def mean_of_both(sess, four_model, three_model, channel: int) -> dict:
+    """MAE per axis (mm) on the changed session's drops every way places: the four-channel model, the model
+    trained with the channel left out, the four-channel model told to leave it out at prediction (its
+    three-sensor path), and the means of the four-channel position with each; the share of drops the
+    four-channel model's report flags (bad_channel)."""
+    p4 = four_model.predict(four_model.featurize(sess.adc))
+    fallback = copy.copy(four_model)
+    fallback.signal = leave_out(four_model.signal, [channel])
+    pf = fallback.predict(fallback.featurize(sess.adc))["xy_mm"]
+    p3 = three_model.predict(three_model.featurize(sess.adc))["xy_mm"]
+    xy4 = p4["xy_mm"]
+    ok = np.all(np.isfinite(xy4) & np.isfinite(p3) & np.isfinite(pf), axis=1)
+    mae = {tag: float(np.mean(np.abs(xy[ok] - sess.xy_mm[ok])))
+           for tag, xy in (("four", xy4), ("three", p3), ("fallback", pf), ("mean", 0.5 * (xy4 + p3)),
+                           ("mean_fallback", 0.5 * (xy4 + pf)))}
+    mae["n"] = int(ok.sum())
+    mae["flagged"] = float(np.mean(np.asarray(p4.get("bad_channel", np.full(len(sess), -1))) >= 0))
+    return mae
 
 
 def channel_check_figures(ref, sess, four_model, channel: int, seed: int) -> dict:

@@ -132,6 +132,7 @@ def train_score(session, trees: int, seed: int, signal=None):
 def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dict:
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
+    from impactsense.bond_choice import fit_with_bond_choice
     from impactsense.loop import (effect_dicts, fit_bond, measured_training_session, pick_settings,
                                   size_plate_change, split_effects, training_draws, twin_training_session,
                                   weak_channel)
@@ -158,7 +159,10 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         # as `impactsense retrain` with a twin: a random effect's drops also at the twin's new positions
         m_sess = measured_training_session(ref, accepted, det["ref"], work / f"{name}-measured", args.seed,
                                            twin=sim_params, workers=args.workers)
-        m_model, _ = train_score(m_sess, args.trees, args.seed, pick_settings(m_sess, accepted))
+        # as `impactsense retrain`: a bond's channel left out (flagged) when DATA_NEW's drops say so (bond_choice)
+        (m_model, _), row["bond_choice"] = fit_with_bond_choice(
+            lambda signal: train_score(m_sess, args.trees, args.seed, signal), pick_settings(m_sess, accepted),
+            sess, accepted, seed=args.seed)
         if m_model.twin_fit is not None:
             m_model.twin_fit.weak_channel = weak_channel(accepted)
         row["measured"] = score(sess, m_model)
@@ -262,6 +266,12 @@ def table(out: dict) -> int:
             size, size_ok = size_check(t, sig[0] if sig else None, ds, twin)
             size += _bond_put_in(t, r.get("effects_added", []))
             loop_ok = r["after"]["mae_mm"] <= RATIO * base
+            choice = r.get("bond_choice")
+            if choice:   # the other way out: a bond the models cannot absorb ends flagged in three sensors
+                loop_ok = loop_ok or choice["chosen"] == "left_out"
+                size += (f"; kept: {'channel left out, flagged' if choice['chosen'] == 'left_out' else 'four channels'}"
+                         f" (four {choice['four_mae_mm']:.2f}, left out {choice['left_out_mae_mm']:.2f}, the rule "
+                         f"cross-fitted {choice['cross_fitted_mae_mm']:.2f} mm)")
             if "twin" in r and twin_base is not None:   # judged against the twin's own unchanged MAE
                 loop_ok = loop_ok and r["after"]["mae_mm"] <= RATIO * twin_base
                 fair = f"{r['after']['mae_mm'] / twin_base:.2f} (twin)"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..bond_choice import fit_with_bond_choice
+
 ORDER = 51
 TRAINING_DATA = "training-data"   # OUT's copy of DATA_REF with the effects put in
 
@@ -100,9 +102,11 @@ def run(args) -> int:
             train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
                                                  twin=twin_params(args, site))
         exclude, measured = training_rows(train_on, base, accepted, exclude)
-        model, split = train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
-                             signal=pick_settings(train_on, accepted), extra_card=card, site_map=site,
-                             twin_rows=measured)
+        (model, split), choice = fit_with_bond_choice(
+            lambda signal: train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
+                                 signal=signal, extra_card=card, site_map=site, twin_rows=measured),
+            pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed)
+        left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
         if accepted:
             split["data_path"] = str(out.resolve() / TRAINING_DATA)
         if not measured.all():   # the twin's own drops: `export` keeps them out of the board model's twin fit too
@@ -121,7 +125,7 @@ def run(args) -> int:
         from ..diagnose import write_report
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
-    print_summary(result, accepted, rows, data.name, site is not None, out)
+    print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"))
     warning = worse_than_baseline(rows, accepted, data.name)
     if warning:
         print(warning)
@@ -151,6 +155,17 @@ def training_rows(train_on, base, accepted, exclude):
     return exclude, np.arange(len(train_on)) < copies
 
 
+def note_bond_choice(card: dict, choice, left_out: list) -> list:
+    """The card's record of the bond choice (bond_choice.fit_with_bond_choice); the channels left out after it."""
+    if choice is None:
+        return left_out
+    card["retrain"]["bond_choice"] = choice
+    if choice["chosen"] == "left_out":
+        left_out = [choice["channel"]]
+    card["retrain"]["channels_left_out"] = left_out
+    return left_out
+
+
 def leave_out(signal, channels):
     """`signal` with the core's channel_left_out set on `channels` (the core treats them as without an onset)."""
     from dataclasses import replace
@@ -158,9 +173,15 @@ def leave_out(signal, channels):
     return replace(signal, channel_left_out=[int(c in channels) for c in range(len(signal.channel_left_out))])
 
 
-def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out) -> None:
+def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None) -> None:
     """retrain's printout: the effects put in, the channels left out, both models' scores on DATA_NEW."""
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
+    if choice is not None:
+        print(f"channel {choice['channel']}'s bond: {name}'s drops placed by the model with its low-pass and gain "
+              f"{choice['four_mae_mm']:.2f} mm, with the channel left out {choice['left_out_mae_mm']:.2f} mm "
+              f"(cross-fitted {choice['cross_fitted_mae_mm']:.2f}): " +
+              ("the channel is left out (three-sensor position and class), flagged"
+               if choice["chosen"] == "left_out" else "the four-channel model is kept"))
     for u in result.get("unabsorbed_channels", []):
         print(f"channel {u['sensor']}: a change the models cannot absorb (its timing asks for a move of "
               f"{u['params']['offset_mm']:.0f} mm, more than a re-glued disc's {u['max_move_mm']:.0f} mm): the model "

@@ -1,0 +1,58 @@
+"""A bond the retrained model may not absorb: the four-channel model (the bond's low-pass and gain put into the
+training drops) against the same drops trained with the bond's channel left out (the core's channel_left_out:
+three-sensor picks, travel fit and forests; its reports flag the channel), chosen on DATA_NEW's own labelled drops.
+
+No label-free figure tells which of the two places a bonded session better (docs/findings.md, "Training with a
+channel left out" and "A debonded channel on a model without a twin"); the loop's new session is labelled (diagnose
+reads it at its declared positions), so the choice is made there, the way retrain already judges its model against
+the baseline's (`retrain.worse_than_baseline`). A choice on the same drops it is scored on is optimistic; the
+cross-fitted figure is the honest one: each half of DATA_NEW's cases placed by the model the other half chose."""
+
+from __future__ import annotations
+
+import numpy as np
+
+CHOICES = ("four", "left_out")
+
+
+def drop_errors(model, session) -> np.ndarray:
+    """|predicted - declared| per drop and axis [n, 2] (mm; NaN where the model gives no position)."""
+    return np.abs(model.predict(model.featurize(session.adc))["xy_mm"] - session.xy_mm)
+
+
+def _mae(err: np.ndarray) -> float:
+    return float(np.nanmean(err)) if np.isfinite(err).any() else float("inf")
+
+
+def choose_left_out(four_model, left_out_model, data, channel: int, seed: int = 0) -> dict:
+    """Which model to keep ("four" or "left_out": the lower MAE per axis on DATA_NEW's drops) with both MAEs and
+    the cross-fitted MAE of the rule (DATA_NEW's cases in two seeded halves; each half placed by the model the
+    other half chose)."""
+    errs = {"four": drop_errors(four_model, data), "left_out": drop_errors(left_out_model, data)}
+    mae = {k: _mae(e) for k, e in errs.items()}
+    chosen = min(CHOICES, key=lambda k: mae[k])
+    cases = np.unique(data.case_id)
+    half = np.isin(data.case_id, np.random.default_rng(seed).permutation(cases)[: cases.size // 2])
+    crossed = np.full_like(errs["four"], np.nan)
+    for rows, other in ((half, ~half), (~half, half)):
+        pick = min(CHOICES, key=lambda k: _mae(errs[k][other]))
+        crossed[rows] = errs[pick][rows]
+    return {"channel": int(channel), "chosen": chosen, "four_mae_mm": mae["four"],
+            "left_out_mae_mm": mae["left_out"], "cross_fitted_mae_mm": _mae(crossed)}
+
+
+def fit_with_bond_choice(fit, signal, data, accepted, *, site_map=None, left_out=(), seed: int = 0):
+    """(fit(signal)'s result, the choice or None). fit trains on the training drops with a signal config and
+    returns (model, ...). With one bond channel put in (loop.weak_channel), no channel left out already and no site
+    map (with one, the twin matches with and without the weak channel and flags it: twin.h weak_channel), the same
+    drops are also fitted with that channel left out, and the one `choose_left_out` keeps is returned."""
+    from .commands.retrain import leave_out
+    from .loop import weak_channel
+
+    channel = weak_channel(accepted)
+    four = fit(signal)
+    if channel < 0 or site_map is not None or len(left_out):
+        return four, None
+    three = fit(leave_out(signal, [channel]))
+    choice = choose_left_out(four[0], three[0], data, channel, seed)
+    return (three if choice["chosen"] == "left_out" else four), choice
