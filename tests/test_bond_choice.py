@@ -1,0 +1,54 @@
+"""retrain's choice for a bond (bond_choice.choose_left_out): the model that places DATA_NEW's labelled drops
+better is kept, and the rule's cross-fitted MAE (each half of the cases placed by the model the other half chose)
+is no better than the better model where one is better everywhere, and worse where each wins on its own half."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from impactsense.bond_choice import choose_left_out
+
+
+class FixedOffsetModel:
+    """A model whose position is the declared one plus a per-case offset (mm)."""
+
+    def __init__(self, offset_by_case: np.ndarray, session):
+        self.offset = offset_by_case[session.case_id]
+        self.session = session
+
+    def featurize(self, adc):
+        return adc
+
+    def predict(self, features):
+        return {"xy_mm": self.session.xy_mm + self.offset[:, None]}
+
+
+@pytest.fixture
+def session():
+    rng = np.random.default_rng(3)
+    case = np.repeat(np.arange(20), 3)
+    return SimpleNamespace(case_id=case, adc=np.zeros((case.size, 4, 8)), xy_mm=rng.uniform(0, 300, (case.size, 2)))
+
+
+def test_the_better_model_is_kept_and_its_cross_fitted_mae_is_its_own(session):
+    four = FixedOffsetModel(np.full(20, 3.0), session)
+    left = FixedOffsetModel(np.full(20, 2.0), session)
+    got = choose_left_out(four, left, session, channel=2, seed=0)
+    assert got["chosen"] == "left_out" and got["channel"] == 2
+    assert got["four_mae_mm"] == pytest.approx(3.0) and got["left_out_mae_mm"] == pytest.approx(2.0)
+    assert got["cross_fitted_mae_mm"] == pytest.approx(2.0)
+    assert choose_left_out(left, four, session, channel=2)["chosen"] == "four"
+
+
+def test_a_choice_that_does_not_carry_over_between_halves_costs_in_the_cross_fitted_figure(session):
+    # each model is the better one on a different half of the cases: whichever half chooses, the other loses
+    cases = np.random.default_rng(0).permutation(np.unique(session.case_id))
+    first = np.isin(np.arange(20), cases[:10])
+    four = FixedOffsetModel(np.where(first, 1.0, 4.0), session)
+    left = FixedOffsetModel(np.where(first, 4.0, 1.5), session)
+    got = choose_left_out(four, left, session, channel=0, seed=0)
+    assert min(got["four_mae_mm"], got["left_out_mae_mm"]) < 2.8
+    assert got["cross_fitted_mae_mm"] == pytest.approx(4.0)
