@@ -7,7 +7,8 @@ recordings (loop.measured_training_session), the core told the channel's gain (l
 `impactsense retrain` and bench_loop do. Prints the changed session's MAE (its own labels) of the model trained
 on four channels and of the one trained with the channel left out, and a label-free candidate for the choice: the
 held-out MAE of both on the training session's own case split (TEST_FRACTION), with the reference's (four
-channels) beside it. No target: a measurement (docs/findings.md "Training with a channel left out").
+channels) beside it; on the drops every way places, the four-channel model's own three-sensor path (the channel
+left out at prediction only) and the mean of the four-channel position with the left-out model's and with it. No target: a measurement (docs/findings.md "Training with a channel left out").
 
 The channel check (channel_check.py) of the changed session: its bond channel's median score against a check fitted
 on the reference's drops (the four-channel model's signal), against a baseline model's (the reference's default
