@@ -37,7 +37,8 @@ static inline void summed_energies(const EventFeatures& f, int skip, float out[1
 // The band localiser's velocity for this event: 1 / (1 / v_band + slope (log10(sum_c E_c / fs) - ref)); the
 // higher the drop, the shorter the contact and the more of the faster high frequencies in the band's rise
 // (docs/findings.md "Band picks: the speed follows the drop"). v_band itself when the slope is 0, the
-// energy is not positive or the slowness would not be.
+// energy is not positive or the slowness would not be. A dead or left-out channel's energy is taken as the
+// mean of the others' (its silence is not a softer drop); with every channel read, the sum is the four's.
 bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e) {
   float sum = 0.0f;
   for (int c = 0; c < kChannels; ++c) sum += energy[c];
@@ -46,13 +47,28 @@ bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e)
   return true;
 }
 
-float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc) {
+float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc) {
   const float v = loc.band_velocity_mm_per_us;
   if (loc.band_slowness_per_decade == 0.0f) return v;
   float energy[kChannels];
-  for (int c = 0; c < kChannels; ++c) energy[c] = f.ch[c].energy;
+  bool missing[kChannels];
+  float read_sum = 0.0f;
+  int read = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    energy[c] = f.ch[c].energy;
+    missing[c] = (f.ch[c].flags & kFlagDead) || cfg.channel_left_out[c];
+    if (!missing[c]) {
+      read_sum += energy[c];
+      ++read;
+    }
+  }
+  if (read > 0 && read < kChannels) {
+    for (int c = 0; c < kChannels; ++c) {
+      if (missing[c]) energy[c] = read_sum / static_cast<float>(read);
+    }
+  }
   float log_e;
-  if (!summed_log_energy(energy, fs_hz, &log_e)) return v;
+  if (!summed_log_energy(energy, cfg.fs_hz, &log_e)) return v;
   const float slowness = 1.0f / v + loc.band_slowness_per_decade * (log_e - loc.band_log_energy_ref);
   return slowness > 0.0f ? 1.0f / slowness : v;
 }
@@ -106,7 +122,7 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
     }
     if (picked >= 3) {
       const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
-      const float band_velocity = band_velocity_for(f, cfg.fs_hz, loc);
+      const float band_velocity = band_velocity_for(f, cfg, loc);
       out->band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
                                 loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
                                 loc.localiser_starts, loc.posterior_grid);

@@ -507,8 +507,9 @@ struct LocaliserConfig {
 };
 
 // The band localiser's velocity for an event: band_velocity_mm_per_us, its slowness moved by
-// band_slowness_per_decade x (log10(sum_c energy_c / fs_hz) - band_log_energy_ref) when that slope is not 0.
-float band_velocity_for(const EventFeatures& f, float fs_hz, const LocaliserConfig& loc);
+// band_slowness_per_decade x (log10(sum_c energy_c / fs_hz) - band_log_energy_ref) when that slope is not 0;
+// a dead (kFlagDead) or left-out (channel_left_out) channel's energy taken as the mean of the others'.
+float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc);
 // log10(sum_c energy[c] / fs_hz) of one event's four channel energies (what band_velocity_for reads; training
 // fits the line on the same number): false (and *log_e untouched) when the sum or fs_hz is not positive.
 bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e);
