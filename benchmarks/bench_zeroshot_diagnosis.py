@@ -23,11 +23,14 @@ A diagnosis, no target: exits 0.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import chain_model_rows  # noqa: E402
 
 
 def per_case_dtoa(session, rows, dtoa):
@@ -170,18 +173,13 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--more-cases", default="8,16", help="cases added to the localiser's refit (comma list)")
     a = ap.parse_args()
-    from impactsense.data import load_session
-    from impactsense.models import ImpactModel
     from impactsense.travel import wants_metric
-    from impactsense.zeroshot import calibration_rows
 
-    session, model = load_session(a.data), ImpactModel.load(a.model)
-    cal_path = model.card.get("calibration")
-    if not cal_path:
-        print(f"{a.model}: not a chain's model (its card names no calibration)")
+    chain = chain_model_rows(a.data, a.model)
+    if chain is None:
         return 2
-    crow = calibration_rows(session, json.loads(open(cal_path).read()))
-    rows = np.setdiff1d(np.arange(len(session)), crow)
+    session, model, rows, crow = chain
+    cal_path = model.card["calibration"]
     print(f"{a.data}: the twin of {cal_path} against the rig")
     twin_against_rig(session, model, cal_path, a.n, a.seed)
     if wants_metric(session.rig):

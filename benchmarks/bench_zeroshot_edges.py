@@ -18,10 +18,13 @@ A diagnosis, no target: exits 0.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import chain_model_rows  # noqa: E402
 
 BANDS = ((0, 40), (40, 60), (60, 80), (80, 120), (120, 1e9))
 
@@ -81,17 +84,13 @@ def main() -> int:
     ap.add_argument("data")
     ap.add_argument("--model", required=True)
     a = ap.parse_args()
-    from impactsense.data import load_session
-    from impactsense.models import ImpactModel, impact_energy_j
+    from impactsense.models import impact_energy_j
     from impactsense.position_members import member_positions
-    from impactsense.zeroshot import calibration_rows
 
-    session, model = load_session(a.data), ImpactModel.load(a.model)
-    cal_path = model.card.get("calibration")
-    if not cal_path:
-        print(f"{a.model}: not a chain's model (its card names no calibration)")
+    chain = chain_model_rows(a.data, a.model)
+    if chain is None:
         return 2
-    rows = np.setdiff1d(np.arange(len(session)), calibration_rows(session, json.loads(open(cal_path).read())))
+    session, model, rows, _ = chain
     xy = session.xy_mm[rows].astype(float)
     dist, along_x, out = edge_geometry(xy, session.rig)
     f = model.featurize(session.adc[rows])

@@ -92,3 +92,21 @@ def rig_study_sessions(args):
     if why:
         print(f"other rigs skipped: {why}")
     return distinct_sessions([*([] if args.skip_bundled else ["bundled"]), *map(str, folders)])
+
+
+def chain_model_rows(data: str, model_path: str):
+    """(session, model, the rows that are not the chain's calibration drops) of a zero-shot chain's model, or
+    None (after saying so) when the model's card names no calibration."""
+    import numpy as np
+
+    from impactsense.data import load_session
+    from impactsense.models import ImpactModel
+    from impactsense.zeroshot import calibration_rows
+
+    session, model = load_session(data), ImpactModel.load(model_path)
+    cal_path = model.card.get("calibration")
+    if not cal_path:
+        print(f"{model_path}: not a chain's model (its card names no calibration)")
+        return None
+    calibration = calibration_rows(session, json.loads(Path(cal_path).read_text()))
+    return session, model, np.setdiff1d(np.arange(len(session)), calibration), calibration

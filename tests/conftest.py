@@ -91,3 +91,19 @@ def board_site_map_20mm():
     from impactsense.sitemap import BUNDLED, SiteMap
 
     return board_site_map(SiteMap.load(BUNDLED), load_session("bundled").rig, 50000, step_mm=20.0, progress=False)
+
+
+COARSE_DROPS = ([120.0, 210.0], [100.0, 230.0], [150.0, 110.0])   # x, y, height (mm) of two drops
+
+
+@pytest.fixture(scope="session")
+def coarse_plate_run():
+    """(rig, params, volts) of the bundled rig's plate on a coarse 8 mm mesh, 3 ms, fast path, at COARSE_DROPS:
+    the band-limited response the disc delay and disc bond tests transform."""
+    from impactsense.data import bundled_session_path, load_rig
+    from impactsense.sim import SimParams
+    from impactsense.sim.simulate import simulate_voltages
+
+    rig = load_rig(bundled_session_path())
+    params = SimParams.from_rig(rig, element_mm=8.0, duration_ms=3.0, taper_ms=0.0, method="fast")
+    return rig, params, simulate_voltages(params, rig, *COARSE_DROPS, workers=1)["volts"]

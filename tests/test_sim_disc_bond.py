@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from impactsense.data import bundled_session_path, load_rig
 from impactsense.errors import ConfigError
-from impactsense.sim import SimParams
 from impactsense.sim.bond import DiscBond
 from impactsense.sim.simulate import simulate_voltages
 
-X, Y, H = [120.0, 210.0], [100.0, 230.0], [150.0, 110.0]
+from conftest import COARSE_DROPS  # noqa: E402
+
+X, Y, H = COARSE_DROPS
 
 
 def through(a: np.ndarray, fs_hz: float, gain: float, corner_hz: float) -> np.ndarray:
@@ -29,11 +29,8 @@ def through(a: np.ndarray, fs_hz: float, gain: float, corner_hz: float) -> np.nd
 
 
 @pytest.fixture(scope="module")
-def setup():
-    rig = load_rig(bundled_session_path())
-    params = SimParams.from_rig(rig, element_mm=8.0, duration_ms=3.0, taper_ms=0.0, method="fast")
-    base = simulate_voltages(params, rig, X, Y, H, workers=1)["volts"]
-    return rig, params, base
+def setup(coarse_plate_run):
+    return coarse_plate_run
 
 
 def test_the_bond_is_first_order_with_the_gain_and_corner_its_stiffnesses_give():

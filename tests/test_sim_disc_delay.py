@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from impactsense.data import bundled_session_path, load_rig
 from impactsense.errors import ConfigError
-from impactsense.sim import SimParams
 from impactsense.sim.simulate import simulate_voltages
 
-X, Y, H = [120.0, 210.0], [100.0, 230.0], [150.0, 110.0]
+from conftest import COARSE_DROPS  # noqa: E402
+
+X, Y, H = COARSE_DROPS
 
 
 def band_limited_shift(a: np.ndarray, delay_samples: float) -> np.ndarray:
@@ -24,11 +24,8 @@ def band_limited_shift(a: np.ndarray, delay_samples: float) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def setup():
-    rig = load_rig(bundled_session_path())
-    params = SimParams.from_rig(rig, element_mm=8.0, duration_ms=3.0, taper_ms=0.0, method="fast")
-    base = simulate_voltages(params, rig, X, Y, H, workers=1)["volts"]
-    return rig, params, base
+def setup(coarse_plate_run):
+    return coarse_plate_run
 
 
 def test_a_whole_sample_delay_moves_the_record_and_leaves_the_other_discs(setup):
