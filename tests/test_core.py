@@ -549,3 +549,18 @@ def test_the_batch_bindings_refuse_arrays_of_another_shape():
     assert feats.shape == (2, 16) and usable.shape == (2,)
     with pytest.raises(ValueError, match=r"int16 \[4, n\]"):
         _core.find_trigger(z((3, 100), np.int16), _core.TriggerConfig())
+
+
+def test_band_log_energy_takes_a_missing_channels_energy_as_the_others_mean():
+    """The band localiser's summed energy: all four read -> summed_log_energy's; a dead (FLAG_DEAD) or left-out
+    channel -> the three others' sum x 4/3, whatever that channel held."""
+    energy = np.array([[1e6, 2e6, 3e6, 6e6], [1e6, 2e6, 0.0, 6e6], [1e6, 2e6, 5e9, 6e6]], np.float32)
+    flags = np.zeros((3, 4), np.uint8)
+    flags[1, 2] = _core.FLAG_DEAD | _core.FLAG_NO_ONSET
+    fs = 50000.0
+    read = _core.band_log_energy_batch(energy, flags, [0, 0, 0, 0], fs)
+    assert read[0] == pytest.approx(_core.summed_log_energy_batch(energy[:1], fs)[0], abs=1e-6)
+    three = np.log10(9e6 * 4 / 3 / fs)
+    assert read[1] == pytest.approx(three, abs=1e-3)            # the core's fast log2: ~1e-4 decades
+    left = _core.band_log_energy_batch(energy, np.zeros((3, 4), np.uint8), [0, 0, 1, 0], fs)
+    assert left[2] == pytest.approx(three, abs=1e-3) and left[1] == pytest.approx(three, abs=1e-3)

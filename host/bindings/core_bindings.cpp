@@ -659,6 +659,24 @@ NB_MODULE(_core, m) {
       },
       "energy"_a, "fs_hz"_a,
       "summed_log_energy (impactcore.h) of every row of the core's channel energies: NaN where not positive.");
+  m.def(
+      "band_log_energy_batch",
+      [](InF energy, InU8 flags, std::vector<int> channel_left_out, float fs_hz) {
+        if (!has_shape(energy, {kAny, 4})) throw std::invalid_argument("energy must be float32 [R, 4]");
+        if (!has_shape(flags, {energy.shape(0), 4})) throw std::invalid_argument("flags must be uint8 [R, 4]");
+        if (channel_left_out.size() != 4) throw std::invalid_argument("channel_left_out must have 4 entries");
+        const size_t r = energy.shape(0);
+        auto out = make_array<float>({r});
+        for (size_t i = 0; i < r; ++i) {
+          float log_e;
+          out.data()[i] = ic::band_log_energy(energy.data() + 4 * i, flags.data() + 4 * i, channel_left_out.data(),
+                                              fs_hz, &log_e) ? log_e : NAN;
+        }
+        return out;
+      },
+      "energy"_a, "flags"_a, "channel_left_out"_a, "fs_hz"_a,
+      "band_log_energy (impactcore.h) of every row: the summed log energy the band localiser reads, a dead or "
+      "left-out channel's energy the mean of the others'; NaN where not positive.");
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

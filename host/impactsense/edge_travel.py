@@ -67,23 +67,12 @@ def pick_set_arrivals(raw: dict, signal, pick_set: str):
     v = float(signal.band_velocity_mm_per_us)
     slowness = np.full(len(toa), 1.0 / v)
     if signal.band_slowness_per_decade:   # impactcore band_velocity_for, as a factor on every channel
-        energy = _read_energy_sum(raw, signal)
-        log_e = np.log10(np.maximum(energy, 1e-30) / signal.fs_hz)
-        line = 1.0 / v + signal.band_slowness_per_decade * (log_e - signal.band_log_energy_ref)
-        slowness = np.where((energy > 0) & (line > 0), line, slowness)
+        log_e = _core.band_log_energy_batch(np.ascontiguousarray(raw["energy"], np.float32),
+                                            np.ascontiguousarray(flags, np.uint8),
+                                            [int(bool(c)) for c in signal.channel_left_out], float(signal.fs_hz))
+        line = 1.0 / v + signal.band_slowness_per_decade * (log_e.astype(float) - signal.band_log_energy_ref)
+        slowness = np.where(np.isfinite(line) & (line > 0), line, slowness)
     return toa, use & np.isfinite(toa), np.repeat((slowness * v)[:, None], 4, 1), v
-
-
-def _read_energy_sum(raw: dict, signal) -> np.ndarray:
-    """The summed energy impactcore's band_velocity_for reads: a dead or left-out channel's energy taken as the
-    mean of the others' (where one to three channels are missing)."""
-    energy = np.asarray(raw["energy"], float)
-    left_out = np.asarray(getattr(signal, "channel_left_out", (0, 0, 0, 0)), bool)[None]
-    missing = ((np.asarray(raw["flags"]) & _core.FLAG_DEAD) != 0) | left_out
-    read = (~missing).sum(1)
-    mean_read = np.where(missing, 0.0, energy).sum(1) / np.maximum(read, 1)
-    scaled = np.where(missing, mean_read[:, None], energy).sum(1)
-    return np.where((read > 0) & (read < 4), scaled, energy.sum(1))
 
 
 def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> list[float] | None:

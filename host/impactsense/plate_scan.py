@@ -16,7 +16,7 @@ steep (docs/findings.md, issue 16 "E by the twin's own curve"). So E is read off
   the reference session (DATA_REF's slowness over the twin's at DATA_REF's declared drops and the twin's E). At
   the same positions the position-dependent part of a pick's bias is in both, so it cancels; the diagnosis's
   change (data against the reference, measured on other positions) carries the two position sets' difference
-  (0.4-0.6 % of the slowness on rig-b's twin), and is kept as a reading for the record only;
+  (docs/findings.md "E and D_s by the twin's own curves"), and is kept as a reading for the record only;
 - E is where a least-squares line through the curve's points near the crossing meets the target; the readings'
   E are averaged with weights from their variance (a session's single draw: the twin's draw-to-draw scatter).
 A damping change is read the same way off the twin's decay curve (`damping_scale_scan`).
@@ -185,8 +185,8 @@ def _interval(answer: float, got: dict, sd: dict, ci) -> dict:
     """e_scale_lo / e_scale_hi about the answer: the wider of the readings' own (1.96 x the smallest reading's
     sd: they share DATA_NEW's drops, so no narrowing is claimed for their mean) and the diagnosis's change
     interval through the threshold picks' curve at the answer. The twin's draws know the pick noise but not the
-    drops' landing scatter about their declared positions, which moves a same-drop reading too (rig-b's twin:
-    0.17 % of the slowness for 1 mm rms); the change's fold jackknife sees every drop-level error, the
+    drops' landing scatter about their declared positions, which moves a same-drop reading too (docs/findings.md
+    "E and D_s by the twin's own curves"); the change's fold jackknife sees every drop-level error, the
     position-dependent part included (an upper bound for a same-drop reading)."""
     half = 1.96 * min(sd.values()) if sd else 0.0
     slope = got["pick"][1] if "pick" in got else got["change"][1]
@@ -212,7 +212,7 @@ def damping_scale_scan(params, data, picker, extra_decay_per_s: float, base=None
     decay (`decay_statistic`) each; the target is DATA_NEW's own decay less the twin's miss on DATA_REF (with
     `base`), else the twin's decay at D_s plus the diagnosis's extra decay. Every mode decays as
     exp(-D_s t / 2), but the envelope 1-8 ms after the onset also holds the noise the faster decay reaches
-    sooner, so the decay moves by less than D_s / 2 (rig-b's twin: 0.41). Returns {"damping_scale", "readings"}."""
+    sooner, so the decay moves by less than D_s / 2 (docs/findings.md). Returns {"damping_scale", "readings"}."""
     def twin(session, scale):
         where = np.stack([session.x_mm, session.y_mm, session.height_mm], 1)
         pos, inv = np.unique(where, axis=0, return_inverse=True)

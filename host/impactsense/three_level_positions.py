@@ -18,7 +18,7 @@ from .edge_travel import three_sensor_positions
 from .level_members import level_signal
 
 # Multiples of the trained onset threshold (a priori, around level_members' 0.6 / 1.5 / 2, not tuned on a rig):
-# more levels average more of the picks' noise; each costs one extract_batch run a drop (~0.1 ms on rig-b).
+# more levels average more of the picks' noise; each costs one extract_batch run a drop (docs/findings.md).
 THREE_LEVEL_FACTORS = (0.5, 0.6, 0.8, 1.25, 1.5, 2.0)
 PICK_KEYS = ("flags", "toa_us", "pick_period", "toa_band_us", "energy")   # what edge_travel's localiser reads
 PREFIX = "three_level_"   # Features.raw: PREFIX + key, [R, len(THREE_LEVEL_FACTORS), 4]

@@ -47,16 +47,15 @@ bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e)
   return true;
 }
 
-float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc) {
-  const float v = loc.band_velocity_mm_per_us;
-  if (loc.band_slowness_per_decade == 0.0f) return v;
-  float energy[kChannels];
+bool band_log_energy(const float energy[kChannels], const uint8_t flags[kChannels],
+                     const int channel_left_out[kChannels], float fs_hz, float* log_e) {
+  float read_energy[kChannels];
   bool missing[kChannels];
   float read_sum = 0.0f;
   int read = 0;
   for (int c = 0; c < kChannels; ++c) {
-    energy[c] = f.ch[c].energy;
-    missing[c] = (f.ch[c].flags & kFlagDead) || cfg.channel_left_out[c];
+    read_energy[c] = energy[c];
+    missing[c] = (flags[c] & kFlagDead) || channel_left_out[c];
     if (!missing[c]) {
       read_sum += energy[c];
       ++read;
@@ -64,11 +63,23 @@ float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const Loc
   }
   if (read > 0 && read < kChannels) {
     for (int c = 0; c < kChannels; ++c) {
-      if (missing[c]) energy[c] = read_sum / static_cast<float>(read);
+      if (missing[c]) read_energy[c] = read_sum / static_cast<float>(read);
     }
   }
+  return summed_log_energy(read_energy, fs_hz, log_e);
+}
+
+float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc) {
+  const float v = loc.band_velocity_mm_per_us;
+  if (loc.band_slowness_per_decade == 0.0f) return v;
+  float energy[kChannels];
+  uint8_t flags[kChannels];
+  for (int c = 0; c < kChannels; ++c) {
+    energy[c] = f.ch[c].energy;
+    flags[c] = f.ch[c].flags;
+  }
   float log_e;
-  if (!summed_log_energy(energy, cfg.fs_hz, &log_e)) return v;
+  if (!band_log_energy(energy, flags, cfg.channel_left_out, cfg.fs_hz, &log_e)) return v;
   const float slowness = 1.0f / v + loc.band_slowness_per_decade * (log_e - loc.band_log_energy_ref);
   return slowness > 0.0f ? 1.0f / slowness : v;
 }

@@ -513,6 +513,10 @@ float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const Loc
 // log10(sum_c energy[c] / fs_hz) of one event's four channel energies (what band_velocity_for reads; training
 // fits the line on the same number): false (and *log_e untouched) when the sum or fs_hz is not positive.
 bool summed_log_energy(const float energy[kChannels], float fs_hz, float* log_e);
+// summed_log_energy as band_velocity_for reads it: a dead (kFlagDead in flags) or left-out channel's energy taken
+// as the mean of the read channels' (with every channel read, summed_log_energy of energy itself).
+bool band_log_energy(const float energy[kChannels], const uint8_t flags[kChannels],
+                     const int channel_left_out[kChannels], float fs_hz, float* log_e);
 
 // The model feature vector, in this order (names in kFeatureNames):
 //   dtoa_us[6] (pair order), rel_toa_us[4] (ToA - earliest ToA), phys_x_mm, phys_y_mm,
