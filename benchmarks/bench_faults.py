@@ -20,8 +20,10 @@ On a session whose clean row accepts or classifies fewer than 0.95 of its drops,
 targets are the clean row's less one drop. The 150-count hum rows (three times the issue's level) carry no
 target; their MAE and class are printed.
 
-    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--trees 100] [--only ROWS] [--physics-three-sensor]
-        [--no-targets] [--json OUT]
+    python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--first-draw 0] [--trees 100] [--only ROWS]
+        [--physics-three-sensor] [--no-targets] [--json OUT]
+
+`--first-draw N` runs the seeds N .. N + draws - 1 (draws the tuning has not seen; default 0).
 """
 
 from __future__ import annotations
@@ -123,6 +125,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default="bundled", help="session folder (default: the bundled session-1)")
     ap.add_argument("--draws", type=int, default=2, help="fault draws (seeds) per scenario")
+    ap.add_argument("--first-draw", type=int, default=0, help="the first fault draw (seed): the draws run are "
+                    "first-draw .. first-draw + draws - 1")
     ap.add_argument("--trees", type=int, default=100)
     ap.add_argument("--only", default="", help="comma-separated starts of the fault rows to run (the clean row "
                                                "always runs), e.g. 'debonded,dead'")
@@ -145,7 +149,8 @@ def main(argv=None) -> int:
         for name, make in SCENARIOS.items():
             if only and name != "clean" and not name.startswith(tuple(only)):
                 continue
-            for d in range(1 if name == "clean" else args.draws):
+            draws = [0] if name == "clean" else range(args.first_draw, args.first_draw + args.draws)
+            for d in draws:
                 v = score(model, sess, make(d))
                 clean = v if name == "clean" else clean
                 label = f"{sname}: {name}" + ("" if name == "clean" else f" (draw {d})")
