@@ -16,6 +16,7 @@ Targets (issue 14), checked on every draw against the same drops' clean row, exi
              MAE <= 1.3 x clean, accepted >= 0.95, class >= 0.95
   dead:      MAE <= 2 x clean, flagged 1.00
   debond:    MAE <= 1.5 x clean, flagged >= 0.95
+  each of these rows: no drop whose report calls another channel inconsistent ("wrong" 0)
 On a session whose clean row accepts or classifies fewer than 0.95 of its drops, the accepted / class
 targets are the clean row's less one drop. The 150-count hum rows (three times the issue's level) carry no
 target; their MAE and class are printed.
@@ -118,7 +119,15 @@ def check(name: str, v: dict, clean: dict) -> list[str]:
         miss.append(f"class {v['class']:.3f} < {cls:.3f}")
     if key in ("dead", "debond") and not v["flagged"] >= (1.0 if key == "dead" else 0.95):
         miss.append(f"flagged {v['flagged']:.2f}")
+    if v.get("wrong_flag", 0.0) > 0.0:   # NaN (a report without flags): not counted
+        miss.append(f"wrong {v['wrong_flag']:.3f} (another channel called inconsistent)")
     return miss
+
+
+def draw_seeds(name: str, first_draw: int, draws: int) -> list[int]:
+    """The fault draws (seeds) a row runs: the clean row once (seed 0, no fault), the others first_draw ..
+    first_draw + draws - 1."""
+    return [0] if name == "clean" else list(range(first_draw, first_draw + draws))
 
 
 def main(argv=None) -> int:
@@ -149,8 +158,7 @@ def main(argv=None) -> int:
         for name, make in SCENARIOS.items():
             if only and name != "clean" and not name.startswith(tuple(only)):
                 continue
-            draws = [0] if name == "clean" else range(args.first_draw, args.first_draw + args.draws)
-            for d in draws:
+            for d in draw_seeds(name, args.first_draw, args.draws):
                 v = score(model, sess, make(d))
                 clean = v if name == "clean" else clean
                 label = f"{sname}: {name}" + ("" if name == "clean" else f" (draw {d})")

@@ -87,3 +87,23 @@ def test_the_fault_bench_holds_each_rig_to_its_own_clean_row():
     good_rig = {"mae_mm": 1.0, "accepted": 1.0, "class": 0.99, "n": 150}
     assert len(check("mix", {**ok, "mae_mm": 1.2, "accepted": 0.96, "class": 0.94}, good_rig)) == 1
     assert check("dead channel", {**ok, "mae_mm": 1.9, "flagged": 0.99}, good_rig) == ["flagged 0.99"]
+    # one drop whose report calls a healthy channel inconsistent is a miss on a row with targets, not without
+    assert len(check("noise 2", {**ok, "wrong_flag": 1 / 20}, clean)) == 1
+    assert check("hum 150 @ 60 Hz + noise 4", {**ok, "wrong_flag": 1 / 20}, clean) == []
+
+
+def test_the_fault_bench_runs_the_draws_asked_for():
+    """--first-draw N --draws D: seeds N .. N + D - 1 on every fault row (draws the tuning has not seen); the
+    clean row once, without a fault; the default (0, 2) is the bench's old draws 0 and 1."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_faults import SCENARIOS, draw_seeds
+
+    assert draw_seeds("dead channel", 2, 3) == [2, 3, 4]
+    assert draw_seeds("dead channel", 0, 2) == [0, 1]
+    assert draw_seeds("clean", 5, 3) == [0] and not SCENARIOS["clean"](0).active()
+    # the dead / debonded channel moves with the seed: three unseen draws put the fault on three channels
+    assert {SCENARIOS["dead channel"](s).dead_channel for s in draw_seeds("dead", 2, 3)} == {2, 3, 0}
+    assert {SCENARIOS["debonded channel"](s).debond for s in draw_seeds("debond", 2, 3)} == {0, 1, 2}
