@@ -184,3 +184,27 @@ def test_too_few_positions_are_not_tried(session1, monkeypatch):
     assert position_members.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is None
     monkeypatch.setattr(position_members, "EDGE_MIN_SITES", 0)
     assert position_members.choose_edge_travel(feats, session1.xy_mm[rows], cfg) is not None
+
+
+def test_three_sensor_positions_with_the_edge_correction():
+    """With one channel's pick not read, the three picks fix x, y and t0 exactly: an edge-image bias of a few us
+    moves the plain three-sensor position by centimetres near the edges, and nothing absorbs it. The same
+    correction (its coefficients fitted on four-channel drops) brings the three-sensor positions back: without
+    coefficients bit for bit the plain one, with them closer to the truth near the edges (issues 14/15,
+    docs/findings.md "Unseen fault draws")."""
+    from impactsense.edge_travel import three_sensor_positions
+
+    cfg = plate()
+    raw, xy = drops(cfg, 300, 6)
+    coefs = {"threshold": fit_correction(raw, xy, cfg, "threshold"), "band": None}
+    raw_t, xy_t = drops(cfg, 200, 7)
+    edge = np.min(np.c_[xy_t, [450.0, 350.0] - xy_t], 1) < 60.0
+    for c in range(4):
+        before = three_sensor_positions(raw_t, cfg, c)
+        np.testing.assert_array_equal(three_sensor_positions(raw_t, cfg, c, {"threshold": None, "band": None}), before)
+        after = three_sensor_positions(raw_t, cfg, c, coefs)
+        err_before = np.hypot(*(before - xy_t)[edge].T)
+        err_after = np.hypot(*(after - xy_t)[edge].T)
+        ok = np.isfinite(err_before) & np.isfinite(err_after)
+        assert ok.sum() > 0.9 * edge.sum()
+        assert np.median(err_after[ok]) < 0.6 * np.median(err_before[ok]), c

@@ -1,5 +1,5 @@
 """The three-sensor position as the mean over the onset levels (three_level_positions.py) and the training-time
-choice between it and the single-threshold position (three_channel_position._levels_better)."""
+choice between it and the single-threshold position (three_channel_position._better)."""
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from impactsense.faults import FaultSpec, inject_session
 from impactsense.level_members import level_signal
 from impactsense.pipeline import featurize, fit_localiser
 from impactsense.signal import SignalConfig
-from impactsense.three_channel_position import _levels_better
+from impactsense.three_channel_position import _better
 from impactsense.three_level_positions import (THREE_LEVEL_FACTORS, add_level_picks, has_level_picks,
                                                  level_three_positions)
 
@@ -41,7 +41,7 @@ def test_the_level_mean_is_the_mean_of_the_positions_the_core_gives_at_each_leve
 
 
 def test_the_levels_are_kept_only_for_a_gain_beyond_one_standard_error():
-    """_levels_better: kept when the level mean's out-of-fold errors are lower by far more than the per-site
+    """_better: kept when the level mean's out-of-fold errors are lower by far more than the per-site
     scatter of the gains, not for a gain within it, nor when the two were scored on different drops."""
     rng = np.random.default_rng(0)
     xy = np.repeat(rng.uniform(0, 400, (40, 2)), 3, axis=0)   # 40 sites x 3 drops
@@ -49,11 +49,11 @@ def test_the_levels_are_kept_only_for_a_gain_beyond_one_standard_error():
     plain = {"rows": rows, "err": rng.gamma(2.0, 2.0, len(xy))}
     better = {"rows": rows, "err": plain["err"] * 0.7}
     noise = {"rows": rows, "err": plain["err"] + rng.normal(0.0, 1.0, len(xy))}
-    assert _levels_better(plain, better, xy)
-    assert not _levels_better(better, plain, xy)
-    assert not _levels_better(plain, {"rows": rows, "err": noise["err"] - 0.05 * noise["err"].std()}, xy)
-    assert not _levels_better(plain, {"rows": ~rows, "err": better["err"]}, xy)
-    assert not _levels_better({"rows": rows, "err": None}, better, xy)
+    assert _better(plain, better, xy)
+    assert not _better(better, plain, xy)
+    assert not _better(plain, {"rows": rows, "err": noise["err"] - 0.05 * noise["err"].std()}, xy)
+    assert not _better(plain, {"rows": ~rows, "err": better["err"]}, xy)
+    assert not _better({"rows": rows, "err": None}, better, xy)
 
 
 def test_a_model_whose_three_sensor_path_reads_the_levels_saves_loads_and_leaves_clean_drops_alone(tmp_path):

@@ -114,21 +114,28 @@ def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, witho
     return xy
 
 
-def three_sensor_positions(raw: dict, signal, channel: int) -> np.ndarray:
+def three_sensor_positions(raw: dict, signal, channel: int, coefs: dict | None = None) -> np.ndarray:
     """The core's physics position [R, 2] from the picks of every channel but `channel` (NaN where the other three
     do not place the drop): as process_event gives it with that channel left out, the threshold picks' position
-    averaged with the band picks' where those place the drop too."""
+    averaged with the band picks' where those place the drop too. coefs (a model's edge_travel, per pick set):
+    each pick set's position with its correction (`corrected`, that channel's pick not read)."""
+    coefs = coefs or {}
     xy = _localise(raw, signal, "threshold", 0.0, without=channel)
+    if coefs.get("threshold") is not None:
+        xy = corrected(raw, signal, "threshold", xy, coefs["threshold"], without=channel)
     if float(signal.band_pick_hz) > 0 and float(signal.band_velocity_mm_per_us) > 0:
         band = _localise(raw, signal, "band", 0.0, without=channel)
+        if coefs.get("band") is not None:
+            band = corrected(raw, signal, "band", band, coefs["band"], without=channel)
         both = np.isfinite(xy).all(1) & np.isfinite(band).all(1)
         xy[both] = 0.5 * (xy[both] + band[both])
     return xy
 
 
-def corrected(raw: dict, signal, pick_set: str, start_xy_mm: np.ndarray, coef) -> np.ndarray:
+def corrected(raw: dict, signal, pick_set: str, start_xy_mm: np.ndarray, coef, without: int = -1) -> np.ndarray:
     """A pick set's positions [R, 2] with its correction: the localiser re-run on the picks minus the correction
-    at the last position, from start_xy_mm (the core's position of that pick set); NaN where it had none."""
+    at the last position, from start_xy_mm (the core's position of that pick set); NaN where it had none.
+    without >= 0: that channel's pick not read (the three-sensor position)."""
     xy = np.array(start_xy_mm, float, copy=True)
     start_ok = np.isfinite(xy).all(1)
     coef = np.asarray(coef, float)
@@ -136,7 +143,7 @@ def corrected(raw: dict, signal, pick_set: str, start_xy_mm: np.ndarray, coef) -
         ok = np.isfinite(xy).all(1)
         correction = np.zeros((len(xy), 4))
         correction[ok] = travel_bases(xy[ok], signal, pick_set) @ coef
-        new = _localise(raw, signal, pick_set, correction)
+        new = _localise(raw, signal, pick_set, correction, without=without)
         xy = np.where(np.isfinite(new), new, xy)
     xy[~start_ok] = np.nan
     return xy

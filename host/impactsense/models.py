@@ -229,11 +229,6 @@ class ImpactModel:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
                                           energy_j, threshold) if site_map is None else {}
-        three_xy = {}
-        if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
-            three_xy, factors, card["three_channel_position_levels"] = fit_three_channel_positions(
-                features.take(np.flatnonzero(use)), xy, signal, settings.seed)
-            card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         edge, train = {}, features.take(np.flatnonzero(use))
         if choose_edge and members and site_map is None:
             edge = choose_edge_travel(train, xy, signal) or {}
@@ -241,6 +236,11 @@ class ImpactModel:
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
                                                        settings.regressor, loc_names, all_or_none=False))
+        three_xy = {}
+        if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
+            three_xy, factors, card["three_channel_position_levels"], card["three_channel_position_edge"] = \
+                fit_three_channel_positions(train, xy, signal, settings.seed, edge or None)
+            card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         if site_map is None:   # one channel against the other three, the twin's misfit's stand-in (channel_check.py)
             check = fit_channel_check(features.take(np.flatnonzero(use)).raw, signal)
             if check is not None:

@@ -11,7 +11,10 @@ and first peaks among the other three channels (`three_channel_position_inputs`)
 corrects the three-sensor position of a drop by the pair of the channel that is out. Where the training drops'
 out-of-fold positions say so, a channel's pair learns on (and corrects) the mean of that position and the
 three-sensor positions at the other onset levels instead (three_level_positions.py; card
-"three_channel_position_levels").
+"three_channel_position_levels"), and / or the positions with edge_travel's correction of the arrival times near
+the plate's edges (a model that has it; card "three_channel_position_edge"): with three sensors there is no
+redundancy to absorb that travel-time bias, and a drop near an edge or a corner is placed off by the same
+centimetres on every repeat.
 
 Only the host runs these forests (files "three_channel_position" in the model card, forestfile's plain
 arrays); the board keeps the physics three-sensor position. Their gain is in docs/findings.md ("A dead channel
@@ -87,40 +90,59 @@ def _candidate(train: Features, xy: np.ndarray, base: np.ndarray, c: int, seed: 
     return {"rows": rows, "pair": _pair(X[rows], resid, seed), "factor": factor, "err": err}
 
 
-def _levels_better(plain: dict, levels: dict, xy: np.ndarray) -> bool:
-    """The level-mean position's out-of-fold errors beat the plain one's by more than CORRECTION_GAIN_SIGMAS
-    standard errors of the per-site gains (choose_factor, on the drops both place)."""
+def _better(kept: dict, other: dict, xy: np.ndarray) -> bool:
+    """The other position's out-of-fold errors beat the kept one's by more than CORRECTION_GAIN_SIGMAS standard
+    errors of the per-site gains (choose_factor, on the drops both place)."""
     from .correction_scale import choose_factor, drop_sites
 
-    if plain["err"] is None or levels["err"] is None or not np.array_equal(plain["rows"], levels["rows"]):
+    if kept["err"] is None or other["err"] is None or not np.array_equal(kept["rows"], other["rows"]):
         return False
-    return choose_factor([levels["err"], plain["err"]], drop_sites(xy[plain["rows"]]))[0] == 0
+    return choose_factor([other["err"], kept["err"]], drop_sites(xy[kept["rows"]]))[0] == 0
 
 
-def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0) -> tuple[dict, dict, list]:
+def _candidates(train: Features, signal, c: int, edge: dict | None):
+    """(position [R, 2], on the level mean, with the edge correction) of channel c's three-sensor path, in the
+    order they are tried: the plain position, its mean over the onset levels (when `train` carries their picks),
+    and with edge (a model's edge_travel coefficients) the same two with edge_travel's correction."""
+    from .three_level_positions import has_level_picks, level_three_positions
+
+    for coefs in ((None, edge) if edge else (None,)):
+        base = three_sensor_positions(train.raw, signal, c, coefs)
+        yield base, False, coefs is not None
+        if has_level_picks(train.raw):
+            yield level_three_positions(train.raw, signal, c, base, coefs), True, coefs is not None
+
+
+def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0,
+                                edge: dict | None = None) -> tuple[dict, dict, list, list]:
     """(channel -> (forest dx, forest dy) correcting the three-sensor position without that channel, fitted on
     the training drops (`train`: usable rows, every channel with an onset) and scaled by `correction_factor`;
     channel -> that factor; the channels whose position is the mean over the onset levels
-    (three_level_positions.py; tried when `train` carries their picks, kept when its out-of-fold positions are
-    better, `_levels_better`)). A channel the localiser places fewer than MIN_DROPS of them without is left out."""
+    (three_level_positions.py); the channels whose position takes edge_travel's correction of the arrival
+    times (edge: the model's coefficients; three_sensor_positions)). The candidates (`_candidates`) are tried
+    in turn; one replaces the position kept so far when its out-of-fold positions are better (`_better`).
+    A channel the localiser places fewer than MIN_DROPS of them without is left out."""
     from .correction_scale import scale_forests
-    from .three_level_positions import has_level_picks, level_three_positions
 
     xy = np.asarray(xy_mm, float)
-    out, factors, levels = {}, {}, []
+    out, factors, levels, edges = {}, {}, [], []
     for c in range(4):
-        base = three_sensor_positions(train.raw, signal, c)
-        best = _candidate(train, xy, base, c, seed)
+        best, kind = None, (False, False)
+        for position, on_levels, with_edge in _candidates(train, signal, c, edge):
+            cand = _candidate(train, xy, position, c, seed)
+            if best is None and not (on_levels or with_edge):
+                best = cand
+                if best is None:
+                    break
+            elif cand is not None and _better(best, cand, xy):
+                best, kind = cand, (on_levels, with_edge)
         if best is None:
             continue
-        if has_level_picks(train.raw):
-            mean = _candidate(train, xy, level_three_positions(train.raw, signal, c, base), c, seed)
-            if mean is not None and _levels_better(best, mean, xy):
-                best = mean
-                levels.append(c)
+        levels += [c] if kind[0] else []
+        edges += [c] if kind[1] else []
         out[c], factors[c] = best["pair"], best["factor"]
         scale_forests(out[c], factors[c])
-    return out, factors, levels
+    return out, factors, levels, edges
 
 
 def corrected_positions(pairs: dict, vector: np.ndarray, rows: np.ndarray, out_channel: np.ndarray,
@@ -150,11 +172,31 @@ def level_mean_positions(model, features: Features, rows: np.ndarray, out_channe
     if not chosen or not has_level_picks(features.raw):
         return
     rows, out_channel = np.asarray(rows), np.asarray(out_channel)
+    with_edge = model.card.get("three_channel_position_edge") or []
     for c in chosen:
         sel = rows[out_channel == c]
         if sel.size:
             raw = {k: v[sel] for k, v in features.raw.items()}
-            xy[sel] = level_three_positions(raw, model.signal, int(c), xy[sel])
+            xy[sel] = level_three_positions(raw, model.signal, int(c), xy[sel],
+                                            model.edge_travel if c in with_edge else None)
+
+
+def edge_corrected_positions(model, features: Features, rows: np.ndarray, out_channel: np.ndarray,
+                             xy: np.ndarray) -> None:
+    """xy (in place) of `rows` whose channel out (out_channel) the model places with edge_travel's correction
+    (card "three_channel_position_edge"): the three-sensor position without that channel, corrected; rows the
+    corrected localiser does not place keep xy."""
+    chosen = model.card.get("three_channel_position_edge") or []
+    if not chosen or not model.edge_travel:
+        return
+    rows, out_channel = np.asarray(rows), np.asarray(out_channel)
+    for c in chosen:
+        sel = rows[out_channel == c]
+        if sel.size:
+            raw = {k: v[sel] for k, v in features.raw.items()}
+            new = three_sensor_positions(raw, model.signal, int(c), model.edge_travel)
+            ok = np.isfinite(new).all(1)
+            xy[sel[ok]] = new[ok]
 
 
 def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> None:
@@ -180,6 +222,7 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
         out["bad_channel"] = np.where(flagged, left_out, -1)
     out["three_channel"] = three
     if model.three_channel_position:
+        edge_corrected_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         level_mean_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         corrected_positions(model.three_channel_position, features.vector, np.flatnonzero(three), left_out[three], xy)
     for c, estimate in model.three_channel_class.items():
@@ -219,6 +262,10 @@ def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict
     levels = card.get("three_channel_position_levels", [])
     if not isinstance(levels, list) or any(str(c) not in entry for c in levels):
         raise DataError(card_path, "three_channel_position_levels", "must list channels that have a position pair")
+    edge = card.get("three_channel_position_edge", [])
+    if not isinstance(edge, list) or any(str(c) not in entry for c in edge) or (edge and not card.get("edge_travel")):
+        raise DataError(card_path, "three_channel_position_edge", "must list channels that have a position pair "
+                                                                  "(and the model an edge_travel correction)")
     three_class, pairs = {}, {}
     for c, name in classes.items():
         path, data = read_verified(model_dir, card, card_path, name, f"three_channel_class.{c}")

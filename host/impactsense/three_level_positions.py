@@ -40,15 +40,17 @@ def has_level_picks(raw: dict) -> bool:
     return all(PREFIX + key in raw for key in PICK_KEYS)
 
 
-def level_three_positions(raw: dict, signal, channel: int, base_xy_mm: np.ndarray) -> np.ndarray:
+def level_three_positions(raw: dict, signal, channel: int, base_xy_mm: np.ndarray,
+                          edge: dict | None = None) -> np.ndarray:
     """[R, 2] the mean of base_xy_mm (the three-sensor position without `channel` at the trained threshold) and
-    the three-sensor positions at each level that places the drop; NaN where base_xy_mm is (the rows the core's
-    three-sensor path places stay the same)."""
+    the three-sensor positions at each level that places the drop (edge: with edge_travel's correction, as
+    three_sensor_positions takes it); NaN where base_xy_mm is (the rows the core's three-sensor path places
+    stay the same)."""
     base = np.asarray(base_xy_mm, float)
     stack = [base]
     for k in range(len(THREE_LEVEL_FACTORS)):
         level_raw = {key: np.asarray(raw[PREFIX + key])[:, k] for key in PICK_KEYS}
-        stack.append(three_sensor_positions(level_raw, signal, channel))
+        stack.append(three_sensor_positions(level_raw, signal, channel, edge))
     stack = np.stack(stack, 1)
     placed = np.isfinite(stack).all(2)
     out = np.where(placed[:, :, None], stack, 0.0).sum(1) / np.maximum(placed.sum(1), 1)[:, None]
