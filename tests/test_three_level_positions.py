@@ -91,3 +91,9 @@ def test_a_model_whose_three_sensor_path_reads_the_levels_saves_loads_and_leaves
     (tmp_path / "m" / "model_card.json").write_text(json.dumps(card))
     with pytest.raises(DataError, match="three_channel_position_levels"):
         ImpactModel.load(tmp_path / "m")
+    # the edge-corrected three-sensor position needs the model's edge correction (this one has none)
+    assert model.card["three_channel_position_edge"] == [] and not model.edge_travel
+    card["three_channel_position_levels"], card["three_channel_position_edge"] = [1], [1]
+    (tmp_path / "m" / "model_card.json").write_text(json.dumps(card))
+    with pytest.raises(DataError, match="three_channel_position_edge"):
+        ImpactModel.load(tmp_path / "m")
