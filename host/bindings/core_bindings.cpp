@@ -677,6 +677,88 @@ NB_MODULE(_core, m) {
       "energy"_a, "flags"_a, "channel_left_out"_a, "fs_hz"_a,
       "band_log_energy (impactcore.h) of every row: the summed log energy the band localiser reads, a dead or "
       "left-out channel's energy the mean of the others'; NaN where not positive.");
+  m.def(
+      "channel_check_terms_batch",
+      [](InF xy_mm, float plate_x_mm, float plate_y_mm) {
+        if (!has_shape(xy_mm, {kAny, 2})) throw std::invalid_argument("xy_mm must be float32 [R, 2]");
+        const size_t r = xy_mm.shape(0);
+        auto out = make_array<float>({r, static_cast<size_t>(ic::kCheckTerms)});
+        for (size_t i = 0; i < r; ++i) {
+          ic::channel_check_terms(xy_mm.data()[2 * i], xy_mm.data()[2 * i + 1], plate_x_mm, plate_y_mm,
+                                  out.data() + ic::kCheckTerms * i);
+        }
+        return out;
+      },
+      "xy_mm"_a, "plate_x_mm"_a, "plate_y_mm"_a,
+      "channel_check_terms (impactcore.h): the channel check's cubic terms at every position [R, 10].");
+  m.def(
+      "channel_check_ratios_batch",
+      [](InF energy, InF diff3) {
+        if (!has_shape(energy, {kAny, 4}) || !has_shape(diff3, {energy.shape(0), 4}))
+          throw std::invalid_argument("energy and diff3 must be float32 [R, 4]");
+        const size_t r = energy.shape(0);
+        auto level = make_array<float>({r, 4});
+        auto tilt = make_array<float>({r, 4});
+        for (size_t i = 0; i < r; ++i) {
+          ic::channel_check_ratios(energy.data() + 4 * i, diff3.data() + 4 * i, level.data() + 4 * i,
+                                   tilt.data() + 4 * i);
+        }
+        return nb::make_tuple(level, tilt);
+      },
+      "energy"_a, "diff3"_a, "channel_check_ratios (impactcore.h) of every row: (level, tilt) [R, 4].");
+  m.def(
+      "channel_check_scores_batch",
+      [](InF energy, InF diff3, InU8 flags, InF xy_mm, InF level_fit, InF tilt_fit, float plate_x_mm,
+         float plate_y_mm) {
+        const size_t r = energy.shape(0);
+        constexpr size_t kFit = ic::kCheckTerms + 2;
+        if (!has_shape(energy, {kAny, 4}) || !has_shape(diff3, {r, 4}) || !has_shape(flags, {r, 4}) ||
+            !has_shape(xy_mm, {r, 4, 2}))
+          throw std::invalid_argument("energy, diff3 float32 [R, 4], flags uint8 [R, 4], xy_mm float32 [R, 4, 2]");
+        if (!has_shape(level_fit, {4, kFit}) || !has_shape(tilt_fit, {4, kFit}))
+          throw std::invalid_argument("level_fit and tilt_fit must be float32 [4, 12] (10 terms, median, scale)");
+        ic::ChannelCheck check;
+        check.plate_x_mm = plate_x_mm;
+        check.plate_y_mm = plate_y_mm;
+        for (int c = 0; c < 4; ++c) {
+          for (int pass = 0; pass < 2; ++pass) {
+            const float* src = (pass == 0 ? level_fit : tilt_fit).data() + kFit * c;
+            ic::ChannelCheckFit& fit = pass == 0 ? check.level[c] : check.tilt[c];
+            std::memcpy(fit.coef, src, sizeof(fit.coef));
+            fit.median = src[ic::kCheckTerms];
+            fit.scale = src[ic::kCheckTerms + 1];
+            if (!(fit.scale > 0.0f)) throw std::invalid_argument("a fit's scale must be > 0");
+          }
+        }
+        auto out = make_array<float>({r, 4});
+        for (size_t i = 0; i < r; ++i) {
+          ic::channel_check_scores(energy.data() + 4 * i, diff3.data() + 4 * i, flags.data() + 4 * i,
+                                   xy_mm.data() + 8 * i, check, out.data() + 4 * i);
+        }
+        return out;
+      },
+      "energy"_a, "diff3"_a, "flags"_a, "xy_mm"_a, "level_fit"_a, "tilt_fit"_a, "plate_x_mm"_a, "plate_y_mm"_a,
+      "channel_check_scores (impactcore.h) of every row; xy_mm [R, 4, 2] the position each channel's cubic reads.");
+  m.def(
+      "channel_check_flags",
+      [](InF scores, float event_score, float run_score, int run_events) {
+        if (!has_shape(scores, {kAny, 4})) throw std::invalid_argument("scores must be float32 [R, 4]");
+        if (run_events < 1 || run_events > ic::kMaxCheckEvents)
+          throw std::invalid_argument("run_events must be 1..32");
+        ic::ChannelCheck check;
+        check.event_score = event_score;
+        check.run_score = run_score;
+        check.run_events = run_events;
+        const size_t r = scores.shape(0);
+        auto out = make_array<int32_t>({r});
+        for (size_t i = 0; i < r; ++i) {
+          const size_t first = i + 1 > static_cast<size_t>(run_events) ? i + 1 - run_events : 0;
+          out.data()[i] = ic::channel_check_flag(scores.data() + 4 * first, static_cast<int>(i + 1 - first), check);
+        }
+        return out;
+      },
+      "scores"_a, "event_score"_a, "run_score"_a, "run_events"_a,
+      "channel_check_flag (impactcore.h) of every event in the order given: the channel it flags, -1 none.");
   m.def("extract_batch", &extract_batch, "adc"_a, "config"_a,
         "Features of every recording of adc int16 [recording, 4, sample]; a dict of arrays.");
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,

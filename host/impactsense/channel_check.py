@@ -12,7 +12,7 @@ channel c of a drop with four onsets:
 - each less a cubic in that position fitted on the training drops, over the training residuals' robust sd
   (1.4826 MAD, at least SCALE_FLOOR): z_level, z_tilt. The card's "channel_check" keeps the fits and the scales.
 The channel's score is the larger of min(-z_level, -z_tilt), large when it is both weaker and duller than the
-other three say it should be, and LEVEL_ALONE x -z_level: a channel far weaker than the rest whatever its spectrum
+other three say it should be, and kCheckLevelAlone (1/3) x -z_level: a channel far weaker than the rest whatever its spectrum
 (a bond whose cut-off lies above the plate's band, on a thick soft plate, is a gain loss there). Another channel's
 debond moves c's ratios up (the mean it is compared with falls); a moderate gain change (x0.75-0.85, the loop's)
 moves z_level only and stays under the thresholds, a delay moves neither.
@@ -21,11 +21,12 @@ A channel is flagged on an event when its score is the event's largest and excee
 the median of its last RUN_EVENTS scores (the events in the order given, this one included) exceeds RUN_SCORE. A
 flagged event takes the model's three-sensor path: the physics position without the channel and the class of the
 other three channels' energies (models.ImpactModel.predict), the report's flag on the channel.
+
+The arithmetic (the ratios, the cubic's terms, the scores, the event and run rule) is the core's (impactcore.h
+"the channel check", channelcheck.cpp), which the board runs too; this module fits the cubics and gives it positions.
 """
 
 from __future__ import annotations
-
-import warnings
 
 import numpy as np
 
@@ -35,28 +36,25 @@ from .edge_travel import three_sensor_positions
 EVENT_SCORE = 5.0     # robust sd: clean held-out drops of the measured sessions score <= 2.5 (findings)
 RUN_SCORE = 3.0
 RUN_EVENTS = 8
-LEVEL_ALONE = 1.0 / 3.0   # the level alone flags from 15 robust sd on an event, 9 over a run
 SCALE_FLOOR = 0.02    # log10: ~5 % in energy, below which a residual's spread is not taken as the rig's
 MIN_DROPS = 30        # training drops with four onsets needed to fit the check
 CHECK_VERSION = 1
 
 
-def _basis(xy_mm: np.ndarray, plate_x_mm: float, plate_y_mm: float) -> np.ndarray:
-    """The cubic in the position (scaled to -1..1 over the plate): [R, 10]."""
-    x = np.asarray(xy_mm, float)[:, 0] / plate_x_mm * 2.0 - 1.0
-    y = np.asarray(xy_mm, float)[:, 1] / plate_y_mm * 2.0 - 1.0
-    return np.stack([x ** i * y ** j for i in range(4) for j in range(4 - i)], 1)
+def _basis(xy_mm: np.ndarray, signal) -> np.ndarray:
+    """The cubic's terms at the positions [R, 10] (the core's channel_check_terms)."""
+    return _core.channel_check_terms_batch(np.ascontiguousarray(xy_mm, np.float32), float(signal.plate_x_mm),
+                                           float(signal.plate_y_mm)).astype(float)
+
+
+def _diff3(raw: dict) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(raw["diff_energy"], np.float32)[:, :, -1])
 
 
 def _ratios(raw: dict) -> tuple[np.ndarray, np.ndarray]:
-    """level, tilt [R, 4] (log10, each channel against the mean of the other three)."""
-    log_e = np.log10(np.maximum(np.asarray(raw["energy"], float), 1e-30))
-    log_t = np.log10(np.maximum(np.asarray(raw["diff_energy"], float)[:, :, -1], 1e-30)) - log_e
-
-    def against_others(a):
-        return a - (a.sum(1, keepdims=True) - a) / 3.0
-
-    return against_others(log_e), against_others(log_t)
+    """level, tilt [R, 4] (log10, each channel against the mean of the other three; the core's channel_check_ratios)."""
+    level, tilt = _core.channel_check_ratios_batch(np.ascontiguousarray(raw["energy"], np.float32), _diff3(raw))
+    return level.astype(float), tilt.astype(float)
 
 
 def checked_rows(raw: dict) -> np.ndarray:
@@ -85,7 +83,7 @@ def fit_channel_check(raw: dict, signal) -> dict | None:
         ok = rows & np.isfinite(xy[:, c]).all(1) & np.isfinite(level[:, c]) & np.isfinite(tilt[:, c])
         if ok.sum() < MIN_DROPS:
             return None
-        basis = _basis(xy[ok, c], signal.plate_x_mm, signal.plate_y_mm)
+        basis = _basis(xy[ok, c], signal)
         for name, value in (("level", level), ("tilt", tilt)):
             coef = np.linalg.lstsq(basis, value[ok, c], rcond=None)[0]
             resid = value[ok, c] - basis @ coef
@@ -98,46 +96,34 @@ def fit_channel_check(raw: dict, signal) -> dict | None:
     return out
 
 
+def _fit_table(check: dict, name: str) -> np.ndarray:
+    """A ratio's fits as the core reads them: float32 [4, 12] (the cubic's 10 coefficients, median, scale)."""
+    return np.array([list(f["coef"]) + [f["median"], f["scale"]] for f in check[name]], np.float32)
+
+
+def scores_at(raw: dict, signal, check: dict, xy_mm: np.ndarray) -> np.ndarray:
+    """The core's channel_check_scores [R, 4] with channel c's cubic read at xy_mm[:, c] ([R, 4, 2]); NaN where a
+    drop is not checked (not processed, a channel without an onset or dead, the position not finite)."""
+    flags = np.asarray(raw["flags"], np.uint8).copy()
+    flags[np.asarray(raw["status"]) != _core.STATUS_OK] |= np.uint8(_core.FLAG_NO_ONSET)
+    return _core.channel_check_scores_batch(
+        np.ascontiguousarray(raw["energy"], np.float32), _diff3(raw), np.ascontiguousarray(flags),
+        np.ascontiguousarray(xy_mm, np.float32), _fit_table(check, "level"), _fit_table(check, "tilt"),
+        float(signal.plate_x_mm), float(signal.plate_y_mm)).astype(float)
+
+
 def channel_scores(raw: dict, signal, check: dict) -> tuple[np.ndarray, np.ndarray]:
     """(scores [R, 4], NaN where a drop is not checked; the three-sensor positions [R, 4, 2])."""
-    rows, xy, level, tilt = _inputs(raw, signal)
-    scores = np.full(level.shape, np.nan)
-    for c in range(4):
-        ok = rows & np.isfinite(xy[:, c]).all(1)
-        if not ok.any():
-            continue
-        basis = _basis(xy[ok, c], signal.plate_x_mm, signal.plate_y_mm)
-        z = []
-        for name, value in (("level", level), ("tilt", tilt)):
-            fit = check[name][c]
-            z.append((value[ok, c] - basis @ np.asarray(fit["coef"]) - fit["median"]) / fit["scale"])
-        scores[ok, c] = np.maximum(np.minimum(-z[0], -z[1]), LEVEL_ALONE * -z[0])
-    return scores, xy
+    xy = np.stack([three_sensor_positions(raw, signal, c) for c in range(4)], 1)
+    return scores_at(raw, signal, check, xy), xy
 
 
 def flagged_channel(scores: np.ndarray, check: dict) -> np.ndarray:
-    """The channel each event flags [R] (-1: none): the event's largest score above event_score, or a channel whose
-    median score over the last run_events events (this one included, in the order given) exceeds run_score."""
-    n = len(scores)
-    out = np.full(n, -1)
-    filled = np.where(np.isfinite(scores), scores, -np.inf)
-    top = np.argmax(filled, axis=1)
-    top_score = filled[np.arange(n), top]
-    event = np.isfinite(top_score) & (top_score > float(check["event_score"]))
-    out[event] = top[event]
-    window = int(check["run_events"])
-    for k in np.flatnonzero(~event & checked_any(scores)):
-        recent = scores[max(0, k - window + 1):k + 1]
-        if len(recent) < (window + 1) // 2:
-            continue
-        with warnings.catch_warnings():   # a channel without a score in the window: NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(recent, axis=0)
-        if np.isfinite(med).any() and np.nanmax(med) > float(check["run_score"]):
-            c = int(np.nanargmax(med))
-            if np.isfinite(scores[k, c]):
-                out[k] = c
-    return out
+    """The channel each event flags [R] (-1: none; the core's channel_check_flag over the events in the order
+    given): the event's largest score above event_score, or a channel whose median score over the last
+    run_events events (this one included) exceeds run_score."""
+    return _core.channel_check_flags(np.ascontiguousarray(scores, np.float32), float(check["event_score"]),
+                                     float(check["run_score"]), int(check["run_events"])).astype(int)
 
 
 def checked_any(scores: np.ndarray) -> np.ndarray:

@@ -535,6 +535,49 @@ constexpr int kThreeChannelInputs = 1 + kDiffOrders + 1 + 2;
 void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_mm, int left_out,
                           float out[kThreeChannelInputs]);
 
+// --- the channel check (channelcheck.cpp): one channel against the other three ---
+//
+// A model without a site map has no twin to say that a channel's energies disagree with the others' (a partly
+// debonded disc: a gain loss and a low-pass); this does, label-free (docs/findings.md "A debonded channel on a
+// model without a twin"). For each channel c of a drop with an onset on every channel:
+//   level_c = log10 E_c - mean over the other three of log10 E_k (E the arrival energy),
+//   tilt_c  = (log10 D3_c - log10 E_c) - the same mean over the other three (D3 the third-difference energy:
+//             a gain cancels in it, a low-pass does not),
+// each less a cubic in a position (scaled to -1..1 over the plate; kCheckTerms terms x^i y^j, i + j <= 3, in the
+// order i = 0..3, j = 0..3-i) fitted on the training drops and the residuals' median, over their robust sd:
+// z_level, z_tilt. The score is max(min(-z_level, -z_tilt), kCheckLevelAlone x -z_level): large when the channel
+// is both weaker and duller than the other three say it should be, or far weaker whatever its spectrum.
+// An event flags a channel when its score is the event's largest and above event_score, or (run rule) when the
+// median of its finite scores over the last run_events events (this one included) exceeds run_score and this
+// event scores it; the run rule needs at least (run_events + 1) / 2 events seen.
+constexpr int kCheckTerms = 10;
+constexpr int kMaxCheckEvents = 32;        // run_events at most
+constexpr float kCheckLevelAlone = 1.0f / 3.0f;
+struct ChannelCheckFit {
+  float coef[kCheckTerms];
+  float median;
+  float scale;   // > 0
+};
+struct ChannelCheck {
+  ChannelCheckFit level[kChannels];
+  ChannelCheckFit tilt[kChannels];
+  float plate_x_mm = 1.0f, plate_y_mm = 1.0f;
+  float event_score = 5.0f, run_score = 3.0f;
+  int32_t run_events = 8;
+};
+// The cubic's terms at a position.
+void channel_check_terms(float x_mm, float y_mm, float plate_x_mm, float plate_y_mm, float out[kCheckTerms]);
+// level and tilt of the four channels (log10; energies and D3 floored at 1e-30).
+void channel_check_ratios(const float energy[kChannels], const float diff3[kChannels], float level[kChannels],
+                          float tilt[kChannels]);
+// The four scores of one drop (NaN: not checked) with channel c's cubic read at xy_mm[2c], xy_mm[2c + 1]: NaN for
+// every channel when a channel has no onset or is dead (flags), for channel c when its position is not finite.
+void channel_check_scores(const float energy[kChannels], const float diff3[kChannels], const uint8_t flags[kChannels],
+                          const float xy_mm[2 * kChannels], const ChannelCheck& check, float out[kChannels]);
+// The channel the newest event flags (-1: none) from the scores of the last `rows` events, oldest first
+// (window[4 r + c]; the newest last; rows <= kMaxCheckEvents, only the last run_events read).
+int channel_check_flag(const float* window, int rows, const ChannelCheck& check);
+
 // --- the band pick (bandpick.cpp) ---
 //
 // A pick that does not hang on which cycle of a weak, fast precursor a threshold catches (stiff plates,
