@@ -122,14 +122,16 @@ def channel_check_figures(ref, sess, four_model, channel: int, seed: int) -> dic
     of a model of the reference as retrain's baseline is trained (default split, its own localiser fit) and against
     the retrained four-channel model's own check, the shares of drops flagged on it, and that model's MAE on the
     changed session with its check off."""
-    ref_check = fit_channel_check(featurize(ref.adc, four_model.signal).raw, four_model.signal)
+    ref_feats = featurize(ref.adc, four_model.signal)
+    ref_check = fit_channel_check(ref_feats.raw, four_model.signal, ref_feats.phys_xy_mm)
     # what retrain itself holds: its baseline model (DATA_REF's default split, its own localiser fit) and its check
     baseline, _ = train(ref, None, 0.2, seed, None, settings=ForestSettings(n_estimators=5, seed=seed), site_map=None)
     out = {}
     for tag, check, signal in (("reference", ref_check, four_model.signal),
                                ("baseline", baseline.card["channel_check"], baseline.signal),
                                ("four", four_model.card["channel_check"], four_model.signal)):
-        scores = channel_scores(featurize(sess.adc, signal).raw, signal, check)[0]
+        feats = featurize(sess.adc, signal)
+        scores = channel_scores(feats.raw, signal, check, feats.phys_xy_mm)
         with np.errstate(all="ignore"):
             med = np.nanmedian(scores, axis=0)
         out[f"{tag}_score"] = float(med[channel])

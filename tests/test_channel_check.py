@@ -21,13 +21,15 @@ def fitted(session1):
     """(signal, check) fitted on every 4th session-1 drop, and the held-out drops between them."""
     cfg = SignalConfig.for_rig(session1.rig)
     train_rows = np.arange(0, len(session1), 4)
-    check = fit_channel_check(featurize(session1.adc[train_rows], cfg).raw, cfg)
+    train = featurize(session1.adc[train_rows], cfg)
+    check = fit_channel_check(train.raw, cfg, train.phys_xy_mm)
     return cfg, check, session1.subset(np.arange(2, len(session1), 8))
 
 
 def flags(session, cfg, check):
-    scores, xy = channel_scores(featurize(session.adc, cfg).raw, cfg, check)
-    return flagged_channel(scores, check), scores, xy
+    f = featurize(session.adc, cfg)
+    scores = channel_scores(f.raw, cfg, check, f.phys_xy_mm)
+    return flagged_channel(scores, check), scores, f.phys_xy_mm
 
 
 def test_the_check_is_fitted_and_clean_drops_score_low(fitted):

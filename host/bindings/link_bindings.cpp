@@ -388,9 +388,37 @@ struct PyModels : ia::Models {
   std::vector<Tables> three;        // the three-channel classes (linear, one per channel left out), or none
   std::vector<ia::ModelSpec> three_specs;
   std::unique_ptr<ia::TableModels> impl;
-  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin, nb::object dthree)
+  std::unique_ptr<ic::ChannelCheck> check;  // the channel check (with the three-channel classes), or none
+  PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin, nb::object dthree,
+           nb::object dcheck)
       : x(tables_from(dx, false)), y(tables_from(dy, false)), e(tables_from(de, !dtwin.is_none())),
         residual(residual_xy) {
+    if (!dcheck.is_none()) {
+      if (dthree.is_none()) throw std::invalid_argument("channel_check: needs the three-channel classes");
+      const nb::dict d = nb::cast<nb::dict>(dcheck);
+      check.reset(new ic::ChannelCheck());
+      const auto level = floats(d, "level", ic::kChannels * (ic::kCheckTerms + 2));
+      const auto tilt = floats(d, "tilt", ic::kChannels * (ic::kCheckTerms + 2));
+      const auto sc = floats(d, "scores", 5);   // plate_x_mm, plate_y_mm, event_score, run_score, run_events
+      for (int c = 0; c < ic::kChannels; ++c) {
+        for (int pass = 0; pass < 2; ++pass) {
+          const float* src = (pass == 0 ? level : tilt).data() + (ic::kCheckTerms + 2) * c;
+          ic::ChannelCheckFit& fit = pass == 0 ? check->level[c] : check->tilt[c];
+          std::memcpy(fit.coef, src, sizeof(fit.coef));
+          fit.median = src[ic::kCheckTerms];
+          fit.scale = src[ic::kCheckTerms + 1];
+          if (!(fit.scale > 0.0f)) throw std::invalid_argument("channel_check: a fit's scale must be > 0");
+        }
+      }
+      check->plate_x_mm = sc[0];
+      check->plate_y_mm = sc[1];
+      check->event_score = sc[2];
+      check->run_score = sc[3];
+      check->run_events = static_cast<int32_t>(sc[4]);
+      if (check->run_events < 1 || check->run_events > ic::kMaxCheckEvents || !(sc[0] > 0.0f) || !(sc[1] > 0.0f)) {
+        throw std::invalid_argument("channel_check: run_events 1..32 and a positive plate size needed");
+      }
+    }
     if (!dtwin.is_none()) twin.reset(new Twin(nb::cast<nb::dict>(dtwin)));
     if (!dthree.is_none()) {
       if (twin) throw std::invalid_argument("three_channel: a model with a twin matches without the channel itself");
@@ -408,7 +436,7 @@ struct PyModels : ia::Models {
       for (const Tables& t : three) three_specs.push_back(t.spec());
     }
     impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual, twin ? &twin->spec : nullptr,
-                                   three_specs.empty() ? nullptr : three_specs.data()));
+                                   three_specs.empty() ? nullptr : three_specs.data(), check.get()));
   }
   bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
     return impl->predict(ev, xm, ym, c);
@@ -418,9 +446,10 @@ struct PyModels : ia::Models {
     return impl->predict_with_uncertainty(ev, xm, ym, c, u);
   }
   bool predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* xm, float* ym, uint8_t* c,
-                     float* u, int8_t* left_out) const override {
-    return impl->predict_event(ev, loc, xm, ym, c, u, left_out);
+                     float* u, int8_t* left_out, int flagged, const ic::CoreConfig* core) const override {
+    return impl->predict_event(ev, loc, xm, ym, c, u, left_out, flagged, core);
   }
+  const ic::ChannelCheck* channel_check() const override { return impl->channel_check(); }
 };
 
 // Collects what the app writes.
@@ -603,14 +632,17 @@ NB_MODULE(_link, m) {
   m.attr("TWIN_INPUT") = static_cast<int>(ia::kTwinInput);
 
   nb::class_<PyModels>(m, "ForestModels")
-      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object, nb::object>(), "x"_a, "y"_a, "energy"_a,
-           "residual_xy"_a, "twin"_a = nb::none(), "three_channel"_a = nb::none(),
+      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object, nb::object, nb::object>(), "x"_a, "y"_a,
+           "energy"_a, "residual_xy"_a, "twin"_a = nb::none(), "three_channel"_a = nb::none(),
+           "channel_check"_a = nb::none(),
            "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them; twin: the "
            "site map and its configuration (dict of grid [nx, ny, x0_mm, y0_mm, step_mm], q, base, scale, offset, "
            "slope, weight, config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]) when the energy "
            "classifier reads the twin's estimate (input TWIN_INPUT); three_channel (without a twin): a list of 4 "
            "linear models (kind 'linear', inputs 0..6) of impactcore three_channel_inputs, the class of a drop "
-           "whose channel c has no onset.")
+           "whose channel c has no onset; channel_check (with three_channel): dict of level and tilt (4 x 12: the "
+           "cubic's 10 coefficients, median, scale), scores (plate_x_mm, plate_y_mm, event_score, run_score, "
+           "run_events): impactcore's channel check, whose flagged channel the app's reports leave out.")
       .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
       .def_prop_ro("has_twin", [](const PyModels& p) { return p.twin != nullptr; })
       .def("predict", [](const PyModels& p, InF vector, InF phys_xy, nb::object window_energy,

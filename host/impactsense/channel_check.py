@@ -4,8 +4,10 @@ on a model of any rig (docs/findings.md "A debonded channel on a model without a
 A debonded disc passes the plate's wave through a low-pass with a gain loss, so at a drop's position its arrival
 is weaker than the other three channels' and duller (less of its energy in the third difference). For each
 channel c of a drop with four onsets:
-- the position: the core's physics localiser on the other three channels' picks (edge_travel.three_sensor_positions;
-  a late, filtered pick on c does not move it);
+- the position: the core's four-channel physics position (what process_event gives; version 1 of the check read
+  each channel's cubic at the physics position from the other three channels' picks, edge_travel.three_sensor_positions,
+  four more localisations an event, which the board's event budget does not afford; both flag the same drops,
+  docs/findings.md "The channel check on the board");
 - level_c = log10 E_c - mean over the other three of log10 E_k (E the arrival energy);
 - tilt_c = (log10 D3_c - log10 E_c) - the same mean over the other three (D3 the third-difference energy; a gain
   cancels in it, a low-pass does not);
@@ -38,7 +40,7 @@ RUN_SCORE = 3.0
 RUN_EVENTS = 8
 SCALE_FLOOR = 0.02    # log10: ~5 % in energy, below which a residual's spread is not taken as the rig's
 MIN_DROPS = 30        # training drops with four onsets needed to fit the check
-CHECK_VERSION = 1
+CHECK_VERSION = 2     # 2: the cubics read at the four-channel physics position; 1: at the three-sensor ones
 
 
 def _basis(xy_mm: np.ndarray, signal) -> np.ndarray:
@@ -63,20 +65,24 @@ def checked_rows(raw: dict) -> np.ndarray:
     return (np.asarray(raw["status"]) == _core.STATUS_OK) & ((flags & (_core.FLAG_NO_ONSET | _core.FLAG_DEAD)) == 0).all(1)
 
 
-def _inputs(raw: dict, signal) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(rows checked [R], three-sensor positions [R, 4, 2], level, tilt)."""
-    rows = checked_rows(raw)
-    xy = np.stack([three_sensor_positions(raw, signal, c) for c in range(4)], 1)
-    level, tilt = _ratios(raw)
-    return rows, xy, level, tilt
+def check_positions(raw: dict, signal, check_version: int, phys_xy_mm: np.ndarray | None) -> np.ndarray:
+    """The position each channel's cubic reads [R, 4, 2]: the four-channel physics position (version 2), or the
+    three-sensor position without that channel (version 1)."""
+    if check_version >= 2:
+        if phys_xy_mm is None:
+            raise ValueError("the channel check (version 2) reads the physics positions: give phys_xy_mm")
+        return np.repeat(np.asarray(phys_xy_mm, float)[:, None, :], 4, 1)
+    return np.stack([three_sensor_positions(raw, signal, c) for c in range(4)], 1)
 
 
-def fit_channel_check(raw: dict, signal) -> dict | None:
-    """The card's "channel_check" from training drops (the core's raw arrays), or None with fewer than MIN_DROPS
-    drops the check can read or with a channel left out (three channels: too few to compare one with the rest)."""
+def fit_channel_check(raw: dict, signal, phys_xy_mm: np.ndarray) -> dict | None:
+    """The card's "channel_check" from training drops (the core's raw arrays and physics positions), or None with
+    fewer than MIN_DROPS drops the check can read or with a channel left out (three channels: too few to compare
+    one with the rest)."""
     if any(signal.channel_left_out):
         return None
-    rows, xy, level, tilt = _inputs(raw, signal)
+    rows, xy = checked_rows(raw), check_positions(raw, signal, CHECK_VERSION, phys_xy_mm)
+    level, tilt = _ratios(raw)
     out = {"version": CHECK_VERSION, "event_score": EVENT_SCORE, "run_score": RUN_SCORE, "run_events": RUN_EVENTS,
            "level": [], "tilt": [], "n_drops": []}
     for c in range(4):
@@ -91,7 +97,7 @@ def fit_channel_check(raw: dict, signal) -> dict | None:
             scale = max(1.4826 * float(np.median(np.abs(resid - med))), SCALE_FLOOR)
             out[name].append({"coef": [float(v) for v in coef], "median": med, "scale": scale})
         out["n_drops"].append(int(ok.sum()))
-    scores = channel_scores(raw, signal, out)[0]
+    scores = channel_scores(raw, signal, out, phys_xy_mm)
     out["training_score_max"] = [float(np.nanmax(s)) if np.isfinite(s).any() else None for s in scores.T]
     return out
 
@@ -112,10 +118,10 @@ def scores_at(raw: dict, signal, check: dict, xy_mm: np.ndarray) -> np.ndarray:
         float(signal.plate_x_mm), float(signal.plate_y_mm)).astype(float)
 
 
-def channel_scores(raw: dict, signal, check: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(scores [R, 4], NaN where a drop is not checked; the three-sensor positions [R, 4, 2])."""
-    xy = np.stack([three_sensor_positions(raw, signal, c) for c in range(4)], 1)
-    return scores_at(raw, signal, check, xy), xy
+def channel_scores(raw: dict, signal, check: dict, phys_xy_mm: np.ndarray | None = None) -> np.ndarray:
+    """The scores [R, 4] of the drops (NaN where a drop is not checked), the cubics read where the check's version
+    says (check_positions)."""
+    return scores_at(raw, signal, check, check_positions(raw, signal, int(check.get("version", 1)), phys_xy_mm))
 
 
 def flagged_channel(scores: np.ndarray, check: dict) -> np.ndarray:
@@ -126,21 +132,20 @@ def flagged_channel(scores: np.ndarray, check: dict) -> np.ndarray:
                                      float(check["run_score"]), int(check["run_events"])).astype(int)
 
 
-def checked_any(scores: np.ndarray) -> np.ndarray:
-    return np.isfinite(scores).any(1)
-
-
 def flag_events(raw: dict, phys_xy_mm: np.ndarray, use: np.ndarray, left_out: np.ndarray, signal,
                 check: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ImpactModel.predict's check over the events in the order given: (flagged [R] bool, the positions of the
     three-sensor path [R, 2] (the core's physics position for a channel without an onset, the three-sensor
-    position without the flagged channel otherwise), the channel each three-sensor row leaves out [R])."""
-    scores, loo_xy = channel_scores(raw, signal, check)
-    bad = flagged_channel(scores, check)
+    position without the flagged channel otherwise: the board's impactcore::localise_event), the channel each
+    three-sensor row leaves out [R])."""
+    bad = flagged_channel(channel_scores(raw, signal, check, phys_xy_mm), check)
+    three_xy = np.array(phys_xy_mm, float, copy=True)
     rows = np.flatnonzero(use & (bad >= 0))
-    rows = rows[np.isfinite(loo_xy[rows, bad[rows]]).all(1)]
+    for c in np.unique(bad[rows]):
+        sel = rows[bad[rows] == c]
+        three_xy[sel] = three_sensor_positions({k: v[sel] for k, v in raw.items()}, signal, int(c))
+    rows = rows[np.isfinite(three_xy[rows]).all(1)]
     flagged = np.zeros(len(use), bool)
     flagged[rows] = True
-    three_xy = np.array(phys_xy_mm, float, copy=True)
-    three_xy[rows] = loo_xy[rows, bad[rows]]
+    three_xy[~flagged] = np.asarray(phys_xy_mm, float)[~flagged]
     return flagged, three_xy, np.where(flagged, bad, left_out)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError, ImpactSenseError
+from . import export_check
 from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_CHANNEL_DEFINE,  # noqa: F401
                        TABLE_KEYS, ExportError, _c_float, exported_fields,
                        f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
@@ -58,6 +59,8 @@ class ModelSet:
     twin: dict | None = None        # the site map and twin configuration (twin_arrays), when the card has one
     # without a twin: channel -> the energy class of a drop without that channel (height_class.LinearHeightClass)
     three_channel: dict = field(default_factory=dict)
+    # the channel check as the board runs it (export_check.check_arrays), or None
+    channel_check: dict | None = None
 
     def three_channel_tables(self) -> dict:
         """channel -> the three-channel class's arrays (height_class.linear_tables); {} without them."""
@@ -182,9 +185,10 @@ def load_models(model_dir) -> ModelSet:
             raise ExportError(f"{card_path}: feature index out of range")
         inputs[role] = idx
     residual = "phys_x_mm +" in str(card.get("target", ""))
-    return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual,
-                    dict(card.get("signal") or {}), twin,
-                    _load_three_channel(model_dir, card, card_path) if twin is None else {})
+    three = _load_three_channel(model_dir, card, card_path) if twin is None else {}
+    signal = dict(card.get("signal") or {})
+    return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
+                    export_check.check_arrays(card, signal, bool(three)))
 
 
 def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> dict:
@@ -365,10 +369,13 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                                                   residual=int(models.residual_xy),
                                                                   twin=int(models.twin is not None),
                                                                   energy_linear=(LINEAR_DEFINE if models.energy_linear else "")
-                                                                  + (THREE_CHANNEL_DEFINE if models.three_channel else ""),
-                                                                  three_channel_decl=THREE_CHANNEL_DECL if models.three_channel
-                                                                  else ""))
-    (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head))
+                                                                  + (THREE_CHANNEL_DEFINE if models.three_channel else "")
+                                                                  + (export_check.CHECK_DEFINE if models.channel_check else ""),
+                                                                  three_channel_decl=(THREE_CHANNEL_DECL if models.three_channel
+                                                                                      else "")
+                                                                  + (export_check.CHECK_DECL if models.channel_check else "")))
+    (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head) + (
+        export_check.check_c(models.channel_check) if models.channel_check else ""))
     if write_m2cgen:
         (out_dir / "impactsense_models_m2c.c").write_text(m2cgen_c(models, n_trees, head))
     np.savez(out_dir / "forest_tables.npz", n_features=models.n_features, residual_xy=models.residual_xy,
@@ -377,7 +384,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
              **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()},
              **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()},
              **{f"without_{c}_{k2}": v for c, t in three.items() for k2, v in t.items()},
-             **({"energy_kind": "linear"} if models.energy_linear else {}))
+             **({"energy_kind": "linear"} if models.energy_linear else {}),
+             **export_check.npz_arrays(models.channel_check))
     summary = {
         "model_card_sha256_16": model_hash,
         "features": models.card.get("feature_names"),
@@ -392,8 +400,10 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "trees": n_trees,
         "nodes": {r: table_nodes(t) for r, t in tabs.items()},
         "table_bytes": {**{r: table_bytes(t) for r, t in tabs.items()}, "twin": table_bytes(models.twin),
-                        **({"three_channel": sum(table_bytes(t) for t in three.values())} if three else {})},
+                        **({"three_channel": sum(table_bytes(t) for t in three.values())} if three else {}),
+                        **({"channel_check": table_bytes(models.channel_check)} if models.channel_check else {})},
         "table_bytes_total": (sum(table_bytes(t) for t in tabs.values()) + table_bytes(models.twin)
+                              + table_bytes(models.channel_check)
                               + sum(table_bytes(t) for t in three.values())
                               + sum(len(v) for v in models.inputs.values())),
         "twin": None if models.twin is None else {
@@ -425,6 +435,7 @@ def load_tables(path) -> dict:
     # the three-channel classes (linear_tables per channel; absent: none)
     out["three_channel"] = ({c: {k: z[f"without_{c}_{k}"] for k in TABLE_KEYS if f"without_{c}_{k}" in z.files}
                              for c in range(4)} if "without_0_roots" in z.files else None)
+    out["channel_check"] = export_check.from_npz(z)
     return out
 
 
@@ -455,5 +466,5 @@ def firmware_models(path):
     three = None if t["three_channel"] is None else [
         {**{k: v.tolist() for k, v in t["three_channel"][c].items()}, "inputs": list(range(_core.THREE_CHANNEL_INPUTS)),
          "kind": "linear"} for c in range(4)]
-    return (_link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin, three),
-            t["signal"])
+    return (_link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin, three,
+                               export_check.binding_dict(t["channel_check"])), t["signal"])

@@ -53,18 +53,40 @@ bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_m
 }
 
 bool TableModels::predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* x_mm, float* y_mm,
-                                uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const {
-  return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out);
+                                uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged,
+                                const ic::CoreConfig* core) const {
+  return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out, flagged, core);
+}
+
+bool TableModels::three_sensor_path(const ic::EventResult& ev, const ic::LocaliserConfig& loc,
+                                    const ic::CoreConfig& core, int flagged, float* x_mm, float* y_mm, uint8_t* cls,
+                                    float* uncertainty_mm) const {
+  const ic::LocaliserResult p = ic::three_sensor_position(ev, core, loc, flagged);
+  if (p.status != ic::kOk) return false;
+  float in[ic::kThreeChannelInputs];
+  ic::three_channel_inputs(ev.features, p.x_mm, p.y_mm, flagged, in);
+  *cls = three_[flagged].evaluate(three_[flagged].forest, in) > 0.5f ? 1 : 0;
+  *x_mm = p.x_mm;
+  *y_mm = p.y_mm;
+  const float var = p.cov_xx + p.cov_yy;
+  if (var >= 0.0f) *uncertainty_mm = sqrtf(var);
+  return true;
 }
 
 bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserConfig* loc, float* x_mm, float* y_mm,
-                               uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const {
+                               uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged,
+                               const ic::CoreConfig* core) const {
   float in[kMaxModelInputs];
   *left_out = -1;
   if (ev.status != ic::kOk) return false;
   // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
   float x = NAN, y = NAN;
   const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
+  if (forests && has_check_ && flagged >= 0 && flagged < ic::kChannels && loc != nullptr && core != nullptr &&
+      three_sensor_path(ev, *loc, *core, flagged, x_mm, y_mm, cls, uncertainty_mm)) {
+    *left_out = static_cast<int8_t>(flagged);  // a channel the check flags: the three-sensor path
+    return true;
+  }
   if (forests) {
     const float dx = x_.evaluate(x_.forest, in);
     if (same_xy_inputs_ || gather(y_, ev.vector, NAN, in)) {
@@ -154,6 +176,7 @@ bool App::configure(const AppConfig& cfg) {
 
 void App::restart() {
   state_ = kWarmup;
+  check_rows_ = 0;
   ring_pos_ = 0;
   ring_fill_ = 0;
   cap_pos_ = 0;
@@ -340,9 +363,10 @@ void App::process_capture() {
     const float var = ev_.phys.cov_xx + ev_.phys.cov_yy;
     if (var >= 0.0f) r.uncertainty_mm = sqrtf(var);
   }
+  const int flagged = check_event(st);
   if (st == ic::kOk && models_ != nullptr) {
     r.valid = models_->predict_event(ev_, cfg_.loc, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm,
-                                     &r.left_out);
+                                     &r.left_out, flagged, &cfg_.core);
     if (!r.valid) r.left_out = -1;
   }
   uint8_t ble[il::kBlePayload];
@@ -357,6 +381,35 @@ void App::process_capture() {
     return;
   }
   send_report();
+}
+
+int App::check_event(int32_t status) {
+  const ic::ChannelCheck* check = models_ != nullptr ? models_->channel_check() : nullptr;
+  if (check == nullptr) return -1;
+  int w = check->run_events < ic::kMaxCheckEvents ? check->run_events : ic::kMaxCheckEvents;
+  if (w < 1) w = 1;
+  if (check_rows_ >= w) {  // keep the last w - 1 events' scores, this one's after them
+    memmove(check_scores_[0], check_scores_[check_rows_ - w + 1], sizeof(check_scores_[0]) * static_cast<size_t>(w - 1));
+    check_rows_ = w - 1;
+  }
+  float* s = check_scores_[check_rows_++];
+  for (int c = 0; c < ic::kChannels; ++c) s[c] = NAN;
+  if (status == ic::kOk) {
+    // every channel's cubic at the four-channel physics position as the core gives it (the host's channel_check,
+    // version 2, reads process_batch's phys_xy_mm)
+    float energy[ic::kChannels], diff3[ic::kChannels], xy[2 * ic::kChannels];
+    uint8_t flags[ic::kChannels];
+    for (int c = 0; c < ic::kChannels; ++c) {
+      const ic::ChannelFeatures& ch = ev_.features.ch[c];
+      energy[c] = ch.energy;
+      diff3[c] = ch.diff_energy[ic::kDiffOrders - 1];
+      flags[c] = ch.flags;
+      xy[2 * c] = ev_.phys.x_mm;
+      xy[2 * c + 1] = ev_.phys.y_mm;
+    }
+    ic::channel_check_scores(energy, diff3, flags, xy, *check, s);
+  }
+  return ic::channel_check_flag(check_scores_[0], check_rows_, *check);
 }
 
 void App::send_report() {

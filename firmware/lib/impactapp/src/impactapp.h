@@ -112,12 +112,20 @@ class Models {
   }
   // predict_with_uncertainty() knowing the localiser's geometry, so that models matching the twin can leave
   // a dead or inconsistent channel out (impactcore::twin_match); *left_out is that channel (-1: none).
+  // flagged: the channel the channel check flags on this event (App: impactcore::channel_check_flag over the
+  // check's scores, channel_check()), -1 none; models with three-channel classes then report the three-sensor path
+  // without it (core: the event's core configuration, for impactcore::three_sensor_position).
   virtual bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
-                             float* y_mm, uint8_t* energy_class, float* uncertainty_mm, int8_t* left_out) const {
+                             float* y_mm, uint8_t* energy_class, float* uncertainty_mm, int8_t* left_out,
+                             int flagged = -1, const impactcore::CoreConfig* core = nullptr) const {
     (void)loc;
+    (void)flagged;
+    (void)core;
     *left_out = -1;
     return predict_with_uncertainty(ev, x_mm, y_mm, energy_class, uncertainty_mm);
   }
+  // The channel check the models carry (a model without a twin; the card's "channel_check"), or nullptr.
+  virtual const impactcore::ChannelCheck* channel_check() const { return nullptr; }
 };
 
 // Models as forests (forest.h's node tables, or the m2cgen form's code: ModelSpec::evaluate; the logic around
@@ -133,13 +141,17 @@ class TableModels : public Models {
   // channel c has no onset (dead, or left out by the core's channel_left_out), evaluated on
   // impactcore::three_channel_inputs (its inputs field unused); such a drop is reported at the physics
   // localiser's three-sensor position with c left out (the host's models.ImpactModel.predict).
+  // check (with three_channel; copied): the channel check, whose flagged channel predict_event's three-sensor path
+  // leaves out.
   TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
-              const TwinSpec* twin = nullptr, const ModelSpec* three_channel = nullptr)
+              const TwinSpec* twin = nullptr, const ModelSpec* three_channel = nullptr,
+              const impactcore::ChannelCheck* check = nullptr)
       : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr),
         same_xy_inputs_(x.n_inputs == y.n_inputs && x.inputs != nullptr && y.inputs != nullptr &&
                         memcmp(x.inputs, y.inputs, static_cast<size_t>(x.n_inputs)) == 0),
-        three_(three_channel) {
+        three_(three_channel), has_check_(check != nullptr && three_channel != nullptr && twin == nullptr) {
     if (twin != nullptr) twin_ = *twin;
+    if (has_check_) check_ = *check;
   }
   bool predict(const impactcore::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const override;
   // With a twin the uncertainty is its matched position's calibrated 1-sigma (twin_uncertainty_mm).
@@ -148,18 +160,29 @@ class TableModels : public Models {
   // With a twin: impactcore::twin_match, i.e. when the forests cannot run because one channel has no onset,
   // the physics localiser's three-sensor position starts the twin on the other three channels; a channel
   // whose energies the twin cannot explain is left out (the host's models.ImpactModel.predict is the same).
+  // Without a twin, a channel the check flags (flagged >= 0) on an event the forests could place: the physics
+  // position without it (impactcore::three_sensor_position) and its three-channel class, the channel in *left_out
+  // (the host's models.ImpactModel.predict, three_sensor_path); the forests do not run.
   bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
-                     float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const override;
+                     float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged = -1,
+                     const impactcore::CoreConfig* core = nullptr) const override;
+  const impactcore::ChannelCheck* channel_check() const override { return has_check_ ? &check_ : nullptr; }
   bool has_twin() const { return has_twin_; }
  private:
   bool predict_impl(const impactcore::EventResult& ev, const impactcore::LocaliserConfig* loc, float* x_mm,
-                    float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out) const;
+                    float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged = -1,
+                    const impactcore::CoreConfig* core = nullptr) const;
+  bool three_sensor_path(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc,
+                         const impactcore::CoreConfig& core, int flagged, float* x_mm, float* y_mm, uint8_t* cls,
+                         float* uncertainty_mm) const;
   ModelSpec x_, y_, e_;
   bool residual_;
   bool has_twin_;
   bool same_xy_inputs_;  // the y forest reads the x forest's inputs (as `impactsense train` makes them): gathered once
   TwinSpec twin_{};
   const ModelSpec* three_;  // [impactcore::kChannels] or nullptr
+  bool has_check_;
+  impactcore::ChannelCheck check_{};
 };
 
 // The board's acquisition as the core sees it: the rate, the SAADC scan order's capture delays (channel c
@@ -265,6 +288,10 @@ class App {
   impactlink::Status status_{};
   TxQueue<kTxQueueBytes> txq_;
   impactcore::EventResult ev_;
+  // The channel check's scores of the last events (oldest first; impactcore::channel_check_flag's window).
+  float check_scores_[impactcore::kMaxCheckEvents][impactcore::kChannels];
+  int check_rows_ = 0;
+  int check_event(int32_t status);  // pushes this event's scores; the channel the check flags (-1: none)
   impactlink::Report report_;
   uint8_t tx_[impactlink::kMaxFrame];
   impactlink::Decoder rx_;

@@ -71,6 +71,36 @@ inline const ModelSpec* exported_three_channel() {
 inline const ModelSpec* exported_three_channel() { return nullptr; }
 #endif
 
+#if defined(IMPACTSENSE_CHANNEL_CHECK) && IMPACTSENSE_CHANNEL_CHECK
+// A model without a twin: the channel check (impactcore::ChannelCheck) from the card's fits.
+inline impactcore::ChannelCheck exported_channel_check_value() {
+  const impactsense_channel_check& s = impactsense_check;
+  impactcore::ChannelCheck check;
+  for (int c = 0; c < impactcore::kChannels; ++c) {
+    for (int k = 0; k < impactcore::kCheckTerms; ++k) {
+      check.level[c].coef[k] = s.level[c][k];
+      check.tilt[c].coef[k] = s.tilt[c][k];
+    }
+    check.level[c].median = s.level[c][impactcore::kCheckTerms];
+    check.level[c].scale = s.level[c][impactcore::kCheckTerms + 1];
+    check.tilt[c].median = s.tilt[c][impactcore::kCheckTerms];
+    check.tilt[c].scale = s.tilt[c][impactcore::kCheckTerms + 1];
+  }
+  check.plate_x_mm = s.plate_x_mm;
+  check.plate_y_mm = s.plate_y_mm;
+  check.event_score = s.event_score;
+  check.run_score = s.run_score;
+  check.run_events = s.run_events;
+  return check;
+}
+inline const impactcore::ChannelCheck* exported_channel_check() {
+  static const impactcore::ChannelCheck check = exported_channel_check_value();
+  return &check;
+}
+#else
+inline const impactcore::ChannelCheck* exported_channel_check() { return nullptr; }
+#endif
+
 // The exported models, their forests (x, y, energy) evaluated by the given functions.
 inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, ForestEvaluator energy) {
 #if IMPACTSENSE_TWIN
@@ -80,7 +110,7 @@ inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, Fo
 #else
   return TableModels(exported_spec(impactsense_model_x, x), exported_spec(impactsense_model_y, y),
                      exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0, nullptr,
-                     exported_three_channel());
+                     exported_three_channel(), exported_channel_check());
 #endif
 }
 

@@ -84,6 +84,57 @@ float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const Loc
   return slowness > 0.0f ? 1.0f / slowness : v;
 }
 
+void localise_event(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc, int without,
+                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band) {
+  float toa[kChannels];
+  uint8_t use[kChannels];
+  for (int c = 0; c < kChannels; ++c) {
+    toa[c] = f.ch[c].toa_us;
+    use[c] = (c == without || (f.ch[c].flags & (kFlagNoOnset | kFlagDead))) ? 0 : 1;
+  }
+  const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
+  *phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us, loc.sigma_us,
+                        loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
+                        loc.dispersion_exponent != 0.0f ? slowness_scale : nullptr, loc.localiser_starts,
+                        loc.posterior_grid);
+  // The band picks' own position (averaged with the threshold picks' by average_band: their errors are partly
+  // independent, docs/findings.md "Picks in one band"). Like the threshold localiser it runs on the channels that
+  // have a pick, at least three: a far channel's band peak under the noise floor gives no band pick, and the other
+  // three still place the drop (docs/findings.md "Band picks on three channels"); fewer: not run.
+  *band = LocaliserResult{};
+  band->x_mm = band->y_mm = NAN;
+  band->status = kErrBadConfig;
+  if (!(cfg.band_pick_hz > 0.0f && loc.band_velocity_mm_per_us > 0.0f && phys->status == kOk)) return;
+  float toa_band[kChannels];
+  uint8_t band_use[kChannels];
+  int picked = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    toa_band[c] = f.ch[c].toa_band_us - loc.band_delay_us[c];
+    band_use[c] = (use[c] && toa_band[c] == toa_band[c]) ? 1 : 0;
+    if (!band_use[c]) toa_band[c] = 0.0f;
+    picked += band_use[c];
+  }
+  if (picked < 3) return;
+  const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
+  *band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity_for(f, cfg, loc),
+                        loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
+                        loc.localiser_starts, loc.posterior_grid);
+}
+
+void average_band(LocaliserResult* phys, const LocaliserResult& band) {
+  if (phys->status != kOk || band.status != kOk) return;
+  phys->x_mm = 0.5f * (phys->x_mm + band.x_mm);
+  phys->y_mm = 0.5f * (phys->y_mm + band.y_mm);
+}
+
+LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& cfg, const LocaliserConfig& loc,
+                                      int without) {
+  LocaliserResult phys, band;
+  localise_event(ev.features, cfg, loc, without, ev.slowness_scale, &phys, &band);
+  average_band(&phys, band);
+  return phys;
+}
+
 int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                       const LocaliserConfig& loc, EventResult* out) {
   if (out == nullptr) return kErrNullInput;
@@ -94,55 +145,22 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   if (out->status != kOk) return out->status;
   const EventFeatures& f = out->features;
   float toa[kChannels];
-  uint8_t use[kChannels];
-  for (int c = 0; c < kChannels; ++c) {
-    toa[c] = f.ch[c].toa_us;
-    use[c] = (f.ch[c].flags & (kFlagNoOnset | kFlagDead)) ? 0 : 1;
-  }
-  const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
+  for (int c = 0; c < kChannels; ++c) toa[c] = f.ch[c].toa_us;
   // A dispersive plate: each channel's slowness follows the frequency of the cycle its onset caught.
   float* scale = out->slowness_scale;
   for (int c = 0; c < kChannels; ++c) scale[c] = 1.0f;
-  const bool dispersive = loc.dispersion_exponent != 0.0f;
-  if (dispersive) dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
-  out->phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
-                            loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
-                            dispersive ? scale : nullptr, loc.localiser_starts, loc.posterior_grid);
+  if (loc.dispersion_exponent != 0.0f) {
+    dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
+  }
+  localise_event(f, cfg, loc, -1, scale, &out->phys, &out->band);
   if (out->phys.status == kOk) {
+    const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
     out->accepted = accept_eq35(toa, loc.sensor_x_mm, loc.sensor_y_mm, out->phys.x_mm, out->phys.y_mm,
                                 loc.accept_tol_us, loc.accept_margin_mm, metric)
                         ? 1
                         : 0;
   }
-  // The band picks' own position, averaged with the threshold picks' (their errors are partly independent:
-  // docs/findings.md "Picks in one band"). Like the threshold localiser it runs on the channels that have a
-  // pick, at least three: a far channel's band peak under the noise floor gives no band pick, and the other
-  // three still place the drop (docs/findings.md "Band picks on three channels"); fewer: phys stays as is.
-  out->band = LocaliserResult{};
-  out->band.x_mm = out->band.y_mm = NAN;
-  out->band.status = kErrBadConfig;
-  if (cfg.band_pick_hz > 0.0f && loc.band_velocity_mm_per_us > 0.0f && out->phys.status == kOk) {
-    float toa_band[kChannels];
-    uint8_t band_use[kChannels];
-    int picked = 0;
-    for (int c = 0; c < kChannels; ++c) {
-      toa_band[c] = f.ch[c].toa_band_us - loc.band_delay_us[c];
-      band_use[c] = (use[c] && toa_band[c] == toa_band[c]) ? 1 : 0;
-      if (!band_use[c]) toa_band[c] = 0.0f;
-      picked += band_use[c];
-    }
-    if (picked >= 3) {
-      const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
-      const float band_velocity = band_velocity_for(f, cfg, loc);
-      out->band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity,
-                                loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
-                                loc.localiser_starts, loc.posterior_grid);
-      if (out->band.status == kOk) {
-        out->phys.x_mm = 0.5f * (out->phys.x_mm + out->band.x_mm);
-        out->phys.y_mm = 0.5f * (out->phys.y_mm + out->band.y_mm);
-      }
-    }
-  }
+  average_band(&out->phys, out->band);
   float* v = out->vector;
   float tmin = INFINITY;
   for (int c = 0; c < kChannels; ++c) {

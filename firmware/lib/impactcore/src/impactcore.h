@@ -615,6 +615,18 @@ struct EventResult {
 int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                       const LocaliserConfig& loc, EventResult* out);
 
+// process_event's localisation of an event's picks: *phys the threshold picks' position (dispersion: slowness_scale),
+// *band the band picks' own (status kErrBadConfig when not run: band picks off, phys failed, fewer than three band
+// picks); channels without an onset (or dead) are not read, nor channel `without` (0..3; -1: none).
+void localise_event(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc, int without,
+                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band);
+// process_event's physics position: the mean of the threshold picks' and the band picks' when both placed the drop.
+void average_band(LocaliserResult* phys, const LocaliserResult& band);
+// The physics position of an event without channel `without`: the three-sensor path of a channel the channel check
+// flags (the host's edge_travel.three_sensor_positions runs the same localiser on the same picks).
+LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& cfg, const LocaliserConfig& loc,
+                                      int without);
+
 // --- streaming trigger (the only stateful part) ---
 
 // Threshold trigger with hysteresis and hold-off on the per-frame max over channels of |x - baseline|.

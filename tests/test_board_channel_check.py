@@ -1,0 +1,74 @@
+"""The channel check on the board (impactcore's channel_check_scores / channel_check_flag, impactapp's App and
+TableModels): `export` writes a board model's check (its cubics read at the four-channel physics position) into the
+generated C and forest_tables.npz, and the firmware app (the emulated board) flags a debonded channel and reports the
+three-sensor answer on the drops the host's model flags on the same captures, at the host's position and class."""
+
+import json
+
+import numpy as np
+import pytest
+
+from impactsense.board.capture import board_captures
+from impactsense.board.scores import board_reports
+from impactsense.data import load_session
+from impactsense.export import export_models, firmware_models
+from impactsense.faults import FaultSpec, inject_session
+from impactsense.models import ForestSettings, ImpactModel
+from impactsense.pipeline import featurize
+
+DEBONDED = 1
+
+
+@pytest.fixture(scope="module")
+def check_export(tmp_path_factory):
+    """A board-rate model without a twin (half of session-1's drops, 5 trees), exported; its held-out drops."""
+    from impactsense.board.models import train_board_models
+
+    s1 = load_session()
+    sub = s1.subset(np.arange(0, len(s1), 2))
+    d = train_board_models(sub, tmp_path_factory.mktemp("m") / "model", settings=ForestSettings(n_estimators=5))
+    out = tmp_path_factory.mktemp("export")
+    summary = export_models(d, out, write_m2cgen=False)
+    card = json.loads((d / "model_card.json").read_text())
+    test = sub.subset(np.flatnonzero(np.isin(sub.recording_id, card["test_recording_ids"]))[::2])
+    return d, out, summary, test
+
+
+def board_and_host(model_dir, out, session):
+    models, signal = firmware_models(out)
+    got = board_reports(session, models, signal)
+    caps, rows, sig = board_captures(session, 50000, signal)
+    return got, rows, ImpactModel.load(model_dir).predict(featurize(caps, sig))
+
+
+def test_the_export_carries_the_check(check_export):
+    d, out, summary, _ = check_export
+    card = json.loads((d / "model_card.json").read_text())
+    assert card["channel_check"]["version"] == 2
+    assert summary["table_bytes"]["channel_check"] == 2 * 4 * 12 * 4 + 5 * 4
+    assert "#define IMPACTSENSE_CHANNEL_CHECK 1" in (out / "impactsense_models.h").read_text()
+    assert "impactsense_check = {" in (out / "impactsense_forest_tables.c").read_text()
+
+
+def test_the_board_flags_a_debonded_channel_as_the_host_does(check_export):
+    """Debonded channel 1 (x0.4, 4 kHz): the board names it on >= 95 % of the drops and on exactly the drops the
+    host's model flags, at the host's three-sensor position (0.05 mm: the wire's 0.1 mm steps) with its class."""
+    d, out, _, test = check_export
+    session = inject_session(test, FaultSpec(debond=DEBONDED, debond_hz=4000, seed=3))
+    got, rows, pred = board_and_host(d, out, session)
+    assert len(got) == len(rows) == len(test)
+    board_bad = np.array([got[i]["left_out"] for i in rows])
+    np.testing.assert_array_equal(board_bad, pred["bad_channel"])
+    assert np.mean(board_bad == DEBONDED) >= 0.95 and np.all(board_bad[board_bad >= 0] == DEBONDED)
+    on = board_bad == DEBONDED
+    board_xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows])
+    np.testing.assert_allclose(board_xy[on], pred["xy_mm"][on], atol=0.05 + 1e-3)
+    board_cls = np.array([got[i]["energy_class"] for i in rows])
+    assert np.mean(board_cls[on] == pred["energy_class"][on]) >= 0.95
+
+
+def test_the_board_flags_no_channel_of_clean_drops(check_export):
+    d, out, _, test = check_export
+    got, rows, pred = board_and_host(d, out, test)
+    assert len(got) == len(test)
+    assert all(got[i]["left_out"] == -1 for i in rows) and np.all(pred["bad_channel"] == -1)
