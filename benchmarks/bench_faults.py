@@ -22,7 +22,7 @@ targets are the clean row's less one drop. The 150-count hum rows (three times t
 target; their MAE and class are printed.
 
     python benchmarks/bench_faults.py [--data DATA] [--draws 2] [--first-draw 0] [--trees 100] [--only ROWS]
-        [--physics-three-sensor] [--no-targets] [--json OUT]
+        [--physics-three-sensor] [--site-map auto|none] [--no-targets] [--json OUT]
 
 `--first-draw N` runs the seeds N .. N + draws - 1 (draws the tuning has not seen; default 0).
 """
@@ -61,12 +61,12 @@ TARGETS = {"mix": (1.3, 0.95, 0.95), "noise 2": (1.3, 0.95, 0.95), "hum 20 ": (1
            "dead": (2.0, None, None), "debond": (1.5, None, None)}
 
 
-def model_and_sessions(data: str, trees: int):
+def model_and_sessions(data: str, trees: int, site_map: str = "auto"):
     """DATA's model on its default training split (`trees` trees; the site map `train` would take: the bundled
     twin's on the bundled rig, none elsewhere, the class as `train` chooses it) and the sessions it is scored
     on: (model, {name: session}, training drops). The bundled data adds all of session-2."""
     sess = load_session(data)
-    site = resolve_site_map("auto", sess.rig)
+    site = resolve_site_map(site_map, sess.rig)
     model, split = train(sess, None, 0.2, 0, settings=ForestSettings(n_estimators=trees, seed=0),
                          site_map=site, choose_class=site is None)
     sessions = {f"{sess.name} held-out": sess.subset(np.asarray(split["test_recordings"], int))}
@@ -141,11 +141,13 @@ def main(argv=None) -> int:
                                                "always runs), e.g. 'debonded,dead'")
     ap.add_argument("--no-targets", action="store_true", help="print only, exit 0")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--site-map", default="auto", help="auto (what `train` takes: the bundled twin's on the bundled "
+                    "rig, none elsewhere) or none (a model without a twin: the channel check's rows on the bundled rig)")
     ap.add_argument("--physics-three-sensor", action="store_true", help="the same model without its correction of "
                     "the three-sensor position (three_channel_position.py): the rows as before it")
     args = ap.parse_args(argv)
     t0 = time.time()
-    model, sessions, n_train = model_and_sessions(args.data, args.trees)
+    model, sessions, n_train = model_and_sessions(args.data, args.trees, args.site_map)
     if args.physics_three_sensor:
         model.three_channel_position = {}
     print(f"model trained on {n_train} drops of {args.data} ({time.time() - t0:.0f} s)")

@@ -78,6 +78,9 @@ def main(argv=None):
         forest.estimators_ = forest.estimators_[:args.trees]
     if args.energy_trees and hasattr(model.forest_energy, "estimators_"):   # a linear energy estimate: whole
         model.forest_energy.estimators_ = model.forest_energy.estimators_[:args.energy_trees]
+    # The image checks the models' own answer per drop (TableModels::predict: the forests, the twin); the channel
+    # check's flags, a run's state, are in the report bodies the native app sent (fix_report_body).
+    model.card = {k: v for k, v in model.card.items() if k != "channel_check"}
     fm, signal = firmware_models(build / "models")
 
     if args.rows:
