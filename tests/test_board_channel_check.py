@@ -72,3 +72,24 @@ def test_the_board_flags_no_channel_of_clean_drops(check_export):
     got, rows, pred = board_and_host(d, out, test)
     assert len(got) == len(test)
     assert all(got[i]["left_out"] == -1 for i in rows) and np.all(pred["bad_channel"] == -1)
+
+
+def test_the_budgeted_export_keeps_the_check_only_where_a_flagged_event_fits():
+    """`export --trees auto`: the check takes its share from the forests' when an event it flags (a localiser run
+    without the channel and the three-channel class) fits the event budget with it; otherwise the board does not get
+    it and the export says why (board.cost's bound: a rig whose features and localiser leave ~4k does not fit)."""
+    from types import SimpleNamespace
+
+    from impactsense import export_check
+    from impactsense.board.cost import CHECK_INSTRUCTIONS, EVENT_BUDGET, check_instructions
+    from impactsense.signal import SignalConfig
+
+    cfg = SignalConfig()
+    three = {c: SimpleNamespace(terms=[0] * 14) for c in range(4)}
+    flagged = check_instructions(cfg, 14)["flagged"]
+    for total, kept in ((EVENT_BUDGET - CHECK_INSTRUCTIONS - flagged, True),
+                        (EVENT_BUDGET - CHECK_INSTRUCTIONS - flagged + 1, False)):
+        models = SimpleNamespace(channel_check={"level": 1}, three_channel=three, signal=cfg.to_dict(), check_note=None)
+        taken = export_check.budgeted(models, {"total": total}, EVENT_BUDGET)
+        assert (taken == CHECK_INSTRUCTIONS) == kept and (models.channel_check is not None) == kept
+        assert (models.check_note is None) == kept

@@ -61,6 +61,7 @@ class ModelSet:
     three_channel: dict = field(default_factory=dict)
     # the channel check as the board runs it (export_check.check_arrays), or None
     channel_check: dict | None = None
+    check_note: str | None = None   # why the board does not get the card's check (export_check.budgeted)
 
     def three_channel_tables(self) -> dict:
         """channel -> the three-channel class's arrays (height_class.linear_tables); {} without them."""
@@ -361,6 +362,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
             from .board.cost import EVENT_BUDGET, signal_instructions
             from .signal import SignalConfig
             signal_cost = signal_instructions(SignalConfig.from_dict(models.signal))
+            signal_cost["check"] = export_check.budgeted(models, signal_cost, EVENT_BUDGET)
+            signal_cost["total"] += signal_cost["check"]
         k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval,
                                 max_trees=TWIN_MAX_TREES if models.twin is not None else None,
                                 max_instructions=None if signal_cost is None else EVENT_BUDGET - signal_cost["total"])
@@ -418,6 +421,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         summary["event_instructions_estimate"] = {**signal_cost, "models": row["instructions"],
                                                   "total": signal_cost["total"] + row["instructions"]}
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
+    summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
 
     (out_dir / "export.json").write_text(json_text(summary))
     return summary

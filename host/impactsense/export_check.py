@@ -63,3 +63,25 @@ def binding_dict(arrays: dict | None) -> dict | None:
     if arrays is None:
         return None
     return {k: np.asarray(v, np.float32).ravel().tolist() for k, v in arrays.items()}
+
+
+def budgeted(models, signal_cost: dict, budget: int) -> int:
+    """With `export --trees auto` (the event budget, board.cost): the instructions the check takes from the forests'
+    share; when an event it flags (a localiser run without the channel and the three-channel class instead of the
+    forests) does not fit the budget with the check itself, the board does not get it (models.channel_check None,
+    models.card_note says why) and 0."""
+    from .board.cost import check_instructions
+    from .signal import SignalConfig
+
+    if not models.channel_check:
+        return 0
+    terms = max((len(m.terms) for m in models.three_channel.values()), default=0)
+    cost = check_instructions(SignalConfig.from_dict(models.signal), terms)
+    need = signal_cost["total"] + cost["check"] + cost["flagged"]
+    if need > budget:
+        models.channel_check = None
+        models.check_note = (f"the channel check stays on the host: an event it flags would take ~{need:,} "
+                             f"instructions (check {cost['check']:,}, localiser without the channel and class "
+                             f"{cost['flagged']:,}) of the board's {budget:,}")
+        return 0
+    return cost["check"]

@@ -54,6 +54,14 @@ LINEAR_PER_TERM = 30
 # (one tree each); export.select_trees then fits the forests into what is left.
 MODELS_ALLOWANCE = 1500
 
+# The channel check (impactcore channelcheck.cpp, impactapp App::check_event) on every event of a model that carries
+# it: the ratios, each channel's cubic at the physics position, the run rule (measured under qemu on rig-c's board
+# export: channel_check_scores 717 + check_event 113 + channel_check_flag 80 an event, + margin)
+CHECK_INSTRUCTIONS = 1000
+# ... and on an event it flags, instead of the forests: the physics localiser without the channel (a bound as for the
+# event's own run), the three-channel inputs (115) and the class's terms (LINEAR_PER_TERM each)
+CHECK_FLAGGED_FIXED = 300
+
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
 # its cut-off divisor, the longest window kept.
 _BAND_BEFORE_US = 300.0
@@ -124,3 +132,16 @@ def forests_instructions(nodes: dict, trees: dict, inputs: dict | None = None) -
     per_row = sum(FOREST_PER_NODE * nodes[r][:k].sum(axis=0) + FOREST_PER_TREE * k for r, k in trees.items())
     per_input = FOREST_PER_INPUT * sum(int((inputs or {}).get(r, 0)) for r, k in trees.items() if k > 0)
     return FOREST_FIXED + per_input + (int(np.max(per_row)) if np.size(per_row) else 0)
+
+
+def check_instructions(cfg, three_terms: int) -> dict:
+    """The channel check's share of an event (instructions): 'check' on every event and 'flagged', what an event it
+    flags runs instead of the forests (a localiser run without the channel, with the band picks' when they are on,
+    and the three-channel class of three_terms terms)."""
+    starts = max(1, int(cfg.localiser_starts))
+    loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
+                                                        cfg.travel_metric_yy)))
+    if band_samples(cfg):
+        loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
+                                                             cfg.band_metric_yy)))
+    return {"check": CHECK_INSTRUCTIONS, "flagged": loc + CHECK_FLAGGED_FIXED + linear_instructions(three_terms)}

@@ -126,7 +126,10 @@ def _export(args, card, rate, stage, out):
 
         print(f"per-event cost on the board, estimated (board.cost): {est['total']:,} instructions (features and "
               f"report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, forests "
-              f"{est['models']:,}; budget {EVENT_BUDGET:,}: {'ok' if est['total'] <= EVENT_BUDGET else 'OVER'})")
+              f"{est['models']:,}{', channel check ' + format(est['check'], ',') if est.get('check') else ''}; budget "
+              f"{EVENT_BUDGET:,}: {'ok' if est['total'] <= EVENT_BUDGET else 'OVER'})")
+    if isinstance(s.get("channel_check"), str):
+        print(s["channel_check"])
     acc = _board_accuracy(model_dir, card, stage)
     if acc is not None:
         s["board_held_out"] = acc
