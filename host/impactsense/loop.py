@@ -38,7 +38,8 @@ recordings themselves: the channel_lowpass (first or second order, a grid of cut
 back or filtered with it) whose signal model, put into a sample of DATA_REF's drops with the diagnosed gain, gives
 the channel the median spectral tilt (Delta^1..3 over the arrival energy, the core's twin features) and onset
 (against the travel model) DATA_NEW shows; the gain is the diagnosed one with the arrival energy the low-pass
-takes from those drops, beyond what the low-pass diagnosed with that gain took, given back. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
+takes from those drops, beyond what the low-pass diagnosed with that gain took, given back; the gain keeps the
+channel's noise level (`noise_kept`: the disc's gain lies before the amplifier) when DATA_NEW's noise says so. And `pick_settings` tells the core the channel's gain (`channel_gain`: its onset threshold scales with
 it, so the weak channel is picked at the same wave amplitude as the others). Its onset and energies stay the
 least certain: the retrained model's twin reports the mean of its four-channel match and the three-channel
 match without that channel (`weak_channel`, twin.h twin_match), and flags the channel.
@@ -354,5 +355,19 @@ def fit_bond(base, data, accepted, seed: int = 0) -> list:
         common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
         if best_lp is not None:
             out.append(Candidate("channel_lowpass", ch, best_lp, **common))
-        out.append(Candidate("sensor_gain", ch, {"gain": gain}, **common))
+        kept = gain < 1.0 and _bond_keeps_noise(probe, ctx, ch, best_lp, gain, target_noise, seed)
+        out.append(Candidate("sensor_gain", ch, {"gain": gain, **({"noise_kept": True} if kept else {})}, **common))
     return out
+
+
+def _bond_keeps_noise(probe, ctx, ch: int, lowpass, gain: float, target_noise: float, seed: int) -> bool:
+    """True when DATA_NEW's channel noise (target_noise) is nearer the bond put in with its gain keeping the
+    amplifier's noise (sensor_gain's noise_kept: the gain lies before the amplifier) than with the noise scaled
+    by the gain: a weaker disc's onset crosses the threshold at the noise it has (docs/findings.md, bondpick)."""
+    from .effects.apply import apply_effects
+
+    def misfit(kept: bool) -> float:
+        eff = ([{"effect": "channel_lowpass", "sensor": ch, "params": lowpass}] if lowpass else []) + \
+              [{"effect": "sensor_gain", "sensor": ch, "params": {"gain": gain, "noise_kept": kept}}]
+        return abs(np.log(_noise_rms(apply_effects(probe.adc, eff, ctx, seed), ch)) - np.log(target_noise))
+    return misfit(True) < misfit(False)

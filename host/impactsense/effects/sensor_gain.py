@@ -5,6 +5,8 @@ centred log-energy residual of unclipped channels. Its timing consequence is mea
 onset barely moves; a threshold crossing comes later on a weaker channel): the reference's probe recordings
 are scaled by a grid of gains and each channel's pick change is fitted as a + b x distance (`gain_table`);
 `add` puts the interpolated change into the reference's timing, so a gain is not also named a delay.
+`noise_kept` (apply_signal): a disc's or bond's gain loss lies before the amplifier, whose noise keeps its level;
+the noise the scaling takes from a recording is given back (white, the first samples' level).
 """
 
 from dataclasses import replace as dc_replace
@@ -14,6 +16,8 @@ import numpy as np
 from ..residuals import centre, _robust_lstsq
 from ._base import Effect, channel_columns, to_adc, to_float
 
+PRETRIGGER_NOISE_SAMPLES = 64   # the record's first samples: before any impact (the noise level)
+NOISE_STREAM = 0x6A1                  # the given-back noise's stream beside a seed (not the low-pass's draws)
 GAIN_GRID = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0])
 _TABLES: dict = {}
 
@@ -54,6 +58,17 @@ def gain_toa_shift(probe, sensor: int, gain: float) -> tuple[float, float]:
     return tuple(float(np.interp(x, lg, tab["shift"][:, sensor, j])) for j in range(2))
 
 
+def gain_keeping_noise(a: np.ndarray, gain: float, rng=None) -> np.ndarray:
+    """Recordings a [..., samples] (bias removed) scaled by gain < 1 with the noise they lose given back: fresh
+    white noise of sqrt(1 - gain^2) x the first samples' level (the amplifier's noise, after the disc)."""
+    sigma = a[..., :PRETRIGGER_NOISE_SAMPLES].std(axis=-1, keepdims=True)
+    # a seed gets its own stream: apply_effects hands every effect the same seed (the low-pass's noise)
+    gen = rng if isinstance(rng, np.random.Generator) else \
+        np.random.default_rng(None if rng is None else [*np.atleast_1d(rng).tolist(), NOISE_STREAM])
+    fresh = gen.standard_normal(a.shape)
+    return gain * a + sigma * np.sqrt(1.0 - gain ** 2) * fresh
+
+
 class SensorGain(Effect):
     name = "sensor_gain"
     units = {"gain": "1"}
@@ -78,7 +93,12 @@ class SensorGain(Effect):
 
     def apply_signal(self, adc, sensor, params, ctx, rng=None):
         a = to_float(adc, ctx["bias"])
-        a[:, sensor] *= params["gain"]
+        g = float(params["gain"])
+        if params.get("noise_kept", False) and g < 1.0:
+            # the gain is the disc's (a bond's), not the amplifier's: the amplifier's noise keeps its level
+            a[:, sensor] = gain_keeping_noise(a[:, sensor], g, rng)
+        else:
+            a[:, sensor] *= g
         return to_adc(a, ctx["bias"], ctx["adc_max"])
 
     def material(self, params):
