@@ -220,10 +220,7 @@ def pick_settings(session, accepted):
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
-    gains = [1.0] * 4
-    for c in accepted:
-        if c.effect == "sensor_gain":
-            gains[c.sensor] *= float(c.params["gain"])
+    gains = onset_gains(session, accepted)
     given = {"channel_gain": gains} if gains != [1.0] * 4 else {}
     floor = EFFECTS["noise"].min_white_counts   # the white part the noise effect calls material
     if not any(c.effect == "noise" and c.params.get("white_rms_counts", 0.0) >= floor for c in accepted):
@@ -244,6 +241,31 @@ def pick_settings(session, accepted):
         if fit.spread_mm < CLEARLY_BETTER * best_spread and mae <= best_mae:
             best, best_spread, best_mae = cfg, fit.spread_mm, mae
     return best
+
+
+def onset_gains(session, accepted) -> list[float]:
+    """The core's channel_gain per channel: a diagnosed gain times, on a channel with a bond low-pass, the
+    low-pass's gain at the arrival the picks catch (the other channels' median pick frequency on `session`,
+    fs / pick_period): the onset threshold then meets the weak channel's first cycles where it meets the
+    others', down to the noise floor (onset_noise_factor x its noise rms)."""
+    from .effects.channel_lowpass import lowpass_gain_at
+
+    gains = [1.0] * 4
+    for c in accepted:
+        if c.effect == "sensor_gain":
+            gains[c.sensor] *= float(c.params["gain"])
+    lows = [c for c in accepted if c.effect == "channel_lowpass"]
+    if lows:
+        from .pipeline import featurize
+        from .signal import SignalConfig
+
+        period = np.asarray(featurize(session.adc, SignalConfig.for_rig(session.rig)).raw["pick_period"], float)
+        fs = float(session.rig.fs_hz)
+        for c in lows:
+            others = [k for k in range(4) if k != c.sensor]
+            f_pick = fs / float(np.nanmedian(period[:, others]))
+            gains[c.sensor] *= lowpass_gain_at(f_pick, c.params["fc_hz"], fs, c.params.get("order", 2))
+    return gains
 
 
 def _bond_stats(session, cfg, channel: int) -> tuple[np.ndarray, np.ndarray]:

@@ -26,6 +26,12 @@ def lowpass(a: np.ndarray, fc_hz: float, fs_hz: float, order: int = 2) -> np.nda
     return signal.lfilter(b, a_, a, axis=-1)
 
 
+def lowpass_gain_at(f_hz: float, fc_hz: float, fs_hz: float, order: int = 2) -> float:
+    """|H(f)| of `lowpass` (the effect's filter) at f_hz."""
+    b, a_ = signal.butter(int(order), min(fc_hz, 0.45 * fs_hz), fs=fs_hz)
+    return float(np.abs(signal.freqz(b, a_, worN=[float(f_hz)], fs=fs_hz)[1][0]))
+
+
 def lowpass_signal(a: np.ndarray, fc_hz: float, fs_hz: float, rng=None, order: int = 2,
                    give_back: bool = True) -> np.ndarray:
     """The bond's low-pass on recordings a [..., samples] (bias removed): it filters the disc's signal, not the
