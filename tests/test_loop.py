@@ -315,3 +315,51 @@ def test_pick_settings_keeps_a_lower_noise_factor_only_when_the_positions_are_no
             round(float(cfg.onset_noise_factor) / configured, 3)])
         cfg = L.pick_settings(base, [_noise_candidate(6.0)])
         assert float(cfg.onset_noise_factor) == pytest.approx(configured * want)
+
+
+def test_a_bond_gain_keeps_the_amplifiers_noise():
+    """sensor_gain with noise_kept (a disc's gain, before the amplifier): the signal is scaled by the gain and
+    the pre-trigger noise keeps its rms (within 10 %); without it the noise falls with the gain. The noise given
+    back is not the low-pass's draw of the same seed (the two effects put in one after the other keep the rms)."""
+    from impactsense.effects import EFFECTS
+    from impactsense.effects.apply import apply_effects
+    rng = np.random.default_rng(0)
+    bias, n = 2048.0, 4096
+    a = rng.normal(0.0, 3.0, (16, 4, n))
+    a[:, :, 2000:] += 300.0 * np.sin(2 * np.pi * 3000.0 * np.arange(n - 2000) / 1e5)
+    adc = np.rint(a + bias).astype(np.uint16)
+    ctx = {"bias": bias, "adc_max": 4095, "fs_hz": 1e5}
+    noise = lambda x: float(np.std(np.asarray(x, float)[:, 2, :64]))  # noqa: E731
+    tail = lambda x: float(np.std(np.asarray(x, float)[:, 2, 2500:]))  # noqa: E731
+    gain = EFFECTS["sensor_gain"]
+    scaled = gain.apply_signal(adc, 2, {"gain": 0.5}, ctx, rng=1)
+    kept = gain.apply_signal(adc, 2, {"gain": 0.5, "noise_kept": True}, ctx, rng=1)
+    assert noise(scaled) == pytest.approx(0.5 * noise(adc), rel=0.15)
+    assert noise(kept) == pytest.approx(noise(adc), rel=0.1)
+    assert tail(kept) == pytest.approx(0.5 * tail(adc), rel=0.05)
+    both = apply_effects(adc, [{"effect": "channel_lowpass", "sensor": 2, "params": {"fc_hz": 4000.0, "order": 1}},
+                               {"effect": "sensor_gain", "sensor": 2, "params": {"gain": 0.5, "noise_kept": True}}],
+                         ctx, 3)
+    assert noise(both) == pytest.approx(noise(adc), rel=0.1)
+
+
+def test_onset_gain_of_a_bond_channel_is_its_lowpass_gain_at_the_pick_frequency():
+    """loop.onset_gains: a diagnosed gain alone is the core's channel_gain; with a bond low-pass on the channel
+    it is also multiplied by the low-pass's |H| at the other channels' median pick frequency (fs / pick_period
+    on the session), which lies above the cut-off on session-1 (a first-order 3 kHz bond: |H| < 0.5)."""
+    from impactsense.effects.channel_lowpass import lowpass_gain_at
+    from impactsense.loop import onset_gains
+    from impactsense.pipeline import featurize
+    from impactsense.signal import SignalConfig
+    assert lowpass_gain_at(4000.0, 4000.0, 1e5, 1) == pytest.approx(2 ** -0.5, rel=0.01)
+    assert lowpass_gain_at(400.0, 4000.0, 1e5, 2) == pytest.approx(1.0, abs=0.01)
+    base = load_session("bundled:session-1").subset(np.arange(30))
+    cand = lambda e, p: D.Candidate(e, 1, p, 10.0, 0.0, True, True, [])  # noqa: E731
+    assert onset_gains(base, [cand("sensor_gain", {"gain": 0.7})]) == [1.0, 0.7, 1.0, 1.0]
+    lp = {"fc_hz": 3000.0, "order": 1}
+    got = onset_gains(base, [cand("channel_lowpass", lp), cand("sensor_gain", {"gain": 0.7})])
+    period = np.asarray(featurize(base.adc, SignalConfig.for_rig(base.rig)).raw["pick_period"], float)
+    f_pick = float(base.rig.fs_hz) / float(np.nanmedian(period[:, [0, 2, 3]]))
+    assert f_pick > 3000.0
+    assert got[1] == pytest.approx(0.7 * lowpass_gain_at(f_pick, 3000.0, float(base.rig.fs_hz), 1), rel=1e-6)
+    assert got[1] < 0.35 and got[0] == got[2] == got[3] == 1.0
