@@ -74,6 +74,7 @@ class Candidate:
     significant: bool
     fold_params: list
     rival: dict | None = None   # the rival on the same sensor: its name, held-out gain difference, p
+    shadow_of: int | None = None   # not named: a stronger channel's move outranks it (`_shadows_of_a_stronger_channel`)
 
 
 def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
@@ -165,8 +166,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
+        evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         for c in results:
             ok = _evidence(c.score, c.p_value, len(cands)) and c.material
+            if ok:
+                evident.add((c.effect, c.sensor))
             nest = EFFECTS[c.effect].nests
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
@@ -191,6 +195,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
+        _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
         for c in results:
             rv = RIVALS.get(c.effect)
             if rv is not None and (rv, c.sensor) in gains:
@@ -202,6 +207,8 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                     c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
                     c.rival["joint_p_value"] = direction[c.sensor]["joint"]["p_value"]
                     c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
+                if c.shadow_of is not None:   # a stronger channel's move outranked it (not named)
+                    c.rival["shadow_of_sensor"] = c.shadow_of
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -244,6 +251,25 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
             c.significant = _constant_rejected(direction[c.sensor])
+
+
+def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
+    """A channel whose move has the evidence against no change but no test rejects a constant (so neither the
+    move nor, without its own evidence, the delay is named) outranks the other channels' delays that score
+    below it: those are not named this round (`Candidate.shadow_of`). The per-drop centring couples the
+    channels' timing, so one channel's change gives another channel's constant delay a held-out gain of its
+    own; without this rule the weaker shadow was named on the wrong sensor. It only takes names away (an
+    unchanged session cannot gain one); a move that rejects a constant is not a shadow and stays."""
+    moves = [c for c in results if c.effect == "sensor_position" and not c.significant
+             and ("sensor_position", c.sensor) in evident and c.params["offset_mm"] <= move_bound
+             and c.sensor not in unabsorbed]
+    for c in results:
+        if not c.significant or c.effect != "channel_delay":
+            continue
+        stronger = [m for m in moves if m.sensor != c.sensor and m.score > c.score]
+        if stronger:
+            c.significant = False
+            c.shadow_of = max(stronger, key=lambda m: m.score).sensor
 
 
 def _constant_rejected(tests: dict) -> bool:
