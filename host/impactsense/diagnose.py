@@ -196,19 +196,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
         _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
-        for c in results:
-            rv = RIVALS.get(c.effect)
-            if rv is not None and (rv, c.sensor) in gains:
-                diff = gains[(c.effect, c.sensor)] - gains[(rv, c.sensor)]
-                c.rival = {"effect": rv, "score_difference": float(diff.sum()),
-                           "p_value": _one_sided_p(_case_sums(diff, F.case_id))}
-                if c.sensor in direction:
-                    c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
-                    c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
-                    c.rival["joint_p_value"] = direction[c.sensor]["joint"]["p_value"]
-                    c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
-                if c.shadow_of is not None:   # a stronger channel's move outranked it (not named)
-                    c.rival["shadow_of_sensor"] = c.shadow_of
+        _record_rivals(results, gains, direction, moved, F.case_id)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -225,6 +213,25 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
     return accepted, current, last_round
+
+
+def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id) -> None:
+    """Each move and delay candidate's rival record: the held-out gain over its rival on the same sensor, the
+    move-or-delay tests' p-values, ambiguous (neither test rejects a constant) and a shadow's stronger channel."""
+    for c in results:
+        rv = RIVALS.get(c.effect)
+        if rv is None or (rv, c.sensor) not in gains:
+            continue
+        diff = gains[(c.effect, c.sensor)] - gains[(rv, c.sensor)]
+        c.rival = {"effect": rv, "score_difference": float(diff.sum()),
+                   "p_value": _one_sided_p(_case_sums(diff, case_id))}
+        if c.sensor in direction:
+            c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
+            c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
+            c.rival["joint_p_value"] = direction[c.sensor]["joint"]["p_value"]
+            c.rival["ambiguous"] = c.sensor not in moved   # neither test rejects a constant
+        if c.shadow_of is not None:   # a stronger channel's move outranked it (not named)
+            c.rival["shadow_of_sensor"] = c.shadow_of
 
 
 def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
