@@ -23,15 +23,12 @@ threshold and band picks (`band_timing`) alike, where a move shifts each by its 
 constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
 (three tests of the one null "a constant": each at ALPHA). The two pick sets in one regression with a constant
 shared by both (`effects.sensor_position.joint_test`) is reported beside them, not decided on. A move is significant only when one of them rejects
-the constant and the move's held-out gain over the delay is positive (a change that is not constant in a way
-the move does not predict stays the delay); then the constant delay on that channel is not named (and where the delay has the evidence and
+the constant; then the constant delay on that channel is not named (and where the delay has the evidence and
 the move not, a rejected constant names the move: the channel changed, not by a constant). Where none does, a
 move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the tests.
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
 significant candidate is added to the model (parameters refitted on all drops) and the search
-repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`. A channel
-whose move has the evidence but is not named (nor its delay) outranks the other channels' weaker delays: the
-per-drop centring gives them a shadow of its change (`_shadows_of_a_stronger_channel`).
+repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
 Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
 """
 
@@ -183,7 +180,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                                        "band": band_test(current, F, c.sensor),
                                        "joint": joint_test(current, F, c.sensor)}
             if ok and c.effect == "sensor_position":   # a move only where the data reject a constant
-                ok = _constant_rejected(direction[c.sensor]) and _gain_over_delay(gains, c.sensor) > 0
+                ok = _constant_rejected(direction[c.sensor])
                 if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
                     diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
@@ -193,7 +190,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "sensor_position" and c.sensor in unabsorbed:
                 ok = False    # its timing is not a disc's (a delay may still take its mean lag: not a move)
             c.significant = bool(ok)
-        _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, gains)
+        _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
@@ -253,26 +250,14 @@ def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
     return Fb, Fn
 
 
-def _gain_over_delay(gains: dict, sensor) -> float:
-    """The move's held-out log-likelihood gain over the constant delay on the same channel (nats; +inf
-    without a delay candidate). A rejected constant names a move only where the move also predicts the
-    held-out drops better: a timing change that is not constant in a way the move does not describe (on a
-    thin metal plate the onset picks follow a sub-sample delay by a drop-dependent amount: docs/findings.md,
-    issue 16 loopdraws3) stays the simpler delay."""
-    if ("channel_delay", sensor) not in gains:
-        return float("inf")
-    return float((gains[("sensor_position", sensor)] - gains[("channel_delay", sensor)]).sum())
-
-
-def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict,
-                                       gains: dict) -> None:
+def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict) -> None:
     """Marks significant the move on a channel whose delay has the evidence and the move not, where the
     move-or-delay tests reject a constant: the channel changed (the delay's evidence), not by a constant."""
     passed = {(c.effect, c.sensor) for c in results if c.significant}
     for c in results:
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
-            c.significant = _constant_rejected(direction[c.sensor]) and _gain_over_delay(gains, c.sensor) > 0
+            c.significant = _constant_rejected(direction[c.sensor])
 
 
 def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
