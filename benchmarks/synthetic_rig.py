@@ -12,13 +12,18 @@ KIND: steel-diamond (steel, 200 kHz, 16-bit, sensors on a diamond), gfrp-edge (G
 50 kHz, 12-bit, three sensors near one edge), glass-skew (soda-lime glass, 100 kHz, 14-bit, a skewed
 quadrilateral, an unknown-to-the-table plate support), alu-rotated (a 6 mm aluminium plate clamped in a frame,
 sensors on a rectangle turned 20 deg, 50 kHz, 12-bit, 1024 samples, 40 of them before the hit), pc-quad (an 8 mm
-polycarbonate sheet, sensors on an asymmetric quadrilateral, 200 kHz, 12-bit). The mesh is coarse (--element-mm) so a rig costs
+polycarbonate sheet, sensors on an asymmetric quadrilateral, 200 kHz, 12-bit), brass-trapezoid (2.5 mm brass,
+a trapezoid with two sensors 48 mm apart, a 20 mm ball of 33 g, 250 kHz, 10-bit, 6 ms records), cfrp-crossply
+(a graphite/epoxy cross-ply, E1 ~ E2 with a low G12, axes at 90 deg, two sensors 14 mm from an edge, 100 kHz,
+16-bit with a negative-going front end whose DC sits 2300 counts under the declared bias, 8 ms records of which
+30 samples before the hit; its rig.json leaves out the density). The mesh is coarse (--element-mm) so a rig costs
 minutes on 2 cores.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -86,6 +91,29 @@ KINDS = {
         sim=dict(e_pa=2.4e9, e2_pa=2.4e9, g12_pa=2.4e9 / 2.74, nu=0.37, material_axes_deg=0.0,
                  pretrigger_samples=200, damping_per_s=900.0),
         heights=(70, 110, 150, 190, 230, 270)),
+    "brass-trapezoid": dict(
+        rig={"plate_material": "brass CuZn37", "plate_x_mm": 380.0, "plate_y_mm": 300.0,
+             "thickness_mm": 2.5, "density_kg_m3": 8440.0, "plate_support": "edges resting on a rubber rim",
+             "sensors": _sensors([(45, 40), (92, 48), (340, 55), (240, 262)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 8.0, "ball_material": "steel",
+             "ball_diameter_mm": 20.0, "ball_mass_g": 32.6, "channels": 4, "fs_hz": 250000, "samples": 1500,
+             "adc_bits": 10, "vref": 3.3, "bias_counts": 512},
+        sim=dict(e_pa=100e9, nu=0.34, pretrigger_samples=150, damping_per_s=700.0),
+        heights=(30, 60, 90, 120, 150)),
+    "cfrp-crossply": dict(
+        # no density (the user left it out), the material in another spelling, axes at 90 deg, a negative-going
+        # front end whose DC sits ~2300 counts under the declared bias
+        rig={"plate_material": "Graphite/epoxy cross-ply [0/90]2s", "plate_x_mm": 400.0, "plate_y_mm": 300.0,
+             "thickness_mm": 2.0, "plate_support": "edges resting on a rubber rim",
+             "material_axes": {"fibre_angle_deg": 90.0},
+             "sensors": _sensors([(200, 14), (386, 150), (215, 272), (30, 190)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 10.0, "ball_material": "steel",
+             "ball_diameter_mm": 8.0, "ball_mass_g": 2.09, "channels": 4, "fs_hz": 100000, "samples": 800,
+             "adc_bits": 16, "vref": 3.3, "bias_counts": 32768},
+        sim=dict(e_pa=58e9, e2_pa=54e9, g12_pa=3.8e9, nu=0.05, material_axes_deg=90.0, pretrigger_samples=30,
+                 damping_per_s=1200.0, density_kg_m3=1560.0),
+        front_end=dict(gain_sign=-1.0, dc_offset_counts=-2300),
+        heights=(50, 100, 150, 200, 250)),
 }
 
 
@@ -108,7 +136,10 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
 
     spec = KINDS[kind]
     raw = dict(spec["rig"], notes=f"SYNTHETIC rig ({kind}) made by benchmarks/synthetic_rig.py, seed {seed}")
-    rig = rig_from_dict(raw)
+    sim = dict(spec["sim"])
+    # the simulated truth's density (a rig.json may leave it out), the logger's wiring sign and DC error
+    rig = rig_from_dict(dict(raw, density_kg_m3=sim.pop("density_kg_m3", raw.get("density_kg_m3"))))
+    front = {"gain_sign": 1.0, "dc_offset_counts": 0, **spec.get("front_end", {})}
     rng = np.random.default_rng(seed)
     cx, cy, ch = cases(raw, n_cases, spec["heights"], rng)
     case_id = np.repeat(np.arange(n_cases), reps)
@@ -118,18 +149,20 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
     xt = np.clip(x + rng.normal(0, 1.0, x.size), 1, rig.plate_x_mm - 1)
     yt = np.clip(y + rng.normal(0, 1.0, y.size), 1, rig.plate_y_mm - 1)
     params = SimParams.from_rig(rig).replace(element_mm=element_mm, max_height_mm=float(max(spec["heights"])),
-                                             **spec["sim"])
+                                             **sim)
     t0 = time.perf_counter()
     volts = simulate_voltages(params, rig, xt, yt, h, workers=2, progress=True)["volts"]
     peak = np.median(np.abs(volts).max(axis=2))
-    gain = 0.25 * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
+    gain = front["gain_sign"] * 0.25 * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
     params = params.replace(circuit_gain=float(gain), noise_counts_rms=1.5 * 2 ** (rig.adc_bits - 12))
-    adc = to_adc(volts, params, rig, noise=True, seed=seed)
+    logger = rig if not front["dc_offset_counts"] else dataclasses.replace(
+        rig, bias_counts=rig.bias_counts + int(front["dc_offset_counts"]))
+    adc = to_adc(volts, params, logger, noise=True, seed=seed)
     faults = FaultSpec(offset=6.0 * 2 ** (rig.adc_bits - 12), glitch=0.05, drift=0.02, seed=seed + 1)
     adc = inject(adc, faults, rig.fs_hz, rig.bias_counts, rig.adc_max)
     write_session(out, raw, x, y, h, adc, case_id=case_id, repetition=rep, force=True)
     print(f"{kind}: {x.size} drops in {time.perf_counter() - t0:.0f} s, circuit gain {gain:.4g}, "
-          f"median peak {np.median(np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)):.0f} counts -> {out}")
+          f"median peak {np.median(np.abs(adc.astype(int) - logger.bias_counts).max(axis=2)):.0f} counts -> {out}")
 
 
 def main(argv=None) -> int:

@@ -37,7 +37,7 @@ _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # Optional rig.json fields (docs/method.md "rig.json"): inner_region_mm [x0, x1, y0, y1] (default: the
 # sensors' bounding box inset by INNER_INSET_MM); material_axes, material_properties (materials.py);
 # pretrigger_samples (the logger's samples before the hit; default: measured from the session's recordings,
-# signal.quiet_start_samples).
+# signal.quiet_start_samples); density_kg_m3 may be left out for a material the table knows (its typical density).
 INNER_INSET_MM = 30.0
 
 
@@ -220,7 +220,7 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
 
     values: dict = {}
     for key in _RIG_NUMBERS:
-        v = need(key)
+        v = _table_density(raw, path) if key == "density_kg_m3" and key not in raw else need(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or v <= 0:
             raise DataError(path, key, f"must be a positive finite number, got {v!r}")
         values[key] = float(v)
@@ -265,6 +265,19 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
     if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):
         raise DataError(path, "pretrigger_samples", f"must be an integer between 1 and samples - 1, got {pre!r}")
     return Rig(sensors=tuple(sensors), raw=dict(raw), pretrigger_samples=pre, **values)
+
+
+def _table_density(raw: dict, path) -> float:
+    """A rig.json without `density_kg_m3`: the materials table's typical density of `plate_material`
+    (materials.lookup); an error naming the field when the table does not know the material."""
+    from .materials import lookup
+
+    words = raw.get("plate_material")
+    mat = lookup(words) if isinstance(words, str) else None
+    if mat is None or not mat.known:
+        raise DataError(path, "density_kg_m3", f"missing key (plate_material {words!r} is not in the materials "
+                                               "table, so its density cannot be assumed: declare it)")
+    return mat.density_kg_m3.value
 
 
 def _check_inner_region(region, values: dict, path) -> None:

@@ -167,6 +167,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         thr = ALPHA / len(cands)
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
+        too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
         for c in results:
             ok = _evidence(c.score, c.p_value, len(cands)) and c.material
             if ok:
@@ -186,10 +187,13 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
             if ok and c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 ok = False    # larger than a re-glued disc can be: the channel is not a moved disc
-                _flag(unabsorbed, c, move_bound)
-            if c.effect == "sensor_position" and c.sensor in unabsorbed:
-                ok = False    # its timing is not a disc's (a delay may still take its mean lag: not a move)
+                too_far.append(c)
             c.significant = bool(ok)
+        if too_far:   # the channel whose move has the most evidence, not the first in channel order (the others'
+            _flag(unabsorbed, max(too_far, key=lambda c: c.score), move_bound)   # ask is its misfit, spread)
+        for c in results:
+            if c.effect == "sensor_position" and c.sensor in unabsorbed:
+                c.significant = False   # its timing is not a disc's (a delay may still take its mean lag: not a move)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is

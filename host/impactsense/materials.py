@@ -15,7 +15,7 @@ Optional rig.json fields read here:
 
 Tabled values are handbook figures for the dynamic (ultrasonic-rate) moduli: PMMA ~5 GPa (its quasi-static
 3 GPa rises with rate), aluminium alloys 69-72 GPa, steels 190-210 GPa, soda-lime/borosilicate glass
-62-74 GPa, CFRP and GFRP laminates over the range from cross-ply to mostly unidirectional lay-ups.
+62-74 GPa, titanium alloys 105-120 GPa, brasses and bronzes 90-125 GPa, copper 110-130 GPa, CFRP and GFRP laminates over the range from cross-ply to mostly unidirectional lay-ups.
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def _p(value, lo, hi) -> Prior:
 GPA = 1e9
 # (keywords matched in the lower-cased plate_material; the first entry that matches wins: composites first)
 TABLE: list[tuple[tuple[str, ...], Material]] = [
-    (("cfrp", "carbon"), Material(
+    (("cfrp", "carbon", "graphite"), Material(
         "CFRP laminate", ORTHOTROPIC, _p(1550, 1400, 1700),
         e1_pa=_p(70 * GPA, 30 * GPA, 150 * GPA), e2_pa=_p(20 * GPA, 6 * GPA, 70 * GPA),
         g12_pa=_p(5 * GPA, 2.5 * GPA, 20 * GPA), nu12=_p(0.30, 0.05, 0.45))),
@@ -116,6 +116,15 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
     (("pmma", "acrylic", "plexiglas", "perspex"), Material(
         "PMMA", ISOTROPIC, _p(1180, 1150, 1200),
         e_pa=_p(5.0 * GPA, 2.5 * GPA, 7.0 * GPA), nu=_p(0.35, 0.30, 0.40))),
+    (("titan", "ti-6al", "ti6al"), Material(
+        "titanium", ISOTROPIC, _p(4500, 4400, 4650),
+        e_pa=_p(112 * GPA, 100 * GPA, 120 * GPA), nu=_p(0.33, 0.30, 0.36))),
+    (("brass", "cuzn", "bronze"), Material(
+        "brass / bronze", ISOTROPIC, _p(8500, 7500, 8900),
+        e_pa=_p(105 * GPA, 90 * GPA, 125 * GPA), nu=_p(0.34, 0.31, 0.37))),
+    (("copper",), Material(
+        "copper", ISOTROPIC, _p(8930, 8850, 8960),
+        e_pa=_p(120 * GPA, 110 * GPA, 135 * GPA), nu=_p(0.34, 0.32, 0.36))),
     (("alumin",), Material(
         "aluminium", ISOTROPIC, _p(2700, 2600, 2850),
         e_pa=_p(70 * GPA, 65 * GPA, 75 * GPA), nu=_p(0.33, 0.30, 0.36))),

@@ -1,0 +1,34 @@
+"""A new user's rig.json as written (issue 15): fields left out, the material in other words. Cheap: rig.json only."""
+
+import pytest
+
+from impactsense.data import rig_from_dict
+from impactsense.errors import DataError
+from impactsense.materials import material_for_rig
+
+
+@pytest.mark.parametrize("text, name, orthotropic", [
+    ("Graphite/epoxy cross-ply [0/90]2s", "CFRP laminate", True),
+    ("titanium grade 5 (Ti-6Al-4V)", "titanium", False),
+    ("brass CuZn37", "brass / bronze", False),
+    ("copper sheet, Cu-ETP", "copper", False),
+])
+def test_other_words_for_a_material_find_its_priors(session1, text, name, orthotropic):
+    mat = material_for_rig(rig_from_dict({**session1.rig.to_dict(), "plate_material": text}))
+    assert (mat.name, mat.orthotropic, mat.known) == (name, orthotropic, True)
+
+
+def test_a_rig_json_without_density_takes_the_materials_typical_one(session1):
+    raw = {k: v for k, v in session1.rig.to_dict().items() if k != "density_kg_m3"}
+    rig = rig_from_dict({**raw, "plate_material": "Graphite/epoxy cross-ply"})
+    mat = material_for_rig(rig)
+    assert rig.density_kg_m3 == mat.density_kg_m3.value
+    assert mat.density_kg_m3.lo <= rig.density_kg_m3 <= mat.density_kg_m3.hi
+    # the declared one wins when given
+    assert rig_from_dict({**raw, "density_kg_m3": 1600.0}).density_kg_m3 == 1600.0
+
+
+def test_a_rig_json_without_density_of_an_unknown_material_is_a_clear_error(session1):
+    raw = {k: v for k, v in session1.rig.to_dict().items() if k != "density_kg_m3"}
+    with pytest.raises(DataError, match="density_kg_m3.*not in the materials table"):
+        rig_from_dict({**raw, "plate_material": "unobtainium foam"})
