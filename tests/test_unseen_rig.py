@@ -1,5 +1,7 @@
 """A new user's rig.json as written (issue 15): fields left out, the material in other words. Cheap: rig.json only."""
 
+import json
+
 import pytest
 
 from impactsense.data import rig_from_dict
@@ -32,3 +34,16 @@ def test_a_rig_json_without_density_of_an_unknown_material_is_a_clear_error(sess
     raw = {k: v for k, v in session1.rig.to_dict().items() if k != "density_kg_m3"}
     with pytest.raises(DataError, match="density_kg_m3.*not in the materials table"):
         rig_from_dict({**raw, "plate_material": "unobtainium foam"})
+
+
+def test_calibrate_says_when_an_isotropic_constant_stops_at_the_materials_bound(tmp_path, session1):
+    """A brass plate's four drops put nu on the table's upper bound (0.37; truth 0.34), printed as a fitted
+    value before; the summary now names it, as it names a laminate's constants."""
+    from impactsense.commands.calibrate import _at_bounds
+
+    (tmp_path / "rig.json").write_text(json.dumps(dict(session1.rig.to_dict(), plate_material="brass CuZn37")))
+    cal = {"data": str(tmp_path)}
+    text = _at_bounds(cal, {"E_mpa": 100250.0, "nu": 0.37})
+    assert "nu 0.370 (upper)" in text and "MPa" not in text
+    assert _at_bounds(cal, {"E_mpa": 100250.0, "nu": 0.34}) == ""
+    assert "E 90000 MPa (lower)" in _at_bounds(cal, {"E_mpa": 90000.0, "nu": 0.34})

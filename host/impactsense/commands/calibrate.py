@@ -79,8 +79,9 @@ def _drops(text: str):
 
 
 def _at_bounds(cal: dict, lam: dict) -> str:
-    """"; at the material's prior bound: ..." naming the laminate constants the fit left on a bound of the
-    materials table's range (the fit wanted beyond it: the rig's material or the table's range is off)."""
+    """"; at the material's prior bound: ..." naming the constants (a laminate's E1, E2, G12; an isotropic
+    plate's E, nu) the fit left on a bound of the materials table's range (the fit wanted beyond it: the rig's
+    material or the table's range is off, or the drops cannot tell that constant)."""
     from ..data import load_rig
     from ..errors import DataError
     from ..materials import material_for_rig
@@ -90,13 +91,16 @@ def _at_bounds(cal: dict, lam: dict) -> str:
     except (DataError, KeyError, TypeError):
         return ""
     hit = []
-    for key, name in (("E1_mpa", "e1_pa"), ("E2_mpa", "e2_pa"), ("G12_mpa", "g12_pa")):
+    for key, name in (("E1_mpa", "e1_pa"), ("E2_mpa", "e2_pa"), ("G12_mpa", "g12_pa"), ("E_mpa", "e_pa"),
+                      ("nu", "nu")):
         prior, v = getattr(mat, name, None), lam.get(key)
-        if prior is None or v is None:
+        if prior is None or v is None or prior.hi <= prior.lo:
             continue
-        lo, hi = prior.lo / 1e6, prior.hi / 1e6
+        scale, unit = (1e6, " MPa") if key.endswith("_mpa") else (1.0, "")
+        lo, hi = prior.lo / scale, prior.hi / scale
         if min(abs(v - lo), abs(v - hi)) <= 1e-3 * (hi - lo):
-            hit.append(f"{key[:-4]} {v:.0f} MPa ({'lower' if abs(v - lo) < abs(v - hi) else 'upper'})")
+            text = f"{v:.0f}" if scale > 1 else f"{v:.3f}"
+            hit.append(f"{key.removesuffix('_mpa')} {text}{unit} ({'lower' if abs(v - lo) < abs(v - hi) else 'upper'})")
     return f"; AT THE MATERIAL'S PRIOR BOUND: {', '.join(hit)}" if hit else ""
 
 
@@ -110,6 +114,8 @@ def summary(cal: dict) -> str:
              f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
              f"within 1.25 x min: E {pl['near_optimal']['E_mpa']}, nu {pl['near_optimal']['nu']}"]
     lam = pl.get("laminate")
+    if not lam:
+        lines[-1] += _at_bounds(cal, {"E_mpa": e_fast, "nu": pl.get("nu_grid", pl["nu"])})
     if lam:
         g = lam["guess"]
         lines.append(f"plate, laminate (fibres at {lam['axis_deg']:.0f} deg): E1 = {lam['E1_mpa']:.0f}, E2 = "
