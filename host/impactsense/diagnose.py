@@ -189,11 +189,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 ok = False    # larger than a re-glued disc can be: the channel is not a moved disc
                 too_far.append(c)
             c.significant = bool(ok)
-        if too_far:   # the channel whose move has the most evidence, not the first in channel order (the others'
-            _flag(unabsorbed, max(too_far, key=lambda c: c.score), move_bound)   # ask is its misfit, spread)
-        for c in results:
-            if c.effect == "sensor_position" and c.sensor in unabsorbed:
-                c.significant = False   # its timing is not a disc's (a delay may still take its mean lag: not a move)
+        _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
@@ -297,6 +293,17 @@ def _refit(ref, F, accepted):
     for c, p in zip(accepted, params):
         c.params = p
     return current
+
+
+def _flag_strongest(results, too_far: list, unabsorbed: dict, move_bound: float) -> None:
+    """Flags, of the moves beyond the bound this round, the channel whose move has the most evidence (the
+    others' asks are its misfit spread by the per-drop centring; not the first in channel order), and names no
+    move on a flagged channel (its timing is not a disc's; a delay may still take its mean lag)."""
+    if too_far:
+        _flag(unabsorbed, max(too_far, key=lambda c: c.score), move_bound)
+    for c in results:
+        if c.effect == "sensor_position" and c.sensor in unabsorbed:
+            c.significant = False
 
 
 def _flag(unabsorbed: dict, c: Candidate, move_bound: float) -> None:
