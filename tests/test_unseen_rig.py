@@ -47,3 +47,13 @@ def test_calibrate_says_when_an_isotropic_constant_stops_at_the_materials_bound(
     assert "nu 0.370 (upper)" in text and "MPa" not in text
     assert _at_bounds(cal, {"E_mpa": 100250.0, "nu": 0.34}) == ""
     assert "E 90000 MPa (lower)" in _at_bounds(cal, {"E_mpa": 90000.0, "nu": 0.34})
+
+
+def test_info_says_which_material_and_density_the_project_assumed(session1):
+    from impactsense.commands.info import plate_summary
+
+    raw = {k: v for k, v in session1.rig.to_dict().items() if k != "density_kg_m3"}
+    pl = plate_summary(rig_from_dict({**raw, "plate_material": "Graphite/epoxy", "material_axes": {"fibre_angle_deg": 90}}))
+    assert (pl["material"], pl["kind"], pl["axis_deg"], pl["density_kg_m3"]) == ("CFRP laminate", "orthotropic", 90.0, 1550.0)
+    assert "materials table" in pl["density_from"]
+    assert plate_summary(session1.rig)["density_from"] == "rig.json"

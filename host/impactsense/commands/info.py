@@ -27,7 +27,11 @@ def summarise(session) -> dict:
     reps = np.bincount(session.case_id)
     reps = reps[reps > 0]
     heights, counts = np.unique(session.height_mm, return_counts=True)
+    base = SignalConfig.for_rig(session.rig).baseline_samples
+    level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
     return {
+        "plate": plate_summary(session.rig),
+        "level_minus_bias_counts": [float(v - session.rig.bias_counts) for v in level],
         "session": str(session.path),
         "drops": len(session),
         "cases": session.n_cases,
@@ -55,6 +59,17 @@ def summarise(session) -> dict:
     }
 
 
+def plate_summary(rig) -> dict:
+    """What the project takes the plate to be: the materials table's entry for rig.json's words (or unknown:
+    wide priors), its kind and axes, and the density with where it came from."""
+    from ..materials import material_for_rig
+
+    mat = material_for_rig(rig)
+    return {"material": mat.name if mat.known else "unknown to the materials table (wide priors)",
+            "kind": mat.kind, "axis_deg": mat.axis_deg, "density_kg_m3": rig.density_kg_m3,
+            "density_from": "rig.json" if "density_kg_m3" in rig.raw else "the materials table (not in rig.json)"}
+
+
 def run(args) -> int:
 
     from ..data import load_session
@@ -66,6 +81,12 @@ def run(args) -> int:
           f"{s['repetitions_per_case']['min']}..{s['repetitions_per_case']['max']}")
     print(f"  heights {s['heights_mm']['min']:g}..{s['heights_mm']['max']:g} mm "
           f"({s['heights_mm']['distinct']} distinct); {s['samples']} samples at {s['fs_hz']:g} Hz")
+    pl = s["plate"]
+    axes = f", axis 1 at {pl['axis_deg']:g} deg" if pl["kind"] == "orthotropic" else ""
+    print(f"  plate: {pl['material']} ({pl['kind']}{axes}), density {pl['density_kg_m3']:g} kg/m3 from "
+          f"{pl['density_from']}")
+    off = s["level_minus_bias_counts"]
+    print(f"  level before the hit less the declared bias (counts): {', '.join(f'{v:+.0f}' for v in off)}")
     pre = s["pretrigger_samples"]
     print(f"  samples before the first arrival: {'unknown' if pre is None else pre}; the core's baseline segment "
           f"{s['baseline_samples']} samples")
