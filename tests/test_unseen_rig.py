@@ -57,3 +57,33 @@ def test_info_says_which_material_and_density_the_project_assumed(session1):
     assert (pl["material"], pl["kind"], pl["axis_deg"], pl["density_kg_m3"]) == ("CFRP laminate", "orthotropic", 90.0, 1550.0)
     assert "materials table" in pl["density_from"]
     assert plate_summary(session1.rig)["density_from"] == "rig.json"
+
+
+def test_a_calibration_without_the_pzt_design_matches_the_twins_peaks_to_the_loggers(session1):
+    """calibrate --no-fem / --plate-only kept the seed's circuit gain (the bundled logger's): on a 16-bit
+    logger and a thin laminate the twin's drops went past the int16 range and simulate-dataset stopped. The
+    gain is now scaled so that the four calibration drops peak as measured; a probe that clips is repeated at
+    a smaller gain. Here the 'twin' is the measured drops themselves, linear in the gain (truth 0.004)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from impactsense.calibration.logger_gain import fit_logger_gain, record_peaks
+
+    rig, rows = session1.rig, np.arange(4) * 37
+    adc = session1.adc[rows].astype(float)
+    truth = 0.004
+
+    def twin(flat, rig_, x, y, h):
+        counts = rig.bias_counts + (adc - rig.bias_counts) * flat["circuit_gain"] / truth
+        return np.clip(np.rint(counts), 0, rig.adc_max).astype(np.uint16)
+
+    targets = SimpleNamespace(x_mm=session1.x_mm[rows], y_mm=session1.y_mm[rows], height_mm=session1.height_mm[rows],
+                              peak=record_peaks(session1.adc[rows], 100))
+    problem = SimpleNamespace(rig=rig, targets=targets, params={"circuit_gain": 0.04}, simulate=None,
+                              opts=SimpleNamespace(workers=1))
+    probes = []
+    out = fit_logger_gain(problem, lambda *a: probes.append(a[0]["circuit_gain"]) or twin(*a))
+    assert len(probes) == 2 and probes[1] == probes[0] / 16       # x10 the measured clips; 1/16 of it does not
+    assert abs(problem.params["circuit_gain"] / truth - 1) < 0.02
+    assert abs(out["over_seed"] - truth / 0.04) < 0.002

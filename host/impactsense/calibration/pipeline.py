@@ -27,6 +27,7 @@ import time
 
 from . import fem
 from .cache import cpu_seconds, record_compute_times, write_json
+from .logger_gain import fit_logger_gain
 from .options import MIN_BUDGET, CalibrateOptions
 from .problem import build_problem, measured_core_config, picker_overrides, sim_core_config, sim_features
 from .stages import STAGES, held
@@ -45,6 +46,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         problem.cal["pzt_damping"] = {"skipped": "run without the FEM (--no-fem): seed's PZT block and D_s kept"}
     elif problem.opts.plate_only:
         problem.cal["pzt_damping"] = {"skipped": "the plate stages only (--plate-only): seed's PZT block and D_s kept"}
+    if not problem.opts.fem or problem.opts.plate_only:   # the seed's gain is the bundled logger's: match the peaks
+        problem.cal["logger_gain"] = problem.clock.run("logger_gain", lambda: fit_logger_gain(problem, simulate))
     elif not problem.opts.design:
         problem.params["damping_per_s"] = float(held(problem)["damping_per_s"])
         problem.cal["pzt_damping"] = {"skipped": "no PZT design (--no-design): seed's PZT block kept; D_s "

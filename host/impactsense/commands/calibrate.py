@@ -165,6 +165,12 @@ def summary(cal: dict) -> str:
             lines.append(f"screening, {out}: {', '.join(sig) if sig else 'no significant term'}")
     else:
         lines.append(f"PZT/damping: {pd.get('skipped', '-')}")
+    lg = cal.get("logger_gain")
+    if lg:
+        lines.append(f"logger gain: {lg['skipped']}" if "skipped" in lg else
+                     f"logger gain: circuit gain {lg['circuit_gain']:.4g} (x{lg['over_seed']:.3g} the seed's), the "
+                     f"calibration drops' median peak {lg['measured_peak_median_counts']:.0f} counts measured, "
+                     f"{lg['seed_peak_median_counts']:.0f} at the seed's gain")
     lines.append("wall time [s], this run: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
     if "stage_compute_time_s" in cal:
         lines.append("compute time [s] per stage (cached stages: when last computed): "
