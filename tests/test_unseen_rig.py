@@ -87,3 +87,41 @@ def test_a_calibration_without_the_pzt_design_matches_the_twins_peaks_to_the_log
     assert len(probes) == 2 and probes[1] == probes[0] / 16       # x10 the measured clips; 1/16 of it does not
     assert abs(problem.params["circuit_gain"] / truth - 1) < 0.02
     assert abs(out["over_seed"] - truth / 0.04) < 0.002
+
+
+def test_a_flagged_channel_with_a_diagnosed_low_pass_goes_to_the_bond_choice():
+    """A debonded disc's late picks ask for a move beyond a re-glued disc's, so its channel was left out with
+    its low-pass and gain dropped. On a layout with two sensors 48 mm apart the three others placed worse
+    (18.9 mm) than the four with the bond put in (12.8 mm). Now a flagged channel with a diagnosed low-pass
+    keeps it and the bond choice decides; a flagged channel without one is left out as before."""
+    from types import SimpleNamespace as C
+
+    from impactsense.commands.retrain import bond_decides
+
+    result = {"unabsorbed_channels": [{"sensor": 2}]}
+    bond = [C(effect="channel_lowpass", sensor=2), C(effect="sensor_gain", sensor=2)]
+    assert bond_decides(result, bond) == []
+    assert bond_decides(result, [C(effect="sensor_gain", sensor=2), C(effect="channel_delay", sensor=2)]) == [2]
+    assert bond_decides(result, [C(effect="channel_lowpass", sensor=1)]) == [2]
+    assert bond_decides({"unabsorbed_channels": []}, bond) == []
+
+
+def test_a_16_bit_loggers_twin_clips_at_its_rails_instead_of_stopping(session1):
+    """The site map's twin counts (to_adc clip=False) past the int16 range stopped simulate-dataset on a 16-bit
+    logger, whose rails the int16 range is: a drop next to a sensor clips there as the measured ones do. A
+    logger of fewer bits keeps its drops whole up to the int16 range and still stops beyond, saying why."""
+    import numpy as np
+
+    from impactsense.errors import ConfigError
+    from impactsense.sim import SimParams, to_adc
+
+    volts = np.zeros((1, 4, 50))
+    volts[0, :, 5] = [1e3, -1e3, 1.0, 0.0]
+    params = SimParams(pretrigger_samples=10)
+    rig16 = rig_from_dict({**session1.rig.to_dict(), "adc_bits": 16, "bias_counts": 32768, "samples": 100})
+    out = to_adc(volts, params, rig16, clip=False)
+    assert out.dtype == np.int16 and out[0, :, 15].tolist()[:2] == [32767, -32768]
+    assert abs(int(out[0, 2, 15]) - round(params.circuit_gain * 65536 / rig16.vref)) <= 1
+    rig12 = rig_from_dict({**session1.rig.to_dict(), "samples": 100})
+    with pytest.raises(ConfigError, match="calibrate again"):
+        to_adc(volts, params, rig12, clip=False)

@@ -83,7 +83,7 @@ def run(args) -> int:
     accepted = [] if same else fit_bond(base, data, details["accepted"], args.seed)
     # a channel whose change the effects cannot describe (a move beyond a re-glued disc's): no effect is put
     # on it, the model leaves it out (the core's channel_left_out: three-sensor position and class), flagged
-    left_out = sorted(u["sensor"] for u in result.get("unabsorbed_channels", []))
+    left_out = bond_decides(result, accepted)
     accepted = [c for c in accepted if c.sensor not in left_out]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     card = retrain_card(result, base, data, accepted, left_out)
@@ -155,6 +155,17 @@ def training_rows(train_on, base, accepted, exclude):
     return exclude, np.arange(len(train_on)) < copies
 
 
+def bond_decides(result: dict, accepted) -> list:
+    """The channels retrain leaves out: those whose timing asks for a move beyond a re-glued disc's
+    (`unabsorbed_channels`), but for one with a diagnosed low-pass (a debonded disc's late, filtered picks ask
+    for such a move): its low-pass and gain are put in and the bond choice (`bond_choice`) decides on DATA_NEW
+    between that four-channel model and the channel left out (with two sensors close together the three others
+    may place worse than the four with the bond modelled)."""
+    unabsorbed = sorted(u["sensor"] for u in result.get("unabsorbed_channels", []))
+    lowpass = {c.sensor for c in accepted if c.effect == "channel_lowpass"}
+    return [k for k in unabsorbed if k not in lowpass]
+
+
 def note_bond_choice(card: dict, choice, left_out: list) -> list:
     """The card's record of the bond choice (bond_choice.fit_with_bond_choice); the channels left out after it."""
     if choice is None:
@@ -183,6 +194,8 @@ def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out
               ("the channel is left out (three-sensor position and class), flagged"
                if choice["chosen"] == "left_out" else "the four-channel model is kept"))
     for u in result.get("unabsorbed_channels", []):
+        if choice is not None and choice["channel"] == u["sensor"]:
+            continue   # its bond was put in and the choice above decided
         print(f"channel {u['sensor']}: a change the models cannot absorb (its timing asks for a move of "
               f"{u['params']['offset_mm']:.0f} mm, more than a re-glued disc's {u['max_move_mm']:.0f} mm): the model "
               f"leaves it out (three-sensor position and class), flagged")

@@ -402,9 +402,14 @@ def to_adc(volts: np.ndarray, params: SimParams, rig, *, noise: bool = False, se
     if not clip:   # the core's int16 counts: less a 16-bit logger's re-centring (signal.core_offset)
         from ..signal import core_offset
 
-        counts = counts - core_offset(rig.adc_max)
+        off = core_offset(rig.adc_max)
+        counts = counts - off
+        if off:   # a 16-bit logger: the int16 range is its own rails (a drop by a sensor clips there, as measured)
+            return np.clip(np.rint(counts), -32768, 32767).astype(np.int16)
         if counts.size and np.abs(counts).max() > 32000:
-            raise ConfigError("circuit_gain: simulated counts exceed the int16 range")
+            raise ConfigError(f"circuit_gain {params.circuit_gain:.4g}: simulated counts reach "
+                              f"{np.abs(counts).max():.0f}, past the int16 range (the logger's {rig.adc_bits}-bit "
+                              "rails many times over): the twin's gain does not fit this logger (calibrate again)")
         return np.rint(counts).astype(np.int16)
     return np.clip(np.rint(counts), 0, rig.adc_max).astype(np.uint16)
 
