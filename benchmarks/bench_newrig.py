@@ -8,10 +8,13 @@ trained and evaluated as a user does (`train DATA` + `evaluate DATA`: the held-o
 bench_rigs' naive reference (threshold picks + a forest per axis on the six DToA) on the same splits. A fourth
 kind, alu-rotated (a 6 mm aluminium plate, sensors on a turned rectangle, 50 kHz / 12 bits, 40 samples before
 the hit), and a fifth, pc-quad (an 8 mm polycarbonate sheet, a material the table does not know, sensors on an
-asymmetric quadrilateral, 200 kHz / 12 bits), are made too.
+asymmetric quadrilateral, 200 kHz / 12 bits), are made too, and two more: brass-trapezoid (brass, a trapezoid with
+two sensors 48 mm apart, a 33 g ball, 250 kHz / 10 bits, 6 ms records) and cfrp-crossply (a cross-ply laminate
+with axes at 90 deg, two sensors 14 mm from an edge, 100 kHz / 16 bits negative-going with a DC offset, 8 ms
+records of which 30 samples before the hit, no density in rig.json).
 Target (issue 15, measured-trained): MAE <= 3.0 mm, class >= 0.95 on the mean.
 
-    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew,alu-rotated,pc-quad]
+    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew,alu-rotated,pc-quad,brass-trapezoid,cfrp-crossply]
 """
 
 from __future__ import annotations
