@@ -23,7 +23,8 @@ chain's model also scored on SESSION, all its drops (e.g. bundled:session-2, an 
 scored on the demo's test split (the same drops): issue 15 wants the chain to give what the demo gives.
 --demo-split: only the latter (the demo's test drops from its case split, the demo not run).
 --drop-draws K: the chain on K choices of the four calibration drops (calibrate's auto choice, then K-1 seeded
-draws of one usable case per plate quadrant, passed as calibrate --drops; work folders RIG-drawK), so a figure
+draws of one usable case per plate quadrant, passed as calibrate --drops, drawn as calibrate's rule would choose on
+an anisotropic plate: drawn_drops; work folders RIG-drawK), so a figure
 does not rest on one choice; each must meet the targets, and the mean and worst are printed per rig.
 --trace: each step runs under a sampler of its process tree (cputrace.py): the wall two idle cores would take,
 from each slice's CPU and how many of the step's threads wanted a core then; the chain's target is judged on
@@ -127,19 +128,19 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
 def drawn_drops(session, cases: dict, draw: int) -> list[int]:
     """Draw `draw` (>= 1) of four calibration cases: in each plate quadrant one case at random among those
     calibrate's `auto` could take (`cases`: calibration.drops.case_table of the session), seeded by the draw;
+    on a plate where calibrate's auto choice puts two cases near sensor lines along the material axes
+    (calibration.drop_paths), those two quadrants draw among such cases, as the rule would take them.
     calibrate --drops takes them. Draw 0 is calibrate's own `auto` choice."""
     import numpy as np
 
-    px, py = session.rig.plate_x_mm, session.rig.plate_y_mm
-    rng = np.random.default_rng(draw)
-    chosen = []
-    for right, top in ((False, False), (True, False), (True, True), (False, True)):
-        cands = sorted(c for c, r in cases.items() if r["usable"] and (r["x"] >= px / 2) == right
-                       and (r["y"] >= py / 2) == top)
-        if not cands:
-            raise SystemExit(f"{session.path}: no usable calibration case in a plate quadrant")
-        chosen.append(int(rng.choice(cands)))
-    return chosen
+    from impactsense.calibration.drop_paths import choose_cases
+    from impactsense.calibration.drops import line_rule
+
+    try:
+        return choose_cases(cases, (session.rig.plate_x_mm, session.rig.plate_y_mm),
+                            rng=np.random.default_rng(draw), **line_rule(session.rig))
+    except ValueError as e:
+        raise SystemExit(f"{session.path}: {e}")
 
 
 def drop_choices(data: str, draws: int) -> list[list[int]]:

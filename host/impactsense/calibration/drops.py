@@ -5,7 +5,9 @@ when at least `min_reps` of its repetitions pass the Eq. 35 acceptance rule, no 
 clipped, dead or onset-less channel, and it lies at least `sensor_clearance_mm` from every sensor. Its
 repeatability is the median over the six sensor pairs of the DToA spread (standard deviation across the
 accepted repetitions, microseconds). `auto` takes one case per plate quadrant: the one minimising
-spread + `spread_weight` * distance from the quadrant's centre, so the four are well spread and repeatable.
+spread + `spread_weight` * distance from the quadrant's centre, so the four are well spread and repeatable;
+on an anisotropic plate two opposite quadrants take cases near sensor lines along the material axes
+(drop_paths.py).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import numpy as np
 from .. import _core
 from ..errors import ConfigError, DataError
 from ..signal import core_config, core_samples
+from ..travel import wants_metric
+from .drop_paths import choose_cases
 
 BAD_FLAGS = _core.FLAG_CLIPPED | _core.FLAG_DEAD | _core.FLAG_NO_ONSET
 
@@ -87,6 +91,16 @@ def case_table(session, feats, *, tol_us=0.0, margin_mm=0.0, min_reps=2, sensor_
     return rows, int(ok_rec.sum())
 
 
+def line_rule(rig, line_tol_mm: float = 10.0) -> dict:
+    """choose_cases' keywords for the rig: the sensors and material axes on a plate whose localiser fits a
+    travel metric (travel.wants_metric), nothing on an isotropic one or with line_tol_mm 0."""
+    if line_tol_mm <= 0 or not wants_metric(rig):
+        return {}
+    from ..materials import material_for_rig
+    return {"sensors_xy": rig.sensor_xy_mm.astype(float), "axis_deg": float(material_for_rig(rig).axis_deg),
+            "line_tol_mm": float(line_tol_mm)}
+
+
 def _targets(session, feats, rows, chosen, info) -> DropTargets:
     def med(key):
         return np.stack([np.median(feats[key][rows[c]["recs"]], axis=0) for c in chosen]).astype(float)
@@ -100,8 +114,10 @@ def _targets(session, feats, rows, chosen, info) -> DropTargets:
 
 
 def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0, min_reps=2,
-                 sensor_clearance_mm=40.0, spread_weight=0.05) -> DropTargets:
-    """The four calibration cases of `session` ("auto" or a list of four case ids)."""
+                 sensor_clearance_mm=40.0, spread_weight=0.05, line_tol_mm=10.0) -> DropTargets:
+    """The four calibration cases of `session` ("auto" or a list of four case ids; auto: drop_paths.choose_cases,
+    on a plate whose localiser fits a metric with two cases near sensor lines along the material axes, within
+    line_tol_mm; 0 turns that off)."""
     feats = feats if feats is not None else extract(session)
     rows, n_acc = case_table(session, feats, tol_us=tol_us, margin_mm=margin_mm, min_reps=min_reps,
                              sensor_clearance_mm=sensor_clearance_mm)
@@ -133,13 +149,8 @@ def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0
         raise DataError(where, "recordings", f"only {len(usable)} usable drop case(s) (need 4): a case needs "
                         f">= {min_reps} repetitions accepted by Eq. 35 with no clipped/dead channel and "
                         f">= {sensor_clearance_mm:.0f} mm from every sensor")
-    px, py = session.rig.plate_x_mm, session.rig.plate_y_mm
-    centres = [(px / 4, py / 4), (3 * px / 4, py / 4), (3 * px / 4, 3 * py / 4), (px / 4, 3 * py / 4)]
-    chosen: list[int] = []
-    for qx, qy in centres:
-        cands = [c for c in usable if c not in chosen]
-        score = [rows[c]["spread_us"] + spread_weight * np.hypot(rows[c]["x"] - qx, rows[c]["y"] - qy)
-                 + (0.0 if (rows[c]["x"] < px / 2) == (qx < px / 2) and (rows[c]["y"] < py / 2) == (qy < py / 2)
-                    else 1e3) for c in cands]
-        chosen.append(cands[int(np.argmin(score))])
+    rule = line_rule(session.rig, line_tol_mm)
+    chosen = choose_cases(rows, (session.rig.plate_x_mm, session.rig.plate_y_mm), spread_weight, **rule)
+    if rule:
+        info["sensor_line_tol_mm"] = rule["line_tol_mm"]
     return _targets(session, feats, rows, chosen, info)

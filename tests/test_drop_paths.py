@@ -1,0 +1,89 @@
+"""calibrate's automatic choice of the four calibration drops (calibration/drop_paths.py): one case per plate
+quadrant; on a plate whose localiser fits a travel metric two opposite quadrants take cases near sensor lines
+along different material axes, so that the drops' paths run along both axes; an isotropic plate's choice is
+the plain one."""
+
+from dataclasses import replace
+
+import numpy as np
+
+from impactsense.calibration.drop_paths import (LINE_QUADRANTS, axis_lines, choose_cases, near_axis_lines,
+                                                quadrant_of)
+from impactsense.calibration.drops import line_rule
+from impactsense.data import load_session
+
+PLATE = (400.0, 300.0)
+# Sensors near the corners of a slightly skewed rectangle (no line exactly along x or y).
+SENSORS = np.array([[40.0, 40.0], [360.0, 50.0], [355.0, 260.0], [45.0, 255.0]])
+
+
+def _path_angles_deg(cases, rows, axis_deg=0.0):
+    """The angle (0-90 deg) of every source-to-sensor path to material axis 1."""
+    out = []
+    for c in cases:
+        d = SENSORS - np.array([rows[c]["x"], rows[c]["y"]])
+        ang = (np.degrees(np.arctan2(d[:, 1], d[:, 0])) - axis_deg) % 180.0
+        out += list(np.minimum(ang, 180.0 - ang))
+    return np.array(out)
+
+
+def _case_grid(seed=0):
+    """A case table like drops.case_table's: a 20 mm grid 45 mm clear of the sensors, random spreads."""
+    rng = np.random.default_rng(seed)
+    rows, c = {}, 0
+    for x in np.arange(30.0, 380.0, 20.0):
+        for y in np.arange(30.0, 280.0, 20.0):
+            if np.min(np.hypot(*(SENSORS - [x, y]).T)) >= 45.0:
+                rows[c] = {"x": float(x), "y": float(y), "spread_us": float(rng.uniform(1.0, 15.0)), "usable": True}
+                c += 1
+    return rows
+
+
+def test_axis_lines_are_the_sensor_sides_along_each_axis():
+    lines = axis_lines(SENSORS, 0.0)
+    assert sorted((i, j) for i, j, _ in lines) == [(0, 1), (0, 3), (1, 2), (2, 3)]     # no diagonal
+    assert {(i, j): k for i, j, k in lines} == {(0, 1): 0, (2, 3): 0, (0, 3): 1, (1, 2): 1}
+    # Fibres at 45 deg on a square layout: the diagonals are the lines along the axes, the sides are not.
+    square = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [0.0, 100.0]])
+    assert sorted((i, j) for i, j, _ in axis_lines(square, 45.0)) == [(0, 2), (1, 3)]
+    assert near_axis_lines((200.0, 47.0), SENSORS, 0.0, 10.0) == {0}
+    assert near_axis_lines((200.0, 150.0), SENSORS, 0.0, 10.0) == set()
+
+
+def test_metric_plate_choice_spans_both_axes_one_per_quadrant():
+    rows = _case_grid()
+    plain = choose_cases(rows, PLATE)
+    rule = choose_cases(rows, PLATE, sensors_xy=SENSORS, line_tol_mm=10.0)
+    for cases in (plain, rule):
+        assert sorted(quadrant_of(rows[c], *PLATE) for c in cases) == [0, 1, 2, 3]
+    # The two line quadrants' cases lie near sensor lines of different axes; the others are the plain choice's.
+    axes = [near_axis_lines((rows[rule[q]]["x"], rows[rule[q]]["y"]), SENSORS, 0.0, 10.0) for q in LINE_QUADRANTS]
+    assert all(axes) and axes[0] | axes[1] == {0, 1}
+    assert [rule[q] for q in range(4) if q not in LINE_QUADRANTS] == [plain[q] for q in range(4)
+                                                                     if q not in LINE_QUADRANTS]
+    # Paths within 10 deg of each axis (a case 10 mm off a line, >= 45 mm from its sensors): the rule's drops
+    # have two or more along both axes; the plain choice here (on this table) has none along axis 2.
+    ang = _path_angles_deg(rule, rows)
+    assert (ang < 10.0).sum() >= 2 and (ang > 80.0).sum() >= 2
+    plain_ang = _path_angles_deg(plain, rows)
+    assert (plain_ang > 80.0).sum() == 0
+
+
+def test_random_draws_change_only_the_line_quadrants():
+    rows = _case_grid(1)
+    for draw in (1, 2, 3):
+        plain = choose_cases(rows, PLATE, rng=np.random.default_rng(draw))
+        rule = choose_cases(rows, PLATE, sensors_xy=SENSORS, rng=np.random.default_rng(draw))
+        assert [plain[q] for q in (1, 3)] == [rule[q] for q in (1, 3)]
+        axes = [near_axis_lines((rows[rule[q]]["x"], rows[rule[q]]["y"]), SENSORS, 0.0, 10.0) for q in LINE_QUADRANTS]
+        assert axes[0] | axes[1] == {0, 1}
+
+
+def test_rule_applies_only_where_the_localiser_fits_a_metric():
+    rig = load_session("bundled").rig              # aluminium: isotropic and known
+    assert line_rule(rig) == {}
+    laminate = replace(rig, plate_material="carbon-fibre laminate",
+                       raw={**rig.raw, "plate_material": "carbon-fibre laminate", "material_axes": {"fibre_angle_deg": 30.0}})
+    rule = line_rule(laminate)
+    assert rule["axis_deg"] == 30.0 and rule["sensors_xy"].shape == (4, 2)
+    assert line_rule(laminate, 0.0) == {}
