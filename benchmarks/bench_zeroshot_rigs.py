@@ -26,6 +26,8 @@ scored on the demo's test split (the same drops): issue 15 wants the chain to gi
 draws of one usable case per plate quadrant, passed as calibrate --drops, drawn as calibrate's rule would choose on
 an anisotropic plate: drawn_drops; work folders RIG-drawK), so a figure
 does not rest on one choice; each must meet the targets, and the mean and worst are printed per rig.
+--sensor-line-drops MM: the choices under calibrate's sensor-line rule at that tolerance (calibration.drop_paths;
+0 turns it off), the auto choice passed as explicit --drops when MM is not calibrate's default.
 --trace: each step runs under a sampler of its process tree (cputrace.py): the wall two idle cores would take,
 from each slice's CPU and how many of the step's threads wanted a core then; the chain's target is judged on
 it instead of CPU / 2 (a stage that keeps one core busy takes its CPU, not half of it).
@@ -125,11 +127,12 @@ def chain(data: str, work: Path, n: int, calibrate_args: list[str], *, cold: boo
     return row
 
 
-def drawn_drops(session, cases: dict, draw: int) -> list[int]:
+def drawn_drops(session, cases: dict, draw: int, line_tol_mm: float | None = None) -> list[int]:
     """Draw `draw` (>= 1) of four calibration cases: in each plate quadrant one case at random among those
     calibrate's `auto` could take (`cases`: calibration.drops.case_table of the session), seeded by the draw;
     on a plate where calibrate's auto choice puts two cases near sensor lines along the material axes
-    (calibration.drop_paths), those two quadrants draw among such cases, as the rule would take them.
+    (calibration.drop_paths; line_tol_mm: that rule's tolerance, default calibrate's), those two quadrants draw
+    among such cases, as the rule would take them.
     calibrate --drops takes them. Draw 0 is calibrate's own `auto` choice."""
     import numpy as np
 
@@ -137,24 +140,29 @@ def drawn_drops(session, cases: dict, draw: int) -> list[int]:
     from impactsense.calibration.drops import line_rule
 
     try:
+        rule = line_rule(session.rig) if line_tol_mm is None else line_rule(session.rig, line_tol_mm)
         return choose_cases(cases, (session.rig.plate_x_mm, session.rig.plate_y_mm),
-                            rng=np.random.default_rng(draw), **line_rule(session.rig))
+                            rng=np.random.default_rng(draw), **rule)
     except ValueError as e:
         raise SystemExit(f"{session.path}: {e}")
 
 
-def drop_choices(data: str, draws: int) -> list[list[int]]:
-    """The `--drops` of each draw 0..draws-1 ([] for draw 0: calibrate's auto choice)."""
-    if draws <= 1:
-        return [[]]
-    from impactsense.calibration.drops import case_table, extract
+def drop_choices(data: str, draws: int, line_tol_mm: float | None = None) -> list[list[int]]:
+    """The `--drops` of each draw 0..draws-1 ([] for draw 0: calibrate's auto choice; with line_tol_mm other
+    than calibrate's, the auto choice under that tolerance of drop_paths' sensor-line rule, as explicit cases)."""
+    from impactsense.calibration.drops import SENSOR_LINE_TOL_MM, case_table, extract, select_drops
     from impactsense.calibration.options import CalibrateOptions
     from impactsense.calibration.problem import measured_core_config
     from impactsense.data import load_session
 
+    own = line_tol_mm is None or line_tol_mm == SENSOR_LINE_TOL_MM
+    if draws <= 1 and own:
+        return [[]]
     session = load_session(data)       # the cases calibrate's defaults accept (its picker, Eq. 35 rule)
-    cases, _ = case_table(session, extract(session, measured_core_config(session.rig, CalibrateOptions())))
-    return [[]] + [drawn_drops(session, cases, d) for d in range(1, draws)]
+    feats = extract(session, measured_core_config(session.rig, CalibrateOptions()))
+    cases, _ = case_table(session, feats)
+    first = [] if own else select_drops(session, feats, line_tol_mm=line_tol_mm).case_ids
+    return [first] + [drawn_drops(session, cases, d, line_tol_mm) for d in range(1, draws)]
 
 
 def demo_test_recordings(data: str, cal: dict) -> list:
@@ -203,6 +211,9 @@ def main() -> int:
                     help="run the chain on K choices of the calibration drops: calibrate's auto choice, then K-1 "
                          "draws of one usable case per plate quadrant at random (drawn_drops); each must meet the "
                          "targets")
+    ap.add_argument("--sensor-line-drops", type=float, default=None, metavar="MM",
+                    help="choose (draw 0) and draw the calibration drops with calibrate's sensor-line rule at this "
+                         "tolerance (calibration.drop_paths; 0: the plain per-quadrant choice), passed as --drops")
     ap.add_argument("--trace", action="store_true",
                     help="sample each step's process tree: the idle 2-core wall estimate (judged instead of CPU / 2)")
     ap.add_argument("--demo-split", action="store_true",
@@ -218,7 +229,7 @@ def main() -> int:
             print(f"no rig folders: {why}")
             return 1
     rows, ok = [], True
-    runs = [(data, draw, cases) for data in rigs for draw, cases in enumerate(drop_choices(data, a.drop_draws))]
+    runs = [(data, draw, cases) for data in rigs for draw, cases in enumerate(drop_choices(data, a.drop_draws, a.sensor_line_drops))]
     for data, draw, cases in runs:
         extra = ["--drops", ",".join(map(str, cases))] if cases else []
         tag = f"-draw{draw}" if draw else ""

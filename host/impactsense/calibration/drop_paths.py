@@ -8,7 +8,7 @@ at diagonal angles, where the ellipse's two axes weigh about equally; a case nea
 sends two of its paths along that line. So two opposite quadrants (the first and third: lower-left, upper-right)
 each take a case near a sensor line (within `line_tol_mm` of the segment between two sensors) whose direction is
 within `AXIS_TOL_DEG` of a material axis, the two cases on lines along *different* axes, so that the drops'
-paths run along both axes. The other two quadrants, and an isotropic plate's four, keep the plain choice: the
+paths run along both axes, both among the more repeatable half of the usable cases. The other two quadrants, and an isotropic plate's four, keep the plain choice: the
 case minimising spread + spread_weight * distance from the quadrant's centre (drops.py).
 """
 
@@ -97,10 +97,14 @@ def choose_cases(rows: dict, plate_xy_mm: tuple[float, float], spread_weight: fl
 
 def _line_pair(rows, usable, px, py, score, sensors_xy, axis_deg, line_tol_mm, rng) -> dict[int, int]:
     """{quadrant: case} for LINE_QUADRANTS: a case near a sensor line along axis k in the first and along the
-    other axis in the second (both assignments considered); {} when no such pair exists."""
+    other axis in the second (both assignments considered), each among the more repeatable half of the usable
+    cases (DToA spread at most their median: a random draw would otherwise take cases whose repetitions scatter
+    by a cycle); {} when no such pair exists."""
     qa, qb = LINE_QUADRANTS
+    limit = np.median([rows[c]["spread_us"] for c in usable])      # the more repeatable half only
     axes = {c: near_axis_lines((rows[c]["x"], rows[c]["y"]), sensors_xy, axis_deg, line_tol_mm) for c in usable}
-    in_q = {q: [c for c in usable if quadrant_of(rows[c], px, py) == q] for q in LINE_QUADRANTS}
+    in_q = {q: [c for c in usable if quadrant_of(rows[c], px, py) == q and rows[c]["spread_us"] <= limit]
+            for q in LINE_QUADRANTS}
     pairs = [(a, b) for k in (0, 1) for a in in_q[qa] if k in axes[a] for b in in_q[qb] if 1 - k in axes[b]]
     if not pairs:
         return {}

@@ -91,7 +91,12 @@ def case_table(session, feats, *, tol_us=0.0, margin_mm=0.0, min_reps=2, sensor_
     return rows, int(ok_rec.sum())
 
 
-def line_rule(rig, line_tol_mm: float = 10.0) -> dict:
+# calibrate's auto choice: cases near sensor lines along the material axes within this (mm); 0: off
+# (drop_paths.py; docs/findings.md "Calibration drops along the material axes").
+SENSOR_LINE_TOL_MM = 10.0
+
+
+def line_rule(rig, line_tol_mm: float = SENSOR_LINE_TOL_MM) -> dict:
     """choose_cases' keywords for the rig: the sensors and material axes on a plate whose localiser fits a
     travel metric (travel.wants_metric), nothing on an isotropic one or with line_tol_mm 0."""
     if line_tol_mm <= 0 or not wants_metric(rig):
@@ -114,7 +119,8 @@ def _targets(session, feats, rows, chosen, info) -> DropTargets:
 
 
 def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0, min_reps=2,
-                 sensor_clearance_mm=40.0, spread_weight=0.05, line_tol_mm=10.0) -> DropTargets:
+                 sensor_clearance_mm=40.0, spread_weight=0.05,
+                 line_tol_mm=SENSOR_LINE_TOL_MM) -> DropTargets:
     """The four calibration cases of `session` ("auto" or a list of four case ids; auto: drop_paths.choose_cases,
     on a plate whose localiser fits a metric with two cases near sensor lines along the material axes, within
     line_tol_mm; 0 turns that off)."""
