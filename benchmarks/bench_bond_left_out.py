@@ -29,12 +29,12 @@ import numpy as np
 
 from impactsense.channel_check import channel_scores, fit_channel_check, flagged_channel
 from impactsense.commands.retrain import leave_out, score
-from impactsense.data import load_session
-from impactsense.diagnose import diagnose
-from impactsense.loop import fit_bond, measured_training_session, pick_settings, weak_channel
+from impactsense.loop import measured_training_session, pick_settings
 from impactsense.models import ForestSettings
 from impactsense.pipeline import featurize
 from impactsense.workflow import train
+
+from benchlib import sized_bond
 
 TEST_FRACTION = 0.3
 
@@ -55,12 +55,8 @@ def main() -> int:
     ap.add_argument("--trees", type=int, default=60)
     ap.add_argument("--no-held-out", action="store_true", help="skip the training drops' held-out candidates")
     args = ap.parse_args()
-    ref, sess = load_session(Path(args.sessions) / "ref"), load_session(Path(args.sessions) / args.name)
-    _, det = diagnose(ref, sess, same=False)
-    accepted = fit_bond(ref, sess, det["accepted"], args.seed)
-    channel = weak_channel(accepted)
+    ref, sess, det, accepted, channel = sized_bond(args.sessions, args.name, args.seed)
     if channel < 0:
-        print(f"{args.name}: no bond sized (effects {[(c.effect, c.sensor) for c in accepted]})")
         return 0
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
     with tempfile.TemporaryDirectory() as tmp:

@@ -26,10 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from impactsense.data import load_session
-from impactsense.diagnose import diagnose
-from impactsense.loop import fit_bond, measured_training_session, onset_gains, weak_channel
+from impactsense.loop import measured_training_session, onset_gains
 from impactsense.pipeline import featurize, fit_localiser
 from impactsense.signal import SignalConfig
+
+from benchlib import sized_bond
 
 PRETRIGGER = 64
 
@@ -66,12 +67,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     folder = Path(args.sessions)
-    ref, sess = load_session(folder / "ref"), load_session(folder / args.name)
-    _, det = diagnose(ref, sess, same=False)
-    accepted = fit_bond(ref, sess, det["accepted"], args.seed)
-    ch = weak_channel(accepted)
+    ref, sess, det, accepted, ch = sized_bond(args.sessions, args.name, args.seed)
     if ch < 0:
-        print(f"{args.name}: no bond sized (effects {[(c.effect, c.sensor) for c in accepted]})")
         return 0
     cfg = fit_localiser(ref, np.arange(len(ref)), SignalConfig.for_rig(ref.rig))
     print(f"{args.name}: channel {ch} ({', '.join(f'{c.effect} {c.params}' for c in accepted)}); onset threshold "

@@ -110,3 +110,19 @@ def chain_model_rows(data: str, model_path: str):
         return None
     calibration = calibration_rows(session, json.loads(Path(cal_path).read_text()))
     return session, model, np.setdiff1d(np.arange(len(session)), calibration), calibration
+
+
+def sized_bond(sessions: str, name: str, seed: int):
+    """(reference, the bond session, diagnose's details, its effects with the bond sized on the recordings
+    (loop.fit_bond), the weak channel or -1). Prints and gives channel -1 when no bond was sized."""
+    from impactsense.data import load_session
+    from impactsense.diagnose import diagnose
+    from impactsense.loop import fit_bond, weak_channel
+
+    ref, sess = load_session(Path(sessions) / "ref"), load_session(Path(sessions) / name)
+    _, det = diagnose(ref, sess, same=False)
+    accepted = fit_bond(ref, sess, det["accepted"], seed)
+    channel = weak_channel(accepted)
+    if channel < 0:
+        print(f"{name}: no bond sized (effects {[(c.effect, c.sensor) for c in accepted]})")
+    return ref, sess, det, accepted, channel

@@ -107,3 +107,24 @@ def coarse_plate_run():
     rig = load_rig(bundled_session_path())
     params = SimParams.from_rig(rig, element_mm=8.0, duration_ms=3.0, taper_ms=0.0, method="fast")
     return rig, params, simulate_voltages(params, rig, *COARSE_DROPS, workers=1)["volts"]
+
+
+def small_board_export(tmp_path_factory, **train_kw):
+    """A board-rate model without a twin (half of session-1's drops, 5 trees; train_kw to train_board_models),
+    exported without m2cgen: (model folder, export folder, export summary, every other held-out drop)."""
+    import json
+
+    from impactsense.board.models import train_board_models
+    from impactsense.data import load_session
+    from impactsense.export import export_models
+    from impactsense.models import ForestSettings
+
+    s1 = load_session()
+    sub = s1.subset(np.arange(0, len(s1), 2))
+    d = train_board_models(sub, tmp_path_factory.mktemp("m") / "model", settings=ForestSettings(n_estimators=5),
+                           **train_kw)
+    out = tmp_path_factory.mktemp("export")
+    summary = export_models(d, out, write_m2cgen=False)
+    card = json.loads((d / "model_card.json").read_text())
+    test = sub.subset(np.flatnonzero(np.isin(sub.recording_id, card["test_recording_ids"]))[::2])
+    return d, out, summary, test

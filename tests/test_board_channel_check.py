@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
+from conftest import small_board_export
 
 from impactsense.board.capture import board_captures
 from impactsense.board.scores import board_reports
-from impactsense.data import load_session
-from impactsense.export import export_models, firmware_models
+from impactsense.export import firmware_models
 from impactsense.faults import FaultSpec, inject_session
-from impactsense.models import ForestSettings, ImpactModel
+from impactsense.models import ImpactModel
 from impactsense.pipeline import featurize
 
 DEBONDED = 1
@@ -22,16 +22,7 @@ DEBONDED = 1
 @pytest.fixture(scope="module")
 def check_export(tmp_path_factory):
     """A board-rate model without a twin (half of session-1's drops, 5 trees), exported; its held-out drops."""
-    from impactsense.board.models import train_board_models
-
-    s1 = load_session()
-    sub = s1.subset(np.arange(0, len(s1), 2))
-    d = train_board_models(sub, tmp_path_factory.mktemp("m") / "model", settings=ForestSettings(n_estimators=5))
-    out = tmp_path_factory.mktemp("export")
-    summary = export_models(d, out, write_m2cgen=False)
-    card = json.loads((d / "model_card.json").read_text())
-    test = sub.subset(np.flatnonzero(np.isin(sub.recording_id, card["test_recording_ids"]))[::2])
-    return d, out, summary, test
+    return small_board_export(tmp_path_factory)
 
 
 def board_and_host(model_dir, out, session):

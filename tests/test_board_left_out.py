@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import small_board_export
 
 from impactsense import _core
 from impactsense.board.capture import board_captures, board_samples
 from impactsense.board.scores import board_reports
 from impactsense.data import load_session, write_session
-from impactsense.export import export_models, firmware_models
+from impactsense.export import firmware_models
 from impactsense.faults import FaultSpec, inject_session
 from impactsense.height_class import three_channel_inputs
 from impactsense.models import ForestSettings, ImpactModel, impact_energy_j
@@ -30,17 +31,7 @@ LEFT_OUT = 2
 @pytest.fixture(scope="module")
 def left_out_export(tmp_path_factory):
     """A board-rate model (half of session-1's drops, 5 trees, no twin) leaving channel 2 out, exported."""
-    from impactsense.board.models import train_board_models
-
-    s1 = load_session()
-    sub = s1.subset(np.arange(0, len(s1), 2))
-    d = train_board_models(sub, tmp_path_factory.mktemp("m") / "model", settings=ForestSettings(n_estimators=5),
-                           channel_left_out=[int(c == LEFT_OUT) for c in range(4)])
-    out = tmp_path_factory.mktemp("export")
-    summary = export_models(d, out, write_m2cgen=False)
-    card = json.loads((d / "model_card.json").read_text())
-    test = sub.subset(np.flatnonzero(np.isin(sub.recording_id, card["test_recording_ids"]))[::2])
-    return d, out, summary, test
+    return small_board_export(tmp_path_factory, channel_left_out=[int(c == LEFT_OUT) for c in range(4)])
 
 
 def host_and_board(model_dir, out, session):
