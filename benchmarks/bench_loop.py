@@ -162,8 +162,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         # as `impactsense retrain`: a bond's channel left out (flagged) when DATA_NEW's drops say so (bond_choice)
         (m_model, _), row["bond_choice"] = fit_with_bond_choice(
             lambda signal: train_score(m_sess, args.trees, args.seed, signal), pick_settings(m_sess, accepted),
-            sess, accepted, seed=args.seed)
-        if m_model.twin_fit is not None:
+            sess, accepted, seed=args.seed, reference=(ref_model, None))
+        if m_model.twin_fit is not None and m_model is not ref_model:
             m_model.twin_fit.weak_channel = weak_channel(accepted)
         row["measured"] = score(sess, m_model)
         row["twin_drops"] = int(len(m_sess) - len(ref) * training_draws(accepted))   # the twin's new positions
@@ -268,9 +268,12 @@ def table(out: dict) -> int:
             loop_ok = r["after"]["mae_mm"] <= RATIO * base
             choice = r.get("bond_choice")
             if choice:   # the other way out: a bond the models cannot absorb ends flagged in three sensors
-                loop_ok = loop_ok or choice["chosen"] == "left_out"
-                size += (f"; kept: {'channel left out, flagged' if choice['chosen'] == 'left_out' else 'four channels'}"
-                         f" (four {choice['four_mae_mm']:.2f}, left out {choice['left_out_mae_mm']:.2f}, the rule "
+                loop_ok = loop_ok or choice["chosen"] in ("left_out", "reference")   # both flag the channel
+                kept = {"left_out": "channel left out, flagged", "four": "four channels",
+                        "reference": "the reference model (flags the channel)"}[choice["chosen"]]
+                ref_mae = (f", reference {choice['reference_mae_mm']:.2f}" if "reference_mae_mm" in choice else "")
+                size += (f"; kept: {kept}"
+                         f" (four {choice['four_mae_mm']:.2f}, left out {choice['left_out_mae_mm']:.2f}{ref_mae}, the rule "
                          f"cross-fitted {choice['cross_fitted_mae_mm']:.2f} mm)")
             if "twin" in r and twin_base is not None:   # judged against the twin's own unchanged MAE
                 loop_ok = loop_ok and r["after"]["mae_mm"] <= RATIO * twin_base

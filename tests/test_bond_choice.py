@@ -52,3 +52,34 @@ def test_a_choice_that_does_not_carry_over_between_halves_costs_in_the_cross_fit
     got = choose_left_out(four, left, session, channel=0, seed=0)
     assert min(got["four_mae_mm"], got["left_out_mae_mm"]) < 2.8
     assert got["cross_fitted_mae_mm"] == pytest.approx(4.0)
+
+
+def test_the_reference_model_is_a_third_candidate_by_the_same_rule(session):
+    four = FixedOffsetModel(np.full(20, 3.0), session)
+    left = FixedOffsetModel(np.full(20, 2.5), session)
+    reference = FixedOffsetModel(np.full(20, 2.0), session)
+    got = choose_left_out(four, left, session, channel=1, seed=0, reference_model=reference)
+    assert got["chosen"] == "reference" and got["reference_mae_mm"] == pytest.approx(2.0)
+    assert got["cross_fitted_mae_mm"] == pytest.approx(2.0)
+    # a worse reference is not kept; without one the choice is the two retrained models' as before
+    worse = FixedOffsetModel(np.full(20, 3.5), session)
+    assert choose_left_out(four, left, session, channel=1, reference_model=worse)["chosen"] == "left_out"
+    assert "reference_mae_mm" not in choose_left_out(four, left, session, channel=1)
+
+
+def test_fit_with_bond_choice_returns_the_reference_model_when_it_places_best(session):
+    from impactsense.bond_choice import fit_with_bond_choice
+    from impactsense.signal import SignalConfig
+
+    signal = SignalConfig()
+    lowpass = SimpleNamespace(effect="channel_lowpass", sensor=2, params={})
+    offsets = {0: 3.0, 1: 2.5}   # four channels, channel 2 left out
+
+    def fit(cfg):
+        return FixedOffsetModel(np.full(20, offsets[cfg.channel_left_out[2]]), session), "split"
+
+    reference = (FixedOffsetModel(np.full(20, 1.0), session), "reference split")
+    kept, choice = fit_with_bond_choice(fit, signal, session, [lowpass], reference=reference)
+    assert kept is reference and choice["chosen"] == "reference" and choice["channel"] == 2
+    kept, choice = fit_with_bond_choice(fit, signal, session, [lowpass])
+    assert choice["chosen"] == "left_out" and kept[0].offset[0] == pytest.approx(2.5)

@@ -6,13 +6,17 @@ No label-free figure tells which of the two places a bonded session better (docs
 channel left out" and "A debonded channel on a model without a twin"); the loop's new session is labelled (diagnose
 reads it at its declared positions), so the choice is made there, the way retrain already judges its model against
 the baseline's (`retrain.worse_than_baseline`). A choice on the same drops it is scored on is optimistic; the
-cross-fitted figure is the honest one: each half of DATA_NEW's cases placed by the model the other half chose."""
+cross-fitted figure is the honest one: each half of DATA_NEW's cases placed by the model the other half chose.
+
+A third candidate, when given: the reference model as it would serve DATA_NEW (untouched: its check flags the
+bond channel and it takes its three-sensor path), scored by the same rule on the same drops; on some draws it
+places a strong bond's session better than either retrained model (docs/findings.md, issue 16, bondpick/bondref)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-CHOICES = ("four", "left_out")
+CHOICES = ("four", "left_out", "reference")
 
 
 def drop_errors(model, session) -> np.ndarray:
@@ -24,28 +28,33 @@ def _mae(err: np.ndarray) -> float:
     return float(np.nanmean(err)) if np.isfinite(err).any() else float("inf")
 
 
-def choose_left_out(four_model, left_out_model, data, channel: int, seed: int = 0) -> dict:
-    """Which model to keep ("four" or "left_out": the lower MAE per axis on DATA_NEW's drops) with both MAEs and
-    the cross-fitted MAE of the rule (DATA_NEW's cases in two seeded halves; each half placed by the model the
-    other half chose)."""
-    errs = {"four": drop_errors(four_model, data), "left_out": drop_errors(left_out_model, data)}
+def choose_left_out(four_model, left_out_model, data, channel: int, seed: int = 0, reference_model=None) -> dict:
+    """Which model to keep ("four", "left_out" or, when reference_model is given, "reference": the lowest MAE per
+    axis on DATA_NEW's drops) with each candidate's MAE and the cross-fitted MAE of the rule (DATA_NEW's cases in
+    two seeded halves; each half placed by the model the other half chose)."""
+    models = {"four": four_model, "left_out": left_out_model, "reference": reference_model}
+    errs = {k: drop_errors(m, data) for k, m in models.items() if m is not None}
     mae = {k: _mae(e) for k, e in errs.items()}
-    chosen = min(CHOICES, key=lambda k: mae[k])
+    chosen = min(errs, key=lambda k: mae[k])   # ties: the order of CHOICES (a retrained model first)
     cases = np.unique(data.case_id)
     half = np.isin(data.case_id, np.random.default_rng(seed).permutation(cases)[: cases.size // 2])
     crossed = np.full_like(errs["four"], np.nan)
     for rows, other in ((half, ~half), (~half, half)):
-        pick = min(CHOICES, key=lambda k: _mae(errs[k][other]))
+        pick = min(errs, key=lambda k: _mae(errs[k][other]))
         crossed[rows] = errs[pick][rows]
-    return {"channel": int(channel), "chosen": chosen, "four_mae_mm": mae["four"],
-            "left_out_mae_mm": mae["left_out"], "cross_fitted_mae_mm": _mae(crossed)}
+    out = {"channel": int(channel), "chosen": chosen, "four_mae_mm": mae["four"],
+           "left_out_mae_mm": mae["left_out"], "cross_fitted_mae_mm": _mae(crossed)}
+    if "reference" in mae:
+        out["reference_mae_mm"] = mae["reference"]
+    return out
 
 
-def fit_with_bond_choice(fit, signal, data, accepted, *, site_map=None, left_out=(), seed: int = 0):
+def fit_with_bond_choice(fit, signal, data, accepted, *, site_map=None, left_out=(), seed: int = 0, reference=None):
     """(fit(signal)'s result, the choice or None). fit trains on the training drops with a signal config and
     returns (model, ...). With one bond channel put in (loop.weak_channel), no channel left out already and no site
     map (with one, the twin matches with and without the weak channel and flags it: twin.h weak_channel), the same
-    drops are also fitted with that channel left out, and the one `choose_left_out` keeps is returned."""
+    drops are also fitted with that channel left out, and the one `choose_left_out` keeps is returned; `reference`
+    (the reference model's (model, ...), as it serves DATA_NEW) is the third candidate, returned when it is kept."""
     from .commands.retrain import leave_out
     from .loop import weak_channel
 
@@ -54,5 +63,6 @@ def fit_with_bond_choice(fit, signal, data, accepted, *, site_map=None, left_out
     if channel < 0 or site_map is not None or len(left_out):
         return four, None
     three = fit(leave_out(signal, [channel]))
-    choice = choose_left_out(four[0], three[0], data, channel, seed)
-    return (three if choice["chosen"] == "left_out" else four), choice
+    choice = choose_left_out(four[0], three[0], data, channel, seed,
+                             reference_model=None if reference is None else reference[0])
+    return {"four": four, "left_out": three, "reference": reference}[choice["chosen"]], choice

@@ -54,7 +54,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import fit_bond, measured_training_session, pick_settings, weak_channel
+    from ..loop import fit_bond, measured_training_session, pick_settings
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -89,7 +89,7 @@ def run(args) -> int:
     card = retrain_card(result, base, data, accepted, left_out)
     out = Path(args.out)
     rows = {}
-    plain, _ = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
+    plain, plain_split = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
     rows["baseline model"] = score(data, plain)
     train_on = base
     with output_folder(out, args.force, tool="impactsense retrain") as stage:
@@ -105,16 +105,11 @@ def run(args) -> int:
         (model, split), choice = fit_with_bond_choice(
             lambda signal: train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
                                  signal=signal, extra_card=card, site_map=site, twin_rows=measured),
-            pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed)
+            pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
+            reference=(plain, plain_split))
         left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
-        if accepted:
-            split["data_path"] = str(out.resolve() / TRAINING_DATA)
-        if not measured.all():   # the twin's own drops: `export` keeps them out of the board model's twin fit too
-            split["simulated_recordings"] = train_on.recording_id[~measured].tolist()
-        if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
-            model.twin_fit.weak_channel = weak_channel(accepted)
-        if left_out:
-            model.signal = leave_out(model.signal, left_out)
+        if model is not plain:   # the reference model kept (bond choice): written as it served DATA_NEW
+            fit_into_training_data(model, split, train_on, measured, accepted, left_out, out)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
         if args.twin:
@@ -173,8 +168,26 @@ def note_bond_choice(card: dict, choice, left_out: list) -> list:
     card["retrain"]["bond_choice"] = choice
     if choice["chosen"] == "left_out":
         left_out = [choice["channel"]]
+    if choice["chosen"] == "reference":   # the reference model as it is: its check flags the channel itself
+        card["retrain"]["model_kept"] = "reference"
+        card["retrain"]["model_kept_why"] = reference_kept_why(choice)
     card["retrain"]["channels_left_out"] = left_out
     return left_out
+
+
+def fit_into_training_data(model, split, train_on, measured, accepted, left_out, out: Path) -> None:
+    """A model trained on OUT's training data: its card's split points there (export trains on it again), the
+    twin's own drops named, a debonded disc the twin's weak channel, the channels left out set in its signal."""
+    from ..loop import weak_channel
+
+    if accepted:
+        split["data_path"] = str(out.resolve() / TRAINING_DATA)
+    if not measured.all():   # the twin's own drops: `export` keeps them out of the board model's twin fit too
+        split["simulated_recordings"] = train_on.recording_id[~measured].tolist()
+    if model.twin_fit is not None:   # a debonded disc: the twin also matches without it, and flags it
+        model.twin_fit.weak_channel = weak_channel(accepted)
+    if left_out:
+        model.signal = leave_out(model.signal, left_out)
 
 
 def leave_out(signal, channels):
@@ -184,6 +197,15 @@ def leave_out(signal, channels):
     return replace(signal, channel_left_out=[int(c in channels) for c in range(len(signal.channel_left_out))])
 
 
+def reference_kept_why(choice: dict) -> str:
+    """Why retrain keeps the reference model (bond_choice chose it): the three candidates' MAE on DATA_NEW."""
+    return (f"the reference model (trained on DATA_REF as it is; its check flags channel {choice['channel']} and "
+            f"places by the three other sensors) places DATA_NEW's drops better ({choice['reference_mae_mm']:.2f} mm) "
+            f"than the retrained models with the bond's low-pass and gain ({choice['four_mae_mm']:.2f}) or with the "
+            f"channel left out ({choice['left_out_mae_mm']:.2f}): it is the model written; the training data "
+            f"with the effects is kept beside it")
+
+
 def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None) -> None:
     """retrain's printout: the effects put in, the channels left out, both models' scores on DATA_NEW."""
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
@@ -191,8 +213,11 @@ def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out
         print(f"channel {choice['channel']}'s bond: {name}'s drops placed by the model with its low-pass and gain "
               f"{choice['four_mae_mm']:.2f} mm, with the channel left out {choice['left_out_mae_mm']:.2f} mm "
               f"(cross-fitted {choice['cross_fitted_mae_mm']:.2f}): " +
-              ("the channel is left out (three-sensor position and class), flagged"
-               if choice["chosen"] == "left_out" else "the four-channel model is kept"))
+              {"left_out": "the channel is left out (three-sensor position and class), flagged",
+               "four": "the four-channel model is kept",
+               "reference": "the REFERENCE MODEL IS KEPT"}[choice["chosen"]])
+        if choice["chosen"] == "reference":
+            print(f"kept the reference model: {reference_kept_why(choice)}")
     for u in result.get("unabsorbed_channels", []):
         if choice is not None and choice["channel"] == u["sensor"]:
             continue   # its bond was put in and the choice above decided
