@@ -83,3 +83,20 @@ def test_fit_with_bond_choice_returns_the_reference_model_when_it_places_best(se
     assert kept is reference and choice["chosen"] == "reference" and choice["channel"] == 2
     kept, choice = fit_with_bond_choice(fit, signal, session, [lowpass])
     assert choice["chosen"] == "left_out" and kept[0].offset[0] == pytest.approx(2.5)
+
+
+def test_retrain_says_the_reference_model_was_kept_and_why(capsys):
+    from impactsense.commands.retrain import note_bond_choice, print_summary
+
+    choice = {"channel": 1, "chosen": "reference", "four_mae_mm": 2.67, "left_out_mae_mm": 3.13,
+              "reference_mae_mm": 2.35, "cross_fitted_mae_mm": 2.40}
+    card = {"retrain": {"channels_left_out": []}}
+    assert note_bond_choice(card, choice, []) == []   # the reference model flags the channel itself
+    assert card["retrain"]["model_kept"] == "reference"
+    why = card["retrain"]["model_kept_why"]
+    assert "2.35" in why and "2.67" in why and "3.13" in why and "channel 1" in why
+    print_summary({}, [], {}, "DATA_NEW", False, "OUT", choice)
+    printed = capsys.readouterr().out
+    assert "REFERENCE MODEL IS KEPT" in printed and why in printed
+    card = {"retrain": {"channels_left_out": []}}
+    assert note_bond_choice(card, {**choice, "chosen": "left_out"}, []) == [1] and "model_kept" not in card["retrain"]
