@@ -55,8 +55,8 @@ LINEAR_PER_TERM = 30
 MODELS_ALLOWANCE = 1500
 
 # The channel check (impactcore channelcheck.cpp, impactapp App::check_event) on every event of a model that carries
-# it: the ratios, each channel's cubic at the physics position, the run rule (measured under qemu on rig-c's board
-# export: channel_check_scores 717 + check_event 113 + channel_check_flag 80 an event, + margin)
+# it: the ratios, each channel's cubic at the physics position, the run rule (measured under qemu on a board
+# export, docs/findings.md "The channel check on the board"; a margin on top)
 CHECK_INSTRUCTIONS = 1000
 # ... and on an event it flags, instead of the forests: the physics localiser without the channel (a bound as for the
 # event's own run), the three-channel inputs (115) and the class's terms (LINEAR_PER_TERM each)
