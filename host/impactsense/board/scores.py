@@ -29,11 +29,12 @@ def board_reports(session, models, signal: dict, fs_hz: int = 50000) -> dict:
     return got
 
 
-def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_hz: int = 50000) -> dict:
+def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_hz: int = 50000,
+                   reports: dict | None = None) -> dict:
     """The firmware app (emulated board, exported node tables) over `session`'s drops, scored against the true
     positions and energy classes: Eq. 36 metrics of the reports with valid positions, their class accuracy,
-    and how many drops gave a report."""
-    got = board_reports(session, models, signal, fs_hz)
+    and how many drops gave a report. reports: board_reports' of these drops, when already run."""
+    got = board_reports(session, models, signal, fs_hz) if reports is None else reports
     rows = np.asarray(sorted(got), int)
     pred = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
     label = (impact_energy_j(session.height_mm, session.rig.ball_mass_g) >= energy_threshold_j).astype(int)
@@ -41,6 +42,14 @@ def board_accuracy(session, models, signal: dict, energy_threshold_j: float, fs_
     return {"n": len(session), "reported": int(rows.size), "fs_hz": int(fs_hz),
             **region_metrics(session.xy_mm[rows], pred, session.rig.inner_region_mm),
             "energy_class_accuracy": float(np.mean(cls == label[rows])) if rows.size else float("nan")}
+
+
+def report_positions(reports: dict, n: int) -> np.ndarray:
+    """The reported positions [n, 2] of board_reports' drops (NaN where a drop gave no valid report)."""
+    out = np.full((int(n), 2), np.nan)
+    for i, r in reports.items():
+        out[i] = r["x_mm"], r["y_mm"]
+    return out
 
 
 def held_out_rows(card: dict):

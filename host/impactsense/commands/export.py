@@ -75,6 +75,7 @@ def run(args) -> int:
               f"tables): {acc['reported']}/{acc['n']} reported, MAE {acc['all']['mae_mm']:.2f} mm "
               f"(inner {acc['inner']['mae_mm']:.2f} mm), mean distance {acc['all']['euclid_mm']:.2f} mm, "
               f"energy class accuracy {acc['energy_class_accuracy']:.3f}")
+        _print_versus_host(acc)
     if "twin" not in card and "three_channel_class" not in card:
         print("a drop with one channel without an onset (dead, disconnected): the board reports it as not valid "
               "(this model has no three-channel classes: train it again)")
@@ -130,7 +131,10 @@ def _export(args, card, rate, stage, out):
               f"{EVENT_BUDGET:,}: {'ok' if est['total'] <= EVENT_BUDGET else 'OVER'})")
     if isinstance(s.get("channel_check"), str):
         print(s["channel_check"])
-    acc = _board_accuracy(model_dir, card, stage)
+    host = Path(args.model_dir)
+    refit = model_dir != host
+    acc = _board_accuracy(model_dir, card, stage, host if refit else None, _card(host) if refit else None,
+                          int(s["trees"]) if str(s.get("trees", "")).isdigit() else None)
     if acc is not None:
         s["board_held_out"] = acc
         from ..outputs import json_text
@@ -147,17 +151,49 @@ def _card(model_dir):
     return read_json(Path(model_dir) / "model_card.json", MODEL_CARD_MISSING)
 
 
-def _board_accuracy(model_dir, card, out):
-    """The exported tables on the emulated board over the held-out drops (None without held-out drops)."""
+def _board_accuracy(model_dir, card, out, host_dir=None, host_card=None, trees=None):
+    """The exported tables on the emulated board over the held-out drops (None without held-out drops). With
+    host_dir (the model the board's was trained again from, its card host_card), also the host model's positions
+    of the same drops at the rig's rate, both scored on the drops both place ("versus_host": board.gap.compare,
+    and "board_lacks": what the host's model uses that the board's does not run)."""
+    import numpy as np
+
     from ..export import firmware_models
-    from ..board.scores import board_accuracy, held_out_rows
+    from ..board.scores import board_accuracy, board_reports, held_out_rows, report_positions
 
     s, rows = held_out_rows(card)
     if rows is None or rows.size == 0 or "energy_threshold_j" not in card:
         return None
     models, signal = firmware_models(out)
-    return board_accuracy(s.subset(rows), models, signal, float(card["energy_threshold_j"]),
-                          int(card.get("board_fs_hz") or 50000))
+    held = s.subset(rows)
+    fs = int(card.get("board_fs_hz") or 50000)
+    got = board_reports(held, models, signal, fs)
+    acc = board_accuracy(held, models, signal, float(card["energy_threshold_j"]), fs, reports=got)
+    if host_dir is not None:
+        from ..board.gap import board_lacks, compare, host_positions
+
+        acc["versus_host"] = compare(held.xy_mm, host_positions(host_dir, held, np.arange(len(held))),
+                                     report_positions(got, len(held)))
+        acc["board_lacks"] = board_lacks(host_card or {}, card, trees)
+    return acc
+
+
+def _print_versus_host(acc: dict) -> None:
+    """The board's expected accuracy against the host's (board.gap), and what the board lacks when it is worse."""
+    import sys
+
+    vs = acc.get("versus_host") or {}
+    if not vs.get("scored"):
+        return
+    b, h, ratio = vs["board"]["mae_mm"], vs["host"]["mae_mm"], vs["ratio_mae"]
+    print(f"expected accuracy, the same {vs['scored']} held-out drops (both placed): board MAE {b:.2f} mm, host "
+          f"{h:.2f} mm: the board is {ratio:.2f}x the host's (target <= {vs['target_ratio']:g}x: "
+          f"{'met' if vs['within_target'] else 'MISSED'})")
+    if not vs["within_target"]:
+        lacks = acc.get("board_lacks") or ["nothing the card names (the board's 4 x 50 kHz sampling)"]
+        print(f"WARNING: the board's model places drops {ratio:.1f}x worse than the host's; it runs only what the "
+              "board's rate and event budget allow and lacks:\n" + "\n".join(f"  - {x}" for x in lacks),
+              file=sys.stderr)
 
 
 def _held_out(model_dir):
