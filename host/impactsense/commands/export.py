@@ -133,8 +133,9 @@ def _export(args, card, rate, stage, out):
         print(s["channel_check"])
     host = Path(args.model_dir)
     refit = model_dir != host
+    trees = s.get("trees")
     acc = _board_accuracy(model_dir, card, stage, host if refit else None, _card(host) if refit else None,
-                          int(s["trees"]) if str(s.get("trees", "")).isdigit() else None)
+                          int(trees["x"]) if isinstance(trees, dict) else int(trees) if trees else None)
     if acc is not None:
         s["board_held_out"] = acc
         from ..outputs import json_text
