@@ -57,3 +57,39 @@ def test_compare_scores_both_on_the_drops_both_place():
     same = compare(truth, host, host)
     assert same["ratio_mae"] == 1.0 and same["within_target"] and TARGET_RATIO >= 1.0
     assert compare(truth, host, np.full_like(host, np.nan)) == {"scored": 0}
+
+
+def test_export_prints_the_boards_expected_accuracy_beside_the_hosts(tmp_path, capsys):
+    """`impactsense export` of a 100 kHz model: the board's model is trained again at 4 x 50 kHz; the printout and
+    export.json give both models' MAE on the same held-out drops (the host's at the rig's rate, as
+    ImpactModel.predict reports) and their ratio; a board worse than the target names what it lacks."""
+    import json
+
+    from impactsense.api import predict
+    from impactsense.cli import main
+    from impactsense.data import load_session, write_session
+    from impactsense.models import ForestSettings, ImpactModel
+    from impactsense.workflow import train
+
+    s1 = load_session()
+    sub = s1.subset(np.arange(0, len(s1), 2))
+    data = write_session(tmp_path / "data", sub.rig, sub.xy_mm[:, 0], sub.xy_mm[:, 1], sub.height_mm, sub.adc,
+                         case_id=sub.case_id, repetition=sub.repetition)
+    session = load_session(data)
+    model, split = train(session, None, 0.2, 0, settings=ForestSettings(n_estimators=5), site_map=None)
+    model.save(tmp_path / "m100")
+    assert main(["export", str(tmp_path / "m100"), "--out", str(tmp_path / "out"), "--no-m2cgen"]) == 0
+    got = capsys.readouterr()
+    acc = json.loads((tmp_path / "out" / "export.json").read_text())["board_held_out"]
+    vs = acc["versus_host"]
+    # the host's figure is the host model's own positions of those drops
+    index = {int(r): k for k, r in enumerate(session.recording_id)}
+    rows = np.asarray([index[int(r)] for r in split["test_recordings"]])
+    host = np.asarray(predict(ImpactModel.load(tmp_path / "m100"), session.adc[rows])["xy_mm"], float)
+    ok = np.isfinite(host).all(1)
+    assert acc["reported"] == acc["n"] and vs["scored"] == ok.sum()     # every held-out drop placed by both
+    assert abs(vs["host"]["mae_mm"] - np.abs(host[ok] - session.xy_mm[rows][ok]).mean()) < 1e-6
+    assert abs(vs["ratio_mae"] - vs["board"]["mae_mm"] / vs["host"]["mae_mm"]) < 1e-9
+    assert f"board MAE {vs['board']['mae_mm']:.2f} mm, host {vs['host']['mae_mm']:.2f} mm" in got.out
+    if not vs["within_target"]:
+        assert "WARNING" in got.err and acc["board_lacks"]
