@@ -13,7 +13,8 @@ BOARD = {"fs_hz": 50000, "localiser_starts": 1, "band_pick_hz": 0.0, "band_veloc
 
 def host_card(band_hz: float, starts: int = 4) -> dict:
     return {"signal": {"fs_hz": 100000, "localiser_starts": starts, "band_pick_hz": band_hz,
-                       "band_velocity_mm_per_us": 1.6, "band_window_us": 600.0, "dispersion_exponent": 0.4},
+                       "band_velocity_mm_per_us": 1.6, "band_window_us": 600.0, "dispersion_exponent": 0.4,
+                       "posterior_grid": 15},
             "position_members": ["threshold", "band"], "forest": {"n_estimators": 100}}
 
 
@@ -26,6 +27,7 @@ def test_a_band_above_the_boards_nyquist_frequency_is_named_as_such():
     assert any("position members" in x for x in lacks)
     assert any("4 on the host, 1 on the board" in x for x in lacks)
     assert any("dispersive" in x for x in lacks)
+    assert any("posterior mean (15 x 15" in x for x in lacks)
     assert any("100 on the host, 2 on the board" in x for x in lacks)
 
 

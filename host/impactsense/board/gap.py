@@ -61,6 +61,12 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
     hk, bk = int(hs.get("localiser_starts", 1) or 1), int(bs.get("localiser_starts", 1) or 1)
     if hk > bk:
         out.append(f"localiser starts: {hk} on the host, {bk} on the board (event budget)")
+    grid = int(hs.get("posterior_grid", 0) or 0)
+    if grid > 1 and int(bs.get("posterior_grid", 0) or 0) <= 1:
+        from .cost import POSTERIOR_PER_POINT
+
+        out.append(f"the localiser's posterior mean ({grid} x {grid} points, ~{POSTERIOR_PER_POINT * grid * grid:,} "
+                   "instructions a localiser run, over the event budget)")
     if float(hs.get("dispersion_exponent", 0) or 0) != 0 and float(bs.get("dispersion_exponent", 0) or 0) == 0:
         out.append("the dispersive localiser (the picked cycle's frequency scales each channel's slowness)")
     if "twin" in host_card and "twin" not in board_card:
