@@ -72,6 +72,43 @@ def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2
     return board
 
 
+# The board's onset threshold: the carried-over one (the rig's model's, chosen on its own rate's picks) or a lower
+# one, kept when the training drops' physics MAE on the board's captures falls below BOARD_THRESHOLD_GAIN x the
+# carried one's. At 4 x 50 kHz the threshold crossing is one coarse sample: a lower threshold catches the arrival's
+# first cycle a sample earlier on a slow plate (docs/findings.md "Session 18: boardband").
+BOARD_THRESHOLD_FACTORS = (1.0, 0.6, 0.4)
+BOARD_THRESHOLD_GAIN = 0.97
+
+
+def choose_board_threshold(board, rows: np.ndarray, sig, fits=signal_fits):
+    """(the fitted signal, record): fit_localiser on the board's captures `board` (adc, xy_mm, rig) of the
+    training rows at each of BOARD_THRESHOLD_FACTORS x sig's onset threshold (the AIC blend kept), the carried
+    threshold (the first) unless another's training-drop physics MAE per axis is below BOARD_THRESHOLD_GAIN x
+    its own. record: {"factors", "physics_mae_mm" per factor, "chosen"} for the model card."""
+    base = float(sig.onset_threshold_counts)
+    xy = np.asarray(board.xy_mm, float)[rows]
+    fitted, mae = [], []
+    for f in BOARD_THRESHOLD_FACTORS:
+        trial = replace(sig, onset_threshold_counts=base * f)
+        try:
+            out = fit_localiser(board, rows, trial, choose_threshold=False, fits=fits)
+        except (DataError, ValueError):   # no onset on every channel of enough drops at this threshold
+            fitted.append(None)
+            mae.append(float("inf"))
+            continue
+        phys = np.asarray(featurize(board.adc[rows], out).phys_xy_mm, float)
+        ok = np.isfinite(phys).all(1)
+        fitted.append(out)
+        mae.append(float(np.abs(phys[ok] - xy[ok]).mean()) if ok.mean() > 0.9 else float("inf"))
+    best = int(np.argmin(mae))
+    chosen = best if fitted[best] is not None and mae[best] < BOARD_THRESHOLD_GAIN * mae[0] else 0
+    if fitted[chosen] is None:
+        raise DataError("training drops", "adc", "the board's captures give no onset at the carried threshold")
+    record = {"factors": list(BOARD_THRESHOLD_FACTORS), "physics_mae_mm": [round(m, 3) for m in mae],
+              "chosen": BOARD_THRESHOLD_FACTORS[chosen]}
+    return fitted[chosen], record
+
+
 def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings: ForestSettings,
                        n_folds: int = 5) -> dict:
     """How the board's twin searches the site map, chosen on the training drops out of fold (forests and twin fit
@@ -155,7 +192,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     # counts, above the channels' noise and offsets, which the board's resampling keeps: the rig's model's
     # choice carries over, the AIC blend stays the board's); the band picks and localiser starts only where
     # the event budget affords them (board.cost)
-    sig = fit_localiser(board, np.flatnonzero(is_train), sig, choose_threshold=False, fits=signal_fits)
+    sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig)
+    extra_card = {**(extra_card or {}), "board_threshold": threshold_record}
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
