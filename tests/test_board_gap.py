@@ -95,3 +95,33 @@ def test_export_prints_the_boards_expected_accuracy_beside_the_hosts(tmp_path, c
     assert f"board MAE {vs['board']['mae_mm']:.2f} mm, host {vs['host']['mae_mm']:.2f} mm" in got.out
     if not vs["within_target"]:
         assert "WARNING" in got.err and acc["board_lacks"]
+
+
+def test_the_boards_threshold_is_lowered_only_when_its_physics_is_clearly_better(monkeypatch):
+    """choose_board_threshold: the carried threshold unless a lower one's training-drop physics MAE on the board's
+    captures is below BOARD_THRESHOLD_GAIN x its own; a threshold that gives no onsets is skipped."""
+    from types import SimpleNamespace
+
+    import impactsense.board.models as bm
+
+    truth = np.zeros((20, 2))
+    board = SimpleNamespace(adc=np.zeros((20, 4, 8)), xy_mm=truth, rig=None)
+    sig = SignalConfig.from_dict({"onset_threshold_counts": 100.0})
+
+    def run(errors):
+        def fit(board, rows, cfg, choose_threshold=False, fits=None):
+            e = errors[round(float(cfg.onset_threshold_counts))]
+            if e is None:
+                raise ValueError("no onset")
+            return cfg
+
+        monkeypatch.setattr(bm, "fit_localiser", fit)
+        monkeypatch.setattr(bm, "featurize", lambda adc, cfg: SimpleNamespace(
+            phys_xy_mm=truth[:len(adc)] + errors[round(float(cfg.onset_threshold_counts))]))
+        out, record = bm.choose_board_threshold(board, np.arange(20), sig)
+        return float(out.onset_threshold_counts), record
+
+    assert run({100: 10.0, 60: 9.8, 40: 9.9})[0] == 100.0          # 2 % better: not clearly
+    thr, record = run({100: 10.0, 60: 8.0, 40: 9.0})
+    assert thr == 60.0 and record["chosen"] == 0.6 and record["physics_mae_mm"] == [10.0, 8.0, 9.0]
+    assert run({100: 10.0, 60: None, 40: 5.0})[0] == 40.0
