@@ -165,7 +165,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own).
     The band picks and localiser starts are chosen among those within the board's event budget
     (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
-    configured one); retrain_for_board passes the one the rig's own model chose. channel_gain and
+    configured one); retrain_for_board passes the one the rig's own model chose; choose_board_threshold keeps it
+    or lowers it (the card's "board_threshold"). channel_gain and
     weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept. choose_class: without a
     site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit).
     channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
@@ -187,11 +188,11 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     if channel_gain is not None:
         sig.channel_gain = [float(g) for g in channel_gain]
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
-    # the rig's delays (the scan's are the capture's); the onset threshold as given (its picks at 50 kHz are
-    # coarser than the rig's: a threshold chosen on them would move the rig's delays; the threshold is in ADC
+    # the rig's delays (the scan's are the capture's); the onset threshold as given (the threshold is in ADC
     # counts, above the channels' noise and offsets, which the board's resampling keeps: the rig's model's
-    # choice carries over, the AIC blend stays the board's); the band picks and localiser starts only where
-    # the event budget affords them (board.cost)
+    # choice carries over, the AIC blend stays the board's) or, where the board's coarser picks place the training
+    # drops clearly better with it, a lower one (choose_board_threshold); the band picks and localiser starts only
+    # where the event budget affords them (board.cost)
     sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig)
     extra_card = {**(extra_card or {}), "board_threshold": threshold_record}
     feats = featurize(caps, sig)
