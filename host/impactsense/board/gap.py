@@ -11,6 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..api import predict
+from ..metrics import localisation_metrics
+from ..models import ImpactModel
+from ..signal import SignalConfig
+from .cost import POSTERIOR_PER_POINT, signal_instructions
+
 # The board's MAE may exceed the host's by this factor before export calls the board model worse than the host's
 # (issue 15's target: within ~10 %).
 TARGET_RATIO = 1.1
@@ -30,9 +36,6 @@ def band_pick_cost(host_signal: dict, board_signal: dict) -> int | None:
     (instructions, board.cost's rates: the demodulator's samples on four channels and the band localiser's
     run), None when its frequency is at or above the board's Nyquist frequency (the board's samples cannot
     carry it)."""
-    from ..signal import SignalConfig
-    from .cost import signal_instructions
-
     fs = float(board_signal.get("fs_hz", 0) or 0)
     f0 = float(host_signal.get("band_pick_hz", 0) or 0)
     if not (fs > 0 and 0 < f0 < fs / 2):
@@ -63,8 +66,6 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
         out.append(f"localiser starts: {hk} on the host, {bk} on the board (event budget)")
     grid = int(hs.get("posterior_grid", 0) or 0)
     if grid > 1 and int(bs.get("posterior_grid", 0) or 0) <= 1:
-        from .cost import POSTERIOR_PER_POINT
-
         out.append(f"the localiser's posterior mean ({grid} x {grid} points, ~{POSTERIOR_PER_POINT * grid * grid:,} "
                    "instructions a localiser run, over the event budget)")
     if float(hs.get("dispersion_exponent", 0) or 0) != 0 and float(bs.get("dispersion_exponent", 0) or 0) == 0:
@@ -80,9 +81,6 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
 def host_positions(model_dir, session, rows: np.ndarray) -> np.ndarray:
     """The host model's reported positions (ImpactModel.predict at the rig's rate: the twin's match where the
     model has one) of `rows` of `session`, NaN where it reports none."""
-    from ..api import predict
-    from ..models import ImpactModel
-
     xy = np.asarray(predict(ImpactModel.load(model_dir), session.adc[np.asarray(rows, int)])["xy_mm"], float)
     return xy.reshape(-1, 2)
 
@@ -90,8 +88,6 @@ def host_positions(model_dir, session, rows: np.ndarray) -> np.ndarray:
 def compare(truth: np.ndarray, host_xy: np.ndarray, board_xy: np.ndarray, inner_mm=None) -> dict:
     """Both models' Eq. 36 metrics on the drops where both give a finite position: {'scored', 'host', 'board',
     'ratio_mae' (board / host MAE per axis), 'target_ratio', 'within_target'}."""
-    from ..metrics import localisation_metrics
-
     truth, host_xy, board_xy = (np.asarray(a, float).reshape(-1, 2) for a in (truth, host_xy, board_xy))
     both = np.isfinite(host_xy).all(1) & np.isfinite(board_xy).all(1)
     if not both.any():
