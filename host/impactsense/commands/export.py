@@ -173,8 +173,14 @@ def _board_accuracy(model_dir, card, out, host_dir=None, host_card=None, trees=N
     if host_dir is not None:
         from ..board.gap import board_lacks, compare, host_positions
 
-        acc["versus_host"] = compare(held.xy_mm, host_positions(host_dir, held, np.arange(len(held))),
-                                     report_positions(got, len(held)))
+        from ..errors import DataError
+
+        try:
+            host_xy = host_positions(host_dir, held, np.arange(len(held)))
+        except DataError as exc:   # a model the host cannot run as it is (it still exports): no comparison
+            acc["versus_host"] = {"scored": 0, "note": f"the host model's positions: {exc}"}
+        else:
+            acc["versus_host"] = compare(held.xy_mm, host_xy, report_positions(got, len(held)))
         acc["board_lacks"] = board_lacks(host_card or {}, card, trees)
     return acc
 
@@ -185,6 +191,8 @@ def _print_versus_host(acc: dict) -> None:
 
     vs = acc.get("versus_host") or {}
     if not vs.get("scored"):
+        print(f"the host model's MAE on these drops: not available ({vs.get('note', 'no drop placed by both')})",
+              file=sys.stderr)
         return
     b, h, ratio = vs["board"]["mae_mm"], vs["host"]["mae_mm"], vs["ratio_mae"]
     print(f"expected accuracy, the same {vs['scored']} held-out drops (both placed): board MAE {b:.2f} mm, host "
