@@ -680,6 +680,12 @@ constexpr float kArrivalSpikeRatio = 3.0f;  // extract_features: a channel's Del
 // only this ratio to the neighbourhood's (the arrival's own ringing is there; the replacement must still
 // explain kSpikeExplained of them, which a ringing's own sample does not).
 constexpr float kArrivalSpikeTermRatio = 4.0f;
+// A channel whose ratio exceeds kArrivalSpikeBeyondRatio x the others' median (but not kArrivalSpikeRatio x) is
+// done again seeking only a sample beyond its neighbours' range (beyond_neighbours): that test alone never
+// takes a wave's sample, so the lower ratio only decides where the scan is worth its cost.
+constexpr float kArrivalSpikeBeyondRatio = 2.0f;
+constexpr float kSpikeBeyond = 1.5f;  // beyond_neighbours: a glitch lies more than this many ranges outside
+enum { kHuntNone, kHuntBeyond, kHuntLargest };  // channel_features: how a glitch inside the arrival is sought
 
 struct Spike {
   int at = -1, width = 0;  // samples [at, at + width) replaced
@@ -809,6 +815,34 @@ bool spike_at(const int16_t* x, int n, int i, float thr, Spike* sp, float ratio 
          best_orig - best_left > kSpikeExplained * best_orig;
 }
 
+// How far a glitch candidate lies outside the range of the samples around it: samples [at, at + skip) are
+// left out, the kSpikeReach samples either side give the range [mn, mx], and the result is the largest
+// excursion of x[at .. at + eval) beyond it in units of the range (max(mx - mn, 1)): a wave's sample lies
+// inside its neighbours' range or near it (the envelope changes over several samples), a spike of any size
+// beyond it.
+float beyond_neighbours(const int16_t* x, int n, int at, int skip, int eval) {
+  const int lo = at - kSpikeReach > 0 ? at - kSpikeReach : 0;
+  const int hi = at + skip + kSpikeReach < n ? at + skip + kSpikeReach : n;
+  int32_t mn = INT32_MAX, mx = INT32_MIN;
+  for (int j = lo; j < hi; ++j) {
+    if (j == at) j += skip;
+    if (j >= hi) break;
+    const int32_t v = x[j];
+    mn = v < mn ? v : mn;
+    mx = v > mx ? v : mx;
+  }
+  if (mx < mn) return 0.0f;
+  const int32_t range = mx - mn > 1 ? mx - mn : 1;
+  float worst = -1.0f;
+  for (int j = at; j < at + eval && j < n; ++j) {
+    const int32_t v = x[j];
+    const int32_t out = v > mx ? v - mx : (v < mn ? mn - v : 0);
+    const float q = static_cast<float>(out) / static_cast<float>(range);
+    worst = q > worst ? q : worst;
+  }
+  return worst;
+}
+
 // A spike's excess energy: its samples' squares about the baseline model less its replacement's.
 float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float base) {
   float e = 0.0f;
@@ -822,7 +856,7 @@ float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float 
 }
 
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
-                      ChannelFeatures* f, bool hunt_arrival_spike = false) {
+                      ChannelFeatures* f, int hunt = kHuntNone) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
@@ -955,40 +989,63 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
   }
   // A glitch inside the arrival (extract_features asks when this channel's Delta^3 / Delta^1 energy ratio
-  // stands out from the other channels'): the sample before the largest |Delta^2| of the difference
-  // window, tested like a late one. One scan of that window, only on such channels. Its excess also
-  // leaves the cumulative energy beyond it: n2's target gains it while n2 stays beyond the spike.
-  if (hunt_arrival_spike && n_spikes < kMaxSpikes) {
+  // stands out from the other channels'): above kArrivalSpikeRatio x their median the sample before the
+  // largest |Delta^2| of the difference window, tested like a late one; failing that (or between
+  // kArrivalSpikeBeyondRatio and kArrivalSpikeRatio x) the window's sample lying furthest outside its
+  // neighbours' range, when more than kSpikeBeyond ranges (beyond_neighbours). Scans of that window, only on
+  // such channels. Its excess also leaves the cumulative energy beyond it: n2's target gains it while n2
+  // stays beyond the spike.
+  if (hunt != kHuntNone && n_spikes < kMaxSpikes) {
     const int lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
     int hi = n2 + 1;
     const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
     if (cap > 0 && lo + cap < hi) hi = lo + cap;
     if (hi > n - 1) hi = n - 1;
-    float big = 0.0f;
-    int at = -1;
-    for (int m = lo + 2; m < hi; ++m) {
-      const float d = fabsf(second_difference(x, m));
-      if (d > big) {
-        big = d;
-        at = m - 1;
-      }
-    }
-    // a lone spike's largest |Delta^2| is the term after it, a two-sample spike's one of the four it enters
-    // (equal but for the arrival's own); spike_at(i) tries [i], [i, i + 1] and [i - 1, i]
-    for (int i = at - 1; i <= at + 2; ++i) {
+    // a spike found at i (spike_at tries [i], [i, i + 1] and [i - 1, i]): its excess leaves the energies
+    const auto take = [&](int i, float ratio, bool beyond) {
       Spike& sp = late[n_spikes];
-      if (i > icross && i < n - 3 && may_be_spike(x, n, i, thr, kArrivalSpikeTermRatio) &&
-          spike_at(x, n, i, thr, &sp, kArrivalSpikeTermRatio)) {
-        sp.inside = true;
-        const float e = spike_excess(x, sp, bl, base);
-        excess[n_spikes++] = e;
-        spike_energy += e;
-        f->flags |= kFlagGlitch;
-        const float target = cfg.n2_fraction * (energy - spike_energy);
-        n2 = bl.hum ? hum_e.reaches(target + e) : energy_reaches(ch, ceil_to_int64((target + e) * ch.nb2));
-        if (n2 < sp.at) n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
-        break;
+      if (!(i > icross && i < n - 3 && (ratio <= 1.0f || may_be_spike(x, n, i, thr, ratio)) &&
+            spike_at(x, n, i, thr, &sp, ratio) &&
+            (!beyond || beyond_neighbours(x, n, sp.at, sp.width, sp.width) > kSpikeBeyond))) {
+        return false;
       }
+      sp.inside = true;
+      const float e = spike_excess(x, sp, bl, base);
+      excess[n_spikes++] = e;
+      spike_energy += e;
+      f->flags |= kFlagGlitch;
+      const float target = cfg.n2_fraction * (energy - spike_energy);
+      n2 = bl.hum ? hum_e.reaches(target + e) : energy_reaches(ch, ceil_to_int64((target + e) * ch.nb2));
+      if (n2 < sp.at) n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
+      return true;
+    };
+    bool found = false;
+    if (hunt == kHuntLargest) {
+      // the sample before the largest |Delta^2| of the window: a lone spike's largest |Delta^2| is the term
+      // after it, a two-sample spike's one of the four it enters (equal but for the arrival's own)
+      float big = 0.0f;
+      int at = -1;
+      for (int m = lo + 2; m < hi; ++m) {
+        const float d = fabsf(second_difference(x, m));
+        if (d > big) {
+          big = d;
+          at = m - 1;
+        }
+      }
+      for (int i = at - 1; !found && at >= 0 && i <= at + 2; ++i) found = take(i, kArrivalSpikeTermRatio, false);
+    }
+    if (!found) {
+      // the sample lying furthest outside its neighbours' range (beyond_neighbours), beyond kSpikeBeyond
+      float best = kSpikeBeyond;
+      int at = -1;
+      for (int i = lo; i < hi; ++i) {
+        const float q = beyond_neighbours(x, n, i, 2, 1);
+        if (q > best) {
+          best = q;
+          at = i;
+        }
+      }
+      for (int i = at; !found && at >= 0 && i <= at + 1; ++i) found = take(i, 1.0f, true);
     }
   }
   f->n2 = n2;
@@ -1098,8 +1155,10 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
   // an arrival's is set by the contact and the plate, alike on every channel: on the bundled sessions, clean
   // or with noise and hum, at most 2.7 x the median of the other channels'): a channel above
-  // kArrivalSpikeRatio x that median is done again hunting the spike (channel_features). Four divisions an
-  // event; the scan only on such channels.
+  // kArrivalSpikeRatio x that median is done again hunting the spike (channel_features); one above
+  // kArrivalSpikeBeyondRatio x (a broadband arrival's ratio is nearer a spike's, so the spike raises it
+  // less) seeking a sample beyond its neighbours' range. Four divisions an event; the scans only on such
+  // channels.
   float ratio[kChannels];
   int n_ratio = 0;
   for (int c = 0; c < kChannels; ++c) {
@@ -1126,7 +1185,8 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       } else {
         med = o[0] > o[1] ? o[0] : o[1];
       }
-      if (ratio[c] > kArrivalSpikeRatio * med) channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], true);
+      const int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
+      if (hunt != kHuntNone) channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], hunt);
     }
   }
   for (int c = 0; c < kChannels; ++c) {
