@@ -843,6 +843,50 @@ float beyond_neighbours(const int16_t* x, int n, int at, int skip, int eval) {
   return worst;
 }
 
+// A glitch inside the difference window [lo, hi) of a channel the ratio test sent (channel_features): with
+// `largest`, the sample before the window's largest |Delta^2| (a lone spike's largest |Delta^2| is the term
+// after it, a two-sample spike's one of the four it enters) tested like a late spike with the term ratio
+// kArrivalSpikeTermRatio; failing that or without it, the sample lying furthest outside its neighbours' range
+// when more than kSpikeBeyond ranges, which spike_at (ratio 1) must replace by a spike itself beyond them.
+// Out of line: only such channels run it.
+IC_NOINLINE bool find_inside_spike(const int16_t* x, int n, int lo, int hi, int icross, float thr, bool largest,
+                                   Spike* sp) {
+  if (largest) {
+    float big = 0.0f;
+    int at = -1;
+    for (int m = lo + 2; m < hi; ++m) {
+      const float d = fabsf(second_difference(x, m));
+      if (d > big) {
+        big = d;
+        at = m - 1;
+      }
+    }
+    // spike_at(i) tries [i], [i, i + 1] and [i - 1, i]
+    for (int i = at - 1; at >= 0 && i <= at + 2; ++i) {
+      if (i > icross && i < n - 3 && may_be_spike(x, n, i, thr, kArrivalSpikeTermRatio) &&
+          spike_at(x, n, i, thr, sp, kArrivalSpikeTermRatio)) {
+        return true;
+      }
+    }
+  }
+  float best = kSpikeBeyond;
+  int at = -1;
+  for (int i = lo; i < hi; ++i) {
+    const float q = beyond_neighbours(x, n, i, 2, 1);
+    if (q > best) {
+      best = q;
+      at = i;
+    }
+  }
+  for (int i = at; at >= 0 && i <= at + 1; ++i) {
+    if (i > icross && i < n - 3 && spike_at(x, n, i, thr, sp, 1.0f) &&
+        beyond_neighbours(x, n, sp->at, sp->width, sp->width) > kSpikeBeyond) {
+      return true;
+    }
+  }
+  return false;
+}
+
 // A spike's excess energy: its samples' squares about the baseline model less its replacement's.
 float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float base) {
   float e = 0.0f;
@@ -1001,14 +1045,8 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
     if (cap > 0 && lo + cap < hi) hi = lo + cap;
     if (hi > n - 1) hi = n - 1;
-    // a spike found at i (spike_at tries [i], [i, i + 1] and [i - 1, i]): its excess leaves the energies
-    const auto take = [&](int i, float ratio, bool beyond) {
-      Spike& sp = late[n_spikes];
-      if (!(i > icross && i < n - 3 && (ratio <= 1.0f || may_be_spike(x, n, i, thr, ratio)) &&
-            spike_at(x, n, i, thr, &sp, ratio) &&
-            (!beyond || beyond_neighbours(x, n, sp.at, sp.width, sp.width) > kSpikeBeyond))) {
-        return false;
-      }
+    Spike& sp = late[n_spikes];
+    if (find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
       sp.inside = true;
       const float e = spike_excess(x, sp, bl, base);
       excess[n_spikes++] = e;
@@ -1017,35 +1055,6 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
       const float target = cfg.n2_fraction * (energy - spike_energy);
       n2 = bl.hum ? hum_e.reaches(target + e) : energy_reaches(ch, ceil_to_int64((target + e) * ch.nb2));
       if (n2 < sp.at) n2 = bl.hum ? hum_e.reaches(target) : energy_reaches(ch, ceil_to_int64(target * ch.nb2));
-      return true;
-    };
-    bool found = false;
-    if (hunt == kHuntLargest) {
-      // the sample before the largest |Delta^2| of the window: a lone spike's largest |Delta^2| is the term
-      // after it, a two-sample spike's one of the four it enters (equal but for the arrival's own)
-      float big = 0.0f;
-      int at = -1;
-      for (int m = lo + 2; m < hi; ++m) {
-        const float d = fabsf(second_difference(x, m));
-        if (d > big) {
-          big = d;
-          at = m - 1;
-        }
-      }
-      for (int i = at - 1; !found && at >= 0 && i <= at + 2; ++i) found = take(i, kArrivalSpikeTermRatio, false);
-    }
-    if (!found) {
-      // the sample lying furthest outside its neighbours' range (beyond_neighbours), beyond kSpikeBeyond
-      float best = kSpikeBeyond;
-      int at = -1;
-      for (int i = lo; i < hi; ++i) {
-        const float q = beyond_neighbours(x, n, i, 2, 1);
-        if (q > best) {
-          best = q;
-          at = i;
-        }
-      }
-      for (int i = at; !found && at >= 0 && i <= at + 1; ++i) found = take(i, 1.0f, true);
     }
   }
   f->n2 = n2;
