@@ -12,7 +12,8 @@ the share where the board's named channel differs from the host's (board != host
     python benchmarks/bench_board_check.py [--data SESSION ...] [--draws 2] [--trees 10] [--json OUT]
 
 Targets (exit 1 on a miss): debonded flag >= 0.95, wrong 0 on every row, clean unflagged, dead flag 1.00 (the
-core's dead-channel path), the board naming the host's channel on every drop.
+core's dead-channel path), the board naming the host's channel on every drop, a flagged drop's position within the
+wire's 0.05 mm of the host's (xy-host: the largest gap).
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import targets_exit_code, write_json
+
+
+XY_TOLERANCE_MM = 0.051   # the report's 0.1 mm steps
 
 
 def rows_for(draws: int):
@@ -55,6 +59,9 @@ def score_row(model_dir, out, session, bad: int) -> dict:
     board_dead = np.array([bool(got[i]["dead"]) if i in got else False for i in rows])
     xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] if i in got else [np.nan, np.nan] for i in rows])
     err = np.abs(xy - session.xy_mm[rows])
+    # the flagged rows' positions, board against host (the wire carries 0.1 mm steps)
+    flagged = (named >= 0) & (named == host_bad)
+    gap = np.abs(xy[flagged] - np.asarray(pred["xy_mm"], float)[flagged])
     # the host's name for a dead channel's row (no onset) is its three-sensor path's; compare the check's flags only
     check_rows = ~board_dead
     return {"n": len(session), "reported": len(got),
@@ -62,7 +69,8 @@ def score_row(model_dir, out, session, bad: int) -> dict:
             "wrong": float(np.mean((named >= 0) & (named != bad))),
             "board_vs_host": float(np.mean(named[check_rows] != np.where(host_bad >= 0, host_bad, -1)[check_rows]))
             if check_rows.any() else 0.0,
-            "mae_mm": float(np.nanmean(err))}
+            "mae_mm": float(np.nanmean(err)),
+            "xy_vs_host_mm": float(np.max(gap)) if gap.size else 0.0}
 
 
 def main(argv=None) -> int:
@@ -81,7 +89,8 @@ def main(argv=None) -> int:
     from impactsense.models import ForestSettings
 
     t0, out_rows, misses = time.time(), {}, []
-    print(f"{'session / fault':<40} {'drops':>5} {'rep':>5} {'flag':>5} {'wrong':>5} {'!=host':>6} {'MAE mm':>7}")
+    print(f"{'session / fault':<40} {'drops':>5} {'rep':>5} {'flag':>5} {'wrong':>5} {'!=host':>6} {'MAE mm':>7} "
+          f"{'xy-host':>7}")
     for data in args.data:
         sess = load_session(data)
         with tempfile.TemporaryDirectory() as tmp:
@@ -97,7 +106,7 @@ def main(argv=None) -> int:
                 label = f"{sess.name}: {name}"
                 out_rows[label] = v
                 print(f"{label:<40} {v['n']:5d} {v['reported']:5d} {v['flag']:5.2f} {v['wrong']:5.2f} "
-                      f"{v['board_vs_host']:6.2f} {v['mae_mm']:7.2f}", flush=True)
+                      f"{v['board_vs_host']:6.2f} {v['mae_mm']:7.2f} {v['xy_vs_host_mm']:7.3f}", flush=True)
                 if name.startswith("debonded") and not v["flag"] >= 0.95:
                     misses.append(f"{label}: flag {v['flag']:.2f} < 0.95")
                 if name.startswith("dead") and not v["flag"] >= 1.0:
@@ -106,6 +115,8 @@ def main(argv=None) -> int:
                     misses.append(f"{label}: flagged {v['flag']:.2f}")
                 if v["wrong"] > 0:
                     misses.append(f"{label}: wrong {v['wrong']:.2f}")
+                if v["xy_vs_host_mm"] > XY_TOLERANCE_MM:
+                    misses.append(f"{label}: a flagged drop's position {v['xy_vs_host_mm']:.3f} mm from the host's")
                 if v["board_vs_host"] > 0:
                     misses.append(f"{label}: board != host on {v['board_vs_host']:.3f}")
     write_json(args.json, out_rows)

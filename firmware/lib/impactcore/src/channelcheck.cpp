@@ -77,10 +77,14 @@ void channel_check_scores(const float energy[kChannels], const float diff3[kChan
   if (!read) return;
   float level[kChannels], tilt[kChannels], terms[kCheckTerms];
   channel_check_ratios(energy, diff3, level, tilt);
+  bool have_terms = false;  // the terms at the previous channel's position (one position for all four: once)
   for (int c = 0; c < kChannels; ++c) {
     const float x = xy_mm[2 * c], y = xy_mm[2 * c + 1];
     if (!finite(x) || !finite(y)) continue;
-    channel_check_terms(x, y, check.plate_x_mm, check.plate_y_mm, terms);
+    if (!have_terms || x != xy_mm[2 * c - 2] || y != xy_mm[2 * c - 1]) {
+      channel_check_terms(x, y, check.plate_x_mm, check.plate_y_mm, terms);
+      have_terms = true;
+    }
     const float nzl = neg_z(level[c], check.level[c], terms);
     const float nzt = neg_z(tilt[c], check.tilt[c], terms);
     const float both = nzl < nzt ? nzl : nzt;

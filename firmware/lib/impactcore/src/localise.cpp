@@ -66,8 +66,9 @@ struct Problem {
 // The functions below are templates on the problem's shape: M used channels (0: p.m, read at run time) and
 // kIso (true: no travel metric; false: p.iso read at run time). localise_tdoa runs <4, true> for the
 // usual event (four channels, isotropic plate: loops of a known length, unrolled, no metric tests), <4, false>
-// for four channels on an anisotropic plate (a laminate's travel metric) and
-// <0, false> otherwise; all do the same float operations in the same order, so the same numbers.
+// for four channels on an anisotropic plate (a laminate's travel metric), <3, true> / <3, false> likewise for three
+// (a channel without an onset, or the channel check's flagged channel left out) and <0, false> otherwise; all do
+// the same float operations in the same order, so the same numbers.
 template <int M>
 IC_INLINE int used(const Problem& p) { return M > 0 ? M : p.m; }
 
@@ -305,6 +306,51 @@ struct ScreenCost<4, false> {
   }
 };
 
+// Three residuals' sum of squares about their mean, in l2_cost's order of operations.
+IC_INLINE float centred_ss3(float r0, float r1, float r2) {
+  const float mean = (((0.0f + r0) + r1) + r2) / 3.0f;
+  float ss = 0.0f;
+  ss += (r0 - mean) * (r0 - mean);
+  ss += (r1 - mean) * (r1 - mean);
+  ss += (r2 - mean) * (r2 - mean);
+  return ss;
+}
+
+// Three channels (one without an onset, or left out: the three-sensor position), as the four-channel forms above:
+// localise_tdoa runs <3, true> without a travel metric, <3, false> with one.
+template <>
+struct ScreenCost<3, true> {
+  float t0, t1, t2, x0, x1, x2, y0, y1, y2, v0, v1, v2;
+  explicit ScreenCost(const Problem& p)
+      : t0(p.toa[0]), t1(p.toa[1]), t2(p.toa[2]), x0(p.sx[0]), x1(p.sx[1]), x2(p.sx[2]), y0(p.sy[0]),
+        y1(p.sy[1]), y2(p.sy[2]), v0(p.inv_vk[0]), v1(p.inv_vk[1]), v2(p.inv_vk[2]) {}
+  IC_INLINE float operator()(float x, float y) const {
+    const float r0 = t0 - dist(x - x0, y - y0) * v0;
+    const float r1 = t1 - dist(x - x1, y - y1) * v1;
+    const float r2 = t2 - dist(x - x2, y - y2) * v2;
+    return centred_ss3(r0, r1, r2);
+  }
+};
+
+template <>
+struct ScreenCost<3, false> {
+  float qxx, qxy2, qyy, t0, t1, t2, x0, x1, x2, y0, y1, y2, v0, v1, v2;
+  explicit ScreenCost(const Problem& p)
+      : qxx(p.qxx), qxy2(2.0f * p.qxy), qyy(p.qyy), t0(p.toa[0]), t1(p.toa[1]), t2(p.toa[2]), x0(p.sx[0]),
+        x1(p.sx[1]), x2(p.sx[2]), y0(p.sy[0]), y1(p.sy[1]), y2(p.sy[2]), v0(p.inv_vk[0]), v1(p.inv_vk[1]),
+        v2(p.inv_vk[2]) {}
+  IC_INLINE float metric(float dx, float dy) const {
+    const float q = qxx * dx * dx + qxy2 * dx * dy + qyy * dy * dy;
+    return vsqrt_f32(q > 0.0f ? q : 0.0f);
+  }
+  IC_INLINE float operator()(float x, float y) const {
+    const float r0 = t0 - metric(x - x0, y - y0) * v0;
+    const float r1 = t1 - metric(x - x1, y - y1) * v1;
+    const float r2 = t2 - metric(x - x2, y - y2) * v2;
+    return centred_ss3(r0, r1, r2);
+  }
+};
+
 // The screening and the refinement from the best screened start(s) (localise_tdoa): the position, t0,
 // J^T W J there, the iterations and evaluations, and the sum of squared ToA residuals at the end.
 struct Solution {
@@ -458,9 +504,11 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   // The `starts` lowest-cost screening points (kept in order, ties in screening order) are each refined
   // and the lowest Huber cost wins; starts = 1 is the single start above, bit for bit.
   float jtj[6];
-  const Solution sol = p.m == 4 ? (p.iso ? solve<4, true>(p, starts, plate_x_mm, plate_y_mm, jtj)
-                                         : solve<4, false>(p, starts, plate_x_mm, plate_y_mm, jtj))
-                                : solve<0, false>(p, starts, plate_x_mm, plate_y_mm, jtj);
+  const float lx = plate_x_mm, ly = plate_y_mm;
+  const Solution sol =
+      p.m == 4   ? (p.iso ? solve<4, true>(p, starts, lx, ly, jtj) : solve<4, false>(p, starts, lx, ly, jtj))
+      : p.m == 3 ? (p.iso ? solve<3, true>(p, starts, lx, ly, jtj) : solve<3, false>(p, starts, lx, ly, jtj))
+                 : solve<0, false>(p, starts, lx, ly, jtj);
   const float x = sol.x, y = sol.y, t0 = sol.t0, ss = sol.ss;
   const int iterations = sol.iterations, evaluations = sol.evaluations;
   res.x_mm = x;
