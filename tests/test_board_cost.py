@@ -167,3 +167,36 @@ def test_the_localiser_stops_at_the_evaluations_the_estimate_counts():
         assert r["evaluations"].max() < cost.LOCALISER_EVALUATIONS
         assert np.abs(np.c_[r["x_mm"], r["y_mm"]] - xy).max() < 0.2
     assert at_cap > 0
+
+
+def test_a_flagged_events_three_sensor_run_stops_at_its_own_cap():
+    """The three-sensor position of a channel the channel check flags (impactcore three_sensor_position) takes at
+    most cost.FLAGGED_EVALUATIONS normal-equation evaluations a start (the core's kFlaggedEvaluations): random,
+    inconsistent picks on three channels reach that cap and never pass it, 0 keeps the localiser's own cap (bit for
+    bit), and exact picks of an impact inside the sensors still land on it; the flagged event's bound is below a
+    four-channel run's."""
+    from impactsense import _core
+
+    assert _core.FLAGGED_EVALUATIONS == cost.FLAGGED_EVALUATIONS < cost.LOCALISER_EVALUATIONS
+    rng = np.random.default_rng(1)
+    sx, sy = [50.0, 400.0, 395.0, 60.0], [45.0, 55.0, 300.0, 290.0]
+    use = np.ones((600, 4), np.uint8)
+    use[:, 2] = 0
+    for metric in ([], [1.0, 0.1, 1.8]):
+        toa = (100.0 + rng.uniform(0.0, 200.0, size=(600, 4))).astype(np.float32)
+        capped = _core.localise_batch(toa, use, sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric, [], 1, 0,
+                                      cost.FLAGGED_EVALUATIONS)
+        assert capped["evaluations"].max() == cost.FLAGGED_EVALUATIONS
+        free = _core.localise_batch(toa, use, sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric, [], 1, 0, 0)
+        same = _core.localise_batch(toa, use, sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric)
+        np.testing.assert_array_equal(free["x_mm"], same["x_mm"])
+        assert free["evaluations"].max() > cost.FLAGGED_EVALUATIONS
+        q = np.array([[1.0, 0.0], [0.0, 1.0]]) if not metric else np.array([[1.0, 0.1], [0.1, 1.8]])
+        xy = rng.uniform([120.0, 110.0], [330.0, 240.0], size=(50, 2))
+        d = xy[:, None, :] - np.c_[sx, sy][None]
+        exact = (30.0 + np.sqrt(np.einsum("rki,ij,rkj->rk", d, q, d)) / 1.5).astype(np.float32)
+        r = _core.localise_batch(exact, use[:50], sx, sy, 1.5, 1.0, 450.0, 350.0, 4.0, metric, [], 1, 0,
+                                 cost.FLAGGED_EVALUATIONS)
+        assert np.median(np.abs(np.c_[r["x_mm"], r["y_mm"]] - xy).max(1)) < 0.2
+    for iso in (True, False):
+        assert cost.flagged_run_instructions(1, iso) < cost.localiser_run_instructions(1, iso)

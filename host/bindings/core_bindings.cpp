@@ -153,7 +153,7 @@ nb::dict extract_batch(In16 adc, const ic::CoreConfig& cfg) {
 nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<float> sy, float v,
                         float sigma_us, float plate_x_mm, float plate_y_mm, float huber_us,
                         std::vector<float> travel_metric, std::vector<float> slowness_scale, int starts,
-                        int posterior_grid) {
+                        int posterior_grid, int max_evaluations) {
   if (!has_shape(toa, {kAny, 4})) throw std::invalid_argument("toa_us must be float32 [n, 4]");
   if (!has_shape(use, {toa.shape(0), 4})) {
     throw std::invalid_argument("use must be uint8 [n, 4] like toa_us");
@@ -179,7 +179,7 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
                                        sigma_us, plate_x_mm, plate_y_mm, huber_us,
                                        travel_metric.empty() ? nullptr : travel_metric.data(),
                                        slowness_scale.empty() ? nullptr : slowness_scale.data() + 4 * k, starts,
-                                       posterior_grid);
+                                       posterior_grid, max_evaluations);
     x.data()[k] = res.x_mm;
     y.data()[k] = res.y_mm;
     t0.data()[k] = res.t0_us;
@@ -543,6 +543,7 @@ nb::list bind_config<ic::LocaliserConfig>(nb::module_& m, const char* py_name) {
 NB_MODULE(_core, m) {
   m.doc() = "impactsense signal core (firmware/lib/impactcore) bound to Python";
   m.attr("CHANNELS") = ic::kChannels;
+  m.attr("FLAGGED_EVALUATIONS") = ic::kFlaggedEvaluations;
   m.attr("MAX_SAMPLES") = ic::kMaxSamples;
   m.attr("PAIR_I") = std::vector<int>(ic::kPairI, ic::kPairI + ic::kPairs);
   m.attr("PAIR_J") = std::vector<int>(ic::kPairJ, ic::kPairJ + ic::kPairs);
@@ -764,7 +765,7 @@ NB_MODULE(_core, m) {
   m.def("localise_batch", &localise_batch, "toa_us"_a, "use"_a, "sensor_x_mm"_a, "sensor_y_mm"_a,
         "velocity_mm_per_us"_a, "sigma_us"_a, "plate_x_mm"_a, "plate_y_mm"_a, "huber_us"_a = 4.0f,
         "travel_metric"_a = std::vector<float>(), "slowness_scale"_a = std::vector<float>(), "starts"_a = 1,
-        "posterior_grid"_a = 0);
+        "posterior_grid"_a = 0, "max_evaluations"_a = 0);
   m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
         "tol_us"_a, "margin_mm"_a);
 

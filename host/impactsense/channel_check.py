@@ -137,13 +137,15 @@ def flag_events(raw: dict, phys_xy_mm: np.ndarray, use: np.ndarray, left_out: np
     """ImpactModel.predict's check over the events in the order given: (flagged [R] bool, the positions of the
     three-sensor path [R, 2] (the core's physics position for a channel without an onset, the three-sensor
     position without the flagged channel otherwise: the board's impactcore::localise_event), the channel each
-    three-sensor row leaves out [R])."""
+    three-sensor row leaves out [R]). A flagged row's localiser runs take at most the core's FLAGGED_EVALUATIONS
+    normal-equation evaluations (impactcore three_sensor_position)."""
     bad = flagged_channel(channel_scores(raw, signal, check, phys_xy_mm), check)
     three_xy = np.array(phys_xy_mm, float, copy=True)
     rows = np.flatnonzero(use & (bad >= 0))
     for c in np.unique(bad[rows]):
         sel = rows[bad[rows] == c]
-        three_xy[sel] = three_sensor_positions({k: v[sel] for k, v in raw.items()}, signal, int(c))
+        three_xy[sel] = three_sensor_positions({k: v[sel] for k, v in raw.items()}, signal, int(c),
+                                               max_evaluations=_core.FLAGGED_EVALUATIONS)
     rows = rows[np.isfinite(three_xy[rows]).all(1)]
     flagged = np.zeros(len(use), bool)
     flagged[rows] = True

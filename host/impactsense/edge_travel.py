@@ -96,7 +96,8 @@ def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> list[
     return [float(c) for c in coef]
 
 
-def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, without: int = -1) -> np.ndarray:
+def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, without: int = -1,
+              max_evaluations: int = 0) -> np.ndarray:
     toa, use, scale, v = pick_set_arrivals(raw, signal, pick_set)
     if without >= 0:   # the three-sensor position: that channel's pick not read
         use = use.copy()
@@ -108,23 +109,26 @@ def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, witho
                                signal.plate_x_mm, signal.plate_y_mm, signal.huber_us,
                                list(_metric(signal, pick_set)),
                                scale.astype(np.float32).ravel().tolist() if scaled else [],
-                               int(signal.localiser_starts), int(signal.posterior_grid))
+                               int(signal.localiser_starts), int(signal.posterior_grid), int(max_evaluations))
     xy = np.stack([out["x_mm"], out["y_mm"]], 1).astype(float)
     xy[(np.asarray(out["status"]) != 0) | (use.sum(1) < 3)] = np.nan
     return xy
 
 
-def three_sensor_positions(raw: dict, signal, channel: int, coefs: dict | None = None) -> np.ndarray:
+def three_sensor_positions(raw: dict, signal, channel: int, coefs: dict | None = None,
+                           max_evaluations: int = 0) -> np.ndarray:
     """The core's physics position [R, 2] from the picks of every channel but `channel` (NaN where the other three
     do not place the drop): as process_event gives it with that channel left out, the threshold picks' position
     averaged with the band picks' where those place the drop too. coefs (a model's edge_travel, per pick set):
-    each pick set's position with its correction (`corrected`, that channel's pick not read)."""
+    each pick set's position with its correction (`corrected`, that channel's pick not read). max_evaluations
+    (0: the localiser's own cap): each run's normal-equation evaluations, _core.FLAGGED_EVALUATIONS for the core's
+    three_sensor_position (a channel the channel check flags)."""
     coefs = coefs or {}
-    xy = _localise(raw, signal, "threshold", 0.0, without=channel)
+    xy = _localise(raw, signal, "threshold", 0.0, without=channel, max_evaluations=max_evaluations)
     if coefs.get("threshold") is not None:
         xy = corrected(raw, signal, "threshold", xy, coefs["threshold"], without=channel)
     if float(signal.band_pick_hz) > 0 and float(signal.band_velocity_mm_per_us) > 0:
-        band = _localise(raw, signal, "band", 0.0, without=channel)
+        band = _localise(raw, signal, "band", 0.0, without=channel, max_evaluations=max_evaluations)
         if coefs.get("band") is not None:
             band = corrected(raw, signal, "band", band, coefs["band"], without=channel)
         both = np.isfinite(xy).all(1) & np.isfinite(band).all(1)

@@ -58,8 +58,14 @@ MODELS_ALLOWANCE = 1500
 # it: the ratios, each channel's cubic at the physics position, the run rule (measured under qemu on a board
 # export, docs/findings.md "The channel check on the board"; a margin on top)
 CHECK_INSTRUCTIONS = 1000
-# ... and on an event it flags, instead of the forests: the physics localiser without the channel (a bound as for the
-# event's own run), the three-channel inputs (115) and the class's terms (LINEAR_PER_TERM each)
+# ... and on an event it flags, instead of the forests: the physics localiser without the channel (impactcore
+# three_sensor_position: the screening and at most FLAGGED_EVALUATIONS evaluations a start, impactcore.h
+# kFlaggedEvaluations; three channels: the four-channel rates x 0.8, as normal_eqs<3> against normal_eqs<4> under
+# qemu, 165 against 211 a call, rounded up), the three-channel inputs (115) and the class's terms (LINEAR_PER_TERM
+# each)
+FLAGGED_EVALUATIONS = 6
+FLAGGED_SCREEN = (1850, 2400)
+FLAGGED_PER_EVALUATION = (230, 300)
 CHECK_FLAGGED_FIXED = 300
 
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
@@ -134,14 +140,21 @@ def forests_instructions(nodes: dict, trees: dict, inputs: dict | None = None) -
     return FOREST_FIXED + per_input + (int(np.max(per_row)) if np.size(per_row) else 0)
 
 
+def flagged_run_instructions(starts: int = 1, iso: bool = True) -> int:
+    """A bound on one localiser run of a flagged event's three-sensor position: the screening and every start at
+    FLAGGED_EVALUATIONS."""
+    k = 0 if iso else 1
+    return FLAGGED_SCREEN[k] + max(1, int(starts)) * FLAGGED_EVALUATIONS * FLAGGED_PER_EVALUATION[k]
+
+
 def check_instructions(cfg, three_terms: int) -> dict:
     """The channel check's share of an event (instructions): 'check' on every event and 'flagged', what an event it
     flags runs instead of the forests (a localiser run without the channel, with the band picks' when they are on,
     and the three-channel class of three_terms terms)."""
     starts = max(1, int(cfg.localiser_starts))
-    loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
-                                                        cfg.travel_metric_yy)))
+    loc = flagged_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
+                                                      cfg.travel_metric_yy)))
     if band_samples(cfg):
-        loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
-                                                             cfg.band_metric_yy)))
+        loc += flagged_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
+                                                           cfg.band_metric_yy)))
     return {"check": CHECK_INSTRUCTIONS, "flagged": loc + CHECK_FLAGGED_FIXED + linear_instructions(three_terms)}

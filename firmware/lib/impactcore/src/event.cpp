@@ -85,7 +85,8 @@ float band_velocity_for(const EventFeatures& f, const CoreConfig& cfg, const Loc
 }
 
 void localise_event(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc, int without,
-                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band) {
+                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band,
+                    int max_evaluations) {
   float toa[kChannels];
   uint8_t use[kChannels];
   for (int c = 0; c < kChannels; ++c) {
@@ -96,7 +97,7 @@ void localise_event(const EventFeatures& f, const CoreConfig& cfg, const Localis
   *phys = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us, loc.sigma_us,
                         loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
                         loc.dispersion_exponent != 0.0f ? slowness_scale : nullptr, loc.localiser_starts,
-                        loc.posterior_grid);
+                        loc.posterior_grid, max_evaluations);
   // The band picks' own position (averaged with the threshold picks' by average_band: their errors are partly
   // independent, docs/findings.md "Picks in one band"). Like the threshold localiser it runs on the channels that
   // have a pick, at least three: a far channel's band peak under the noise floor gives no band pick, and the other
@@ -118,7 +119,7 @@ void localise_event(const EventFeatures& f, const CoreConfig& cfg, const Localis
   const float band_metric[3] = {loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy};
   *band = localise_tdoa(toa_band, band_use, loc.sensor_x_mm, loc.sensor_y_mm, band_velocity_for(f, cfg, loc),
                         loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, band_metric, nullptr,
-                        loc.localiser_starts, loc.posterior_grid);
+                        loc.localiser_starts, loc.posterior_grid, max_evaluations);
 }
 
 void average_band(LocaliserResult* phys, const LocaliserResult& band) {
@@ -130,7 +131,7 @@ void average_band(LocaliserResult* phys, const LocaliserResult& band) {
 LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& cfg, const LocaliserConfig& loc,
                                       int without) {
   LocaliserResult phys, band;
-  localise_event(ev.features, cfg, loc, without, ev.slowness_scale, &phys, &band);
+  localise_event(ev.features, cfg, loc, without, ev.slowness_scale, &phys, &band, kFlaggedEvaluations);
   average_band(&phys, band);
   return phys;
 }

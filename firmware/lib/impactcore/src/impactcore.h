@@ -489,6 +489,8 @@ struct LocaliserResult {
 // mean over the part of it on the plate scatters much less (docs/findings.md "The posterior mean"). The
 // covariance, t0 and the residuals stay the fit's. Cost: posterior_grid^2 Huber costs (a host option:
 // board/cost.py counts it). 0 or 1: the fit itself, bit for bit.
+// max_evaluations (1 .. 16; 0: 16, the cap of every run): fewer normal-equation evaluations a start, the three-sensor
+// position of a channel the channel check flags (kFlaggedEvaluations).
 constexpr int kMaxStarts = 4;
 constexpr int kMaxPosteriorGrid = 31;
 constexpr float kPosteriorSpan = 3.0f;
@@ -497,7 +499,8 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us = 4.0f,
                               const float* travel_metric = nullptr,
-                              const float* slowness_scale = nullptr, int starts = 1, int posterior_grid = 0);
+                              const float* slowness_scale = nullptr, int starts = 1, int posterior_grid = 0,
+                              int max_evaluations = 0);
 
 
 // --- the whole per-event path: features -> physics localiser -> Eq. 35 -> model feature vector ---
@@ -618,12 +621,19 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
 // process_event's localisation of an event's picks: *phys the threshold picks' position (dispersion: slowness_scale),
 // *band the band picks' own (status kErrBadConfig when not run: band picks off, phys failed, fewer than three band
 // picks); channels without an onset (or dead) are not read, nor channel `without` (0..3; -1: none).
+// max_evaluations: localise_tdoa's (0: its cap).
 void localise_event(const EventFeatures& f, const CoreConfig& cfg, const LocaliserConfig& loc, int without,
-                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band);
+                    const float slowness_scale[kChannels], LocaliserResult* phys, LocaliserResult* band,
+                    int max_evaluations = 0);
 // process_event's physics position: the mean of the threshold picks' and the band picks' when both placed the drop.
 void average_band(LocaliserResult* phys, const LocaliserResult& band);
 // The physics position of an event without channel `without`: the three-sensor path of a channel the channel check
-// flags (the host's edge_travel.three_sensor_positions runs the same localiser on the same picks).
+// flags (the host's edge_travel.three_sensor_positions with max_evaluations kFlaggedEvaluations runs the same
+// localiser on the same picks). Each run is the screening and at most kFlaggedEvaluations normal-equation
+// evaluations (not 16): what a flagged event spends on top of its four-channel run stays within the event budget, and
+// the capped runs place the debonded drops of the measured rigs as well as the uncapped ones or better
+// (docs/findings.md "The flagged event within the budget").
+constexpr int kFlaggedEvaluations = 6;
 LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& cfg, const LocaliserConfig& loc,
                                       int without);
 

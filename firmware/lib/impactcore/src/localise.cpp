@@ -52,6 +52,7 @@ struct Problem {
   float inv_v;
   float inv_vk[kChannels];  // per used channel: inv_v x its slowness scale (inv_v itself without one)
   float huber;
+  int max_evaluations;   // a start's normal-equation evaluations (kMaxEvaluations, or fewer when asked)
   float lx, ly;
   bool iso;              // no travel metric: plain distances (bit for bit the isotropic localiser)
   float qxx, qxy, qyy;   // travel metric (impactcore.h travel_metric_*)
@@ -201,7 +202,7 @@ constexpr float kCornerInset = 0.04f;  // of the plate size
 // the Gauss-Newton one) and J^T W J there (upper triangle); *evals counts the normal-equation evaluations.
 template <int M, bool kIso>
 float refine(const Problem& p, float* x_io, float* y_io, float* t0_io, int* iters, int* evals, float jtj[6]) {
-  const int limit = *evals + kMaxEvaluations;
+  const int limit = *evals + p.max_evaluations;
   float x = *x_io, y = *y_io, t0 = 0.0f;
   huber_cost<M, kIso>(p, x, y, &t0);
   Normal ne;
@@ -463,7 +464,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
                               const float sensor_x_mm[kChannels], const float sensor_y_mm[kChannels],
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us, const float* travel_metric,
-                              const float* slowness_scale, int starts, int posterior_grid) {
+                              const float* slowness_scale, int starts, int posterior_grid, int max_evaluations) {
   LocaliserResult res = {};
   res.status = kOk;
   Problem p;
@@ -476,6 +477,7 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
   p.v = velocity_mm_per_us;
   p.inv_v = 1.0f / velocity_mm_per_us;
   p.huber = huber_us > 0.0f ? huber_us : 1e-3f;
+  p.max_evaluations = max_evaluations > 0 && max_evaluations < kMaxEvaluations ? max_evaluations : kMaxEvaluations;
   p.lx = plate_x_mm;
   p.ly = plate_y_mm;
   for (int c = 0; c < kChannels; ++c) {
