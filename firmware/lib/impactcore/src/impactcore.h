@@ -632,7 +632,7 @@ void average_band(LocaliserResult* phys, const LocaliserResult& band);
 // localiser on the same picks). Each run is the screening and at most kFlaggedEvaluations normal-equation
 // evaluations (not 16): what a flagged event spends on top of its four-channel run stays within the event budget, and
 // the capped runs place the debonded drops of the measured rigs as well as the uncapped ones or better
-// (docs/findings.md "The flagged event within the budget").
+// (docs/findings.md "Session 18: checkcost").
 constexpr int kFlaggedEvaluations = 6;
 LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& cfg, const LocaliserConfig& loc,
                                       int without);
