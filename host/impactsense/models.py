@@ -174,6 +174,9 @@ class ImpactModel:
     three_channel_class: dict = field(default_factory=dict)
     # Without a site map, with members (host only): channel out -> the pair correcting the three-sensor position.
     three_channel_position: dict = field(default_factory=dict)
+    # (host only) {"forests": pick set -> pick_correction forest, "weights": channel out -> stack weights}: the
+    # channels whose three-sensor position is the stack of plain and pick-corrected positions; empty: none.
+    three_channel_stack: dict = field(default_factory=dict)
     # The edge correction's coefficients per pick set (edge_travel.py; {"threshold": [...], "band": [...] or
     # None}); empty: off. With it the members include EDGE_MEMBERS.
     edge_travel: dict = field(default_factory=dict)
@@ -236,9 +239,9 @@ class ImpactModel:
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
                                                        settings.regressor, loc_names, all_or_none=False))
-        three_xy = {}
+        three_xy, stack = {}, {}
         if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
-            three_xy, factors, card["three_channel_position_levels"], card["three_channel_position_edge"] = \
+            three_xy, factors, card["three_channel_position_levels"], card["three_channel_position_edge"], stack = \
                 fit_three_channel_positions(train, xy, signal, settings.seed, edge or None)
             card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         if site_map is None:   # one channel against the other three, the twin's misfit's stand-in (channel_check.py)
@@ -253,7 +256,7 @@ class ImpactModel:
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
                    three_channel_class=three, edge_travel=edge, location_features=loc_names,
-                   three_channel_position=three_xy)
+                   three_channel_position=three_xy, three_channel_stack=stack)
 
     @property
     def energy_features(self) -> list[str]:
@@ -332,7 +335,8 @@ class ImpactModel:
         """The recordings' features as predict reads them, with the level members' positions if it has them and
         the picks at the onset levels if its three-sensor path reads them (three_level_positions.py)."""
         feats = add_level_positions(featurize(adc, self.signal), adc, self.signal, self.members)
-        return add_level_picks(feats, adc, self.signal) if self.card.get("three_channel_position_levels") else feats
+        levels = self.card.get("three_channel_position_levels") or self.three_channel_stack
+        return add_level_picks(feats, adc, self.signal) if levels else feats
 
     def _join_members(self, features: Features, use: np.ndarray, xy: np.ndarray) -> None:
         """xy (the main pair's position, in place) becomes the mean over every member that placed the drop:
@@ -373,7 +377,8 @@ class ImpactModel:
                 save_forest(stage / MEMBER_FILES[f"{axis}_{name}"], forest)
         for c, estimate in self.three_channel_class.items():
             estimate.save(stage / THREE_CHANNEL_FILE.format(c))
-        three_xy = save_three_channel_positions(stage, self.three_channel_position)
+        three_xy, three_stack = save_three_channel_positions(stage, self.three_channel_position,
+                                                            self.three_channel_stack)
         twin = {}
         if self.site_map is not None:
             self.site_map.save(stage / SITE_MAP_FILE)
@@ -405,6 +410,8 @@ class ImpactModel:
             card["three_channel_class"] = {str(c): THREE_CHANNEL_FILE.format(c) for c in self.three_channel_class}
         if three_xy:   # a drop with one channel without an onset: its three-sensor position's correction
             card["three_channel_position"] = three_xy
+        if three_stack:   # and the channels whose three-sensor position is a stack (three_channel_position.py)
+            card["three_channel_position_stack"] = three_stack
         if self.edge_travel:   # the edge correction's coefficients (edge_travel.py) its members read
             card["edge_travel"] = self.edge_travel
         if self.members:
@@ -417,7 +424,7 @@ class ImpactModel:
             **card,
             **{k: v for k, v in self.card.items()
                if k not in card and k not in ("twin", "sha256", "energy_model", "three_channel_class", "edge_travel",
-                                                         "three_channel_position")},
+                                                         "three_channel_position", "three_channel_position_stack")},
             **twin,
             **(extra_card or {}),
             "sha256": file_hashes(stage, names),
@@ -481,10 +488,10 @@ class ImpactModel:
                                                            "left-out channel's arrival times)")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
         members = {n: (extra[f"x_{n}"], extra[f"y_{n}"]) for n in names}
-        three_channel, three_xy = load_three_sensor_path(d, card, card_path)
+        three_channel, three_xy, three_stack = load_three_sensor_path(d, card, card_path)
         return cls(signal=signal, forest_dx=forests[0], forest_dy=forests[1],
                    forest_energy=forests[2], energy_threshold_j=float(card["energy_threshold_j"]), card=card,
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
                    energy_class_features=list(energy), members=members, three_channel_class=three_channel,
-                   three_channel_position=three_xy,
+                   three_channel_position=three_xy, three_channel_stack=three_stack,
                    edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {})

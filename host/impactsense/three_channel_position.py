@@ -37,6 +37,7 @@ THREE_POSITION_TREES = 50
 FOLD_TREES = 20   # the factor's out-of-fold forests (the choice, not the model)
 THREE_POSITION_LEAF = 5
 THREE_POSITION_FILE = "forest_d{}_without_{}.npz"
+PICK_FILE = "forest_pick_{}.npz"   # the stack's pick corrections (pick_correction.py), per pick set
 MIN_DROPS = 10
 N_INPUTS = 11   # three_channel_position_inputs: x, y, 3 time differences, 3 energies, 3 first peaks
 
@@ -113,36 +114,121 @@ def _candidates(train: Features, signal, c: int, edge: dict | None):
             yield level_three_positions(train.raw, signal, c, base, coefs), True, coefs is not None
 
 
+def stack_candidates(raw: dict, signal, channel: int, base: np.ndarray, corrections: dict) -> np.ndarray:
+    """[R, K, 2] the positions a channel's stack weighs (`stack_weights`): each pick set's plain three-sensor
+    position without `channel`, the same from its corrected picks (pick_correction.py), and `base` (the
+    position the three-sensor path keeps without a stack); a row where one is missing is base in every slot."""
+    from .edge_travel import _localise
+    from .pick_correction import PICK_SETS, corrected_three_positions
+
+    plain = [_localise(raw, signal, ps, 0.0, without=channel) for ps in PICK_SETS if ps in corrections]
+    C = np.stack(plain + corrected_three_positions(raw, signal, channel, corrections) + [np.asarray(base, float)], 1)
+    missing = ~np.isfinite(C).all((1, 2))
+    C[missing] = np.asarray(base, float)[missing][:, None]
+    return C
+
+
+def stacked(C: np.ndarray, weights) -> np.ndarray:
+    return np.einsum("rkd,k->rd", C, np.asarray(weights, float))
+
+
+def stack_weights(C: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The weights (summing to 1) of C's positions [R, K, 2] whose weighted sum is closest to xy (least mean
+    absolute error, Powell from equal weights)."""
+    from scipy.optimize import minimize
+
+    k = C.shape[1]
+    rows = np.isfinite(C).all((1, 2)) & np.isfinite(xy).all(1)
+
+    def full(w):
+        return np.r_[w, 1.0 - w.sum()]
+
+    res = minimize(lambda w: np.abs(stacked(C[rows], full(w)) - xy[rows]).mean(), np.full(k - 1, 1.0 / k),
+                   method="Powell")
+    return full(res.x)
+
+
+def _stack_candidate(train: Features, xy: np.ndarray, signal, c: int, base: np.ndarray, oof_corrections: dict,
+                     seed: int) -> tuple[dict | None, np.ndarray | None]:
+    """Channel c's stack on the training drops: (its pair's candidate (`_candidate`) on the drops' out-of-fold
+    stacked positions (weights fitted on the other sites' drops, the picks' corrections out of fold too), the
+    weights on all drops)."""
+    from sklearn.model_selection import GroupKFold
+
+    from .correction_scale import CORRECTION_FOLDS, drop_sites
+
+    C = stack_candidates(train.raw, signal, c, base, oof_corrections)
+    sites = drop_sites(xy)
+    oof = np.array(base, float, copy=True)
+    for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(C, groups=sites):
+        oof[held] = stacked(C[held], stack_weights(C[fit_rows], xy[fit_rows]))
+    oof[~np.isfinite(base).all(1)] = np.nan
+    return _candidate(train, xy, oof, c, seed), stack_weights(C, xy)
+
+
 def fit_three_channel_positions(train: Features, xy_mm: np.ndarray, signal, seed: int = 0,
-                                edge: dict | None = None) -> tuple[dict, dict, list, list]:
+                                edge: dict | None = None) -> tuple[dict, dict, list, list, dict]:
     """(channel -> (forest dx, forest dy) correcting the three-sensor position without that channel, fitted on
     the training drops (`train`: usable rows, every channel with an onset) and scaled by `correction_factor`;
     channel -> that factor; the channels whose position is the mean over the onset levels
     (three_level_positions.py); the channels whose position takes edge_travel's correction of the arrival
-    times (edge: the model's coefficients; three_sensor_positions)). The candidates (`_candidates`) are tried
-    in turn; one replaces the position kept so far when its out-of-fold positions are better (`_better`).
-    A channel the localiser places fewer than MIN_DROPS of them without is left out."""
-    from .correction_scale import scale_forests
+    times (edge: the model's coefficients; three_sensor_positions); the stack: {"forests": pick_correction's
+    forests, "weights": channel -> stack_weights} for the channels whose position is the stack of the plain and
+    pick-corrected positions (empty without the level picks)). The candidates (`_candidates`, then the stack
+    on the one kept) are tried in turn; one replaces the position kept so far when its out-of-fold positions
+    are better (`_better`). A channel the localiser places fewer than MIN_DROPS of them without is left out."""
+    from .correction_scale import drop_sites, scale_forests
+    from .pick_correction import fit_pick_corrections
+    from .three_level_positions import has_level_picks
 
     xy = np.asarray(xy_mm, float)
-    out, factors, levels, edges = {}, {}, [], []
+    out, factors, levels, edges, weights = {}, {}, [], [], {}
+    picks, oof_corrections = {}, {}
+    if has_level_picks(train.raw) and len(np.unique(drop_sites(xy))) >= 2 * MIN_DROPS:
+        picks, oof_corrections = fit_pick_corrections(train.raw, xy, signal, train.phys_xy_mm, drop_sites(xy), seed)
     for c in range(4):
-        best, kind = None, (False, False)
+        best, kind, best_pos = None, (False, False), None
         for position, on_levels, with_edge in _candidates(train, signal, c, edge):
             cand = _candidate(train, xy, position, c, seed)
             if best is None and not (on_levels or with_edge):
-                best = cand
+                best, best_pos = cand, position
                 if best is None:
                     break
             elif cand is not None and _better(best, cand, xy):
-                best, kind = cand, (on_levels, with_edge)
+                best, kind, best_pos = cand, (on_levels, with_edge), position
         if best is None:
             continue
+        if oof_corrections:
+            cand, w = _stack_candidate(train, xy, signal, c, best_pos, oof_corrections, seed)
+            if cand is not None and _better(best, cand, xy):
+                best, weights[c] = cand, w
         levels += [c] if kind[0] else []
         edges += [c] if kind[1] else []
         out[c], factors[c] = best["pair"], best["factor"]
         scale_forests(out[c], factors[c])
-    return out, factors, levels, edges
+    stack = {"forests": picks, "weights": weights} if weights else {}
+    return out, factors, levels, edges, stack
+
+
+def stacked_positions(model, features: Features, rows: np.ndarray, out_channel: np.ndarray, xy: np.ndarray) -> None:
+    """xy (in place) of `rows` whose channel out (out_channel) the model places by its stack (card
+    "three_channel_position_stack"): the weighted sum of the plain and pick-corrected three-sensor positions and
+    xy's own (the position kept before the stack). Features without the level picks keep xy."""
+    from .pick_correction import pick_corrections
+    from .three_level_positions import has_level_picks
+
+    stack = model.three_channel_stack
+    if not stack or not has_level_picks(features.raw):
+        return
+    rows, out_channel = np.asarray(rows), np.asarray(out_channel)
+    for c, w in stack["weights"].items():
+        sel = rows[out_channel == c]
+        if sel.size:
+            raw = {k: v[sel] for k, v in features.raw.items()}
+            corr = pick_corrections(stack["forests"], raw, model.signal, xy[sel])
+            new = stacked(stack_candidates(raw, model.signal, int(c), xy[sel], corr), w)
+            ok = np.isfinite(new).all(1)
+            xy[sel[ok]] = new[ok]
 
 
 def corrected_positions(pairs: dict, vector: np.ndarray, rows: np.ndarray, out_channel: np.ndarray,
@@ -224,6 +310,7 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
     if model.three_channel_position:
         edge_corrected_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         level_mean_positions(model, features, np.flatnonzero(three), left_out[three], xy)
+        stacked_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         corrected_positions(model.three_channel_position, features.vector, np.flatnonzero(three), left_out[three], xy)
     for c, estimate in model.three_channel_class.items():
         rows = np.flatnonzero(three & (left_out == c))
@@ -232,9 +319,16 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
                 {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))
 
 
-def save_three_channel_positions(stage, pairs: dict) -> dict:
-    """Writes the pairs into a model's staging folder; returns the card's "three_channel_position" entry
-    ({"c": {"x": file, "y": file}})."""
+def save_three_channel_positions(stage, pairs: dict, stack: dict | None = None) -> tuple[dict, dict]:
+    """Writes the pairs (and the stack's pick forests) into a model's staging folder; returns the card's
+    "three_channel_position" entry ({"c": {"x": file, "y": file}}) and its "three_channel_position_stack"
+    ({"forests": {pick set: file}, "weights": {"c": [numbers]}}; empty without a stack)."""
+    stack_entry = {}
+    if stack:
+        stack_entry = {"forests": {}, "weights": {str(c): [float(v) for v in w] for c, w in sorted(stack["weights"].items())}}
+        for ps, forest in stack["forests"].items():
+            save_forest(stage / PICK_FILE.format(ps), forest)
+            stack_entry["forests"][ps] = PICK_FILE.format(ps)
     entry = {}
     for c, pair in sorted(pairs.items()):
         entry[str(c)] = {}
@@ -242,12 +336,48 @@ def save_three_channel_positions(stage, pairs: dict) -> dict:
             name = THREE_POSITION_FILE.format(axis, c)
             save_forest(stage / name, forest)
             entry[str(c)][axis] = name
-    return entry
+    return entry, stack_entry
 
 
-def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict]:
-    """The card's "three_channel_class" (channel -> height_class.LinearHeightClass) and "three_channel_position"
-    (channel -> forest pair), each file checked against the card's sha256 (modelfolder.read_verified)."""
+def _load_stack(model_dir, card: dict, card_path, pairs: dict) -> dict:
+    """The card's "three_channel_position_stack" ({"forests": {pick set: forest}, "weights": channel ->
+    weights}; empty when absent), each forest file checked against the card's sha256."""
+    from .modelfolder import read_verified
+    from .pick_correction import N_INPUTS as PICK_INPUTS, PICK_SETS
+
+    entry = card.get("three_channel_position_stack", {})
+    if not entry:
+        return {}
+    forests, weights = entry.get("forests") if isinstance(entry, dict) else None, \
+        entry.get("weights") if isinstance(entry, dict) else None
+    if not isinstance(forests, dict) or not forests or any(k not in PICK_SETS or not isinstance(v, str)
+                                                           for k, v in forests.items()):
+        raise DataError(card_path, "three_channel_position_stack.forests", f"must map pick sets {list(PICK_SETS)} "
+                                                                           "to file names")
+    k = 2 * len(forests) + 1
+    if not isinstance(weights, dict) or any(c not in pairs for c in map(_channel, weights)) or any(
+            not isinstance(w, list) or len(w) != k or not all(isinstance(v, (int, float)) for v in w)
+            for w in weights.values()):
+        raise DataError(card_path, "three_channel_position_stack.weights", f"must map channels that have a "
+                                                                           f"position pair to {k} numbers")
+    out = {"forests": {}, "weights": {int(c): np.asarray(w, float) for c, w in weights.items()}}
+    for ps, name in forests.items():
+        path, data = read_verified(model_dir, card, card_path, name, f"three_channel_position_stack.{ps}")
+        forest = load_forest(path, data)
+        if getattr(forest, "n_features_in_", None) != PICK_INPUTS:
+            raise DataError(path, None, f"reads {getattr(forest, 'n_features_in_', '?')} inputs, not {PICK_INPUTS}")
+        out["forests"][ps] = forest
+    return out
+
+
+def _channel(key) -> int:
+    return int(key) if str(key) in ("0", "1", "2", "3") else -1
+
+
+def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict, dict]:
+    """The card's "three_channel_class" (channel -> height_class.LinearHeightClass), "three_channel_position"
+    (channel -> forest pair) and "three_channel_position_stack" (`_load_stack`), each file checked against the
+    card's sha256 (modelfolder.read_verified)."""
     from .height_class import LINEAR_CLASS_FEATURES, LinearHeightClass
     from .modelfolder import read_verified
 
@@ -282,4 +412,4 @@ def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict
                 raise DataError(path, None, f"reads {getattr(forest, 'n_features_in_', '?')} inputs, not {N_INPUTS}")
             pair.append(forest)
         pairs[int(c)] = tuple(pair)
-    return three_class, pairs
+    return three_class, pairs, _load_stack(model_dir, card, card_path, pairs)
