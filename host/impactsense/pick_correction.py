@@ -25,7 +25,7 @@ PICK_SETS = ("threshold", "band")
 PICK_TREES = 100
 PICK_LEAF = 3
 PICK_FOLDS = 5
-N_INPUTS = len(THREE_LEVEL_FACTORS) + 8   # channel_inputs' columns
+N_INPUTS = len(THREE_LEVEL_FACTORS) + 7   # channel_inputs' columns
 MISSING = -99.0   # a missing input (no band pick, no level pick): a value no real one takes
 
 
