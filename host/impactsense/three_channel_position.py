@@ -15,6 +15,10 @@ three-sensor positions at the other onset levels instead (three_level_positions.
 the plate's edges (a model that has it; card "three_channel_position_edge"): with three sensors there is no
 redundancy to absorb that travel-time bias, and a drop near an edge or a corner is placed off by the same
 centimetres on every repeat.
+Last, where the out-of-fold positions say so, the position kept is replaced by a stack (card
+"three_channel_position_stack"): a weighted sum of it and each pick set's three-sensor position from its plain
+and its corrected picks (pick_correction.py: each pick's error learnt from its own channel's signal), the pair
+then learning on that.
 
 Only the host runs these forests (files "three_channel_position" in the model card, forestfile's plain
 arrays); the board keeps the physics three-sensor position. Their gain is in docs/findings.md ("A dead channel
