@@ -29,10 +29,9 @@ import numpy as np
 from impactsense import _link
 from impactsense.data import load_session
 from impactsense.export import export_models, firmware_models
-from impactsense.board.capture import app_config, board_samples, signal_for_board
+from impactsense.board.capture import app_config, board_frames, replay_reports, signal_for_board
 from impactsense.models import ImpactModel
 from impactsense.pipeline import featurize
-from impactsense.link.record import CaptureAssembler
 
 
 def c_array(ctype, name, a, fmt):
@@ -94,23 +93,16 @@ def main(argv=None):
     board_signal = signal_for_board(s.rig, signal, args.fs)
 
     def replay(rows):
-        """The native app on the rows' board captures: report bodies, captures, one report per drop?"""
-        frames = board_samples(s.adc[rows], s.rig.fs_hz, args.fs, adc_max=s.rig.adc_max)
+        """The native app on the rows' drops as the board's stream (board_frames: each record continued for the
+        app's capture and hold-off, led in when its quiet start is short): report bodies, captures, one report
+        per drop?"""
         app = _link.App(cfg, fm)
-        dec, asm = _link.Decoder(), CaptureAssembler()
-        bodies, caps, one = [], [], []
-        for k in range(len(rows)):
-            reps = []
-            for f in dec.feed(app.feed(frames[k])):
-                if f["kind"] == "raw":
-                    asm.add(f["raw"])
-                elif f["kind"] == "report":
-                    reps.append(f["report"])
-                    caps.append(asm.take(f["report"]["seq"]))
-            one.append(len(reps) == 1)
-            if len(reps) == 1:
-                bodies.append(np.frombuffer(_link.report_body(reps[0]), dtype=np.uint8))
-        return frames, bodies, caps, np.array(one)
+        frames = board_frames(s.adc[rows], s.rig, app, args.fs)
+        reports, captures = replay_reports(app, frames)
+        one = np.array([len(r) == 1 for r in reports])
+        bodies = [np.frombuffer(_link.report_body(r[0]), dtype=np.uint8) for r in reports if len(r) == 1]
+        caps = [c[0] for c in captures if len(c) == 1]
+        return frames, bodies, caps, one
 
     frames, bodies, caps, one = replay(rows)
     skipped = []

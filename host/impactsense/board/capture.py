@@ -150,13 +150,42 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
     return np.concatenate([adc, tail], axis=-1)
 
 
+def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000) -> np.ndarray:
+    """Recorded drops as the board's stream: int16 [R, n, 4] frames, one drop after the other as they come in
+    the lab (seconds apart: the plate quiet between them). Each record is continued for the app's capture and
+    hold-off and led in by its quiet start when it is short (continued_for_capture), then read as the SAADC
+    scans it (board_samples). Records fed back to back as they are would be a stream no board sees: 8 ms
+    records with 30 samples before the hit put a drop every 8 ms, inside the app's capture and hold-off (the
+    app then rightly takes them for one event) and before it has armed. Every path that replays recordings
+    through the app (board_captures, the emulator, the qemu test image's fixture) reads this."""
+    adc = continued_for_capture(adc, rig.fs_hz, app.capture_frames, fs_hz, app.core_config.baseline_samples,
+                                app.pretrigger_frames, rig.pretrigger_samples)
+    return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max)
+
+
+def replay_reports(app, frames: np.ndarray) -> tuple[list[list[dict]], list[list]]:
+    """The app fed each drop's frames in turn: per drop, the reports it sent meanwhile and each one's raw
+    capture (None without dump_raw)."""
+    dec, asm = _link.Decoder(), CaptureAssembler()
+    reports, captures = [], []
+    for k in range(frames.shape[0]):
+        reps, caps = [], []
+        for f in dec.feed(app.feed(frames[k])):
+            if f["kind"] == "raw":
+                asm.add(f["raw"])
+            elif f["kind"] == "report":
+                reps.append(f["report"])
+                caps.append(asm.take(f["report"]["seq"]))
+        reports.append(reps)
+        captures.append(caps)
+    return reports, captures
+
+
 def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
     """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app from the
-    session's drops as the board samples them (board_samples), one drop after the other."""
+    session's drops as the board samples them (board_frames), one drop after the other."""
     app = _link.App(app_config(session.rig, fs_hz, signal, dump_raw=True), None)
-    adc = continued_for_capture(session.adc, session.rig.fs_hz, app.capture_frames, fs_hz,
-                                app.core_config.baseline_samples, app.pretrigger_frames, session.rig.pretrigger_samples)
-    frames = board_samples(adc, session.rig.fs_hz, fs_hz, adc_max=session.rig.adc_max)
+    frames = board_frames(session.adc, session.rig, app, fs_hz)
     caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
     if not caps:
         raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from .. import _link
-from ..board.capture import app_config, board_samples, continued_for_capture, signal_for_board
+from ..board.capture import app_config, board_frames, signal_for_board
 
 
 class Emulator:
@@ -32,10 +32,7 @@ class Emulator:
     @property
     def frames(self) -> np.ndarray:
         if self._frames is None:
-            adc = continued_for_capture(self.session.adc, self.session.rig.fs_hz, self.app.capture_frames,
-                                        self.fs_hz, self.app.core_config.baseline_samples,
-                                        self.app.pretrigger_frames, self.session.rig.pretrigger_samples)
-            self._frames = board_samples(adc, self.session.rig.fs_hz, self.fs_hz, adc_max=self.session.rig.adc_max)
+            self._frames = board_frames(self.session.adc, self.session.rig, self.app, self.fs_hz)
         return self._frames
 
     def drops(self):
