@@ -5,7 +5,7 @@ DC sits 2300 counts under the declared bias (the synthetic kind cfrp-crossply's)
 such records to the app back to back as they were: a drop every 8 ms, inside the app's 20 ms capture and
 40 ms hold-off and before it had armed, so most drops got no report ("drop 2: not one report from the native
 app"). Every replay now reads board.capture.board_frames (the stream a board sees: drops apart, the plate
-quiet between them).
+quiet between them), the board's site-map capture hook too (it kept 3 of 20 such drops).
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from impactsense import _core, _link
-from impactsense.board.capture import app_config, board_frames, board_samples, replay_reports, signal_for_board
+from impactsense.board.capture import (app_config, board_capture, board_frames, board_samples, replay_reports,
+                                       signal_for_board)
 from impactsense.data import load_session, write_session
 from impactsense.pipeline import featurize
 from impactsense.signal import SignalConfig, core_samples
@@ -56,3 +57,7 @@ def test_every_drop_of_a_short_record_16_bit_logger_gets_one_report(tmp_path, se
     bare = _link.App(app_config(short.rig, 50000, dump_raw=True), None)
     lost, _ = replay_reports(bare, board_samples(short.adc, short.rig.fs_hz, 50000, adc_max=short.rig.adc_max))
     assert sum(len(r) != 1 for r in lost) >= len(rows) // 2
+
+    # the board's capture hook (its site map's simulated drops, the core's int16 counts) takes each one too
+    caps_hook, got = board_capture(short.rig)(short.adc.astype(np.int32) - 32768)
+    assert got.tolist() == list(range(len(rows)))

@@ -12,7 +12,8 @@ import pytest
 
 from impactsense import _core, _link
 from impactsense.data import load_session
-from impactsense.link.emulator import Emulator, board_samples
+from impactsense.board.capture import board_samples
+from impactsense.link.emulator import Emulator
 from impactsense.link.protocol import Decoder, SeqTracker
 
 FS = 50000

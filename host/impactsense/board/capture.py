@@ -150,17 +150,20 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
     return np.concatenate([adc, tail], axis=-1)
 
 
-def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000) -> np.ndarray:
+def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0,
+                 adc_max: int | None = None) -> np.ndarray:
     """Recorded drops as the board's stream: int16 [R, n, 4] frames, one drop after the other as they come in
     the lab (seconds apart: the plate quiet between them). Each record is continued for the app's capture and
     hold-off and led in by its quiet start when it is short (continued_for_capture), then read as the SAADC
     scans it (board_samples). Records fed back to back as they are would be a stream no board sees: 8 ms
     records with 30 samples before the hit put a drop every 8 ms, inside the app's capture and hold-off (the
     app then rightly takes them for one event) and before it has armed. Every path that replays recordings
-    through the app (board_captures, the emulator, the qemu test image's fixture) reads this."""
+    through the app (board_captures, board_capture, the emulator, the qemu test image's fixture) reads this.
+    adc_min, adc_max: the rails (board_samples; default the rig's ADC)."""
     adc = continued_for_capture(adc, rig.fs_hz, app.capture_frames, fs_hz, app.core_config.baseline_samples,
                                 app.pretrigger_frames, rig.pretrigger_samples)
-    return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max)
+    return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max if adc_max is None else adc_max,
+                         adc_min=adc_min)
 
 
 def replay_reports(app, frames: np.ndarray) -> tuple[list[list[dict]], list[list]]:
@@ -194,14 +197,14 @@ def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
 
 def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
     """The board as a capture hook (sitemap.build_site_map's `capture`): counts int16 [R, 4, n] at the rig's
-    rate -> (captures int16 [R', 4, m], rows [R']) as the firmware app takes them at fs_hz: board_samples
-    (resampled, SAADC scan delays) with the int16 range kept instead of the ADC's, then the app's trigger,
+    rate -> (captures int16 [R', 4, m], rows [R']) as the firmware app takes them at fs_hz: board_frames
+    (continued, resampled, SAADC scan delays) with the int16 range kept instead of the ADC's, then the app's trigger,
     pre-trigger and window (the emulator's path for recorded drops)."""
     cfg = app_config(rig, fs_hz, signal, dump_raw=True)
 
     def capture(counts: np.ndarray):
-        frames = board_samples(counts, rig.fs_hz, fs_hz, adc_max=32767, adc_min=-32768)
         app = _link.App(cfg, None)
+        frames = board_frames(counts, rig, app, fs_hz, adc_min=-32768, adc_max=32767)
         caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
         if not caps:
             return np.zeros((0, 4, app.capture_frames), np.int16), np.zeros(0, int)
