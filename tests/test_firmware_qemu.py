@@ -2,6 +2,7 @@
 image processes recorded drops and checks its reports, features and model outputs against the host's, with
 the energy class on the twin's site map as the board sees it (a coarse 20 mm map here, to keep it quick)."""
 
+import json
 import os
 import re
 import shutil
@@ -30,3 +31,22 @@ def test_qemu_image_matches_host(tmp_path):
     assert not re.search(r"FAIL \w", out)
     assert re.search(r"^DROP twin_points [1-9]", out, re.M)  # the twin ran on the board's events
     assert "impactsense_twin_map" in (tmp_path / "models" / "impactsense_forest_tables.c").read_text()
+
+
+def test_qemu_image_reports_every_drop_of_a_short_record_16_bit_logger(tmp_path, session1):
+    """A 16-bit logger's 8 ms records with 30 samples before the hit (test_board_short_records): the image's app
+    reports every fixture drop once, as the fixture's native app did (gen_fixture replays board_frames and writes
+    the rig's rails and trigger counts for the image's app). It used to stop at "not one report from the native
+    app", and then the image cut other captures than the fixture's (the board's 12-bit defaults)."""
+    import numpy as np
+    from test_board_short_records import sixteen_bit_short_records
+
+    short = sixteen_bit_short_records(session1, np.arange(0, 771, 8), tmp_path)
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path / "build"), "--data", str(short.path),
+                        "--drops", "8", "--trees", "4", "--site-map", "none"],
+                       capture_output=True, text=True, timeout=900, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out
+    assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
+    fixture = json.loads((tmp_path / "build" / "fixture.json").read_text())
+    assert len(fixture["rows"]) == 8 and not fixture["skipped_rows"], fixture
