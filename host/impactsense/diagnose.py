@@ -23,7 +23,8 @@ threshold and band picks (`band_timing`) alike, where a move shifts each by its 
 constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
 (three tests of the one null "a constant": each at ALPHA). The two pick sets in one regression with a constant
 shared by both (`effects.sensor_position.joint_test`) is reported beside them, not decided on. A move is significant only when one of them rejects
-the constant; then the constant delay on that channel is not named (and where the delay has the evidence and
+the constant and the delay does not predict the held-out threshold and band picks better than the move by n_candidates /
+ALPHA (`move_or_delay`: a sub-sample delay's drop-dependent picks); then the constant delay on that channel is not named (and where the delay has the evidence and
 the move not, a rejected constant names the move: the channel changed, not by a constant). Where none does, a
 move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the tests.
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
@@ -44,6 +45,7 @@ from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
+from .move_or_delay import move_over_delay_on_both_picks
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -165,6 +167,8 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
+        both = move_over_delay_on_both_picks(current, F, folds, results, gains)
+        delay_better = {k: -float(v.sum()) >= np.log(len(cands) / ALPHA) for k, v in both.items()}
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
@@ -181,7 +185,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                                        "band": band_test(current, F, c.sensor),
                                        "joint": joint_test(current, F, c.sensor)}
             if ok and c.effect == "sensor_position":   # a move only where the data reject a constant
-                ok = _constant_rejected(direction[c.sensor])
+                ok = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
                 if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
                     diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
                     ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
@@ -190,13 +194,13 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 too_far.append(c)
             c.significant = bool(ok)
         _flag_strongest(results, too_far, unabsorbed, move_bound)
-        _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed)
+        _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
         _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
-        _record_rivals(results, gains, direction, moved, F.case_id)
+        _record_rivals(results, gains, direction, moved, F.case_id, both)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -215,9 +219,10 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     return accepted, current, last_round
 
 
-def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id) -> None:
+def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict) -> None:
     """Each move and delay candidate's rival record: the held-out gain over its rival on the same sensor, the
-    move-or-delay tests' p-values, ambiguous (neither test rejects a constant) and a shadow's stronger channel."""
+    same on both pick sets (`move_over_delay_on_both_picks`, signed as the candidate over its rival), the
+    move-or-delay tests' p-values, ambiguous (no move named on the channel) and a shadow's stronger channel."""
     for c in results:
         rv = RIVALS.get(c.effect)
         if rv is None or (rv, c.sensor) not in gains:
@@ -225,6 +230,9 @@ def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id) -
         diff = gains[(c.effect, c.sensor)] - gains[(rv, c.sensor)]
         c.rival = {"effect": rv, "score_difference": float(diff.sum()),
                    "p_value": _one_sided_p(_case_sums(diff, case_id))}
+        if c.sensor in both:
+            sign = 1.0 if c.effect == "sensor_position" else -1.0
+            c.rival["both_picks_score_difference"] = sign * float(both[c.sensor].sum())
         if c.sensor in direction:
             c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
             c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
@@ -250,14 +258,15 @@ def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
     return Fb, Fn
 
 
-def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict) -> None:
-    """Marks significant the move on a channel whose delay has the evidence and the move not, where the
-    move-or-delay tests reject a constant: the channel changed (the delay's evidence), not by a constant."""
+def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict,
+                                       delay_better: dict) -> None:
+    """Marks significant the move on a channel whose delay has the evidence and the move not, where the tests reject
+    a constant and the delay is not the better held-out (`delay_better`): the channel changed, not by a constant."""
     passed = {(c.effect, c.sensor) for c in results if c.significant}
     for c in results:
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
-            c.significant = _constant_rejected(direction[c.sensor])
+            c.significant = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
 
 
 def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:

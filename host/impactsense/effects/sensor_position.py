@@ -91,9 +91,19 @@ class SensorPosition(Effect):
 def _band_ll(model, F) -> float:
     """The band picks' log-likelihood (Huber, their reference scale) under `model`: a move's path change
     moves them too, at their own slowness (`impactsense.band_timing`)."""
+    return float(band_ll(model, F).sum())
+
+
+def band_ll(model, F) -> np.ndarray | None:
+    """Per drop, the band picks' log-likelihood (Huber, their reference scale) under `model`; 0 on a drop
+    missing a band pick; None without band picks."""
     r = band_resid(model, F)
+    if r is None:
+        return None
     ok = np.all(np.isfinite(r), axis=1)
-    return float(huber_ll(r[ok] / model.band["sigma_us"]).sum())
+    out = np.zeros(len(r))
+    out[ok] = huber_ll(r[ok] / model.band["sigma_us"]).sum(axis=1)
+    return out
 
 
 def _huber_weights(r: np.ndarray, k: float = 2.5) -> np.ndarray:
