@@ -81,8 +81,12 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //    the match's misfit exceeds kBadMisfitRef x the training's reference misfit, each channel c in turn is
 //    left out, the physics localiser on the other channels with an onset gives the start and the twin
 //    matches their energies; the first channel whose leaving out lowers the misfit kBadMisfitGain-fold (and
-//    below every earlier try) is kept (reason kTwinInconsistent). Clean drops have a misfit ~1 x the
-//    reference; a disc at x0.4 gain behind a 4 kHz low-pass ~500 x, ~1.5 x without it.
+//    below every earlier try) is the candidate. It is kept (reason kTwinInconsistent) only if the four
+//    channels' energies, matched again around the candidate's three-channel answer, still misfit beyond
+//    kBadMisfitRef x the reference; otherwise its pick, not its disc, was wrong (an early onset on noise or
+//    hum moves the forests' start far from the impact) and that four-channel match is reported, no channel
+//    left out. Clean drops have a misfit ~1 x the reference; a disc at x0.4 gain behind a 4 kHz low-pass
+//    ~500 x, ~1.5 x without it.
 // With a channel left out, the match is done again centred on its own answer (the three-sensor start is a
 // few mm off, and the twin's prior pulls toward the start).
 //  - a weak channel (cfg.weak_channel: a disc the diagnosis found partly debonded, the models retrained with
