@@ -229,3 +229,68 @@ def test_a_move_is_still_named_a_move(move, monkeypatch):
         out = _select_timing(F, monkeypatch)
         named += bool(out) and (out[0].effect, out[0].sensor) == ("sensor_position", 2)
     assert named >= 2, named
+
+
+# ---- a move along the look direction: its energies tell it from a delay (docs/findings.md, lookdir) ----
+ENERGY_BETA = -1.0   # log-energy per log-distance (geometric spreading, 1/d energy)
+ENERGY_SD = 0.1      # nepers per channel and drop
+
+
+def _moved_along_with_energies(rng, move) -> R.Features:
+    """Threshold picks and log-energies of a disc moved by `move` (no band picks): the energies follow the
+    true (moved) distances by ENERGY_BETA log d, per-drop source strength and noise ENERGY_SD."""
+    from dataclasses import replace
+
+    F = _features(rng, move=move)
+    true = SENSORS.copy()
+    true[2] += move
+    d = np.hypot(F.x_mm[:, None] - true[None, :, 0], F.y_mm[:, None] - true[None, :, 1])
+    le = ENERGY_BETA * np.log(d) + rng.normal(0, 1.0, (len(F), 1)) + rng.normal(0, ENERGY_SD, d.shape) + 20.0
+    return replace(F, log_energy=le)
+
+
+def _select_energy(F: R.Features, monkeypatch, by_energy: bool):
+    from impactsense import diagnose as D
+    from impactsense.effects import EFFECTS
+
+    monkeypatch.setattr(D, "EFFECTS", {k: EFFECTS[k] for k in ("sensor_position", "channel_delay")})
+    monkeypatch.setattr(D, "MOVE_BY_ENERGY", by_energy)
+    ref = _reference()
+    ref.beta = ENERGY_BETA
+    ref.sigma = {"timing": float(np.hypot(3.0, 2.0)), "energy": ENERGY_SD, "spectrum": 1.0, "decay": 1.0,
+                 "noise": 1.0, "hum": 1.0}
+    ref.plateau_rate = 0.01
+    accepted, _, _ = D.select(ref, F, max_effects=1)
+    return accepted
+
+
+def test_a_move_along_the_look_direction_is_named_by_its_energies(monkeypatch):
+    """S3 moved 8.5 mm along its look direction (towards the plate centre): its threshold picks change by a
+    near-constant (the tests of a constant name a delay: the old rule named channel_delay[2] on at least 2 of 3
+    draws), its energies by ENERGY_BETA x the log of the distance ratio, up to ~0.2 nepers near the disc: the
+    move predicts the held-out picks and energies better than the delay by more than n_candidates / ALPHA and
+    is named on its disc on at least 2 of 3 draws, within 3 mm (the along-look size trades with the pick
+    constant)."""
+    move = np.array([-6.0, -6.0])
+    old, new = 0, 0
+    for seed in range(3):
+        F = _moved_along_with_energies(np.random.default_rng(40 + seed), move)
+        out = _select_energy(F, monkeypatch, by_energy=False)
+        old += bool(out) and (out[0].effect, out[0].sensor) == ("channel_delay", 2)
+        out = _select_energy(F, monkeypatch, by_energy=True)
+        if out and (out[0].effect, out[0].sensor) == ("sensor_position", 2):
+            new += np.hypot(out[0].params["dx_mm"] - move[0], out[0].params["dy_mm"] - move[1]) <= 3.0
+    assert old >= 2, old
+    assert new >= 2, new
+
+
+def test_a_delay_with_unchanged_energies_stays_a_delay(monkeypatch):
+    """A -7.5 us delay on S3, energies at the declared discs: the delay is named on all 3 draws with the rule."""
+    from dataclasses import replace
+
+    for seed in range(3):
+        rng = np.random.default_rng(50 + seed)
+        F = _moved_along_with_energies(rng, np.zeros(2))
+        F = replace(F, toa_us=F.toa_us + np.r_[0.0, 0.0, -7.5, 0.0])
+        (c,) = _select_energy(F, monkeypatch, by_energy=True)
+        assert (c.effect, c.sensor) == ("channel_delay", 2), (seed, c.effect, c.params, c.rival)

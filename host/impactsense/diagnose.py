@@ -45,7 +45,7 @@ from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
-from .move_or_delay import move_over_delay_on_both_picks
+from .move_or_delay import move_over_delay_on_both_picks, move_over_delay_with_energy
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -56,6 +56,9 @@ RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"
 # spacing is not named as a move (a debonded channel's filtered, late arrivals fit one of ~100 mm); its channel
 # is reported as one the models cannot absorb (`unabsorbed_channels`: the three-sensor models, flagged).
 MAX_MOVE_FRACTION = 0.25
+# A named delay is renamed the move on its channel where the move predicts the held-out picks and energies
+# better by n_candidates / ALPHA (`_move_that_predicts_better_than_the_delay`).
+MOVE_BY_ENERGY = True
 
 
 def max_move_mm(sensor_xy_mm) -> float:
@@ -195,12 +198,16 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             c.significant = bool(ok)
         _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
+        with_energy = move_over_delay_with_energy(current, F, folds, results, both)
+        if MOVE_BY_ENERGY:
+            _move_that_predicts_better_than_the_delay(results, with_energy, move_bound, unabsorbed,
+                                                      np.log(len(cands) / ALPHA))
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
         _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
-        _record_rivals(results, gains, direction, moved, F.case_id, both)
+        _record_rivals(results, gains, direction, moved, F.case_id, both, with_energy)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -219,9 +226,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     return accepted, current, last_round
 
 
-def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict) -> None:
+def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict,
+                   with_energy: dict | None = None) -> None:
     """Each move and delay candidate's rival record: the held-out gain over its rival on the same sensor, the
-    same on both pick sets (`move_over_delay_on_both_picks`, signed as the candidate over its rival), the
+    same on both pick sets (`move_over_delay_on_both_picks`, signed as the candidate over its rival) and with the
+    energies (`move_over_delay_with_energy`), the
     move-or-delay tests' p-values, ambiguous (no move named on the channel) and a shadow's stronger channel."""
     for c in results:
         rv = RIVALS.get(c.effect)
@@ -233,6 +242,9 @@ def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, b
         if c.sensor in both:
             sign = 1.0 if c.effect == "sensor_position" else -1.0
             c.rival["both_picks_score_difference"] = sign * float(both[c.sensor].sum())
+        if with_energy and c.sensor in with_energy:   # the same plus the energies (`move_over_delay_with_energy`)
+            sign = 1.0 if c.effect == "sensor_position" else -1.0
+            c.rival["picks_and_energy_score_difference"] = sign * float(with_energy[c.sensor].sum())
         if c.sensor in direction:
             c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
             c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
@@ -267,6 +279,22 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
             c.significant = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
+
+
+def _move_that_predicts_better_than_the_delay(results, ratio: dict, move_bound: float, unabsorbed: dict,
+                                              bound: float) -> None:
+    """Names the move instead of the constant delay on a channel whose delay is named (it has the evidence of
+    a change) where the move predicts the held-out threshold picks, band picks and log-energies better than
+    the delay by a likelihood ratio of at least n_candidates / ALPHA (`move_over_delay_with_energy`;
+    Markov's bound: were the delay the truth, that happens with probability <= ALPHA / n_candidates). A move
+    along the disc's look direction is nearly a constant to the tests of "a constant"; its band picks' and
+    energies' change is not. It only renames a named delay: an unchanged session gains no name."""
+    named_delay = {c.sensor for c in results if c.effect == "channel_delay" and c.significant}
+    for c in results:
+        if (c.effect == "sensor_position" and not c.significant and c.sensor in named_delay and c.material
+                and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed
+                and c.sensor in ratio and float(ratio[c.sensor].sum()) >= bound):
+            c.significant = True
 
 
 def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:

@@ -4,6 +4,8 @@ each change by their own slowness times the path change, a constant delay shifts
 
 from __future__ import annotations
 
+import numpy as np
+
 from .effects import EFFECTS
 from .effects.sensor_position import band_ll
 
@@ -32,3 +34,32 @@ def move_over_delay_on_both_picks(current, F, folds, results, gains: dict) -> di
                     diff[test] += sign * (band_ll(EFFECTS[cand.effect].add(current, sensor, p), F)[test] - base[test])
         out[sensor] = diff
     return out
+
+
+def energy_of_the_move(current, F, folds, results) -> dict:
+    """Per sensor, the held-out log-likelihood of the log-energies with the energy law's disc moved by the
+    move's fold fit minus with it where it is (nats per drop): a moved disc changes each impact's path, and its
+    energy by the geometric and attenuation law (alpha d + beta log d, `residuals.Reference.energy_resid`);
+    a constant delay changes no energy (0 for the delay). Along the look direction the timing of a move is
+    nearly a constant, its energy change near the disc is not (docs/findings.md, lookdir)."""
+    out = {}
+    base = current.ll_groups(F)["energy"]
+    for c in results:
+        if c.effect != "sensor_position":
+            continue
+        gain = np.zeros(len(F))
+        for test, p in zip(folds, c.fold_params):
+            m = current.copy()
+            pos = (current.sensor_xy_mm if current.energy_sensor_xy_mm is None else current.energy_sensor_xy_mm)
+            m.energy_sensor_xy_mm = np.array(pos, float).copy()
+            m.energy_sensor_xy_mm[c.sensor] += [p["dx_mm"], p["dy_mm"]]
+            gain[test] = m.ll_groups(F.subset(test))["energy"] - base[test]
+        out[c.sensor] = gain
+    return out
+
+
+def move_over_delay_with_energy(current, F, folds, results, both: dict) -> dict:
+    """`move_over_delay_on_both_picks` plus `energy_of_the_move`: the held-out log-likelihood ratio of the
+    move over the constant delay on the threshold picks, the band picks and the log-energies (per drop)."""
+    energy = energy_of_the_move(current, F, folds, results)
+    return {k: v + energy[k] for k, v in both.items() if k in energy}
