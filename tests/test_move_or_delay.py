@@ -251,10 +251,11 @@ def _moved_along_with_energies(rng, move) -> R.Features:
 
 def _select_energy(F: R.Features, monkeypatch, by_energy: bool):
     from impactsense import diagnose as D
+    from impactsense import move_or_delay as MD
     from impactsense.effects import EFFECTS
 
     monkeypatch.setattr(D, "EFFECTS", {k: EFFECTS[k] for k in ("sensor_position", "channel_delay")})
-    monkeypatch.setattr(D, "MOVE_BY_ENERGY", by_energy)
+    monkeypatch.setattr(MD, "MOVE_BY_ENERGY", by_energy)
     ref = _reference()
     ref.beta = ENERGY_BETA
     ref.sigma = {"timing": float(np.hypot(3.0, 2.0)), "energy": ENERGY_SD, "spectrum": 1.0, "decay": 1.0,

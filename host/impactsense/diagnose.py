@@ -21,17 +21,16 @@ errors and the reference's own uncertainty) at ALPHA; a delay shifts the channel
 threshold and band picks (`band_timing`) alike, where a move shifts each by its own slowness
 (`effects.sensor_position.band_test`, at ALPHA: what tells a move along a disc's look direction, nearly a
 constant to the direction test); or the move's held-out likelihood gain over the delay by the evidence rule
-(three tests of the one null "a constant": each at ALPHA). The two pick sets in one regression with a constant
-shared by both (`effects.sensor_position.joint_test`) is reported beside them, not decided on. A move is significant only when one of them rejects
-the constant and the delay does not predict the held-out threshold and band picks better than the move by n_candidates /
-ALPHA (`move_or_delay`: a sub-sample delay's drop-dependent picks); then the constant delay on that channel is not named (and where the delay has the evidence and
-the move not, a rejected constant names the move: the channel changed, not by a constant). Where none does, a
-move cannot be told from a delay: the delay (fewer parameters) is named, and each rival carries the tests.
+(three tests of the one null "a constant": each at ALPHA). Both pick sets in one regression, a constant shared
+(`effects.sensor_position.joint_test`), is reported, not decided on. A move is named only when one of them
+rejects the constant and the delay does not predict the held-out threshold and band picks better by n_candidates
+/ ALPHA (`move_or_delay`: a sub-sample delay's drop-dependent picks); the delay is then not named (where the
+delay has the evidence and the move not, a rejected constant names the move). Where none does, the delay (fewer
+parameters) is named, unless the move predicts the held-out picks and log-energies (its energy law at the moved
+disc) better by n_candidates / ALPHA (`move_or_delay.name_the_move_over_a_delay`: a move along the look direction).
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
-significant candidate is added to the model (parameters refitted on all drops) and the search
-repeats; it stops when nothing is significant. Nothing significant at all: the answer is `none`.
-Each parameter's 95 % interval: delete-a-fold jackknife standard error over the 5 case folds x t(4).
-"""
+significant candidate is added to the model (parameters refitted on all drops) and the search repeats; it stops
+when nothing is significant (then: `none`). 95 % intervals: delete-a-fold jackknife over the 5 folds x t(4)."""
 
 from __future__ import annotations
 
@@ -45,7 +44,7 @@ from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
-from .move_or_delay import move_over_delay_on_both_picks, move_over_delay_with_energy
+from .move_or_delay import move_over_delay_on_both_picks, name_the_move_over_a_delay, record_with_energy
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -56,9 +55,6 @@ RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"
 # spacing is not named as a move (a debonded channel's filtered, late arrivals fit one of ~100 mm); its channel
 # is reported as one the models cannot absorb (`unabsorbed_channels`: the three-sensor models, flagged).
 MAX_MOVE_FRACTION = 0.25
-# A named delay is renamed the move on its channel where the move predicts the held-out picks and energies
-# better by n_candidates / ALPHA (`_move_that_predicts_better_than_the_delay`).
-MOVE_BY_ENERGY = True
 
 
 def max_move_mm(sensor_xy_mm) -> float:
@@ -198,16 +194,14 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             c.significant = bool(ok)
         _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
-        with_energy = move_over_delay_with_energy(current, F, folds, results, both)
-        if MOVE_BY_ENERGY:
-            _move_that_predicts_better_than_the_delay(results, with_energy, move_bound, unabsorbed,
-                                                      np.log(len(cands) / ALPHA))
+        with_energy = name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
         _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
-        _record_rivals(results, gains, direction, moved, F.case_id, both, with_energy)
+        _record_rivals(results, gains, direction, moved, F.case_id, both)
+        record_with_energy(results, with_energy)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -226,11 +220,9 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     return accepted, current, last_round
 
 
-def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict,
-                   with_energy: dict | None = None) -> None:
+def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict) -> None:
     """Each move and delay candidate's rival record: the held-out gain over its rival on the same sensor, the
-    same on both pick sets (`move_over_delay_on_both_picks`, signed as the candidate over its rival) and with the
-    energies (`move_over_delay_with_energy`), the
+    same on both pick sets (`move_over_delay_on_both_picks`, signed as the candidate over its rival), the
     move-or-delay tests' p-values, ambiguous (no move named on the channel) and a shadow's stronger channel."""
     for c in results:
         rv = RIVALS.get(c.effect)
@@ -242,9 +234,6 @@ def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, b
         if c.sensor in both:
             sign = 1.0 if c.effect == "sensor_position" else -1.0
             c.rival["both_picks_score_difference"] = sign * float(both[c.sensor].sum())
-        if with_energy and c.sensor in with_energy:   # the same plus the energies (`move_over_delay_with_energy`)
-            sign = 1.0 if c.effect == "sensor_position" else -1.0
-            c.rival["picks_and_energy_score_difference"] = sign * float(with_energy[c.sensor].sum())
         if c.sensor in direction:
             c.rival["direction_p_value"] = direction[c.sensor]["p_value"]
             c.rival["band_p_value"] = direction[c.sensor]["band"]["p_value"]
@@ -279,22 +268,6 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
             c.significant = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
-
-
-def _move_that_predicts_better_than_the_delay(results, ratio: dict, move_bound: float, unabsorbed: dict,
-                                              bound: float) -> None:
-    """Names the move instead of the constant delay on a channel whose delay is named (it has the evidence of
-    a change) where the move predicts the held-out threshold picks, band picks and log-energies better than
-    the delay by a likelihood ratio of at least n_candidates / ALPHA (`move_over_delay_with_energy`;
-    Markov's bound: were the delay the truth, that happens with probability <= ALPHA / n_candidates). A move
-    along the disc's look direction is nearly a constant to the tests of "a constant"; its band picks' and
-    energies' change is not. It only renames a named delay: an unchanged session gains no name."""
-    named_delay = {c.sensor for c in results if c.effect == "channel_delay" and c.significant}
-    for c in results:
-        if (c.effect == "sensor_position" and not c.significant and c.sensor in named_delay and c.material
-                and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed
-                and c.sensor in ratio and float(ratio[c.sensor].sum()) >= bound):
-            c.significant = True
 
 
 def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:

@@ -63,3 +63,37 @@ def move_over_delay_with_energy(current, F, folds, results, both: dict) -> dict:
     move over the constant delay on the threshold picks, the band picks and the log-energies (per drop)."""
     energy = energy_of_the_move(current, F, folds, results)
     return {k: v + energy[k] for k, v in both.items() if k in energy}
+
+
+MOVE_BY_ENERGY = True   # `name_the_move_over_a_delay` renames (False: it only reports the ratio)
+
+
+def name_the_move_over_a_delay(current, F, folds, results, both: dict, move_bound: float, unabsorbed: dict,
+                               alpha: float) -> dict:
+    """Names the move instead of the constant delay on a channel whose delay is named (it has the evidence of
+    a change) where the move predicts the held-out threshold picks, band picks and log-energies better than
+    the delay by a likelihood ratio of at least n_candidates / ALPHA (`move_over_delay_with_energy`;
+    Markov's bound: were the delay the truth, that happens with probability <= ALPHA / n_candidates). A move
+    along the disc's look direction is nearly a constant to the tests of "a constant"; its band picks' and
+    energies' change is not. It only renames a named delay: an unchanged session gains no name. Returns the
+    ratio per sensor (`move_over_delay_with_energy`)."""
+    ratio = move_over_delay_with_energy(current, F, folds, results, both)
+    if not MOVE_BY_ENERGY:
+        return ratio
+    bound = np.log(len(results) / alpha)
+    named_delay = {c.sensor for c in results if c.effect == "channel_delay" and c.significant}
+    for c in results:
+        if (c.effect == "sensor_position" and not c.significant and c.sensor in named_delay and c.material
+                and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed
+                and c.sensor in ratio and float(ratio[c.sensor].sum()) >= bound):
+            c.significant = True
+    return ratio
+
+
+def record_with_energy(results, ratio: dict) -> None:
+    """Each move and delay candidate's rival record gets the move-over-delay ratio on the picks and energies
+    (`move_over_delay_with_energy`), signed as the candidate over its rival."""
+    for c in results:
+        if c.rival and c.sensor in ratio and c.effect in ("sensor_position", "channel_delay"):
+            sign = 1.0 if c.effect == "sensor_position" else -1.0
+            c.rival["picks_and_energy_score_difference"] = sign * float(ratio[c.sensor].sum())
