@@ -843,6 +843,40 @@ float beyond_neighbours(const int16_t* x, int n, int at, int skip, int eval) {
   return worst;
 }
 
+// beyond_neighbours(x, n, i, 2, 1) (the range of the kSpikeReach samples either side of [i, i + 2)) where
+// it exceeds kSpikeBeyond, else 0 or any value <= kSpikeBeyond. Any of the neighbours bounds x[i]'s excursion
+// from above (it lies beyond their extreme) and the range from below (their own range, at least 1): taken
+// nearest first, the scan stops once the excursion is no longer more than kSpikeBeyond ranges (2 out > kKeep
+// range in integers; fl(out / range) > kSpikeBeyond implies it). A spike lies beyond them all and gets
+// beyond_neighbours' own quotient (the same neighbours' min and max).
+constexpr int32_t kKeep = static_cast<int32_t>(2.0f * kSpikeBeyond);
+static_assert(static_cast<float>(kKeep) == 2.0f * kSpikeBeyond, "kSpikeBeyond must be a multiple of 1/2");
+IC_NOINLINE float beyond_neighbours_over(const int16_t* x, int n, int i) {
+  const int32_t v = x[i];
+  int32_t mn = INT32_MAX, mx = INT32_MIN;
+  for (int k = 1; k <= kSpikeReach; ++k) {
+    const int l = i - k, r = i + 1 + k;  // [i, i + 2) left out
+    if (l >= 0) {
+      const int32_t u = x[l];
+      mn = u < mn ? u : mn;
+      mx = u > mx ? u : mx;
+    }
+    if (r < n) {
+      const int32_t u = x[r];
+      mn = u < mn ? u : mn;
+      mx = u > mx ? u : mx;
+    }
+    if (mx < mn) continue;  // none yet
+    const int32_t range = mx - mn > 1 ? mx - mn : 1;
+    const int32_t out = v > mx ? v - mx : (v < mn ? mn - v : 0);
+    if (2 * out <= kKeep * range) return 0.0f;
+  }
+  if (mx < mn) return 0.0f;
+  const int32_t range = mx - mn > 1 ? mx - mn : 1;
+  const int32_t out = v > mx ? v - mx : mn - v;
+  return static_cast<float>(out) / static_cast<float>(range);
+}
+
 // A glitch inside the difference window [lo, hi) of a channel the ratio test sent (channel_features): with
 // `largest`, the sample before the window's largest |Delta^2| (a lone spike's largest |Delta^2| is the term
 // after it, a two-sample spike's one of the four it enters) tested like a late spike with the term ratio
@@ -852,10 +886,11 @@ float beyond_neighbours(const int16_t* x, int n, int at, int skip, int eval) {
 IC_NOINLINE bool find_inside_spike(const int16_t* x, int n, int lo, int hi, int icross, float thr, bool largest,
                                    Spike* sp) {
   if (largest) {
-    float big = 0.0f;
+    int32_t big = 0;  // |Delta^2| < 2^18: exact as an integer as in a float
     int at = -1;
     for (int m = lo + 2; m < hi; ++m) {
-      const float d = fabsf(second_difference(x, m));
+      int32_t d = static_cast<int32_t>(x[m]) - 2 * static_cast<int32_t>(x[m - 1]) + x[m - 2];
+      d = d < 0 ? -d : d;
       if (d > big) {
         big = d;
         at = m - 1;
@@ -869,15 +904,42 @@ IC_NOINLINE bool find_inside_spike(const int16_t* x, int n, int lo, int hi, int 
       }
     }
   }
+  // The first of the samples lying furthest beyond their neighbours' range (beyond_neighbours(x, n, i, 2, 1)),
+  // when more than kSpikeBeyond ranges. With the two nearest, a = x[i - 1] and b = x[i + 2], as the only
+  // neighbours a sample outside [min(a, b), max(a, b)] lies out = (|s| - |d|) / 2 beyond them (s = 2 x[i] - a - b,
+  // d = a - b) and one inside has |s| <= |d|: 2 out > kKeep max(|d|, 1), necessary for the whole range, is
+  // |s| > max(4 |d|, 3) for kKeep = 3. A wave's sample mostly fails it (docs/findings.md, "Session 18:
+  // spikecost"); the rest are tested with the next two, x[i - 2] and x[i + 3], as well, and those that pass
+  // get beyond_neighbours_over.
+  static_assert(kKeep == 3 && kSpikeReach >= 2, "the tests below are for kSpikeBeyond = 1.5");
   float best = kSpikeBeyond;
   int at = -1;
-  for (int i = lo; i < hi; ++i) {
-    const float q = beyond_neighbours(x, n, i, 2, 1);
+  const auto consider = [&](int i) {
+    const float q = beyond_neighbours_over(x, n, i);
     if (q > best) {
       best = q;
       at = i;
     }
+  };
+  const int first = lo > 2 ? lo : 2, last = hi < n - 3 ? hi : n - 3;  // x[i - 2] .. x[i + 3] in the capture
+  for (int i = lo; i < hi && i < first; ++i) consider(i);
+  for (const int16_t* p = x + first; p < x + last; ++p) {
+    const int32_t a = p[-1], b = p[2];
+    int32_t s = 2 * static_cast<int32_t>(p[0]) - a - b, d = a - b;
+    s = s < 0 ? -s : s;
+    d = d < 0 ? -d : d;
+    if (s <= 4 * d || s <= 3) continue;
+    const int32_t v = p[0], l = p[-2], r = p[3];
+    int32_t mx = a > b ? a : b, mn = a < b ? a : b;
+    mx = l > mx ? l : mx;
+    mx = r > mx ? r : mx;
+    mn = l < mn ? l : mn;
+    mn = r < mn ? r : mn;
+    const int32_t out = v > mx ? v - mx : (v < mn ? mn - v : 0);
+    const int32_t range = mx - mn > 1 ? mx - mn : 1;
+    if (2 * out > kKeep * range) consider(static_cast<int>(p - x));
   }
+  for (int i = last > first ? last : first; i < hi; ++i) consider(i);
   for (int i = at; at >= 0 && i <= at + 1; ++i) {
     if (i > icross && i < n - 3 && spike_at(x, n, i, thr, sp, 1.0f) &&
         beyond_neighbours(x, n, sp->at, sp->width, sp->width) > kSpikeBeyond) {
@@ -899,8 +961,16 @@ float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float 
   return e;
 }
 
+// The window a glitch hunt inside the arrival scans (channel_features records it on its first pass; open: the
+// channel has an onset and room for another spike).
+struct HuntWindow {
+  int lo = 0, hi = 0, icross = 0;
+  float thr = 0.0f;
+  bool open = false;
+};
+
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
-                      ChannelFeatures* f, int hunt = kHuntNone) {
+                      ChannelFeatures* f, int hunt = kHuntNone, HuntWindow* window = nullptr) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
@@ -1039,14 +1109,21 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // neighbours' range, when more than kSpikeBeyond ranges (beyond_neighbours). Scans of that window, only on
   // such channels. Its excess also leaves the cumulative energy beyond it: n2's target gains it while n2
   // stays beyond the spike.
-  if (hunt != kHuntNone && n_spikes < kMaxSpikes) {
+  if ((hunt != kHuntNone || window) && n_spikes < kMaxSpikes) {
     const int lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
     int hi = n2 + 1;
     const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
     if (cap > 0 && lo + cap < hi) hi = lo + cap;
     if (hi > n - 1) hi = n - 1;
+    if (window) {
+      window->lo = lo;
+      window->hi = hi;
+      window->icross = icross;
+      window->thr = thr;
+      window->open = true;
+    }
     Spike& sp = late[n_spikes];
-    if (find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
+    if (hunt != kHuntNone && find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
       sp.inside = true;
       const float e = spike_excess(x, sp, bl, base);
       excess[n_spikes++] = e;
@@ -1158,8 +1235,9 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   }
   int onsets = 0;
   HumBasis basis;  // filled by the first channel whose hum is fitted
+  HuntWindow window[kChannels];
   for (int c = 0; c < kChannels; ++c) {
-    channel_features(adc[c], n, cfg, c, &basis, &out->ch[c]);
+    channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], kHuntNone, &window[c]);
   }
   // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
   // an arrival's is set by the contact and the plate, alike on every channel: on the bundled sessions, clean
@@ -1195,7 +1273,14 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
         med = o[0] > o[1] ? o[0] : o[1];
       }
       const int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
-      if (hunt != kHuntNone) channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], hunt);
+      // The hunt runs on the first pass's window; only where it finds a glitch is the channel done again
+      // (without one, channel_features would return what it did).
+      Spike probe;
+      const HuntWindow& w = window[c];
+      if (hunt != kHuntNone && w.open &&
+          find_inside_spike(adc[c], n, w.lo, w.hi, w.icross, w.thr, hunt == kHuntLargest, &probe)) {
+        channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], hunt);
+      }
     }
   }
   for (int c = 0; c < kChannels; ++c) {
