@@ -961,12 +961,20 @@ float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float 
   return e;
 }
 
-// The window a glitch hunt inside the arrival scans (channel_features records it on its first pass; open: the
-// channel has an onset and room for another spike).
+// What a glitch hunt inside the arrival starts from (channel_features records it on its first pass; open: the
+// channel has an onset and room for another spike) and the window [lo, hi) it scans: from the pick (after
+// the crossing) to n2, at most diff_window_us.
 struct HuntWindow {
-  int lo = 0, hi = 0, icross = 0;
-  float thr = 0.0f;
+  float toa = 0.0f, thr = 0.0f;
+  int icross = 0, n2 = 0;
   bool open = false;
+  void bounds(const CoreConfig& cfg, int n, int* lo, int* hi) const {
+    *lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
+    *hi = n2 + 1;
+    const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
+    if (cap > 0 && *lo + cap < *hi) *hi = *lo + cap;
+    if (*hi > n - 1) *hi = n - 1;
+  }
 };
 
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
@@ -1109,21 +1117,12 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // neighbours' range, when more than kSpikeBeyond ranges (beyond_neighbours). Scans of that window, only on
   // such channels. Its excess also leaves the cumulative energy beyond it: n2's target gains it while n2
   // stays beyond the spike.
-  if ((hunt != kHuntNone || window) && n_spikes < kMaxSpikes) {
-    const int lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
-    int hi = n2 + 1;
-    const int cap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
-    if (cap > 0 && lo + cap < hi) hi = lo + cap;
-    if (hi > n - 1) hi = n - 1;
-    if (window) {
-      window->lo = lo;
-      window->hi = hi;
-      window->icross = icross;
-      window->thr = thr;
-      window->open = true;
-    }
+  if (window && n_spikes < kMaxSpikes) *window = HuntWindow{toa, thr, icross, n2, true};
+  if (hunt != kHuntNone && n_spikes < kMaxSpikes) {
+    int lo, hi;
+    HuntWindow{toa, thr, icross, n2, true}.bounds(cfg, n, &lo, &hi);
     Spike& sp = late[n_spikes];
-    if (hunt != kHuntNone && find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
+    if (find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
       sp.inside = true;
       const float e = spike_excess(x, sp, bl, base);
       excess[n_spikes++] = e;
@@ -1275,10 +1274,11 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       const int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
       // The hunt runs on the first pass's window; only where it finds a glitch is the channel done again
       // (without one, channel_features would return what it did).
+      if (hunt == kHuntNone || !window[c].open) continue;
       Spike probe;
-      const HuntWindow& w = window[c];
-      if (hunt != kHuntNone && w.open &&
-          find_inside_spike(adc[c], n, w.lo, w.hi, w.icross, w.thr, hunt == kHuntLargest, &probe)) {
+      int lo, hi;
+      window[c].bounds(cfg, n, &lo, &hi);
+      if (find_inside_spike(adc[c], n, lo, hi, window[c].icross, window[c].thr, hunt == kHuntLargest, &probe)) {
         channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], hunt);
       }
     }
