@@ -964,10 +964,10 @@ float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float 
 // What a glitch hunt inside the arrival starts from (channel_features records it on its first pass; open: the
 // channel has an onset and room for another spike) and the window [lo, hi) it scans: from the pick (after
 // the crossing) to n2, at most diff_window_us.
-struct HuntWindow {
-  float toa = 0.0f, thr = 0.0f;
-  int icross = 0, n2 = 0;
-  bool open = false;
+struct HuntWindow {  // no initialisers: channel_features sets open first
+  float toa, thr;
+  int icross, n2;
+  bool open;
   void bounds(const CoreConfig& cfg, int n, int* lo, int* hi) const {
     *lo = static_cast<int>(toa) > icross ? static_cast<int>(toa) : icross + 1;
     *hi = n2 + 1;
@@ -978,7 +978,8 @@ struct HuntWindow {
 };
 
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
-                      ChannelFeatures* f, int hunt = kHuntNone, HuntWindow* window = nullptr) {
+                      ChannelFeatures* f, HuntWindow* window, int hunt = kHuntNone) {
+  window->open = false;
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
@@ -1117,10 +1118,10 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   // neighbours' range, when more than kSpikeBeyond ranges (beyond_neighbours). Scans of that window, only on
   // such channels. Its excess also leaves the cumulative energy beyond it: n2's target gains it while n2
   // stays beyond the spike.
-  if (window && n_spikes < kMaxSpikes) *window = HuntWindow{toa, thr, icross, n2, true};
-  if (hunt != kHuntNone && n_spikes < kMaxSpikes) {
+  *window = HuntWindow{toa, thr, icross, n2, n_spikes < kMaxSpikes};
+  if (hunt != kHuntNone && window->open) {
     int lo, hi;
-    HuntWindow{toa, thr, icross, n2, true}.bounds(cfg, n, &lo, &hi);
+    window->bounds(cfg, n, &lo, &hi);
     Spike& sp = late[n_spikes];
     if (find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
       sp.inside = true;
@@ -1236,7 +1237,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   HumBasis basis;  // filled by the first channel whose hum is fitted
   HuntWindow window[kChannels];
   for (int c = 0; c < kChannels; ++c) {
-    channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], kHuntNone, &window[c]);
+    channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c]);
   }
   // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
   // an arrival's is set by the contact and the plate, alike on every channel: on the bundled sessions, clean
@@ -1279,7 +1280,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       int lo, hi;
       window[c].bounds(cfg, n, &lo, &hi);
       if (find_inside_spike(adc[c], n, lo, hi, window[c].icross, window[c].thr, hunt == kHuntLargest, &probe)) {
-        channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], hunt);
+        channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c], hunt);
       }
     }
   }
