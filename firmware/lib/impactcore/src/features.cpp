@@ -964,7 +964,7 @@ float spike_excess(const int16_t* x, const Spike& sp, const Baseline& bl, float 
 // What a glitch hunt inside the arrival starts from (channel_features records it on its first pass; open: the
 // channel has an onset and room for another spike) and the window [lo, hi) it scans: from the pick (after
 // the crossing) to n2, at most diff_window_us.
-struct HuntWindow {  // no initialisers: channel_features sets open first
+struct HuntWindow {  // no initialisers (no memset): the caller sets open false
   float toa, thr;
   int icross, n2;
   bool open;
@@ -979,7 +979,6 @@ struct HuntWindow {  // no initialisers: channel_features sets open first
 
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
                       ChannelFeatures* f, HuntWindow* window, int hunt = kHuntNone) {
-  window->open = false;
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
   Channel ch;
   ch.x = x;
@@ -1237,6 +1236,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   HumBasis basis;  // filled by the first channel whose hum is fitted
   HuntWindow window[kChannels];
   for (int c = 0; c < kChannels; ++c) {
+    window[c].open = false;
     channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c]);
   }
   // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
