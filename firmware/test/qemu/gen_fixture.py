@@ -32,6 +32,7 @@ from impactsense.export import export_models, firmware_models
 from impactsense.board.capture import app_config, board_frames, replay_reports, signal_for_board
 from impactsense.models import ImpactModel
 from impactsense.pipeline import featurize
+from impactsense.twin import _slowness_scales   # the localiser's travel-time factors, as the host's twin_match
 
 
 def c_array(ctype, name, a, fmt):
@@ -138,7 +139,14 @@ def main(argv=None):
         raise SystemExit("a fixture drop is not usable by the models; pick others")
     if (pred["energy_class"] < 0).any():
         raise SystemExit("the twin gives no estimate on a fixture drop; pick others")
+    # The reference is what the host serves for each drop (ImpactModel.predict: the forests, or twin_match leaving
+    # a channel out, or the three-sensor path); the image runs TableModels::predict_event on the same inputs (the
+    # picks, the localiser's per-channel travel-time factors and geometry the three-sensor localisations read).
     sk = np.concatenate([pred["xy_mm"], pred["energy_class"][:, None]], axis=1)
+    left_out = np.asarray(pred.get("bad_channel", np.full(len(rows), -1)), int)  # -1: none or not named
+    scales = np.asarray(_slowness_scales(feats, model.signal), np.float32).reshape(-1, 4)
+    if scales.size == 0:   # no dispersion: every factor 1
+        scales = np.ones((len(rows), 4), np.float32)
 
     from impactsense.export import _c_float
 
@@ -155,7 +163,9 @@ def main(argv=None):
            c_array("float", "fix_window_energy", feats.raw["window_energy"], fmt_f),
            c_array("float", "fix_diff_energy", feats.raw["diff_energy"], fmt_f),
            c_array("uint8_t", "fix_flags", feats.flags, str),
-           c_array("float", "fix_sklearn", sk.astype(np.float32), fmt_f)]
+           c_array("float", "fix_sklearn", sk.astype(np.float32), fmt_f),
+           c_array("float", "fix_slowness_scale", scales, fmt_f),
+           c_array("int8_t", "fix_left_out", left_out, str)]
     (build / "fixture.h").write_text("".join(out))
     (build / "fixture.json").write_text(json.dumps({"rows": rows.tolist(), "skipped_rows": sorted(skipped),
                                                     "model_dir": str(model_dir)}))

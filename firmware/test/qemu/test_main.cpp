@@ -152,8 +152,11 @@ int main() {
       const float tol = 1e-3f * (1.0f + fabsf(fix_vector[d][k]));
       check(near(ev.vector[k], fix_vector[d][k], tol), "FAIL feature value, drop x 100 + feature", 100 * d + k);
     }
-    // Models on the host's feature vector: both exports give scikit-learn's predictions.
+    // Models on the host's features: both exports give what the host serves for the drop (ImpactModel.predict:
+    // scikit-learn's forests, or twin_match leaving a channel out at its three-sensor positions), as the app runs
+    // them (predict_event with the localiser's geometry).
     memcpy(host.vector, fix_vector[d], sizeof(host.vector));
+    memcpy(host.slowness_scale, fix_slowness_scale[d], sizeof(host.slowness_scale));
     host.status = impactcore::kOk;
     host.phys.status = impactcore::kOk;
     host.phys.x_mm = fix_phys_xy[d][0];
@@ -162,15 +165,21 @@ int main() {
       memcpy(host.features.ch[c].window_energy, fix_window_energy[d][c], sizeof(fix_window_energy[d][c]));
       memcpy(host.features.ch[c].diff_energy, fix_diff_energy[d][c], sizeof(fix_diff_energy[d][c]));
       host.features.ch[c].flags = fix_flags[d][c];
+      host.features.ch[c].toa_us = fix_toa_us[d][c];
     }
-    float x, y;
+    float x, y, unc = -1.0f;
     uint8_t cls;
-    check(g_models.predict(host, &x, &y, &cls), "FAIL table models did not run, drop", d);
+    int8_t left = -2;
+    const impactcore::LocaliserConfig& loc = g_app.config().loc;
+    check(g_models.predict_event(host, loc, &x, &y, &cls, &unc, &left), "FAIL table models did not run, drop", d);
     check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL table x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL table class vs sklearn, drop", d);
-    check(g_m2c.predict(host, &x, &y, &cls), "FAIL m2cgen models did not run, drop", d);
+    check(fix_left_out[d] < 0 || left == fix_left_out[d], "FAIL table channel left out vs host, drop", d);
+    check(g_m2c.predict_event(host, loc, &x, &y, &cls, &unc, &left), "FAIL m2cgen models did not run, drop", d);
     check(near(x, fix_sklearn[d][0], 2e-3f) && near(y, fix_sklearn[d][1], 2e-3f), "FAIL m2cgen x/y vs sklearn, drop", d);
     check(cls == static_cast<uint8_t>(fix_sklearn[d][2]), "FAIL m2cgen class vs sklearn, drop", d);
+    check(fix_left_out[d] < 0 || left == fix_left_out[d], "FAIL m2cgen channel left out vs host, drop", d);
+    put_int("DROP left_out", left >= 0 ? left : 4);  // the channel the models left out, 4: none
     {  // One channel dead (a flat line): both model forms take twin_match's three-channel path alike.
       static int16_t flat[4][2048];
       const int n = g_app.capture_frames();
