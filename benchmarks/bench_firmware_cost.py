@@ -266,6 +266,13 @@ def main() -> int:
               f"median {int(np.median(tw)):,} max {tw.max():,} instructions; grid points visited "
               f"{pts.min()}..{pts.max()} (site map {export['twin']['grid'][:2]} points, "
               f"{export['table_bytes']['twin']:,} bytes)")
+    if len(per_drop.get("left_out", ())) == len(ev):   # the models' check: the channel they left out (4: none)
+        lo = np.array(per_drop["left_out"])
+        out, kept = ev[lo < 4], ev[lo == 4]
+        print(f"  the models left a channel out (twin_match / the three-sensor path) on {out.size} of {len(ev)} drops"
+              + (f" ({', '.join(f'channel {c}: {(lo == c).sum()}' for c in range(4) if (lo == c).any())}), whole "
+                 f"event median {int(np.median(out)):,} max {out.max():,}" if out.size else "")
+              + (f"; the others median {int(np.median(kept)):,} max {kept.max():,}" if kept.size else ""))
     if len(ev) <= 12:
         print("  whole event per drop: " + " / ".join(f"{v:,}" for v in ev))
     worst = np.argsort(ev)[::-1][:3]
