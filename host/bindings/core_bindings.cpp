@@ -414,7 +414,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
                           float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm,
-                          int weak_channel) {
+                          int weak_channel, bool full_search) {
   const size_t r = rows_of(status);
   if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
     throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
@@ -455,7 +455,8 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
       ev.phys.y_mm = phys_xy_mm.data()[2 * k + 1];
       ev.phys.status = ev.phys.x_mm == ev.phys.x_mm && ev.phys.y_mm == ev.phys.y_mm ? ic::kOk : ic::kErrSingular;
       const ic::TwinMatch m =
-          ic::twin_match(ev, xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], &loc, map, cfg, misfit_ref);
+          ic::twin_match(ev, xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1], &loc, map, cfg, misfit_ref,
+                         full_search ? ic::kTwinSearchFull : ic::kTwinSearchCued);
       est.set(k, m.est);
       left.data()[k] = m.left_out;
       reason.data()[k] = m.reason;
@@ -641,7 +642,7 @@ NB_MODULE(_core, m) {
         "diff_energy"_a, "phys_xy_mm"_a, "xy_mm"_a, "localiser"_a, "q"_a, "nx"_a, "ny"_a, "x0_mm"_a, "y0_mm"_a,
         "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
         "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a, "slowness_scale"_a = std::vector<float>(),
-        "coarse_cutoff_mm"_a = 0.0f, "weak_channel"_a = -1,
+        "coarse_cutoff_mm"_a = 0.0f, "weak_channel"_a = -1, "full_search"_a = false,
         "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);

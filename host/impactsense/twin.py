@@ -187,12 +187,14 @@ def fit_uncertainty(spread_mm, misfit, error_mm) -> dict:
     return {"uncertainty_offset_mm": a, "uncertainty_scale": b, "uncertainty_misfit_ref": ref}
 
 
-def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.ndarray, signal: SignalConfig) -> dict:
+def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.ndarray, signal: SignalConfig,
+               full_search: bool = False) -> dict:
     """The core's twin_match (twin.h; the board's TableModels runs the same) of every row: the twin's match
     around start_xy_mm (the forests' position; NaN rows: the forests did not run, and with one channel
     without an onset the physics three-sensor position starts it), leaving out a channel whose energies
     the twin cannot explain with the others'. Returns log10_height_mm, xy_mm, spread_mm, misfit, status,
-    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row."""
+    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row. full_search:
+    every channel tried in channel order (twin.h kTwinSearchFull) instead of the board's cued search."""
     f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
     raw = features.raw
     misfit_ref = float(getattr(fit, "uncertainty_misfit_ref", 0.0) or 0.0)
@@ -202,7 +204,8 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
         site.x0_mm, site.y0_mm, site.step_mm, f32(site.base), f32(site.scale), f32(fit.offset), f32(fit.slope),
         f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
-        _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)))
+        _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)),
+        full_search)
 
 
 def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:

@@ -21,6 +21,9 @@ struct Term {
 
 // One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
 // weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
+// kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
+// (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match).
+template <int kSkip>
 TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
                    const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
@@ -68,10 +71,12 @@ TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_
       // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
       // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
       // shift and misfit below do not tell apart).
-      const float u0 = term[0].r - term[0].s * static_cast<float>(q[0]);
-      float b = term[0].sigma * u0, c = u0 * u0;
+      constexpr int kFirst = kSkip == 0 ? kTwinPerChannel : 0;
+      const float u0 = term[kFirst].r - term[kFirst].s * static_cast<float>(q[kFirst]);
+      float b = term[kFirst].sigma * u0, c = u0 * u0;
 #pragma GCC unroll 16
-      for (int k = 1; k < kTwinFeatures; ++k) {
+      for (int k = kFirst + 1; k < kTwinFeatures; ++k) {
+        if (k / kTwinPerChannel == kSkip) continue;
         const Term& t = term[k];
         const float u = t.r - t.s * static_cast<float>(q[k]);
         b += t.sigma * u;
@@ -125,7 +130,44 @@ TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_
   r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
   r.misfit = best_misfit;
   return r;
-  return r;
+}
+
+// The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
+void make_terms(const float features[kTwinFeatures], uint16_t usable, const SiteMap& map, const TwinConfig& cfg,
+                Term term[kTwinFeatures], float* a_out, int* n_used_out) {
+  float a = 0.0f;
+  int n_used = 0;
+  for (int k = 0; k < kTwinFeatures; ++k) {
+    const bool use = (usable >> k) & 1u;
+    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
+    Term& t = term[k];
+    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
+    t.s = sw * map.scale[k];
+    t.sigma = sw * cfg.slope[k];
+    a += t.sigma * t.sigma;
+    n_used += use ? 1 : 0;
+  }
+  *a_out = a;
+  *n_used_out = n_used;
+}
+
+// match<kSkip> for the event's terms: a channel none of whose features is usable is skipped.
+TwinEstimate match_terms(const Term term[kTwinFeatures], uint16_t usable, float a, int n_used, float x_mm,
+                         float y_mm, const SiteMap& map, const TwinConfig& cfg, int stride, float cutoff_mm,
+                         float prior_mm) {
+  constexpr uint16_t kChannelBits = (1u << kTwinPerChannel) - 1u;
+  int skip = -1;
+  for (int c = kChannels - 1; c >= 0; --c) {
+    if (((usable >> (c * kTwinPerChannel)) & kChannelBits) == 0) skip = c;
+  }
+  static_assert(kChannels == 4, "match_terms dispatches four channels");
+  switch (skip) {
+    case 0: return match<0>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 1: return match<1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 2: return match<2>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 3: return match<3>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    default: return match<-1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+  }
 }
 }  // namespace
 
@@ -155,20 +197,10 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
     r.status = kErrBadConfig;
     return r;
   }
-  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
   Term term[kTwinFeatures];
   float a = 0.0f;
   int n_used = 0;
-  for (int k = 0; k < kTwinFeatures; ++k) {
-    const bool use = (usable >> k) & 1u;
-    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
-    Term& t = term[k];
-    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
-    t.s = sw * map.scale[k];
-    t.sigma = sw * cfg.slope[k];
-    a += t.sigma * t.sigma;
-    n_used += use ? 1 : 0;
-  }
+  make_terms(features, usable, map, cfg, term, &a, &n_used);
   if (n_used < kTwinPerChannel || !(a > 0.0f)) {
     r.status = kErrTooFewSamples;
     return r;
@@ -176,17 +208,17 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   if (cfg.coarse_cutoff_mm > 0.0f) {
     // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
     // four times its area, the prior widened alike), then the match around that estimate.
-    const TwinEstimate c = match(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
+    const TwinEstimate c = match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
                                  cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
     if (c.status == kOk) {
       x_mm = c.x_mm;
       y_mm = c.y_mm;
     }
-    TwinEstimate f = match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+    TwinEstimate f = match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
     f.n_points += c.n_points;
     return f;
   }
-  return match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+  return match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
 }
 
 namespace {
@@ -199,10 +231,67 @@ void recentre(const float feats[kTwinFeatures], uint16_t mask, const SiteMap& ma
   const TwinEstimate again = twin_estimate(feats, mask, est->x_mm, est->y_mm, map, cfg);
   if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
 }
+
+// The channel check's order (kTwinSearchCued): at the site-map point nearest (x_mm, y_mm), each channel's
+// leave-one-out misfit -- the four-channel residuals with that channel's taken out and the height shift
+// fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
+// its place after the others (channel order). Returns how many channels it ordered (those with an onset).
+int cued_order(const float feats[kTwinFeatures], uint16_t usable, const uint8_t has_onset[kChannels], float x_mm,
+               float y_mm, const SiteMap& map, const TwinConfig& cfg, int order[kChannels]) {
+  float cue[kChannels];
+  int n = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    cue[c] = INFINITY;
+    if (has_onset[c]) order[n++] = c;
+  }
+  const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
+  const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
+  x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
+  y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
+  const int i = floor_to_int((x_mm - map.x0_mm) / map.step_mm + 0.5f);
+  const int j = floor_to_int((y_mm - map.y0_mm) / map.step_mm + 0.5f);
+  const uint8_t* q = map.q + (static_cast<int32_t>(i < map.nx ? i : map.nx - 1) * map.ny + (j < map.ny ? j : map.ny - 1)) *
+                                 kTwinFeatures;
+  if (q[0] != kSiteMapMissing) {
+    Term term[kTwinFeatures];
+    float a = 0.0f;
+    int n_used = 0;
+    make_terms(feats, usable, map, cfg, term, &a, &n_used);
+    float bc[kChannels] = {}, cc[kChannels] = {}, ac[kChannels] = {}, b = 0.0f, cs = 0.0f;
+    int nc[kChannels] = {};
+    for (int k = 0; k < kTwinFeatures; ++k) {
+      const int ch = k / kTwinPerChannel;
+      const float u = term[k].r - term[k].s * static_cast<float>(q[k]);
+      bc[ch] += term[k].sigma * u;
+      cc[ch] += u * u;
+      ac[ch] += term[k].sigma * term[k].sigma;
+      nc[ch] += (usable >> k) & 1u;
+    }
+    for (int c = 0; c < kChannels; ++c) {
+      b += bc[c];
+      cs += cc[c];
+    }
+    for (int c = 0; c < kChannels; ++c) {
+      const float ar = a - ac[c];
+      const int nr = n_used - nc[c];
+      if (nc[c] == 0 || nr < kTwinPerChannel || !(ar > 0.0f)) continue;
+      const float br = b - bc[c];
+      const float m = (cs - cc[c] - br * br / ar) / static_cast<float>(nr);
+      cue[c] = m > 0.0f ? m : 0.0f;
+    }
+  }
+  for (int k = 1; k < n; ++k) {  // insertion sort, stable: equal cues keep channel order
+    const int c = order[k];
+    int m = k;
+    for (; m > 0 && cue[order[m - 1]] > cue[c]; --m) order[m] = order[m - 1];
+    order[m] = c;
+  }
+  return n;
+}
 }  // namespace
 
 TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
-                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref) {
+                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref, int32_t search) {
   TwinMatch out{{kErrTooFewSamples, NAN, NAN, NAN, NAN, NAN, 0}, -1, kTwinAllChannels};
   if (ev.status != kOk) {
     out.est.status = ev.status;
@@ -261,8 +350,20 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   float best = out.est.misfit;
   uint16_t best_mask = usable;
-  for (int c = 0; c < kChannels; ++c) {
-    if (!has_onset[c]) continue;  // already left out
+  // The candidates: every channel with an onset in channel order (kTwinSearchFull), or in the cue's order,
+  // stopping at the first that beats the bound and after kTwinCuedCandidates (kTwinSearchCued).
+  int order[kChannels];
+  int n_order = 0;
+  if (search == kTwinSearchFull) {
+    for (int c = 0; c < kChannels; ++c) {
+      if (has_onset[c]) order[n_order++] = c;
+    }
+  } else {
+    n_order = cued_order(feats, usable, has_onset, out.est.x_mm, out.est.y_mm, map, cfg, order);
+    if (n_order > kTwinCuedCandidates) n_order = kTwinCuedCandidates;
+  }
+  for (int o = 0; o < n_order; ++o) {
+    const int c = order[o];
     uint8_t use[kChannels];
     for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
     const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
@@ -280,6 +381,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     out.left_out = c;
     out.reason = kTwinInconsistent;
     best_mask = mask;
+    if (search != kTwinSearchFull) break;
   }
   if (out.left_out < 0) return out;
   // The pick, not the disc: a channel whose onset alone is wrong (an early pick on noise or hum) sends the

@@ -102,6 +102,13 @@ constexpr float kMinMisfitRef = 0.1f;  // the reference misfit used when the car
 
 enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInconsistent = 2, kTwinWeakChannel = 3 };
 
+// How twin_match searches for the inconsistent channel: kTwinSearchFull tries every channel with an onset in
+// channel order (a later one replaces the candidate only when kBadMisfitGain-fold lower again); kTwinSearchCued
+// (the default, host and board) tries them in the order of their leave-one-out misfit at the four-channel
+// answer's nearest grid point, lowest first, stops at the first that beats the bound, and tries at most
+// kTwinCuedCandidates (docs/method.md "The twin's channel check").
+enum TwinSearch : int32_t { kTwinSearchCued = 0, kTwinSearchFull = 1 };
+constexpr int kTwinCuedCandidates = 2;
 struct TwinMatch {
   TwinEstimate est;     // status kOk: the reported position and height
   int32_t left_out;     // the channel not matched (-1: none)
@@ -109,6 +116,7 @@ struct TwinMatch {
 };
 
 TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
-                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref);
+                     const SiteMap& map, const TwinConfig& cfg, float misfit_ref,
+                     int32_t search = kTwinSearchCued);
 
 }  // namespace impactcore
