@@ -109,6 +109,40 @@ def test_a_dead_or_debonded_channel_is_left_out_and_the_drop_localised_from_the_
     assert deb["all"]["mae_mm"] < 3.0 * clean["all"]["mae_mm"]
 
 
+def test_the_cued_channel_search_leaves_out_the_channel_the_full_search_does(twin_model, monkeypatch):
+    """twin_match's cued search (twin.h kTwinSearchCued: the channels in the order of their leave-one-out misfit
+    at the four-channel answer, stopping at the first that beats the bound, at most kTwinCuedCandidates) against
+    the full one (every channel in channel order): on held-out drops with each channel debonded, a dead
+    channel, and the noise draws whose early picks send the search off and the four-channel recheck clears
+    it, both leave out the same channel on every drop and report the same position. Every channel in turn:
+    the cue must not just favour the first channels. The two differ only when two channels each lower the
+    misfit kBadMisfitGain-fold (two faulty discs at once), which one injected fault never makes; so no
+    drop may differ (positions to 1e-3 mm: the same float operations either way)."""
+    import functools
+
+    import impactsense.models as models
+    from impactsense.faults import inject_session
+
+    model, held_out = twin_model
+    test = held_out.subset(np.arange(0, len(held_out), 2))
+    cued_match = models.twin_match
+    specs = [FaultSpec(debond=c, seed=c) for c in range(4)] + [FaultSpec(dead_channel=2, noise=1, seed=1)] + \
+        [FaultSpec(noise=2, seed=d) for d in range(3)]
+    flagged = 0
+    for spec in specs:
+        feats = model.featurize(inject_session(test, spec).adc)
+        monkeypatch.setattr(models, "twin_match", cued_match)
+        cued = model.predict(feats)
+        monkeypatch.setattr(models, "twin_match", functools.partial(cued_match, full_search=True))
+        full = model.predict(feats)
+        assert np.array_equal(cued["bad_channel"], full["bad_channel"]), spec
+        assert np.allclose(cued["xy_mm"], full["xy_mm"], atol=1e-3, equal_nan=True), spec
+        if spec.debond >= 0:
+            assert np.mean(cued["bad_channel"] == spec.debond) > 0.9, spec   # the search ran and found it
+        flagged += int(np.sum(cued["bad_channel"] >= 0))
+    assert flagged >= 4 * len(test.adc) * 0.9
+
+
 def test_noise_or_hum_at_the_benchs_level_calls_no_healthy_channel_inconsistent(twin_model):
     """2 counts of white noise, alone or with 50 counts of 50 Hz hum (bench_faults' rows), now and then make
     one healthy channel's threshold pick hundreds of us early: the forests' start is then far from the impact

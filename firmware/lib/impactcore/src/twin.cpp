@@ -4,6 +4,12 @@
 #include <math.h>
 #include <string.h>
 
+#if defined(__GNUC__)
+#define IC_NOINLINE __attribute__((noinline))
+#else
+#define IC_NOINLINE
+#endif
+
 namespace impactcore {
 
 namespace {
@@ -21,10 +27,120 @@ struct Term {
 
 // One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
 // weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
+TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
+                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
+  // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
+  // window of grid points within the cutoff of it.
+  const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
+  const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
+  x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
+  y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
+  const float inv_step = 1.0f / map.step_mm;
+  int i0 = ceil_to_int((x_mm - cutoff_mm - map.x0_mm) * inv_step);
+  int i1 = floor_to_int((x_mm + cutoff_mm - map.x0_mm) * inv_step);
+  int j0 = ceil_to_int((y_mm - cutoff_mm - map.y0_mm) * inv_step);
+  int j1 = floor_to_int((y_mm + cutoff_mm - map.y0_mm) * inv_step);
+  if (i0 < 0) i0 = 0;
+  if (j0 < 0) j0 = 0;
+  if (i1 > map.nx - 1) i1 = map.nx - 1;
+  if (j1 > map.ny - 1) j1 = map.ny - 1;
+  i0 = (i0 + stride - 1) / stride * stride;  // the strided grid: indices that are multiples of stride
+  j0 = (j0 + stride - 1) / stride * stride;
+  if (i0 > i1 || j0 > j1 || ((i1 - i0) / stride + 1) * ((j1 - j0) / stride + 1) > kMaxTwinPoints) {
+    r.status = kErrBadConfig;
+    return r;
+  }
+  const float inv_a = 1.0f / a;
+  const float inv_n = 1.0f / static_cast<float>(n_used);
+  const float inv_t = 1.0f / cfg.temperature;
+  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
+  const float cut2 = cutoff_mm * cutoff_mm;
+  // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
+  // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
+  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
+  uint16_t row_n[kMaxTwinPoints];
+  int n = 0;
+  float best_logw = -INFINITY, best_misfit = INFINITY;
+  for (int i = i0; i <= i1; i += stride) {
+    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
+    const int row_start = n;
+    for (int j = j0; j <= j1; j += stride) {
+      const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
+      const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
+      if (d2 > cut2) continue;
+      const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
+      if (q[0] == kSiteMapMissing) continue;
+      // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
+      // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
+      // shift and misfit below do not tell apart).
+      const float u0 = term[0].r - term[0].s * static_cast<float>(q[0]);
+      float b = term[0].sigma * u0, c = u0 * u0;
+#pragma GCC unroll 16
+      for (int k = 1; k < kTwinFeatures; ++k) {
+        const Term& t = term[k];
+        const float u = t.r - t.s * static_cast<float>(q[k]);
+        b += t.sigma * u;
+        c += u * u;
+      }
+      const float shift_j = b * inv_a;
+      float misfit = (c - a * shift_j * shift_j) * inv_n;
+      if (misfit < 0.0f) misfit = 0.0f;
+      const float lw = -misfit * inv_t - d2 * inv_2s2;
+      logw[n] = lw;
+      shift[n] = shift_j;
+      py[n] = gy;
+      dist2[n] = d2;
+      if (lw > best_logw) best_logw = lw;
+      if (misfit < best_misfit) best_misfit = misfit;
+      ++n;
+    }
+    row_n[(i - i0) / stride] = static_cast<uint16_t>(n - row_start);
+  }
+  r.n_points = n;
+  if (n == 0) {
+    r.status = kErrTooFewSamples;
+    return r;
+  }
+  // The weighted means, and the weighted mean squared distance from the position (the spread).
+  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
+  int m = 0;
+  for (int i = i0; i <= i1; i += stride) {
+    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
+    float row_w = 0.0f;
+    for (const int end = m + row_n[(i - i0) / stride]; m < end; ++m) {
+      const float p = exp_nonpositive(logw[m] - best_logw);
+      row_w += p;
+      sd += p * shift[m];
+      sy += p * py[m];
+      sr += p * dist2[m];
+    }
+    sw += row_w;
+    sx += row_w * gx;
+  }
+  const float inv_sw = 1.0f / sw;
+  r.log10_height_mm = cfg.ref_log10_height_mm + sd * inv_sw;
+  r.x_mm = sx * inv_sw;
+  r.y_mm = sy * inv_sw;
+  // Weighted variance about the mean = mean squared distance from the position - the mean's own squared
+  // distance from it; plus the grid's quantisation, step^2 / 12 per axis (a single dominant point is not
+  // an exact position).
+  const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
+  float var = sr * inv_sw - (ex * ex + ey * ey);
+  if (var < 0.0f) var = 0.0f;
+  r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
+  r.misfit = best_misfit;
+  return r;
+  return r;
+}
+
+// match for twin_match's flagged paths (match_terms); the clean path's match above is unchanged.
+// One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
+// weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
 // kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
 // (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match).
 template <int kSkip>
-TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
+TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
                    const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
   // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
@@ -152,7 +268,7 @@ void make_terms(const float features[kTwinFeatures], uint16_t usable, const Site
 }
 
 // match<kSkip> for the event's terms: a channel none of whose features is usable is skipped.
-TwinEstimate match_terms(const Term term[kTwinFeatures], uint16_t usable, float a, int n_used, float x_mm,
+IC_NOINLINE TwinEstimate match_terms(const Term term[kTwinFeatures], uint16_t usable, float a, int n_used, float x_mm,
                          float y_mm, const SiteMap& map, const TwinConfig& cfg, int stride, float cutoff_mm,
                          float prior_mm) {
   constexpr uint16_t kChannelBits = (1u << kTwinPerChannel) - 1u;
@@ -162,11 +278,11 @@ TwinEstimate match_terms(const Term term[kTwinFeatures], uint16_t usable, float 
   }
   static_assert(kChannels == 4, "match_terms dispatches four channels");
   switch (skip) {
-    case 0: return match<0>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
-    case 1: return match<1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
-    case 2: return match<2>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
-    case 3: return match<3>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
-    default: return match<-1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 0: return match_skip<0>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 1: return match_skip<1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 2: return match_skip<2>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    case 3: return match_skip<3>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    default: return match(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
   }
 }
 }  // namespace
@@ -185,8 +301,12 @@ uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
   return usable;
 }
 
-TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
-                           const SiteMap& map, const TwinConfig& cfg) {
+namespace {
+// twin_estimate for twin_match's flagged paths: a channel with no usable feature is skipped (match_terms),
+// and the coarse pass's cutoff is given (0: none; the recentring's fine_estimate). The clean path's
+// twin_estimate below is the plain form (its instructions unchanged).
+IC_NOINLINE TwinEstimate estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
+                      const SiteMap& map, const TwinConfig& cfg, float coarse_cutoff_mm) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
   if (features == nullptr || map.q == nullptr) {
     r.status = kErrNullInput;
@@ -205,11 +325,11 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
     r.status = kErrTooFewSamples;
     return r;
   }
-  if (cfg.coarse_cutoff_mm > 0.0f) {
+  if (coarse_cutoff_mm > 0.0f) {
     // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
     // four times its area, the prior widened alike), then the match around that estimate.
-    const TwinEstimate c = match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
-                                 cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
+    const TwinEstimate c = match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 2, coarse_cutoff_mm,
+                                       cfg.prior_mm * coarse_cutoff_mm / cfg.cutoff_mm);
     if (c.status == kOk) {
       x_mm = c.x_mm;
       y_mm = c.y_mm;
@@ -220,6 +340,55 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   }
   return match_terms(term, usable, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
 }
+}  // namespace
+
+
+TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
+                           const SiteMap& map, const TwinConfig& cfg) {
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
+  if (features == nullptr || map.q == nullptr) {
+    r.status = kErrNullInput;
+    return r;
+  }
+  if (map.nx < 1 || map.ny < 1 || !(map.step_mm > 0.0f) || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) ||
+      !(cfg.temperature > 0.0f) || !(cfg.coarse_cutoff_mm >= 0.0f) || !(x_mm == x_mm) || !(y_mm == y_mm)) {
+    r.status = kErrBadConfig;
+    return r;
+  }
+  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
+  Term term[kTwinFeatures];
+  float a = 0.0f;
+  int n_used = 0;
+  for (int k = 0; k < kTwinFeatures; ++k) {
+    const bool use = (usable >> k) & 1u;
+    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
+    Term& t = term[k];
+    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
+    t.s = sw * map.scale[k];
+    t.sigma = sw * cfg.slope[k];
+    a += t.sigma * t.sigma;
+    n_used += use ? 1 : 0;
+  }
+  if (n_used < kTwinPerChannel || !(a > 0.0f)) {
+    r.status = kErrTooFewSamples;
+    return r;
+  }
+  if (cfg.coarse_cutoff_mm > 0.0f) {
+    // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
+    // four times its area, the prior widened alike), then the match around that estimate.
+    const TwinEstimate c = match(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
+                                     cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
+    if (c.status == kOk) {
+      x_mm = c.x_mm;
+      y_mm = c.y_mm;
+    }
+    TwinEstimate f = match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+    f.n_points += c.n_points;
+    return f;
+  }
+  return match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+}
+
 
 namespace {
 // A three-channel match starts from the physics localiser's three-sensor position, whose error (~5 mm on
@@ -232,11 +401,25 @@ void recentre(const float feats[kTwinFeatures], uint16_t mask, const SiteMap& ma
   if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
 }
 
+// The same match without its coarse pass: a start that is already a match's answer is near the impact, and
+// the coarse pass (for a start far from it) only costs a second match. The dead channel's and the
+// inconsistent channel's recentring, and the four-channel recheck at the three-channel answer.
+IC_NOINLINE TwinEstimate fine_estimate(const float feats[kTwinFeatures], uint16_t mask, float x_mm, float y_mm,
+                           const SiteMap& map, const TwinConfig& cfg) {
+  return estimate(feats, mask, x_mm, y_mm, map, cfg, 0.0f);
+}
+
+IC_NOINLINE void recentre_fine(const float feats[kTwinFeatures], uint16_t mask, const SiteMap& map, const TwinConfig& cfg,
+                   TwinEstimate* est) {
+  const TwinEstimate again = fine_estimate(feats, mask, est->x_mm, est->y_mm, map, cfg);
+  if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
+}
+
 // The channel check's order (kTwinSearchCued): at the site-map point nearest (x_mm, y_mm), each channel's
 // leave-one-out misfit -- the four-channel residuals with that channel's taken out and the height shift
 // fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
 // its place after the others (channel order). Returns how many channels it ordered (those with an onset).
-int cued_order(const float feats[kTwinFeatures], uint16_t usable, const uint8_t has_onset[kChannels], float x_mm,
+IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, const uint8_t has_onset[kChannels], float x_mm,
                float y_mm, const SiteMap& map, const TwinConfig& cfg, int order[kChannels]) {
   float cue[kChannels];
   int n = 0;
@@ -310,12 +493,12 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
     if (missing != 1 || ev.phys.status != kOk) return out;
-    x_mm = ev.phys.x_mm;
-    y_mm = ev.phys.y_mm;
     out.left_out = missing_channel;
     out.reason = kTwinDeadChannel;
+    out.est = estimate(feats, usable, ev.phys.x_mm, ev.phys.y_mm, map, cfg, cfg.coarse_cutoff_mm);
+  } else {
+    out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
   }
-  out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
   const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
   const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
                            loc ? loc->travel_metric_yy : 1.0f};
@@ -323,7 +506,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
   if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
     if (out.left_out >= 0) {
-      recentre(feats, usable, map, cfg, &out.est);
+      recentre_fine(feats, usable, map, cfg, &out.est);
     } else if (loc != nullptr && out.est.status == kOk && cfg.weak_channel >= 0 && cfg.weak_channel < kChannels &&
                missing == 0) {
       const int w = cfg.weak_channel;
@@ -372,7 +555,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                                             loc->localiser_starts);
     if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    const TwinEstimate t = twin_estimate(feats, mask, p.x_mm, p.y_mm, map, cfg);
+    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm);
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;
     }
@@ -390,16 +573,21 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   // three-channel answer: within the same bound, they agree at that position and no channel is inconsistent
   // (reported as a four-channel match from that start); only a channel whose energies the twin still cannot
   // explain there is left out (docs/method.md, "The twin's channel check").
+  // The recheck is a fine match around the answer (no coarse pass: the answer is the start); when the four
+  // channels agree there, their whole match from that start is reported, as before.
   if (missing == 0) {
-    const TwinEstimate all = twin_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg);
+    const TwinEstimate all = fine_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg);
     if (all.status == kOk && all.log10_height_mm == all.log10_height_mm && !(all.misfit > kBadMisfitRef * ref)) {
-      out.est = all;
+      const TwinEstimate whole = cfg.coarse_cutoff_mm > 0.0f
+                                     ? twin_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg)
+                                     : all;
+      out.est = whole.status == kOk && whole.log10_height_mm == whole.log10_height_mm ? whole : all;
       out.left_out = -1;
       out.reason = kTwinAllChannels;
       return out;
     }
   }
-  recentre(feats, best_mask, map, cfg, &out.est);
+  recentre_fine(feats, best_mask, map, cfg, &out.est);
   return out;
 }
 
