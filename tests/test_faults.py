@@ -111,7 +111,7 @@ def test_a_dead_or_debonded_channel_is_left_out_and_the_drop_localised_from_the_
 
 def test_the_cued_channel_search_leaves_out_the_channel_the_full_search_does(twin_model, monkeypatch):
     """twin_match's cued search (twin.h kTwinSearchCued: the channels in the order of their leave-one-out misfit
-    at the four-channel answer, stopping at the first that beats the bound, at most kTwinCuedCandidates) against
+    at the four-channel answer, stopping at the first that beats the bound) against
     the full one (every channel in channel order): on held-out drops with each channel debonded, a dead
     channel, and the noise draws whose early picks send the search off and the four-channel recheck clears
     it, both leave out the same channel on every drop and report the same position. Every channel in turn:

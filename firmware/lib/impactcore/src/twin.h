@@ -108,7 +108,7 @@ enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInc
 // answer's nearest grid point, lowest first, stops at the first that beats the bound, and tries at most
 // kTwinCuedCandidates (docs/method.md "The twin's channel check").
 enum TwinSearch : int32_t { kTwinSearchCued = 0, kTwinSearchFull = 1 };
-constexpr int kTwinCuedCandidates = 2;
+constexpr int kTwinCuedCandidates = kChannels;  // 2 missed early picks (a pick, not energies, is wrong there)
 struct TwinMatch {
   TwinEstimate est;     // status kOk: the reported position and height
   int32_t left_out;     // the channel not matched (-1: none)
