@@ -273,12 +273,16 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
                  for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))
                  if r != "energy" or not models.energy_linear}
         sizes = (1, 2, 3, 4, *sizes)
+    # the board's boosted trees (board.boosted): every tree is the model, no prefix is; the energy forest's prefix is
+    # what the sweep chooses then (the whole boosted pair with each)
+    boosted = bool((models.card.get("board_forests") or {}).get("use_boosted"))
     rows = []
-    for k in sorted({k for k in sizes if k <= n_all}):
-        pos = base + np.c_[px[:k].mean(0), py[:k].mean(0)]
+    for k in sorted({k for k in sizes if k <= (n_energy if boosted and nodes is not None else n_all)}):
+        kxy = n_all if boosted else k
+        pos = base + np.c_[px[:kxy].mean(0), py[:kxy].mean(0)]
         if nodes is not None:
             e_bytes = table_bytes(models.energy_tables(min(k, n_energy))) + table_bytes(models.twin)
-        b = table_bytes(forest_tables(models.x, k)) + table_bytes(forest_tables(models.y, k)) + e_bytes
+        b = table_bytes(forest_tables(models.x, kxy)) + table_bytes(forest_tables(models.y, kxy)) + e_bytes
         row = {"trees": k, "mean_distance_mm": float(np.mean(np.hypot(*(pos - xy).T))), "table_bytes": b}
         if models.twin is not None and twin_eval is not None:
             tw = twin_xy(models.twin, *twin_eval, pos)
@@ -290,11 +294,15 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
             from .board.cost import forests_instructions, linear_instructions
             row["energy_trees"] = n_energy if models.energy_linear else min(k, n_energy)
             n_inputs = {r: len(v) for r, v in models.inputs.items()}
-            row["instructions"] = (forests_instructions(nodes, {"x": k, "y": k}, n_inputs) + linear_instructions(n_energy)
-                                   if models.energy_linear else
-                                   forests_instructions(nodes, {"x": k, "y": k, "energy": row["energy_trees"]}, n_inputs))
+            row["instructions"] = (forests_instructions(nodes, {"x": kxy, "y": kxy}, n_inputs)
+                                   + linear_instructions(n_energy) if models.energy_linear else
+                                   forests_instructions(nodes, {"x": kxy, "y": kxy, "energy": row["energy_trees"]},
+                                                        n_inputs))
             row["within_budgets"] = row["within_budgets"] and row["instructions"] <= max_instructions
         rows.append(row)
+    if boosted:
+        row = ([r for r in rows if r["within_budgets"]] or rows[:1])[-1]
+        return n_all, [{**r, "trees": n_all} for r in rows if r is row]
     best = min(r["mean_distance_mm"] for r in rows)
     chosen = min(r["trees"] for r in rows if r["mean_distance_mm"] <= best + tol_mm)
     fits = [r["trees"] for r in rows if r["within_budgets"]]

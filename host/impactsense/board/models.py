@@ -33,6 +33,7 @@ from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
+from .boosted import boosted_regressor, choose_board_forests
 from .capture import board_capture, board_captures, board_view, signal_for_board
 from .cost import signal_fits
 
@@ -148,6 +149,19 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
     return {"out_of_fold_mae_mm": mae, "chosen": best}
 
 
+def board_position_forests(model: ImpactModel, features, xy_mm, settings: ForestSettings) -> dict:
+    """The board's position correction (board.boosted): the boosted pair replaces the model's forests when the
+    training drops say so out of fold (choose_board_forests); returns the record for the card."""
+    use = np.asarray(features.usable, bool)
+    X = features.vector[use][:, columns(model.location_features)]
+    xy = np.asarray(xy_mm, float)[use]
+    resid = xy - np.asarray(features.phys_xy_mm, float)[use]
+    record = choose_board_forests(X, resid, position_groups(xy), settings)
+    if record["use_boosted"]:
+        model.forest_dx, model.forest_dy = (boosted_regressor(X, resid[:, c], settings.seed) for c in (0, 1))
+    return record
+
+
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
                        test_fraction: float = 0.2, max_depth: int | None = None, settings=None,
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
@@ -202,6 +216,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             site_map=site_map, members=False, choose_class=choose_class,
                             twin_rows=None if simulated_rows is None else
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
+    if model.site_map is None:   # the position correction the event budget affords: boosted trees or a prefix
+        extra_card = {**(extra_card or {}), "board_forests": board_position_forests(
+            model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
     if channel_left_out is not None and any(channel_left_out):
         model.signal = replace(model.signal, channel_left_out=[int(bool(v)) for v in channel_left_out])
     if model.twin_fit is not None:
