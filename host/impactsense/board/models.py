@@ -33,9 +33,10 @@ from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
-from .boosted import boosted_regressor, choose_board_forests
+from .boosted import boosted_regressor, choose_board_forests, prefix_within, stages_within
 from .capture import board_capture, board_captures, board_view, signal_for_board
-from .cost import signal_fits
+from .cost import (EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
+                   linear_instructions, signal_fits, signal_instructions)
 
 BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
 
@@ -156,10 +157,28 @@ def board_position_forests(model: ImpactModel, features, xy_mm, settings: Forest
     X = features.vector[use][:, columns(model.location_features)]
     xy = np.asarray(xy_mm, float)[use]
     resid = xy - np.asarray(features.phys_xy_mm, float)[use]
-    record = choose_board_forests(X, resid, position_groups(xy), settings)
+    left = forests_budget(model, X.shape[1])
+    record = choose_board_forests(X, resid, position_groups(xy), settings,
+                                  prefix_within((model.forest_dx, model.forest_dy), X, left), stages_within(left))
+    record["instructions_left"] = int(left)
     if record["use_boosted"]:
-        model.forest_dx, model.forest_dy = (boosted_regressor(X, resid[:, c], settings.seed) for c in (0, 1))
+        model.forest_dx, model.forest_dy = (boosted_regressor(X, resid[:, c], record["stages"], settings.seed)
+                                            for c in (0, 1))
     return record
+
+
+def forests_budget(model: ImpactModel, n_inputs: int) -> float:
+    """What the event budget leaves the position pair's trees (board.cost): the budget less the signal's cost, the
+    forests' fixed share and inputs, and the energy model's (its linear terms, or one tree of its forest)."""
+    energy = model.forest_energy
+    if hasattr(energy, "estimators_"):
+        tree = energy.estimators_[0].tree_
+        e_cost = (FOREST_PER_TREE + FOREST_PER_NODE * (tree.max_depth + 1)
+                  + FOREST_PER_INPUT * len(model.energy_class_features))
+    else:
+        e_cost = linear_instructions(len(energy.terms))
+    return (EVENT_BUDGET - signal_instructions(model.signal)["total"] - FOREST_FIXED - FOREST_PER_INPUT * 2 * n_inputs
+            - e_cost)
 
 
 def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz: int = 50000,
