@@ -377,8 +377,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                 max_instructions=None if signal_cost is None else EVENT_BUDGET - signal_cost["total"])
         row = next((r for r in sweep if r["trees"] == k), {})
         n_energy = row.get("energy_trees", n_energy)
-    elif trees == "all":
-        k = len(models.x.estimators_)
+    elif trees == "all" or (models.card.get("board_forests") or {}).get("use_boosted"):
+        k = len(models.x.estimators_)   # all, or the board's boosted trees: every one (no prefix is the model)
     else:
         k = min(int(trees), len(models.x.estimators_))
     n_trees = {"x": k, "y": min(k, len(models.y.estimators_)), "energy": n_energy}

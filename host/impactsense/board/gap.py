@@ -73,7 +73,11 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
     if "twin" in host_card and "twin" not in board_card:
         out.append("the twin's site-map match")
     host_trees = int((host_card.get("forest") or {}).get("n_estimators", 0) or 0)
-    if board_trees is not None and host_trees and board_trees < host_trees:
+    boosted = board_card.get("board_forests") or {}
+    if board_trees is not None and host_trees and boosted.get("use_boosted"):
+        out.append(f"forest trees: {host_trees} on the host; on the board {board_trees} boosted trees of depth "
+                   f"{boosted.get('depth')} (event budget)")
+    elif board_trees is not None and host_trees and board_trees < host_trees:
         out.append(f"forest trees: {host_trees} on the host, {board_trees} on the board (event and flash budgets)")
     return out
 

@@ -28,7 +28,8 @@ def register(sub):
                    help="trees per coordinate forest: auto (default: the smallest within 0.2 mm mean distance "
                         "of the best on the held-out drops, within the flash the firmware's code leaves of 256 KB "
                         f"({MODELS_FLASH_BUDGET // 1024} KB) and, for a twin "
-                        f"model, the per-event cycle budget's {TWIN_MAX_TREES} trees), all, or N")
+                        f"model, the per-event cycle budget's {TWIN_MAX_TREES} trees), all, or N; a board model "
+                        "whose position correction is boosted trees (its card's board_forests) exports all of them")
     p.add_argument("--rate", default="50000",
                    help="board sample rate per channel (Hz) to train the shipped models at (default 50000); "
                         "'native' exports MODEL_DIR's forests unchanged")
