@@ -87,11 +87,13 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     n_trees = sum(summary["trees"].values())
     twin_bytes = 0
     if model.site_map is not None:
+        # the twin's height estimate carries its edge term (twin_edge.py), so the board's class above applied it too
+        assert model.twin_fit.edge_ramp_mm > 0 and model.twin_fit.edge_log10_bias != 0
         assert summary["inputs"]["energy"] == [len(f.vector[0])]  # the twin's estimate: one past the vector
         site = model.site_map
-        twin_bytes = site.nx * site.ny * 16 + 4 * (5 * 16 + 5 + 6 + 3)  # q; base, scale, offset, slope, weight; grid;
-        # config (ref height, prior, cutoff, temperature, coarse cutoff, weak channel); uncertainty (offset, scale,
-        # misfit_ref)
+        twin_bytes = site.nx * site.ny * 16 + 4 * (5 * 16 + 5 + 6 + 3 + 4)  # q; base, scale, offset, slope, weight;
+        # grid; config (ref height, prior, cutoff, temperature, coarse cutoff, weak channel); uncertainty (offset,
+        # scale, misfit_ref); edge term (bias, ramp, plate x, y)
         assert summary["trees"]["energy"] == 25 and summary["nodes"]["energy"] <= 3 * 25  # stumps
     # without a twin the three-channel classes (height_class.linear_tables per channel: T = 14 terms, 7 inputs;
     # roots, factors, coef + bias + offset and scale per input, no child or leaf arrays)

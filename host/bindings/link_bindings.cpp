@@ -378,6 +378,13 @@ struct Twin {
       spec.uncertainty_scale = u[1];
       spec.uncertainty_misfit_ref = u[2];
     }
+    if (d.contains("edge")) {  // bias, ramp_mm, plate x, y (impactapp::twin_edge_term)
+      const auto e = floats(d, "edge", 4);
+      spec.edge_log10_bias = e[0];
+      spec.edge_ramp_mm = e[1];
+      spec.plate_x_mm = e[2];
+      spec.plate_y_mm = e[3];
+    }
   }
 };
 
@@ -583,6 +590,16 @@ NB_MODULE(_link, m) {
   m.def("board_core_config", &ia::board_core_config, "card"_a, "fs_hz"_a, "adc_min"_a = 0, "adc_max"_a = 4095,
         "A model card's CoreConfig as the board runs it at fs_hz (impactapp::board_core_config): sample counts "
         "scaled, the board's rate, SAADC scan capture delays and ADC rails.");
+
+  m.def("twin_edge_term", [](float x_mm, float y_mm, float bias, float ramp_mm, float plate_x_mm, float plate_y_mm) {
+    ia::TwinSpec spec{};
+    spec.edge_log10_bias = bias;
+    spec.edge_ramp_mm = ramp_mm;
+    spec.plate_x_mm = plate_x_mm;
+    spec.plate_y_mm = plate_y_mm;
+    return ia::twin_edge_term(x_mm, y_mm, spec);
+  }, "x_mm"_a, "y_mm"_a, "bias"_a, "ramp_mm"_a, "plate_x_mm"_a, "plate_y_mm"_a,
+        "The log10 height the board's twin estimate at (x_mm, y_mm) loses (impactapp::twin_edge_term).");
 
   m.def("crc32", [](nb::bytes b) {
     return il::crc32(reinterpret_cast<const uint8_t*>(b.c_str()), b.size());

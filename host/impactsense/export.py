@@ -81,11 +81,12 @@ class ModelSet:
         return len(self.energy.terms) if self.energy_linear else len(self.energy.estimators_)
 
 
-def twin_arrays(site, fit) -> dict:
+def twin_arrays(site, fit, plate_mm: tuple[float, float] = (0.0, 0.0)) -> dict:
     """The twin's site map (sitemap.SiteMap) and fit (twin.TwinFit) as the firmware's arrays: grid [nx, ny,
     x0_mm, y0_mm, step_mm], q uint8 [nx * ny * 16], base, scale, offset, slope, weight float32 [16],
     config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature, coarse_cutoff_mm, weak_channel] and uncertainty
-    [offset_mm, scale, misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty)."""
+    [offset_mm, scale, misfit_ref] (the reported 1-sigma: twin.calibrated_uncertainty), edge [bias, ramp_mm,
+    plate_x_mm, plate_y_mm] (the height estimate's edge term, twin_edge.py; plate_mm the model's plate)."""
     f32 = lambda v: np.asarray(v, dtype=np.float32)  # noqa: E731
     return {"grid": f32([site.nx, site.ny, site.x0_mm, site.y0_mm, site.step_mm]),
             "q": np.ascontiguousarray(site.q, dtype=np.uint8).reshape(-1),
@@ -93,7 +94,8 @@ def twin_arrays(site, fit) -> dict:
             "weight": f32(fit.weight),
             "config": f32([fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature,
                            fit.coarse_cutoff_mm, fit.weak_channel]),
-            "uncertainty": f32([fit.uncertainty_offset_mm, fit.uncertainty_scale, fit.uncertainty_misfit_ref])}
+            "uncertainty": f32([fit.uncertainty_offset_mm, fit.uncertainty_scale, fit.uncertainty_misfit_ref]),
+            "edge": f32([fit.edge_log10_bias, fit.edge_ramp_mm, plate_mm[0], plate_mm[1]])}
 
 
 def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
@@ -113,7 +115,11 @@ def _load_twin(model_dir: Path, card: dict, card_path: Path) -> dict:
         raise ExportError(f"{card_path} [twin]: {exc}") from None
     if t.get("site_map_sha") and site.fingerprint() != t["site_map_sha"]:
         raise ExportError(f"{card_path} [twin.site_map_sha]: the site map differs from the one the model was trained with")
-    return twin_arrays(site, fit)
+    signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
+    plate = (float(signal.get("plate_x_mm", 0.0) or 0.0), float(signal.get("plate_y_mm", 0.0) or 0.0))
+    if fit.edge_ramp_mm > 0 and not (plate[0] > 0 and plate[1] > 0):
+        raise ExportError(f"{card_path} [signal.plate_x_mm / plate_y_mm]: the twin's edge term needs the plate's size")
+    return twin_arrays(site, fit, plate)
 
 
 def beyond_the_board(card: dict) -> tuple[str, str] | None:

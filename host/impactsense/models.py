@@ -43,6 +43,7 @@ from .three_channel_position import (fit_three_channel_positions, load_three_sen
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
 from .twin import estimate as twin_estimate
 from .twin_oof import out_of_fold_twin, twin_choice  # noqa: F401 (twin_choice: models' API)
+from .twin_edge import refit_class
 
 G_M_S2 = 9.80665
 # The forests' inputs: arrival times, the physics position, the channels' relative energies and their first
@@ -127,7 +128,7 @@ def three_channel_rows(features: Features) -> np.ndarray:
 
 
 def _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm, energy_j, site_map, settings, choose_twin,
-                   card) -> tuple:
+                   card, signal=None) -> tuple:
     """ImpactModel.fit's twin: (site_map, twin_fit, energy classifier, threshold) fitted on the used rows among
     twin_rows; with choose_twin the card's "twin_choice" and, when the twin is not kept, (None, None, ...)."""
     # The twin's height estimate of each training drop at its physics position (an error like the
@@ -145,6 +146,7 @@ def _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm, energy_j, sit
     oof = out_of_fold_twin(X_loc[sel], t_phys, t_xy, t_h, feats, usable, site_map, settings, **compare)
     for key, value in fit_uncertainty(oof["spread_mm"], oof["misfit"], oof["error_mm"]).items():
         setattr(twin_fit, key, value)
+    fe, threshold = refit_class(twin_fit, oof, t_h, t_xy, signal, energy_j[sel], card) or (fe, threshold)  # twin_edge
     if choose_twin:
         card["twin_choice"] = twin_choice(oof, t_xy)
         if not card["twin_choice"]["use_twin"]:
@@ -187,17 +189,17 @@ class ImpactModel:
             signal: SignalConfig, settings: ForestSettings | None = None,
             site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False,
             choose_class: bool = False, choose_edge: bool = False,
-            twin_rows: np.ndarray | None = None) -> "ImpactModel":
+            twin_rows: np.ndarray | None = None, twin_edge: bool = True) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). twin_rows: with a site map, the drops (bool per row) the twin's offsets, weights, uncertainty and
         energy class are fitted on (None: all); the forests learn from all (simulated drops stay out of the twin's
         fit to the rig's recordings). choose_twin: with a site map, keep the twin only when the training drops'
         out-of-fold figures say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
-        choose_class: without a site map, the energy class from the classifier forest or the linear estimate
-        of log m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers; the card's
-        "energy_class_choice" records it. choose_edge: with members and without a site map, the edge correction
-        of the arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions
-        say so (choose_edge_travel); the level members (level_members.py) as correction_scale chooses."""
+        choose_class: without a site map, the energy class from the classifier forest or the linear estimate of log
+        m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers (card:
+        "energy_class_choice"). choose_edge: with members and without a site map, the edge correction of the
+        arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions say so; the
+        level members as correction_scale chooses. twin_edge: the twin estimate's edge term (twin_edge.py)."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -220,7 +222,8 @@ class ImpactModel:
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
         if site_map is not None:
             site_map, twin_fit, fe, threshold = _fit_site_twin(features, use, twin_rows, X[:, loc_cols], xy, height_mm,
-                                                               energy_j, site_map, settings, choose_twin, card)
+                                                               energy_j, site_map, settings, choose_twin, card,
+                                                               signal if twin_edge else None)
         class_features = list(MEASURED_ENERGY_FEATURES)
         if site_map is None:
             fe, threshold = fit_energy_classifier(X[:, columns(MEASURED_ENERGY_FEATURES)], energy_j, settings)

@@ -18,6 +18,7 @@ from scipy.optimize import minimize
 from . import _core
 from .errors import DataError
 from .sitemap import N_FEATURES, SiteMap
+from .twin_edge import edge_term
 
 if TYPE_CHECKING:
     from .pipeline import Features
@@ -42,6 +43,10 @@ class TwinFit:
     uncertainty_offset_mm: float = 0.0
     uncertainty_scale: float = 1.0
     uncertainty_misfit_ref: float = 0.0
+    # The height estimate's edge term (twin_edge.py): log10 h -= edge_log10_bias * max(0, 1 - d / edge_ramp_mm),
+    # d the reported position's distance to the nearest plate edge; edge_ramp_mm 0: none (older cards).
+    edge_ramp_mm: float = 0.0
+    edge_log10_bias: float = 0.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -192,13 +197,14 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
     """The core's twin_match (twin.h; the board's TableModels runs the same) of every row: the twin's match
     around start_xy_mm (the forests' position; NaN rows: the forests did not run, and with one channel
     without an onset the physics three-sensor position starts it), leaving out a channel whose energies
-    the twin cannot explain with the others'. Returns log10_height_mm, xy_mm, spread_mm, misfit, status,
-    left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL, _core.TWIN_INCONSISTENT) per row. full_search:
-    every channel tried in channel order (twin.h kTwinSearchFull) instead of the board's cued search."""
+    the twin cannot explain with the others'. Returns log10_height_mm (less the fit's edge term, twin_edge.py),
+    xy_mm, spread_mm, misfit, status, left_out (-1 none) and reason (0, _core.TWIN_DEAD_CHANNEL,
+    _core.TWIN_INCONSISTENT) per row. full_search: every channel tried in channel order (twin.h kTwinSearchFull)
+    instead of the board's cued search."""
     f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
     raw = features.raw
     misfit_ref = float(getattr(fit, "uncertainty_misfit_ref", 0.0) or 0.0)
-    return _core.twin_match_batch(
+    out = _core.twin_match_batch(
         np.ascontiguousarray(features.status, np.int32), np.ascontiguousarray(features.flags, np.uint8),
         f32(features.toa_us), f32(raw["window_energy"]), f32(raw["diff_energy"]), f32(features.phys_xy_mm),
         f32(np.asarray(start_xy_mm, float).reshape(-1, 2)), signal.localiser(), site.q, site.nx, site.ny,
@@ -206,6 +212,10 @@ def twin_match(site: SiteMap, fit: TwinFit, features: Features, start_xy_mm: np.
         f32(fit.weight), fit.ref_log10_height_mm, fit.prior_mm, fit.cutoff_mm, fit.temperature, misfit_ref,
         _slowness_scales(features, signal), fit.coarse_cutoff_mm, int(getattr(fit, "weak_channel", -1)),
         full_search)
+    # the height estimate's edge term at the matched position (twin_edge.py; the board's App subtracts it too)
+    out["log10_height_mm"] = np.asarray(out["log10_height_mm"], float) - edge_term(
+        fit, np.asarray(out["xy_mm"], float), signal.plate_x_mm, signal.plate_y_mm)
+    return out
 
 
 def _slowness_scales(features: Features, signal: SignalConfig) -> list[float]:

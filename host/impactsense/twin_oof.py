@@ -27,7 +27,8 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
     on the other folds, then the match around the forests' position. Folds group the drops by position (a
     case's repetitions share one), so no drop is matched by forests that saw its case; in-sample the
     forests start the twin at almost the true position and its errors read 20 % small. Returns error_mm,
-    spread_mm, misfit per drop (NaN where the twin gives no estimate), and the folds' forest_xy_mm and twin_xy_mm.
+    spread_mm, misfit, log10_height_mm (the height estimate) per drop (NaN where the twin gives no estimate), and
+    the folds' forest_xy_mm and twin_xy_mm.
     With X_energy (MEASURED_ENERGY_FEATURES columns), energy_j and twin_classifier (the ForestSettings of the
     twin's stumps, models.TWIN_CLASSIFIER) also each drop's out-of-fold energy class
     both ways (measured_class: the classifier without a site map, twin_class: the twin's stumps; -1 none) and
@@ -37,7 +38,7 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
     k = min(n_folds, int(groups.max()) + 1)
     if k < 2:
         raise DataError("training data", "x_mm, y_mm", "the uncertainty's calibration needs drops at >= 2 positions")
-    out = {key: np.full(len(xy), np.nan) for key in ("error_mm", "spread_mm", "misfit")}
+    out = {key: np.full(len(xy), np.nan) for key in ("error_mm", "spread_mm", "misfit", "log10_height_mm")}
     out["forest_xy_mm"] = np.full((len(xy), 2), np.nan)
     out["twin_xy_mm"] = np.full((len(xy), 2), np.nan)
     classes = X_energy is not None and energy_j is not None and twin_classifier is not None
@@ -57,6 +58,7 @@ def out_of_fold_twin(X_loc: np.ndarray, phys_xy_mm: np.ndarray, xy_mm: np.ndarra
         out["error_mm"][rows] = np.linalg.norm(np.asarray(est["xy_mm"], float)[ok] - xy[rows], axis=1)
         out["spread_mm"][rows] = np.asarray(est["spread_mm"], float)[ok]
         out["misfit"][rows] = np.asarray(est["misfit"], float)[ok]
+        out["log10_height_mm"][rows] = np.asarray(est["log10_height_mm"], float)[ok]
         if classes:
             # as ImpactModel.fit trains each classifier, on this fold's training drops only
             threshold = float(np.percentile(energy_j[tr], 75))

@@ -36,7 +36,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     members False: one forest pair on the physics position (no position members: what the board runs).
     twin_rows: the session's rows (bool) the site map's twin is fitted on (ImpactModel.fit; None: all).
     rig_drops (adc, xy_mm): the session is a calibrated twin's virtual drops (simulate-dataset --calibration) and
-    these the rig's calibration drops: the localiser's onset threshold is chosen for the rig (fit_localiser)."""
+    these the rig's calibration drops: the localiser's onset threshold is chosen for the rig (fit_localiser); the
+    twin height estimate's edge term (twin_edge.py) is then not fitted (the twin is refitted on the rig's drops)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
@@ -55,7 +56,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
                             choose_class=choose_class, choose_edge=choose_class, members=members,
-                            twin_rows=None if twin_rows is None else np.asarray(twin_rows, bool)[train_rows])
+                            twin_rows=None if twin_rows is None else np.asarray(twin_rows, bool)[train_rows],
+                            twin_edge=rig_drops is None)
     if band_choice is not None:
         model.card["band_choice"] = band_choice.record
     split = {

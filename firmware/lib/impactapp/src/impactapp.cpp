@@ -41,6 +41,15 @@ float twin_uncertainty_mm(const ic::TwinEstimate& t, const TwinSpec& spec) {
   return u;
 }
 
+float twin_edge_term(float x_mm, float y_mm, const TwinSpec& spec) {
+  if (!(spec.edge_ramp_mm > 0.0f)) return 0.0f;
+  float d = x_mm < spec.plate_x_mm - x_mm ? x_mm : spec.plate_x_mm - x_mm;
+  d = y_mm < d ? y_mm : d;
+  d = spec.plate_y_mm - y_mm < d ? spec.plate_y_mm - y_mm : d;
+  const float ramp = 1.0f - d / spec.edge_ramp_mm;
+  return ramp > 0.0f ? spec.edge_log10_bias * ramp : 0.0f;
+}
+
 bool TableModels::predict(const ic::EventResult& ev, float* x_mm, float* y_mm, uint8_t* cls) const {
   float uncertainty = 0.0f;
   return predict_with_uncertainty(ev, x_mm, y_mm, cls, &uncertainty);
@@ -104,9 +113,9 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     // position; host: models.ImpactModel.predict).
     const ic::TwinMatch m = ic::twin_match(ev, x, y, loc, twin_.map, twin_.cfg, twin_.uncertainty_misfit_ref);
     if (m.est.status != ic::kOk) return false;
-    twin = m.est.log10_height_mm;
     x = m.est.x_mm;
     y = m.est.y_mm;
+    twin = m.est.log10_height_mm - twin_edge_term(x, y, twin_);
     uncertainty = twin_uncertainty_mm(m.est, twin_);
     *left_out = static_cast<int8_t>(m.left_out);
   } else if (!(x == x) || !(y == y)) {

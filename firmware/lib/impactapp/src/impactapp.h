@@ -91,10 +91,20 @@ struct TwinSpec {
   float uncertainty_offset_mm = 0.0f;
   float uncertainty_scale = 1.0f;
   float uncertainty_misfit_ref = 0.0f;
+  // The height estimate's edge term (host twin_edge.py): log10 h -= edge_log10_bias * max(0, 1 - d /
+  // edge_ramp_mm), d the reported position's distance to the nearest edge of the plate_x_mm x plate_y_mm
+  // plate; edge_ramp_mm 0: none.
+  float edge_log10_bias = 0.0f;
+  float edge_ramp_mm = 0.0f;
+  float plate_x_mm = 0.0f;
+  float plate_y_mm = 0.0f;
 };
 
 // The calibrated uncertainty (TwinSpec) of a twin estimate t (status kOk).
 float twin_uncertainty_mm(const impactcore::TwinEstimate& t, const TwinSpec& spec);
+
+// The edge term (TwinSpec) the twin's log10 height estimate at the reported (x_mm, y_mm) loses; 0 without one.
+float twin_edge_term(float x_mm, float y_mm, const TwinSpec& spec);
 
 // The models: the core's per-event result in, position and energy class out. False when they cannot run
 // (a feature is missing, e.g. a channel without onset).

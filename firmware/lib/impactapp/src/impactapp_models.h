@@ -52,6 +52,12 @@ inline TwinSpec exported_twin() {
   t.uncertainty_offset_mm = c.uncertainty_offset_mm;
   t.uncertainty_scale = c.uncertainty_scale;
   t.uncertainty_misfit_ref = c.uncertainty_misfit_ref;
+#if defined(IMPACTSENSE_TWIN_EDGE) && IMPACTSENSE_TWIN_EDGE   // an export from before the edge term: none
+  t.edge_log10_bias = c.edge_log10_bias;
+  t.edge_ramp_mm = c.edge_ramp_mm;
+  t.plate_x_mm = c.plate_x_mm;
+  t.plate_y_mm = c.plate_y_mm;
+#endif
   return t;
 }
 #endif
