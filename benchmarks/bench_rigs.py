@@ -16,7 +16,10 @@ DATA --out CALS/<name>/CAL.json`) is trained as `train DATA --calibration CALS/<
 twin's site map (built once and cached beside CAL.json) when the training drops' out-of-fold figures keep it
 (column "twin": kept / not kept / - without a calibration). Without a site map the energy class is the
 classifier forest or the linear height estimate, as the training drops' out-of-fold accuracy chooses
-(height_class.py; column "class by": forest / linear / twin).
+(height_class.py; column "class by": forest / linear / twin). Columns "bnd" / "off": the class accuracy on the
+held-out drops from the two heights either side of the class threshold (the boundary heights, the training drops'
+highest below it and lowest at or above it) and on the others; the target reads the column "class" (all drops).
+--twin-edge: a twin model with its height estimate's edge term (twin_edge.py; off in the product).
 """
 
 from __future__ import annotations
@@ -81,7 +84,27 @@ def calibration_for(session, calibration_dir: str | None) -> Path | None:
     return cal if cal.is_file() else None
 
 
-def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> dict:
+def boundary_split(session, rep: dict, train_rows: np.ndarray, threshold_j: float) -> dict:
+    """The held-out class accuracy on the drops from the two heights either side of the class threshold (the
+    training drops' highest below it and lowest at or above it: the boundary heights) and on the others."""
+    from impactsense.models import impact_energy_j
+
+    a = rep["_arrays"]
+    e_train = impact_energy_j(session.height_mm[train_rows], session.rig.ball_mass_g)
+    below, above = e_train[e_train < threshold_j], e_train[e_train >= threshold_j]
+    e = impact_energy_j(session.height_mm[a["rows"]], session.rig.ball_mass_g)
+    at = np.zeros(len(e), bool)
+    for side in (below, above):
+        if side.size:
+            at |= np.isclose(e, side.max() if side is below else side.min())
+    right = a["energy_class"] == a["label"]
+    classed = a["energy_class"] >= 0
+    acc = lambda m: float(np.mean(right[m & classed])) if (m & classed).any() else float("nan")  # noqa: E731
+    return {"class_boundary": acc(at), "n_boundary": int((at & classed).sum()), "class_off_boundary": acc(~at),
+            "n_off_boundary": int((~at & classed).sum())}
+
+
+def score(path, trees: int, seed: int, calibration_dir: str | None = None, twin_edge: bool = False) -> dict:
     from impactsense.data import load_session
     from impactsense.models import ForestSettings
     from impactsense.sitemap import resolve_site_map
@@ -101,7 +124,7 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> di
     if cal is None:
         site = resolve_site_map("auto", session.rig)
     model, split = train(session, None, 0.2, seed, None, ForestSettings(n_estimators=trees, seed=seed), site_map=site,
-                         choose_twin=cal is not None, choose_class=True)
+                         choose_twin=cal is not None, choose_class=True, twin_edge=twin_edge)
     t_train = time.perf_counter() - t
     rep = evaluate(session, model)
     t_all = time.perf_counter() - t
@@ -117,7 +140,8 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None) -> di
             "travel_metric": [sig.travel_metric_xx, sig.travel_metric_xy, sig.travel_metric_yy],
             "calibration": None if cal is None else str(cal), "site_map_s": t_map,
             "twin_choice": model.card.get("twin_choice"),
-            "energy_class_choice": model.card.get("energy_class_choice")}
+            "energy_class_choice": model.card.get("energy_class_choice"),
+            **boundary_split(session, rep, train_rows, model.energy_threshold_j)}
 
 
 def twin_column(r: dict) -> str:
@@ -140,6 +164,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None, help="write the rows here")
     ap.add_argument("--skip-bundled", action="store_true", help="only the other rigs")
+    ap.add_argument("--twin-edge", action="store_true",
+                    help="a twin model with its height estimate's edge term (twin_edge.py; off in the product)")
     ap.add_argument("--calibration-dir", default=None,
                     help="folder of calibrations CALS/<rig folder name>/CAL.json: those rigs train with their "
                          "calibrated twin's site map when the training drops' out-of-fold figures keep it")
@@ -150,18 +176,19 @@ def main() -> int:
         print(f"other rigs skipped: {why}")
     rows = []
     print(f"{'rig':12s} {'material':34s} {'MAE mm':>7s} {'inner':>6s} {'phys':>6s} {'class':>6s} "
-          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s}  "
+          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s} {'bnd':>5s} {'off':>5s}  "
           f"target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
     missed = []
     for p in distinct_sessions(paths, "scored"):
-        r = score(p, args.trees, args.seed, args.calibration_dir)
+        r = score(p, args.trees, args.seed, args.calibration_dir, args.twin_edge)
         rows.append(r)
         ok = r["mae_mm"] <= TARGET_MAE_MM and r["class_accuracy"] >= TARGET_CLASS
         if not ok:
             missed.append(r["rig"])
         print(f"{r['rig']:12s} {r['material'][:34]:34s} {r['mae_mm']:7.2f} {r['inner_mae_mm']:6.2f} "
               f"{r['physics_mae_mm']:6.2f} {r['class_accuracy']:6.3f} {r['naive_mae_mm']:6.2f} "
-              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s}  "
+              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s} "
+              f"{r['class_boundary']:5.3f} {r['class_off_boundary']:5.3f}  "
               f"{'ok' if ok else 'MISSED'}",
               flush=True)
     if args.json:

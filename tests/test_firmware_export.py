@@ -38,7 +38,7 @@ def exported(request, tmp_path_factory, session_features):
     s, f = session_features
     site = SiteMap.load(BUNDLED) if request.param == "twin" else None
     model = ImpactModel.fit(f, s.xy_mm, s.height_mm, s.rig.ball_mass_g, SignalConfig.for_rig(s.rig),
-                            ForestSettings(n_estimators=15, min_samples_leaf=2), site_map=site)
+                            ForestSettings(n_estimators=15, min_samples_leaf=2), site_map=site, twin_edge=True)
     d = model.save(tmp_path_factory.mktemp("model"))
     out = tmp_path_factory.mktemp("export")
     summary = export_models(d, out)
@@ -87,7 +87,8 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     n_trees = sum(summary["trees"].values())
     twin_bytes = 0
     if model.site_map is not None:
-        # the twin's height estimate carries its edge term (twin_edge.py), so the board's class above applied it too
+        # the twin's height estimate carries its edge term (twin_edge.py, twin_edge=True), so the board's class above
+        # applied it too
         assert model.twin_fit.edge_ramp_mm > 0 and model.twin_fit.edge_log10_bias != 0
         assert summary["inputs"]["energy"] == [len(f.vector[0])]  # the twin's estimate: one past the vector
         site = model.site_map

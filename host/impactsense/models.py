@@ -189,7 +189,7 @@ class ImpactModel:
             signal: SignalConfig, settings: ForestSettings | None = None,
             site_map: SiteMap | None = None, members: bool = True, choose_twin: bool = False,
             choose_class: bool = False, choose_edge: bool = False,
-            twin_rows: np.ndarray | None = None, twin_edge: bool = True) -> "ImpactModel":
+            twin_rows: np.ndarray | None = None, twin_edge: bool = False) -> "ImpactModel":
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). twin_rows: with a site map, the drops (bool per row) the twin's offsets, weights, uncertainty and
         energy class are fitted on (None: all); the forests learn from all (simulated drops stay out of the twin's
@@ -199,7 +199,7 @@ class ImpactModel:
         m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers (card:
         "energy_class_choice"). choose_edge: with members and without a site map, the edge correction of the
         arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions say so; the
-        level members as correction_scale chooses. twin_edge: the twin estimate's edge term (twin_edge.py)."""
+        level members as correction_scale chooses. twin_edge: the twin estimate's edge term (twin_edge.py; off)."""
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:

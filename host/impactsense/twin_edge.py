@@ -1,10 +1,11 @@
 """The twin's height estimate near the plate's edges: a bias the training drops' out-of-fold estimates show.
 
-Held out, a drop near an edge gets a twin height estimate that is low on average (the match there, at a reported
-position a few mm off, reads less energy than the site map's point would give for its true height; measured in
-docs/findings.md "Session 19: classfix"), while in sample (the twin fitted on the drop, at its physics position)
-it is not. The energy class's boundary sits between two drop heights a few per cent apart, so the bias moves
-edge drops across it. The term: with d the reported position's distance to the nearest plate edge,
+Held out, drops near an edge may get a twin height estimate biased one way (in sample, the twin fitted on the
+drop, they do not); the energy class's boundary sits between two drop heights a few per cent apart, so such a
+bias moves edge drops across it. Off by default (`train(..., twin_edge=True)` turns it on): the bias differs
+between sessions; another day's session of the same rig showed it with the other sign, and the term learnt on the
+first day cost that day's class (docs/findings.md "Session 19: classfix"). The term: with d the reported
+position's distance to the nearest plate edge,
 
     log10 h' = log10 h - b * max(0, 1 - d / D)
 

@@ -27,7 +27,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
           site_map=None, force: bool = False, choose_twin: bool = False,
           choose_class: bool = False, members: bool = True,
           twin_rows: np.ndarray | None = None,
-          rig_drops: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[ImpactModel, dict]:
+          rig_drops: tuple[np.ndarray, np.ndarray] | None = None,
+          twin_edge: bool = False) -> tuple[ImpactModel, dict]:
     """Fits the localiser constants and the forests on the training cases; saves if out_dir is given.
     choose_twin: keep the site map's twin only when the training drops' out-of-fold figures say so
     (twin_oof.twin_choice; a measured session's calibrated twin). choose_class: without a site map, the energy
@@ -36,8 +37,10 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     members False: one forest pair on the physics position (no position members: what the board runs).
     twin_rows: the session's rows (bool) the site map's twin is fitted on (ImpactModel.fit; None: all).
     rig_drops (adc, xy_mm): the session is a calibrated twin's virtual drops (simulate-dataset --calibration) and
-    these the rig's calibration drops: the localiser's onset threshold is chosen for the rig (fit_localiser); the
-    twin height estimate's edge term (twin_edge.py) is then not fitted (the twin is refitted on the rig's drops)."""
+    these the rig's calibration drops: the localiser's onset threshold is chosen for the rig (fit_localiser).
+    twin_edge: with a site map, the twin height estimate's edge term (twin_edge.py) as the training drops'
+    out-of-fold estimates say; off by default (it helps the session's held-out drops and hurts another day's:
+    docs/findings.md "Session 19: classfix"); never on virtual drops (that twin is refitted on the rig's drops)."""
     require_labels(session)
     train_rows, test_rows = case_split(session.case_id, test_fraction, seed, exclude_rows)
     if test_fraction > 0 and len(test_rows) == 0:
@@ -57,7 +60,7 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
                             session.rig.ball_mass_g, cfg, settings, site_map=site_map, choose_twin=choose_twin,
                             choose_class=choose_class, choose_edge=choose_class, members=members,
                             twin_rows=None if twin_rows is None else np.asarray(twin_rows, bool)[train_rows],
-                            twin_edge=rig_drops is None)
+                            twin_edge=twin_edge and rig_drops is None)
     if band_choice is not None:
         model.card["band_choice"] = band_choice.record
     split = {
