@@ -227,7 +227,7 @@ def test_a_report_carries_the_channel_the_models_left_out(left_out):
     r = dict(seq=3, timestamp_ms=10, x_mm=1.0, y_mm=2.0, uncertainty_mm=1.5, energy_class=0, order=[0, 1, 2, 3],
              accepted=True, valid=True, clipped=0, dead=0, left_out=left_out)
     f = _link.encode_report(r)
-    st = struct.unpack("<IIhhHBBBB", f[6:-4])[7]
+    st = struct.unpack("<IIhhHBBBBB", f[6:-4])[7]
     assert st == 0b11 | (0 if left_out < 0 else 0b100 | left_out << 3)
     assert _link.Decoder().feed(f)[0]["report"]["left_out"] == left_out
 

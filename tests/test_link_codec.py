@@ -20,15 +20,15 @@ def report(**kw):
 def test_report_round_trip_and_layout():
     r = report()
     f = L.encode_report(r)
-    assert len(f) == L.REPORT_FRAME_BYTES == 28
+    assert len(f) == L.REPORT_FRAME_BYTES == 29
     assert f[:2] == b"\xa5\x5a" and f[2] == L.VERSION and f[3] == L.TYPE_REPORT
     assert struct.unpack("<H", f[4:6])[0] == L.REPORT_BODY_BYTES
     # CRC is zlib's CRC-32 over version..body
     assert struct.unpack("<I", f[-4:])[0] == zlib.crc32(f[2:-4])
-    seq, ts, x, y, u, e, order, st, ch = struct.unpack("<IIhhHBBBB", f[6:-4])
+    seq, ts, x, y, u, e, order, st, ch, reason = struct.unpack("<IIhhHBBBBB", f[6:-4])
     assert (seq, ts, x, y, u, e) == (7, 123456, 1234, 567, 32, 1)
     assert [(order >> (2 * i)) & 3 for i in range(4)] == [2, 0, 3, 1]
-    assert st == 0b11 and ch == 0b1000_0101
+    assert st == 0b11 and ch == 0b1000_0101 and reason == 0
     [frame] = L.Decoder().feed(f)
     got = frame["report"]
     for k in ("seq", "timestamp_ms", "energy_class", "order", "accepted", "valid", "clipped", "dead"):
@@ -55,7 +55,7 @@ def test_ble_payload_is_version_plus_serial_body():
     assert len(p) == L.BLE_PAYLOAD_BYTES <= 20  # fits a default-MTU notification
     assert p == bytes([L.VERSION]) + L.encode_report(r)[6:-4]
     assert L.parse_ble_payload(p) == L.Decoder().feed(L.encode_report(r))[0]["report"]
-    assert L.parse_ble_payload(b"\x02" + p[1:]) is None  # other version
+    assert L.parse_ble_payload(bytes([L.VERSION + 1]) + p[1:]) is None  # other version
     assert L.parse_ble_payload(p[:-1]) is None
 
 

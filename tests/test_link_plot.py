@@ -15,6 +15,7 @@ from impactsense import _link
 from impactsense.data import load_session
 from impactsense.link import monitor as mon
 from impactsense.link import plot as lplot
+from impactsense.link.protocol import reason_code
 from test_link_e2e import FakeTransport
 
 
@@ -57,7 +58,7 @@ def test_plot_shows_the_reported_impacts():
 
 def test_plot_leaves_the_json_lines_unchanged_and_skips_invalid_positions():
     sent = reports(5)
-    sent[2]["valid"] = False  # no position: a report line, not a point
+    sent[2].update(valid=False, reason=reason_code("channels_missing"))  # no position: a report line, not a point
     stream = b"".join(_link.encode_report(r) for r in sent)
     plain, with_plot = io.StringIO(), io.StringIO()
     mon.run(lambda: FakeTransport(stream), json_lines=True, out=plain, err=io.StringIO())

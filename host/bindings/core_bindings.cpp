@@ -557,7 +557,15 @@ NB_MODULE(_core, m) {
   m.attr("FLAG_INCONSISTENT") = static_cast<int>(ic::kFlagInconsistent);
   m.attr("STATUS_OK") = static_cast<int>(ic::kOk);
   m.attr("STATUS_NO_TRIGGER") = static_cast<int>(ic::kErrNoTrigger);
-  m.def("status_name", &ic::status_name);
+  m.def("status_name", &ic::status_name, "status"_a, "The text of an impactcore::Status code (a report's reason).");
+  m.def("status_key", &ic::status_key, "status"_a, "The key of an impactcore::Status code (a report's reason).");
+  {  // the codes, once (impactcore.h IMPACTCORE_STATUS): code -> key
+    nb::dict keys;
+#define IMPACTCORE_STATUS_PY(code, name, key, text) keys[nb::int_(code)] = key;
+    IMPACTCORE_STATUS(IMPACTCORE_STATUS_PY)
+#undef IMPACTCORE_STATUS_PY
+    m.attr("STATUS_KEYS") = keys;
+  }
 
   m.attr("CORE_CONFIG_FIELDS") = bind_config<ic::CoreConfig>(m, "CoreConfig");
   m.attr("LOCALISER_CONFIG_FIELDS") = bind_config<ic::LocaliserConfig>(m, "LocaliserConfig");

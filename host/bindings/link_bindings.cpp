@@ -47,6 +47,8 @@ nb::dict report_dict(const il::Report& r) {
   d["clipped"] = r.clipped;
   d["dead"] = r.dead;
   d["left_out"] = static_cast<int>(r.left_out);
+  d["reason"] = static_cast<int>(r.reason);  // 0 valid; else an impactcore::Status code (_core.status_name)
+  d["reason_key"] = ic::status_key(r.reason);
   return d;
 }
 
@@ -68,6 +70,10 @@ il::Report report_from(nb::dict d) {
   r.clipped = d.contains("clipped") ? nb::cast<uint8_t>(d["clipped"]) : 0;
   r.dead = d.contains("dead") ? nb::cast<uint8_t>(d["dead"]) : 0;
   r.left_out = d.contains("left_out") ? nb::cast<int8_t>(d["left_out"]) : static_cast<int8_t>(-1);
+  r.reason = d.contains("reason") ? nb::cast<uint8_t>(d["reason"]) : 0;
+  if (r.valid != (r.reason == 0)) {
+    throw std::invalid_argument("a report has a reason (an impactcore status code, 1..255) exactly when it is not valid");
+  }
   return r;
 }
 
@@ -80,6 +86,7 @@ nb::dict stats_dict(const il::DecoderStats& s) {
   d["type_errors"] = s.type_errors;
   d["payload_errors"] = s.payload_errors;
   d["bytes_skipped"] = s.bytes_skipped;
+  d["other_version"] = s.other_version;
   return d;
 }
 
@@ -453,8 +460,9 @@ struct PyModels : ia::Models {
     return impl->predict_with_uncertainty(ev, xm, ym, c, u);
   }
   bool predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* xm, float* ym, uint8_t* c,
-                     float* u, int8_t* left_out, int flagged, const ic::CoreConfig* core) const override {
-    return impl->predict_event(ev, loc, xm, ym, c, u, left_out, flagged, core);
+                     float* u, int8_t* left_out, int flagged, const ic::CoreConfig* core,
+                     int32_t* reason) const override {
+    return impl->predict_event(ev, loc, xm, ym, c, u, left_out, flagged, core, reason);
   }
   const ic::ChannelCheck* channel_check() const override { return impl->channel_check(); }
 };

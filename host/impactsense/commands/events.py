@@ -1,7 +1,8 @@
 """`impactsense events EVENTS.sqlite`: the reports an event log keeps (`impactsense monitor --db`).
 
-Lists the reports (oldest first) and, per board and boot, how many were stored, the seq range, the reports
-missing inside it (gaps) and the duplicates ignored. --html writes one self-contained page: the plate with its
+Lists the reports (oldest first; one that is not valid with the reason the board gave) and, per board and boot,
+how many were stored, the seq range, the reports missing inside it (gaps), the duplicates ignored and the reports
+not valid per reason. --html writes one self-contained page: the plate with its
 sensors and the impacts, a heat map, the energy classes over time and the link's health."""
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def run(args) -> int:
     import sys
     import time
 
-    from ..link.eventlog import boot_summary, connect, read_reports
+    from ..link.eventlog import boot_summary, connect, read_reports, reason_counts, report_reason
 
     since = parse_since(args.since)
     db = connect(args.db)
@@ -61,14 +62,18 @@ def run(args) -> int:
                 print(json.dumps(r, sort_keys=True))
         else:
             print(f"{'host time':19} {'board':>12} {'boot':>4} {'seq':>6} {'x_mm':>6} {'y_mm':>6} {'±mm':>5} "
-                  f"{'E':>2} {'acc':>3} {'ok':>2}")
+                  f"{'E':>2} {'acc':>3} {'ok':>2}  not reported because")
             for r in reports:
                 t = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(r["host_time"]))
                 print(f"{t:19} {r['board_id'][-12:]:>12} {r['boot']:>4} {r['seq']:>6} {_f(r['x_mm'])} {_f(r['y_mm'])} "
-                      f"{_f(r['uncertainty_mm'], 5)} {_i(r['energy_class'])} {_yn(r['accepted'], 3)} {_yn(r['valid'], 2)}")
+                      f"{_f(r['uncertainty_mm'], 5)} {_i(r['energy_class'])} {_yn(r['accepted'], 3)} {_yn(r['valid'], 2)}"
+                      + ("" if r["valid"] or r["valid"] is None else f"  {report_reason(r)}"))
     for s in summary:
         print(f"board {s['board_id']} boot {s['boot']}: {s['reports']} reports, seq {s['first_seq']}..{s['last_seq']}, "
               f"{s['missing']} missing in {s['gaps']} gaps, {s['duplicates_ignored']} duplicates ignored",
+              file=sys.stderr)
+    for (board, boot), counts in reason_counts(reports).items():
+        print(f"board {board} boot {boot}: not reported: " + ", ".join(f"{n} {k}" for k, n in counts.items()),
               file=sys.stderr)
     if args.html:
         _write_page(args, db, reports, summary)

@@ -199,6 +199,30 @@ def boot_summary(db: sqlite3.Connection, since: float | None = None) -> list[dic
     return out
 
 
+def report_reason(r: dict) -> str:
+    """A stored report's reason for not being valid: its key and text (`reason`, an impactcore status code, in its
+    flags; a report logged from a board older than the reason byte has none: 'no reason (older firmware)')."""
+    from .protocol import reason_text
+
+    code = (r.get("flags") or {}).get("reason")
+    if code is None:
+        return "no reason (older firmware)"
+    return f"{(r['flags'].get('reason_key') or code)}: {reason_text(code)}"
+
+
+def reason_counts(reports: list[dict]) -> dict[tuple[str, int], dict[str, int]]:
+    """Per (board, boot): how many of the reports were not valid, per reason key (most first)."""
+    from collections import Counter
+
+    out: dict[tuple[str, int], Counter] = {}
+    for r in reports:
+        if r["valid"] or r["valid"] is None:
+            continue
+        key = (r.get("flags") or {}).get("reason_key") or "no reason (older firmware)"
+        out.setdefault((r["board_id"], r["boot"]), Counter())[key] += 1
+    return {b: dict(c.most_common()) for b, c in out.items()}
+
+
 def read_reports(db: sqlite3.Connection, since: float | None = None, board: str | None = None) -> list[dict]:
     """The stored reports (oldest first) as dicts: the columns, `flags` and `link` decoded."""
     q = ("SELECT board_id, boot, seq, host_time, board_ms, x_mm, y_mm, uncertainty_mm, energy_class, accepted, "

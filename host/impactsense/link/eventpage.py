@@ -152,7 +152,12 @@ def page(reports: list[dict], summary: list[dict], connections: list[dict], rig,
     when = lambda t: time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))  # noqa: E731
     for s in summary:
         s["first"], s["last"] = when(s["first_host_time"]), when(s["last_host_time"])
-    latest = [dict(r, time=when(r["host_time"])) for r in reports[-50:][::-1]]
+    from .eventlog import reason_counts, report_reason
+
+    latest = [dict(r, time=when(r["host_time"]), reason="" if r["valid"] or r["valid"] is None else report_reason(r))
+              for r in reports[-50:][::-1]]
+    rejected = [{"board_id": b, "boot": boot, "reason": k, "reports": n}
+                for (b, boot), counts in reason_counts(reports).items() for k, n in counts.items()]
     parts = [f"<h1>impactsense event log</h1><p>{html.escape(source)}: {len(reports)} reports, "
              f"{len({r['board_id'] for r in reports})} board(s); written {when(time.time())}</p>",
              "<h2>boards and boots</h2>",
@@ -161,9 +166,11 @@ def page(reports: list[dict], summary: list[dict], connections: list[dict], rig,
     if reports:
         parts += ["<div class=row>", plate_figure(reports, rig), heatmap_figure(reports, rig), "</div>",
                   energy_figure(reports), link_figure(reports, connections)]
+    if rejected:
+        parts += ["<h2>reports not valid, per reason</h2>", _table(rejected, ["board_id", "boot", "reason", "reports"])]
     parts += ["<h2>latest reports</h2>",
               _table(latest, ["time", "board_id", "boot", "seq", "x_mm", "y_mm", "uncertainty_mm", "energy_class",
-                              "accepted", "valid"])]
+                              "accepted", "valid", "reason"])]
     style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;font-size:12px}"
              "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}.row{display:flex;flex-wrap:wrap}"
              "svg{max-width:100%;height:auto}")

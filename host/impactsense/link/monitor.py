@@ -6,6 +6,7 @@ import json
 import math
 import sys
 import time
+from collections import Counter
 
 from . import protocol
 from .transport import PortClosed, read_some
@@ -19,6 +20,7 @@ class Monitor:
         self.decoder = protocol.Decoder()
         self.seq = protocol.SeqTracker()
         self.reports = 0
+        self.rejected: Counter = Counter()  # reports without a position, by reason key
 
     def frames(self, idle_timeout_s: float | None = None):
         """Yields decoded frames (dicts, see `_link.Decoder.feed`) until the port closes."""
@@ -34,25 +36,56 @@ class Monitor:
                     if frame["kind"] == "report":
                         self.reports += 1
                         self.seq.update(frame["report"]["seq"])
+                        if not frame["report"]["valid"]:
+                            self.rejected[frame["report"]["reason_key"]] += 1
                     yield frame
             elif idle_timeout_s is not None and time.monotonic() - last > idle_timeout_s:
                 return
 
     def counters(self) -> dict:
+        """The decoder's counts, reports, sequence gaps, and the reports not valid per reason
+        (`rejected:KEY`, KEY an impactcore status key); BLE: the notifications that were not a report."""
         s = dict(self.decoder.stats)
-        s.update(reports=self.reports, seq_gaps=self.seq.gaps, lost_reports=self.seq.lost)
+        s.update(reports=self.reports, seq_gaps=self.seq.gaps, lost_reports=self.seq.lost,
+                 rejected=sum(self.rejected.values()))
+        s.update({f"rejected:{k}": n for k, n in sorted(self.rejected.items())})
+        for k in ("bad_payloads", "ble_version_errors", "ble_other_version"):
+            if hasattr(self.port, k):
+                s[k] = getattr(self.port, k)
         return s
+
+    def version_note(self) -> str | None:
+        """A line saying that frames of another protocol version were dropped (None when none were)."""
+        c = self.counters()
+        n, v = c["version_errors"], c["other_version"]
+        n_ble, v_ble = c.get("ble_version_errors", 0), c.get("ble_other_version", 0)
+        if not (n or n_ble):
+            return None
+        return (f"{n + n_ble} frame(s) of protocol version {v or v_ble} dropped (not read as reports): this host "
+                f"reads version {protocol.VERSION}; flash the board with the firmware of this release (README, "
+                f"\"Board\") or use the host that matches the board's firmware")
 
 
 REPORT_HEADER = (f"{'seq':>6} {'t_ms':>9} {'x_mm':>7} {'y_mm':>7} {'±mm':>6} {'E':>2} "
-                 f"{'order':>5} {'acc':>3} clip dead")
+                 f"{'order':>5} {'acc':>3} clip dead  not reported because")
 
 
-def report_line(r: dict) -> str:
+def reason_text(r: dict) -> str:
+    """Why a report is not valid, as text (the core's status_name of its reason code); '' when valid."""
+    return "" if r["valid"] else protocol.reason_text(r["reason"])
+
+
+def report_line(r: dict, rejected: Counter | None = None) -> str:
+    """One table row; a report that is not valid ends with its reason's key and text (and, given the monitor's
+    per-reason counts, how many reports so far had that reason)."""
     order = "".join(str(c) for c in r["order"])
-    return (f"{r['seq']:>6} {r['timestamp_ms']:>9} {r['x_mm']:>7.1f} {r['y_mm']:>7.1f} "
+    line = (f"{r['seq']:>6} {r['timestamp_ms']:>9} {r['x_mm']:>7.1f} {r['y_mm']:>7.1f} "
             f"{r['uncertainty_mm']:>6.1f} {r['energy_class']:>2} {order:>5} "
             f"{'y' if r['accepted'] else 'n':>3} {r['clipped']:04b} {r['dead']:04b}")
+    if not r["valid"]:
+        n = f" #{rejected[r['reason_key']]}" if rejected is not None else ""
+        line += f"  {r['reason_key']}{n}: {reason_text(r)}"
+    return line
 
 
 def _json_safe(d: dict) -> dict:
@@ -63,6 +96,8 @@ def _json_safe(d: dict) -> dict:
 
 def report_json(r: dict) -> str:
     d = dict(r)
+    if not d.get("valid", True):
+        d["reason_text"] = reason_text(d)
     if isinstance(d.get("uncertainty_mm"), float) and math.isnan(d["uncertainty_mm"]):
         d["uncertainty_mm"] = None
     for k in ("x_mm", "y_mm", "uncertainty_mm"):
@@ -151,6 +186,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             break
         retries = 0
         mon = Monitor(port)
+        version_noted = False
         if log is not None:
             log.connection_opened()
         frames = mon.frames(idle_timeout_s)
@@ -165,6 +201,9 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             for frame in frames:
                 if log is not None and frame["kind"] not in ("report", "raw"):
                     log.add_frame(frame["kind"], frame)
+                if not version_noted and mon.version_note():  # said once a connection, on the next frame after it
+                    print(f"monitor: {mon.version_note()}", file=err, flush=True)
+                    version_noted = True
                 if frame["kind"] == "status":  # the board's health, once a second: beside the reports (stderr)
                     st = frame["status"]
                     print(json.dumps({"status": _json_safe(st)}, sort_keys=True) if json_lines else status_line(st),
@@ -183,7 +222,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                     if not header_done:
                         print(REPORT_HEADER, file=out)
                         header_done = True
-                    print(report_line(r), file=out, flush=True)
+                    print(report_line(r, mon.rejected), file=out, flush=True)
         except KeyboardInterrupt:
             reconnect = False
             print("monitor: stopped (Ctrl-C)", file=err)
@@ -196,8 +235,10 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                 pass
         if plot is not None and state["plot"] is not None:
             state["plot"].refresh()
+        if not version_noted and mon.version_note():  # nothing but other-version frames came
+            print(f"monitor: {mon.version_note()}", file=err, flush=True)
         for k, v in mon.counters().items():
-            totals[k] = totals.get(k, 0) + v
+            totals[k] = max(totals.get(k, 0), v) if k.endswith("other_version") else totals.get(k, 0) + v
         if log is not None:
             log.connection_closed(mon.counters())
             totals.update(stored=log.stored, duplicates_ignored=log.duplicates)

@@ -55,7 +55,9 @@ class BleTransport:
         self._q: queue.Queue = queue.Queue()
         self._buf = b""
         self.is_open = False
-        self.bad_payloads = 0
+        self.bad_payloads = 0          # notifications that are not a report of this host's version
+        self.ble_version_errors = 0    # ... of them, those of another protocol version (its first byte)
+        self.ble_other_version = 0     # that version (0: none seen)
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
         self._thread.start()
@@ -88,6 +90,9 @@ class BleTransport:
         report = protocol.parse_ble_payload(bytes(data))
         if report is None:
             self.bad_payloads += 1
+            if len(data) and data[0] != protocol.VERSION:
+                self.ble_version_errors += 1
+                self.ble_other_version = int(data[0])
             return
         self._q.put(protocol.encode_report(report))
 

@@ -31,6 +31,27 @@ bool reads_twin(const ModelSpec& m) {
   return false;
 }
 
+// Why the models cannot place an event the forests could not (their position NaN) when the twin or the
+// three-channel classes have not already failed on it themselves: two or more channels without an onset; one, and no
+// three-channel path (three_path false) or no physics position to start it from; none, and the residual forests'
+// physics position failed or an input is not finite. 0 when one channel is missing and the path could run.
+int32_t missing_reason(const ic::EventResult& ev, bool residual, bool three_path) {
+  int missing = 0;
+  for (int c = 0; c < ic::kChannels; ++c) missing += (ev.features.ch[c].flags & (ic::kFlagNoOnset | ic::kFlagDead)) ? 1 : 0;
+  if (missing >= 2) return ic::kErrChannelsMissing;
+  if (missing == 1) return !three_path ? ic::kErrChannelMissing : (ev.phys.status != ic::kOk ? ic::kErrLocaliser : 0);
+  return residual && ev.phys.status != ic::kOk ? ic::kErrLocaliser : ic::kErrNotFinite;
+}
+
+// Why the twin's match failed on an event whose start it had: no channel it can read (every channel with an onset
+// clipped), else no site-map point near enough.
+int32_t twin_reason(const ic::EventResult& ev) {
+  for (int c = 0; c < ic::kChannels; ++c) {
+    if (!(ev.features.ch[c].flags & (ic::kFlagClipped | ic::kFlagDead | ic::kFlagNoOnset))) return ic::kErrTwinNoMatch;
+  }
+  return ic::kErrClipped;
+}
+
 }  // namespace
 
 float twin_uncertainty_mm(const ic::TwinEstimate& t, const TwinSpec& spec) {
@@ -63,8 +84,8 @@ bool TableModels::predict_with_uncertainty(const ic::EventResult& ev, float* x_m
 
 bool TableModels::predict_event(const ic::EventResult& ev, const ic::LocaliserConfig& loc, float* x_mm, float* y_mm,
                                 uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged,
-                                const ic::CoreConfig* core) const {
-  return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out, flagged, core);
+                                const ic::CoreConfig* core, int32_t* reason) const {
+  return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out, flagged, core, reason);
 }
 
 bool TableModels::three_sensor_path(const ic::EventResult& ev, const ic::LocaliserConfig& loc,
@@ -84,10 +105,15 @@ bool TableModels::three_sensor_path(const ic::EventResult& ev, const ic::Localis
 
 bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserConfig* loc, float* x_mm, float* y_mm,
                                uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged,
-                               const ic::CoreConfig* core) const {
+                               const ic::CoreConfig* core, int32_t* reason) const {
   float in[kMaxModelInputs];
+  int32_t why_not = 0;  // scratch when the caller does not ask why
+  int32_t* why = reason != nullptr ? reason : &why_not;
   *left_out = -1;
-  if (ev.status != ic::kOk) return false;
+  if (ev.status != ic::kOk) {
+    *why = ev.status;
+    return false;
+  }
   // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
   float x = NAN, y = NAN;
   const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
@@ -105,14 +131,21 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     }
   }
   float twin = NAN, uncertainty = NAN;
-  if (reads_twin(e_) && !has_twin_) return false;
+  if (reads_twin(e_) && !has_twin_) {
+    *why = ic::kErrBadConfig;  // an energy classifier reading a twin the models do not have
+    return false;
+  }
   if (has_twin_) {
     // The event's per-channel energies against the twin's site map around the forests' (x, y) (or the
     // three-sensor physics position; twin_match): how hard (log10 height, the energy forest's input
     // kTwinInput) and where (the matched grid points' weighted mean, reported instead of the forests'
     // position; host: models.ImpactModel.predict).
     const ic::TwinMatch m = ic::twin_match(ev, x, y, loc, twin_.map, twin_.cfg, twin_.uncertainty_misfit_ref);
-    if (m.est.status != ic::kOk) return false;
+    if (m.est.status != ic::kOk) {
+      const int32_t r = x == x && y == y ? 0 : missing_reason(ev, residual_, true);
+      *why = r != 0 ? r : twin_reason(ev);
+      return false;
+    }
     x = m.est.x_mm;
     y = m.est.y_mm;
     twin = m.est.log10_height_mm - twin_edge_term(x, y, twin_);
@@ -125,7 +158,11 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     for (int k = 0; k < ic::kChannels; ++k) {
       if (ev.features.ch[k].flags & ic::kFlagNoOnset) c = c < 0 ? k : ic::kChannels;
     }
-    if (three_ == nullptr || c < 0 || c >= ic::kChannels || ev.phys.status != ic::kOk) return false;
+    if (three_ == nullptr || c < 0 || c >= ic::kChannels || ev.phys.status != ic::kOk) {
+      const int32_t r = missing_reason(ev, residual_, three_ != nullptr);
+      *why = r != 0 ? r : ic::kErrChannelMissing;  // a dead channel (no onset) the three-channel classes do not take
+      return false;
+    }
     ic::three_channel_inputs(ev.features, ev.phys.x_mm, ev.phys.y_mm, c, in);
     *cls = three_[c].evaluate(three_[c].forest, in) > 0.5f ? 1 : 0;
     *x_mm = ev.phys.x_mm;
@@ -133,7 +170,10 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     *left_out = static_cast<int8_t>(c);
     return true;
   }
-  if (!gather(e_, ev.vector, twin, in)) return false;
+  if (!gather(e_, ev.vector, twin, in)) {
+    *why = ic::kErrNotFinite;
+    return false;
+  }
   *cls = e_.evaluate(e_.forest, in) > 0.5f ? 1 : 0;
   *x_mm = x;
   *y_mm = y;
@@ -374,9 +414,15 @@ void App::process_capture() {
   }
   const int flagged = check_event(st);
   if (st == ic::kOk && models_ != nullptr) {
+    int32_t why = ic::kErrNotFinite;  // a Models that does not say why
     r.valid = models_->predict_event(ev_, cfg_.loc, &r.x_mm, &r.y_mm, &r.energy_class, &r.uncertainty_mm,
-                                     &r.left_out, flagged, &cfg_.core);
-    if (!r.valid) r.left_out = -1;
+                                     &r.left_out, flagged, &cfg_.core, &why);
+    if (!r.valid) {
+      r.left_out = -1;
+      r.reason = static_cast<uint8_t>(why > 0 && why < 256 ? why : ic::kErrNotFinite);
+    }
+  } else {
+    r.reason = static_cast<uint8_t>(st != ic::kOk ? st : ic::kErrNoModels);  // the core's error, or no models
   }
   uint8_t ble[il::kBlePayload];
   const size_t nb = il::ble_payload(r, ble);

@@ -125,14 +125,19 @@ class Models {
   // flagged: the channel the channel check flags on this event (App: impactcore::channel_check_flag over the
   // check's scores, channel_check()), -1 none; models with three-channel classes then report the three-sensor path
   // without it (core: the event's core configuration, for impactcore::three_sensor_position).
+  // reason (not nullptr): when they cannot run (false), why: an impactcore::Status code (the event's own status,
+  // or one of the app's, kErrChannelsMissing .. kErrNotFinite); left alone when they run.
   virtual bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
                              float* y_mm, uint8_t* energy_class, float* uncertainty_mm, int8_t* left_out,
-                             int flagged = -1, const impactcore::CoreConfig* core = nullptr) const {
+                             int flagged = -1, const impactcore::CoreConfig* core = nullptr,
+                             int32_t* reason = nullptr) const {
     (void)loc;
     (void)flagged;
     (void)core;
     *left_out = -1;
-    return predict_with_uncertainty(ev, x_mm, y_mm, energy_class, uncertainty_mm);
+    const bool ok = predict_with_uncertainty(ev, x_mm, y_mm, energy_class, uncertainty_mm);
+    if (!ok && reason != nullptr) *reason = ev.status != impactcore::kOk ? ev.status : impactcore::kErrNotFinite;
+    return ok;
   }
   // The channel check the models carry (a model without a twin; the card's "channel_check"), or nullptr.
   virtual const impactcore::ChannelCheck* channel_check() const { return nullptr; }
@@ -175,13 +180,13 @@ class TableModels : public Models {
   // (the host's models.ImpactModel.predict, three_sensor_path); the forests do not run.
   bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
                      float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged = -1,
-                     const impactcore::CoreConfig* core = nullptr) const override;
+                     const impactcore::CoreConfig* core = nullptr, int32_t* reason = nullptr) const override;
   const impactcore::ChannelCheck* channel_check() const override { return has_check_ ? &check_ : nullptr; }
   bool has_twin() const { return has_twin_; }
  private:
   bool predict_impl(const impactcore::EventResult& ev, const impactcore::LocaliserConfig* loc, float* x_mm,
                     float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged = -1,
-                    const impactcore::CoreConfig* core = nullptr) const;
+                    const impactcore::CoreConfig* core = nullptr, int32_t* reason = nullptr) const;
   bool three_sensor_path(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc,
                          const impactcore::CoreConfig& core, int flagged, float* x_mm, float* y_mm, uint8_t* cls,
                          float* uncertainty_mm) const;

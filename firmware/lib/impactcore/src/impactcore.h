@@ -32,16 +32,33 @@ constexpr int kMaxAicWindow = 512;   // samples in the AIC refinement window (st
 extern const uint8_t kPairI[kPairs];
 extern const uint8_t kPairJ[kPairs];
 
-enum Status : int32_t {
-  kOk = 0,
-  kErrNullInput = 1,
-  kErrTooManySamples = 2,
-  kErrTooFewSamples = 3,
-  kErrBadConfig = 4,
-  kErrNoTrigger = 5,        // no channel crossed the trigger threshold
-  kErrSingular = 6,         // localiser geometry degenerate
-};
-const char* status_name(int32_t status);
+// Status codes, once: X(code, enumerator, key, text). 1..15 the core's (a function's result); 16.. the app's
+// (impactapp): why the models gave no position and class for an event the core processed. A report that is not
+// valid carries one of them (impactlink's report `reason`); the host reads key and text through the binding
+// (_core.STATUS_KEYS, status_name), so this list is the only copy. Codes are wire values: never renumber one.
+#define IMPACTCORE_STATUS(X)                                                                                 \
+  X(0, kOk, "ok", "ok")                                                                                      \
+  X(1, kErrNullInput, "null_input", "null input")                                                            \
+  X(2, kErrTooManySamples, "too_many_samples", "capture longer than kMaxSamples")                            \
+  X(3, kErrTooFewSamples, "too_few_samples", "capture shorter than the baseline segment")                    \
+  X(4, kErrBadConfig, "bad_config", "invalid configuration")                                                 \
+  X(5, kErrNoTrigger, "no_trigger", "no channel crossed the onset threshold")                                  \
+  X(6, kErrSingular, "singular", "degenerate geometry")                                                      \
+  X(16, kErrNoModels, "no_models", "no models loaded")                                                       \
+  X(17, kErrChannelsMissing, "channels_missing",                                                             \
+    "two or more channels without an onset (dead, silent or left out): too few for the models")              \
+  X(18, kErrChannelMissing, "channel_missing",                                                               \
+    "a channel without an onset (dead, silent or left out) and no three-channel path in the models")         \
+  X(19, kErrLocaliser, "localiser_failed", "the physics localiser could not place the drop")                 \
+  X(20, kErrClipped, "clipped", "every channel with an onset clipped: no energies for the twin")             \
+  X(21, kErrTwinNoMatch, "twin_no_match", "the twin's site map has no match for the drop's energies")        \
+  X(22, kErrNotFinite, "not_finite", "a model input is not finite")
+
+#define IMPACTCORE_STATUS_ENUM(code, name, key, text) name = code,
+enum Status : int32_t { IMPACTCORE_STATUS(IMPACTCORE_STATUS_ENUM) };
+#undef IMPACTCORE_STATUS_ENUM
+const char* status_name(int32_t status);  // the text ("unknown status" for a code not listed)
+const char* status_key(int32_t status);   // the key ("unknown")
 
 // Flags per channel (bit field).
 enum ChannelFlag : uint8_t {

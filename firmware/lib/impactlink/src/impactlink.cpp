@@ -68,6 +68,7 @@ void pack_report(const Report& r, uint8_t b[kReportBody]) {
     b[16] = static_cast<uint8_t>(b[16] | kReportLeftOut | (r.left_out << kReportLeftOutShift));
   }
   b[17] = static_cast<uint8_t>((r.clipped & 0x0Fu) | ((r.dead & 0x0Fu) << 4));
+  b[18] = r.reason;
 }
 
 bool unpack_report(const uint8_t* b, size_t len, Report* r) {
@@ -84,6 +85,7 @@ bool unpack_report(const uint8_t* b, size_t len, Report* r) {
   }
   if (seen != 0x0Fu) return false;  // the ToA order must be a permutation
   if (b[14] > 15) return false;     // energy classes are small indices
+  if (((b[16] & kReportValid) != 0) == (b[18] != 0)) return false;  // a reason exactly when not valid
   r->seq = get32(b);
   r->timestamp_ms = get32(b + 4);
   r->x_mm = static_cast<float>(static_cast<int16_t>(get16(b + 8))) * 0.1f;
@@ -97,6 +99,7 @@ bool unpack_report(const uint8_t* b, size_t len, Report* r) {
   r->clipped = b[17] & 0x0Fu;
   r->dead = b[17] >> 4;
   r->left_out = (b[16] & kReportLeftOut) ? static_cast<int8_t>((b[16] >> kReportLeftOutShift) & 3u) : -1;
+  r->reason = b[18];
   return true;
 }
 
@@ -301,8 +304,20 @@ bool Decoder::poll(Frame* out) {
     }
     if (n_ < 3) return false;
     if (buf_[2] != kVersion) {
-      ++stats_.version_errors;
-      drop(1);
+      // Another version's frame: its layout is unknown, but its header's length and CRC are the same. Dropped
+      // whole and counted when its CRC holds; otherwise a corrupt frame, resynchronised from the next byte.
+      if (n_ < kHeaderBytes) return false;
+      const size_t len = get16(buf_ + 4);
+      const size_t total = kHeaderBytes + len + kCrcBytes;
+      if (len <= kMaxBody && n_ < total) return false;
+      if (len <= kMaxBody && crc32(buf_ + 2, kHeaderBytes - 2 + len) == get32(buf_ + kHeaderBytes + len)) {
+        ++stats_.version_errors;
+        stats_.other_version = buf_[2];
+        drop(total);
+      } else {
+        ++(len <= kMaxBody ? stats_.crc_errors : stats_.length_errors);
+        drop(1);
+      }
       continue;
     }
     if (n_ < 4) return false;

@@ -5,9 +5,13 @@
 // crc32 is the IEEE/zlib CRC-32 over version, type, len and body (not the sync bytes).
 // Every type has a fixed body length (raw chunks: a fixed header + a sample count that must agree), so
 // a corrupted length is caught at the header. Worst-case frame: kMaxFrame bytes.
+// Version: kVersion; a decoder takes frames of its own version only. A frame of another version whose CRC
+// holds (its length read from its header, up to kMaxBody) is dropped whole and counted (version_errors, the
+// version in other_version), never read as this version's; with a bad CRC it is a corrupt frame (crc_errors).
+// Version 2 added the report's reason byte (version 1: an 18-byte report body without it).
 //
-// Report body (kReportBody = 18 bytes; the BLE GATT notification is [version] + this body, 19 bytes, so it
-// fits the default ATT MTU of 23 without negotiation):
+// Report body (kReportBody = 19 bytes; the BLE GATT notification is [version] + this body, 20 bytes, so it
+// fits the default ATT MTU of 23 (20 bytes of notification) without negotiation):
 //   0  seq u32            event counter since boot (gaps = lost reports)
 //   4  timestamp_ms u32   sample-clock time of the trigger frame
 //   8  x i16              0.1 mm
@@ -21,6 +25,10 @@
 //                         the models left one channel out (dead, no onset, or its energies inconsistent
 //                         with the others': impactcore::twin_match), bits 3-4 that channel; other bits 0
 //  17  channels u8        bits 0-3 clipped per channel, bits 4-7 dead / no onset per channel
+//  18  reason u8          0 when valid; else why the models gave no position and class: an impactcore::Status
+//                         code (impactcore.h IMPACTCORE_STATUS: the core's error for the capture, or the app's
+//                         for a model that could not run); a valid report with a reason, or a report that is
+//                         not valid without one, is malformed
 //
 // Status body (kStatusBody = 56 bytes), sent once a second of sample clock:
 //   0  uptime_ms u32          sample-clock time
@@ -57,14 +65,14 @@ namespace impactlink {
 
 constexpr uint8_t kSync0 = 0xA5;
 constexpr uint8_t kSync1 = 0x5A;
-constexpr uint8_t kVersion = 1;
+constexpr uint8_t kVersion = 2;
 constexpr size_t kHeaderBytes = 6;
 constexpr size_t kCrcBytes = 4;
 constexpr size_t kMaxBody = 1024;
 constexpr size_t kMaxFrame = kHeaderBytes + kMaxBody + kCrcBytes;
-constexpr size_t kReportBody = 18;
-constexpr size_t kReportFrame = kHeaderBytes + kReportBody + kCrcBytes;  // 28 bytes
-constexpr size_t kBlePayload = 1 + kReportBody;                          // 19 bytes
+constexpr size_t kReportBody = 19;
+constexpr size_t kReportFrame = kHeaderBytes + kReportBody + kCrcBytes;  // 29 bytes
+constexpr size_t kBlePayload = 1 + kReportBody;                          // 20 bytes
 constexpr size_t kAckBody = 12;
 constexpr size_t kStatusBody = 56;
 constexpr size_t kStatusFrame = kHeaderBytes + kStatusBody + kCrcBytes;  // 66 bytes
@@ -101,6 +109,7 @@ struct Report {
   uint8_t clipped;        // bit c: channel c clipped
   uint8_t dead;           // bit c: channel c dead or without onset
   int8_t left_out = -1;   // the channel the models left out (-1: none)
+  uint8_t reason = 0;     // not valid: why (an impactcore::Status code); valid: 0
 };
 
 // One capture chunk: `count` samples of one channel starting at `offset` of a `total`-sample capture.
@@ -189,10 +198,11 @@ struct DecoderStats {
   uint32_t frames;          // well-formed frames emitted
   uint32_t crc_errors;
   uint32_t length_errors;   // length not allowed for the type
-  uint32_t version_errors;
+  uint32_t version_errors;  // whole frames (CRC right) of another protocol version, dropped
   uint32_t type_errors;     // unknown frame type
   uint32_t payload_errors;  // CRC fine but a report body is malformed (never emitted)
   uint32_t bytes_skipped;   // bytes dropped while hunting for a frame start
+  uint8_t other_version;    // the version of the last such frame (0: none yet)
 };
 
 class Decoder {
