@@ -30,6 +30,9 @@ def test_qemu_image_matches_host(tmp_path):
     assert re.search(r"\(TOTALS\)", out) and "test.elf" in out
     assert not re.search(r"FAIL \w", out)
     assert re.search(r"^DROP twin_points [1-9]", out, re.M)  # the twin ran on the board's events
+    # a drop the board cannot report says why (the report's reason): two dead channels, every channel clipped
+    assert "REJECT channels_missing: two or more channels without an onset" in out
+    assert "REJECT clipped: every channel with an onset clipped" in out
     assert "impactsense_twin_map" in (tmp_path / "models" / "impactsense_forest_tables.c").read_text()
 
 

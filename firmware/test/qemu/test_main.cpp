@@ -122,6 +122,41 @@ static int g_dead_channel_tries = 0;    // ... of the drops with four onsets tha
 // Both NaN (a channel without an onset: its arrival time and the features that read it) is near too.
 static bool near(float a, float b, float tol) { return (a != a && b != b) || fabsf(a - b) <= tol; }
 
+// A drop the app cannot report says why: the first fixture drop again, with channels 1 and 2 held at their bias (no
+// onset: too few channels for any model; impactcore kErrChannelsMissing) or, clipped (with the twin), every channel
+// driven 40x into the rails (no energies the twin can read: kErrClipped). Prints "REJECT <key>" and checks the reason.
+static int16_t g_bad[FIX_FRAMES * 4];
+static void replay_rejected(bool clip, int32_t want) {
+  const int16_t* src = fix_frames[0];
+  float bias[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+  for (int i = 0; i < 64; ++i) {
+    for (int c = 0; c < 4; ++c) bias[c] += static_cast<float>(src[4 * i + c]) / 64.0f;
+  }
+  for (int i = 0; i < FIX_FRAMES; ++i) {
+    for (int c = 0; c < 4; ++c) {
+      float v = static_cast<float>(src[4 * i + c]);
+      if (clip) v = bias[c] + 40.0f * (v - bias[c]);
+      else if (c == 1 || c == 2) v = bias[c];
+      v = v < FIX_ADC_MIN ? FIX_ADC_MIN : (v > FIX_ADC_MAX ? FIX_ADC_MAX : v);
+      g_bad[4 * i + c] = static_cast<int16_t>(v + (v >= 0.0f ? 0.5f : -0.5f));
+    }
+  }
+  const int before = g_hal.reports;
+  for (int off = 0; off < FIX_FRAMES; off += 256) {
+    g_app.on_samples(g_bad + 4 * off, FIX_FRAMES - off < 256 ? FIX_FRAMES - off : 256);
+    while (g_app.service()) {
+    }
+  }
+  const impactlink::Report& r = g_hal.last;
+  check(g_hal.reports > before, "FAIL rejected drop: no report, clipped", clip);
+  semihost_puts("REJECT ");
+  semihost_puts(impactcore::status_key(r.reason));
+  semihost_puts(": ");
+  semihost_puts(impactcore::status_name(r.reason));
+  semihost_puts("\n");
+  check(!r.valid && r.reason == want, "FAIL rejected drop: reason, clipped", clip);
+}
+
 int main() {
   systick_start();
   *reinterpret_cast<volatile uint32_t*>(0xE000EDFCu) |= 1u << 24;  // DEMCR.TRCENA
@@ -315,6 +350,10 @@ int main() {
   put_int("TICKS app_event_max", static_cast<long long>(g_app.event_cycles_max()));
   put_int("TICKS app_idle_buffer_max", static_cast<long long>(g_app.idle_cycles_max()));
   put_int("CAPTURE_FRAMES", g_app.capture_frames());
+  replay_rejected(false, impactcore::kErrChannelsMissing);  // after the timings: they read the last capture
+#if IMPACTSENSE_TWIN
+  replay_rejected(true, impactcore::kErrClipped);
+#endif
   put_int("FAILURES", g_failures);
   return g_failures > 100 ? 100 : g_failures;
 }

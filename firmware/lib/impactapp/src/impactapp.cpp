@@ -39,7 +39,10 @@ int32_t missing_reason(const ic::EventResult& ev, bool residual, bool three_path
   int missing = 0;
   for (int c = 0; c < ic::kChannels; ++c) missing += (ev.features.ch[c].flags & (ic::kFlagNoOnset | ic::kFlagDead)) ? 1 : 0;
   if (missing >= 2) return ic::kErrChannelsMissing;
-  if (missing == 1) return !three_path ? ic::kErrChannelMissing : (ev.phys.status != ic::kOk ? ic::kErrLocaliser : 0);
+  if (missing == 1) {
+    if (!three_path) return ic::kErrChannelMissing;
+    return ev.phys.status != ic::kOk ? static_cast<int32_t>(ic::kErrLocaliser) : 0;
+  }
   return residual && ev.phys.status != ic::kOk ? ic::kErrLocaliser : ic::kErrNotFinite;
 }
 
@@ -160,7 +163,8 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     }
     if (three_ == nullptr || c < 0 || c >= ic::kChannels || ev.phys.status != ic::kOk) {
       const int32_t r = missing_reason(ev, residual_, three_ != nullptr);
-      *why = r != 0 ? r : ic::kErrChannelMissing;  // a dead channel (no onset) the three-channel classes do not take
+      // 0: a dead channel with an onset (no kFlagNoOnset), which the three-channel classes do not take
+      *why = r != 0 ? r : static_cast<int32_t>(ic::kErrChannelMissing);
       return false;
     }
     ic::three_channel_inputs(ev.features, ev.phys.x_mm, ev.phys.y_mm, c, in);
@@ -419,10 +423,10 @@ void App::process_capture() {
                                      &r.left_out, flagged, &cfg_.core, &why);
     if (!r.valid) {
       r.left_out = -1;
-      r.reason = static_cast<uint8_t>(why > 0 && why < 256 ? why : ic::kErrNotFinite);
+      r.reason = static_cast<uint8_t>(why > 0 && why < 256 ? why : static_cast<int32_t>(ic::kErrNotFinite));
     }
   } else {
-    r.reason = static_cast<uint8_t>(st != ic::kOk ? st : ic::kErrNoModels);  // the core's error, or no models
+    r.reason = static_cast<uint8_t>(st != ic::kOk ? st : static_cast<int32_t>(ic::kErrNoModels));  // the core's error, or no models
   }
   uint8_t ble[il::kBlePayload];
   const size_t nb = il::ble_payload(r, ble);

@@ -136,7 +136,7 @@ class Models {
     (void)core;
     *left_out = -1;
     const bool ok = predict_with_uncertainty(ev, x_mm, y_mm, energy_class, uncertainty_mm);
-    if (!ok && reason != nullptr) *reason = ev.status != impactcore::kOk ? ev.status : impactcore::kErrNotFinite;
+    if (!ok && reason != nullptr) *reason = ev.status != impactcore::kOk ? ev.status : static_cast<int32_t>(impactcore::kErrNotFinite);
     return ok;
   }
   // The channel check the models carry (a model without a twin; the card's "channel_check"), or nullptr.
