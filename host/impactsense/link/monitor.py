@@ -21,6 +21,7 @@ class Monitor:
         self.seq = protocol.SeqTracker()
         self.reports = 0
         self.rejected: Counter = Counter()  # reports without a position, by reason key
+        self._version_said = False
 
     def frames(self, idle_timeout_s: float | None = None):
         """Yields decoded frames (dicts, see `_link.Decoder.feed`) until the port closes."""
@@ -63,7 +64,14 @@ class Monitor:
             return None
         return (f"{n + n_ble} frame(s) of protocol version {v or v_ble} dropped (not read as reports): this host "
                 f"reads version {protocol.VERSION}; flash the board with the firmware of this release (README, "
-                f"\"Board\") or use the host that matches the board's firmware")
+                f"\"Firmware\") or use the host that matches the board's firmware")
+
+    def say_version(self, err) -> None:
+        """Prints version_note() once, when there is one."""
+        note = None if self._version_said else self.version_note()
+        if note:
+            print(f"monitor: {note}", file=err, flush=True)
+            self._version_said = True
 
 
 REPORT_HEADER = (f"{'seq':>6} {'t_ms':>9} {'x_mm':>7} {'y_mm':>7} {'±mm':>6} {'E':>2} "
@@ -186,7 +194,6 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             break
         retries = 0
         mon = Monitor(port)
-        version_noted = False
         if log is not None:
             log.connection_opened()
         frames = mon.frames(idle_timeout_s)
@@ -201,9 +208,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
             for frame in frames:
                 if log is not None and frame["kind"] not in ("report", "raw"):
                     log.add_frame(frame["kind"], frame)
-                if not version_noted and mon.version_note():  # said once a connection, on the next frame after it
-                    print(f"monitor: {mon.version_note()}", file=err, flush=True)
-                    version_noted = True
+                mon.say_version(err)  # once a connection, with the next frame after one of another version
                 if frame["kind"] == "status":  # the board's health, once a second: beside the reports (stderr)
                     st = frame["status"]
                     print(json.dumps({"status": _json_safe(st)}, sort_keys=True) if json_lines else status_line(st),
@@ -216,13 +221,10 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                     log.add_report(r, mon.counters())
                 if plot is not None and state["plot"] is not None:
                     state["plot"].add(r)
-                if json_lines:
-                    print(report_json(r), file=out, flush=True)
-                else:
-                    if not header_done:
-                        print(REPORT_HEADER, file=out)
-                        header_done = True
-                    print(report_line(r, mon.rejected), file=out, flush=True)
+                if not json_lines and not header_done:
+                    print(REPORT_HEADER, file=out)
+                    header_done = True
+                print(report_json(r) if json_lines else report_line(r, mon.rejected), file=out, flush=True)
         except KeyboardInterrupt:
             reconnect = False
             print("monitor: stopped (Ctrl-C)", file=err)
@@ -235,8 +237,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                 pass
         if plot is not None and state["plot"] is not None:
             state["plot"].refresh()
-        if not version_noted and mon.version_note():  # nothing but other-version frames came
-            print(f"monitor: {mon.version_note()}", file=err, flush=True)
+        mon.say_version(err)  # nothing but frames of another version came
         for k, v in mon.counters().items():
             totals[k] = max(totals.get(k, 0), v) if k.endswith("other_version") else totals.get(k, 0) + v
         if log is not None:
