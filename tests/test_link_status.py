@@ -90,7 +90,7 @@ def test_host_that_stops_reading_for_2_s_loses_counted_reports_not_buffers(drops
 
 
 def test_host_that_stops_reading_for_2_s_without_raw_loses_nothing(drops):
-    """Reports only: 2 s at 20 drops a second is 40 x 28 bytes (+ 2 status frames), well inside the 4 KB queue."""
+    """Reports only: 2 s at 20 drops a second is 40 x 29 bytes (+ 2 status frames), well inside the 4 KB queue."""
     assert 40 * _link.REPORT_FRAME_BYTES + 2 * _link.STATUS_FRAME_BYTES < _link.TX_QUEUE_BYTES
     emu, chunks = stream(drops, lambda t: not 1.0 <= t < 3.0)
     reports, status, seq = decode(chunks)

@@ -439,7 +439,9 @@ void App::process_capture() {
     raw_off_ = 0;
     return;
   }
-  send_report();
+  // The serial frame around the body packed for the notification (send_report() packs it again: the held-back case).
+  const size_t n = il::encode_frame(il::kTypeReport, ble + 1, il::kReportBody, tx_, sizeof(tx_));
+  if (!txq_.push(tx_, n)) ++dropped_reports_;
 }
 
 int App::check_event(int32_t status) {
