@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .level_members import LEVEL_MEMBERS
+from .travel_field import FIELD_MEMBERS
 from .pipeline import Features
 from .signal import SignalConfig
 
@@ -24,7 +25,7 @@ POSITION_MEMBERS = ("threshold", "band")
 # "Edge images in the travel time").
 EDGE_MEMBERS = ("physics_edge", "threshold_edge", "band_edge")
 MEMBER_FILES = {f"{axis}_{name}": f"forest_d{axis}_{name}.npz" for name in POSITION_MEMBERS + EDGE_MEMBERS
-                + LEVEL_MEMBERS for axis in "xy"}
+                + LEVEL_MEMBERS + FIELD_MEMBERS for axis in "xy"}
 # The edge correction is kept when it brings the training drops' physics MAE to this fraction of the core's
 # (the rule of pipeline.STARTS_GAIN). It is tried only with drops at this many distinct positions or more (five
 # per coefficient of a pick set: its bases change over the plate, near every edge): on fewer the eight numbers
