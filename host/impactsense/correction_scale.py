@@ -207,13 +207,14 @@ def scale_forests(forests, scale: float) -> None:
 
 def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train, signal, edge: dict,
                            fx, fy, members: dict, settings, levels: dict | None = None,
-                           fields: dict | None = None) -> None:
+                           fields: tuple | None = None) -> None:
     """ImpactModel.fit's step without a site map: the training drops' (`train`, their Features) choice of the
     factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair.
     levels (level_members.level_positions of train, or None): the level members join `members` (in place) when
-    the out-of-fold rule keeps them (choose_level_members; the card's "level_members"). fields (the travel field
-    members' out-of-fold positions of train, travel_field.out_of_fold_positions, or None): the same rule decides
-    whether they join after the level members (the card's "travel_field_members")."""
+    the out-of-fold rule keeps them (choose_level_members; the card's "level_members"). fields
+    (travel_field.training_fields of train: the fields and the members' out-of-fold positions, or None): the same
+    rule decides whether the field members join after the level members (the card's "travel_field_members"; kept,
+    the fields in "travel_field")."""
     from .models import LOCATION_FEATURES
     from .pipeline import columns_reading
 
@@ -230,15 +231,15 @@ def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train,
         choice = level_choice["with" if level_choice["keep"] else "without"]
         if level_choice["keep"]:
             members.update(fit_member_pairs(levels, X_loc, xy, settings.regressor, names, all_or_none=False))
-    if fields:   # the travel field's members (travel_field.py) join when the out-of-fold rule keeps them
+    if fields and fields[1]:   # the travel field's members (travel_field.py), by the same rule
         kept = {**(edges or {}), **({n: levels[n] for n in levels} if levels and any(n in members for n in levels)
                                      else {})}
-        field_choice = choose_level_members(X_loc, phys, positions, kept, fields, xy, settings, names)
+        field_choice = choose_level_members(X_loc, phys, positions, kept, fields[1], xy, settings, names)
         if field_choice is not None:
             card["travel_field_members"] = {k: v for k, v in field_choice.items() if k not in ("with", "without")}
             if field_choice["keep"]:
-                choice = field_choice["with"]
-                members.update(fit_member_pairs(fields, X_loc, xy, settings.regressor, names, all_or_none=False))
+                choice, card["travel_field"] = field_choice["with"], fields[0]
+                members.update(fit_member_pairs(fields[1], X_loc, xy, settings.regressor, names, all_or_none=False))
     if choice is not None:
         card["correction_scale"] = choice
         scale_forests([fx, fy, *(f for pair in members.values() for f in pair)], choice["scale"])

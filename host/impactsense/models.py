@@ -23,14 +23,14 @@ from sklearn.ensemble import RandomForestClassifier, RandomForestRegressor
 
 from . import __version__, _core
 from .channel_check import fit_channel_check
-from .correction_scale import drop_sites, scale_model_correction
+from .correction_scale import scale_model_correction
 from .errors import DataError
 from .forestfile import save_forest
 from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHANNEL_FILE, LinearHeightClass,
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes)
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
-from .travel_field import FIELD_MEMBERS, field_positions, fields_ok, fit_fields, out_of_fold_positions
+from .travel_field import FIELD_MEMBERS, check_card_fields, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
@@ -254,14 +254,9 @@ class ImpactModel:
                 card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             levels = level_positions(train) if choose_edge and members else None   # level_members.py
-            fields, field_xy = {}, None
-            if choose_edge and members:   # travel_field.py: its members' training positions out of fold
-                fields = fit_fields(train.raw, xy, signal)
-                field_xy = out_of_fold_positions(train.raw, xy, signal, drop_sites(xy)) if fields else None
+            fields = training_fields(train.raw, xy, signal) if choose_edge and members else None   # travel_field.py
             scale_model_correction(card, X[:, loc_cols], xy, train, signal, edge, fx, fy, member_forests, settings,
-                                   levels, field_xy or None)
-            if any(n in member_forests for n in FIELD_MEMBERS):
-                card["travel_field"] = fields
+                                   levels, fields)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
@@ -360,8 +355,7 @@ class ImpactModel:
                  if self.edge_travel and any(n in self.members for n in EDGE_MEMBERS) else {})
         if any(n in self.members for n in LEVEL_MEMBERS):   # absent from features: those members do not join
             edges.update(level_positions(sub) or {})
-        if any(n in self.members for n in FIELD_MEMBERS):   # travel_field.py, from the card's fields
-            edges.update(field_positions(sub.raw, self.signal, self.card["travel_field"]))
+        edges.update(member_field_positions(sub.raw, self.signal, self.card, self.members))   # travel_field.py
         X_loc = features.vector[rows][:, columns(self.location_features)]
         xy[rows] = joined_position(xy[rows], sub.phys_xy_mm, self.members, X_loc, positions, edges,
                                    self.location_features)[0]
@@ -495,9 +489,7 @@ class ImpactModel:
         if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
             raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
                                                       "[numbers] or null} (edge_travel.N_BASES each)")
-        if any(n in FIELD_MEMBERS for n in names) and not fields_ok(card.get("travel_field")):
-            raise DataError(card_path, "travel_field", "the travel field's members need its fields per pick set "
-                                                       "(travel_field.KEYS, numbers)")
+        check_card_fields(card, card_path, names)
         if names and loc != columns_reading(signal.channel_left_out, LOCATION_FEATURES):
             raise DataError(card_path, "position_members", "needs the current location_features (without a "
                                                            "left-out channel's arrival times)")

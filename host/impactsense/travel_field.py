@@ -18,6 +18,8 @@ their site's fold (FOLDS, grouped by drop site).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .edge_travel import _localise, _metric, pick_set_arrivals
@@ -29,7 +31,7 @@ PASSES = 3
 FOLDS = 5
 MIN_SITES = 20        # fewer training sites: no field (a smooth map of four channels from fewer is guesswork)
 LENGTH_BOUNDS_MM = (20.0, 500.0)
-MAX_SITES = 400       # a larger training set is thinned (the GP's cost grows as n^3)
+MAX_SITES = 400       # more sites are thinned (the GP's cost grows as their number cubed)
 KEYS = ("sites_mm", "alpha", "length_mm", "amplitude", "mean_us", "scale_us")
 
 
@@ -44,14 +46,18 @@ def _residuals(raw: dict, xy_mm: np.ndarray, signal, pick_set: str):
 def fit_field(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> dict | None:
     """A pick set's field (plain numbers, KEYS) from drops at known positions with four picks, or None with fewer
     than MIN_SITES distinct positions."""
+    from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
     xy = np.asarray(xy_mm, float)
     r, rows = _residuals(raw, xy, signal, pick_set)
-    X = xy[rows]
-    if len(np.unique(np.round(X, 1), axis=0)) < MIN_SITES:
+    # one point per drop site: the mean residual of its drops (the GP's cost grows as the points cubed)
+    X, site = np.unique(np.round(xy[rows], 1), axis=0, return_inverse=True)
+    site = np.ravel(site)
+    if len(X) < MIN_SITES:
         return None
+    r = np.stack([np.bincount(site, r[:, c]) for c in range(r.shape[1])], 1) / np.bincount(site)[:, None]
     if len(X) > MAX_SITES:
         keep = np.linspace(0, len(X) - 1, MAX_SITES).round().astype(int)
         X, r = X[keep], r[keep]
@@ -59,7 +65,9 @@ def fit_field(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> dict | Non
     out["sites_mm"] = X.tolist()
     for c in range(r.shape[1]):
         kernel = ConstantKernel(1.0) * RBF(100.0, LENGTH_BOUNDS_MM) + WhiteKernel(0.5)
-        gp = GaussianProcessRegressor(kernel, normalize_y=True).fit(X, r[:, c])
+        with warnings.catch_warnings():   # a length at its bound is a fit, not a fault the user can act on
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gp = GaussianProcessRegressor(kernel, normalize_y=True).fit(X, r[:, c])
         k = gp.kernel_
         out["alpha"].append([float(a) for a in np.ravel(gp.alpha_)])
         out["length_mm"].append(float(k.k1.k2.length_scale))
@@ -126,6 +134,31 @@ def out_of_fold_positions(raw: dict, xy_mm: np.ndarray, signal, sites: np.ndarra
         for name, pos in field_positions(held_raw, signal, fields).items():
             out[name][held] = pos
     return out
+
+
+def training_fields(raw: dict, xy_mm: np.ndarray, signal) -> tuple[dict, dict | None]:
+    """(fit_fields of the training drops, their out_of_fold_positions; None without a field or when a fold could
+    not fit one): what models.ImpactModel.fit hands correction_scale's rule."""
+    from .correction_scale import drop_sites
+
+    fields = fit_fields(raw, xy_mm, signal)
+    oof = out_of_fold_positions(raw, xy_mm, signal, drop_sites(np.asarray(xy_mm, float))) if fields else None
+    return fields, (oof or None)
+
+
+def member_field_positions(raw: dict, signal, card: dict, members) -> dict[str, np.ndarray]:
+    """field_positions from a model card's fields when the model's members include a field member, else {}."""
+    return field_positions(raw, signal, card["travel_field"]) if any(n in members for n in FIELD_MEMBERS) else {}
+
+
+def check_card_fields(card: dict, card_path, names) -> None:
+    """Raises DataError naming the card's travel_field when a field member is listed and the fields are not as
+    fit_fields writes them."""
+    from .errors import DataError
+
+    if any(n in FIELD_MEMBERS for n in names) and not fields_ok(card.get("travel_field")):
+        raise DataError(card_path, "travel_field", "the field members need fields per pick set (travel_field.KEYS, "
+                                                   "numbers)")
 
 
 def fields_ok(fields) -> bool:
