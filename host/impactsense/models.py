@@ -30,12 +30,12 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes)
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
-from .travel_field import FIELD_MEMBERS, check_card_fields, member_field_positions, training_fields
+from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
-from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, choose_edge_travel,
-                               edge_coefficients_ok, edge_positions, fit_member_pairs, joined_position,
+from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, check_card_members, choose_edge_travel,
+                               edge_positions, fit_member_pairs, joined_position,
                                member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
@@ -254,9 +254,8 @@ class ImpactModel:
                 card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             levels = level_positions(train) if choose_edge and members else None   # level_members.py
-            fields = training_fields(train.raw, xy, signal) if choose_edge and members else None   # travel_field.py
             scale_model_correction(card, X[:, loc_cols], xy, train, signal, edge, fx, fy, member_forests, settings,
-                                   levels, fields)
+                                   levels, training_fields(train.raw, xy, signal) if choose_edge and members else None)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
@@ -485,11 +484,7 @@ class ImpactModel:
         names, known = card.get("position_members", []), POSITION_MEMBERS + EDGE_MEMBERS + LEVEL_MEMBERS + FIELD_MEMBERS
         if not isinstance(names, list) or any(n not in known for n in names):
             raise DataError(card_path, "position_members", f"must list names from {list(known)}")
-        edge = card.get("edge_travel", {})
-        if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
-            raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
-                                                      "[numbers] or null} (edge_travel.N_BASES each)")
-        check_card_fields(card, card_path, names)
+        edge = check_card_members(card, card_path, names)   # the edge members' coefficients, the field members' fields
         if names and loc != columns_reading(signal.channel_left_out, LOCATION_FEATURES):
             raise DataError(card_path, "position_members", "needs the current location_features (without a "
                                                            "left-out channel's arrival times)")

@@ -105,6 +105,20 @@ def edge_coefficients_ok(edge) -> bool:
             and (edge["band"] is None or numbers(edge["band"])))
 
 
+def check_card_members(card: dict, card_path, names: list[str]) -> dict:
+    """The card's edge_travel entry ({} when absent); raises DataError when the card lists an edge member without
+    edge_coefficients_ok coefficients or a field member without travel_field.fields_ok fields."""
+    from .errors import DataError
+    from .travel_field import check_card_fields
+
+    edge = card.get("edge_travel", {})
+    if any(n in EDGE_MEMBERS for n in names) and not edge_coefficients_ok(edge):
+        raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
+                                                  "[numbers] or null} (edge_travel.N_BASES each)")
+    check_card_fields(card, card_path, names)
+    return edge
+
+
 def member_inputs(X_loc: np.ndarray, base: np.ndarray, names: list[str]) -> np.ndarray:
     """The location features (columns `names`) with the physics position's columns replaced by a member's
     position."""
