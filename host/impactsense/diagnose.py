@@ -44,11 +44,14 @@ from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
-from .move_or_delay import move_over_delay_on_both_picks, name_the_move_over_a_delay, record_with_energy
+from .move_or_delay import (move_beats_delay, move_over_delay_on_both_picks, move_over_delay_with_energy,
+                            name_the_move_over_a_delay, record_with_energy)
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
+HELD_OUT_FIGURES = True   # a move with its own evidence and no rejected constant: named also where it beats the
+                          # delay on the held-out picks (and energies) by `move_or_delay.move_beats_delay`
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
 # A re-glued disc lands near its mark: a sensor move larger than this fraction of the nearest declared sensor
@@ -168,6 +171,8 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         thr = ALPHA / len(cands)
         both = move_over_delay_on_both_picks(current, F, folds, results, gains)
         delay_better = {k: -float(v.sum()) >= np.log(len(cands) / ALPHA) for k, v in both.items()}
+        with_energy = move_over_delay_with_energy(current, F, folds, results, both)
+        move_better = move_beats_delay(both, with_energy, len(cands), ALPHA) if HELD_OUT_FIGURES else set()
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
@@ -187,14 +192,15 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
                 ok = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
                 if not ok and ("channel_delay", c.sensor) in gains:   # ... or its held-out gain over it does
                     diff = gains[(c.effect, c.sensor)] - gains[("channel_delay", c.sensor)]
-                    ok = _evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
+                    ok = (_evidence(float(diff.sum()), _one_sided_p(_case_sums(diff, F.case_id)), len(cands))
+                          or (c.sensor in move_better and not delay_better.get(c.sensor, False)))
             if ok and c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 ok = False    # larger than a re-glued disc can be: the channel is not a moved disc
                 too_far.append(c)
             c.significant = bool(ok)
         _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
-        with_energy = name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA)
+        name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA, with_energy)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
