@@ -372,3 +372,30 @@ def test_either_figure_names_no_delay_a_move_and_misses_no_move_the_old_rule_nam
         out = select(F, True)
         assert out and (out[0].effect, out[0].sensor) == ("channel_delay", 2), (seed, out and out[0].effect)
     assert moves[True] >= moves[False], moves
+
+
+def test_the_delay_is_named_where_the_channels_move_has_the_evidence():
+    """`diagnose._delay_where_the_move_has_the_evidence`: a channel whose move has the evidence against no change
+    (not named: no test rejects a constant) names its delay when the delay's held-out ratio reaches
+    ln(n / ALPHA) though its per-case t-test misses (rig-b seed 6's -4.42 us delay: 19.3 nats, p 0.06); not
+    without the move's evidence, nor under the bound, nor where a rival is already named on the channel."""
+    from impactsense import diagnose as D
+
+    def cands(delay_score, named_move=False):
+        return [D.Candidate("sensor_position", 2, {"dx_mm": -4.0, "dy_mm": -2.3, "offset_mm": 4.6}, 20.3, 0.031,
+                            True, named_move, []),
+                D.Candidate("channel_delay", 2, {"delay_us": -2.8}, delay_score, 0.06, True, False, [])]
+
+    n = 28   # ln(28 / 0.05) = 6.33
+    out = cands(19.3)
+    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    assert out[1].significant
+    out = cands(19.3)
+    D._delay_where_the_move_has_the_evidence(out, set(), n)
+    assert not out[1].significant
+    out = cands(6.0)
+    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    assert not out[1].significant
+    out = cands(19.3, named_move=True)
+    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    assert not out[1].significant

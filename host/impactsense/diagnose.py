@@ -26,8 +26,10 @@ constant to the direction test); or the move's held-out likelihood gain over the
 rejects the constant and the delay does not predict the held-out threshold and band picks better by n_candidates
 / ALPHA (`move_or_delay`: a sub-sample delay's drop-dependent picks); the delay is then not named (where the
 delay has the evidence and the move not, a rejected constant names the move). Where none does, the delay (fewer
-parameters) is named, unless the move predicts the held-out picks and log-energies (its energy law at the moved
-disc) better by n_candidates / ALPHA (`move_or_delay.name_the_move_over_a_delay`: a move along the look direction).
+parameters) is named, unless the move predicts the held-out picks, or the picks and log-energies (its energy law
+at the moved disc), better by 2 n_candidates / ALPHA (`move_or_delay.move_beats_delay`,
+`move_or_delay.name_the_move_over_a_delay`: a move along the look direction); the same figures name a move that
+has its own evidence where no test rejects a constant (`HELD_OUT_FIGURES`).
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
 significant candidate is added to the model (parameters refitted on all drops) and the search repeats; it stops
 when nothing is significant (then: `none`). 95 % intervals: delete-a-fold jackknife over the 5 folds x t(4)."""
@@ -50,6 +52,7 @@ from .move_or_delay import (move_beats_delay, move_over_delay_on_both_picks, mov
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
+DELAY_OF_AN_EVIDENT_MOVE = True   # `_delay_where_the_move_has_the_evidence`
 HELD_OUT_FIGURES = True   # a move with its own evidence and no rejected constant: named also where it beats the
                           # delay on the held-out picks (and energies) by `move_or_delay.move_beats_delay`
 PROBE_DROPS = 48
@@ -201,6 +204,8 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
         name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA, with_energy)
+        if DELAY_OF_AN_EVIDENT_MOVE:
+            _delay_where_the_move_has_the_evidence(results, evident, len(cands))
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
@@ -274,6 +279,20 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
             c.significant = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
+
+
+def _delay_where_the_move_has_the_evidence(results, evident: set, n_cands: int) -> None:
+    """Names the constant delay on a channel whose move has the evidence against no change but is not named (no
+    test rejects a constant, neither held-out figure prefers the move) and whose delay's own held-out ratio
+    reaches ln(n_cands / ALPHA) (the Markov half of `_evidence`; its per-case t-test may miss on heavy-tailed
+    case gains): the channel changed, and of the two rivals the constant is the simpler. Only on a channel with
+    such a move: no name on a channel without the evidence of a change."""
+    named = {c.sensor for c in results if c.significant and c.effect in RIVALS}
+    bound = np.log(n_cands / ALPHA)
+    for c in results:
+        if (c.effect == "channel_delay" and not c.significant and c.sensor not in named and c.material
+                and ("sensor_position", c.sensor) in evident and c.score >= bound):
+            c.significant = True
 
 
 def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
