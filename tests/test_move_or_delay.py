@@ -302,7 +302,7 @@ def test_a_delay_with_unchanged_energies_stays_a_delay(monkeypatch):
 def test_a_move_beats_the_delay_on_either_figure_at_the_two_figure_bound(monkeypatch):
     """`move_beats_delay`: the move over the delay on the held-out picks alone or on the picks and energies, each
     against ln(2 n / alpha) (two figures of one comparison). A move the picks favour by 9 nats and the energy law
-    drags to 5.4 (rig-b seed 5 move-10's figures) passes; 6.5 on both (over the one-figure bound ln(n / alpha)
+    drags to 5.4 (a measured move's figures: docs/findings.md, loop16) passes; 6.5 on both (over the one-figure bound ln(n / alpha)
     = 6.33 with 28 candidates, under the two-figure 7.02) does not; the delay better on both does not.
     EITHER_FIGURE off: the picks-and-energies figure alone at ln(n / alpha)."""
     from impactsense import move_or_delay as MD
@@ -377,7 +377,7 @@ def test_either_figure_names_no_delay_a_move_and_misses_no_move_the_old_rule_nam
 def test_the_delay_is_named_where_the_channels_move_has_the_evidence():
     """`diagnose._delay_where_the_move_has_the_evidence`: a channel whose move has the evidence against no change
     (not named: no test rejects a constant) names its delay when the delay's held-out ratio reaches
-    ln(n / ALPHA) though its per-case t-test misses (rig-b seed 6's -4.42 us delay: 19.3 nats, p 0.06); not
+    ln(n / ALPHA) though its per-case t-test misses (a measured delay: 19.3 nats, p 0.06; docs/findings.md, loop16); not
     without the move's evidence, nor under the bound, nor where a rival is already named on the channel."""
     from impactsense import diagnose as D
 
