@@ -1,4 +1,4 @@
-"""A channel's blocked move outranks the other channels' weaker delays (`diagnose._shadows_of_a_stronger_channel`).
+"""A channel's blocked move outranks the other channels' weaker delays (`move_or_delay.shadows_of_a_stronger_channel`).
 
 The per-drop centring couples the channels' timing: a moved disc whose move has the evidence against no change, but
 whose timing change no test tells from a constant, gave another channel's delay a held-out gain of its own, and that
@@ -8,6 +8,7 @@ weaker delay was named on the wrong sensor (docs/findings.md, issue 16 loopdraws
 from __future__ import annotations
 
 from impactsense import diagnose as D
+from impactsense import move_or_delay as MD
 
 
 def cand(effect, sensor, score, significant, offset_mm=6.0):
@@ -18,7 +19,7 @@ def cand(effect, sensor, score, significant, offset_mm=6.0):
 def run(results, evident=None, move_bound=40.0, unabsorbed=None):
     if evident is None:
         evident = {(c.effect, c.sensor) for c in results}
-    D._shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed or {})
+    MD.shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed or {})
     return {(c.effect, c.sensor): (c.significant, c.shadow_of) for c in results}
 
 

@@ -256,7 +256,7 @@ def _select_energy(F: R.Features, monkeypatch, by_energy: bool):
 
     monkeypatch.setattr(D, "EFFECTS", {k: EFFECTS[k] for k in ("sensor_position", "channel_delay")})
     monkeypatch.setattr(MD, "MOVE_BY_ENERGY", by_energy)
-    monkeypatch.setattr(D, "HELD_OUT_FIGURES", by_energy)   # the old rule: neither held-out figure names a move
+    monkeypatch.setattr(MD, "HELD_OUT_FIGURES", by_energy)   # the old rule: neither held-out figure names a move
     ref = _reference()
     ref.beta = ENERGY_BETA
     ref.sigma = {"timing": float(np.hypot(3.0, 2.0)), "energy": ENERGY_SD, "spectrum": 1.0, "decay": 1.0,
@@ -350,7 +350,7 @@ def test_either_figure_names_no_delay_a_move_and_misses_no_move_the_old_rule_nam
 
     def select(F, new):
         monkeypatch.setattr(MD, "EITHER_FIGURE", new)
-        monkeypatch.setattr(D, "HELD_OUT_FIGURES", new)
+        monkeypatch.setattr(MD, "HELD_OUT_FIGURES", new)
         ref = _band_reference()
         ref.band["sigma_us"] = float(np.hypot(3.0, 3.0))
         ref.beta = ENERGY_BETA
@@ -375,11 +375,12 @@ def test_either_figure_names_no_delay_a_move_and_misses_no_move_the_old_rule_nam
 
 
 def test_the_delay_is_named_where_the_channels_move_has_the_evidence():
-    """`diagnose._delay_where_the_move_has_the_evidence`: a channel whose move has the evidence against no change
+    """`move_or_delay.name_the_delay_of_an_evident_move`: a channel whose move has the evidence against no change
     (not named: no test rejects a constant) names its delay when the delay's held-out ratio reaches
     ln(n / ALPHA) though its per-case t-test misses (a measured delay: 19.3 nats, p 0.06; docs/findings.md, loop16); not
     without the move's evidence, nor under the bound, nor where a rival is already named on the channel."""
     from impactsense import diagnose as D
+    from impactsense import move_or_delay as MD
 
     def cands(delay_score, named_move=False):
         return [D.Candidate("sensor_position", 2, {"dx_mm": -4.0, "dy_mm": -2.3, "offset_mm": 4.6}, 20.3, 0.031,
@@ -388,14 +389,14 @@ def test_the_delay_is_named_where_the_channels_move_has_the_evidence():
 
     n = 28   # ln(28 / 0.05) = 6.33
     out = cands(19.3)
-    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    MD.name_the_delay_of_an_evident_move(out, {("sensor_position", 2)}, n, 0.05)
     assert out[1].significant
     out = cands(19.3)
-    D._delay_where_the_move_has_the_evidence(out, set(), n)
+    MD.name_the_delay_of_an_evident_move(out, set(), n, 0.05)
     assert not out[1].significant
     out = cands(6.0)
-    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    MD.name_the_delay_of_an_evident_move(out, {("sensor_position", 2)}, n, 0.05)
     assert not out[1].significant
     out = cands(19.3, named_move=True)
-    D._delay_where_the_move_has_the_evidence(out, {("sensor_position", 2)}, n)
+    MD.name_the_delay_of_an_evident_move(out, {("sensor_position", 2)}, n, 0.05)
     assert not out[1].significant

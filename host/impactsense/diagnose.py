@@ -26,10 +26,8 @@ constant to the direction test); or the move's held-out likelihood gain over the
 rejects the constant and the delay does not predict the held-out threshold and band picks better by n_candidates
 / ALPHA (`move_or_delay`: a sub-sample delay's drop-dependent picks); the delay is then not named (where the
 delay has the evidence and the move not, a rejected constant names the move). Where none does, the delay (fewer
-parameters) is named, unless the move predicts the held-out picks, or the picks and log-energies (its energy law
-at the moved disc), better by 2 n_candidates / ALPHA (`move_or_delay.move_beats_delay`,
-`move_or_delay.name_the_move_over_a_delay`: a move along the look direction); the same figures name a move that
-has its own evidence where no test rejects a constant (`HELD_OUT_FIGURES`).
+parameters) is named, unless the move beats it on a held-out figure (picks; picks and log-energies at the moved
+disc) by 2 n_candidates / ALPHA (`move_or_delay`: a move along the look direction, or with evidence but no test).
 p-values and `ambiguous` in the report, with the held-out log-likelihood difference of the two. The best
 significant candidate is added to the model (parameters refitted on all drops) and the search repeats; it stops
 when nothing is significant (then: `none`). 95 % intervals: delete-a-fold jackknife over the 5 folds x t(4)."""
@@ -46,15 +44,11 @@ from . import residuals as R
 from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
-from .move_or_delay import (move_beats_delay, move_over_delay_on_both_picks, move_over_delay_with_energy,
-                            name_the_move_over_a_delay, record_with_energy)
+from . import move_or_delay as MD
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
-DELAY_OF_AN_EVIDENT_MOVE = True   # `_delay_where_the_move_has_the_evidence`
-HELD_OUT_FIGURES = True   # a move with its own evidence and no rejected constant: named also where it beats the
-                          # delay on the held-out picks (and energies) by `move_or_delay.move_beats_delay`
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
 # A re-glued disc lands near its mark: a sensor move larger than this fraction of the nearest declared sensor
@@ -81,7 +75,7 @@ class Candidate:
     significant: bool
     fold_params: list
     rival: dict | None = None   # the rival on the same sensor: its name, held-out gain difference, p
-    shadow_of: int | None = None   # not named: a stronger channel's move outranks it (`_shadows_of_a_stronger_channel`)
+    shadow_of: int | None = None   # not named: a stronger channel's move outranks it (`move_or_delay.shadows_of_a_stronger_channel`)
 
 
 def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
@@ -172,10 +166,9 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
                                      bool(EFFECTS[name].material(params)), False, fp))
         thr = ALPHA / len(cands)
-        both = move_over_delay_on_both_picks(current, F, folds, results, gains)
+        both = MD.move_over_delay_on_both_picks(current, F, folds, results, gains)
         delay_better = {k: -float(v.sum()) >= np.log(len(cands) / ALPHA) for k, v in both.items()}
-        with_energy = move_over_delay_with_energy(current, F, folds, results, both)
-        move_better = move_beats_delay(both, with_energy, len(cands), ALPHA) if HELD_OUT_FIGURES else set()
+        with_energy, move_better = MD.held_out_figures(current, F, folds, results, both, len(cands), ALPHA)
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
@@ -203,16 +196,15 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             c.significant = bool(ok)
         _flag_strongest(results, too_far, unabsorbed, move_bound)
         _move_where_a_constant_is_rejected(results, direction, move_bound, unabsorbed, delay_better)
-        name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA, with_energy)
-        if DELAY_OF_AN_EVIDENT_MOVE:
-            _delay_where_the_move_has_the_evidence(results, evident, len(cands))
+        MD.name_the_move_over_a_delay(current, F, folds, results, both, move_bound, unabsorbed, ALPHA, with_energy)
+        MD.name_the_delay_of_an_evident_move(results, evident, len(cands), ALPHA)
         moved = {c.sensor for c in results if c.effect == "sensor_position" and c.significant}
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
-        _shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
+        MD.shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
         _record_rivals(results, gains, direction, moved, F.case_id, both)
-        record_with_energy(results, with_energy)
+        MD.record_with_energy(results, with_energy)
         results.sort(key=lambda c: -c.score)
         last_round = results
         best = next((c for c in results if c.significant), None)
@@ -279,39 +271,6 @@ def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: flo
         if (c.effect == "sensor_position" and not c.significant and ("channel_delay", c.sensor) in passed
                 and c.material and c.params["offset_mm"] <= move_bound and c.sensor not in unabsorbed):
             c.significant = _constant_rejected(direction[c.sensor]) and not delay_better.get(c.sensor, False)
-
-
-def _delay_where_the_move_has_the_evidence(results, evident: set, n_cands: int) -> None:
-    """Names the constant delay on a channel whose move has the evidence against no change but is not named (no
-    test rejects a constant, neither held-out figure prefers the move) and whose delay's own held-out ratio
-    reaches ln(n_cands / ALPHA) (the Markov half of `_evidence`; its per-case t-test may miss on heavy-tailed
-    case gains): the channel changed, and of the two rivals the constant is the simpler. Only on a channel with
-    such a move: no name on a channel without the evidence of a change."""
-    named = {c.sensor for c in results if c.significant and c.effect in RIVALS}
-    bound = np.log(n_cands / ALPHA)
-    for c in results:
-        if (c.effect == "channel_delay" and not c.significant and c.sensor not in named and c.material
-                and ("sensor_position", c.sensor) in evident and c.score >= bound):
-            c.significant = True
-
-
-def _shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
-    """A channel whose move has the evidence against no change but no test rejects a constant (so neither the
-    move nor, without its own evidence, the delay is named) outranks the other channels' delays that score
-    below it: those are not named this round (`Candidate.shadow_of`). The per-drop centring couples the
-    channels' timing, so one channel's change gives another channel's constant delay a held-out gain of its
-    own; without this rule the weaker shadow was named on the wrong sensor. It only takes names away (an
-    unchanged session cannot gain one); a move that rejects a constant is not a shadow and stays."""
-    moves = [c for c in results if c.effect == "sensor_position" and not c.significant
-             and ("sensor_position", c.sensor) in evident and c.params["offset_mm"] <= move_bound
-             and c.sensor not in unabsorbed]
-    for c in results:
-        if not c.significant or c.effect != "channel_delay":
-            continue
-        stronger = [m for m in moves if m.sensor != c.sensor and m.score > c.score]
-        if stronger:
-            c.significant = False
-            c.shadow_of = max(stronger, key=lambda m: m.score).sensor
 
 
 def _constant_rejected(tests: dict) -> bool:

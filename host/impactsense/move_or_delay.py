@@ -66,6 +66,8 @@ def move_over_delay_with_energy(current, F, folds, results, both: dict) -> dict:
 
 
 MOVE_BY_ENERGY = True   # `name_the_move_over_a_delay` renames (False: it only reports the ratio)
+HELD_OUT_FIGURES = True   # `moves_by_held_out_figures` (False: none)
+DELAY_OF_AN_EVIDENT_MOVE = True   # `name_the_delay_of_an_evident_move` (False: it names nothing)
 EITHER_FIGURE = True    # the move's held-out figure over the delay: picks alone or picks and energies (False:
                         # picks and energies only, at ln(n_candidates / alpha))
 
@@ -113,3 +115,46 @@ def record_with_energy(results, ratio: dict) -> None:
         if c.rival and c.sensor in ratio and c.effect in ("sensor_position", "channel_delay"):
             sign = 1.0 if c.effect == "sensor_position" else -1.0
             c.rival["picks_and_energy_score_difference"] = sign * float(ratio[c.sensor].sum())
+
+
+def held_out_figures(current, F, folds, results, both: dict, n_candidates: int, alpha: float):
+    """(`move_over_delay_with_energy`, the sensors whose move beats the delay by `move_beats_delay`) for
+    `diagnose.select`: a move with its own evidence against no change that no test of a constant names is named
+    where it beats the delay on a held-out figure (HELD_OUT_FIGURES False: the set is empty)."""
+    with_energy = move_over_delay_with_energy(current, F, folds, results, both)
+    return with_energy, (move_beats_delay(both, with_energy, n_candidates, alpha) if HELD_OUT_FIGURES else set())
+
+
+def name_the_delay_of_an_evident_move(results, evident: set, n_candidates: int, alpha: float) -> None:
+    """Names the constant delay on a channel whose move has the evidence against no change (in `evident`) but is
+    not named (no test rejects a constant, neither held-out figure prefers the move) and whose delay's own
+    held-out ratio reaches ln(n_candidates / alpha) (the Markov half of `diagnose._evidence`; its per-case t-test
+    can miss on heavy-tailed case gains): the channel changed, and of the two rivals the constant is the
+    simpler. Only on a channel with such a move and no rival named: no name without the evidence of a change."""
+    if not DELAY_OF_AN_EVIDENT_MOVE:
+        return
+    named = {c.sensor for c in results if c.significant and c.effect in ("sensor_position", "channel_delay")}
+    bound = np.log(n_candidates / alpha)
+    for c in results:
+        if (c.effect == "channel_delay" and not c.significant and c.sensor not in named and c.material
+                and ("sensor_position", c.sensor) in evident and c.score >= bound):
+            c.significant = True
+
+
+def shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
+    """A channel whose move has the evidence against no change but no test rejects a constant (so neither the
+    move nor, without its own evidence, the delay is named) outranks the other channels' delays that score
+    below it: those are not named this round (`Candidate.shadow_of`). The per-drop centring couples the
+    channels' timing, so one channel's change gives another channel's constant delay a held-out gain of its
+    own; without this rule the weaker shadow was named on the wrong sensor. It only takes names away (an
+    unchanged session cannot gain one); a move that rejects a constant is not a shadow and stays."""
+    moves = [c for c in results if c.effect == "sensor_position" and not c.significant
+             and ("sensor_position", c.sensor) in evident and c.params["offset_mm"] <= move_bound
+             and c.sensor not in unabsorbed]
+    for c in results:
+        if not c.significant or c.effect != "channel_delay":
+            continue
+        stronger = [m for m in moves if m.sensor != c.sensor and m.score > c.score]
+        if stronger:
+            c.significant = False
+            c.shadow_of = max(stronger, key=lambda m: m.score).sensor
