@@ -86,8 +86,10 @@ def main(argv=None):
         model_dir = train_board_models(s, build / "model", n_trees=args.trees, fs_hz=args.fs, site_map=board_map)
     export_models(model_dir, build / "models", trees=args.trees, energy_trees=args.energy_trees)
     model = ImpactModel.load(model_dir)
-    for forest in (model.forest_dx, model.forest_dy):  # the exported prefix (a random forest itself)
-        forest.estimators_ = forest.estimators_[:args.trees]
+    boosted = bool((model.card.get("board_forests") or {}).get("use_boosted"))
+    for forest in (model.forest_dx, model.forest_dy):  # the exported prefix (a random forest itself); the board's
+        if not boosted:                                # boosted trees are exported whole (no prefix is the model)
+            forest.estimators_ = forest.estimators_[:args.trees]
     if args.energy_trees and hasattr(model.forest_energy, "estimators_"):   # a linear energy estimate: whole
         model.forest_energy.estimators_ = model.forest_energy.estimators_[:args.energy_trees]
     # The image checks the models' own answer per drop (TableModels::predict: the forests, the twin); the channel
