@@ -381,6 +381,11 @@ inline float fast_log2(float v) {
 // integer to x log2(e) and a degree-6 polynomial for 2^f on [-1/2, 1/2] (Chebyshev interpolation). About a
 // fifth of newlib's expf on the Cortex-M4F (no errno, no double). The rounding of x log2(e) moves exp(x) by
 // at most ~|x| 6e-8 relative, i.e. by < 3e-8 of the largest weight (1) for any x: float rounding of the sums.
+// Always inlined: under -Os GCC keeps one out-of-line copy once a unit has several callers (twin.cpp's
+// matches), and the call costs more than the function's ~30 instructions save in flash per weight.
+#if defined(__GNUC__)
+__attribute__((always_inline))
+#endif
 inline float exp_nonpositive(float x) {
   if (!(x > -87.0f)) return 0.0f;
   const float t = x * 1.44269504f;
