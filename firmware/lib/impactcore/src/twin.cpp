@@ -139,12 +139,9 @@ TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_
 // weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
 // kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
 // (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match).
-// misfit_all (not null): also the lowest four-channel misfit over the same points, every channel's terms read
-// in match's order (A all_a, n_all features): the recheck's verdict inside the recentring's pass.
 template <int kSkip>
 TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
-                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm, float all_a = 0.0f,
-                   int n_all = 0, float* misfit_all = nullptr) {
+                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
   // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
   // window of grid points within the cutoff of it.
@@ -172,9 +169,6 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
   const float inv_t = 1.0f / cfg.temperature;
   const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
   const float cut2 = cutoff_mm * cutoff_mm;
-  const float inv_a_all = misfit_all ? 1.0f / all_a : 0.0f;
-  const float inv_n_all = misfit_all ? 1.0f / static_cast<float>(n_all) : 0.0f;
-  float best_all = INFINITY;
   // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
   // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
   float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
@@ -190,21 +184,6 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
       if (d2 > cut2) continue;
       const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
       if (q[0] == kSiteMapMissing) continue;
-      if (misfit_all) {  // match's sums and misfit, in its order
-        const float v0 = term[0].r - term[0].s * static_cast<float>(q[0]);
-        float b4 = term[0].sigma * v0, c4 = v0 * v0;
-#pragma GCC unroll 16
-        for (int k = 1; k < kTwinFeatures; ++k) {
-          const Term& t = term[k];
-          const float u = t.r - t.s * static_cast<float>(q[k]);
-          b4 += t.sigma * u;
-          c4 += u * u;
-        }
-        const float shift4 = b4 * inv_a_all;
-        float m4 = (c4 - all_a * shift4 * shift4) * inv_n_all;
-        if (m4 < 0.0f) m4 = 0.0f;
-        if (m4 < best_all) best_all = m4;
-      }
       // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
       // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
       // shift and misfit below do not tell apart).
@@ -234,7 +213,6 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
     row_n[(i - i0) / stride] = static_cast<uint16_t>(n - row_start);
   }
   r.n_points = n;
-  if (misfit_all) *misfit_all = best_all;
   if (n == 0) {
     r.status = kErrTooFewSamples;
     return r;
@@ -437,47 +415,6 @@ IC_NOINLINE void recentre_fine(const float feats[kTwinFeatures], uint16_t mask, 
   if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
 }
 
-// recentre_fine of the three channels but `left` at est's position, and in the same pass over the grid the
-// four channels' lowest misfit there (the recheck's fine match's misfit, to the bit; INFINITY when that match
-// could not run): one pass over the window instead of two.
-IC_NOINLINE void recentre_recheck(const float feats[kTwinFeatures], uint16_t usable, int left, const SiteMap& map,
-                                  const TwinConfig& cfg, TwinEstimate* est, float* misfit_all) {
-  *misfit_all = INFINITY;
-  if (map.q == nullptr || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) || !(cfg.temperature > 0.0f) ||
-      !(cfg.coarse_cutoff_mm >= 0.0f) || !(est->x_mm == est->x_mm) || !(est->y_mm == est->y_mm) || map.nx < 1 ||
-      map.ny < 1 || !(map.step_mm > 0.0f)) {
-    return;
-  }
-  Term term[kTwinFeatures];
-  float a_all = 0.0f, a = 0.0f;
-  int n_all = 0, n = 0;
-  make_terms(feats, usable, map, cfg, term, &a_all, &n_all);
-  for (int k = 0; k < kTwinFeatures; ++k) {  // make_terms of the three channels' mask: the same sums less c's
-    if (k / kTwinPerChannel == left) continue;
-    a += term[k].sigma * term[k].sigma;
-    n += (usable >> k) & 1u;
-  }
-  const bool all_ok = n_all >= kTwinPerChannel && a_all > 0.0f;
-  const bool three_ok = n >= kTwinPerChannel && a > 0.0f;
-  if (!three_ok) {  // no recentring; the recheck alone
-    if (all_ok) *misfit_all = fine_estimate(feats, usable, est->x_mm, est->y_mm, map, cfg).misfit;
-    return;
-  }
-  float m_all = INFINITY;
-  float* out_all = all_ok ? &m_all : nullptr;
-  TwinEstimate again;
-  static_assert(kChannels == 4, "recentre_recheck dispatches four channels");
-  const float x = est->x_mm, y = est->y_mm;
-  switch (left) {
-    case 0: again = match_skip<0>(term, a, n, x, y, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm, a_all, n_all, out_all); break;
-    case 1: again = match_skip<1>(term, a, n, x, y, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm, a_all, n_all, out_all); break;
-    case 2: again = match_skip<2>(term, a, n, x, y, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm, a_all, n_all, out_all); break;
-    default: again = match_skip<3>(term, a, n, x, y, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm, a_all, n_all, out_all); break;
-  }
-  *misfit_all = m_all;
-  if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
-}
-
 // The channel check's order (kTwinSearchCued): at the site-map point nearest (x_mm, y_mm), each channel's
 // leave-one-out misfit -- the four-channel residuals with that channel's taken out and the height shift
 // fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
@@ -638,26 +575,17 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   // explain there is left out (docs/method.md, "The twin's channel check").
   // The recheck is a fine match around the answer (no coarse pass: the answer is the start); when the four
   // channels agree there, their whole match from that start is reported, as before.
-  // The recheck's misfit comes from the recentring's pass (recentre_recheck, the same grid points); only
-  // when it clears the bound is the four channels' match itself made.
   if (missing == 0) {
-    TwinEstimate moved = out.est;
-    float misfit_all = INFINITY;
-    recentre_recheck(feats, usable, out.left_out, map, cfg, &moved, &misfit_all);
-    if (!(misfit_all > kBadMisfitRef * ref)) {
-      const TwinEstimate all = fine_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg);
-      if (all.status == kOk && all.log10_height_mm == all.log10_height_mm && !(all.misfit > kBadMisfitRef * ref)) {
-        const TwinEstimate whole = cfg.coarse_cutoff_mm > 0.0f
-                                       ? twin_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg)
-                                       : all;
-        out.est = whole.status == kOk && whole.log10_height_mm == whole.log10_height_mm ? whole : all;
-        out.left_out = -1;
-        out.reason = kTwinAllChannels;
-        return out;
-      }
+    const TwinEstimate all = fine_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg);
+    if (all.status == kOk && all.log10_height_mm == all.log10_height_mm && !(all.misfit > kBadMisfitRef * ref)) {
+      const TwinEstimate whole = cfg.coarse_cutoff_mm > 0.0f
+                                     ? twin_estimate(feats, usable, out.est.x_mm, out.est.y_mm, map, cfg)
+                                     : all;
+      out.est = whole.status == kOk && whole.log10_height_mm == whole.log10_height_mm ? whole : all;
+      out.left_out = -1;
+      out.reason = kTwinAllChannels;
+      return out;
     }
-    out.est = moved;
-    return out;
   }
   recentre_fine(feats, best_mask, map, cfg, &out.est);
   return out;
