@@ -302,12 +302,23 @@ uint16_t twin_features(const EventFeatures& ev, float out[kTwinFeatures]) {
 }
 
 namespace {
+// An estimate's per-event constants (make_terms), kept for the recentring with the same mask (ok: valid).
+struct Terms {
+  Term t[kTwinFeatures];
+  float a;
+  int n_used;
+  bool ok;
+};
+
 // twin_estimate for twin_match's flagged paths: a channel with no usable feature is skipped (match_terms),
 // and the coarse pass's cutoff is given (0: none; the recentring's fine_estimate). The clean path's
-// twin_estimate below is the plain form (its instructions unchanged).
+// twin_estimate below is the plain form (its instructions unchanged). keep (not null): gets the terms.
 IC_NOINLINE TwinEstimate estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
-                      const SiteMap& map, const TwinConfig& cfg, float coarse_cutoff_mm) {
+                      const SiteMap& map, const TwinConfig& cfg, float coarse_cutoff_mm, Terms* keep = nullptr) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
+  Terms local;
+  Terms& k = keep ? *keep : local;
+  k.ok = false;
   if (features == nullptr || map.q == nullptr) {
     r.status = kErrNullInput;
     return r;
@@ -317,14 +328,17 @@ IC_NOINLINE TwinEstimate estimate(const float features[kTwinFeatures], uint16_t 
     r.status = kErrBadConfig;
     return r;
   }
-  Term term[kTwinFeatures];
+  const Term* term = k.t;
   float a = 0.0f;
   int n_used = 0;
-  make_terms(features, usable, map, cfg, term, &a, &n_used);
+  make_terms(features, usable, map, cfg, k.t, &a, &n_used);
   if (n_used < kTwinPerChannel || !(a > 0.0f)) {
     r.status = kErrTooFewSamples;
     return r;
   }
+  k.a = a;
+  k.n_used = n_used;
+  k.ok = true;
   if (coarse_cutoff_mm > 0.0f) {
     // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
     // four times its area, the prior widened alike), then the match around that estimate.
@@ -415,6 +429,15 @@ IC_NOINLINE void recentre_fine(const float feats[kTwinFeatures], uint16_t mask, 
   if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
 }
 
+// recentre_fine from the terms the estimate with the same mask kept (the same match; no second make_terms).
+IC_NOINLINE void recentre_kept(const Terms& k, uint16_t mask, const SiteMap& map, const TwinConfig& cfg,
+                               TwinEstimate* est) {
+  if (!k.ok || !(est->x_mm == est->x_mm) || !(est->y_mm == est->y_mm)) return;
+  const TwinEstimate again =
+      match_terms(k.t, mask, k.a, k.n_used, est->x_mm, est->y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+  if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) *est = again;
+}
+
 // The channel check's order (kTwinSearchCued): at the site-map point nearest (x_mm, y_mm), each channel's
 // leave-one-out misfit -- the four-channel residuals with that channel's taken out and the height shift
 // fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
@@ -491,11 +514,12 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       missing_channel = c;
     }
   }
+  Terms kept;  // the dead channel's estimate's terms (filled where left_out is set below)
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
     if (missing != 1 || ev.phys.status != kOk) return out;
     out.left_out = missing_channel;
     out.reason = kTwinDeadChannel;
-    out.est = estimate(feats, usable, ev.phys.x_mm, ev.phys.y_mm, map, cfg, cfg.coarse_cutoff_mm);
+    out.est = estimate(feats, usable, ev.phys.x_mm, ev.phys.y_mm, map, cfg, cfg.coarse_cutoff_mm, &kept);
   } else {
     out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
   }
@@ -506,7 +530,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
   if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
     if (out.left_out >= 0) {
-      recentre_fine(feats, usable, map, cfg, &out.est);
+      recentre_kept(kept, usable, map, cfg, &out.est);
     } else if (loc != nullptr && out.est.status == kOk && cfg.weak_channel >= 0 && cfg.weak_channel < kChannels &&
                missing == 0) {
       const int w = cfg.weak_channel;
@@ -533,6 +557,10 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   float best = out.est.misfit;
   uint16_t best_mask = usable;
+  // best_mask's terms when an estimate kept them (the dead channel's; the cued search's candidate: it stops
+  // there); null: made again (the full search, where a later channel's estimate overwrites cand).
+  const Terms* best_terms = out.left_out >= 0 ? &kept : nullptr;
+  Terms cand;
   // The candidates: every channel with an onset in channel order (kTwinSearchFull), or in the cue's order,
   // stopping at the first that beats the bound and after kTwinCuedCandidates (kTwinSearchCued).
   int order[kChannels];
@@ -555,7 +583,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                                             loc->localiser_starts);
     if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm);
+    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;
     }
@@ -564,6 +592,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     out.left_out = c;
     out.reason = kTwinInconsistent;
     best_mask = mask;
+    best_terms = search != kTwinSearchFull ? &cand : nullptr;
     if (search != kTwinSearchFull) break;
   }
   if (out.left_out < 0) return out;
@@ -587,7 +616,11 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       return out;
     }
   }
-  recentre_fine(feats, best_mask, map, cfg, &out.est);
+  if (best_terms != nullptr) {
+    recentre_kept(*best_terms, best_mask, map, cfg, &out.est);
+  } else {
+    recentre_fine(feats, best_mask, map, cfg, &out.est);
+  }
   return out;
 }
 
