@@ -66,7 +66,7 @@ def run(build: Path, extra: list[str], qemu_log: Path | None = None) -> tuple[di
     return ticks, per_drop, p.stdout
 
 
-def profile(log: Path, elf: Path, top: int = 70) -> None:
+def profile(log: Path, elf: Path, top: int = 25) -> None:
     """Instructions executed per function over the whole test image (every stage of every drop, the
     checks included), from qemu's translation-block log: each block's instructions (in_asm) times its
     executions (exec, unchained). Calls: executions of the function's first instruction."""
