@@ -400,3 +400,20 @@ def test_the_delay_is_named_where_the_channels_move_has_the_evidence():
     out = cands(19.3, named_move=True)
     MD.name_the_delay_of_an_evident_move(out, {("sensor_position", 2)}, n, 0.05)
     assert not out[1].significant
+
+
+def test_a_moves_own_evidence_needs_the_scaled_bound():
+    """`move_or_delay.MOVE_EVIDENCE_SCALE`: on unchanged sessions the move's own held-out ratio reached ~11 nats
+    with per-case p ~0.035 (a false move by the plain bound ln(28 / 0.05) = 6.33), the weakest true move named
+    18.2 nats at p 0.036 (docs/findings.md, falsealarm). At the scaled bound (2 x 6.33 = 12.7) the first has no
+    evidence of its own, the second keeps it; the delay's own bound and the Bonferroni path are unchanged."""
+    from impactsense import diagnose as D
+    from impactsense import move_or_delay as MD
+
+    n = 28
+    move = MD.own_evidence_scale("sensor_position")
+    assert 1.5 <= move <= 3.0 and MD.own_evidence_scale("channel_delay") == 1.0
+    assert D._evidence(10.9, 0.035, n) and not D._evidence(10.9, 0.035, n, move)
+    assert D._evidence(18.2, 0.036, n, move)
+    assert D._evidence(10.9, 0.001, n, move)          # per-case gains at alpha / n: no ratio bound
+    assert not D._evidence(18.2, 0.06, n, move)       # the ratio alone is never enough

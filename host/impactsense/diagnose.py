@@ -11,7 +11,8 @@ the held-out fifth (5 folds, split by case so repetitions never straddle train a
 the held-out log-likelihood gain over the current model, summed over drops (nats). A candidate is
 significant when (1) its per-case held-out gains are positive by a one-sided t-test at
 alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), or its
-held-out likelihood ratio exceeds n_candidates / alpha with the t-test at plain alpha (`_evidence`), (2) it is
+held-out likelihood ratio exceeds n_candidates / alpha (a move: its square, `move_or_delay.MOVE_EVIDENCE_SCALE`)
+with the t-test at plain alpha (`_evidence`), (2) it is
 material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
 simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
 sensor and a constant delay on the same channel) are told apart by the one thing that differs between them:
@@ -100,14 +101,14 @@ def _one_sided_p(case_gains: np.ndarray) -> float:
     return float(t.pvalue)
 
 
-def _evidence(score: float, p_value: float, n_cands: int) -> bool:
+def _evidence(score: float, p_value: float, n_cands: int, scale: float = 1.0) -> bool:
     """Significant: the per-case held-out gains pass the Bonferroni t-test, or the held-out likelihood ratio
     itself exceeds n_cands / alpha (exp(score): under no change its expectation is at most 1, so by Markov's
     inequality each candidate passes with probability <= alpha / n_cands) with the per-case gains positive at
     plain alpha (the gain is not one case's doing)."""
     if score <= 0:
         return False
-    return p_value < ALPHA / n_cands or (score >= np.log(n_cands / ALPHA) and p_value < ALPHA)
+    return p_value < ALPHA / n_cands or (score >= scale * np.log(n_cands / ALPHA) and p_value < ALPHA)
 
 
 def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor):
@@ -173,7 +174,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
         for c in results:
-            ok = _evidence(c.score, c.p_value, len(cands)) and c.material
+            ok = _evidence(c.score, c.p_value, len(cands), MD.own_evidence_scale(c.effect)) and c.material
             if ok:
                 evident.add((c.effect, c.sensor))
             nest = EFFECTS[c.effect].nests
