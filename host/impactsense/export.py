@@ -243,9 +243,10 @@ TWIN_MAX_TREES = 15
 
 # The flash budget (issue 17) is for the project's code and models together: the models get what the firmware's
 # own code (firmware/src + firmware/lib, text+data as `scripts/board-build.sh` reports it, with room to grow:
-# ~62 KB now, 72 KB allowed; tests/test_board_build.py holds the real code to it) leaves of 256 KB.
+# its size is in docs/findings.md; 88 KB allowed; tests/test_board_build.py holds the real code to it) leaves of
+# 256 KB.
 FLASH_BUDGET_BYTES = 256 * 1024
-FIRMWARE_CODE_BYTES = 72 * 1024
+FIRMWARE_CODE_BYTES = 88 * 1024
 MODELS_FLASH_BUDGET = FLASH_BUDGET_BYTES - FIRMWARE_CODE_BYTES
 
 
