@@ -27,118 +27,9 @@ struct Term {
 
 // One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
 // weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
-TwinEstimate match(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
-                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
-  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
-  // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
-  // window of grid points within the cutoff of it.
-  const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
-  const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
-  x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
-  y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
-  const float inv_step = 1.0f / map.step_mm;
-  int i0 = ceil_to_int((x_mm - cutoff_mm - map.x0_mm) * inv_step);
-  int i1 = floor_to_int((x_mm + cutoff_mm - map.x0_mm) * inv_step);
-  int j0 = ceil_to_int((y_mm - cutoff_mm - map.y0_mm) * inv_step);
-  int j1 = floor_to_int((y_mm + cutoff_mm - map.y0_mm) * inv_step);
-  if (i0 < 0) i0 = 0;
-  if (j0 < 0) j0 = 0;
-  if (i1 > map.nx - 1) i1 = map.nx - 1;
-  if (j1 > map.ny - 1) j1 = map.ny - 1;
-  i0 = (i0 + stride - 1) / stride * stride;  // the strided grid: indices that are multiples of stride
-  j0 = (j0 + stride - 1) / stride * stride;
-  if (i0 > i1 || j0 > j1 || ((i1 - i0) / stride + 1) * ((j1 - j0) / stride + 1) > kMaxTwinPoints) {
-    r.status = kErrBadConfig;
-    return r;
-  }
-  const float inv_a = 1.0f / a;
-  const float inv_n = 1.0f / static_cast<float>(n_used);
-  const float inv_t = 1.0f / cfg.temperature;
-  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
-  const float cut2 = cutoff_mm * cutoff_mm;
-  // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
-  // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
-  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
-  uint16_t row_n[kMaxTwinPoints];
-  int n = 0;
-  float best_logw = -INFINITY, best_misfit = INFINITY;
-  for (int i = i0; i <= i1; i += stride) {
-    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
-    const int row_start = n;
-    for (int j = j0; j <= j1; j += stride) {
-      const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
-      const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
-      if (d2 > cut2) continue;
-      const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
-      if (q[0] == kSiteMapMissing) continue;
-      // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
-      // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
-      // shift and misfit below do not tell apart).
-      const float u0 = term[0].r - term[0].s * static_cast<float>(q[0]);
-      float b = term[0].sigma * u0, c = u0 * u0;
-#pragma GCC unroll 16
-      for (int k = 1; k < kTwinFeatures; ++k) {
-        const Term& t = term[k];
-        const float u = t.r - t.s * static_cast<float>(q[k]);
-        b += t.sigma * u;
-        c += u * u;
-      }
-      const float shift_j = b * inv_a;
-      float misfit = (c - a * shift_j * shift_j) * inv_n;
-      if (misfit < 0.0f) misfit = 0.0f;
-      const float lw = -misfit * inv_t - d2 * inv_2s2;
-      logw[n] = lw;
-      shift[n] = shift_j;
-      py[n] = gy;
-      dist2[n] = d2;
-      if (lw > best_logw) best_logw = lw;
-      if (misfit < best_misfit) best_misfit = misfit;
-      ++n;
-    }
-    row_n[(i - i0) / stride] = static_cast<uint16_t>(n - row_start);
-  }
-  r.n_points = n;
-  if (n == 0) {
-    r.status = kErrTooFewSamples;
-    return r;
-  }
-  // The weighted means, and the weighted mean squared distance from the position (the spread).
-  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
-  int m = 0;
-  for (int i = i0; i <= i1; i += stride) {
-    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
-    float row_w = 0.0f;
-    for (const int end = m + row_n[(i - i0) / stride]; m < end; ++m) {
-      const float p = exp_nonpositive(logw[m] - best_logw);
-      row_w += p;
-      sd += p * shift[m];
-      sy += p * py[m];
-      sr += p * dist2[m];
-    }
-    sw += row_w;
-    sx += row_w * gx;
-  }
-  const float inv_sw = 1.0f / sw;
-  r.log10_height_mm = cfg.ref_log10_height_mm + sd * inv_sw;
-  r.x_mm = sx * inv_sw;
-  r.y_mm = sy * inv_sw;
-  // Weighted variance about the mean = mean squared distance from the position - the mean's own squared
-  // distance from it; plus the grid's quantisation, step^2 / 12 per axis (a single dominant point is not
-  // an exact position).
-  const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
-  float var = sr * inv_sw - (ex * ex + ey * ey);
-  if (var < 0.0f) var = 0.0f;
-  r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
-  r.misfit = best_misfit;
-  return r;
-  return r;
-}
-
-// match for twin_match's flagged paths (match_terms); the clean path's match above is unchanged.
-// One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
-// weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
 // kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
-// (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match).
+// (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match);
+// kSkip < 0: every channel (the clean path).
 template <int kSkip>
 TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
                    const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
@@ -282,7 +173,7 @@ IC_NOINLINE TwinEstimate match_terms(const Term term[kTwinFeatures], uint16_t us
     case 1: return match_skip<1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
     case 2: return match_skip<2>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
     case 3: return match_skip<3>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
-    default: return match(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
+    default: return match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, stride, cutoff_mm, prior_mm);
   }
 }
 }  // namespace
@@ -390,17 +281,17 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
   if (cfg.coarse_cutoff_mm > 0.0f) {
     // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
     // four times its area, the prior widened alike), then the match around that estimate.
-    const TwinEstimate c = match(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
-                                     cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
+    const TwinEstimate c = match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
+                                          cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
     if (c.status == kOk) {
       x_mm = c.x_mm;
       y_mm = c.y_mm;
     }
-    TwinEstimate f = match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+    TwinEstimate f = match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
     f.n_points += c.n_points;
     return f;
   }
-  return match(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+  return match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
 }
 
 
