@@ -202,8 +202,8 @@ struct Terms {
 };
 
 // twin_estimate for twin_match's flagged paths: a channel with no usable feature is skipped (match_terms),
-// and the coarse pass's cutoff is given (0: none; the recentring's fine_estimate). The clean path's
-// twin_estimate below is the plain form (its instructions unchanged). keep (not null): gets the terms.
+// and the coarse pass's cutoff is given (0: none; the recentring's fine_estimate; twin_estimate: the
+// config's). keep (not null): gets the terms.
 IC_NOINLINE TwinEstimate estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
                       const SiteMap& map, const TwinConfig& cfg, float coarse_cutoff_mm, Terms* keep = nullptr) {
   TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
@@ -250,48 +250,7 @@ IC_NOINLINE TwinEstimate estimate(const float features[kTwinFeatures], uint16_t 
 
 TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable, float x_mm, float y_mm,
                            const SiteMap& map, const TwinConfig& cfg) {
-  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
-  if (features == nullptr || map.q == nullptr) {
-    r.status = kErrNullInput;
-    return r;
-  }
-  if (map.nx < 1 || map.ny < 1 || !(map.step_mm > 0.0f) || !(cfg.prior_mm > 0.0f) || !(cfg.cutoff_mm > 0.0f) ||
-      !(cfg.temperature > 0.0f) || !(cfg.coarse_cutoff_mm >= 0.0f) || !(x_mm == x_mm) || !(y_mm == y_mm)) {
-    r.status = kErrBadConfig;
-    return r;
-  }
-  // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
-  Term term[kTwinFeatures];
-  float a = 0.0f;
-  int n_used = 0;
-  for (int k = 0; k < kTwinFeatures; ++k) {
-    const bool use = (usable >> k) & 1u;
-    const float sw = use && cfg.weight[k] > 0.0f ? vsqrt_f32(cfg.weight[k]) : 0.0f;
-    Term& t = term[k];
-    t.r = use ? sw * ((features[k] - cfg.offset[k]) - map.base[k]) : 0.0f;
-    t.s = sw * map.scale[k];
-    t.sigma = sw * cfg.slope[k];
-    a += t.sigma * t.sigma;
-    n_used += use ? 1 : 0;
-  }
-  if (n_used < kTwinPerChannel || !(a > 0.0f)) {
-    r.status = kErrTooFewSamples;
-    return r;
-  }
-  if (cfg.coarse_cutoff_mm > 0.0f) {
-    // Coarse to fine: every other grid point within coarse_cutoff_mm (as many points as the fine window, over
-    // four times its area, the prior widened alike), then the match around that estimate.
-    const TwinEstimate c = match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 2, cfg.coarse_cutoff_mm,
-                                          cfg.prior_mm * cfg.coarse_cutoff_mm / cfg.cutoff_mm);
-    if (c.status == kOk) {
-      x_mm = c.x_mm;
-      y_mm = c.y_mm;
-    }
-    TwinEstimate f = match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
-    f.n_points += c.n_points;
-    return f;
-  }
-  return match_skip<-1>(term, a, n_used, x_mm, y_mm, map, cfg, 1, cfg.cutoff_mm, cfg.prior_mm);
+  return estimate(features, usable, x_mm, y_mm, map, cfg, cfg.coarse_cutoff_mm);
 }
 
 
