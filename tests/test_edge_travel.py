@@ -97,15 +97,16 @@ def edge_model(session1, tmp_path_factory, band_on_subset):
     rows, cfg, feats = band_on_subset()
     forced = {"threshold": fit_correction(feats.raw, session1.xy_mm[rows], cfg, "threshold"),
               "band": fit_correction(feats.raw, session1.xy_mm[rows], cfg, "band")}
-    keep = models.choose_edge_travel
+    keep = models.choose_edge_travel, models.training_fields
     models.choose_edge_travel = lambda *a: forced
+    models.training_fields = lambda *a: ({}, None)    # the edge members alone (no travel-field members)
     try:
         args = (feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
                 models.ForestSettings(n_estimators=10))
         model = models.ImpactModel.fit(*args, choose_edge=True)
         without = models.ImpactModel.fit(*args)
     finally:
-        models.choose_edge_travel = keep
+        models.choose_edge_travel, models.training_fields = keep
     out = tmp_path_factory.mktemp("edge") / "model"
     model.save(out)
     return model, without, feats, out
