@@ -6,23 +6,10 @@ refused (docs/findings.md "Session 19: anyrig")."""
 import numpy as np
 
 from impactsense.edge_travel import _localise
-from impactsense.signal import SignalConfig
 from impactsense.travel_field import (MIN_SITES, field_at, field_positions, fields_ok, fit_fields,
                                       out_of_fold_positions)
 
-SX = [50.0, 400.0, 395.0, 60.0]
-SY = [45.0, 55.0, 300.0, 290.0]
-V = 1.2
-
-
-def plate() -> SignalConfig:
-    cfg = SignalConfig()
-    cfg.sensor_x_mm, cfg.sensor_y_mm = list(SX), list(SY)
-    cfg.plate_x_mm, cfg.plate_y_mm = 450.0, 350.0
-    cfg.velocity_mm_per_us = V
-    cfg.localiser_starts = 4
-    cfg.sigma_us = 3.0
-    return cfg
+from test_edge_travel import SX, SY, V, plate   # the same test plate (four sensors off the corners)
 
 
 def late_us(xy):
