@@ -11,7 +11,9 @@ about the host's pick). Reference rows: the core's 100 kHz pick against the same
 sample (windowed-sinc interpolation; on an arrival that rises within one 100 kHz sample the sinc's pre-ringing
 moves the pick too, so this is not a clean phase reference), and the share of each channel's first arrival
 energy (its first 100 us at 100 kHz) above the board's Nyquist frequency, 25 kHz. --prefilter-hz low-passes the
-recordings before they are cut (an analogue anti-alias filter's model); --physics adds each picker's physics MAE.
+recordings before they are cut (an analogue anti-alias filter's model); --physics adds each picker's physics MAE
+and the core pick's on captures laid out as the SAADC scans (channels 1 and 3 interpolated half a 100 kHz sample,
+by the emulator's windowed sinc and linearly).
 
 Pickers: the core's (threshold + AIC blend, its threshold crossing, its AIC onset; featurize at 50 kHz with the
 sample counts, the baseline's too, halved), and candidates written here in numpy as a diagnosis (none is in the core):
@@ -184,6 +186,29 @@ def physics_mae(s, toa_us, starts: int) -> float:
     return float(np.abs(p[ok] - xy[~train][ok]).mean())
 
 
+def scan_frames(x, half):
+    """50 kHz captures as the board's SAADC scan reads them (channel c c x 5 us after channel 0, as
+    board.capture.board_samples lays them on its 200 kHz grid): channels 0 and 2 the recording's even and odd
+    samples, channels 1 and 3 `half` (the recording half a 100 kHz sample later) at the same indices."""
+    n = x.shape[2] // 2 - 1
+    y = np.empty((x.shape[0], 4, n), np.int16)
+    y[:, 0], y[:, 2] = x[:, 0, 0:2 * n:2], x[:, 2, 1:2 * n + 1:2]
+    y[:, 1], y[:, 3] = half[:, 1, 0:2 * n:2], half[:, 3, 1:2 * n + 1:2]
+    return y
+
+
+def scan_rows(s, x100, c50) -> None:
+    """The physics proxy of the core pick on the SAADC scan's captures, its half-sample channels made as the
+    emulator makes them (windowed sinc) and linearly: how much the emulated board's figure rests on that choice."""
+    linear = x100.copy()
+    linear[:, :, :-1] = ((x100[:, :, :-1].astype(np.int32) + x100[:, :, 1:]) // 2).astype(np.int16)
+    name = "core pick (threshold + AIC blend)"
+    for label, half in (("windowed sinc (the emulator's)", half_sample(x100)), ("linear", linear)):
+        t = core_picks(scan_frames(x100, half), c50)[0][name]
+        print(f"  SAADC scan, channels 1 and 3 interpolated {label:<31} physics MAE "
+              f"{physics_mae(s, t, 1):6.2f} {physics_mae(s, t, 2):6.2f}")
+
+
 def run(data: str, threshold: float | None = None, prefilter_hz: float = 0.0, physics: bool = False) -> None:
     from impactsense import api
     from impactsense.pipeline import as_int16
@@ -250,6 +275,7 @@ def run(data: str, threshold: float | None = None, prefilter_hz: float = 0.0, ph
         name = "core pick (threshold + AIC blend)"
         print(f"  {'100 kHz core pick (the recording as it is)':<42}{'':>30}   {'':>32}   {'':>6}"
               f"   {physics_mae(s, host[name], 1):6.2f} {physics_mae(s, host[name], 2):6.2f}")
+        scan_rows(s, x100, c50)
         if prefilter_hz > 0:
             print(f"  {'100 kHz core pick of the low-passed one':<42}{'':>30}   {'':>32}   {'':>6}"
                   f"   {physics_mae(s, own[name], 1):6.2f} {physics_mae(s, own[name], 2):6.2f}")
