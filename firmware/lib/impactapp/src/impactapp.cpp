@@ -174,6 +174,26 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     *left_out = static_cast<int8_t>(c);
     return true;
   }
+  if (!has_twin_) {
+    // Forests trained with a channel left out (channel_left_out at training) run on a drop whose left-out
+    // channel has no onset (a four-channel model's cannot: its vector is NaN there). The report names that
+    // channel and the class is the three-channel one from the other three channels' energies: the channel's
+    // own energy is not trusted (host: models.ImpactModel._left_out_class).
+    int c = -1;
+    for (int k = 0; k < ic::kChannels; ++k) {
+      if (ev.features.ch[k].flags & ic::kFlagNoOnset) c = c < 0 ? k : ic::kChannels;
+    }
+    if (c >= 0 && c < ic::kChannels) {
+      *left_out = static_cast<int8_t>(c);
+      if (three_ != nullptr && ev.phys.status == ic::kOk) {
+        ic::three_channel_inputs(ev.features, ev.phys.x_mm, ev.phys.y_mm, c, in);
+        *cls = three_[c].evaluate(three_[c].forest, in) > 0.5f ? 1 : 0;
+        *x_mm = x;
+        *y_mm = y;
+        return true;
+      }
+    }
+  }
   if (!gather(e_, ev.vector, twin, in)) {
     *why = ic::kErrNotFinite;
     return false;
