@@ -39,8 +39,8 @@ from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, che
                                member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
-from .three_channel_position import (fit_three_channel_positions, load_three_sensor_path, save_three_channel_positions,
-                                     three_sensor_path)
+from .three_channel_position import (fit_three_channel_positions, left_out_class, load_three_sensor_path,
+                                     save_three_channel_positions, three_sensor_path)
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
 from .twin import estimate as twin_estimate
 from .twin_oof import out_of_fold_twin, twin_choice  # noqa: F401 (twin_choice: models' API)
@@ -301,7 +301,7 @@ class ImpactModel:
             self._join_members(features, use, xy)
             if self.site_map is None:
                 energy_class[use] = self.forest_energy.predict(X[:, columns(self.energy_class_features)])
-                self._left_out_class(features, use, energy_class)
+                left_out_class(self, features, use, energy_class)
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
                "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
         # One channel without an onset (dead, disconnected): without a site map the physics localiser's
@@ -335,21 +335,6 @@ class ImpactModel:
                 inconsistent = ok & np.isin(np.asarray(twin["reason"]), (_core.TWIN_INCONSISTENT, _core.TWIN_WEAK_CHANNEL))
                 out["bad_channel"][rows[inconsistent]] = np.asarray(twin["left_out"])[inconsistent]
         return out
-
-    def _left_out_class(self, features: Features, use: np.ndarray, energy_class: np.ndarray) -> None:
-        """A model trained with a channel left out (signal.channel_left_out) places its drops by forests that read
-        none of that channel's arrival times; its class (in place in energy_class) is the three-channel one from
-        the other three channels' energies, as for a dead channel: the left-out channel's own energy is not
-        trusted (a loose or dead disc). The board does the same (impactapp TableModels)."""
-        from .height_class import three_channel_inputs
-
-        for c, estimate in self.three_channel_class.items():
-            if not self.signal.channel_left_out[int(c)]:
-                continue
-            rows = np.flatnonzero(use & three_channel_rows(features) & features.no_onset[:, int(c)])
-            if rows.size:
-                energy_class[rows] = estimate.predict(three_channel_inputs(
-                    {k: v[rows] for k, v in features.raw.items()}, features.phys_xy_mm[rows], int(c)))
 
     def featurize(self, adc: np.ndarray) -> Features:
         """The recordings' features as predict reads them, with the level members' positions if it has them and

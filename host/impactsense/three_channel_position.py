@@ -323,6 +323,21 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
                 {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))
 
 
+def left_out_class(model, features: Features, use: np.ndarray, energy_class: np.ndarray) -> None:
+    """A model trained with a channel left out (signal.channel_left_out) places its drops by forests that read
+    none of that channel's arrival times (`use`: the rows they placed); their class (in place in energy_class) is
+    the three-channel one from the other three channels' energies, as a dead channel's: the left-out channel's own
+    energy is not trusted (a loose or dead disc). The board does the same (impactapp TableModels)."""
+    from .height_class import three_channel_inputs
+
+    no_onset = features.no_onset.sum(1) == 1
+    for c, estimate in model.three_channel_class.items():
+        rows = np.flatnonzero(use & no_onset & features.no_onset[:, int(c)] & np.isfinite(features.phys_xy_mm).all(1))
+        if rows.size and model.signal.channel_left_out[int(c)]:
+            energy_class[rows] = estimate.predict(three_channel_inputs(
+                {k: v[rows] for k, v in features.raw.items()}, features.phys_xy_mm[rows], int(c)))
+
+
 def save_three_channel_positions(stage, pairs: dict, stack: dict | None = None) -> tuple[dict, dict]:
     """Writes the pairs (and the stack's pick forests) into a model's staging folder; returns the card's
     "three_channel_position" entry ({"c": {"x": file, "y": file}}) and its "three_channel_position_stack"

@@ -220,9 +220,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     is_test = ~is_train & ~excluded[rows]
     if channel_gain is not None:
         sig.channel_gain = [float(g) for g in channel_gain]
-    left_out = [int(bool(v)) for v in channel_left_out] if channel_left_out is not None and any(channel_left_out) \
-        else None
-    if left_out is not None:   # trained as the host's left-out model is: the channel's onset read nowhere
+    left_out = [int(bool(v)) for v in channel_left_out or []]
+    if any(left_out):   # trained as the host's left-out model is (the forests read none of its arrival times)
         sig = replace(sig, channel_left_out=left_out)
     board = SimpleNamespace(adc=caps, xy_mm=session.xy_mm[rows], rig=session.rig)
     # the rig's delays (the scan's are the capture's); the onset threshold as given (the threshold is in ADC
@@ -242,8 +241,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     if model.site_map is None:   # the position correction the event budget affords: boosted trees or a prefix
         extra_card = {**(extra_card or {}), "board_forests": board_position_forests(
             model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
-    if left_out is not None:
-        model.signal = replace(model.signal, channel_left_out=left_out)
+    model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
