@@ -119,3 +119,21 @@ def test_a_model_trained_with_a_channel_left_out_saves_and_loads(left_out_models
     assert loaded.members.keys() == three.members.keys()
     f = featurize(test.adc, three.signal)
     assert np.allclose(loaded.predict(f)["xy_mm"], three.predict(f)["xy_mm"], atol=1e-6)
+
+
+def test_a_left_out_models_class_does_not_read_the_left_out_channel(left_out_models):
+    """The class of a model trained with a channel left out is the three-channel one (the other three channels'
+    energies; three_channel_position.left_out_class, as the board's TableModels): the same drops with that channel
+    dead (its disc silent: its whole-record energy gone) keep their classes (one drop in 30 may cross: the
+    three-channel position it reads moves with the noise) and still get the forests' position."""
+    from impactsense.faults import FaultSpec, inject_session
+    from impactsense.height_class import three_channel_inputs
+
+    _, three, test = left_out_models
+    f = featurize(test.adc, three.signal)
+    dead = featurize(inject_session(test, FaultSpec(dead_channel=2, noise=1, seed=1)).adc, three.signal)
+    out, out_dead = three.predict(f), three.predict(dead)
+    want = three.three_channel_class[2].predict(three_channel_inputs(f.raw, f.phys_xy_mm, 2))
+    np.testing.assert_array_equal(out["energy_class"], want)
+    assert np.mean(out_dead["energy_class"] == out["energy_class"]) >= 0.97
+    assert np.isfinite(out_dead["xy_mm"]).all()
