@@ -169,6 +169,7 @@ def main(argv=None):
            c_array("float", "fix_toa_us", feats.toa_us, fmt_f),
            c_array("float", "fix_window_energy", feats.raw["window_energy"], fmt_f),
            c_array("float", "fix_diff_energy", feats.raw["diff_energy"], fmt_f),
+           c_array("float", "fix_energy", feats.raw["energy"], fmt_f),
            c_array("uint8_t", "fix_flags", feats.flags, str),
            c_array("float", "fix_sklearn", sk.astype(np.float32), fmt_f),
            c_array("float", "fix_slowness_scale", scales, fmt_f),

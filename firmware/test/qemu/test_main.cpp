@@ -198,7 +198,8 @@ int main() {
     host.phys.status = impactcore::kOk;
     host.phys.x_mm = fix_phys_xy[d][0];
     host.phys.y_mm = fix_phys_xy[d][1];
-    for (int c = 0; c < 4; ++c) {  // the energies and flags the twin reads
+    for (int c = 0; c < 4; ++c) {  // the energies and flags the twin and the three-channel class read
+      host.features.ch[c].energy = fix_energy[d][c];
       memcpy(host.features.ch[c].window_energy, fix_window_energy[d][c], sizeof(fix_window_energy[d][c]));
       memcpy(host.features.ch[c].diff_energy, fix_diff_energy[d][c], sizeof(fix_diff_energy[d][c]));
       host.features.ch[c].flags = fix_flags[d][c];
