@@ -58,6 +58,7 @@ PRINT_ONLY = {
     "bench_surrogates": [],
     "bench_class_cues": ["--seeds", "1"],             # height cues besides the energy; the class's bound
     "bench_move_energy": [],                          # a moved disc's energy against the distance law (issue 16)
+    "bench_move_identifiability": [],                 # how much of a move's timing signature is a delay's (issue 16)
     "bench_class_field": ["--seeds", "1"],            # late energy, a learnt position field, the heights
     "bench_class_sitefactor": ["--seeds", "1"],       # the class from the twin's site factor (rigs with a CAL.json)
     "bench_class_residual": ["--seeds", "1", "--splits", "4"],   # the class without a site map: 8 more reads, edge offset
