@@ -1,4 +1,4 @@
-"""The energy class without a site map: what the product's linear height estimate leaves, and seven more ways to
+"""The energy class without a site map: what the product's linear height estimate leaves, and nine more ways to
 read the core's outputs for it.
 
     python3 benchmarks/bench_class_residual.py [--rigs-dir DIR] [--seeds 4] [--splits 16] [--skip-bundled]
@@ -20,6 +20,11 @@ them, then the held-out class accuracy of
   the channels, or with one, a low band's energy: the sum over [ToA, n2] of the squared 16-sample block sums (the
   boxcar the core's prefix table already holds; computed here in numpy as what a core feature would give);
 - "mix forest": the estimate's class probability (Gaussian, out-of-fold rms) averaged 3:1 with the class forest's;
+- "cut shift (out of fold)": the same estimate with its cut moved by the shift (-0.15..0.15 in log energy) that
+  classes the training drops' out-of-fold estimates best, the smallest such (the class threshold calibrated on the
+  training drops, boundary heights included);
+- "channel median": the median over the channels of one linear estimate per channel (its own log energy and the
+  cubic in the physics position): robust to one channel's gain drift, glitch or clipping;
 - "+ edge offset @ P": the estimate plus a 1-D offset in the distance to the nearest plate edge: a Gaussian kernel
   smoother (2 mm) of the training drops' out-of-fold residuals against their true edge distance, read at the test
   drop's edge distance from position P: "true" (a bound), "reported" (what `train` + `evaluate` report: the
@@ -27,11 +32,12 @@ them, then the held-out class accuracy of
 Then the same candidates over --splits more random 80/20 case splits of the first seed's features (the paired
 difference against "linear estimate"; "reported" there is the out-of-fold position of one forest pair on the physics
 position, 5 case folds: the product's forests are trained per seed only), the per-case residual against the edge
-distance, and the lab's gain drift: the per-case mean of the linear estimate's out-of-fold residual against the
-recording order.
+distance, the held-out cases the linear estimate classes wrong (per seed: height, position, edge and sensor
+distance, boundary height or not, the estimate's error, the positions' errors, flagged drops), and the lab's gain
+drift: the per-case mean of the linear estimate's out-of-fold residual against the recording order.
 
 A study: nothing here changes the product; exit 0. Figures: docs/findings.md, "The class on the laminate: site
-descriptors, robust and Bayes cuts, a low band, the edge offset".
+descriptors, robust and Bayes cuts, a low band, the edge offset" and "Session 20: rigcclass".
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from benchlib import rig_study_args, rig_study_sessions  # noqa: E402
 
 LOW_BAND_BLOCK = 16
 EDGE_KERNEL_MM = 2.0
+CUT_SHIFTS = np.linspace(-0.15, 0.15, 61)   # the cut's shifts (log energy) the out-of-fold calibration tries
 
 
 def edge_distance(xy_mm: np.ndarray, plate_mm: tuple[float, float]) -> np.ndarray:
@@ -130,6 +137,8 @@ def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
     oof = oof_log_energy(X[tr], log_e[tr], d["xy"][tr], thr, E[tr])
     sigma = float(np.std(log_e[tr] - oof))
     out = {"linear estimate": est > cut}
+    out["cut shift (out of fold)"] = est - cut + oof_cut_shift(oof - cut, label[tr]) > 0
+    out["channel median"] = channel_median(d, tr, te, thr) > cut
     S = d["site"]
     forest = RandomForestRegressor(200, min_samples_leaf=5, max_features=0.5, random_state=0, n_jobs=1)
     out["+ site forest"] = est + forest.fit(S[tr], log_e[tr] - oof).predict(S[te]) > cut
@@ -153,6 +162,57 @@ def candidates(d: dict, tr: np.ndarray, te: np.ndarray) -> dict:
         offset = edge_offset(d_tr, log_e[tr] - oof, edge_distance(P[te], d["plate_mm"]))
         out[f"+ edge offset @ {where}"] = est + offset > cut
     return {k: float(np.mean(v == label[te].astype(bool))) for k, v in out.items()}
+
+
+def oof_cut_shift(oof_score: np.ndarray, label: np.ndarray) -> float:
+    """The shift of the class cut (log energy, added to the score) that classes the training drops' out-of-fold
+    scores best (estimate - cut); among equal accuracies the smallest shift (0 when nothing beats it)."""
+    acc = np.array([np.mean((oof_score + s > 0) == label.astype(bool)) for s in CUT_SHIFTS])
+    best = CUT_SHIFTS[acc >= acc.max() - 1e-12]
+    return float(best[np.argmin(np.abs(best))])
+
+
+def channel_median(d: dict, tr: np.ndarray, te: np.ndarray, thr: float) -> np.ndarray:
+    """The median over the channels of one linear estimate of log m g h per channel (its own log energy and a cubic
+    in the physics position, fitted as the product's): one channel's gain or glitch moves the sum, not the median."""
+    from impactsense.height_class import fit_linear_height_class
+
+    E = d["energy_j"]
+    est = []
+    for c in range(d["log_channel_energy"].shape[1]):
+        Xc = np.column_stack([d["log_channel_energy"][:, c], d["xy_physics"]])
+        est.append(fit_linear_height_class(Xc[tr], E[tr], thr).log_energy(Xc[te]))
+    return np.median(est, 0)
+
+
+def wrong_cases(session, d: dict, tr: np.ndarray, te: np.ndarray) -> list[dict]:
+    """The held-out drops the linear estimate classes wrong, one row per case: its height, position, distance to the
+    nearest edge and sensor, whether its height is one of the two boundary heights (the training drops' highest
+    below the threshold and lowest at or above it), the estimate's error and the height's distance from the cut
+    (log energy), the reported and physics positions' errors, the drops flagged by the core (glitch, clip)."""
+    from impactsense.height_class import class_cut, fit_linear_height_class
+
+    E = d["energy_j"]
+    thr = float(np.percentile(E[tr], 75))
+    cut = class_cut(E[tr], thr)
+    est = fit_linear_height_class(d["X_linear"][tr], E[tr], thr).log_energy(d["X_linear"][te])
+    log_e = np.log(E[te])
+    wrong = (est > cut) != (E[te] >= thr)
+    bnd = np.isin(E[te], [E[tr][E[tr] < thr].max(), E[tr][E[tr] >= thr].min()])
+    sensors = np.array([[s.x_mm, s.y_mm] for s in session.rig.sensors])
+    xy = d["xy"][te]
+    rows = []
+    for c in np.unique(session.case_id[te][wrong]):
+        k = session.case_id[te] == c
+        near = lambda P: float(np.mean(np.hypot(*(P[te][k] - xy[k]).T)))  # noqa: E731
+        rows.append({"case": int(c), "height_mm": float(session.height_mm[te][k][0]), "xy_mm": xy[k][0].tolist(),
+                     "wrong": int(wrong[k].sum()), "drops": int(k.sum()),
+                     "edge_mm": float(edge_distance(xy[k][:1], d["plate_mm"])[0]),
+                     "sensor_mm": float(np.min(np.hypot(*(sensors - xy[k][0]).T))), "boundary": bool(bnd[k][0]),
+                     "estimate_error": float(np.mean(est[k] - log_e[k])), "height_from_cut": float(log_e[k][0] - cut),
+                     "reported_error_mm": near(d["xy_reported"]), "physics_error_mm": near(d["xy_physics"]),
+                     "flagged": int((d["flags"][te][k] != 0).any(1).sum())})
+    return rows
 
 
 def oof_forest_positions(d: dict, case_id: np.ndarray) -> np.ndarray:
@@ -192,7 +252,8 @@ def seed_features(session, seed: int) -> tuple[dict, np.ndarray, np.ndarray]:
          "site": site_descriptors(v, f.raw), "low_band": low_band_energy(session.adc, f.raw),
          "window_sums": np.log10(np.maximum(f.raw["window_energy"].astype(float).sum(1), 1e-6)),
          "usable": f.usable, "plate_mm": (session.rig.plate_x_mm, session.rig.plate_y_mm),
-         "xy_physics": f.phys_xy_mm.astype(float), "xy_reported": np.asarray(model.predict(f)["xy_mm"], float)}
+         "xy_physics": f.phys_xy_mm.astype(float), "flags": np.asarray(f.raw["flags"]),
+         "log_channel_energy": np.log(np.maximum(np.asarray(f.raw["energy"], float), 1e-30)), "xy_reported": np.asarray(model.predict(f)["xy_mm"], float)}
     d["xy_reported"] = np.where(np.isfinite(d["xy_reported"]), d["xy_reported"], d["xy_physics"])
     return d, np.intersect1d(tr, np.flatnonzero(f.usable)), np.intersect1d(te, np.flatnonzero(f.usable))
 
@@ -257,6 +318,7 @@ def main(argv=None) -> int:
             if seed == 0:
                 first = d
             r.setdefault("edge_distance_error_mm", []).append(edge_distance_error(d, te))
+            r.setdefault("wrong_cases", []).append(wrong_cases(s, d, tr, te))
             for k, v in candidates(d, tr, te).items():
                 r["seeds"].setdefault(k, []).append(v)
         rng = np.random.default_rng(0)
@@ -286,6 +348,14 @@ def main(argv=None) -> int:
         print("  reported position's edge-distance error, median / 90th pct per seed (mm): within 60 mm of an edge "
               + ", ".join(f"{x['near'][0]:.1f}/{x['near'][1]:.1f}" for x in e) + "; further in "
               + ", ".join(f"{x['interior'][0]:.1f}/{x['interior'][1]:.1f}" for x in e))
+        for seed, cases_wrong in enumerate(r["wrong_cases"]):
+            for w in cases_wrong:
+                print(f"  seed {seed} wrong case {w['case']}: {w['wrong']}/{w['drops']} drops, {w['height_mm']:.0f} mm at "
+                      f"({w['xy_mm'][0]:.1f}, {w['xy_mm'][1]:.1f}), edge {w['edge_mm']:.0f} mm, sensor "
+                      f"{w['sensor_mm']:.0f} mm, {'boundary' if w['boundary'] else 'off-boundary'} height "
+                      f"{w['height_from_cut']:+.3f} from the cut, estimate {w['estimate_error']:+.3f}, position error "
+                      f"reported {w['reported_error_mm']:.1f} / physics {w['physics_error_mm']:.1f} mm, "
+                      f"{w['flagged']} flagged")
         g = r["gain_drift"]
         print(f"  gain drift: per-case residual vs recording order r {g['r_case_residual_vs_order']:+.2f}; quarters "
               f"{' '.join(f'{x:+.3f}' for x in g['quarter_mean_residual'])}; per-case sd {g['case_sd']:.3f}, "

@@ -71,3 +71,34 @@ def test_site_descriptors_do_not_read_the_drops_amplitude(session1):
     # weaker arrival (a first peak up to 9x off here), and so moves the physics position (15-16).
     free = np.r_[0:4, 8:15]
     assert np.max(np.abs(a[:, free] - b[:, free])) < 0.01
+
+
+def test_cut_shift_stays_zero_without_evidence_and_undoes_a_shared_bias():
+    rng = np.random.default_rng(2)
+    truth = rng.choice(np.log(np.arange(50.0, 260.0, 10.0)), 400) - np.log(200.0) + 0.025  # half a step off the cut
+    label = truth > 0
+    # an unbiased score whose error is below the half step classes every drop: no shift beats 0
+    assert study.oof_cut_shift(truth + rng.normal(0.0, 0.005, 400), label) == 0.0
+    # every score 0.06 low (a bias the training drops share): the shift that restores the classes is ~+0.06
+    shift = study.oof_cut_shift(truth - 0.06, label)
+    assert 0.035 <= shift <= 0.085
+    assert np.all((truth - 0.06 + shift > 0) == label)
+
+
+def test_channel_median_ignores_one_channels_gain_step():
+    # four channels, each ln E_c = ln(m g h) - 1.5 ln(r_c) + gain_c; channel 2's gain steps +0.5 on the test drops
+    rng = np.random.default_rng(3)
+    sensors = np.array([[50.0, 45.0], [400.0, 55.0], [395.0, 300.0], [60.0, 290.0]])
+    n = 300
+    xy = rng.uniform([30.0, 30.0], [420.0, 320.0], (n, 2))
+    energy = rng.choice(np.arange(50.0, 260.0, 10.0), n) * 1e-4
+    r = np.hypot(xy[:, None, 0] - sensors[None, :, 0], xy[:, None, 1] - sensors[None, :, 1])
+    log_ch = np.log(energy)[:, None] - 1.5 * np.log(r / 100.0) + rng.normal(0.0, 0.01, (n, 4))
+    tr, te = np.arange(200), np.arange(200, n)
+    log_ch[te, 2] += 0.5
+    d = {"energy_j": energy, "log_channel_energy": log_ch, "xy_physics": xy}
+    est = study.channel_median(d, tr, te, float(np.percentile(energy[tr], 75)))
+    # the cubic follows ln r only approximately; the median stays within that of the truth
+    assert np.median(np.abs(est - np.log(energy[te]))) < 0.08
+    mean = np.mean([log_ch[te, c] + 1.5 * np.log(r[te, c] / 100.0) for c in range(4)], 0)
+    assert np.median(np.abs(mean - np.log(energy[te]))) > 0.1     # the channels' mean carries the step's quarter
