@@ -178,6 +178,13 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
             row["twin"] = score(sess, t_model)
             loop["rows"]["twin-trained, corrected twin"] = row["twin"]
         row["after"] = row["twin" if twin else "measured"]
+        row["after_kind"] = "twin" if twin else "measured"
+        if not row.get("bond_choice"):   # as `impactsense retrain`: the reference model kept when it places better
+            from impactsense.model_choice import keep_retrained_or_reference
+            row["loop_after"] = row["after"]
+            row["model_choice"] = keep_retrained_or_reference(t_model if twin else m_model, ref_model, sess, args.seed)
+            if row["model_choice"]["chosen"] == "reference":
+                row["after"], row["after_kind"] = row["before"], "reference"
         row["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in accepted]
     else:
         row["after"] = row["before"]
@@ -275,7 +282,11 @@ def table(out: dict) -> int:
                 size += (f"; kept: {kept}"
                          f" (four {choice['four_mae_mm']:.2f}, left out {choice['left_out_mae_mm']:.2f}{ref_mae}, the rule "
                          f"cross-fitted {choice['cross_fitted_mae_mm']:.2f} mm)")
-            if "twin" in r and twin_base is not None:   # judged against the twin's own unchanged MAE
+            mc = r.get("model_choice")
+            if mc:   # retrain's choice between the loop's model and the reference model on the session's drops
+                size += (f"; kept: {mc['chosen']} (loop's {r['loop_after']['mae_mm']:.2f}, reference "
+                         f"{mc['reference_mae_mm']:.2f}, the rule cross-fitted {mc['cross_fitted_mae_mm']:.2f} mm)")
+            if r.get("after_kind", "twin" if "twin" in r else "measured") == "twin" and twin_base is not None:
                 loop_ok = loop_ok and r["after"]["mae_mm"] <= RATIO * twin_base
                 fair = f"{r['after']['mae_mm'] / twin_base:.2f} (twin)"
             else:
@@ -308,9 +319,30 @@ def table(out: dict) -> int:
     twin_note = ("" if twin_base is None else
                  f" (a twin-trained after: <= {RATIO} x {twin_base:.2f} = {RATIO * twin_base:.2f} mm, the twin with no "
                  "effect on the unchanged sessions)")
+    issue_table(rows, base, twin_base)
     print(f"\ntarget: named first with its sensor, size in tolerance {TOL}, no false alarm, after <= "
           f"{RATIO} x {base:.2f} = {RATIO * base:.2f} mm{twin_note}; misses: {misses}")
     return 1 if misses else 0
+
+
+def issue_table(rows: list, base: float, twin_base: float | None) -> None:
+    """Issue 16's table: change, named, MAE before (the reference model), after the retrain (the model kept;
+    the loop's own model before retrain's choice), the unchanged sessions' MAE (its kind's) and the ratio."""
+    print("\n| change | named | MAE before | after: loop's model -> kept | unchanged | ratio: loop's -> kept |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        if r["truth"] is None:
+            continue
+        names = ", ".join(f"{e}[{s}]" if s is not None else e for e, s in r["named"]) or "none"
+        kind = r.get("after_kind", "twin" if "twin" in r else "measured")
+        loop = r.get("loop_after", r["after"])["mae_mm"]
+        loop_kind = "twin" if "twin" in r else "measured"
+
+        def yard(k):
+            return twin_base if k == "twin" and twin_base is not None else base
+        kept = r["after"]["mae_mm"]
+        print(f"| {r['session']} | {names} | {r['before']['mae_mm']:.2f} | {loop:.2f} -> {kept:.2f} ({kind}) | "
+              f"{yard(kind):.2f} | {loop / yard(loop_kind):.2f} -> **{kept / yard(kind):.2f}** |")
 
 
 def main(argv=None) -> int:

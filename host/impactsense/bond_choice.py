@@ -14,38 +14,20 @@ places a strong bond's session better than either retrained model (docs/findings
 
 from __future__ import annotations
 
-import numpy as np
+from .model_choice import choose_model
 
 CHOICES = ("four", "left_out", "reference")
 
 
-def drop_errors(model, session) -> np.ndarray:
-    """|predicted - declared| per drop and axis [n, 2] (mm; NaN where the model gives no position)."""
-    return np.abs(model.predict(model.featurize(session.adc))["xy_mm"] - session.xy_mm)
-
-
-def _mae(err: np.ndarray) -> float:
-    return float(np.nanmean(err)) if np.isfinite(err).any() else float("inf")
-
-
 def choose_left_out(four_model, left_out_model, data, channel: int, seed: int = 0, reference_model=None) -> dict:
     """Which model to keep ("four", "left_out" or, when reference_model is given, "reference": the lowest MAE per
-    axis on DATA_NEW's drops) with each candidate's MAE and the cross-fitted MAE of the rule (DATA_NEW's cases in
-    two seeded halves; each half placed by the model the other half chose)."""
-    models = {"four": four_model, "left_out": left_out_model, "reference": reference_model}
-    errs = {k: drop_errors(m, data) for k, m in models.items() if m is not None}
-    mae = {k: _mae(e) for k, e in errs.items()}
-    chosen = min(errs, key=lambda k: mae[k])   # ties: the order of CHOICES (a retrained model first)
-    cases = np.unique(data.case_id)
-    half = np.isin(data.case_id, np.random.default_rng(seed).permutation(cases)[: cases.size // 2])
-    crossed = np.full_like(errs["four"], np.nan)
-    for rows, other in ((half, ~half), (~half, half)):
-        pick = min(errs, key=lambda k: _mae(errs[k][other]))
-        crossed[rows] = errs[pick][rows]
-    out = {"channel": int(channel), "chosen": chosen, "four_mae_mm": mae["four"],
-           "left_out_mae_mm": mae["left_out"], "cross_fitted_mae_mm": _mae(crossed)}
-    if "reference" in mae:
-        out["reference_mae_mm"] = mae["reference"]
+    axis on DATA_NEW's drops; `model_choice.choose_model`) with each candidate's MAE and the cross-fitted MAE of the
+    rule (DATA_NEW's cases in two seeded halves; each half placed by the model the other half chose)."""
+    got = choose_model({"four": four_model, "left_out": left_out_model, "reference": reference_model}, data, seed)
+    out = {"channel": int(channel), "chosen": got["chosen"], "four_mae_mm": got["mae_mm"]["four"],
+           "left_out_mae_mm": got["mae_mm"]["left_out"], "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
+    if "reference" in got["mae_mm"]:
+        out["reference_mae_mm"] = got["mae_mm"]["reference"]
     return out
 
 

@@ -108,6 +108,8 @@ def run(args) -> int:
             pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
             reference=(plain, plain_split))
         left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
+        if choice is None and accepted:   # no bond choice: the retrained model against the reference on DATA_NEW
+            model, split = keep_better(card, model, split, plain, plain_split, data, args.seed)
         if model is not plain:   # the reference model kept (bond choice): written as it served DATA_NEW
             fit_into_training_data(model, split, train_on, measured, accepted, left_out, out)
         model.write_into(stage, extra_card=card)
@@ -121,6 +123,8 @@ def run(args) -> int:
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
     print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"))
+    if card["retrain"].get("model_choice", {}).get("chosen") == "reference":
+        print(f"the REFERENCE MODEL IS KEPT: {card['retrain']['model_kept_why']}")
     warning = worse_than_baseline(rows, accepted, data.name)
     if warning:
         print(warning)
@@ -173,6 +177,25 @@ def note_bond_choice(card: dict, choice, left_out: list) -> list:
         card["retrain"]["model_kept_why"] = reference_kept_why(choice)
     card["retrain"]["channels_left_out"] = left_out
     return left_out
+
+
+def keep_better(card: dict, model, split, plain, plain_split, data, seed: int):
+    """(model, split) retrain writes: the retrained model, or the reference model when it places DATA_NEW's
+    labelled drops better (`model_choice.keep_retrained_or_reference`: the effects as sized do not describe
+    DATA_NEW); the choice recorded in the card (`model_choice`, and `model_kept` with why when the reference)."""
+    from ..model_choice import keep_retrained_or_reference
+
+    choice = keep_retrained_or_reference(model, plain, data, seed)
+    card["retrain"]["model_choice"] = choice
+    if choice["chosen"] != "reference":
+        return model, split
+    card["retrain"]["model_kept"] = "reference"
+    card["retrain"]["model_kept_why"] = (
+        f"the reference model (trained on DATA_REF as it is) places DATA_NEW's drops better "
+        f"({choice['reference_mae_mm']:.2f} mm) than the model retrained with the effects "
+        f"({choice['retrained_mae_mm']:.2f}; the rule cross-fitted {choice['cross_fitted_mae_mm']:.2f}): it is the "
+        f"model written; the training data with the effects is kept beside it")
+    return plain, plain_split
 
 
 def fit_into_training_data(model, split, train_on, measured, accepted, left_out, out: Path) -> None:

@@ -1,0 +1,46 @@
+"""The model retrain keeps: the candidates (the retrained model, the reference model as it serves DATA_NEW, and
+for a bond the model with its channel left out) placed on DATA_NEW's own labelled drops, the lowest MAE per axis
+kept (ties: the candidates' order).
+
+The loop's new session is labelled (diagnose reads it at its declared positions), so a retrained model that
+places it worse than the reference model is seen there: the diagnosed effects, as sized, do not describe the
+session (a move sized a few mm off, an effect the signal model only approximates). The choice is made on the same
+drops it is scored on, so it is optimistic; the cross-fitted figure is the honest one: each half of DATA_NEW's
+cases (two seeded halves) placed by the model the other half chose. Measured: docs/findings.md (issue 16)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def drop_errors(model, session) -> np.ndarray:
+    """|predicted - declared| per drop and axis [n, 2] (mm; NaN where the model gives no position)."""
+    return np.abs(model.predict(model.featurize(session.adc))["xy_mm"] - session.xy_mm)
+
+
+def _mae(err: np.ndarray) -> float:
+    return float(np.nanmean(err)) if np.isfinite(err).any() else float("inf")
+
+
+def choose_model(models: dict, data, seed: int = 0) -> dict:
+    """{"chosen": the name of the model in `models` (name -> model or None: left out) with the lowest MAE per axis
+    on DATA_NEW's drops, "mae_mm": each candidate's, "cross_fitted_mae_mm": the rule's cross-fitted MAE}."""
+    errs = {k: drop_errors(m, data) for k, m in models.items() if m is not None}
+    if not errs:
+        raise ValueError("choose_model: no candidate model")
+    mae = {k: _mae(e) for k, e in errs.items()}
+    chosen = min(errs, key=lambda k: mae[k])   # ties: the candidates' order
+    cases = np.unique(data.case_id)
+    half = np.isin(data.case_id, np.random.default_rng(seed).permutation(cases)[: cases.size // 2])
+    crossed = np.full_like(errs[chosen], np.nan)
+    for rows, other in ((half, ~half), (~half, half)):
+        pick = min(errs, key=lambda k: _mae(errs[k][other]))
+        crossed[rows] = errs[pick][rows]
+    return {"chosen": chosen, "mae_mm": mae, "cross_fitted_mae_mm": _mae(crossed)}
+
+
+def keep_retrained_or_reference(retrained, reference, data, seed: int = 0) -> dict:
+    """choose_model between the retrained model and the reference model (retrain with no bond choice)."""
+    got = choose_model({"retrained": retrained, "reference": reference}, data, seed)
+    return {"chosen": got["chosen"], "retrained_mae_mm": got["mae_mm"]["retrained"],
+            "reference_mae_mm": got["mae_mm"]["reference"], "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
