@@ -129,13 +129,28 @@ def train_score(session, trees: int, seed: int, signal=None):
     return model, score
 
 
+def cached_twin_session(ref, sim_params, effects, folder: Path, slow: float, seed: int, workers: int):
+    """`loop.twin_training_session`, kept in `folder` with its inputs (twin-key.json): a later run with the same
+    reference recordings, twin, effects and seed loads it instead of simulating it again."""
+    from impactsense.data import load_session
+    from impactsense.loop import twin_training_session
+
+    key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": effects, "seed": seed},
+                     sort_keys=True, default=float)   # the slowness is the reference recordings' (their fingerprint)
+    stamp = folder / "twin-key.json"
+    if stamp.exists() and stamp.read_text() == key:
+        return load_session(folder)
+    sess = twin_training_session(ref, sim_params, effects, folder, slow, seed, workers)
+    stamp.write_text(key)
+    return sess
+
+
 def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dict:
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
     from impactsense.bond_choice import fit_with_bond_choice
     from impactsense.loop import (effect_dicts, fit_bond, measured_training_session, pick_settings,
-                                  size_plate_change, split_effects, training_draws, twin_training_session,
-                                  weak_channel)
+                                  size_plate_change, split_effects, training_draws, weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -170,8 +185,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         loop["rows"]["measured-trained, effects put in"] = row["measured"]
         twin, _ = split_effects(effect_dicts(accepted))
         if twin:
-            t_sess = twin_training_session(ref, sim_params, effect_dicts(accepted), work / f"{name}-twin", slow,
-                                           args.seed, args.workers)
+            t_sess = cached_twin_session(ref, sim_params, effect_dicts(accepted), work / f"{name}-twin", slow,
+                                         args.seed, args.workers)
             t_model, _ = train_score(t_sess, args.trees, args.seed)
             if t_model.twin_fit is not None:
                 t_model.twin_fit.weak_channel = weak_channel(accepted)
@@ -198,8 +213,6 @@ def run(args) -> dict:
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose
-    from impactsense.loop import twin_training_session
-
     gen_only = ["--only", "ref," + args.only] if args.only else []
     gen_args = loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed)] + gen_only + args.gen)
     man = loop_sessions.generate(gen_args)
@@ -223,7 +236,7 @@ def run(args) -> dict:
                    "before": score(sess, ref_model), "effects": res["effects"]}
             row["after"] = row["before"]
             if "twin" not in unchanged_twin:   # the twin-trained model with no effect: the twin afters' yardstick
-                t_sess = twin_training_session(ref, sim_params, [], work / "unchanged-twin",
+                t_sess = cached_twin_session(ref, sim_params, [], work / "unchanged-twin",
                                                det["ref"].slowness_us_per_mm, args.seed, args.workers)
                 unchanged_twin["twin"], _ = train_score(t_sess, args.trees, args.seed)
             row["twin_unchanged"] = score(sess, unchanged_twin["twin"])
