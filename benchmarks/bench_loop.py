@@ -16,7 +16,10 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
   own FEM (an inverse crime for this path: the data and the corrected twin are the same simulator; the
   diagnosis is not, it sees only the features).
-"after" is the twin model when a plate or sensor effect was named, else the measured-trained one. A twin model
+"after" is the twin model when a plate or sensor effect was named, else the measured-trained one; then, as
+`impactsense retrain` keeps it (`impactsense.model_choice`), the reference model when it places the session better
+overall and on each half of its cases (a bond: the bond choice's). Issue 16's table (before, the loop's model ->
+the kept one, the unchanged MAE, the ratio) is printed after the full one. A twin model
 is trained on the generator's own FEM drops at the declared positions, which alone lowers its MAE on these
 sessions (docs/findings.md, issue 16 loopmove4), so its yardstick is the same kind of model: the twin with no
 effect, trained once and scored on the unchanged sessions (their `twin_unchanged`). A measured-trained after
