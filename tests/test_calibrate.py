@@ -263,6 +263,30 @@ def _nothing_written(folder):
     return not folder.exists() or not any(folder.iterdir())
 
 
+def test_the_twin_records_carry_the_rigs_noise_not_the_seeds(tmp_path, rig):
+    """The twin's noise (sim_params noise_counts_rms, put on the virtual drops and their calibration twins) is
+    the rig's logger's, as calibrate's own simulations use it: the seed's 1.5 counts is the bundled 12-bit
+    logger's. A 10-bit logger's ~0.4 counts against the twin's 1.5 made the twin's drops ~4x noisier relative
+    to their peaks once the twin's gain matched the rig's (docs/findings.md, "Session 20: brasszs"). Here a
+    quiet logger (0.4 counts of white noise on the stand-in's records, then rounded to counts): the twin's noise
+    is the records' pre-trigger sd (the core's estimate against numpy's, within 15 %)."""
+    quiet = 0.4
+
+    def logger(truth, rig_, x, y, h):
+        adc = _standin.standin_simulate(truth, rig_, x, y, h).astype(float)
+        adc += np.random.default_rng(4).normal(0.0, quiet, adc.shape)
+        return np.clip(np.rint(adc), 0, rig_.adc_max).astype(np.uint16)
+
+    data = _session(tmp_path, rig, logger, _truth(rig), n_cases=8, reps=2)
+    cal = pipeline.calibrate(data, tmp_path / "cal" / "CAL.json", _small_opts(fem=False), simulate=_standin_clean)
+    pre = load_session(data).adc[:, :, :64].astype(float)
+    measured = float(np.median(pre.std(axis=2)))
+    assert measured < 0.6                        # a quiet logger: the seed's 1.5 counts would be 3x too much
+    twin = cal["sim_params"]["noise_counts_rms"]
+    assert twin == pytest.approx(measured, rel=0.15), (twin, measured)
+    assert json.loads((tmp_path / "cal" / "CAL.json").read_text())["sim_params"]["noise_counts_rms"] == twin
+
+
 def test_fewer_than_four_usable_drops(tmp_path, rig):
     data = _session(tmp_path, rig, _standin_noisy, _truth(rig), n_cases=3)
     out = tmp_path / "o" / "CAL.json"

@@ -64,10 +64,13 @@ from .workflow import evaluate, train
 
 
 def cached_twin_site_map(params, out: Path, name: str = "site-map.npz"):
-    """The twin's site map when one is cached (the bundled twin's, or out/name made with these params), else None."""
+    """The twin's site map when one is cached (the bundled twin's, or out/name made with these params), else None.
+    The map's drops are noise-free (sitemap.build_site_map), so a twin that differs only in its record noise
+    (noise_counts_rms, the rig's logger's) has the same map."""
     def same_twin(site) -> bool:   # parameters added since the map was made take their defaults
         try:
-            return SimParams.from_dict(dict(site.source.get("sim_params") or {})) == params
+            made = SimParams.from_dict(dict(site.source.get("sim_params") or {}))
+            return made.replace(noise_counts_rms=params.noise_counts_rms) == params
         except Exception:
             return False
 

@@ -52,6 +52,8 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         problem.params["damping_per_s"] = float(held(problem)["damping_per_s"])
         problem.cal["pzt_damping"] = {"skipped": "no PZT design (--no-design): seed's PZT block kept; D_s "
                                                  f"{problem.params['damping_per_s']:.0f} 1/s from the plate stages"}
+    # the twin's records carry the rig's noise (the seed's 1.5 counts is the bundled 12-bit logger's)
+    problem.params["noise_counts_rms"] = float(problem.noise[0])
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,
               "sim_params": fem.sim_params_json(problem.params, problem.rig),
