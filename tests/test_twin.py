@@ -142,6 +142,20 @@ def test_site_map_file_round_trip_and_bad_files(tmp_path):
         SiteMap.load(tmp_path / "bad.npz")
 
 
+def test_a_cached_site_map_serves_a_twin_that_differs_only_in_its_record_noise(tmp_path):
+    """The site map's drops are simulated without noise (build_site_map), so the twin's record noise (the
+    rig's logger's, set by calibrate) does not make it stale; any other twin parameter does."""
+    from impactsense.sim import SimParams
+    from impactsense.zeroshot import cached_twin_site_map
+
+    twin = SimParams(e_pa=100e9, nu=0.34, noise_counts_rms=1.5)
+    site = synthetic_map()
+    site.source = {"sim_params": twin.to_dict()}
+    site.save(tmp_path / "site-map.npz")
+    assert cached_twin_site_map(twin.replace(noise_counts_rms=0.42), tmp_path) is not None
+    assert cached_twin_site_map(twin.replace(e_pa=90e9), tmp_path) is None
+
+
 def test_twin_features_are_the_log_energies_and_clipped_channels_are_unusable(session1):
     from impactsense.pipeline import SignalConfig, featurize
 
