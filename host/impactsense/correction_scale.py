@@ -15,8 +15,8 @@ import hashlib
 
 import numpy as np
 
-from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, edge_positions, fit_member_pairs, joined_position,
-                               member_positions)
+from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, each_member_position, edge_positions,
+                               fit_member_pairs, mean_of_members, member_positions)
 
 CORRECTION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0)
 CORRECTION_FOLDS = 5
@@ -25,6 +25,8 @@ CORRECTION_MAX_TREES = 50       # the folds' forests (the choice, not the model)
 # A smaller factor is taken only when its out-of-fold gain over the whole correction exceeds one standard error
 # of the per-site gains (the one-standard-error rule, the whole correction being the default).
 CORRECTION_GAIN_SIGMAS = 1.0
+# After the members and the factor: their stack (member_stack.py) in place of the mean, when the drops say so.
+STACK = True
 
 
 def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
@@ -49,23 +51,27 @@ def position_forests(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None
 
 
 def _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites):
-    """The training drops' out-of-fold joined positions and their uncorrected bases (5 site-grouped folds, every
-    member refitted in each fold with at most CORRECTION_MAX_TREES trees)."""
+    """The training drops' out-of-fold joined positions, their uncorrected bases and each member's out-of-fold
+    (corrected, base) positions (position_members.each_member_position; 5 site-grouped folds, every member
+    refitted in each fold with at most CORRECTION_MAX_TREES trees)."""
     from sklearn.model_selection import GroupKFold
 
     from .models import ForestSettings
 
     fold_settings = ForestSettings(**{**settings.__dict__,
                                       "n_estimators": min(settings.n_estimators, CORRECTION_MAX_TREES)})
-    oof, base = np.full_like(xy, np.nan), np.full_like(xy, np.nan)
+    each: dict = {}
     take = lambda d, r: None if d is None else {k: v[r] for k, v in d.items()}  # noqa: E731
     for fit_rows, held in GroupKFold(CORRECTION_FOLDS).split(X_loc, groups=sites):
         fx, fy, members = position_forests(X_loc[fit_rows], phys[fit_rows], take(positions, fit_rows),
                                            take(edges, fit_rows), xy[fit_rows], fold_settings, names)
         main = phys[held] + np.stack([fx.predict(X_loc[held]), fy.predict(X_loc[held])], 1)
-        oof[held], base[held] = joined_position(main, phys[held], members, X_loc[held], take(positions, held),
-                                                take(edges, held), names)
-    return oof, base
+        for name, pair in each_member_position(main, phys[held], members, X_loc[held], take(positions, held),
+                                               take(edges, held), names).items():
+            for k, part in enumerate(each.setdefault(name, (np.full_like(xy, np.nan), np.full_like(xy, np.nan)))):
+                part[held] = pair[k]
+    oof, base = mean_of_members(each)
+    return oof, base, each
 
 
 def _per_site(err: np.ndarray, sites: np.ndarray) -> np.ndarray:
@@ -124,9 +130,10 @@ def _digest(*parts) -> str:
 
 
 def scale_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None, xy: np.ndarray,
-                 settings, names: list[str]) -> tuple[dict, np.ndarray, np.ndarray] | None:
-    """choose_correction_scale's choice, the out-of-fold error of each drop at the chosen factor and the drops'
-    sites; None with fewer than CORRECTION_MIN_SITES drop sites. The same inputs again: the same answer (a copy),
+                 settings, names: list[str]) -> tuple[dict, np.ndarray, np.ndarray, dict] | None:
+    """choose_correction_scale's choice, the out-of-fold error of each drop at the chosen factor, the drops'
+    sites and each member's out-of-fold (corrected, base) positions at that factor; None with fewer than
+    CORRECTION_MIN_SITES drop sites. The same inputs again: the same answer (a copy),
     not computed twice."""
     key = _digest(X_loc, phys, positions, edges, np.asarray(xy, float), settings.__dict__, list(names))
     if key not in _RECENT:
@@ -141,15 +148,17 @@ def _scale_choice(X_loc, phys, positions, edges, xy, settings, names):
     sites = drop_sites(xy)
     if np.unique(sites).size < CORRECTION_MIN_SITES:
         return None
-    oof, base = _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites)
+    oof, base, each = _out_of_fold(X_loc, phys, positions, edges, xy, settings, names, sites)
     ok = np.isfinite(oof).all(1) & np.isfinite(base).all(1)
     err = [np.abs(base[ok] + a * (oof[ok] - base[ok]) - xy[ok]).mean(1) for a in CORRECTION_SCALES]
     chosen, mae, z = choose_factor(err, sites[ok])
     drop_err = np.full(len(xy), np.nan)
     drop_err[ok] = err[chosen]
-    return ({"scale": float(CORRECTION_SCALES[chosen]), "scales": list(CORRECTION_SCALES),
+    a = CORRECTION_SCALES[chosen]
+    each = {k: (b + a * (c - b), b) for k, (c, b) in each.items()}
+    return ({"scale": float(a), "scales": list(CORRECTION_SCALES),
              "out_of_fold_mae_mm": [round(m, 3) for m in mae], "best_gain_sigmas": round(z, 2),
-             "folds": CORRECTION_FOLDS}, drop_err, sites)
+             "folds": CORRECTION_FOLDS}, drop_err, sites, each)
 
 
 def choose_correction_scale(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
@@ -224,22 +233,30 @@ def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train,
     edges = edge_positions(train, signal, edge) if edge and any(n in members for n in EDGE_MEMBERS) else None
     level_choice = (choose_level_members(X_loc, phys, positions, edges, levels, xy, settings, names)
                     if levels else None)
+    final = dict(edges or {})   # the members beyond the POSITION_MEMBERS the model ends with
     if level_choice is None:
         choice = choose_correction_scale(X_loc, phys, positions, edges, xy, settings, names)
     else:
         card["level_members"] = {k: v for k, v in level_choice.items() if k not in ("with", "without")}
         choice = level_choice["with" if level_choice["keep"] else "without"]
         if level_choice["keep"]:
+            final.update(levels)
             members.update(fit_member_pairs(levels, X_loc, xy, settings.regressor, names, all_or_none=False))
     if fields and fields[1]:   # the travel field's members (travel_field.py), by the same rule
-        kept = {**(edges or {}), **({n: levels[n] for n in levels} if levels and any(n in members for n in levels)
-                                     else {})}
-        field_choice = choose_level_members(X_loc, phys, positions, kept, fields[1], xy, settings, names)
+        field_choice = choose_level_members(X_loc, phys, positions, dict(final), fields[1], xy, settings, names)
         if field_choice is not None:
             card["travel_field_members"] = {k: v for k, v in field_choice.items() if k not in ("with", "without")}
             if field_choice["keep"]:
                 choice, card["travel_field"] = field_choice["with"], fields[0]
+                final.update(fields[1])
                 members.update(fit_member_pairs(fields[1], X_loc, xy, settings.regressor, names, all_or_none=False))
     if choice is not None:
         card["correction_scale"] = choice
         scale_forests([fx, fy, *(f for pair in members.values() for f in pair)], choice["scale"])
+        if STACK and members:   # the members' weighted sum in place of their mean (member_stack.py)
+            from .member_stack import choose_stack
+
+            _, _, sites, each = scale_choice(X_loc, phys, positions, final or None, xy, settings, names)  # cached
+            stack = choose_stack(each, mean_of_members(each)[0], xy, sites)
+            if stack is not None:
+                card["member_stack"] = stack

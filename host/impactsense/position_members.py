@@ -145,25 +145,57 @@ def fit_member_pairs(bases: dict, X_loc: np.ndarray, xy: np.ndarray, regressor, 
     return out
 
 
-def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc: np.ndarray,
-                    positions: dict | None, edges: dict | None, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """The reported position of rows (the model's forests' position): the mean of the main pair's position
-    (main_xy) and every member's corrected position where that member placed the drop (the POSITION_MEMBERS
-    where the band picks did; `edges`: name -> base, the EDGE_MEMBERS and LEVEL_MEMBERS, where they did); and
-    the mean of the same positions before correction (phys and the members' own). X_loc: the rows' location features, columns `names`."""
-    total, base_sum, count = np.array(main_xy, float, copy=True), np.array(phys, float, copy=True), np.ones(len(phys))
+def each_member_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc: np.ndarray,
+                         positions: dict | None, edges: dict | None, names: list[str]) -> dict[str, tuple]:
+    """Each member's corrected position and its base [R, 2] (NaN on the rows it did not place): "main" the main
+    pair's (main_xy, phys), the POSITION_MEMBERS where the band picks placed the drop, `edges` (name -> base: the
+    EDGE_MEMBERS, the level and field members) where they did. X_loc: the rows' location features, columns
+    `names`."""
+    n = len(phys)
+    out = {"main": (np.array(main_xy, float, copy=True), np.array(phys, float, copy=True))}
 
-    def join(name, rows, base):
-        total[rows] += base + np.stack([f.predict(member_inputs(X_loc[rows], base, names)) for f in members[name]], 1)
-        base_sum[rows] += base
-        count[rows] += 1
+    def one(name, rows, base):
+        corrected, at = np.full((n, 2), np.nan), np.full((n, 2), np.nan)
+        at[rows] = base
+        corrected[rows] = base + np.stack([f.predict(member_inputs(X_loc[rows], base, names))
+                                           for f in members[name]], 1)
+        out[name] = (corrected, at)
 
     if positions is not None and all(n in members for n in POSITION_MEMBERS):
         placed = np.isfinite(positions["band"]).all(1)
         for name in POSITION_MEMBERS:
-            join(name, placed, positions[name][placed])
-    for name, base in (edges or {}).items():   # the EDGE_MEMBERS and the level members (level_members.py)
+            one(name, placed, positions[name][placed])
+    for name, base in (edges or {}).items():   # the EDGE_MEMBERS, the level and field members
         ok = np.isfinite(base).all(1)
         if name in members and ok.any():
-            join(name, ok, base[ok])
-    return total / count[:, None], base_sum / count[:, None]
+            one(name, ok, base[ok])
+    return out
+
+
+def mean_of_members(each: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(the mean of each_member_position's corrected positions, the mean of their bases) over the members that
+    placed each row."""
+    corrected = np.stack([c for c, _ in each.values()])
+    base = np.stack([b for _, b in each.values()])
+    placed = np.isfinite(corrected).all(2)
+    count = placed.sum(0)[:, None]
+    return (np.where(placed[..., None], corrected, 0.0).sum(0) / count,
+            np.where(placed[..., None], base, 0.0).sum(0) / count)
+
+
+def joined_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X_loc: np.ndarray,
+                    positions: dict | None, edges: dict | None, names: list[str],
+                    stack: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The reported position of rows (the model's forests' position): the mean of the main pair's position
+    (main_xy) and every member's corrected position where that member placed the drop (the POSITION_MEMBERS
+    where the band picks did; `edges`: name -> base, the EDGE_MEMBERS, level and field members, where they did);
+    and the mean of the same positions before correction (phys and the members' own). stack (a model card's
+    "member_stack" that was kept, member_stack.py): the first is the stack's weighted sum instead. X_loc: the
+    rows' location features, columns `names`."""
+    each = each_member_position(main_xy, phys, members, X_loc, positions, edges, names)
+    mean, base = mean_of_members(each)
+    if stack and stack.get("keep"):
+        from .member_stack import stacked_position
+
+        mean = stacked_position(each, mean, stack["weights"])
+    return mean, base
