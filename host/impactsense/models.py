@@ -30,7 +30,6 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
                            energy_class_choice, fit_linear_height_class, fit_three_channel_classes,
                            out_of_fold_classes)
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
-from .member_stack import stack_ok
 from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
@@ -487,9 +486,6 @@ class ImpactModel:
         if not isinstance(names, list) or any(n not in known for n in names):
             raise DataError(card_path, "position_members", f"must list names from {list(known)}")
         edge = check_card_members(card, card_path, names)   # the edge members' coefficients, the field members' fields
-        if "member_stack" in card and not stack_ok(card["member_stack"], names):
-            raise DataError(card_path, "member_stack", "must be {\"keep\": true/false, \"weights\": {name: weight >= "
-                                                       "0}} naming \"mean\", \"main\" or the position_members")
         if names and loc != columns_reading(signal.channel_left_out, LOCATION_FEATURES):
             raise DataError(card_path, "position_members", "needs the current location_features (without a "
                                                            "left-out channel's arrival times)")

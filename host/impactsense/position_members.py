@@ -107,8 +107,10 @@ def edge_coefficients_ok(edge) -> bool:
 
 def check_card_members(card: dict, card_path, names: list[str]) -> dict:
     """The card's edge_travel entry ({} when absent); raises DataError when the card lists an edge member without
-    edge_coefficients_ok coefficients or a field member without travel_field.fields_ok fields."""
+    edge_coefficients_ok coefficients, a field member without travel_field.fields_ok fields or a member_stack
+    that is not member_stack.stack_ok."""
     from .errors import DataError
+    from .member_stack import stack_ok
     from .travel_field import check_card_fields
 
     edge = card.get("edge_travel", {})
@@ -116,6 +118,9 @@ def check_card_members(card: dict, card_path, names: list[str]) -> dict:
         raise DataError(card_path, "edge_travel", "the edge members need {\"threshold\": [numbers], \"band\": "
                                                   "[numbers] or null} (edge_travel.N_BASES each)")
     check_card_fields(card, card_path, names)
+    if "member_stack" in card and not stack_ok(card["member_stack"], names):
+        raise DataError(card_path, "member_stack", "must be {\"keep\": true/false, \"weights\": {name: weight >= 0}} "
+                                                   "naming \"mean\", \"main\" or the position_members")
     return edge
 
 
