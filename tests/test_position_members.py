@@ -1,11 +1,13 @@
 """With the band picks on, the threshold picks' and the band picks' own positions each get a forest pair
-(models.POSITION_MEMBERS) and the reported position is the mean of the three corrected positions."""
+(models.POSITION_MEMBERS) and the reported position is the mean of the three corrected positions (without the
+members' stack, member_stack.py)."""
 
 import json
 
 import numpy as np
 import pytest
 
+from impactsense import correction_scale
 from impactsense.export import ExportError, load_models
 from impactsense.models import LOCATION_FEATURES, ForestSettings, ImpactModel
 from impactsense.position_members import POSITION_MEMBERS, member_positions
@@ -18,7 +20,11 @@ def band_on(session1, band_on_subset):
     rows, cfg, feats = band_on_subset()
     args = (feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
             ForestSettings(n_estimators=10))
-    return ImpactModel.fit(*args), ImpactModel.fit(*args, members=False), feats
+    stack, correction_scale.STACK = correction_scale.STACK, False   # the mean, not the members' stack
+    try:
+        return ImpactModel.fit(*args), ImpactModel.fit(*args, members=False), feats
+    finally:
+        correction_scale.STACK = stack
 
 
 def test_the_members_are_the_two_positions_whose_mean_is_the_physics_position(band_on):
