@@ -1266,23 +1266,47 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       ++n_ratio;
     }
   }
-  if (n_ratio >= 3) {
+  // The median of each channel's others (of two, the larger).
+  float med[kChannels];
+  const auto medians = [&]() {
     for (int c = 0; c < kChannels; ++c) {
+      med[c] = NAN;
       if (!(ratio[c] == ratio[c])) continue;
       float o[kChannels - 1];
       int m = 0;
       for (int k = 0; k < kChannels; ++k) {
         if (k != c && ratio[k] == ratio[k]) o[m++] = ratio[k];
       }
-      // the median of the others (of two, the larger)
-      float med;
       if (m == 3) {
         const float lo = o[0] < o[1] ? o[0] : o[1], hi = o[0] < o[1] ? o[1] : o[0];
-        med = o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
+        med[c] = o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
       } else {
-        med = o[0] > o[1] ? o[0] : o[1];
+        med[c] = o[0] > o[1] ? o[0] : o[1];
       }
-      const int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
+    }
+  };
+  if (n_ratio >= 3) {
+    medians();
+    // A channel below 1 / kArrivalSpikeBeyondRatio x its others' median is low-passed (a debonded disc): its
+    // ratio tells nothing of the arrival's and pulls the others' medians down (two clean channels hunted on a
+    // debonded event: docs/findings.md, "Session 20: debcost"), so the lowest such one leaves the medians when
+    // three channels remain.
+    if (n_ratio == kChannels) {
+      int low = -1;
+      for (int c = 0; c < kChannels; ++c) {
+        if (kArrivalSpikeBeyondRatio * ratio[c] < med[c] && (low < 0 || ratio[c] * med[low] < ratio[low] * med[c])) {
+          low = c;
+        }
+      }
+      if (low >= 0) {
+        ratio[low] = NAN;
+        medians();
+      }
+    }
+    for (int c = 0; c < kChannels; ++c) {
+      if (!(ratio[c] == ratio[c])) continue;
+      const int hunt = ratio[c] > kArrivalSpikeRatio * med[c] ? kHuntLargest
+                       : ratio[c] > kArrivalSpikeBeyondRatio * med[c] ? kHuntBeyond : kHuntNone;
       // The hunt runs on the first pass's window; only where it finds a glitch is the channel done again
       // (without one, channel_features would return what it did).
       if (hunt == kHuntNone || !window[c].open) continue;
