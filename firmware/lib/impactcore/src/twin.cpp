@@ -556,8 +556,9 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       return e.status == kOk && e.log10_height_mm == e.log10_height_mm && e.misfit * kBadMisfitGain < best;
     };
     // The cue's first candidate whose three picks place the drop far from it (a corner: docs/findings.md,
-    // "Session 20: debcost") is matched again from the cue's position, where its leave-one-out misfit ranked it.
-    if (!beats(t) && o == 0 && search != kTwinSearchFull) {
+    // "Session 20: debcost") is matched again from the cue's position, where its leave-one-out misfit ranked it
+    // (four channels with an onset: with one already missing, two channels would be left to match).
+    if (!beats(t) && o == 0 && missing == 0 && search != kTwinSearchFull) {
       t = estimate(feats, mask, x4, y4, map, cfg, cfg.coarse_cutoff_mm, &cand);
     }
     if (!beats(t)) continue;
