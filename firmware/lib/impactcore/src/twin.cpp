@@ -410,7 +410,7 @@ IC_NOINLINE void recentre_kept(const Terms& k, uint16_t mask, const SiteMap& map
 // fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
 // its place after the others (channel order). Returns how many channels it ordered (those with an onset).
 IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, const uint8_t has_onset[kChannels], float x_mm,
-               float y_mm, const SiteMap& map, const TwinConfig& cfg, int order[kChannels]) {
+               float y_mm, const SiteMap& map, const TwinConfig& cfg, const Terms& made, int order[kChannels]) {
   float cue[kChannels];
   int n = 0;
   for (int c = 0; c < kChannels; ++c) {
@@ -426,10 +426,11 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
   const uint8_t* q = map.q + (static_cast<int32_t>(i < map.nx ? i : map.nx - 1) * map.ny + (j < map.ny ? j : map.ny - 1)) *
                                  kTwinFeatures;
   if (q[0] != kSiteMapMissing) {
-    Term term[kTwinFeatures];
-    float a = 0.0f;
-    int n_used = 0;
-    make_terms(feats, usable, map, cfg, term, &a, &n_used);
+    Term own[kTwinFeatures];
+    float a = made.a;
+    int n_used = made.n_used;
+    if (!made.ok) make_terms(feats, usable, map, cfg, own, &a, &n_used);  // made: the same mask's, when kept
+    const Term* term = made.ok ? made.t : own;
     float bc[kChannels] = {}, cc[kChannels] = {}, ac[kChannels] = {}, b = 0.0f, cs = 0.0f;
     int nc[kChannels] = {};
     for (int k = 0; k < kTwinFeatures; ++k) {
@@ -481,14 +482,14 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       missing_channel = c;
     }
   }
-  Terms kept;  // the dead channel's estimate's terms (filled where left_out is set below)
+  Terms kept;  // the first estimate's terms (the four channels', or the dead channel's other three; the same mask as usable)
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
     if (missing != 1 || ev.phys.status != kOk) return out;
     out.left_out = missing_channel;
     out.reason = kTwinDeadChannel;
     out.est = estimate(feats, usable, ev.phys.x_mm, ev.phys.y_mm, map, cfg, cfg.coarse_cutoff_mm, &kept);
   } else {
-    out.est = twin_estimate(feats, usable, x_mm, y_mm, map, cfg);
+    out.est = estimate(feats, usable, x_mm, y_mm, map, cfg, cfg.coarse_cutoff_mm, &kept);  // twin_estimate's
   }
   const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
   const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
@@ -537,7 +538,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       if (has_onset[c]) order[n_order++] = c;
     }
   } else {
-    n_order = cued_order(feats, usable, has_onset, out.est.x_mm, out.est.y_mm, map, cfg, order);
+    n_order = cued_order(feats, usable, has_onset, out.est.x_mm, out.est.y_mm, map, cfg, kept, order);
     if (n_order > kTwinCuedCandidates) n_order = kTwinCuedCandidates;
   }
   const float x4 = out.est.x_mm, y4 = out.est.y_mm;  // the cue's position (the four-channel answer)
@@ -584,13 +585,10 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     // The recheck's verdict and the recentring in one pass (match_recheck): when the four channels still
     // misfit beyond the bound there, its three-channel estimate is the recentring's; otherwise the recheck
     // below (the four channels' whole match) as before.
-    Term all_terms[kTwinFeatures];
-    float a4 = 0.0f;
-    int n4 = 0;
-    make_terms(feats, usable, map, cfg, all_terms, &a4, &n4);
-    if (n4 >= kTwinPerChannel && a4 > 0.0f) {
+    // kept: the four-channel estimate's terms (the recheck's mask)
+    if (kept.ok && kept.n_used >= kTwinPerChannel && kept.a > 0.0f) {
       float misfit4 = INFINITY;
-      const TwinEstimate again = match_recheck(all_terms, out.left_out, best_terms->a, best_terms->n_used, a4, n4,
+      const TwinEstimate again = match_recheck(kept.t, out.left_out, best_terms->a, best_terms->n_used, kept.a, kept.n_used,
                                                out.est.x_mm, out.est.y_mm, map, cfg, &misfit4);
       if (misfit4 > kBadMisfitRef * ref) {
         if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) out.est = again;
