@@ -541,7 +541,6 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     n_order = cued_order(feats, usable, has_onset, out.est.x_mm, out.est.y_mm, map, cfg, kept, order);
     if (n_order > kTwinCuedCandidates) n_order = kTwinCuedCandidates;
   }
-  const float x4 = out.est.x_mm, y4 = out.est.y_mm;  // the cue's position (the four-channel answer)
   for (int o = 0; o < n_order; ++o) {
     const int c = order[o];
     uint8_t use[kChannels];
@@ -550,19 +549,12 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                                             loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
                                             loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
                                             loc->localiser_starts);
+    if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    TwinEstimate t{kErrBadConfig, NAN, NAN, NAN, NAN, NAN, 0};
-    if (p.status == kOk) t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
-    const auto beats = [&](const TwinEstimate& e) {
-      return e.status == kOk && e.log10_height_mm == e.log10_height_mm && e.misfit * kBadMisfitGain < best;
-    };
-    // The cue's first candidate whose three picks place the drop far from it (a corner: docs/findings.md,
-    // "Session 20: debcost") is matched again from the cue's position, where its leave-one-out misfit ranked it
-    // (four channels with an onset: with one already missing, two channels would be left to match).
-    if (!beats(t) && o == 0 && missing == 0 && search != kTwinSearchFull) {
-      t = estimate(feats, mask, x4, y4, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
+      continue;
     }
-    if (!beats(t)) continue;
     best = t.misfit;
     out.est = t;
     out.left_out = c;

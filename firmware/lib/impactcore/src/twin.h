@@ -89,8 +89,7 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //    ~500 x, ~1.5 x without it.
 // With a channel left out, the match is done again centred on its own answer (the three-sensor start is a
 // few mm off, and the twin's prior pulls toward the start); the recheck's four-channel misfit comes from the
-// same pass. The cued search's first candidate whose three picks place the drop far off (its match there
-// not kBadMisfitGain-fold lower) is matched again from the four-channel answer before the next is tried.
+// same pass.
 //  - a weak channel (cfg.weak_channel: a disc the diagnosis found partly debonded, the models retrained with
 //    its low-pass and gain): when the four-channel match is consistent, the reported position is the mean of
 //    it and the three-channel match without that channel (the physics three-sensor start, recentred); the
