@@ -74,6 +74,31 @@ def demo_run(tmp_path_factory):
     return out, r.stdout
 
 
+def exported_twin_match(features, signal, start_xy_mm=None, models_dir=None, **kw):
+    """The core's twin_match_batch of every row with the twin an export ships (forest_tables.npz's "twin"; the
+    shipped models/ unless models_dir): what the board's TableModels runs. start_xy_mm: the match's start per row
+    (default the physics position; NaN rows: the three-sensor start). kw: twin_match_batch's keywords
+    (full_search, weak_channel)."""
+    from pathlib import Path
+
+    from impactsense import _core
+    from impactsense.export import load_tables
+
+    models_dir = Path(models_dir) if models_dir else Path(__file__).resolve().parents[1] / "models"
+    t = load_tables(models_dir / "forest_tables.npz")["twin"]
+    nx, ny, x0, y0, step = t["grid"]
+    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
+    f = features
+    start = f.phys_xy_mm if start_xy_mm is None else start_xy_mm
+    return _core.twin_match_batch(
+        np.ascontiguousarray(f.status, np.int32), np.ascontiguousarray(f.flags, np.uint8), f32(f.toa_us),
+        f32(f.raw["window_energy"]), f32(f.raw["diff_energy"]), f32(f.phys_xy_mm), f32(start), signal.localiser(),
+        np.asarray(t["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), float(x0), float(y0), float(step),
+        f32(t["base"]), f32(t["scale"]), f32(t["offset"]), f32(t["slope"]), f32(t["weight"]),
+        *map(float, t["config"][:4]), float(t["uncertainty"][2]),   # ref height, prior, cutoff, temperature
+        coarse_cutoff_mm=float(t["config"][4]), **kw)
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests whose data and fit come from the same model say so in their name (`_circular`, `_same_model`)
     and get the `circular` marker: `pytest -m "not circular"` runs only what counts as evidence."""

@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import small_board_export
+from conftest import exported_twin_match, small_board_export
 
-from impactsense import _core
 from impactsense.board.capture import board_captures, board_samples
 from impactsense.board.scores import board_reports
 from impactsense.data import load_session, write_session
@@ -163,15 +162,7 @@ def test_a_twin_model_leaves_the_channel_out_on_the_board_as_the_host_does():
     sig = signal_for_board(session.rig, signal, 50000)
     f = featurize(caps, sig)
     assert np.all(f.no_onset[:, LEFT_OUT])
-    t = load_tables(ROOT / "models" / "forest_tables.npz")["twin"]
-    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
-    nx, ny, x0, y0, step = t["grid"]
-    m = _core.twin_match_batch(
-        np.ascontiguousarray(f.status, np.int32), np.ascontiguousarray(f.flags, np.uint8), f32(f.toa_us),
-        f32(f.raw["window_energy"]), f32(f.raw["diff_energy"]), f32(f.phys_xy_mm), f32(np.full((len(f), 2), np.nan)),
-        sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), float(x0), float(y0),
-        float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]), f32(t["slope"]), f32(t["weight"]),
-        *map(float, t["config"][:4]), float(t["uncertainty"][2]), coarse_cutoff_mm=float(t["config"][4]),
-        weak_channel=int(t["config"][5]))
+    weak = int(load_tables(ROOT / "models" / "forest_tables.npz")["twin"]["config"][5])
+    m = exported_twin_match(f, sig, np.full((len(f), 2), np.nan), ROOT / "models", weak_channel=weak)
     assert np.all(m["status"] == 0) and np.all(m["left_out"] == LEFT_OUT)
     np.testing.assert_allclose(np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]), m["xy_mm"], atol=0.051)

@@ -26,11 +26,16 @@ class FixedOffsetModel:
         return {"xy_mm": self.session.xy_mm + self.offset[:, None]}
 
 
+def offset_session(seed: int, cases: int = 20):
+    """A labelled session of `cases` cases x 3 drops at random positions (the stand-in models ignore the adc)."""
+    rng = np.random.default_rng(seed)
+    case = np.repeat(np.arange(cases), 3)
+    return SimpleNamespace(case_id=case, adc=np.zeros((case.size, 4, 8)), xy_mm=rng.uniform(0, 300, (case.size, 2)))
+
+
 @pytest.fixture
 def session():
-    rng = np.random.default_rng(3)
-    case = np.repeat(np.arange(20), 3)
-    return SimpleNamespace(case_id=case, adc=np.zeros((case.size, 4, 8)), xy_mm=rng.uniform(0, 300, (case.size, 2)))
+    return offset_session(3)
 
 
 def test_the_better_model_is_kept_and_its_cross_fitted_mae_is_its_own(session):

@@ -7,6 +7,8 @@ from scipy import signal
 from impactsense.errors import ConfigError
 from impactsense.faults import FaultSpec, inject, parse_spec
 
+from conftest import exported_twin_match
+
 FS = 100000.0
 BIAS = 2048.0
 
@@ -182,7 +184,7 @@ def test_the_board_localises_a_dead_channel_from_the_other_three_as_the_host_doe
     from impactsense.board.capture import board_captures, signal_for_board
     from impactsense.board.scores import board_reports
     from impactsense.data import load_session
-    from impactsense.export import firmware_models, load_tables
+    from impactsense.export import firmware_models
     from impactsense.faults import inject_session
     from impactsense.pipeline import featurize
 
@@ -198,16 +200,7 @@ def test_the_board_localises_a_dead_channel_from_the_other_three_as_the_host_doe
     caps, rows, _ = board_captures(dead, 50000, signal)
     sig = signal_for_board(s.rig, signal, 50000)   # what the board runs
     feats = featurize(caps, sig)
-    t = load_tables(models_dir / "forest_tables.npz")["twin"]
-    nx, ny, x0, y0, step = t["grid"]
-    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
-    m = _core.twin_match_batch(
-        np.ascontiguousarray(feats.status, np.int32), np.ascontiguousarray(feats.flags, np.uint8),
-        f32(feats.toa_us), f32(feats.raw["window_energy"]), f32(feats.raw["diff_energy"]), f32(feats.phys_xy_mm),
-        f32(np.full((len(feats), 2), np.nan)), sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16),
-        int(nx), int(ny), float(x0), float(y0), float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]),
-        f32(t["slope"]), f32(t["weight"]), *map(float, t["config"][:4]), float(t["uncertainty"][2]),
-        coarse_cutoff_mm=float(t["config"][4]))   # config: ref height, prior, cutoff, temperature, coarse cutoff
+    m = exported_twin_match(feats, sig, np.full((len(feats), 2), np.nan), models_dir)
     assert np.all(m["status"] == 0) and np.all(m["left_out"] == 1)
     assert np.all(m["reason"] == _core.TWIN_DEAD_CHANNEL)
     board_xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows])
@@ -270,11 +263,9 @@ def test_a_weak_channel_is_matched_with_and_without_it_and_flagged():
     from impactsense import _core
     from impactsense.board.capture import board_captures, signal_for_board
     from impactsense.data import load_session
-    from impactsense.export import load_tables
     from impactsense.pipeline import featurize
 
     models_dir = Path(__file__).resolve().parents[1] / "models"
-    t = load_tables(models_dir / "forest_tables.npz")["twin"]
     s2 = load_session("bundled:session-2")
     s = s2.subset(np.arange(0, len(s2), 4))
     from impactsense.export import firmware_models
@@ -282,18 +273,8 @@ def test_a_weak_channel_is_matched_with_and_without_it_and_flagged():
     caps, rows, _ = board_captures(s, 50000, signal)
     sig = signal_for_board(s.rig, signal, 50000)
     feats = featurize(caps, sig)
-    nx, ny, x0, y0, step = t["grid"]
-    f32 = lambda a: np.ascontiguousarray(np.asarray(a, np.float32))  # noqa: E731
-
     def match(weak):
-        return _core.twin_match_batch(
-            np.ascontiguousarray(feats.status, np.int32), np.ascontiguousarray(feats.flags, np.uint8),
-            f32(feats.toa_us), f32(feats.raw["window_energy"]), f32(feats.raw["diff_energy"]),
-            f32(feats.phys_xy_mm), f32(feats.phys_xy_mm), sig.localiser(),
-            np.asarray(t["q"], np.uint8).reshape(-1, 16), int(nx), int(ny), float(x0), float(y0), float(step),
-            f32(t["base"]), f32(t["scale"]), f32(t["offset"]), f32(t["slope"]), f32(t["weight"]),
-            *map(float, t["config"][:4]), float(t["uncertainty"][2]), coarse_cutoff_mm=float(t["config"][4]),
-            weak_channel=weak)
+        return exported_twin_match(feats, sig, models_dir=models_dir, weak_channel=weak)
 
     four, weak = match(-1), match(2)
     ok = (np.asarray(four["status"]) == 0) & (np.asarray(four["left_out"]) == -1)

@@ -4,35 +4,19 @@ case keeps the retrained model; the choice and why are in the card."""
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
 from impactsense.model_choice import choose_model, keep_retrained_or_reference
 
+from test_bond_choice import FixedOffsetModel, offset_session  # the same stand-in model and session
+
 CASES = 20
-
-
-class FixedOffsetModel:
-    """A model whose position is the declared one plus a per-case offset in x and y (mm)."""
-
-    def __init__(self, offset_by_case, session):
-        self.offset = np.asarray(offset_by_case, float)[session.case_id]
-        self.session = session
-
-    def featurize(self, adc):
-        return adc
-
-    def predict(self, features):
-        return {"xy_mm": self.session.xy_mm + self.offset[:, None]}
 
 
 @pytest.fixture
 def session():
-    rng = np.random.default_rng(5)
-    case = np.repeat(np.arange(CASES), 3)
-    return SimpleNamespace(case_id=case, adc=np.zeros((case.size, 4, 8)), xy_mm=rng.uniform(0, 300, (case.size, 2)))
+    return offset_session(5, CASES)
 
 
 def test_the_lowest_mae_is_chosen_and_a_missing_candidate_is_skipped(session):
