@@ -25,17 +25,17 @@ struct Term {
   float sigma;  // sqrt(w) slope (0 when not usable)
 };
 
-// One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
-// weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
-// kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
-// (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match);
-// kSkip < 0: every channel (the clean path).
-template <int kSkip>
-TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
-                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
-  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
-  // A position off the map (a model's output can stray) is pulled to the map's nearest edge; then the
-  // window of grid points within the cutoff of it.
+#define IC_INLINE inline __attribute__((always_inline))
+
+// A match's window: the grid indices i0..i1, j0..j1 (multiples of stride) within cutoff_mm of the position
+// (x_mm, y_mm), which is first pulled to the map's nearest edge (a model's output can stray off the map).
+struct Window {
+  int i0, i1, j0, j1;
+  float x_mm, y_mm;
+};
+
+// False when the window is empty or holds more than kMaxTwinPoints points.
+IC_INLINE bool grid_window(const SiteMap& map, float x_mm, float y_mm, float cutoff_mm, int stride, Window* w) {
   const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
   const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
   x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
@@ -51,75 +51,71 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
   if (j1 > map.ny - 1) j1 = map.ny - 1;
   i0 = (i0 + stride - 1) / stride * stride;  // the strided grid: indices that are multiples of stride
   j0 = (j0 + stride - 1) / stride * stride;
-  if (i0 > i1 || j0 > j1 || ((i1 - i0) / stride + 1) * ((j1 - j0) / stride + 1) > kMaxTwinPoints) {
-    r.status = kErrBadConfig;
-    return r;
-  }
-  const float inv_a = 1.0f / a;
-  const float inv_n = 1.0f / static_cast<float>(n_used);
-  const float inv_t = 1.0f / cfg.temperature;
-  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
-  const float cut2 = cutoff_mm * cutoff_mm;
-  // Per visited point: log weight, height shift, y and squared distance from the position; per grid row
-  // the number of visited points (x is the row's: the second pass sums the weights per row, then x once).
+  *w = Window{i0, i1, j0, j1, x_mm, y_mm};
+  return !(i0 > i1 || j0 > j1 || ((i1 - i0) / stride + 1) * ((j1 - j0) / stride + 1) > kMaxTwinPoints);
+}
+
+// A match's visited points: per point its log weight, height shift, y and squared distance from the
+// position; per grid row the number of visited points (x is the row's: the estimate sums the weights per
+// row, then x once).
+struct Visited {
   float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
   uint16_t row_n[kMaxTwinPoints];
   int n = 0;
   float best_logw = -INFINITY, best_misfit = INFINITY;
-  for (int i = i0; i <= i1; i += stride) {
+
+  IC_INLINE void add(float misfit, float shift_j, float gy, float d2, float inv_t, float inv_2s2) {
+    const float lw = -misfit * inv_t - d2 * inv_2s2;
+    logw[n] = lw;
+    shift[n] = shift_j;
+    py[n] = gy;
+    dist2[n] = d2;
+    if (lw > best_logw) best_logw = lw;
+    if (misfit < best_misfit) best_misfit = misfit;
+    ++n;
+  }
+};
+
+// Calls point(q, gy, d2) for every grid point of the window within the cutoff (cut2 its square) that the map
+// holds, row by row (x ascending, then y), and records each row's number of visited points in v.
+template <typename Point>
+IC_INLINE void visit_window(const Window& w, int stride, const SiteMap& map, float cut2, Visited& v, Point&& point) {
+  for (int i = w.i0; i <= w.i1; i += stride) {
     const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
-    const int row_start = n;
-    for (int j = j0; j <= j1; j += stride) {
+    const int row_start = v.n;
+    for (int j = w.j0; j <= w.j1; j += stride) {
       const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
-      const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
+      const float d2 = (gx - w.x_mm) * (gx - w.x_mm) + (gy - w.y_mm) * (gy - w.y_mm);
       if (d2 > cut2) continue;
       const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
       if (q[0] == kSiteMapMissing) continue;
-      // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
-      // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
-      // shift and misfit below do not tell apart).
-      constexpr int kFirst = kSkip == 0 ? kTwinPerChannel : 0;
-      const float u0 = term[kFirst].r - term[kFirst].s * static_cast<float>(q[kFirst]);
-      float b = term[kFirst].sigma * u0, c = u0 * u0;
-#pragma GCC unroll 16
-      for (int k = kFirst + 1; k < kTwinFeatures; ++k) {
-        if (k / kTwinPerChannel == kSkip) continue;
-        const Term& t = term[k];
-        const float u = t.r - t.s * static_cast<float>(q[k]);
-        b += t.sigma * u;
-        c += u * u;
-      }
-      const float shift_j = b * inv_a;
-      float misfit = (c - a * shift_j * shift_j) * inv_n;
-      if (misfit < 0.0f) misfit = 0.0f;
-      const float lw = -misfit * inv_t - d2 * inv_2s2;
-      logw[n] = lw;
-      shift[n] = shift_j;
-      py[n] = gy;
-      dist2[n] = d2;
-      if (lw > best_logw) best_logw = lw;
-      if (misfit < best_misfit) best_misfit = misfit;
-      ++n;
+      point(q, gy, d2);
     }
-    row_n[(i - i0) / stride] = static_cast<uint16_t>(n - row_start);
+    v.row_n[(i - w.i0) / stride] = static_cast<uint16_t>(v.n - row_start);
   }
-  r.n_points = n;
-  if (n == 0) {
+}
+
+// The weighted means of the visited points (height, x, y), and the weighted mean squared distance from the
+// position (the spread).
+IC_INLINE TwinEstimate weighted_estimate(const Visited& v, const Window& w, int stride, const SiteMap& map,
+                                         const TwinConfig& cfg) {
+  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
+  r.n_points = v.n;
+  if (v.n == 0) {
     r.status = kErrTooFewSamples;
     return r;
   }
-  // The weighted means, and the weighted mean squared distance from the position (the spread).
   float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
   int m = 0;
-  for (int i = i0; i <= i1; i += stride) {
+  for (int i = w.i0; i <= w.i1; i += stride) {
     const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
     float row_w = 0.0f;
-    for (const int end = m + row_n[(i - i0) / stride]; m < end; ++m) {
-      const float p = exp_nonpositive(logw[m] - best_logw);
+    for (const int end = m + v.row_n[(i - w.i0) / stride]; m < end; ++m) {
+      const float p = exp_nonpositive(v.logw[m] - v.best_logw);
       row_w += p;
-      sd += p * shift[m];
-      sy += p * py[m];
-      sr += p * dist2[m];
+      sd += p * v.shift[m];
+      sy += p * v.py[m];
+      sr += p * v.dist2[m];
     }
     sw += row_w;
     sx += row_w * gx;
@@ -131,12 +127,54 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
   // Weighted variance about the mean = mean squared distance from the position - the mean's own squared
   // distance from it; plus the grid's quantisation, step^2 / 12 per axis (a single dominant point is not
   // an exact position).
-  const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
+  const float ex = r.x_mm - w.x_mm, ey = r.y_mm - w.y_mm;
   float var = sr * inv_sw - (ex * ex + ey * ey);
   if (var < 0.0f) var = 0.0f;
   r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
-  r.misfit = best_misfit;
+  r.misfit = v.best_misfit;
   return r;
+}
+
+// One match: the grid points whose indices are multiples of `stride` within cutoff_mm of (x_mm, y_mm), each
+// weighted by its misfit and a Gaussian prior of sigma prior_mm on its distance from the position.
+// kSkip >= 0: that channel's terms are all zero (not usable) and its features are not read: the same sums
+// (adding a zero term changes none), a quarter fewer multiply-adds a point (a three-channel match);
+// kSkip < 0: every channel (the clean path).
+template <int kSkip>
+TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, float x_mm, float y_mm, const SiteMap& map,
+                   const TwinConfig& cfg, int stride, float cutoff_mm, float prior_mm) {
+  Window w;
+  if (!grid_window(map, x_mm, y_mm, cutoff_mm, stride, &w)) {
+    TwinEstimate r{kErrBadConfig, NAN, NAN, NAN, NAN, NAN, 0};
+    return r;
+  }
+  const float inv_a = 1.0f / a;
+  const float inv_n = 1.0f / static_cast<float>(n_used);
+  const float inv_t = 1.0f / cfg.temperature;
+  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
+  const float cut2 = cutoff_mm * cutoff_mm;
+  Visited v;
+  visit_window(w, stride, map, cut2, v, [&](const uint8_t* q, float gy, float d2) {
+    // D = sum sigma u / A; misfit = (sum u^2 - A D^2) / n (unused features have u = sigma = 0).
+    // The sums start from the first feature's terms (0 + t would only turn a -0 into +0, which the
+    // shift and misfit below do not tell apart).
+    constexpr int kFirst = kSkip == 0 ? kTwinPerChannel : 0;
+    const float u0 = term[kFirst].r - term[kFirst].s * static_cast<float>(q[kFirst]);
+    float b = term[kFirst].sigma * u0, c = u0 * u0;
+#pragma GCC unroll 16
+    for (int k = kFirst + 1; k < kTwinFeatures; ++k) {
+      if (k / kTwinPerChannel == kSkip) continue;
+      const Term& t = term[k];
+      const float u = t.r - t.s * static_cast<float>(q[k]);
+      b += t.sigma * u;
+      c += u * u;
+    }
+    const float shift_j = b * inv_a;
+    float misfit = (c - a * shift_j * shift_j) * inv_n;
+    if (misfit < 0.0f) misfit = 0.0f;
+    v.add(misfit, shift_j, gy, d2, inv_t, inv_2s2);
+  });
+  return weighted_estimate(v, w, stride, map, cfg);
 }
 
 // The inconsistent channel's recentring and the four-channel recheck in one pass: both are fine matches
@@ -151,109 +189,47 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
 IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], int skip, float a3, int n3, float a4, int n4,
                                        float x_mm, float y_mm, const SiteMap& map, const TwinConfig& cfg,
                                        float* misfit4) {
-  TwinEstimate r{kOk, NAN, NAN, NAN, NAN, NAN, 0};
   *misfit4 = INFINITY;
-  const float cutoff_mm = cfg.cutoff_mm, prior_mm = cfg.prior_mm;
-  const float x_hi = map.x0_mm + static_cast<float>(map.nx - 1) * map.step_mm;
-  const float y_hi = map.y0_mm + static_cast<float>(map.ny - 1) * map.step_mm;
-  x_mm = x_mm < map.x0_mm ? map.x0_mm : (x_mm > x_hi ? x_hi : x_mm);
-  y_mm = y_mm < map.y0_mm ? map.y0_mm : (y_mm > y_hi ? y_hi : y_mm);
-  const float inv_step = 1.0f / map.step_mm;
-  int i0 = ceil_to_int((x_mm - cutoff_mm - map.x0_mm) * inv_step);
-  int i1 = floor_to_int((x_mm + cutoff_mm - map.x0_mm) * inv_step);
-  int j0 = ceil_to_int((y_mm - cutoff_mm - map.y0_mm) * inv_step);
-  int j1 = floor_to_int((y_mm + cutoff_mm - map.y0_mm) * inv_step);
-  if (i0 < 0) i0 = 0;
-  if (j0 < 0) j0 = 0;
-  if (i1 > map.nx - 1) i1 = map.nx - 1;
-  if (j1 > map.ny - 1) j1 = map.ny - 1;
-  if (i0 > i1 || j0 > j1 || (i1 - i0 + 1) * (j1 - j0 + 1) > kMaxTwinPoints) {
-    r.status = kErrBadConfig;
+  Window w;
+  if (!grid_window(map, x_mm, y_mm, cfg.cutoff_mm, 1, &w)) {
+    TwinEstimate r{kErrBadConfig, NAN, NAN, NAN, NAN, NAN, 0};
     return r;
   }
   const float inv_a = 1.0f / a3, inv_a4 = 1.0f / a4;
   const float inv_n = 1.0f / static_cast<float>(n3), inv_n4 = 1.0f / static_cast<float>(n4);
   const float inv_t = 1.0f / cfg.temperature;
-  const float inv_2s2 = 0.5f / (prior_mm * prior_mm);
-  const float cut2 = cutoff_mm * cutoff_mm;
-  float logw[kMaxTwinPoints], shift[kMaxTwinPoints], py[kMaxTwinPoints], dist2[kMaxTwinPoints];
-  uint16_t row_n[kMaxTwinPoints];
-  int n = 0;
-  float best_logw = -INFINITY, best_misfit = INFINITY, best4 = INFINITY;
-  for (int i = i0; i <= i1; ++i) {
-    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
-    const int row_start = n;
-    for (int j = j0; j <= j1; ++j) {
-      const float gy = map.y0_mm + static_cast<float>(j) * map.step_mm;
-      const float d2 = (gx - x_mm) * (gx - x_mm) + (gy - y_mm) * (gy - y_mm);
-      if (d2 > cut2) continue;
-      const uint8_t* q = map.q + (static_cast<int32_t>(i) * map.ny + j) * kTwinFeatures;
-      if (q[0] == kSiteMapMissing) continue;
-      float b = 0.0f, c = 0.0f, b4 = 0.0f, c4 = 0.0f;  // from 0: see match_skip (a -0 is not told apart)
-      for (int ch = 0; ch < kChannels; ++ch) {
-        const int k0 = ch * kTwinPerChannel;
-        const bool kept = ch != skip;
+  const float inv_2s2 = 0.5f / (cfg.prior_mm * cfg.prior_mm);
+  const float cut2 = cfg.cutoff_mm * cfg.cutoff_mm;
+  Visited v;
+  float best4 = INFINITY;
+  visit_window(w, 1, map, cut2, v, [&](const uint8_t* q, float gy, float d2) {
+    float b = 0.0f, c = 0.0f, b4 = 0.0f, c4 = 0.0f;  // from 0: see match_skip (a -0 is not told apart)
+    for (int ch = 0; ch < kChannels; ++ch) {
+      const int k0 = ch * kTwinPerChannel;
+      const bool kept = ch != skip;
 #pragma GCC unroll 4
-        for (int k = k0; k < k0 + kTwinPerChannel; ++k) {
-          const Term& t = term[k];
-          const float u = t.r - t.s * static_cast<float>(q[k]);
-          b4 += t.sigma * u;
-          c4 += u * u;
-          if (kept) {
-            b += t.sigma * u;
-            c += u * u;
-          }
+      for (int k = k0; k < k0 + kTwinPerChannel; ++k) {
+        const Term& t = term[k];
+        const float u = t.r - t.s * static_cast<float>(q[k]);
+        b4 += t.sigma * u;
+        c4 += u * u;
+        if (kept) {
+          b += t.sigma * u;
+          c += u * u;
         }
       }
-      const float shift4 = b4 * inv_a4;
-      float m4 = (c4 - a4 * shift4 * shift4) * inv_n4;
-      if (m4 < 0.0f) m4 = 0.0f;
-      if (m4 < best4) best4 = m4;
-      const float shift_j = b * inv_a;
-      float misfit = (c - a3 * shift_j * shift_j) * inv_n;
-      if (misfit < 0.0f) misfit = 0.0f;
-      const float lw = -misfit * inv_t - d2 * inv_2s2;
-      logw[n] = lw;
-      shift[n] = shift_j;
-      py[n] = gy;
-      dist2[n] = d2;
-      if (lw > best_logw) best_logw = lw;
-      if (misfit < best_misfit) best_misfit = misfit;
-      ++n;
     }
-    row_n[i - i0] = static_cast<uint16_t>(n - row_start);
-  }
+    const float shift4 = b4 * inv_a4;
+    float m4 = (c4 - a4 * shift4 * shift4) * inv_n4;
+    if (m4 < 0.0f) m4 = 0.0f;
+    if (m4 < best4) best4 = m4;
+    const float shift_j = b * inv_a;
+    float misfit = (c - a3 * shift_j * shift_j) * inv_n;
+    if (misfit < 0.0f) misfit = 0.0f;
+    v.add(misfit, shift_j, gy, d2, inv_t, inv_2s2);
+  });
   *misfit4 = best4;
-  r.n_points = n;
-  if (n == 0) {
-    r.status = kErrTooFewSamples;
-    return r;
-  }
-  float sw = 0.0f, sd = 0.0f, sx = 0.0f, sy = 0.0f, sr = 0.0f;
-  int m = 0;
-  for (int i = i0; i <= i1; ++i) {
-    const float gx = map.x0_mm + static_cast<float>(i) * map.step_mm;
-    float row_w = 0.0f;
-    for (const int end = m + row_n[i - i0]; m < end; ++m) {
-      const float p = exp_nonpositive(logw[m] - best_logw);
-      row_w += p;
-      sd += p * shift[m];
-      sy += p * py[m];
-      sr += p * dist2[m];
-    }
-    sw += row_w;
-    sx += row_w * gx;
-  }
-  const float inv_sw = 1.0f / sw;
-  r.log10_height_mm = cfg.ref_log10_height_mm + sd * inv_sw;
-  r.x_mm = sx * inv_sw;
-  r.y_mm = sy * inv_sw;
-  const float ex = r.x_mm - x_mm, ey = r.y_mm - y_mm;
-  float var = sr * inv_sw - (ex * ex + ey * ey);
-  if (var < 0.0f) var = 0.0f;
-  r.spread_mm = vsqrt_f32(var + map.step_mm * map.step_mm * (1.0f / 6.0f));
-  r.misfit = best_misfit;
-  return r;
+  return weighted_estimate(v, w, 1, map, cfg);
 }
 
 // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
