@@ -320,6 +320,22 @@ nb::ndarray<nb::numpy, float> three_channel_inputs_batch(InF window_energy, InF 
   return out;
 }
 
+// The three-sensor position correction's inputs (impactcore three_position_inputs) of every row without channel
+// left_out, from the feature vectors [R, kNumFeatures] and the three-sensor positions [R, 2].
+nb::ndarray<nb::numpy, float> three_position_inputs_batch(InF vector, InF xy_mm, int left_out) {
+  const size_t r = rows_of(vector);
+  if (!has_shape(vector, {r, static_cast<size_t>(ic::kNumFeatures)}) || !has_shape(xy_mm, {r, 2})) {
+    throw std::invalid_argument("vector [R, kNumFeatures] and xy_mm [R, 2] float32 needed");
+  }
+  if (left_out < 0 || left_out >= ic::kChannels) throw std::invalid_argument("left_out must be a channel 0..3");
+  auto out = make_array<float>({r, static_cast<size_t>(ic::kThreePositionInputs)});
+  for (size_t k = 0; k < r; ++k) {
+    ic::three_position_inputs(vector.data() + k * ic::kNumFeatures, xy_mm.data()[2 * k], xy_mm.data()[2 * k + 1],
+                              left_out, out.data() + k * ic::kThreePositionInputs);
+  }
+  return out;
+}
+
 using InU16 = nb::ndarray<const uint16_t, nb::c_contig, nb::device::cpu>;
 
 void copy16(float* dst, InF src, const char* name) {
@@ -640,6 +656,10 @@ NB_MODULE(_core, m) {
         "phys_xy_mm"_a, "left_out"_a,
         "The energy class's inputs without channel left_out (the other three channels' summed arrival and "
         "difference energies, their mean log10 energy, the physics position) [R, 7] float32.");
+  m.attr("THREE_POSITION_INPUTS") = ic::kThreePositionInputs;
+  m.def("three_position_inputs_batch", &three_position_inputs_batch, "vector"_a, "xy_mm"_a, "left_out"_a,
+        "The three-sensor position correction's inputs without channel left_out (the position, the other three "
+        "channels' time differences, relative log energies and log first peaks) [R, 11] float32.");
   m.def("twin_features_batch", &twin_features_batch, "window_energy"_a, "diff_energy"_a, "flags"_a,
         "The twin's 16 log-energies (4 channels x arrival, Delta^1..3) and usable-feature masks.");
   m.def("twin_estimate_batch", &twin_estimate_batch, "features"_a, "usable"_a, "xy_mm"_a, "q"_a, "nx"_a,

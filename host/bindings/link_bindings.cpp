@@ -403,8 +403,10 @@ struct PyModels : ia::Models {
   std::vector<ia::ModelSpec> three_specs;
   std::unique_ptr<ia::TableModels> impl;
   std::unique_ptr<ic::ChannelCheck> check;  // the channel check (with the three-channel classes), or none
+  std::vector<Tables> pairs;        // the three-sensor position's pairs (8: channel c's x at 2c, y at 2c + 1), or none
+  std::vector<ia::ModelSpec> pair_specs;
   PyModels(nb::dict dx, nb::dict dy, nb::dict de, bool residual_xy, nb::object dtwin, nb::object dthree,
-           nb::object dcheck)
+           nb::object dcheck, nb::object dpairs)
       : x(tables_from(dx, false)), y(tables_from(dy, false)), e(tables_from(de, !dtwin.is_none())),
         residual(residual_xy) {
     if (!dcheck.is_none()) {
@@ -449,8 +451,24 @@ struct PyModels : ia::Models {
       }
       for (const Tables& t : three) three_specs.push_back(t.spec());
     }
+    if (!dpairs.is_none()) {
+      if (three.empty()) throw std::invalid_argument("three_position: needs the three-channel classes");
+      const nb::list items = nb::cast<nb::list>(dpairs);
+      if (items.size() != static_cast<size_t>(2 * ic::kChannels)) {
+        throw std::invalid_argument("three_position: 8 forests (channel c's x at 2c, y at 2c + 1)");
+      }
+      for (nb::handle d : items) {
+        Tables t = tables_from(nb::cast<nb::dict>(d), false);
+        if (t.linear || t.inputs.size() != static_cast<size_t>(ic::kThreePositionInputs)) {
+          throw std::invalid_argument("three_position: forests of the 11 three-position inputs");
+        }
+        pairs.push_back(std::move(t));
+      }
+      for (const Tables& t : pairs) pair_specs.push_back(t.spec());
+    }
     impl.reset(new ia::TableModels(x.spec(), y.spec(), e.spec(), residual, twin ? &twin->spec : nullptr,
-                                   three_specs.empty() ? nullptr : three_specs.data(), check.get()));
+                                   three_specs.empty() ? nullptr : three_specs.data(), check.get(),
+                                   pair_specs.empty() ? nullptr : pair_specs.data()));
   }
   bool predict(const ic::EventResult& ev, float* xm, float* ym, uint8_t* c) const override {
     return impl->predict(ev, xm, ym, c);
@@ -657,9 +675,9 @@ NB_MODULE(_link, m) {
   m.attr("TWIN_INPUT") = static_cast<int>(ia::kTwinInput);
 
   nb::class_<PyModels>(m, "ForestModels")
-      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object, nb::object, nb::object>(), "x"_a, "y"_a,
-           "energy"_a, "residual_xy"_a, "twin"_a = nb::none(), "three_channel"_a = nb::none(),
-           "channel_check"_a = nb::none(),
+      .def(nb::init<nb::dict, nb::dict, nb::dict, bool, nb::object, nb::object, nb::object, nb::object>(), "x"_a,
+           "y"_a, "energy"_a, "residual_xy"_a, "twin"_a = nb::none(), "three_channel"_a = nb::none(),
+           "channel_check"_a = nb::none(), "three_position"_a = nb::none(),
            "Forest tables (dicts of roots, feature, value, right, inputs) as the firmware walks them; twin: the "
            "site map and its configuration (dict of grid [nx, ny, x0_mm, y0_mm, step_mm], q, base, scale, offset, "
            "slope, weight, config [ref_log10_height_mm, prior_mm, cutoff_mm, temperature]) when the energy "
@@ -667,7 +685,9 @@ NB_MODULE(_link, m) {
            "linear models (kind 'linear', inputs 0..6) of impactcore three_channel_inputs, the class of a drop "
            "whose channel c has no onset; channel_check (with three_channel): dict of level and tilt (4 x 12: the "
            "cubic's 10 coefficients, median, scale), scores (plate_x_mm, plate_y_mm, event_score, run_score, "
-           "run_events): impactcore's channel check, whose flagged channel the app's reports leave out.")
+           "run_events): impactcore's channel check, whose flagged channel the app's reports leave out; "
+           "three_position (with three_channel): 8 forests (channel c's x at 2c, y at 2c + 1; 0 trees: none) over "
+           "impactcore three_position_inputs, correcting the three-sensor position of a drop without c.")
       .def_prop_ro("residual_xy", [](const PyModels& p) { return p.residual; })
       .def_prop_ro("has_twin", [](const PyModels& p) { return p.twin != nullptr; })
       .def("predict", [](const PyModels& p, InF vector, InF phys_xy, nb::object window_energy,

@@ -37,7 +37,7 @@ import numpy as np
 from .errors import DataError, ImpactSenseError
 from . import export_check
 from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_CHANNEL_DEFINE,  # noqa: F401
-                       TABLE_KEYS, ExportError, _c_float, exported_fields,
+                       THREE_POSITION_DECL, THREE_POSITION_DEFINE, TABLE_KEYS, ExportError, _c_float, exported_fields,
                        f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
 from .height_class import linear_tables
 from .outputs import json_text, output_folder
@@ -62,6 +62,13 @@ class ModelSet:
     # the channel check as the board runs it (export_check.check_arrays), or None
     channel_check: dict | None = None
     check_note: str | None = None   # why the board does not get the card's check (export_check.budgeted)
+    # with the three-channel classes: channel -> (forest dx, forest dy) correcting the three-sensor position without
+    # that channel (the card's "board_three_position" kept pairs; board.models.board_three_positions)
+    three_position: dict = field(default_factory=dict)
+
+    def three_position_tables(self) -> dict:
+        """channel -> (x tables, y tables) of the three-sensor position's pairs (forest_tables); {} without them."""
+        return {c: tuple(forest_tables(f) for f in pair) for c, pair in sorted(self.three_position.items())}
 
     def three_channel_tables(self) -> dict:
         """channel -> the three-channel class's arrays (height_class.linear_tables); {} without them."""
@@ -194,8 +201,43 @@ def load_models(model_dir) -> ModelSet:
     residual = "phys_x_mm +" in str(card.get("target", ""))
     three = _load_three_channel(model_dir, card, card_path) if twin is None else {}
     signal = dict(card.get("signal") or {})
+    pairs = _load_three_position(model_dir, card, card_path) if three else {}
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
-                    export_check.check_arrays(card, signal, bool(three)))
+                    export_check.check_arrays(card, signal, bool(three)), three_position=pairs)
+
+
+def _load_three_position(model_dir: Path, card: dict, card_path: Path) -> dict:
+    """The card's three-sensor position pairs the board keeps: those of "three_channel_position" whose channel the
+    card's "board_three_position" record kept (a board model's boosted pairs; a host model's forests are not
+    the board's: none)."""
+    from .modelfolder import read_verified
+    from .forestfile import load_forest
+    from .three_channel_position import N_INPUTS
+
+    record = card.get("board_three_position")
+    entry = card.get("three_channel_position") or {}
+    if not isinstance(record, dict) or not isinstance(record.get("channels"), dict):
+        return {}
+    out = {}
+    try:
+        for c, rec in record["channels"].items():
+            if not (isinstance(rec, dict) and rec.get("kept")):
+                continue
+            if str(c) not in entry:
+                raise DataError(card_path, f"board_three_position.channels.{c}", "kept, but three_channel_position "
+                                                                                 "has no pair for it")
+            pair = []
+            for axis in "xy":
+                path, data = read_verified(model_dir, card, card_path, entry[str(c)][axis],
+                                           f"three_channel_position.{c}.{axis}")
+                forest = load_forest(path, data)
+                if getattr(forest, "n_features_in_", None) != N_INPUTS:
+                    raise DataError(path, None, f"reads {getattr(forest, 'n_features_in_', '?')} inputs, not {N_INPUTS}")
+                pair.append(forest)
+            out[int(c)] = tuple(pair)
+    except DataError as exc:
+        raise ExportError(str(exc)) from None
+    return out
 
 
 def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> dict:
@@ -354,9 +396,11 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
 def header_h(models: ModelSet, model_hash: str) -> str:
     """impactsense_models.h: the defines and declarations of what this model has (a forest model's as before)."""
     defines = ((LINEAR_DEFINE if models.energy_linear else "") + (THREE_CHANNEL_DEFINE if models.three_channel else "")
-               + (export_check.CHECK_DEFINE if models.channel_check else ""))
+               + (export_check.CHECK_DEFINE if models.channel_check else "")
+               + (THREE_POSITION_DEFINE if models.three_position else ""))
     decls = ((THREE_CHANNEL_DECL if models.three_channel else "")
-             + (export_check.CHECK_DECL if models.channel_check else ""))
+             + (export_check.CHECK_DECL if models.channel_check else "")
+             + (THREE_POSITION_DECL if models.three_position else ""))
     return HEADER_H.format(model_hash=model_hash, n_features=models.n_features, signal_struct=signal_struct_c(),
                            residual=int(models.residual_xy), twin=int(models.twin is not None),
                            energy_linear=defines, three_channel_decl=decls)
@@ -392,6 +436,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
     tabs = {"x": forest_tables(models.x, n_trees["x"]), "y": forest_tables(models.y, n_trees["y"]),
             "energy": models.energy_tables(n_trees["energy"])}
     three = models.three_channel_tables()
+    three_xy = models.three_position_tables()
+    three_xy_bytes = sum(table_bytes(t) for pair in three_xy.values() for t in pair)
     head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
     (out_dir / "impactsense_models.h").write_text(header_h(models, model_hash))
     (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head) + (
@@ -404,6 +450,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
              **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()},
              **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()},
              **{f"without_{c}_{k2}": v for c, t in three.items() for k2, v in t.items()},
+             **{f"position_{a}_without_{c}_{k2}": v for c, pair in three_xy.items() for a, t in zip("xy", pair)
+                for k2, v in t.items()},
              **({"energy_kind": "linear"} if models.energy_linear else {}),
              **export_check.npz_arrays(models.channel_check))
     summary = {
@@ -421,10 +469,11 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "nodes": {r: table_nodes(t) for r, t in tabs.items()},
         "table_bytes": {**{r: table_bytes(t) for r, t in tabs.items()}, "twin": table_bytes(models.twin),
                         **({"three_channel": sum(table_bytes(t) for t in three.values())} if three else {}),
+                        **({"three_position": three_xy_bytes} if three_xy else {}),
                         **({"channel_check": table_bytes(models.channel_check)} if models.channel_check else {})},
         "table_bytes_total": (sum(table_bytes(t) for t in tabs.values()) + table_bytes(models.twin)
                               + table_bytes(models.channel_check)
-                              + sum(table_bytes(t) for t in three.values())
+                              + sum(table_bytes(t) for t in three.values()) + three_xy_bytes
                               + sum(len(v) for v in models.inputs.values())),
         "twin": None if models.twin is None else {
             "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
@@ -457,6 +506,10 @@ def load_tables(path) -> dict:
     out["three_channel"] = ({c: {k: z[f"without_{c}_{k}"] for k in TABLE_KEYS if f"without_{c}_{k}" in z.files}
                              for c in range(4)} if "without_0_roots" in z.files else None)
     out["channel_check"] = export_check.from_npz(z)
+    # the three-sensor position's pairs (forest_tables per channel and axis; a channel without: absent)
+    out["three_position"] = {c: tuple({k: z[f"position_{a}_without_{c}_{k}"] for k in TABLE_KEYS
+                                       if f"position_{a}_without_{c}_{k}" in z.files} for a in "xy")
+                             for c in range(4) if f"position_x_without_{c}_roots" in z.files}
     return out
 
 
@@ -471,8 +524,9 @@ def shipped_board_model() -> Path | None:
     return None
 
 
-def firmware_models(path):
-    """(`impactsense._link.ForestModels`, model card signal dict) from an export folder."""
+def firmware_models(path, three_position: bool = True):
+    """(`impactsense._link.ForestModels`, model card signal dict) from an export folder. three_position False: without
+    the three-sensor position's pairs (the plain three-sensor position, for comparison)."""
     from . import _core  # noqa: F401  (registers CoreConfig for _link)
     from . import _link
 
@@ -487,5 +541,11 @@ def firmware_models(path):
     three = None if t["three_channel"] is None else [
         {**{k: v.tolist() for k, v in t["three_channel"][c].items()}, "inputs": list(range(_core.THREE_CHANNEL_INPUTS)),
          "kind": "linear"} for c in range(4)]
+    pairs = None
+    if t["three_position"] and three_position:   # 8 node tables (channel c's x at 2c, y at 2c + 1); a channel without: 0 trees
+        empty = {"roots": [0], "feature": [], "threshold": [], "skip": [], "leaf": [], "leaf_value": []}
+        pairs = [({k: v.tolist() for k, v in t["three_position"][c][a].items()} if c in t["three_position"]
+                  else dict(empty)) | {"inputs": list(range(_core.THREE_POSITION_INPUTS))}
+                 for c in range(4) for a in (0, 1)]
     return (_link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin, three,
-                               export_check.binding_dict(t["channel_check"])), t["signal"])
+                               export_check.binding_dict(t["channel_check"]), pairs), t["signal"])

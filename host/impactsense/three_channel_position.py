@@ -20,8 +20,10 @@ Last, where the out-of-fold positions say so, the position kept is replaced by a
 and its corrected picks (pick_correction.py: each pick's error learnt from its own channel's signal), the pair
 then learning on that.
 
-Only the host runs these forests (files "three_channel_position" in the model card, forestfile's plain
-arrays); the board keeps the physics three-sensor position. Their gain is in docs/findings.md ("A dead channel
+The host's forests are the host's only (files "three_channel_position" in the model card, forestfile's plain
+arrays). A board model (board.models.board_three_positions) keeps, per channel, boosted shallow trees on the same
+inputs where its training drops say so out of fold (card "board_three_position"); `impactsense export` ships
+those and the board corrects its three-sensor position with them as the host does. Their gain is in docs/findings.md ("A dead channel
 on a model without a site map").
 """
 
@@ -30,10 +32,11 @@ from __future__ import annotations
 import numpy as np
 from sklearn.ensemble import RandomForestRegressor
 
+from . import _core
 from .errors import DataError
 from .edge_travel import three_sensor_positions
 from .forestfile import load_forest, save_forest
-from .pipeline import FEATURE_NAMES, PAIRS, Features
+from .pipeline import FEATURE_NAMES, Features
 
 # Small forests: the pair only corrects a position, on the training drops' inputs for one channel out. Leaves of
 # a few drops: a three-sensor position's error is mostly its picks' noise, and single-drop leaves learn it.
@@ -47,16 +50,13 @@ N_INPUTS = 11   # three_channel_position_inputs: x, y, 3 time differences, 3 ene
 
 
 def three_channel_position_inputs(vector: np.ndarray, position: np.ndarray, channel: int) -> np.ndarray:
-    """[R, 11] a drop's inputs without `channel`: the three-sensor position, the three arrival time differences
-    among the other channels, their log energies relative to the three's mean and their log first peaks (the
-    core's feature vector; none of them reads `channel`)."""
-    v = np.asarray(vector, float)
-    others = [k for k in range(4) if k != channel]
-    col = FEATURE_NAMES.index
-    dtoa = v[:, [col(f"dtoa_{i}{j}_us") for i, j in PAIRS if channel not in (i, j)]]
-    energy = v[:, [col(f"log_energy_rel_{k}") for k in others]]
-    peaks = v[:, [col(f"log_first_peak_{k}") for k in others]]
-    return np.column_stack([np.asarray(position, float), dtoa, energy - energy.mean(1, keepdims=True), peaks])
+    """[R, 11] float32 a drop's inputs without `channel`: the three-sensor position, the three arrival time
+    differences among the other channels, their log energies relative to the three's mean and their log first peaks
+    (the core's feature vector; none of them reads `channel`): impactcore three_position_inputs, the board's
+    numbers bit for bit."""
+    v = np.ascontiguousarray(np.asarray(vector, np.float32).reshape(-1, len(FEATURE_NAMES)))
+    pos = np.ascontiguousarray(np.asarray(position, np.float32).reshape(-1, 2))
+    return np.asarray(_core.three_position_inputs_batch(v, pos, int(channel)))
 
 
 def _pair(X: np.ndarray, resid: np.ndarray, seed: int, trees: int = THREE_POSITION_TREES) -> tuple:

@@ -33,7 +33,7 @@ from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
-from .boosted import boosted_regressor, choose_board_forests, prefix_within, stages_within
+from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
 from .capture import board_capture, board_captures, board_view, signal_for_board
 from .cost import (EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    linear_instructions, signal_fits, signal_instructions)
@@ -167,6 +167,54 @@ def board_position_forests(model: ImpactModel, features, xy_mm, settings: Forest
     return record
 
 
+# The three-sensor position's pairs (board_three_positions): at most BOARD_THREE_STAGES boosted stages per
+# coordinate (flash: ~100 B a depth-3 tree, 8 pairs), kept per channel when their out-of-fold MAE per axis on the
+# training drops with that channel left out is below BOOST_GAIN x the plain three-sensor position's.
+BOARD_THREE_STAGES = 12
+
+
+def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestSettings, n_folds: int = 5) -> dict:
+    """Per channel c the pair correcting the three-sensor position of a drop without c, as the board runs it: the
+    training drops' own three-sensor position without c (edge_travel.three_sensor_positions, the core's numbers
+    for a drop whose channel c has no onset), boosted depth-BOOST_DEPTH trees (board.boosted) learning the truth
+    minus it from three_channel_position_inputs (none read c). Kept (model.three_channel_position) where the
+    out-of-fold positions (folds grouped by drop position) beat the plain three-sensor ones by BOOST_GAIN; returns
+    the card's record {"stages", "depth", "channels": {c: {"out_of_fold_mae_mm": {"three_sensor", "corrected"},
+    "drops", "kept"}}}."""
+    from ..edge_travel import three_sensor_positions
+    from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
+
+    use = np.flatnonzero(np.asarray(features.usable, bool))
+    train = features.take(use)
+    xy = np.asarray(xy_mm, float)[use]
+    stages = min(BOARD_THREE_STAGES, stages_within(forests_budget(model, len(model.location_features))))
+    pairs, record = {}, {}
+    for c in range(4):
+        base = three_sensor_positions(train.raw, model.signal, c, None)
+        X = three_channel_position_inputs(train.vector, base, c)
+        ok = np.isfinite(X).all(1) & np.isfinite(xy).all(1)
+        rec = {"drops": int(ok.sum()), "kept": False}
+        record[str(c)] = rec
+        if ok.sum() < MIN_DROPS:
+            continue
+        Xc, resid = X[ok], xy[ok] - base[ok]
+        groups = position_groups(xy[ok])
+        k = min(n_folds, int(groups.max()) + 1)
+        if k < 2:
+            continue
+        oof = np.zeros_like(resid)
+        for tr, va in GroupKFold(k).split(Xc, groups=groups):
+            for a in (0, 1):
+                oof[va, a] = boosted_regressor(Xc[tr], resid[tr, a], stages, settings.seed).predict(Xc[va])
+        plain, corrected = float(np.abs(resid).mean()), float(np.abs(resid - oof).mean())
+        rec["out_of_fold_mae_mm"] = {"three_sensor": round(plain, 3), "corrected": round(corrected, 3)}
+        if corrected < BOOST_GAIN * plain:
+            rec["kept"] = True
+            pairs[c] = tuple(boosted_regressor(Xc, resid[:, a], stages, settings.seed) for a in (0, 1))
+    model.three_channel_position = pairs
+    return {"stages": stages, "depth": BOOST_DEPTH, "channels": record}
+
+
 def forests_budget(model: ImpactModel, n_inputs: int) -> float:
     """What the event budget leaves the position pair's trees (board.cost): the budget less the signal's cost, the
     forests' fixed share and inputs, and the energy model's (its linear terms, or one tree of its forest)."""
@@ -240,6 +288,10 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
     if model.site_map is None:   # the position correction the event budget affords: boosted trees or a prefix
         extra_card = {**(extra_card or {}), "board_forests": board_position_forests(
+            model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
+    if model.site_map is None and not any(left_out) and model.three_channel_class:
+        # a four-channel model: per channel the three-sensor position's correction the board runs with it out
+        extra_card = {**extra_card, "board_three_position": board_three_positions(
             model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:

@@ -91,6 +91,22 @@ bool TableModels::predict_event(const ic::EventResult& ev, const ic::LocaliserCo
   return predict_impl(ev, &loc, x_mm, y_mm, cls, uncertainty_mm, left_out, flagged, core, reason);
 }
 
+void TableModels::correct_three(const ic::EventResult& ev, int c, float* x_mm, float* y_mm) const {
+  if (three_xy_ == nullptr || c < 0 || c >= ic::kChannels) return;
+  const ModelSpec& mx = three_xy_[2 * c];
+  const ModelSpec& my = three_xy_[2 * c + 1];
+  if (mx.forest.n_trees <= 0 || my.forest.n_trees <= 0) return;
+  float in[ic::kThreePositionInputs];
+  ic::three_position_inputs(ev.vector, *x_mm, *y_mm, c, in);
+  for (int k = 0; k < ic::kThreePositionInputs; ++k) {
+    if (!(in[k] - in[k] == 0.0f)) return;  // NaN or inf: the plain position
+  }
+  const float dx = mx.evaluate(mx.forest, in);
+  const float dy = my.evaluate(my.forest, in);
+  *x_mm += dx;
+  *y_mm += dy;
+}
+
 bool TableModels::three_sensor_path(const ic::EventResult& ev, const ic::LocaliserConfig& loc,
                                     const ic::CoreConfig& core, int flagged, float* x_mm, float* y_mm, uint8_t* cls,
                                     float* uncertainty_mm) const {
@@ -101,6 +117,7 @@ bool TableModels::three_sensor_path(const ic::EventResult& ev, const ic::Localis
   *cls = three_[flagged].evaluate(three_[flagged].forest, in) > 0.5f ? 1 : 0;
   *x_mm = p.x_mm;
   *y_mm = p.y_mm;
+  correct_three(ev, flagged, x_mm, y_mm);
   const float var = p.cov_xx + p.cov_yy;
   if (var >= 0.0f) *uncertainty_mm = sqrtf(var);
   return true;
@@ -171,6 +188,7 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
     *cls = three_[c].evaluate(three_[c].forest, in) > 0.5f ? 1 : 0;
     *x_mm = ev.phys.x_mm;
     *y_mm = ev.phys.y_mm;
+    correct_three(ev, c, x_mm, y_mm);
     *left_out = static_cast<int8_t>(c);
     return true;
   }

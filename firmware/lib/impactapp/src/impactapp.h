@@ -158,13 +158,17 @@ class TableModels : public Models {
   // localiser's three-sensor position with c left out (the host's models.ImpactModel.predict).
   // check (with three_channel; copied): the channel check, whose flagged channel predict_event's three-sensor path
   // leaves out.
+  // three_position (with three_channel; nullptr: none): [2 * kChannels] per channel c the pair (x at 2c, y at
+  // 2c + 1) correcting the three-sensor position of a drop without c (boosted trees on
+  // impactcore::three_position_inputs, their inputs field unused; a pair of 0 trees: none for that channel).
   TableModels(const ModelSpec& x, const ModelSpec& y, const ModelSpec& energy, bool residual_xy,
               const TwinSpec* twin = nullptr, const ModelSpec* three_channel = nullptr,
-              const impactcore::ChannelCheck* check = nullptr)
+              const impactcore::ChannelCheck* check = nullptr, const ModelSpec* three_position = nullptr)
       : x_(x), y_(y), e_(energy), residual_(residual_xy), has_twin_(twin != nullptr),
         same_xy_inputs_(x.n_inputs == y.n_inputs && x.inputs != nullptr && y.inputs != nullptr &&
                         memcmp(x.inputs, y.inputs, static_cast<size_t>(x.n_inputs)) == 0),
-        three_(three_channel), has_check_(check != nullptr && three_channel != nullptr && twin == nullptr) {
+        three_(three_channel), has_check_(check != nullptr && three_channel != nullptr && twin == nullptr),
+        three_xy_(three_channel != nullptr && twin == nullptr ? three_position : nullptr) {
     if (twin != nullptr) twin_ = *twin;
     if (has_check_) check_ = *check;
   }
@@ -190,6 +194,9 @@ class TableModels : public Models {
   bool three_sensor_path(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc,
                          const impactcore::CoreConfig& core, int flagged, float* x_mm, float* y_mm, uint8_t* cls,
                          float* uncertainty_mm) const;
+  // The three-sensor position (x, y) of a drop without channel c corrected by c's pair (three_xy_), if it has one
+  // and its inputs are finite.
+  void correct_three(const impactcore::EventResult& ev, int c, float* x_mm, float* y_mm) const;
   ModelSpec x_, y_, e_;
   bool residual_;
   bool has_twin_;
@@ -198,6 +205,7 @@ class TableModels : public Models {
   const ModelSpec* three_;  // [impactcore::kChannels] or nullptr
   bool has_check_;
   impactcore::ChannelCheck check_{};
+  const ModelSpec* three_xy_;  // [2 * impactcore::kChannels] or nullptr
 };
 
 // The board's acquisition as the core sees it: the rate, the SAADC scan order's capture delays (channel c

@@ -77,6 +77,25 @@ inline const ModelSpec* exported_three_channel() {
 inline const ModelSpec* exported_three_channel() { return nullptr; }
 #endif
 
+#if defined(IMPACTSENSE_THREE_POSITION) && IMPACTSENSE_THREE_POSITION
+// A model without a twin: per channel c the pair (x, y) correcting the three-sensor position of a drop without c
+// (node tables over impactcore::three_position_inputs; a pair of 0 trees: none; TableModels' three_position).
+inline const ModelSpec* exported_three_position() {
+  static const ModelSpec pairs[2 * impactcore::kChannels] = {
+      exported_spec(impactsense_model_position_without[0], forest_mean),
+      exported_spec(impactsense_model_position_without[1], forest_mean),
+      exported_spec(impactsense_model_position_without[2], forest_mean),
+      exported_spec(impactsense_model_position_without[3], forest_mean),
+      exported_spec(impactsense_model_position_without[4], forest_mean),
+      exported_spec(impactsense_model_position_without[5], forest_mean),
+      exported_spec(impactsense_model_position_without[6], forest_mean),
+      exported_spec(impactsense_model_position_without[7], forest_mean)};
+  return pairs;
+}
+#else
+inline const ModelSpec* exported_three_position() { return nullptr; }
+#endif
+
 #if defined(IMPACTSENSE_CHANNEL_CHECK) && IMPACTSENSE_CHANNEL_CHECK
 // A model without a twin: the channel check (impactcore::ChannelCheck) from the card's fits.
 inline impactcore::ChannelCheck exported_channel_check_value() {
@@ -116,7 +135,7 @@ inline TableModels exported_models_with(ForestEvaluator x, ForestEvaluator y, Fo
 #else
   return TableModels(exported_spec(impactsense_model_x, x), exported_spec(impactsense_model_y, y),
                      exported_spec(impactsense_model_energy, energy), IMPACTSENSE_RESIDUAL_XY != 0, nullptr,
-                     exported_three_channel(), exported_channel_check());
+                     exported_three_channel(), exported_channel_check(), exported_three_position());
 #endif
 }
 

@@ -200,4 +200,23 @@ void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_
   out[3 + kDiffOrders] = phys_y_mm;
 }
 
+void three_position_inputs(const float* v, float x_mm, float y_mm, int left_out, float out[kThreePositionInputs]) {
+  out[0] = x_mm;
+  out[1] = y_mm;
+  int k = 2;
+  for (int p = 0; p < kPairs; ++p) {
+    if (kPairI[p] != left_out && kPairJ[p] != left_out) out[k++] = v[p];
+  }
+  float e[3];
+  int n = 0;
+  for (int c = 0; c < kChannels; ++c) {
+    if (c != left_out) e[n++] = v[12 + c];
+  }
+  const float mean = (e[0] + e[1] + e[2]) / 3.0f;
+  for (int j = 0; j < 3; ++j) out[k++] = e[j] - mean;
+  for (int c = 0; c < kChannels; ++c) {
+    if (c != left_out) out[k++] = v[17 + c];
+  }
+}
+
 }  // namespace impactcore

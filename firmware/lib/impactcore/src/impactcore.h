@@ -560,6 +560,14 @@ constexpr int kThreeChannelInputs = 1 + kDiffOrders + 1 + 2;
 void three_channel_inputs(const EventFeatures& f, float phys_x_mm, float phys_y_mm, int left_out,
                           float out[kThreeChannelInputs]);
 
+// The three-sensor position correction's inputs of a drop without channel `left_out` (a model without a site
+// map; host three_channel_position.three_channel_position_inputs, the board's TableModels): the three-sensor
+// position (x, y), the three arrival time differences among the other channels (kPair order), their log10
+// energies relative to the three's own mean and their log10 first peaks, all read from the feature vector v
+// (none of them reads `left_out`).
+constexpr int kThreePositionInputs = 2 + 3 + 3 + 3;
+void three_position_inputs(const float* v, float x_mm, float y_mm, int left_out, float out[kThreePositionInputs]);
+
 // --- the channel check (channelcheck.cpp): one channel against the other three ---
 //
 // A model without a site map has no twin to say that a channel's energies disagree with the others' (a partly
