@@ -84,3 +84,33 @@ def test_qemu_image_checks_the_models_on_a_session_with_a_debonded_channel(tmp_p
     assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
     left_out = [int(v) for v in re.findall(r"^DROP left_out (\d+)$", out, re.M)]
     assert len(left_out) >= 3 and left_out.count(debonded) >= len(left_out) - 1, left_out
+
+
+def test_qemu_image_corrects_a_four_channel_models_three_sensor_position_as_the_host(tmp_path, session1):
+    """A four-channel model without a twin (what `impactsense train` + `export` ship) carries per channel the pair
+    correcting the three-sensor position (board.models.board_three_positions); on a session whose channel 2 is dead
+    the image's TableModels::predict_event reports the corrected position the host serves (ImpactModel.predict,
+    its three-sensor path) and names channel 2, and the correction moved the drops off the plain physics position."""
+    import numpy as np
+
+    from impactsense.board.models import train_board_models
+    from impactsense.data import write_session
+    from impactsense.faults import FaultSpec, inject_session
+
+    dead = 2
+    clean = session1.subset(np.arange(0, len(session1), 3))
+    model = train_board_models(clean, tmp_path / "model", n_trees=4)
+    card = json.loads((model / "model_card.json").read_text())
+    assert card["board_three_position"]["channels"][str(dead)]["kept"]
+    s = inject_session(session1.subset(np.arange(1, len(session1), 97)), FaultSpec(dead_channel=dead, noise=1, seed=0))
+    data = write_session(tmp_path / "dead", s.rig.to_dict(), s.x_mm, s.y_mm, s.height_mm, s.adc, s.case_id,
+                         s.repetition)
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path / "build"), "--data", str(data),
+                        "--model-dir", str(model), "--trees", "4", "--drops", "4"],
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out
+    assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
+    assert "impactsense_model_position_without" in (tmp_path / "build" / "models" / "impactsense_forest_tables.c").read_text()
+    left_out = [int(v) for v in re.findall(r"^DROP left_out (-?\d+)$", out, re.M)]
+    assert len(left_out) >= 3 and all(c == dead for c in left_out), left_out

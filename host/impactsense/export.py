@@ -524,9 +524,10 @@ def shipped_board_model() -> Path | None:
     return None
 
 
-def firmware_models(path, three_position: bool = True):
-    """(`impactsense._link.ForestModels`, model card signal dict) from an export folder. three_position False: without
-    the three-sensor position's pairs (the plain three-sensor position, for comparison)."""
+def firmware_models(path, three_position=True):
+    """(`impactsense._link.ForestModels`, model card signal dict) from an export folder. three_position: the
+    three-sensor position's pairs of every channel (True), of none (False: the plain three-sensor position, for
+    comparison) or of the channels listed."""
     from . import _core  # noqa: F401  (registers CoreConfig for _link)
     from . import _link
 
@@ -542,10 +543,11 @@ def firmware_models(path, three_position: bool = True):
         {**{k: v.tolist() for k, v in t["three_channel"][c].items()}, "inputs": list(range(_core.THREE_CHANNEL_INPUTS)),
          "kind": "linear"} for c in range(4)]
     pairs = None
-    if t["three_position"] and three_position:   # 8 node tables (channel c's x at 2c, y at 2c + 1); a channel without: 0 trees
+    keep = set(range(4)) if three_position is True else set(three_position or ())
+    if t["three_position"] and keep:   # 8 node tables (channel c's x at 2c, y at 2c + 1); a channel without: 0 trees
         empty = {"roots": [0], "feature": [], "threshold": [], "skip": [], "leaf": [], "leaf_value": []}
-        pairs = [({k: v.tolist() for k, v in t["three_position"][c][a].items()} if c in t["three_position"]
-                  else dict(empty)) | {"inputs": list(range(_core.THREE_POSITION_INPUTS))}
-                 for c in range(4) for a in (0, 1)]
+        pairs = [({k: v.tolist() for k, v in t["three_position"][c][a].items()}
+                  if c in t["three_position"] and c in keep else dict(empty))
+                 | {"inputs": list(range(_core.THREE_POSITION_INPUTS))} for c in range(4) for a in (0, 1)]
     return (_link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin, three,
                                export_check.binding_dict(t["channel_check"]), pairs), t["signal"])
