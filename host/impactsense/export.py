@@ -37,8 +37,9 @@ import numpy as np
 from .errors import DataError, ImpactSenseError
 from . import export_check
 from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_CHANNEL_DEFINE,  # noqa: F401
-                       THREE_POSITION_DECL, THREE_POSITION_DEFINE, TABLE_KEYS, ExportError, _c_float, exported_fields,
+                       TABLE_KEYS, ExportError, _c_float, exported_fields,
                        f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
+from . import export_c
 from .height_class import linear_tables
 from .outputs import json_text, output_folder
 
@@ -62,13 +63,7 @@ class ModelSet:
     # the channel check as the board runs it (export_check.check_arrays), or None
     channel_check: dict | None = None
     check_note: str | None = None   # why the board does not get the card's check (export_check.budgeted)
-    # with the three-channel classes: channel -> (forest dx, forest dy) correcting the three-sensor position without
-    # that channel (the card's "board_three_position" kept pairs; board.models.board_three_positions)
-    three_position: dict = field(default_factory=dict)
-
-    def three_position_tables(self) -> dict:
-        """channel -> (x tables, y tables) of the three-sensor position's pairs (forest_tables); {} without them."""
-        return {c: tuple(forest_tables(f) for f in pair) for c, pair in sorted(self.three_position.items())}
+    three_position: dict = field(default_factory=dict)   # channel -> its pair (three_channel_position.load_board_pairs)
 
     def three_channel_tables(self) -> dict:
         """channel -> the three-channel class's arrays (height_class.linear_tables); {} without them."""
@@ -199,55 +194,21 @@ def load_models(model_dir) -> ModelSet:
             raise ExportError(f"{card_path}: feature index out of range")
         inputs[role] = idx
     residual = "phys_x_mm +" in str(card.get("target", ""))
-    three = _load_three_channel(model_dir, card, card_path) if twin is None else {}
+    three, pairs = _load_three_channel(model_dir, card, card_path) if twin is None else ({}, {})
     signal = dict(card.get("signal") or {})
-    pairs = _load_three_position(model_dir, card, card_path) if three else {}
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
                     export_check.check_arrays(card, signal, bool(three)), three_position=pairs)
 
 
-def _load_three_position(model_dir: Path, card: dict, card_path: Path) -> dict:
-    """The card's three-sensor position pairs the board keeps: those of "three_channel_position" whose channel the
-    card's "board_three_position" record kept (a board model's boosted pairs; a host model's forests are not
-    the board's: none)."""
-    from .modelfolder import read_verified
-    from .forestfile import load_forest
-    from .three_channel_position import N_INPUTS
-
-    record = card.get("board_three_position")
-    entry = card.get("three_channel_position") or {}
-    if not isinstance(record, dict) or not isinstance(record.get("channels"), dict):
-        return {}
-    out = {}
-    try:
-        for c, rec in record["channels"].items():
-            if not (isinstance(rec, dict) and rec.get("kept")):
-                continue
-            if str(c) not in entry:
-                raise DataError(card_path, f"board_three_position.channels.{c}", "kept, but three_channel_position "
-                                                                                 "has no pair for it")
-            pair = []
-            for axis in "xy":
-                path, data = read_verified(model_dir, card, card_path, entry[str(c)][axis],
-                                           f"three_channel_position.{c}.{axis}")
-                forest = load_forest(path, data)
-                if getattr(forest, "n_features_in_", None) != N_INPUTS:
-                    raise DataError(path, None, f"reads {getattr(forest, 'n_features_in_', '?')} inputs, not {N_INPUTS}")
-                pair.append(forest)
-            out[int(c)] = tuple(pair)
-    except DataError as exc:
-        raise ExportError(str(exc)) from None
-    return out
-
-
-def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> dict:
-    """The card's three-channel classes (all four channels, or none: the board reads them by channel)."""
+def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> tuple[dict, dict]:
+    """(the card's three-channel classes, all four channels or none; with them the board's pairs, load_board_pairs)."""
     from .height_class import LINEAR_CLASS_FEATURES, LinearHeightClass
     from .modelfolder import read_verified
+    from .three_channel_position import load_board_pairs
 
     three = card.get("three_channel_class") or {}
     if not isinstance(three, dict) or sorted(three) != ["0", "1", "2", "3"]:
-        return {}
+        return {}, {}
     out = {}
     try:
         for c, name in three.items():
@@ -255,9 +216,9 @@ def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> dict:
             out[int(c)] = LinearHeightClass.load(path, data)
             if out[int(c)].n_features_in_ != len(LINEAR_CLASS_FEATURES):
                 raise DataError(path, None, f"reads {out[int(c)].n_features_in_} inputs, not {len(LINEAR_CLASS_FEATURES)}")
+        return out, load_board_pairs(model_dir, card, card_path)
     except DataError as exc:
         raise ExportError(str(exc)) from None
-    return out
 
 
 def twin_xy(twin: dict, feats: np.ndarray, usable: np.ndarray, xy_mm: np.ndarray) -> np.ndarray:
@@ -395,12 +356,11 @@ def export_models(model_dir, out_dir, trees: str | int = "all", X_eval=None, xy_
 
 def header_h(models: ModelSet, model_hash: str) -> str:
     """impactsense_models.h: the defines and declarations of what this model has (a forest model's as before)."""
+    pos_define, pos_decl = export_c.three_position_header(models)
     defines = ((LINEAR_DEFINE if models.energy_linear else "") + (THREE_CHANNEL_DEFINE if models.three_channel else "")
-               + (export_check.CHECK_DEFINE if models.channel_check else "")
-               + (THREE_POSITION_DEFINE if models.three_position else ""))
+               + (export_check.CHECK_DEFINE if models.channel_check else "") + pos_define)
     decls = ((THREE_CHANNEL_DECL if models.three_channel else "")
-             + (export_check.CHECK_DECL if models.channel_check else "")
-             + (THREE_POSITION_DECL if models.three_position else ""))
+             + (export_check.CHECK_DECL if models.channel_check else "") + pos_decl)
     return HEADER_H.format(model_hash=model_hash, n_features=models.n_features, signal_struct=signal_struct_c(),
                            residual=int(models.residual_xy), twin=int(models.twin is not None),
                            energy_linear=defines, three_channel_decl=decls)
@@ -436,8 +396,6 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
     tabs = {"x": forest_tables(models.x, n_trees["x"]), "y": forest_tables(models.y, n_trees["y"]),
             "energy": models.energy_tables(n_trees["energy"])}
     three = models.three_channel_tables()
-    three_xy = models.three_position_tables()
-    three_xy_bytes = sum(table_bytes(t) for pair in three_xy.values() for t in pair)
     head = f"// Generated by `impactsense export` from {Path(model_dir).name} (card {model_hash}); do not edit.\n"
     (out_dir / "impactsense_models.h").write_text(header_h(models, model_hash))
     (out_dir / "impactsense_forest_tables.c").write_text(tables_c(tabs, models, head) + (
@@ -450,8 +408,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
              **{f"{r}_{k2}": v for r, t in tabs.items() for k2, v in t.items()},
              **{f"twin_{k2}": v for k2, v in (models.twin or {}).items()},
              **{f"without_{c}_{k2}": v for c, t in three.items() for k2, v in t.items()},
-             **{f"position_{a}_without_{c}_{k2}": v for c, pair in three_xy.items() for a, t in zip("xy", pair)
-                for k2, v in t.items()},
+             **export_c.three_position_npz(models.three_position),
              **({"energy_kind": "linear"} if models.energy_linear else {}),
              **export_check.npz_arrays(models.channel_check))
     summary = {
@@ -469,11 +426,11 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "nodes": {r: table_nodes(t) for r, t in tabs.items()},
         "table_bytes": {**{r: table_bytes(t) for r, t in tabs.items()}, "twin": table_bytes(models.twin),
                         **({"three_channel": sum(table_bytes(t) for t in three.values())} if three else {}),
-                        **({"three_position": three_xy_bytes} if three_xy else {}),
+                        **({"three_position": export_c.pairs_bytes(models.three_position)} if models.three_position else {}),
                         **({"channel_check": table_bytes(models.channel_check)} if models.channel_check else {})},
         "table_bytes_total": (sum(table_bytes(t) for t in tabs.values()) + table_bytes(models.twin)
                               + table_bytes(models.channel_check)
-                              + sum(table_bytes(t) for t in three.values()) + three_xy_bytes
+                              + sum(table_bytes(t) for t in three.values()) + export_c.pairs_bytes(models.three_position)
                               + sum(len(v) for v in models.inputs.values())),
         "twin": None if models.twin is None else {
             "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
@@ -506,10 +463,7 @@ def load_tables(path) -> dict:
     out["three_channel"] = ({c: {k: z[f"without_{c}_{k}"] for k in TABLE_KEYS if f"without_{c}_{k}" in z.files}
                              for c in range(4)} if "without_0_roots" in z.files else None)
     out["channel_check"] = export_check.from_npz(z)
-    # the three-sensor position's pairs (forest_tables per channel and axis; a channel without: absent)
-    out["three_position"] = {c: tuple({k: z[f"position_{a}_without_{c}_{k}"] for k in TABLE_KEYS
-                                       if f"position_{a}_without_{c}_{k}" in z.files} for a in "xy")
-                             for c in range(4) if f"position_x_without_{c}_roots" in z.files}
+    out["three_position"] = export_c.three_position_from_npz(z)
     return out
 
 
@@ -525,9 +479,7 @@ def shipped_board_model() -> Path | None:
 
 
 def firmware_models(path, three_position=True):
-    """(`impactsense._link.ForestModels`, model card signal dict) from an export folder. three_position: the
-    three-sensor position's pairs of every channel (True), of none (False: the plain three-sensor position, for
-    comparison) or of the channels listed."""
+    """(`_link.ForestModels`, card signal dict) of an export folder; three_position: the pairs' channels (True: all)."""
     from . import _core  # noqa: F401  (registers CoreConfig for _link)
     from . import _link
 
@@ -542,12 +494,6 @@ def firmware_models(path, three_position=True):
     three = None if t["three_channel"] is None else [
         {**{k: v.tolist() for k, v in t["three_channel"][c].items()}, "inputs": list(range(_core.THREE_CHANNEL_INPUTS)),
          "kind": "linear"} for c in range(4)]
-    pairs = None
-    keep = set(range(4)) if three_position is True else set(three_position or ())
-    if t["three_position"] and keep:   # 8 node tables (channel c's x at 2c, y at 2c + 1); a channel without: 0 trees
-        empty = {"roots": [0], "feature": [], "threshold": [], "skip": [], "leaf": [], "leaf_value": []}
-        pairs = [({k: v.tolist() for k, v in t["three_position"][c][a].items()}
-                  if c in t["three_position"] and c in keep else dict(empty))
-                 | {"inputs": list(range(_core.THREE_POSITION_INPUTS))} for c in range(4) for a in (0, 1)]
     return (_link.ForestModels(spec["x"], spec["y"], spec["energy"], t["residual_xy"], twin, three,
-                               export_check.binding_dict(t["channel_check"]), pairs), t["signal"])
+                               export_check.binding_dict(t["channel_check"]),
+                               export_c.three_position_binding(t["three_position"], three_position)), t["signal"])

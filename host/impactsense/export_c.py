@@ -199,7 +199,7 @@ def tables_c(tabs: dict[str, dict], models, header: str) -> str:
     if models.three_channel:
         out.append(three_channel_c({c: linear_tables(m) for c, m in models.three_channel.items()}))
     if models.three_position:
-        out.append(three_position_c(models.three_position_tables()))
+        out.append(three_position_c(three_position_tables(models.three_position)))
     out.append(signal_c(models.signal))
     return "".join(out)
 
@@ -234,6 +234,45 @@ def three_position_c(tabs: dict) -> str:
     out.append("const impactsense_model impactsense_model_position_without[8] = {\n  " + ",\n  ".join(models)
                + "\n};\n\n")
     return "".join(out)
+
+
+def three_position_header(models) -> tuple[str, str]:
+    """(the header's define, its declaration) of the three-sensor position's pairs; empty without them."""
+    return (THREE_POSITION_DEFINE, THREE_POSITION_DECL) if models.three_position else ("", "")
+
+
+def three_position_tables(pairs: dict) -> dict:
+    """channel -> (x tables, y tables) of the three-sensor position's pairs (forest_tables); {} without them."""
+    return {c: tuple(forest_tables(f) for f in pair) for c, pair in sorted(pairs.items())}
+
+
+def pairs_bytes(pairs: dict) -> int:
+    """Flash bytes of the three-sensor position's pairs' tables (channel -> (forest dx, forest dy))."""
+    return sum(table_bytes(t) for tabs in three_position_tables(pairs).values() for t in tabs)
+
+
+def three_position_npz(pairs: dict) -> dict:
+    """The emulator's copy of the three-sensor position's pairs (channel -> (forest dx, forest dy))."""
+    return {f"position_{a}_without_{c}_{k}": v for c, tabs in three_position_tables(pairs).items()
+            for a, t in zip("xy", tabs) for k, v in t.items()}
+
+
+def three_position_from_npz(z) -> dict:
+    """channel -> (x tables, y tables) from an export's forest_tables.npz (a channel without a pair: absent)."""
+    return {c: tuple({k: z[f"position_{a}_without_{c}_{k}"] for k in TABLE_KEYS
+                      if f"position_{a}_without_{c}_{k}" in z.files} for a in "xy")
+            for c in range(4) if f"position_x_without_{c}_roots" in z.files}
+
+
+def three_position_binding(tabs: dict, channels=True) -> list | None:
+    """The 8 node tables `_link.ForestModels` takes (channel c's x at 2c, y at 2c + 1; a channel without a pair or
+    not in `channels`, True: all, False: none: 0 trees), or None without any."""
+    keep = set(range(4)) if channels is True else set(channels or ())
+    if not tabs or not keep:
+        return None
+    empty = {"roots": [0], "feature": [], "threshold": [], "skip": [], "leaf": [], "leaf_value": []}
+    return [({k: v.tolist() for k, v in tabs[c][a].items()} if c in tabs and c in keep else dict(empty))
+            | {"inputs": list(range(THREE_POSITION_INPUTS))} for c in range(4) for a in (0, 1)]
 
 
 def twin_c(t: dict) -> str:

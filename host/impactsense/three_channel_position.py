@@ -432,3 +432,18 @@ def load_three_sensor_path(model_dir, card: dict, card_path) -> tuple[dict, dict
             pair.append(forest)
         pairs[int(c)] = tuple(pair)
     return three_class, pairs, _load_stack(model_dir, card, card_path, pairs)
+
+
+def load_board_pairs(model_dir, card: dict, card_path) -> dict:
+    """The card's three-sensor position pairs the board keeps (channel -> pair): those of "three_channel_position"
+    whose channel the card's "board_three_position" record kept (a board model's boosted pairs,
+    board.models.board_three_positions; a host model's forests are not the board's: none)."""
+    record = card.get("board_three_position")
+    if not isinstance(record, dict) or not isinstance(record.get("channels"), dict):
+        return {}
+    kept = [int(c) for c, rec in record["channels"].items() if isinstance(rec, dict) and rec.get("kept")]
+    pairs = load_three_sensor_path(model_dir, card, card_path)[1]
+    if any(c not in pairs for c in kept):
+        raise DataError(card_path, "board_three_position.channels", "keeps a channel three_channel_position has no "
+                                                                    "pair for")
+    return {c: pairs[c] for c in kept}

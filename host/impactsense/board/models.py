@@ -24,6 +24,7 @@ import numpy as np
 from sklearn.model_selection import GroupKFold
 
 from ..data import Session, load_session
+from ..edge_travel import three_sensor_positions
 from ..errors import DataError
 from ..modelfolder import read_card, verified_path
 from ..models import LOCATION_FEATURES, SITE_MAP_FILE, ForestSettings, ImpactModel, columns
@@ -31,6 +32,7 @@ from ..pipeline import featurize, fit_localiser
 from ..sim.params import SimParams
 from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
+from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
@@ -181,9 +183,6 @@ def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestS
     out-of-fold positions (folds grouped by drop position) beat the plain three-sensor ones by BOOST_GAIN; returns
     the card's record {"stages", "depth", "channels": {c: {"out_of_fold_mae_mm": {"three_sensor", "corrected"},
     "drops", "kept"}}}."""
-    from ..edge_travel import three_sensor_positions
-    from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
-
     use = np.flatnonzero(np.asarray(features.usable, bool))
     train = features.take(use)
     xy = np.asarray(xy_mm, float)[use]
@@ -213,6 +212,17 @@ def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestS
             pairs[c] = tuple(boosted_regressor(Xc, resid[:, a], stages, settings.seed) for a in (0, 1))
     model.three_channel_position = pairs
     return {"stages": stages, "depth": BOOST_DEPTH, "channels": record}
+
+
+def board_corrections(model: ImpactModel, features, xy_mm, settings: ForestSettings, left_out: bool) -> dict:
+    """A model without a twin: the position correction the event budget affords (boosted trees or a prefix,
+    board_position_forests) and, on a four-channel model with the three-channel classes, per channel the
+    three-sensor position's correction the board runs with that channel out (board_three_positions); the card's
+    records."""
+    out = {"board_forests": board_position_forests(model, features, xy_mm, settings)}
+    if not left_out and model.three_channel_class:
+        out["board_three_position"] = board_three_positions(model, features, xy_mm, settings)
+    return out
 
 
 def forests_budget(model: ImpactModel, n_inputs: int) -> float:
@@ -286,13 +296,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             site_map=site_map, members=False, choose_class=choose_class,
                             twin_rows=None if simulated_rows is None else
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
-    if model.site_map is None:   # the position correction the event budget affords: boosted trees or a prefix
-        extra_card = {**(extra_card or {}), "board_forests": board_position_forests(
-            model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
-    if model.site_map is None and not any(left_out) and model.three_channel_class:
-        # a four-channel model: per channel the three-sensor position's correction the board runs with it out
-        extra_card = {**extra_card, "board_three_position": board_three_positions(
-            model, feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train], settings)}
+    if model.site_map is None:
+        extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
+                                                         session.xy_mm[rows][is_train], settings, any(left_out))}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
