@@ -62,6 +62,7 @@ PRINT_ONLY = {
     "bench_class_field": ["--seeds", "1"],            # late energy, a learnt position field, the heights
     "bench_class_sitefactor": ["--seeds", "1"],       # the class from the twin's site factor (rigs with a CAL.json)
     "bench_class_residual": ["--seeds", "1", "--splits", "4"],   # the class without a site map: 8 more reads, edge offset
+    "bench_sensor_lines": ["--seeds", "1"],           # position error by sensor line, dilution, edge; physics vs forests
 }
 
 
