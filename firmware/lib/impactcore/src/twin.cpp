@@ -438,6 +438,34 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
   }
   return n;
 }
+
+// The low-passed channel (twin_match's cue): with all four channels' Delta^3 / Delta^1 ratios, the one whose
+// ratio is lowest below cue x the median of the other three's; -1 none.
+IC_NOINLINE int low_passed_channel(const EventFeatures& f, float cue) {
+  float r[kChannels];
+  for (int c = 0; c < kChannels; ++c) {
+    const ChannelFeatures& ch = f.ch[c];
+    if ((ch.flags & (kFlagNoOnset | kFlagClipped | kFlagDead)) || !(ch.diff_energy[0] > 0.0f)) return -1;
+    r[c] = ch.diff_energy[2] / ch.diff_energy[0];
+    if (!(r[c] == r[c])) return -1;
+  }
+  int low = -1;
+  float low_q = cue;
+  for (int c = 0; c < kChannels; ++c) {
+    float o[kChannels - 1];
+    int m = 0;
+    for (int k = 0; k < kChannels; ++k) {
+      if (k != c) o[m++] = r[k];
+    }
+    const float lo = o[0] < o[1] ? o[0] : o[1], hi = o[0] < o[1] ? o[1] : o[0];
+    const float med = o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
+    if (r[c] < low_q * med) {
+      low = c;
+      low_q = r[c] / med;
+    }
+  }
+  return low;
+}
 }  // namespace
 
 TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
@@ -458,6 +486,38 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       missing_channel = c;
     }
   }
+  const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
+  const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
+                           loc ? loc->travel_metric_yy : 1.0f};
+  float toa[kChannels];
+  for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
+  if (loc != nullptr && search == kTwinSearchCued && missing == 0 && cfg.low_pass_cue > 0.0f && x_mm == x_mm &&
+      y_mm == y_mm) {
+    // The low-passed cue: the features already name the debonded disc; its three-channel match is the answer
+    // when it explains the other three (no four-channel match, no search, no recheck).
+    const int c = low_passed_channel(ev.features, cfg.low_pass_cue);
+    if (c >= 0 && c != cfg.weak_channel) {
+      uint8_t use[kChannels];
+      for (int k = 0; k < kChannels; ++k) use[k] = k != c ? 1 : 0;
+      const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
+                                              loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
+                                              loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                              loc->localiser_starts);
+      if (p.status == kOk) {
+        const uint16_t mask =
+            static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
+        Terms cue_terms;
+        TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cue_terms);
+        if (t.status == kOk && t.log10_height_mm == t.log10_height_mm && !(t.misfit > kBadMisfitRef * ref)) {
+          recentre_kept(cue_terms, mask, map, cfg, &t);
+          out.est = t;
+          out.left_out = c;
+          out.reason = kTwinInconsistent;
+          return out;
+        }
+      }
+    }
+  }
   Terms kept;  // the first estimate's terms (the four channels', or the dead channel's other three; the same mask as usable)
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
     if (missing != 1 || ev.phys.status != kOk) return out;
@@ -467,11 +527,6 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   } else {
     out.est = estimate(feats, usable, x_mm, y_mm, map, cfg, cfg.coarse_cutoff_mm, &kept);  // twin_estimate's
   }
-  const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
-  const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
-                           loc ? loc->travel_metric_yy : 1.0f};
-  float toa[kChannels];
-  for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
   if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
     if (out.left_out >= 0) {
       recentre_kept(kept, usable, map, cfg, &out.est);
