@@ -439,32 +439,30 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
   return n;
 }
 
-// The low-passed channel (twin_match's cue): with all four channels' Delta^3 / Delta^1 ratios, the one whose
-// ratio is lowest below cue x the median of the other three's; -1 none.
+// The low-passed channel (twin_match's cue): with all four channels' Delta^3 / Delta^1 ratios, the one with the
+// lowest ratio when it is below cue x the median of the other three's (their second lowest); -1 none. No other
+// channel's ratio over its others' median is lower (its others' median is at least the lowest's).
 IC_NOINLINE int low_passed_channel(const EventFeatures& f, float cue) {
   float r[kChannels];
+  int lo = 0;
   for (int c = 0; c < kChannels; ++c) {
     const ChannelFeatures& ch = f.ch[c];
     if ((ch.flags & (kFlagNoOnset | kFlagClipped | kFlagDead)) || !(ch.diff_energy[0] > 0.0f)) return -1;
     r[c] = ch.diff_energy[2] / ch.diff_energy[0];
     if (!(r[c] == r[c])) return -1;
+    if (r[c] < r[lo]) lo = c;
   }
-  int low = -1;
-  float low_q = cue;
+  float first = INFINITY, second = INFINITY;  // the others' two lowest
   for (int c = 0; c < kChannels; ++c) {
-    float o[kChannels - 1];
-    int m = 0;
-    for (int k = 0; k < kChannels; ++k) {
-      if (k != c) o[m++] = r[k];
-    }
-    const float lo = o[0] < o[1] ? o[0] : o[1], hi = o[0] < o[1] ? o[1] : o[0];
-    const float med = o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
-    if (r[c] < low_q * med) {
-      low = c;
-      low_q = r[c] / med;
+    if (c == lo) continue;
+    if (r[c] < first) {
+      second = first;
+      first = r[c];
+    } else if (r[c] < second) {
+      second = r[c];
     }
   }
-  return low;
+  return r[lo] < cue * second ? lo : -1;
 }
 }  // namespace
 
@@ -491,6 +489,10 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                            loc ? loc->travel_metric_yy : 1.0f};
   float toa[kChannels];
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
+  // The cue's channel, start and three-channel match when it did not explain the others (the search reuses them).
+  int cue_c = -1;
+  TwinEstimate cue_t{};
+  Terms cue_terms;
   if (loc != nullptr && search == kTwinSearchCued && missing == 0 && cfg.low_pass_cue > 0.0f && x_mm == x_mm &&
       y_mm == y_mm) {
     // The low-passed cue: the features already name the debonded disc; its three-channel match is the answer
@@ -506,7 +508,6 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       if (p.status == kOk) {
         const uint16_t mask =
             static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-        Terms cue_terms;
         TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cue_terms);
         if (t.status == kOk && t.log10_height_mm == t.log10_height_mm && !(t.misfit > kBadMisfitRef * ref)) {
           recentre_kept(cue_terms, mask, map, cfg, &t);
@@ -515,6 +516,8 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
           out.reason = kTwinInconsistent;
           return out;
         }
+        cue_c = c;
+        cue_t = t;
       }
     }
   }
@@ -574,15 +577,20 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   for (int o = 0; o < n_order; ++o) {
     const int c = order[o];
-    uint8_t use[kChannels];
-    for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
-    const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
-                                            loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
-                                            loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
-                                            loc->localiser_starts);
-    if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    TwinEstimate t;
+    if (c == cue_c) {
+      t = cue_t;  // the cue's match: the same start and mask (no second localisation or match)
+    } else {
+      uint8_t use[kChannels];
+      for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
+      const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
+                                              loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
+                                              loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                              loc->localiser_starts);
+      if (p.status != kOk) continue;
+      t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    }
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;
     }
@@ -591,7 +599,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     out.left_out = c;
     out.reason = kTwinInconsistent;
     best_mask = mask;
-    best_terms = search != kTwinSearchFull ? &cand : nullptr;
+    best_terms = search != kTwinSearchFull ? (c == cue_c ? &cue_terms : &cand) : nullptr;
     if (search != kTwinSearchFull) break;
   }
   if (out.left_out < 0) return out;
