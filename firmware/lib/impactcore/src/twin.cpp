@@ -442,7 +442,7 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
 // The low-passed channel (twin_match's cue): with all four channels' Delta^3 / Delta^1 ratios, the one with the
 // lowest ratio when it is below cue x the median of the other three's (their second lowest); -1 none. No other
 // channel's ratio over its others' median is lower (its others' median is at least the lowest's).
-IC_NOINLINE int low_passed_channel(const EventFeatures& f, float cue) {
+int low_passed_channel(const EventFeatures& f, float cue) {
   float r[kChannels];
   int lo = 0;
   for (int c = 0; c < kChannels; ++c) {
@@ -463,6 +463,31 @@ IC_NOINLINE int low_passed_channel(const EventFeatures& f, float cue) {
     }
   }
   return r[lo] < cue * second ? lo : -1;
+}
+
+// The low-passed cue's match (twin_match): the cued channel's three-sensor start, three-channel match and
+// recentring, written to *out when that match explains the other three (misfit within the bound): true.
+IC_NOINLINE bool low_pass_match(const EventResult& ev, const float feats[kTwinFeatures], uint16_t usable,
+                                const float toa[kChannels], const float metric[3], const LocaliserConfig& loc,
+                                const SiteMap& map, const TwinConfig& cfg, float ref, TwinMatch* out) {
+  const int c = low_passed_channel(ev.features, cfg.low_pass_cue);
+  if (c < 0 || c == cfg.weak_channel) return false;
+  uint8_t use[kChannels];
+  for (int k = 0; k < kChannels; ++k) use[k] = k != c ? 1 : 0;
+  const LocaliserResult p = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
+                                          loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
+                                          loc.dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                          loc.localiser_starts);
+  if (p.status != kOk) return false;
+  const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
+  Terms terms;
+  TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, 0.0f, &terms);  // fine only: a three-sensor start
+  if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || t.misfit > kBadMisfitRef * ref) return false;
+  recentre_kept(terms, mask, map, cfg, &t);
+  out->est = t;
+  out->left_out = c;
+  out->reason = kTwinInconsistent;
+  return true;
 }
 }  // namespace
 
@@ -489,37 +514,9 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                            loc ? loc->travel_metric_yy : 1.0f};
   float toa[kChannels];
   for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
-  // The cue's channel, start and three-channel match when it did not explain the others (the search reuses them).
-  int cue_c = -1;
-  TwinEstimate cue_t{};
-  Terms cue_terms;
   if (loc != nullptr && search == kTwinSearchCued && missing == 0 && cfg.low_pass_cue > 0.0f && x_mm == x_mm &&
-      y_mm == y_mm) {
-    // The low-passed cue: the features already name the debonded disc; its three-channel match is the answer
-    // when it explains the other three (no four-channel match, no search, no recheck).
-    const int c = low_passed_channel(ev.features, cfg.low_pass_cue);
-    if (c >= 0 && c != cfg.weak_channel) {
-      uint8_t use[kChannels];
-      for (int k = 0; k < kChannels; ++k) use[k] = k != c ? 1 : 0;
-      const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
-                                              loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
-                                              loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
-                                              loc->localiser_starts);
-      if (p.status == kOk) {
-        const uint16_t mask =
-            static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-        TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cue_terms);
-        if (t.status == kOk && t.log10_height_mm == t.log10_height_mm && !(t.misfit > kBadMisfitRef * ref)) {
-          recentre_kept(cue_terms, mask, map, cfg, &t);
-          out.est = t;
-          out.left_out = c;
-          out.reason = kTwinInconsistent;
-          return out;
-        }
-        cue_c = c;
-        cue_t = t;
-      }
-    }
+      y_mm == y_mm && low_pass_match(ev, feats, usable, toa, metric, *loc, map, cfg, ref, &out)) {
+    return out;
   }
   Terms kept;  // the first estimate's terms (the four channels', or the dead channel's other three; the same mask as usable)
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
@@ -578,19 +575,14 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   for (int o = 0; o < n_order; ++o) {
     const int c = order[o];
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    TwinEstimate t;
-    if (c == cue_c) {
-      t = cue_t;  // the cue's match: the same start and mask (no second localisation or match)
-    } else {
-      uint8_t use[kChannels];
-      for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
-      const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
-                                              loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
-                                              loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
-                                              loc->localiser_starts);
-      if (p.status != kOk) continue;
-      t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
-    }
+    uint8_t use[kChannels];
+    for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
+    const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
+                                            loc->sigma_us, loc->plate_x_mm, loc->plate_y_mm, loc->huber_us, metric,
+                                            loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
+                                            loc->localiser_starts);
+    if (p.status != kOk) continue;
+    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;
     }
@@ -599,7 +591,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     out.left_out = c;
     out.reason = kTwinInconsistent;
     best_mask = mask;
-    best_terms = search != kTwinSearchFull ? (c == cue_c ? &cue_terms : &cand) : nullptr;
+    best_terms = search != kTwinSearchFull ? &cand : nullptr;
     if (search != kTwinSearchFull) break;
   }
   if (out.left_out < 0) return out;

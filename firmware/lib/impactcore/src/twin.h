@@ -102,9 +102,9 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //  - the low-passed cue (cfg.low_pass_cue > 0, the cued search, four channels with an onset, loc given): a
 //    channel whose Delta^3 / Delta^1 ratio is below low_pass_cue x the others' median (a debonded disc's
 //    low-pass; the ratio is gain free) and is not cfg.weak_channel is matched out at once: the three-sensor
-//    start without it, its three-channel match and recentring, reason kTwinInconsistent, no four-channel match
-//    and no recheck. Only when that match fails or misfits beyond kBadMisfitRef x the reference does the event
-//    take the path above.
+//    start without it, its three-channel match (fine only: no coarse pass, the start is near the impact) and
+//    recentring, reason kTwinInconsistent, no four-channel match and no recheck. Only when that match fails or
+//    misfits beyond kBadMisfitRef x the reference does the event take the path above.
 // loc nullptr: no channel is left out for a misfit (the dead-channel start still applies). The board's
 // TableModels and the host's models.ImpactModel.predict (through twin_match_batch) both call this.
 constexpr float kBadMisfitRef = 20.0f;
