@@ -5,7 +5,7 @@ import numpy as np
 from impactsense import _core
 
 
-def _board_match(session, full_search=False, **kw):
+def _board_match(session, full_search=False):
     from pathlib import Path
 
     from impactsense.board.capture import board_captures
@@ -27,54 +27,8 @@ def _board_match(session, full_search=False, **kw):
         f32(feats.phys_xy_mm), sig.localiser(), np.asarray(t["q"], np.uint8).reshape(-1, 16),
         int(nx), int(ny), float(x0), float(y0), float(step), f32(t["base"]), f32(t["scale"]), f32(t["offset"]),
         f32(t["slope"]), f32(t["weight"]), *map(float, t["config"][:4]), float(t["uncertainty"][2]),
-        coarse_cutoff_mm=float(t["config"][4]), full_search=full_search, **kw)
-    return m, rows, feats
-
-
-def _cue_ratio(feats):
-    """Each drop's lowest Delta^3 / Delta^1 energy ratio over the median of the other three channels' (twin.h
-    low_pass_cue's quantity) and its channel."""
-    d = np.asarray(feats.raw["diff_energy"], float)
-    r = d[:, :, 2] / d[:, :, 0]
-    q = np.stack([r[:, c] / np.median(np.delete(r, c, axis=1), axis=1) for c in range(4)], axis=1)
-    return q.min(axis=1), q.argmin(axis=1)
-
-
-def test_the_low_passed_cue_leaves_the_debonded_disc_out_as_the_search_does():
-    """twin.h low_pass_cue: a channel whose Delta^3 / Delta^1 ratio is below the cue x its others' median goes
-    straight to its three-channel match. On the board's captures of every other bundled drop: no clean drop comes
-    within 10 % of the cue (none is flagged); with a disc debonded (two draws, two discs) the cue fires on a good
-    share of drops, only ever on the debonded disc, leaves it out on nearly all of them (the rest, whose three
-    picks misplace the drop, take the search as before), never leaves out another channel, and where the search
-    (cue off) leaves the same disc out the answer is the same match (the same three-sensor start, three-channel
-    match and recentring) to 1e-3 mm."""
-    from impactsense.data import load_session
-    from impactsense.faults import FaultSpec, inject_session
-
-    cue = 1.0 / 3.0  # twin.h TwinConfig::low_pass_cue's default (the binding's)
-    s1 = load_session("bundled")
-    s = s1.subset(np.arange(0, len(s1), 2))
-    clean, _, feats = _board_match(s)
-    q, _ = _cue_ratio(feats)
-    assert q.min() > 1.1 * cue
-    assert np.all(clean["left_out"] == -1)
-    for spec in (FaultSpec(debond=2, seed=0), FaultSpec(debond=1, seed=1)):
-        bad = inject_session(s, spec)
-        on, _, feats = _board_match(bad, low_pass_cue=cue)
-        off, _, _ = _board_match(bad, low_pass_cue=0.0)
-        q, ch = _cue_ratio(feats)
-        fired = q < cue
-        assert fired.mean() > 0.4 and np.all(ch[fired] == spec.debond)
-        # a fired drop whose three-channel match misfits beyond the bound takes the search (cue off) as before
-        assert np.all((on["left_out"] == spec.debond) | (on["left_out"] == off["left_out"]))
-        assert np.all(np.isin(on["left_out"][fired], [spec.debond, -1]))
-        assert np.mean(on["left_out"][fired] == spec.debond) > 0.98
-        assert np.mean(on["left_out"] == spec.debond) >= np.mean(off["left_out"] == spec.debond)
-        same = fired & (off["left_out"] == spec.debond)
-        assert same.mean() > 0.35
-        np.testing.assert_allclose(np.asarray(on["xy_mm"])[same], np.asarray(off["xy_mm"])[same], atol=1e-3)
-        np.testing.assert_allclose(np.asarray(on["log10_height_mm"])[same], np.asarray(off["log10_height_mm"])[same],
-                                   atol=1e-4)
+        coarse_cutoff_mm=float(t["config"][4]), full_search=full_search)
+    return m, rows
 
 
 def test_the_merged_recheck_reports_what_the_separate_recheck_and_recentring_do():
@@ -89,12 +43,12 @@ def test_the_merged_recheck_reports_what_the_separate_recheck_and_recentring_do(
 
     s1 = load_session("bundled")
     s = s1.subset(np.arange(0, len(s1), 2))
-    clean, _, _ = _board_match(s)
+    clean, _ = _board_match(s)
     assert np.all(clean["left_out"] == -1)
     for spec in (FaultSpec(debond=2, seed=0), FaultSpec(debond=1, seed=1)):
         bad = inject_session(s, spec)
-        cued, _, _ = _board_match(bad, low_pass_cue=0.0)
-        full, _, _ = _board_match(bad, full_search=True)
+        cued, _ = _board_match(bad)
+        full, _ = _board_match(bad, full_search=True)
         assert np.all(cued["status"] == 0)
         assert np.mean(cued["left_out"] == spec.debond) > 0.98
         same = full["left_out"] == spec.debond

@@ -430,7 +430,7 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
                           float step_mm, InF base, InF scale, InF offset, InF slope, InF weight,
                           float ref_log10_height_mm, float prior_mm, float cutoff_mm, float temperature,
                           float misfit_ref, std::vector<float> slowness_scale, float coarse_cutoff_mm,
-                          int weak_channel, bool full_search, float low_pass_cue) {
+                          int weak_channel, bool full_search) {
   const size_t r = rows_of(status);
   if (!slowness_scale.empty() && slowness_scale.size() != 4 * r) {
     throw std::invalid_argument("slowness_scale must be [R * 4] (or empty: one velocity)");
@@ -448,7 +448,6 @@ nb::dict twin_match_batch(nb::ndarray<const int32_t, nb::c_contig, nb::device::c
              cutoff_mm, temperature, &map, &cfg);
   cfg.coarse_cutoff_mm = coarse_cutoff_mm;
   cfg.weak_channel = weak_channel;
-  cfg.low_pass_cue = low_pass_cue;
   EstimateArrays est{r};
   auto left = make_array<int32_t>({r});
   auto reason = make_array<int32_t>({r});
@@ -672,7 +671,6 @@ NB_MODULE(_core, m) {
         "step_mm"_a, "base"_a, "scale"_a, "offset"_a, "slope"_a, "weight"_a, "ref_log10_height_mm"_a,
         "prior_mm"_a, "cutoff_mm"_a, "temperature"_a, "misfit_ref"_a, "slowness_scale"_a = std::vector<float>(),
         "coarse_cutoff_mm"_a = 0.0f, "weak_channel"_a = -1, "full_search"_a = false,
-        "low_pass_cue"_a = ic::TwinConfig().low_pass_cue,
         "twin_match (twin.h) of every row: the twin's match with a dead or inconsistent channel left out.");
   m.attr("TWIN_DEAD_CHANNEL") = static_cast<int>(ic::kTwinDeadChannel);
   m.attr("TWIN_INCONSISTENT") = static_cast<int>(ic::kTwinInconsistent);

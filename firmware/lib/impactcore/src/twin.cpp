@@ -438,57 +438,6 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
   }
   return n;
 }
-
-// The low-passed channel (twin_match's cue): with all four channels' Delta^3 / Delta^1 ratios, the one with the
-// lowest ratio when it is below cue x the median of the other three's (their second lowest); -1 none. No other
-// channel's ratio over its others' median is lower (its others' median is at least the lowest's).
-int low_passed_channel(const EventFeatures& f, float cue) {
-  float r[kChannels];
-  int lo = 0;
-  for (int c = 0; c < kChannels; ++c) {
-    const ChannelFeatures& ch = f.ch[c];
-    if ((ch.flags & (kFlagNoOnset | kFlagClipped | kFlagDead)) || !(ch.diff_energy[0] > 0.0f)) return -1;
-    r[c] = ch.diff_energy[2] / ch.diff_energy[0];
-    if (!(r[c] == r[c])) return -1;
-    if (r[c] < r[lo]) lo = c;
-  }
-  float first = INFINITY, second = INFINITY;  // the others' two lowest
-  for (int c = 0; c < kChannels; ++c) {
-    if (c == lo) continue;
-    if (r[c] < first) {
-      second = first;
-      first = r[c];
-    } else if (r[c] < second) {
-      second = r[c];
-    }
-  }
-  return r[lo] < cue * second ? lo : -1;
-}
-
-// The low-passed cue's match (twin_match): the cued channel's three-sensor start, three-channel match and
-// recentring, written to *out when that match explains the other three (misfit within the bound): true.
-IC_NOINLINE bool low_pass_match(const EventResult& ev, const float feats[kTwinFeatures], uint16_t usable,
-                                const float toa[kChannels], const float metric[3], const LocaliserConfig& loc,
-                                const SiteMap& map, const TwinConfig& cfg, float ref, TwinMatch* out) {
-  const int c = low_passed_channel(ev.features, cfg.low_pass_cue);
-  if (c < 0 || c == cfg.weak_channel) return false;
-  uint8_t use[kChannels];
-  for (int k = 0; k < kChannels; ++k) use[k] = k != c ? 1 : 0;
-  const LocaliserResult p = localise_tdoa(toa, use, loc.sensor_x_mm, loc.sensor_y_mm, loc.velocity_mm_per_us,
-                                          loc.sigma_us, loc.plate_x_mm, loc.plate_y_mm, loc.huber_us, metric,
-                                          loc.dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
-                                          loc.localiser_starts);
-  if (p.status != kOk) return false;
-  const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-  Terms terms;
-  TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, 0.0f, &terms);  // fine only: a three-sensor start
-  if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || t.misfit > kBadMisfitRef * ref) return false;
-  recentre_kept(terms, mask, map, cfg, &t);
-  out->est = t;
-  out->left_out = c;
-  out->reason = kTwinInconsistent;
-  return true;
-}
 }  // namespace
 
 TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const LocaliserConfig* loc,
@@ -509,15 +458,6 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
       missing_channel = c;
     }
   }
-  const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
-  const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
-                           loc ? loc->travel_metric_yy : 1.0f};
-  float toa[kChannels];
-  for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
-  if (loc != nullptr && search == kTwinSearchCued && missing == 0 && cfg.low_pass_cue > 0.0f && x_mm == x_mm &&
-      y_mm == y_mm && low_pass_match(ev, feats, usable, toa, metric, *loc, map, cfg, ref, &out)) {
-    return out;
-  }
   Terms kept;  // the first estimate's terms (the four channels', or the dead channel's other three; the same mask as usable)
   if (!(x_mm == x_mm) || !(y_mm == y_mm)) {
     if (missing != 1 || ev.phys.status != kOk) return out;
@@ -527,6 +467,11 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   } else {
     out.est = estimate(feats, usable, x_mm, y_mm, map, cfg, cfg.coarse_cutoff_mm, &kept);  // twin_estimate's
   }
+  const float ref = misfit_ref > kMinMisfitRef ? misfit_ref : kMinMisfitRef;
+  const float metric[3] = {loc ? loc->travel_metric_xx : 1.0f, loc ? loc->travel_metric_xy : 0.0f,
+                           loc ? loc->travel_metric_yy : 1.0f};
+  float toa[kChannels];
+  for (int c = 0; c < kChannels; ++c) toa[c] = ev.features.ch[c].toa_us;
   if (loc == nullptr || out.est.status != kOk || !(out.est.misfit > kBadMisfitRef * ref)) {
     if (out.left_out >= 0) {
       recentre_kept(kept, usable, map, cfg, &out.est);
@@ -574,7 +519,6 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   }
   for (int o = 0; o < n_order; ++o) {
     const int c = order[o];
-    const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
     uint8_t use[kChannels];
     for (int k = 0; k < kChannels; ++k) use[k] = k != c && has_onset[k] ? 1 : 0;
     const LocaliserResult p = localise_tdoa(toa, use, loc->sensor_x_mm, loc->sensor_y_mm, loc->velocity_mm_per_us,
@@ -582,6 +526,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                                             loc->dispersion_exponent != 0.0f ? ev.slowness_scale : nullptr,
                                             loc->localiser_starts);
     if (p.status != kOk) continue;
+    const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
     const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;

@@ -49,10 +49,6 @@ struct TwinConfig {
                                  // (prior widened by coarse_cutoff_mm / cutoff_mm), then the match around
                                  // its estimate (a start far from the impact: the board's 50 kHz picks)
   int32_t weak_channel = -1;    // >= 0: a channel known to be partly debonded (`retrain`): see twin_match
-  float low_pass_cue = 1.0f / 3.0f;  // a channel whose Delta^3 / Delta^1 energy ratio is below this x the median
-                                 // of the other three's goes straight to its three-channel match (twin_match;
-                                 // 0: off). Clean drops' lowest on the bundled board captures 0.388: a margin
-                                 // of 14 % (docs/method.md "The twin's channel check")
 };
 
 struct TwinEstimate {
@@ -99,12 +95,6 @@ TwinEstimate twin_estimate(const float features[kTwinFeatures], uint16_t usable,
 //    it and the three-channel match without that channel (the physics three-sensor start, recentred); the
 //    height stays the four-channel one; left_out = that channel, reason kTwinWeakChannel (the report flags
 //    it). Its onset and energies are the least certain: the two matches' errors are partly independent.
-//  - the low-passed cue (cfg.low_pass_cue > 0, the cued search, four channels with an onset, loc given): a
-//    channel whose Delta^3 / Delta^1 ratio is below low_pass_cue x the others' median (a debonded disc's
-//    low-pass; the ratio is gain free) and is not cfg.weak_channel is matched out at once: the three-sensor
-//    start without it, its three-channel match (fine only: no coarse pass, the start is near the impact) and
-//    recentring, reason kTwinInconsistent, no four-channel match and no recheck. Only when that match fails or
-//    misfits beyond kBadMisfitRef x the reference does the event take the path above.
 // loc nullptr: no channel is left out for a misfit (the dead-channel start still applies). The board's
 // TableModels and the host's models.ImpactModel.predict (through twin_match_batch) both call this.
 constexpr float kBadMisfitRef = 20.0f;
