@@ -37,7 +37,9 @@ _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # Optional rig.json fields (docs/method.md "rig.json"): inner_region_mm [x0, x1, y0, y1] (default: the
 # sensors' bounding box inset by INNER_INSET_MM); material_axes, material_properties (materials.py);
 # pretrigger_samples (the logger's samples before the hit; default: measured from the session's recordings,
-# signal.quiet_start_samples); density_kg_m3 may be left out for a material the table knows (its typical density).
+# signal.quiet_start_samples); density_kg_m3 may be left out for a material the table knows (its typical density);
+# board_front_end {"anti_alias_hz": F, "anti_alias_poles": N} (the board's analog low-pass before its ADC, a
+# Butterworth; absent: none; board.front_end).
 INNER_INSET_MM = 30.0
 
 
@@ -74,6 +76,9 @@ class Rig:
     # The recordings' quiet start (samples before the first arrival): rig.json's `pretrigger_samples`, else
     # what load_session measured on the session (None: not known; the core's baseline segment as declared).
     pretrigger_samples: int | None = field(default=None, compare=False, repr=False)
+    # The board's analog anti-alias low-pass before its ADC (rig.json `board_front_end`): (corner Hz, poles) of a
+    # Butterworth, None when none is declared (board.front_end; the lab logger's recordings are taken without it).
+    board_anti_alias: tuple[float, int] | None = field(default=None, compare=False, repr=False)
 
     @property
     def sensor_x_mm(self) -> np.ndarray:
@@ -264,7 +269,40 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
     pre = raw.get("pretrigger_samples")
     if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):
         raise DataError(path, "pretrigger_samples", f"must be an integer between 1 and samples - 1, got {pre!r}")
-    return Rig(sensors=tuple(sensors), raw=dict(raw), pretrigger_samples=pre, **values)
+    return Rig(sensors=tuple(sensors), raw=dict(raw), pretrigger_samples=pre,
+               board_anti_alias=_board_anti_alias(raw.get("board_front_end"), values["fs_hz"], path), **values)
+
+
+# The board_front_end low-pass's pole counts (a Butterworth of 1 to 8 poles: an RC stage to four op-amp stages).
+ANTI_ALIAS_POLES = (1, 8)
+ANTI_ALIAS_DEFAULT_POLES = 4
+
+
+def _board_anti_alias(front, fs_hz: float, path) -> tuple[float, int] | None:
+    """rig.json `board_front_end`: (anti_alias_hz, anti_alias_poles) or None (absent or no anti_alias_hz).
+    The corner must lie below the recordings' Nyquist frequency (above it the recordings cannot show what the
+    filter does)."""
+    if front is None:
+        return None
+    if not isinstance(front, dict):
+        raise DataError(path, "board_front_end", f"must be an object {{\"anti_alias_hz\": F, \"anti_alias_poles\": N}}, "
+                                                 f"got {front!r}")
+    unknown = sorted(set(front) - {"anti_alias_hz", "anti_alias_poles"})
+    if unknown:
+        raise DataError(path, f"board_front_end.{unknown[0]}", "unknown key (anti_alias_hz, anti_alias_poles)")
+    hz = front.get("anti_alias_hz")
+    if hz is None:
+        if "anti_alias_poles" in front:
+            raise DataError(path, "board_front_end.anti_alias_hz", "missing key (anti_alias_poles is given)")
+        return None
+    if isinstance(hz, bool) or not isinstance(hz, (int, float)) or not _finite(hz) or not 0 < hz < fs_hz / 2:
+        raise DataError(path, "board_front_end.anti_alias_hz", f"must be a corner frequency in Hz between 0 and "
+                                                               f"fs_hz / 2 = {fs_hz / 2:g}, got {hz!r}")
+    poles = front.get("anti_alias_poles", ANTI_ALIAS_DEFAULT_POLES)
+    lo, hi = ANTI_ALIAS_POLES
+    if isinstance(poles, bool) or not isinstance(poles, int) or not lo <= poles <= hi:
+        raise DataError(path, "board_front_end.anti_alias_poles", f"must be an integer {lo}..{hi}, got {poles!r}")
+    return float(hz), int(poles)
 
 
 def _table_density(raw: dict, path) -> float:

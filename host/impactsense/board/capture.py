@@ -19,20 +19,23 @@ from scipy.signal import resample_poly
 from .. import _core  # noqa: F401  (registers CoreConfig for _link)
 from .. import _link
 from ..link.record import CaptureAssembler
+from .front_end import anti_aliased
 from ..signal import (BASELINE_SHARE_OF_PRETRIGGER, CORE_FIELDS, LOCALISER_FIELDS, SignalConfig, config_dict,
                       core_offset, counts_per_core_count, rig_settings)
 
 
 def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: float = _link.SCAN_STEP_US,
-                  adc_max: int = 4095, adc_min: int = 0) -> np.ndarray:
+                  adc_max: int = 4095, adc_min: int = 0, anti_alias: tuple[float, int] | None = None) -> np.ndarray:
     """What the board's SAADC would read: int16 [R, n, 4] interleaved frames of each recording.
 
     The recording is interpolated (band-limited, polyphase) onto the scan grid, 1/scan_step = 200 kHz, and
     channel c of frame k is the grid sample D*k + c, D = 200 kHz / fs: channel c is read c * scan_step after
-    channel 0, as the SAADC scan does. Like the board (no anti-alias filter before the SAADC), nothing
-    above fs/2 is removed: it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the
-    SAADC's range; the int16 range keeps simulated drops whole), a 16-bit logger's re-centred first as the core
-    takes them (signal.core_offset)."""
+    channel 0, as the SAADC scan does. anti_alias (corner Hz, poles): the board's analog low-pass before the
+    SAADC (rig.json `board_front_end`, data.Rig.board_anti_alias; board.front_end.anti_aliased), applied to the
+    recording before the scan grid; without it (None, the board as built so far) nothing above fs/2 is removed:
+    it aliases as it would on the board. Counts are clipped to [adc_min, adc_max] (the SAADC's range, after the
+    filter; the int16 range keeps simulated drops whole), a 16-bit logger's re-centred first as the core takes
+    them (signal.core_offset)."""
     off = core_offset(adc_max)
     adc_min, adc_max = adc_min - off, adc_max - off
     grid_hz = 1e6 / scan_step_us
@@ -42,6 +45,8 @@ def board_samples(adc: np.ndarray, fs_in_hz: float, fs_hz: float, scan_step_us: 
         raise ValueError(f"board rate {fs_hz} Hz must divide the {grid_hz:.0f} Hz scan grid at least 4 times")
     d = int(round(d))
     x = np.asarray(adc, dtype=np.float32) - np.float32(off)
+    if anti_alias is not None:
+        x = anti_aliased(x, fs_in_hz, *anti_alias)
     r, _, n = x.shape
     n_out = (int(n * up) - 3) // d
     y = np.empty((r, n_out, 4), dtype=np.int16)
@@ -159,11 +164,21 @@ def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0
     records with 30 samples before the hit put a drop every 8 ms, inside the app's capture and hold-off (the
     app then rightly takes them for one event) and before it has armed. Every path that replays recordings
     through the app (board_captures, board_capture, the emulator, the qemu test image's fixture) reads this.
-    adc_min, adc_max: the rails (board_samples; default the rig's ADC)."""
+    adc_min, adc_max: the rails (board_samples; default the rig's ADC). The rig's declared front-end low-pass
+    (board_anti_alias) is applied before the scan grid."""
     adc = continued_for_capture(adc, rig.fs_hz, app.capture_frames, fs_hz, app.core_config.baseline_samples,
                                 app.pretrigger_frames, rig.pretrigger_samples)
     return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max if adc_max is None else adc_max,
-                         adc_min=adc_min)
+                         adc_min=adc_min, anti_alias=board_anti_alias(rig, fs_hz))
+
+
+def board_anti_alias(rig, fs_hz: float) -> tuple[float, int] | None:
+    """The board's front-end low-pass the emulated board applies to the rig's recordings (board_samples'
+    anti_alias): rig.json's `board_front_end` when the recordings are faster than the board (a lab logger's,
+    taken without the board's front end); None otherwise (none declared, or a session the board recorded itself,
+    `impactsense record`: its samples came through the filter already)."""
+    aa = getattr(rig, "board_anti_alias", None)
+    return aa if aa is not None and float(rig.fs_hz) > float(fs_hz) + 1 else None
 
 
 def replay_reports(app, frames: np.ndarray) -> tuple[list[list[dict]], list[list]]:
