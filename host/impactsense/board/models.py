@@ -318,7 +318,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         "excluded_recordings": ids[excluded].tolist(),
         "not_captured_recordings": ids[np.setdiff1d(np.arange(len(session)), rows)].tolist(),
     }
+    aa = board_anti_alias(session.rig, fs_hz)   # the front end the models were trained through: build it
     card = {"board_fs_hz": int(fs_hz), "data": str(session.path), "split": split,
+            **({} if aa is None else {"board_front_end": {"anti_alias_hz": aa[0], "anti_alias_poles": aa[1]}}),
             "test_recording_ids": split["test_recordings"], **(extra_card or {})}
     return Path(model.save(out_dir, extra_card=card))
 

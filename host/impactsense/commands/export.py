@@ -69,6 +69,11 @@ def run(args) -> int:
     print(f"exported {s['trees']} trees, {s['nodes']} nodes, {s['table_bytes_total'] / 1024:.1f} KB of tables "
           f"(budget {s['flash_budget_bytes'] / 1024:.0f} KB, what the firmware's code leaves of 256 KB: "
           f"{'ok' if s['within_budget'] else 'OVER'}) -> {out}")
+    front = s.get("board_front_end")
+    if front:
+        print(f"the board's models assume its front end (rig.json board_front_end): a {front['anti_alias_poles']}-pole "
+              f"Butterworth low-pass at {front['anti_alias_hz'] / 1000:g} kHz before each ADC input: build it "
+              "(README \"Hardware\")")
     acc = s.get("board_held_out")
     if acc is not None:
         which = "the measured test split" if "zero_shot" in card else "held-out drops"
