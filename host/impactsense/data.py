@@ -285,7 +285,7 @@ def _board_anti_alias(front, fs_hz: float, path) -> tuple[float, int] | None:
     if front is None:
         return None
     if not isinstance(front, dict):
-        raise DataError(path, "board_front_end", f"must be an object {{\"anti_alias_hz\": F, \"anti_alias_poles\": N}}, "
+        raise DataError(path, "board_front_end", 'must be an object {"anti_alias_hz": F, "anti_alias_poles": N}, '
                                                  f"got {front!r}")
     unknown = sorted(set(front) - {"anti_alias_hz", "anti_alias_poles"})
     if unknown:

@@ -181,6 +181,13 @@ def board_anti_alias(rig, fs_hz: float) -> tuple[float, int] | None:
     return aa if aa is not None and float(rig.fs_hz) > float(fs_hz) + 1 else None
 
 
+def front_end_card(rig, fs_hz: float) -> dict:
+    """The model card's record of the front end the board's models were trained through (board_anti_alias):
+    {"board_front_end": {"anti_alias_hz", "anti_alias_poles"}}, or {} without one."""
+    aa = board_anti_alias(rig, fs_hz)
+    return {} if aa is None else {"board_front_end": {"anti_alias_hz": aa[0], "anti_alias_poles": aa[1]}}
+
+
 def replay_reports(app, frames: np.ndarray) -> tuple[list[list[dict]], list[list]]:
     """The app fed each drop's frames in turn: per drop, the reports it sent meanwhile and each one's raw
     capture (None without dump_raw)."""

@@ -16,7 +16,7 @@ from scipy.signal import butter, freqs_zpk
 
 
 def anti_alias_response(f_hz, corner_hz: float, poles: int) -> np.ndarray:
-    """The analog Butterworth's complex response H(j 2 pi f) at f_hz (|H| = 1 / sqrt(1 + (f / corner)^(2 poles)))."""
+    """The analog Butterworth's complex response H(j 2 pi f) at f_hz: |H| = 1 / sqrt(1 + (f / corner)^(2 poles))."""
     z, p, k = butter(int(poles), 2 * np.pi * float(corner_hz), analog=True, output="zpk")
     _, h = freqs_zpk(z, p, k, worN=2 * np.pi * np.atleast_1d(np.asarray(f_hz, float)))
     return h
@@ -31,9 +31,9 @@ def settle_samples(fs_hz: float, corner_hz: float, poles: int) -> int:
 
 def anti_aliased(x: np.ndarray, fs_hz: float, corner_hz: float, poles: int) -> np.ndarray:
     """x (float, [..., n] at fs_hz) through the analog low-pass: float32 [..., n]. Each record is led in by its
-    first sample and continued by its last for as long as the filter takes to settle (settle_samples, at least 256), so the
-    filter starts at rest on the record's level (an analog filter has been running before the record) and the
-    FFT's wrap-around falls outside the record."""
+    first sample and continued by its last for as long as the filter takes to settle (settle_samples, at least
+    256), so the filter starts at rest on the record's level (an analog filter has been running before the
+    record) and the FFT's wrap-around falls outside the record."""
     x = np.asarray(x, np.float32)
     n = x.shape[-1]
     pad = max(256, settle_samples(fs_hz, corner_hz, poles))

@@ -36,7 +36,8 @@ from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
-from .capture import board_anti_alias, board_capture, board_captures, board_view, signal_for_board
+from .capture import (board_anti_alias, board_capture, board_captures, board_view, front_end_card,
+                      signal_for_board)
 from .cost import (EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    linear_instructions, signal_fits, signal_instructions)
 
@@ -48,9 +49,9 @@ def board_site_map(source, rig, fs_hz: int = 50000, cache=None, workers: int = 2
     """The twin's site map as the board sees it (sitemap.SiteMap): the grid and reference height of `source`
     (a site map made at the rig's rate), drops simulated with the twin it was made with
     (source.source["sim_params"]), taken by the board (board_capture) and featurized with the board's signal
-    (the source map's settings at fs_hz, scan delays, the rig's declared front-end low-pass). Read from / written
-    to `cache` (reused when made from the same source map at the same rate and front end). step_mm: another grid step than the source's (coarse maps for
-    tests)."""
+    (the source map's settings at fs_hz, scan delays, the rig's declared front-end low-pass). Read from /
+    written to `cache` (reused when made from the same source map, rate and front end). step_mm: another grid
+    step than the source's (coarse maps for tests)."""
     step = float(step_mm or source.step_mm)
     aa = board_anti_alias(rig, fs_hz)   # the board's front end (None: none; a cache made before it: none)
     key = {"from_site_map_sha": source.fingerprint(), "board_fs_hz": int(fs_hz), "step_mm": step,
@@ -318,9 +319,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         "excluded_recordings": ids[excluded].tolist(),
         "not_captured_recordings": ids[np.setdiff1d(np.arange(len(session)), rows)].tolist(),
     }
-    aa = board_anti_alias(session.rig, fs_hz)   # the front end the models were trained through: build it
-    card = {"board_fs_hz": int(fs_hz), "data": str(session.path), "split": split,
-            **({} if aa is None else {"board_front_end": {"anti_alias_hz": aa[0], "anti_alias_poles": aa[1]}}),
+    card = {"board_fs_hz": int(fs_hz), "data": str(session.path), "split": split, **front_end_card(session.rig, fs_hz),
             "test_recording_ids": split["test_recordings"], **(extra_card or {})}
     return Path(model.save(out_dir, extra_card=card))
 
