@@ -436,13 +436,12 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
             "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
         "flash_budget_bytes": MODELS_FLASH_BUDGET,   # of the 256 KB, what the firmware's code leaves
         "tree_sweep": sweep,
+        **({"board_front_end": models.card["board_front_end"]} if models.card.get("board_front_end") else {}),
     }
     row = next((r for r in sweep if r["trees"] == k and "instructions" in r), None)
     if signal_cost is not None and row is not None:   # the board's per-event cost, estimated (board.cost)
         summary["event_instructions_estimate"] = {**signal_cost, "models": row["instructions"],
                                                   "total": signal_cost["total"] + row["instructions"]}
-    if models.card.get("board_front_end"):   # the analog low-pass the board's models were trained through
-        summary["board_front_end"] = models.card["board_front_end"]
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
 
