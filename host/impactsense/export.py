@@ -436,7 +436,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
             "grid": models.twin["grid"].tolist(), "site_map_bytes": int(models.twin["q"].nbytes)},
         "flash_budget_bytes": MODELS_FLASH_BUDGET,   # of the 256 KB, what the firmware's code leaves
         "tree_sweep": sweep,
-        **({"board_front_end": models.card["board_front_end"]} if models.card.get("board_front_end") else {}),
+        "board_front_end": models.card.get("board_front_end"),   # the analog low-pass the board models assume
     }
     row = next((r for r in sweep if r["trees"] == k and "instructions" in r), None)
     if signal_cost is not None and row is not None:   # the board's per-event cost, estimated (board.cost)
@@ -444,7 +444,6 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                                   "total": signal_cost["total"] + row["instructions"]}
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
-
     (out_dir / "export.json").write_text(json_text(summary))
     return summary
 
