@@ -41,14 +41,12 @@ def main() -> int:
     if args.four_channel:
         return four_channel(args)
 
-    from impactsense.board.capture import board_captures
     from impactsense.board.models import train_board_models
     from impactsense.board.scores import board_reports
     from impactsense.data import load_session
     from impactsense.export import export_models, firmware_models
     from impactsense.faults import FaultSpec, inject_session
-    from impactsense.models import ForestSettings, ImpactModel, impact_energy_j
-    from impactsense.pipeline import featurize
+    from impactsense.models import ForestSettings, ImpactModel
 
     c = args.channel
     s = load_session(args.data)
@@ -71,24 +69,8 @@ def main() -> int:
             sess = test if fault is None else inject_session(test, fault)
             for label, sig in ((f"channel {c} out", signal), ("four channels", four)):
                 got = board_reports(sess, models, sig)
-                rows = np.asarray(sorted(got), int)
-                xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
-                cls = np.array([got[i]["energy_class"] for i in rows], int)
-                label_true = impact_energy_j(sess.height_mm[rows], sess.rig.ball_mass_g) >= model.energy_threshold_j
-                named = sorted({int(got[i]["left_out"]) for i in rows})
-                mae = float(np.mean(np.abs(xy - sess.xy_mm[rows]))) if rows.size else float("nan")
-                line = (f"{name:<10} {label:<16} {rows.size:>4}/{len(sess):<4} {mae:7.2f} "
-                        f"{np.mean(cls == label_true) if rows.size else float('nan'):6.3f} {str(named):>6}")
+                line, rows, named, dist, same = score_row(name, label, sess, got, model, sig if sig is signal else None)
                 if sig is signal:
-                    caps, r2, s2 = board_captures(sess, 50000, sig)
-                    pred = model.predict(featurize(caps, s2))
-                    have = np.isin(r2, rows)
-                    bxy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in r2[have]]).reshape(-1, 2)
-                    bc = np.array([got[i]["energy_class"] for i in r2[have]], int)
-                    dist = float(np.max(np.abs(bxy - pred["xy_mm"][have]))) if have.any() else float("nan")
-                    same = float(np.mean(bc == pred["energy_class"][have])) if have.any() else float("nan")
-                    line += f"  host MAE {np.mean(np.abs(pred['xy_mm'] - sess.xy_mm[r2])):.2f} mm, " \
-                            f"max |board - host| {dist:.3f} mm, class the same {same:.3f}"
                     ok &= rows.size == len(sess) and named == [c] and dist <= 0.051 and same >= 0.98
                 print(line, flush=True)
     print(f"RESULT the board's answers with channel {c} left out {'are' if ok else 'are NOT'} the host's")
@@ -98,14 +80,12 @@ def main() -> int:
 def four_channel(args) -> int:
     """The --four-channel run: a four-channel board model, its held-out drops clean / channel debonded / dead on
     the emulated board with the export's three-sensor pairs and without them, and the host's answers."""
-    from impactsense.board.capture import board_captures
     from impactsense.board.models import train_board_models
     from impactsense.board.scores import board_reports
     from impactsense.data import load_session
     from impactsense.export import export_models, firmware_models
     from impactsense.faults import FaultSpec, inject_session
-    from impactsense.models import ForestSettings, ImpactModel, impact_energy_j
-    from impactsense.pipeline import featurize
+    from impactsense.models import ForestSettings, ImpactModel
 
     c = args.channel
     s = load_session(args.data)
@@ -129,28 +109,42 @@ def four_channel(args) -> int:
             for label, with_pairs in (("with pairs", True), ("plain", False)):
                 models, signal = firmware_models(Path(tmp) / "export", three_position=with_pairs)
                 got = board_reports(sess, models, signal)
-                rows = np.asarray(sorted(got), int)
-                xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
-                cls = np.array([got[i]["energy_class"] for i in rows], int)
-                label_true = impact_energy_j(sess.height_mm[rows], sess.rig.ball_mass_g) >= model.energy_threshold_j
-                named = sorted({int(got[i]["left_out"]) for i in rows})
-                mae = float(np.mean(np.abs(xy - sess.xy_mm[rows]))) if rows.size else float("nan")
-                line = (f"{name:<10} {label:<16} {rows.size:>4}/{len(sess):<4} {mae:7.2f} "
-                        f"{np.mean(cls == label_true) if rows.size else float('nan'):6.3f} {str(named):>6}")
+                line, rows, _, dist, same = score_row(name, label, sess, got, model, signal if with_pairs else None)
                 if with_pairs:
-                    caps, r2, s2 = board_captures(sess, 50000, signal)
-                    pred = model.predict(featurize(caps, s2))
-                    have = np.isin(r2, rows)
-                    bxy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in r2[have]]).reshape(-1, 2)
-                    bc = np.array([got[i]["energy_class"] for i in r2[have]], int)
-                    dist = float(np.max(np.abs(bxy - pred["xy_mm"][have]))) if have.any() else float("nan")
-                    same = float(np.mean(bc == pred["energy_class"][have])) if have.any() else float("nan")
-                    line += f"  host MAE {np.mean(np.abs(pred['xy_mm'] - sess.xy_mm[r2])):.2f} mm, " \
-                            f"max |board - host| {dist:.3f} mm, class the same {same:.3f}"
                     ok &= rows.size == len(sess) and dist <= 0.051 and same >= 0.98
                 print(line, flush=True)
     print(f"RESULT the board's answers {'are' if ok else 'are NOT'} the host's")
     return 0 if ok else 1
+
+
+def score_row(name, label, sess, got, model, host_signal=None):
+    """One printed row: the board's reports `got` on `sess` (count, MAE per axis, class accuracy, the channels
+    they name); with host_signal, the host model on the board's own captures beside them. Returns (line, rows,
+    named, max |board - host| mm, share of classes the same); the last two NaN without host_signal."""
+    from impactsense.board.capture import board_captures
+    from impactsense.models import impact_energy_j
+    from impactsense.pipeline import featurize
+
+    rows = np.asarray(sorted(got), int)
+    xy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in rows]).reshape(-1, 2)
+    cls = np.array([got[i]["energy_class"] for i in rows], int)
+    label_true = impact_energy_j(sess.height_mm[rows], sess.rig.ball_mass_g) >= model.energy_threshold_j
+    named = sorted({int(got[i]["left_out"]) for i in rows})
+    mae = float(np.mean(np.abs(xy - sess.xy_mm[rows]))) if rows.size else float("nan")
+    line = (f"{name:<10} {label:<16} {rows.size:>4}/{len(sess):<4} {mae:7.2f} "
+            f"{np.mean(cls == label_true) if rows.size else float('nan'):6.3f} {str(named):>6}")
+    dist = same = float("nan")
+    if host_signal is not None:
+        caps, r2, s2 = board_captures(sess, 50000, host_signal)
+        pred = model.predict(featurize(caps, s2))
+        have = np.isin(r2, rows)
+        bxy = np.array([[got[i]["x_mm"], got[i]["y_mm"]] for i in r2[have]]).reshape(-1, 2)
+        bc = np.array([got[i]["energy_class"] for i in r2[have]], int)
+        dist = float(np.max(np.abs(bxy - pred["xy_mm"][have]))) if have.any() else float("nan")
+        same = float(np.mean(bc == pred["energy_class"][have])) if have.any() else float("nan")
+        line += (f"  host MAE {np.mean(np.abs(pred['xy_mm'] - sess.xy_mm[r2])):.2f} mm, "
+                 f"max |board - host| {dist:.3f} mm, class the same {same:.3f}")
+    return line, rows, named, dist, same
 
 
 if __name__ == "__main__":

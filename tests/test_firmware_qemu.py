@@ -55,6 +55,22 @@ def test_qemu_image_reports_every_drop_of_a_short_record_16_bit_logger(tmp_path,
     assert len(fixture["rows"]) == 8 and not fixture["skipped_rows"], fixture
 
 
+def _run_image_on(tmp_path, s, name, model):
+    """The qemu image on 4 drops of session s (written to tmp_path / name) with model's first 4 trees; asserts it
+    ran and every check passed, returns its output."""
+    from impactsense.data import write_session
+
+    data = write_session(tmp_path / name, s.rig.to_dict(), s.x_mm, s.y_mm, s.height_mm, s.adc, s.case_id,
+                         s.repetition)
+    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path / "build"), "--data", str(data),
+                        "--model-dir", str(model), "--trees", "4", "--drops", "4"],
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out
+    assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
+    return out
+
+
 def test_qemu_image_checks_the_models_on_a_session_with_a_debonded_channel(tmp_path, session1):
     """A model trained on healthy sensors, a session whose channel 2 came loose (debonded: x0.4 through a 3..5 kHz
     low-pass): the twin cannot explain that channel's energies and twin_match leaves it out (its three-sensor
@@ -64,7 +80,6 @@ def test_qemu_image_checks_the_models_on_a_session_with_a_debonded_channel(tmp_p
     import numpy as np
 
     from impactsense.board.models import board_site_map, train_board_models
-    from impactsense.data import write_session
     from impactsense.faults import FaultSpec, inject_session
     from impactsense.sitemap import resolve_site_map
 
@@ -74,14 +89,7 @@ def test_qemu_image_checks_the_models_on_a_session_with_a_debonded_channel(tmp_p
                                cache=tmp_path / "map.npz", progress=False)
     model = train_board_models(clean, tmp_path / "model", n_trees=4, site_map=board_map)
     s = inject_session(session1.subset(np.arange(1, len(session1), 97)), FaultSpec(debond=debonded, seed=0))
-    data = write_session(tmp_path / "debonded", s.rig.to_dict(), s.x_mm, s.y_mm, s.height_mm, s.adc, s.case_id,
-                         s.repetition)
-    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path / "build"), "--data", str(data),
-                        "--model-dir", str(model), "--trees", "4", "--drops", "4"],
-                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
-    out = p.stdout + p.stderr
-    assert p.returncode == 0, out
-    assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
+    out = _run_image_on(tmp_path, s, "debonded", model)
     left_out = [int(v) for v in re.findall(r"^DROP left_out (\d+)$", out, re.M)]
     assert len(left_out) >= 3 and left_out.count(debonded) >= len(left_out) - 1, left_out
 
@@ -94,7 +102,6 @@ def test_qemu_image_corrects_a_four_channel_models_three_sensor_position_as_the_
     import numpy as np
 
     from impactsense.board.models import train_board_models
-    from impactsense.data import write_session
     from impactsense.faults import FaultSpec, inject_session
 
     dead = 2
@@ -103,14 +110,7 @@ def test_qemu_image_corrects_a_four_channel_models_three_sensor_position_as_the_
     card = json.loads((model / "model_card.json").read_text())
     assert card["board_three_position"]["channels"][str(dead)]["kept"]
     s = inject_session(session1.subset(np.arange(1, len(session1), 97)), FaultSpec(dead_channel=dead, noise=1, seed=0))
-    data = write_session(tmp_path / "dead", s.rig.to_dict(), s.x_mm, s.y_mm, s.height_mm, s.adc, s.case_id,
-                         s.repetition)
-    p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path / "build"), "--data", str(data),
-                        "--model-dir", str(model), "--trees", "4", "--drops", "4"],
-                       capture_output=True, text=True, timeout=600, env=dict(os.environ, QEMU_EXTRA="", PYTHON=sys.executable))
-    out = p.stdout + p.stderr
-    assert p.returncode == 0, out
-    assert "FAILURES 0" in out and not re.search(r"FAIL \w", out)
+    out = _run_image_on(tmp_path, s, "dead", model)
     assert "impactsense_model_position_without" in (tmp_path / "build" / "models" / "impactsense_forest_tables.c").read_text()
     left_out = [int(v) for v in re.findall(r"^DROP left_out (-?\d+)$", out, re.M)]
     assert len(left_out) >= 3 and all(c == dead for c in left_out), left_out
