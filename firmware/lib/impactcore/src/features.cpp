@@ -1223,36 +1223,6 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   apply_gain(f, cfg.channel_gain[c]);
 }
 
-// The median of channel c's others' ratios but `skip`'s (NaN: none), of two the larger: extract_features' median.
-float others_median(const float ratio[kChannels], int c, int skip) {
-  float o[kChannels - 1];
-  int m = 0;
-  for (int k = 0; k < kChannels; ++k) {
-    if (k != c && k != skip && ratio[k] == ratio[k]) o[m++] = ratio[k];
-  }
-  if (m == 3) {
-    const float lo = o[0] < o[1] ? o[0] : o[1], hi = o[0] < o[1] ? o[1] : o[0];
-    return o[2] < lo ? lo : (o[2] > hi ? hi : o[2]);
-  }
-  return o[0] > o[1] ? o[0] : o[1];
-}
-
-// The low-passed channel of four ratios (a debonded disc): the one furthest below 1 / kArrivalSpikeBeyondRatio x
-// its others' median, -1 none. Its ratio tells nothing of the arrival's and pulls the others' medians down.
-IC_NOINLINE int low_passed(const float ratio[kChannels]) {
-  int low = -1;
-  float low_q = 0.0f;
-  for (int c = 0; c < kChannels; ++c) {
-    const float med = others_median(ratio, c, -1);
-    const float q = ratio[c] / med;
-    if (kArrivalSpikeBeyondRatio * ratio[c] < med && (low < 0 || q < low_q)) {
-      low = c;
-      low_q = q;
-    }
-  }
-  return low;
-}
-
 }  // namespace
 
 int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
@@ -1297,7 +1267,6 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
     }
   }
   if (n_ratio >= 3) {
-    int low = -2;  // not sought yet
     for (int c = 0; c < kChannels; ++c) {
       if (!(ratio[c] == ratio[c])) continue;
       float o[kChannels - 1];
@@ -1313,19 +1282,10 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       } else {
         med = o[0] > o[1] ? o[0] : o[1];
       }
-      int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
-      if (hunt == kHuntNone || !window[c].open) continue;
-      // A low-passed other channel (low_passed; sought once an event, when a channel would be hunted) leaves
-      // c's median (two clean channels hunted on a debonded event: docs/findings.md, "Session 20: debcost");
-      // the median only rises, so no channel the first median spared is hunted.
-      if (low == -2) low = n_ratio == kChannels ? low_passed(ratio) : -1;
-      if (low >= 0 && low != c) {
-        const float m3 = others_median(ratio, c, low);
-        hunt = ratio[c] > kArrivalSpikeRatio * m3 ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * m3 ? kHuntBeyond : kHuntNone;
-        if (hunt == kHuntNone) continue;
-      }
+      const int hunt = ratio[c] > kArrivalSpikeRatio * med ? kHuntLargest : ratio[c] > kArrivalSpikeBeyondRatio * med ? kHuntBeyond : kHuntNone;
       // The hunt runs on the first pass's window; only where it finds a glitch is the channel done again
       // (without one, channel_features would return what it did).
+      if (hunt == kHuntNone || !window[c].open) continue;
       Spike probe;
       int lo, hi;
       window[c].bounds(cfg, n, &lo, &hi);
