@@ -180,13 +180,16 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
 // The inconsistent channel's recentring and the four-channel recheck in one pass: both are fine matches
 // centred on the candidate's three-channel answer (x_mm, y_mm), so they visit the same grid points. Per point
 // the four channels' residuals u = r - s q (term: the four-channel terms, a4 / n4 theirs) give the recheck's
-// sums over every feature and the recentring's over the features of every channel but `skip` (the kept
+// sums over every feature and the recentring's over the features of every channel but kSkip (the kept
 // channels' terms are the four-channel ones: the same make_terms but for the left-out channel's zeros; a3 / n3
-// the three-channel estimate's). Returns match_skip<skip>'s three-channel estimate (the recentring, the same
+// the three-channel estimate's). Returns match_skip<kSkip>'s three-channel estimate (the recentring, the same
 // sums in the same order) and in *misfit4 the smallest four-channel misfit over the points, match_skip<-1>'s
-// misfit (the recheck's verdict): one pass instead of two, a quarter more multiply-adds a point than the
-// three-channel match alone.
-IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], int skip, float a3, int n3, float a4, int n4,
+// misfit (the recheck's verdict): one pass instead of two. Both sums start from 0 and add the features in
+// channel order, so up to the left-out channel they are the same numbers: the three-channel sums are the
+// four-channel ones there, and only the channels after it are added twice (kSkip a constant: no branch a
+// feature).
+template <int kSkip>
+IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], float a3, int n3, float a4, int n4,
                                        float x_mm, float y_mm, const SiteMap& map, const TwinConfig& cfg,
                                        float* misfit4) {
   *misfit4 = INFINITY;
@@ -204,19 +207,19 @@ IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], int skip,
   float best4 = INFINITY;
   visit_window(w, 1, map, cut2, v, [&](const uint8_t* q, float gy, float d2) {
     float b = 0.0f, c = 0.0f, b4 = 0.0f, c4 = 0.0f;  // from 0: see match_skip (a -0 is not told apart)
-    for (int ch = 0; ch < kChannels; ++ch) {
-      const int k0 = ch * kTwinPerChannel;
-      const bool kept = ch != skip;
-#pragma GCC unroll 4
-      for (int k = k0; k < k0 + kTwinPerChannel; ++k) {
-        const Term& t = term[k];
-        const float u = t.r - t.s * static_cast<float>(q[k]);
-        b4 += t.sigma * u;
-        c4 += u * u;
-        if (kept) {
-          b += t.sigma * u;
-          c += u * u;
-        }
+#pragma GCC unroll 16
+    for (int k = 0; k < kTwinFeatures; ++k) {
+      if (k == kSkip * kTwinPerChannel) {  // the channels before kSkip: the same sums
+        b = b4;
+        c = c4;
+      }
+      const Term& t = term[k];
+      const float u = t.r - t.s * static_cast<float>(q[k]);
+      b4 += t.sigma * u;
+      c4 += u * u;
+      if (k / kTwinPerChannel > kSkip) {
+        b += t.sigma * u;
+        c += u * u;
       }
     }
     const float shift4 = b4 * inv_a4;
@@ -230,6 +233,18 @@ IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], int skip,
   });
   *misfit4 = best4;
   return weighted_estimate(v, w, 1, map, cfg);
+}
+
+// match_recheck<skip> for the left-out channel skip (0..3).
+TwinEstimate match_recheck_skip(const Term term[kTwinFeatures], int skip, float a3, int n3, float a4, int n4,
+                                float x_mm, float y_mm, const SiteMap& map, const TwinConfig& cfg, float* misfit4) {
+  static_assert(kChannels == 4, "match_recheck_skip dispatches four channels");
+  switch (skip) {
+    case 0: return match_recheck<0>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
+    case 1: return match_recheck<1>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
+    case 2: return match_recheck<2>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
+    default: return match_recheck<3>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
+  }
 }
 
 // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
@@ -556,7 +571,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     // kept: the four-channel estimate's terms (the recheck's mask)
     if (kept.ok && kept.n_used >= kTwinPerChannel && kept.a > 0.0f) {
       float misfit4 = INFINITY;
-      const TwinEstimate again = match_recheck(kept.t, out.left_out, best_terms->a, best_terms->n_used, kept.a, kept.n_used,
+      const TwinEstimate again = match_recheck_skip(kept.t, out.left_out, best_terms->a, best_terms->n_used, kept.a, kept.n_used,
                                                out.est.x_mm, out.est.y_mm, map, cfg, &misfit4);
       if (misfit4 > kBadMisfitRef * ref) {
         if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) out.est = again;
