@@ -32,7 +32,7 @@ def _board_match(session, full_search=False):
 
 
 def test_the_merged_recheck_reports_what_the_separate_recheck_and_recentring_do():
-    """Every other bundled drop with one disc debonded (two draws, two discs), as the board captures it, through
+    """Bundled drops with one disc debonded (each disc, one draw each), as the board captures it, through
     the board's twin: the cued search (its recheck and recentring in one pass, match_recheck) leaves the disc out
     where the full search (every channel in order, the recheck and the recentring as separate matches) does, at
     the same position to 1e-3 mm (the same sums in the same order: docs/method.md, "The twin's channel check"),
@@ -45,8 +45,10 @@ def test_the_merged_recheck_reports_what_the_separate_recheck_and_recentring_do(
     s = s1.subset(np.arange(0, len(s1), 2))
     clean, _ = _board_match(s)
     assert np.all(clean["left_out"] == -1)
-    for spec in (FaultSpec(debond=2, seed=0), FaultSpec(debond=1, seed=1)):
-        bad = inject_session(s, spec)
+    # discs 2 and 1 on every other drop; 0 and 3 (match_recheck's other two left-out channels) on every fourth
+    for spec, step in ((FaultSpec(debond=2, seed=0), 1), (FaultSpec(debond=1, seed=1), 1),
+                       (FaultSpec(debond=0, seed=2), 2), (FaultSpec(debond=3, seed=3), 2)):
+        bad = inject_session(s.subset(np.arange(0, len(s), step)), spec)
         cued, _ = _board_match(bad)
         full, _ = _board_match(bad, full_search=True)
         assert np.all(cued["status"] == 0)
