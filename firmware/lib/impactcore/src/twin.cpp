@@ -177,19 +177,37 @@ TwinEstimate match_skip(const Term term[kTwinFeatures], float a, int n_used, flo
   return weighted_estimate(v, w, stride, map, cfg);
 }
 
+// One channel's features added to the sums b += sigma u, c += u^2 (u = r - s q); with b2, c2: to both pairs.
+IC_INLINE void add_channel(const Term* t, const uint8_t* q, float* b, float* c) {
+#pragma GCC unroll 4
+  for (int k = 0; k < kTwinPerChannel; ++k) {
+    const float u = t[k].r - t[k].s * static_cast<float>(q[k]);
+    *b += t[k].sigma * u;
+    *c += u * u;
+  }
+}
+IC_INLINE void add_channel(const Term* t, const uint8_t* q, float* b, float* c, float* b2, float* c2) {
+#pragma GCC unroll 4
+  for (int k = 0; k < kTwinPerChannel; ++k) {
+    const float u = t[k].r - t[k].s * static_cast<float>(q[k]);
+    *b += t[k].sigma * u;
+    *c += u * u;
+    *b2 += t[k].sigma * u;
+    *c2 += u * u;
+  }
+}
+
 // The inconsistent channel's recentring and the four-channel recheck in one pass: both are fine matches
 // centred on the candidate's three-channel answer (x_mm, y_mm), so they visit the same grid points. Per point
 // the four channels' residuals u = r - s q (term: the four-channel terms, a4 / n4 theirs) give the recheck's
-// sums over every feature and the recentring's over the features of every channel but kSkip (the kept
+// sums over every feature and the recentring's over the features of every channel but `skip` (the kept
 // channels' terms are the four-channel ones: the same make_terms but for the left-out channel's zeros; a3 / n3
-// the three-channel estimate's). Returns match_skip<kSkip>'s three-channel estimate (the recentring, the same
+// the three-channel estimate's). Returns match_skip<skip>'s three-channel estimate (the recentring, the same
 // sums in the same order) and in *misfit4 the smallest four-channel misfit over the points, match_skip<-1>'s
 // misfit (the recheck's verdict): one pass instead of two. Both sums start from 0 and add the features in
-// channel order, so up to the left-out channel they are the same numbers: the three-channel sums are the
-// four-channel ones there, and only the channels after it are added twice (kSkip a constant: no branch a
-// feature).
-template <int kSkip>
-IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], float a3, int n3, float a4, int n4,
+// channel order, so up to the left-out channel they are the same numbers: the three-channel sums are copied
+// from the four-channel ones there, and only the channels after it are added to both (no branch a feature).
+IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], int skip, float a3, int n3, float a4, int n4,
                                        float x_mm, float y_mm, const SiteMap& map, const TwinConfig& cfg,
                                        float* misfit4) {
   *misfit4 = INFINITY;
@@ -203,25 +221,16 @@ IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], float a3,
   const float inv_t = 1.0f / cfg.temperature;
   const float inv_2s2 = 0.5f / (cfg.prior_mm * cfg.prior_mm);
   const float cut2 = cfg.cutoff_mm * cfg.cutoff_mm;
+  const int ks = skip * kTwinPerChannel;
   Visited v;
   float best4 = INFINITY;
   visit_window(w, 1, map, cut2, v, [&](const uint8_t* q, float gy, float d2) {
-    float b = 0.0f, c = 0.0f, b4 = 0.0f, c4 = 0.0f;  // from 0: see match_skip (a -0 is not told apart)
-#pragma GCC unroll 16
-    for (int k = 0; k < kTwinFeatures; ++k) {
-      if (k == kSkip * kTwinPerChannel) {  // the channels before kSkip: the same sums
-        b = b4;
-        c = c4;
-      }
-      const Term& t = term[k];
-      const float u = t.r - t.s * static_cast<float>(q[k]);
-      b4 += t.sigma * u;
-      c4 += u * u;
-      if (k / kTwinPerChannel > kSkip) {
-        b += t.sigma * u;
-        c += u * u;
-      }
-    }
+    float b4 = 0.0f, c4 = 0.0f;  // from 0: see match_skip (a -0 is not told apart)
+    int k = 0;
+    for (; k < ks; k += kTwinPerChannel) add_channel(term + k, q + k, &b4, &c4);
+    float b = b4, c = c4;  // the channels before skip: the same sums
+    add_channel(term + k, q + k, &b4, &c4);
+    for (k += kTwinPerChannel; k < kTwinFeatures; k += kTwinPerChannel) add_channel(term + k, q + k, &b4, &c4, &b, &c);
     const float shift4 = b4 * inv_a4;
     float m4 = (c4 - a4 * shift4 * shift4) * inv_n4;
     if (m4 < 0.0f) m4 = 0.0f;
@@ -233,18 +242,6 @@ IC_NOINLINE TwinEstimate match_recheck(const Term term[kTwinFeatures], float a3,
   });
   *misfit4 = best4;
   return weighted_estimate(v, w, 1, map, cfg);
-}
-
-// match_recheck<skip> for the left-out channel skip (0..3).
-TwinEstimate match_recheck_skip(const Term term[kTwinFeatures], int skip, float a3, int n3, float a4, int n4,
-                                float x_mm, float y_mm, const SiteMap& map, const TwinConfig& cfg, float* misfit4) {
-  static_assert(kChannels == 4, "match_recheck_skip dispatches four channels");
-  switch (skip) {
-    case 0: return match_recheck<0>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
-    case 1: return match_recheck<1>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
-    case 2: return match_recheck<2>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
-    default: return match_recheck<3>(term, a3, n3, a4, n4, x_mm, y_mm, map, cfg, misfit4);
-  }
 }
 
 // The per-event constants, and the normal equation's denominator A = sum w slope^2 = sum sigma^2.
@@ -571,7 +568,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
     // kept: the four-channel estimate's terms (the recheck's mask)
     if (kept.ok && kept.n_used >= kTwinPerChannel && kept.a > 0.0f) {
       float misfit4 = INFINITY;
-      const TwinEstimate again = match_recheck_skip(kept.t, out.left_out, best_terms->a, best_terms->n_used, kept.a, kept.n_used,
+      const TwinEstimate again = match_recheck(kept.t, out.left_out, best_terms->a, best_terms->n_used, kept.a, kept.n_used,
                                                out.est.x_mm, out.est.y_mm, map, cfg, &misfit4);
       if (misfit4 > kBadMisfitRef * ref) {
         if (again.status == kOk && again.log10_height_mm == again.log10_height_mm) out.est = again;
