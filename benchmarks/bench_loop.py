@@ -25,6 +25,10 @@ sessions (docs/findings.md, issue 16 loopmove4), so its yardstick is the same ki
 effect, trained once and scored on the unchanged sessions (their `twin_unchanged`). A measured-trained after
 with the twin's drops at new positions (a random effect) is judged as measured-trained (it is `retrain`'s model);
 the table also prints its ratio to the twin's yardstick, the share the generator's own drops may carry.
+A session whose change is additive (hum, white noise) is also scored by the reference model on its own drops
+with the change's exact draw taken out again (`loop_sessions.without_change`): what those 40 positions give
+without the change, beside the unchanged sessions' mean (a printed column, not a target: a session's
+positions alone move the MAE by ~1 mm on rig-b; docs/findings.md "Session 21: loopsignal").
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
 move 2 mm, gain 0.05, E 1 % via `impactsense.plate_scan.e_scale_scan`: the twin's own pick-velocity curve on the session's drops, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
@@ -37,6 +41,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +166,9 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     row = {"session": name, "truth": spec.get("truth"), "named": [(e["effect"], e["sensor"]) for e in sig]}
     from impactsense.commands.retrain import score
     row["before"] = score(sess, ref_model)
+    plain = loop_sessions.without_change(sess.adc, spec, sess.rig)
+    if plain is not None:   # an additive change: its own drops without it, the session's own yardstick
+        row["own_unchanged"] = score(replace(sess, adc=plain), ref_model)
     loop = {"rows": {"reference model (before)": row["before"]}}
     if sig:
         # as `impactsense retrain`: a debonded channel's low-pass and gain sized on the recordings (fit_bond)
@@ -344,8 +352,9 @@ def table(out: dict) -> int:
 def issue_table(rows: list, base: float, twin_base: float | None) -> None:
     """Issue 16's table: change, named, MAE before (the reference model), after the retrain (the model kept;
     the loop's own model before retrain's choice), the unchanged sessions' MAE (its kind's) and the ratio."""
-    print("\n| change | named | MAE before | after: loop's model -> kept | unchanged | ratio: loop's -> kept |")
-    print("|---|---|---|---|---|---|")
+    print("\n| change | named | MAE before | after: loop's model -> kept | unchanged | ratio: loop's -> kept | "
+          "its own drops without the change (reference model): MAE, kept / it |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         if r["truth"] is None:
             continue
@@ -357,8 +366,10 @@ def issue_table(rows: list, base: float, twin_base: float | None) -> None:
         def yard(k):
             return twin_base if k == "twin" and twin_base is not None else base
         kept = r["after"]["mae_mm"]
+        own = (f"{r['own_unchanged']['mae_mm']:.2f}, {kept / r['own_unchanged']['mae_mm']:.2f}"
+               if "own_unchanged" in r else "-")
         print(f"| {r['session']} | {names} | {r['before']['mae_mm']:.2f} | {loop:.2f} -> {kept:.2f} ({kind}) | "
-              f"{yard(kind):.2f} | {loop / yard(loop_kind):.2f} -> **{kept / yard(kind):.2f}** |")
+              f"{yard(kind):.2f} | {loop / yard(loop_kind):.2f} -> **{kept / yard(kind):.2f}** | {own} |")
 
 
 def main(argv=None) -> int:

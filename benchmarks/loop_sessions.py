@@ -127,6 +127,17 @@ def signal_change(counts: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray
     return a
 
 
+
+def without_change(adc: np.ndarray, spec: dict, rig) -> np.ndarray | None:
+    """A `signal` session's recordings with its additive change (hum, white noise) taken out again: the same
+    drops, rig noise and rails as made, the change's exact draw subtracted (`signal_change` on zeros with the
+    session's seed; the ADC's rounding leaves at most half a count). None for any other session."""
+    truth = spec.get("truth") or {}
+    if spec.get("kind") != "signal" or truth.get("effect") != "noise":
+        return None
+    change = signal_change(np.zeros(adc.shape), truth, rig, spec["seed"])
+    return np.clip(np.rint(np.asarray(adc, float) - change), 0, rig.adc_max).astype(np.uint16)
+
 # ---- drops ------------------------------------------------------------------------------------------------
 def declared_drops(rig, cases: int, reps: int, seed: int, jitter_mm: float):
     """Declared (x, y, h, case, rep) and the true hit positions (declared + jitter)."""
