@@ -58,3 +58,24 @@ def test_other_seeds_draw_directions_sensors_and_plate_changes_within_the_issue_
         seen_offsets.add(round(offsets[0], 1))
         seen_perms.add(tuple(sensors[:4]))
     assert len(seen_offsets) == 4 and len(seen_perms) >= 2   # the draws do differ
+
+
+def test_without_change_takes_an_additive_change_out_to_the_rounding_and_leaves_other_sessions_alone():
+    """A hum or white-noise session's recordings with the generator's draw taken out again are the drops as made
+    before it (to the ADC's rounding: at most one count, a half from each rounding); a gain session has no
+    additive change to take out."""
+    from types import SimpleNamespace
+
+    rig = SimpleNamespace(fs_hz=100000.0, bias_counts=2048, adc_max=4095)
+    rng = np.random.default_rng(3)
+    clean = rng.normal(0.0, 1.5, (6, 4, 1000)) + 40.0 * np.sin(np.arange(1000) / 7.0) * (np.arange(1000) > 300)
+    specs = {s["name"]: s for s in loop_sessions.spec_list(1)}
+    made = np.rint(clean + 2048).astype(np.uint16)
+    for name in ("hum", "noise"):
+        spec = specs[name]
+        changed = loop_sessions.signal_change(clean, spec["truth"], rig, spec["seed"])
+        adc = np.clip(np.rint(changed + 2048), 0, 4095).astype(np.uint16)
+        assert np.abs(adc.astype(float) - made).max() > 10            # the change is there
+        back = loop_sessions.without_change(adc, spec, rig)
+        assert np.abs(back.astype(float) - made).max() <= 1.0
+    assert loop_sessions.without_change(made, specs["gain"], rig) is None
