@@ -28,7 +28,7 @@ the table also prints its ratio to the twin's yardstick, the share the generator
 A session whose change is additive (hum, white noise) is also scored by the reference model on its own drops
 with the change's exact draw taken out again (`loop_sessions.without_change`): what those 40 positions give
 without the change, beside the unchanged sessions' mean (a printed column, not a target: a session's
-positions alone move the MAE by ~1 mm on rig-b; docs/findings.md "Session 21: loopsignal").
+positions alone move its MAE; docs/findings.md "Session 21: loopsignal").
 
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
 move 2 mm, gain 0.05, E 1 % via `impactsense.plate_scan.e_scale_scan`: the twin's own pick-velocity curve on the session's drops, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
