@@ -14,7 +14,7 @@ accuracy >= 0.95 on every rig; the script exits 1 when a rig misses it.
 --calibration-dir CALS: a rig whose folder name has a calibration CALS/<name>/CAL.json (`impactsense calibrate
 DATA --out CALS/<name>/CAL.json`) is trained as `train DATA --calibration CALS/<name>/CAL.json` does: with that
 twin's site map (built once and cached beside CAL.json) when the training drops' out-of-fold figures keep it
-(column "twin": kept / not kept / - without a calibration). Without a site map the energy class is the
+(column "twin": kept / class (its class only: twin_role.py) / not kept / - without a calibration). Without a site map the energy class is the
 classifier forest or the linear height estimate, as the training drops' out-of-fold accuracy chooses
 (height_class.py; column "class by": forest / linear / twin). Columns "bnd" / "off": the class accuracy on the
 held-out drops from the two heights either side of the class threshold (the boundary heights, the training drops'
@@ -146,12 +146,14 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None, twin_
 
 def twin_column(r: dict) -> str:
     choice = r.get("twin_choice")
-    return "-" if not choice else ("kept" if choice["use_twin"] else "not kept")
+    if not choice:
+        return "-"
+    return "kept" if choice["use_twin"] else ("class" if choice.get("use_twin_class") else "not kept")
 
 
 def class_column(r: dict) -> str:
     """The energy class's model: the twin's, or what the out-of-fold rule chose (height_class.py)."""
-    if r["position_source"] == "twin":
+    if r["position_source"] == "twin" or (r.get("twin_choice") or {}).get("use_twin_class"):
         return "twin"
     choice = r.get("energy_class_choice")
     return "forest" if not choice else ("linear" if choice["use_linear"] else "forest")

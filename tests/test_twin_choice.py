@@ -1,6 +1,7 @@
 """A measured-trained model with a calibrated twin's site map (`train DATA --calibration CAL.json`): the rule
-that keeps the twin only when the training drops' out-of-fold figures say so (models.twin_choice), the fit
-that falls back to the measured classifier and forests, and the site map found beside CAL.json."""
+that keeps the twin only when the training drops' out-of-fold figures say so (models.twin_choice), the twin's
+role (position and class, class only, none: twin_role.py), the fit that falls back to the measured classifier
+and forests, and the site map found beside CAL.json."""
 
 import json
 
@@ -14,6 +15,7 @@ from impactsense.models import ForestSettings, ImpactModel, twin_choice
 from impactsense.pipeline import featurize
 from impactsense.signal import SignalConfig
 from impactsense.sitemap import BUNDLED, SiteMap
+from impactsense.twin_role import CLASS_GAIN_SE, choose_twin_role
 
 CAL = BUNDLED.parent / "calibration.json"
 
@@ -87,14 +89,78 @@ def test_fit_keeps_the_bundled_twin_and_drops_a_scrambled_one(bundled_features):
     dropped = ImpactModel.fit(*args, site_map=scrambled(site, 0), choose_twin=True)
     rec = dropped.card["twin_choice"]
     assert not rec["use_twin"] and rec["twin_mae_mm"] > rec["forest_mae_mm"]
-    assert dropped.site_map is None and dropped.twin_fit is None and dropped.position_source == "forest"
-    # the fallback is the model trained without a site map: the same classifier's inputs and threshold
+    assert dropped.position_source == "forest"
+    # the fallback is the model trained without a site map: its position, and its classifier unless the
+    # scrambled twin's height estimate still classes the drops clearly better (the class-only twin, twin_role.py)
     plain = ImpactModel.fit(*args)
-    assert dropped.energy_features == plain.energy_features
     assert dropped.energy_threshold_j == pytest.approx(plain.energy_threshold_j)
     pred, ref = dropped.predict(feats), plain.predict(feats)
-    assert np.array_equal(pred["energy_class"], ref["energy_class"])
     assert np.allclose(pred["xy_mm"], ref["xy_mm"], equal_nan=True)
+    gain = rec["twin_class_accuracy"] - rec["measured_class_accuracy"]
+    assert rec["use_twin_class"] == (gain > CLASS_GAIN_SE * rec["class_difference_se"])
+    if not rec["use_twin_class"]:
+        assert dropped.site_map is None and dropped.twin_fit is None
+        assert np.array_equal(pred["energy_class"], ref["energy_class"])
+
+
+def stub_fit(figures: dict, reported_mae: float):
+    """A stand-in for ImpactModel.fit: with a site map its card holds `figures` (twin_oof.twin_choice's), without
+    one the correction factor's out-of-fold MAE `reported_mae`."""
+    class Model:
+        def __init__(self, card, site_map):
+            self.card, self.site_map, self.twin_fit, self.twin_position = card, site_map, site_map, True
+            self.forest_energy, self.energy_threshold_j, self.three_channel_class = "own", 1.0, {0: "three"}
+
+    def fit(*args, site_map=None, **kwargs):
+        if site_map is not None:
+            return Model({"twin_choice": dict(figures)}, site_map)
+        return Model({"correction_scale": {"scale": 0.5, "scales": [1.0, 0.5], "out_of_fold_mae_mm": [9.0, reported_mae]},
+                      "energy_class_choice": {}}, None)
+    return fit
+
+
+def figures(twin_mae, twin_class, use_twin):
+    return {"use_twin": use_twin, "forest_mae_mm": 4.0, "twin_mae_mm": twin_mae, "measured_class_accuracy": 0.90,
+            "twin_class_accuracy": twin_class, "class_difference_se": 0.01}
+
+
+def test_twin_role_position_class_or_nothing():
+    # places better than the forest pair but not than the model's own reported position: the class only
+    model = choose_twin_role(stub_fit(figures(3.8, 0.95, True), 3.5), (), "map")
+    rec = model.card["twin_choice"]
+    assert not rec["use_twin"] and rec["use_twin_class"] and rec["reported_mae_mm"] == pytest.approx(3.5)
+    assert model.site_map == "map" and not model.twin_position and model.three_channel_class == {}
+    assert "energy_class_choice" not in model.card
+    # better than both: position and class (the model with the twin, as before)
+    model = choose_twin_role(stub_fit(figures(3.4, 0.95, True), 3.5), (), "map")
+    assert model.card["twin_choice"]["use_twin"] and model.twin_position and model.three_channel_class == {0: "three"}
+    # not placing better and classing within one standard error of the measured classifier: no twin
+    model = choose_twin_role(stub_fit(figures(4.2, 0.905, False), 3.5), (), "map")
+    assert not model.card["twin_choice"]["use_twin_class"] and model.site_map is None
+
+
+def test_a_class_only_model_reports_its_own_position_and_survives_its_folder(tmp_path, bundled_features):
+    session, rows, feats, cfg = bundled_features
+    settings = ForestSettings(n_estimators=10, seed=0)
+    args = (feats, session.xy_mm[rows], session.height_mm[rows], session.rig.ball_mass_g, cfg, settings)
+    plain = ImpactModel.fit(*args)
+    twin = ImpactModel.fit(*args, site_map=SiteMap.load(BUNDLED))
+    ref = plain.predict(feats)
+    plain.site_map, plain.twin_fit, plain.twin_position = twin.site_map, twin.twin_fit, False
+    plain.forest_energy, plain.three_channel_class = twin.forest_energy, {}
+    pred = plain.predict(feats)
+    assert plain.position_source == pred["position_source"] == "forest"
+    assert np.allclose(pred["xy_mm"], ref["xy_mm"], equal_nan=True)
+    assert np.all(pred["energy_class"][np.isfinite(pred["height_mm"])] >= 0)
+    # the twin's class at the model's own position agrees with the twin model's (matched around its forests')
+    agree = np.mean(pred["energy_class"] == twin.predict(feats)["energy_class"])
+    assert agree > 0.95
+    plain.save(tmp_path / "M")
+    back = ImpactModel.load(tmp_path / "M")
+    assert not back.twin_position and back.card["position_source"] == "forest"
+    again = back.predict(back.featurize(session.adc[rows]))
+    assert np.array_equal(again["energy_class"], pred["energy_class"])
+    assert np.allclose(again["xy_mm"], pred["xy_mm"], equal_nan=True)
 
 
 def test_site_map_of_a_calibration_is_the_bundled_twins_and_a_moved_rig_is_refused(tmp_path, session1):

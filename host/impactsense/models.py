@@ -5,10 +5,8 @@ per coordinate (one regressor each, so the C export is exact) learns the correct
 feature vector. The energy classifier is a random forest on the energy features; "high" means
 m g h at or above the 75th percentile of the training drops. With the twin's site map (sitemap.py) the
 classifier reads the twin's height estimate instead (twin.py, the core's twin_estimate), and the reported
-position is the twin's matched position around the forests' (the site map's grid points whose simulated
-energies explain the event; its gain is in docs/findings.md), and
-its uncertainty a calibrated 1-sigma radial error (twin.calibrated_uncertainty), fitted on out-of-fold errors
-of the training drops (out_of_fold_twin).
+position is the twin's matched position around the forests' (or the class only: twin_role.py), its uncertainty
+a calibrated 1-sigma radial error fitted on out-of-fold errors of the training drops (out_of_fold_twin).
 """
 
 from __future__ import annotations
@@ -44,6 +42,7 @@ from .three_channel_position import (fit_three_channel_positions, left_out_class
 from .twin import TwinFit, calibrated_uncertainty, fit_twin, fit_uncertainty, twin_match
 from .twin import estimate as twin_estimate
 from .twin_oof import out_of_fold_twin, twin_choice  # noqa: F401 (twin_choice: models' API)
+from .twin_role import choose_twin_role
 from .twin_edge import refit_class
 
 G_M_S2 = 9.80665
@@ -131,7 +130,7 @@ def three_channel_rows(features: Features) -> np.ndarray:
 def _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm, energy_j, site_map, settings, choose_twin,
                    card, signal=None) -> tuple:
     """ImpactModel.fit's twin: (site_map, twin_fit, energy classifier, threshold) fitted on the used rows among
-    twin_rows; with choose_twin the card's "twin_choice" and, when the twin is not kept, (None, None, ...)."""
+    twin_rows; with choose_twin also the card's "twin_choice" figures (twin_role.choose_twin_role decides)."""
     # The twin's height estimate of each training drop at its physics position (an error like the
     # forests' at test time), from offsets/slopes/weights fitted at the drops' true positions.
     tw = np.flatnonzero(use) if twin_rows is None else np.flatnonzero(use & np.asarray(twin_rows, bool))
@@ -148,10 +147,8 @@ def _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm, energy_j, sit
     for key, value in fit_uncertainty(oof["spread_mm"], oof["misfit"], oof["error_mm"]).items():
         setattr(twin_fit, key, value)
     fe, threshold = refit_class(twin_fit, oof, t_h, t_xy, signal, energy_j[sel], card) or (fe, threshold)  # twin_edge
-    if choose_twin:
+    if choose_twin:   # the figures twin_role.choose_twin_role decides by
         card["twin_choice"] = twin_choice(oof, t_xy)
-        if not card["twin_choice"]["use_twin"]:
-            site_map = twin_fit = None
     return site_map, twin_fit, fe, threshold
 
 
@@ -183,6 +180,8 @@ class ImpactModel:
     # The edge correction's coefficients per pick set (edge_travel.py; {"threshold": [...], "band": [...] or
     # None}); empty: off. With it the members include EDGE_MEMBERS.
     edge_travel: dict = field(default_factory=dict)
+    # With a site map: the reported position is the twin's match (False: the class only, twin_role.py).
+    twin_position: bool = True
 
     # ----- training -----
     @classmethod
@@ -194,13 +193,17 @@ class ImpactModel:
         """members: with the band picks on, also the POSITION_MEMBERS' forest pairs (False: the board's one
         pair). twin_rows: with a site map, the drops (bool per row) the twin's offsets, weights, uncertainty and
         energy class are fitted on (None: all); the forests learn from all (simulated drops stay out of the twin's
-        fit to the rig's recordings). choose_twin: with a site map, keep the twin only when the training drops'
-        out-of-fold figures say so (`twin_choice`), else train as without one; the card's "twin_choice" records them.
+        fit to the rig's recordings). choose_twin: with a site map, the twin's role (position and class, class only,
+        none) as the training drops' out-of-fold figures say (twin_role.py; the card's "twin_choice").
         choose_class: without a site map, the energy class from the classifier forest or the linear estimate of log
         m g h (height_class.py), whichever the training drops' out-of-fold accuracy prefers (card:
         "energy_class_choice"). choose_edge: with members and without a site map, the edge correction of the
         arrival times (edge_travel.py) and its EDGE_MEMBERS when the training drops' physics positions say so; the
         level members as correction_scale chooses. twin_edge: the twin estimate's edge term (twin_edge.py; off)."""
+        if site_map is not None and choose_twin is True:   # the twin's role in the model (twin_role.py)
+            return choose_twin_role(cls.fit, (features, xy_mm, height_mm, ball_mass_g, signal, settings), site_map,
+                                    members=members, choose_class=choose_class, choose_edge=choose_edge,
+                                    twin_rows=twin_rows, twin_edge=twin_edge)
         settings = settings or ForestSettings()
         use = features.usable
         if use.sum() < 10:
@@ -268,28 +271,22 @@ class ImpactModel:
 
     @property
     def position_source(self) -> str:
-        """Where the reported x, y come from: "twin" (the site map's match) with a site map, else "forest"."""
-        return "twin" if self.site_map is not None else "forest"
+        """Where the reported x, y come from: "twin" (the site map's match; not a class-only twin), else "forest"."""
+        return "twin" if self.site_map is not None and self.twin_position else "forest"
 
     # ----- inference -----
     def predict(self, features: Features) -> dict:
         """Position (mm), per-coordinate spread of the forests' trees, energy class; NaN / -1 where unusable.
-
-        Without a site map x, y are the forests' (physics + correction). With one they are the twin's matched
-        position (twin.h TwinEstimate.x_mm, y_mm: the site map's grid points within cutoff_mm of the forests'
-        position, weighted by how well their simulated energies explain the event), as on the board
-        (impactapp TableModels); the forests' position stays in forest_xy_mm. An event the twin cannot match
-        (no usable channel) gets no position and no class, as the board marks it not valid. uncertainty_mm is
-        the reported position's calibrated 1-sigma radial error (sqrt(E r^2), r the distance from the truth;
-        twin.calibrated_uncertainty of the match's spread and misfit; the board's report carries the same),
-        without a site map NaN (the board then reports the physics localiser's). twin_spread_mm and
-        twin_misfit are the match's raw spread and misfit (TwinEstimate.spread_mm, misfit)."""
+        Without a site map x, y are the forests' (physics + correction); with one the twin's matched position
+        around the forests' (twin.h TwinEstimate; the board's impactapp TableModels), the forests' in
+        forest_xy_mm, unless the twin gives the class only (twin_position False: twin_role.py). An event the twin
+        cannot match gets no position and no class. uncertainty_mm: the twin's calibrated 1-sigma radial error
+        (twin.calibrated_uncertainty of the match's spread and misfit, as on the board), else NaN."""
         n = len(features)
         xy = np.full((n, 2), np.nan)
         spread = np.full((n, 2), np.nan)
         energy_class = np.full(n, -1, int)
-        # a model trained on four channels does not run its forests on a drop with a channel left out (the
-        # physics three-sensor position below); one trained with it left out reads none of its arrival times
+        # no forests on a drop with a channel left out unless trained so (then they read none of its arrival times)
         use = features.usable & np.isfinite(features.vector[:, columns(self.location_features)]).all(1)
         if use.any():
             X = features.vector[use]
@@ -304,28 +301,30 @@ class ImpactModel:
                 left_out_class(self, features, use, energy_class)
         out = {"xy_mm": xy, "forest_xy_mm": xy, "spread_mm": spread, "energy_class": energy_class,
                "uncertainty_mm": np.full(n, np.nan), "position_source": self.position_source}
-        # One channel without an onset (dead, disconnected): without a site map the physics localiser's
-        # three-sensor position; with one, twin_match (the core's, the board's too) starts the twin there
-        # and matches the other three channels' energies.
+        # One channel without an onset: the physics localiser's three-sensor position (a twin starts there)
         three = three_channel_rows(features) & ~use
         xy[three] = features.phys_xy_mm[three]
         out["three_channel"] = three
-        if self.site_map is None:   # a channel the check flags, the host's correction, the class (three_sensor_path)
+        if self.position_source == "forest":   # a channel the check flags, the host's correction, the class
             three_sensor_path(self, features, use, out)
         if self.site_map is not None:
-            out["xy_mm"] = np.full((n, 2), np.nan)
+            reported = out["xy_mm"]   # the class-only twin's start: the model's own position
+            out["xy_mm"] = np.full((n, 2), np.nan) if self.twin_position else reported
             out["height_mm"] = np.full(n, np.nan)
             out["twin_spread_mm"] = np.full(n, np.nan)
             out["twin_misfit"] = np.full(n, np.nan)
-            out["bad_channel"] = np.full(n, -1)
+            out["bad_channel"] = out.get("bad_channel", np.full(n, -1))   # the class-only twin's: the check's
             rows = np.flatnonzero(features.status == _core.STATUS_OK)
             if rows.size:
-                start = np.where(use[rows, None], xy[rows], np.nan)   # the forests' position, NaN: not run
+                start = (np.where(use[rows, None], xy[rows], np.nan) if self.twin_position   # NaN: not run
+                         else reported[rows])
                 twin = twin_match(self.site_map, self.twin_fit, features.take(rows), start, self.signal)
                 est = twin["log10_height_mm"]
                 ok = (np.asarray(twin["status"]) == 0) & np.isfinite(est)
                 energy_class[rows[ok]] = self.forest_energy.predict(est[ok, None])
                 out["height_mm"][rows[ok]] = 10.0 ** est[ok]
+                if not self.twin_position:
+                    return out
                 out["xy_mm"][rows[ok]] = np.asarray(twin["xy_mm"], float)[ok]
                 spread = np.asarray(twin["spread_mm"], float)[ok]
                 misfit = np.asarray(twin["misfit"], float)[ok]
@@ -497,4 +496,5 @@ class ImpactModel:
                    site_map=site_map, twin_fit=twin_fit, location_features=list(loc),
                    energy_class_features=list(energy), members=members, three_channel_class=three_channel,
                    three_channel_position=three_xy, three_channel_stack=three_stack,
-                   edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {})
+                   edge_travel=edge if any(n in EDGE_MEMBERS for n in names) else {},
+                   twin_position=card.get("position_source") != "forest")

@@ -50,10 +50,10 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
     # Without a site map (nor a virtual set) the forests' position is the one reported: the band picks as the
     # forests' out-of-fold positions of the training drops say (band_forests.py)
     band_choice = (ForestBandChoice(session, train_rows, settings or ForestSettings())
-                   if site_map is None and rig_drops is None and members else None)
+                   if (site_map is None or choose_twin) and rig_drops is None and members else None)
     cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops, band_choice=band_choice)
     feats = featurize(session.adc, cfg)
-    if choose_class and members and site_map is None:   # the level members' positions (level_members.py)
+    if choose_class and members and (site_map is None or choose_twin):   # the level members' positions
         add_level_positions(feats, session.adc, cfg)
         add_level_picks(feats, session.adc, cfg)   # and the picks the three-sensor path may read (three_level_positions.py)
     model = ImpactModel.fit(feats.take(train_rows), session.xy_mm[train_rows], session.height_mm[train_rows],
