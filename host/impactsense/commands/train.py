@@ -27,7 +27,8 @@ def register(sub) -> None:
                    help="this rig's calibrated twin (`impactsense calibrate DATA --out CAL.json`): with "
                         "--site-map auto the measured-trained model reads its site map (position and energy "
                         "class from the twin's match) when the training drops' out-of-fold figures say it "
-                        "beats the forests and the measured classifier; the model card's twin_choice records them")
+                        "beats the forests and the measured classifier, its class alone on the model's own "
+                        "position when only the class gains; the model card's twin_choice records them")
     p.add_argument("--exclude", default=None,
                    help="comma-separated recording ids to leave out (e.g. calibration drops), or a CAL.json")
     p.set_defaults(func=run)
@@ -132,8 +133,9 @@ def run(args) -> int:
                          choose_class=cal is None, rig_drops=rig_drops)
     choice = model.card.get("twin_choice")
     if choice:
-        print(f"twin's site map {'kept' if choice['use_twin'] else 'not kept'} (training drops, out of fold): "
-              f"MAE {choice['twin_mae_mm']:.2f} mm with it / {choice['forest_mae_mm']:.2f} without, class "
+        kept = "kept" if choice["use_twin"] else "kept for the class" if choice.get("use_twin_class") else "not kept"
+        print(f"twin's site map {kept} (training drops, out of fold): MAE {choice['twin_mae_mm']:.2f} mm with it / "
+              f"{choice.get('reported_mae_mm', choice['forest_mae_mm']):.2f} without, class "
               f"{choice['twin_class_accuracy']:.3f} / {choice['measured_class_accuracy']:.3f}")
         site = model.site_map
     print_choices(model.card)
