@@ -47,8 +47,8 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
         raise DataError(session.path / IMPACTS_FILE, "case_id", f"no case can be held out: the drops are in "
                         f"{session.n_cases} case(s) (give more cases, or --test-fraction 0)")
     cfg = signal or SignalConfig.for_rig(session.rig)
-    # Without a site map (nor a virtual set) the forests' position is the one reported: the band picks as the
-    # forests' out-of-fold positions of the training drops say (band_forests.py)
+    # Without a site map (nor a virtual set), or with a twin that may give the class only (twin_role.py), the forests'
+    # position is (or may be) the one reported: the band picks as their out-of-fold positions say (band_forests.py)
     band_choice = (ForestBandChoice(session, train_rows, settings or ForestSettings())
                    if (site_map is None or choose_twin) and rig_drops is None and members else None)
     cfg = fit_localiser(session, train_rows, cfg, rig_drops=rig_drops, band_choice=band_choice)
