@@ -15,8 +15,8 @@ accuracy >= 0.95 on every rig; the script exits 1 when a rig misses it.
 DATA --out CALS/<name>/CAL.json`) is trained as `train DATA --calibration CALS/<name>/CAL.json` does: with that
 twin's site map (built once and cached beside CAL.json) when the training drops' out-of-fold figures keep it
 (column "twin": kept / class (its class only: twin_role.py) / not kept / - without a calibration).
-Without a site map the energy class is the
-classifier forest or the linear height estimate, as the training drops' out-of-fold accuracy chooses
+Without a site map the energy class is the classifier forest or the linear height estimate, as the
+training drops' out-of-fold accuracy chooses
 (height_class.py; column "class by": forest / linear / twin). Columns "bnd" / "off": the class accuracy on the
 held-out drops from the two heights either side of the class threshold (the boundary heights, the training drops'
 highest below it and lowest at or above it) and on the others; the target reads the column "class" (all drops).
