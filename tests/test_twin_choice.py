@@ -197,3 +197,13 @@ def test_train_command_reads_the_calibrations_twin_and_records_the_choice(tmp_pa
     rec = model.card["twin_choice"]
     assert rec["use_twin"] and rec["n_drops"] > 100 and model.position_source == "twin"
     assert model.site_map.fingerprint() == SiteMap.load(BUNDLED).fingerprint()
+
+
+def test_the_board_matches_the_twin_only_where_the_host_reports_its_position():
+    """export's board model (board.models.retrain_for_board) reads the twin's site map only for a model whose
+    reported position is the twin's: a class-only twin exports as the model without it (same position as the host)."""
+    from impactsense.board.models import reports_twin_position
+    twin = {"site_map": "site_map.npz"}
+    assert reports_twin_position({"twin": twin, "position_source": "twin"})
+    assert not reports_twin_position({"twin": twin, "position_source": "forest"})   # twin_role's class only
+    assert not reports_twin_position({"position_source": "forest"})                 # no twin

@@ -324,10 +324,18 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     return Path(model.save(out_dir, extra_card=card))
 
 
+def reports_twin_position(card: dict) -> bool:
+    """Whether the board's model matches the twin: only where the host model reports the twin's position. A
+    class-only twin (twin_role.py: the position is the model's own) is exported as the model without it, so the
+    board reports the position the host does; its class is then the board's own classifier's."""
+    return "twin" in card and card.get("position_source") != "forest"
+
+
 def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=None) -> Path:
     """The model of MODEL_DIR (a 100 kHz `impactsense train` model) trained again on the board's captures of
     the same training drops, with the same forest settings; the held-out drops stay held out. A model with
-    the twin's site map gets the board's site map (board_site_map, cached in site_map_cache). A model whose
+    the twin's site map gets the board's site map (board_site_map, cached in site_map_cache; a class-only twin's
+does not: reports_twin_position). A model whose
     energy class was chosen by the out-of-fold rule (card "energy_class_choice") has it chosen again on the
     board's features. A channel the model leaves out (card signal.channel_left_out) stays left out."""
     card, card_path = read_card(model_dir)
@@ -346,7 +354,7 @@ def retrain_for_board(model_dir, out_dir, fs_hz: int = 50000, site_map_cache=Non
     rows = lambda key: np.asarray([index[int(r)] for r in split.get(key, [])], int)  # noqa: E731
     forest = {k: v for k, v in (card.get("forest") or {}).items() if k in ForestSettings.__dataclass_fields__}
     board_map = None
-    if "twin" in card:
+    if reports_twin_position(card):
         source = SiteMap.load(verified_path(model_dir, card, card_path, card["twin"].get("site_map", SITE_MAP_FILE),
                                             "twin.site_map"))
         board_map = board_site_map(source, session.rig, fs_hz, cache=site_map_cache)
