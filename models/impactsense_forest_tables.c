@@ -12624,5 +12624,6 @@ const impactsense_signal_config impactsense_signal = {
   0.0f,
   1.0f,
   0.0f,
-  0.0f
+  0.0f,
+  0
 };

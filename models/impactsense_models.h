@@ -105,6 +105,7 @@ typedef struct {
   float band_metric_yy;  // copy
   float band_slowness_per_decade;  // copy
   float band_log_energy_ref;  // copy
+  int32_t localiser_evaluation_cap;  // copy
 } impactsense_signal_config;
 extern const impactsense_signal_config impactsense_signal;
 

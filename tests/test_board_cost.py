@@ -200,3 +200,36 @@ def test_a_flagged_events_three_sensor_run_stops_at_its_own_cap():
         assert np.median(np.abs(np.c_[r["x_mm"], r["y_mm"]] - xy).max(1)) < 0.2
     for iso in (True, False):
         assert cost.flagged_run_instructions(1, iso) < cost.localiser_run_instructions(1, iso)
+
+
+def test_starts_within_one_starts_bound_cost_what_one_start_costs_and_the_event_stops_there():
+    """localiser_evaluation_cap (impactcore.h) caps each start's normal-equation evaluations on the event path
+    (process_event): two starts at half the core's cap (board.models.capped_starts) cost the estimate exactly what
+    one start costs; on the board's captures of a session no run takes more than 2 x the cap, 0 is the core's own
+    cap (the same positions bit for bit as before the field), and the capped runs place the drops as the free
+    two-start runs do within a millimetre on the median."""
+    from impactsense import _core
+    from impactsense.board.capture import board_captures
+    from impactsense.board.models import capped_starts
+    from impactsense.pipeline import as_int16, featurize
+
+    one = board_cfg()
+    two = capped_starts(one)
+    assert two.localiser_starts == 2 and two.localiser_evaluation_cap == cost.LOCALISER_EVALUATIONS // 2
+    assert cost.signal_instructions(two)["total"] == cost.signal_instructions(one)["total"]
+    assert cost.signal_instructions(board_cfg(localiser_starts=2))["total"] > cost.signal_instructions(one)["total"]
+
+    s = load_session("bundled")
+    caps, _, sig = board_captures(s.subset(np.arange(0, len(s), 8)), 50000)
+    free_cfg = sig.__class__.from_dict({**sig.to_dict(), "localiser_starts": 2})
+    free = featurize(caps, free_cfg)
+    capped = featurize(caps, capped_starts(sig))
+    zero = featurize(caps, sig.__class__.from_dict({**sig.to_dict(), "localiser_evaluation_cap": 0}))
+    np.testing.assert_array_equal(zero.phys_xy_mm, featurize(caps, sig).phys_xy_mm)
+    ok = np.isfinite(capped.phys_xy_mm).all(1) & np.isfinite(free.phys_xy_mm).all(1)
+    assert ok.mean() > 0.95
+    assert np.median(np.abs(capped.phys_xy_mm[ok] - free.phys_xy_mm[ok]).max(1)) < 1.0
+    counted = {}
+    for name, cfg in (("free", free_cfg), ("capped", capped_starts(sig))):
+        counted[name] = _core.process_batch(as_int16(caps, cfg), cfg.core(), cfg.localiser())["localiser_evaluations"]
+    assert counted["capped"].max() <= cost.LOCALISER_EVALUATIONS < counted["free"].max()

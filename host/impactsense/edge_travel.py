@@ -109,7 +109,8 @@ def _localise(raw: dict, signal, pick_set: str, correction_us: np.ndarray, witho
                                signal.plate_x_mm, signal.plate_y_mm, signal.huber_us,
                                list(_metric(signal, pick_set)),
                                scale.astype(np.float32).ravel().tolist() if scaled else [],
-                               int(signal.localiser_starts), int(signal.posterior_grid), int(max_evaluations))
+                               int(signal.localiser_starts), int(signal.posterior_grid),
+                               int(max_evaluations) or int(signal.localiser_evaluation_cap))
     xy = np.stack([out["x_mm"], out["y_mm"]], 1).astype(float)
     xy[(np.asarray(out["status"]) != 0) | (use.sum(1) < 3)] = np.nan
     return xy

@@ -14,8 +14,8 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
 - band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
 - localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
-  LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there) at
-  LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel metric) runs the costlier form;
+  LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there; fewer where the
+  signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel metric) runs the costlier form;
 - forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
   on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads (impactapp's
   forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering, the calls,
@@ -92,25 +92,31 @@ def isotropic(metric) -> bool:
     return tuple(float(q) for q in metric) == (1.0, 0.0, 1.0)
 
 
-def localiser_run_instructions(starts: int = 1, iso: bool = True) -> int:
-    """A bound on one localiser run: the screening and every start at its evaluation cap."""
+def evaluations_cap(cfg) -> int:
+    """A start's normal-equation evaluations at most (impactcore.h localiser_evaluation_cap; 0: the core's cap)."""
+    n = int(getattr(cfg, "localiser_evaluation_cap", 0) or 0)
+    return n if 0 < n < LOCALISER_EVALUATIONS else LOCALISER_EVALUATIONS
+
+
+def localiser_run_instructions(starts: int = 1, iso: bool = True, evaluations: int = LOCALISER_EVALUATIONS) -> int:
+    """A bound on one localiser run: the screening and every start at its evaluation cap (`evaluations`)."""
     k = 0 if iso else 1
-    return LOCALISER_SCREEN[k] + max(1, int(starts)) * LOCALISER_EVALUATIONS * LOCALISER_PER_EVALUATION[k]
+    return LOCALISER_SCREEN[k] + max(1, int(starts)) * int(evaluations) * LOCALISER_PER_EVALUATION[k]
 
 
 def signal_instructions(cfg, channels: int = 4) -> dict:
     """The event's cost without the models (instructions): {'base', 'band', 'localiser', 'total'} for the
     signal configuration cfg (pipeline.SignalConfig) at its rate."""
     band = channels * BAND_PER_SAMPLE * band_samples(cfg)
-    starts = max(1, int(cfg.localiser_starts))
+    starts, cap = max(1, int(cfg.localiser_starts)), evaluations_cap(cfg)
     loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
-                                                        cfg.travel_metric_yy)))
+                                                        cfg.travel_metric_yy)), cap)
     grid = int(getattr(cfg, "posterior_grid", 0))
     posterior = POSTERIOR_PER_POINT * grid * grid if grid > 1 else 0
     loc += posterior
     if band:
         loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
-                                                             cfg.band_metric_yy))) + posterior
+                                                             cfg.band_metric_yy)), cap) + posterior
     return {"base": BASE_INSTRUCTIONS, "band": band, "localiser": loc, "total": BASE_INSTRUCTIONS + band + loc}
 
 

@@ -153,7 +153,7 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
   if (loc.dispersion_exponent != 0.0f) {
     dispersion_scales(f, cfg.fs_hz, loc.dispersion_exponent, loc.dispersion_ref_hz, scale);
   }
-  localise_event(f, cfg, loc, -1, scale, &out->phys, &out->band);
+  localise_event(f, cfg, loc, -1, scale, &out->phys, &out->band, loc.localiser_evaluation_cap);
   if (out->phys.status == kOk) {
     const float metric[3] = {loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy};
     out->accepted = accept_eq35(toa, loc.sensor_x_mm, loc.sensor_y_mm, out->phys.x_mm, out->phys.y_mm,

@@ -143,7 +143,9 @@ enum ChannelFlag : uint8_t {
   X(ONE, float, band_metric_yy, 1.0f, COPY)                                                          \
   X(ONE, float, band_slowness_per_decade, 0.0f, COPY)  /* the band localiser's slowness 1 / v_band +   */ \
   X(ONE, float, band_log_energy_ref, 0.0f, COPY)  /* this x (log10 E - ref), E the channels' summed     */ \
-    /* energy over fs (counts^2 s): louder drops' band picks travel faster; 0: one velocity, bit for bit */
+    /* energy over fs (counts^2 s): louder drops' band picks travel faster; 0: one velocity, bit for bit */ \
+  X(ONE, int, localiser_evaluation_cap, 0, COPY)  /* a start's normal-equation evaluations (1 .. 16): more  */ \
+    /* starts within one start's bound on the board; 0: localise_tdoa's cap of 16, bit for bit          */
 
 #define IMPACTCORE_UNPAREN(...) __VA_ARGS__
 #define IMPACTCORE_DECLARE_ONE(type, name, def) type name = def;
