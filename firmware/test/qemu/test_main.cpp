@@ -266,13 +266,15 @@ int main() {
         toa[c] = f.ch[c].toa_us;
         use[c] = (f.ch[c].flags & (impactcore::kFlagNoOnset | impactcore::kFlagDead)) ? 0 : 1;
       }
-      // as process_event runs it: the travel metric, the dispersive slowness scales of this event, the starts
+      // as process_event runs it: the travel metric, the dispersive slowness scales of this event, the starts and
+      // their evaluation cap
       const float metric[3] = {cfg.loc.travel_metric_xx, cfg.loc.travel_metric_xy, cfg.loc.travel_metric_yy};
       const float* scale = cfg.loc.dispersion_exponent != 0.0f ? g_app.last_result().slowness_scale : nullptr;
       const uint64_t l0 = ticks();
       const impactcore::LocaliserResult loc = impactcore::localise_tdoa(
           toa, use, cfg.loc.sensor_x_mm, cfg.loc.sensor_y_mm, cfg.loc.velocity_mm_per_us, cfg.loc.sigma_us,
-          cfg.loc.plate_x_mm, cfg.loc.plate_y_mm, cfg.loc.huber_us, metric, scale, cfg.loc.localiser_starts);
+          cfg.loc.plate_x_mm, cfg.loc.plate_y_mm, cfg.loc.huber_us, metric, scale, cfg.loc.localiser_starts,
+          cfg.loc.posterior_grid, cfg.loc.localiser_evaluation_cap);
       put_int("TICKS_DROP localiser", static_cast<long long>(ticks() - l0));
       // with the band picks' localiser (impactcore.h band_velocity_mm_per_us) the position is the mean of both
       const impactcore::EventResult& last = g_app.last_result();
