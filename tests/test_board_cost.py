@@ -214,7 +214,7 @@ def test_starts_within_one_starts_bound_cost_what_one_start_costs_and_the_event_
     from impactsense.pipeline import as_int16, featurize
 
     one = board_cfg()
-    two = capped_starts(one)
+    two = capped_starts(one, 2)
     assert two.localiser_starts == 2 and two.localiser_evaluation_cap == cost.LOCALISER_EVALUATIONS // 2
     assert cost.signal_instructions(two)["total"] == cost.signal_instructions(one)["total"]
     assert cost.signal_instructions(board_cfg(localiser_starts=2))["total"] > cost.signal_instructions(one)["total"]
@@ -223,13 +223,13 @@ def test_starts_within_one_starts_bound_cost_what_one_start_costs_and_the_event_
     caps, _, sig = board_captures(s.subset(np.arange(0, len(s), 8)), 50000)
     free_cfg = sig.__class__.from_dict({**sig.to_dict(), "localiser_starts": 2})
     free = featurize(caps, free_cfg)
-    capped = featurize(caps, capped_starts(sig))
+    capped = featurize(caps, capped_starts(sig, 2))
     zero = featurize(caps, sig.__class__.from_dict({**sig.to_dict(), "localiser_evaluation_cap": 0}))
     np.testing.assert_array_equal(zero.phys_xy_mm, featurize(caps, sig).phys_xy_mm)
     ok = np.isfinite(capped.phys_xy_mm).all(1) & np.isfinite(free.phys_xy_mm).all(1)
     assert ok.mean() > 0.95
     assert np.median(np.abs(capped.phys_xy_mm[ok] - free.phys_xy_mm[ok]).max(1)) < 1.0
     counted = {}
-    for name, cfg in (("free", free_cfg), ("capped", capped_starts(sig))):
+    for name, cfg in (("free", free_cfg), ("capped", capped_starts(sig, 2))):
         counted[name] = _core.process_batch(as_int16(caps, cfg), cfg.core(), cfg.localiser())["localiser_evaluations"]
     assert counted["capped"].max() <= cost.LOCALISER_EVALUATIONS < counted["free"].max()

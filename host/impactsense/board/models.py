@@ -117,12 +117,14 @@ def choose_board_threshold(board, rows: np.ndarray, sig, fits=signal_fits):
 
 
 # More localiser starts within one start's bound (board.cost): n starts at LOCALISER_EVALUATIONS // n normal-equation
-# evaluations each (impactcore.h localiser_evaluation_cap) cost what one start at the core's cap costs. At 50 kHz a
-# start's run ends after a median of 8 evaluations (docs/findings.md "Session 19: boardgap2"), so the cap rarely
-# cuts one; the second start keeps a drop out beyond the sensors' hull from the wrong Huber valley. Kept for a
-# model without a twin when the training drops' out-of-fold corrected position (the boosted pair the budget
-# affords, folds grouped by position) beats one start's by BOOST_GAIN ("Session 21: boardgap").
-BOARD_STARTS = 2
+# evaluations each (impactcore.h localiser_evaluation_cap) cost what one start at the core's cap costs in the
+# estimate. At 50 kHz a start's run ends after a median of 8 evaluations (docs/findings.md "Session 19: boardgap2"),
+# so the cap rarely cuts one; the second start keeps a drop beyond the sensors' hull from the wrong Huber valley.
+# Tried (BOARD_STARTS 2) for a model without a twin, kept when the training drops' out-of-fold corrected position
+# (the boosted pair the budget affords, folds grouped by position) beats one start's by BOOST_GAIN. OFF (1): on
+# held-out drops it helped one split and hurt two, and the slowest qemu event went over the budget
+# ("Session 21: boardgap").
+BOARD_STARTS = 1
 
 
 def capped_starts(sig, starts: int = BOARD_STARTS):
@@ -156,11 +158,11 @@ def choose_board_starts(feats, feats_starts, xy_mm, cols, stages: int, seed: int
 
 def board_starts(model: ImpactModel, caps, feats, train_idx, session, rows, settings: ForestSettings,
                  choose_class: bool):
-    """(model, features, card entry): a model without a twin at one start where capped_starts' signal fits the
-    budget, fitted again with that signal on the board's captures `caps` when choose_board_starts says so (features
+    """(model, features, card entry): with BOARD_STARTS > 1, a model without a twin at one start where
+    capped_starts' signal fits the budget, fitted again with that signal on the board's captures `caps` when choose_board_starts says so (features
     `feats` at one start; the training rows train_idx of them, session rows `rows`; the card's "board_starts");
     any other model as it is (no entry)."""
-    if model.site_map is not None or int(model.signal.localiser_starts) != 1 or not signal_fits(
+    if BOARD_STARTS < 2 or model.site_map is not None or int(model.signal.localiser_starts) != 1 or not signal_fits(
             capped_starts(model.signal)):
         return model, feats, {}
     more = capped_starts(model.signal)
