@@ -54,7 +54,8 @@ def _simultaneous(board_samples, scan_step_us: float):
         for c in range(x.shape[1]):
             ph = np.exp(2j * np.pi * f * (c * scan_step_us * 1e-6))
             lvl = xp[:, c, :1]
-            out[:, c] = np.fft.irfft(np.fft.rfft(xp[:, c] - lvl, axis=-1) * ph, n=xp.shape[-1], axis=-1)[:, pad:pad + n] + lvl
+            shifted = np.fft.irfft(np.fft.rfft(xp[:, c] - lvl, axis=-1) * ph, n=xp.shape[-1], axis=-1)
+            out[:, c] = shifted[:, pad:pad + n] + lvl
         return board_samples(out.astype(np.float32), fs_in_hz, fs_hz, *a, **k)
     return wrapped
 
@@ -163,8 +164,9 @@ def main() -> int:
         sig = replace(sig0, onset_threshold_counts=float(board.signal.onset_threshold_counts))
         try:
             sig = fit_localiser(ns, tr, sig, choose_threshold=False, fits=None)
-            print(f"  unbudgeted signal: starts {sig.localiser_starts}, posterior grid {sig.posterior_grid}, dispersion "
-                  f"exponent {sig.dispersion_exponent:.3f}, band picks {sig.band_pick_hz:.0f} Hz", file=sys.stderr)
+            print(f"  unbudgeted signal: starts {sig.localiser_starts}, posterior grid {sig.posterior_grid}, "
+                  f"dispersion exponent {sig.dispersion_exponent:.3f}, band picks {sig.band_pick_hz:.0f} Hz",
+                  file=sys.stderr)
             f2 = featurize(caps, sig)
             m2 = ImpactModel.fit(f2.take(tr), xy[tr], s.height_mm[rows][tr], s.rig.ball_mass_g, sig, settings,
                                  members=True)
@@ -203,8 +205,9 @@ def main() -> int:
         ok = np.isfinite(p).all(1)
         rows_out[a] = {"mae_common_mm": float(np.abs(p[common] - truth[common]).mean()),
                        "mae_own_mm": float(np.abs(p[ok] - truth[ok]).mean()), "placed": int(ok.sum())}
-        print(f"  {a:20s} MAE per axis {rows_out[a]['mae_common_mm']:6.2f} mm (own drops {rows_out[a]['mae_own_mm']:.2f},"
-              f" {rows_out[a]['placed']} placed)")
+        r = rows_out[a]
+        print(f"  {a:20s} MAE per axis {r['mae_common_mm']:6.2f} mm (own drops {r['mae_own_mm']:.2f}, "
+              f"{r['placed']} placed)")
     if args.json:
         args.json.write_text(json.dumps({"data": str(s.path), "seed": split.get("seed"), "rows": rows_out}, indent=1))
     return 0

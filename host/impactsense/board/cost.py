@@ -15,7 +15,8 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
 - localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
   LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there; fewer where the
-  signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel metric) runs the costlier form;
+  signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel
+  metric) runs the costlier form;
 - forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
   on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads (impactapp's
   forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering, the calls,

@@ -159,9 +159,9 @@ def choose_board_starts(feats, feats_starts, xy_mm, cols, stages: int, seed: int
 def board_starts(model: ImpactModel, caps, feats, train_idx, session, rows, settings: ForestSettings,
                  choose_class: bool):
     """(model, features, card entry): with BOARD_STARTS > 1, a model without a twin at one start where
-    capped_starts' signal fits the budget, fitted again with that signal on the board's captures `caps` when choose_board_starts says so (features
-    `feats` at one start; the training rows train_idx of them, session rows `rows`; the card's "board_starts");
-    any other model as it is (no entry)."""
+    capped_starts' signal fits the budget is fitted again with that signal on the board's captures `caps` when
+    choose_board_starts says so (features `feats` at one start; the training rows train_idx of them, session rows
+    `rows`; the card's "board_starts"); any other model as it is (no entry)."""
     if BOARD_STARTS < 2 or model.site_map is not None or int(model.signal.localiser_starts) != 1 or not signal_fits(
             capped_starts(model.signal)):
         return model, feats, {}
