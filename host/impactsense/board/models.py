@@ -118,63 +118,12 @@ def choose_board_threshold(board, rows: np.ndarray, sig, fits=signal_fits):
 
 # More localiser starts within one start's bound (board.cost): n starts at LOCALISER_EVALUATIONS // n normal-equation
 # evaluations each (impactcore.h localiser_evaluation_cap) cost what one start at the core's cap costs in the
-# estimate. At 50 kHz a start's run ends after a median of 8 evaluations (docs/findings.md "Session 19: boardgap2"),
-# so the cap rarely cuts one; the second start keeps a drop beyond the sensors' hull from the wrong Huber valley.
-# Tried (BOARD_STARTS 2) for a model without a twin, kept when the training drops' out-of-fold corrected position
-# (the boosted pair the budget affords, folds grouped by position) beats one start's by BOOST_GAIN. OFF (1): on
-# held-out drops it helped one split and hurt two, and the slowest qemu event went over the budget
-# ("Session 21: boardgap").
-BOARD_STARTS = 1
-
-
-def capped_starts(sig, starts: int = BOARD_STARTS):
+# estimate. Export does not use it: measured for a model without a twin, two starts helped one held-out split and
+# hurt two, and the slowest qemu event went over the budget (docs/findings.md "Session 21: boardgap").
+def capped_starts(sig, starts: int):
     """sig with `starts` localiser starts at one start's evaluation bound (board.cost.LOCALISER_EVALUATIONS //
     starts evaluations each)."""
     return replace(sig, localiser_starts=int(starts), localiser_evaluation_cap=LOCALISER_EVALUATIONS // int(starts))
-
-
-def choose_board_starts(feats, feats_starts, xy_mm, cols, stages: int, seed: int = 0, n_folds: int = 5) -> dict:
-    """Out of fold on the training drops: the boosted pair of `stages` (board.boosted) correcting the physics
-    position of `feats` (one start) and of `feats_starts` (capped_starts' signal) from the vector's columns `cols`
-    (the model's location features); the card's record
-    {"out_of_fold_mae_mm": {"one", "more"}, "use_more"}: more starts when their MAE per axis is below BOOST_GAIN x
-    one start's."""
-    xy = np.asarray(xy_mm, float)
-    use = np.asarray(feats.usable, bool) & np.asarray(feats_starts.usable, bool)
-    groups = position_groups(xy[use])
-    k = min(n_folds, int(groups.max()) + 1) if use.any() else 0
-    err = {}
-    for name, f in (("one", feats), ("more", feats_starts)):
-        X = f.vector[use][:, cols]
-        resid = xy[use] - np.asarray(f.phys_xy_mm, float)[use]
-        e = []
-        for tr, va in (GroupKFold(k).split(X, groups=groups) if k >= 2 else ()):
-            e += [np.abs(boosted_regressor(X[tr], resid[tr, c], stages, seed).predict(X[va]) - resid[va, c])
-                  for c in (0, 1)]
-        err[name] = float(np.mean(np.concatenate(e))) if e else float("inf")
-    return {"out_of_fold_mae_mm": {n: round(v, 3) for n, v in err.items()}, "stages": int(stages),
-            "use_more": bool(err["more"] < BOOST_GAIN * err["one"])}
-
-
-def board_starts(model: ImpactModel, caps, feats, train_idx, session, rows, settings: ForestSettings,
-                 choose_class: bool):
-    """(model, features, card entry): with BOARD_STARTS > 1, a model without a twin at one start where
-    capped_starts' signal fits the budget is fitted again with that signal on the board's captures `caps` when
-    choose_board_starts says so (features `feats` at one start; the training rows train_idx of them, session rows
-    `rows`; the card's "board_starts"); any other model as it is (no entry)."""
-    if BOARD_STARTS < 2 or model.site_map is not None or int(model.signal.localiser_starts) != 1 or not signal_fits(
-            capped_starts(model.signal)):
-        return model, feats, {}
-    more = capped_starts(model.signal)
-    feats_more = featurize(caps, more)
-    cols = columns(model.location_features)
-    xy, h = session.xy_mm[rows][train_idx], session.height_mm[rows][train_idx]
-    record = choose_board_starts(feats.take(train_idx), feats_more.take(train_idx), xy, cols,
-                                 stages_within(forests_budget(model, len(cols))), settings.seed)
-    if not record["use_more"]:
-        return model, feats, {"board_starts": record}
-    return (ImpactModel.fit(feats_more.take(train_idx), xy, h, session.rig.ball_mass_g, more, settings,
-                            members=False, choose_class=choose_class), feats_more, {"board_starts": record})
 
 
 def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings: ForestSettings,
@@ -358,10 +307,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             site_map=site_map, members=False, choose_class=choose_class,
                             twin_rows=None if simulated_rows is None else
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
-    model, feats, starts = board_starts(model, caps, feats, np.flatnonzero(is_train), session, rows, settings,
-                                        choose_class)
     if model.site_map is None:
-        extra_card = {**extra_card, **starts, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
+        extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
                                                          session.xy_mm[rows][is_train], settings, any(left_out))}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:
