@@ -363,3 +363,35 @@ def test_onset_gain_of_a_bond_channel_is_its_lowpass_gain_at_the_pick_frequency(
     assert f_pick > 3000.0
     assert got[1] == pytest.approx(0.7 * lowpass_gain_at(f_pick, 3000.0, float(base.rig.fs_hz), 1), rel=1e-6)
     assert got[1] < 0.35 and got[0] == got[2] == got[3] == 1.0
+
+
+def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path):
+    """After a sensor_position diagnosis the loop's training data carries the disc where the diagnosis places it
+    (its rig.json: the model trained on it localises with that geometry; the inner region stays the declared
+    one), the card's record says which disc moved, and `evaluate`'s rig check still takes the sessions' declared
+    rig.json (the card's declared positions) and rejects a rig that is neither; a gain moves no disc."""
+    from impactsense.checks import check_rig, rig_summary
+    from impactsense.errors import DataError
+    from impactsense.loop import diagnosed_rig, effect_dicts, measured_training_session, moved_sensors
+    from impactsense.signal import SignalConfig
+    base = load_session("bundled:session-1").subset(np.arange(24))
+    ref = R.fit_reference(R.extract(base))
+    move = D.Candidate("sensor_position", 2, {"dx_mm": 6.0, "dy_mm": -3.0, "offset_mm": 6.7}, 20.0, 0.0, True, True, [])
+    out = measured_training_session(base, [move], ref, tmp_path / "moved")
+    assert np.allclose(out.rig.sensor_xy_mm[2] - base.rig.sensor_xy_mm[2], [6.0, -3.0], atol=1e-4)
+    assert np.allclose(np.delete(out.rig.sensor_xy_mm, 2, 0), np.delete(base.rig.sensor_xy_mm, 2, 0))
+    assert out.rig.inner_region_mm == pytest.approx(base.rig.inner_region_mm)
+    assert np.allclose(SignalConfig.for_rig(out.rig).sensor_xy_mm, out.rig.sensor_xy_mm)   # the model's geometry
+    moved = moved_sensors(base.rig, diagnosed_rig(base.rig, effect_dicts([move])))
+    assert [m["sensor"] for m in moved] == [2]
+    assert np.allclose(np.subtract(moved[0]["diagnosed_xy_mm"], moved[0]["declared_xy_mm"]), [6.0, -3.0], atol=1e-3)
+    gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
+    assert np.array_equal(measured_training_session(base, [gain], ref, tmp_path / "gain").rig.sensor_xy_mm,
+                          base.rig.sensor_xy_mm)
+    card = {"rig": {**rig_summary(out.rig), "declared_sensor_xy_mm": rig_summary(base.rig)["sensor_xy_mm"]}}
+    check_rig(card, base.rig, "card", "DATA_NEW")   # the sessions' declared rig.json: taken
+    other = diagnosed_rig(base.rig, effect_dicts([dataclasses.replace(move, sensor=0)]))
+    with pytest.raises(DataError, match="sensors at"):
+        check_rig(card, other, "card", "DATA_OTHER")
+    with pytest.raises(DataError, match="sensors at"):   # without the declared positions: the model's own rig
+        check_rig({"rig": rig_summary(out.rig)}, base.rig, "card", "DATA_NEW")

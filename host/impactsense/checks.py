@@ -22,7 +22,9 @@ def rig_summary(rig: Rig) -> dict:
 
 def check_rig(card: dict, rig: Rig, card_path, session_path) -> None:
     """DataError unless the session's rig.json is the rig of the model card (sensors, sample rate, plate,
-    logger). Cards without a "rig" entry are checked on what their signal settings hold."""
+    logger). Cards without a "rig" entry are checked on what their signal settings hold. A retrained model whose
+    rig has a disc where the diagnosis placed it (retrain's `sensors_moved`) keeps the sessions' declared
+    positions (`declared_sensor_xy_mm`): its sessions' rig.json is checked against those."""
     want = card.get("rig") if isinstance(card.get("rig"), dict) else {}
     signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
     where = f"{session_path}/{RIG_FILE}"
@@ -31,7 +33,8 @@ def check_rig(card: dict, rig: Rig, card_path, session_path) -> None:
     if isinstance(fs, (int, float)) and abs(float(fs) - rig.fs_hz) > 1e-6 * max(float(fs), 1.0):
         problems.append(f"fs_hz {rig.fs_hz:g} but the model was trained at {float(fs):g}")
     try:
-        card_xy = (np.asarray(want["sensor_xy_mm"], float) if "sensor_xy_mm" in want else
+        key = "declared_sensor_xy_mm" if "declared_sensor_xy_mm" in want else "sensor_xy_mm"
+        card_xy = (np.asarray(want[key], float) if key in want else
                    np.stack([np.asarray(signal["sensor_x_mm"], float), np.asarray(signal["sensor_y_mm"], float)], 1))
     except (KeyError, TypeError, ValueError):
         card_xy = None

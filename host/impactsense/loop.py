@@ -89,19 +89,38 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
     return float((1.0 + change_pct / 100.0) ** (1.0 / n))
 
 
-def corrected_twin(params, rig, effects):
-    """(SimParams, Rig) with the twin effects of `effects` put in (others ignored)."""
+def diagnosed_rig(rig, effects):
+    """`rig` with each significant sensor_position of `effects` (dicts) put in: the discs where the diagnosis
+    places them. The rig of the loop's training sessions, so the model trained on them (its localiser, its
+    features' geometry, the card's rig) carries the diagnosed position (`moved_sensors` says which); the inner
+    region stays the declared rig's."""
     from .data import rig_from_dict
 
-    twin, _ = split_effects(effects)
+    moves = [e for e in split_effects(effects)[0] if e["effect"] == "sensor_position"]
+    if not moves:
+        return rig
     raw = json.loads(json.dumps(rig.to_dict()))
+    raw["inner_region_mm"] = list(rig.inner_region_mm)   # the plate's region the metrics report: the declared one
+    for e in moves:
+        sen = raw["sensors"][e["sensor"]]
+        sen["x_mm"] = float(sen["x_mm"]) + float(e["params"]["dx_mm"])
+        sen["y_mm"] = float(sen["y_mm"]) + float(e["params"]["dy_mm"])
+    return rig_from_dict(raw)
+
+
+def moved_sensors(declared, diagnosed) -> list[dict]:
+    """The card's record of the discs the diagnosed rig moved: sensor, declared and diagnosed (x, y) in mm."""
+    a, b = np.asarray(declared.sensor_xy_mm, float), np.asarray(diagnosed.sensor_xy_mm, float)
+    return [{"sensor": int(k), "declared_xy_mm": a[k].round(3).tolist(), "diagnosed_xy_mm": b[k].round(3).tolist()}
+            for k in range(len(a)) if np.any(a[k] != b[k])]
+
+
+def corrected_twin(params, rig, effects):
+    """(SimParams, Rig) with the twin effects of `effects` put in (others ignored): the rig is `diagnosed_rig`."""
+    twin, _ = split_effects(effects)
     for e in twin:
         p = e["params"]
-        if e["effect"] == "sensor_position":
-            sen = raw["sensors"][e["sensor"]]
-            sen["x_mm"] = float(sen["x_mm"]) + p["dx_mm"]
-            sen["y_mm"] = float(sen["y_mm"]) + p["dy_mm"]
-        elif e["effect"] == "wave_speed":
+        if e["effect"] == "wave_speed":
             v_ref = p["velocity_m_s"] / (1.0 + p["change_pct"] / 100.0)
             scale = p["e_scale"] if "e_scale" in p else e_scale_for_speed(params, v_ref, p["change_pct"])
             params = dataclasses.replace(params, e_pa=params.e_pa * scale)
@@ -109,13 +128,13 @@ def corrected_twin(params, rig, effects):
             d_s = params.damping_per_s * p["damping_scale"] if "damping_scale" in p else \
                 params.damping_per_s + 2.0 * p["extra_decay_per_s"]
             params = dataclasses.replace(params, damping_per_s=d_s)
-    return params, rig_from_dict(raw)
+    return params, diagnosed_rig(rig, effects)
 
 
 def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
                           workers: int = 2):
     """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after;
-    written as a session folder (DATA_REF's rig.json: the declared rig) and returned loaded."""
+    written as a session folder (its rig.json: the corrected twin's rig, `diagnosed_rig`) and returned loaded."""
     from .data import load_session, write_session
     from .effects import context
     from .effects.apply import apply_effects
@@ -126,7 +145,7 @@ def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: fl
                          workers=workers, progress=False)
     _, signal = split_effects(effects)
     adc = apply_effects(adc, signal, context(base, slowness_us_per_mm), seed)
-    path = write_session(out_dir, base.rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
+    path = write_session(out_dir, sim_rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
                          base.repetition)
     return load_session(path)
 
@@ -185,7 +204,7 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
     """DATA_REF's recordings with every diagnosed effect's signal model put in (`training_draws` copies, each
     with its own random draws), and with a twin (SimParams) and a random effect, `twin_positions_wanted` drops
     of the corrected twin at new positions (`twin_positions`, `twin_drops`; each its own case, after DATA_REF's
-    rows), written and loaded."""
+    rows), written (rig.json: `diagnosed_rig`, a moved disc where the diagnosis places it) and loaded."""
     from .commands.retrain import augment
     from .data import load_session, write_session
 
@@ -204,7 +223,7 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
         cols = [np.concatenate([c, v]) for c, v in zip(cols, new)]
         case = np.concatenate([case, int(np.max(base.case_id)) + 1 + np.arange(n)])
         reps = np.concatenate([reps, np.zeros(n, reps.dtype)])
-    path = write_session(out_dir, base.rig, *cols, adc, case, reps)
+    path = write_session(out_dir, diagnosed_rig(base.rig, effect_dicts(accepted)), *cols, adc, case, reps)
     return load_session(path)
 
 

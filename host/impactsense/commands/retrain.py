@@ -112,6 +112,7 @@ def run(args) -> int:
             model, split = keep_better(card, model, split, plain, plain_split, data, args.seed)
         if model is not plain:   # the reference model kept (bond choice): written as it served DATA_NEW
             fit_into_training_data(model, split, train_on, measured, accepted, left_out, out)
+        note_sensors_moved(card, model, base, model is not plain)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
         if args.twin:
@@ -122,7 +123,8 @@ def run(args) -> int:
         from ..diagnose import write_report
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
-    print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"))
+    print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"),
+                  card["retrain"]["sensors_moved"])
     if card["retrain"].get("model_choice", {}).get("chosen") == "reference":
         print(f"the REFERENCE MODEL IS KEPT: {card['retrain']['model_kept_why']}")
     warning = worse_than_baseline(rows, accepted, data.name)
@@ -132,11 +134,15 @@ def run(args) -> int:
 
 
 def retrain_card(result, base, data, accepted, left_out) -> dict:
-    """What the model card keeps of the diagnosis and the retrain."""
+    """What the model card keeps of the diagnosis and the retrain; `sensors_moved`: the discs the retrained
+    model's rig (the card's `rig`, its localiser and features) has where the diagnosis placed them."""
+    from ..loop import diagnosed_rig, effect_dicts, moved_sensors
+
     return {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
             "retrain": {"baseline": str(base.path), "data": str(data.path),
                         "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
                                           for c in accepted],
+                        "sensors_moved": moved_sensors(base.rig, diagnosed_rig(base.rig, effect_dicts(accepted))),
                         "channels_left_out": left_out}}
 
 
@@ -213,6 +219,19 @@ def fit_into_training_data(model, split, train_on, measured, accepted, left_out,
         model.signal = leave_out(model.signal, left_out)
 
 
+def note_sensors_moved(card: dict, model, base, retrained: bool) -> None:
+    """The card's rig: the written model's (a retrained one's has the diagnosed positions, `sensors_moved`) with
+    DATA_REF's declared sensor positions beside them (`declared_sensor_xy_mm`: its sessions' rig.json, which
+    `evaluate` checks); the reference model kept: no disc moved."""
+    from ..checks import rig_summary
+
+    if not retrained:
+        card["retrain"]["sensors_moved"] = []
+    if card["retrain"]["sensors_moved"]:
+        card["rig"] = {**model.card.get("rig", {}),
+                       "declared_sensor_xy_mm": rig_summary(base.rig)["sensor_xy_mm"]}
+
+
 def leave_out(signal, channels):
     """`signal` with the core's channel_left_out set on `channels` (the core treats them as without an onset)."""
     from dataclasses import replace
@@ -229,9 +248,14 @@ def reference_kept_why(choice: dict) -> str:
             f"with the effects is kept beside it")
 
 
-def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None) -> None:
+def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None,
+                  card_moves=()) -> None:
     """retrain's printout: the effects put in, the channels left out, both models' scores on DATA_NEW."""
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
+    for m in card_moves:
+        print(f"sensor {m['sensor']}: the retrained model's rig has it at ({m['diagnosed_xy_mm'][0]:.1f}, "
+              f"{m['diagnosed_xy_mm'][1]:.1f}) mm (declared ({m['declared_xy_mm'][0]:.1f}, "
+              f"{m['declared_xy_mm'][1]:.1f})): the diagnosed move")
     if choice is not None:
         print(f"channel {choice['channel']}'s bond: {name}'s drops placed by the model with its low-pass and gain "
               f"{choice['four_mae_mm']:.2f} mm, with the channel left out {choice['left_out_mae_mm']:.2f} mm "
