@@ -30,6 +30,10 @@ with the change's exact draw taken out again (`loop_sessions.without_change`): w
 without the change, beside the unchanged sessions' mean (a printed column, not a target: a session's
 positions alone move its MAE; docs/findings.md "Session 21: loopsignal").
 
+Any other change (a move, a bond, a plate change): with `--controls` (loop_sessions) each changed session's own
+drops are also recorded without the change (`<name>-control`), and the same column is the reference model's MAE
+on them (docs/findings.md "Session 21: loopmove").
+
 Targets (exit 1 on a miss): every change named first with its sensor; sizes within tolerance (delay 1 us,
 move 2 mm, gain 0.05, E 1 % via `impactsense.plate_scan.e_scale_scan`: the twin's own pick-velocity curve on the session's drops, D_s 5 % of D_s); no effect named on the unchanged sessions; after the loop the
 whole-plate MAE on each changed session <= 1.2 x the unchanged sessions' mean MAE of the reference model, and
@@ -171,8 +175,11 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     from impactsense.commands.retrain import score
     row["before"] = score(sess, ref_model)
     plain = loop_sessions.without_change(sess.adc, spec, sess.rig)
+    control = Path(args.sessions) / f"{name}-control"   # loop_sessions --controls: its drops made without the change
     if plain is not None:   # an additive change: its own drops without it, the session's own yardstick
         row["own_unchanged"] = score(replace(sess, adc=plain), ref_model)
+    elif (control / "recordings.npz").exists():   # any change: the same drops recorded without it
+        row["own_unchanged"] = score(load_session(control), ref_model)
     loop = {"rows": {"reference model (before)": row["before"]}}
     if sig:
         # as `impactsense retrain`: a debonded channel's low-pass and gain sized on the recordings (fit_bond)
@@ -240,7 +247,7 @@ def run(args) -> dict:
     rows = []
     unchanged_twin = {}
     for name, spec in man["sessions"].items():
-        if name == "ref" or (only and name not in only):
+        if name == "ref" or (only and name not in only) or "control_of" in spec:
             continue
         t0 = time.time()
         if spec["kind"] == "none":

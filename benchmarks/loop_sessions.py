@@ -2,13 +2,15 @@
 
     python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
         [--element-mm 3.0] [--duration-ms 10] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
-        [--noise-counts C,C]
+        [--noise-counts C,C] [--controls]
 
 Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
 positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
 
 - `ref`                   the reference session (the twin of the rig as declared)
 - `same-1 .. same-5`      unchanged: other positions, other position jitter and noise draws
+- `<name>-control`        (`--controls`) a changed session's own drops (positions, jitter, noise seed) without
+                          its change: the unchanged MAE at the same positions
 - `move-<deg>`            FEM: one sensor glued 5-10 mm away in direction <deg> (0, 45, ..., 315 on seed 0;
                           another seed rotates the eight and permutes the sensors), rig.json
                           still declaring the old centre; the sensor rotates with the direction, so some moves
@@ -104,6 +106,14 @@ def spec_list(seed: int, noise_counts=()) -> list[dict]:
         specs.append({"name": f"noise-{c:g}", "kind": "signal", "seed": seed + 30 + k,
                       "truth": {"effect": "noise", "sensor": None, "params": {"noise_counts_rms": float(c)}}})
     return specs
+
+
+def control_specs(specs: list[dict], only=None) -> list[dict]:
+    """`<name>-control` per changed session (of `only`, when given): the same declared drops, landing jitter and
+    noise seed recorded WITHOUT the change (the unchanged session at the changed one's own positions: a session's
+    MAE depends on where its 40 cases fell)."""
+    return [{"name": f"{s['name']}-control", "kind": "none", "seed": s["seed"], "control_of": s["name"]}
+            for s in specs if s.get("truth") and (only is None or s["name"] in only)]
 
 
 # ---- signal-level changes (independent of impactsense.effects) ------------------------------------------
@@ -258,8 +268,11 @@ def generate(args) -> dict:
     if man.get("settings") != key:
         man = {"settings": key, "sessions": {}}
     only = set(args.only.split(",")) if args.only else None
-    for spec in spec_list(args.seed, args.noise_counts):
-        if only and spec["name"] not in only:
+    specs = spec_list(args.seed, args.noise_counts)
+    if args.controls:
+        specs = specs + control_specs(specs, only)
+    for spec in specs:
+        if only and spec["name"] not in only and spec.get("control_of") not in only:
             continue
         if man["sessions"].get(spec["name"]) == spec and (out / spec["name"] / "recordings.npz").exists():
             continue
@@ -290,6 +303,8 @@ def parse(argv=None):
                     help="CAL.json, or 'rig' for the rig's material defaults (default: the bundled twin for the "
                          "bundled rig, 'rig' for any other --rig)")
     ap.add_argument("--only", default=None, help="comma-separated session names")
+    ap.add_argument("--controls", action="store_true",
+                    help="also `<name>-control` per changed session: its own drops without the change")
     ap.add_argument("--noise-counts", type=lambda v: [float(c) for c in v.split(",")], default=[],
                     metavar="C,C", help="white-noise sessions more (noise-<C>), one at each level (counts rms)")
     args = ap.parse_args(argv)

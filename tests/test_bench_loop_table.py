@@ -35,3 +35,19 @@ def test_a_twin_after_is_held_to_the_twin_with_no_effect_on_the_unchanged_sessio
 def test_a_measured_after_keeps_the_measured_yardstick():
     assert bench_loop.table(_rows(measured_after=4.7)) == 0     # 4.7 <= 1.2 x 4.0
     assert bench_loop.table(_rows(measured_after=4.9)) == 1
+
+
+def test_the_issue_table_gives_the_ratio_to_the_same_drops_without_the_change(capsys):
+    """loop_sessions --controls: a changed session's own drops recorded without its change (same seed, kind none);
+    the issue table's own-drops column divides the kept after by the reference model's MAE on them."""
+    import loop_sessions
+    specs = loop_sessions.spec_list(5, [])
+    controls = loop_sessions.control_specs(specs)
+    changed = [s for s in specs if s.get("truth")]
+    assert [c["control_of"] for c in controls] == [s["name"] for s in changed]
+    assert all(c["kind"] == "none" and c["seed"] == s["seed"] for c, s in zip(controls, changed))
+    assert [c["control_of"] for c in loop_sessions.control_specs(specs, {"move-10", "same-1"})] == ["move-10"]
+    out = _rows(measured_after=4.8)
+    out["rows"][-1]["own_unchanged"] = _mae(4.0)   # one_changed's: without_change's, else the control's
+    bench_loop.table(out)
+    assert "| 4.00, 1.20 |" in capsys.readouterr().out
