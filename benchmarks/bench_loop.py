@@ -143,19 +143,18 @@ def train_score(session, trees: int, seed: int, signal=None):
 
 def cached_twin_session(ref, sim_params, effects, folder: Path, slow: float, seed: int, workers: int):
     """`loop.twin_training_session`, kept in `folder` with its inputs (twin-key.json): a later run with the same
-    reference recordings, twin, effects and seed loads it instead of simulating it again (its rig the diagnosed
-    one, `loop.diagnosed_rig`, as the function writes it; a folder written before the rig carried the move has the
-    same recordings)."""
+    reference recordings, twin, effects and seed loads it instead of simulating it again (its rig
+    `loop.training_rig`, as the function writes it: the recordings do not depend on it)."""
     import dataclasses
 
     from impactsense.data import load_session
-    from impactsense.loop import diagnosed_rig, twin_training_session
+    from impactsense.loop import training_rig, twin_training_session
 
     key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": effects, "seed": seed},
                      sort_keys=True, default=float)   # the slowness is the reference recordings' (their fingerprint)
     stamp = folder / "twin-key.json"
     if stamp.exists() and stamp.read_text() == key:
-        return dataclasses.replace(load_session(folder), rig=diagnosed_rig(ref.rig, effects))
+        return dataclasses.replace(load_session(folder), rig=training_rig(ref.rig, effects))
     sess = twin_training_session(ref, sim_params, effects, folder, slow, seed, workers)
     stamp.write_text(key)
     return sess

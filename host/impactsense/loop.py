@@ -65,6 +65,9 @@ BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and 
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
+# The training sessions' rig carries a diagnosed move (`training_rig`). Off: measured on loop sessions it moves the
+# physics localiser's MAE down on most moves but the reported MAE both ways (docs/findings.md "Session 21: loopmove")
+RIG_CARRIES_MOVE = False
 
 
 def split_effects(effects) -> tuple[list, list]:
@@ -91,9 +94,9 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
 
 def diagnosed_rig(rig, effects):
     """`rig` with each significant sensor_position of `effects` (dicts) put in: the discs where the diagnosis
-    places them. The rig of the loop's training sessions, so the model trained on them (its localiser, its
-    features' geometry, the card's rig) carries the diagnosed position (`moved_sensors` says which); the inner
-    region stays the declared rig's."""
+    places them (the corrected twin's rig; with RIG_CARRIES_MOVE the loop's training sessions' too, so the model
+    trained on them, its localiser, its features' geometry and the card's rig, carries the diagnosed position:
+    `moved_sensors` says which); the inner region stays the declared rig's."""
     from .data import rig_from_dict
 
     moves = [e for e in split_effects(effects)[0] if e["effect"] == "sensor_position"]
@@ -106,6 +109,12 @@ def diagnosed_rig(rig, effects):
         sen["x_mm"] = float(sen["x_mm"]) + float(e["params"]["dx_mm"])
         sen["y_mm"] = float(sen["y_mm"]) + float(e["params"]["dy_mm"])
     return rig_from_dict(raw)
+
+
+def training_rig(rig, effects):
+    """The rig the loop's training sessions are written with: `diagnosed_rig` when RIG_CARRIES_MOVE, else `rig`
+    (the declared one; the move is then in the recordings only, and the forests learn it)."""
+    return diagnosed_rig(rig, effects) if RIG_CARRIES_MOVE else rig
 
 
 def moved_sensors(declared, diagnosed) -> list[dict]:
@@ -134,7 +143,7 @@ def corrected_twin(params, rig, effects):
 def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
                           workers: int = 2):
     """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after;
-    written as a session folder (its rig.json: the corrected twin's rig, `diagnosed_rig`) and returned loaded."""
+    written as a session folder (its rig.json: `training_rig`) and returned loaded."""
     from .data import load_session, write_session
     from .effects import context
     from .effects.apply import apply_effects
@@ -145,8 +154,8 @@ def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: fl
                          workers=workers, progress=False)
     _, signal = split_effects(effects)
     adc = apply_effects(adc, signal, context(base, slowness_us_per_mm), seed)
-    path = write_session(out_dir, sim_rig, base.x_mm, base.y_mm, base.height_mm, adc, base.case_id,
-                         base.repetition)
+    path = write_session(out_dir, training_rig(base.rig, effects), base.x_mm, base.y_mm, base.height_mm, adc,
+                         base.case_id, base.repetition)
     return load_session(path)
 
 
@@ -204,7 +213,8 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
     """DATA_REF's recordings with every diagnosed effect's signal model put in (`training_draws` copies, each
     with its own random draws), and with a twin (SimParams) and a random effect, `twin_positions_wanted` drops
     of the corrected twin at new positions (`twin_positions`, `twin_drops`; each its own case, after DATA_REF's
-    rows), written (rig.json: `diagnosed_rig`, a moved disc where the diagnosis places it) and loaded."""
+    rows), written (rig.json: `training_rig`: with RIG_CARRIES_MOVE a moved disc where the diagnosis places it)
+    and loaded."""
     from .commands.retrain import augment
     from .data import load_session, write_session
 
@@ -223,7 +233,7 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
         cols = [np.concatenate([c, v]) for c, v in zip(cols, new)]
         case = np.concatenate([case, int(np.max(base.case_id)) + 1 + np.arange(n)])
         reps = np.concatenate([reps, np.zeros(n, reps.dtype)])
-    path = write_session(out_dir, diagnosed_rig(base.rig, effect_dicts(accepted)), *cols, adc, case, reps)
+    path = write_session(out_dir, training_rig(base.rig, effect_dicts(accepted)), *cols, adc, case, reps)
     return load_session(path)
 
 

@@ -136,13 +136,13 @@ def run(args) -> int:
 def retrain_card(result, base, data, accepted, left_out) -> dict:
     """What the model card keeps of the diagnosis and the retrain; `sensors_moved`: the discs the retrained
     model's rig (the card's `rig`, its localiser and features) has where the diagnosis placed them."""
-    from ..loop import diagnosed_rig, effect_dicts, moved_sensors
+    from ..loop import effect_dicts, moved_sensors, training_rig
 
     return {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
             "retrain": {"baseline": str(base.path), "data": str(data.path),
                         "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
                                           for c in accepted],
-                        "sensors_moved": moved_sensors(base.rig, diagnosed_rig(base.rig, effect_dicts(accepted))),
+                        "sensors_moved": moved_sensors(base.rig, training_rig(base.rig, effect_dicts(accepted))),
                         "channels_left_out": left_out}}
 
 
