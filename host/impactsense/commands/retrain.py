@@ -123,8 +123,7 @@ def run(args) -> int:
         from ..diagnose import write_report
         write_report(result, details, args.report,
                      {"rows": rows, "note": f"every drop of {data.name} (its own labels)"})
-    print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"),
-                  card["retrain"]["sensors_moved"])
+    print_summary(result, accepted, rows, data.name, site is not None, out, card["retrain"].get("bond_choice"))
     if card["retrain"].get("model_choice", {}).get("chosen") == "reference":
         print(f"the REFERENCE MODEL IS KEPT: {card['retrain']['model_kept_why']}")
     warning = worse_than_baseline(rows, accepted, data.name)
@@ -222,7 +221,7 @@ def fit_into_training_data(model, split, train_on, measured, accepted, left_out,
 def note_sensors_moved(card: dict, model, base, retrained: bool) -> None:
     """The card's rig: the written model's (a retrained one's has the diagnosed positions, `sensors_moved`) with
     DATA_REF's declared sensor positions beside them (`declared_sensor_xy_mm`: its sessions' rig.json, which
-    `evaluate` checks); the reference model kept: no disc moved."""
+    `evaluate` checks; printed); the reference model kept: no disc moved."""
     from ..checks import rig_summary
 
     if not retrained:
@@ -230,6 +229,10 @@ def note_sensors_moved(card: dict, model, base, retrained: bool) -> None:
     if card["retrain"]["sensors_moved"]:
         card["rig"] = {**model.card.get("rig", {}),
                        "declared_sensor_xy_mm": rig_summary(base.rig)["sensor_xy_mm"]}
+    for m in card["retrain"]["sensors_moved"]:
+        print(f"sensor {m['sensor']}: the retrained model's rig has it at ({m['diagnosed_xy_mm'][0]:.1f}, "
+              f"{m['diagnosed_xy_mm'][1]:.1f}) mm (declared ({m['declared_xy_mm'][0]:.1f}, "
+              f"{m['declared_xy_mm'][1]:.1f})): the diagnosed move")
 
 
 def leave_out(signal, channels):
@@ -248,14 +251,9 @@ def reference_kept_why(choice: dict) -> str:
             f"with the effects is kept beside it")
 
 
-def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None,
-                  card_moves=()) -> None:
+def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out, choice=None) -> None:
     """retrain's printout: the effects put in, the channels left out, both models' scores on DATA_NEW."""
     print("effects added: " + (", ".join(f"{c.effect}[{c.sensor}]" for c in accepted) or "none"))
-    for m in card_moves:
-        print(f"sensor {m['sensor']}: the retrained model's rig has it at ({m['diagnosed_xy_mm'][0]:.1f}, "
-              f"{m['diagnosed_xy_mm'][1]:.1f}) mm (declared ({m['declared_xy_mm'][0]:.1f}, "
-              f"{m['declared_xy_mm'][1]:.1f})): the diagnosed move")
     if choice is not None:
         print(f"channel {choice['channel']}'s bond: {name}'s drops placed by the model with its low-pass and gain "
               f"{choice['four_mae_mm']:.2f} mm, with the channel left out {choice['left_out_mae_mm']:.2f} mm "
