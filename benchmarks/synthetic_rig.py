@@ -16,8 +16,10 @@ polycarbonate sheet, sensors on an asymmetric quadrilateral, 200 kHz, 12-bit), b
 a trapezoid with two sensors 48 mm apart, a 20 mm ball of 33 g, 250 kHz, 10-bit, 6 ms records), cfrp-crossply
 (a graphite/epoxy cross-ply, E1 ~ E2 with a low G12, axes at 90 deg, two sensors 14 mm from an edge, 100 kHz,
 16-bit with a negative-going front end whose DC sits 2300 counts under the declared bias, 8 ms records of which
-30 samples before the hit; its rig.json leaves out the density). The mesh is coarse (--element-mm) so a rig costs
-minutes on 2 cores.
+30 samples before the hit; its rig.json leaves out the density), ti-nonconvex (1.6 mm titanium, 600 x 260 mm, one
+sensor inside the triangle of the other three, 20 mm discs, 62.5 kHz, 12-bit, 40 ms records of which 16 ms before
+the hit, a front end hot enough that drops next to a sensor clip, 50 Hz hum, one sensor loose on 10 % of drops).
+The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
 from __future__ import annotations
@@ -114,6 +116,21 @@ KINDS = {
                  damping_per_s=1200.0, density_kg_m3=1560.0),
         front_end=dict(gain_sign=-1.0, dc_offset_counts=-2300),
         heights=(50, 100, 150, 200, 250)),
+    "ti-nonconvex": dict(
+        # titanium on a long narrow plate, one sensor inside the triangle of the other three (a non-convex
+        # layout: the hull is a triangle), 20 mm discs, a 62.5 kHz 12-bit logger keeping 16 ms before the hit,
+        # a hot front end (the drops next to a sensor clip), 50 Hz hum, one sensor loose on a tenth of the drops
+        rig={"plate_material": "Titanium Ti-6Al-4V (grade 5) sheet", "plate_x_mm": 600.0, "plate_y_mm": 260.0,
+             "thickness_mm": 1.6, "density_kg_m3": 4430.0, "plate_support": "bolted at the four corners",
+             "sensors": _sensors([(60, 40), (540, 50), (300, 220), (330, 95)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 20.0, "ball_material": "steel",
+             "ball_diameter_mm": 15.0, "ball_mass_g": 13.8, "channels": 4, "fs_hz": 62500, "samples": 2500,
+             "adc_bits": 12, "vref": 3.3, "bias_counts": 2048},
+        sim=dict(e_pa=113.8e9, nu=0.342, pretrigger_samples=1000, damping_per_s=400.0),
+        front_end=dict(peak_fraction=0.6),
+        lab=dict(hum=25.0, hum_hz=50.0),
+        loose=dict(channel=2, fraction=0.1, gain=0.5, hz=4000.0),
+        heights=(40, 80, 120, 160, 200, 240)),
 }
 
 
@@ -139,7 +156,7 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
     sim = dict(spec["sim"])
     # the simulated truth's density (a rig.json may leave it out), the logger's wiring sign and DC error
     rig = rig_from_dict(dict(raw, density_kg_m3=sim.pop("density_kg_m3", raw.get("density_kg_m3"))))
-    front = {"gain_sign": 1.0, "dc_offset_counts": 0, **spec.get("front_end", {})}
+    front = {"gain_sign": 1.0, "dc_offset_counts": 0, "peak_fraction": 0.25, **spec.get("front_end", {})}
     rng = np.random.default_rng(seed)
     cx, cy, ch = cases(raw, n_cases, spec["heights"], rng)
     case_id = np.repeat(np.arange(n_cases), reps)
@@ -153,13 +170,21 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
     t0 = time.perf_counter()
     volts = simulate_voltages(params, rig, xt, yt, h, workers=2, progress=True)["volts"]
     peak = np.median(np.abs(volts).max(axis=2))
-    gain = front["gain_sign"] * 0.25 * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
+    gain = front["gain_sign"] * front["peak_fraction"] * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
     params = params.replace(circuit_gain=float(gain), noise_counts_rms=1.5 * 2 ** (rig.adc_bits - 12))
     logger = rig if not front["dc_offset_counts"] else dataclasses.replace(
         rig, bias_counts=rig.bias_counts + int(front["dc_offset_counts"]))
     adc = to_adc(volts, params, logger, noise=True, seed=seed)
-    faults = FaultSpec(offset=6.0 * 2 ** (rig.adc_bits - 12), glitch=0.05, drift=0.02, seed=seed + 1)
+    faults = FaultSpec(offset=6.0 * 2 ** (rig.adc_bits - 12), glitch=0.05, drift=0.02, seed=seed + 1,
+                       **spec.get("lab", {}))
     adc = inject(adc, faults, rig.fs_hz, rig.bias_counts, rig.adc_max)
+    loose = spec.get("loose")
+    if loose:   # one sensor loose on a few drops: its signal low-passed and weaker there
+        rows = np.sort(rng.choice(adc.shape[0], max(1, round(loose["fraction"] * adc.shape[0])), replace=False))
+        adc[rows] = inject(adc[rows], FaultSpec(debond=loose["channel"], debond_gain=loose["gain"],
+                                                debond_hz=loose["hz"], seed=seed + 2),
+                           rig.fs_hz, rig.bias_counts, rig.adc_max)
+        print(f"{kind}: channel {loose['channel']} loose on rows {rows.tolist()}")
     write_session(out, raw, x, y, h, adc, case_id=case_id, repetition=rep, force=True)
     print(f"{kind}: {x.size} drops in {time.perf_counter() - t0:.0f} s, circuit gain {gain:.4g}, "
           f"median peak {np.median(np.abs(adc.astype(int) - logger.bias_counts).max(axis=2)):.0f} counts -> {out}")

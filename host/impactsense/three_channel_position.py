@@ -295,21 +295,27 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
     flags (a channel that disagrees with the other three, e.g. a debonded disc: its three-sensor position
     without that channel, channel_check.py), corrects their positions by the pair of the channel out
     (`corrected_positions`; none on the board) and gives them the class from the other three channels' energies
-    (height_class's three-channel classes; a model without them, trained before: no class). In place in out."""
+    (height_class's three-channel classes; a model without them, trained before: no class). A flagged drop on a
+    channel whose three-sensor position the card's check does not keep (flagged_position.py) keeps the four
+    channels' position, flagged, with the three-channel class. In place in out."""
     from .channel_check import flag_events
+    from .flagged_position import keeps_four_channels
     from .height_class import three_channel_inputs
 
     xy, three = out["xy_mm"], out["three_channel"]
     three_xy = features.phys_xy_mm
     left_out = np.argmax(features.no_onset, axis=1)
+    classed = three
     if model.card.get("channel_check") and use.any():
         flagged, three_xy, left_out = flag_events(features.raw, features.phys_xy_mm, use, left_out, model.signal,
                                                   model.card["channel_check"])
         out["forest_xy_mm"] = xy.copy()   # the forests' own position stays there
+        out["bad_channel"] = np.where(flagged, left_out, -1)
+        classed = three | flagged
+        flagged &= ~keeps_four_channels(model.card["channel_check"], out["bad_channel"])   # flagged_position.py
         xy[flagged] = three_xy[flagged]
         out["spread_mm"][flagged] = np.nan
         three = three | flagged
-        out["bad_channel"] = np.where(flagged, left_out, -1)
     out["three_channel"] = three
     if model.three_channel_position:
         edge_corrected_positions(model, features, np.flatnonzero(three), left_out[three], xy)
@@ -317,7 +323,7 @@ def three_sensor_path(model, features: Features, use: np.ndarray, out: dict) -> 
         stacked_positions(model, features, np.flatnonzero(three), left_out[three], xy)
         corrected_positions(model.three_channel_position, features.vector, np.flatnonzero(three), left_out[three], xy)
     for c, estimate in model.three_channel_class.items():
-        rows = np.flatnonzero(three & (left_out == c))
+        rows = np.flatnonzero(classed & (left_out == c))
         if rows.size:
             out["energy_class"][rows] = estimate.predict(three_channel_inputs(
                 {k: v[rows] for k, v in features.raw.items()}, three_xy[rows], c))

@@ -11,6 +11,7 @@ from .band_forests import ForestBandChoice
 from .checks import require_labels, rig_summary
 from .data import IMPACTS_FILE, Session
 from .errors import DataError
+from .flagged_position import choose_flagged_positions
 from .level_members import add_level_positions
 from .three_level_positions import add_level_picks
 from .metrics import region_metrics
@@ -63,6 +64,10 @@ def train(session: Session, out_dir: str | Path | None, test_fraction: float = 0
                             twin_edge=twin_edge and rig_drops is None)
     if band_choice is not None:
         model.card["band_choice"] = band_choice.record
+    if choose_class and members:   # a flagged drop's position per channel, as a debond there says (flagged_position.py)
+        rig = session.rig
+        choose_flagged_positions(model, session.adc[train_rows], session.xy_mm[train_rows], float(rig.fs_hz),
+                                 float(rig.bias_counts), int(rig.adc_max), seed)
     split = {
         "data_path": str(session.path),
         "data_hash": session.fingerprint(),
