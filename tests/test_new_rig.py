@@ -366,3 +366,17 @@ def test_retrain_warns_when_its_model_is_worse_than_the_baseline_on_the_session(
     text = worse_than_baseline(rows, moved, "F")
     assert text.startswith("WARNING") and "sensor_position[1]" in text and "112.40" in text
     assert worse_than_baseline({"baseline model": {"mae_mm": 35.6}, "retrained model": {"mae_mm": 20.0}}, moved, "F") is None
+
+
+def test_info_reports_mains_hum_the_baseline_noise_does_not_see(session1):
+    """`info`'s noise rms is the core's baseline segment (a few ms: 50 Hz hum looks like an offset there); its hum
+    column reads 50/60 Hz over the quiet start or the tail: a session with 40-count hum says so, a clean one not."""
+    from impactsense.commands.info import summarise
+    from impactsense.faults import FaultSpec, inject_session
+
+    sub = session1.subset(np.arange(0, len(session1), 40))
+    clean = summarise(sub)["channels"]
+    hum = summarise(inject_session(sub, FaultSpec(hum=40.0, hum_hz=50.0, seed=1)))["channels"]
+    assert all(c["hum_counts"] < 2.0 for c in clean)
+    assert all(15.0 < c["hum_counts"] < 45.0 for c in hum)   # 0.5..1 x 40 counts per channel
+    assert all(c["noise_rms_counts"] < 5.0 for c in hum)     # what the baseline segment alone reports

@@ -118,6 +118,23 @@ def _plateaus(a: np.ndarray, adc_max: int):
     return ph.astype(float), pl.astype(float)
 
 
+def hum_lock_in(seg: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares lock-in at HUM_HZ over a quiet segment [R, C, S] (counts less the bias), with offset and
+    trend: (amplitude [R, C, len(HUM_HZ)], the fit's coefficients [R, C, 2 + 2 len(HUM_HZ)], what is left of the
+    segment's mean square [R, C])."""
+    r, c, m = seg.shape
+    tt = np.arange(m) / fs_hz
+    cols = [np.ones_like(tt), tt - tt.mean()]
+    for hz in HUM_HZ:
+        cols += [np.cos(2 * np.pi * hz * tt), np.sin(2 * np.pi * hz * tt)]
+    X = np.stack(cols, axis=1)
+    flat = seg.reshape(-1, m).T
+    coef_flat, *_ = np.linalg.lstsq(X, flat, rcond=None)
+    coef = coef_flat.T.reshape(r, c, -1)
+    hum = np.stack([np.hypot(coef[..., 2 + 2 * k], coef[..., 3 + 2 * k]) for k in range(len(HUM_HZ))], axis=2)
+    return hum, coef, ((flat - X @ coef_flat) ** 2).mean(axis=0).reshape(r, c)
+
+
 def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bias: float):
     """Spectral centroid, decay rate and hum amplitude: diagnostics computed on the host (not pickers)."""
     a = adc.astype(np.float32) - bias
@@ -134,17 +151,7 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     centroid = (p * f).sum(axis=2) / np.maximum(p.sum(axis=2), 1e-12)
     # hum: least-squares lock-in at 50 and 60 Hz over the tail (with offset and trend)
     t0 = tail_start(n, fs_hz)
-    tail = a[:, :, t0:]
-    tt = np.arange(tail.shape[2]) / fs_hz
-    cols = [np.ones_like(tt), tt - tt.mean()]
-    for hz in HUM_HZ:
-        cols += [np.cos(2 * np.pi * hz * tt), np.sin(2 * np.pi * hz * tt)]
-    X = np.stack(cols, axis=1)
-    flat = tail.reshape(-1, tail.shape[2]).T
-    coef_flat, *_ = np.linalg.lstsq(X, flat, rcond=None)
-    coef = coef_flat.T.reshape(r, c, -1)
-    hum = np.stack([np.hypot(coef[..., 2], coef[..., 3]), np.hypot(coef[..., 4], coef[..., 5])], axis=2)
-    noise_ms = ((flat - X @ coef_flat) ** 2).mean(axis=0).reshape(r, c)   # what is left of the tail
+    hum, coef, noise_ms = hum_lock_in(a[:, :, t0:], fs_hz)
     # decay: slope of the log RMS envelope in blocks, of the signal alone: the tail's offset and hum (extended
     # over the record) are taken out and the tail's noise power is subtracted from each block's mean square;
     # a block that is not above the noise (power SNR < DECAY_MIN_SNR) is left out of the slope

@@ -2,8 +2,27 @@
 
 from __future__ import annotations
 
+import numpy as np
 
 ORDER = 10
+HUM_QUIET_S = 15e-3   # a quiet start at least this long (3/4 of a 50 Hz period) is where the hum is read
+
+
+def hum_counts(session) -> tuple[np.ndarray, str]:
+    """Each channel's median 50 / 60 Hz hum amplitude (counts) over the drops, the larger of the two, and where
+    it was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
+    (diagnose's, residuals.tail_start). The core's noise rms reads its baseline segment only, a few ms: the hum
+    looks like an offset there."""
+    from ..residuals import hum_lock_in, tail_start
+
+    fs, n = float(session.rig.fs_hz), session.adc.shape[2]
+    pre = session.rig.pretrigger_samples
+    if pre is not None and pre >= HUM_QUIET_S * fs:
+        seg, where = slice(0, int(pre) - 16), "the quiet start"
+    else:
+        seg, where = slice(tail_start(n, fs), n), "the record's tail"
+    hum = hum_lock_in(session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts, fs)[0]
+    return np.median(hum.max(axis=2), axis=0), where
 
 
 def register(sub) -> None:
@@ -15,8 +34,6 @@ def register(sub) -> None:
 
 
 def summarise(session) -> dict:
-    import numpy as np
-
     from ..pipeline import featurize
     from ..signal import SignalConfig
 
@@ -29,6 +46,7 @@ def summarise(session) -> dict:
     heights, counts = np.unique(session.height_mm, return_counts=True)
     base = SignalConfig.for_rig(session.rig).baseline_samples
     level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
+    hum, hum_where = hum_counts(session)
     return {
         "plate": plate_summary(session.rig),
         "level_minus_bias_counts": [float(v - session.rig.bias_counts) for v in level],
@@ -42,6 +60,7 @@ def summarise(session) -> dict:
         "fs_hz": session.rig.fs_hz,
         "pretrigger_samples": session.rig.pretrigger_samples,
         "baseline_samples": int(SignalConfig.for_rig(session.rig).baseline_samples),
+        "hum_read_over": hum_where,
         "channels": [
             {
                 "channel": c,
@@ -50,6 +69,7 @@ def summarise(session) -> dict:
                 "dead_drops": int(feats.dead[:, c].sum()),
                 "no_onset_drops": int(feats.no_onset[:, c].sum()),
                 "noise_rms_counts": float(np.median(noise[:, c])),
+                "hum_counts": float(hum[c]),
                 "peak_counts_median": float(np.median(peak[:, c])),
                 "snr_db_median": float(np.median(snr_db[:, c])),
             }
@@ -91,10 +111,14 @@ def run(args) -> int:
     print(f"  samples before the first arrival: {'unknown' if pre is None else pre}; the core's baseline segment "
           f"{s['baseline_samples']} samples")
     print(f"  usable drops (onset on all 4 channels): {s['usable_drops']}")
-    print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'median peak':>12s} {'SNR dB':>7s}")
+    print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'hum':>6s} {'median peak':>12s} "
+          f"{'SNR dB':>7s}")
     for c in s["channels"]:
         print(f"  {c['channel']:2d} {c['sensor']:>6s} {c['clipped_drops']:8d} {c['dead_drops']:5d} "
-              f"{c['noise_rms_counts']:10.2f} {c['peak_counts_median']:12.0f} {c['snr_db_median']:7.1f}")
+              f"{c['noise_rms_counts']:10.2f} {c['hum_counts']:6.1f} {c['peak_counts_median']:12.0f} "
+              f"{c['snr_db_median']:7.1f}")
+    print(f"  (noise rms: the core's baseline segment; hum: 50/60 Hz amplitude over {s['hum_read_over']}, median "
+          f"over the drops)")
     if args.json_out:
         from ..outputs import json_text, write_file
 
