@@ -142,6 +142,7 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None, twin_
             "calibration": None if cal is None else str(cal), "site_map_s": t_map,
             "twin_choice": model.card.get("twin_choice"),
             "energy_class_choice": model.card.get("energy_class_choice"),
+            "three_sensor_position": (model.card.get("channel_check") or {}).get("three_sensor_position"),
             **boundary_split(session, rep, train_rows, model.energy_threshold_j)}
 
 
