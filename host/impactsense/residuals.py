@@ -30,11 +30,11 @@ import numpy as np
 
 from . import _core
 from .data import Session
+from .hum import HUM_HZ, hum_lock_in  # noqa: F401  (HUM_HZ is read from here too: effects/noise.py)
 from .signal import core_config, core_samples
 
 PAIR_I = np.array([0, 0, 0, 1, 1, 2])
 PAIR_J = np.array([1, 2, 3, 2, 3, 3])
-HUM_HZ = (50.0, 60.0)
 CENTROID_S = 2e-3           # spectral-centroid window after the onset
 CENTROID_LEAD_S = 5e-5      # ... starting this long before the onset
 DECAY_BLOCKS_S = (1e-3, 8e-3, 1e-3)  # envelope blocks after the onset: start, stop, width
@@ -116,23 +116,6 @@ def _plateaus(a: np.ndarray, adc_max: int):
     ph = np.where(cnt_hi >= PLATEAU_SAMPLES, hi, -1)
     pl = np.where(cnt_lo >= PLATEAU_SAMPLES, lo, -1)
     return ph.astype(float), pl.astype(float)
-
-
-def hum_lock_in(seg: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares lock-in at HUM_HZ over a quiet segment [R, C, S] (counts less the bias), with offset and
-    trend: (amplitude [R, C, len(HUM_HZ)], the fit's coefficients [R, C, 2 + 2 len(HUM_HZ)], what is left of the
-    segment's mean square [R, C])."""
-    r, c, m = seg.shape
-    tt = np.arange(m) / fs_hz
-    cols = [np.ones_like(tt), tt - tt.mean()]
-    for hz in HUM_HZ:
-        cols += [np.cos(2 * np.pi * hz * tt), np.sin(2 * np.pi * hz * tt)]
-    X = np.stack(cols, axis=1)
-    flat = seg.reshape(-1, m).T
-    coef_flat, *_ = np.linalg.lstsq(X, flat, rcond=None)
-    coef = coef_flat.T.reshape(r, c, -1)
-    hum = np.stack([np.hypot(coef[..., 2 + 2 * k], coef[..., 3 + 2 * k]) for k in range(len(HUM_HZ))], axis=2)
-    return hum, coef, ((flat - X @ coef_flat) ** 2).mean(axis=0).reshape(r, c)
 
 
 def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bias: float):

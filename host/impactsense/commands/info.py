@@ -13,7 +13,8 @@ def hum_counts(session) -> tuple[np.ndarray, str]:
     it was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
     (diagnose's, residuals.tail_start). The core's noise rms reads its baseline segment only, a few ms: the hum
     looks like an offset there."""
-    from ..residuals import hum_lock_in, tail_start
+    from ..hum import hum_lock_in
+    from ..residuals import tail_start
 
     fs, n = float(session.rig.fs_hz), session.adc.shape[2]
     pre = session.rig.pretrigger_samples
