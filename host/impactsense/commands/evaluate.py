@@ -59,10 +59,14 @@ def run(args) -> int:
         print(f"energy class: {unclassed} of {report['predicted']} placed drops have none (class acc. is over the "
               f"other {report['classified']}): a channel without an onset, and the model has no site map to classify "
               f"from three channels (`impactsense calibrate DATA --out CAL.json`, then `train --calibration CAL.json`)")
+    keep = (model.card.get("channel_check") or {}).get("three_sensor_position") or [True] * 4
     for c, n in enumerate(report.get("channels_left_out_inconsistent", [])):
         if n:
+            placed = ("placed and classified from the other three channels" if keep[c] else "classified from the "
+                      "other three channels and placed by all four (the other three lie too near one line: "
+                      "the card's channel_check.three_sensor_choice)")
             print(f"channel {c}: inconsistent with the other three on {n} of {report['n']} drops (a debonded or "
-                  f"weak disc?): those drops are placed and classified from the other three channels, flagged")
+                  f"weak disc?): those drops are {placed}, flagged")
     if args.plots:
         for p in evaluation_plots(report, session.rig, args.plots):
             print(f"plot: {p}")

@@ -87,6 +87,13 @@ def print_choices(card: dict) -> None:
     if "edge_travel_chosen" in card:
         print("edge correction of the arrival times (training drops' physics positions): "
               f"{'kept, three more position members' if card['edge_travel_chosen'] else 'not kept'}")
+    choice = (card.get("channel_check") or {}).get("three_sensor_choice") or []
+    if any("four_channel_mae_mm" in r for r in choice):
+        keep = card["channel_check"]["three_sensor_position"]
+        print("a flagged channel's drop placed by (its training drops debonded, out of fold, MAE three-sensor / four "
+              "channels): " + ", ".join(f"ch{c} {r['three_sensor_mae_mm']:.1f}/{r['four_channel_mae_mm']:.1f} mm "
+                                        f"{'three' if keep[c] else 'FOUR'}" for c, r in enumerate(choice)
+                                        if "four_channel_mae_mm" in r))
     energy = card.get("energy_class_choice")
     if energy:
         print(f"energy class: {'linear estimate of log m g h' if energy['use_linear'] else 'classifier forest'} "
