@@ -11,10 +11,12 @@ the hit), and a fifth, pc-quad (an 8 mm polycarbonate sheet, a material the tabl
 asymmetric quadrilateral, 200 kHz / 12 bits), are made too, and two more: brass-trapezoid (brass, a trapezoid with
 two sensors 48 mm apart, a 33 g ball, 250 kHz / 10 bits, 6 ms records) and cfrp-crossply (a cross-ply laminate
 with axes at 90 deg, two sensors 14 mm from an edge, 100 kHz / 16 bits negative-going with a DC offset, 8 ms
-records of which 30 samples before the hit, no density in rig.json).
+records of which 30 samples before the hit, no density in rig.json), and ti-nonconvex (1.6 mm titanium 600 x 260 mm,
+one sensor inside the triangle of the other three, 20 mm discs, 62.5 kHz / 12 bits, 16 ms before the hit, clipping,
+50 Hz hum, one sensor loose on 10 % of the drops).
 Target (issue 15, measured-trained): MAE <= 3.0 mm, class >= 0.95 on the mean.
 
-    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew,alu-rotated,pc-quad,brass-trapezoid,cfrp-crossply]
+    python3 benchmarks/bench_newrig.py [--work DIR] [--seeds 3] [--kinds steel-diamond,gfrp-edge,glass-skew,alu-rotated,pc-quad,brass-trapezoid,cfrp-crossply,ti-nonconvex]
 """
 
 from __future__ import annotations
