@@ -79,8 +79,6 @@ def run(args) -> int:
 
         extra[CALIBRATION_FILE] = calibration_record(args.calibration)
     out = write_session(args.out, raw, x, y, h, adc, force=args.force, extra_files=extra)
-    if site_map is not None:
-        site_map()
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
     clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
     print(f"{args.n} drops in {elapsed:.1f} s ({how}); mesh {summary['model']['nx']} x "
@@ -89,6 +87,8 @@ def run(args) -> int:
     for c, s in enumerate(rig.sensors):
         print(f"{s.name:6s}  {np.median(peak[:, c]):11.0f}  {peak[:, c].max():8d}  {str(bool(clipped[c])):>7s}")
     print(f"wrote {out} (summary in {out / 'sim_params.json'})")
+    if site_map is not None:
+        site_map()
     return 0
 
 
@@ -117,6 +117,8 @@ def start_site_map(args):
     built = in_background(lambda: build_twin_site_map(params, session, progress=False), "site-map")
 
     def finish():
+        print("finishing the twin's site map for `train --site-map auto` (simulated in the background since the "
+              "virtual drops; a large or thin plate takes minutes; --no-site-map skips it) ...", flush=True)
         site = twin_site_map(params, session, Path(args.out), built=built())
         print(f"the twin's site map: {site.nx} x {site.ny} points, step {site.step_mm:g} mm (for train --site-map "
               "auto)")
