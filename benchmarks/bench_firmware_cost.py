@@ -278,6 +278,22 @@ def main() -> int:
     worst = np.argsort(ev)[::-1][:3]
     print("  slowest: " + ", ".join(f"row {rows[i]} {ev[i]:,} (features {fe[i]:,}, localiser "
                                       f"{per_drop['localiser_iterations'][i]} iterations)" for i in worst))
+    if "models" in per_drop and len(per_drop["models"]) == len(ev):
+        # board.cost's parts: the features and report (BASE_INSTRUCTIONS, base_instructions), the localiser, the models
+        lo, mo = np.array(per_drop["localiser"]), np.array(per_drop["models"])
+        base = ev - lo - mo + max(0, ins["app_event_max"] - event_max)   # the app's own accounting on top
+        print(f"  by board.cost's parts: features and report (the event less the localiser and the models; the app's "
+              f"accounting on top) max {base.max():,}, localiser max {lo.max():,} "
+              f"({max(per_drop['localiser_evaluations'])} evaluations), models max {mo.max():,}")
+        est = json.loads((Path(args.export) / "export.json").read_text()).get("event_instructions_estimate") \
+            if args.export else None
+        if est:
+            parts = {"features and report": (est["base"], base.max()), "localiser": (est["localiser"], lo.max()),
+                     "models": (est["models"], mo.max())}
+            print(f"  export's estimate {est['total']:,} against the slowest event {ins['app_event_max']:,}: "
+                  f"{'bounds it' if est['total'] >= ins['app_event_max'] else 'UNDER'}; per part (estimate / "
+                  f"measured max): " + ", ".join(f"{k} {e:,} / {m:,}{'' if e >= m else ' UNDER'}"
+                                                 for k, (e, m) in parts.items()))
     print(f"event_total = process_event (features + physics localiser + Eq. 35 + feature vector) + table models + encoding; "
           f"target {TARGET:,}: {'met' if ins['event_total'] <= TARGET else 'NOT met'} on the last capture, "
           f"{'met' if ins['event_max_over_drops'] <= TARGET else 'NOT met'} on the slowest of {len(ev)} drops")

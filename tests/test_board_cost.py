@@ -233,3 +233,24 @@ def test_starts_within_one_starts_bound_cost_what_one_start_costs_and_the_event_
     for name, cfg in (("free", free_cfg), ("capped", capped_starts(sig, 2))):
         counted[name] = _core.process_batch(as_int16(caps, cfg), cfg.core(), cfg.localiser())["localiser_evaluations"]
     assert counted["capped"].max() <= cost.LOCALISER_EVALUATIONS < counted["free"].max()
+
+
+def test_a_declared_front_end_costs_the_features_more_and_leaves_the_forests_less():
+    """Captures through an analog front end (rig.json board_front_end; the card's record or the capture's
+    (corner, poles)) cost the features FRONT_END_INSTRUCTIONS more (their peak and baseline scans read more of a
+    low-passed arrival): the signal's estimate, what fits, and what the budget leaves the board's correction all
+    count it; without one (None, {}) nothing changes."""
+    from types import SimpleNamespace
+
+    from impactsense.board.models import forests_budget
+
+    card = {"anti_alias_hz": 10000.0, "anti_alias_poles": 4}
+    assert cost.FRONT_END_INSTRUCTIONS > 0
+    assert cost.base_instructions() == cost.base_instructions({}) == cost.BASE_INSTRUCTIONS
+    assert cost.base_instructions(card) == cost.base_instructions((10000.0, 4)) == \
+        cost.BASE_INSTRUCTIONS + cost.FRONT_END_INSTRUCTIONS
+    plain, filtered = cost.signal_instructions(board_cfg()), cost.signal_instructions(board_cfg(), front_end=card)
+    assert filtered["total"] - plain["total"] == cost.FRONT_END_INSTRUCTIONS
+    assert filtered["base"] == cost.base_instructions(card) and filtered["localiser"] == plain["localiser"]
+    model = SimpleNamespace(forest_energy=SimpleNamespace(terms=[0] * 6), signal=board_cfg())
+    assert forests_budget(model, 20) - forests_budget(model, 20, card) == cost.FRONT_END_INSTRUCTIONS

@@ -253,6 +253,14 @@ int main() {
     g_hal.decode = true;
     if (e1 - e0 > event_max) event_max = e1 - e0;
     put_int("TICKS_DROP event", static_cast<long long>(e1 - e0));
+    {  // ... its models alone, as the app ran them on its result (board.cost's models part)
+      float xm = NAN, ym = NAN, um = -1.0f;
+      uint8_t cm = 9;
+      int8_t lm = -2;
+      const uint64_t m0 = ticks();
+      g_models.predict_event(g_app.last_result(), g_app.config().loc, &xm, &ym, &cm, &um, &lm);
+      put_int("TICKS_DROP models", static_cast<long long>(ticks() - m0));
+    }
     {  // ... and its features alone (the rest of the spread is the localiser)
       const int16_t* ch[4] = {g_app.capture(0), g_app.capture(1), g_app.capture(2), g_app.capture(3)};
       static impactcore::EventFeatures f;

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -165,14 +166,16 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
     return {"out_of_fold_mae_mm": mae, "chosen": best}
 
 
-def board_position_forests(model: ImpactModel, features, xy_mm, settings: ForestSettings) -> dict:
+def board_position_forests(model: ImpactModel, features, xy_mm, settings: ForestSettings,
+                           front_end=None) -> dict:
     """The board's position correction (board.boosted): the boosted pair replaces the model's forests when the
-    training drops say so out of fold (choose_board_forests); returns the record for the card."""
+    training drops say so out of fold (choose_board_forests); returns the record for the card. front_end: the
+    captures' analog front end (forests_budget)."""
     use = np.asarray(features.usable, bool)
     X = features.vector[use][:, columns(model.location_features)]
     xy = np.asarray(xy_mm, float)[use]
     resid = xy - np.asarray(features.phys_xy_mm, float)[use]
-    left = forests_budget(model, X.shape[1])
+    left = forests_budget(model, X.shape[1], front_end)
     record = choose_board_forests(X, resid, position_groups(xy), settings,
                                   prefix_within((model.forest_dx, model.forest_dy), X, left), stages_within(left))
     record["instructions_left"] = int(left)
@@ -188,7 +191,8 @@ def board_position_forests(model: ImpactModel, features, xy_mm, settings: Forest
 BOARD_THREE_STAGES = 12
 
 
-def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestSettings, n_folds: int = 5) -> dict:
+def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestSettings, n_folds: int = 5,
+                          front_end=None) -> dict:
     """Per channel c the pair correcting the three-sensor position of a drop without c, as the board runs it: the
     training drops' own three-sensor position without c (edge_travel.three_sensor_positions, the core's numbers
     for a drop whose channel c has no onset), boosted depth-BOOST_DEPTH trees (board.boosted) learning the truth
@@ -199,7 +203,7 @@ def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestS
     use = np.flatnonzero(np.asarray(features.usable, bool))
     train = features.take(use)
     xy = np.asarray(xy_mm, float)[use]
-    stages = min(BOARD_THREE_STAGES, stages_within(forests_budget(model, len(model.location_features))))
+    stages = min(BOARD_THREE_STAGES, stages_within(forests_budget(model, len(model.location_features), front_end)))
     pairs, record = {}, {}
     for c in range(4):
         base = three_sensor_positions(train.raw, model.signal, c, None)
@@ -227,20 +231,22 @@ def board_three_positions(model: ImpactModel, features, xy_mm, settings: ForestS
     return {"stages": stages, "depth": BOOST_DEPTH, "channels": record}
 
 
-def board_corrections(model: ImpactModel, features, xy_mm, settings: ForestSettings, left_out: bool) -> dict:
+def board_corrections(model: ImpactModel, features, xy_mm, settings: ForestSettings, left_out: bool,
+                      front_end=None) -> dict:
     """A model without a twin: the position correction the event budget affords (boosted trees or a prefix,
     board_position_forests) and, on a four-channel model with the three-channel classes, per channel the
     three-sensor position's correction the board runs with that channel out (board_three_positions); the card's
     records."""
-    out = {"board_forests": board_position_forests(model, features, xy_mm, settings)}
+    out = {"board_forests": board_position_forests(model, features, xy_mm, settings, front_end)}
     if not left_out and model.three_channel_class:
-        out["board_three_position"] = board_three_positions(model, features, xy_mm, settings)
+        out["board_three_position"] = board_three_positions(model, features, xy_mm, settings, front_end=front_end)
     return out
 
 
-def forests_budget(model: ImpactModel, n_inputs: int) -> float:
+def forests_budget(model: ImpactModel, n_inputs: int, front_end=None) -> float:
     """What the event budget leaves the position pair's trees (board.cost): the budget less the signal's cost, the
-    forests' fixed share and inputs, and the energy model's (its linear terms, or one tree of its forest)."""
+    forests' fixed share and inputs, and the energy model's (its linear terms, or one tree of its forest); the
+    signal's cost on captures through front_end (board.cost.base_instructions)."""
     energy = model.forest_energy
     if hasattr(energy, "estimators_"):
         tree = energy.estimators_[0].tree_
@@ -248,7 +254,7 @@ def forests_budget(model: ImpactModel, n_inputs: int) -> float:
                   + FOREST_PER_INPUT * len(model.energy_class_features))
     else:
         e_cost = linear_instructions(len(energy.terms))
-    return (EVENT_BUDGET - signal_instructions(model.signal)["total"] - FOREST_FIXED - FOREST_PER_INPUT * 2 * n_inputs
+    return (EVENT_BUDGET - signal_instructions(model.signal, front_end=front_end)["total"] - FOREST_FIXED - FOREST_PER_INPUT * 2 * n_inputs
             - e_cost)
 
 
@@ -298,7 +304,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     # choice carries over, the AIC blend stays the board's) or, where the board's coarser picks place the training
     # drops clearly better with it, a lower one (choose_board_threshold); the band picks and localiser starts only
     # where the event budget affords them (board.cost)
-    sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig)
+    front_end = board_anti_alias(session.rig, fs_hz)   # the captures' front end: the features' cost (board.cost)
+    sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig,
+                                                   fits=partial(signal_fits, front_end=front_end))
     extra_card = {**(extra_card or {}), "board_threshold": threshold_record}
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
@@ -309,7 +317,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
     if model.site_map is None:
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
-                                                         session.xy_mm[rows][is_train], settings, any(left_out))}
+                                                         session.xy_mm[rows][is_train], settings, any(left_out),
+                                                         front_end)}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
