@@ -380,8 +380,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         if models.twin is None:
             from .board.cost import EVENT_BUDGET, signal_instructions
             from .signal import SignalConfig
-            signal_cost = signal_instructions(SignalConfig.from_dict(models.signal),
-                                              front_end=models.card.get("board_front_end"))
+            signal_cost = signal_instructions(SignalConfig.from_dict(models.signal), 4, models.card.get("board_front_end"))
             signal_cost["check"] = export_check.budgeted(models, signal_cost, EVENT_BUDGET)
             signal_cost["total"] += signal_cost["check"]
         k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval,

@@ -305,8 +305,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     # drops clearly better with it, a lower one (choose_board_threshold); the band picks and localiser starts only
     # where the event budget affords them (board.cost)
     front_end = board_anti_alias(session.rig, fs_hz)   # the captures' front end: the features' cost (board.cost)
-    sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig,
-                                                   fits=partial(signal_fits, front_end=front_end))
+    sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig, partial(signal_fits, front_end=front_end))
     extra_card = {**(extra_card or {}), "board_threshold": threshold_record}
     feats = featurize(caps, sig)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
@@ -317,8 +316,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
     if model.site_map is None:
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
-                                                         session.xy_mm[rows][is_train], settings, any(left_out),
-                                                         front_end)}
+                                                         session.xy_mm[rows][is_train], settings, any(left_out), front_end)}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
