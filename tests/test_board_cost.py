@@ -254,3 +254,29 @@ def test_a_declared_front_end_costs_the_features_more_and_leaves_the_forests_les
     assert filtered["base"] == cost.base_instructions(card) and filtered["localiser"] == plain["localiser"]
     model = SimpleNamespace(forest_energy=SimpleNamespace(terms=[0] * 6), signal=board_cfg())
     assert forests_budget(model, 20) - forests_budget(model, 20, card) == cost.FRONT_END_INSTRUCTIONS
+
+
+def test_the_board_refit_gives_its_correction_what_a_front_ends_captures_leave(tmp_path):
+    """train_board_models on a session whose rig declares a front end: the card records it, and the budget its
+    boosted correction was chosen within is forests_budget's with that front end (FRONT_END_INSTRUCTIONS less
+    than without it), and the signal options it kept fit with the front end's share."""
+    import json
+    from dataclasses import replace
+
+    from impactsense.board.models import forests_budget, train_board_models
+    from impactsense.data import rig_from_dict
+    from impactsense.models import ImpactModel
+
+    s = load_session()
+    sub = s.subset(np.arange(0, len(s), 6))
+    front = {"anti_alias_hz": 10000, "anti_alias_poles": 4}
+    sub = replace(sub, rig=rig_from_dict({**sub.rig.to_dict(), "board_front_end": front}))
+    d = train_board_models(sub, tmp_path / "m", n_trees=3)
+    card = json.loads((d / "model_card.json").read_text())
+    assert card["board_front_end"] == {"anti_alias_hz": 10000.0, "anti_alias_poles": 4}
+    model = ImpactModel.load(d)
+    assert cost.signal_fits(model.signal, front_end=card["board_front_end"])
+    n = len(model.location_features)
+    left = card["board_forests"]["instructions_left"]
+    assert left == int(forests_budget(model, n, card["board_front_end"])) == int(forests_budget(model, n)) - \
+        cost.FRONT_END_INSTRUCTIONS
