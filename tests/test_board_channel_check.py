@@ -36,7 +36,7 @@ def test_the_export_carries_the_check(check_export):
     d, out, summary, _ = check_export
     card = json.loads((d / "model_card.json").read_text())
     assert card["channel_check"]["version"] == 2
-    assert summary["table_bytes"]["channel_check"] == 2 * 4 * 12 * 4 + 5 * 4
+    assert summary["table_bytes"]["channel_check"] == 2 * 4 * 12 * 4 + 6 * 4
     assert "#define IMPACTSENSE_CHANNEL_CHECK 1" in (out / "impactsense_models.h").read_text()
     assert "impactsense_check = {" in (out / "impactsense_forest_tables.c").read_text()
 

@@ -101,7 +101,7 @@ def test_tables_walker_matches_sklearn_on_every_drop(exported, session_features)
     three_bytes = 0 if model.site_map is not None else 4 * (4 * 14 + 3 * 14 + 4 * (14 + 1 + 2 * 7))
     assert summary["table_bytes"].get("three_channel", 0) == three_bytes
     # without a twin the channel check: per channel two cubics (10 coefficients, median, scale) and 5 values
-    check_bytes = 0 if model.site_map is not None else 2 * 4 * 12 * 4 + 5 * 4
+    check_bytes = 0 if model.site_map is not None else 2 * 4 * 12 * 4 + 6 * 4
     assert summary["table_bytes"].get("channel_check", 0) == check_bytes
     # forest.h's layout: 7 B a split node, 2 B a leaf (one more leaf than split nodes a tree), 4 B a distinct leaf
     # value (with min_samples_leaf=1 a regression leaf is one training drop's target: far fewer values than leaves)

@@ -415,7 +415,11 @@ struct PyModels : ia::Models {
       check.reset(new ic::ChannelCheck());
       const auto level = floats(d, "level", ic::kChannels * (ic::kCheckTerms + 2));
       const auto tilt = floats(d, "tilt", ic::kChannels * (ic::kCheckTerms + 2));
-      const auto sc = floats(d, "scores", 5);   // plate_x_mm, plate_y_mm, event_score, run_score, run_events
+      // plate_x_mm, plate_y_mm, event_score, run_score, run_events[, four_channel_mask] (5: an older export, none)
+      if (!d.contains("scores")) throw std::invalid_argument("channel_check: missing key scores");
+      auto sc = nb::cast<std::vector<float>>(d["scores"]);
+      if (sc.size() != 5 && sc.size() != 6) throw std::invalid_argument("channel_check: scores needs 5 or 6 values");
+      if (sc.size() == 5) sc.push_back(0.0f);
       for (int c = 0; c < ic::kChannels; ++c) {
         for (int pass = 0; pass < 2; ++pass) {
           const float* src = (pass == 0 ? level : tilt).data() + (ic::kCheckTerms + 2) * c;
@@ -431,6 +435,10 @@ struct PyModels : ia::Models {
       check->event_score = sc[2];
       check->run_score = sc[3];
       check->run_events = static_cast<int32_t>(sc[4]);
+      check->four_channel_mask = static_cast<int32_t>(sc[5]);
+      if (check->four_channel_mask < 0 || check->four_channel_mask > 15) {
+        throw std::invalid_argument("channel_check: four_channel_mask 0..15");
+      }
       if (check->run_events < 1 || check->run_events > ic::kMaxCheckEvents || !(sc[0] > 0.0f) || !(sc[1] > 0.0f)) {
         throw std::invalid_argument("channel_check: run_events 1..32 and a positive plate size needed");
       }

@@ -63,6 +63,7 @@ class ModelSet:
     # the channel check as the board runs it (export_check.check_arrays), or None
     channel_check: dict | None = None
     check_note: str | None = None   # why the board does not get the card's check (export_check.budgeted)
+    four_channel_note: str | None = None   # why the board does not get the card's four-channel choice (export_check)
     three_position: dict = field(default_factory=dict)   # channel -> its pair (three_channel_position.load_board_pairs)
 
     def three_channel_tables(self) -> dict:
@@ -196,8 +197,12 @@ def load_models(model_dir) -> ModelSet:
     residual = "phys_x_mm +" in str(card.get("target", ""))
     three, pairs = _load_three_channel(model_dir, card, card_path) if twin is None else ({}, {})
     signal = dict(card.get("signal") or {})
+    try:
+        check = export_check.check_arrays(card, signal, bool(three))
+    except ValueError as exc:
+        raise ExportError(f"{card_path} [{exc}]") from None
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
-                    export_check.check_arrays(card, signal, bool(three)), three_position=pairs)
+                    check, three_position=pairs)
 
 
 def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> tuple[dict, dict]:
@@ -388,6 +393,8 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                 max_instructions=None if signal_cost is None else EVENT_BUDGET - signal_cost["total"])
         row = next((r for r in sweep if r["trees"] == k), {})
         n_energy = row.get("energy_trees", n_energy)
+        if signal_cost is not None and "instructions" in row:
+            export_check.four_channel_within(models, signal_cost, row["instructions"], EVENT_BUDGET)
     elif trees == "all" or (models.card.get("board_forests") or {}).get("use_boosted"):
         k = len(models.x.estimators_)   # all, or the board's boosted trees: every one (no prefix is the model)
     else:
@@ -444,6 +451,10 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                                   "total": signal_cost["total"] + row["instructions"]}
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
+    if models.channel_check is not None:   # the channels whose flagged drops keep the four channels' position
+        mask = export_check.mask_of(models.channel_check)
+        summary["flagged_four_channels"] = ([c for c in range(4) if mask >> c & 1] if models.four_channel_note is None
+                                            else models.four_channel_note)
     (out_dir / "export.json").write_text(json_text(summary))
     return summary
 

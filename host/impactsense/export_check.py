@@ -1,7 +1,8 @@
 """The channel check (channel_check.py, the core's impactcore::ChannelCheck) as the board gets it from `export`:
 the card's cubic fits and scales, the plate's size and the event / run thresholds, in the generated C
 (impactsense_channel_check, read by impactapp_models.h's exported_channel_check) and in forest_tables.npz (the
-emulator's copy, check_level / check_tilt / check_scores). Only a check whose cubics read the four-channel physics
+emulator's copy, check_level / check_tilt / check_scores), with the card's per-channel choice of a flagged drop's
+position (flagged_position.py: "three_sensor_position"; a bit per channel that keeps the four channels'). Only a check whose cubics read the four-channel physics
 position (version 2) goes to the board: the three-sensor positions of version 1 cost four localisations an event."""
 
 from __future__ import annotations
@@ -12,19 +13,22 @@ from .export_c import _c_float
 
 CHECK_DEFINE = "#define IMPACTSENSE_CHANNEL_CHECK 1           // the channel check (impactcore::ChannelCheck)\n"
 CHECK_DECL = """// The channel check (impactcore::ChannelCheck): per channel the level and tilt cubics (10 coefficients, the
-// residuals' median, their robust sd), the plate's size, the event and run thresholds, the run's events.
+// residuals' median, their robust sd), the plate's size, the event and run thresholds, the run's events, the
+// channels whose flagged drops keep the four channels' position.
 typedef struct {
   float level[4][12];
   float tilt[4][12];
   float plate_x_mm, plate_y_mm, event_score, run_score;
   int32_t run_events;
+  int32_t four_channel_mask;   // bit c: a drop flagged on channel c keeps the four channels' position
 } impactsense_channel_check;
 extern const impactsense_channel_check impactsense_check;
 """
 
 
 def check_arrays(card: dict, signal: dict, three_channel: bool) -> dict | None:
-    """The card's check as arrays {"level": [4, 12], "tilt": [4, 12], "scores": [5]} (float32), or None when the
+    """The card's check as arrays {"level": [4, 12], "tilt": [4, 12], "scores": [6]} (float32: the plate's size, the
+    event and run thresholds, the run's events, four_channel_mask), or None when the
     board does not run it: no check, a version-1 check, a model without the three-channel classes (the flagged
     event's class) or with a twin."""
     check = card.get("channel_check")
@@ -33,8 +37,19 @@ def check_arrays(card: dict, signal: dict, three_channel: bool) -> dict | None:
     fits = {name: np.array([list(f["coef"]) + [f["median"], f["scale"]] for f in check[name]], np.float32)
             for name in ("level", "tilt")}
     scores = np.array([signal["plate_x_mm"], signal["plate_y_mm"], check["event_score"], check["run_score"],
-                       check["run_events"]], np.float32)
+                       check["run_events"], four_channel_mask(check)], np.float32)
     return {**fits, "scores": scores}
+
+
+def four_channel_mask(check: dict) -> int:
+    """Bit c set where the card's check keeps the four channels' position on a drop flagged on channel c
+    (flagged_position.py's "three_sensor_position" false there; absent: 0, the three-sensor path)."""
+    keep = check.get("three_sensor_position")
+    if keep is None:
+        return 0
+    if not isinstance(keep, list) or len(keep) != 4:
+        raise ValueError("channel_check.three_sensor_position: needs one bool per channel (4 values)")
+    return sum(1 << c for c, k in enumerate(keep) if not k)
 
 
 def check_c(arrays: dict) -> str:
@@ -42,7 +57,7 @@ def check_c(arrays: dict) -> str:
     rows = lambda a: "{" + ", ".join("{" + ", ".join(_c_float(v) for v in r) + "}" for r in a) + "}"  # noqa: E731
     s = arrays["scores"]
     body = ",\n  ".join([rows(arrays["level"]), rows(arrays["tilt"]), ", ".join(_c_float(v) for v in s[:4]),
-                         str(int(s[4]))])
+                         str(int(s[4])), str(int(s[5]) if len(s) > 5 else 0)])
     return f"const impactsense_channel_check impactsense_check = {{\n  {body}\n}};\n\n"
 
 
@@ -85,3 +100,30 @@ def budgeted(models, signal_cost: dict, budget: int) -> int:
                              f"{cost['flagged']:,}) of the board's {budget:,}")
         return 0
     return cost["check"]
+
+
+def mask_of(arrays: dict) -> int:
+    """The arrays' four_channel_mask (an export from before it: 0)."""
+    scores = arrays["scores"]
+    return int(scores[5]) if len(scores) > 5 else 0
+
+
+def four_channel_within(models, signal_cost: dict, forests: int, budget: int) -> None:
+    """With `export --trees auto`: a drop flagged on a channel whose choice is the four channels' runs the
+    three-sensor path (its class) and the forests; when that does not fit the event budget (signal_cost["total"]
+    with the check's share, the forests' instructions, the flagged event's localiser and class), the board takes the
+    three-sensor path on every channel (the mask 0, models.four_channel_note says why). The clean event's forests
+    are not cut for it."""
+    from .board.cost import check_instructions
+    from .signal import SignalConfig
+
+    if not models.channel_check or not mask_of(models.channel_check):
+        return
+    terms = max((len(m.terms) for m in models.three_channel.values()), default=0)
+    flagged = check_instructions(SignalConfig.from_dict(models.signal), terms)["flagged"]
+    need = signal_cost["total"] + forests + flagged
+    if need > budget:
+        models.channel_check["scores"][5] = 0
+        models.four_channel_note = (f"a flagged drop keeps the three-sensor path on every channel on the board: the "
+                                    f"four channels' position on one would take ~{need:,} instructions (forests "
+                                    f"{forests:,}, localiser without the channel and class {flagged:,}) of {budget:,}")

@@ -263,7 +263,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
                        weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
-                       simulated_rows=None) -> Path:
+                       simulated_rows=None, three_sensor_position=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -282,6 +282,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
     `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
     host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
+    three_sensor_position: the rig's model's per-channel choice of a flagged drop's position (its card's
+    channel_check["three_sensor_position"], flagged_position.py), set on the board model's check (one source: the
+    board follows the host's choice on the same channels).
     simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
     the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
     if train_rows is None:
@@ -314,6 +317,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             site_map=site_map, members=False, choose_class=choose_class,
                             twin_rows=None if simulated_rows is None else
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
+    check = model.card.get("channel_check")
+    if check and model.site_map is None and three_sensor_position is not None:
+        check["three_sensor_position"] = [bool(v) for v in three_sensor_position]
     if model.site_map is None:
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
                                                          session.xy_mm[rows][is_train], settings, any(left_out), front_end)}
@@ -383,7 +389,8 @@ does not: reports_twin_position). A model whose
                               weak_channel=int((card.get("twin") or {}).get("weak_channel", -1)),
                               choose_class="energy_class_choice" in card,
                               channel_left_out=(card.get("signal") or {}).get("channel_left_out"),
-                              simulated_rows=rows("simulated_recordings") if "simulated_recordings" in split else None)
+                              simulated_rows=rows("simulated_recordings") if "simulated_recordings" in split else None,
+                              three_sensor_position=(card.get("channel_check") or {}).get("three_sensor_position"))
 
 
 def _card_session(card_path: Path, field: str, record: dict) -> Session:

@@ -137,10 +137,21 @@ bool TableModels::predict_impl(const ic::EventResult& ev, const ic::LocaliserCon
   // The forests' position; NaN when they cannot run (a channel without an onset leaves the vector NaN).
   float x = NAN, y = NAN;
   const bool forests = !(residual_ && ev.phys.status != ic::kOk) && gather(x_, ev.vector, NAN, in);
-  if (forests && has_check_ && flagged >= 0 && flagged < ic::kChannels && loc != nullptr && core != nullptr &&
-      three_sensor_path(ev, *loc, *core, flagged, x_mm, y_mm, cls, uncertainty_mm)) {
-    *left_out = static_cast<int8_t>(flagged);  // a channel the check flags: the three-sensor path
-    return true;
+  if (forests && has_check_ && flagged >= 0 && flagged < ic::kChannels && loc != nullptr && core != nullptr) {
+    const float u0 = *uncertainty_mm;
+    if (three_sensor_path(ev, *loc, *core, flagged, x_mm, y_mm, cls, uncertainty_mm)) {
+      *left_out = static_cast<int8_t>(flagged);  // a channel the check flags: the three-sensor path
+      if (!((check_.four_channel_mask >> flagged) & 1)) return true;
+      // ... unless the model keeps the four channels' position on that channel (the host's flagged_position.py):
+      // the forests' position, the three-channel class, the channel still named
+      *uncertainty_mm = u0;
+      const float dx = x_.evaluate(x_.forest, in);
+      if (!same_xy_inputs_ && !gather(y_, ev.vector, NAN, in)) return false;
+      const float dy = y_.evaluate(y_.forest, in);
+      *x_mm = residual_ ? ev.phys.x_mm + dx : dx;
+      *y_mm = residual_ ? ev.phys.y_mm + dy : dy;
+      return true;
+    }
   }
   if (forests) {
     const float dx = x_.evaluate(x_.forest, in);

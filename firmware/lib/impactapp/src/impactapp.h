@@ -181,7 +181,9 @@ class TableModels : public Models {
   // whose energies the twin cannot explain is left out (the host's models.ImpactModel.predict is the same).
   // Without a twin, a channel the check flags (flagged >= 0) on an event the forests could place: the physics
   // position without it (impactcore::three_sensor_position) and its three-channel class, the channel in *left_out
-  // (the host's models.ImpactModel.predict, three_sensor_path); the forests do not run.
+  // (the host's models.ImpactModel.predict, three_sensor_path); the forests do not run, unless the check's
+  // four_channel_mask keeps the four channels' position on that channel (the host's flagged_position.py): then the
+  // forests' position with the three-channel class, the channel in *left_out.
   bool predict_event(const impactcore::EventResult& ev, const impactcore::LocaliserConfig& loc, float* x_mm,
                      float* y_mm, uint8_t* cls, float* uncertainty_mm, int8_t* left_out, int flagged = -1,
                      const impactcore::CoreConfig* core = nullptr, int32_t* reason = nullptr) const override;

@@ -116,6 +116,7 @@ inline impactcore::ChannelCheck exported_channel_check_value() {
   check.event_score = s.event_score;
   check.run_score = s.run_score;
   check.run_events = s.run_events;
+  check.four_channel_mask = s.four_channel_mask;
   return check;
 }
 inline const impactcore::ChannelCheck* exported_channel_check() {

@@ -599,6 +599,9 @@ struct ChannelCheck {
   float plate_x_mm = 1.0f, plate_y_mm = 1.0f;
   float event_score = 5.0f, run_score = 3.0f;
   int32_t run_events = 8;
+  // bit c set: a drop flagged on channel c keeps the four channels' position (the model's choice; the core does not
+  // read it: impactapp's TableModels, the host's flagged_position.py)
+  int32_t four_channel_mask = 0;
 };
 // The cubic's terms at a position.
 void channel_check_terms(float x_mm, float y_mm, float plate_x_mm, float plate_y_mm, float out[kCheckTerms]);
