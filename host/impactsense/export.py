@@ -7,9 +7,8 @@ forms, both written:
   split nodes and leaves apart, each in preorder: per split node a feature index with two child-is-a-leaf
   bits (u8), a float32 threshold and the leaves under its left child (u16; 7 bytes), per leaf the index of
   its value among the forest's distinct leaf values (u16, and f32 per distinct value: the values exactly);
-  walked by `impactapp::forest_mean` (firmware/lib/impactapp, forest.h).
-  The same tables go to `forest_tables.npz` for the emulator, so the emulator runs the very numbers
-  the board runs.
+  walked by `impactapp::forest_mean` (firmware/lib/impactapp, forest.h). The same tables go to `forest_tables.npz`
+  for the emulator, so the emulator runs the very numbers the board runs.
 - **The twin's site map** (models trained with one, `impactsense train --site-map`): the uint8 table, its
   base/scale and grid, and the model card's twin configuration, in `impactsense_forest_tables.c` and
   `forest_tables.npz`; the energy classifier then reads one input, index IMPACTSENSE_N_FEATURES (the
@@ -35,11 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError, ImpactSenseError
-from . import export_check
 from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_CHANNEL_DEFINE,  # noqa: F401
                        TABLE_KEYS, ExportError, _c_float, exported_fields,
                        f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
-from . import export_c
+from . import export_c, export_check
 from .height_class import linear_tables
 from .outputs import json_text, output_folder
 
@@ -197,12 +195,8 @@ def load_models(model_dir) -> ModelSet:
     residual = "phys_x_mm +" in str(card.get("target", ""))
     three, pairs = _load_three_channel(model_dir, card, card_path) if twin is None else ({}, {})
     signal = dict(card.get("signal") or {})
-    try:
-        check = export_check.check_arrays(card, signal, bool(three))
-    except ValueError as exc:
-        raise ExportError(f"{card_path} [{exc}]") from None
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
-                    check, three_position=pairs)
+                    export_check.check_arrays(card, signal, bool(three), card_path), three_position=pairs)
 
 
 def _load_three_channel(model_dir: Path, card: dict, card_path: Path) -> tuple[dict, dict]:
@@ -382,19 +376,14 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
     if trees == "auto":
         # a model without the twin: its forests get what the event budget leaves after the signal's options
         # (board.cost; a twin model's forests are capped at TWIN_MAX_TREES, measured with the twin's match)
-        if models.twin is None:
-            from .board.cost import EVENT_BUDGET, signal_instructions
-            from .signal import SignalConfig
-            signal_cost = signal_instructions(SignalConfig.from_dict(models.signal), 4, models.card.get("board_front_end"))
-            signal_cost["check"] = export_check.budgeted(models, signal_cost, EVENT_BUDGET)
-            signal_cost["total"] += signal_cost["check"]
+        from .board.cost import EVENT_BUDGET
+        signal_cost = export_check.board_signal_cost(models)
         k, sweep = select_trees(models, X_eval, phys_eval, xy_eval, twin_eval=twin_eval,
                                 max_trees=TWIN_MAX_TREES if models.twin is not None else None,
                                 max_instructions=None if signal_cost is None else EVENT_BUDGET - signal_cost["total"])
         row = next((r for r in sweep if r["trees"] == k), {})
         n_energy = row.get("energy_trees", n_energy)
-        if signal_cost is not None and "instructions" in row:
-            export_check.four_channel_within(models, signal_cost, row["instructions"], EVENT_BUDGET)
+        export_check.four_channel_within(models, signal_cost, row.get("instructions"))
     elif trees == "all" or (models.card.get("board_forests") or {}).get("use_boosted"):
         k = len(models.x.estimators_)   # all, or the board's boosted trees: every one (no prefix is the model)
     else:
@@ -451,10 +440,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
                                                   "total": signal_cost["total"] + row["instructions"]}
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
-    if models.channel_check is not None:   # the channels whose flagged drops keep the four channels' position
-        mask = export_check.mask_of(models.channel_check)
-        summary["flagged_four_channels"] = ([c for c in range(4) if mask >> c & 1] if models.four_channel_note is None
-                                            else models.four_channel_note)
+    summary.update(export_check.four_channel_summary(models))
     (out_dir / "export.json").write_text(json_text(summary))
     return summary
 

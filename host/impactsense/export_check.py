@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .export_c import _c_float
+from .export_c import ExportError, _c_float
 
 CHECK_DEFINE = "#define IMPACTSENSE_CHANNEL_CHECK 1           // the channel check (impactcore::ChannelCheck)\n"
 CHECK_DECL = """// The channel check (impactcore::ChannelCheck): per channel the level and tilt cubics (10 coefficients, the
@@ -26,7 +26,7 @@ extern const impactsense_channel_check impactsense_check;
 """
 
 
-def check_arrays(card: dict, signal: dict, three_channel: bool) -> dict | None:
+def check_arrays(card: dict, signal: dict, three_channel: bool, card_path=None) -> dict | None:
     """The card's check as arrays {"level": [4, 12], "tilt": [4, 12], "scores": [6]} (float32: the plate's size, the
     event and run thresholds, the run's events, four_channel_mask), or None when the
     board does not run it: no check, a version-1 check, a model without the three-channel classes (the flagged
@@ -37,18 +37,19 @@ def check_arrays(card: dict, signal: dict, three_channel: bool) -> dict | None:
     fits = {name: np.array([list(f["coef"]) + [f["median"], f["scale"]] for f in check[name]], np.float32)
             for name in ("level", "tilt")}
     scores = np.array([signal["plate_x_mm"], signal["plate_y_mm"], check["event_score"], check["run_score"],
-                       check["run_events"], four_channel_mask(check)], np.float32)
+                       check["run_events"], four_channel_mask(check, card_path)], np.float32)
     return {**fits, "scores": scores}
 
 
-def four_channel_mask(check: dict) -> int:
+def four_channel_mask(check: dict, card_path=None) -> int:
     """Bit c set where the card's check keeps the four channels' position on a drop flagged on channel c
     (flagged_position.py's "three_sensor_position" false there; absent: 0, the three-sensor path)."""
     keep = check.get("three_sensor_position")
     if keep is None:
         return 0
     if not isinstance(keep, list) or len(keep) != 4:
-        raise ValueError("channel_check.three_sensor_position: needs one bool per channel (4 values)")
+        raise ExportError(f"{card_path or 'model_card.json'} [channel_check.three_sensor_position]: needs one bool "
+                          f"per channel (4 values)")
     return sum(1 << c for c, k in enumerate(keep) if not k)
 
 
@@ -80,6 +81,20 @@ def binding_dict(arrays: dict | None) -> dict | None:
     return {k: np.asarray(v, np.float32).ravel().tolist() for k, v in arrays.items()}
 
 
+def board_signal_cost(models) -> dict | None:
+    """With `export --trees auto`, a model without the twin: the board's instructions an event before the forests
+    (board.cost's signal_instructions, "check": the check's share, budgeted; "total" with it); a twin model: None."""
+    from .board.cost import EVENT_BUDGET, signal_instructions
+    from .signal import SignalConfig
+
+    if models.twin is not None:
+        return None
+    cost = signal_instructions(SignalConfig.from_dict(models.signal), 4, models.card.get("board_front_end"))
+    cost["check"] = budgeted(models, cost, EVENT_BUDGET)
+    cost["total"] += cost["check"]
+    return cost
+
+
 def budgeted(models, signal_cost: dict, budget: int) -> int:
     """With `export --trees auto` (the event budget, board.cost): the instructions the check takes from the forests'
     share; when an event it flags (a localiser run without the channel and the three-channel class instead of the
@@ -108,17 +123,18 @@ def mask_of(arrays: dict) -> int:
     return int(scores[5]) if len(scores) > 5 else 0
 
 
-def four_channel_within(models, signal_cost: dict, forests: int, budget: int) -> None:
+def four_channel_within(models, signal_cost: dict | None, forests: int | None) -> None:
     """With `export --trees auto`: a drop flagged on a channel whose choice is the four channels' runs the
     three-sensor path (its class) and the forests; when that does not fit the event budget (signal_cost["total"]
     with the check's share, the forests' instructions, the flagged event's localiser and class), the board takes the
     three-sensor path on every channel (the mask 0, models.four_channel_note says why). The clean event's forests
     are not cut for it."""
+    from .board.cost import EVENT_BUDGET as budget
     from .board.cost import check_instructions
     from .signal import SignalConfig
 
-    if not models.channel_check or not mask_of(models.channel_check):
-        return
+    if signal_cost is None or forests is None or not models.channel_check or not mask_of(models.channel_check):
+        return   # a twin model, or no cost estimate of the forests (`--trees all`, N, boosted): kept
     terms = max((len(m.terms) for m in models.three_channel.values()), default=0)
     flagged = check_instructions(SignalConfig.from_dict(models.signal), terms)["flagged"]
     need = signal_cost["total"] + forests + flagged
@@ -127,3 +143,13 @@ def four_channel_within(models, signal_cost: dict, forests: int, budget: int) ->
         models.four_channel_note = (f"a flagged drop keeps the three-sensor path on every channel on the board: the "
                                     f"four channels' position on one would take ~{need:,} instructions (forests "
                                     f"{forests:,}, localiser without the channel and class {flagged:,}) of {budget:,}")
+
+
+def four_channel_summary(models) -> dict:
+    """export.json's "flagged_four_channels": the channels whose flagged drops keep the four channels' position on
+    the board, or why none does (four_channel_within); {} without the check on the board."""
+    if models.channel_check is None:
+        return {}
+    mask = mask_of(models.channel_check)
+    return {"flagged_four_channels": [c for c in range(4) if mask >> c & 1] if models.four_channel_note is None
+            else models.four_channel_note}

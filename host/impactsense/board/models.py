@@ -243,6 +243,15 @@ def board_corrections(model: ImpactModel, features, xy_mm, settings: ForestSetti
     return out
 
 
+def follow_flagged_choice(model: ImpactModel, three_sensor_position) -> None:
+    """A board model with the channel check and without a twin takes the rig's model's per-channel choice of a
+    flagged drop's position (its card's channel_check["three_sensor_position"], flagged_position.py; None: the
+    board model's own default, the three-sensor path): one source, so board and host place a flagged drop alike."""
+    check = model.card.get("channel_check")
+    if check and model.site_map is None and three_sensor_position is not None:
+        check["three_sensor_position"] = [bool(v) for v in three_sensor_position]
+
+
 def forests_budget(model: ImpactModel, n_inputs: int, front_end=None) -> float:
     """What the event budget leaves the position pair's trees (board.cost): the budget less the signal's cost, the
     forests' fixed share and inputs, and the energy model's (its linear terms, or one tree of its forest); the
@@ -282,9 +291,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
     `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
     host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
-    three_sensor_position: the rig's model's per-channel choice of a flagged drop's position (its card's
-    channel_check["three_sensor_position"], flagged_position.py), set on the board model's check (one source: the
-    board follows the host's choice on the same channels).
+    three_sensor_position: the rig's model's choice of a flagged drop's position per channel (follow_flagged_choice).
     simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
     the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
     if train_rows is None:
@@ -317,9 +324,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                             site_map=site_map, members=False, choose_class=choose_class,
                             twin_rows=None if simulated_rows is None else
                             ~np.isin(rows, np.asarray(simulated_rows, int))[is_train])
-    check = model.card.get("channel_check")
-    if check and model.site_map is None and three_sensor_position is not None:
-        check["three_sensor_position"] = [bool(v) for v in three_sensor_position]
+    follow_flagged_choice(model, three_sensor_position)
     if model.site_map is None:
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
                                                          session.xy_mm[rows][is_train], settings, any(left_out), front_end)}
