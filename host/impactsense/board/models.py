@@ -285,13 +285,12 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     The band picks and localiser starts are chosen among those within the board's event budget
     (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
     configured one); retrain_for_board passes the one the rig's own model chose; choose_board_threshold keeps it
-    or lowers it (the card's "board_threshold"). channel_gain and
+    or lowers it (the card's "board_threshold"). three_sensor_position: follow_flagged_choice's. channel_gain and
     weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept. choose_class: without a
     site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit).
     channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
     `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
     host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
-    three_sensor_position: the rig's model's choice of a flagged drop's position per channel (follow_flagged_choice).
     simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
     the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
     if train_rows is None:
