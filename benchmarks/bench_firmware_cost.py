@@ -130,7 +130,11 @@ def shipped_board_model(cache_root: Path) -> tuple[Path, int, int]:
         sys.exit(f"{tables}: no shipped board models (run `impactsense export`, README)")
     done = json.loads((SHIPPED / "export.json").read_text())["trees"]
     trees, energy_trees = int(done["x"]), int(done["energy"])
-    key = hashlib.sha256(tables.read_bytes()).hexdigest()[:16]
+    # keyed on the tables and on what writes the C (the core's config struct, the exporter): a cache made
+    # before a config field was added is not this core's export
+    writers = (tables, ROOT / "firmware" / "lib" / "impactcore" / "src" / "impactcore.h",
+               ROOT / "host" / "impactsense" / "export_c.py")
+    key = hashlib.sha256(b"".join(p.read_bytes() for p in writers)).hexdigest()[:16]
     cache = cache_root / f"shipped-{key}"
     board = cache / "out" / "board-model"
     if not (board / "model_card.json").is_file():
