@@ -4,10 +4,12 @@ benchmarks/loop_sessions.py puts them into its `hum` and `noise` sessions (`loop
 several draws each.
 
     python3 benchmarks/bench_noise_picks.py SESSION [--hum 26.2] [--white 5,9.77] [--draws 2]
-        [--set FIELD=VALUE ...]
+        [--set FIELD=VALUE ...] [--same]
 
 --set changes a core configuration field (SignalConfig) for the changed drops' picks, e.g. --set aic_blend=1
---set onset_noise_factor=4; the clean picks are always the rig's configuration (the yardstick).
+--set onset_noise_factor=4; the clean picks are the rig's configuration (the yardstick), or with --same the same
+settings as the changed picks (how well the changed drops repeat their own clean picks: what a model trained on
+those settings with the change in its training drops sees).
 
 Prints per change: each channel's ToA shift (median) and its robust spread (1.4826 MAD, us) against the clean
 pick of the same drop, the DToA's robust spread per pair and its mean over the pairs (what the localiser and the
@@ -44,13 +46,14 @@ def robust_sd(d: np.ndarray) -> np.ndarray:
     return 1.4826 * np.nanmedian(np.abs(d - np.nanmedian(d, 0)), 0)
 
 
-def scatter(session, truth: dict, draws: int, overrides: dict) -> dict:
-    """The picks' shift and spread under `truth`'s change against the clean picks of the same drops."""
+def scatter(session, truth: dict, draws: int, overrides: dict, same: bool = False) -> dict:
+    """The picks' shift and spread under `truth`'s change against the clean picks of the same drops (the rig's
+    settings, or with `same` the changed picks' own)."""
     from impactsense.pipeline import featurize
     from impactsense.signal import SignalConfig
 
-    clean = np.asarray(featurize(session.adc, SignalConfig.for_rig(session.rig)).toa_us, float)
     cfg = SignalConfig.for_rig(session.rig, **overrides)
+    clean = np.asarray(featurize(session.adc, cfg if same else SignalConfig.for_rig(session.rig)).toa_us, float)
     shift, dd, thr = [], [], []
     for j in range(draws):
         f = featurize(changed_adc(session, truth, 1000 + j), cfg)
@@ -73,14 +76,16 @@ def main(argv=None) -> int:
     ap.add_argument("--white", default="5,9.77", help="extra white noise levels (counts rms)")
     ap.add_argument("--draws", type=int, default=2)
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    ap.add_argument("--same", action="store_true", help="clean picks with the --set settings too")
     args = ap.parse_args(argv)
     overrides = {k: (int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (s.split("=", 1) for s in args.set)}
     session = load_session(args.session)
     changes = ([("hum %.1f" % args.hum, {"params": {"hum_hz": 50.0, "hum_counts": args.hum}})] if args.hum else [])
     changes += [("white %s" % w, {"params": {"noise_counts_rms": float(w)}}) for w in args.white.split(",") if w]
-    print(f"{args.session}: {len(session)} drops, {args.draws} draws; changed picks with {overrides or 'the rig config'}")
+    print(f"{args.session}: {len(session)} drops, {args.draws} draws; changed picks with {overrides or 'the rig config'}"
+          f"{' against clean picks with the same settings' if args.same else ''}")
     for name, truth in changes:
-        r = scatter(session, {"effect": "noise", "sensor": None, **truth}, args.draws, overrides)
+        r = scatter(session, {"effect": "noise", "sensor": None, **truth}, args.draws, overrides, args.same)
         fmt = lambda v: " ".join(f"{x:6.1f}" for x in v)   # noqa: E731
         print(f"{name:>11}: ToA shift {fmt(r['shift_us'])} us, spread {fmt(r['shift_sd_us'])} us; DToA spread "
               f"{fmt(r['dtoa_sd_us'])} (mean {np.mean(r['dtoa_sd_us']):.1f}) us, > {FAR_US:.0f} us {r['far']:.3f}; "
