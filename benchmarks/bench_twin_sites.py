@@ -1,11 +1,12 @@
 """The twin against the rig at the rig's own sites (issue 15): is a zero-shot chain's loss the model's or the twin's?
 
-    python3 benchmarks/bench_twin_sites.py DATA --model M [--cache SITES.npz] [--stiffness F] [--jobs 1]
+    python3 benchmarks/bench_twin_sites.py DATA --model M [--cache SITES.npz] [--stiffness F] [--set FIELD=VALUE ...]
+        [--jobs 1]
 
 M is a zero-shot chain's model (`train V --out M --test-fraction 0 --site-map auto`; its card names CAL.json and
 the calibration drops). One drop per case of DATA (its first repetition's position and height) is simulated with
-the calibrated twin (CAL.json's sim_params, the rig's noise; --stiffness F scales E1, E2 and G12, or E, by F: a
-what-if twin), then, by the distance to the nearest plate edge:
+the calibrated twin (CAL.json's sim_params, the rig's noise; --stiffness F scales E1, E2 and G12, or E, by F, and
+--set FIELD=VALUE replaces a SimParams field, e.g. support=clamped: what-if twins), then, by the distance to the nearest plate edge:
 - the chain's model on the measured drops (every drop but the calibration drops): reported / physics MAE per axis;
 - the same model on the twin's drops at the same sites, read as it read its virtual drops (the virtual drops'
   localiser constants from the card: no rig delays, unit gains, the travel prior): reported / physics MAE. A small
@@ -56,16 +57,31 @@ def virtual_reading(model):
     return replace(model, signal=SignalConfig.from_dict(d))
 
 
-def twin_drops(session, model, sites, stiffness: float, cache: Path | None, jobs: int):
+def what_if(sets: list[str]) -> dict:
+    """--set FIELD=VALUE pairs as SimParams fields (a number where it parses as one, else the text)."""
+    out = {}
+    for item in sets:
+        field, _, value = item.partition("=")
+        try:
+            out[field] = float(value)
+        except ValueError:
+            out[field] = value
+    return out
+
+
+def twin_drops(session, model, sites, stiffness: float, sets: dict, cache: Path | None, jobs: int):
     from impactsense.sim import SimParams, simulate_drops
 
     key = {"sites": sites.tolist(), "stiffness": stiffness, "calibration": model.card["calibration"]}
+    if sets:
+        key["set"] = sets
     if cache is not None and cache.is_file():
         z = np.load(cache)
         if json.loads(str(z["key"])) == key:
             return z["adc"]
     p = SimParams.from_json(model.card["calibration"])
-    p = replace(p, **{k: getattr(p, k) * stiffness for k in ("e_pa", "e2_pa", "g12_pa") if getattr(p, k)})
+    p = replace(p, **{k: getattr(p, k) * stiffness for k in ("e_pa", "e2_pa", "g12_pa") if getattr(p, k)}, **sets)
+    p.validate()
     adc = simulate_drops(p, session.rig, session.x_mm[sites], session.y_mm[sites], session.height_mm[sites],
                          noise=True, seed=1, workers=jobs, progress=False)
     if cache is not None:
@@ -79,6 +95,8 @@ def main() -> int:
     ap.add_argument("--model", required=True)
     ap.add_argument("--cache", type=Path, default=None, help="npz keeping the twin's drops between runs")
     ap.add_argument("--stiffness", type=float, default=1.0, help="scale the twin's moduli (a what-if twin)")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="replace a SimParams field of the twin (a what-if twin), e.g. support=clamped")
     ap.add_argument("--jobs", type=int, default=1)
     a = ap.parse_args()
     from impactsense.sitemap import twin_features
@@ -90,7 +108,7 @@ def main() -> int:
     session, model, rows, _ = chain
     rig, cases = session.rig, session.case_id
     sites = np.array([rows[cases[rows] == c][0] for c in np.unique(cases[rows])])
-    sim = twin_drops(session, model, sites, a.stiffness, a.cache, a.jobs)
+    sim = twin_drops(session, model, sites, a.stiffness, what_if(a.set), a.cache, a.jobs)
     vm = virtual_reading(model)
     xy = session.xy_mm.astype(float)
     px, py = rig.plate_x_mm, rig.plate_y_mm
@@ -122,7 +140,7 @@ def main() -> int:
     de = np.array([np.nanmedian(fmm[m][:, arr], 0) for m in same]) - ftt[:, arr]
     de = (de - np.nanmedian(de, 0)) * np.log(10)
     dm, dt = edge(xy[rows]), edge(xy[sites])
-    print(f"{a.data}: {len(rows)} measured drops, {len(sites)} twin sites (stiffness x{a.stiffness:g}); arrival-time "
+    print(f"{a.data}: {len(rows)} measured drops, {len(sites)} twin sites (stiffness x{a.stiffness:g}{''.join(' ' + x for x in a.set)}); arrival-time "
           f"slope rig - twin {slope:+.2f} us per 100 mm of path")
     print("edge mm  | rig: n, reported / physics MAE | twin: n, reported / physics | ToA rms / after slope us "
           "| ln energy rig - twin")
