@@ -14,7 +14,8 @@ the calibrated twin (CAL.json's sim_params, the rig's noise; --stiffness F scale
   virtual set's coverage;
 - the per-site arrival-time mismatch (threshold picks with the model's picker; the rig's case median less its
   calibrated channel delays, minus the twin's; each site's mean and a per-channel constant removed): its rms, its
-  slope against the path's length (a slowness error common to all sites) and the rms left after that slope;
+  slope against the path's length (a slowness error common to all sites), the rms left after that slope and the
+  share of channel picks left more than 15 us off (a cycle-scale offset: the picked cycles differ);
 - the rig minus the twin's log arrival energy (the model's twin features; per-channel medians removed), site mean.
 A diagnosis, no target: exits 0.
 """
@@ -33,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import chain_model_rows  # noqa: E402
 
 BANDS = ((0, 40), (40, 60), (60, 80), (80, 120), (120, 1e9))
+JUMP_US = 15.0  # a pick this far from the twin's after the slope: a cycle-scale offset, not the pick's scatter
 
 
 def virtual_reading(model):
@@ -69,6 +71,19 @@ def what_if(sets: list[str]) -> dict:
     return out
 
 
+def what_if_params(p, stiffness: float, sets: dict):
+    """The twin's SimParams with E1, E2 and G12 (or E) x stiffness and the --set fields replaced; an unknown field or
+    a value SimParams refuses is an error naming it."""
+    from impactsense.errors import ConfigError
+
+    unknown = sorted(set(sets) - set(p.__dataclass_fields__))
+    if unknown:
+        raise ConfigError(f"--set: no SimParams field {', '.join(unknown)}")
+    p = replace(p, **{k: getattr(p, k) * stiffness for k in ("e_pa", "e2_pa", "g12_pa") if getattr(p, k)}, **sets)
+    p.validate()
+    return p
+
+
 def twin_drops(session, model, sites, stiffness: float, sets: dict, cache: Path | None, jobs: int):
     from impactsense.sim import SimParams, simulate_drops
 
@@ -79,9 +94,7 @@ def twin_drops(session, model, sites, stiffness: float, sets: dict, cache: Path 
         z = np.load(cache)
         if json.loads(str(z["key"])) == key:
             return z["adc"]
-    p = SimParams.from_json(model.card["calibration"])
-    p = replace(p, **{k: getattr(p, k) * stiffness for k in ("e_pa", "e2_pa", "g12_pa") if getattr(p, k)}, **sets)
-    p.validate()
+    p = what_if_params(SimParams.from_json(model.card["calibration"]), stiffness, sets)
     adc = simulate_drops(p, session.rig, session.x_mm[sites], session.y_mm[sites], session.height_mm[sites],
                          noise=True, seed=1, workers=jobs, progress=False)
     if cache is not None:
@@ -143,16 +156,21 @@ def main() -> int:
     print(f"{a.data}: {len(rows)} measured drops, {len(sites)} twin sites (stiffness x{a.stiffness:g}{''.join(' ' + x for x in a.set)}); arrival-time "
           f"slope rig - twin {slope:+.2f} us per 100 mm of path")
     print("edge mm  | rig: n, reported / physics MAE | twin: n, reported / physics | ToA rms / after slope us "
-          "| ln energy rig - twin")
+          "| share > 15 us | ln energy rig - twin")
+
+    def tail(x):  # the share of channel picks left more than half a cycle's scale (15 us) from the twin's
+        x = np.abs(x[np.isfinite(x)])
+        return float(np.mean(x > JUMP_US)) if x.size else float("nan")
+
     for lo, hi in BANDS:
         m1, m2 = (dm >= lo) & (dm < hi), (dt >= lo) & (dt < hi)
         if not m2.any():
             continue
         print(f"{lo:3.0f}-{'' if hi > 1e8 else f'{hi:.0f}':>4} | {m1.sum():3d}, {em[m1].mean():5.2f} / {epm[m1].mean():5.2f} "
               f"| {m2.sum():3d}, {et[m2].mean():5.2f} / {ept[m2].mean():5.2f} | {np.sqrt(np.nanmean(d[m2] ** 2)):5.2f} / "
-              f"{np.sqrt(np.nanmean(left[m2] ** 2)):5.2f} | {np.nanmean(de[m2]):+.3f}")
+              f"{np.sqrt(np.nanmean(left[m2] ** 2)):5.2f} | {tail(left[m2]):.3f} | {np.nanmean(de[m2]):+.3f}")
     print(f"all      | {len(rows):3d}, {em.mean():5.2f} / {epm.mean():5.2f} | {len(sites):3d}, {et.mean():5.2f} / "
-          f"{ept.mean():5.2f} | {np.sqrt(np.nanmean(d ** 2)):5.2f} / {np.sqrt(np.nanmean(left ** 2)):5.2f} |")
+          f"{ept.mean():5.2f} | {np.sqrt(np.nanmean(d ** 2)):5.2f} / {np.sqrt(np.nanmean(left ** 2)):5.2f} | {tail(left):.3f} |")
     return 0
 
 
