@@ -23,10 +23,12 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there; fewer where the
   signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel
   metric) runs the costlier form;
-- forests: FOREST_PER_NODE for each node a tree visits and FOREST_PER_TREE for each tree, the nodes counted
-  on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads (impactapp's
-  forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering, the calls,
-  the vote).
+- forests: FOREST_PER_NODE for each node a tree visits (its leaf included) and FOREST_PER_TREE for each tree,
+  the nodes counted on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads
+  (impactapp's forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering,
+  the calls, the vote). forest_mean walks a split node in 9 (left) or 10 (right) instructions and a tree's
+  root, count and leaf in ~12, so a tree of s splits costs at most 10 s + 12 = 10 (nodes - 1) + 12: counting
+  the leaf as a node at 11 bounds it with one spare a node (a boosted depth-3 tree: 44 against 42).
 """
 
 from __future__ import annotations
@@ -48,9 +50,12 @@ LOCALISER_PER_EVALUATION = (280, 375)
 # travel distances, the t0 passes) and an expf; an estimate, not measured under qemu (no board model uses it:
 # 15 x 15 points cost more than the event budget).
 POSTERIOR_PER_POINT = 450
+# The forests' walk, refitted on the qemu image's models stage (TICKS_DROP models, every drop of two rigs' exports,
+# boosted and random forests; docs/findings.md "Session 22: boardcost"): the models less 10 a split and 12 a tree is
+# 1,620-1,711 with 40 order keys and 14 linear terms, i.e. ~1,010 beyond them; FOREST_FIXED keeps ~40 over that.
 FOREST_PER_NODE = 11
-FOREST_PER_TREE = 30
-FOREST_FIXED = 800
+FOREST_PER_TREE = 0
+FOREST_FIXED = 1050
 # forest_mean's order key of one input (load, two ALU operations, store and the loop: 7 instructions, qemu image)
 FOREST_PER_INPUT = 7
 # A term of the linear energy estimate (impactapp::linear_terms): three factor slots, each a load and a compare and,
