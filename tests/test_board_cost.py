@@ -280,3 +280,22 @@ def test_the_board_refit_gives_its_correction_what_a_front_ends_captures_leave(t
     left = card["board_forests"]["instructions_left"]
     assert left == int(forests_budget(model, n, card["board_front_end"])) == int(forests_budget(model, n)) - \
         cost.FRONT_END_INSTRUCTIONS
+
+
+def test_forest_rates_bound_the_walk_measured_under_qemu():
+    """impactapp's forest_mean walks a split node in at most 10 instructions and a tree's root, count and leaf in
+    ~12 (qemu, docs/findings.md "Session 22: boardcost"): the estimate's per-node rate (the leaf counted) bounds
+    that on every row of deep random trees and of depth-3 boosted ones, and a boosted stage is not counted at
+    more than twice the walk (the old 148 a stage against a measured ~83 cost rigs their stages)."""
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(400, 5)).astype(np.float32)
+    y = X[:, 0] + np.sin(3 * X[:, 1]) + 0.1 * rng.normal(size=400)
+    for depth in (3, None):
+        forest = RandomForestRegressor(n_estimators=5, max_depth=depth, random_state=0).fit(X, y)
+        nodes = cost.forest_nodes(forest, X)
+        walk = (10 * (nodes - 1) + 12).sum(axis=0)          # s splits: 10 s + 12 a tree
+        est = cost.forests_instructions({"x": nodes}, {"x": 5}) - cost.FOREST_FIXED
+        assert est >= walk.max()
+    from impactsense.board import boosted
+    stage = 2 * boosted.STAGE_INSTRUCTIONS                   # both coordinates, depth 3: 3 splits each
+    assert 2 * (10 * boosted.BOOST_DEPTH + 12) <= stage <= 1.1 * 2 * (10 * boosted.BOOST_DEPTH + 12)
