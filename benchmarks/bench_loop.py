@@ -8,7 +8,8 @@ loop, and the unchanged sessions' MAE. One HTML report per diagnose in OUT/repor
 
 Models: the reference model is trained on all of `ref` (forests and physics localiser, no site map: a
 plain measured-trained model). After the loop, two models are trained on `ref`'s declared drops:
-- measured-trained: `ref`'s recordings with every diagnosed effect's signal model put in (as `impactsense
+- measured-trained: `ref`'s recordings with every diagnosed effect's signal model put in but a channel delay,
+  which the model's picks take out (`impactsense.loop.with_channel_delays`) (as `impactsense
   retrain`: a debonded channel's low-pass and gain sized on the recordings by `impactsense.loop.fit_bond`,
   `impactsense.loop.measured_training_session`, several draws of a random effect and the twin's drops with it
   at new positions, and the pick settings `impactsense.loop.pick_settings` re-chooses for a raised noise floor);
@@ -148,13 +149,14 @@ def cached_twin_session(ref, sim_params, effects, folder: Path, slow: float, see
     import dataclasses
 
     from impactsense.data import load_session
-    from impactsense.loop import training_rig, twin_training_session
+    from impactsense.loop import recorded_effects, training_rig, twin_training_session
 
-    key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": effects, "seed": seed},
+    key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": recorded_effects(effects),
+                      "seed": seed},
                      sort_keys=True, default=float)   # the slowness is the reference recordings' (their fingerprint)
     stamp = folder / "twin-key.json"
     if stamp.exists() and stamp.read_text() == key:
-        return dataclasses.replace(load_session(folder), rig=training_rig(ref.rig, effects))
+        return dataclasses.replace(load_session(folder), rig=training_rig(ref.rig, effects))   # the declared rig
     sess = twin_training_session(ref, sim_params, effects, folder, slow, seed, workers)
     stamp.write_text(key)
     return sess
@@ -164,7 +166,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
     from impactsense.bond_choice import fit_with_bond_choice
-    from impactsense.loop import (effect_dicts, fit_bond, measured_training_session, pick_settings,
+    from impactsense.commands.retrain import carry_delays
+    from impactsense.loop import (channel_delays, effect_dicts, fit_bond, measured_training_session, pick_settings,
                                   size_plate_change, split_effects, training_draws, weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
@@ -197,7 +200,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
                                            twin=sim_params, workers=args.workers)
         # as `impactsense retrain`: a bond's channel left out (flagged) when DATA_NEW's drops say so (bond_choice)
         (m_model, _), row["bond_choice"] = fit_with_bond_choice(
-            lambda signal: train_score(m_sess, args.trees, args.seed, signal), pick_settings(m_sess, accepted),
+            lambda signal: carry_delays(train_score(m_sess, args.trees, args.seed, signal), channel_delays(accepted)),
+            pick_settings(m_sess, accepted),
             sess, accepted, seed=args.seed, reference=(ref_model, None))
         if m_model.twin_fit is not None and m_model is not ref_model:
             m_model.twin_fit.weak_channel = weak_channel(accepted)
@@ -208,7 +212,7 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         if twin:
             t_sess = cached_twin_session(ref, sim_params, effect_dicts(accepted), work / f"{name}-twin", slow,
                                          args.seed, args.workers)
-            t_model, _ = train_score(t_sess, args.trees, args.seed)
+            t_model, _ = carry_delays(train_score(t_sess, args.trees, args.seed), channel_delays(accepted))
             if t_model.twin_fit is not None:
                 t_model.twin_fit.weak_channel = weak_channel(accepted)
             row["twin"] = score(sess, t_model)

@@ -365,13 +365,12 @@ def test_onset_gain_of_a_bond_channel_is_its_lowpass_gain_at_the_pick_frequency(
     assert got[1] < 0.35 and got[0] == got[2] == got[3] == 1.0
 
 
-def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path, monkeypatch):
-    """With RIG_CARRIES_MOVE, after a sensor_position diagnosis the loop's training data carries the disc where the
+def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path):
+    """With moved_rig (retrain --moved-rig), after a sensor_position diagnosis the loop's training data carries the disc where the
     diagnosis places it (its rig.json: the model trained on it localises with that geometry; the inner region
     stays the declared one), the card's record says which disc moved, and `evaluate`'s rig check still takes the
     sessions' declared rig.json (the card's declared positions) and rejects a rig that is neither; a gain moves
-    no disc; without the switch (the default) the training data keeps the declared rig."""
-    import impactsense.loop as L
+    no disc; without the option (the default) the training data keeps the declared rig."""
     from impactsense.checks import check_rig, rig_summary
     from impactsense.errors import DataError
     from impactsense.loop import diagnosed_rig, effect_dicts, measured_training_session, moved_sensors
@@ -379,11 +378,9 @@ def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path, monkeypatch):
     base = load_session("bundled:session-1").subset(np.arange(24))
     ref = R.fit_reference(R.extract(base))
     move = D.Candidate("sensor_position", 2, {"dx_mm": 6.0, "dy_mm": -3.0, "offset_mm": 6.7}, 20.0, 0.0, True, True, [])
-    monkeypatch.setattr(L, "RIG_CARRIES_MOVE", False)
     kept = measured_training_session(base, [move], ref, tmp_path / "declared")
     assert np.array_equal(kept.rig.sensor_xy_mm, base.rig.sensor_xy_mm)
-    monkeypatch.setattr(L, "RIG_CARRIES_MOVE", True)
-    out = measured_training_session(base, [move], ref, tmp_path / "moved")
+    out = measured_training_session(base, [move], ref, tmp_path / "moved", moved_rig=True)
     assert np.allclose(out.rig.sensor_xy_mm[2] - base.rig.sensor_xy_mm[2], [6.0, -3.0], atol=1e-4)
     assert np.allclose(np.delete(out.rig.sensor_xy_mm, 2, 0), np.delete(base.rig.sensor_xy_mm, 2, 0))
     assert out.rig.inner_region_mm == pytest.approx(base.rig.inner_region_mm)
@@ -392,7 +389,7 @@ def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path, monkeypatch):
     assert [m["sensor"] for m in moved] == [2]
     assert np.allclose(np.subtract(moved[0]["diagnosed_xy_mm"], moved[0]["declared_xy_mm"]), [6.0, -3.0], atol=1e-3)
     gain = D.Candidate("sensor_gain", 0, {"gain": 0.8}, 10.0, 0.0, True, True, [])
-    assert np.array_equal(measured_training_session(base, [gain], ref, tmp_path / "gain").rig.sensor_xy_mm,
+    assert np.array_equal(measured_training_session(base, [gain], ref, tmp_path / "gain", moved_rig=True).rig.sensor_xy_mm,
                           base.rig.sensor_xy_mm)
     card = {"rig": {**rig_summary(out.rig), "declared_sensor_xy_mm": rig_summary(base.rig)["sensor_xy_mm"]}}
     check_rig(card, base.rig, "card", "DATA_NEW")   # the sessions' declared rig.json: taken

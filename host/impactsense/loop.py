@@ -12,8 +12,14 @@
   reads it); `damping` scales the twin's mass-proportional D_s as the twin's own decay curve reads the data
   (`plate_scan.damping_scale_scan`, put in by `size_plate_change`), without it by twice the
   envelope's extra log-decay rate (every mode decays as exp(-D_s t / 2));
-- at the signal level (after the simulation, or on measured recordings): delays, gains, low-pass, noise,
-  clipping, by each effect's own `apply_signal`.
+- at the signal level (after the simulation, or on measured recordings): gains, low-pass, noise, clipping, by
+  each effect's own `apply_signal`;
+- in the model's picks: a diagnosed `channel_delay` is not put into the training recordings. The retrained model
+  subtracts it from that channel's picks at inference (`with_channel_delays`: its rig_delay_us and band_delay_us,
+  on top of the delays its localiser fitted on the training drops), as the core subtracts any rig delay. A
+  constant delay is then taken out exactly for whatever cycle the picks catch; a sample shift of the training
+  recordings by a fraction of a sample is not the analogue delay where the onset is sampled near the Nyquist
+  rate (the shifted samples' picks move by a drop-dependent amount the session's picks do not share).
 `twin_training_session` simulates DATA_REF's declared drops with the corrected twin: the training data of a
 model that needs no new drops (zero-shot from the corrected twin).
 
@@ -55,6 +61,7 @@ import numpy as np
 from .plate_scan import e_scale_scan, size_plate_change  # noqa: F401  (the loop's E sizing)
 
 TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
+PICK_EFFECTS = ("channel_delay",)     # effects the model's picks carry (`with_channel_delays`), not the recordings
 RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random draw
 NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
 TWIN_TRAINING_POSITIONS = 1000         # with a twin and a random effect: distinct training positions (the twin's added)
@@ -65,15 +72,41 @@ BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and 
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
-# The training sessions' rig carries a diagnosed move (`training_rig`). Off: measured on loop sessions it moves the
-# physics localiser's MAE down on most moves but the reported MAE both ways (docs/findings.md "Session 21: loopmove")
-RIG_CARRIES_MOVE = False
 
 
 def split_effects(effects) -> tuple[list, list]:
     """(effects the FEM twin carries, effects put in at the signal level); only significant entries."""
     sig = [e for e in effects if e.get("significant", True) and e["effect"] != "none"]
     return ([e for e in sig if e["effect"] in TWIN_EFFECTS], [e for e in sig if e["effect"] not in TWIN_EFFECTS])
+
+
+def recorded_effects(effects) -> list:
+    """The effects (dicts or accepted candidates) put into training recordings: all but PICK_EFFECTS."""
+    return [e for e in effects if _name(e) not in PICK_EFFECTS]
+
+
+def channel_delays(effects) -> list[float]:
+    """The per-channel delay (us) the diagnosed `channel_delay` effects add (dicts or accepted candidates)."""
+    out = [0.0] * 4
+    for e in effects:
+        if _name(e) == "channel_delay" and (not isinstance(e, dict) or e.get("significant", True)):
+            params, sensor = (e["params"], e["sensor"]) if isinstance(e, dict) else (e.params, e.sensor)
+            out[int(sensor)] += float(params["delay_us"])
+    return out
+
+
+def with_channel_delays(signal, delays):
+    """`signal` (a SignalConfig) whose picks also take `delays` (us per channel) out: added to the rig delays of
+    the threshold picks and to the band picks' own delays (the core removes both from every pick)."""
+    if not any(delays):
+        return signal
+    return dataclasses.replace(signal,
+                               rig_delay_us=[float(a) + float(d) for a, d in zip(signal.rig_delay_us, delays)],
+                               band_delay_us=[float(a) + float(d) for a, d in zip(signal.band_delay_us, delays)])
+
+
+def _name(e) -> str:
+    return e["effect"] if isinstance(e, dict) else e.effect
 
 
 def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
@@ -94,7 +127,7 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
 
 def diagnosed_rig(rig, effects):
     """`rig` with each significant sensor_position of `effects` (dicts) put in: the discs where the diagnosis
-    places them (the corrected twin's rig; with RIG_CARRIES_MOVE the loop's training sessions' too, so the model
+    places them (the corrected twin's rig; with `moved_rig` (retrain --moved-rig) the loop's training sessions' too, so the model
     trained on them, its localiser, its features' geometry and the card's rig, carries the diagnosed position:
     `moved_sensors` says which); the inner region stays the declared rig's."""
     from .data import rig_from_dict
@@ -111,10 +144,12 @@ def diagnosed_rig(rig, effects):
     return rig_from_dict(raw)
 
 
-def training_rig(rig, effects):
-    """The rig the loop's training sessions are written with: `diagnosed_rig` when RIG_CARRIES_MOVE, else `rig`
-    (the declared one; the move is then in the recordings only, and the forests learn it)."""
-    return diagnosed_rig(rig, effects) if RIG_CARRIES_MOVE else rig
+def training_rig(rig, effects, moved_rig: bool = False):
+    """The rig the loop's training sessions are written with: `diagnosed_rig` when moved_rig (`retrain
+    --moved-rig`), else `rig` (the declared one, the default; the move is then in the recordings only, and the
+    forests learn it). Off by default: measured on loop sessions the moved rig lowers the physics localiser's
+    MAE on most moves but moves the reported MAE both ways (docs/findings.md "Session 21: loopmove")."""
+    return diagnosed_rig(rig, effects) if moved_rig else rig
 
 
 def moved_sensors(declared, diagnosed) -> list[dict]:
@@ -141,8 +176,9 @@ def corrected_twin(params, rig, effects):
 
 
 def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
-                          workers: int = 2):
-    """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after;
+                          workers: int = 2, moved_rig: bool = False):
+    """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after (a delay
+    not: `recorded_effects`);
     written as a session folder (its rig.json: `training_rig`) and returned loaded."""
     from .data import load_session, write_session
     from .effects import context
@@ -152,9 +188,9 @@ def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: fl
     p, sim_rig = corrected_twin(params, base.rig, effects)
     adc = simulate_drops(p, sim_rig, base.x_mm, base.y_mm, base.height_mm, noise=True, seed=seed,
                          workers=workers, progress=False)
-    _, signal = split_effects(effects)
+    _, signal = split_effects(recorded_effects(effects))
     adc = apply_effects(adc, signal, context(base, slowness_us_per_mm), seed)
-    path = write_session(out_dir, training_rig(base.rig, effects), base.x_mm, base.y_mm, base.height_mm, adc,
+    path = write_session(out_dir, training_rig(base.rig, effects, moved_rig), base.x_mm, base.y_mm, base.height_mm, adc,
                          base.case_id, base.repetition)
     return load_session(path)
 
@@ -175,14 +211,15 @@ def twin_positions(base, n: int, seed: int = 0):
 def twin_drops(params, rig, x_mm, y_mm, height_mm, effects, slowness_us_per_mm: float, seed: int = 0,
                workers: int = 2) -> np.ndarray:
     """ADC records of drops at the given declared positions by the corrected twin (`corrected_twin`: the plate
-    and sensor effects in the FEM), the signal-level effects put in after (each with its own draw); the batch's
+    and sensor effects in the FEM), the signal-level effects put in after (each with its own draw; a delay not:
+    `recorded_effects`); the batch's
     solver as the batch commands choose it (`sim.simulate.batch_solver`: the modal basis when it pays)."""
     from .effects.apply import apply_effects
     from .sim import simulate_drops
     from .sim.simulate import batch_solver
 
     p, sim_rig = corrected_twin(params, rig, effects)
-    _, signal = split_effects(effects)
+    _, signal = split_effects(recorded_effects(effects))
     adc = simulate_drops(p, sim_rig, x_mm, y_mm, height_mm, noise=True, seed=seed, workers=workers, progress=False,
                          solver=batch_solver(p, sim_rig, "auto", len(x_mm)))
     ctx = {"x_mm": np.asarray(x_mm, float), "y_mm": np.asarray(y_mm, float),
@@ -209,17 +246,19 @@ def twin_positions_wanted(base, accepted, twin) -> int:
     return max(0, TWIN_TRAINING_POSITIONS - len(np.unique(base.case_id)))
 
 
-def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=None, workers: int = 2):
-    """DATA_REF's recordings with every diagnosed effect's signal model put in (`training_draws` copies, each
+def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=None, workers: int = 2,
+                              moved_rig: bool = False):
+    """DATA_REF's recordings with every diagnosed effect's signal model put in but a delay's (`recorded_effects`:
+    the model carries it, `with_channel_delays`) (`training_draws` copies, each
     with its own random draws), and with a twin (SimParams) and a random effect, `twin_positions_wanted` drops
     of the corrected twin at new positions (`twin_positions`, `twin_drops`; each its own case, after DATA_REF's
-    rows), written (rig.json: `training_rig`: with RIG_CARRIES_MOVE a moved disc where the diagnosis places it)
+    rows), written (rig.json: `training_rig`: with moved_rig a moved disc where the diagnosis places it)
     and loaded."""
     from .commands.retrain import augment
     from .data import load_session, write_session
 
     k = training_draws(accepted) if accepted else 1
-    adc = np.concatenate([augment(base, accepted, ref, seed + j) for j in range(k)]) if accepted \
+    adc = np.concatenate([augment(base, recorded_effects(accepted), ref, seed + j) for j in range(k)]) if accepted \
         else np.asarray(base.adc)
     rep = np.asarray(base.repetition)
     reps = np.concatenate([rep + j * (int(rep.max()) + 1) for j in range(k)])
@@ -233,7 +272,7 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
         cols = [np.concatenate([c, v]) for c, v in zip(cols, new)]
         case = np.concatenate([case, int(np.max(base.case_id)) + 1 + np.arange(n)])
         reps = np.concatenate([reps, np.zeros(n, reps.dtype)])
-    path = write_session(out_dir, training_rig(base.rig, effect_dicts(accepted)), *cols, adc, case, reps)
+    path = write_session(out_dir, training_rig(base.rig, effect_dicts(accepted), moved_rig), *cols, adc, case, reps)
     return load_session(path)
 
 

@@ -272,7 +272,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
                        weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
-                       simulated_rows=None, three_sensor_position=None) -> Path:
+                       simulated_rows=None, three_sensor_position=None, picks_delay_us=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
     drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
     board-rate picks, then the forests on the board-rate features.
@@ -292,7 +292,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
     host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
     simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
-    the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
+    the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows).
+    picks_delay_us: a retrained model's diagnosed channel delays (card retrain.picks_delay_us), taken out of the
+    board model's picks beyond the delays fitted on the captures (loop.with_channel_delays), as the host's model does."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -328,6 +330,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
                                                          session.xy_mm[rows][is_train], settings, any(left_out), front_end)}
     model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
+    from ..loop import with_channel_delays
+    model.signal = with_channel_delays(model.signal, picks_delay_us or [0.0] * 4)
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(
@@ -394,7 +398,8 @@ does not: reports_twin_position). A model whose
                               choose_class="energy_class_choice" in card,
                               channel_left_out=(card.get("signal") or {}).get("channel_left_out"),
                               simulated_rows=rows("simulated_recordings") if "simulated_recordings" in split else None,
-                              three_sensor_position=(card.get("channel_check") or {}).get("three_sensor_position"))
+                              three_sensor_position=(card.get("channel_check") or {}).get("three_sensor_position"),
+                              picks_delay_us=(card.get("retrain") or {}).get("picks_delay_us"))
 
 
 def _card_session(card_path: Path, field: str, record: dict) -> Session:

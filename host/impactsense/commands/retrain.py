@@ -34,6 +34,10 @@ def register(sub) -> None:
                    help="also train a model on DATA_REF's declared drops simulated by this calibrated twin with the "
                         "diagnosed plate and sensor effects in the FEM (moved disc, E, damping) and the rest at the "
                         "signal level: zero-shot from the corrected twin (OUT/twin-model)")
+    p.add_argument("--moved-rig", action="store_true",
+                   help="a diagnosed sensor move also in the retrained model's rig (its localiser and features "
+                        "take the disc where the diagnosis places it; off: the move is in the training recordings "
+                        "only); measured both ways (docs/findings.md, Session 21 loopmove)")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="the diagnosis's report (report.html, summary.md, figures) with the models' MAE before/after")
     p.add_argument("--exclude", default=None,
@@ -54,7 +58,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import fit_bond, measured_training_session, pick_settings
+    from ..loop import channel_delays, fit_bond, measured_training_session, pick_settings
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -86,7 +90,7 @@ def run(args) -> int:
     left_out = bond_decides(result, accepted)
     accepted = [c for c in accepted if c.sensor not in left_out]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
-    card = retrain_card(result, base, data, accepted, left_out)
+    card = retrain_card(result, base, data, accepted, left_out, args.moved_rig)
     out = Path(args.out)
     rows = {}
     plain, plain_split = train(base, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
@@ -100,16 +104,20 @@ def run(args) -> int:
             # a random effect (a noise floor): the twin's drops at more positions too (the calibration's twin,
             # else the site map's)
             train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
-                                                 twin=twin_params(args, site))
+                                                 twin=twin_params(args, site), moved_rig=args.moved_rig)
         exclude, measured = training_rows(train_on, base, accepted, exclude)
+        delays = channel_delays(accepted)   # not in the recordings: the model's picks take them out
         (model, split), choice = fit_with_bond_choice(
-            lambda signal: train(train_on, None, args.test_fraction, args.seed, exclude, settings=settings,
-                                 signal=signal, extra_card=card, site_map=site, twin_rows=measured),
+            lambda signal: carry_delays(train(train_on, None, args.test_fraction, args.seed, exclude,
+                                              settings=settings, signal=signal, extra_card=card, site_map=site,
+                                              twin_rows=measured), delays),
             pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
             reference=(plain, plain_split))
         left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
         if choice is None and accepted:   # no bond choice: the retrained model against the reference on DATA_NEW
             model, split = keep_better(card, model, split, plain, plain_split, data, args.seed)
+        if model is plain:   # the reference model as it is: no delay of the diagnosis in its picks
+            card["retrain"]["picks_delay_us"] = [0.0] * 4
         if model is not plain:   # the reference model kept (bond choice): written as it served DATA_NEW
             fit_into_training_data(model, split, train_on, measured, accepted, left_out, out)
         note_sensors_moved(card, model, base, model is not plain)
@@ -132,16 +140,28 @@ def run(args) -> int:
     return 0
 
 
-def retrain_card(result, base, data, accepted, left_out) -> dict:
+def carry_delays(fitted, delays):
+    """(model, split) of `train` with the diagnosed channel delays taken out of its picks (loop.with_channel_delays:
+    a delay is the model's, not its training recordings')."""
+    from ..loop import with_channel_delays
+
+    model, split = fitted
+    model.signal = with_channel_delays(model.signal, delays)
+    return model, split
+
+
+def retrain_card(result, base, data, accepted, left_out, moved_rig: bool = False) -> dict:
     """What the model card keeps of the diagnosis and the retrain; `sensors_moved`: the discs the retrained
     model's rig (the card's `rig`, its localiser and features) has where the diagnosis placed them."""
-    from ..loop import effect_dicts, moved_sensors, training_rig
+    from ..loop import channel_delays, effect_dicts, moved_sensors, training_rig
 
     return {"diagnose": {k: result[k] for k in ("effects", "before", "after", "reference")},
             "retrain": {"baseline": str(base.path), "data": str(data.path),
                         "effects_added": [{"effect": c.effect, "sensor": c.sensor, "params": c.params}
                                           for c in accepted],
-                        "sensors_moved": moved_sensors(base.rig, training_rig(base.rig, effect_dicts(accepted))),
+                        "picks_delay_us": channel_delays(accepted),
+                        "sensors_moved": moved_sensors(base.rig,
+                                                       training_rig(base.rig, effect_dicts(accepted), moved_rig)),
                         "channels_left_out": left_out}}
 
 
@@ -313,7 +333,7 @@ def twin_params(args, site):
 def twin_model(args, base, data, details, accepted, settings, exclude, site, out: Path) -> dict:
     """A model trained on DATA_REF's declared drops simulated by the corrected twin (the accepted effects, a
     debonded channel's as fit_bond sized them); its score on DATA_NEW."""
-    from ..loop import effect_dicts, size_plate_change, twin_training_session, weak_channel
+    from ..loop import channel_delays, effect_dicts, size_plate_change, twin_training_session, weak_channel
     from ..workflow import train
 
     params = twin_params(args, None)
@@ -321,8 +341,9 @@ def twin_model(args, base, data, details, accepted, settings, exclude, site, out
     accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed,
                                  base=base)
     sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
-                                 details["ref"].slowness_us_per_mm, args.seed)
-    model, _ = train(sess, None, args.test_fraction, args.seed, exclude, settings=settings, site_map=site)
+                                 details["ref"].slowness_us_per_mm, args.seed, moved_rig=args.moved_rig)
+    model, _ = carry_delays(train(sess, None, args.test_fraction, args.seed, exclude, settings=settings,
+                                  site_map=site), channel_delays(accepted))
     if model.twin_fit is not None:   # as the retrained model: the debonded channel is the twin's weak one
         model.twin_fit.weak_channel = weak_channel(accepted)
     model.save(out / "twin-model")
