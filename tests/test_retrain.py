@@ -92,7 +92,9 @@ def test_retrained_model_carries_the_twin(retrained, sessions, control_delay_us)
     assert [(e["effect"], e["sensor"]) for e in added] == [("channel_delay", 3)]
     # issue 16's tolerance for a delay: +-1 us of what was put in, on top of the session's own drift
     assert added[0]["params"]["delay_us"] == pytest.approx(DELAY_US + control_delay_us, abs=1.0)
-    # The model is trained on the recordings with the delay put in, kept in OUT for the board's retraining.
+    # The delay is the model's picks' (loop.with_channel_delays), the card says so for the board's retraining;
+    # the training recordings (kept in OUT) are the baseline's.
+    assert card["retrain"]["picks_delay_us"] == pytest.approx([0.0, 0.0, 0.0, added[0]["params"]["delay_us"]])
     assert Path(card["split"]["data_path"]) == (retrained / "training-data").resolve()
     kept = load_session(card["split"]["data_path"])   # what export's retrain_for_board checks and reads
     assert kept.fingerprint() == card["split"]["data_hash"]

@@ -59,6 +59,7 @@ import json
 import numpy as np
 
 from .plate_scan import e_scale_scan, size_plate_change  # noqa: F401  (the loop's E sizing)
+from .signal import with_channel_delays  # noqa: F401  (the model's picks carry a diagnosed delay)
 
 TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
 PICK_EFFECTS = ("channel_delay",)     # effects the model's picks carry (`with_channel_delays`), not the recordings
@@ -95,16 +96,6 @@ def channel_delays(effects) -> list[float]:
     return out
 
 
-def with_channel_delays(signal, delays):
-    """`signal` (a SignalConfig) whose picks also take `delays` (us per channel) out: added to the rig delays of
-    the threshold picks and to the band picks' own delays (the core removes both from every pick)."""
-    if not any(delays):
-        return signal
-    return dataclasses.replace(signal,
-                               rig_delay_us=[float(a) + float(d) for a, d in zip(signal.rig_delay_us, delays)],
-                               band_delay_us=[float(a) + float(d) for a, d in zip(signal.band_delay_us, delays)])
-
-
 def _name(e) -> str:
     return e["effect"] if isinstance(e, dict) else e.effect
 
@@ -127,7 +118,7 @@ def e_scale_for_speed(params, v_ref_m_s: float, change_pct: float) -> float:
 
 def diagnosed_rig(rig, effects):
     """`rig` with each significant sensor_position of `effects` (dicts) put in: the discs where the diagnosis
-    places them (the corrected twin's rig; with `moved_rig` (retrain --moved-rig) the loop's training sessions' too, so the model
+    places them (the corrected twin's rig; with `retrain --moved-rig` the loop's training sessions' too, so the model
     trained on them, its localiser, its features' geometry and the card's rig, carries the diagnosed position:
     `moved_sensors` says which); the inner region stays the declared rig's."""
     from .data import rig_from_dict

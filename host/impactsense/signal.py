@@ -17,7 +17,7 @@ exporter writes for the board and in the board's copy of it (impactapp::exported
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, make_dataclass
+from dataclasses import asdict, dataclass, field, make_dataclass, replace
 
 import numpy as np
 
@@ -202,6 +202,15 @@ def channel_delays_us(cfg) -> list[float]:
     """The delay the core removes from each channel's ToA (impactcore::channel_delay_us): the rig's plus the
     acquisition's."""
     return [float(r) + float(c) for r, c in zip(cfg.rig_delay_us, cfg.capture_delay_us)]
+
+
+def with_channel_delays(signal, delays):
+    """`signal` (a SignalConfig) whose picks also take `delays` (us per channel) out: added to the rig delays of
+    the threshold picks and to the band picks' own delays (the core removes both from every pick)."""
+    if not any(delays):
+        return signal
+    return replace(signal, rig_delay_us=[float(a) + float(d) for a, d in zip(signal.rig_delay_us, delays)],
+                   band_delay_us=[float(a) + float(d) for a, d in zip(signal.band_delay_us, delays)])
 
 
 def config_dict(cfg) -> dict:

@@ -30,6 +30,7 @@ from ..errors import DataError
 from ..modelfolder import read_card, verified_path
 from ..models import LOCATION_FEATURES, SITE_MAP_FILE, ForestSettings, ImpactModel, columns
 from ..pipeline import featurize, fit_localiser
+from ..signal import with_channel_delays
 from ..sim.params import SimParams
 from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
@@ -273,28 +274,25 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
                        weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
                        simulated_rows=None, three_sensor_position=None, picks_delay_us=None) -> Path:
-    """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training
-    drops of `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the
-    board-rate picks, then the forests on the board-rate features.
-
-    The split is the trainer's (split.case_split with test_fraction, seed, exclude_rows) unless train_rows
-    (row indices) is given; the card lists the held-out recording ids (`test_recording_ids`, and `split`
-    as `impactsense train` writes it). settings (models.ForestSettings) overrides n_trees/seed/max_depth.
-    site_map: a board-rate site map (board_site_map): the energy class then reads the twin's estimate.
-    The card's rig_delay_us are the rig's own; its capture_delay_us the scan's (the firmware sets its own).
-    The band picks and localiser starts are chosen among those within the board's event budget
-    (board.cost.signal_fits). onset_threshold_counts: the picks' onset threshold (default: the board's
-    configured one); retrain_for_board passes the one the rig's own model chose; choose_board_threshold keeps it
-    or lowers it (the card's "board_threshold"). three_sensor_position: follow_flagged_choice's. channel_gain and
-    weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept. choose_class: without a
-    site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit).
-    channel_left_out: a retrained model's (a change the models cannot absorb): trained on all four channels as
-    `impactsense retrain` trains, then set on the model's signal, so the board's core leaves the channel out as the
-    host's does (the physics three-sensor position, the three-channel class or the twin's match without it).
-    simulated_rows: row indices of the twin's own drops (a retrained model's, `loop.measured_training_session`):
-    the forests learn from them, the site map's twin fit does not (ImpactModel.fit twin_rows).
-    picks_delay_us: a retrained model's diagnosed channel delays (card retrain.picks_delay_us), taken out of the
-    board model's picks beyond the delays fitted on the captures (loop.with_channel_delays), as the host's model does."""
+    """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training drops of
+    `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the board-rate picks, then
+    the forests on the board-rate features. The split is the trainer's (split.case_split with test_fraction, seed,
+    exclude_rows) unless train_rows (row indices) is given; the card lists the held-out recording ids
+    (`test_recording_ids`, and `split` as `impactsense train` writes it). settings (models.ForestSettings) overrides
+    n_trees/seed/max_depth. site_map: a board-rate site map (board_site_map): the energy class then reads the twin's
+    estimate. The card's rig_delay_us are the rig's own (plus picks_delay_us, a retrained model's diagnosed delays:
+    card retrain.picks_delay_us); its capture_delay_us the scan's (the firmware sets its own). The band picks and
+    localiser starts are chosen among those within the board's event budget (board.cost.signal_fits).
+    onset_threshold_counts: the picks' onset threshold (default: the board's configured one); retrain_for_board passes
+    the one the rig's own model chose; choose_board_threshold keeps it or lowers it (the card's "board_threshold").
+    three_sensor_position: follow_flagged_choice's. channel_gain and weak_channel: a retrained model's (a debonded
+    disc, `impactsense retrain`), kept. choose_class: without a site map, the energy class by the out-of-fold rule on
+    the board's features (ImpactModel.fit). channel_left_out: a retrained model's (a change the models cannot absorb):
+    trained on all four channels as `impactsense retrain` trains, then set on the model's signal, so the board's core
+    leaves the channel out as the host's does (the physics three-sensor position, the three-channel class or the
+    twin's match without it). simulated_rows: row indices of the twin's own drops (a retrained model's,
+    `loop.measured_training_session`): the forests learn from them, the site map's twin fit does not (ImpactModel.fit
+    twin_rows)."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -329,9 +327,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     if model.site_map is None:
         extra_card = {**extra_card, **board_corrections(model, feats.take(np.flatnonzero(is_train)),
                                                          session.xy_mm[rows][is_train], settings, any(left_out), front_end)}
-    model.signal = replace(model.signal, channel_left_out=left_out) if any(left_out) else model.signal
-    from ..loop import with_channel_delays
-    model.signal = with_channel_delays(model.signal, picks_delay_us or [0.0] * 4)
+    model.signal = with_channel_delays(replace(model.signal, channel_left_out=left_out) if any(left_out)
+                                       else model.signal, picks_delay_us or [0.0] * 4)
     if model.twin_fit is not None:
         model.twin_fit.weak_channel = int(weak_channel)
         extra_card = {**(extra_card or {}), "twin_search": choose_twin_search(

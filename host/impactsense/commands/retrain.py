@@ -14,7 +14,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "retrain", help="retrain for a changed rig: add the diagnosed effects to the training data",
         description="Diagnoses DATA_NEW against DATA_REF, puts the significant effects into DATA_REF's "
-                    "recordings (each effect's own signal model: delay, gain, low-pass, speed, ...), "
+                    "recordings (each effect's own signal model: gain, low-pass, speed, ...; a channel delay the "
+                    "model's picks take out instead), "
                     "trains the standard model on that (as `impactsense train`: with the twin's site map "
                     "for the bundled rig) and evaluates it on DATA_NEW beside a model trained on DATA_REF as "
                     "it is. The recordings with the effects are kept in OUT/training-data, so "
@@ -98,26 +99,21 @@ def run(args) -> int:
     train_on = base
     with output_folder(out, args.force, tool="impactsense retrain") as stage:
         if accepted:
-            # The recordings the model is trained on are kept in OUT (the card's split points there), so
-            # `impactsense export OUT` can train the board's model again on the same drops at the board rate
-            # (an absolute path: export may run from another folder).
-            # a random effect (a noise floor): the twin's drops at more positions too (the calibration's twin,
-            # else the site map's)
+            # The recordings the model is trained on are kept in OUT (the card's split points there): `export OUT`
+            # trains the board's model on the same drops (an absolute path); a random effect (a noise floor): the
+            # twin's drops at more positions too (the calibration's twin, else the site map's)
             train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
                                                  twin=twin_params(args, site), moved_rig=args.moved_rig)
         exclude, measured = training_rows(train_on, base, accepted, exclude)
-        delays = channel_delays(accepted)   # not in the recordings: the model's picks take them out
-        (model, split), choice = fit_with_bond_choice(
+        (model, split), choice = fit_with_bond_choice(   # a delay: not in the recordings, the model's picks'
             lambda signal: carry_delays(train(train_on, None, args.test_fraction, args.seed, exclude,
                                               settings=settings, signal=signal, extra_card=card, site_map=site,
-                                              twin_rows=measured), delays),
+                                              twin_rows=measured), channel_delays(accepted)),
             pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
             reference=(plain, plain_split))
         left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
         if choice is None and accepted:   # no bond choice: the retrained model against the reference on DATA_NEW
             model, split = keep_better(card, model, split, plain, plain_split, data, args.seed)
-        if model is plain:   # the reference model as it is: no delay of the diagnosis in its picks
-            card["retrain"]["picks_delay_us"] = [0.0] * 4
         if model is not plain:   # the reference model kept (bond choice): written as it served DATA_NEW
             fit_into_training_data(model, split, train_on, measured, accepted, left_out, out)
         note_sensors_moved(card, model, base, model is not plain)
@@ -241,11 +237,12 @@ def fit_into_training_data(model, split, train_on, measured, accepted, left_out,
 def note_sensors_moved(card: dict, model, base, retrained: bool) -> None:
     """The card's rig: the written model's (a retrained one's has the diagnosed positions, `sensors_moved`) with
     DATA_REF's declared sensor positions beside them (`declared_sensor_xy_mm`: its sessions' rig.json, which
-    `evaluate` checks; printed); the reference model kept: no disc moved."""
+    `evaluate` checks; printed); the reference model kept: no disc moved, no diagnosed delay in its picks."""
     from ..checks import rig_summary
 
     if not retrained:
         card["retrain"]["sensors_moved"] = []
+        card["retrain"]["picks_delay_us"] = [0.0] * 4
     if card["retrain"]["sensors_moved"]:
         card["rig"] = {**model.card.get("rig", {}),
                        "declared_sensor_xy_mm": rig_summary(base.rig)["sensor_xy_mm"]}
