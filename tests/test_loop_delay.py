@@ -55,3 +55,14 @@ def test_the_carried_delay_gives_the_undelayed_picks_back():
     # (within a twentieth of a sample: the record's start and end move with the shift, the baseline's hum fit too)
     assert np.abs(fixed.toa_us[ok] - plain.toa_us[ok]).max() < 0.5
     assert np.nanmax(np.abs(fixed.phys_xy_mm - plain.phys_xy_mm)) < 0.5
+
+
+def test_the_moved_rig_is_a_retrain_option_off_by_default():
+    """`retrain --moved-rig` (was the module constant loop.RIG_CARRIES_MOVE, which nobody could set)."""
+    import impactsense.loop as L
+    from impactsense.cli import build_parser
+
+    parse = build_parser().parse_args
+    common = ["retrain", "--baseline", "A", "--data", "B", "--out", "C"]
+    assert parse(common).moved_rig is False and parse(common + ["--moved-rig"]).moved_rig is True
+    assert not hasattr(L, "RIG_CARRIES_MOVE")
