@@ -169,8 +169,7 @@ def corrected_twin(params, rig, effects):
 def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
                           workers: int = 2, moved_rig: bool = False):
     """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after (a delay
-    not: `recorded_effects`);
-    written as a session folder (its rig.json: `training_rig`) and returned loaded."""
+    not: `recorded_effects`); written as a session folder (its rig.json: `training_rig`) and returned loaded."""
     from .data import load_session, write_session
     from .effects import context
     from .effects.apply import apply_effects
