@@ -75,9 +75,10 @@ def pick_set_arrivals(raw: dict, signal, pick_set: str):
     return toa, use & np.isfinite(toa), np.repeat((slowness * v)[:, None], 4, 1), v
 
 
-def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> list[float] | None:
+def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str, bases=None) -> list[float] | None:
     """The coefficients of a pick set's correction from drops at known positions (their centred residuals, every
-    channel picked), or None when fewer than 8 drops have four picks."""
+    channel picked), or None when fewer than 8 drops have four picks. bases: a function like travel_bases (the
+    default), (xy_mm, signal, pick_set) -> [R, 4, n] (a diagnosis's other travel laws)."""
     toa, use, scale, v = pick_set_arrivals(raw, signal, pick_set)
     xy = np.asarray(xy_mm, float)
     resid = toa - travel_distances(xy, signal.sensor_xy_mm, _metric(signal, pick_set)) * scale / v
@@ -85,7 +86,7 @@ def fit_correction(raw: dict, xy_mm: np.ndarray, signal, pick_set: str) -> list[
     if rows.sum() < 8:
         return None
     r = resid[rows] - resid[rows].mean(1, keepdims=True)
-    b = travel_bases(xy[rows], signal, pick_set)
+    b = (bases or travel_bases)(xy[rows], signal, pick_set)
     b = b - b.mean(1, keepdims=True)
     a, y = b.reshape(-1, b.shape[2]), r.ravel()
     weight = np.ones(len(y))
@@ -137,17 +138,18 @@ def three_sensor_positions(raw: dict, signal, channel: int, coefs: dict | None =
     return xy
 
 
-def corrected(raw: dict, signal, pick_set: str, start_xy_mm: np.ndarray, coef, without: int = -1) -> np.ndarray:
+def corrected(raw: dict, signal, pick_set: str, start_xy_mm: np.ndarray, coef, without: int = -1,
+              bases=None) -> np.ndarray:
     """A pick set's positions [R, 2] with its correction: the localiser re-run on the picks minus the correction
     at the last position, from start_xy_mm (the core's position of that pick set); NaN where it had none.
-    without >= 0: that channel's pick not read (the three-sensor position)."""
+    without >= 0: that channel's pick not read (the three-sensor position). bases: fit_correction's."""
     xy = np.array(start_xy_mm, float, copy=True)
     start_ok = np.isfinite(xy).all(1)
     coef = np.asarray(coef, float)
     for _ in range(PASSES):
         ok = np.isfinite(xy).all(1)
         correction = np.zeros((len(xy), 4))
-        correction[ok] = travel_bases(xy[ok], signal, pick_set) @ coef
+        correction[ok] = (bases or travel_bases)(xy[ok], signal, pick_set) @ coef
         new = _localise(raw, signal, pick_set, correction, without=without)
         xy = np.where(np.isfinite(new), new, xy)
     xy[~start_ok] = np.nan
