@@ -212,3 +212,31 @@ def test_three_sensor_positions_with_the_edge_correction():
         ok = np.isfinite(err_before) & np.isfinite(err_after)
         assert ok.sum() > 0.9 * edge.sum()
         assert np.median(err_after[ok]) < 0.6 * np.median(err_before[ok]), c
+
+
+def near_field(xy, cfg, pick_set):
+    """Another travel law's basis (what fit_correction and corrected take as `bases`): a pick late near its sensor."""
+    d = np.hypot(np.asarray(xy)[:, None, 0] - np.array(SX)[None], np.asarray(xy)[:, None, 1] - np.array(SY)[None])
+    return np.exp(-d / 40.0)[:, :, None]
+
+
+def test_another_law_s_bases_are_fitted_and_corrected():
+    cfg = plate()
+    rng = np.random.default_rng(7)
+
+    def near_drops(n):
+        xy = rng.uniform([5.0, 5.0], [445.0, 345.0], (n, 2))
+        d = np.hypot(xy[:, None, 0] - np.array(SX)[None], xy[:, None, 1] - np.array(SY)[None])
+        toa = 100.0 + d / V + 12.0 * near_field(xy, cfg, "threshold")[:, :, 0] + rng.normal(0, 0.5, d.shape)
+        return {"toa_us": toa.astype(np.float32), "flags": np.zeros((n, 4), np.uint8),
+                "pick_period": np.full((n, 4), np.nan, np.float32)}, xy
+
+    raw, xy = near_drops(300)
+    coef = fit_correction(raw, xy, cfg, "threshold", bases=near_field)
+    assert len(coef) == 1 and abs(coef[0] - 12.0) < 1.0
+    raw_t, xy_t = near_drops(200)
+    before = plain(raw_t, cfg)
+    after = corrected(raw_t, cfg, "threshold", before, coef, bases=near_field)
+    near = np.hypot(xy_t[:, None, 0] - np.array(SX)[None], xy_t[:, None, 1] - np.array(SY)[None]).min(1) < 60.0
+    assert near.sum() >= 10
+    assert np.abs(after - xy_t)[near].mean() < 0.6 * np.abs(before - xy_t)[near].mean()
