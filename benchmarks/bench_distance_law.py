@@ -21,6 +21,12 @@ Printed:
   picks, the core's localiser run again);
 - each law's out-of-fold gain over the model's law on the training drops (5 site folds, the law fitted without
   the fold's sites; the per-site gain in standard errors, signed: choose_by_gain's rule would keep a law above +1).
+With --train LAW (d2: d and d^2; curve: the piecewise-linear curve in d; near: the near-field bases) the law's
+coefficients fitted on M's training drops are put into the physics position the forests read, and the model is
+trained again on M's split and evaluated (MAE per axis, class, physics): an emulation of the law inside the
+core's localiser (the core's process_batch wrapped: the threshold picks localised again through localise_batch on
+the picks less the law's term, edge_travel.corrected, averaged with the band picks' position as process_event
+does; the feature vector's phys_x_mm / phys_y_mm replaced). Host only: the board's localiser is not changed.
 A diagnosis, no target: exits 0.
 """
 
@@ -35,6 +41,7 @@ DISTANCE_BINS_MM = (0, 60, 100, 150, 250, 400, 1e9)
 NEAR_FIELD_MM = (20.0, 60.0)
 CURVE_KNOTS_MM = (0, 40, 80, 120, 160, 220, 300, 400, 550, 800)
 FOLDS = 5
+TRAIN_LAWS = {"d2": "d, d^2", "curve": "a curve in d (piecewise linear)", "near": "near field exp(-d/20), exp(-d/60)"}
 
 
 def _near(xy, signal, pick_set):
@@ -133,10 +140,55 @@ def residual_table(raw, signal, xy) -> None:
               f"{np.median(scale[sel]):.3f} |")
 
 
+def train_with_law(session, model, law: str) -> dict:
+    """M's split trained again with `law` in the physics position the forests read (the module docstring)."""
+    import impactsense as isn
+    from impactsense import _core
+    from impactsense.edge_travel import _localise, corrected, fit_correction
+    from impactsense.pipeline import FEATURE_NAMES
+
+    signal, bases = model.signal, laws()[TRAIN_LAWS[law]]
+    train = np.asarray(model.card["split"]["train_recordings"], int)
+    raw, n = model.featurize(session.adc).raw, len(session.adc)
+    xy = np.c_[session.x_mm, session.y_mm].astype(float)
+    coef = fit_correction(_rows(raw, train, n), xy[train], signal, "threshold", bases)
+    cols = [list(FEATURE_NAMES).index(k) for k in ("phys_x_mm", "phys_y_mm")]
+    process = _core.process_batch
+
+    def with_law(a16, core, loc):
+        ev = process(a16, core, loc)
+        same = (abs(loc.velocity_mm_per_us - signal.velocity_mm_per_us) < 1e-4
+                and abs(core.onset_threshold_counts - signal.onset_threshold_counts) < 1e-4
+                and loc.localiser_starts == signal.localiser_starts and loc.posterior_grid == signal.posterior_grid)
+        if not same:       # another configuration's trial (the threshold's, the starts', a level member's)
+            return ev
+        r = _core.extract_batch(a16, core)
+        thr = corrected(r, signal, "threshold", _localise(r, signal, "threshold", 0.0), coef, bases=bases)
+        band = np.asarray(ev["band_xy_mm"], float)
+        phys = np.where(np.isfinite(band).all(1)[:, None], 0.5 * (thr + band), thr)
+        old = np.asarray(ev["phys_xy_mm"])
+        phys = np.where((np.isfinite(old).all(1) & np.isfinite(phys).all(1))[:, None], phys, old)
+        vec = np.array(ev["vector"], copy=True)
+        vec[:, cols] = phys
+        ev["phys_xy_mm"], ev["vector"] = phys.astype(old.dtype), vec
+        return ev
+
+    _core.process_batch = with_law
+    try:
+        trained = isn.train(session, seed=int(model.card["split"]["seed"]), site_map="none")
+        ev = isn.evaluate(trained, session)
+    finally:
+        _core.process_batch = process
+    return {"coef": coef, "mae_mm": ev["all"]["mae_mm"], "class": ev["energy_class_accuracy"],
+            "physics_mm": ev["physics"]["all"]["mae_mm"]}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data")
     ap.add_argument("--model", required=True)
+    ap.add_argument("--train", choices=sorted(TRAIN_LAWS), default=None,
+                    help="train M's split again with this law in the forests' physics position (an emulation)")
     args = ap.parse_args(argv)
 
     from sklearn.model_selection import GroupKFold
@@ -154,6 +206,14 @@ def main(argv=None) -> int:
     if not len(train):
         print(f"{args.model}: the card has no split (train_recordings)", file=sys.stderr)
         return 2
+    if args.train:
+        before = isn.evaluate(model, session)
+        after = train_with_law(session, model, args.train)
+        print(f"{args.train} ({TRAIN_LAWS[args.train]}) in the physics position, {args.model}'s split (seed "
+              f"{model.card['split']['seed']}): MAE {before['all']['mae_mm']:.2f} -> {after['mae_mm']:.2f} mm, class "
+              f"{before['energy_class_accuracy']:.3f} -> {after['class']:.3f}, physics "
+              f"{before['physics']['all']['mae_mm']:.2f} -> {after['physics_mm']:.2f}")
+        return 0
     feats = model.featurize(session.adc)
     raw, n = feats.raw, len(session.adc)
     xy = np.c_[session.x_mm, session.y_mm].astype(float)
