@@ -21,7 +21,9 @@ Printed:
   picks, the core's localiser run again);
 - each law's out-of-fold gain over the model's law on the training drops (5 site folds, the law fitted without
   the fold's sites; the per-site gain in standard errors, signed: choose_by_gain's rule would keep a law above +1).
-With --train LAW (d2: d and d^2; curve: the piecewise-linear curve in d; near: the near-field bases) the law's
+With --train LAW (d2: d and d^2; curve: the piecewise-linear curve in d; near: the near-field bases; none: zero
+coefficients, the control: the same wrapping with nothing subtracted, so the host's dispersion factors and the re-run
+localiser's own float differences from process_event are measured apart from the law) the law's
 coefficients fitted on M's training drops are put into the physics position the forests read, and the model is
 trained again on M's split and evaluated (MAE per axis, class, physics): an emulation of the law inside the
 core's localiser (the core's process_batch wrapped: the threshold picks localised again through localise_batch on
@@ -41,7 +43,8 @@ DISTANCE_BINS_MM = (0, 60, 100, 150, 250, 400, 1e9)
 NEAR_FIELD_MM = (20.0, 60.0)
 CURVE_KNOTS_MM = (0, 40, 80, 120, 160, 220, 300, 400, 550, 800)
 FOLDS = 5
-TRAIN_LAWS = {"d2": "d, d^2", "curve": "a curve in d (piecewise linear)", "near": "near field exp(-d/20), exp(-d/60)"}
+TRAIN_LAWS = {"d2": "d, d^2", "curve": "a curve in d (piecewise linear)", "near": "near field exp(-d/20), exp(-d/60)",
+              "none": "d, d^2"}
 
 
 def _near(xy, signal, pick_set):
@@ -152,6 +155,8 @@ def train_with_law(session, model, law: str) -> dict:
     raw, n = model.featurize(session.adc).raw, len(session.adc)
     xy = np.c_[session.x_mm, session.y_mm].astype(float)
     coef = fit_correction(_rows(raw, train, n), xy[train], signal, "threshold", bases)
+    if law == "none":
+        coef = [0.0] * len(coef)
     cols = [list(FEATURE_NAMES).index(k) for k in ("phys_x_mm", "phys_y_mm")]
     process = _core.process_batch
 
@@ -209,7 +214,8 @@ def main(argv=None) -> int:
     if args.train:
         before = isn.evaluate(model, session)
         after = train_with_law(session, model, args.train)
-        print(f"{args.train} ({TRAIN_LAWS[args.train]}) in the physics position, {args.model}'s split (seed "
+        name = "zero coefficients (control)" if args.train == "none" else TRAIN_LAWS[args.train]
+        print(f"{args.train} ({name}) in the physics position, {args.model}'s split (seed "
               f"{model.card['split']['seed']}): MAE {before['all']['mae_mm']:.2f} -> {after['mae_mm']:.2f} mm, class "
               f"{before['energy_class_accuracy']:.3f} -> {after['class']:.3f}, physics "
               f"{before['physics']['all']['mae_mm']:.2f} -> {after['physics_mm']:.2f}")
