@@ -18,7 +18,10 @@ a trapezoid with two sensors 48 mm apart, a 20 mm ball of 33 g, 250 kHz, 10-bit,
 16-bit with a negative-going front end whose DC sits 2300 counts under the declared bias, 8 ms records of which
 30 samples before the hit; its rig.json leaves out the density), ti-nonconvex (1.6 mm titanium, 600 x 260 mm, one
 sensor inside the triangle of the other three, 20 mm discs, 62.5 kHz, 12-bit, 40 ms records of which 16 ms before
-the hit, a front end hot enough that drops next to a sensor clip, 50 Hz hum, one sensor loose on 10 % of drops).
+the hit, a front end hot enough that drops next to a sensor clip, 50 Hz hum, one sensor loose on 10 % of drops),
+wear-thick-side (a 10 mm plate of a steel named by its trade name, unknown to the materials table, sensors close
+together in one corner region, 200 kHz, 16-bit, 8000 samples, rig.json's optional fields, an impacts.csv with
+extra columns in the lab's order; run it with --cases 20 --reps 3).
 The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
@@ -131,6 +134,22 @@ KINDS = {
         lab=dict(hum=25.0, hum_hz=50.0),
         loose=dict(channel=2, fraction=0.1, gain=0.5, hz=4000.0),
         heights=(40, 80, 120, 160, 200, 240)),
+    "wear-thick-side": dict(
+        # a 10 mm plate of a steel the table does not know by its trade name (wide priors), fast and little
+        # dispersive; the four sensors close together in one corner region (most of the plate outside their
+        # hull), a 200 kHz 16-bit logger keeping 8000 samples (1000 before the hit), few drops (20 cases x 3),
+        # rig.json with optional fields and an impacts.csv with the lab's own extra columns, reordered
+        rig={"plate_material": "Hardox 450 wear plate", "plate_x_mm": 520.0, "plate_y_mm": 380.0,
+             "thickness_mm": 10.0, "density_kg_m3": 7850.0, "plate_support": "resting on four rubber feet",
+             "sensors": _sensors([(45, 50), (235, 40), (250, 200), (60, 215)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 10.0, "ball_material": "steel",
+             "ball_diameter_mm": 16.0, "ball_mass_g": 16.7, "channels": 4, "fs_hz": 200000, "samples": 8000,
+             "adc_bits": 16, "vref": 3.3, "bias_counts": 32768, "pretrigger_samples": 1000,
+             "inner_region_mm": [60.0, 460.0, 50.0, 330.0],
+             "board_front_end": {"anti_alias_hz": 20000, "anti_alias_poles": 4}},
+        sim=dict(e_pa=207e9, nu=0.29, pretrigger_samples=1000, damping_per_s=300.0),
+        impacts_csv=dict(extra={"operator": "AK", "ball_id": "B16-2", "notes": ""}, first=("x_mm", "y_mm")),
+        heights=(100, 200, 300, 400)),
 }
 
 
@@ -144,6 +163,20 @@ def cases(rig, n: int, heights, rng, edge_mm: float = 18.0, clearance_mm: float 
             x.append(px)
             y.append(py)
     return np.round(x, 1), np.round(y, 1), rng.choice(np.asarray(heights, float), n)
+
+
+def _lab_columns(out: str, extra: dict, first: tuple) -> None:
+    import csv
+    from pathlib import Path
+
+    path = Path(out) / "impacts.csv"
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    names = [*first, *(c for c in rows[0] if c not in first), *extra]
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=names)
+        w.writeheader()
+        w.writerows({**r, **extra} for r in rows)
 
 
 def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: float) -> None:
@@ -186,6 +219,8 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
                            rig.fs_hz, rig.bias_counts, rig.adc_max)
         print(f"{kind}: channel {loose['channel']} loose on rows {rows.tolist()}")
     write_session(out, raw, x, y, h, adc, case_id=case_id, repetition=rep, force=True)
+    if "impacts_csv" in spec:   # the lab's own columns beside the format's, in the lab's order
+        _lab_columns(out, **spec["impacts_csv"])
     print(f"{kind}: {x.size} drops in {time.perf_counter() - t0:.0f} s, circuit gain {gain:.4g}, "
           f"median peak {np.median(np.abs(adc.astype(int) - logger.bias_counts).max(axis=2)):.0f} counts -> {out}")
 

@@ -8,12 +8,13 @@ ORDER = 10
 HUM_QUIET_S = 15e-3   # a quiet start at least this long (3/4 of a 50 Hz period) is where the hum is read
 
 
-def hum_counts(session) -> tuple[np.ndarray, str]:
-    """Each channel's median 50 / 60 Hz hum amplitude (counts) over the drops, the larger of the two, and where
-    it was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
-    (diagnose's, residuals.tail_start). The core's noise rms reads its baseline segment only, a few ms: the hum
-    looks like an offset there."""
-    from ..hum import hum_lock_in
+def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray]:
+    """Each channel's median 50 / 60 Hz hum amplitude (counts) over the drops, the larger of the two, where it
+    was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
+    (diagnose's, residuals.tail_start), and the median amplitude white noise alone would stay under there
+    (hum.hum_floor). The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
+    offset there."""
+    from ..hum import hum_floor, hum_lock_in
     from ..residuals import tail_start
 
     fs, n = float(session.rig.fs_hz), session.adc.shape[2]
@@ -22,8 +23,10 @@ def hum_counts(session) -> tuple[np.ndarray, str]:
         seg, where = slice(0, int(pre) - 16), "the quiet start"
     else:
         seg, where = slice(tail_start(n, fs), n), "the record's tail"
-    hum = hum_lock_in(session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts, fs)[0]
-    return np.median(hum.max(axis=2), axis=0), where
+    quiet = session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts
+    hum, _, left = hum_lock_in(quiet, fs)
+    floor = hum_floor(quiet.shape[2], fs, left)
+    return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0)
 
 
 def register(sub) -> None:
@@ -47,7 +50,7 @@ def summarise(session) -> dict:
     heights, counts = np.unique(session.height_mm, return_counts=True)
     base = SignalConfig.for_rig(session.rig).baseline_samples
     level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
-    hum, hum_where = hum_counts(session)
+    hum, hum_where, hum_floor = hum_counts(session)
     return {
         "plate": plate_summary(session.rig),
         "level_minus_bias_counts": [float(v - session.rig.bias_counts) for v in level],
@@ -71,6 +74,7 @@ def summarise(session) -> dict:
                 "no_onset_drops": int(feats.no_onset[:, c].sum()),
                 "noise_rms_counts": float(np.median(noise[:, c])),
                 "hum_counts": float(hum[c]),
+                "hum_floor_counts": float(hum_floor[c]),
                 "peak_counts_median": float(np.median(peak[:, c])),
                 "snr_db_median": float(np.median(snr_db[:, c])),
             }
@@ -89,6 +93,13 @@ def plate_summary(rig) -> dict:
     return {"material": mat.name if mat.known else "unknown to the materials table (wide priors)",
             "kind": mat.kind, "axis_deg": mat.axis_deg, "density_kg_m3": rig.density_kg_m3,
             "density_from": "rig.json" if "density_kg_m3" in rig.raw else "the materials table (not in rig.json)"}
+
+
+def hum_text(channel: dict) -> str:
+    """The hum column: the amplitude, or '<floor' when white noise alone would read as much."""
+    if channel["hum_counts"] < channel["hum_floor_counts"]:
+        return f"<{channel['hum_floor_counts']:.1f}"
+    return f"{channel['hum_counts']:.1f}"
 
 
 def run(args) -> int:
@@ -116,10 +127,10 @@ def run(args) -> int:
           f"{'SNR dB':>7s}")
     for c in s["channels"]:
         print(f"  {c['channel']:2d} {c['sensor']:>6s} {c['clipped_drops']:8d} {c['dead_drops']:5d} "
-              f"{c['noise_rms_counts']:10.2f} {c['hum_counts']:6.1f} {c['peak_counts_median']:12.0f} "
+              f"{c['noise_rms_counts']:10.2f} {hum_text(c):>6s} {c['peak_counts_median']:12.0f} "
               f"{c['snr_db_median']:7.1f}")
     print(f"  (noise rms: the core's baseline segment; hum: 50/60 Hz amplitude over {s['hum_read_over']}, median "
-          f"over the drops)")
+          f"over the drops; '<F': under F, what the noise alone reads there: no hum seen)")
     if args.json_out:
         from ..outputs import json_text, write_file
 
