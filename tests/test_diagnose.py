@@ -245,3 +245,15 @@ def test_the_flagged_channel_is_the_one_whose_move_has_the_most_evidence(monkeyp
     new = _inject(new, "sensor_position", 2, {"dx_mm": -70.0, "dy_mm": 70.0})
     res, _ = D.diagnose(base, new, same=False)
     assert [u["sensor"] for u in res["unabsorbed_channels"]] == [2], res["unabsorbed_channels"]
+
+
+def test_folds_of_a_session_with_fewer_cases_than_folds_are_never_empty():
+    """inject --rows MODEL writes only the held-out drops: 20 cases x 3 gave a 4-case session, 5 folds left one
+    empty and diagnose's out-of-fold 'after' was NaN. Fewer cases than folds: one case a fold."""
+    few = np.repeat(np.arange(4), 3)
+    folds = D.case_folds(few)
+    assert len(folds) == 4 and all(f.size == 3 for f in folds)
+    assert np.array_equal(np.sort(np.concatenate(folds)), np.arange(few.size))
+    many = np.repeat(np.arange(12), 2)
+    assert [f.size for f in D.case_folds(many)] == [6, 6, 4, 4, 4]    # 5 folds as before
+
