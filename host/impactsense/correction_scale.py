@@ -20,7 +20,7 @@ from .position_members import (EDGE_MEMBERS, POSITION_MEMBERS, each_member_posit
 
 CORRECTION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0)
 CORRECTION_FOLDS = 5
-CORRECTION_MIN_SITES = 20       # fewer drop sites: the whole correction, no choice
+CORRECTION_MIN_SITES = 10       # fewer drop sites: the whole correction, no choice (5 folds of >= 2 sites)
 CORRECTION_MAX_TREES = 50       # the folds' forests (the choice, not the model)
 # A smaller factor is taken only when its out-of-fold gain over the whole correction exceeds one standard error
 # of the per-site gains (the one-standard-error rule, the whole correction being the default).
