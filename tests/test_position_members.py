@@ -83,3 +83,25 @@ def test_without_band_positions_there_are_no_members(session1):
     model = ImpactModel.fit(feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
                             ForestSettings(n_estimators=5))
     assert member_positions(feats) is None and not model.members
+
+
+
+def test_a_member_that_places_no_drop_of_a_fold_reads_nan_not_a_crash():
+    """A fold of few sites (20 cases x 3: the correction's choice from 10 sites) can hold no drop the band
+    picks placed; the members' forests were asked to predict 0 rows and sklearn's ValueError ended `retrain`."""
+    from sklearn.ensemble import RandomForestRegressor
+
+    from impactsense.position_members import each_member_position
+
+    rng = np.random.default_rng(0)
+    n, names = 6, ["phys_x_mm", "phys_y_mm", "c"]
+    X = rng.normal(size=(n, 3))
+    phys = rng.uniform(0, 100, (n, 2))
+    fit = RandomForestRegressor(n_estimators=2, random_state=0).fit(rng.normal(size=(10, 3)), rng.normal(size=10))
+    members = {m: (fit, fit) for m in POSITION_MEMBERS}
+    positions = {m: np.full((n, 2), np.nan) for m in [*POSITION_MEMBERS, "band"]}
+    out = each_member_position(phys, phys, members, X, positions, None, names)
+    assert all(np.isnan(out[m][0]).all() and np.isnan(out[m][1]).all() for m in POSITION_MEMBERS)
+    positions = {m: phys + 1.0 for m in [*POSITION_MEMBERS, "band"]}      # placed: predicted as before
+    out = each_member_position(phys, phys, members, X, positions, None, names)
+    assert all(np.isfinite(out[m][0]).all() for m in POSITION_MEMBERS)

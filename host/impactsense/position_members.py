@@ -161,10 +161,12 @@ def each_member_position(main_xy: np.ndarray, phys: np.ndarray, members: dict, X
 
     def one(name, rows, base):
         corrected, at = np.full((n, 2), np.nan), np.full((n, 2), np.nan)
+        out[name] = (corrected, at)
+        if not np.any(rows):    # no drop of these rows placed by the member (a fold of few sites): NaN
+            return
         at[rows] = base
         corrected[rows] = base + np.stack([f.predict(member_inputs(X_loc[rows], base, names))
                                            for f in members[name]], 1)
-        out[name] = (corrected, at)
 
     if positions is not None and all(n in members for n in POSITION_MEMBERS):
         placed = np.isfinite(positions["band"]).all(1)
