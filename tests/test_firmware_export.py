@@ -206,11 +206,17 @@ def test_generated_c_matches_sklearn_on_every_drop(exported, session_features, t
         np.testing.assert_array_equal(got[:, col].astype(np.float32), s / np.float32(len(forest.estimators_)))
 
 
-def test_cli_export(exported, tmp_path):
+def test_cli_export(exported, tmp_path, capsys):
     from impactsense.cli import main
 
     model_dir = exported[0]
     assert main(["export", str(model_dir), "--out", str(tmp_path / "m"), "--no-m2cgen", "--rate", "native"]) == 0
+    # the last line names each budget it judges: the flash (the exit status) and the event estimate, never one
+    # "within budget" for both
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    est = json.loads((tmp_path / "m" / "export.json").read_text()).get("event_instructions_estimate")
+    assert last["within_flash_budget"] is True and "within_budget" not in last
+    assert last["within_event_budget"] == (None if est is None else est["total"] <= 64000)
     assert (tmp_path / "m" / "impactsense_forest_tables.c").is_file()
     assert not (tmp_path / "m" / "impactsense_models_m2c.c").exists()
     # --trees auto picks the prefix on the reported position's error: the twin's match for a twin model.
