@@ -219,6 +219,15 @@ def twin_drops(params, rig, x_mm, y_mm, height_mm, effects, slowness_us_per_mm: 
     return apply_effects(adc, signal, ctx, [seed, 1])
 
 
+def moves_disc(accepted) -> bool:
+    """True when a sensor_position is among the accepted effects (Candidates): with a twin, retrain then also fits
+    on the corrected twin's drops (`twin_training_session`: the disc moved in the FEM, its amplitude and onset with
+    it) beside DATA_REF's recordings with the move put in as one time shift per channel
+    (`effects.sensor_position.apply_signal`), and keeps the better on DATA_NEW (`commands.retrain.training_session`;
+    docs/findings.md "Session 22: loopmove2")."""
+    return any(c.effect == "sensor_position" for c in accepted)
+
+
 def effect_dicts(accepted) -> list[dict]:
     return [{"effect": c.effect, "sensor": c.sensor, "params": c.params, "significant": True} for c in accepted]
 

@@ -8,6 +8,8 @@ from ..bond_choice import fit_with_bond_choice
 
 ORDER = 51
 TRAINING_DATA = "training-data"   # OUT's copy of DATA_REF with the effects put in
+TWIN_TRAINING_DATA = "twin-training-data"           # a move with a twin: the corrected twin's drops
+MEASURED_TRAINING_DATA = "measured-training-data"   # ... and when those are trained on, the recordings' copy
 
 
 def register(sub) -> None:
@@ -59,7 +61,7 @@ def run(args) -> int:
     from ..data import load_session, resolve_session_path
     from ..diagnose import diagnose
     from ..errors import ConfigError
-    from ..loop import channel_delays, fit_bond, measured_training_session, pick_settings
+    from ..loop import channel_delays, fit_bond, pick_settings
     from ..models import ForestSettings
     from ..sitemap import resolve_site_map
     from .train import parse_exclude
@@ -99,11 +101,11 @@ def run(args) -> int:
     train_on = base
     with output_folder(out, args.force, tool="impactsense retrain") as stage:
         if accepted:
-            # The recordings the model is trained on are kept in OUT (the card's split points there): `export OUT`
-            # trains the board's model on the same drops (an absolute path); a random effect (a noise floor): the
-            # twin's drops at more positions too (the calibration's twin, else the site map's)
-            train_on = measured_training_session(base, accepted, details["ref"], stage / TRAINING_DATA, args.seed,
-                                                 twin=twin_params(args, site), moved_rig=args.moved_rig)
+            # The drops the model is trained on are kept in OUT (the card's split points there): `export OUT` trains
+            # the board's model on them (an absolute path). The twin: the calibration's, else the site map's
+            train_on, accepted = training_session(base, data, details, accepted, twin_params(args, site),
+                                                  stage / TRAINING_DATA, args.seed, card, args.moved_rig,
+                                                  candidate_fit(args, base, exclude, settings, site))
         exclude, measured = training_rows(train_on, base, accepted, exclude)
         (model, split), choice = fit_with_bond_choice(   # a delay: not in the recordings, the model's picks'
             lambda signal: carry_delays(train(train_on, None, args.test_fraction, args.seed, exclude,
@@ -119,7 +121,7 @@ def run(args) -> int:
         note_sensors_moved(card, model, base, model is not plain)
         model.write_into(stage, extra_card=card)
         rows["retrained model"] = score(data, model)
-        if args.twin:
+        if args.twin and "training_choice" not in card["retrain"]:   # (a move: the choice's candidate)
             rows["twin-corrected model"] = twin_model(args, base, data, details, accepted, settings, exclude,
                                                         site, stage)
         (stage / "retrain.json").write_text(json_text({**card, "on_data": rows}))
@@ -144,6 +146,74 @@ def carry_delays(fitted, delays):
     model, split = fitted
     model.signal = with_channel_delays(model.signal, delays)
     return model, split
+
+
+def training_session(base, data, details, accepted, twin, folder: Path, seed: int, card: dict,
+                     moved_rig: bool = False, fit=None):
+    """(the session retrain trains on, the accepted effects as put in), written in `folder`: DATA_REF's recordings
+    with the effects put in (`loop.measured_training_session`; a random effect: the twin's drops at more positions
+    too; `moved_rig`: the rig they are written with carries a diagnosed move); with a twin (SimParams), a diagnosed move (`loop.moves_disc`) and `fit` (session, effects -> model, as
+    retrain trains), also DATA_REF's declared drops simulated by the corrected twin (the disc moved in the FEM; a
+    plate change sized by the twin's scan as for `--twin`; the rest at the signal level:
+    `loop.twin_training_session`), a model fitted on each, and the one whose model places DATA_NEW's labelled drops
+    better kept (`model_choice.choose_model`) unless its energy class there is worse by more than one binomial
+    standard error (the card's `training_choice`, `training_data`), in `folder` (the other beside it)."""
+    import numpy as np
+
+    from ..data import load_session
+    from ..loop import effect_dicts, measured_training_session, moves_disc, size_plate_change, twin_training_session
+    from ..model_choice import choose_model
+
+    measured = measured_training_session(base, accepted, details["ref"], folder, seed, twin=twin, moved_rig=moved_rig)
+    card["retrain"]["training_data"] = "reference recordings with the effects put in"
+    if twin is None or fit is None or not moves_disc(accepted):
+        return measured, accepted
+    sized = size_plate_change(twin, data, accepted, (details["ref"].probe or {}).get("picker"), seed, base=base)
+    other = folder.parent / TWIN_TRAINING_DATA
+    sim = twin_training_session(base, twin, effect_dicts(sized), other, details["ref"].slowness_us_per_mm, seed,
+                                moved_rig=moved_rig)
+    models = {"measured": fit(measured, accepted), "corrected twin": fit(sim, sized)}
+    got = choose_model(models, data, seed)
+    acc = {k: class_accuracy(m, data) for k, m in models.items()}
+    # the twin's drops kept only when their model's class on DATA_NEW is not worse by more than its standard error
+    se = float(np.sqrt(max(acc["measured"] * (1.0 - acc["measured"]), 1e-4) / len(data)))
+    chosen = "measured" if acc["corrected twin"] < acc["measured"] - se else got["chosen"]
+    card["retrain"]["training_choice"] = {"chosen": chosen, "mae_mm": got["mae_mm"], "class_accuracy": acc,
+                                          "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
+    print(f"a moved disc with a twin: DATA_NEW's drops placed by the model trained on DATA_REF's recordings with the "
+          f"move put in {got['mae_mm']['measured']:.2f} mm (class {acc['measured']:.3f}), on the corrected twin's "
+          f"drops (the disc moved in the FEM) {got['mae_mm']['corrected twin']:.2f} (class "
+          f"{acc['corrected twin']:.3f}): trained on the {chosen} drops")
+    if chosen == "measured":
+        return measured, accepted
+    folder.rename(folder.parent / MEASURED_TRAINING_DATA)
+    other.rename(folder)
+    card["retrain"]["training_data"] = "corrected twin"
+    card["retrain"]["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in sized]
+    return load_session(folder), sized
+
+
+def class_accuracy(model, session) -> float:
+    """The model's energy class accuracy on every drop of `session` (its labels)."""
+    import numpy as np
+
+    from ..workflow import evaluate
+
+    return float(evaluate(session, model, np.arange(len(session)))["energy_class_accuracy"])
+
+
+def candidate_fit(args, base, exclude, settings, site):
+    """fit(session, effects) -> the model retrain trains on that session (its delays carried: `carry_delays`), for
+    `training_session`'s choice."""
+    from ..loop import channel_delays, pick_settings
+    from ..workflow import train
+
+    def fit(session, effects):
+        ex, rows = training_rows(session, base, effects, exclude)
+        return carry_delays(train(session, None, args.test_fraction, args.seed, ex, settings=settings,
+                                  signal=pick_settings(session, effects), site_map=site, twin_rows=rows),
+                            channel_delays(effects))[0]
+    return fit
 
 
 def retrain_card(result, base, data, accepted, left_out, moved_rig: bool = False) -> dict:
