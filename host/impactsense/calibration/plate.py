@@ -22,6 +22,14 @@ from . import arrival
 PAIR_I = np.array(_core.PAIR_I)
 PAIR_J = np.array(_core.PAIR_J)
 
+# the grid search (`search_grid`): a grid of more points than this is searched coarse to fine (a wide prior's
+# full grid at the default steps is ~300,000 points, ~120x a known material's); the first level steps E by
+# COARSE_E_REL (relative) and nu by COARSE_NU_STEP, each later level refines the best point's box by REFINE_FACTOR
+FULL_GRID_MAX_POINTS = 5000
+COARSE_E_REL = 0.04
+COARSE_NU_STEP = 0.03
+REFINE_FACTOR = 4
+
 
 def grid_axes(e_min_mpa=1500.0, e_max_mpa=65000.0, e_step_mpa=250.0, nu_min=0.30, nu_max=0.40,
               nu_step=0.001):
@@ -76,9 +84,11 @@ def _chunk_task(args):
 
 
 def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=None, workers=2,
-             chunk=48, progress=True, noise_counts=0.0, n_noise=1, seed=0):
-    """Loss over the full grid [len(e_axis), len(nu_axis)]; resumable from `cache_path` (npz)."""
+             chunk=48, progress=True, noise_counts=0.0, n_noise=1, seed=0, mask=None):
+    """Loss over the grid [len(e_axis), len(nu_axis)] (only the points where `mask` is True; the others NaN
+    unless an earlier call filled them); resumable from `cache_path` (npz)."""
     ee, nn = np.meshgrid(e_axis, nu_axis, indexing="ij")
+    wanted = np.ones(ee.size, bool) if mask is None else np.asarray(mask, bool).ravel()
     e_flat, nu_flat = ee.ravel(), nn.ravel()
     loss = np.full(e_flat.size, np.nan)
     if cache_path and os.path.exists(cache_path):
@@ -88,8 +98,8 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
                     and np.allclose(z["dtoa_meas"], dtoa_meas)
                     and float(z["noise"]) == float(noise_counts) * 1000 + n_noise):
                 loss = z["loss"].ravel().copy()
-    todo = [np.arange(i, min(i + chunk, e_flat.size)) for i in range(0, e_flat.size, chunk)]
-    todo = [idx for idx in todo if np.isnan(loss[idx]).any()]
+    pending = np.flatnonzero(wanted & np.isnan(loss))
+    todo = [pending[i:i + chunk] for i in range(0, pending.size, chunk)]
     state = cfg_state(cfg, bias)
 
     def save():
@@ -111,6 +121,60 @@ def run_grid(setup, cfg, bias, peak, dtoa_meas, e_axis, nu_axis, *, cache_path=N
     return loss.reshape(ee.shape)
 
 
+def _coarse_indices(n, stride):
+    """Every `stride`-th index of 0..n-1 and the last one."""
+    return np.union1d(np.arange(0, n, max(1, stride)), [n - 1])
+
+
+def coarse_plan(e_axis, nu_axis):
+    """The first level of the coarse-to-fine search: E indices at relative steps of COARSE_E_REL (the lattice
+    points nearest a geometric sequence: a wide prior spans two decades of E) and nu indices every
+    COARSE_NU_STEP. Returns the index arrays (sorted, unique)."""
+    e0, step = float(e_axis[0]), float(e_axis[1] - e_axis[0]) if e_axis.size > 1 else 1.0
+    n_geo = int(np.ceil(np.log(e_axis[-1] / e_axis[0]) / np.log1p(COARSE_E_REL))) + 1
+    geo = np.geomspace(e_axis[0], e_axis[-1], max(2, n_geo))
+    e_idx = np.unique(np.clip(np.rint((geo - e0) / step).astype(int), 0, e_axis.size - 1))
+    nu_step = float(nu_axis[1] - nu_axis[0]) if nu_axis.size > 1 else 1.0
+    nu_idx = _coarse_indices(nu_axis.size, int(np.ceil(COARSE_NU_STEP / nu_step - 1e-9)))
+    return e_idx, nu_idx
+
+
+def _gap(idx, i):
+    """The largest index gap of the sorted level `idx` next to its member i (how far the minimum can be)."""
+    k = int(np.searchsorted(idx, i))
+    lo = idx[k] - idx[k - 1] if k > 0 else 0
+    hi = idx[k + 1] - idx[k] if k + 1 < idx.size else 0
+    return max(1, int(lo), int(hi))
+
+
+def search_grid(evaluate, e_axis, nu_axis):
+    """A loss over the grid [len(e_axis), len(nu_axis)] (`evaluate(mask)`: the loss with at least the points
+    where mask is True filled, e.g. `run_grid`'s, resumable): every point when the grid has at most
+    FULL_GRID_MAX_POINTS; else coarse to fine (docs/method.md): the `coarse_plan` lattice, then boxes of
+    +-(gap + stride) around the best point so far at strides of a quarter of the previous level's gap, down
+    to the grid's own steps. Points not evaluated read NaN."""
+    n_e, n_nu = e_axis.size, nu_axis.size
+    if n_e * n_nu <= FULL_GRID_MAX_POINTS:
+        return evaluate(np.ones((n_e, n_nu), bool))
+    e_idx, nu_idx = coarse_plan(e_axis, nu_axis)
+    mask = np.zeros((n_e, n_nu), bool)
+    mask[np.ix_(e_idx, nu_idx)] = True
+    loss = evaluate(mask)
+    i, j = np.unravel_index(np.nanargmin(loss), loss.shape)
+    ge, gn = _gap(e_idx, i), _gap(nu_idx, j)
+    while True:
+        se, sn = max(1, ge // REFINE_FACTOR), max(1, gn // REFINE_FACTOR)
+        e_box = np.arange(max(0, i - ge - se), min(n_e, i + ge + se + 1), se)
+        nu_box = np.arange(max(0, j - gn - sn), min(n_nu, j + gn + sn + 1), sn)
+        mask = np.zeros((n_e, n_nu), bool)
+        mask[np.ix_(e_box, nu_box)] = True
+        loss = evaluate(mask)
+        i, j = np.unravel_index(np.nanargmin(loss), loss.shape)
+        if se == 1 and sn == 1:
+            return loss
+        ge, gn = se, sn
+
+
 def refine_minimum(loss, e_axis, nu_axis):
     """Grid minimum (the method picks the grid point; no interpolation)."""
     i, j = np.unravel_index(np.nanargmin(loss), loss.shape)
@@ -120,8 +184,9 @@ def refine_minimum(loss, e_axis, nu_axis):
 def near_optimal_ranges(loss, e_axis, nu_axis, factor=1.25):
     """E and nu intervals whose best loss stays within `factor` x the minimum (how well each is pinned)."""
     lmin = np.nanmin(loss)
-    e_ok = e_axis[np.nanmin(loss, axis=1) <= factor * lmin]
-    nu_ok = nu_axis[np.nanmin(loss, axis=0) <= factor * lmin]
+    ok = np.where(np.isfinite(loss), loss, np.inf) <= factor * lmin      # points not evaluated (NaN): not ok
+    e_ok = e_axis[ok.any(axis=1)]
+    nu_ok = nu_axis[ok.any(axis=0)]
     return {"factor": factor, "E_mpa": [float(e_ok.min()), float(e_ok.max())],
             "nu": [float(nu_ok.min()), float(nu_ok.max())]}
 
@@ -133,10 +198,15 @@ def contour_plot(loss, e_axis, nu_axis, best, path, title="Eq. 16 loss over the 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     z = np.log10(np.maximum(loss.T, 1e-9))
     zoom = (e_axis >= 0.6 * best[0]) & (e_axis <= 1.6 * best[0])
+    ee, nn = np.meshgrid(e_axis, nu_axis)
     for ax, sel, label in ((axes[0], slice(None), "full grid"), (axes[1], zoom, "around the minimum")):
         if np.count_nonzero(np.ones_like(e_axis, bool)[sel]) < 2:
             sel = slice(None)
-        cs = ax.contourf(e_axis[sel], nu_axis, z[:, sel], levels=30, cmap="viridis")
+        done = np.isfinite(z[:, sel])
+        if done.all():
+            cs = ax.contourf(e_axis[sel], nu_axis, z[:, sel], levels=30, cmap="viridis")
+        else:                                # a coarse-to-fine search: the points it evaluated
+            cs = ax.tricontourf(ee[:, sel][done], nn[:, sel][done], z[:, sel][done], levels=30, cmap="viridis")
         fig.colorbar(cs, ax=ax, label="log10 loss [us^2]")
         ax.plot(best[0], best[1], "r*", ms=12, label=f"min E={best[0]:.0f} MPa, nu={best[1]:.3f}")
         ax.set_xlabel("E [MPa]")

@@ -52,9 +52,12 @@ def _plate_grid(problem: CalibrationProblem, _key) -> dict:
     e_axis, nu_axis = problem.e_axis, problem.nu_axis
     setup = arrival.setup_from_rig(rig, targets.x_mm, targets.y_mm, targets.height_mm, n_fft=opts.fast_n_fft)
     noise = problem.noise
-    loss = plate.run_grid(setup, problem.cfg_sim, int(rig.bias_counts), targets.peak, targets.dtoa_us, e_axis,
-                          nu_axis, cache_path=str(problem.cache("stage1-grid.npz")), workers=opts.workers,
-                          progress=opts.progress, noise_counts=noise[0], n_noise=noise[1], seed=noise[2])
+    def evaluate(mask):
+        return plate.run_grid(setup, problem.cfg_sim, int(rig.bias_counts), targets.peak, targets.dtoa_us, e_axis,
+                              nu_axis, cache_path=str(problem.cache("stage1-grid.npz")), workers=opts.workers,
+                              progress=opts.progress, noise_counts=noise[0], n_noise=noise[1], seed=noise[2],
+                              mask=mask)
+    loss = plate.search_grid(evaluate, e_axis, nu_axis)
     e_best, nu_best, loss_best = plate.refine_minimum(loss, e_axis, nu_axis)
     return {"E_mpa": e_best, "nu": nu_best, "loss_eq16_us2": loss_best, "loss": loss}
 
@@ -68,7 +71,8 @@ def _apply_plate_grid(problem: CalibrationProblem, res: dict) -> None:
         "E_mpa": res["E_mpa"], "nu": res["nu"], "loss_eq16_us2": res["loss_eq16_us2"],
         "rms_dtoa_error_us": float(np.sqrt(res["loss_eq16_us2"] / problem.targets.dtoa_us.size)),
         "grid": {"E_mpa": [float(e_axis[0]), float(e_axis[-1]), opts.e_step_mpa],
-                 "nu": [float(nu_axis[0]), float(nu_axis[-1]), nu_step], "points": int(loss.size)},
+                 "nu": [float(nu_axis[0]), float(nu_axis[-1]), nu_step], "points": int(np.isfinite(loss).sum()),
+                 "coarse_to_fine": bool(loss.size > plate.FULL_GRID_MAX_POINTS)},
         "near_optimal": plate.near_optimal_ranges(loss, e_axis, nu_axis),
         "model": "infinite Mindlin plate, Hertz pulse, core picker (calibration.arrival)",
         "contour_png": str(fig9)})
