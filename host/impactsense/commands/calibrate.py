@@ -22,7 +22,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the Sobol design and the surrogates (default 0)")
     p.add_argument("--workers", type=int, default=2, help="FEM runs in parallel processes (default 2)")
     p.add_argument("--nu-step", type=float, default=0.001,
-                   help="nu step of the plate grid (default 0.001: 255 x 101 = 25,755 points; docs/method.md lists 0.01)")
+                   help="nu step of the plate grid (default 0.001; the grid spans the material's priors, "
+                        "searched coarse to fine when it exceeds 5,000 points: docs/method.md)")
     p.add_argument("--e-step", type=float, default=250.0, help="E step of the plate grid, MPa (default 250)")
     p.add_argument("--aic-blend", type=float, default=1.0,
                    help="core ToA for Eq. 16: 1 = AIC onset (default, amplitude independent), 0 = threshold")
