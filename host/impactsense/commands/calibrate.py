@@ -112,7 +112,8 @@ def summary(cal: dict) -> str:
     e_fast = pl.get("E_fast_mpa", pl.get("E_grid_mpa") if pl.get("laminate") else None) or pl["E_mpa"]
     lines = [f"calibration drops (cases, excluded from every test set): {cal['drops']['case_ids']}",
              f"plate, fast model: E = {e_fast:.0f} MPa, nu = {pl.get('nu_grid', pl['nu']):.3f}; Eq. 16 loss {pl['loss_eq16_us2']:.0f} "
-             f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points; "
+             f"us^2 (rms DToA error {pl['rms_dtoa_error_us']:.1f} us) over {pl['grid']['points']} grid points"
+             f"{' (coarse to fine)' if pl['grid'].get('coarse_to_fine') else ''}; "
              f"within 1.25 x min: E {pl['near_optimal']['E_mpa']}, nu {pl['near_optimal']['nu']}"]
     lam = pl.get("laminate")
     if not lam:
