@@ -47,6 +47,12 @@ class Effect(ABC):
     def material(self, params) -> bool:
         return True
 
+    def resolution(self, params) -> dict:
+        """Per parameter fitted on a grid, the grid's step at params (same units): the finest difference the fit
+        can tell. A delete-a-fold interval narrower than it says nothing of the data (every fold on one node
+        gives a zero width); `diagnose._param_ci` keeps each half-width at least this. Most fits are continuous."""
+        return {}
+
     def describe(self, sensor, params) -> str:
         where = f" on S{sensor + 1} (ch{sensor})" if sensor is not None else ""
         vals = ", ".join(f"{k}={v:.4g}" for k, v in params.items() if isinstance(v, (int, float)))

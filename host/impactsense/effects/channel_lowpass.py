@@ -18,6 +18,7 @@ from scipy import signal
 from ._base import Effect, to_adc, to_float
 
 FC_GRID_HZ = np.geomspace(1000.0, 40000.0, 23)
+REFINE_STEPS = np.geomspace(0.8, 1.25, 11)   # the fit's finer log grid around the best node of FC_GRID_HZ
 PRETRIGGER_NOISE_SAMPLES = 64   # the record's first samples: before any impact (the noise level)
 
 
@@ -102,9 +103,13 @@ class ChannelLowpass(Effect):
             if gain > best[0]:
                 best = (gain, fc)
         # refine on a finer log grid around the best cut-off
-        fcs = best[1] * np.geomspace(0.8, 1.25, 11)
+        fcs = best[1] * REFINE_STEPS
         gains = [self.add(ref, sensor, {"fc_hz": fc}).ll(F).sum() for fc in fcs]
         return {"fc_hz": float(fcs[int(np.argmax(gains))])}
+
+    def resolution(self, params):
+        """The refine grid's step at fc (a grid argmax: the folds often land on one node)."""
+        return {"fc_hz": float(params["fc_hz"]) * float(REFINE_STEPS[1] / REFINE_STEPS[0] - 1.0)}
 
     def add(self, ref, sensor, params):
         dt, de, dc, dd = self._shifts(ref, params["fc_hz"])
