@@ -396,7 +396,10 @@ IC_NOINLINE void recentre_kept(const Terms& k, uint16_t mask, const SiteMap& map
 // The channel check's order (kTwinSearchCued): at the site-map point nearest (x_mm, y_mm), each channel's
 // leave-one-out misfit -- the four-channel residuals with that channel's taken out and the height shift
 // fitted again -- ascending; a channel with an onset but no usable energy, or no drop at that point, keeps
-// its place after the others (channel order). Returns how many channels it ordered (those with an onset).
+// its place after the others (channel order). Returns how many of them twin_match tries: those with an onset,
+// or only the first when every one of them has a cue and the first's is kBadMisfitGain-fold below the
+// second's (the energies single that channel out; a wrong pick, which the later candidates are for, leaves
+// the cue without such a margin: docs/method.md "The twin's channel check").
 IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, const uint8_t has_onset[kChannels], float x_mm,
                float y_mm, const SiteMap& map, const TwinConfig& cfg, const Terms& made, int order[kChannels]) {
   float cue[kChannels];
@@ -448,6 +451,9 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
     for (; m > 0 && cue[order[m - 1]] > cue[c]; --m) order[m] = order[m - 1];
     order[m] = c;
   }
+  int judged = 0;
+  for (int k = 0; k < n; ++k) judged += cue[order[k]] < INFINITY ? 1 : 0;
+  if (n > 1 && judged == n && cue[order[1]] > kBadMisfitGain * cue[order[0]]) return 1;
   return n;
 }
 }  // namespace
@@ -518,7 +524,8 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   const Terms* best_terms = out.left_out >= 0 ? &kept : nullptr;
   Terms cand;
   // The candidates: every channel with an onset in channel order (kTwinSearchFull), or in the cue's order,
-  // stopping at the first that beats the bound and after kTwinCuedCandidates (kTwinSearchCued).
+  // stopping at the first that beats the bound and after kTwinCuedCandidates, or after the first when the cue
+  // singles it out (kTwinSearchCued, cued_order).
   int order[kChannels];
   int n_order = 0;
   if (search == kTwinSearchFull) {
