@@ -451,9 +451,8 @@ IC_NOINLINE int cued_order(const float feats[kTwinFeatures], uint16_t usable, co
     for (; m > 0 && cue[order[m - 1]] > cue[c]; --m) order[m] = order[m - 1];
     order[m] = c;
   }
-  int judged = 0;
-  for (int k = 0; k < n; ++k) judged += cue[order[k]] < INFINITY ? 1 : 0;
-  if (n > 1 && judged == n && cue[order[1]] > kBadMisfitGain * cue[order[0]]) return 1;
+  // the channels without a cue sort last: every channel has one when the last has
+  if (n > 1 && cue[order[n - 1]] < INFINITY && cue[order[1]] > kBadMisfitGain * cue[order[0]]) return 1;
   return n;
 }
 }  // namespace
