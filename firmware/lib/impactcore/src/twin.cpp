@@ -527,6 +527,7 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   // singles it out (kTwinSearchCued, cued_order).
   int order[kChannels];
   int n_order = 0;
+  bool singled = false;
   if (search == kTwinSearchFull) {
     for (int c = 0; c < kChannels; ++c) {
       if (has_onset[c]) order[n_order++] = c;
@@ -534,7 +535,9 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
   } else {
     n_order = cued_order(feats, usable, has_onset, out.est.x_mm, out.est.y_mm, map, cfg, kept, order);
     if (n_order > kTwinCuedCandidates) n_order = kTwinCuedCandidates;
+    singled = n_order == 1 && kChannels - missing > 1;  // the cue singled the channel out (cued_order)
   }
+  const float four_x = out.est.x_mm, four_y = out.est.y_mm;  // the four-channel answer
   for (int o = 0; o < n_order; ++o) {
     const int c = order[o];
     uint8_t use[kChannels];
@@ -545,7 +548,13 @@ TwinMatch twin_match(const EventResult& ev, float x_mm, float y_mm, const Locali
                                             loc->localiser_starts);
     if (p.status != kOk) continue;
     const uint16_t mask = static_cast<uint16_t>(usable & ~(((1u << kTwinPerChannel) - 1u) << (c * kTwinPerChannel)));
-    const TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    TwinEstimate t = estimate(feats, mask, p.x_mm, p.y_mm, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    // A channel the cue singled out whose three picks' start does not beat the gain (those picks can place
+    // the drop far off, e.g. in a plate corner): matched again from the four-channel answer, where the cue
+    // found its energies the inconsistent ones.
+    if (singled && t.status == kOk && !(t.misfit * kBadMisfitGain < best) && four_x == four_x && four_y == four_y) {
+      t = estimate(feats, mask, four_x, four_y, map, cfg, cfg.coarse_cutoff_mm, &cand);
+    }
     if (t.status != kOk || !(t.log10_height_mm == t.log10_height_mm) || !(t.misfit * kBadMisfitGain < best)) {
       continue;
     }

@@ -107,7 +107,8 @@ enum TwinReason : int32_t { kTwinAllChannels = 0, kTwinDeadChannel = 1, kTwinInc
 // channel order (a later one replaces the candidate only when kBadMisfitGain-fold lower again); kTwinSearchCued
 // (the default, host and board) tries them in the order of their leave-one-out misfit at the four-channel
 // answer's nearest grid point, lowest first, stops at the first that beats the bound, and tries at most
-// kTwinCuedCandidates; only the first when its cue is kBadMisfitGain-fold below every other's (docs/method.md
+// kTwinCuedCandidates; only the first when its cue is kBadMisfitGain-fold below every other's, and that one,
+// when its three picks' start does not beat the bound, from the four-channel answer too (docs/method.md
 // "The twin's channel check").
 enum TwinSearch : int32_t { kTwinSearchCued = 0, kTwinSearchFull = 1 };
 constexpr int kTwinCuedCandidates = kChannels;  // 2 missed early picks (a pick, not energies, is wrong there)
