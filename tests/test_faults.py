@@ -116,10 +116,12 @@ def test_the_cued_channel_search_leaves_out_the_channel_the_full_search_does(twi
     at the four-channel answer, stopping at the first that beats the bound) against
     the full one (every channel in channel order): on held-out drops with each channel debonded, a dead
     channel, and the noise draws whose early picks send the search off and the four-channel recheck clears
-    it, both leave out the same channel on every drop and report the same position. Every channel in turn:
-    the cue must not just favour the first channels. The two differ only when two channels each lower the
-    misfit kBadMisfitGain-fold (two faulty discs at once), which one injected fault never makes; so no
-    drop may differ (positions to 1e-3 mm: the same float operations either way)."""
+    it, both leave out the same channel and report the same position wherever the full search leaves one out.
+    Every channel in turn: the cue must not just favour the first channels. The two differ when two channels
+    each lower the misfit kBadMisfitGain-fold (two faulty discs at once), which one injected fault never makes,
+    and where the cue singles a debonded disc out but its three picks' start does not beat the gain: the cued
+    search then matches it again from the four-channel answer (twin.h), so it may leave that disc out where
+    the full search leaves none; nothing else may differ (positions to 1e-3 mm: the same float operations)."""
     import functools
 
     import impactsense.models as models
@@ -137,8 +139,9 @@ def test_the_cued_channel_search_leaves_out_the_channel_the_full_search_does(twi
         cued = model.predict(feats)
         monkeypatch.setattr(models, "twin_match", functools.partial(cued_match, full_search=True))
         full = model.predict(feats)
-        assert np.array_equal(cued["bad_channel"], full["bad_channel"]), spec
-        assert np.allclose(cued["xy_mm"], full["xy_mm"], atol=1e-3, equal_nan=True), spec
+        same = cued["bad_channel"] == full["bad_channel"]
+        assert np.all(same | ((full["bad_channel"] < 0) & (cued["bad_channel"] == spec.debond) & (spec.debond >= 0))), spec
+        assert np.allclose(cued["xy_mm"][same], full["xy_mm"][same], atol=1e-3, equal_nan=True), spec
         if spec.debond >= 0:
             assert np.mean(cued["bad_channel"] == spec.debond) > 0.9, spec   # the search ran and found it
         flagged += int(np.sum(cued["bad_channel"] >= 0))
