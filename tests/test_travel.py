@@ -139,3 +139,38 @@ def test_fit_travel_recovers_the_dispersion_exponent_and_keeps_none_without_disp
     assert fit.velocity_mm_per_us == pytest.approx(1.7 / ref_scale, rel=0.02)
     flat = fit_travel(t0 + d / 1.7 + rng.normal(0, 1.0, d.shape), xy, SENSORS, False, period, 1e5)
     assert flat.dispersion_exponent == 0.0 and flat.velocity_mm_per_us == pytest.approx(1.7, rel=0.01)
+
+
+def _noisy_drops(metric, seed):
+    rng = np.random.default_rng(seed)
+    xy = np.c_[rng.uniform(10, 440, 60), rng.uniform(10, 340, 60)]
+    toa = synthetic_toa(xy, 2.6, metric, (0.0, 1.0, -1.0, 0.5), t0=rng.uniform(900, 1100, (60, 1)))
+    return toa + rng.normal(0, 1.4, toa.shape), xy
+
+
+def test_an_unknown_materials_metric_is_kept_only_when_it_explains_the_picks_clearly_better():
+    """anisotropic None (an unknown material, travel.metric_choice): on an isotropic plate with 1.4 us pick noise the
+    fitted metric's two parameters buy a spread gain of a few percent at most, so the Euclidean distance (the
+    identity) is kept; with elliptical wavefronts (speed along x 1.3x that along y) the metric is kept, as the
+    metric's fit on its own gives it."""
+    toa, xy = _noisy_drops((1.0, 0.0, 1.0), 7)
+    assert fit_travel(toa, xy, SENSORS, anisotropic=None).metric == (1.0, 0.0, 1.0)
+    assert fit_travel(toa, xy, SENSORS, anisotropic=True).metric != (1.0, 0.0, 1.0)
+    q = metric_of(-0.26, 0.05)   # (1 - a) / (1 + a) ~ 1.7 ~ 1.3^2
+    toa, xy = _noisy_drops(q, 8)
+    fit = fit_travel(toa, xy, SENSORS, anisotropic=None)
+    assert fit.metric == fit_travel(toa, xy, SENSORS, anisotropic=True).metric
+    assert np.allclose(fit.metric, q, atol=0.02)
+
+
+def test_metric_choice_follows_the_material():
+    """A laminate always fits the metric, a known isotropic material never, an unknown one lets the picks decide."""
+    from impactsense.data import bundled_session_path, load_rig, rig_from_dict
+    from impactsense.travel import metric_choice
+
+    def rig(text):
+        return rig_from_dict({**load_rig(bundled_session_path()).raw, "plate_material": text})
+
+    assert metric_choice(rig("CFRP, fibres along x")) is True
+    assert metric_choice(rig("aluminium 6061-T6")) is False
+    assert metric_choice(rig("Hardox 450 wear plate")) is None

@@ -125,10 +125,10 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     calibrated twin's virtual drops and these the rig's calibration drops, which break the threshold's ties
     (travel.choose_threshold). band_choice: a SignalConfig -> SignalConfig choosing the band picks and finishing
     the fit (band_forests.forest_band_choice) in place of choose_band + band_finished."""
-    from .travel import fit_travel, picks, wants_metric
+    from .travel import fit_travel, metric_choice, picks
     from .travel import choose_threshold as choose
 
-    aniso = wants_metric(session.rig)
+    aniso = metric_choice(session.rig)
     if choose_threshold:
         thr, blend, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso, rig_drops)
     else:
@@ -236,7 +236,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     noise floor from the training drops' median noise rms (band_noise_counts: a noisier lab then does not move
     the picks), their travel model (velocity, delays, metric on a plate that wants one) fitted on the training
     drops; None when the picks give no frequency or too few band picks."""
-    from .travel import complete_drops, fit_travel, travel_distances, wants_metric
+    from .travel import complete_drops, fit_travel, metric_choice, travel_distances
 
     a16 = as_int16(session.adc[rows], cfg)
     raw = _core.extract_batch(a16, cfg.core())
@@ -262,7 +262,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
             if complete_drops(toa, cfg.channel_left_out).sum() < 8:
                 continue
-            fit = fit_travel(toa, xy, sensors, wants_metric(session.rig), left_out=cfg.channel_left_out)
+            fit = fit_travel(toa, xy, sensors, metric_choice(session.rig), left_out=cfg.channel_left_out)
             trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
             trial.band_delay_us = list(fit.delays_us)
             trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
@@ -279,14 +279,14 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     """band (band_config's) with the band localiser's slowness linear in the drops' summed log energy
     (travel.fit_energy_slowness on the training drops' band picks; impactcore band_slowness_per_decade), or
     None when it cannot be fitted."""
-    from .travel import complete_drops, fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
+    from .travel import complete_drops, fit_energy_slowness, fit_travel, metric_choice, summed_log_energy
 
     raw = _core.extract_batch(as_int16(session.adc[rows], band), band.core())
     toa = raw["toa_band_us"].astype(float)
     xy = np.asarray(session.xy_mm, float)[rows]
     if complete_drops(toa, band.channel_left_out).sum() < 8:
         return None
-    fit = fit_travel(toa, xy, band.sensor_xy_mm, wants_metric(session.rig), left_out=band.channel_left_out)
+    fit = fit_travel(toa, xy, band.sensor_xy_mm, metric_choice(session.rig), left_out=band.channel_left_out)
     line = fit_energy_slowness(toa, xy, band.sensor_xy_mm, fit, summed_log_energy(raw["energy"], band.fs_hz),
                                left_out=band.channel_left_out)
     if line is None:

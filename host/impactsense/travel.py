@@ -42,6 +42,10 @@ AIC_BLENDS = (0.2, 0.0)
 # The dispersion term is kept when it brings the robust residual spread below this fraction of the fit
 # without it.
 DISPERSION_GAIN = 0.95
+# On a plate of an unknown material the travel metric is fitted and kept when it brings the robust residual
+# spread below this fraction of the isotropic fit's (as the dispersion term): an isotropic plate then gets the
+# Euclidean distance, the core's cheaper localiser form (the board's event budget: board/cost.py).
+METRIC_GAIN = 0.95
 
 
 @dataclass
@@ -111,12 +115,17 @@ def complete_drops(toa_us: np.ndarray, left_out=None) -> np.ndarray:
 
 
 def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
-               anisotropic: bool, period_samples: np.ndarray | None = None, fs_hz: float | None = None,
+               anisotropic: bool | None, period_samples: np.ndarray | None = None, fs_hz: float | None = None,
                left_out=None) -> TravelFit:
     """Velocity, channel delays (relative to the first channel in use, channel 0 unless left out) and, when
     anisotropic, the metric's a, b; with the picks' periods (samples at fs_hz) also the dispersion exponent,
-    kept when it explains the picks clearly better (DISPERSION_GAIN). left_out: the core's channel_left_out
-    flags; those channels are not read (their delay 0) and need no onset."""
+    kept when it explains the picks clearly better (DISPERSION_GAIN). anisotropic None (metric_choice: an unknown
+    material): both fits, the metric's kept when it explains the picks clearly better (METRIC_GAIN). left_out:
+    the core's channel_left_out flags; those channels are not read (their delay 0) and need no onset."""
+    if anisotropic is None:
+        iso = fit_travel(toa_us, xy_mm, sensor_xy_mm, False, period_samples, fs_hz, left_out)
+        aniso = fit_travel(toa_us, xy_mm, sensor_xy_mm, True, period_samples, fs_hz, left_out)
+        return aniso if aniso.spread_us < METRIC_GAIN * iso.spread_us else iso
     toa = np.asarray(toa_us, float)
     use = channels_in_use(left_out, toa.shape[1])
     if use.sum() < 3:
@@ -208,6 +217,16 @@ def wants_metric(rig) -> bool:
 
     mat = material_for_rig(rig)
     return mat.orthotropic or not mat.known
+
+
+def metric_choice(rig) -> bool | None:
+    """fit_travel's `anisotropic` for a model trained on the rig's drops: True on an orthotropic material (the
+    metric fitted), False on a known isotropic one, None on an unknown material (the metric fitted and kept
+    only when it explains the picks clearly better: METRIC_GAIN)."""
+    from .materials import material_for_rig
+
+    mat = material_for_rig(rig)
+    return True if mat.orthotropic else (False if mat.known else None)
 
 
 def picks(adc: np.ndarray, cfg: SignalConfig, with_period: bool = False, **overrides):
