@@ -43,9 +43,12 @@ AIC_BLENDS = (0.2, 0.0)
 # without it.
 DISPERSION_GAIN = 0.95
 # On a plate of an unknown material the travel metric is fitted and kept when it brings the robust residual
-# spread below this fraction of the isotropic fit's (as the dispersion term): an isotropic plate then gets the
-# Euclidean distance, the core's cheaper localiser form (the board's event budget: board/cost.py).
+# spread out of fold (METRIC_FOLDS folds of the training drops' sites) below this fraction of the isotropic
+# fit's: an isotropic plate then gets the Euclidean distance, the core's cheaper localiser form (the board's
+# event budget: board/cost.py). In sample the metric's two parameters lower the spread on an isotropic plate too
+# (docs/findings.md "Session 23: boardfit").
 METRIC_GAIN = 0.95
+METRIC_FOLDS = 5
 
 
 @dataclass
@@ -120,12 +123,15 @@ def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
     """Velocity, channel delays (relative to the first channel in use, channel 0 unless left out) and, when
     anisotropic, the metric's a, b; with the picks' periods (samples at fs_hz) also the dispersion exponent,
     kept when it explains the picks clearly better (DISPERSION_GAIN). anisotropic None (metric_choice: an unknown
-    material): both fits, the metric's kept when it explains the picks clearly better (METRIC_GAIN). left_out:
+    material): both fits, the metric's kept when it explains held-out drops' picks clearly better (METRIC_GAIN,
+    held_out_spread_us). left_out:
     the core's channel_left_out flags; those channels are not read (their delay 0) and need no onset."""
     if anisotropic is None:
         iso = fit_travel(toa_us, xy_mm, sensor_xy_mm, False, period_samples, fs_hz, left_out)
         aniso = fit_travel(toa_us, xy_mm, sensor_xy_mm, True, period_samples, fs_hz, left_out)
-        return aniso if aniso.spread_us < METRIC_GAIN * iso.spread_us else iso
+        spread = {a: held_out_spread_us(toa_us, xy_mm, sensor_xy_mm, a, period_samples, fs_hz, left_out)
+                  for a in (False, True)}
+        return aniso if spread[True] < METRIC_GAIN * spread[False] else iso
     toa = np.asarray(toa_us, float)
     use = channels_in_use(left_out, toa.shape[1])
     if use.sum() < 3:
@@ -150,6 +156,47 @@ def fit_travel(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
         delays[use] = fit.delays_us
         fit.delays_us = [float(v) for v in delays]
     return fit
+
+
+def travel_residuals(fit: TravelFit, toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray,
+                     period_samples: np.ndarray | None = None, fs_hz: float | None = None, left_out=None) -> np.ndarray:
+    """Each drop's residuals (us) under `fit` (its metric, velocity, delays and dispersion), centred over the
+    channels in use: [R', channels in use], the drops with every pick of those."""
+    toa = np.asarray(toa_us, float)
+    use, ok = channels_in_use(left_out, toa.shape[1]), complete_drops(toa, left_out)
+    d = travel_distances(np.asarray(xy_mm, float)[ok], np.asarray(sensor_xy_mm, float), fit.metric)
+    if period_samples is not None and fs_hz is not None:
+        d = d * slowness_scales(np.asarray(period_samples, float)[ok], fs_hz, fit.dispersion_exponent,
+                                fit.dispersion_ref_hz)
+    r = toa[ok] - d / fit.velocity_mm_per_us - np.asarray(fit.delays_us, float)[None]
+    return _centred(r[:, use])
+
+
+def held_out_spread_us(toa_us: np.ndarray, xy_mm: np.ndarray, sensor_xy_mm: np.ndarray, anisotropic: bool,
+                       period_samples: np.ndarray | None = None, fs_hz: float | None = None, left_out=None,
+                       folds: int = METRIC_FOLDS) -> float:
+    """The robust spread (1.4826 MAD, us) of the residuals of drops under a fit_travel made without their site:
+    the drops' sites (their positions) in `folds` folds; inf when a fold's fit fails or there are fewer sites
+    than 2 x folds."""
+    xy = np.asarray(xy_mm, float)
+    site = np.unique(np.round(xy, 1), axis=0, return_inverse=True)[1].ravel()
+    if site.max(initial=-1) + 1 < 2 * folds:
+        return float("inf")
+    fold = np.random.default_rng(0).permutation(site.max() + 1)[site] % folds
+    period = None if period_samples is None else np.asarray(period_samples, float)
+    toa = np.asarray(toa_us, float)
+    out = []
+    for f in range(folds):
+        held = fold == f
+        try:
+            fit = fit_travel(toa[~held], xy[~held], sensor_xy_mm, anisotropic,
+                             None if period is None else period[~held], fs_hz, left_out)
+        except ValueError:
+            return float("inf")
+        out.append(travel_residuals(fit, toa[held], xy[held], sensor_xy_mm,
+                                    None if period is None else period[held], fs_hz, left_out).ravel())
+    r = np.concatenate(out)
+    return float(1.4826 * np.median(np.abs(r))) if r.size else float("inf")
 
 
 def _fit(toa, xy, d0, s0, sensor_xy_mm, anisotropic: bool, periods, ref_hz: float) -> TravelFit:
@@ -222,7 +269,7 @@ def wants_metric(rig) -> bool:
 def metric_choice(rig) -> bool | None:
     """fit_travel's `anisotropic` for a model trained on the rig's drops: True on an orthotropic material (the
     metric fitted), False on a known isotropic one, None on an unknown material (the metric fitted and kept
-    only when it explains the picks clearly better: METRIC_GAIN)."""
+    only when it explains held-out drops' picks clearly better: METRIC_GAIN)."""
     from .materials import material_for_rig
 
     mat = material_for_rig(rig)
