@@ -299,3 +299,16 @@ def test_forest_rates_bound_the_walk_measured_under_qemu():
     from impactsense.board import boosted
     stage = 2 * boosted.STAGE_INSTRUCTIONS                   # both coordinates, depth 3: 3 splits each
     assert 2 * (10 * boosted.BOOST_DEPTH + 12) <= stage <= 1.1 * 2 * (10 * boosted.BOOST_DEPTH + 12)
+
+
+def test_a_class_forests_models_estimate_bounds_what_qemu_measured():
+    """The thick fast plate's exports (docs/findings.md "Session 23: boardfit"): 8 boosted depth-3 stages a coordinate
+    (20 inputs each) and a 2-tree class forest of depth 2 (15 inputs) measured 2,202-2,210 instructions under qemu
+    for the models, every drop walking each tree's deepest path; the estimate (FOREST_FIXED, the keys, the walk,
+    and the class forest's vote) bounds that, and the linear class's estimate of the same walk does not count the
+    vote."""
+    full = {"x": np.full((8, 1), 4), "y": np.full((8, 1), 4), "energy": np.full((2, 1), 3)}
+    est = cost.forests_instructions(full, {"x": 8, "y": 8, "energy": 2}, {"x": 20, "y": 20, "energy": 15})
+    assert est >= 2210
+    linear = cost.forests_instructions(full, {"x": 8, "y": 8}, {"x": 20, "y": 20})
+    assert est - linear == cost.CLASS_FOREST_FIXED + 15 * cost.FOREST_PER_INPUT + 2 * 3 * cost.FOREST_PER_NODE

@@ -56,6 +56,11 @@ POSTERIOR_PER_POINT = 450
 FOREST_PER_NODE = 11
 FOREST_PER_TREE = 0
 FOREST_FIXED = 1050
+# ... and when the energy class is a forest (not the linear estimate): its vote beyond the walk and the keys. Measured
+# under qemu on three exports with a 2-tree class forest (15 inputs, 10 nodes) and 8 boosted stages a coordinate
+# (docs/findings.md "Session 23: boardfit"): the models 2,202-2,210, 8-16 above FOREST_FIXED + the walk + the keys
+# (the walk counted at its deepest path: no drop walks more); ~40 kept over that, as FOREST_FIXED keeps.
+CLASS_FOREST_FIXED = 60
 # forest_mean's order key of one input (load, two ALU operations, store and the loop: 7 instructions, qemu image)
 FOREST_PER_INPUT = 7
 # A term of the linear energy estimate (impactapp::linear_terms): three factor slots, each a load and a compare and,
@@ -168,10 +173,11 @@ def linear_instructions(n_terms: int) -> int:
 def forests_instructions(nodes: dict, trees: dict, inputs: dict | None = None) -> int:
     """The models' cost for the prefixes `trees` (role -> number of trees) of forests whose node counts are
     `nodes` (role -> forest_nodes) and which read `inputs` (role -> number of inputs; absent: none counted): the
-    slowest row."""
+    slowest row. An "energy" role is the class forest (CLASS_FOREST_FIXED more)."""
     per_row = sum(FOREST_PER_NODE * nodes[r][:k].sum(axis=0) + FOREST_PER_TREE * k for r, k in trees.items())
     per_input = FOREST_PER_INPUT * sum(int((inputs or {}).get(r, 0)) for r, k in trees.items() if k > 0)
-    return FOREST_FIXED + per_input + (int(np.max(per_row)) if np.size(per_row) else 0)
+    vote = CLASS_FOREST_FIXED if trees.get("energy", 0) > 0 else 0
+    return FOREST_FIXED + vote + per_input + (int(np.max(per_row)) if np.size(per_row) else 0)
 
 
 def flagged_run_instructions(starts: int = 1, iso: bool = True) -> int:

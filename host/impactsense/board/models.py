@@ -40,7 +40,7 @@ from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
 from .capture import (board_anti_alias, board_capture, board_captures, board_view, front_end_card,
                       signal_for_board)
-from .cost import (EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
+from .cost import (CLASS_FOREST_FIXED, EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    LOCALISER_EVALUATIONS, linear_instructions, signal_fits, signal_instructions)
 
 BOARD_SITE_MAP = "board-site-map.npz"   # the cached board-rate site map in an export folder
@@ -260,7 +260,7 @@ def forests_budget(model: ImpactModel, n_inputs: int, front_end=None) -> float:
     energy = model.forest_energy
     if hasattr(energy, "estimators_"):
         tree = energy.estimators_[0].tree_
-        e_cost = (FOREST_PER_TREE + FOREST_PER_NODE * (tree.max_depth + 1)
+        e_cost = (FOREST_PER_TREE + FOREST_PER_NODE * (tree.max_depth + 1) + CLASS_FOREST_FIXED
                   + FOREST_PER_INPUT * len(model.energy_class_features))
     else:
         e_cost = linear_instructions(len(energy.terms))
