@@ -312,3 +312,17 @@ def test_a_class_forests_models_estimate_bounds_what_qemu_measured():
     assert est >= 2210
     linear = cost.forests_instructions(full, {"x": 8, "y": 8}, {"x": 20, "y": 20})
     assert est - linear == cost.CLASS_FOREST_FIXED + 15 * cost.FOREST_PER_INPUT + 2 * 3 * cost.FOREST_PER_NODE
+
+
+def test_the_deepest_walk_bounds_every_rows_walk():
+    """deepest_walks (what export and the board refit count) is at least forest_nodes on any row: a few held-out
+    drops of a small session walked less of a deep random tree than qemu measured on the others (the thick plate's
+    one-tree export: 1,600 estimated against 1,710 measured; docs/findings.md "Session 23: boardfit")."""
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(300, 4)).astype(np.float32)
+    y = X[:, 0] * X[:, 1] + 0.1 * rng.normal(size=300)
+    forest = RandomForestRegressor(n_estimators=4, random_state=0).fit(X, y)
+    walks = cost.deepest_walks(forest)
+    assert walks.shape == (4, 1)
+    assert np.all(walks >= cost.forest_nodes(forest, X))
+    assert np.any(walks > cost.forest_nodes(forest, X[:12]).max(axis=1, keepdims=True))

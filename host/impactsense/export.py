@@ -263,8 +263,8 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     masks [R]) of the same drops) the distance is the reported position's: the twin's match around each prefix's
     position (mean_distance_mm; the forests' own: forest_mean_distance_mm). max_instructions: what the event
     budget leaves the forests (board.cost): the energy forest then takes the same prefix as the coordinates'
-    (energy_trees) and a row fits when the forests' estimated cost on the slowest of these drops
-    (instructions) is within it. Each row says whether it fits the budgets."""
+    (energy_trees) and a row fits when the forests' estimated cost, each tree walked to its deepest leaf
+    (instructions), is within it. Each row says whether it fits the budgets."""
     n_all = len(models.x.estimators_)
     if vector is None or len(vector) == 0:
         return n_all, []
@@ -277,9 +277,8 @@ def select_trees(models: ModelSet, vector: np.ndarray | None, phys_xy: np.ndarra
     nodes = None
     sizes = (5, 10, 15, 20, 25, 30, 40, 50, 75, 100, 150, 200, n_all)
     if max_instructions is not None:
-        from .board.cost import forest_nodes
-        nodes = {r: forest_nodes(f, X[:, models.inputs[r]])
-                 for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))
+        from .board.cost import deepest_walks
+        nodes = {r: deepest_walks(f) for r, f in (("x", models.x), ("y", models.y), ("energy", models.energy))
                  if r != "energy" or not models.energy_linear}
         sizes = (1, 2, 3, 4, *sizes)
     # the board's boosted trees (board.boosted): every tree is the model, no prefix is; the energy forest's prefix is

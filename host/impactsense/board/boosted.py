@@ -23,7 +23,7 @@ import numpy as np
 from sklearn.ensemble import GradientBoostingRegressor, RandomForestRegressor
 from sklearn.model_selection import GroupKFold
 
-from .cost import FOREST_PER_NODE, FOREST_PER_TREE, forest_nodes
+from .cost import FOREST_PER_NODE, FOREST_PER_TREE, deepest_walks
 
 # Stages: as many as the event budget leaves the pair (stages_within), at most BOOST_MAX_STAGES; the learning rate
 # BOOST_SHRINK / stages (at most BOOST_MAX_RATE): fewer stages, each one a larger step.
@@ -47,9 +47,9 @@ def learning_rate(stages: int) -> float:
 
 
 def prefix_within(forests, X: np.ndarray, instructions: float) -> int:
-    """The random forests' (x, y) longest prefix whose nodes on the slowest row of X cost at most `instructions`
-    (board.cost rates; at least 1)."""
-    nodes = sum(forest_nodes(f, X) for f in forests)        # [trees, rows], both coordinates
+    """The random forests' (x, y) longest prefix whose nodes, each tree walked to its deepest leaf (board.cost
+    deepest_walks; X is not read), cost at most `instructions` (board.cost rates; at least 1)."""
+    nodes = sum(deepest_walks(f) for f in forests)          # [trees, 1], both coordinates
     cost = FOREST_PER_NODE * np.cumsum(nodes, axis=0).max(axis=1) + 2 * FOREST_PER_TREE * np.arange(1, len(nodes) + 1)
     return int(max(1, np.sum(cost <= instructions)))
 

@@ -24,7 +24,7 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel
   metric) runs the costlier form;
 - forests: FOREST_PER_NODE for each node a tree visits (its leaf included) and FOREST_PER_TREE for each tree,
-  the nodes counted on actual feature vectors (the slowest row), FOREST_PER_INPUT for each input a forest reads
+  the nodes counted on each tree's deepest path (deepest_walks: no drop walks more), FOREST_PER_INPUT for each input a forest reads
   (impactapp's forest_mean takes each input's order key once a call), plus FOREST_FIXED (the inputs' gathering,
   the calls, the vote). forest_mean walks a split node in 9 (left) or 10 (right) instructions and a tree's
   root, count and leaf in ~12, so a tree of s splits costs at most 10 s + 12 = 10 (nodes - 1) + 12: counting
@@ -162,6 +162,13 @@ def forest_nodes(forest, X: np.ndarray) -> np.ndarray:
     """Nodes each tree of a scikit-learn forest visits for each row of X (leaf included): int [trees, rows]."""
     X = np.asarray(X, dtype=np.float32)
     return np.stack([np.asarray(t.decision_path(X).sum(axis=1)).ravel() for t in forest.estimators_])
+
+
+def deepest_walks(forest) -> np.ndarray:
+    """Nodes on each tree's deepest path (its leaf included), int [trees, 1]: what forest_nodes gives on the slowest
+    row any drop can be, so a bound that does not depend on which drops were at hand (a few held-out drops of a
+    small session walk less of a deep random tree than others do: docs/findings.md "Session 23: boardfit")."""
+    return np.array([[int(t.tree_.max_depth) + 1] for t in forest.estimators_], dtype=np.int64).reshape(-1, 1)
 
 
 def linear_instructions(n_terms: int) -> int:
