@@ -285,7 +285,7 @@ def pick_settings(session, accepted):
     from .effects import EFFECTS
     from .pipeline import fit_localiser, physics_mae
     from .signal import SignalConfig
-    from .travel import choose_threshold, metric_choice
+    from .travel import choose_threshold, wants_metric
 
     gains = onset_gains(session, accepted)
     given = {"channel_gain": gains} if gains != [1.0] * 4 else {}
@@ -298,7 +298,7 @@ def pick_settings(session, accepted):
     for scale in sorted(NOISE_FACTOR_SCALES, reverse=True):   # the configured one first: ties keep it
         cfg = SignalConfig.for_rig(session.rig, onset_noise_factor=float(base.onset_noise_factor) * scale, **given)
         try:
-            _, _, fit, _ = choose_threshold(session.adc, session.xy_mm, cfg, metric_choice(session.rig))
+            _, _, fit, _ = choose_threshold(session.adc, session.xy_mm, cfg, wants_metric(session.rig))
         except ValueError:
             continue
         # the travel spread is robust: it does not see drops whose onset was a crossing in the noise, which

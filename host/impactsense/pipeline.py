@@ -115,7 +115,9 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     """Fits the physics localiser on training drops (travel.py): the onset threshold and AIC blend the core
     picks with, the group velocity, the per-channel delays (relative to channel 0), the dispersion of the
     picked cycles' speed with their frequency (when it explains the picks clearly better) and, on a plate
-    whose material is not a known isotropic one, the travel metric of its elliptical wavefronts.
+    whose material is not a known isotropic one, the travel metric of its elliptical wavefronts (with a target's
+    budget `fits`, on a material the table does not know only when it explains held-out picks clearly better:
+    travel.metric_choice).
 
     Model: ToA_ik = t0_k + |p_k - s_i|_Q / v + delay_i at the drops' nominal positions. Returns a copy of
     `cfg` with those set; the delays are rig_delay_us (the capture's, cfg.capture_delay_us, are removed
@@ -125,10 +127,12 @@ def fit_localiser(session: Session, rows: np.ndarray, cfg: SignalConfig, choose_
     calibrated twin's virtual drops and these the rig's calibration drops, which break the threshold's ties
     (travel.choose_threshold). band_choice: a SignalConfig -> SignalConfig choosing the band picks and finishing
     the fit (band_forests.forest_band_choice) in place of choose_band + band_finished."""
-    from .travel import fit_travel, metric_choice, picks
+    from .travel import fit_travel, metric_choice, picks, wants_metric
     from .travel import choose_threshold as choose
 
-    aniso = metric_choice(session.rig)
+    # a target's cost budget (fits): an unknown material's metric must explain held-out picks clearly better (its
+    # localiser form costs more); the host, without one, fits it as the material asks (travel.wants_metric)
+    aniso = metric_choice(session.rig) if fits is not None else wants_metric(session.rig)
     if choose_threshold:
         thr, blend, fit, _ = choose(session.adc[rows], session.xy_mm[rows], cfg, aniso, rig_drops)
     else:
@@ -236,7 +240,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     noise floor from the training drops' median noise rms (band_noise_counts: a noisier lab then does not move
     the picks), their travel model (velocity, delays, metric on a plate that wants one) fitted on the training
     drops; None when the picks give no frequency or too few band picks."""
-    from .travel import complete_drops, fit_travel, metric_choice, travel_distances
+    from .travel import complete_drops, fit_travel, metric_choice, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows], cfg)
     raw = _core.extract_batch(a16, cfg.core())
@@ -262,7 +266,8 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
             if complete_drops(toa, cfg.channel_left_out).sum() < 8:
                 continue
-            fit = fit_travel(toa, xy, sensors, metric_choice(session.rig), left_out=cfg.channel_left_out)
+            fit = fit_travel(toa, xy, sensors, metric_choice(session.rig) if fits is not None else
+                             wants_metric(session.rig), left_out=cfg.channel_left_out)
             trial.band_velocity_mm_per_us = fit.velocity_mm_per_us
             trial.band_delay_us = list(fit.delays_us)
             trial.band_metric_xx, trial.band_metric_xy, trial.band_metric_yy = fit.metric
@@ -279,14 +284,14 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     """band (band_config's) with the band localiser's slowness linear in the drops' summed log energy
     (travel.fit_energy_slowness on the training drops' band picks; impactcore band_slowness_per_decade), or
     None when it cannot be fitted."""
-    from .travel import complete_drops, fit_energy_slowness, fit_travel, metric_choice, summed_log_energy
+    from .travel import complete_drops, fit_energy_slowness, fit_travel, summed_log_energy, wants_metric
 
     raw = _core.extract_batch(as_int16(session.adc[rows], band), band.core())
     toa = raw["toa_band_us"].astype(float)
     xy = np.asarray(session.xy_mm, float)[rows]
     if complete_drops(toa, band.channel_left_out).sum() < 8:
         return None
-    fit = fit_travel(toa, xy, band.sensor_xy_mm, metric_choice(session.rig), left_out=band.channel_left_out)
+    fit = fit_travel(toa, xy, band.sensor_xy_mm, wants_metric(session.rig), left_out=band.channel_left_out)
     line = fit_energy_slowness(toa, xy, band.sensor_xy_mm, fit, summed_log_energy(raw["energy"], band.fs_hz),
                                left_out=band.channel_left_out)
     if line is None:

@@ -42,11 +42,11 @@ AIC_BLENDS = (0.2, 0.0)
 # The dispersion term is kept when it brings the robust residual spread below this fraction of the fit
 # without it.
 DISPERSION_GAIN = 0.95
-# On a plate of an unknown material the travel metric is fitted and kept when it brings the robust residual
-# spread out of fold (METRIC_FOLDS folds of the training drops' sites) below this fraction of the isotropic
-# fit's: an isotropic plate then gets the Euclidean distance, the core's cheaper localiser form (the board's
-# event budget: board/cost.py). In sample the metric's two parameters lower the spread on an isotropic plate too
-# (docs/findings.md "Session 23: boardfit").
+# Under a cost budget (the board's refit: pipeline.fit_localiser's `fits`) the travel metric of a plate of an
+# unknown material is kept when it brings the robust residual spread out of fold (METRIC_FOLDS folds of the
+# training drops' sites) below this fraction of the isotropic fit's: an isotropic plate then gets the Euclidean
+# distance, the core's cheaper localiser form (board/cost.py). In sample the metric's two parameters lower the
+# spread on an isotropic plate too (docs/findings.md "Session 23: boardfit").
 METRIC_GAIN = 0.95
 METRIC_FOLDS = 5
 
@@ -267,9 +267,10 @@ def wants_metric(rig) -> bool:
 
 
 def metric_choice(rig) -> bool | None:
-    """fit_travel's `anisotropic` for a model trained on the rig's drops: True on an orthotropic material (the
-    metric fitted), False on a known isotropic one, None on an unknown material (the metric fitted and kept
-    only when it explains held-out drops' picks clearly better: METRIC_GAIN)."""
+    """fit_travel's `anisotropic` for a model trained on the rig's drops under a cost budget (the board's refit):
+    True on an orthotropic material (the metric fitted), False on a known isotropic one, None on an unknown
+    material (the metric fitted and kept only when it explains held-out drops' picks clearly better:
+    METRIC_GAIN). Without a budget the host fits the metric wherever wants_metric says."""
     from .materials import material_for_rig
 
     mat = material_for_rig(rig)
