@@ -83,3 +83,17 @@ def test_select_trees_exports_every_boosted_tree():
         assert k == 6 and len(rows) == 1 and rows[0]["trees"] == 6
         small, big = (rows[0], big) if left == 0 else (small, rows[0])
     assert small["energy_trees"] == 1 and big["energy_trees"] == 10 and big["within_budgets"]
+
+
+def test_no_correction_when_the_physics_position_beats_the_budgets_correction():
+    """A learnable correction is kept (the smooth problem); residuals that the features do not explain (noise about
+    0, as on a plate whose physics position is as good as its picks allow) are left uncorrected: a one-tree prefix
+    or two boosted stages fitted to noise add scatter out of fold, and the record says so."""
+    X, resid, groups = smooth_problem()
+    rec = boosted.choose_board_forests(X, resid, groups, ForestSettings(n_estimators=20), prefix=1, stages=4)
+    assert not rec["no_correction"]
+    rng = np.random.default_rng(5)
+    noise = rng.normal(0.0, 10.0, resid.shape)
+    rec = boosted.choose_board_forests(X, noise, groups, ForestSettings(n_estimators=20), prefix=1, stages=2)
+    mae = rec["out_of_fold_mae_mm"]
+    assert rec["no_correction"] and mae["none"] < min(mae["forest_prefix"], mae["boosted"])

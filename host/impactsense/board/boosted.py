@@ -79,8 +79,9 @@ def choose_board_forests(X: np.ndarray, resid: np.ndarray, groups: np.ndarray, s
                          n_folds: int = 5) -> dict:
     """Out of fold on the training drops (X the location features, resid the truth minus the physics position,
     groups the drops' positions): the random forests' `prefix`-tree prefix against the boosted pair of `stages`
-    (both what the event budget affords); the record {"out_of_fold_mae_mm": {"forest_prefix", "boosted"},
-    "use_boosted", ...} for the card."""
+    (both what the event budget affords), and the kept one against no correction (the physics position, "none":
+    kept when below BOOST_GAIN x the kept one's); the record {"out_of_fold_mae_mm": {"forest_prefix", "boosted",
+    "none"}, "use_boosted", "no_correction", ...} for the card."""
     k = min(n_folds, int(np.max(groups)) + 1)
     err = {"forest_prefix": [], "boosted": []}
     if k >= 2:
@@ -92,6 +93,10 @@ def choose_board_forests(X: np.ndarray, resid: np.ndarray, groups: np.ndarray, s
                 err["boosted"].append(np.abs(gb.predict(X[va]) - resid[va, c]))
     mae = {n: float(np.mean(np.concatenate(v))) if v else float("nan") for n, v in err.items()}
     use = bool(np.isfinite(mae["boosted"]) and mae["boosted"] < BOOST_GAIN * mae["forest_prefix"])
+    # no correction (the physics position): what the budget's correction has to beat
+    mae["none"] = float(np.mean(np.abs(resid))) if k >= 2 else float("nan")
+    kept = mae["boosted"] if use else mae["forest_prefix"]
+    none = bool(np.isfinite(mae["none"]) and np.isfinite(kept) and mae["none"] < BOOST_GAIN * kept)
     return {"out_of_fold_mae_mm": {n: round(v, 3) for n, v in mae.items()}, "forest_prefix": prefix,
             "stages": stages, "depth": BOOST_DEPTH, "learning_rate": learning_rate(stages), "subsample": BOOST_SUBSAMPLE,
-            "loss": "huber", "use_boosted": use}
+            "loss": "huber", "use_boosted": use, "no_correction": none}

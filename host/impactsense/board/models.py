@@ -170,7 +170,8 @@ def choose_twin_search(model: ImpactModel, features, xy_mm, height_mm, settings:
 def board_position_forests(model: ImpactModel, features, xy_mm, settings: ForestSettings,
                            front_end=None) -> dict:
     """The board's position correction (board.boosted): the boosted pair replaces the model's forests when the
-    training drops say so out of fold (choose_board_forests); returns the record for the card. front_end: the
+    training drops say so out of fold (choose_board_forests), and no correction (the trees' leaves 0) when the
+    physics position beats the one kept; returns the record for the card. front_end: the
     captures' analog front end (forests_budget)."""
     use = np.asarray(features.usable, bool)
     X = features.vector[use][:, columns(model.location_features)]
@@ -183,6 +184,10 @@ def board_position_forests(model: ImpactModel, features, xy_mm, settings: Forest
     if record["use_boosted"]:
         model.forest_dx, model.forest_dy = (boosted_regressor(X, resid[:, c], record["stages"], settings.seed)
                                             for c in (0, 1))
+    if record["no_correction"]:   # the exported trees' leaves 0: the board reports its physics position
+        from ..correction_scale import scale_forests
+
+        scale_forests((model.forest_dx, model.forest_dy), 0.0)
     return record
 
 
