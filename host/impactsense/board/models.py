@@ -24,6 +24,7 @@ from types import SimpleNamespace
 import numpy as np
 from sklearn.model_selection import GroupKFold
 
+from ..correction_scale import scale_forests
 from ..data import Session, load_session
 from ..edge_travel import three_sensor_positions
 from ..errors import DataError
@@ -185,8 +186,6 @@ def board_position_forests(model: ImpactModel, features, xy_mm, settings: Forest
         model.forest_dx, model.forest_dy = (boosted_regressor(X, resid[:, c], record["stages"], settings.seed)
                                             for c in (0, 1))
     if record["no_correction"]:   # the exported trees' leaves 0: the board reports its physics position
-        from ..correction_scale import scale_forests
-
         scale_forests((model.forest_dx, model.forest_dy), 0.0)
     return record
 
