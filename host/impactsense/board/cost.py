@@ -58,8 +58,8 @@ FOREST_PER_TREE = 0
 FOREST_FIXED = 1050
 # ... and when the energy class is a forest (not the linear estimate): its vote beyond the walk and the keys. Measured
 # under qemu on three exports with a 2-tree class forest (15 inputs, 10 nodes) and 8 boosted stages a coordinate
-# (docs/findings.md "Session 23: boardfit"): the models 2,202-2,210, 8-16 above FOREST_FIXED + the walk + the keys
-# (the walk counted at its deepest path: no drop walks more); ~40 kept over that, as FOREST_FIXED keeps.
+# (docs/findings.md "Session 23: boardfit"): the models 2,202-2,210, 8-22 above FOREST_FIXED + the walk + the keys
+# (the walk counted at its deepest path: no drop walks more; 22 on a one-tree export); ~40 kept over that.
 CLASS_FOREST_FIXED = 60
 # forest_mean's order key of one input (load, two ALU operations, store and the loop: 7 instructions, qemu image)
 FOREST_PER_INPUT = 7
