@@ -22,6 +22,9 @@ def rig_dict(**extra):
     ("stainless steel 304", "steel", "isotropic"), ("float glass", "glass", "isotropic"),
     ("carbon-fibre laminate, fibres mostly along x (orthotropic)", "CFRP laminate", "orthotropic"),
     ("glass-fibre epoxy laminate", "GFRP laminate", "orthotropic"),
+    # a keyword counts at the start of a word: "polycarbonate" holds "carbon", "carbon steel" is a steel
+    ("polycarbonate sheet", "polycarbonate", "isotropic"), ("carbon steel S355", "steel", "isotropic"),
+    ("Graphite/epoxy cross-ply", "CFRP laminate", "orthotropic"), ("fibreglass panel", "GFRP laminate", "orthotropic"),
 ])
 def test_lookup_names_the_material_and_its_kind(text, name, kind):
     m = lookup(text)

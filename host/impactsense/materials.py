@@ -102,8 +102,12 @@ def _p(value, lo, hi) -> Prior:
 
 
 GPA = 1e9
-# (keywords matched in the lower-cased plate_material; the first entry that matches wins: composites first)
+# (keywords matched at the start of a word of the lower-cased plate_material, so "polycarbonate" is not "carbon";
+# the first entry that matches wins: steel first ("carbon steel" is a steel), then the composites)
 TABLE: list[tuple[tuple[str, ...], Material]] = [
+    (("steel",), Material(
+        "steel", ISOTROPIC, _p(7850, 7700, 8050),
+        e_pa=_p(200 * GPA, 185 * GPA, 215 * GPA), nu=_p(0.29, 0.26, 0.32))),
     (("cfrp", "carbon", "graphite"), Material(
         "CFRP laminate", ORTHOTROPIC, _p(1550, 1400, 1700),
         e1_pa=_p(70 * GPA, 30 * GPA, 150 * GPA), e2_pa=_p(20 * GPA, 6 * GPA, 70 * GPA),
@@ -116,6 +120,9 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
     (("pmma", "acrylic", "plexiglas", "perspex"), Material(
         "PMMA", ISOTROPIC, _p(1180, 1150, 1200),
         e_pa=_p(5.0 * GPA, 2.5 * GPA, 7.0 * GPA), nu=_p(0.35, 0.30, 0.40))),
+    (("polycarbonate", "lexan", "makrolon"), Material(
+        "polycarbonate", ISOTROPIC, _p(1200, 1180, 1220),
+        e_pa=_p(2.35 * GPA, 2.0 * GPA, 2.7 * GPA), nu=_p(0.37, 0.34, 0.40))),
     (("titan", "ti-6al", "ti6al"), Material(
         "titanium", ISOTROPIC, _p(4500, 4400, 4650),
         e_pa=_p(112 * GPA, 100 * GPA, 120 * GPA), nu=_p(0.33, 0.30, 0.36))),
@@ -128,9 +135,6 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
     (("alumin",), Material(
         "aluminium", ISOTROPIC, _p(2700, 2600, 2850),
         e_pa=_p(70 * GPA, 65 * GPA, 75 * GPA), nu=_p(0.33, 0.30, 0.36))),
-    (("steel",), Material(
-        "steel", ISOTROPIC, _p(7850, 7700, 8050),
-        e_pa=_p(200 * GPA, 185 * GPA, 215 * GPA), nu=_p(0.29, 0.26, 0.32))),
     (("glass",), Material(
         "glass", ISOTROPIC, _p(2500, 2200, 2700),
         e_pa=_p(70 * GPA, 60 * GPA, 90 * GPA), nu=_p(0.22, 0.18, 0.26))),
@@ -142,10 +146,10 @@ UNKNOWN = Material("unknown", ISOTROPIC, _p(2000, 500, 20000), e_pa=_p(20 * GPA,
 
 
 def lookup(text: str) -> Material:
-    """The table's entry whose keywords occur in `text` (case-insensitive), else UNKNOWN."""
+    """The table's entry with a keyword at the start of a word of `text` (case-insensitive), else UNKNOWN."""
     low = text.lower()
     for keys, mat in TABLE:
-        if any(k in low for k in keys):
+        if any(re.search(r"(?<![a-z0-9])" + re.escape(k), low) for k in keys):
             return mat
     return UNKNOWN
 
