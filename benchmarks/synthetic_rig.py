@@ -21,7 +21,10 @@ sensor inside the triangle of the other three, 20 mm discs, 62.5 kHz, 12-bit, 40
 the hit, a front end hot enough that drops next to a sensor clip, 50 Hz hum, one sensor loose on 10 % of drops),
 wear-thick-side (a 10 mm plate of a steel named by its trade name, unknown to the materials table, sensors close
 together in one corner region, 200 kHz, 16-bit, 8000 samples, rig.json's optional fields, an impacts.csv with
-extra columns in the lab's order; run it with --cases 20 --reps 3).
+extra columns in the lab's order; run it with --cases 20 --reps 3), cfrp-ud-strip (a 700 x 200 x 3 mm
+unidirectional carbon/epoxy strip, fibres at 30 deg, sensors staggered on the two long edges, a 12.7 mm ball,
+250 kHz, 14-bit, 10000 samples of which 2000 before the hit, a second contact on 5 % of the drops; run it with
+--reps 3).
 The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
@@ -150,6 +153,24 @@ KINDS = {
         sim=dict(e_pa=207e9, nu=0.29, pretrigger_samples=1000, damping_per_s=300.0),
         impacts_csv=dict(extra={"operator": "AK", "ball_id": "B16-2", "notes": ""}, first=("x_mm", "y_mm")),
         heights=(100, 200, 300, 400)),
+    "cfrp-ud-strip": dict(
+        # a narrow unidirectional carbon/epoxy strip (E1/E2 ~14) with its fibres at 30 deg to the plate's x axis
+        # (declared `material_axes`); 700 x 200 mm, so y is the short, ill-conditioned direction; the sensors on the
+        # two long edges, two near each end, staggered; a 12.7 mm ball; a 250 kHz 14-bit logger keeping 10000
+        # samples, 2000 of them (8 ms) before the hit (undeclared); a few drops hit twice (the strip's own
+        # vibration throws the ball back onto it 0.5-3 ms later)
+        rig={"plate_material": "unidirectional carbon/epoxy prepreg strip (T700/epoxy, UD)", "plate_x_mm": 700.0,
+             "plate_y_mm": 200.0, "thickness_mm": 3.0, "density_kg_m3": 1570.0,
+             "plate_support": "edges resting on a rubber rim",
+             "material_axes": {"fibre_angle_deg": 30.0},
+             "sensors": _sensors([(45, 18), (130, 184), (570, 16), (655, 182)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 10.0, "ball_material": "steel",
+             "ball_diameter_mm": 12.7, "ball_mass_g": 8.42, "channels": 4, "fs_hz": 250000, "samples": 10000,
+             "adc_bits": 14, "vref": 3.3, "bias_counts": 8192},
+        sim=dict(e_pa=120e9, e2_pa=8.5e9, g12_pa=4.6e9, nu=0.31, material_axes_deg=30.0, pretrigger_samples=2000,
+                 damping_per_s=800.0),
+        double=dict(fraction=0.05, delay_ms=(0.5, 3.0), height_fraction=(0.1, 0.3)),
+        heights=(25, 50, 80, 120, 170, 230)),
 }
 
 
@@ -202,6 +223,17 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
                                              **sim)
     t0 = time.perf_counter()
     volts = simulate_voltages(params, rig, xt, yt, h, workers=2, progress=True)["volts"]
+    double = spec.get("double")
+    if double:   # a second contact on a few drops: the same spot, a fraction of the height, a little later
+        rows = np.sort(rng.choice(x.size, max(1, round(double["fraction"] * x.size)), replace=False))
+        delay = np.rint(rng.uniform(*double["delay_ms"], rows.size) * 1e-3 * rig.fs_hz).astype(int)
+        frac = rng.uniform(*double["height_fraction"], rows.size)
+        second = simulate_voltages(params, rig, xt[rows] + rng.normal(0, 0.5, rows.size),
+                                   yt[rows] + rng.normal(0, 0.5, rows.size), h[rows] * frac, workers=2)["volts"]
+        for k, (r, d) in enumerate(zip(rows, delay)):
+            volts[r, :, d:] += second[k, :, :volts.shape[2] - d]
+        print(f"{kind}: second hits on rows {rows.tolist()} ({np.round(delay / rig.fs_hz * 1e3, 2).tolist()} ms "
+              f"later, {np.round(frac, 2).tolist()} of the height)")
     peak = np.median(np.abs(volts).max(axis=2))
     gain = front["gain_sign"] * front["peak_fraction"] * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
     params = params.replace(circuit_gain=float(gain), noise_counts_rms=1.5 * 2 ** (rig.adc_bits - 12))
