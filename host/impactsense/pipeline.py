@@ -13,7 +13,7 @@ import numpy as np
 
 from . import _core
 from .data import Session
-from .signal import SignalConfig, core_samples
+from .signal import SignalConfig, core_samples, core_window
 
 FEATURE_NAMES: list[str] = list(_core.FEATURE_NAMES)
 PAIRS = list(zip(_core.PAIR_I, _core.PAIR_J))
@@ -87,6 +87,7 @@ def as_int16(adc: np.ndarray, cfg: SignalConfig | None = None) -> np.ndarray:
     adc = np.asarray(adc)
     if adc.ndim == 2:
         adc = adc[None]
+    adc = core_window(adc)
     if adc.dtype == np.uint16 and adc.size and int(adc.max()) > 32767:
         raise ValueError("ADC counts above 32767 do not fit the core's int16 samples: give the rig's SignalConfig")
     return np.ascontiguousarray(adc.astype(np.int16, copy=False))

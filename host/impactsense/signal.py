@@ -155,13 +155,26 @@ def core_offset(adc_max: int) -> int:
     return 0 if int(adc_max) <= INT16_MAX else (int(adc_max) + 1) // 2
 
 
+# The core takes captures of at most this many samples per channel (impactcore.h's kMaxSamples); a logger
+# that keeps longer records (e.g. 10000 samples at 250 kHz) is read over its first CORE_MAX_SAMPLES: the event's
+# windows (ToA .. n2, the difference energies' diff_window_us) end long before, and the quiet start is kept.
+CORE_MAX_SAMPLES = int(_core.MAX_SAMPLES)
+
+
+def core_window(x: np.ndarray) -> np.ndarray:
+    """A record array [..., S] cut to the samples the core reads: the first CORE_MAX_SAMPLES (a view)."""
+    return x[..., :CORE_MAX_SAMPLES] if x.shape[-1] > CORE_MAX_SAMPLES else x
+
+
 def core_samples(counts, cfg) -> np.ndarray:
     """Recordings in the rig's ADC counts ([R, 4, S] or [4, S], integers or floats) as the core's int16 samples
     for `cfg` (a SignalConfig or the core's CoreConfig): rounded, less cfg.sample_offset, clipped to the rails;
-    C-contiguous. The one conversion every path into the core uses."""
+    at most the first CORE_MAX_SAMPLES of each record (`core_window`); C-contiguous. The one conversion every
+    path into the core uses."""
     x = np.asarray(counts)
     if x.ndim == 2:
         x = x[None]
+    x = core_window(x)
     off = int(getattr(cfg, "sample_offset", 0))
     lo, hi = max(int(cfg.adc_min), -INT16_MAX - 1), min(int(cfg.adc_max), INT16_MAX)
     if x.dtype.kind == "f":
