@@ -403,3 +403,30 @@ def test_info_reads_no_hum_from_white_noise_over_a_short_tail():
     hummed = inject(noise, FaultSpec(hum=40.0, hum_hz=50.0, seed=1), fs, bias, 65535)
     amp, _, floor = hum_counts(SimpleNamespace(adc=hummed, rig=rig))
     assert np.all(amp > floor) and np.all((15.0 < amp) & (amp < 45.0))
+
+
+def test_records_longer_than_the_core_reads_are_read_over_its_first_samples(tmp_path, session1):
+    """A logger keeping more samples than the core's kMaxSamples (e.g. 10000 at 250 kHz): the session loads
+    (its quiet start measured), every path into the core reads the records' first CORE_MAX_SAMPLES, and the
+    picks and energies are the short records' (the event ends long before); a declared pre-trigger past what the
+    core reads is a clear error naming the field."""
+    from impactsense.signal import CORE_MAX_SAMPLES
+
+    s = session1.subset(ROWS)
+    extra = CORE_MAX_SAMPLES + 1808 - s.adc.shape[2]
+    rng = np.random.default_rng(0)
+    tail = np.rint(session1.rig.bias_counts + rng.normal(0, 1.5, (*s.adc.shape[:2], extra)))
+    long = np.concatenate([s.adc, tail.astype(np.uint16)], axis=2)
+    raw = dict(session1.rig.to_dict(), samples=long.shape[2])
+    path = write_session(tmp_path / "long", raw, s.x_mm, s.y_mm, s.height_mm, long, s.case_id, s.repetition)
+    ls = load_session(path)
+    assert ls.rig.pretrigger_samples is not None and ls.adc.shape[2] == 10000
+    short = featurize(s.adc, SignalConfig.for_rig(session1.rig))
+    f = featurize(ls.adc, SignalConfig.for_rig(ls.rig))
+    ok = short.usable & f.usable
+    assert ok.mean() > 0.9
+    assert np.median(np.abs(f.toa_us[ok] - short.toa_us[ok])) < 0.5
+    # the energies over ToA .. n2 gain the extra noise tail's share at most (n2 at 99 % of the cumulative energy)
+    assert np.median(f.energy[ok] / short.energy[ok]) == pytest.approx(1.0, abs=0.05)
+    with pytest.raises(DataError, match="pretrigger_samples.*first 8192"):
+        rig_from_dict(dict(raw, pretrigger_samples=CORE_MAX_SAMPLES + 10))

@@ -202,18 +202,23 @@ nb::dict localise_batch(InF toa, InU8 use, std::vector<float> sx, std::vector<fl
 }
 
 nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std::vector<float> sy,
-                                            InF xy, float tol_us, float margin_mm) {
+                                            InF xy, float tol_us, float margin_mm,
+                                            std::vector<float> travel_metric) {
   if (!has_shape(toa, {kAny, 4})) throw std::invalid_argument("toa_us must be float32 [n, 4]");
   if (!has_shape(xy, {toa.shape(0), 2})) {
     throw std::invalid_argument("xy_mm must be float32 [n, 2] like toa_us");
   }
   four(sx, "sensor_x_mm");
   four(sy, "sensor_y_mm");
+  if (!travel_metric.empty() && travel_metric.size() != 3) {
+    throw std::invalid_argument("travel_metric must be empty or (Q_xx, Q_xy, Q_yy)");
+  }
+  const float* metric = travel_metric.empty() ? nullptr : travel_metric.data();
   const size_t r = toa.shape(0);
   auto out = make_array<uint8_t>({r});
   for (size_t k = 0; k < r; ++k) {
     out.data()[k] = ic::accept_eq35(toa.data() + 4 * k, sx.data(), sy.data(), xy.data()[2 * k],
-                                    xy.data()[2 * k + 1], tol_us, margin_mm)
+                                    xy.data()[2 * k + 1], tol_us, margin_mm, metric)
                         ? 1
                         : 0;
   }
@@ -796,7 +801,7 @@ NB_MODULE(_core, m) {
         "travel_metric"_a = std::vector<float>(), "slowness_scale"_a = std::vector<float>(), "starts"_a = 1,
         "posterior_grid"_a = 0, "max_evaluations"_a = 0);
   m.def("accept_batch", &accept_batch, "toa_us"_a, "sensor_x_mm"_a, "sensor_y_mm"_a, "xy_mm"_a,
-        "tol_us"_a, "margin_mm"_a);
+        "tol_us"_a, "margin_mm"_a, "travel_metric"_a = std::vector<float>{});
 
   m.def(
       "threshold_crossing",

@@ -1,7 +1,8 @@
 """Choosing the four calibration drops and their measured targets.
 
 A *drop* here is a lab case (`case_id`: one position and height, dropped several times). A case qualifies
-when at least `min_reps` of its repetitions pass the Eq. 35 acceptance rule, no accepted repetition has a
+when at least `min_reps` of its repetitions pass the Eq. 35 acceptance rule ("nearer" by distance; on an orthotropic
+plate where that leaves fewer than four usable cases, in its material's travel metric, `order_metric`), no accepted repetition has a
 clipped, dead or onset-less channel, and it lies at least `sensor_clearance_mm` from every sensor. Its
 repeatability is the median over the six sensor pairs of the DToA spread (standard deviation across the
 accepted repetitions, microseconds). `auto` takes one case per plate quadrant: the one minimising
@@ -30,12 +31,27 @@ def extract(session, cfg=None) -> dict:
     return _core.extract_batch(core_samples(session.adc, cfg), cfg)
 
 
-def arrival_order_accepted(session, feats, tol_us: float, margin_mm: float) -> np.ndarray:
+def order_metric(rig) -> list[float]:
+    """The travel metric (Q_xx, Q_xy, Q_yy) Eq. 35's "nearer" is measured in before anything is fitted: on an
+    orthotropic plate the Kirchhoff ray metric of its material's typical constants along the declared axes (a
+    sensor nearer in millimetres across the fibres hears the hit later than one farther along them), else none
+    (the Euclidean distance)."""
+    from ..materials import kirchhoff_ray_metric, material_for_rig
+
+    mat = material_for_rig(rig)
+    if not mat.orthotropic:
+        return []
+    t = mat.typical()
+    return list(kirchhoff_ray_metric(t["e1_pa"], t["e2_pa"], t["g12_pa"], t["nu12"], mat.axis_deg))
+
+
+def arrival_order_accepted(session, feats, tol_us: float, margin_mm: float, metric=()) -> np.ndarray:
+    """Eq. 35 on the drops' declared positions; `metric` (Q_xx, Q_xy, Q_yy): "nearer" in that travel metric."""
     rig = session.rig
     return _core.accept_batch(np.ascontiguousarray(feats["toa_us"], dtype=np.float32),
                               [float(v) for v in rig.sensor_x_mm], [float(v) for v in rig.sensor_y_mm],
                               np.ascontiguousarray(session.xy_mm, dtype=np.float32),
-                              float(tol_us), float(margin_mm)).astype(bool)
+                              float(tol_us), float(margin_mm), [float(v) for v in metric]).astype(bool)
 
 
 @dataclass
@@ -68,9 +84,9 @@ class DropTargets:
         }
 
 
-def case_table(session, feats, *, tol_us=0.0, margin_mm=0.0, min_reps=2, sensor_clearance_mm=40.0):
+def case_table(session, feats, *, tol_us=0.0, margin_mm=0.0, min_reps=2, sensor_clearance_mm=40.0, metric=()):
     """Per-case usability and repeatability. Returns (dict case -> row dict, n_accepted_recordings)."""
-    ok_rec = arrival_order_accepted(session, feats, tol_us, margin_mm)
+    ok_rec = arrival_order_accepted(session, feats, tol_us, margin_mm, metric)
     good_ch = ((feats["flags"] & BAD_FLAGS) == 0).all(axis=1) & (feats["status"] == _core.STATUS_OK)
     sens = session.rig.sensor_xy_mm.astype(float)
     rows = {}
@@ -125,8 +141,15 @@ def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0
     on a plate whose localiser fits a metric with two cases near sensor lines along the material axes, within
     line_tol_mm; 0 turns that off)."""
     feats = feats if feats is not None else extract(session)
-    rows, n_acc = case_table(session, feats, tol_us=tol_us, margin_mm=margin_mm, min_reps=min_reps,
-                             sensor_clearance_mm=sensor_clearance_mm)
+    kw = dict(tol_us=tol_us, margin_mm=margin_mm, min_reps=min_reps, sensor_clearance_mm=sensor_clearance_mm)
+    rows, n_acc = case_table(session, feats, **kw)
+    metric = order_metric(session.rig)
+    if metric and sum(r["usable"] for r in rows.values()) < 4:
+        # a strongly orthotropic plate: in millimetres the arrival order rejects most drops; take its material's
+        # travel metric for "nearer" (rigs with four usable cases by distance keep the choice they had)
+        rows, n_acc = case_table(session, feats, metric=metric, **kw)
+    else:
+        metric = []
     where = str(session.path)
     if n_acc == 0:
         raise DataError(where, "recordings", f"all {len(session)} drops are rejected by the Eq. 35 "
@@ -134,7 +157,7 @@ def select_drops(session, feats=None, drops="auto", *, tol_us=0.0, margin_mm=0.0
     usable = [c for c, r in rows.items() if r["usable"]]
     info = {"selection": "auto" if isinstance(drops, str) else "manual", "eq35_tol_us": tol_us,
             "eq35_margin_mm": margin_mm, "min_reps": min_reps, "usable_cases": len(usable),
-            "accepted_recordings": n_acc}
+            "accepted_recordings": n_acc, "eq35_travel_metric": [float(v) for v in metric] or None}
     if not isinstance(drops, str):
         chosen = [int(c) for c in drops]
         if len(chosen) != 4 or len(set(chosen)) != 4:
