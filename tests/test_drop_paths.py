@@ -87,3 +87,47 @@ def test_rule_applies_only_where_the_localiser_fits_a_metric():
     rule = line_rule(laminate)
     assert rule["axis_deg"] == 30.0 and rule["sensors_xy"].shape == (4, 2)
     assert line_rule(laminate, 0.0) == {}
+
+
+def test_a_strongly_orthotropic_strips_drops_are_ordered_in_its_travel_metric():
+    """A narrow unidirectional strip, fibres at 30 deg: a sensor farther in millimetres along the fibres hears a
+    hit before a nearer one across them, so Eq. 35 by distance rejects most drops and calibrate found no four
+    cases; where distance leaves fewer than four, the material's metric orders them (an isotropic plate and a
+    laminate with four usable cases by distance keep the distance)."""
+    from types import SimpleNamespace
+
+    from impactsense import _core
+    from impactsense.calibration.drops import order_metric, select_drops
+    from impactsense.data import rig_from_dict
+    from impactsense.materials import kirchhoff_ray_metric
+    from impactsense.travel import travel_distances
+
+    bundled = load_session("bundled").rig
+    sensors = [(45, 18), (130, 184), (570, 16), (655, 182)]
+    raw = dict(bundled.to_dict(), plate_material="unidirectional carbon/epoxy strip", plate_x_mm=700.0,
+               plate_y_mm=200.0, density_kg_m3=1570.0, material_axes={"fibre_angle_deg": 30.0},
+               sensors=[{"name": f"S{k + 1}", "channel": k, "x_mm": float(x), "y_mm": float(y)}
+                        for k, (x, y) in enumerate(sensors)])
+    rig = rig_from_dict(raw)
+    assert order_metric(rig) and order_metric(bundled) == []
+    rng = np.random.default_rng(0)
+    n_cases, reps = 30, 3
+    cx, cy = rng.uniform(60, 640, n_cases), rng.uniform(40, 160, n_cases)
+    x, y = np.repeat(cx, reps), np.repeat(cy, reps)
+    truth = kirchhoff_ray_metric(120e9, 8.5e9, 4.6e9, 0.31, 30.0)     # the strip's own constants (E1/E2 ~14)
+    toa = travel_distances(np.c_[x, y], np.array(sensors, float), truth) / 1.0 + rng.normal(0, 1.0, (x.size, 4))
+    n = x.size
+    feats = {"toa_us": toa.astype(np.float32), "flags": np.zeros((n, 4), np.uint8),
+             "status": np.full(n, _core.STATUS_OK), "dtoa_us": rng.normal(0, 1, (n, 6)),
+             **{k: np.ones((n, 4)) for k in ("energy", "residual_ratio", "peak", "first_peak", "noise_rms")}}
+    session = SimpleNamespace(rig=rig, path="strip", case_id=np.repeat(np.arange(n_cases), reps), x_mm=x, y_mm=y,
+                              xy_mm=np.c_[x, y], height_mm=np.full(n, 100.0))
+    by_distance = _core.accept_batch(feats["toa_us"], [float(v) for v in rig.sensor_x_mm],
+                                     [float(v) for v in rig.sensor_y_mm], session.xy_mm.astype(np.float32), 0.0, 0.0)
+    chosen = select_drops(session, feats)
+    assert len(set(chosen.case_ids)) == 4 and chosen.info["eq35_travel_metric"] is not None
+    assert chosen.info["accepted_recordings"] > 2 * int(by_distance.sum())
+    # isotropic arrivals on the same strip: four cases by distance, so the distance stays
+    iso = travel_distances(np.c_[x, y], np.array(sensors, float)) + rng.normal(0, 1.0, (n, 4))
+    plain = select_drops(session, {**feats, "toa_us": iso.astype(np.float32)})
+    assert plain.info["eq35_travel_metric"] is None
