@@ -269,12 +269,10 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
     pre = raw.get("pretrigger_samples")
     if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):
         raise DataError(path, "pretrigger_samples", f"must be an integer between 1 and samples - 1, got {pre!r}")
-    if pre is not None:
-        from .signal import CORE_MAX_SAMPLES
-
-        if pre >= CORE_MAX_SAMPLES:
-            raise DataError(path, "pretrigger_samples", f"{pre}: the signal core reads the first {CORE_MAX_SAMPLES} "
-                            "samples of each record, so the hit must come before them")
+    from .signal import CORE_MAX_SAMPLES
+    if pre is not None and pre >= CORE_MAX_SAMPLES:
+        raise DataError(path, "pretrigger_samples", f"{pre}: the signal core reads the first {CORE_MAX_SAMPLES} "
+                        "samples of each record, so the hit must come before them")
     return Rig(sensors=tuple(sensors), raw=dict(raw), pretrigger_samples=pre,
                board_anti_alias=_board_anti_alias(raw.get("board_front_end"), values["fs_hz"], path), **values)
 
