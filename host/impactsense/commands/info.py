@@ -39,6 +39,7 @@ def register(sub) -> None:
 
 def summarise(session) -> dict:
     from ..pipeline import featurize
+    from ..record_window import window_check
     from ..signal import SignalConfig
 
     feats = featurize(session.adc, SignalConfig.for_rig(session.rig))
@@ -81,6 +82,7 @@ def summarise(session) -> dict:
             for c in range(4)
         ],
         "usable_drops": int(feats.usable.sum()),
+        "record_window": window_check(session.rig, int(session.adc.shape[2]), session.rig.pretrigger_samples),
     }
 
 
@@ -122,6 +124,9 @@ def run(args) -> int:
     pre = s["pretrigger_samples"]
     print(f"  samples before the first arrival: {'unknown' if pre is None else pre}; the core's baseline segment "
           f"{s['baseline_samples']} samples")
+    from ..record_window import window_text
+
+    print(f"  {window_text(s['record_window'])}")
     print(f"  usable drops (onset on all 4 channels): {s['usable_drops']}")
     print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'hum':>6s} {'median peak':>12s} "
           f"{'SNR dB':>7s}")

@@ -114,6 +114,11 @@ def run(args) -> int:
 
     check_output_folder(args.out, args.force)
     session = load_session(args.data)
+    from ..record_window import window_check, window_text
+
+    window = window_check(session.rig, int(session.adc.shape[2]), session.rig.pretrigger_samples)
+    if window["short"]:
+        print(f"warning: {window_text(window)}")
     from ..sitemap import resolve_site_map
 
     from ..chain import adapt, rig_calibration_drops, session_calibration, start_calibration_twins

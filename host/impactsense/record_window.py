@@ -1,0 +1,64 @@
+"""Does a session's record hold the far arrivals? The record after the first arrival against the plate's longest
+path difference at its flexural group velocity (`impactsense info`, and `train` warns).
+
+A drop's first arrival reaches the nearest sensor; the last one the farthest, (max_k d_k - min_k d_k) / v later
+(d_k the distances from the drop to the sensors). Over the plate the largest of those differences is the span
+the record must keep after its first arrival. v: the materials table's typical values through the Kirchhoff
+flexural group velocity at REFERENCE_HZ, the slowest direction (materials.flexural_group_velocity_mm_per_us;
+a starting value, not a measurement: the threshold onset catches faster, higher-frequency content). A logger
+that stops sooner loses the far sensors' arrivals on drops far from them: the core reads such a channel as
+dead or without an onset, though nothing is wrong with the disc.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+REFERENCE_HZ = 10e3    # an impact's arrivals carry most of their energy at a few to some tens of kHz
+GRID_MM = 5.0
+ANGLES_DEG = np.arange(0.0, 180.0, 15.0)
+
+
+def longest_path_difference_mm(rig) -> float:
+    """max over the plate (a GRID_MM grid, edges included) of max_k d_k - min_k d_k."""
+    gx = np.linspace(0.0, rig.plate_x_mm, max(2, int(np.ceil(rig.plate_x_mm / GRID_MM)) + 1))
+    gy = np.linspace(0.0, rig.plate_y_mm, max(2, int(np.ceil(rig.plate_y_mm / GRID_MM)) + 1))
+    x, y = np.meshgrid(gx, gy)
+    d = np.stack([np.hypot(x - s.x_mm, y - s.y_mm) for s in rig.sensors])
+    return float((d.max(axis=0) - d.min(axis=0)).max())
+
+
+def slowest_velocity_mm_per_us(rig) -> float:
+    """The plate's Kirchhoff flexural group velocity at REFERENCE_HZ (the table's typical values) in its slowest
+    direction."""
+    from .materials import flexural_group_velocity_mm_per_us, material_for_rig
+
+    mat = material_for_rig(rig)
+    return min(flexural_group_velocity_mm_per_us(mat, rig.thickness_mm, rig.density_kg_m3, REFERENCE_HZ, float(a))
+               for a in ANGLES_DEG)
+
+
+def window_check(rig, samples: int, first_arrival_samples: int | None) -> dict:
+    """The record after the first arrival (ms; None when the first arrival is not known) against the span the
+    far arrivals need (ms): `short` when the record stops before the farthest arrival may come."""
+    path_mm = longest_path_difference_mm(rig)
+    v = slowest_velocity_mm_per_us(rig)
+    needed_ms = path_mm / v * 1e-3
+    after_ms = None if first_arrival_samples is None else (samples - first_arrival_samples) / rig.fs_hz * 1e3
+    return {"after_first_arrival_ms": after_ms, "far_arrival_ms": needed_ms, "path_difference_mm": path_mm,
+            "velocity_mm_per_us": v, "reference_hz": REFERENCE_HZ,
+            "short": bool(after_ms is not None and after_ms < needed_ms)}
+
+
+def window_text(check: dict) -> str:
+    """One line for the user: the record after the first arrival and what the far arrivals need."""
+    need = (f"the farthest arrival comes up to ~{check['far_arrival_ms']:.2f} ms after the first "
+            f"({check['path_difference_mm']:.0f} mm of path difference at ~{check['velocity_mm_per_us']:.2f} mm/us, "
+            f"the plate's flexural group velocity at {check['reference_hz'] / 1e3:g} kHz)")
+    if check["after_first_arrival_ms"] is None:
+        return f"record after the first arrival: unknown; {need}"
+    text = f"record after the first arrival: {check['after_first_arrival_ms']:.2f} ms; {need}"
+    if check["short"]:
+        text += (": SHORT, drops far from a sensor may lose its arrival (read as a dead channel or no onset): "
+                 "keep more samples after the hit (fewer before it, or a longer record)")
+    return text
