@@ -380,6 +380,10 @@ def test_info_reports_mains_hum_the_baseline_noise_does_not_see(session1):
     assert all(c["hum_counts"] < 2.0 for c in clean)
     assert all(15.0 < c["hum_counts"] < 45.0 for c in hum)   # 0.5..1 x 40 counts per channel
     assert all(c["noise_rms_counts"] < 5.0 for c in hum)     # what the baseline segment alone reports
+    # a lab on 60 Hz mains: the column names the frequency it reads (before: "50/60 Hz", the larger of the two)
+    hum60 = summarise(inject_session(sub, FaultSpec(hum=40.0, hum_hz=60.0, seed=1)))["channels"]
+    assert all(c["hum_hz"] == 50.0 for c in hum) and all(c["hum_hz"] == 60.0 for c in hum60)
+    assert all(15.0 < c["hum_counts"] < 45.0 for c in hum60)
 
 
 def test_info_reads_no_hum_from_white_noise_over_a_short_tail():
@@ -396,12 +400,12 @@ def test_info_reads_no_hum_from_white_noise_over_a_short_tail():
     rng = np.random.default_rng(3)
     noise = np.clip(bias + rng.normal(0, 24.0, (40, 4, n)), 0, 65535).astype(np.uint16)
     rig = SimpleNamespace(fs_hz=fs, pretrigger_samples=1000, bias_counts=bias)
-    amp, _, floor = hum_counts(SimpleNamespace(adc=noise, rig=rig))
+    amp, _, floor, _ = hum_counts(SimpleNamespace(adc=noise, rig=rig))
     assert np.all(amp > 2.0)                     # what the column printed before
     assert np.all(amp < floor) and np.all(floor < 18.0)
     assert all(hum_text({"hum_counts": a, "hum_floor_counts": f}).startswith("<") for a, f in zip(amp, floor))
     hummed = inject(noise, FaultSpec(hum=40.0, hum_hz=50.0, seed=1), fs, bias, 65535)
-    amp, _, floor = hum_counts(SimpleNamespace(adc=hummed, rig=rig))
+    amp, _, floor, _ = hum_counts(SimpleNamespace(adc=hummed, rig=rig))
     assert np.all(amp > floor) and np.all((15.0 < amp) & (amp < 45.0))
 
 

@@ -8,11 +8,11 @@ ORDER = 10
 HUM_QUIET_S = 15e-3   # a quiet start at least this long (3/4 of a 50 Hz period) is where the hum is read
 
 
-def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray]:
+def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray]:
     """Each channel's median 50 / 60 Hz hum amplitude (counts) over the drops, the larger of the two, where it
     was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
-    (diagnose's, residuals.tail_start), and the median amplitude white noise alone would stay under there
-    (hum.hum_floor). The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
+    (diagnose's, residuals.tail_start), the median amplitude white noise alone would stay under there
+    (hum.hum_floor), and each channel's median amplitude at each of hum.HUM_HZ [4, 2]. The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
     offset there."""
     from ..hum import hum_floor, hum_lock_in
     from ..residuals import tail_start
@@ -26,7 +26,7 @@ def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray]:
     quiet = session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts
     hum, _, left = hum_lock_in(quiet, fs)
     floor = hum_floor(quiet.shape[2], fs, left)
-    return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0)
+    return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0), np.median(hum, axis=0)
 
 
 def register(sub) -> None:
@@ -39,6 +39,7 @@ def register(sub) -> None:
 
 def summarise(session) -> dict:
     from ..pipeline import featurize
+    from ..hum import HUM_HZ
     from ..record_window import window_check
     from ..signal import SignalConfig
 
@@ -51,7 +52,7 @@ def summarise(session) -> dict:
     heights, counts = np.unique(session.height_mm, return_counts=True)
     base = SignalConfig.for_rig(session.rig).baseline_samples
     level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
-    hum, hum_where, hum_floor = hum_counts(session)
+    hum, hum_where, hum_floor, hum_each = hum_counts(session)
     return {
         "plate": plate_summary(session.rig),
         "level_minus_bias_counts": [float(v - session.rig.bias_counts) for v in level],
@@ -76,6 +77,7 @@ def summarise(session) -> dict:
                 "noise_rms_counts": float(np.median(noise[:, c])),
                 "hum_counts": float(hum[c]),
                 "hum_floor_counts": float(hum_floor[c]),
+                "hum_hz": float(HUM_HZ[int(np.argmax(hum_each[c]))]),
                 "peak_counts_median": float(np.median(peak[:, c])),
                 "snr_db_median": float(np.median(snr_db[:, c])),
             }
@@ -101,7 +103,8 @@ def hum_text(channel: dict) -> str:
     """The hum column: the amplitude, or '<floor' when white noise alone would read as much."""
     if channel["hum_counts"] < channel["hum_floor_counts"]:
         return f"<{channel['hum_floor_counts']:.1f}"
-    return f"{channel['hum_counts']:.1f}"
+    hz = channel.get("hum_hz")
+    return f"{channel['hum_counts']:.1f}" + ("" if hz is None else f"@{hz:.0f}")
 
 
 def run(args) -> int:
@@ -128,14 +131,15 @@ def run(args) -> int:
 
     print(f"  {window_text(s['record_window'])}")
     print(f"  usable drops (onset on all 4 channels): {s['usable_drops']}")
-    print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'hum':>6s} {'median peak':>12s} "
+    print(f"  {'ch':>2s} {'sensor':>6s} {'clipped':>8s} {'dead':>5s} {'noise rms':>10s} {'hum':>9s} {'median peak':>12s} "
           f"{'SNR dB':>7s}")
     for c in s["channels"]:
         print(f"  {c['channel']:2d} {c['sensor']:>6s} {c['clipped_drops']:8d} {c['dead_drops']:5d} "
-              f"{c['noise_rms_counts']:10.2f} {hum_text(c):>6s} {c['peak_counts_median']:12.0f} "
+              f"{c['noise_rms_counts']:10.2f} {hum_text(c):>9s} {c['peak_counts_median']:12.0f} "
               f"{c['snr_db_median']:7.1f}")
     print(f"  (noise rms: the core's baseline segment; hum: 50/60 Hz amplitude over {s['hum_read_over']}, median "
-          f"over the drops; '<F': under F, what the noise alone reads there: no hum seen)")
+          f"over the drops, @ the mains frequency that reads larger; '<F': under F, what the noise alone reads "
+          f"there: no hum seen)")
     if args.json_out:
         from ..outputs import json_text, write_file
 
