@@ -81,3 +81,19 @@ def test_the_choice_reads_only_flagged_rows_of_a_channel_it_does_not_keep():
     np.testing.assert_array_equal(keeps_four_channels(check, np.array([-1, 0, 1, 2, 3, 1])),
                                   [False, False, True, False, False, True])
     assert not keeps_four_channels({}, np.array([1, 2])).any()   # a card from before: the three-sensor path
+
+
+def test_evaluate_says_why_a_channel_keeps_four_channels():
+    """evaluate's line for a flagged channel whose drops keep the four channels' position gives the card's
+    measured reason (before: "the other three lie too near one line" whatever the layout, also where they span
+    a wide triangle and the out-of-fold figures alone chose four)."""
+    from impactsense.commands.evaluate import flagged_placement
+
+    card = {"channel_check": {"three_sensor_position": [True, True, False, True],
+                              "three_sensor_choice": [None, None, {"three_sensor_mae_mm": 27.06,
+                                                                   "four_channel_mae_mm": 19.35, "gain_sigmas": 1.64},
+                                                      None]}}
+    text = flagged_placement(card, 2)
+    assert "placed by all four" in text and "19.4" in text and "27.1" in text and "line" not in text
+    assert flagged_placement(card, 0) == "placed and classified from the other three channels"
+    assert flagged_placement({}, 1) == "placed and classified from the other three channels"

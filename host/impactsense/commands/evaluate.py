@@ -38,6 +38,21 @@ def report_table(report: dict) -> str:
     ])
 
 
+def flagged_placement(card: dict, channel: int) -> str:
+    """How the model places and classifies a drop whose channel the check flags, and why (the card's
+    channel_check.three_sensor_choice: the training drops, that channel debonded, placed out of fold by the other
+    three sensors and by all four)."""
+    check = card.get("channel_check") or {}
+    keep = check.get("three_sensor_position") or [True] * 4
+    if keep[channel]:
+        return "placed and classified from the other three channels"
+    why = (check.get("three_sensor_choice") or [None] * 4)[channel]
+    measured = ("" if not why else f": its training drops, that channel debonded, placed {why['four_channel_mae_mm']:.1f} "
+                f"mm off by all four against {why['three_sensor_mae_mm']:.1f} by the other three, out of fold")
+    return ("classified from the other three channels and placed by all four (the card's "
+            f"channel_check.three_sensor_choice{measured})")
+
+
 def run(args) -> int:
     from ..data import load_session
     from ..models import ImpactModel
@@ -59,14 +74,10 @@ def run(args) -> int:
         print(f"energy class: {unclassed} of {report['predicted']} placed drops have none (class acc. is over the "
               f"other {report['classified']}): a channel without an onset, and the model has no site map to classify "
               f"from three channels (`impactsense calibrate DATA --out CAL.json`, then `train --calibration CAL.json`)")
-    keep = (model.card.get("channel_check") or {}).get("three_sensor_position") or [True] * 4
     for c, n in enumerate(report.get("channels_left_out_inconsistent", [])):
         if n:
-            placed = ("placed and classified from the other three channels" if keep[c] else "classified from the "
-                      "other three channels and placed by all four (the other three lie too near one line: "
-                      "the card's channel_check.three_sensor_choice)")
             print(f"channel {c}: inconsistent with the other three on {n} of {report['n']} drops (a debonded or "
-                  f"weak disc?): those drops are {placed}, flagged")
+                  f"weak disc?): those drops are {flagged_placement(model.card, c)}, flagged")
     if args.plots:
         for p in evaluation_plots(report, session.rig, args.plots):
             print(f"plot: {p}")
