@@ -217,6 +217,16 @@ def _lab_columns(out: str, extra: dict, first: tuple) -> None:
         w.writerows({**r, **extra} for r in rows)
 
 
+def sim_duration_ms(rig, pretrigger_samples: int, default_ms: float) -> float:
+    """The simulated span after the touch: at least what calibrate's envelope-decay window reads
+    (calibration.damping.DECAY_DURATION_MS) where the record keeps that much after the hit. A shorter truth fades
+    out (the simulator's taper) inside that window and the session's ring-down reads ~2-3x too fast."""
+    from impactsense.calibration.damping import DECAY_DURATION_MS
+
+    after_ms = (rig.samples - pretrigger_samples) / rig.fs_hz * 1e3
+    return max(default_ms, min(DECAY_DURATION_MS, after_ms))
+
+
 def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: float) -> None:
     from impactsense.data import rig_from_dict, write_session
     from impactsense.faults import FaultSpec, inject
@@ -238,6 +248,7 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
     yt = np.clip(y + rng.normal(0, 1.0, y.size), 1, rig.plate_y_mm - 1)
     params = SimParams.from_rig(rig).replace(element_mm=element_mm, max_height_mm=float(max(spec["heights"])),
                                              **sim)
+    params = params.replace(duration_ms=sim_duration_ms(rig, params.pretrigger_samples, params.duration_ms))
     t0 = time.perf_counter()
     volts = simulate_voltages(params, rig, xt, yt, h, workers=2, progress=True)["volts"]
     double = spec.get("double")
