@@ -62,3 +62,11 @@ def window_text(check: dict) -> str:
         text += (": SHORT, drops far from a sensor may lose its arrival (read as a dead channel or no onset): "
                  "keep more samples after the hit (fewer before it, or a longer record)")
     return text
+
+
+def warn_if_short(session):
+    """Prints window_text as a warning when the session's record stops before the far arrivals; the session."""
+    check = window_check(session.rig, int(session.adc.shape[2]), session.rig.pretrigger_samples)
+    if check["short"]:
+        print(f"warning: {window_text(check)}")
+    return session

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..record_window import warn_if_short
 
 ORDER = 20
 
@@ -113,12 +114,7 @@ def run(args) -> int:
     from ..outputs import check_output_folder
 
     check_output_folder(args.out, args.force)
-    session = load_session(args.data)
-    from ..record_window import window_check, window_text
-
-    window = window_check(session.rig, int(session.adc.shape[2]), session.rig.pretrigger_samples)
-    if window["short"]:
-        print(f"warning: {window_text(window)}")
+    session = warn_if_short(load_session(args.data))
     from ..sitemap import resolve_site_map
 
     from ..chain import adapt, rig_calibration_drops, session_calibration, start_calibration_twins
