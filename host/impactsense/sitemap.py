@@ -178,6 +178,18 @@ def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: flo
     return batch_solver(params, rig, solver, n_drops=n_drops, height_mm=ref_height_mm)
 
 
+def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, ref_height_mm: float = 175.0) -> dict:
+    """What `build_site_map` with solver "auto" will cost: grid points, the solver `sim.simulate.batch_solver`
+    takes and its estimated CPU seconds (`sim.solver_cost`; the modal basis counted unless cached)."""
+    from .sim.modal_basis import is_cached
+    from .sim.simulate import get_model
+    from .sim.solver_cost import choose
+
+    _, _, nx, ny = grid(rig, step_mm, margin_mm)
+    solver, est = choose(get_model(params, rig), nx * ny, ref_height_mm, cached=is_cached(get_model(params, rig)))
+    return {"nx": nx, "ny": ny, "points": nx * ny, "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"])}
+
+
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
                    progress: bool = True, capture=None, solver: str | None = None) -> SiteMap:

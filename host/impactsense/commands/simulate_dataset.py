@@ -117,8 +117,12 @@ def start_site_map(args):
     built = in_background(lambda: build_twin_site_map(params, session, progress=False), "site-map")
 
     def finish():
-        print("finishing the twin's site map for `train --site-map auto` (simulated in the background since the "
-              "virtual drops; a large or thin plate takes minutes; --no-site-map skips it) ...", flush=True)
+        from ..sitemap import site_map_cost
+
+        cost = site_map_cost(params, session.rig)
+        print(f"finishing the twin's site map for `train --site-map auto` (simulated in the background since the "
+              f"virtual drops: {cost['points']:,} points by the {cost['solver']} solver, ~{cost['cpu_s'] / 60:.0f} "
+              "CPU-min estimated; --no-site-map skips it) ...", flush=True)
         site = twin_site_map(params, session, Path(args.out), built=built())
         print(f"the twin's site map: {site.nx} x {site.ny} points, step {site.step_mm:g} mm (for train --site-map "
               "auto)")
