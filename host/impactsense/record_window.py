@@ -41,6 +41,9 @@ def slowest_velocity_mm_per_us(rig) -> float:
 def window_check(rig, samples: int, first_arrival_samples: int | None) -> dict:
     """The record after the first arrival (ms; None when the first arrival is not known) against the span the
     far arrivals need (ms): `short` when the record stops before the farthest arrival may come."""
+    from .signal import CORE_MAX_SAMPLES
+
+    samples = min(int(samples), CORE_MAX_SAMPLES)   # the core reads a longer record's first CORE_MAX_SAMPLES
     path_mm = longest_path_difference_mm(rig)
     v = slowest_velocity_mm_per_us(rig)
     needed_ms = path_mm / v * 1e-3
