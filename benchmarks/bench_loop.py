@@ -201,7 +201,7 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         # as `impactsense retrain`: a bond's channel left out (flagged) when DATA_NEW's drops say so (bond_choice)
         (m_model, _), row["bond_choice"] = fit_with_bond_choice(
             lambda signal: carry_delays(train_score(m_sess, args.trees, args.seed, signal), channel_delays(accepted)),
-            pick_settings(m_sess, accepted),
+            pick_settings(m_sess, accepted, ref),
             sess, accepted, seed=args.seed, reference=(ref_model, None))
         if m_model.twin_fit is not None and m_model is not ref_model:
             m_model.twin_fit.weak_channel = weak_channel(accepted)

@@ -70,7 +70,7 @@ def run(args) -> dict:
         named = [(c.effect, c.sensor, {k: round(float(v), 3) for k, v in c.params.items()}) for c in accepted]
         m_sess = measured_training_session(ref, accepted, det["ref"], Path(args.out) / f"{name}-measured", args.seed,
                                            twin=twin)
-        cfg = pick_settings(m_sess, accepted)
+        cfg = pick_settings(m_sess, accepted, ref)
         model, _ = train(m_sess, None, 0.0, args.seed, None, settings=settings, signal=cfg, site_map=None)
         own = score(sess, model)["mae_mm"]
         rows = []

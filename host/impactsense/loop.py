@@ -275,15 +275,19 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
     return load_session(path)
 
 
-def pick_settings(session, accepted):
+def pick_settings(session, accepted, reference=None):
     """The core's settings to train on `session` (a measured training session) with: None (the rig's) unless a
     raised white noise floor was diagnosed (material: >= the noise effect's min_white_counts); then the
     onset_noise_factor among NOISE_FACTOR_SCALES x the configured one whose travel fit (with its own absolute
     threshold and AIC blend) has the smallest robust spread on the training drops, kept only when
     CLEARLY_BETTER than the one before it (ties keep the configured one) and when the training drops' physics
-    MAE under it (the localiser fitted on them) is not above the one before it's."""
+    MAE under it (the localiser fitted on them) is not above the one before it's. With `reference` (DATA_REF,
+    the session without the change) that configuration also carries the band picks' noise floor: the reference
+    drops' (pipeline.training_noise_floor, pipeline.band_floor_preset), the lab's floor before the change; the
+    band envelope's own noise under the raised floor is then the core's envelope term (band_onset). Without it
+    the band picks take the noisy training drops' floor (3 x ~their broadband noise), which leaves them out."""
     from .effects import EFFECTS
-    from .pipeline import fit_localiser, physics_mae
+    from .pipeline import fit_localiser, physics_mae, training_noise_floor
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
@@ -307,6 +311,8 @@ def pick_settings(session, accepted):
         mae = physics_mae(session, rows, fit_localiser(session, rows, cfg))
         if fit.spread_mm < CLEARLY_BETTER * best_spread and mae <= best_mae:
             best, best_spread, best_mae = cfg, fit.spread_mm, mae
+    if best is not None and reference is not None:
+        best.band_noise_counts = training_noise_floor(reference, np.arange(len(reference)), best)
     return best
 
 

@@ -233,21 +233,22 @@ BAND_FREQUENCY_FACTORS = (1.0, 0.7)
 BAND_FRACTIONS = (0.1, 0.05, 0.03)
 
 
-def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None) -> SignalConfig | None:
+def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None,
+                floor: float = 0.0) -> SignalConfig | None:
     """cfg with the band picks on: their frequency a multiple of the training picks' median (fs / pick_period)
     and their envelope fraction (BAND_FREQUENCY_FACTORS x BAND_FRACTIONS, the pair whose physics positions are
     closest on the training drops (physics_mae; the travel fit's own spread chose a pair whose positions were
     further off: docs/findings.md "The band pair chosen by the positions"); with fits (fit_localiser) only pairs it accepts with cfg's starts or one), their
     noise floor from the training drops' median noise rms (band_noise_counts: a noisier lab then does not move
     the picks), their travel model (velocity, delays, metric on a plate that wants one) fitted on the training
-    drops; None when the picks give no frequency or too few band picks."""
+    drops; None when the picks give no frequency or too few band picks. floor > 0: band_noise_counts is this
+    instead of the training drops' noise (band_floor_preset)."""
     from .travel import complete_drops, fit_travel, metric_choice, travel_distances, wants_metric
 
     a16 = as_int16(session.adc[rows], cfg)
     raw = _core.extract_batch(a16, cfg.core())
     period = raw["pick_period"].astype(float)
-    noise = raw["noise_rms"].astype(float)[:, np.asarray(cfg.channel_left_out) == 0]
-    noise = noise[np.isfinite(noise) & (noise > 0)]
+    floor = floor if floor > 0 else noise_floor(raw, cfg)
     known = np.isfinite(period) & (period > 0)
     if known.mean() < 0.5:
         return None
@@ -262,7 +263,7 @@ def band_config(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
             trial = SignalConfig.from_dict(cfg.to_dict())
             trial.band_pick_hz = factor * median_hz
             trial.band_pick_fraction = fraction
-            trial.band_noise_counts = float(np.median(noise)) if noise.size else 0.0
+            trial.band_noise_counts = floor
             trial.band_window_us = BAND_WINDOW_TRAVELS * longest / cfg.velocity_mm_per_us
             toa = _core.extract_batch(a16, trial.core())["toa_band_us"].astype(float)
             if complete_drops(toa, cfg.channel_left_out).sum() < 8:
@@ -302,6 +303,25 @@ def energy_slowness_config(session: Session, rows: np.ndarray, band: SignalConfi
     return out
 
 
+def noise_floor(raw: dict, cfg: SignalConfig) -> float:
+    """The median noise rms (counts) of extract_batch's channels in use (0 when none reads one)."""
+    noise = raw["noise_rms"].astype(float)[:, np.asarray(cfg.channel_left_out) == 0]
+    noise = noise[np.isfinite(noise) & (noise > 0)]
+    return float(np.median(noise)) if noise.size else 0.0
+
+
+def training_noise_floor(session: Session, rows: np.ndarray, cfg: SignalConfig) -> float:
+    """The band picks' noise floor band_config takes from these drops (their median noise rms, counts)."""
+    return noise_floor(_core.extract_batch(as_int16(session.adc[rows], cfg), cfg.core()), cfg)
+
+
+def band_floor_preset(cfg: SignalConfig) -> float:
+    """The band picks' noise floor (band_noise_counts) a configuration with the band picks off carries for them
+    when they are chosen (loop.pick_settings sets it under a diagnosed raised white-noise floor: the reference
+    drops' noise, without the change); 0: the training drops' median noise rms (band_config)."""
+    return float(cfg.band_noise_counts) if float(cfg.band_pick_hz) <= 0 else 0.0
+
+
 def band_off(cfg: SignalConfig) -> SignalConfig:
     """cfg with the band picks off."""
     return SignalConfig.from_dict({**cfg.to_dict(), "band_pick_hz": 0.0, "band_velocity_mm_per_us": 0.0,
@@ -317,7 +337,7 @@ def choose_band(session: Session, rows: np.ndarray, cfg: SignalConfig, fits=None
     is clearly closer again (BAND_GAIN). fits (fit_localiser): the band picks only where it accepts them (with
     one localiser start if cfg's starts do not fit)."""
     off = band_off(cfg)
-    trial = band_config(session, rows, off, fits)
+    trial = band_config(session, rows, off, fits, band_floor_preset(cfg))
     if trial is not None and fits is not None and not fits(trial):
         trial = SignalConfig.from_dict({**trial.to_dict(), "localiser_starts": 1})
         if not fits(trial):

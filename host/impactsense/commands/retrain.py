@@ -111,7 +111,7 @@ def run(args) -> int:
             lambda signal: carry_delays(train(train_on, None, args.test_fraction, args.seed, exclude,
                                               settings=settings, signal=signal, extra_card=card, site_map=site,
                                               twin_rows=measured), channel_delays(accepted)),
-            pick_settings(train_on, accepted), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
+            pick_settings(train_on, accepted, base), data, accepted, site_map=site, left_out=left_out, seed=args.seed,
             reference=(plain, plain_split))
         left_out = note_bond_choice(card, choice, left_out)   # a bond not absorbed: its channel left out, flagged
         if choice is None and accepted:   # no bond choice: the retrained model against the reference on DATA_NEW
@@ -211,7 +211,7 @@ def candidate_fit(args, base, exclude, settings, site):
     def fit(session, effects):
         ex, rows = training_rows(session, base, effects, exclude)
         return carry_delays(train(session, None, args.test_fraction, args.seed, ex, settings=settings,
-                                  signal=pick_settings(session, effects), site_map=site, twin_rows=rows),
+                                  signal=pick_settings(session, effects, base), site_map=site, twin_rows=rows),
                             channel_delays(effects))[0]
     return fit
 
