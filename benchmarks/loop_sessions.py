@@ -2,7 +2,7 @@
 
     python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
         [--element-mm 3.0] [--duration-ms 10] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
-        [--noise-counts C,C] [--controls]
+        [--noise-counts C,C] [--controls] [--seed-only-draw]
 
 Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
 positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
@@ -38,12 +38,21 @@ Drops: `--cases` positions (Sobol, away from edges and sensors) x `--reps` repet
 within `--jitter-mm` (rms) of the declared position; heights 100..200 mm. FEM cost: one plate model per
 physical variant (the base, 8 moves, E, D_s) at `--element-mm` (3 mm: ~10-20 s a model on a quiet core).
 Sessions already in OUT with the same settings are kept (cache).
+
+Draws: every number drawn (the changes' sizes, directions and sensors, each session's positions, landing jitter,
+rig noise and signal-level change) comes from the seed AND the declared rig: `draw_seed(seed, rig)` is a
+SeedSequence of (seed, `rig_key(rig)`: a hash of the plate's material, size and thickness and the sensors'
+positions), so `--seed S` on two rigs gives two draws, and the same rig.json gives the same draw anywhere.
+Seed 0's layout (the compass directions, sensor j % 4, E -8 %, D_s +20 %) stays the canonical one on every rig;
+its sizes are drawn. Before session 23 every draw came from the seed alone (both rigs got one draw):
+`--seed-only-draw` remakes those sessions (docs/findings.md's earlier tables).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -54,25 +63,46 @@ DIRECTIONS_DEG = tuple(range(0, 360, 45))
 N_SAME = 5
 
 
-def layout_draw(seed: int) -> tuple[float, list[int], float, float]:
+def rig_key(rig) -> int:
+    """The declared rig's share of every draw: a 32-bit hash of its plate (material, size, thickness) and its
+    sensors' positions (what makes it another rig; not its free-text notes or the logger's bias)."""
+    desc = {"plate": [str(rig.plate_material)] + [round(float(v), 3) for v in
+                                                  (rig.plate_x_mm, rig.plate_y_mm, rig.thickness_mm)],
+            "sensors": [[round(float(s.x_mm), 3), round(float(s.y_mm), 3)] for s in rig.sensors]}
+    return int.from_bytes(hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).digest()[:4], "big")
+
+
+def draw_seed(seed: int, rig=None) -> int:
+    """The integer every draw of `--seed seed` on `rig` starts from: SeedSequence((seed, rig_key(rig))) folded to
+    31 bits (each session's streams are this + a small offset, as the seed alone was before). rig None: the seed
+    alone (the draws before session 23, `--seed-only-draw`)."""
+    if rig is None:
+        return int(seed)
+    state = np.random.SeedSequence([int(seed), rig_key(rig)]).generate_state(1, dtype=np.uint32)[0]
+    return int(state) % 2**31
+
+
+def layout_draw(seed: int, base: int | None = None) -> tuple[float, list[int], float, float]:
     """(rotation of the 8 move directions in deg, the sensor moved in direction j (sensors[j % 4]), E scale,
-    D_s scale). Seed 0 is the canonical draw of docs/findings.md's tables (the compass directions, sensor j % 4,
-    E -8 %, D_s +20 %); any other seed draws them (its own stream, so the sizes drawn below are the same
-    numbers for a seed either way): directions rotated by up to +-22.5 deg, the sensors permuted, E -6 .. -10 %,
-    D_s +15 .. +25 %."""
+    D_s scale). Seed 0 is the canonical layout of docs/findings.md's tables (the compass directions, sensor j % 4,
+    E -8 %, D_s +20 %) on every rig; any other seed draws them from `base` (`draw_seed`; default the seed alone)
+    in its own stream, so the sizes drawn in spec_list are the same numbers either way: directions rotated by up
+    to +-22.5 deg, the sensors permuted, E -6 .. -10 %, D_s +15 .. +25 %."""
     if seed == 0:
         return 0.0, [0, 1, 2, 3], 0.92, 1.20
-    rng = np.random.default_rng(seed + 2000)
+    rng = np.random.default_rng((seed if base is None else base) + 2000)
     offset = round(float(rng.uniform(-22.5, 22.5)), 1)
     sensors = [int(k) for k in rng.permutation(4)]
     return offset, sensors, round(float(1 - rng.uniform(0.06, 0.10)), 4), round(float(1 + rng.uniform(0.15, 0.25)), 4)
 
 
-def spec_list(seed: int, noise_counts=()) -> list[dict]:
-    """Every session's truth (drawn from `seed`: the kinds are fixed, the sizes and sensors are drawn); with
+def spec_list(seed: int, noise_counts=(), rig=None) -> list[dict]:
+    """Every session's truth (drawn from `seed` and `rig` (`draw_seed`; rig None: the seed alone): the kinds are
+    fixed, the sizes and sensors are drawn; each session's "seed" starts its drops' and noise's streams); with
     noise_counts, a white-noise session `noise-<counts>` more at each of those levels (its own drops and draw)."""
+    user_seed, seed = seed, draw_seed(seed, rig)
     rng = np.random.default_rng(seed + 1000)
-    offset_deg, sensors, e_scale, damping_scale = layout_draw(seed)
+    offset_deg, sensors, e_scale, damping_scale = layout_draw(user_seed, seed)
     specs = [{"name": "ref", "kind": "none", "seed": seed}]
     specs += [{"name": f"same-{k}", "kind": "none", "seed": seed + k} for k in range(1, N_SAME + 1)]
     for j, deg0 in enumerate(DIRECTIONS_DEG):
@@ -236,7 +266,8 @@ def file_digest(path) -> str:
 def settings_key(args, rig) -> dict:
     return {"cases": args.cases, "ref_cases": args.ref_cases, "reps": args.reps, "element_mm": args.element_mm, "jitter_mm": args.jitter_mm,
             "duration_ms": args.duration_ms, "signal_change": "before the noise",
-            "rig": repr(rig), "calibration": file_digest(args.calibration), "seed": args.seed}
+            "rig": repr(rig), "calibration": file_digest(args.calibration), "seed": args.seed,
+            "draw": "seed" if args.seed_only_draw else f"seed and rig {rig_key(rig)}"}
 
 
 def twin_params(params, args):
@@ -268,7 +299,7 @@ def generate(args) -> dict:
     if man.get("settings") != key:
         man = {"settings": key, "sessions": {}}
     only = set(args.only.split(",")) if args.only else None
-    specs = spec_list(args.seed, args.noise_counts)
+    specs = spec_list(args.seed, args.noise_counts, None if args.seed_only_draw else rig)
     if args.controls:
         specs = specs + control_specs(specs, only)
     for spec in specs:
@@ -305,6 +336,9 @@ def parse(argv=None):
     ap.add_argument("--only", default=None, help="comma-separated session names")
     ap.add_argument("--controls", action="store_true",
                     help="also `<name>-control` per changed session: its own drops without the change")
+    ap.add_argument("--seed-only-draw", action="store_true",
+                    help="draw from the seed alone, as before session 23 (every rig the same draw): remakes the "
+                         "sessions of earlier findings tables")
     ap.add_argument("--noise-counts", type=lambda v: [float(c) for c in v.split(",")], default=[],
                     metavar="C,C", help="white-noise sessions more (noise-<C>), one at each level (counts rms)")
     args = ap.parse_args(argv)

@@ -1,6 +1,6 @@
-"""loop_sessions' draws: seed 0 is the canonical set of docs/findings.md's tables; another seed draws every kind
+"""loop_sessions' draws: seed 0 is the canonical layout of docs/findings.md's tables; another seed draws every kind
 of change anew (move sizes and directions, the moved sensors, E, D_s, the signal-level changes) within the
-issue's ranges. Spec lists only: nothing simulated."""
+issue's ranges; every draw depends on the seed and the declared rig. Spec lists only: nothing simulated."""
 
 import sys
 from pathlib import Path
@@ -19,17 +19,61 @@ def _angle_deg(p):
     return float(np.degrees(np.arctan2(p["dy_mm"], p["dx_mm"])) % 360)
 
 
+def _rig(material="PMMA", size=(400.0, 300.0, 5.0), sensors=((50, 50), (350, 50), (350, 250), (50, 250)),
+         **other):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(plate_material=material, plate_x_mm=size[0], plate_y_mm=size[1], thickness_mm=size[2],
+                           sensors=[SimpleNamespace(x_mm=x, y_mm=y) for x, y in sensors], **other)
+
+
 def test_seed_0_keeps_the_canonical_directions_sensors_and_plate_changes():
+    for rig in (None, _rig(), _rig("aluminium", (500.0, 400.0, 3.0))):
+        specs = {s["name"]: s for s in loop_sessions.spec_list(0, (), rig)}
+        for j, deg in enumerate(loop_sessions.DIRECTIONS_DEG):
+            t = specs[f"move-{deg}"]["truth"]
+            assert t["sensor"] == j % 4
+            assert abs((_angle_deg(t["params"]) - deg + 180) % 360 - 180) < 0.01
+        assert specs["stiffness"]["truth"]["params"]["e_scale"] == 0.92
+        assert specs["damping"]["truth"]["params"]["damping_scale"] == 1.20
+    # the seed-only draw (before session 23, `--seed-only-draw`) keeps the sizes of the earlier tables
+    # (docs/findings.md, issue 16): move-0 7.6 mm, the delay 4.95 us on channel 2
     specs = {s["name"]: s for s in loop_sessions.spec_list(0)}
-    for j, deg in enumerate(loop_sessions.DIRECTIONS_DEG):
-        t = specs[f"move-{deg}"]["truth"]
-        assert t["sensor"] == j % 4
-        assert abs((_angle_deg(t["params"]) - deg + 180) % 360 - 180) < 0.01
-    assert specs["stiffness"]["truth"]["params"]["e_scale"] == 0.92
-    assert specs["damping"]["truth"]["params"]["damping_scale"] == 1.20
-    # the sizes of the tables (docs/findings.md, issue 16): move-0 7.6 mm, the delay 4.95 us on channel 2
     assert abs(specs["move-0"]["truth"]["params"]["dx_mm"] - 7.607) < 1e-9
     assert specs["delay"]["truth"]["sensor"] == 2 and specs["delay"]["truth"]["params"]["delay_us"] == 4.95
+
+
+def test_every_draw_depends_on_the_seed_and_the_rig():
+    """One seed on two rigs: two draws (every drawn size, and each session's own drops' and noise's streams,
+    so a hum or white-noise session's samples differ too); the same rig (its notes aside) gives the same draw,
+    and a moved sensor or another thickness is another rig."""
+    from types import SimpleNamespace
+
+    a, b = _rig(), _rig("aluminium", (500.0, 400.0, 3.0), ((60, 50), (445, 70), (430, 345), (75, 330)))
+    assert loop_sessions.rig_key(a) == loop_sessions.rig_key(_rig(notes="other words", bias_counts=0))
+    assert loop_sessions.rig_key(a) != loop_sessions.rig_key(_rig(size=(400.0, 300.0, 6.0)))
+    assert loop_sessions.rig_key(a) != loop_sessions.rig_key(
+        _rig(sensors=((51, 50), (350, 50), (350, 250), (50, 250))))
+    for seed in (0, 12):
+        sa, sb = (loop_sessions.spec_list(seed, (), r) for r in (a, b))
+        assert sa == loop_sessions.spec_list(seed, (), _rig())          # reproducible
+        assert [s["name"] for s in sa if not s["name"].startswith("move-")] == \
+            [s["name"] for s in sb if not s["name"].startswith("move-")]
+        seeds_a, seeds_b = {s["seed"] for s in sa}, {s["seed"] for s in sb}
+        assert not seeds_a & seeds_b                                    # no session shares its drops' streams
+        canonical = {"stiffness", "damping"} if seed == 0 else set()   # seed 0's plate changes: the tables'
+        for x, y in zip(sa, sb):
+            if x.get("truth") and x["name"] not in canonical:
+                assert x["truth"]["params"] != y["truth"]["params"], x["name"]
+        rig = SimpleNamespace(fs_hz=100000.0)
+        for name in ("hum", "noise"):
+            xa = next(s for s in sa if s["name"] == name)
+            xb = next(s for s in sb if s["name"] == name)
+            za, zb = (loop_sessions.signal_change(np.zeros((3, 4, 200)), x["truth"], rig, x["seed"]) for x in (xa, xb))
+            assert np.abs(za - zb).max() > 1.0                          # the pre-trigger samples differ
+    # the seed alone, as before session 23: both rigs one draw
+    assert loop_sessions.spec_list(12) == loop_sessions.spec_list(12, (), None)
+    assert loop_sessions.draw_seed(12) == 12 != loop_sessions.draw_seed(12, a)
 
 
 def test_other_seeds_draw_directions_sensors_and_plate_changes_within_the_issue_ranges():
