@@ -44,3 +44,21 @@ def test_continuous_fits_declare_no_grid():
     assert EFFECTS["channel_delay"].resolution({"delay_us": 1.0}) == {}
     assert EFFECTS["sensor_position"].resolution({"dx_mm": 1.0, "dy_mm": 0.0}) == {}
     assert EFFECTS["channel_lowpass"].resolution({"fc_hz": 1000.0})["fc_hz"] > 0
+
+
+def test_an_amplitude_near_zero_keeps_its_interval_at_or_above_zero():
+    """A white-noise session's hum amplitude of ~0.24 counts with fold fits 0..0.9 was reported [-0.73, +1.20]
+    (seed-12 loop session): an amplitude's interval stays within its domain; one far from zero is as before."""
+    c = _cand("noise", None, 0.24, "hum_counts", [0.0, 0.0, 0.9, 0.3, 0.0])
+    se = _param_se(c)
+    lo, hi = _param_ci(c, se)["hum_counts"]
+    t = stats.t.ppf(0.975, 4)
+    assert 0.24 - t * se["hum_counts"] < 0            # the jackknife alone reaches below zero
+    assert lo == 0.0 and np.isclose(hi, 0.24 + t * se["hum_counts"])
+    c2 = _cand("noise", None, 21.0, "hum_counts", [20.9, 21.0, 21.1, 21.05, 20.95])
+    lo2, hi2 = _param_ci(c2, _param_se(c2))["hum_counts"]
+    assert np.isclose(21.0 - lo2, hi2 - 21.0) and lo2 > 20.5
+    # a parameter without a physical floor (a delay) may be read either side of zero
+    c3 = _cand("channel_delay", 0, 0.2, "delay_us", [-0.5, 0.0, 0.2, 0.4, 0.9])
+    assert _param_ci(c3, _param_se(c3))["delay_us"][0] < 0
+    assert EFFECTS["noise"].bounds({})["white_rms_counts"][0] == 0.0 and EFFECTS["channel_delay"].bounds({}) == {}

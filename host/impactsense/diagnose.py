@@ -367,12 +367,19 @@ def _param_se(c: Candidate) -> dict:
 def _param_ci(c: Candidate, se: dict) -> dict:
     """95 % interval of each parameter: value +- t(0.975, folds - 1) x jackknife standard error, the half-width
     at least the step of the grid the effect fits it on (`Effect.resolution`): the jackknife of a grid argmax is
-    zero wherever every fold lands on one node, which says nothing of the data (docs/method.md section 6)."""
+    zero wherever every fold lands on one node, which says nothing of the data; and inside the parameter's
+    physical domain (`Effect.bounds`: an amplitude near zero is not read below it) (docs/method.md section 6)."""
     t = float(stats.t.ppf(0.975, max(len(c.fold_params) - 1, 1)))
-    step = EFFECTS[c.effect].resolution(c.params) if c.effect in EFFECTS else {}
+    effect = EFFECTS.get(c.effect)
+    step = effect.resolution(c.params) if effect is not None else {}
+    domain = effect.bounds(c.params) if effect is not None else {}
     half = {k: max(t * v, float(step.get(k, 0.0))) for k, v in se.items()}
-    return {k: [float(c.params[k] - h), float(c.params[k] + h)] for k, h in half.items()
-            if isinstance(c.params.get(k), (int, float))}
+    out = {}
+    for k, h in half.items():
+        if isinstance(c.params.get(k), (int, float)):
+            lo, hi = domain.get(k, (-np.inf, np.inf))
+            out[k] = [float(max(c.params[k] - h, lo)), float(min(c.params[k] + h, hi))]
+    return out
 
 
 def diagnose(baseline: Session, data: Session, progress=None, same: bool | None = None):

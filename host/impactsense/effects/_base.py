@@ -53,6 +53,12 @@ class Effect(ABC):
         gives a zero width); `diagnose._param_ci` keeps each half-width at least this. Most fits are continuous."""
         return {}
 
+    def bounds(self, params) -> dict:
+        """Per parameter with a physical domain its fit clamps to, (low, high) (same units; an amplitude is never
+        below zero). `diagnose._param_ci` keeps each interval inside it: value +- t x se of an amplitude near
+        zero reaches below zero, which no session can have. Most parameters have none."""
+        return {}
+
     def describe(self, sensor, params) -> str:
         where = f" on S{sensor + 1} (ch{sensor})" if sensor is not None else ""
         vals = ", ".join(f"{k}={v:.4g}" for k, v in params.items() if isinstance(v, (int, float)))

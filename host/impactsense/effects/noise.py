@@ -129,6 +129,10 @@ class Noise(Effect):
             a[:, c] += params["hum_counts"] * np.sin(2 * np.pi * params["hum_hz"] * t[None] + ph)
         return to_adc(a, ctx["bias"], ctx["adc_max"])
 
+    def bounds(self, params):
+        """Both amplitudes are rms / peak counts: never below zero (fit clamps them there)."""
+        return {"white_rms_counts": (0.0, np.inf), "hum_counts": (0.0, np.inf)}
+
     def material(self, params):
         return params["white_rms_counts"] >= self.min_white_counts or \
             params["hum_counts"] >= self.min_hum_counts
