@@ -59,9 +59,21 @@ TOL = {"delay_us": 1.0, "move_mm": 2.0, "gain": 0.05, "e_pct": 1.0, "ds_frac": 0
 
 
 def _ci(e: dict, key: str, scale: float = 1.0, fmt: str = "{:+.1f}") -> str:
-    """' [lo, hi]': the parameter's 95 % interval (diagnose's delete-a-fold jackknife), '' without one."""
+    """' [lo, hi]': the parameter's 95 % interval (diagnose's delete-a-fold jackknife), '' without one; printed
+    with as many more digits as its two ends need to read apart (a narrow interval is not a zero-wide one)."""
     ci = (e.get("param_ci95") or {}).get(key)
-    return "" if not ci else " [" + ", ".join(fmt.format(v * scale) for v in ci) + "]"
+    if not ci:
+        return ""
+    import re
+
+    lo, hi = (v * scale for v in ci)
+    digits = int(re.search(r"\.(\d+)", fmt).group(1))
+    for more in range(6):
+        f = re.sub(r"\.\d+", f".{digits + more}", fmt, count=1)
+        text = [f.format(lo), f.format(hi)]
+        if text[0] != text[1] or lo == hi:
+            break
+    return " [" + ", ".join(text) + "]"
 
 
 def size_check(truth: dict, e: dict | None, ds_ref: float, twin=None) -> tuple[str, bool | None]:

@@ -51,3 +51,13 @@ def test_the_issue_table_gives_the_ratio_to_the_same_drops_without_the_change(ca
     out["rows"][-1]["own_unchanged"] = _mae(4.0)   # one_changed's: without_change's, else the control's
     bench_loop.table(out)
     assert "| 4.00, 1.20 |" in capsys.readouterr().out
+
+
+def test_a_narrow_interval_is_printed_with_the_digits_that_tell_its_ends_apart():
+    """A hum of 21.03 counts with the interval [21.024, 21.045] was printed '21 [21, 21]' (3 significant
+    digits): it read as zero wide. The ends get the digits they need; a real zero-wide one stays so."""
+    e = {"param_ci95": {"hum_counts": [21.0243, 21.0445], "delay_us": [-6.31, -5.12], "white": [0.0, 0.0]}}
+    assert bench_loop._ci(e, "hum_counts", fmt="{:.3g}") == " [21.02, 21.04]"
+    assert bench_loop._ci(e, "delay_us") == " [-6.3, -5.1]"                  # wide enough as it was
+    assert bench_loop._ci(e, "white", fmt="{:.3g}") == " [0, 0]"
+    assert bench_loop._ci(e, "other") == ""
