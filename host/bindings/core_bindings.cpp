@@ -225,6 +225,7 @@ nb::ndarray<nb::numpy, uint8_t> accept_batch(InF toa, std::vector<float> sx, std
   return out;
 }
 
+#define IC_BIND_COUNT_ONE(name) +1
 nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserConfig& loc) {
   const auto [r, n] = capture_batch(adc);
   auto vec = make_array<float>({r, static_cast<size_t>(ic::kNumFeatures)});
@@ -234,6 +235,8 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   auto accepted = make_array<uint8_t>({r});
   auto status = make_array<int32_t>({r});
   auto evals = make_array<int32_t>({r, 2});
+  constexpr size_t kWork = 0 IMPACTCORE_WORK_FIELDS(IC_BIND_COUNT_ONE);
+  auto work = make_array<int32_t>({r, kWork});
   const int16_t* data = adc.data();
   {
     nb::gil_scoped_release release;
@@ -241,7 +244,16 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
     for (size_t k = 0; k < r; ++k) {
       const int16_t* chans[4];
       for (int c = 0; c < 4; ++c) chans[c] = data + (k * 4 + c) * static_cast<size_t>(n);
+      ic::reset_work_counts();
       status.data()[k] = ic::process_event(chans, n, cfg, loc, &ev);
+      {
+        const ic::WorkCounts& w = ic::work_counts();
+        int32_t* row = work.data() + k * kWork;
+        size_t j = 0;
+#define IC_BIND_WORK_ONE(name) row[j++] = w.name;
+        IMPACTCORE_WORK_FIELDS(IC_BIND_WORK_ONE)
+#undef IC_BIND_WORK_ONE
+      }
       std::memcpy(vec.data() + k * ic::kNumFeatures, ev.vector, sizeof(ev.vector));
       phys.data()[2 * k] = ev.phys.x_mm;
       phys.data()[2 * k + 1] = ev.phys.y_mm;
@@ -268,6 +280,13 @@ nb::dict process_batch(In16 adc, const ic::CoreConfig& cfg, const ic::LocaliserC
   out["status"] = status;
   // the localiser's normal-equation evaluations (its cost: board.cost), the physics run's and the band run's
   out["localiser_evaluations"] = evals;
+  // the features' work on each event (impactcore.h WorkCounts, in work_fields' order: board.cost's signal bound)
+  out["work"] = work;
+  nb::list names;
+#define IC_BIND_WORK_NAME(name) names.append(#name);
+  IMPACTCORE_WORK_FIELDS(IC_BIND_WORK_NAME)
+#undef IC_BIND_WORK_NAME
+  out["work_fields"] = names;
   return out;
 }
 

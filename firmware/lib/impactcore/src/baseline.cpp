@@ -196,6 +196,7 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
     spread += wts[g] * d * d;
   }
   if (spread < 0.75f * 16.0f * inv_len) return;
+  IC_WORK(hum_fits, 1);
   // The sinusoids' values at the groups' centres, by rotation from group 0's phase. One frequency at a
   // time (the groups in the same order: the same sums), so the sums and the rotation stay in registers.
   if (basis->fs_hz != fs_hz) basis->set(fs_hz);

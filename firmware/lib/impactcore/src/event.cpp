@@ -136,6 +136,14 @@ LocaliserResult three_sensor_position(const EventResult& ev, const CoreConfig& c
   return phys;
 }
 
+#if defined(IMPACTCORE_WORK_COUNTS)
+WorkCounts& work_counts() {
+  static thread_local WorkCounts counts;
+  return counts;
+}
+void reset_work_counts() { work_counts() = WorkCounts{}; }
+#endif
+
 int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                       const LocaliserConfig& loc, EventResult* out) {
   if (out == nullptr) return kErrNullInput;

@@ -213,6 +213,7 @@ struct Channel {
 // Raises *peak to the largest |float(x) - base| of block k: the same value as that expression's maximum
 // over the samples (float subtraction is monotone in x), from the block's integer extremes.
 IC_INLINE void scan_peak(const Channel& ch, int k, float base, float* peak) {
+  IC_WORK(peak_blocks, 1);
   int32_t lo, hi;
   if ((k + 1) * kBlock <= ch.n) {
     block_extremes(ch.x + k * kBlock, &lo, &hi);
@@ -241,6 +242,7 @@ IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
   const auto blocks = [&](int g, int gend) {
     for (int k = g; k < gend; ++k) {
       if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
+      IC_WORK(reach_tests, 1);
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
       const float before = peak;
       scan_peak(ch, k, base, &peak);
@@ -343,6 +345,7 @@ float crossing(const Channel& ch, float base, float thr, int start, int* at) {
     if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
     const int from = k * kBlock > start ? k * kBlock : start;
     const int end = ch.block_end(k);
+    IC_WORK(crossing_blocks, 1);
     if (band) {
       int32_t mn, mx;
       range_extremes(ch.x, from, end, &mn, &mx);
@@ -990,6 +993,7 @@ struct HuntWindow {  // no initialisers (no memset): the caller sets open false
 void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, HumBasis* basis,
                       ChannelFeatures* f, HuntWindow* window, int hunt = kHuntNone) {
   static_assert(sizeof(Channel) < 9000, "Channel lives on the stack");
+  IC_WORK(channel_passes, 1);
   Channel ch;
   ch.x = x;
   ch.n = n;
@@ -1009,6 +1013,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     f->noise_rms = hum_noise_rms(x, bl, cfg.baseline_samples);
     f->hum_counts = bl.hum_amp;
     f->flags |= kFlagHum;
+    IC_WORK(hum_channels, 1);
   }
 
   // Onset threshold crossing (sub-sample). The threshold is in unit-gain counts: a channel with gain g
@@ -1031,6 +1036,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
       cross = ch.fits32 ? crossing<true>(ch, base, thr, from, &at) : crossing<false>(ch, base, thr, from, &at);
       if (at < 0 || !is_transient(x, n, at, base, thr)) break;
       ++spikes;
+      IC_WORK(transients, 1);
       from = at + 3;
     }
   }
@@ -1132,6 +1138,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     int lo, hi;
     window->bounds(cfg, n, &lo, &hi);
     Spike& sp = late[n_spikes];
+    IC_WORK(spike_hunts, 1);
     if (find_inside_spike(x, n, lo, hi, icross, thr, hunt == kHuntLargest, &sp)) {
       sp.inside = true;
       const float e = spike_excess(x, sp, bl, base);
@@ -1289,6 +1296,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       Spike probe;
       int lo, hi;
       window[c].bounds(cfg, n, &lo, &hi);
+      IC_WORK(spike_hunts, 1);
       if (find_inside_spike(adc[c], n, lo, hi, window[c].icross, window[c].thr, hunt == kHuntLargest, &probe)) {
         channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c], hunt);
       }

@@ -653,6 +653,34 @@ struct EventResult {
 int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConfig& cfg,
                       const LocaliserConfig& loc, EventResult* out);
 
+// The features' per-event work the board's cost depends on, counted by the host's build only (the binding's CMake
+// defines IMPACTCORE_WORK_COUNTS; the board's build does not, so its code and cost are unchanged): board.cost bounds
+// each drop's signal from these counts at rates fitted under qemu. work_counts() is the calling thread's, zeroed by
+// reset_work_counts() (the binding: before each event).
+#define IMPACTCORE_WORK_FIELDS(X)                                                                        \
+  X(peak_blocks)    /* blocks the peak scan reads (scan_peak), every channel and pass */              \
+  X(hum_fits)       /* baseline fits that go past the no-hum test to the normal equations */          \
+  X(hum_channels)   /* channel passes whose hum is modelled (the hum crossing, energy and peak) */     \
+  X(spike_hunts)    /* find_inside_spike calls (a hunt in an arrival window) */                       \
+  X(channel_passes) /* channel_features calls (a hunt's find redoes its channel) */                  \
+  X(transients)     /* crossings passed over as a transient */                                        \
+  X(reach_tests)    /* blocks the peak scan tests against the peak so far (inside its groups) */       \
+  X(crossing_blocks) /* blocks the onset crossing reads sample by sample */                            \
+  X(aic_picks)      /* AIC sub-sample picks */                                                         \
+  X(partial_prefix) /* prefix sums taken inside a block (prefix_at_partial) */
+#define IMPACTCORE_WORK_DECLARE(name) int32_t name = 0;
+struct WorkCounts {
+  IMPACTCORE_WORK_FIELDS(IMPACTCORE_WORK_DECLARE)
+};
+#undef IMPACTCORE_WORK_DECLARE
+#if defined(IMPACTCORE_WORK_COUNTS)
+WorkCounts& work_counts();
+void reset_work_counts();
+#define IC_WORK(field, n) (::impactcore::work_counts().field += (n))
+#else
+#define IC_WORK(field, n) ((void)0)
+#endif
+
 // process_event's localisation of an event's picks: *phys the threshold picks' position (dispersion: slowness_scale),
 // *band the band picks' own (status kErrBadConfig when not run: band picks off, phys failed, fewer than three band
 // picks); channels without an onset (or dead) are not read, nor channel `without` (0..3; -1: none).

@@ -126,6 +126,7 @@ IC_INLINE float aic_split(const Split* sp, int k_eval, int len, int k) {
 }  // namespace
 
 float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from) {
+  IC_WORK(aic_picks, 1);
   if (begin < 0) begin = 0;
   const int len = end - begin;
   if (len < 6 || len > kMaxAicWindow) return -1.0f;

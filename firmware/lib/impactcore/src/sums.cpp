@@ -115,6 +115,7 @@ int block_prefix_sums(const int16_t* x, int n, Sums* prefix) {
 }
 
 Sums prefix_at_partial(const int16_t* x, const Sums* prefix, int n, int i) {
+  IC_WORK(partial_prefix, 1);
   const int k = i / kBlock;
   const int next = (k + 1) * kBlock < n ? (k + 1) * kBlock : n;  // the boundary after i: prefix[k + 1]
   if (next - i < i - k * kBlock) {  // nearer the next boundary: take its sums back to i
