@@ -99,6 +99,9 @@ def main() -> int:
         out = fit(rest) if rest else None
         per = " / ".join(f"{bound(s, coef, a):,}" for a in kinds)
         left = " / ".join(f"{bound(s, out, a):,}" for a in kinds) if out is not None else "-"
+        if out is not None:   # the left-out rates, drop by drop (no allowance): drops they under-count
+            under = s["signal"] - (s["work"] @ out[:-1] + out[-1] + s["loc_bound"])
+            left += f" (under on {int((under > 0).sum())} drops, by up to {max(0, int(np.ceil(under.max()))):,})"
         print(f"  {s['name']}: qemu {int(s['signal'].max()):,} (models {int(s['models'].max()):,}); constant "
               f"{s['base'] + s['loc_worst']:,}; per drop {per}; left out {left}")
     return 0
