@@ -654,8 +654,9 @@ int32_t process_event(const int16_t* const adc[kChannels], int n, const CoreConf
                       const LocaliserConfig& loc, EventResult* out);
 
 // The features' per-event work the board's cost depends on, counted by the host's build only (the binding's CMake
-// defines IMPACTCORE_WORK_COUNTS; the board's build does not, so its code and cost are unchanged): board.cost bounds
-// each drop's signal from these counts at rates fitted under qemu. work_counts() is the calling thread's, zeroed by
+// defines IMPACTCORE_WORK_COUNTS; the board's build does not, so its code and cost are unchanged):
+// benchmarks/bench_signal_work.py fits their rates on qemu's per-drop cost (a measurement; the export's estimate does
+// not read them). work_counts() is the calling thread's, zeroed by
 // reset_work_counts() (the binding: before each event).
 #define IMPACTCORE_WORK_FIELDS(X)                                                                        \
   X(peak_blocks)    /* blocks the peak scan reads (scan_peak), every channel and pass */              \
