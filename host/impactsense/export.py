@@ -39,6 +39,7 @@ from .export_c import (HEADER_H, LEAF, LINEAR_DEFINE, THREE_CHANNEL_DECL, THREE_
                        f32_floor, forest_tables, table_nodes, m2cgen_c, signal_c, signal_struct_c, table_bytes, tables_c)
 from . import export_c, export_check
 from .height_class import linear_tables
+from .host_columns import HOST_LOCATION_FEATURES
 from .outputs import json_text, output_folder
 
 
@@ -128,6 +129,8 @@ def beyond_the_board(card: dict) -> tuple[str, str] | None:
     own models, even at the board's own rate), else None."""
     if card.get("position_members"):
         return "position_members", "the board runs one forest pair on the physics position"
+    if set(card.get("location_features") or []) & set(HOST_LOCATION_FEATURES):
+        return "location_features", "the board's forests read the core's feature vector only (host_columns.py)"
     signal = card.get("signal") if isinstance(card.get("signal"), dict) else {}
     if int(signal.get("posterior_grid", 0) or 0) > 1:
         return "signal.posterior_grid", "the localiser's posterior mean costs more than the board's event budget"

@@ -54,7 +54,7 @@ def choose_flagged_positions(model, adc: np.ndarray, xy_mm: np.ndarray, fs_hz: f
     from .correction_scale import choose_by_gain, drop_sites
     from .edge_travel import three_sensor_positions
     from .faults import FaultSpec, inject
-    from .models import columns
+    from .host_columns import location_matrix
     from .pipeline import featurize
     from .three_channel_position import three_channel_position_inputs
 
@@ -63,7 +63,6 @@ def choose_flagged_positions(model, adc: np.ndarray, xy_mm: np.ndarray, fs_hz: f
     sites = drop_sites(xy)
     if not check or model.site_map is not None or np.unique(sites).size < MIN_SITES:
         return
-    cols = columns(model.location_features)
     clean = featurize(adc, model.signal)
     keep, record = [], []
     for c in range(4):
@@ -71,7 +70,8 @@ def choose_flagged_positions(model, adc: np.ndarray, xy_mm: np.ndarray, fs_hz: f
         base3 = three_sensor_positions(new.raw, model.signal, c)
         three = _oof_positions(three_channel_position_inputs(clean.vector, base3, c),
                                three_channel_position_inputs(new.vector, base3, c), base3, xy, sites, seed)
-        four = _oof_positions(clean.vector[:, cols], new.vector[:, cols], new.phys_xy_mm, xy, sites, seed)
+        four = _oof_positions(location_matrix(clean, model.location_features), location_matrix(new, model.location_features),
+                              new.phys_xy_mm, xy, sites, seed)
         rows = np.isfinite(three).all(1) & np.isfinite(four).all(1)
         if np.unique(sites[rows]).size < MIN_SITES:
             keep.append(True)

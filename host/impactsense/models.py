@@ -31,10 +31,10 @@ from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
 from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
-from .pipeline import FEATURE_NAMES, Features, columns_reading, featurize
+from .pipeline import FEATURE_NAMES, Features, featurize
+from .host_columns import HOST_LOCATION_FEATURES, location_matrix, location_names
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, check_card_members, choose_edge_travel,
-                               edge_positions, fit_member_pairs, joined_position,
-                               member_positions)
+                               edge_positions, fit_member_pairs, joined_position, member_positions)
 from .signal import SignalConfig
 from .sitemap import SiteMap, twin_features
 from .three_channel_position import (fit_three_channel_positions, left_out_class, load_three_sensor_path,
@@ -211,21 +211,21 @@ class ImpactModel:
         X = features.vector[use]
         xy = np.asarray(xy_mm, float)[use]
         resid = xy - features.phys_xy_mm[use]
-        # a channel left out (signal.channel_left_out): the forests read none of its arrival times
-        loc_names = columns_reading(signal.channel_left_out, LOCATION_FEATURES)
-        loc_cols = columns(loc_names)
-        fx = settings.regressor().fit(X[:, loc_cols], resid[:, 0])
-        fy = settings.regressor().fit(X[:, loc_cols], resid[:, 1])
+        # a channel left out: the forests read none of its arrival times (host columns: host_columns.py)
+        loc_names = location_names(signal.channel_left_out, members and choose_edge and site_map is None)
+        X_loc = location_matrix(features.take(np.flatnonzero(use)), loc_names)
+        fx = settings.regressor().fit(X_loc, resid[:, 0])
+        fy = settings.regressor().fit(X_loc, resid[:, 1])
         member_forests = {}
         positions = member_positions(features.take(np.flatnonzero(use))) if members else None
         if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
-            member_forests = fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS}, X[:, loc_cols],
+            member_forests = fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS}, X_loc,
                                               xy, settings.regressor, loc_names, all_or_none=True)
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
         card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
         if site_map is not None:
-            site_map, twin_fit, fe, threshold = _fit_site_twin(features, use, twin_rows, X[:, loc_cols], xy, height_mm,
+            site_map, twin_fit, fe, threshold = _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm,
                                                                energy_j, site_map, settings, choose_twin, card,
                                                                signal if twin_edge else None)
         class_features = list(MEASURED_ENERGY_FEATURES)
@@ -244,7 +244,7 @@ class ImpactModel:
             edge = choose_edge_travel(train, xy, signal) or {}
             card["edge_travel_chosen"] = bool(edge)
             if edge:
-                member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X[:, loc_cols], xy,
+                member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X_loc, xy,
                                                        settings.regressor, loc_names, all_or_none=False))
         three_xy, stack = {}, {}
         if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
@@ -257,7 +257,7 @@ class ImpactModel:
                 card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             levels = level_positions(train) if choose_edge and members else None   # level_members.py
-            scale_model_correction(card, X[:, loc_cols], xy, train, signal, edge, fx, fy, member_forests, settings,
+            scale_model_correction(card, X_loc, xy, train, signal, edge, fx, fy, member_forests, settings,
                                    levels, training_fields(train.raw, xy, signal) if choose_edge and members else None)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
@@ -287,10 +287,11 @@ class ImpactModel:
         spread = np.full((n, 2), np.nan)
         energy_class = np.full(n, -1, int)
         # no forests on a drop with a channel left out unless trained so (then they read none of its arrival times)
-        use = features.usable & np.isfinite(features.vector[:, columns(self.location_features)]).all(1)
+        L = location_matrix(features, self.location_features)
+        use = features.usable & np.isfinite(L).all(1)
         if use.any():
             X = features.vector[use]
-            Xl = X[:, columns(self.location_features)]
+            Xl = L[use]
             for k, forest in enumerate((self.forest_dx, self.forest_dy)):
                 per_tree = np.stack([t.predict(Xl) for t in forest.estimators_])
                 xy[use, k] = features.phys_xy_mm[use, k] + per_tree.mean(0)
@@ -355,7 +356,7 @@ class ImpactModel:
         if any(n in self.members for n in LEVEL_MEMBERS):   # absent from features: those members do not join
             edges.update(level_positions(sub) or {})
         edges.update(member_field_positions(sub.raw, self.signal, self.card, self.members))   # travel_field.py
-        X_loc = features.vector[rows][:, columns(self.location_features)]
+        X_loc = location_matrix(sub, self.location_features)
         xy[rows] = joined_position(xy[rows], sub.phys_xy_mm, self.members, X_loc, positions, edges,
                                    self.location_features, self.card.get("member_stack"))[0]
 
@@ -470,11 +471,10 @@ class ImpactModel:
         except (TypeError, ValueError, KeyError, OverflowError) as exc:
             raise DataError(card_path, "signal", str(exc)) from None
         loc = card.get("location_features", LEGACY_LOCATION_FEATURES)
-        if not isinstance(loc, list) or not loc or any(n not in FEATURE_NAMES for n in loc):
-            raise DataError(card_path, "location_features", "must list names from feature_names")
+        if not isinstance(loc, list) or not loc or any(n not in FEATURE_NAMES + HOST_LOCATION_FEATURES for n in loc):
+            raise DataError(card_path, "location_features", "must list names from feature_names or host_columns")
         if len(loc) != getattr(forests[0], "n_features_in_", len(loc)):
-            raise DataError(card_path, "location_features", f"lists {len(loc)} features, the x forest reads "
-                                                            f"{forests[0].n_features_in_}")
+            raise DataError(card_path, "location_features", f"lists {len(loc)}, the x forest reads {forests[0].n_features_in_}")
         energy = ENERGY_FEATURES if site_map is not None else card.get("energy_features", ENERGY_FEATURES)
         if not isinstance(energy, list) or not energy or any(n not in FEATURE_NAMES for n in energy):
             raise DataError(card_path, "energy_features", "must list names from feature_names")
@@ -485,7 +485,7 @@ class ImpactModel:
         if not isinstance(names, list) or any(n not in known for n in names):
             raise DataError(card_path, "position_members", f"must list names from {list(known)}")
         edge = check_card_members(card, card_path, names)   # the edge members' coefficients, the field members' fields
-        if names and loc != columns_reading(signal.channel_left_out, LOCATION_FEATURES):
+        if names and [n for n in loc if n in FEATURE_NAMES] != location_names(signal.channel_left_out, False):
             raise DataError(card_path, "position_members", "needs the current location_features (without a "
                                                            "left-out channel's arrival times)")
         extra = load_forests(d, card, card_path, [f"{a}_{n}" for n in names for a in "xy"]) if names else {}
