@@ -99,17 +99,18 @@ def edge_model(session1, tmp_path_factory, band_on_subset):
               "band": fit_correction(feats.raw, session1.xy_mm[rows], cfg, "band")}
     import impactsense.correction_scale as correction_scale
 
-    keep = models.choose_edge_travel, models.training_fields, correction_scale.STACK
+    keep = models.choose_edge_travel, models.training_fields, correction_scale.STACK, models.location_names
     models.choose_edge_travel = lambda *a: forced
     models.training_fields = lambda *a: ({}, None)    # the edge members alone (no travel-field members)
     correction_scale.STACK = False                    # their mean (not the members' stack, member_stack.py)
+    models.location_names = lambda left, host: keep[3](left, False)   # the core's inputs, as `without` (host_columns.py)
     try:
         args = (feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
                 models.ForestSettings(n_estimators=10))
         model = models.ImpactModel.fit(*args, choose_edge=True)
         without = models.ImpactModel.fit(*args)
     finally:
-        models.choose_edge_travel, models.training_fields, correction_scale.STACK = keep
+        models.choose_edge_travel, models.training_fields, correction_scale.STACK, models.location_names = keep
     out = tmp_path_factory.mktemp("edge") / "model"
     model.save(out)
     return model, without, feats, out
