@@ -20,6 +20,9 @@ training drops' out-of-fold accuracy chooses
 (height_class.py; column "class by": forest / linear / twin). Columns "bnd" / "off": the class accuracy on the
 held-out drops from the two heights either side of the class threshold (the boundary heights, the training drops'
 highest below it and lowest at or above it) and on the others; the target reads the column "class" (all drops).
+Column "host": whether the position forests read the host's location inputs (host_columns.py: kept / dropped
+by the training drops' out-of-fold rule; - where the model has no such choice). --host-columns always / never:
+forced, to measure the answer the rule did not give.
 --twin-edge: a twin model with its height estimate's edge term (twin_edge.py; off in the product).
 """
 
@@ -143,6 +146,7 @@ def score(path, trees: int, seed: int, calibration_dir: str | None = None, twin_
             "twin_choice": model.card.get("twin_choice"),
             "energy_class_choice": model.card.get("energy_class_choice"),
             "three_sensor_position": (model.card.get("channel_check") or {}).get("three_sensor_position"),
+            "host_location_inputs": model.card.get("host_location_inputs"),
             **boundary_split(session, rep, train_rows, model.energy_threshold_j)}
 
 
@@ -161,6 +165,12 @@ def class_column(r: dict) -> str:
     return "forest" if not choice else ("linear" if choice["use_linear"] else "forest")
 
 
+def host_column(r: dict) -> str:
+    """Whether the position forests read the host's location inputs (host_columns.py): kept / dropped / -."""
+    choice = r.get("host_location_inputs")
+    return "-" if not choice else ("kept" if choice["keep"] else "dropped")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rigs-dir", default=None, help="folder of other rigs' session folders")
@@ -173,14 +183,20 @@ def main() -> int:
     ap.add_argument("--calibration-dir", default=None,
                     help="folder of calibrations CALS/<rig folder name>/CAL.json: those rigs train with their "
                          "calibrated twin's site map when the training drops' out-of-fold figures keep it")
+    ap.add_argument("--host-columns", choices=("auto", "always", "never"), default="auto",
+                    help="the host's location inputs: as the training drops' rule says (the product), or forced "
+                         "(the rule's answer still recorded in --json)")
     args = ap.parse_args()
+    from impactsense import host_columns
+
+    host_columns.HOST_CHOICE = args.host_columns
     folders, why = rig_folders(args.rigs_dir)
     paths = ([] if args.skip_bundled else ["bundled"]) + [str(p) for p in folders]
     if why:
         print(f"other rigs skipped: {why}")
     rows = []
     print(f"{'rig':12s} {'material':34s} {'MAE mm':>7s} {'inner':>6s} {'phys':>6s} {'class':>6s} "
-          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s} {'bnd':>5s} {'off':>5s}  "
+          f"{'naive':>6s} {'time s':>7s} {'twin':>8s} {'class by':>8s} {'host':>7s} {'bnd':>5s} {'off':>5s}  "
           f"target MAE <= {TARGET_MAE_MM}, class >= {TARGET_CLASS}")
     missed = []
     for p in distinct_sessions(paths, "scored"):
@@ -191,7 +207,7 @@ def main() -> int:
             missed.append(r["rig"])
         print(f"{r['rig']:12s} {r['material'][:34]:34s} {r['mae_mm']:7.2f} {r['inner_mae_mm']:6.2f} "
               f"{r['physics_mae_mm']:6.2f} {r['class_accuracy']:6.3f} {r['naive_mae_mm']:6.2f} "
-              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s} "
+              f"{r['train_evaluate_s'] + r['site_map_s']:7.1f} {twin_column(r):>8s} {class_column(r):>8s} {host_column(r):>7s} "
               f"{r['class_boundary']:5.3f} {r['class_off_boundary']:5.3f}  "
               f"{'ok' if ok else 'MISSED'}",
               flush=True)

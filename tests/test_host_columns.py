@@ -51,7 +51,10 @@ def test_core_names_read_the_vector_bit_for_bit(session1):
     assert not any(n.endswith("_2") for n in location_names((0, 0, 1, 0), True)[len(core) - 3:])
 
 
-def test_a_model_with_host_columns_saves_loads_and_stays_off_the_board(session1, tmp_path):
+def test_a_model_with_host_columns_saves_loads_and_stays_off_the_board(session1, tmp_path, monkeypatch):
+    from impactsense import host_columns as hc
+
+    monkeypatch.setattr(hc, "HOST_CHOICE", "always")         # whatever the rule says on these drops
     rows = np.arange(0, len(session1), 3)
     cfg = SignalConfig.for_rig(session1.rig)
     feats = featurize(session1.adc[rows], cfg)
@@ -67,3 +70,47 @@ def test_a_model_with_host_columns_saves_loads_and_stays_off_the_board(session1,
     card = {"location_features": model.location_features, "signal": {}}
     assert beyond_the_board(card)[0] == "location_features"
     assert beyond_the_board({"location_features": LOCATION_FEATURES, "signal": {}}) is None
+
+
+def _sites_with_a_hidden_bias(seed=0, n_sites=40, reps=3):
+    """Drops at n_sites sites, reps each: a physics position off the truth by a smooth function of a column the
+    core's inputs do not carry (h), and a pure-noise column."""
+    rng = np.random.default_rng(seed)
+    site_xy = rng.uniform(0, 400, (n_sites, 2))
+    xy = np.repeat(site_xy, reps, 0)                         # the declared position: a site's drops share it
+    h = np.repeat(rng.uniform(-1, 1, n_sites), reps) + rng.normal(0, 0.05, n_sites * reps)
+    phys = xy + np.stack([6 * h, -4 * h], 1) + rng.normal(0, 1.0, xy.shape)
+    core = np.column_stack([phys, rng.normal(0, 1, (len(xy), 3))])
+    return xy, phys, core, h[:, None], rng.normal(0, 1, (len(xy), 1))
+
+
+def test_extra_inputs_kept_when_they_carry_the_sites_bias_dropped_when_noise():
+    from impactsense.correction_scale import choose_extra_inputs
+
+    xy, phys, core, h, noise = _sites_with_a_hidden_bias()
+    names = ["phys_x_mm", "phys_y_mm", "a", "b", "c"]
+    settings = ForestSettings(n_estimators=20)
+    useful = choose_extra_inputs(core, np.hstack([core, h]), phys, None, None, xy, settings, names, names + ["h"])
+    assert useful["keep"] and useful["out_of_fold_mae_mm"][1] < useful["out_of_fold_mae_mm"][0] - 1.0
+    assert useful["gain_sigmas"] > 1.0
+    useless = choose_extra_inputs(core, np.hstack([core, noise]), phys, None, None, xy, settings, names,
+                                  names + ["n"])
+    assert not useless["keep"]                               # the simpler model is the default
+    assert useless["gain_sigmas"] < 1.0
+    # too few sites for five site-grouped folds of two: no choice
+    few = slice(0, 9 * 3)
+    assert choose_extra_inputs(core[few], np.hstack([core, h])[few], phys[few], None, None, xy[few], settings,
+                               names, names + ["h"]) is None
+
+
+def test_train_records_the_choice_and_the_model_reads_what_it_chose(session1):
+    rows = np.arange(0, len(session1), 3)
+    cfg = SignalConfig.for_rig(session1.rig)
+    feats = featurize(session1.adc[rows], cfg)
+    model = ImpactModel.fit(feats, session1.xy_mm[rows], session1.height_mm[rows], session1.rig.ball_mass_g, cfg,
+                            ForestSettings(n_estimators=10), members=True, choose_edge=True)
+    choice = model.card["host_location_inputs"]
+    assert set(choice) >= {"keep", "out_of_fold_mae_mm", "gain_sigmas", "board"}
+    host = set(HOST_LOCATION_FEATURES) & set(model.location_features)
+    assert host == (set(HOST_LOCATION_FEATURES) if choice["keep"] else set())
+    assert "core's feature vector only" in choice["board"]

@@ -183,16 +183,38 @@ def level_choice(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, ed
     without = scale_choice(X_loc, phys, positions, edges, xy, settings, names)
     if without is None:
         return None
-    with_levels = scale_choice(X_loc, phys, positions, {**(edges or {}), **levels}, xy, settings, names)
-    ok = np.isfinite(without[1]) & np.isfinite(with_levels[1])
+    return with_or_without(without, scale_choice(X_loc, phys, positions, {**(edges or {}), **levels}, xy, settings,
+                                                 names))
+
+
+def with_or_without(without: tuple, with_it: tuple) -> tuple[dict, np.ndarray] | None:
+    """The one-standard-error rule between two scale_choice answers on the same drops, the simpler model
+    (`without`) the default: ({"keep", "out_of_fold_mae_mm": [without, with], "gain_sigmas", "without": its scale
+    choice, "with": its scale choice}, the kept answer's per-drop error), or None when no drop has both."""
+    ok = np.isfinite(without[1]) & np.isfinite(with_it[1])
     if not ok.any():
         return None
-    z = _gain_sigmas(_per_site(without[1][ok] - with_levels[1][ok], without[2][ok]))
+    z = _gain_sigmas(_per_site(without[1][ok] - with_it[1][ok], without[2][ok]))
     keep = bool(z > CORRECTION_GAIN_SIGMAS)
     return ({"keep": keep, "out_of_fold_mae_mm": [round(float(np.mean(without[1][ok])), 3),
-                                                  round(float(np.mean(with_levels[1][ok])), 3)],
-             "gain_sigmas": round(z, 2), "without": without[0], "with": with_levels[0]},
-            (with_levels if keep else without)[1])
+                                                  round(float(np.mean(with_it[1][ok])), 3)],
+             "gain_sigmas": round(z, 2), "without": without[0], "with": with_it[0]},
+            (with_it if keep else without)[1])
+
+
+def choose_extra_inputs(X_loc: np.ndarray, X_more: np.ndarray, phys: np.ndarray, positions: dict | None,
+                        edges: dict | None, xy: np.ndarray, settings, names: list[str],
+                        more_names: list[str]) -> dict | None:
+    """Whether the position forests read more location inputs (X_more, columns more_names: X_loc's columns
+    `names` and more after them): the training drops' out-of-fold positions (every member refitted in each fold)
+    with and without them, each at its own chosen factor; kept when the per-site gain exceeds
+    CORRECTION_GAIN_SIGMAS standard errors (with_or_without). Returns {"keep", "out_of_fold_mae_mm": [without,
+    with], "gain_sigmas", "without", "with"}, or None with too few sites."""
+    without = scale_choice(X_loc, phys, positions, edges, xy, settings, names)
+    if without is None:
+        return None
+    out = with_or_without(without, scale_choice(X_more, phys, positions, edges, xy, settings, more_names))
+    return None if out is None else out[0]
 
 
 def choose_level_members(X_loc: np.ndarray, phys: np.ndarray, positions: dict | None, edges: dict | None,
@@ -216,18 +238,18 @@ def scale_forests(forests, scale: float) -> None:
 
 def scale_model_correction(card: dict, X_loc: np.ndarray, xy: np.ndarray, train, signal, edge: dict,
                            fx, fy, members: dict, settings, levels: dict | None = None,
-                           fields: tuple | None = None) -> None:
+                           fields: tuple | None = None, names: list[str] | None = None) -> None:
     """ImpactModel.fit's step without a site map: the training drops' (`train`, their Features) choice of the
     factor, recorded in the card ("correction_scale") and applied to the main pair and every member's pair.
     levels (level_members.level_positions of train, or None): the level members join `members` (in place) when
     the out-of-fold rule keeps them (choose_level_members; the card's "level_members"). fields
     (travel_field.training_fields of train: the fields and the members' out-of-fold positions, or None): the same
     rule decides whether the field members join after the level members (the card's "travel_field_members"; kept,
-    the fields in "travel_field")."""
+    the fields in "travel_field"). names: X_loc's columns (None: the core's location features)."""
     from .models import LOCATION_FEATURES
     from .pipeline import columns_reading
 
-    names = columns_reading(signal.channel_left_out, LOCATION_FEATURES)   # X_loc's columns
+    names = names or columns_reading(signal.channel_left_out, LOCATION_FEATURES)   # X_loc's columns
     phys = np.asarray(train.phys_xy_mm, float)
     positions = member_positions(train) if any(n in members for n in POSITION_MEMBERS) else None
     edges = edge_positions(train, signal, edge) if edge and any(n in members for n in EDGE_MEMBERS) else None

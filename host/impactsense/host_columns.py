@@ -7,8 +7,10 @@ ratio. Near an edge the reflected copy colours the first cycles of a channel's a
 (docs/findings.md "Session 21: rigcsite"); the tilt says how, per channel, where the arrival times alone cannot
 (docs/findings.md "Session 22: rigcpos"). No signal logic here: ratios of numbers the core computed.
 
-A model without a site map trained with its members (ImpactModel.fit) reads them after the core's location
-features (the card's location_features names them); the board's pair never does (the board has no raw outputs).
+A model without a site map trained with its members and its edge choice (ImpactModel.fit, `train DATA`) reads
+them after the core's location features (the card's location_features names them) when the training drops'
+out-of-fold positions say they help (choose_host_columns: the one-standard-error rule of the correction's other
+choices; the card's "host_location_inputs"); the board's pair never does: it reads the core's feature vector only.
 """
 
 from __future__ import annotations
@@ -19,6 +21,9 @@ import numpy as np
 # capture's energy) and the picked cycle's period (samples).
 HOST_LOCATION_FEATURES = [f"{kind}_{c}" for c in range(4)
                           for kind in ("early_tilt_21", "early_tilt_32", "early_share", "pick_period")]
+# "auto": as the training drops' out-of-fold rule says (choose_host_columns); "always" / "never": that, its choice
+# still recorded (benchmarks/bench_rigs.py --host-columns: the held-out figure of the other answer).
+HOST_CHOICE = "auto"
 
 
 def host_columns(raw: dict) -> np.ndarray:
@@ -56,3 +61,30 @@ def location_names(left_out, host: bool) -> list[str]:
 
     names = columns_reading(left_out, LOCATION_FEATURES)
     return names + [n for n in HOST_LOCATION_FEATURES if host and not left_out[int(n[-1])]]
+
+
+def choose_host_columns(train, xy: np.ndarray, signal, positions: dict | None, edge: dict, settings) -> dict | None:
+    """Whether the position forests of a model trained on `train` (pipeline.Features of the training drops, true
+    positions xy) read HOST_LOCATION_FEATURES: correction_scale.choose_extra_inputs on the training drops, grouped
+    by site, with the members the model fits (positions: position_members.member_positions of train or None; edge:
+    the chosen edge correction or {}). Returns its record ({"keep", "out_of_fold_mae_mm": [without, with],
+    "gain_sigmas", "without", "with"} plus "board") or None with too few sites."""
+    from .correction_scale import choose_extra_inputs
+    from .position_members import edge_positions
+
+    left_out = signal.channel_left_out
+    core, more = location_names(left_out, False), location_names(left_out, True)
+    if more == core:
+        return None
+    base = positions if positions is not None and float(signal.band_velocity_mm_per_us) > 0 else None
+    edges = edge_positions(train, signal, edge) if edge else None
+    choice = choose_extra_inputs(location_matrix(train, core), location_matrix(train, more),
+                                 np.asarray(train.phys_xy_mm, float), base, edges or None, np.asarray(xy, float),
+                                 settings, core, more)
+    if choice is None:
+        return None
+    out = {k: v for k, v in choice.items() if k not in ("with", "without")}
+    if HOST_CHOICE != "auto":
+        out["rule_keep"], out["keep"] = out["keep"], HOST_CHOICE == "always"
+    out["board"] = "the board's pair reads the core's feature vector only"
+    return out

@@ -32,7 +32,7 @@ from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, featurize
-from .host_columns import HOST_LOCATION_FEATURES, location_matrix, location_names
+from .host_columns import HOST_LOCATION_FEATURES, choose_host_columns, location_matrix, location_names
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, check_card_members, choose_edge_travel,
                                edge_positions, fit_member_pairs, joined_position, member_positions)
 from .signal import SignalConfig
@@ -211,19 +211,30 @@ class ImpactModel:
         X = features.vector[use]
         xy = np.asarray(xy_mm, float)[use]
         resid = xy - features.phys_xy_mm[use]
-        # a channel left out: the forests read none of its arrival times (host columns: host_columns.py)
-        loc_names = location_names(signal.channel_left_out, members and choose_edge and site_map is None)
-        X_loc = location_matrix(features.take(np.flatnonzero(use)), loc_names)
+        card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
+        edge, train = {}, features.take(np.flatnonzero(use))
+        if choose_edge and members and site_map is None:
+            edge = choose_edge_travel(train, xy, signal) or {}
+            card["edge_travel_chosen"] = bool(edge)
+        positions = member_positions(train) if members else None
+        # a channel left out: the forests read none of its arrival times; the host's columns (host_columns.py)
+        # as the training drops' out-of-fold positions say, where the board never reads them
+        loc_names = location_names(signal.channel_left_out, False)
+        if choose_edge and members and site_map is None:
+            host = choose_host_columns(train, xy, signal, positions, edge, settings)
+            if host is not None:
+                card["host_location_inputs"] = host
+                if host["keep"]:
+                    loc_names = location_names(signal.channel_left_out, True)
+        X_loc = location_matrix(train, loc_names)
         fx = settings.regressor().fit(X_loc, resid[:, 0])
         fy = settings.regressor().fit(X_loc, resid[:, 1])
         member_forests = {}
-        positions = member_positions(features.take(np.flatnonzero(use))) if members else None
         if positions is not None and float(signal.band_velocity_mm_per_us) > 0:
             member_forests = fit_member_pairs({name: positions[name] for name in POSITION_MEMBERS}, X_loc,
                                               xy, settings.regressor, loc_names, all_or_none=True)
         energy_j = impact_energy_j(np.asarray(height_mm)[use], ball_mass_g)
         twin_fit = None
-        card = {"forest": settings.__dict__, "n_train_drops": int(use.sum())}
         if site_map is not None:
             site_map, twin_fit, fe, threshold = _fit_site_twin(features, use, twin_rows, X_loc, xy, height_mm,
                                                                energy_j, site_map, settings, choose_twin, card,
@@ -239,10 +250,7 @@ class ImpactModel:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
         three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
                                           energy_j, threshold) if site_map is None else {}
-        edge, train = {}, features.take(np.flatnonzero(use))
         if choose_edge and members and site_map is None:
-            edge = choose_edge_travel(train, xy, signal) or {}
-            card["edge_travel_chosen"] = bool(edge)
             if edge:
                 member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X_loc, xy,
                                                        settings.regressor, loc_names, all_or_none=False))
@@ -258,7 +266,8 @@ class ImpactModel:
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
             levels = level_positions(train) if choose_edge and members else None   # level_members.py
             scale_model_correction(card, X_loc, xy, train, signal, edge, fx, fy, member_forests, settings,
-                                   levels, training_fields(train.raw, xy, signal) if choose_edge and members else None)
+                                   levels, training_fields(train.raw, xy, signal) if choose_edge and members else None,
+                                   loc_names)
         return cls(signal=signal, forest_dx=fx, forest_dy=fy, forest_energy=fe,
                    energy_threshold_j=threshold, site_map=site_map, twin_fit=twin_fit,
                    card=card, members=member_forests, energy_class_features=class_features,
