@@ -88,3 +88,14 @@ def choose_host_columns(train, xy: np.ndarray, signal, positions: dict | None, e
         out["rule_keep"], out["keep"] = out["keep"], HOST_CHOICE == "always"
     out["board"] = "the board's pair reads the core's feature vector only"
     return out
+
+
+def chosen_location_names(train, xy: np.ndarray, signal, positions: dict | None, edge: dict, settings,
+                          card: dict) -> list[str]:
+    """The position forests' inputs of a model with its members and without a site map: location_names (none of a
+    left-out channel's arrival times) with the host's columns when choose_host_columns keeps them (its record in
+    card["host_location_inputs"])."""
+    host = choose_host_columns(train, xy, signal, positions, edge, settings)
+    if host is not None:
+        card["host_location_inputs"] = host
+    return location_names(signal.channel_left_out, bool(host and host["keep"]))

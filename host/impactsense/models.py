@@ -32,7 +32,7 @@ from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, featurize
-from .host_columns import HOST_LOCATION_FEATURES, choose_host_columns, location_matrix, location_names
+from .host_columns import HOST_LOCATION_FEATURES, chosen_location_names, location_matrix, location_names
 from .position_members import (EDGE_MEMBERS, MEMBER_FILES, POSITION_MEMBERS, check_card_members, choose_edge_travel,
                                edge_positions, fit_member_pairs, joined_position, member_positions)
 from .signal import SignalConfig
@@ -217,15 +217,8 @@ class ImpactModel:
             edge = choose_edge_travel(train, xy, signal) or {}
             card["edge_travel_chosen"] = bool(edge)
         positions = member_positions(train) if members else None
-        # a channel left out: the forests read none of its arrival times; the host's columns (host_columns.py)
-        # as the training drops' out-of-fold positions say, where the board never reads them
-        loc_names = location_names(signal.channel_left_out, False)
-        if choose_edge and members and site_map is None:
-            host = choose_host_columns(train, xy, signal, positions, edge, settings)
-            if host is not None:
-                card["host_location_inputs"] = host
-                if host["keep"]:
-                    loc_names = location_names(signal.channel_left_out, True)
+        loc_names = (chosen_location_names(train, xy, signal, positions, edge, settings, card)   # host_columns.py
+                     if choose_edge and members and site_map is None else location_names(signal.channel_left_out, False))
         X_loc = location_matrix(train, loc_names)
         fx = settings.regressor().fit(X_loc, resid[:, 0])
         fy = settings.regressor().fit(X_loc, resid[:, 1])
@@ -248,12 +241,10 @@ class ImpactModel:
                     X[:, columns(MEASURED_ENERGY_FEATURES)], X_lin, energy_j, xy, settings))
                 if card["energy_class_choice"]["use_linear"]:
                     fe, class_features = fit_linear_height_class(X_lin, energy_j, threshold), list(LINEAR_CLASS_FEATURES)
-        three = fit_three_channel_classes(features.take(np.flatnonzero(use)).raw, features.phys_xy_mm[use],
-                                          energy_j, threshold) if site_map is None else {}
-        if choose_edge and members and site_map is None:
-            if edge:
-                member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X_loc, xy,
-                                                       settings.regressor, loc_names, all_or_none=False))
+        three = fit_three_channel_classes(train.raw, train.phys_xy_mm, energy_j, threshold) if site_map is None else {}
+        if edge:   # chosen only with members and without a site map
+            member_forests.update(fit_member_pairs(edge_positions(train, signal, edge), X_loc, xy,
+                                                   settings.regressor, loc_names, all_or_none=False))
         three_xy, stack = {}, {}
         if members and site_map is None and not any(signal.channel_left_out):   # host only, as the members
             three_xy, factors, card["three_channel_position_levels"], card["three_channel_position_edge"], stack = \
