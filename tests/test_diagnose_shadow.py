@@ -49,3 +49,30 @@ def test_the_rule_never_names_anything():
     results = [cand("sensor_position", 3, 18.2, False), cand("channel_delay", 1, 15.2, False),
                cand("channel_delay", 3, 12.3, False)]
     assert not any(sig for sig, _ in run(results).values())
+
+
+def test_a_channels_own_delay_or_lowpass_with_the_ratio_evidence_outranks_the_others_delays():
+    """A debonded channel (late picks growing with distance, on a few cases): its low-pass and delay have the
+    held-out ratio but miss the per-case t-test; the equal delays the centring gives the three other channels
+    are its shadow, not three delays (the round after the gain, on a narrow strip's 8 cases)."""
+    bound = 6.3   # ln(28 / 0.05)
+
+    def results(lp_score=72.1, lp_material=True):
+        lp = cand("channel_lowpass", 3, lp_score, False)
+        lp.material = lp_material
+        return [lp, cand("channel_delay", 2, 7.2, True), cand("channel_delay", 1, 4.8, False),
+                cand("wave_speed", None, 7.0, True)]
+
+    out = run(results(), evident=set())
+    assert out[("channel_delay", 2)] == (True, None)      # without the ratio bound: as before
+    MD.shadows_of_a_stronger_channel(r := results(), set(), 40.0, {}, bound)
+    got = {(c.effect, c.sensor): (c.significant, c.shadow_of) for c in r}
+    assert got[("channel_delay", 2)] == (False, 3)        # the shadow of channel 3's low-pass
+    assert got[("wave_speed", None)] == (True, None)      # not a channel's timing
+    assert got[("channel_lowpass", 3)] == (False, None)   # the rule names nothing
+    for weak in (results(lp_score=5.0), results(lp_material=False)):   # under the bound; not material
+        MD.shadows_of_a_stronger_channel(weak, set(), 40.0, {}, bound)
+        assert [c.significant for c in weak if c.effect == "channel_delay"] == [True, False]
+    own = [cand("channel_delay", 3, 48.7, False), cand("channel_delay", 3, 7.0, True)]
+    MD.shadows_of_a_stronger_channel(own, set(), 40.0, {}, bound)
+    assert own[1].significant                             # its own channel: not a shadow

@@ -76,7 +76,7 @@ class Candidate:
     significant: bool
     fold_params: list
     rival: dict | None = None   # the rival on the same sensor: its name, held-out gain difference, p
-    shadow_of: int | None = None   # not named: a stronger channel's move outranks it (`move_or_delay.shadows_of_a_stronger_channel`)
+    shadow_of: int | None = None   # not named: a stronger channel's move (delay, low-pass) outranks it (`move_or_delay.shadows_of_a_stronger_channel`)
 
 
 def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
@@ -205,7 +205,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
-        MD.shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed)
+        MD.shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed, np.log(len(cands) / ALPHA))
         _record_rivals(results, gains, direction, moved, F.case_id, both)
         MD.record_with_energy(results, with_energy)
         results.sort(key=lambda c: -c.score)

@@ -13,6 +13,8 @@ from .effects.sensor_position import band_ll
 # its bound assumes the reference predicts an unchanged session exactly; at an unchanged session's new
 # positions it does not (docs/findings.md, falsealarm; an empirical calibration). 1.0: the plain Markov bound.
 MOVE_EVIDENCE_SCALE = 2.0
+# a channel's own timing changes besides a move (`shadows_of_a_stronger_channel`)
+OWN_TIMING_CHANGES = ("channel_delay", "channel_lowpass")
 
 
 def own_evidence_scale(effect: str) -> float:
@@ -150,16 +152,24 @@ def name_the_delay_of_an_evident_move(results, evident: set, n_candidates: int, 
             c.significant = True
 
 
-def shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict) -> None:
+def shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unabsorbed: dict,
+                                  ratio_bound: float | None = None) -> None:
     """A channel whose move has the evidence against no change but no test rejects a constant (so neither the
     move nor, without its own evidence, the delay is named) outranks the other channels' delays that score
     below it: those are not named this round (`Candidate.shadow_of`). The per-drop centring couples the
     channels' timing, so one channel's change gives another channel's constant delay a held-out gain of its
     own; without this rule the weaker shadow was named on the wrong sensor. It only takes names away (an
-    unchanged session cannot gain one); a move that rejects a constant is not a shadow and stays."""
+    unchanged session cannot gain one); a move that rejects a constant is not a shadow and stays.
+    With ratio_bound (ln(n_candidates / alpha), the Markov half of `diagnose._evidence`): a channel's own delay or
+    low-pass that is material and not named, whose held-out likelihood ratio reaches it (its per-case t-test
+    missed: a low-pass's late picks grow with distance and fall on a few cases), outranks them too. A debonded
+    channel's picks, late by tens of us, were otherwise named as equal delays on each of the three others."""
     moves = [c for c in results if c.effect == "sensor_position" and not c.significant
              and ("sensor_position", c.sensor) in evident and c.params["offset_mm"] <= move_bound
              and c.sensor not in unabsorbed]
+    if ratio_bound is not None:
+        moves += [c for c in results if c.effect in OWN_TIMING_CHANGES and not c.significant and c.material
+                  and c.sensor is not None and c.score >= ratio_bound]
     for c in results:
         if not c.significant or c.effect != "channel_delay":
             continue
