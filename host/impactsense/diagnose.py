@@ -50,7 +50,6 @@ from . import move_or_delay as MD
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
 MAX_EFFECTS = 6
-BEYOND_ONE_CASE = False   # switch (`_evidence`): measured on one session only (docs/findings.md, stripfix)
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
 # A re-glued disc lands near its mark: a sensor move larger than this fraction of the nearest declared sensor
@@ -104,19 +103,14 @@ def _one_sided_p(case_gains: np.ndarray) -> float:
     return float(t.pvalue)
 
 
-def _evidence(score: float, p_value: float, n_cands: int, scale: float = 1.0, case_gains=None) -> bool:
+def _evidence(score: float, p_value: float, n_cands: int, scale: float = 1.0) -> bool:
     """Significant: the per-case held-out gains pass the Bonferroni t-test, or the held-out likelihood ratio
     itself exceeds n_cands / alpha (exp(score): under no change its expectation is at most 1, so by Markov's
     inequality each candidate passes with probability <= alpha / n_cands) with the per-case gains positive at
-    plain alpha (the gain is not one case's doing). With BEYOND_ONE_CASE and case_gains: "not one case's doing"
-    may also read literally, the ratio without its best case still past the bound (a few-case session whose
-    change grows with distance and height puts its gain on a few cases, which the t-test does not pass)."""
+    plain alpha (the gain is not one case's doing)."""
     if score <= 0:
         return False
-    bound = scale * np.log(n_cands / ALPHA)
-    if p_value < ALPHA / n_cands or (score >= bound and p_value < ALPHA):
-        return True
-    return bool(BEYOND_ONE_CASE and case_gains is not None and score - float(np.max(case_gains)) >= bound)
+    return p_value < ALPHA / n_cands or (score >= scale * np.log(n_cands / ALPHA) and p_value < ALPHA)
 
 
 def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor):
@@ -182,8 +176,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
         for c in results:
-            ok = _evidence(c.score, c.p_value, len(cands), MD.own_evidence_scale(c.effect),
-                           _case_sums(gains[(c.effect, c.sensor)], F.case_id)) and c.material
+            ok = _evidence(c.score, c.p_value, len(cands), MD.own_evidence_scale(c.effect)) and c.material
             if ok:
                 evident.add((c.effect, c.sensor))
             nest = EFFECTS[c.effect].nests
