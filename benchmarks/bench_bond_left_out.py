@@ -119,7 +119,7 @@ def channel_check_figures(ref, sess, four_model, channel: int, seed: int) -> dic
     the retrained four-channel model's own check, the shares of drops flagged on it, and that model's MAE on the
     changed session with its check off."""
     ref_feats = featurize(ref.adc, four_model.signal)
-    ref_check = fit_channel_check(ref_feats.raw, four_model.signal, ref_feats.phys_xy_mm)
+    ref_check = fit_channel_check(ref_feats.raw, four_model.signal, ref_feats.phys_xy_mm, ref.xy_mm)
     # what retrain itself holds: its baseline model (DATA_REF's default split, its own localiser fit) and its check
     baseline, _ = train(ref, None, 0.2, seed, None, settings=ForestSettings(n_estimators=5, seed=seed), site_map=None)
     out = {}

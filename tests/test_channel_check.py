@@ -22,7 +22,7 @@ def fitted(session1):
     cfg = SignalConfig.for_rig(session1.rig)
     train_rows = np.arange(0, len(session1), 4)
     train = featurize(session1.adc[train_rows], cfg)
-    check = fit_channel_check(train.raw, cfg, train.phys_xy_mm)
+    check = fit_channel_check(train.raw, cfg, train.phys_xy_mm, session1.xy_mm[train_rows])
     return cfg, check, session1.subset(np.arange(2, len(session1), 8))
 
 
@@ -139,3 +139,44 @@ def test_the_model_flags_the_channel_and_reports_the_three_sensor_answer(session
     counts = evaluate(debonded, back, rows=np.arange(len(test)))["channels_left_out_inconsistent"]
     assert counts[1] >= 0.95 * len(test) and counts[0] == counts[2] == counts[3] == 0
     assert evaluate(test, back, rows=np.arange(len(test)))["channels_left_out_inconsistent"] == [0, 0, 0, 0]
+
+
+def surface_drops(rng, n_sites: int, reps: int, plate=(1200.0, 800.0)):
+    """A level ratio on sites of a plate: a surface a cubic does not describe (a sharp rise toward one corner, as
+    beyond a sensor), a per-site misfit (sd 0.06) and a per-drop scatter (sd 0.02). (xy [R, 2], value [R], site [R])."""
+    xy = np.repeat(rng.uniform((0, 0), plate, (n_sites, 2)), reps, 0)
+    corner = np.exp(-np.hypot(plate[0] - xy[:, 0], xy[:, 1]) / 150.0)
+    site_misfit = np.repeat(rng.normal(0, 0.06, n_sites), reps)
+    return xy, 0.3 * corner + site_misfit + rng.normal(0, 0.02, len(xy)), np.repeat(np.arange(n_sites), reps)
+
+
+def test_the_scale_on_few_sites_is_a_new_sites_spread():
+    """With 24 sites of 4 drops (fewer than SITES_PER_TERM per term of the cubic) the cubic's own residuals
+    understate the residuals at new sites (0.4-0.7 x on these draws); the check's scale (out of fold by site) is
+    a new site's spread in the median over 12 draws (0.8-1.25 x; one draw's ranges 0.6-1.6 x). With 200 sites
+    the scale is the in-sample one."""
+    from types import SimpleNamespace
+
+    from impactsense.channel_check import SITES_PER_TERM, _basis, check_scale, robust_sd
+
+    plate = SimpleNamespace(plate_x_mm=1200.0, plate_y_mm=800.0)
+    ours, own = [], []
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        xy, value, sites = surface_drops(rng, 24, 4)
+        basis = _basis(xy, plate)
+        assert 24 < SITES_PER_TERM * basis.shape[1]
+        coef = np.linalg.lstsq(basis, value, rcond=None)[0]
+        resid = value - basis @ coef
+        scale, oof = check_scale(basis, value, resid, sites)
+        assert oof
+        new_xy, new_value, _ = surface_drops(rng, 2000, 1)
+        new_sd = robust_sd(new_value - _basis(new_xy, plate) @ coef)
+        ours.append(scale / new_sd)
+        own.append(robust_sd(resid) / new_sd)
+    assert 0.8 <= np.median(ours) <= 1.25 and np.median(own) < 0.65
+    rng = np.random.default_rng(12)
+    xy, value, sites = surface_drops(rng, 200, 4)
+    basis = _basis(xy, plate)
+    resid = value - basis @ np.linalg.lstsq(basis, value, rcond=None)[0]
+    assert check_scale(basis, value, resid, sites) == (robust_sd(resid), False)

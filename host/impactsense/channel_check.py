@@ -39,6 +39,7 @@ EVENT_SCORE = 5.0     # robust sd: clean held-out drops of the measured sessions
 RUN_SCORE = 3.0
 RUN_EVENTS = 8
 SCALE_FLOOR = 0.02    # log10: ~5 % in energy, below which a residual's spread is not taken as the rig's
+SITES_PER_TERM = 5    # training sites per term of the cubic below which its own residuals' spread is not trusted
 MIN_DROPS = 30        # training drops with four onsets needed to fit the check
 CHECK_VERSION = 2     # 2: the cubics read at the four-channel physics position; 1: at the three-sensor ones
 
@@ -75,7 +76,38 @@ def check_positions(raw: dict, signal, check_version: int, phys_xy_mm: np.ndarra
     return np.stack([three_sensor_positions(raw, signal, c) for c in range(4)], 1)
 
 
-def fit_channel_check(raw: dict, signal, phys_xy_mm: np.ndarray) -> dict | None:
+def site_ids(xy_mm: np.ndarray) -> np.ndarray:
+    """A label per drop, equal for the drops of one site (the training positions to 0.1 mm) [R]."""
+    _, ids = np.unique(np.round(np.asarray(xy_mm, float), 1), axis=0, return_inverse=True)
+    return ids.ravel()
+
+
+def robust_sd(resid: np.ndarray) -> float:
+    """1.4826 MAD, at least SCALE_FLOOR."""
+    return max(1.4826 * float(np.median(np.abs(resid - np.median(resid)))), SCALE_FLOOR)
+
+
+def out_of_fold_by_site(basis: np.ndarray, value: np.ndarray, sites: np.ndarray) -> np.ndarray:
+    """Each drop's residual from the cubic fitted without its site's drops [R]."""
+    out = np.empty(len(value))
+    for g in np.unique(sites):
+        m = sites == g
+        out[m] = value[m] - basis[m] @ np.linalg.lstsq(basis[~m], value[~m], rcond=None)[0]
+    return out
+
+
+def check_scale(basis: np.ndarray, value: np.ndarray, resid: np.ndarray, sites: np.ndarray) -> tuple[float, bool]:
+    """A ratio's scale and whether it is the out-of-fold one: the training residuals' robust sd, or, when the
+    training drops come from fewer than SITES_PER_TERM sites per term of the cubic (the cubic can bend to each
+    site's misfit, so its own residuals understate a new site's), the larger of it and the robust sd of the
+    residuals out of fold by site (docs/method.md "The channel check's scale")."""
+    scale = robust_sd(resid)
+    if len(np.unique(sites)) >= SITES_PER_TERM * basis.shape[1]:
+        return scale, False
+    return max(scale, robust_sd(out_of_fold_by_site(basis, value, sites))), True
+
+
+def fit_channel_check(raw: dict, signal, phys_xy_mm: np.ndarray, xy_mm: np.ndarray) -> dict | None:
     """The card's "channel_check" from training drops (the core's raw arrays and physics positions), or None with
     fewer than MIN_DROPS drops the check can read or with a channel left out (three channels: too few to compare
     one with the rest)."""
@@ -83,8 +115,9 @@ def fit_channel_check(raw: dict, signal, phys_xy_mm: np.ndarray) -> dict | None:
         return None
     rows, xy = checked_rows(raw), check_positions(raw, signal, CHECK_VERSION, phys_xy_mm)
     level, tilt = _ratios(raw)
+    sites = site_ids(xy_mm)
     out = {"version": CHECK_VERSION, "event_score": EVENT_SCORE, "run_score": RUN_SCORE, "run_events": RUN_EVENTS,
-           "level": [], "tilt": [], "n_drops": []}
+           "level": [], "tilt": [], "n_drops": [], "n_sites": []}
     for c in range(4):
         ok = rows & np.isfinite(xy[:, c]).all(1) & np.isfinite(level[:, c]) & np.isfinite(tilt[:, c])
         if ok.sum() < MIN_DROPS:
@@ -94,9 +127,11 @@ def fit_channel_check(raw: dict, signal, phys_xy_mm: np.ndarray) -> dict | None:
             coef = np.linalg.lstsq(basis, value[ok, c], rcond=None)[0]
             resid = value[ok, c] - basis @ coef
             med = float(np.median(resid))
-            scale = max(1.4826 * float(np.median(np.abs(resid - med))), SCALE_FLOOR)
-            out[name].append({"coef": [float(v) for v in coef], "median": med, "scale": scale})
+            scale, oof = check_scale(basis, value[ok, c], resid, sites[ok])
+            out[name].append({"coef": [float(v) for v in coef], "median": med, "scale": scale,
+                              "scale_out_of_fold": oof})
         out["n_drops"].append(int(ok.sum()))
+        out["n_sites"].append(int(len(np.unique(sites[ok]))))
     scores = channel_scores(raw, signal, out, phys_xy_mm)
     out["training_score_max"] = [float(np.nanmax(s)) if np.isfinite(s).any() else None for s in scores.T]
     return out

@@ -251,7 +251,7 @@ class ImpactModel:
                 fit_three_channel_positions(train, xy, signal, settings.seed, edge or None)
             card["three_channel_position_scale"] = {str(c): f for c, f in factors.items()}
         if site_map is None:   # one channel against the other three, the twin's misfit's stand-in (channel_check.py)
-            check = fit_channel_check(train.raw, signal, train.phys_xy_mm)
+            check = fit_channel_check(train.raw, signal, train.phys_xy_mm, xy)
             if check is not None:
                 card["channel_check"] = check
         if site_map is None:   # the forests' position is the one reported: its correction scaled as the drops say
