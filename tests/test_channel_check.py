@@ -180,3 +180,22 @@ def test_the_scale_on_few_sites_is_a_new_sites_spread():
     basis = _basis(xy, plate)
     resid = value - basis @ np.linalg.lstsq(basis, value, rcond=None)[0]
     assert check_scale(basis, value, resid, sites) == (robust_sd(resid), False)
+
+
+def test_a_check_fitted_on_few_sites_still_finds_a_debond_and_flags_no_clean_drop(session1):
+    """Trained on the drops of 24 sites (all their repetitions, fewer than SITES_PER_TERM per term): the scales
+    are out of fold by site, no clean drop of the other sites is flagged (by an event or the run rule over them
+    in the recorded order) and a debonded channel still is on at least 0.95 of them."""
+    from impactsense.channel_check import SITES_PER_TERM
+
+    cfg = SignalConfig.for_rig(session1.rig)
+    cases = np.unique(session1.case_id)
+    picked = np.isin(session1.case_id, cases[::len(cases) // 24][:24])
+    train = featurize(session1.adc[picked], cfg)
+    check = fit_channel_check(train.raw, cfg, train.phys_xy_mm, session1.xy_mm[picked])
+    assert max(check["n_sites"]) < SITES_PER_TERM * len(check["level"][0]["coef"])
+    assert all(f["scale_out_of_fold"] for f in check["level"] + check["tilt"])
+    test = session1.subset(np.flatnonzero(~picked)[::5])
+    assert np.all(flags(test, cfg, check)[0] == -1)
+    bad, _, _ = flags(inject_session(test, FaultSpec(debond=2, seed=5)), cfg, check)
+    assert np.mean(bad == 2) >= 0.95
