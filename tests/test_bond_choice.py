@@ -105,3 +105,20 @@ def test_retrain_says_the_reference_model_was_kept_and_why(capsys):
     assert "REFERENCE MODEL IS KEPT" in printed and why in printed
     card = {"retrain": {"channels_left_out": []}}
     assert note_bond_choice(card, {**choice, "chosen": "left_out"}, []) == [1] and "model_kept" not in card["retrain"]
+
+
+def test_retrain_prints_a_dash_where_the_model_reports_no_uncertainty(capsys):
+    """Every drop placed by three sensors has no reported uncertainty: the 'within 1u / 2u' shares are undefined,
+    printed '-' with the reason, not 'nan'; a model that reports one prints its shares."""
+    from impactsense.commands.retrain import print_summary
+
+    row = {"mae_mm": 12.58, "inner_mae_mm": 9.1, "physics_mae_mm": 14.0, "energy_class_accuracy": 0.92}
+    rows = {"reference model": {**row, "within_1u": float("nan"), "within_2u": float("nan")},
+            "retrained model": {**row, "within_1u": 0.41, "within_2u": 0.87}}
+    print_summary({}, [], rows, "DATA_NEW", False, "OUT")
+    printed = capsys.readouterr().out
+    assert "nan" not in printed
+    ref_line = next(line for line in printed.splitlines() if line.startswith("reference model"))
+    new_line = next(line for line in printed.splitlines() if line.startswith("retrained model"))
+    assert ref_line.split()[-2:] == ["-", "-"] and new_line.split()[-2:] == ["0.41", "0.87"]
+    assert "reports no uncertainty" in printed

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ..bond_choice import fit_with_bond_choice
@@ -361,8 +362,15 @@ def print_summary(result: dict, accepted, rows: dict, name: str, twin: bool, out
           f"{'within 1u':>9} {'2u':>5}")
     for k, v in rows.items():
         print(f"{k:<18} {v['mae_mm']:7.2f} {v['inner_mae_mm']:6.2f} {v['physics_mae_mm']:8.2f} "
-              f"{v['energy_class_accuracy']:9.3f} {v['within_1u']:9.2f} {v['within_2u']:5.2f}")
+              f"{v['energy_class_accuracy']:9.3f} {_share(v['within_1u']):>9} {_share(v['within_2u']):>5}")
+    if any(not math.isfinite(v["within_1u"]) for v in rows.values()):
+        print("  (within 1u / 2u '-': the model reports no uncertainty for these drops: no site map, or every drop "
+              "placed by three sensors)")
     print(f"model written to {out}")
+
+
+def _share(x: float) -> str:
+    return f"{x:.2f}" if math.isfinite(x) else "-"
 
 
 # The retrained model is called worse when its MAE on DATA_NEW exceeds the baseline model's by this factor.
