@@ -8,8 +8,9 @@ issue 16's white-noise row, no target), and what such a filter does to the noise
 1. The onset's spectrum: REF's clean drops (the session without the change), each channel's window of --window
 samples from 8 samples before its first 10-count crossing (Hann), the mean power S(f), against the white noise's
 N = white^2 in the same window. Prints S / N by frequency, the Wiener gain S / (S + N), the share of the white
-noise's power the Wiener filter passes (its rms after = white x sqrt of it) and the frequency where the gain falls
-to one half (the matched low-pass's cut-off).
+noise's power the Wiener filter passes (its rms after = white x sqrt of it) and the first frequency where the gain
+is below one half (the matched low-pass's cut-off); and the Cramer-Rao bound on the onset window's time under the
+noise if each channel's waveform were known (white / sqrt(sum of its squared slope)): what the samples hold.
 2. With --train: bench_noise_training's model ("choose", the reference's band floor) trained on TRAINING
 (bench_loop's OUT/noise-measured) with a zero-phase Butterworth low-pass (scipy sosfiltfilt, --order, at
 --cutoff-hz or the half-gain frequency of 1.) put on every recording before the core (training, SESSION, the
@@ -52,6 +53,24 @@ def onset_spectrum(session, window: int) -> tuple[np.ndarray, np.ndarray]:
     return np.fft.rfftfreq(window, 1.0 / float(session.rig.fs_hz)), np.mean(power, 0)
 
 
+def timing_bound(session, white: float, window: int) -> np.ndarray:
+    """Each channel's Cramer-Rao bound (us) on the time of its onset window (as onset_spectrum's) under the white
+    noise if its waveform were known: white / sqrt(sum of the window's squared slope), counts / s."""
+    x = np.asarray(session.adc, float)
+    x = x - x[:, :, :64].mean(-1, keepdims=True)
+    fs = float(session.rig.fs_hz)
+    out = []
+    for d in range(len(x)):
+        for c in range(x.shape[1]):
+            above = np.abs(x[d, c]) > ONSET_COUNTS
+            i = int(np.argmax(above))
+            if not above[i] or i < BEFORE or i - BEFORE + window > x.shape[2]:
+                continue
+            slope = np.gradient(x[d, c, i - BEFORE:i - BEFORE + window]) * fs
+            out.append(white / np.sqrt(np.sum(slope ** 2)) * 1e6)
+    return np.asarray(out)
+
+
 def wiener(session, white: float, window: int) -> dict:
     f, s = onset_spectrum(session, window)
     n = white ** 2 * float((np.hanning(window) ** 2).sum())
@@ -91,6 +110,10 @@ def main(argv=None) -> int:
         print(f"  {f / 1e3:6.1f} kHz  S/N {snr:10.2f}  Wiener gain {g:.3f}")
     print(f"Wiener filter: passes {w['noise_power_passed']:.2f} of the white noise's power (rms {args.white:g} -> "
           f"{args.white * np.sqrt(w['noise_power_passed']):.2f} counts); gain 1/2 at {w['half_gain_hz'] / 1e3:.1f} kHz")
+    for n in (16, 32):
+        b = timing_bound(ref, args.white, n)
+        print(f"timing bound, a known waveform over {n} samples from {BEFORE} before the crossing: median "
+              f"{np.median(b):.2f} us, p90 {np.percentile(b, 90):.2f} us (a DToA: sqrt(2) x)")
     if not args.train:
         return 0
     if len(args.train) < 2:
