@@ -135,27 +135,45 @@ struct Normal {
   float cost;
 };
 
+// With M > 0 and kIso false the plate has a travel metric for certain (localise_tdoa runs <4, false> and
+// <3, false> only then): the metric's constants are held in registers and the products qxx dx and qyy dy,
+// which travel() and the Jacobian both take, are taken once. The same float operations on the same operands
+// in the same order as travel<false> and the general form (2 qxy is exact), so the same numbers.
 template <int M, bool kIso>
 void normal_eqs(const Problem& p, float x, float y, float t0, Normal* ne) {
+  constexpr bool kMetric = !kIso && M > 0;
+  const float qxx = p.qxx, qxy = p.qxy, qyy = p.qyy, q2xy = 2.0f * p.qxy;
+  const float huber = p.huber, half_huber = 0.5f * p.huber;
   float a0 = 0, a1 = 0, a2 = 0, a3 = 0, a4 = 0, a5 = 0, g0 = 0, g1 = 0, g2 = 0, cost = 0;
   for (int k = 0; k < used<M>(p); ++k) {
     const float dx = x - p.sx[k];
     const float dy = y - p.sy[k];
-    float d = travel<kIso>(p, dx, dy);
+    float d, jxs, jys;  // jxs, jys: the Jacobian's numerators (times s below)
+    if (kMetric) {
+      const float ax = qxx * dx, cy = qyy * dy;
+      const float q = ax * dx + q2xy * dx * dy + cy * dy;
+      d = vsqrt_f32(q > 0.0f ? q : 0.0f);
+      jxs = ax + qxy * dy;
+      jys = qxy * dx + cy;
+    } else {
+      d = travel<kIso>(p, dx, dy);
+      jxs = (kIso || p.iso) ? dx : p.qxx * dx + p.qxy * dy;
+      jys = (kIso || p.iso) ? dy : p.qxy * dx + p.qyy * dy;
+    }
     if (d < 1e-3f) d = 1e-3f;
     const float e = p.toa[k] - (t0 + d * p.inv_vk[k]);
     const float ae = fabsf(e);
     float w = 1.0f;
-    if (ae <= p.huber) {
+    if (ae <= huber) {
       cost += 0.5f * e * e;
     } else {
-      w = p.huber / ae;
-      cost += p.huber * (ae - 0.5f * p.huber);
+      w = huber / ae;
+      cost += huber * (ae - half_huber);
     }
     const float s = p.inv_vk[k] / d;
     // d(model)/dx, d(model)/dy (Q d / |d|_Q / v; d / |d| / v when iso); d(model)/dt0 = 1
-    const float jx = (kIso || p.iso) ? dx * s : (p.qxx * dx + p.qxy * dy) * s;
-    const float jy = (kIso || p.iso) ? dy * s : (p.qxy * dx + p.qyy * dy) * s;
+    const float jx = jxs * s;
+    const float jy = jys * s;
     const float wjx = w * jx;
     const float wjy = w * jy;
     a0 += wjx * jx;
