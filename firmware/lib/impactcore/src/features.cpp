@@ -238,10 +238,19 @@ IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
   const int ka = kc < 0 ? -1 : (kc + kArrivalBlocks < ch.nblk ? kc + kArrivalBlocks : ch.nblk);
   for (int k = kc; k >= 0 && k < ka; ++k) scan_peak(ch, k, base, &peak);
   Channel::Level lim = ch.level<kFits32>(peak);
+  // The blocks skipped: [kc, ka), taken above, and those from `start` on before the crossing; the two are
+  // one range [skip_lo, ka) (empty without an onset).
+  int skip_lo = 0, skip_hi = 0;
+  if (kc >= 0) {
+    const int kb = (start + kBlock - 1) / kBlock;  // the first block with k kBlock >= start (start >= 0)
+    skip_lo = kb < kc ? kb : kc;
+    skip_hi = ka;
+  }
+  const uint32_t skip_span = static_cast<uint32_t>(skip_hi - skip_lo);
   // The blocks of group [g, gend) that can hold a larger sample than the peak so far.
   const auto blocks = [&](int g, int gend) {
     for (int k = g; k < gend; ++k) {
-      if ((k >= kc && k < ka) || (kc >= 0 && k < kc && k * kBlock >= start)) continue;
+      if (static_cast<uint32_t>(k - skip_lo) < skip_span) continue;
       IC_WORK(reach_tests, 1);
       if (!ch.reaches<kFits32>(k, k + 1, base, lim)) continue;
       const float before = peak;
@@ -255,18 +264,39 @@ IC_NOINLINE float peak_abs(const Channel& ch, float base, int at, int start) {
   if constexpr (kFits32) {
     // The groups of full blocks with reaches<true>'s test written out, the prefix entries walked in order
     // and c in registers: ~10 instructions a group instead of ~25 (most groups pass; a ringing plate's
-    // 64 samples hold the peak's square from a fifth of its amplitude on).
+    // 64 samples hold the peak's square from a fifth of its amplitude on). A group that passes tests its
+    // blocks the same way (reaches<true> on a full block), the peak and its level in registers.
     const uint32_t c2 = 2u * ch.uc, gc2 = static_cast<uint32_t>(kGroup * kBlock) * ch.uc2;
+    const uint32_t bc2 = static_cast<uint32_t>(kBlock) * ch.uc2;
     const int groups_end = ch.n / kBlock / kGroup * kGroup;
-    uint32_t a2 = static_cast<uint32_t>(ch.prefix[0].s2), a1 = static_cast<uint32_t>(ch.prefix[0].s1);
+    uint32_t q2 = lim.q2;
+    float pk = peak;
+    const Sums* pre = ch.prefix;
+    uint32_t a2 = static_cast<uint32_t>(pre[0].s2), a1 = static_cast<uint32_t>(pre[0].s1);
     for (; g < groups_end; g += kGroup) {
-      const uint32_t b2 = static_cast<uint32_t>(ch.prefix[g + kGroup].s2);
-      const uint32_t b1 = static_cast<uint32_t>(ch.prefix[g + kGroup].s1);
+      const uint32_t b2 = static_cast<uint32_t>(pre[g + kGroup].s2);
+      const uint32_t b1 = static_cast<uint32_t>(pre[g + kGroup].s1);
       const uint32_t e = (b2 - a2) - c2 * (b1 - a1) + gc2;
+      if (e >= q2) {
+        uint32_t u2 = a2, u1 = a1;
+        for (int k = g; k < g + kGroup; ++k) {
+          const uint32_t v2 = static_cast<uint32_t>(pre[k + 1].s2), v1 = static_cast<uint32_t>(pre[k + 1].s1);
+          const uint32_t eb = (v2 - u2) - c2 * (v1 - u1) + bc2;
+          u2 = v2;
+          u1 = v1;
+          if (static_cast<uint32_t>(k - skip_lo) < skip_span) continue;
+          IC_WORK(reach_tests, 1);
+          if (eb < q2) continue;
+          const float before = pk;
+          scan_peak(ch, k, base, &pk);
+          if (pk > before) q2 = ch.level<true>(pk).q2;
+        }
+      }
       a2 = b2;
       a1 = b1;
-      if (e >= lim.q2) blocks(g, g + kGroup);
     }
+    peak = pk;
+    lim.q2 = q2;
   }
   for (; g < ch.nblk; g += kGroup) {
     const int gend = g + kGroup < ch.nblk ? g + kGroup : ch.nblk;
