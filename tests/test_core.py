@@ -284,6 +284,40 @@ def test_pruned_peak_crossing_and_clipping_equal_full_scans():
     assert out["peak"][0, 0] == pytest.approx(1000, abs=3) and 149 <= out["toa_threshold"][0, 1] <= 150
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_the_peak_of_low_passed_ringing_equals_the_full_scan(seed):
+    """A 4-pole low-passed arrival at the board's 50 kHz (the README's front end): the first lobes are small
+    against the later ones, so most groups of blocks pass the peak scan's energy test and their blocks are
+    tested one by one (features.cpp peak_abs, the group loop), and later blocks raise the peak. The peak is
+    the full scan's, bit for bit, whether the crossing's blocks hold it or not."""
+    from scipy.signal import butter, lfilter
+
+    rng = np.random.default_rng(40 + seed)
+    n, rows = 1024, 16
+    b, a = butter(4, 10000 / 25000)
+    t = np.arange(n)
+    adc = np.empty((rows, 4, n), np.int16)
+    for r in range(rows):
+        for c in range(4):
+            t0 = int(rng.integers(80, 600))
+            f = rng.uniform(0.05, 0.6)  # cycles a sample (2.5-30 kHz before the low-pass)
+            env = np.clip((t - t0) / rng.uniform(5, 120), 0, 1) * np.exp(-np.clip(t - t0, 0, None) / rng.uniform(80, 600))
+            burst = rng.uniform(50, 1500) * env * np.sin(2 * np.pi * f * t + rng.uniform(0, 6.3))
+            x = lfilter(b, a, burst) + 2048 + rng.normal(0, 2, n)
+            adc[r, c] = np.clip(np.round(x), 0, 4095)
+    out = _core.extract_batch(adc, SignalConfig(adc_min=0, adc_max=4095).core())
+    later = 0
+    for r in range(rows):
+        for c in range(4):
+            x = adc[r, c].astype(np.float32)
+            base = np.float32(out["baseline"][r, c])
+            assert out["peak"][r, c] == np.max(np.abs(x - base))
+            at = out["toa_threshold"][r, c]
+            if at >= 0:
+                later += int(np.argmax(np.abs(x - base))) >= (int(at) // 16 + 3) * 16
+    assert later >= 4  # the peak lies beyond the crossing's three blocks on some channels
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_pruning_at_the_edge_of_its_bounds_equals_full_scans(seed):
     """The block tests skip a block only when no sample in it can reach the level sought (uint32 sums about

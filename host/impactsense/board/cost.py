@@ -15,8 +15,10 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   below the slowest features and report. FRONT_END_INSTRUCTIONS more when the board's captures pass a declared
   analog front end (rig.json `board_front_end`, the model card's record; base_instructions): the low-passed
   arrivals' first lobes are smaller against the later ones, so the features' peak scan (and the baseline fit)
-  read more blocks, ~2-3.5k on the slowest drops (fitted the same way on the captures through the README's
-  front end, plus a margin);
+  read more blocks (a median ~1.7k a drop on the captures through the README's front end). Fitted the same
+  way: since the peak scan tests a passing group's blocks in its own loop, BASE + the localiser's bound
+  covers the slowest front-end drops by 1.2-2.1k without this share, which is kept as a margin
+  (docs/findings.md "Session 24: aacheap");
 - band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
 - localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
@@ -39,13 +41,15 @@ import numpy as np
 
 EVENT_BUDGET = 64000
 BASE_INSTRUCTIONS = 53000
-FRONT_END_INSTRUCTIONS = 2000
+FRONT_END_INSTRUCTIONS = 500
 BAND_PER_SAMPLE = 80
 # impactcore localise.cpp's kMaxEvaluations (a start's normal-equation evaluations, step halvings included)
 LOCALISER_EVALUATIONS = 16
 # (isotropic, anisotropic plate): the screening's 20 points, the set-up and the covariance; one evaluation
+# (qemu, every drop of four rigs' exports: at most 273 / 333 an evaluation above the screening; the anisotropic
+# form 368 before normal_eqs held the metric in registers, docs/findings.md "Session 24: aacheap")
 LOCALISER_SCREEN = (2300, 2950)
-LOCALISER_PER_EVALUATION = (280, 375)
+LOCALISER_PER_EVALUATION = (280, 335)
 # The posterior mean (impactcore.h posterior_grid): per grid point, per localiser run, one Huber cost (four
 # travel distances, the t0 passes) and an expf; an estimate, not measured under qemu (no board model uses it:
 # 15 x 15 points cost more than the event budget).
