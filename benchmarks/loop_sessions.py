@@ -2,7 +2,7 @@
 
     python3 benchmarks/loop_sessions.py [--out /tmp/impactsense-loop] [--seed 0] [--cases 40] [--ref-cases 80] [--reps 3]
         [--element-mm 3.0] [--duration-ms 10] [--rig SESSION_DIR] [--calibration CAL.json] [--only NAME,NAME]
-        [--noise-counts C,C] [--controls] [--seed-only-draw]
+        [--noise-counts C,C] [--controls] [--oracles] [--seed-only-draw]
 
 Every session is a folder every tool reads (rig.json = the DECLARED rig, impacts.csv = the declared
 positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
@@ -11,6 +11,9 @@ positions, recordings.npz), and `manifest.json` in OUT lists each one's truth:
 - `same-1 .. same-5`      unchanged: other positions, other position jitter and noise draws
 - `<name>-control`        (`--controls`) a changed session's own drops (positions, jitter, noise seed) without
                           its change: the unchanged MAE at the same positions
+- `<name>-oracle`         (`--oracles`) the reference's own drops (positions, jitter, noise seed) recorded WITH a
+                          changed session's change: the training data a retrain that knew the change exactly would
+                          have (the upper bound of any retrain on the reference's drops)
 - `move-<deg>`            FEM: one sensor glued 5-10 mm away in direction <deg> (0, 45, ..., 315 on seed 0;
                           another seed rotates the eight and permutes the sensors), rig.json
                           still declaring the old centre; the sensor rotates with the direction, so some moves
@@ -146,6 +149,15 @@ def control_specs(specs: list[dict], only=None) -> list[dict]:
             for s in specs if s.get("truth") and (only is None or s["name"] in only)]
 
 
+def oracle_specs(specs: list[dict], only=None) -> list[dict]:
+    """`<name>-oracle` per changed session (of `only`, when given): the reference's declared drops, landing jitter
+    and noise seed recorded WITH the change (the change's truth, as the changed session was made)."""
+    ref = next(s for s in specs if s["name"] == "ref")
+    return [{"name": f"{s['name']}-oracle", "kind": s["kind"], "seed": ref["seed"], "truth": s["truth"],
+             "oracle_of": s["name"], **({"made": s["made"]} if "made" in s else {})}
+            for s in specs if s.get("truth") and (only is None or s["name"] in only)]
+
+
 # ---- signal-level changes (independent of impactsense.effects) ------------------------------------------
 def signal_change(counts: np.ndarray, truth: dict, rig, seed: int) -> np.ndarray:
     """The change on clean counts (float, bias removed) of the FEM drops: before the noise, as on a rig
@@ -238,7 +250,7 @@ def make_session(spec: dict, base_params, rig, args) -> np.ndarray:
     from impactsense.sim.simulate import simulate_voltages, to_adc
 
     truth = spec.get("truth")
-    cases = args.ref_cases if spec["name"] == "ref" else args.cases
+    cases = args.ref_cases if spec["name"] == "ref" or spec.get("oracle_of") else args.cases
     xd, yd, hd, case, rep, xt, yt = declared_drops(rig, cases, args.reps, spec["seed"], args.jitter_mm)
     params, sim_rig = physical(base_params, rig, truth if spec["kind"] == "fem" else None)
     if spec["kind"] != "signal":
@@ -300,10 +312,11 @@ def generate(args) -> dict:
         man = {"settings": key, "sessions": {}}
     only = set(args.only.split(",")) if args.only else None
     specs = spec_list(args.seed, args.noise_counts, None if args.seed_only_draw else rig)
-    if args.controls:
-        specs = specs + control_specs(specs, only)
+    extra = (control_specs(specs, only) if args.controls else []) + (oracle_specs(specs, only) if args.oracles else [])
+    specs = specs + extra
     for spec in specs:
-        if only and spec["name"] not in only and spec.get("control_of") not in only:
+        if only and spec["name"] not in only and spec.get("control_of") not in only \
+                and spec.get("oracle_of") not in only:
             continue
         if man["sessions"].get(spec["name"]) == spec and (out / spec["name"] / "recordings.npz").exists():
             continue
@@ -336,6 +349,8 @@ def parse(argv=None):
     ap.add_argument("--only", default=None, help="comma-separated session names")
     ap.add_argument("--controls", action="store_true",
                     help="also `<name>-control` per changed session: its own drops without the change")
+    ap.add_argument("--oracles", action="store_true",
+                    help="also `<name>-oracle` per changed session: the reference's drops recorded with the change")
     ap.add_argument("--seed-only-draw", action="store_true",
                     help="draw from the seed alone, as before session 23 (every rig the same draw): remakes the "
                          "sessions of earlier findings tables")
