@@ -20,7 +20,11 @@ Printed:
 - MAE per axis (mm): the reference model on same-1..3 (those present) and on the control; retrain's four-channel
   model (fit_bond's effects in the reference's drops, loop.pick_settings) and the oracle's (the same settings) on
   the bond session; a 2-fold split by case of the bond session and of its control (each half placed by a model of
-  the other half), their ratio.
+  the other half), their ratio;
+- the same four-channel model with the bond channel of its training drops and of the session passed through the
+  inverse of fit_bond's one-pole, limited above INVERSE_AT x its corner ((1 + j f / fc) / (g (1 + j f / f2)),
+  bilinear; the rig's picks, no channel gain): would an inverse before picking give the channel back (a prototype
+  on the recordings; the core has no such filter).
 
 No target: a measurement (docs/findings.md "Session 24: bond5").
 
@@ -52,6 +56,21 @@ from benchlib import sized_bond
 PRETRIGGER = 64
 PICK_WINDOW = 64
 FREQS_KHZ = (1, 2, 3, 5, 8, 10, 15, 20, 30)
+INVERSE_AT = (2.0, 3.0, 4.0)
+
+
+def inverse_bond(session, ch: int, fc_hz: float, gain: float, f2_hz: float):
+    """The session with channel ch through the one-pole's inverse up to f2: (1 + s / wc) / (g (1 + s / w2))."""
+    import dataclasses
+
+    from scipy import signal as ss
+
+    fs = float(session.rig.fs_hz)
+    a = np.asarray(session.adc, float).copy()
+    x = a[:, ch] - float(session.rig.bias_counts)
+    b, den = ss.bilinear([1.0 / (2 * np.pi * fc_hz), 1.0], [gain / (2 * np.pi * f2_hz), gain], fs)
+    a[:, ch] = ss.lfilter(b, den, x - x[:, :1], axis=-1) + x[:, :1] + float(session.rig.bias_counts)
+    return dataclasses.replace(session, adc=np.clip(np.rint(a), 0, session.rig.adc_max).astype(session.adc.dtype))
 
 
 def one_pole(f, fc_hz: float, gain: float):
@@ -207,12 +226,22 @@ def main() -> int:
         four_mae = score(sess, four)["mae_mm"]
         orac_mae = score(sess, fitted(oracle, signal))["mae_mm"]
         own_b, own_c = split_mae(sess, signal, args.trees, args.seed), split_mae(control, None, args.trees, args.seed)
+        inverse = {}
+        if lp_f is not None and lp_f.get("order", 2) == 1:
+            for mult in INVERSE_AT:
+                f2 = min(mult * lp_f["fc_hz"], 0.4 * fs)
+                m, _ = carry_delays((fitted(inverse_bond(training, ch, lp_f["fc_hz"], g_f, f2), cfg), None),
+                                   channel_delays(accepted))
+                inverse[f2] = score(inverse_bond(sess, ch, lp_f["fc_hz"], g_f, f2), m)["mae_mm"]
     print(f"\nMAE (mm, {args.trees} trees): reference on same-1..{len(same)} {unchanged:.2f}, on the control {ctrl:.2f}, "
           f"on {args.name} {score(sess, ref_model)['mae_mm']:.2f}")
     print(f"  retrain's four-channel model {four_mae:.2f} ({four_mae / unchanged:.2f} x unchanged, "
           f"{four_mae / ctrl:.2f} x control); the oracle {orac_mae:.2f} ({orac_mae / unchanged:.2f} x, "
           f"{orac_mae / ctrl:.2f} x control)")
     print(f"  own 2-fold split: {args.name} {own_b:.2f}, control {own_c:.2f} ({own_b / own_c:.2f} x)")
+    for f2, mae in inverse.items():
+        print(f"  fit_bond's inverse up to {f2:.0f} Hz before picking: {mae:.2f} ({mae / unchanged:.2f} x unchanged, "
+              f"{mae / ctrl:.2f} x control)")
     return 0
 
 
