@@ -107,7 +107,8 @@ def onset_snr_db(session, ch: int, onset_sample: np.ndarray) -> tuple[np.ndarray
     sig = np.stack([x[k, i:i + n] for k, i in enumerate(onset_sample)])
     noise = x[:, :n]
     p = lambda z: (np.abs(np.fft.rfft(z - z.mean(1, keepdims=True))) ** 2).mean(0)   # noqa: E731
-    return np.fft.rfftfreq(n, 1.0 / float(session.rig.fs_hz)), 10.0 * np.log10(p(sig) / p(noise))
+    with np.errstate(divide="ignore", invalid="ignore"):   # the mean taken out: the 0 Hz bin is 0 / 0
+        return np.fft.rfftfreq(n, 1.0 / float(session.rig.fs_hz)), 10.0 * np.log10(p(sig) / p(noise))
 
 
 def within_case_sd(session, v: np.ndarray) -> float:
