@@ -25,7 +25,11 @@ extra columns in the lab's order; run it with --cases 20 --reps 3), cfrp-ud-stri
 unidirectional carbon/epoxy strip, fibres at 30 deg, sensors staggered on the two long edges, a 12.7 mm ball,
 250 kHz, 14-bit, 10000 samples of which 2000 before the hit, a second contact on 5 % of the drops; run it with
 --reps 3), alu-large-thin (a 1200 x 800 x 1.5 mm aluminium sheet, sensors ~100 mm in from the corners wired in no
-geometric order, 50 kHz, 12-bit, 4096 samples, 60 Hz hum, a hot front end; run it with --cases 30 --reps 4).
+geometric order, 50 kHz, 12-bit, 4096 samples, 60 Hz hum, a hot front end; run it with --cases 30 --reps 4),
+fr4-scope (a 400 x 300 x 1.6 mm FR-4 circuit-board panel, woven so nearly isotropic, three sensors near one long
+edge and one near the middle of the other, channels in no geometric order, a bench oscilloscope: 1 MHz x 20,000
+samples, 8-bit, 4,000 before the trigger, a DC offset per channel, 50 Hz hum on one channel; run it with
+--cases 25 --reps 4).
 The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
@@ -188,6 +192,24 @@ KINDS = {
                  damping_per_s=800.0),
         double=dict(fraction=0.05, delay_ms=(0.5, 3.0), height_fraction=(0.1, 0.3)),
         heights=(25, 50, 80, 120, 170, 230)),
+    "fr4-scope": dict(
+        # a bare FR-4 circuit-board panel (woven glass-epoxy: nearly isotropic in-plane, 1.6 mm, thin and
+        # dispersive), three sensors near one long edge and one near the middle of the other (not a rectangle;
+        # without the far one the other three lie near one line), the channels wired in no geometric order, read by
+        # a bench oscilloscope: 1 MHz x 20,000 samples, 8-bit, 4,000 samples before the trigger, each channel with
+        # its own DC offset, 50 Hz hum on one channel only (its probe's ground loop), 25 cases x 4 drops
+        # (run it with --cases 25 --reps 4)
+        rig={"plate_material": "FR-4 glass-epoxy laminate", "plate_x_mm": 400.0, "plate_y_mm": 300.0,
+             "thickness_mm": 1.6, "density_kg_m3": 1850.0, "plate_support": "four nylon standoffs at the corners",
+             "sensors": _sensors([(335, 42), (205, 262), (62, 36), (198, 28)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 12.0, "ball_material": "steel",
+             "ball_diameter_mm": 6.0, "ball_mass_g": 0.88, "channels": 4, "fs_hz": 1000000, "samples": 20000,
+             "adc_bits": 8, "vref": 5.0, "bias_counts": 128},
+        sim=dict(e_pa=24e9, e2_pa=21e9, g12_pa=5.5e9, nu=0.13, material_axes_deg=0.0, pretrigger_samples=4000,
+                 damping_per_s=900.0),
+        front_end=dict(peak_fraction=0.35, channel_dc_counts=(9, -14, 4, -6), noise_counts=0.4),
+        hum_one=dict(channel=1, hum=3.0, hum_hz=50.0),
+        heights=(80, 120, 160, 200, 250)),
 }
 
 
@@ -264,13 +286,23 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
               f"later, {np.round(frac, 2).tolist()} of the height)")
     peak = np.median(np.abs(volts).max(axis=2))
     gain = front["gain_sign"] * front["peak_fraction"] * (rig.adc_max / 2) * rig.vref / (peak * 2 ** rig.adc_bits)
-    params = params.replace(circuit_gain=float(gain), noise_counts_rms=1.5 * 2 ** (rig.adc_bits - 12))
+    params = params.replace(circuit_gain=float(gain),
+                            noise_counts_rms=front.get("noise_counts", 1.5 * 2 ** (rig.adc_bits - 12)))
     logger = rig if not front["dc_offset_counts"] else dataclasses.replace(
         rig, bias_counts=rig.bias_counts + int(front["dc_offset_counts"]))
     adc = to_adc(volts, params, logger, noise=True, seed=seed)
+    if "channel_dc_counts" in front:   # each channel's own DC error (a scope's per-channel offset)
+        dc = np.asarray(front["channel_dc_counts"], float)[None, :, None]
+        adc = np.clip(adc.astype(float) + dc, 0, rig.adc_max).astype(adc.dtype)
     faults = FaultSpec(offset=6.0 * 2 ** (rig.adc_bits - 12), glitch=0.05, drift=0.02, seed=seed + 1,
                        **spec.get("lab", {}))
     adc = inject(adc, faults, rig.fs_hz, rig.bias_counts, rig.adc_max)
+    one = spec.get("hum_one")
+    if one:   # mains hum on one channel only (one probe's ground loop)
+        k = one["channel"]
+        adc[:, k:k + 1] = inject(adc[:, k:k + 1], FaultSpec(hum=one["hum"], hum_hz=one["hum_hz"], seed=seed + 3),
+                                 rig.fs_hz, rig.bias_counts, rig.adc_max)
+        print(f"{kind}: {one['hum_hz']:g} Hz hum of up to {one['hum']:g} counts on channel {k} only")
     loose = spec.get("loose")
     if loose:   # one sensor loose on a few drops: its signal low-passed and weaker there
         rows = np.sort(rng.choice(adc.shape[0], max(1, round(loose["fraction"] * adc.shape[0])), replace=False))

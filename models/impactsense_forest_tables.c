@@ -12595,6 +12595,7 @@ const impactsense_signal_config impactsense_signal = {
   6,
   0.349999994f,
   3.0f,
+  4.0f,
   0.99000001f,
   2500.0f,
   0.0f,

@@ -75,6 +75,7 @@ typedef struct {
   int32_t aic_after;  // samples
   float aic_blend;  // copy
   float dead_rms_counts;  // copy
+  float hum_min_counts;  // copy
   float n2_fraction;  // copy
   float diff_window_us;  // copy
   float band_pick_hz;  // copy

@@ -140,7 +140,7 @@ def quiet_start_samples(adc, rig) -> int | None:
 # The core's defaults in ADC counts (impactcore.h) are those of the reference logger (12 bits over 3.3 V, the
 # board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
 REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
-COUNT_FIELDS = ("onset_threshold_counts", "dead_rms_counts")
+COUNT_FIELDS = ("onset_threshold_counts", "dead_rms_counts", "hum_min_counts")
 
 
 def counts_per_core_count(rig) -> float:

@@ -14,18 +14,26 @@ def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray]:
     (diagnose's, residuals.tail_start), the median amplitude white noise alone would stay under there
     (hum.hum_floor), and each channel's median amplitude at each of hum.HUM_HZ [4, 2]. The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
     offset there."""
-    from ..hum import hum_floor, hum_lock_in
+    from ..hum import hum_floor, hum_lock_in, quiet_index
     from ..residuals import tail_start
 
     fs, n = float(session.rig.fs_hz), session.adc.shape[2]
     pre = session.rig.pretrigger_samples
+    index = None
     if pre is not None and pre >= HUM_QUIET_S * fs:
         seg, where = slice(0, int(pre) - 16), "the quiet start"
     else:
-        seg, where = slice(tail_start(n, fs), n), "the record's tail"
+        # neither a quiet start of HUM_QUIET_S nor a tail of a few ms tells 50 from 60 Hz, offset and the plate's
+        # own slow ringing apart; the two together, on the record's time axis, span the record
+        index = quiet_index(session.adc, fs, int(pre)) if pre is not None and n >= HUM_QUIET_S * fs else None
+        if index is not None:
+            t0_ms = index[int(pre) - min(16, int(pre) // 4)] / fs * 1e3
+            seg, where = index, f"the quiet start and the record's tail from {t0_ms:.1f} ms"
+        else:
+            seg, where = slice(tail_start(n, fs), n), "the record's tail"
     quiet = session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts
-    hum, _, left = hum_lock_in(quiet, fs)
-    floor = hum_floor(quiet.shape[2], fs, left)
+    hum, _, left = hum_lock_in(quiet, fs, index)
+    floor = hum_floor(quiet.shape[2], fs, left, index)
     return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0), np.median(hum, axis=0)
 
 

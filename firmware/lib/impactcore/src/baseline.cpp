@@ -155,8 +155,8 @@ void HumBasis::set(float fs) {
   }
 }
 
-void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, HumBasis* basis,
-                  Baseline* out) {
+void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, float hum_min_counts,
+                  HumBasis* basis, Baseline* out) {
   robust_level(x, prefix, n, nb, out);
   out->hum = 0;
   out->hum_hz = 0.0f;
@@ -238,10 +238,10 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
   out->c1 = best[1];
   out->c2 = best[2];
   out->w = w[pick];
-  // A hum is modelled when it stands out of what a quiet capture's fit gives: kHumMinCounts, twice the
+  // A hum is modelled when it stands out of what a quiet capture's fit gives: hum_min_counts, twice the
   // noise floor (the plate's own low modes stay below this), and four standard errors of the fit.
   const float floor_counts = 2.0f * out->within_rms;
-  out->hum = (out->hum_amp >= kHumMinCounts && out->hum_amp >= floor_counts &&
+  out->hum = (out->hum_amp >= hum_min_counts && out->hum_amp >= floor_counts &&
               out->hum_amp * out->hum_amp >= 16.0f * best_var) ? 1 : 0;
 }
 

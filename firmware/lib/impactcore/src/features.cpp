@@ -1029,7 +1029,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   ch.n = n;
   ch.nblk = block_prefix_sums(x, n, ch.prefix);  // the one pass over the capture
   Baseline bl;
-  fit_baseline(x, n, ch.prefix, cfg.baseline_samples, cfg.fs_hz, basis, &bl);
+  fit_baseline(x, n, ch.prefix, cfg.baseline_samples, cfg.fs_hz, cfg.hum_min_counts, basis, &bl);
   ch.set_baseline(bl.kept_n, bl.kept.s1);
   ch.set_centre();
   f->baseline = bl.level;

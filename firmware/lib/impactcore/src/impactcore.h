@@ -107,6 +107,8 @@ enum ChannelFlag : uint8_t {
   X(ONE, int, sample_offset, 0, ACQUISITION)  /* counts the host took off every sample to fit int16 (a  \
     16-bit logger re-centred by half its range; adc_min/adc_max are after it); 0 on the board */        \
   X(ONE, float, dead_rms_counts, 3.0f, COPY)  /* post-onset RMS below this: the channel is dead */      \
+  X(ONE, float, hum_min_counts, 4.0f, COPY)  /* a mains hum is modelled from this amplitude (and twice  \
+    the noise floor, four standard errors of the fit) */                                                  \
   X(ONE, float, n2_fraction, 0.99f, COPY)  /* n2: cumulative energy reaches this fraction */            \
   X(ONE, float, diff_window_us, 2500.0f, COPY)  /* difference energies: ToA .. min(n2, ToA + this);     \
     0 = up to n2 */                                                                                       \
@@ -304,11 +306,11 @@ void difference_energies(const int16_t* x, int a, int b, int64_t out[kDiffOrders
 // glitch there). The hum is fitted by weighted least squares to the means of groups of kHumGroupBlocks
 // blocks over the whole capture, each weighted by 1 / (its variance about its mean + the noise floor^2):
 // the plate's ringing has a zero mean and a large variance, so the quiet stretches before the arrival
-// and the rung-down tail set the fit. It is used (hum = 1) only when its amplitude reaches kHumMinCounts
-// and twice the noise floor, so a clean capture keeps the plain level.
+// and the rung-down tail set the fit. It is used (hum = 1) only when its amplitude reaches hum_min_counts
+// (a config field: counts of the reference logger, scaled by the host to the rig's ADC as the onset
+// threshold is) and twice the noise floor, so a clean capture keeps the plain level.
 constexpr float kMainsHz[2] = {50.0f, 60.0f};
 constexpr int kHumGroupBlocks = 8;
-constexpr float kHumMinCounts = 4.0f;
 
 struct Baseline {
   float level;        // counts: mean of the kept baseline parts
@@ -335,7 +337,7 @@ struct HumBasis {
 // When a cheap bound on the fit rules the hum out (most clean captures), hum_hz, hum_amp, c0..c2 and w
 // stay 0 (they are read only when hum = 1).
 void fit_baseline(const int16_t* x, int n, const Sums* prefix, int baseline_samples, float fs_hz,
-                  HumBasis* basis, Baseline* out);
+                  float hum_min_counts, HumBasis* basis, Baseline* out);
 // The noise floor of a hum channel (hum = 1): the kept baseline parts' rms about each part's own straight
 // line (a hum's slope at the part's phase taken out whatever the model's amplitude there), floored at
 // 0.1 x within_rms^2. Reads the baseline segment's samples again (a hum channel only).
