@@ -94,3 +94,15 @@ def test_info_reads_hum_on_the_hum_channel_over_quiet_start_and_tail():
     assert "quiet start and the record's tail" in where
     assert 1.2 < amp[1] < 3.5 and amp[1] > floor[1]
     assert np.all(amp[[0, 2, 3]] < 0.6)
+
+
+def test_info_says_the_core_reads_part_of_a_long_record():
+    """20,000 samples at 1 MHz: `info`'s line on the record after the first arrival (4.16 ms, what the core reads)
+    says it is the core's first CORE_MAX_SAMPLES, not the 16 ms the scope kept."""
+    from impactsense.record_window import window_check, window_text
+    from impactsense.signal import CORE_MAX_SAMPLES
+
+    check = window_check(_rig(20000), 20000, PRE)
+    assert np.isclose(check["after_first_arrival_ms"], (CORE_MAX_SAMPLES - PRE) / FS * 1e3)
+    assert f"first {CORE_MAX_SAMPLES} of its 20000 samples" in window_text(check)
+    assert "of its" not in window_text(window_check(_rig(), N, PRE))

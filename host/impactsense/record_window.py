@@ -43,14 +43,15 @@ def window_check(rig, samples: int, first_arrival_samples: int | None) -> dict:
     far arrivals need (ms): `short` when the record stops before the farthest arrival may come."""
     from .signal import CORE_MAX_SAMPLES
 
-    samples = min(int(samples), CORE_MAX_SAMPLES)   # the core reads a longer record's first CORE_MAX_SAMPLES
+    recorded = int(samples)
+    samples = min(recorded, CORE_MAX_SAMPLES)   # the core reads a longer record's first CORE_MAX_SAMPLES
     path_mm = longest_path_difference_mm(rig)
     v = slowest_velocity_mm_per_us(rig)
     needed_ms = path_mm / v * 1e-3
     after_ms = None if first_arrival_samples is None else (samples - first_arrival_samples) / rig.fs_hz * 1e3
     return {"after_first_arrival_ms": after_ms, "far_arrival_ms": needed_ms, "path_difference_mm": path_mm,
-            "velocity_mm_per_us": v, "reference_hz": REFERENCE_HZ,
-            "short": bool(after_ms is not None and after_ms < needed_ms)}
+            "velocity_mm_per_us": v, "reference_hz": REFERENCE_HZ, "record_samples": recorded,
+            "core_samples": samples, "short": bool(after_ms is not None and after_ms < needed_ms)}
 
 
 def window_text(check: dict) -> str:
@@ -60,7 +61,10 @@ def window_text(check: dict) -> str:
             f"the plate's flexural group velocity at {check['reference_hz'] / 1e3:g} kHz)")
     if check["after_first_arrival_ms"] is None:
         return f"record after the first arrival: unknown; {need}"
-    text = f"record after the first arrival: {check['after_first_arrival_ms']:.2f} ms; {need}"
+    text = f"record after the first arrival: {check['after_first_arrival_ms']:.2f} ms"
+    if check.get("core_samples", 0) < check.get("record_samples", 0):
+        text += f" (the signal core reads a record's first {check['core_samples']} of its {check['record_samples']} samples)"
+    text += f"; {need}"
     if check["short"]:
         text += (": SHORT, drops far from a sensor may lose its arrival (read as a dead channel or no onset): "
                  "keep more samples after the hit (fewer before it, or a longer record)")
