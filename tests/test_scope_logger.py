@@ -106,3 +106,28 @@ def test_info_says_the_core_reads_part_of_a_long_record():
     assert np.isclose(check["after_first_arrival_ms"], (CORE_MAX_SAMPLES - PRE) / FS * 1e3)
     assert f"first {CORE_MAX_SAMPLES} of its 20000 samples" in window_text(check)
     assert "of its" not in window_text(window_check(_rig(), N, PRE))
+
+
+def test_calibrates_fast_model_spans_the_arrivals_at_1_mhz():
+    """calibrate's fast first-arrival model took 1024 samples (the option is a sample count): at 1 MHz that ends
+    before its impact at 1.5 ms, no synthetic drop had a pick, and every point of the plate grid read the misfit's
+    cap (rms DToA 1000 us: E and G12 fell on the prior's bounds). The span now reaches the arrivals at any rate;
+    at 100 kHz the default is kept."""
+    import dataclasses
+
+    from impactsense.calibration import arrival, plate
+    from impactsense.signal import CORE_MAX_SAMPLES
+
+    rig = _rig(20000)
+    x, y, h = np.array([100.0, 300.0, 120.0, 280.0]), np.array([80.0, 90.0, 220.0, 200.0]), np.full(4, 160.0)
+    setup = arrival.setup_from_rig(rig, x, y, h, n_fft=1024)
+    assert 1.5e-3 * FS < setup.n_fft <= CORE_MAX_SAMPLES
+    slow = dataclasses.replace(rig, fs_hz=100000.0)
+    assert arrival.setup_from_rig(slow, x, y, h, n_fft=1024).n_fft == 1024
+    state = plate.cfg_state(core_config(rig), BIAS)
+    peak = np.full((4, 4), 40.0)
+    args = (state, peak, np.zeros((4, 6)), np.array([22000.0]), np.array([0.13]))
+    _, dtoa = plate.fast_loss(setup, *args)
+    assert np.isfinite(dtoa).all()
+    _, before = plate.fast_loss(dataclasses.replace(setup, n_fft=1024), *args)
+    assert not np.isfinite(before).any()

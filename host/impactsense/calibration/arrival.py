@@ -53,7 +53,27 @@ class ArrivalSetup:
     highpass_hz: float = 1000.0
 
 
+FAST_SPAN_ARRIVALS = 2.0   # the fast model's record spans the impact time and this x the farthest arrival
+
+
+def span_n_fft(rig, n_fft: int, t_impact_s: float = ArrivalSetup.t_impact_s) -> int:
+    """`n_fft`, or the next power of two that spans the impact time plus FAST_SPAN_ARRIVALS x the plate's diagonal
+    at its slowest flexural group velocity (record_window.slowest_velocity_mm_per_us) where `n_fft` samples at the
+    rig's rate do not (a fast logger: 1024 samples at 1 MHz end before the impact at 1.5 ms, and every
+    synthetic drop went without a pick), at most the core's CORE_MAX_SAMPLES. A sample count, not a time, was
+    the option; at 100 kHz and slower rates the default spans far more and is kept."""
+    from ..record_window import slowest_velocity_mm_per_us
+    from ..signal import CORE_MAX_SAMPLES
+
+    diag_mm = float(np.hypot(rig.plate_x_mm, rig.plate_y_mm))
+    need = (t_impact_s + FAST_SPAN_ARRIVALS * diag_mm / slowest_velocity_mm_per_us(rig) * 1e-6) * float(rig.fs_hz)
+    if n_fft >= need:
+        return int(n_fft)
+    return int(min(2 ** int(np.ceil(np.log2(need))), max(CORE_MAX_SAMPLES, n_fft)))
+
+
 def setup_from_rig(rig, x_mm, y_mm, height_mm, *, n_fft: int = 2048) -> ArrivalSetup:
+    n_fft = span_n_fft(rig, n_fft)
     sx, sy = rig.sensor_x_mm.astype(float), rig.sensor_y_mm.astype(float)
     x = np.asarray(x_mm, float)[:, None]
     y = np.asarray(y_mm, float)[:, None]
