@@ -246,12 +246,20 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     return row
 
 
+def generator_args(args):
+    """loop_sessions' settings for the sessions a run makes when they are missing: the run's folder, seed, names
+    and worker count (bench_loop reads `--workers` itself; the generator would otherwise use its own default)
+    plus every option bench_loop does not know (`--rig`, `--calibration`, `--controls`, ...)."""
+    gen_only = ["--only", "ref," + args.only] if args.only else []
+    return loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed), "--workers", str(args.workers)]
+                               + gen_only + args.gen)
+
+
 def run(args) -> dict:
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose
-    gen_only = ["--only", "ref," + args.only] if args.only else []
-    gen_args = loop_sessions.parse(["--out", args.sessions, "--seed", str(args.seed)] + gen_only + args.gen)
+    gen_args = generator_args(args)
     man = loop_sessions.generate(gen_args)
     ref = load_session(Path(args.sessions) / "ref")
     sim_params = loop_sessions.twin_params(loop_sessions.base_params(gen_args, ref.rig), gen_args)
@@ -398,10 +406,13 @@ def issue_table(rows: list, base: float, twin_base: float | None) -> None:
               f"{yard(kind):.2f} | {loop / yard(loop_kind):.2f} -> **{kept / yard(kind):.2f}** | {own} |")
 
 
-def main(argv=None) -> int:
+def parse(argv=None):
+    """bench_loop's own options; the rest (`args.gen`) go to loop_sessions (`generator_args`)."""
     import argparse
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                 epilog="Any other option is benchmarks/loop_sessions.py's (the sessions are made "
+                                        "when missing): --rig, --calibration, --controls, --noise-counts, ...")
     ap.add_argument("--sessions", default="/tmp/impactsense-loop")
     ap.add_argument("--out", default="/tmp/impactsense-loop-bench")
     ap.add_argument("--trees", type=int, default=60)
@@ -412,6 +423,11 @@ def main(argv=None) -> int:
                     help="print the table of earlier runs' OUT/bench_loop.json (split runs), nothing recomputed")
     args, gen = ap.parse_known_args(argv)
     args.gen = gen
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
     if args.merge:
         parts = [json.loads(Path(p).read_text()) for p in args.merge]
         parts = [p if isinstance(p, dict) else {"rows": p} for p in parts]

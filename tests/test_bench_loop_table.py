@@ -61,3 +61,13 @@ def test_a_narrow_interval_is_printed_with_the_digits_that_tell_its_ends_apart()
     assert bench_loop._ci(e, "delay_us") == " [-6.3, -5.1]"                  # wide enough as it was
     assert bench_loop._ci(e, "white", fmt="{:.3g}") == " [0, 0]"
     assert bench_loop._ci(e, "other") == ""
+
+
+def test_the_sessions_a_run_makes_use_its_worker_count_and_the_generators_options():
+    # `bench_loop.py --workers 1` made its missing sessions with the generator's default of 2 workers
+    args = bench_loop.parse(["--seed", "16", "--workers", "1", "--sessions", "/tmp/s", "--only", "delay",
+                             "--controls", "--calibration", "rig"])
+    gen = bench_loop.generator_args(args)
+    assert gen.workers == 1 and gen.seed == 16 and gen.out == "/tmp/s"
+    assert gen.only == "ref,delay" and gen.controls and gen.calibration == "rig"
+    assert bench_loop.generator_args(bench_loop.parse(["--workers", "3"])).workers == 3
