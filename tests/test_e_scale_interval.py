@@ -72,3 +72,78 @@ def test_a_damping_change_is_sized_by_the_twin_decay_curve_and_read_by_the_corre
     assert corrected_twin(p, rig, eff)[0].damping_per_s == pytest.approx(476.0)
     eff[0]["params"] = {"extra_decay_per_s": 40.0}
     assert corrected_twin(p, rig, eff)[0].damping_per_s == pytest.approx(480.0)   # without the curve: 2 x 40
+
+
+class _Drops:
+    """A stand-in session: per drop, each statistic's ln slowness (the statistic of a set: exp of their mean)."""
+
+    def __init__(self, case_id, value):
+        self.case_id, self.value = np.asarray(case_id), value
+
+    def subset(self, rows):
+        return _Drops(self.case_id[rows], {k: v[rows] for k, v in self.value.items()})
+
+
+def _stats(session):
+    return {k: float(np.exp(np.mean(v))) for k, v in session.value.items()}
+
+
+LN_S0 = {"pick": np.log(0.60), "band": np.log(0.81)}
+SLOPE = {"pick": -0.3, "band": -0.3}          # d ln s / d ln E, the same for both statistics
+ROW_SD = 1e-3                                 # each drop's pick noise (ln s), the same for both statistics
+
+
+def _drops(cases, reps, e_scale, position_sd, seed):
+    """`cases` positions x `reps` drops at E x e_scale; each case's statistic off the twin's by its own landing
+    term (sd position_sd[statistic]), each drop by the noise."""
+    rng = np.random.default_rng(seed)
+    case = np.repeat(np.arange(cases), reps)
+    return _Drops(case, {k: LN_S0[k] + SLOPE[k] * np.log(e_scale) + rng.normal(0, position_sd[k], cases)[case]
+                         + rng.normal(0, ROW_SD, case.size) for k in LN_S0})
+
+
+def _twins(params, session, e_scale, draws=6, seed=0, workers=2):
+    """The stand-in twin: the declared positions (no landing term), its own noise per draw."""
+    n = session.case_id.size
+    return [_Drops(session.case_id, {k: LN_S0[k] + SLOPE[k] * np.log(e_scale)
+                                     + np.random.default_rng([seed, draw, n, i]).normal(0, ROW_SD, n)
+                                     for i, k in enumerate(LN_S0)})
+            for draw in range(draws)]
+
+
+def test_position_set_sd_scales_the_halves_to_a_readings_two_position_sets():
+    """The halves' miss difference, scaled to 40 new cases against 80 reference cases, is the sd of a reading's
+    error: sqrt(v (1/40 + 1/80)) for a per-case variance v (landing term plus the case's mean noise)."""
+    pos = {"pick": 0.03, "band": 0.001}
+    base = _drops(80, 3, 1.0, pos, 1)
+    got = plate_scan.position_set_sd(base, _twins(None, base, 1.0), _stats, new_cases=40, splits=40)
+    for k, s in pos.items():
+        want = np.sqrt((s ** 2 + ROW_SD ** 2 / 3) * (1 / 40 + 1 / 80))
+        assert got[k] == pytest.approx(want, rel=0.3), (k, got, want)
+    assert plate_scan.position_set_sd(base.subset(np.arange(12)), _twins(None, base, 1.0), _stats, 40) == {}
+
+
+def test_a_reading_with_a_large_position_set_term_weighs_less(monkeypatch):
+    """Two readings of E on the same drops, the twin's noise the same on both (so the twin's draw scatter weighs
+    them alike), but the threshold picks' statistic moves by 0.03 per landing position and the band's by 0.001:
+    the scan's answer sits by the band reading, and the interval widens to the band reading's sd (the pick's
+    position-set error alone, ~2 % of E here, is what a draw-scatter weight would average in by half)."""
+    import impactsense.loop as loop
+
+    pos = {"pick": 0.03, "band": 0.001}
+    monkeypatch.setattr(plate_scan, "Statistics", lambda base, picker: _stats)
+    monkeypatch.setattr(plate_scan, "twin_sessions", _twins)
+    monkeypatch.setattr(loop, "e_scale_for_speed", lambda *a: 1.0)
+    truth = 0.92
+    ref, new = _drops(80, 3, 1.0, pos, 2), _drops(40, 3, truth, pos, 3)
+    change = 100.0 * (_stats(ref)["pick"] / _stats(new)["pick"] - 1.0)
+    scan = plate_scan.e_scale_scan(None, new, None, change, base=ref, seed=5)
+    pick, band = scan["readings"]["pick"], scan["readings"]["band"]
+    assert abs(np.log(pick / truth)) > 0.005 > abs(np.log(band / truth)), scan["readings"]   # the draw's setup
+    terms = scan["sd_terms"]
+    assert terms["pick"]["draws"] == pytest.approx(terms["band"]["draws"], rel=0.5)   # the old weights: alike
+    assert scan["reading_sd"]["pick"] > 4 * scan["reading_sd"]["band"]
+    # the answer moves to the band reading: within a tenth of the way to the pick's (the old weights: ~half)
+    assert abs(np.log(scan["e_scale"] / band)) < 0.1 * abs(np.log(pick / band)), scan
+    assert scan["e_scale"] == pytest.approx(truth, abs=0.003)
+    assert scan["e_scale_lo"] < truth < scan["e_scale_hi"]

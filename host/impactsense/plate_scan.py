@@ -18,7 +18,11 @@ steep (docs/findings.md, issue 16 "E by the twin's own curve"). So E is read off
   change (data against the reference, measured on other positions) carries the two position sets' difference
   (docs/findings.md "E and D_s by the twin's own curves"), and is kept as a reading for the record only;
 - E is where a least-squares line through the curve's points near the crossing meets the target; the readings'
-  E are averaged with weights from their variance (a session's single draw: the twin's draw-to-draw scatter).
+  E are averaged with weights from their variance. The twin simulates the declared positions, the data land
+  about them, so the twin's miss is not the same on two position sets; how much it differs is measured on
+  DATA_REF alone (`position_set_sd`: its cases split into random halves, the twin's miss on one half less on the
+  other, scaled to DATA_NEW's and DATA_REF's case counts). That term holds the data's noise too, so it is the
+  reading's variance; the twin's draw-to-draw scatter is the fallback where DATA_REF has too few cases to split.
 A damping change is read the same way off the twin's decay curve (`damping_scale_scan`).
 """
 
@@ -32,6 +36,8 @@ SCAN_STEP = 0.02          # the twin's E grid step (E_new / E_old - 1)
 SCAN_MAX_STEPS = 10       # at most this many grid points beyond E (a change up to 20 % of E)
 SCAN_PAST = 1             # grid points past the farthest crossing (the local line's other side)
 SCAN_DRAWS = 6            # draws of the twin's noise at every E
+SPLITS = 8                # random halves of DATA_REF's cases for the position-set term (position_set_sd)
+MIN_SPLIT_CASES = 8       # fewer DATA_REF cases: no halves, the twin's draw scatter alone
 LOCAL_HALF_WIDTH = 0.03   # ln E half-width of the least-squares line about the crossing
 DAMPING_STEP = 0.1        # the twin's D_s grid step (D_s new / D_s old - 1)
 DAMPING_MAX_STEPS = 5     # at most this many (a change up to 50 % of D_s; beyond, the local line extrapolates)
@@ -84,6 +90,17 @@ def twin_statistics(params, session, e_scale: float, stats, draws: int = SCAN_DR
     """{statistic: ln slowness per draw} of `session`'s declared drops simulated by the twin at E x e_scale (each
     distinct declared position simulated once; draw k of the twin's noise: seed + k); `stats` a callable
     session -> {statistic: slowness} (`Statistics`, or the threshold picks' alone)."""
+    return _ln_statistics([stats(t) for t in twin_sessions(params, session, e_scale, draws, seed, workers)])
+
+
+def _ln_statistics(rows: list) -> dict:
+    """{statistic: ln slowness per row} of the statistics every row has."""
+    return {key: np.log([r[key] for r in rows]) for key in rows[0] if all(key in r for r in rows)}
+
+
+def twin_sessions(params, session, e_scale: float, draws: int = SCAN_DRAWS, seed: int = 0, workers: int = 2) -> list:
+    """`session` with its recordings replaced by the twin's at its declared drops and E x e_scale (each distinct
+    declared position simulated once), one session per draw of the twin's noise (draw k: seed + k)."""
     from .sim.simulate import simulate_voltages, to_adc
 
     where = np.stack([session.x_mm, session.y_mm, session.height_mm], 1)
@@ -91,9 +108,33 @@ def twin_statistics(params, session, e_scale: float, stats, draws: int = SCAN_DR
     p = dataclasses.replace(params, e_pa=params.e_pa * e_scale)
     volts = simulate_voltages(p, session.rig, pos[:, 0], pos[:, 1], pos[:, 2], workers=workers)["volts"]
     volts = volts[np.asarray(inv).ravel()]
-    rows = [stats(dataclasses.replace(session, adc=to_adc(volts, p, session.rig, noise=True, seed=seed + k)))
+    return [dataclasses.replace(session, adc=to_adc(volts, p, session.rig, noise=True, seed=seed + k))
             for k in range(draws)]
-    return {key: np.log([r[key] for r in rows]) for key in rows[0] if all(key in r for r in rows)}
+
+
+def position_set_sd(base, twins: list, stats, new_cases: int, splits: int = SPLITS, seed: int = 0) -> dict:
+    """{statistic: sd in ln s of a same-drop reading's error}: the twin's miss (the data's ln s less the twin's
+    mean over `twins`, DATA_REF's drops simulated at their declared positions) differs from one position set to
+    another by the landing scatter and the noise. Measured on DATA_REF alone: its cases split `splits` times
+    into random halves, the miss on one half less the miss on the other (variance 4 v / n_ref for a per-case
+    variance v), scaled to a reading's two sets, v (1 / new_cases + 1 / n_ref) (docs/method.md). Empty when
+    DATA_REF has fewer than MIN_SPLIT_CASES cases."""
+    cases = np.unique(base.case_id)
+    if cases.size < MIN_SPLIT_CASES:
+        return {}
+    rng = np.random.default_rng(seed)
+    diffs: dict = {}
+    for _ in range(splits):
+        half = rng.permutation(cases)[: cases.size // 2]
+        miss = []
+        for h in (half, np.setdiff1d(cases, half)):
+            rows = np.flatnonzero(np.isin(base.case_id, h))
+            data, twin = stats(base.subset(rows)), _ln_statistics([stats(t.subset(rows)) for t in twins])
+            miss.append({k: float(np.log(data[k]) - np.mean(v)) for k, v in twin.items() if k in data})
+        for k in miss[0].keys() & miss[1].keys():
+            diffs.setdefault(k, []).append(miss[0][k] - miss[1][k])
+    scale = np.sqrt(cases.size / 4.0 * (1.0 / max(new_cases, 1) + 1.0 / cases.size))
+    return {k: float(np.std(v, ddof=1) * scale) for k, v in diffs.items() if len(v) >= 2}
 
 
 def crossing(ln_e: np.ndarray, ln_s: np.ndarray, target: float, half_width: float = LOCAL_HALF_WIDTH):
@@ -142,17 +183,21 @@ def e_scale_scan(params, data, picker, change_pct: float, base=None, ci=None, se
     """E_new / E_old of the twin's plate from the twin's own pick-velocity curves on DATA_NEW's declared drops
     (the module doc). `change_pct` is the diagnosis's pick velocity change (data against DATA_REF), `ci` its 95 %
     interval; with `base` (DATA_REF) the data's own slowness statistics are read against the twin's at the same
-    drops (`_targets`) and E is their mean weighted by each reading's variance (a session's single draw: the
-    twin's draw-to-draw scatter at the answer and at DATA_REF's drops, over the curve's slope squared); without,
-    the change's reading. Returns {"e_scale" (put in), "readings" {name: E scale}, "exponent" (-the local slope
-    of the threshold picks' curve at the answer), "first_guess" (the A0 curve's), "e_scale_lo", "e_scale_hi",
-    "curve": [(E scale, {statistic: mean slowness})]}."""
+    drops (`_targets`) and E is their mean weighted by each reading's variance (`reading_sd`: the position-set
+    term over the curve's slope squared); without, the change's reading. Returns {"e_scale" (put in), "readings"
+    {name: E scale}, "exponent" (-the local slope of the threshold picks' curve at the answer), "first_guess" (the A0 curve's), "e_scale_lo", "e_scale_hi",
+    "curve": [(E scale, {statistic: mean slowness})], "reading_sd" {name: sd in ln E, what weighs it},
+    "sd_terms" {name: {"draws", "positions"}}}."""
     from .loop import e_scale_for_speed
 
     stats = Statistics(base, picker) if base is not None else (lambda s: {"pick": pick_slowness([s], picker)})
     per = [twin_statistics(params, data, 1.0, stats, draws, seed, workers)]
     ln_s0 = float(np.mean(per[0]["pick"]))
-    twin_ref = twin_statistics(params, base, 1.0, stats, draws, seed, workers) if base is not None else {}
+    twin_ref, positions = {}, {}
+    if base is not None:
+        ref_twins = twin_sessions(params, base, 1.0, draws, seed, workers)
+        twin_ref = _ln_statistics([stats(t) for t in ref_twins])
+        positions = position_set_sd(base, ref_twins, stats, np.unique(data.case_id).size, seed=seed)
     targets = _targets(data, base, stats, twin_ref, ln_s0, change_pct)
     sign = 1.0 if change_pct < 0 else -1.0              # a slower pick: a larger slowness, a softer plate
     ln_e = [0.0]
@@ -164,30 +209,41 @@ def e_scale_scan(params, data, picker, change_pct: float, base=None, ci=None, se
     ln_e = np.array(ln_e)
     curves = {key: np.array([np.mean(q[key]) for q in per]) for key in per[0]}
     got = {name: crossing(ln_e, curves[key], t) for name, (key, t) in targets.items()}
-    sd = {}
+    terms = {}
     for name, (key, _) in targets.items():
         if name != "change" and got[name][1] != 0:
             at = int(np.argmin(np.abs(ln_e - got[name][0])))
-            sd[name] = float(np.hypot(np.std(per[at][key], ddof=1), np.std(twin_ref[key], ddof=1))
-                             / abs(got[name][1]))
+            terms[name] = {"draws": float(np.hypot(np.std(per[at][key], ddof=1), np.std(twin_ref[key], ddof=1))
+                                          / abs(got[name][1]))}
+            if key in positions:
+                terms[name]["positions"] = positions[key] / abs(got[name][1])
+    sd = reading_sd(terms)
     w = {name: 1.0 / max(v, 1e-6) ** 2 for name, v in sd.items()}
     answer = sum(w[n] * got[n][0] for n in w) / sum(w.values()) if w else got["change"][0]
     out = {"e_scale": float(np.exp(answer)), "readings": {n: float(np.exp(v[0])) for n, v in got.items()},
            "exponent": -got["pick" if "pick" in got else "change"][1],
            "first_guess": e_scale_for_speed(params, 1000.0 / float(np.exp(ln_s0)), change_pct),
            "curve": [(float(np.exp(e)), {k: float(np.exp(c[i])) for k, c in curves.items()})
-                     for i, e in enumerate(ln_e)]}
+                     for i, e in enumerate(ln_e)],
+           "reading_sd": sd, "sd_terms": terms}
     out.update(_interval(answer, got, sd, ci))
     return out
+
+
+def reading_sd(terms: dict) -> dict:
+    """{reading: sd in ln E} from its terms (each in ln E): the position-set term (`position_set_sd`, the data's
+    own miss on two position sets, noise included) where DATA_REF could be split, else the twin's draw-to-draw
+    scatter at the answer and at DATA_REF's drops."""
+    return {name: t.get("positions", t["draws"]) for name, t in terms.items()}
 
 
 def _interval(answer: float, got: dict, sd: dict, ci) -> dict:
     """e_scale_lo / e_scale_hi about the answer: the wider of the readings' own (1.96 x the smallest reading's
     sd: they share DATA_NEW's drops, so no narrowing is claimed for their mean) and the diagnosis's change
-    interval through the threshold picks' curve at the answer. The twin's draws know the pick noise but not the
-    drops' landing scatter about their declared positions, which moves a same-drop reading too (docs/findings.md
-    "E and D_s by the twin's own curves"); the change's fold jackknife sees every drop-level error, the
-    position-dependent part included (an upper bound for a same-drop reading)."""
+    interval through the threshold picks' curve at the answer. A reading's sd holds the drops' landing scatter
+    about their declared positions where DATA_REF could be split (`reading_sd`); the change's fold jackknife
+    sees every drop-level error, the position-dependent part included (an upper bound for a same-drop
+    reading)."""
     half = 1.96 * min(sd.values()) if sd else 0.0
     slope = got["pick"][1] if "pick" in got else got["change"][1]
     if ci is not None and slope != 0:
@@ -245,8 +301,9 @@ def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: in
     """`accepted` with each wave_speed candidate's E change sized by the twin's own curves (`e_scale_scan`;
     `base`: DATA_REF, for the data's readings against the twin at the same drops): its params gain e_scale
     (E_new / E_old, what `corrected_twin` puts in), e_scale_<reading> for each reading (change, pick, band),
-    e_exponent (-d ln s / d ln E of the threshold picks' curve at the answer), e_scale_curve (the A0 curve's
-    first guess) and e_scale_lo / e_scale_hi (the range of E a session's pick noise allows); and each damping
+    e_scale_sd_<reading> (the sd in ln E that weighs it), e_exponent (-d ln s / d ln E of the threshold picks'
+    curve at the answer), e_scale_curve (the A0 curve's first guess) and e_scale_lo / e_scale_hi (the range of E
+    a session's pick noise and landing scatter allow); and each damping
     candidate's D_s change by the twin's decay curve (`damping_scale_scan`): damping_scale (D_s new / D_s old,
     what `corrected_twin` puts in) and damping_scale_<reading>."""
     from .diagnose import _param_ci, _param_se
@@ -258,6 +315,7 @@ def size_plate_change(params, data, accepted, picker, seed: int = 0, workers: in
             scan = e_scale_scan(params, data, picker, c.params["change_pct"], base, ci, seed, workers)
             extra = {"e_scale": scan["e_scale"], "e_exponent": scan["exponent"], "e_scale_curve": scan["first_guess"]}
             extra.update({f"e_scale_{name}": v for name, v in scan["readings"].items()})
+            extra.update({f"e_scale_sd_{name}": v for name, v in scan.get("reading_sd", {}).items()})
             extra.update({k: scan[k] for k in ("e_scale_lo", "e_scale_hi") if k in scan})
             c = dataclasses.replace(c, params={**c.params, **extra})
         elif c.effect == "damping" and "damping_scale" not in c.params:
