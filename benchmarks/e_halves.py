@@ -5,9 +5,9 @@
 
 SESSIONS a loop_sessions folder with ref and stiffness (its manifest holds the truth). Runs diagnose as
 bench_loop does and `plate_scan.e_scale_scan` on the wave_speed candidate with bench_loop's seed, and prints
-each reading, its sd terms (the twin's draw scatter, the position-set term from DATA_REF's halves), the answer
-and interval weighted by the draw scatter alone (before) and by `reading_sd` (after), and the sum of the two
-variances for the record. Writes SESSIONS-name.ehalves.json in the working directory.
+each reading, its sd terms (the twin's draw scatter, the position-set term from DATA_REF's halves), and the
+answer and interval weighted by the draw scatter alone (before) and by `reading_sd` (after: both terms). Writes
+NAME.ehalves.json in the working directory.
 """
 import json
 import sys
@@ -48,11 +48,9 @@ def main(argv) -> int:
     got = {n: scan["readings"][n] for n in scan["sd_terms"]}
     terms = scan["sd_terms"]
     old_sd = {n: t["draws"] for n, t in terms.items()}
-    sum_sd = {n: float(np.hypot(t["draws"], t.get("positions", 0.0))) for n, t in terms.items()}
     slope = {"pick": (np.log(scan["readings"]["pick"]), -scan["exponent"])}
     rows = {}
-    for name, sd in (("before (draw scatter)", old_sd), ("after (position-set term)", scan["reading_sd"]),
-                     ("sum of both variances", sum_sd)):
+    for name, sd in (("before (draw scatter)", old_sd), ("after (+ position-set term)", scan["reading_sd"])):
         a = weighted(got, sd)
         iv = P._interval(a, slope, sd, ci)
         rows[name] = {"e_pct": 100 * (np.exp(a) - 1),

@@ -21,8 +21,8 @@ steep (docs/findings.md, issue 16 "E by the twin's own curve"). So E is read off
   E are averaged with weights from their variance. The twin simulates the declared positions, the data land
   about them, so the twin's miss is not the same on two position sets; how much it differs is measured on
   DATA_REF alone (`position_set_sd`: its cases split into random halves, the twin's miss on one half less on the
-  other, scaled to DATA_NEW's and DATA_REF's case counts). That term holds the data's noise too, so it is the
-  reading's variance; the twin's draw-to-draw scatter is the fallback where DATA_REF has too few cases to split.
+  other, beyond what the twin's own noise draws show on the same halves, scaled to DATA_NEW's and DATA_REF's case
+  counts); a reading's variance is the twin's draw-to-draw scatter plus that term.
 A damping change is read the same way off the twin's decay curve (`damping_scale_scan`).
 """
 
@@ -37,7 +37,7 @@ SCAN_MAX_STEPS = 10       # at most this many grid points beyond E (a change up 
 SCAN_PAST = 1             # grid points past the farthest crossing (the local line's other side)
 SCAN_DRAWS = 6            # draws of the twin's noise at every E
 SPLITS = 8                # random halves of DATA_REF's cases for the position-set term (position_set_sd)
-MIN_SPLIT_CASES = 8       # fewer DATA_REF cases: no halves, the twin's draw scatter alone
+MIN_SPLIT_CASES = 40      # fewer DATA_REF cases: no halves (a robust fit on a few drops is heavy-tailed), draws alone
 LOCAL_HALF_WIDTH = 0.03   # ln E half-width of the least-squares line about the crossing
 DAMPING_STEP = 0.1        # the twin's D_s grid step (D_s new / D_s old - 1)
 DAMPING_MAX_STEPS = 5     # at most this many (a change up to 50 % of D_s; beyond, the local line extrapolates)
@@ -113,28 +113,38 @@ def twin_sessions(params, session, e_scale: float, draws: int = SCAN_DRAWS, seed
 
 
 def position_set_sd(base, twins: list, stats, new_cases: int, splits: int = SPLITS, seed: int = 0) -> dict:
-    """{statistic: sd in ln s of a same-drop reading's error}: the twin's miss (the data's ln s less the twin's
-    mean over `twins`, DATA_REF's drops simulated at their declared positions) differs from one position set to
-    another by the landing scatter and the noise. Measured on DATA_REF alone: its cases split `splits` times
-    into random halves, the miss on one half less the miss on the other (variance 4 v / n_ref for a per-case
-    variance v), scaled to a reading's two sets, v (1 / new_cases + 1 / n_ref) (docs/method.md). Empty when
-    DATA_REF has fewer than MIN_SPLIT_CASES cases."""
+    """{statistic: sd in ln s of a same-drop reading's position-set term}: the twin's miss (the data's ln s less
+    the mean of the twin's `twins` draws at the declared positions) differs from one position set to another by
+    the landing scatter about the declared positions (and by any noise the twin's draws do not have). Measured on
+    DATA_REF alone: its cases split `splits` times into random halves A, B; d = miss_A - miss_B holds that term
+    and the noise, the twin's draws' own d_k (each draw about the draws' mean, on the same halves) the noise alone;
+    the excess, mean d^2 - (1 + 1/K) (mean d_k^2 K / (K - 1)) = 4 v / n_ref for a per-case variance v, is scaled
+    to a reading's two sets, v (1 / new_cases + 1 / n_ref) (docs/method.md). Empty when DATA_REF has fewer than
+    MIN_SPLIT_CASES cases or the twin fewer than two draws."""
     cases = np.unique(base.case_id)
-    if cases.size < MIN_SPLIT_CASES:
+    if cases.size < MIN_SPLIT_CASES or len(twins) < 2:
         return {}
     rng = np.random.default_rng(seed)
-    diffs: dict = {}
+    data_d: dict = {}
+    noise_d: dict = {}
     for _ in range(splits):
         half = rng.permutation(cases)[: cases.size // 2]
-        miss = []
+        sides = []
         for h in (half, np.setdiff1d(cases, half)):
             rows = np.flatnonzero(np.isin(base.case_id, h))
             data, twin = stats(base.subset(rows)), _ln_statistics([stats(t.subset(rows)) for t in twins])
-            miss.append({k: float(np.log(data[k]) - np.mean(v)) for k, v in twin.items() if k in data})
-        for k in miss[0].keys() & miss[1].keys():
-            diffs.setdefault(k, []).append(miss[0][k] - miss[1][k])
-    scale = np.sqrt(cases.size / 4.0 * (1.0 / max(new_cases, 1) + 1.0 / cases.size))
-    return {k: float(np.std(v, ddof=1) * scale) for k, v in diffs.items() if len(v) >= 2}
+            sides.append({k: (float(np.log(data[k]) - np.mean(v)), v - np.mean(v)) for k, v in twin.items()
+                          if k in data})
+        for k in sides[0].keys() & sides[1].keys():
+            data_d.setdefault(k, []).append(sides[0][k][0] - sides[1][k][0])
+            noise_d.setdefault(k, []).append(sides[0][k][1] - sides[1][k][1])
+    K = len(twins)
+    scale = cases.size / 4.0 * (1.0 / max(new_cases, 1) + 1.0 / cases.size)
+    out = {}
+    for k, d in data_d.items():
+        noise = np.mean(np.square(noise_d[k])) * K / (K - 1)     # one draw's d variance
+        out[k] = float(np.sqrt(max(np.mean(np.square(d)) - (1.0 + 1.0 / K) * noise, 0.0) * scale))
+    return out
 
 
 def crossing(ln_e: np.ndarray, ln_s: np.ndarray, target: float, half_width: float = LOCAL_HALF_WIDTH):
@@ -231,10 +241,10 @@ def e_scale_scan(params, data, picker, change_pct: float, base=None, ci=None, se
 
 
 def reading_sd(terms: dict) -> dict:
-    """{reading: sd in ln E} from its terms (each in ln E): the position-set term (`position_set_sd`, the data's
-    own miss on two position sets, noise included) where DATA_REF could be split, else the twin's draw-to-draw
-    scatter at the answer and at DATA_REF's drops."""
-    return {name: t.get("positions", t["draws"]) for name, t in terms.items()}
+    """{reading: sd in ln E} from its terms (each in ln E): the twin's draw-to-draw scatter at the answer and at
+    DATA_REF's drops (the noise) and the position-set term (`position_set_sd`, what the data's halves show beyond
+    the twin's own), independent, so their variances add."""
+    return {name: float(np.hypot(t["draws"], t.get("positions", 0.0))) for name, t in terms.items()}
 
 
 def _interval(answer: float, got: dict, sd: dict, ci) -> dict:
