@@ -193,10 +193,10 @@ def e_scale_scan(params, data, picker, change_pct: float, base=None, ci=None, se
     """E_new / E_old of the twin's plate from the twin's own pick-velocity curves on DATA_NEW's declared drops
     (the module doc). `change_pct` is the diagnosis's pick velocity change (data against DATA_REF), `ci` its 95 %
     interval; with `base` (DATA_REF) the data's own slowness statistics are read against the twin's at the same
-    drops (`_targets`) and E is their mean weighted by each reading's variance (`reading_sd`: the position-set
-    term over the curve's slope squared); without, the change's reading. Returns {"e_scale" (put in), "readings"
-    {name: E scale}, "exponent" (-the local slope of the threshold picks' curve at the answer), "first_guess" (the A0 curve's), "e_scale_lo", "e_scale_hi",
-    "curve": [(E scale, {statistic: mean slowness})], "reading_sd" {name: sd in ln E, what weighs it},
+    drops (`_targets`) and E is their mean weighted by each reading's variance (`reading_sd`: the twin's draw
+    scatter plus the position-set term, over the curve's slope squared); without, the change's reading. Returns
+    {"e_scale" (put in), "readings" {name: E scale}, "exponent" (-the local slope of the threshold picks' curve at
+    the answer), "first_guess" (the A0 curve's), "e_scale_lo", "e_scale_hi", "curve": [(E scale, {statistic: mean slowness})], "reading_sd" {name: sd in ln E, what weighs it},
     "sd_terms" {name: {"draws", "positions"}}}."""
     from .loop import e_scale_for_speed
 
