@@ -65,3 +65,24 @@ def test_retrain_writes_the_reference_model_and_says_why(session):
     model, _ = keep_better(card, reference, {}, retrained, {}, session, 0)   # the retrained one now the better
     assert model is reference and "model_kept" not in card["retrain"]
     assert card["retrain"]["model_choice"]["chosen"] == "retrained"
+
+
+def test_the_paired_lead_and_its_standard_error_over_the_cases(session):
+    """The reference's lead is the mean per-case difference of the two models' MAE and its standard error the
+    scatter of that difference over the cases: a steady 1 mm lead has none; a lead of +1 / -0.5 mm on alternate
+    cases is 0.25 mm with the sample SE of the differences; the choice's record carries both."""
+    from impactsense.model_choice import drop_errors, paired_lead
+
+    steady = keep_retrained_or_reference(FixedOffsetModel(np.full(CASES, 4.0), session),
+                                         FixedOffsetModel(np.full(CASES, 3.0), session), session, seed=1)
+    assert steady["reference_lead_mm"] == pytest.approx(1.0) and steady["reference_lead_se_mm"] == pytest.approx(0.0)
+    ref_off = np.where(np.arange(CASES) % 2 == 0, 2.0, 3.5)   # the reference 1 mm better, then 0.5 mm worse
+    retrained = FixedOffsetModel(np.full(CASES, 3.0), session)
+    reference = FixedOffsetModel(ref_off, session)
+    lead = paired_lead(drop_errors(retrained, session), drop_errors(reference, session), session.case_id)
+    d = np.where(np.arange(CASES) % 2 == 0, 1.0, -0.5)
+    assert lead["cases"] == CASES and lead["lead_mm"] == pytest.approx(0.25)
+    assert lead["lead_se_mm"] == pytest.approx(np.std(d, ddof=1) / np.sqrt(CASES))
+    got = keep_retrained_or_reference(retrained, reference, session, seed=1)
+    assert got["reference_lead_mm"] == pytest.approx(0.25)
+    assert got["reference_lead_se_mm"] == pytest.approx(lead["lead_se_mm"])

@@ -22,10 +22,11 @@ def _mae(err: np.ndarray) -> float:
     return float(np.nanmean(err)) if np.isfinite(err).any() else float("inf")
 
 
-def choose_model(models: dict, data, seed: int = 0) -> dict:
+def choose_model(models: dict, data, seed: int = 0, errs: dict | None = None) -> dict:
     """{"chosen": the name of the model in `models` (name -> model or None: left out) with the lowest MAE per axis
-    on DATA_NEW's drops, "mae_mm": each candidate's, "cross_fitted_mae_mm": the rule's cross-fitted MAE}."""
-    errs = {k: drop_errors(m, data) for k, m in models.items() if m is not None}
+    on DATA_NEW's drops, "mae_mm": each candidate's, "cross_fitted_mae_mm": the rule's cross-fitted MAE}.
+    errs: the candidates' drop_errors on `data` when already computed."""
+    errs = errs or {k: drop_errors(m, data) for k, m in models.items() if m is not None}
     if not errs:
         raise ValueError("choose_model: no candidate model")
     mae = {k: _mae(e) for k, e in errs.items()}
@@ -41,12 +42,30 @@ def choose_model(models: dict, data, seed: int = 0) -> dict:
     return {"chosen": chosen, "mae_mm": mae, "cross_fitted_mae_mm": _mae(crossed), "half_choice": half_choice}
 
 
+def paired_lead(errs_a: np.ndarray, errs_b: np.ndarray, case_id: np.ndarray) -> dict:
+    """How much better model b places a session's cases than model a: the mean over the cases of the per-case
+    difference of MAE per axis (a - b, mm; positive: b the better) and its standard error over the cases (the
+    paired difference's noise; NaN with fewer than two cases both models place)."""
+    cases = np.unique(case_id)
+    d = np.array([_mae(errs_a[case_id == c]) - _mae(errs_b[case_id == c]) for c in cases])
+    d = d[np.isfinite(d)]
+    se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return {"lead_mm": float(np.mean(d)) if d.size else float("nan"), "lead_se_mm": se, "cases": int(d.size)}
+
+
 def keep_retrained_or_reference(retrained, reference, data, seed: int = 0) -> dict:
     """choose_model between the retrained model and the reference model (retrain with no bond choice), the
     reference kept only when it is the better on all of DATA_NEW's drops and on each half of its cases (the
     choice does not turn on a few cases: where the two are within the scatter of the cases, the retrained model,
-    which carries the diagnosed change, is kept)."""
-    got = choose_model({"retrained": retrained, "reference": reference}, data, seed)
+    which carries the diagnosed change, is kept).
+    The record also gives the reference's paired lead over the retrained model per case and its standard error
+    (`paired_lead`: how far the choice stands from the cases' scatter); it does not enter the choice: a one-SE
+    rule measured against drops the choice did not see kept the worse model where this one did not
+    (docs/findings.md, issue 16 gainkeep)."""
+    errs = {"retrained": drop_errors(retrained, data), "reference": drop_errors(reference, data)}
+    got = choose_model({"retrained": retrained, "reference": reference}, data, seed, errs)
     stable = got["chosen"] == "reference" and got["half_choice"] == ["reference", "reference"]
+    lead = paired_lead(errs["retrained"], errs["reference"], np.asarray(data.case_id))
     return {"chosen": "reference" if stable else "retrained", "retrained_mae_mm": got["mae_mm"]["retrained"],
-            "reference_mae_mm": got["mae_mm"]["reference"], "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
+            "reference_mae_mm": got["mae_mm"]["reference"], "cross_fitted_mae_mm": got["cross_fitted_mae_mm"],
+            "reference_lead_mm": lead["lead_mm"], "reference_lead_se_mm": lead["lead_se_mm"]}
