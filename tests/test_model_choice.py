@@ -61,6 +61,7 @@ def test_retrain_writes_the_reference_model_and_says_why(session):
     assert model is reference and split == {"s": "reference"}
     assert card["retrain"]["model_kept"] == "reference" and card["retrain"]["model_choice"]["chosen"] == "reference"
     assert "3.00" in card["retrain"]["model_kept_why"] and "4.00" in card["retrain"]["model_kept_why"]
+    assert "+1.00 mm, SE 0.00" in card["retrain"]["model_kept_why"]   # the steady 1 mm lead, no scatter
     card = {"retrain": {}}
     model, _ = keep_better(card, reference, {}, retrained, {}, session, 0)   # the retrained one now the better
     assert model is reference and "model_kept" not in card["retrain"]

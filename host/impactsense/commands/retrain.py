@@ -285,7 +285,8 @@ def keep_better(card: dict, model, split, plain, plain_split, data, seed: int):
     card["retrain"]["model_kept_why"] = (
         f"the reference model (trained on DATA_REF as it is) places DATA_NEW's drops better "
         f"({choice['reference_mae_mm']:.2f} mm) than the model retrained with the effects "
-        f"({choice['retrained_mae_mm']:.2f}; the rule cross-fitted {choice['cross_fitted_mae_mm']:.2f}): it is the "
+        f"({choice['retrained_mae_mm']:.2f}; the rule cross-fitted {choice['cross_fitted_mae_mm']:.2f}; its lead per "
+        f"case {choice['reference_lead_mm']:+.2f} mm, SE {choice['reference_lead_se_mm']:.2f}): it is the "
         f"model written; the training data with the effects is kept beside it")
     return plain, plain_split
 
