@@ -65,6 +65,10 @@ LOCALISER_FIELDS: tuple[ConfigField, ...] = _fields(_core.LOCALISER_CONFIG_FIELD
 FIELDS: dict[str, ConfigField] = {f.name: f for f in CORE_FIELDS + LOCALISER_FIELDS}
 
 
+# The core's bond inverse (impactcore.h bond_corner_hz ...): a retrained model's, carried to the board's model.
+BOND_INVERSE_FIELDS = ("bond_corner_hz", "bond_gain", "bond_limit_hz")
+
+
 # Names older model cards and rig.json files used: channel_delay_us held the rig's delays (the board added
 # its scan delays), now rig_delay_us beside the acquisition's capture_delay_us.
 LEGACY_NAMES = {"channel_delay_us": "rig_delay_us"}

@@ -31,7 +31,7 @@ from ..errors import DataError
 from ..modelfolder import read_card, verified_path
 from ..models import LOCATION_FEATURES, SITE_MAP_FILE, ForestSettings, ImpactModel, columns
 from ..pipeline import featurize, fit_localiser
-from ..signal import with_channel_delays
+from ..signal import BOND_INVERSE_FIELDS, with_channel_delays
 from ..sim.params import SimParams
 from ..sitemap import SiteMap, build_site_map, twin_features
 from ..split import case_split
@@ -277,7 +277,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
                        weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
-                       simulated_rows=None, three_sensor_position=None, picks_delay_us=None) -> Path:
+                       simulated_rows=None, three_sensor_position=None, picks_delay_us=None,
+                       bond_inverse: dict | None = None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training drops of
     `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the board-rate picks, then
     the forests on the board-rate features. The split is the trainer's (split.case_split with test_fraction, seed,
@@ -290,7 +291,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     onset_threshold_counts: the picks' onset threshold (default: the board's configured one); retrain_for_board passes
     the one the rig's own model chose; choose_board_threshold keeps it or lowers it (the card's "board_threshold").
     three_sensor_position: follow_flagged_choice's. channel_gain and weak_channel: a retrained model's (a debonded
-    disc, `impactsense retrain`), kept. choose_class: without a site map, the energy class by the out-of-fold rule on
+    disc, `impactsense retrain`), kept; bond_inverse: its card signal's bond_corner_hz / bond_gain / bond_limit_hz
+    (the core's bond inverse; in Hz, so the board's rate keeps them), kept. choose_class: without a site map, the energy class by the out-of-fold rule on
     the board's features (ImpactModel.fit). channel_left_out: a retrained model's (a change the models cannot absorb):
     trained on all four channels as `impactsense retrain` trains, then set on the model's signal, so the board's core
     leaves the channel out as the host's does (the physics three-sensor position, the three-channel class or the
@@ -308,6 +310,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     is_test = ~is_train & ~excluded[rows]
     if channel_gain is not None:
         sig.channel_gain = [float(g) for g in channel_gain]
+    for name, values in (bond_inverse or {}).items():
+        setattr(sig, name, [float(v) for v in values])
     left_out = [int(bool(v)) for v in channel_left_out or []]
     if any(left_out):   # trained as the host's left-out model is (the forests read none of its arrival times)
         sig = replace(sig, channel_left_out=left_out)
@@ -395,6 +399,8 @@ does not: reports_twin_position). A model whose
                               test_fraction=float(split.get("test_fraction", 0.2)), seed=int(split.get("seed", 0)),
                               extra_card={"retrained_from": str(Path(model_dir).resolve())},
                               channel_gain=(card.get("signal") or {}).get("channel_gain"),
+                              bond_inverse={k: v for k, v in (card.get("signal") or {}).items()
+                                            if k in BOND_INVERSE_FIELDS},
                               weak_channel=int((card.get("twin") or {}).get("weak_channel", -1)),
                               choose_class="energy_class_choice" in card,
                               channel_left_out=(card.get("signal") or {}).get("channel_left_out"),

@@ -1279,6 +1279,17 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       cfg.n2_fraction > 1.0f || !(cfg.diff_window_us >= 0.0f)) {
     return out->status = kErrBadConfig;
   }
+  if (check_bond_inverse(cfg) != kOk) return out->status = kErrBadConfig;
+  // A channel with a bond inverse is read, from here on, through it (one buffer a channel, kMaxBondChannels).
+  static thread_local int16_t bond_buffer[kMaxBondChannels][kMaxSamples];
+  const int16_t* ch_adc[kChannels];
+  for (int c = 0, b = 0; c < kChannels; ++c) {
+    ch_adc[c] = adc[c];
+    if (!bond_inverse_on(cfg, c)) continue;
+    bond_inverse(adc[c], n, cfg.bond_corner_hz[c], cfg.bond_gain[c], cfg.bond_limit_hz[c], cfg, bond_buffer[b]);
+    ch_adc[c] = bond_buffer[b++];
+  }
+  adc = ch_adc;
   int onsets = 0;
   HumBasis basis;  // filled by the first channel whose hum is fitted
   HuntWindow window[kChannels];

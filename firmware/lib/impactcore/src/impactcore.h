@@ -96,6 +96,12 @@ enum ChannelFlag : uint8_t {
     acquisition does (the board's SAADC reads channel c c x 5 us late: -5c); removed from the ToA too */  \
   X(PER_CHANNEL, float, channel_gain, (1.0f, 1.0f, 1.0f, 1.0f), COPY) /* sensor/front-end gain g:       \
     amplitudes / g, energies / g^2, onset threshold x g */                                               \
+  X(PER_CHANNEL, float, bond_corner_hz, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* a debonded disc's one-pole  \
+    low-pass (corner fc, gain g), undone before picking: the channel through (1 + jf/fc) / (g (1 + jf/f2)) \
+    (bond_inverse.cpp); 0: off (the samples as captured, bit for bit) */                                \
+  X(PER_CHANNEL, float, bond_gain, (1.0f, 1.0f, 1.0f, 1.0f), COPY) /* ... g (> 0; the channel_gain is then 1) */ \
+  X(PER_CHANNEL, float, bond_limit_hz, (0.0f, 0.0f, 0.0f, 0.0f), COPY) /* ... f2 > fc: the inverse's lift stops \
+    there (the noise it amplifies) */                                                                   \
   X(ONE, int, baseline_samples, 64, COPY)  /* samples at the capture start for baseline and noise */   \
   X(ONE, float, onset_threshold_counts, 10.0f, COPY)  /* |x| above baseline: a channel's arrival */     \
   X(ONE, float, onset_noise_factor, 5.0f, COPY)  /* ... or this many noise RMS, whichever is larger */  \
@@ -211,6 +217,21 @@ struct EventFeatures {
   uint8_t order[kChannels];  // channel indices sorted by ToA (first arrival first)
   int32_t status;
 };
+
+// --- the bond inverse (bond_inverse.cpp): a debonded disc's one-pole low-pass undone before picking ---
+// At most this many channels at once (one capture's buffer each: kMaxSamples int16).
+constexpr int kMaxBondChannels = 1;
+// True when channel c's bond inverse is on (bond_corner_hz > 0).
+inline bool bond_inverse_on(const CoreConfig& cfg, int c) { return cfg.bond_corner_hz[c] > 0.0f; }
+// kOk, or kErrBadConfig when an inverse's fields are out of range (corner, limit or gain not finite and
+// positive, limit not above the corner, or more than kMaxBondChannels channels on).
+int32_t check_bond_inverse(const CoreConfig& cfg);
+// out[i] = x[0] + y[i], y the bilinear (Tustin, fs = cfg.fs_hz) discretisation of
+// H(s) = (1 + s / wc) / (g (1 + s / w2)) applied to x[i] - x[0] (y[0] = 0), rounded to the nearest count (halves up) and
+// held inside [adc_min, adc_max] (int16's range when adc_max <= adc_min). Single-precision, in a fixed
+// order: host and board agree bit for bit.
+void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz, const CoreConfig& cfg,
+                  int16_t* out);
 
 // Per-channel feature extraction over one capture. `adc[c]` points at n samples of channel c.
 // One integer pass per channel (block_prefix_sums); everything else reads those sums and touches only the
