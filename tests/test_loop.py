@@ -398,3 +398,28 @@ def test_a_diagnosed_move_is_the_training_datas_rig(tmp_path):
         check_rig(card, other, "card", "DATA_OTHER")
     with pytest.raises(DataError, match="sensors at"):   # without the declared positions: the model's own rig
         check_rig({"rig": rig_summary(out.rig)}, base.rig, "card", "DATA_NEW")
+
+
+def test_pick_settings_undoes_a_first_order_bond_before_picking():
+    """A first-order bond low-pass (fit_bond's) on one channel: pick_settings sets the core's bond inverse there
+    (the low-pass's corner, the channel's gain, f2 = BOND_LIMIT_OF_PICK x the other channels' pick frequency)
+    and that channel's channel_gain to 1; a second-order one keeps the onset gain (no inverse)."""
+    from impactsense.diagnose import Candidate
+    from impactsense.loop import BOND_LIMIT_OF_PICK, _others_pick_hz, pick_settings
+
+    base = load_session("bundled:session-1").subset(np.arange(40))
+    common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
+
+    def bond(order):
+        return [Candidate("channel_lowpass", 2, {"fc_hz": 3000.0, "order": order}, **common),
+                Candidate("sensor_gain", 2, {"gain": 0.6}, **common)]
+
+    cfg = pick_settings(base, bond(1))
+    f2 = BOND_LIMIT_OF_PICK * _others_pick_hz(base, 2)
+    assert f2 > 3000.0
+    assert cfg.bond_corner_hz == pytest.approx([0.0, 0.0, 3000.0, 0.0])
+    assert cfg.bond_gain == pytest.approx([1.0, 1.0, 0.6, 1.0])
+    assert cfg.bond_limit_hz == pytest.approx([0.0, 0.0, f2, 0.0], rel=1e-6)
+    assert cfg.channel_gain == pytest.approx([1.0] * 4)
+    second = pick_settings(base, bond(2))
+    assert second.bond_corner_hz == pytest.approx([0.0] * 4) and second.channel_gain[2] < 0.6
