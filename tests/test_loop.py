@@ -405,7 +405,8 @@ def test_pick_settings_undoes_a_first_order_bond_before_picking():
     (the low-pass's corner, the channel's gain, f2 = BOND_LIMIT_OF_PICK x the other channels' pick frequency)
     and that channel's channel_gain to 1; a second-order one keeps the onset gain (no inverse)."""
     from impactsense.diagnose import Candidate
-    from impactsense.loop import BOND_LIMIT_OF_PICK, _others_pick_hz, pick_settings
+    from impactsense.bond_inverse import BOND_LIMIT_OF_PICK, others_pick_hz
+    from impactsense.loop import pick_settings
 
     base = load_session("bundled:session-1").subset(np.arange(40))
     common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
@@ -415,7 +416,7 @@ def test_pick_settings_undoes_a_first_order_bond_before_picking():
                 Candidate("sensor_gain", 2, {"gain": 0.6}, **common)]
 
     cfg = pick_settings(base, bond(1))
-    f2 = BOND_LIMIT_OF_PICK * _others_pick_hz(base, 2)
+    f2 = BOND_LIMIT_OF_PICK * others_pick_hz(base, 2)
     assert f2 > 3000.0
     assert cfg.bond_corner_hz == pytest.approx([0.0, 0.0, 3000.0, 0.0])
     assert cfg.bond_gain == pytest.approx([1.0, 1.0, 0.6, 1.0])

@@ -72,7 +72,6 @@ BOND_FC_HZ = np.geomspace(1000.0, 16000.0, 25)   # the bond's cut-offs tried (ab
 BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and the effect's second order
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
 BOND_INVERSE = True                    # pick_settings undoes a first-order bond low-pass before picking (core)
-BOND_LIMIT_OF_PICK = 0.5               # ... its lift limited at this x the other channels' pick frequency
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
 
@@ -293,6 +292,8 @@ def pick_settings(session, accepted, reference=None):
     from .signal import SignalConfig
     from .travel import choose_threshold, wants_metric
 
+    from .bond_inverse import bond_inverse_fields
+
     inverse = bond_inverse_fields(session, accepted) if BOND_INVERSE else {}
     gains = onset_gains(session, accepted)
     for ch, fc in enumerate(inverse.get("bond_corner_hz", [0.0] * 4)):
@@ -322,44 +323,12 @@ def pick_settings(session, accepted, reference=None):
     return best
 
 
-def _others_pick_hz(session, channel: int) -> float:
-    """The other channels' median pick frequency on `session` (fs / pick_period, the rig's picks)."""
-    from .pipeline import featurize
-    from .signal import SignalConfig
-
-    period = np.asarray(featurize(session.adc, SignalConfig.for_rig(session.rig)).raw["pick_period"], float)
-    others = [k for k in range(4) if k != channel]
-    return float(session.rig.fs_hz) / float(np.nanmedian(period[:, others]))
-
-
-def bond_inverse_fields(session, accepted) -> dict:
-    """The core's bond inverse (impactcore.h bond_corner_hz, bond_gain, bond_limit_hz) for each channel with a
-    first-order bond low-pass in `accepted` (fit_bond's): its corner fc and the channel's gain g, the lift limited
-    at f2 = BOND_LIMIT_OF_PICK x the other channels' pick frequency on `session` (the noise the inverse amplifies
-    above it costs more than the shape it gives back). {} when there is none, or when f2 would not be above fc
-    (nothing to give back); one channel at most (the core's kMaxBondChannels): else {}."""
-    lows = [c for c in accepted if c.effect == "channel_lowpass" and int(c.params.get("order", 2)) == 1]
-    if len(lows) != 1:
-        return {}
-    low = lows[0]
-    ch, fc = low.sensor, float(low.params["fc_hz"])
-    f2 = BOND_LIMIT_OF_PICK * _others_pick_hz(session, ch)
-    if not f2 > fc:
-        return {}
-    g = 1.0
-    for c in accepted:
-        if c.effect == "sensor_gain" and c.sensor == ch:
-            g *= float(c.params["gain"])
-    fields = {"bond_corner_hz": [0.0] * 4, "bond_gain": [1.0] * 4, "bond_limit_hz": [0.0] * 4}
-    fields["bond_corner_hz"][ch], fields["bond_gain"][ch], fields["bond_limit_hz"][ch] = fc, g, f2
-    return fields
-
-
 def onset_gains(session, accepted) -> list[float]:
     """The core's channel_gain per channel: a diagnosed gain times, on a channel with a bond low-pass, the
     low-pass's gain at the arrival the picks catch (the other channels' median pick frequency on `session`,
     fs / pick_period): the onset threshold then meets the weak channel's first cycles where it meets the
     others', down to the noise floor (onset_noise_factor x its noise rms)."""
+    from .bond_inverse import others_pick_hz
     from .effects.channel_lowpass import lowpass_gain_at
 
     gains = [1.0] * 4
@@ -368,8 +337,9 @@ def onset_gains(session, accepted) -> list[float]:
             gains[c.sensor] *= float(c.params["gain"])
     lows = [c for c in accepted if c.effect == "channel_lowpass"]
     for c in lows:
-        f_pick = _others_pick_hz(session, c.sensor)
-        gains[c.sensor] *= lowpass_gain_at(f_pick, c.params["fc_hz"], float(session.rig.fs_hz), c.params.get("order", 2))
+        f_pick = others_pick_hz(session, c.sensor)
+        fs = float(session.rig.fs_hz)
+        gains[c.sensor] *= lowpass_gain_at(f_pick, c.params["fc_hz"], fs, c.params.get("order", 2))
     return gains
 
 

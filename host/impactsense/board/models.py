@@ -277,8 +277,7 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
                        exclude_rows=None, train_rows=None, extra_card: dict | None = None,
                        site_map=None, onset_threshold_counts: float | None = None, channel_gain=None,
                        weak_channel: int = -1, choose_class: bool = False, channel_left_out=None,
-                       simulated_rows=None, three_sensor_position=None, picks_delay_us=None,
-                       bond_inverse: dict | None = None) -> Path:
+                       simulated_rows=None, three_sensor_position=None, picks_delay_us=None, bond_inverse=None) -> Path:
     """Writes a MODEL_DIR (impactsense.models.ImpactModel) trained on the board's captures of the training drops of
     `session`: the physics localiser (group velocity, the rig's channel delays) fitted on the board-rate picks, then
     the forests on the board-rate features. The split is the trainer's (split.case_split with test_fraction, seed,
@@ -290,15 +289,14 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     localiser starts are chosen among those within the board's event budget (board.cost.signal_fits).
     onset_threshold_counts: the picks' onset threshold (default: the board's configured one); retrain_for_board passes
     the one the rig's own model chose; choose_board_threshold keeps it or lowers it (the card's "board_threshold").
-    three_sensor_position: follow_flagged_choice's. channel_gain and weak_channel: a retrained model's (a debonded
-    disc, `impactsense retrain`), kept; bond_inverse: its card signal's bond_corner_hz / bond_gain / bond_limit_hz
-    (the core's bond inverse; in Hz, so the board's rate keeps them), kept. choose_class: without a site map, the energy class by the out-of-fold rule on
-    the board's features (ImpactModel.fit). channel_left_out: a retrained model's (a change the models cannot absorb):
-    trained on all four channels as `impactsense retrain` trains, then set on the model's signal, so the board's core
-    leaves the channel out as the host's does (the physics three-sensor position, the three-channel class or the
-    twin's match without it). simulated_rows: row indices of the twin's own drops (a retrained model's,
-    `loop.measured_training_session`): the forests learn from them, the site map's twin fit does not (ImpactModel.fit
-    twin_rows)."""
+    three_sensor_position: follow_flagged_choice's. channel_gain, bond_inverse (signal.BOND_INVERSE_FIELDS: values)
+    and weak_channel: a retrained model's (a debonded disc, `impactsense retrain`), kept. choose_class: without a
+    site map, the energy class by the out-of-fold rule on the board's features (ImpactModel.fit). channel_left_out:
+    a retrained model's (a change the models cannot absorb): trained on all four channels as `impactsense retrain`
+    trains, then set on the model's signal, so the board's core leaves the channel out as the host's does (the
+    physics three-sensor position, the three-channel class or the twin's match without it). simulated_rows: row
+    indices of the twin's own drops (a retrained model's, `loop.measured_training_session`): the forests learn from
+    them, the site map's twin fit does not (ImpactModel.fit twin_rows)."""
     if train_rows is None:
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
@@ -308,10 +306,8 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         sig.onset_threshold_counts = float(onset_threshold_counts)
     is_train = np.isin(rows, train_rows)
     is_test = ~is_train & ~excluded[rows]
-    if channel_gain is not None:
-        sig.channel_gain = [float(g) for g in channel_gain]
-    for name, values in (bond_inverse or {}).items():
-        setattr(sig, name, [float(v) for v in values])
+    kept = {**({"channel_gain": channel_gain} if channel_gain is not None else {}), **(bond_inverse or {})}
+    sig = replace(sig, **{name: [float(v) for v in values] for name, values in kept.items()})
     left_out = [int(bool(v)) for v in channel_left_out or []]
     if any(left_out):   # trained as the host's left-out model is (the forests read none of its arrival times)
         sig = replace(sig, channel_left_out=left_out)
