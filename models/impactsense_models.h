@@ -68,6 +68,9 @@ typedef struct {
   float fs_hz;  // rate
   float rig_delay_us[4];  // copy
   float channel_gain[4];  // copy
+  float bond_corner_hz[4];  // copy
+  float bond_gain[4];  // copy
+  float bond_limit_hz[4];  // copy
   int32_t baseline_samples;  // copy
   float onset_threshold_counts;  // copy
   float onset_noise_factor;  // copy
