@@ -43,6 +43,10 @@ EVENT_BUDGET = 64000
 BASE_INSTRUCTIONS = 53000
 FRONT_END_INSTRUCTIONS = 500
 BAND_PER_SAMPLE = 80
+# impactcore bond_inverse.cpp (a channel with bond_corner_hz > 0): its loop on the M4F (arm-none-eabi -O2, counted
+# from the listing, not timed under qemu) over the whole capture (impactapp.h kMaxCapture frames)
+BOND_PER_SAMPLE = 24
+BOND_SAMPLES = 2048
 # impactcore localise.cpp's kMaxEvaluations (a start's normal-equation evaluations, step halvings included)
 LOCALISER_EVALUATIONS = 16
 # (isotropic, anisotropic plate): the screening's 20 points, the set-up and the covariance; one evaluation
@@ -141,7 +145,7 @@ def base_instructions(front_end=None) -> int:
 def signal_instructions(cfg, channels: int = 4, front_end=None) -> dict:
     """The event's cost without the models (instructions): {'base', 'band', 'localiser', 'total'} for the
     signal configuration cfg (pipeline.SignalConfig) at its rate, on captures through front_end
-    (base_instructions)."""
+    (base_instructions; 'base' with the bond inverse's on its channels)."""
     band = channels * BAND_PER_SAMPLE * band_samples(cfg)
     starts, cap = max(1, int(cfg.localiser_starts)), evaluations_cap(cfg)
     loc = localiser_run_instructions(starts, isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy,
@@ -153,7 +157,8 @@ def signal_instructions(cfg, channels: int = 4, front_end=None) -> dict:
         loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
                                                              cfg.band_metric_yy)), cap) + posterior
     base = base_instructions(front_end)
-    return {"base": base, "band": band, "localiser": loc, "total": base + band + loc}
+    bond = BOND_PER_SAMPLE * BOND_SAMPLES * sum(1 for fc in getattr(cfg, "bond_corner_hz", ()) if fc > 0.0)
+    return {"base": base + bond, "band": band, "localiser": loc, "total": base + bond + band + loc}
 
 
 def signal_fits(cfg, front_end=None) -> bool:
