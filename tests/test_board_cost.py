@@ -38,6 +38,11 @@ def test_band_picks_and_starts_add_their_cost():
     assert with_band["localiser"] == 2 * one
     longer = board_cfg(band_pick_hz=10000.0, band_window_us=1000.0, band_velocity_mm_per_us=1.5)
     assert cost.signal_instructions(longer)["band"] > with_band["band"]
+    # the bond inverse filters its channel's whole capture: over the budget on its own with the base
+    bond = cost.signal_instructions(board_cfg(bond_corner_hz=[0.0, 3000.0, 0.0, 0.0], bond_gain=[1.0, 0.6, 1.0, 1.0],
+                                              bond_limit_hz=[0.0, 9000.0, 0.0, 0.0]))
+    assert bond["total"] - plain["total"] == cost.BOND_PER_SAMPLE * cost.BOND_SAMPLES
+    assert bond["total"] > cost.EVENT_BUDGET
     # no band travel model: the core does not run them for the position (process_event), nor counts them here
     assert cost.band_samples(board_cfg(band_pick_hz=10000.0)) == 0
     four = cost.signal_instructions(board_cfg(localiser_starts=4))
