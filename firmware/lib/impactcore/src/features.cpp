@@ -1280,8 +1280,13 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
     return out->status = kErrBadConfig;
   }
   if (check_bond_inverse(cfg) != kOk) return out->status = kErrBadConfig;
-  // A channel with a bond inverse is read, from here on, through it (one buffer a channel, kMaxBondChannels).
+  // A channel with a bond inverse is read, from here on, through it (one buffer a channel, kMaxBondChannels:
+  // 16 KB of RAM; the host's batches may run on several threads, the board has one and no thread storage).
+#if defined(__ARM_ARCH) && !defined(__linux__)
+  static int16_t bond_buffer[kMaxBondChannels][kMaxSamples];
+#else
   static thread_local int16_t bond_buffer[kMaxBondChannels][kMaxSamples];
+#endif
   const int16_t* ch_adc[kChannels];
   for (int c = 0, b = 0; c < kChannels; ++c) {
     ch_adc[c] = adc[c];
