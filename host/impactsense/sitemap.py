@@ -169,6 +169,45 @@ def grid(rig, step_mm: float, margin_mm: float) -> tuple[float, float, int, int]
     return margin_mm, margin_mm, nx, ny
 
 
+def coarse_indices(n: int, every: int) -> np.ndarray:
+    """Every `every`-th index of 0..n-1 and the last one (the edges are simulated, never extrapolated)."""
+    return np.union1d(np.arange(0, n, every), [n - 1])
+
+
+def refine(values: np.ndarray) -> np.ndarray:
+    """Features simulated at some grid points [n, 16] (NaN rows: not simulated) -> every point: piecewise linear
+    on the simulated points' triangulation in the plane of grid indices (scipy griddata), the nearest
+    simulated point where none encloses it. Simulated rows are kept as they are. values: [nx, ny, 16]."""
+    from scipy.interpolate import griddata
+
+    nx, ny = values.shape[:2]
+    flat = np.asarray(values, float).reshape(nx * ny, -1)
+    fi, fj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    pts = np.stack([fi.ravel(), fj.ravel()], 1).astype(float)
+    have = np.isfinite(flat).all(1)
+    if have.sum() < 3:
+        raise DataError("site map", None, "fewer than three grid points have a usable simulated drop")
+    out = flat.copy()
+    todo = ~have
+    out[todo] = griddata(pts[have], flat[have], pts[todo], method="linear")
+    hole = ~np.isfinite(out).all(1)
+    if hole.any():
+        out[hole] = griddata(pts[have], flat[have], pts[hole], method="nearest")
+    return out
+
+
+def simulated_points(xy_mm: np.ndarray, nx: int, ny: int, every: int, plate_mm: tuple[float, float],
+                     edge_band_mm: float) -> np.ndarray:
+    """Which grid points [nx * ny] a map simulated every every-th grid line simulates: the lattice
+    (`coarse_indices`) and every point within edge_band_mm of a plate edge (where the site factor changes
+    within millimetres: the edges' reflections)."""
+    keep = np.zeros((nx, ny), bool)
+    keep[np.ix_(coarse_indices(nx, every), coarse_indices(ny, every))] = True
+    x, y = xy_mm[:, 0], xy_mm[:, 1]
+    edge = np.minimum.reduce([x, plate_mm[0] - x, y, plate_mm[1] - y])
+    return keep.ravel() | (edge <= edge_band_mm)
+
+
 def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: float) -> str | None:
     """The solver of a site map of n_drops drops: "auto" resolved by `sim.simulate.batch_solver`."""
     if solver != "auto":
@@ -178,21 +217,83 @@ def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: flo
     return batch_solver(params, rig, solver, n_drops=n_drops, height_mm=ref_height_mm)
 
 
-def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, ref_height_mm: float = 175.0) -> dict:
-    """What `build_site_map` with solver "auto" will cost: grid points, the solver `sim.simulate.batch_solver`
-    takes and its estimated CPU seconds (`sim.solver_cost`; the modal basis counted unless cached)."""
+EDGE_BAND_MM = 40.0   # with every > 1: points this near an edge are all simulated (docs/findings.md, Session 24)
+SITE_MAP_CPU_S = 600.0   # the chain's default budget for the map (estimated CPU s; issue 15: the chain <= 10 min on 2 cores)
+MAX_EVERY = 4
+
+
+def grid_xy(x0: float, y0: float, step_mm: float, nx: int, ny: int) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    return np.stack([x0 + step_mm * i.ravel(), y0 + step_mm * j.ravel()], 1)
+
+
+def plan(rig, step_mm: float, margin_mm: float, every: int = 1, edge_band_mm: float = EDGE_BAND_MM):
+    """The grid (x0, y0, nx, ny), which points lie on a sensor disc (no drop there) and which are simulated:
+    every point off the discs when every is 1, else `simulated_points` off the discs."""
+    if not (isinstance(every, (int, np.integer)) and every >= 1):
+        raise DataError("site map", "every", f"must be an integer >= 1, got {every!r}")
+    x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
+    xy = grid_xy(x0, y0, step_mm, nx, ny)
+    d = np.hypot(xy[:, None, 0] - rig.sensor_x_mm[None], xy[:, None, 1] - rig.sensor_y_mm[None]).min(1)
+    on_disc = d < rig.sensor_diameter_mm / 2 + rig.ball_diameter_mm / 2 + 0.5
+    sim = ~on_disc
+    if every > 1:
+        sim &= simulated_points(xy, nx, ny, every, (rig.plate_x_mm, rig.plate_y_mm), edge_band_mm)
+    return (x0, y0, nx, ny), on_disc, sim
+
+
+def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, ref_height_mm: float = 175.0,
+                  every: int = 1, *, _model=None) -> dict:
+    """What `build_site_map` with solver "auto" will cost: grid points, the drops simulated (`plan`), the
+    solver `sim.simulate.batch_solver` takes and its estimated CPU seconds (`sim.solver_cost`; the modal basis
+    counted unless cached)."""
     from .sim.modal_basis import is_cached
     from .sim.simulate import get_model
     from .sim.solver_cost import choose
 
-    _, _, nx, ny = grid(rig, step_mm, margin_mm)
-    solver, est = choose(get_model(params, rig), nx * ny, ref_height_mm, cached=is_cached(get_model(params, rig)))
-    return {"nx": nx, "ny": ny, "points": nx * ny, "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"])}
+    model, cached = _model or (get_model(params, rig), is_cached(get_model(params, rig)))
+    (_, _, nx, ny), _, sim = plan(rig, step_mm, margin_mm, every)
+    n = int(sim.sum())
+    solver, est = choose(model, n, ref_height_mm, cached=cached)
+    return {"nx": nx, "ny": ny, "step_mm": step_mm, "points": nx * ny, "simulated": n, "every": every,
+            "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"])}
+
+
+def every_for_budget(params, rig, cpu_budget_s: float | None, step_mm: float = 5.0, margin_mm: float = 10.0,
+                     ref_height_mm: float = 175.0) -> dict:
+    """`site_map_cost` with the smallest `every` (1 = every grid point) whose estimated CPU time is within
+    cpu_budget_s (None or <= 0: no budget, every point), at most MAX_EVERY; "fits" says whether it is within."""
+    from .sim.modal_basis import is_cached
+    from .sim.simulate import get_model
+
+    model = get_model(params, rig)
+    known = (model, is_cached(model))
+    every = 1
+    while True:
+        cost = site_map_cost(params, rig, step_mm, margin_mm, ref_height_mm, every, _model=known)
+        fits = not cpu_budget_s or cpu_budget_s <= 0 or cost["cpu_s"] <= cpu_budget_s
+        if fits or every >= MAX_EVERY:
+            return {**cost, "fits": bool(fits), "budget_cpu_s": cpu_budget_s}
+        every += 1
+
+
+def describe_cost(cost: dict) -> str:
+    """One line for the user: the grid, what is simulated, the solver and its estimated CPU time."""
+    line = (f"{cost['points']:,} points ({cost['nx']} x {cost['ny']} at {cost['step_mm']:g} mm), "
+            f"{cost['simulated']:,} drops by the {cost['solver']} solver, ~{cost['cpu_s'] / 60:.1f} CPU-min estimated")
+    if cost["every"] > 1:
+        line += (f"; over the budget of {cost['budget_cpu_s'] / 60:.0f} CPU-min every point is not simulated: every "
+                 f"{cost['every']}th grid line and the points within {EDGE_BAND_MM:g} mm of an edge, the rest "
+                 "interpolated (a coarser map: the twin's position and class lose some accuracy, docs/findings.md "
+                 "Session 24 sitemapfast; a larger --site-map-cpu-s, or 0, simulates every point)")
+    if not cost.get("fits", True):
+        line += " (still over the budget at the coarsest step)"
+    return line
 
 
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
-                   progress: bool = True, capture=None, solver: str | None = None) -> SiteMap:
+                   progress: bool = True, capture=None, solver: str | None = None, every: int = 1) -> SiteMap:
     """Simulate a drop from ref_height_mm at every grid point (off the sensor discs) and keep the core's
     twin features. The counts are not clipped (int16 range, the core's clip detection off), so the map
     holds the whole energy even where the rig's ADC would saturate; the rig's clipped channels are left out
@@ -203,16 +304,17 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     app): a callable int16 counts [R, 4, rig.samples] at the rig's rate -> (captures int16 [R', 4, n],
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
     counts as the rig records them. solver: "direct", "modal" (None: params.solver) or "auto" (the cheaper
-    for this many drops, `sim.simulate.batch_solver`); the command prints the one used."""
+    for this many drops, `sim.simulate.batch_solver`); the command prints the one used. every > 1: simulate
+    only the points `plan` lists (every every-th grid line in x and y, the last ones, a band along the edges)
+    and fill the others by `refine`; the map's step, its format and the match stay the same (docs/method.md,
+    "The site map's cost")."""
     from .sim import simulate_voltages, to_adc
 
-    x0, y0, nx, ny = grid(rig, step_mm, margin_mm)
+    (x0, y0, nx, ny), on_disc, sim = plan(rig, step_mm, margin_mm, every)
     m = SiteMap(x0, y0, step_mm, nx, ny, np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32),
                 np.zeros((nx * ny, N_FEATURES), np.uint8), ref_height_mm)
     xy = m.xy_mm
-    d = np.hypot(xy[:, None, 0] - rig.sensor_x_mm[None], xy[:, None, 1] - rig.sensor_y_mm[None]).min(1)
-    on_disc = d < rig.sensor_diameter_mm / 2 + rig.ball_diameter_mm / 2 + 0.5
-    todo = np.flatnonzero(~on_disc)
+    todo = np.flatnonzero(sim)
     solver = map_solver(params, rig, solver, todo.size, ref_height_mm)
     sig = SignalConfig.from_dict(signal.to_dict())
     sig.adc_min, sig.adc_max, sig.sample_offset = -32768, 32767, 0   # to_adc(clip=False): the core's counts
@@ -250,7 +352,12 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
             pending.result()
     if bar is not None:
         bar.close()
+    if every > 1:
+        failed = todo[~np.isfinite(values[todo]).all(1)]   # simulated, no usable drop: left missing
+        values = refine(values.reshape(nx, ny, N_FEATURES))
+        values[on_disc] = np.nan
+        values[failed] = np.nan
     m.base, m.scale, m.q = quantise(values)
-    m.source = {"sim_params": params.to_dict() if hasattr(params, "to_dict") else {},
+    m.source = {"simulated_every": every, "sim_params": params.to_dict() if hasattr(params, "to_dict") else {},
                 "rig_sensors_mm": rig.sensor_xy_mm.tolist(), "signal": signal.to_dict()}
     return m

@@ -56,7 +56,8 @@ from .seed import SEED_ROWS
 from .sim import SimParams, simulate_drops
 from .sim.doe import DEFAULT_HEIGHTS_MM, measured_heights, virtual_drops
 from .signal import SignalConfig
-from .sitemap import BUNDLED, SiteMap, build_site_map, twin_features
+from .sitemap import (BUNDLED, SITE_MAP_CPU_S, SiteMap, build_site_map, describe_cost, every_for_budget,
+                      twin_features)
 from .split import case_split
 from .travel import wants_metric
 from .twin import fit_twin
@@ -82,9 +83,15 @@ def cached_twin_site_map(params, out: Path, name: str = "site-map.npz"):
     return None
 
 
-def build_twin_site_map(params, session: Session, progress: bool = True):
-    """The twin's site map of the session's rig (what twin_site_map builds when none is cached)."""
-    return build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto")
+def build_twin_site_map(params, session: Session, progress: bool = True, cpu_budget_s: float | None = SITE_MAP_CPU_S):
+    """The twin's site map of the session's rig (what twin_site_map builds when none is cached): every grid
+    point simulated when its estimated CPU time is within cpu_budget_s, else fewer (`sitemap.every_for_budget`;
+    printed when progress)."""
+    cost = every_for_budget(params, session.rig, cpu_budget_s)
+    if progress:
+        print(f"the twin's site map: {describe_cost(cost)}", flush=True)
+    return build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto",
+                          every=cost["every"])
 
 
 def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz",

@@ -30,6 +30,10 @@ def register(sub) -> None:
     p.add_argument("--no-site-map", dest="site_map", action="store_false",
                    help="with --calibration: do not make the twin's site map (`train --site-map auto` on the folder "
                         "makes it then); by default it is made here, its drops beside the virtual ones")
+    p.add_argument("--site-map-cpu-s", type=float, default=None, metavar="S",
+                   help="the site map's budget in estimated CPU seconds (default 600, sitemap.SITE_MAP_CPU_S): over it, every 2nd "
+                        "(3rd, 4th) grid line and a band along the edges are simulated and the rest interpolated, "
+                        "a coarser map (printed); 0 = every grid point whatever it costs")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--edge-mm", type=float, default=20.0, help="keep impacts this far from the edges")
     p.add_argument("--sensor-clearance-mm", type=float, default=25.0,
@@ -114,15 +118,18 @@ def start_site_map(args):
     params = SimParams.from_json(args.calibration)
     if cached_twin_site_map(params, Path(args.out)) is not None:
         return None
-    built = in_background(lambda: build_twin_site_map(params, session, progress=False), "site-map")
+    from ..sitemap import SITE_MAP_CPU_S
+
+    budget = SITE_MAP_CPU_S if args.site_map_cpu_s is None else args.site_map_cpu_s
+    built = in_background(lambda: build_twin_site_map(params, session, progress=False, cpu_budget_s=budget),
+                          "site-map")
 
     def finish():
-        from ..sitemap import site_map_cost
+        from ..sitemap import describe_cost, every_for_budget
 
-        cost = site_map_cost(params, session.rig)
+        cost = every_for_budget(params, session.rig, budget)
         print(f"finishing the twin's site map for `train --site-map auto` (simulated in the background since the "
-              f"virtual drops: {cost['points']:,} points by the {cost['solver']} solver, ~{cost['cpu_s'] / 60:.0f} "
-              "CPU-min estimated; --no-site-map skips it) ...", flush=True)
+              f"virtual drops: {describe_cost(cost)}; --no-site-map skips it) ...", flush=True)
         site = twin_site_map(params, session, Path(args.out), built=built())
         print(f"the twin's site map: {site.nx} x {site.ny} points, step {site.step_mm:g} mm (for train --site-map "
               "auto)")
