@@ -220,6 +220,7 @@ def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: flo
 EDGE_BAND_MM = 40.0   # with every > 1: points this near an edge are all simulated (docs/findings.md, Session 24)
 SITE_MAP_CPU_S = 600.0   # the chain's default budget for the map (estimated CPU s; issue 15: the chain <= 10 min on 2 cores)
 MAX_EVERY = 4
+ORDINAL = {2: "2nd", 3: "3rd"}
 
 
 def grid_xy(x0: float, y0: float, step_mm: float, nx: int, ny: int) -> np.ndarray:
@@ -283,7 +284,7 @@ def describe_cost(cost: dict) -> str:
             f"{cost['simulated']:,} drops by the {cost['solver']} solver, ~{cost['cpu_s'] / 60:.1f} CPU-min estimated")
     if cost["every"] > 1:
         line += (f"; over the budget of {cost['budget_cpu_s'] / 60:.0f} CPU-min every point is not simulated: every "
-                 f"{cost['every']}th grid line and the points within {EDGE_BAND_MM:g} mm of an edge, the rest "
+                 f"{ORDINAL.get(cost['every'], str(cost['every']) + 'th')} grid line and the points within {EDGE_BAND_MM:g} mm of an edge, the rest "
                  "interpolated (a coarser map: the twin's position and class lose some accuracy, docs/findings.md "
                  "Session 24 sitemapfast; a larger --site-map-cpu-s, or 0, simulates every point)")
     if not cost.get("fits", True):
