@@ -175,9 +175,9 @@ def coarse_indices(n: int, every: int) -> np.ndarray:
 
 
 def refine(values: np.ndarray) -> np.ndarray:
-    """Features simulated at some grid points [n, 16] (NaN rows: not simulated) -> every point: piecewise linear
-    on the simulated points' triangulation in the plane of grid indices (scipy griddata), the nearest
-    simulated point where none encloses it. Simulated rows are kept as they are. values: [nx, ny, 16]."""
+    """Features [nx, ny, 16] simulated at some grid points (NaN: not simulated) -> every point [nx * ny, 16]:
+    piecewise linear on the simulated points' triangulation in the plane of grid indices (scipy griddata), the
+    nearest simulated point where none encloses it. Simulated points are kept as they are."""
     from scipy.interpolate import griddata
 
     nx, ny = values.shape[:2]
