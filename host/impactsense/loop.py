@@ -71,7 +71,6 @@ CLEARLY_BETTER = 0.98                  # ... another one is kept when its travel
 BOND_FC_HZ = np.geomspace(1000.0, 16000.0, 25)   # the bond's cut-offs tried (above ~15 kHz: no first-arrival change)
 BOND_ORDERS = (1, 2)                   # first order (an RC-like bond line) and the effect's second order
 BOND_PROBE_DROPS = 160                 # DATA_REF drops the bond's candidates are tried on
-BOND_INVERSE = True                    # pick_settings undoes a first-order bond low-pass before picking (core)
 BOND_MIN_TILT_GAIN = 0.5               # a low-pass is kept when it removes this share of the tilt misfit
 PRETRIGGER_SAMPLES = 64                # a record's first samples: its noise
 
@@ -294,7 +293,7 @@ def pick_settings(session, accepted, reference=None):
 
     from .bond_inverse import bond_inverse_fields
 
-    inverse = bond_inverse_fields(session, accepted) if BOND_INVERSE else {}
+    inverse = bond_inverse_fields(session, accepted)
     gains = onset_gains(session, accepted)
     for ch, fc in enumerate(inverse.get("bond_corner_hz", [0.0] * 4)):
         if fc > 0.0:
