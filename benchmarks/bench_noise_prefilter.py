@@ -35,19 +35,22 @@ ONSET_COUNTS = 10.0     # the first crossing the window starts from (the core's 
 BEFORE = 8              # samples of the window before it
 
 
-def onset_spectrum(session, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """(frequencies Hz, mean Hann-windowed power of the channels' onset windows, counts^2)."""
+def onset_windows(session, window: int):
+    """Each channel's onset window (counts, offset removed): BEFORE samples before its first crossing of ONSET_COUNTS."""
     x = np.asarray(session.adc, float)
     x = x - x[:, :, :64].mean(-1, keepdims=True)
-    taper = np.hanning(window)
-    power = []
     for d in range(len(x)):
         for c in range(x.shape[1]):
             above = np.abs(x[d, c]) > ONSET_COUNTS
             i = int(np.argmax(above))
-            if not above[i] or i < BEFORE or i - BEFORE + window > x.shape[2]:
-                continue
-            power.append(np.abs(np.fft.rfft(x[d, c, i - BEFORE:i - BEFORE + window] * taper)) ** 2)
+            if above[i] and i >= BEFORE and i - BEFORE + window <= x.shape[2]:
+                yield x[d, c, i - BEFORE:i - BEFORE + window]
+
+
+def onset_spectrum(session, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies Hz, mean Hann-windowed power of the channels' onset windows, counts^2)."""
+    taper = np.hanning(window)
+    power = [np.abs(np.fft.rfft(w * taper)) ** 2 for w in onset_windows(session, window)]
     if not power:
         raise SystemExit(f"{session.path}: no channel crosses {ONSET_COUNTS:g} counts")
     return np.fft.rfftfreq(window, 1.0 / float(session.rig.fs_hz)), np.mean(power, 0)
@@ -56,19 +59,9 @@ def onset_spectrum(session, window: int) -> tuple[np.ndarray, np.ndarray]:
 def timing_bound(session, white: float, window: int) -> np.ndarray:
     """Each channel's Cramer-Rao bound (us) on the time of its onset window (as onset_spectrum's) under the white
     noise if its waveform were known: white / sqrt(sum of the window's squared slope), counts / s."""
-    x = np.asarray(session.adc, float)
-    x = x - x[:, :, :64].mean(-1, keepdims=True)
     fs = float(session.rig.fs_hz)
-    out = []
-    for d in range(len(x)):
-        for c in range(x.shape[1]):
-            above = np.abs(x[d, c]) > ONSET_COUNTS
-            i = int(np.argmax(above))
-            if not above[i] or i < BEFORE or i - BEFORE + window > x.shape[2]:
-                continue
-            slope = np.gradient(x[d, c, i - BEFORE:i - BEFORE + window]) * fs
-            out.append(white / np.sqrt(np.sum(slope ** 2)) * 1e6)
-    return np.asarray(out)
+    return np.asarray([white / np.sqrt(np.sum((np.gradient(w) * fs) ** 2)) * 1e6
+                       for w in onset_windows(session, window)])
 
 
 def wiener(session, white: float, window: int) -> dict:
