@@ -74,3 +74,17 @@ def test_budget_chooses_the_fewest_drops_that_fit(session1):
 
     finer = site_map_cost(params, big, every=tight["every"] - 1)   # the smallest step that fits: one finer would not
     assert finer["cpu_s"] > 0.4 * free["cpu_s"]
+
+
+def test_budget_narrows_the_edge_band_when_the_coarsest_lattice_is_over(session1):
+    from impactsense.sitemap import BUDGET_PLANS, MAX_EVERY, every_for_budget, site_map_cost
+
+    rig = session1.rig
+    params = SimParams.from_rig(rig)
+    coarsest = site_map_cost(params, rig, every=MAX_EVERY)
+    tight = every_for_budget(params, rig, 0.9 * coarsest["cpu_s"])
+    assert tight["every"] == MAX_EVERY and tight["edge_band_mm"] < coarsest["edge_band_mm"]
+    assert tight["simulated"] < coarsest["simulated"]
+    assert tight["fits"] == (tight["cpu_s"] <= 0.9 * coarsest["cpu_s"])
+    none = every_for_budget(params, rig, 1e-6)        # nothing fits: the last plan, said so
+    assert (none["every"], none["edge_band_mm"]) == BUDGET_PLANS[-1] and not none["fits"]

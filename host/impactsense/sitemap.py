@@ -209,12 +209,18 @@ def simulated_points(xy_mm: np.ndarray, nx: int, ny: int, every: int, plate_mm: 
 
 
 def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: float) -> str | None:
-    """The solver of a site map of n_drops drops: "auto" resolved by `sim.simulate.batch_solver`."""
+    """The solver of a site map of n_drops drops: "auto" is the cheaper by `sim.solver_cost.choose`, the direct
+    path priced with its contact window measured on the map's pilot points (as `site_map_cost`)."""
     if solver != "auto":
         return solver
-    from .sim.simulate import batch_solver
+    from .sim.modal_basis import is_cached
+    from .sim.simulate import get_model
+    from .sim.solver_cost import choose, measured_contact_windows
 
-    return batch_solver(params, rig, solver, n_drops=n_drops, height_mm=ref_height_mm)
+    model = get_model(params, rig)
+    pilot = pilot_points(rig)
+    window = measured_contact_windows(model, pilot[:, 0], pilot[:, 1], ref_height_mm)
+    return choose(model, int(n_drops), ref_height_mm, cached=is_cached(model), window=window)[0]
 
 
 EDGE_BAND_MM = 40.0   # with every > 1: points this near an edge are all simulated (docs/findings.md, Session 24)
@@ -243,39 +249,61 @@ def plan(rig, step_mm: float, margin_mm: float, every: int = 1, edge_band_mm: fl
     return (x0, y0, nx, ny), on_disc, sim
 
 
+def pilot_points(rig, step_mm: float = 5.0, margin_mm: float = 10.0, n: int | None = None) -> np.ndarray:
+    """The grid points [n, 2] (mm) whose contact windows price the map (`solver_cost.measured_contact_windows`): n
+    of the map's points off the discs, drawn with a fixed seed (the same points for the same rig)."""
+    from .sim.solver_cost import PILOT_DROPS
+
+    (x0, y0, nx, ny), _, sim = plan(rig, step_mm, margin_mm, 1)
+    rows = np.flatnonzero(sim)
+    n = min(PILOT_DROPS if n is None else n, rows.size)
+    pick = np.sort(np.random.default_rng(0).choice(rows, n, replace=False))
+    return grid_xy(x0, y0, step_mm, nx, ny)[pick]
+
+
 def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, ref_height_mm: float = 175.0,
-                  every: int = 1, *, _model=None) -> dict:
+                  every: int = 1, edge_band_mm: float = EDGE_BAND_MM, *, _model=None) -> dict:
     """What `build_site_map` with solver "auto" will cost: grid points, the drops simulated (`plan`), the
     solver `sim.simulate.batch_solver` takes and its estimated CPU seconds (`sim.solver_cost`; the modal basis
-    counted unless cached)."""
+    counted unless cached; the direct path's contact window measured on PILOT_DROPS of the map's points,
+    `solver_cost.measured_contact_windows`, not the rigid-Hertz estimate: on a thin plate the ball chatters)."""
     from .sim.modal_basis import is_cached
     from .sim.simulate import get_model
-    from .sim.solver_cost import choose
+    from .sim.solver_cost import choose, measured_contact_windows
 
     model, cached = _model or (get_model(params, rig), is_cached(get_model(params, rig)))
-    (_, _, nx, ny), _, sim = plan(rig, step_mm, margin_mm, every)
+    (_, _, nx, ny), _, sim = plan(rig, step_mm, margin_mm, every, edge_band_mm)
     n = int(sim.sum())
-    solver, est = choose(model, n, ref_height_mm, cached=cached)
+    pilot = pilot_points(rig, step_mm, margin_mm)
+    window = measured_contact_windows(model, pilot[:, 0], pilot[:, 1], ref_height_mm)
+    solver, est = choose(model, n, ref_height_mm, cached=cached, window=window)
     return {"nx": nx, "ny": ny, "step_mm": step_mm, "points": nx * ny, "simulated": n, "every": every,
-            "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"])}
+            "edge_band_mm": float(edge_band_mm), "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"]),
+            "window_steps": window["steps"], "window": window}
+
+
+# the plans a budget steps through, finest first: every K-th line with the 40 mm edge band, then (the coarsest K
+# still over) a narrower band; a large thin plate's band alone is ~6,000 points (docs/findings.md, Session 25)
+BUDGET_PLANS = ((1, EDGE_BAND_MM), (2, EDGE_BAND_MM), (3, EDGE_BAND_MM), (MAX_EVERY, EDGE_BAND_MM),
+                (MAX_EVERY, 20.0), (MAX_EVERY, 10.0), (MAX_EVERY, 0.0))
 
 
 def every_for_budget(params, rig, cpu_budget_s: float | None, step_mm: float = 5.0, margin_mm: float = 10.0,
                      ref_height_mm: float = 175.0) -> dict:
-    """`site_map_cost` with the smallest `every` (1 = every grid point) whose estimated CPU time is within
-    cpu_budget_s (None or <= 0: no budget, every point), at most MAX_EVERY; "fits" says whether it is within."""
+    """`site_map_cost` of the first of BUDGET_PLANS (every, edge band; every = 1: every grid point) whose
+    estimated CPU time is within cpu_budget_s (None or <= 0: no budget, every point), else the last; "fits" says
+    whether it is within."""
     from .sim.modal_basis import is_cached
     from .sim.simulate import get_model
 
     model = get_model(params, rig)
     known = (model, is_cached(model))
-    every = 1
-    while True:
-        cost = site_map_cost(params, rig, step_mm, margin_mm, ref_height_mm, every, _model=known)
+    for every, band in BUDGET_PLANS:
+        cost = site_map_cost(params, rig, step_mm, margin_mm, ref_height_mm, every, band, _model=known)
         fits = not cpu_budget_s or cpu_budget_s <= 0 or cost["cpu_s"] <= cpu_budget_s
-        if fits or every >= MAX_EVERY:
-            return {**cost, "fits": bool(fits), "budget_cpu_s": cpu_budget_s}
-        every += 1
+        if fits:
+            break
+    return {**cost, "fits": bool(fits), "budget_cpu_s": cpu_budget_s}
 
 
 def describe_cost(cost: dict) -> str:
@@ -283,18 +311,21 @@ def describe_cost(cost: dict) -> str:
     line = (f"{cost['points']:,} points ({cost['nx']} x {cost['ny']} at {cost['step_mm']:g} mm), "
             f"{cost['simulated']:,} drops by the {cost['solver']} solver, ~{cost['cpu_s'] / 60:.1f} CPU-min estimated")
     if cost["every"] > 1:
+        band = cost.get("edge_band_mm", EDGE_BAND_MM)
+        edge = f" and the points within {band:g} mm of an edge" if band > 0 else ""
         line += (f"; over the budget of {cost['budget_cpu_s'] / 60:.0f} CPU-min every point is not simulated: every "
-                 f"{ORDINAL.get(cost['every'], str(cost['every']) + 'th')} grid line and the points within {EDGE_BAND_MM:g} mm of an edge, the rest "
+                 f"{ORDINAL.get(cost['every'], str(cost['every']) + 'th')} grid line{edge}, the rest "
                  "interpolated (a coarser map: the twin's position and class lose some accuracy, docs/findings.md "
                  "Session 24 sitemapfast; a larger --site-map-cpu-s, or 0, simulates every point)")
     if not cost.get("fits", True):
-        line += " (still over the budget at the coarsest step)"
+        line += " (still over the budget at the coarsest plan)"
     return line
 
 
 def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, margin_mm: float = 10.0,
                    ref_height_mm: float = 175.0, workers: int = 2, chunk: int = 400,
-                   progress: bool = True, capture=None, solver: str | None = None, every: int = 1) -> SiteMap:
+                   progress: bool = True, capture=None, solver: str | None = None, every: int = 1,
+                   edge_band_mm: float = EDGE_BAND_MM) -> SiteMap:
     """Simulate a drop from ref_height_mm at every grid point (off the sensor discs) and keep the core's
     twin features. The counts are not clipped (int16 range, the core's clip detection off), so the map
     holds the whole energy even where the rig's ADC would saturate; the rig's clipped channels are left out
@@ -306,12 +337,12 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     rows [R'] of the drops captured), keeping the int16 range; `signal` is then that device's. Default: the
     counts as the rig records them. solver: "direct", "modal" (None: params.solver) or "auto" (the cheaper
     for this many drops, `sim.simulate.batch_solver`); the command prints the one used. every > 1: simulate
-    only the points `plan` lists (every every-th grid line in x and y, the last ones, a band along the edges)
-    and fill the others by `refine`; the map's step, its format and the match stay the same (docs/method.md,
+    only the points `plan` lists (every every-th grid line in x and y, the last ones, the points within
+    edge_band_mm of an edge) and fill the others by `refine`; the map's step, its format and the match stay the same (docs/method.md,
     "The site map's cost")."""
     from .sim import simulate_voltages, to_adc
 
-    (x0, y0, nx, ny), on_disc, sim = plan(rig, step_mm, margin_mm, every)
+    (x0, y0, nx, ny), on_disc, sim = plan(rig, step_mm, margin_mm, every, edge_band_mm)
     m = SiteMap(x0, y0, step_mm, nx, ny, np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32),
                 np.zeros((nx * ny, N_FEATURES), np.uint8), ref_height_mm)
     xy = m.xy_mm
@@ -361,4 +392,6 @@ def build_site_map(params, rig, signal: SignalConfig, *, step_mm: float = 5.0, m
     m.base, m.scale, m.q = quantise(values)
     m.source = {"simulated_every": every, "sim_params": params.to_dict() if hasattr(params, "to_dict") else {},
                 "rig_sensors_mm": rig.sensor_xy_mm.tolist(), "signal": signal.to_dict()}
+    if every > 1:
+        m.source["edge_band_mm"] = float(edge_band_mm)
     return m

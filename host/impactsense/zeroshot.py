@@ -91,7 +91,7 @@ def build_twin_site_map(params, session: Session, progress: bool = True, cpu_bud
     if progress:
         print(f"the twin's site map: {describe_cost(cost)}", flush=True)
     return build_site_map(params, session.rig, SignalConfig.for_rig(session.rig), progress=progress, solver="auto",
-                          every=cost["every"])
+                          every=cost["every"], edge_band_mm=cost["edge_band_mm"])
 
 
 def twin_site_map(params, session: Session, out: Path, progress: bool = True, name: str = "site-map.npz",

@@ -23,6 +23,8 @@ def register(sub) -> None:
     p.add_argument("--every", type=int, default=1, metavar="K",
                    help="simulate every K-th grid line (and the points within 40 mm of an edge), interpolate the "
                         "rest: ~K^2 fewer drops, a coarser map (default 1: every point)")
+    p.add_argument("--edge-band-mm", type=float, default=None, metavar="MM",
+                   help="with --every K > 1: also simulate every point within MM of an edge (default 40)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     add_solver_option(p, batch=True)
     add_scheduler_option(p)
@@ -35,14 +37,18 @@ def run(args) -> int:
     from .simulate import load_inputs
 
     params, rig = load_inputs(args)
-    from ..sitemap import map_solver, plan
+    from ..errors import ConfigError
+    from ..sitemap import EDGE_BAND_MM, map_solver, plan
 
-    args.solver = map_solver(params, rig, args.solver, int(plan(rig, args.step_mm, args.margin_mm, args.every)[2].sum()),
-                             args.height_mm)
+    band = EDGE_BAND_MM if args.edge_band_mm is None else args.edge_band_mm
+    if band < 0:
+        raise ConfigError(f"--edge-band-mm must be >= 0, got {band:g}")
+    args.solver = map_solver(params, rig, args.solver,
+                             int(plan(rig, args.step_mm, args.margin_mm, args.every, band)[2].sum()), args.height_mm)
     t0 = time.time()
     site = build_site_map(params, rig, SignalConfig.for_rig(rig), step_mm=args.step_mm, margin_mm=args.margin_mm,
                           ref_height_mm=args.height_mm, workers=args.workers, solver=args.solver,
-                          every=args.every)
+                          every=args.every, edge_band_mm=band)
     site.source["calibration"] = args.calibration or args.params or "defaults"
     site.save(args.out)
     print(f"site map {site.nx} x {site.ny} points ({int(site.present.sum())} off the discs), step "
