@@ -3,7 +3,9 @@
 - direct (the fast path, `simulate.py`): four reciprocal runs over the whole record, then per drop the ball on
   the plate for its contact window (about twice the rigid Hertz contact time, the plate's give lengthens it,
   plus the quiet tail of `simulate.contact_window`), each step costing the mesh's elements x
-  `DIRECT_S_PER_ELEMENT_STEP`;
+  `DIRECT_S_PER_ELEMENT_STEP`. The site map prices the windows better (`measured_contact_windows`): a few
+  windows stepped on the plate (a thin plate's ball chatters: windows 2-5 x the rigid rule) and the elements each
+  step really touches (`cone_element_steps`: the explicit step starts from rest);
 - modal: the basis when it is not cached (free dofs x modes x `BASIS_S_PER_DOF_MODE`: the inertia-planned
   Lanczos slices and the residual probes, `modal_basis.py`), else its load; per drop its modal sum (modes x
   record samples x `MODAL_S_PER_DROP_MODE_SAMPLE`).
