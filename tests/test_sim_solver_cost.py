@@ -126,3 +126,11 @@ def test_thin_plate_window_is_measured_not_the_rigid_hertz_estimate():
     assert cost["window_steps"] == pytest.approx(win["steps"])
     if cost["solver"] == "direct":
         assert cost["cpu_s"] == pytest.approx(solver_cost.direct_cpu_s(model, cost["simulated"], 175.0, win))
+
+
+def test_auto_never_chooses_a_basis_the_modal_solver_would_refuse(monkeypatch):
+    model = get_model(params(element_mm=2.0), small_rig(160.0, 140.0))
+    assert solver_cost.choose(model, 10 ** 7, 175.0, cached=False)[0] == "modal"      # a huge batch pays a basis
+    monkeypatch.setenv("IMPACTSENSE_MODAL_MAX_MB", "0.01")                            # ... unless it is refused
+    assert not solver_cost.basis_fits(model)
+    assert solver_cost.choose(model, 10 ** 7, 175.0, cached=False)[0] == "direct"

@@ -117,6 +117,19 @@ def basis_modes(model) -> int:
     return int(math.ceil(estimated_modes(model, default_cutoff(model)) / 3 * MODE_COUNT_FACTOR))
 
 
+def basis_fits(model) -> bool:
+    """Whether a cold basis of `model` is within the modal solver's size limit (`modal_basis.check_size`: a
+    large thin plate's would be refused, so `auto` must not choose it)."""
+    from ..errors import ConfigError
+    from .modal_basis import check_size, default_cutoff
+
+    try:
+        check_size(model, default_cutoff(model))
+    except ConfigError:
+        return False
+    return True
+
+
 def modal_cpu_s(model, n_drops: int, *, cached: bool, modes: int | None = None) -> float:
     """The modal solver for n_drops drops: the basis (or its load when cached) and the modal sums."""
     modes = basis_modes(model) if modes is None else modes
@@ -129,6 +142,6 @@ def choose(model, n_drops: int, height_mm, *, cached: bool, window: dict | None 
     """("modal" | "direct", the two estimates in CPU s): the cheaper solver for this batch (window: the direct
     path's measured contact windows, `direct_parts`)."""
     direct = direct_cpu_s(model, n_drops, height_mm, window)
-    modal = modal_cpu_s(model, n_drops, cached=cached)
+    modal = modal_cpu_s(model, n_drops, cached=cached) if cached or basis_fits(model) else math.inf
     return ("modal" if modal < direct else "direct"), {"direct_cpu_s": direct, "modal_cpu_s": modal,
                                                        "basis_cached": cached}
