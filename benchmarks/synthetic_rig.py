@@ -29,7 +29,10 @@ geometric order, 50 kHz, 12-bit, 4096 samples, 60 Hz hum, a hot front end; run i
 fr4-scope (a 400 x 300 x 1.6 mm FR-4 circuit-board panel, woven so nearly isotropic, three sensors near one long
 edge and one near the middle of the other, channels in no geometric order, a bench oscilloscope: 1 MHz x 20,000
 samples, 8-bit, 4,000 before the trigger, a DC offset per channel, 50 Hz hum on one channel; run it with
---cases 25 --reps 4).
+--cases 25 --reps 4), glass-audio (a 600 x 450 x 6 mm soda-lime glass tabletop, very lightly damped, sensors on an
+irregular quadrilateral turned ~12 deg, a 4-channel USB audio interface: 96 kHz, 16-bit, large full scale, AC-coupled
+at 10 Hz, a linear-phase anti-alias FIR at 43 kHz, 4,096 samples of which 512 before the hit; a 10 mm nylon ball;
+run it with --cases 25 --reps 4).
 The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
@@ -210,6 +213,25 @@ KINDS = {
         front_end=dict(peak_fraction=0.35, channel_dc_counts=(9, -14, 4, -6), noise_counts=0.4),
         hum_one=dict(channel=1, hum=3.0, hum_hz=50.0),
         heights=(80, 120, 160, 200, 250)),
+    "glass-audio": dict(
+        # a soda-lime glass tabletop (600 x 450 x 6 mm on four rubber pads: fast, and so lightly damped that it rings
+        # through the whole record and beyond), sensors on an irregular quadrilateral turned ~12 deg, read by a
+        # 4-channel USB audio interface: 96 kHz, 16-bit with a large full scale (the arrivals are small in counts),
+        # AC-coupled (a first-order 10 Hz high-pass), a delta-sigma converter's linear-phase anti-alias FIR at
+        # 43 kHz (it rings a little before each arrival), short records (4,096 samples, 512 before the hit), a
+        # 10 mm nylon ball (a soft impactor: a longer contact, a lower band), 25 cases x 4 drops
+        # (run it with --cases 25 --reps 4)
+        rig={"plate_material": "soda-lime glass", "plate_x_mm": 600.0, "plate_y_mm": 450.0,
+             "thickness_mm": 6.0, "density_kg_m3": 2500.0, "plate_support": "resting on four rubber pads",
+             "sensors": _sensors([(118, 64), (532, 131), (488, 402), (71, 318)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 20.0, "ball_material": "nylon (PA66)",
+             "ball_diameter_mm": 10.0, "ball_mass_g": 0.60, "channels": 4, "fs_hz": 96000, "samples": 4096,
+             "adc_bits": 16, "vref": 20.0, "bias_counts": 32768},
+        sim=dict(e_pa=71e9, nu=0.23, pretrigger_samples=512, damping_per_s=40.0, ball_e_pa=3.2e9, ball_nu=0.40,
+                 duration_ms=37.5),
+        front_end=dict(peak_fraction=0.012, noise_counts=2.0, highpass_hz=10.0, anti_alias_fir_hz=43000.0,
+                       anti_alias_taps=127),
+        heights=(50, 80, 110, 140, 170, 200)),
 }
 
 
@@ -247,6 +269,31 @@ def sim_duration_ms(rig, pretrigger_samples: int, default_ms: float) -> float:
 
     after_ms = (rig.samples - pretrigger_samples) / rig.fs_hz * 1e3
     return max(default_ms, min(DECAY_DURATION_MS, after_ms))
+
+
+def _filtered_adc(volts, params, logger, front, seed) -> np.ndarray:
+    """An AC-coupled logger with a linear-phase anti-alias filter (an audio interface): the noise-free record
+    (volts placed as `to_adc` places them) through a first-order high-pass at `highpass_hz` (the input's coupling
+    capacitor: the baseline sags after a large hit) and a centred linear-phase FIR low-pass at `anti_alias_fir_hz`
+    (a delta-sigma converter's decimation filter: it rings a little before each arrival), then the noise, rounded
+    and clipped at the rails."""
+    from scipy import ndimage
+    from scipy import signal as sps
+
+    n, c, n_sim = volts.shape
+    start = params.pretrigger_samples
+    rec = np.zeros((n, c, logger.samples))
+    take = min(n_sim, logger.samples - start)
+    rec[:, :, start:start + take] = volts[:, :, :take]
+    x = params.circuit_gain * rec * (2 ** logger.adc_bits) / logger.vref
+    if front.get("highpass_hz"):
+        b, a = sps.butter(1, front["highpass_hz"], "highpass", fs=logger.fs_hz)
+        x = sps.lfilter(b, a, x, axis=-1)
+    if front.get("anti_alias_fir_hz"):
+        taps = sps.firwin(int(front.get("anti_alias_taps", 127)), front["anti_alias_fir_hz"], fs=logger.fs_hz)
+        x = ndimage.convolve1d(x, taps, axis=-1, mode="constant")
+    x = x + np.random.default_rng(seed).normal(0.0, params.noise_counts_rms, x.shape)
+    return np.clip(np.rint(logger.bias_counts + x), 0, logger.adc_max).astype(np.uint16)
 
 
 def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: float) -> None:
@@ -290,7 +337,10 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
                             noise_counts_rms=front.get("noise_counts", 1.5 * 2 ** (rig.adc_bits - 12)))
     logger = rig if not front["dc_offset_counts"] else dataclasses.replace(
         rig, bias_counts=rig.bias_counts + int(front["dc_offset_counts"]))
-    adc = to_adc(volts, params, logger, noise=True, seed=seed)
+    if front.get("highpass_hz") or front.get("anti_alias_fir_hz"):
+        adc = _filtered_adc(volts, params, logger, front, seed)
+    else:
+        adc = to_adc(volts, params, logger, noise=True, seed=seed)
     if "channel_dc_counts" in front:   # each channel's own DC error (a scope's per-channel offset)
         dc = np.asarray(front["channel_dc_counts"], float)[None, :, None]
         adc = np.clip(adc.astype(float) + dc, 0, rig.adc_max).astype(adc.dtype)

@@ -39,7 +39,8 @@ _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # pretrigger_samples (the logger's samples before the hit; default: measured from the session's recordings,
 # signal.quiet_start_samples); density_kg_m3 may be left out for a material the table knows (its typical density);
 # board_front_end {"anti_alias_hz": F, "anti_alias_poles": N} (the board's analog low-pass before its ADC, a
-# Butterworth; absent: none; board.front_end).
+# Butterworth; absent: none; board.front_end); ball_properties {"e_pa": Pa, "nu": N} (the impactor's constants
+# for the Hertz contact, else read from ball_material's words: balls.py).
 INNER_INSET_MM = 30.0
 
 
@@ -265,6 +266,9 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
             raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")
         sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
     _check_inner_region(raw.get("inner_region_mm"), values, path)
+    if "ball_properties" in raw:   # checked here, so a bad field is an error naming rig.json (balls.py)
+        from .balls import ball_for_rig
+        ball_for_rig(type("RigWords", (), {"raw": raw})(), path)
     _check_rig_sanity(path, values, sensors)
     pre = raw.get("pretrigger_samples")
     if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):

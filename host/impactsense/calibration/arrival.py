@@ -51,6 +51,8 @@ class ArrivalSetup:
     n_fft: int = 2048
     t_impact_s: float = 1.5e-3
     highpass_hz: float = 1000.0
+    ball_e_pa: float = STEEL_E_PA     # the ball's constants for the Hertz contact (balls.ball_for_rig)
+    ball_nu: float = STEEL_NU
 
 
 FAST_SPAN_ARRIVALS = 2.0   # the fast model's record spans the impact time and this x the farthest arrival
@@ -73,7 +75,10 @@ def span_n_fft(rig, n_fft: int, t_impact_s: float = ArrivalSetup.t_impact_s) -> 
 
 
 def setup_from_rig(rig, x_mm, y_mm, height_mm, *, n_fft: int = 2048) -> ArrivalSetup:
+    from ..balls import ball_for_rig
+
     n_fft = span_n_fft(rig, n_fft)
+    ball = ball_for_rig(rig)
     sx, sy = rig.sensor_x_mm.astype(float), rig.sensor_y_mm.astype(float)
     x = np.asarray(x_mm, float)[:, None]
     y = np.asarray(y_mm, float)[:, None]
@@ -82,7 +87,8 @@ def setup_from_rig(rig, x_mm, y_mm, height_mm, *, n_fft: int = 2048) -> ArrivalS
         r_m=r_mm * 1e-3, height_m=np.asarray(height_mm, float) * 1e-3,
         disc_radius_m=rig.sensor_diameter_mm * 0.5e-3, thickness_m=rig.thickness_mm * 1e-3,
         density_kg_m3=rig.density_kg_m3, ball_radius_m=rig.ball_diameter_mm * 0.5e-3,
-        ball_mass_kg=rig.ball_mass_g * 1e-3, fs_hz=float(rig.fs_hz), n_fft=n_fft)
+        ball_mass_kg=rig.ball_mass_g * 1e-3, fs_hz=float(rig.fs_hz), n_fft=n_fft, ball_e_pa=ball.e_pa,
+        ball_nu=ball.nu)
 
 
 def a0_wavenumber(omega, e_pa, nu, rho, t_m):
@@ -96,9 +102,9 @@ def a0_wavenumber(omega, e_pa, nu, rho, t_m):
     return k1, k1 * k1, d, KAPPA * g * t_m, rho * t_m
 
 
-def hertz_duration_s(e_pa, nu, height_m, ball_radius_m, ball_mass_kg):
-    """Hertz contact duration of a rigid-ish steel ball on an elastic half-space of the plate material."""
-    e_star = 1.0 / ((1.0 - nu ** 2) / e_pa + (1.0 - STEEL_NU ** 2) / STEEL_E_PA)
+def hertz_duration_s(e_pa, nu, height_m, ball_radius_m, ball_mass_kg, ball_e_pa=STEEL_E_PA, ball_nu=STEEL_NU):
+    """Hertz contact duration of a ball (default steel) on an elastic half-space of the plate material."""
+    e_star = 1.0 / ((1.0 - nu ** 2) / e_pa + (1.0 - ball_nu ** 2) / ball_e_pa)
     v = np.sqrt(2.0 * G0 * height_m)
     delta = (15.0 * ball_mass_kg * v ** 2 / (16.0 * e_star * np.sqrt(ball_radius_m))) ** 0.4
     return 2.94 * delta / v
@@ -127,7 +133,7 @@ def synth_unit(setup: ArrivalSetup, e_pa, nu) -> np.ndarray:
     g = e_pa / (2 * (1 + nu))
     amp = _branch_amplitude(setup, w, k1sq, d, s, m, KAPPA * g)
     tc = hertz_duration_s(e_pa[:, :, None], nu[:, :, None], setup.height_m[None, :, None],
-                          setup.ball_radius_m, setup.ball_mass_kg)          # [P, D, 1]
+                          setup.ball_radius_m, setup.ball_mass_kg, setup.ball_e_pa, setup.ball_nu)   # [P, D, 1]
     return _synthesise(setup, f, w, k1[:, None, None, :], amp[:, None, None, :], tc)
 
 

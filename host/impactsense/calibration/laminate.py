@@ -112,7 +112,8 @@ def synth_laminates(setup: arrival.ArrivalSetup, theta, laminates) -> np.ndarray
     # Hertz contact on the laminate: its indentation stiffness is set by the transverse modulus (~E2)
     e2 = np.array([lam.e2_pa for lam in laminates])[:, None, None]
     nu = np.array([lam.nu12 for lam in laminates])[:, None, None]
-    tc = arrival.hertz_duration_s(e2, nu, setup.height_m[None, :, None], setup.ball_radius_m, setup.ball_mass_kg)
+    tc = arrival.hertz_duration_s(e2, nu, setup.height_m[None, :, None], setup.ball_radius_m, setup.ball_mass_kg,
+                                  setup.ball_e_pa, setup.ball_nu)
     return arrival.synth_unit_paths(setup, k1, d, s, tc)
 
 

@@ -63,6 +63,7 @@ def summarise(session) -> dict:
     hum, hum_where, hum_floor, hum_each = hum_counts(session)
     return {
         "plate": plate_summary(session.rig),
+        "ball": ball_summary(session.rig),
         "level_minus_bias_counts": [float(v - session.rig.bias_counts) for v in level],
         "session": str(session.path),
         "drops": len(session),
@@ -107,6 +108,15 @@ def plate_summary(rig) -> dict:
             "density_from": "rig.json" if "density_kg_m3" in rig.raw else "the materials table (not in rig.json)"}
 
 
+def ball_summary(rig) -> dict:
+    """The ball the twin's Hertz contact takes (balls.ball_for_rig): its name, E, nu and where they came from."""
+    from ..balls import ball_for_rig
+
+    ball = ball_for_rig(rig)
+    return {"material": ball.name if ball.known else f"{rig.ball_material!r}: not in the ball table, taken as steel",
+            "e_pa": ball.e_pa, "nu": ball.nu, "from": ball.source}
+
+
 def hum_text(channel: dict) -> str:
     """The hum column: the amplitude, or '<floor' when white noise alone would read as much."""
     if channel["hum_counts"] < channel["hum_floor_counts"]:
@@ -130,6 +140,9 @@ def run(args) -> int:
     axes = f", axis 1 at {pl['axis_deg']:g} deg" if pl["kind"] == "orthotropic" else ""
     print(f"  plate: {pl['material']} ({pl['kind']}{axes}), density {pl['density_kg_m3']:g} kg/m3 from "
           f"{pl['density_from']}")
+    b = s["ball"]
+    print(f"  ball: {b['material']}, E {b['e_pa'] / 1e9:.3g} GPa, nu {b['nu']:.2f} (the twin's contact; from "
+          f"{b['from']}), {session.rig.ball_diameter_mm:g} mm, {session.rig.ball_mass_g:g} g")
     off = s["level_minus_bias_counts"]
     print(f"  level before the hit less the declared bias (counts): {', '.join(f'{v:+.0f}' for v in off)}")
     pre = s["pretrigger_samples"]

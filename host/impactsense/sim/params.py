@@ -57,7 +57,8 @@ Defaults (documented, see docs/method.md):
   dispersion, which the calibration absorbed), "exact": the continuous-time modes.
 - circuit_gain 0.04: the open-circuit disc law gives tens of volts for a 150 mm drop, the bundled logger's ADC
   sees about a volt: the disc's capacitance is loaded by the input network (docs/findings.md).
-- ball: steel E = 210 GPa, nu = 0.30.
+- ball: steel E = 210 GPa, nu = 0.30; `from_rig` takes the rig's ball (rig.json `ball_material` in words, or
+  `ball_properties`; balls.py).
 - numerics: element size by Eq. 1 (L_e = lambda_A0(f_max) / 10 along the plate's softest direction, f_max =
   3 / T_contact of a Hertz impact from `max_height_mm` on a rigid-backed half space of the plate material,
   where the half-sine force spectrum's envelope is 30 dB down, but at most the logger's Nyquist frequency
@@ -77,6 +78,7 @@ import os
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from ..balls import ball_for_rig
 from ..errors import ConfigError
 from ..signal import baseline_for_pretrigger
 from .material import fields_for_rig
@@ -190,7 +192,8 @@ class SimParams:
 
     @classmethod
     def from_rig(cls, rig, **overrides) -> "SimParams":
-        """Defaults with the rig's plate density, thickness, support and material (`material.fields_for_rig`)."""
+        """Defaults with the rig's plate density, thickness, support and material (`material.fields_for_rig`) and
+        its ball's elastic constants (`balls.ball_for_rig`)."""
         text = str(getattr(rig, "plate_support", "")).lower()
         if "clamp" in text:
             support = "clamped"
@@ -198,7 +201,9 @@ class SimParams:
             support = "free"
         else:  # resting on a rim / simply supported
             support = "simply_supported"
-        base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support)
+        ball = ball_for_rig(rig)   # the impactor's E and nu (the table's steel when the words name no other)
+        base = dict(rho_kg_m3=float(rig.density_kg_m3), thickness_mm=float(rig.thickness_mm), support=support,
+                    ball_e_pa=ball.e_pa, ball_nu=ball.nu)
         pre = getattr(rig, "pretrigger_samples", None)
         if baseline_for_pretrigger(pre) is not None:  # a short pre-trigger: the twin's records start as the rig's
             base["pretrigger_samples"] = int(pre)
