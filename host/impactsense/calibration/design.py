@@ -36,6 +36,16 @@ CHUNK_RUNS = 8          # design runs simulated side by side between two saves o
 CLOCKED = ("design_fem", "surrogates", "screening", "optimise", "infill_fem", "fem_confirm")
 
 
+def unit_damping(d_s: float) -> float:
+    """D_s held by the optimisation and the infill, in the design's unit coordinate: up to the design range's top
+    (1), and below its low end down to the decay estimate's floor (damping.FLOOR_PER_S; a lightly damped plate's
+    infill and confirming FEM runs are then at its measured D_s, the surrogates extrapolate in D_s only)."""
+    from .damping import FLOOR_PER_S
+
+    lo_d, hi_d = fem.factor_range("damping_per_s")
+    return float(np.clip((d_s - lo_d) / (hi_d - lo_d), (FLOOR_PER_S - lo_d) / (hi_d - lo_d), 1.0))
+
+
 def unit_to_params(u):
     """Points of the unit cube as fem.FACTORS values."""
     lo = np.array([f[1] for f in fem.FACTORS])
@@ -254,8 +264,7 @@ def run(problem: CalibrationProblem, damping_fixed=None) -> dict:
     n = int(opts.budget)
     n_infill = n // 4
     n_init = n - n_infill
-    lo_d, hi_d = fem.factor_range("damping_per_s")
-    u_d = None if damping_fixed is None else float(np.clip((damping_fixed - lo_d) / (hi_d - lo_d), 0.0, 1.0))
+    u_d = None if damping_fixed is None else unit_damping(damping_fixed)
     design_key = key(problem.base_key, params["e_pa"], params["nu"], n, opts.seed, u_d, "infill-v2",
                      *model_key(params))
     result_path, result_key = problem.cache("stage2-result.json"), key(design_key, opts.surrogate_trials, "result-v3")

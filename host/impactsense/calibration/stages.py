@@ -171,7 +171,7 @@ def _apply_plate_fem(problem: CalibrationProblem, res: dict) -> None:
 
 def _damping_key(problem: CalibrationProblem) -> str:
     p = problem.params
-    return key(problem.base_key, p["e_pa"], p["nu"], p["damping_per_s"], "decay-v2", *model_key(p))
+    return key(problem.base_key, p["e_pa"], p["nu"], p["damping_per_s"], "decay-v3", *model_key(p))
 
 
 def _damping(problem: CalibrationProblem, _key) -> dict:
@@ -193,14 +193,14 @@ def _damping(problem: CalibrationProblem, _key) -> dict:
 
     d0 = float(params["damping_per_s"])
     r0 = sim_rates(d0)
-    d1 = damping.damping_step(meas, r0, d0)
+    d1 = max(damping.damping_step(meas, r0, d0), damping.FLOOR_PER_S)   # a lightly damped plate: never below 0
     r1 = sim_rates(d1)
     slope = float(np.nanmedian(r1 - r0) / (d1 - d0)) if abs(d1 - d0) > 20.0 else 0.5
     slope = slope if 0.25 < slope < 1.0 else 0.5          # a failed secant falls back to the theory
     d2 = damping.damping_step(meas, r1, d1, slope)
     lo, hi = fem.factor_range("damping_per_s")
     per_drop = [float(d1 + np.nanmedian(meas[i] - r1[i]) / slope) for i in range(len(meas))]
-    return {"damping_per_s": float(np.clip(d2, lo, hi)), "estimate_per_s": d2,
+    return {"damping_per_s": float(np.clip(d2, damping.FLOOR_PER_S, hi)), "estimate_per_s": d2,
             "se_per_s": damping.robust_se((meas - r1) / slope),
             "per_drop_per_s": per_drop, "slope_decay_per_damping": slope, "runs_per_s": [d0, d1],
             "measured_decay_per_s": meas, "fem_decay_per_s_at_runs": [r0, r1],
@@ -284,10 +284,17 @@ def _plate_nu(problem: CalibrationProblem, stage_key) -> dict:
     bar = progress_bar(opts.progress, desc="FEM nu fit (E, nu, D_s, positions)", unit="run",
                        total=plate_nu.max_evaluations(opts.nu_rounds))
     out = plate_nu.run(problem, _params_at_decay(problem), ds_prior=prior, e_bounds=problem.e_bounds,
-                       nu_bounds=problem.nu_bounds, ds_bounds=fem.factor_range("damping_per_s"),
+                       nu_bounds=problem.nu_bounds, ds_bounds=_ds_bounds(ds0),
                        rounds=int(opts.nu_rounds), progress=bar.update)
     bar.close()
     return out
+
+
+def _ds_bounds(ds0: float) -> tuple[float, float]:
+    """The nu fit's D_s bounds: the design's range, reaching down to the decay's estimate when that lies under it
+    (a lightly damped plate, damping.FLOOR_PER_S)."""
+    lo, hi = fem.factor_range("damping_per_s")
+    return min(lo, ds0), hi
 
 
 def _apply_plate_nu(problem: CalibrationProblem, nu_fit: dict) -> None:
