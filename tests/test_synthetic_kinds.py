@@ -48,3 +48,25 @@ def test_truth_covers_the_decay_window(kind):
         assert duration - SimParams().taper_ms >= MAX_MS   # the fade starts after the window's end
     else:
         assert duration >= after_ms                         # the whole record is simulated
+
+
+def test_audio_front_end_sags_and_rings_before_the_arrival():
+    """glass-audio's logger (`_filtered_adc`): the 10 Hz AC coupling lets a held level sag as exp(-2 pi f_c t) and
+    the centred linear-phase FIR puts a little ringing before a sharp arrival, symmetric about it."""
+    import numpy as np
+
+    spec = synthetic_rig.KINDS["glass-audio"]
+    rig = rig_from_dict(spec["rig"])
+    front = dict(spec["front_end"], noise_counts=0.0)
+    params = SimParams.from_rig(rig).replace(pretrigger_samples=512, circuit_gain=1.0, noise_counts_rms=0.0)
+    volts = np.zeros((1, 4, rig.samples - 512))
+    volts[0, 0, :] = 1000 * rig.vref / 2 ** rig.adc_bits        # a held level of 1000 counts from the touch
+    volts[0, 1, 300] = 20000 * rig.vref / 2 ** rig.adc_bits       # one sharp arrival
+    adc = synthetic_rig._filtered_adc(volts, params, rig, front, seed=0).astype(float) - rig.bias_counts
+    t_ms = 30.0
+    k = 512 + int(t_ms * 1e-3 * rig.fs_hz)
+    assert adc[0, 0, k] == pytest.approx(1000 * np.exp(-2 * np.pi * front["highpass_hz"] * t_ms * 1e-3), abs=25)
+    arrival = 512 + 300
+    before, after = adc[0, 1, arrival - 63:arrival], adc[0, 1, arrival + 1:arrival + 64][::-1]
+    assert np.abs(before).max() > 10                              # pre-ringing ahead of the arrival
+    assert np.allclose(before, after, atol=20)    # linear phase: the same ringing after it (less the ~13-count sag)
