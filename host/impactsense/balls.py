@@ -81,4 +81,10 @@ def ball_for_rig(rig, path="rig.json") -> Ball:
                 source="rig.json ball_properties")
 
 
-__all__ = ["Ball", "TABLE", "STEEL", "lookup", "ball_for_rig"]
+def check_ball_properties(raw: dict, path) -> None:
+    """rig.json's optional `ball_properties` checked when the rig is read (a DataError naming the file and field)."""
+    if "ball_properties" in raw:
+        ball_for_rig(type("RigWords", (), {"raw": raw})(), path)
+
+
+__all__ = ["Ball", "TABLE", "STEEL", "lookup", "ball_for_rig", "check_ball_properties"]

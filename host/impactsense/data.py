@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .balls import check_ball_properties
 from .errors import DataError
 
 RIG_FILE = "rig.json"
@@ -28,10 +29,8 @@ IMPACT_COLUMNS = ("recording_id", "case_id", "repetition", "x_mm", "y_mm", "heig
 CHANNELS = 4
 
 # rig.json keys and their types; all required.
-_RIG_NUMBERS = (
-    "plate_x_mm", "plate_y_mm", "thickness_mm", "density_kg_m3", "sensor_diameter_mm",
-    "ball_diameter_mm", "ball_mass_g", "fs_hz", "vref",
-)
+_RIG_NUMBERS = ("plate_x_mm", "plate_y_mm", "thickness_mm", "density_kg_m3", "sensor_diameter_mm",
+                "ball_diameter_mm", "ball_mass_g", "fs_hz", "vref")
 _RIG_INTS = ("channels", "samples", "adc_bits", "bias_counts")
 _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # Optional rig.json fields (docs/method.md "rig.json"): inner_region_mm [x0, x1, y0, y1] (default: the
@@ -39,8 +38,7 @@ _RIG_STRINGS = ("plate_material", "plate_support", "ball_material")
 # pretrigger_samples (the logger's samples before the hit; default: measured from the session's recordings,
 # signal.quiet_start_samples); density_kg_m3 may be left out for a material the table knows (its typical density);
 # board_front_end {"anti_alias_hz": F, "anti_alias_poles": N} (the board's analog low-pass before its ADC, a
-# Butterworth; absent: none; board.front_end); ball_properties {"e_pa": Pa, "nu": N} (the impactor's constants
-# for the Hertz contact, else read from ball_material's words: balls.py).
+# Butterworth; absent: none; board.front_end); ball_properties {"e_pa", "nu"} (the ball's constants: balls.py).
 INNER_INSET_MM = 30.0
 
 
@@ -266,9 +264,7 @@ def rig_from_dict(raw: dict, path: str | os.PathLike = RIG_FILE) -> Rig:
             raise DataError(path, f"sensors[{k}]", "sensor centre lies off the plate")
         sensors.append(Sensor(str(s["name"]), int(s["channel"]), float(s["x_mm"]), float(s["y_mm"])))
     _check_inner_region(raw.get("inner_region_mm"), values, path)
-    if "ball_properties" in raw:   # checked here, so a bad field is an error naming rig.json (balls.py)
-        from .balls import ball_for_rig
-        ball_for_rig(type("RigWords", (), {"raw": raw})(), path)
+    check_ball_properties(raw, path)
     _check_rig_sanity(path, values, sensors)
     pre = raw.get("pretrigger_samples")
     if pre is not None and (isinstance(pre, bool) or not isinstance(pre, int) or not 0 < pre < values["samples"]):
