@@ -1,0 +1,174 @@
+"""The bond row's four-channel model with the core's bond inverse, under variants of the inverse and of the
+training drops' bond: what is left between it and the unchanged sessions (docs/findings.md "Session 25: bond6").
+
+On a loop session folder (`benchmarks/loop_sessions.py`; REF "ref", the bond session NAME): diagnose and
+`loop.fit_bond` as `impactsense retrain`, the measured training drops (`loop.measured_training_session`), then per
+variant the four-channel model (`loop.pick_settings`, 30 trees, the seed's forests, the delays carried) scored on
+NAME. Variants (comma list):
+
+- base: as retrain (fit_bond's one-pole in the training drops, the inverse at fc, g, f2 = BOND_LIMIT_OF_PICK x
+  the other channels' pick frequency);
+- kX: the same with f2 = X x that pick frequency;
+- truth: the training drops' bond and the inverse both the session's true one-pole (the manifest's), f2 as base;
+- truthinv: fit_bond's bond in the training drops, the inverse the true one-pole's;
+- spectral: the one-pole sized by `bond_inverse.spectral_one_pole` (the bonded channel's spectrum against the
+  reference's at the same positions, the other channels' ratio taken out) in the training drops and the inverse.
+
+Per variant printed: MAE per axis (mm) and its ratio to UNCHANGED (the reference model's mean on same-1..3, given
+or measured), and the bonded channel's pick lag (onset less travel less the other channels' mean, the model's
+picks) on NAME less the training drops' cubic in position: mean and rms (us), beside the same for each other
+channel (the lag of channel k against the rest).
+
+    python benchmarks/bench_bond_inverse.py SESSIONS --seed S [--variants base,k0.35,truth] [--unchanged MM]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import pickle
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from impactsense import bond_inverse, loop
+from impactsense.commands.retrain import carry_delays, score
+from impactsense.data import load_session
+from impactsense.diagnose import Candidate
+from impactsense.loop import channel_delays, measured_training_session, pick_settings
+from impactsense.models import ForestSettings
+from impactsense.pipeline import featurize
+from impactsense.workflow import train
+
+from bench_bond_picks import cubic
+from benchlib import sized_bond
+
+
+def lag_all(session, cfg) -> np.ndarray:
+    """(n, 4): each channel's onset less the travel time less the other channels' mean of the same (us)."""
+    toa = np.asarray(featurize(session.adc, cfg).toa_us, float)
+    d = np.linalg.norm(session.xy_mm[:, None, :] - np.asarray(cfg.sensor_xy_mm, float)[None], axis=2)
+    t = toa - d / float(cfg.velocity_mm_per_us)
+    return np.stack([t[:, k] - np.nanmean(np.delete(t, k, axis=1), axis=1) for k in range(4)], 1)
+
+
+def lag_residual(train_s, sess, cfg) -> list[tuple[float, float]]:
+    """Per channel: (mean, rms) of the session's lag less the training drops' cubic in position (us)."""
+    a, b = lag_all(train_s, cfg), lag_all(sess, cfg)
+    out = []
+    for k in range(4):
+        ok = np.isfinite(a[:, k])
+        coef = np.linalg.lstsq(cubic(train_s.xy_mm[ok], train_s.rig), a[ok, k], rcond=None)[0]
+        e = b[:, k] - cubic(sess.xy_mm, sess.rig) @ coef
+        e = e[np.isfinite(e)]
+        out.append((float(e.mean()), float(np.sqrt(np.mean(e ** 2)))))
+    return out
+
+
+def with_bond(accepted, ch: int, fc: float, gain: float) -> list:
+    """`accepted` with channel ch's bond replaced by a first-order one-pole fc, gain (the amplifier's noise
+    after it, as the disc's bond: noise not filtered, not scaled by the gain)."""
+    keep = [c for c in accepted if not (c.sensor == ch and c.effect in ("channel_lowpass", "sensor_gain"))]
+    common = dict(score=0.0, p_value=0.0, material=True, significant=True, fold_params=[])
+    return keep + [Candidate("channel_lowpass", ch, {"fc_hz": fc, "order": 1, "noise_filtered": False}, **common),
+                   Candidate("sensor_gain", ch, {"gain": gain, "noise_kept": True}, **common)]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("sessions")
+    ap.add_argument("--name", default="bond")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trees", type=int, default=30)
+    ap.add_argument("--variants", default="base")
+    ap.add_argument("--unchanged", type=float, default=float("nan"))
+    ap.add_argument("--cache", default="", help="a scratch file keeping diagnose's and fit_bond's result")
+    args = ap.parse_args()
+    folder = Path(args.sessions)
+    truth = json.loads((folder / "manifest.json").read_text())["sessions"][args.name]["truth"]["params"]
+    t0 = time.time()
+    cache_file = Path(args.cache) if args.cache else None
+    if cache_file is not None and cache_file.exists():   # a run's own scratch (pickle: never a user's folder)
+        det_ref, accepted, ch = pickle.loads(cache_file.read_bytes())
+        det = {"ref": det_ref}
+        ref, sess = load_session(folder / "ref"), load_session(folder / args.name)
+    else:
+        ref, sess, det, accepted, ch = sized_bond(args.sessions, args.name, args.seed)
+        if cache_file is not None:
+            cache_file.write_bytes(pickle.dumps((det["ref"], accepted, ch)))
+    lp = next(c.params for c in accepted if c.effect == "channel_lowpass" and c.sensor == ch)
+    g = next(c.params["gain"] for c in accepted if c.effect == "sensor_gain" and c.sensor == ch)
+    print(f"{folder.name}/{args.name}: channel {ch}; truth {truth['fc_hz']:.0f} Hz x{truth['gain']:.3f}; fit_bond "
+          f"order {lp.get('order', 2)} {lp['fc_hz']:.0f} Hz x{g:.3f} ({time.time() - t0:.0f} s)", flush=True)
+    unchanged = args.unchanged
+    if not np.isfinite(unchanged):
+        ref_model, _ = train(ref, None, 0.0, args.seed, None,
+                             settings=ForestSettings(n_estimators=args.trees, seed=args.seed), site_map=None)
+        unchanged = float(np.mean([score(load_session(folder / f"same-{k}"), ref_model)["mae_mm"]
+                                   for k in (1, 2, 3)]))
+    settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
+    base_limit = bond_inverse.BOND_LIMIT_OF_PICK
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = {}
+
+        def training(effects, tag):
+            if tag not in cache:
+                draws = loop.training_draws
+                if tag.startswith("d"):
+                    loop.training_draws = lambda _accepted, n=int(tag[1:]): n
+                try:
+                    cache[tag] = measured_training_session(ref, effects, det["ref"], Path(tmp) / tag, args.seed)
+                finally:
+                    loop.training_draws = draws
+            return cache[tag]
+
+        for var in args.variants.split(","):
+            t1 = time.time()
+            bond_inverse.BOND_LIMIT_OF_PICK = base_limit
+            effects, tag, inv = accepted, "fit", None
+            if var.startswith("k"):
+                bond_inverse.BOND_LIMIT_OF_PICK = float(var[1:])
+            elif var == "truth":
+                effects, tag = with_bond(accepted, ch, truth["fc_hz"], truth["gain"]), "truth"
+            elif var.startswith("d"):   # dN: N copies of each training drop, each its own draw of the bond's noise
+                effects, tag = accepted, var
+            elif var.startswith("g"):
+                inv = ("gain", float(var[1:]))
+            elif var == "truthinv":
+                inv = (truth["fc_hz"], truth["gain"])
+            elif var == "spectral":
+                fc_s, g_s = bond_inverse.spectral_one_pole(ref, sess, ch)
+                print(f"  spectral one-pole {fc_s:.0f} Hz x{g_s:.3f}")
+                effects, tag = with_bond(accepted, ch, fc_s, g_s), "spectral"
+            elif var != "base":
+                raise SystemExit(f"unknown variant {var}")
+            train_s = training(effects, tag)
+            signal = pick_settings(train_s, effects, ref)
+            if inv is not None and inv[0] == "gain":
+                signal = dataclasses.replace(signal)
+                signal.channel_gain = [inv[1] if k == ch else v for k, v in enumerate(signal.channel_gain)]
+            elif inv is not None and signal is not None:
+                signal = dataclasses.replace(signal)
+                signal.bond_corner_hz = [inv[0] if k == ch else v for k, v in enumerate(signal.bond_corner_hz)]
+                signal.bond_gain = [inv[1] if k == ch else v for k, v in enumerate(signal.bond_gain)]
+            model, _ = carry_delays(train(train_s, None, 0.0, args.seed, None, settings=settings, signal=signal,
+                                          site_map=None), channel_delays(effects))
+            mae = score(sess, model)["mae_mm"]
+            res = lag_residual(train_s, sess, model.signal)
+            own = lag_residual(train_s, train_s, model.signal)
+            f2 = list(model.signal.bond_limit_hz)[ch]
+            fc = list(model.signal.bond_corner_hz)[ch]
+            print(f"  {var}: inverse fc {fc:.0f} f2 {f2:.0f} Hz; MAE {mae:.2f} mm ({mae / unchanged:.3f} x unchanged "
+                  f"{unchanged:.2f}); lag less the training cubic, mean/rms us: "
+                  + ", ".join(f"ch{k}{'*' if k == ch else ''} {m:+.1f}/{r:.1f}" for k, (m, r) in enumerate(res))
+                  + "; the training drops' own rms: " + ", ".join(f"{r:.1f}" for _, r in own)
+                  + f" ({time.time() - t1:.0f} s)", flush=True)
+    bond_inverse.BOND_LIMIT_OF_PICK = base_limit
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
