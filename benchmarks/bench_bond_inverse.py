@@ -11,7 +11,7 @@ NAME. Variants (comma list):
 - kX: the same with f2 = X x that pick frequency;
 - truth: the training drops' bond and the inverse both the session's true one-pole (the manifest's), f2 as base;
 - truthinv: fit_bond's bond in the training drops, the inverse the true one-pole's;
-- spectral: the one-pole sized by `bond_inverse.spectral_one_pole` (the bonded channel's spectrum against the
+- spectral: the one-pole sized by `spectral_one_pole` (the bonded channel's spectrum against the
   reference's at the same positions, the other channels' ratio taken out) in the training drops and the inverse.
 
 Per variant printed: MAE per axis (mm) and its ratio to UNCHANGED (the reference model's mean on same-1..3, given
@@ -20,6 +20,7 @@ picks) on NAME less the training drops' cubic in position: mean and rms (us), be
 channel (the lag of channel k against the rest).
 
     python benchmarks/bench_bond_inverse.py SESSIONS --seed S [--variants base,k0.35,truth] [--unchanged MM]
+        [--forest-seed F] [--cache FILE]
 """
 
 from __future__ import annotations
@@ -45,6 +46,52 @@ from impactsense.workflow import train
 
 from bench_bond_picks import cubic
 from benchlib import sized_bond
+
+
+SPECTRAL_BAND_HZ = (500.0, 30000.0)   # the one-pole's magnitude fitted in this band (below 0.4 fs)
+SPECTRAL_MIN_SNR = 2.0                 # ... on bins where the bonded channel's power is this x its noise's
+PRETRIGGER = 64                        # a record's first samples: its noise
+
+
+def _spectra(session) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(f, P, noise): each channel's power spectrum averaged over drops, its noise's (the first PRETRIGGER samples'
+    variance, white) taken out: P (n_freq, 4), and that noise per channel."""
+    x = np.asarray(session.adc, float)
+    x = x - x[:, :, :PRETRIGGER].mean(axis=2, keepdims=True)
+    n = x.shape[2]
+    p = (np.abs(np.fft.rfft(x, axis=2)) ** 2).mean(axis=0).T
+    noise = n * x[:, :, :PRETRIGGER].var(axis=2).mean(axis=0)
+    return np.fft.rfftfreq(n, 1.0 / float(session.rig.fs_hz)), p - noise[None, :], noise
+
+
+def spectral_one_pole(reference, data, channel: int) -> tuple[float, float]:
+    """(fc, g): the first-order low-pass g / (1 + j f / fc) whose magnitude best gives `data`'s power spectrum of
+    `channel` from `reference`'s (each averaged over its drops, noise taken out), the other channels' median ratio
+    taken out (what the two sessions' drops differ in for every channel): |H|^2 = (P_new / P_ref)_channel /
+    median over the others of the same, fitted in log over SPECTRAL_BAND_HZ on bins the channel's power stands
+    SPECTRAL_MIN_SNR above its noise in both sessions (a measurement: retrain sizes the bond with loop.fit_bond)."""
+    from scipy.optimize import least_squares
+
+    f, p_ref, n_ref = _spectra(reference)
+    _, p_new, n_new = _spectra(data)
+    others = [k for k in range(p_ref.shape[1]) if k != channel]
+    fs = float(reference.rig.fs_hz)
+    band = (f >= SPECTRAL_BAND_HZ[0]) & (f <= min(SPECTRAL_BAND_HZ[1], 0.4 * fs))
+    band &= (p_ref[:, channel] > SPECTRAL_MIN_SNR * n_ref[channel]) & (p_new[:, channel] > SPECTRAL_MIN_SNR * n_new[channel])
+    band &= (p_ref[:, others] > 0).all(axis=1) & (p_new[:, others] > 0).all(axis=1)
+    if band.sum() < 5:
+        raise ValueError(f"channel {channel}: too few bins above the noise for a bond's spectrum ({int(band.sum())})")
+    common = np.median(p_new[band][:, others] / p_ref[band][:, others], axis=1)
+    h2 = p_new[band, channel] / p_ref[band, channel] / common
+    fb = f[band]
+
+    def resid(q):
+        fc, g = np.exp(q)
+        return np.log(h2) - np.log(g * g / (1.0 + (fb / fc) ** 2))
+
+    fit = least_squares(resid, [np.log(3000.0), np.log(0.7)], loss="soft_l1", f_scale=0.3)
+    fc, g = np.exp(fit.x)
+    return float(fc), float(g)
 
 
 def lag_all(session, cfg) -> np.ndarray:
@@ -85,6 +132,7 @@ def main() -> int:
     ap.add_argument("--trees", type=int, default=30)
     ap.add_argument("--variants", default="base")
     ap.add_argument("--unchanged", type=float, default=float("nan"))
+    ap.add_argument("--forest-seed", type=int, default=-1, help="the forests' seed (default: --seed's)")
     ap.add_argument("--cache", default="", help="a scratch file keeping diagnose's and fit_bond's result")
     args = ap.parse_args()
     folder = Path(args.sessions)
@@ -109,7 +157,7 @@ def main() -> int:
                              settings=ForestSettings(n_estimators=args.trees, seed=args.seed), site_map=None)
         unchanged = float(np.mean([score(load_session(folder / f"same-{k}"), ref_model)["mae_mm"]
                                    for k in (1, 2, 3)]))
-    settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
+    settings = ForestSettings(n_estimators=args.trees, seed=args.seed if args.forest_seed < 0 else args.forest_seed)
     base_limit = bond_inverse.BOND_LIMIT_OF_PICK
     with tempfile.TemporaryDirectory() as tmp:
         cache = {}
@@ -140,7 +188,7 @@ def main() -> int:
             elif var == "truthinv":
                 inv = (truth["fc_hz"], truth["gain"])
             elif var == "spectral":
-                fc_s, g_s = bond_inverse.spectral_one_pole(ref, sess, ch)
+                fc_s, g_s = spectral_one_pole(ref, sess, ch)
                 print(f"  spectral one-pole {fc_s:.0f} Hz x{g_s:.3f}")
                 effects, tag = with_bond(accepted, ch, fc_s, g_s), "spectral"
             elif var != "base":

@@ -1,11 +1,14 @@
-"""bond_inverse.spectral_one_pole: a bonded channel's one-pole read from its spectrum against the reference's
+"""bench_bond_inverse.spectral_one_pole: a bonded channel's one-pole read from its spectrum against the reference's
 (different drops; the other channels' ratio taken out). Synthetic records only: nothing simulated."""
 
+import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from impactsense.bond_inverse import spectral_one_pole
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_bond_inverse import spectral_one_pole  # noqa: E402
 
 FS, N, START = 100_000.0, 2048, 128
 
