@@ -131,7 +131,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trees", type=int, default=30)
     ap.add_argument("--variants", default="base")
-    ap.add_argument("--unchanged", type=float, default=float("nan"))
+    ap.add_argument("--unchanged", type=float, default=float("nan"),
+                    help="the unchanged sessions' mean MAE (default: measured, the reference model on same-1..3)")
     ap.add_argument("--forest-seed", type=int, default=-1, help="the forests' seed (default: --seed's)")
     ap.add_argument("--cache", default="", help="a scratch file keeping diagnose's and fit_bond's result")
     args = ap.parse_args()
@@ -151,13 +152,13 @@ def main() -> int:
     g = next(c.params["gain"] for c in accepted if c.effect == "sensor_gain" and c.sensor == ch)
     print(f"{folder.name}/{args.name}: channel {ch}; truth {truth['fc_hz']:.0f} Hz x{truth['gain']:.3f}; fit_bond "
           f"order {lp.get('order', 2)} {lp['fc_hz']:.0f} Hz x{g:.3f} ({time.time() - t0:.0f} s)", flush=True)
+    forest_seed = args.seed if args.forest_seed < 0 else args.forest_seed
+    settings = ForestSettings(n_estimators=args.trees, seed=forest_seed)
     unchanged = args.unchanged
-    if not np.isfinite(unchanged):
-        ref_model, _ = train(ref, None, 0.0, args.seed, None,
-                             settings=ForestSettings(n_estimators=args.trees, seed=args.seed), site_map=None)
+    if not np.isfinite(unchanged):   # the reference model with the same forests' seed on same-1..3
+        ref_model, _ = train(ref, None, 0.0, args.seed, None, settings=settings, site_map=None)
         unchanged = float(np.mean([score(load_session(folder / f"same-{k}"), ref_model)["mae_mm"]
                                    for k in (1, 2, 3)]))
-    settings = ForestSettings(n_estimators=args.trees, seed=args.seed if args.forest_seed < 0 else args.forest_seed)
     base_limit = bond_inverse.BOND_LIMIT_OF_PICK
     with tempfile.TemporaryDirectory() as tmp:
         cache = {}
