@@ -1,7 +1,9 @@
 // The bond inverse: a debonded disc passes the plate's wave through a one-pole low-pass and a gain
 // (docs/method.md, "The bond inverse"); a channel with bond_corner_hz > 0 is picked on the capture through
 // its inverse, limited above bond_limit_hz, so the threshold crossing lands on the arrival's first cycle as
-// on the other channels. Cost: one multiply-add pair and a rounding a sample, on the channels that have it.
+// on the other channels. Cost: one multiply-add pair and a rounding a sample, on the channel's span only
+// (bond_span_end: from the capture start to the windows the pick, the band pick and the difference energies
+// read); the channel's features read that span alone.
 #include <math.h>
 #include <stdint.h>
 
@@ -19,6 +21,22 @@ int32_t check_bond_inverse(const CoreConfig& cfg) {
     ++on;
   }
   return on > kMaxBondChannels ? kErrBadConfig : kOk;
+}
+
+int bond_span_end(const CoreConfig& cfg, int n, float anchor) {
+  const int limit = n < kBondSpanMax ? n : kBondSpanMax;
+  const int dcap = static_cast<int>(cfg.diff_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
+  if (!(anchor >= 0.0f) || dcap <= 0) return limit;
+  int reach = kBondReach * dcap + cfg.aic_after;
+  if (cfg.band_pick_hz > 0.0f) {
+    const int band = static_cast<int>(cfg.band_window_us * cfg.fs_hz * 1.0e-6f + 0.5f);
+    if (band > reach) reach = band;
+  }
+  const int floor_n = cfg.baseline_samples + 16;  // what extract_features asks of a capture
+  const float end = anchor + 1.0f + static_cast<float>(reach);
+  int e = end < static_cast<float>(limit) ? static_cast<int>(end) : limit;
+  if (e < floor_n) e = floor_n < limit ? floor_n : limit;
+  return e;
 }
 
 void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz, const CoreConfig& cfg,

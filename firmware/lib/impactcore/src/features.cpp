@@ -1280,28 +1280,44 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
     return out->status = kErrBadConfig;
   }
   if (check_bond_inverse(cfg) != kOk) return out->status = kErrBadConfig;
-  // A channel with a bond inverse is read, from here on, through it (one buffer a channel, kMaxBondChannels:
-  // 16 KB of RAM; the host's batches may run on several threads, the board has one and no thread storage).
+  // A channel with a bond inverse is read, from here on, through it, and only on its span [0, E)
+  // (bond_span_end: the other channels' first crossing sets where the windows its features read end): one
+  // buffer of kBondSpanMax samples a channel (kMaxBondChannels; the host's batches may run on several threads,
+  // the board has one and no thread storage). The other channels are done first, as without an inverse.
 #if defined(__ARM_ARCH) && !defined(__linux__)
-  static int16_t bond_buffer[kMaxBondChannels][kMaxSamples];
+  static int16_t bond_buffer[kMaxBondChannels][kBondSpanMax];
 #else
-  static thread_local int16_t bond_buffer[kMaxBondChannels][kMaxSamples];
+  static thread_local int16_t bond_buffer[kMaxBondChannels][kBondSpanMax];
 #endif
   const int16_t* ch_adc[kChannels];
-  for (int c = 0, b = 0; c < kChannels; ++c) {
-    ch_adc[c] = adc[c];
-    if (!bond_inverse_on(cfg, c)) continue;
-    bond_inverse(adc[c], n, cfg.bond_corner_hz[c], cfg.bond_gain[c], cfg.bond_limit_hz[c], cfg, bond_buffer[b]);
-    ch_adc[c] = bond_buffer[b++];
-  }
-  adc = ch_adc;
+  int ch_n[kChannels];
   int onsets = 0;
   HumBasis basis;  // filled by the first channel whose hum is fitted
   HuntWindow window[kChannels];
+  bool bonded = false;
+  float anchor = INFINITY;
   for (int c = 0; c < kChannels; ++c) {
+    ch_adc[c] = adc[c];
+    ch_n[c] = n;
     window[c].open = false;
+    if (bond_inverse_on(cfg, c)) {
+      bonded = true;
+      continue;
+    }
     channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c]);
+    if (!(out->ch[c].flags & kFlagNoOnset) && out->ch[c].toa_threshold < anchor) anchor = out->ch[c].toa_threshold;
   }
+  if (bonded) {
+    const int e = bond_span_end(cfg, n, anchor < INFINITY ? anchor : -1.0f);
+    for (int c = 0, b = 0; c < kChannels; ++c) {
+      if (!bond_inverse_on(cfg, c)) continue;
+      bond_inverse(adc[c], e, cfg.bond_corner_hz[c], cfg.bond_gain[c], cfg.bond_limit_hz[c], cfg, bond_buffer[b]);
+      ch_adc[c] = bond_buffer[b++];
+      ch_n[c] = e;
+      channel_features(ch_adc[c], e, cfg, c, &basis, &out->ch[c], &window[c]);
+    }
+  }
+  adc = ch_adc;
   // A glitch inside one channel's arrival raises its Delta^3 / Delta^1 energy ratio (a lone spike's is 10;
   // an arrival's is set by the contact and the plate, alike on every channel: on the bundled sessions, clean
   // or with noise and hum, at most 2.7 x the median of the other channels'): a channel above
@@ -1341,10 +1357,10 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
       if (hunt == kHuntNone || !window[c].open) continue;
       Spike probe;
       int lo, hi;
-      window[c].bounds(cfg, n, &lo, &hi);
+      window[c].bounds(cfg, ch_n[c], &lo, &hi);
       IC_WORK(spike_hunts, 1);
-      if (find_inside_spike(adc[c], n, lo, hi, window[c].icross, window[c].thr, hunt == kHuntLargest, &probe)) {
-        channel_features(adc[c], n, cfg, c, &basis, &out->ch[c], &window[c], hunt);
+      if (find_inside_spike(adc[c], ch_n[c], lo, hi, window[c].icross, window[c].thr, hunt == kHuntLargest, &probe)) {
+        channel_features(adc[c], ch_n[c], cfg, c, &basis, &out->ch[c], &window[c], hunt);
       }
     }
   }
@@ -1363,7 +1379,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   if (cfg.band_pick_hz > 0.0f && first < INFINITY) {
     for (int c = 0; c < kChannels; ++c) {
       if (out->ch[c].flags & (kFlagNoOnset | kFlagDead)) continue;
-      const float s = band_onset(adc[c], n, out->ch[c].baseline, out->ch[c].noise_rms, static_cast<int>(first), cfg);
+      const float s = band_onset(adc[c], ch_n[c], out->ch[c].baseline, out->ch[c].noise_rms, static_cast<int>(first), cfg);
       out->ch[c].toa_band_us = s * (1.0e6f / cfg.fs_hz) - cfg.capture_delay_us[c];
     }
   }

@@ -219,8 +219,18 @@ struct EventFeatures {
 };
 
 // --- the bond inverse (bond_inverse.cpp): a debonded disc's one-pole low-pass undone before picking ---
-// At most this many channels at once (one capture's buffer each: kMaxSamples int16).
+// At most this many channels at once (one span's buffer each: kBondSpanMax int16).
 constexpr int kMaxBondChannels = 1;
+// The bonded channel is filtered and read only on its span [0, E) (docs/method.md "Bond inverse"):
+// E = anchor + kBondReach x the difference window (diff_window_us, in samples) + aic_after (at least the band
+// window band_window_us after the anchor when band_pick_hz > 0), the anchor the other channels' first threshold
+// crossing; E at most n and kBondSpanMax (the buffer), and the whole kBondSpanMax when the difference window
+// is off or no other channel has an onset.
+constexpr int kBondReach = 2;
+constexpr int kBondSpanMax = 2048;
+// The span's end E for a capture of n samples whose other channels first cross the threshold at `anchor`
+// (sample index; < 0: none has an onset).
+int bond_span_end(const CoreConfig& cfg, int n, float anchor);
 // True when channel c's bond inverse is on (bond_corner_hz > 0).
 inline bool bond_inverse_on(const CoreConfig& cfg, int c) { return cfg.bond_corner_hz[c] > 0.0f; }
 // kOk, or kErrBadConfig when an inverse's fields are out of range (corner, limit or gain not finite and
