@@ -38,11 +38,15 @@ def test_band_picks_and_starts_add_their_cost():
     assert with_band["localiser"] == 2 * one
     longer = board_cfg(band_pick_hz=10000.0, band_window_us=1000.0, band_velocity_mm_per_us=1.5)
     assert cost.signal_instructions(longer)["band"] > with_band["band"]
-    # the bond inverse filters its channel's whole capture: over the budget on its own with the base
-    bond = cost.signal_instructions(board_cfg(bond_corner_hz=[0.0, 3000.0, 0.0, 0.0], bond_gain=[1.0, 0.6, 1.0, 1.0],
-                                              bond_limit_hz=[0.0, 9000.0, 0.0, 0.0]))
-    assert bond["total"] - plain["total"] == cost.BOND_PER_SAMPLE * cost.BOND_SAMPLES
-    assert bond["total"] > cost.EVENT_BUDGET
+    # the bond inverse filters its channel's span only: the anchor bound + 2 difference windows + aic_after (at
+    # 50 kHz: 125 samples a window), far less than a 2048-frame capture; a longer window, a longer span
+    on = dict(bond_corner_hz=[0.0, 3000.0, 0.0, 0.0], bond_gain=[1.0, 0.6, 1.0, 1.0], bond_limit_hz=[0.0, 9000.0, 0.0, 0.0])
+    bcfg = board_cfg(**on)
+    bond = cost.signal_instructions(bcfg)
+    span = cost.BOND_ANCHOR_FRAMES + 1 + 2 * 125 + bcfg.aic_after
+    assert cost.bond_samples(bcfg) == span < 2048 and cost.bond_samples(board_cfg()) == 0
+    assert bond["total"] - plain["total"] == cost.BOND_PER_SAMPLE * span
+    assert cost.bond_samples(board_cfg(diff_window_us=5000.0, **on)) == span + 2 * 125
     # no band travel model: the core does not run them for the position (process_event), nor counts them here
     assert cost.band_samples(board_cfg(band_pick_hz=10000.0)) == 0
     four = cost.signal_instructions(board_cfg(localiser_starts=4))

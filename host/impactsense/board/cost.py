@@ -44,9 +44,14 @@ BASE_INSTRUCTIONS = 53000
 FRONT_END_INSTRUCTIONS = 500
 BAND_PER_SAMPLE = 80
 # impactcore bond_inverse.cpp (a channel with bond_corner_hz > 0): its loop on the M4F (arm-none-eabi -O2, counted
-# from the listing, not timed under qemu) over the whole capture (impactapp.h kMaxCapture frames)
+# from the listing) over the channel's span only (bond_span_end, docs/method.md "Bond inverse"): from the capture
+# start to the other channels' first crossing (on the board's captures at most BOND_ANCHOR_FRAMES: the trigger's
+# pretrigger of 96 frames at 50 kHz and a plate crossing) + kBondReach x the difference window + aic_after. The
+# channel's other passes then read the span only, which is not counted here (a margin).
 BOND_PER_SAMPLE = 24
-BOND_SAMPLES = 2048
+BOND_ANCHOR_FRAMES = 128
+BOND_REACH = 2          # impactcore.h kBondReach
+BOND_SPAN_MAX = 2048    # impactcore.h kBondSpanMax
 # impactcore localise.cpp's kMaxEvaluations (a start's normal-equation evaluations, step halvings included)
 LOCALISER_EVALUATIONS = 16
 # (isotropic, anisotropic plate): the screening's 20 points, the set-up and the covariance; one evaluation
@@ -114,6 +119,21 @@ def band_samples(cfg) -> int:
     return min(window, _BAND_MAX_WINDOW) + int(2 * _BAND_POLES / alpha + 0.5)
 
 
+def bond_samples(cfg) -> int:
+    """Samples a bonded channel's inverse filters on the board (bond_span_end at the slowest anchor): 0 when no
+    channel has the inverse on."""
+    if not any(float(fc) > 0.0 for fc in getattr(cfg, "bond_corner_hz", ())):
+        return 0
+    fs = float(cfg.fs_hz)
+    window = int(float(cfg.diff_window_us) * 1e-6 * fs + 0.5)
+    if window <= 0:
+        return BOND_SPAN_MAX
+    reach = BOND_REACH * window + int(cfg.aic_after)
+    if float(cfg.band_pick_hz) > 0.0:
+        reach = max(reach, int(float(cfg.band_window_us) * 1e-6 * fs + 0.5))
+    return min(BOND_SPAN_MAX, BOND_ANCHOR_FRAMES + 1 + reach)
+
+
 def isotropic(metric) -> bool:
     """A travel metric (Q_xx, Q_xy, Q_yy) the core reads as the Euclidean distance (localise_tdoa's iso form)."""
     return tuple(float(q) for q in metric) == (1.0, 0.0, 1.0)
@@ -157,7 +177,7 @@ def signal_instructions(cfg, channels: int = 4, front_end=None) -> dict:
         loc += localiser_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
                                                              cfg.band_metric_yy)), cap) + posterior
     base = base_instructions(front_end)
-    bond = BOND_PER_SAMPLE * BOND_SAMPLES * sum(1 for fc in getattr(cfg, "bond_corner_hz", ()) if fc > 0.0)
+    bond = BOND_PER_SAMPLE * bond_samples(cfg)   # kMaxBondChannels: one channel at most
     return {"base": base + bond, "band": band, "localiser": loc, "total": base + bond + band + loc}
 
 
