@@ -238,8 +238,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
             if row["model_choice"]["chosen"] == "reference":
                 row["after"], row["after_kind"] = row["before"], "reference"
         row["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in accepted]
-    else:
-        row["after"] = row["before"]
+    else:   # nothing named: nothing retrained, the reference model stays
+        row["after"], row["after_kind"] = row["before"], "reference"
     loop["note"] = f"MAE on every drop of {name} (its own labels); models trained on all of the reference session."
     write_report(res, det, work / "reports" / name, loop)
     row["effects"] = res["effects"]
@@ -305,6 +305,12 @@ def _twin_params(out: dict):
     return SimParams.from_dict(cal["sim_params"])
 
 
+def after_kind(r: dict) -> str:
+    """The kept after's model: "twin", "measured", or "reference" (retrain kept it, or nothing was named so
+    nothing was retrained); rows of runs before `after_kind` was stored for every row: from the models they hold."""
+    return r.get("after_kind") or ("twin" if "twin" in r else "measured" if "measured" in r else "reference")
+
+
 def table(out: dict) -> int:
     rows, ds, twin = out["rows"], out["D_s"], _twin_params(out)
     same = [r for r in rows if r["truth"] is None]
@@ -344,7 +350,7 @@ def table(out: dict) -> int:
             if mc:   # retrain's choice between the loop's model and the reference model on the session's drops
                 size += (f"; kept: {mc['chosen']} (loop's {r['loop_after']['mae_mm']:.2f}, reference "
                          f"{mc['reference_mae_mm']:.2f}, the rule cross-fitted {mc['cross_fitted_mae_mm']:.2f} mm)")
-            if r.get("after_kind", "twin" if "twin" in r else "measured") == "twin" and twin_base is not None:
+            if after_kind(r) == "twin" and twin_base is not None:
                 loop_ok = loop_ok and r["after"]["mae_mm"] <= RATIO * twin_base
                 fair = f"{r['after']['mae_mm'] / twin_base:.2f} (twin)"
             else:
@@ -393,15 +399,17 @@ def issue_table(rows: list, base: float, twin_base: float | None) -> None:
         if r["truth"] is None:
             continue
         names = ", ".join(f"{e}[{s}]" if s is not None else e for e, s in r["named"]) or "none"
-        kind = r.get("after_kind", "twin" if "twin" in r else "measured")
+        kind = after_kind(r)
         loop = r.get("loop_after", r["after"])["mae_mm"]
-        loop_kind = "twin" if "twin" in r else "measured"
+        loop_kind = "twin" if "twin" in r else "measured" if "measured" in r else "reference"
 
         def yard(k):
             return twin_base if k == "twin" and twin_base is not None else base
         kept = r["after"]["mae_mm"]
         own = (f"{r['own_unchanged']['mae_mm']:.2f}, {kept / r['own_unchanged']['mae_mm']:.2f}"
                if "own_unchanged" in r else "-")
+        if kind == "reference" and loop_kind == "reference":
+            kind = "reference: nothing named, nothing retrained"
         print(f"| {r['session']} | {names} | {r['before']['mae_mm']:.2f} | {loop:.2f} -> {kept:.2f} ({kind}) | "
               f"{yard(kind):.2f} | {loop / yard(loop_kind):.2f} -> **{kept / yard(kind):.2f}** | {own} |")
 

@@ -71,3 +71,20 @@ def test_the_sessions_a_run_makes_use_its_worker_count_and_the_generators_option
     assert gen.workers == 1 and gen.seed == 16 and gen.out == "/tmp/s"
     assert gen.only == "ref,delay" and gen.controls and gen.calibration == "rig"
     assert bench_loop.generator_args(bench_loop.parse(["--workers", "3"])).workers == 3
+
+
+def test_a_session_with_nothing_named_reports_the_reference_model_kept_not_a_retrained_one(capsys):
+    """A move under the evidence bar: nothing named, nothing retrained, the after is the reference model's MAE.
+    The issue table said '(measured)' for it (a measured-trained model that was never trained); it says the
+    reference is kept, with the measured yardstick, also for rows stored before `after_kind` was."""
+    out = _rows()
+    move = {"session": "move-131", "named": [], "effects": [], "before": _mae(5.0), "after": _mae(5.0),
+            "truth": {"effect": "sensor_position", "sensor": 0, "params": {"dx_mm": -4.5, "dy_mm": 5.1}}}
+    out["rows"].append(move)
+    assert bench_loop.after_kind(move) == "reference"
+    assert bench_loop.after_kind(out["rows"][2]) == "measured"
+    assert bench_loop.table(out) == 1                         # not named: a miss, and 5.0 > 1.2 x 4.0
+    text = capsys.readouterr().out
+    line = next(ln for ln in text.splitlines() if ln.startswith("| move-131 | none | 5.00 |"))
+    assert "(reference: nothing named, nothing retrained)" in line and "(measured)" not in line
+    assert "**1.25**" in line                                 # against the reference model's unchanged mean 4.0
