@@ -17,7 +17,9 @@ plain measured-trained model). After the loop, two models are trained on `ref`'s
   (moved disc, E, D_s) and the rest at the signal level (`impactsense.loop`). That twin is the generator's
   own FEM (an inverse crime for this path: the data and the corrected twin are the same simulator; the
   diagnosis is not, it sees only the features).
-"after" is the twin model when a plate or sensor effect was named, else the measured-trained one; then, as
+"after" is the twin model when a plate or sensor effect was named, else the measured-trained one (a moved disc: the
+one whose model places the session's drops better, as `impactsense retrain` with a twin keeps its training drops,
+`commands.retrain.choose_training_data`); then, as
 `impactsense retrain` keeps it (`impactsense.model_choice`), the reference model when it places the session better
 overall and on each half of its cases (a bond: the bond choice's). Issue 16's table (before, the loop's model ->
 the kept one, the unchanged MAE, the ratio) is printed after the full one. A twin model
@@ -178,9 +180,9 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     from impactsense.data import load_session
     from impactsense.diagnose import diagnose, write_report
     from impactsense.bond_choice import fit_with_bond_choice
-    from impactsense.commands.retrain import carry_delays
-    from impactsense.loop import (channel_delays, effect_dicts, fit_bond, measured_training_session, pick_settings,
-                                  size_plate_change, split_effects, training_draws, weak_channel)
+    from impactsense.commands.retrain import carry_delays, choose_training_data
+    from impactsense.loop import (channel_delays, effect_dicts, fit_bond, measured_training_session, moves_disc,
+                                  pick_settings, size_plate_change, split_effects, training_draws, weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -229,12 +231,18 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
                 t_model.twin_fit.weak_channel = weak_channel(accepted)
             row["twin"] = score(sess, t_model)
             loop["rows"]["twin-trained, corrected twin"] = row["twin"]
-        row["after"] = row["twin" if twin else "measured"]
-        row["after_kind"] = "twin" if twin else "measured"
+        use_twin = bool(twin)
+        if twin and moves_disc(accepted):   # as `impactsense retrain` with a twin: the better training drops kept
+            row["training_choice"] = choose_training_data({"measured": m_model, "corrected twin": t_model}, sess,
+                                                          args.seed)
+            use_twin = row["training_choice"]["chosen"] == "corrected twin"
+        row["after"] = row["twin" if use_twin else "measured"]
+        row["after_kind"] = "twin" if use_twin else "measured"
         if not row.get("bond_choice"):   # as `impactsense retrain`: the reference model kept when it places better
             from impactsense.model_choice import keep_retrained_or_reference
             row["loop_after"] = row["after"]
-            row["model_choice"] = keep_retrained_or_reference(t_model if twin else m_model, ref_model, sess, args.seed)
+            row["model_choice"] = keep_retrained_or_reference(t_model if use_twin else m_model, ref_model, sess,
+                                                              args.seed)
             if row["model_choice"]["chosen"] == "reference":
                 row["after"], row["after_kind"] = row["before"], "reference"
         row["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in accepted]
@@ -402,6 +410,8 @@ def issue_table(rows: list, base: float, twin_base: float | None) -> None:
         kind = after_kind(r)
         loop = r.get("loop_after", r["after"])["mae_mm"]
         loop_kind = "twin" if "twin" in r else "measured" if "measured" in r else "reference"
+        if "training_choice" in r:   # a moved disc: the loop's model is the training drops retrain kept
+            loop_kind = "twin" if r["training_choice"]["chosen"] == "corrected twin" else "measured"
 
         def yard(k):
             return twin_base if k == "twin" and twin_base is not None else base

@@ -88,3 +88,16 @@ def test_a_session_with_nothing_named_reports_the_reference_model_kept_not_a_ret
     line = next(ln for ln in text.splitlines() if ln.startswith("| move-131 | none | 5.00 |"))
     assert "(reference: nothing named, nothing retrained)" in line and "(measured)" not in line
     assert "**1.25**" in line                                 # against the reference model's unchanged mean 4.0
+
+
+def test_a_moved_disc_whose_measured_model_was_kept_is_held_to_the_measured_yardstick(capsys):
+    """retrain's training choice kept the measured drops (the twin's model placed the session worse): the after is
+    measured-trained, judged against the reference model's unchanged mean, and the issue table says so."""
+    out = _rows(measured_after=4.7)
+    row = out["rows"][-1]
+    row["twin"] = _mae(5.5)
+    row["after_kind"] = "measured"
+    row["training_choice"] = {"chosen": "measured"}
+    assert bench_loop.table(out) == 0                         # 4.7 <= 1.2 x 4.0 (the twin's 3.0 not the yardstick)
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("| delay | channel_delay[2] | 6.00"))
+    assert "4.70 -> 4.70 (measured)" in line and "1.18 -> **1.18**" in line

@@ -113,3 +113,28 @@ def test_without_a_twin_a_move_is_put_into_the_reference_recordings(base, tmp_pa
                               fit=_fits(base, 1.0, 3.0))
     assert card["retrain"]["training_data"] == "reference recordings with the effects put in"
     assert np.array_equal(out.adc[:, 1:], base.adc[:, 1:]) and not np.array_equal(out.adc[:, 0], base.adc[:, 0])
+
+
+def test_the_training_choice_is_one_rule_that_the_loop_benchmark_shares(base):
+    """`choose_training_data` is retrain's choice between the two training sets (bench_loop's after for a moved
+    disc uses it too: it had kept the twin's model whatever placed the session better, docs/findings.md
+    "Session 25: moverows"): the better placer, unless the twin's classes worse by more than one SE."""
+    import inspect
+    import sys
+    from pathlib import Path
+
+    from impactsense.commands.retrain import choose_training_data
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_loop
+
+    def placer(off, acc=1.0):
+        m = _Placer(off, acc)
+        m.xy_mm = base.xy_mm
+        return m
+
+    got = choose_training_data({"measured": placer(3.0), "corrected twin": placer(1.0)}, base)
+    assert got["chosen"] == "corrected twin" and got["mae_mm"] == pytest.approx({"measured": 1.5, "corrected twin": 0.5})
+    assert choose_training_data({"measured": placer(1.0), "corrected twin": placer(3.0)}, base)["chosen"] == "measured"
+    assert choose_training_data({"measured": placer(3.0), "corrected twin": placer(1.0, 0.8)}, base)["chosen"] == "measured"
+    assert "choose_training_data(" in inspect.getsource(bench_loop.one_changed)

@@ -159,11 +159,9 @@ def training_session(base, data, details, accepted, twin, folder: Path, seed: in
     `loop.twin_training_session`), a model fitted on each, and the one whose model places DATA_NEW's labelled drops
     better kept (`model_choice.choose_model`) unless its energy class there is worse by more than one binomial
     standard error (the card's `training_choice`, `training_data`), in `folder` (the other beside it)."""
-    import numpy as np
 
     from ..data import load_session
     from ..loop import effect_dicts, measured_training_session, moves_disc, size_plate_change, twin_training_session
-    from ..model_choice import choose_model
 
     measured = measured_training_session(base, accepted, details["ref"], folder, seed, twin=twin, moved_rig=moved_rig)
     card["retrain"]["training_data"] = "reference recordings with the effects put in"
@@ -174,13 +172,8 @@ def training_session(base, data, details, accepted, twin, folder: Path, seed: in
     sim = twin_training_session(base, twin, effect_dicts(sized), other, details["ref"].slowness_us_per_mm, seed,
                                 moved_rig=moved_rig)
     models = {"measured": fit(measured, accepted), "corrected twin": fit(sim, sized)}
-    got = choose_model(models, data, seed)
-    acc = {k: class_accuracy(m, data) for k, m in models.items()}
-    # the twin's drops kept only when their model's class on DATA_NEW is not worse by more than its standard error
-    se = float(np.sqrt(max(acc["measured"] * (1.0 - acc["measured"]), 1e-4) / len(data)))
-    chosen = "measured" if acc["corrected twin"] < acc["measured"] - se else got["chosen"]
-    card["retrain"]["training_choice"] = {"chosen": chosen, "mae_mm": got["mae_mm"], "class_accuracy": acc,
-                                          "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
+    card["retrain"]["training_choice"] = got = choose_training_data(models, data, seed)
+    chosen, acc = got["chosen"], got["class_accuracy"]
     print(f"a moved disc with a twin: DATA_NEW's drops placed by the model trained on DATA_REF's recordings with the "
           f"move put in {got['mae_mm']['measured']:.2f} mm (class {acc['measured']:.3f}), on the corrected twin's "
           f"drops (the disc moved in the FEM) {got['mae_mm']['corrected twin']:.2f} (class "
@@ -192,6 +185,24 @@ def training_session(base, data, details, accepted, twin, folder: Path, seed: in
     card["retrain"]["training_data"] = "corrected twin"
     card["retrain"]["effects_added"] = [{"effect": c.effect, "sensor": c.sensor, "params": c.params} for c in sized]
     return load_session(folder), sized
+
+
+def choose_training_data(models: dict, data, seed: int = 0) -> dict:
+    """A moved disc with a twin: which training drops retrain keeps, from the models fitted on each
+    (`models`: "measured" and "corrected twin"): the one that places DATA_NEW's labelled drops better
+    (`model_choice.choose_model`), the twin's only when its model's energy class there is not worse by more than
+    one binomial standard error. The card's `training_choice`: chosen, each one's MAE and class accuracy, the
+    rule's cross-fitted MAE."""
+    import numpy as np
+
+    from ..model_choice import choose_model
+
+    got = choose_model(models, data, seed)
+    acc = {k: class_accuracy(m, data) for k, m in models.items()}
+    se = float(np.sqrt(max(acc["measured"] * (1.0 - acc["measured"]), 1e-4) / len(data)))
+    chosen = "measured" if acc["corrected twin"] < acc["measured"] - se else got["chosen"]
+    return {"chosen": chosen, "mae_mm": got["mae_mm"], "class_accuracy": acc,
+            "cross_fitted_mae_mm": got["cross_fitted_mae_mm"]}
 
 
 def class_accuracy(model, session) -> float:
