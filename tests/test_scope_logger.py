@@ -97,15 +97,18 @@ def test_info_reads_hum_on_the_hum_channel_over_quiet_start_and_tail():
 
 
 def test_info_says_the_core_reads_part_of_a_long_record():
-    """20,000 samples at 1 MHz: `info`'s line on the record after the first arrival (4.16 ms, what the core reads)
-    says it is the core's first CORE_MAX_SAMPLES, not the 16 ms the scope kept."""
+    """20,000 samples at 1 MHz: `info`'s line on the record after the first arrival (what the core reads: its
+    window from signal.record_start, 1 ms before the quiet start's end, 7.19 ms after it) says it is
+    CORE_MAX_SAMPLES of the record and where they start, not the 16 ms the scope kept."""
     from impactsense.record_window import window_check, window_text
-    from impactsense.signal import CORE_MAX_SAMPLES
+    from impactsense.signal import CORE_MAX_SAMPLES, record_start
 
     check = window_check(_rig(20000), 20000, PRE)
-    assert np.isclose(check["after_first_arrival_ms"], (CORE_MAX_SAMPLES - PRE) / FS * 1e3)
-    assert f"first {CORE_MAX_SAMPLES} of its 20000 samples" in window_text(check)
-    assert "of its" not in window_text(window_check(_rig(), N, PRE))
+    start = record_start(20000, PRE, FS)
+    assert 0 < start < PRE and check["core_start"] == start
+    assert np.isclose(check["after_first_arrival_ms"], (start + CORE_MAX_SAMPLES - PRE) / FS * 1e3)
+    assert f"{CORE_MAX_SAMPLES} of a record's 20000 samples, from sample {start}" in window_text(check)
+    assert "of a record's" not in window_text(window_check(_rig(), N, PRE))
 
 
 def test_calibrates_fast_model_spans_the_arrivals_at_1_mhz():

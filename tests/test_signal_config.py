@@ -122,7 +122,8 @@ def test_exported_c_config_is_the_host_config(where, s1):
     want = settings(**card_values(card))
     members = _c_struct(header)
     assert members == [(f.name, f.count) for f in exported_fields()]
-    assert {f.name for f in FIELDS.values()} - {n for n, _ in members} == {"adc_min", "adc_max", "sample_offset", "capture_delay_us"}
+    assert {f.name for f in FIELDS.values()} - {n for n, _ in members} == {"adc_min", "adc_max", "sample_offset", "record_start",
+                                                                             "capture_delay_us"}
     values = _c_values(tables)
     assert len(values) == len(members)
     for (name, count), got in zip(members, values):

@@ -41,17 +41,20 @@ def slowest_velocity_mm_per_us(rig) -> float:
 def window_check(rig, samples: int, first_arrival_samples: int | None) -> dict:
     """The record after the first arrival (ms; None when the first arrival is not known) against the span the
     far arrivals need (ms): `short` when the record stops before the farthest arrival may come."""
-    from .signal import CORE_MAX_SAMPLES
+    from .signal import CORE_MAX_SAMPLES, record_start
 
     recorded = int(samples)
-    samples = min(recorded, CORE_MAX_SAMPLES)   # the core reads a longer record's first CORE_MAX_SAMPLES
+    samples = min(recorded, CORE_MAX_SAMPLES)   # the core reads CORE_MAX_SAMPLES of a longer record
+    start = record_start(recorded, first_arrival_samples, rig.fs_hz)   # ... from here (signal.record_start)
     path_mm = longest_path_difference_mm(rig)
     v = slowest_velocity_mm_per_us(rig)
     needed_ms = path_mm / v * 1e-3
-    after_ms = None if first_arrival_samples is None else (samples - first_arrival_samples) / rig.fs_hz * 1e3
+    after_ms = (None if first_arrival_samples is None
+                else (start + samples - first_arrival_samples) / rig.fs_hz * 1e3)
     return {"after_first_arrival_ms": after_ms, "far_arrival_ms": needed_ms, "path_difference_mm": path_mm,
             "velocity_mm_per_us": v, "reference_hz": REFERENCE_HZ, "record_samples": recorded,
-            "core_samples": samples, "short": bool(after_ms is not None and after_ms < needed_ms)}
+            "core_samples": samples, "core_start": start,
+            "short": bool(after_ms is not None and after_ms < needed_ms)}
 
 
 def window_text(check: dict) -> str:
@@ -63,7 +66,9 @@ def window_text(check: dict) -> str:
         return f"record after the first arrival: unknown; {need}"
     text = f"record after the first arrival: {check['after_first_arrival_ms']:.2f} ms"
     if check.get("core_samples", 0) < check.get("record_samples", 0):
-        text += f" (the signal core reads a record's first {check['core_samples']} of its {check['record_samples']} samples)"
+        a = int(check.get("core_start", 0))
+        text += (f" (the signal core reads {check['core_samples']} of a record's {check['record_samples']} samples, "
+                 f"{'its first' if a == 0 else f'from sample {a}'})")
     text += f"; {need}"
     if check["short"]:
         text += (": SHORT, drops far from a sensor may lose its arrival (read as a dead channel or no onset): "

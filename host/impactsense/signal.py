@@ -83,7 +83,8 @@ def card_values(d: dict) -> dict:
 def rig_settings(rig) -> dict:
     """What a rig's rig.json decides: sample rate, ADC rails (a 16-bit logger's re-centred, `core_offset`), the
     count-valued defaults scaled to its ADC (`counts_per_core_count`), sensor and plate geometry, the rig's
-    declared channel delays (optional key `rig_delay_us`, or `channel_delay_us`)."""
+    declared channel delays (optional key `rig_delay_us`, or `channel_delay_us`), where a record longer than
+    the core reads begins the core's window (`record_start`)."""
     offset = core_offset(int(rig.adc_max))
     d = {"fs_hz": float(rig.fs_hz), "adc_min": -offset, "adc_max": int(rig.adc_max) - offset,
          "sample_offset": offset,
@@ -93,7 +94,11 @@ def rig_settings(rig) -> dict:
     if scale != 1.0:   # impactcore.h's count-valued defaults are a 12-bit, 3.3 V logger's: the same volts here
         for name in COUNT_FIELDS:
             d[name] = float(FIELDS[name].default) * scale
-    baseline = baseline_for_pretrigger(getattr(rig, "pretrigger_samples", None))
+    pre = getattr(rig, "pretrigger_samples", None)
+    start = record_start(int(rig.samples), pre, float(rig.fs_hz))
+    if start:
+        d["record_start"] = start
+    baseline = baseline_for_pretrigger(None if pre is None else int(pre) - start)
     if baseline is not None:
         d["baseline_samples"] = baseline
     raw = rig.raw if isinstance(getattr(rig, "raw", None), dict) else {}
@@ -160,25 +165,47 @@ def core_offset(adc_max: int) -> int:
 
 
 # The core takes captures of at most this many samples per channel (impactcore.h's kMaxSamples); a logger
-# that keeps longer records (e.g. 10000 samples at 250 kHz) is read over its first CORE_MAX_SAMPLES: the event's
-# windows (ToA .. n2, the difference energies' diff_window_us) end long before, and the quiet start is kept.
+# that keeps longer records (e.g. 20000 samples at 1 MHz) is read over CORE_MAX_SAMPLES of them: the event's
+# windows (ToA .. n2, the difference energies' diff_window_us) end long before.
 CORE_MAX_SAMPLES = int(_core.MAX_SAMPLES)
+# Where that window starts (impactcore.h's record_start): QUIET_KEPT_S before the session's quiet start (at least
+# QUIET_KEPT_MIN_SAMPLES), not at the record's start. Over the quiet start a hum the core does not model drifts
+# from the baseline segment's level (the capture's first baseline_samples) by up to 2 A sin(pi f t): at 4 ms and
+# 50 Hz 1.2 x its amplitude A, over an onset threshold; over 1 ms 0.31 A. A record of at most CORE_MAX_SAMPLES
+# (and one whose quiet start is not known) is read from its start, as before.
+QUIET_KEPT_S = 1e-3
+QUIET_KEPT_MIN_SAMPLES = 256
 
 
-def core_window(x: np.ndarray) -> np.ndarray:
-    """A record array [..., S] cut to the samples the core reads: the first CORE_MAX_SAMPLES (a view)."""
-    return x[..., :CORE_MAX_SAMPLES] if x.shape[-1] > CORE_MAX_SAMPLES else x
+def record_start(samples: int, pretrigger_samples: int | None, fs_hz: float) -> int:
+    """The first record sample the core reads (impactcore.h's record_start): 0 unless the record is longer than
+    CORE_MAX_SAMPLES and keeps more quiet start than QUIET_KEPT_S (QUIET_KEPT_MIN_SAMPLES) before its first
+    arrival; then that much before the first arrival, the window never past the record's end."""
+    if pretrigger_samples is None or int(samples) <= CORE_MAX_SAMPLES:
+        return 0
+    keep = max(QUIET_KEPT_MIN_SAMPLES, int(round(QUIET_KEPT_S * float(fs_hz))))
+    return int(np.clip(int(pretrigger_samples) - keep, 0, int(samples) - CORE_MAX_SAMPLES))
+
+
+def core_window(x: np.ndarray, start: int = 0) -> np.ndarray:
+    """A record array [..., S] cut to the samples the core reads: CORE_MAX_SAMPLES from `start` (a view; a
+    record of at most CORE_MAX_SAMPLES whole, whatever `start`; the window never past the record's end)."""
+    n = x.shape[-1]
+    if n <= CORE_MAX_SAMPLES:
+        return x
+    a = min(max(int(start), 0), n - CORE_MAX_SAMPLES)
+    return x[..., a:a + CORE_MAX_SAMPLES]
 
 
 def core_samples(counts, cfg) -> np.ndarray:
     """Recordings in the rig's ADC counts ([R, 4, S] or [4, S], integers or floats) as the core's int16 samples
     for `cfg` (a SignalConfig or the core's CoreConfig): rounded, less cfg.sample_offset, clipped to the rails;
-    at most the first CORE_MAX_SAMPLES of each record (`core_window`); C-contiguous. The one conversion every
-    path into the core uses."""
+    at most CORE_MAX_SAMPLES of each record from cfg.record_start (`core_window`); C-contiguous. The one
+    conversion every path into the core uses."""
     x = np.asarray(counts)
     if x.ndim == 2:
         x = x[None]
-    x = core_window(x)
+    x = core_window(x, int(getattr(cfg, "record_start", 0)))
     off = int(getattr(cfg, "sample_offset", 0))
     lo, hi = max(int(cfg.adc_min), -INT16_MAX - 1), min(int(cfg.adc_max), INT16_MAX)
     if x.dtype.kind == "f":
@@ -279,4 +306,4 @@ SignalConfig.__module__ = __name__
 __all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
            "channel_delays_us", "config_dict", "core_offset", "core_samples", "counts_per_core_count",
            "core_config", "localiser_config", "rig_settings", "settings", "baseline_for_pretrigger",
-           "quiet_start_samples"]
+           "quiet_start_samples", "record_start"]

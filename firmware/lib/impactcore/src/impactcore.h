@@ -112,6 +112,8 @@ enum ChannelFlag : uint8_t {
   X(ONE, int, adc_max, 4095, ACQUISITION)                                                               \
   X(ONE, int, sample_offset, 0, ACQUISITION)  /* counts the host took off every sample to fit int16 (a  \
     16-bit logger re-centred by half its range; adc_min/adc_max are after it); 0 on the board */        \
+  X(ONE, int, record_start, 0, ACQUISITION)  /* samples of a logger's record longer than kMaxSamples   \
+    the host left out before the capture (its window near the first arrival); 0 on the board */          \
   X(ONE, float, dead_rms_counts, 3.0f, COPY)  /* post-onset RMS below this: the channel is dead */      \
   X(ONE, float, hum_min_counts, 4.0f, COPY)  /* a mains hum is modelled from this amplitude (and twice  \
     the noise floor, four standard errors of the fit) */                                                  \
