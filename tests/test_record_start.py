@@ -13,6 +13,8 @@ from impactsense.signal import (CORE_MAX_SAMPLES, QUIET_KEPT_S, SignalConfig, co
 
 from test_scope_logger import BIAS, FS, PRE, _records, _rig
 
+N_SHORT = 4000
+
 
 def _hummed(rng, n_rec, n, amps):
     clean = _records(rng, n_rec, n, 0.0)
@@ -69,3 +71,28 @@ def test_records_the_core_reads_whole_are_read_as_before():
     short = SignalConfig.from_dict({**cfg.to_dict(), "record_start": 3000})
     assert np.array_equal(core_samples(x, short.core()), core_samples(x, cfg.core()))
     assert BIAS == 128
+
+
+def test_a_coarse_loggers_onset_threshold_is_not_under_its_quantisation():
+    """An 8-bit, 5 V logger: the reference logger's onset threshold in volts is 0.41 of its steps; with ~0.4 step
+    of noise the 5 x noise-rms floor sets ~2 steps, and a lone sample 2 steps from the level (quantised noise past
+    1.5 steps) crosses it before the arrival. The host's threshold is at least ONSET_MIN_STEPS of the logger's
+    steps; finer loggers keep the scaled default."""
+    from impactsense.signal import ONSET_MIN_STEPS, counts_per_core_count
+
+    rig = _rig(N_SHORT)
+    assert 10.0 * counts_per_core_count(rig) < 1.0
+    assert rig_settings(rig)["onset_threshold_counts"] == ONSET_MIN_STEPS
+    ten = dataclasses.replace(rig, adc_bits=10, vref=3.3, bias_counts=512)   # 2.5 steps scaled: kept
+    assert rig_settings(ten)["onset_threshold_counts"] == 10.0 * counts_per_core_count(ten)
+    assert "onset_threshold_counts" not in rig_settings(dataclasses.replace(rig, adc_bits=12, vref=3.3))
+    rng = np.random.default_rng(3)
+    x = _records(rng, 150, N_SHORT, 0.0, ring_start=N_SHORT - 400)   # 3.6 ms of quiet start, then the ring
+    cfg = SignalConfig.for_rig(rig)
+    scaled = dataclasses.replace(cfg, onset_threshold_counts=10.0 * counts_per_core_count(rig))
+
+    def in_quiet(c):
+        toa = _core.extract_batch(core_samples(x, c.core()), c.core())["toa_threshold"]
+        return np.mean(toa < N_SHORT - 400 - 20)
+
+    assert in_quiet(cfg) == 0.0 and in_quiet(scaled) >= 0.01     # 14 of 600 channel records here

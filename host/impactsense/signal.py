@@ -94,6 +94,7 @@ def rig_settings(rig) -> dict:
     if scale != 1.0:   # impactcore.h's count-valued defaults are a 12-bit, 3.3 V logger's: the same volts here
         for name in COUNT_FIELDS:
             d[name] = float(FIELDS[name].default) * scale
+        d["onset_threshold_counts"] = max(d["onset_threshold_counts"], ONSET_MIN_STEPS)
     pre = getattr(rig, "pretrigger_samples", None)
     start = record_start(int(rig.samples), pre, float(rig.fs_hz))
     if start:
@@ -150,6 +151,11 @@ def quiet_start_samples(adc, rig) -> int | None:
 # board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
 REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
 COUNT_FIELDS = ("onset_threshold_counts", "dead_rms_counts", "hum_min_counts")
+# ... but an onset threshold of at least this many of the logger's own steps: on a coarse logger the scaled
+# default falls under one step (an 8-bit, 5 V one: 0.41), the noise factor's 5 x noise rms (~0.4 step) then sets
+# it at ~2 steps, and a lone sample 2 steps from the level (quantised noise past 1.5 steps, ~2e-4 of the samples)
+# crosses it: a pick in the quiet start. From 2.5 steps such a sample crosses only from a level half a step off.
+ONSET_MIN_STEPS = 2.5
 
 
 def counts_per_core_count(rig) -> float:
