@@ -66,7 +66,7 @@ def measure(name: str, params, rig, n_drops: int, every: int, ref_height_mm: flo
     from impactsense.sim import simulate_voltages, to_adc
     from impactsense.sim.modal_basis import is_cached
     from impactsense.sim.simulate import clear_cache, get_model, reciprocal_fields
-    from impactsense.sim.solver_cost import cone_element_steps, contact_steps, direct_parts
+    from impactsense.sim.solver_cost import cone_element_steps, direct_parts
     from impactsense.sitemap import plan, site_map_cost, twin_features
 
     clear_cache()
@@ -91,8 +91,7 @@ def measure(name: str, params, rig, n_drops: int, every: int, ref_height_mm: flo
     twin_features(featurize(to_adc(res["volts"], params, rig, clip=False), sig))
     feat = (cpu_s() - c0) / x.size
     cost = site_map_cost(params, rig, every=every, ref_height_mm=ref_height_mm, _model=(model, is_cached(model)))
-    est = direct_parts(model, cost["simulated"], ref_height_mm, cost["window"])
-    rigid = direct_parts(model, cost["simulated"], ref_height_mm)   # the window by the rigid-Hertz rule alone
+    est = direct_parts(model, cost["simulated"], cost["window"])
     steps = [len(f) for f in res["force_n"]]
     steps_meas = float(np.mean(steps))
     cone = float(np.mean([cone_element_steps(model, a * 1e-3, b * 1e-3, k) for a, b, k in zip(x, y, steps)]))
@@ -101,8 +100,8 @@ def measure(name: str, params, rig, n_drops: int, every: int, ref_height_mm: flo
     out = dict(name=name, elements=model.elements, nodes=model.nodes, dt_us=model.dt_s * 1e6,
                n_record=model.n_record, record_every=model.record_every, drops=cost["simulated"],
                est_runs=est["runs_cpu_s"], meas_runs=runs, est_drop=est["drop_cpu_s"], meas_drop=drop,
-               meas_feat=feat, meas_setup=setup, rigid_steps=contact_steps(model, ref_height_mm),
-               est_steps=cost["window_steps"], rigid=rigid["cpu_s"],
+               meas_feat=feat, meas_setup=setup,
+               est_steps=cost["window_steps"],
                meas_steps=steps_meas, estimate=est["cpu_s"], solver=cost["solver"], chosen=cost["cpu_s"],
                measured=measured, c_drop=drop / cone, c_runs=runs / record_steps,
                wall_s=time.perf_counter() - w0)
@@ -124,15 +123,15 @@ def main(argv=None) -> int:
         name, _, folder = d.rpartition("=")
         inputs.append((name or Path(folder).name, *data_inputs(folder, c)))
     head = (f"{'plate':16s} {'elem':>6s} {'dt us':>6s} {'rec':>5s} {'drops':>6s} | {'runs est/meas':>13s} | "
-            f"{'drop ms est/meas (+feat)':>25s} | {'window steps rigid/pilot/timed':>30s} | "
-            f"{'direct map CPU-s rigid/est/meas':>31s} {'meas/est':>8s}")
+            f"{'drop ms est/meas (+feat)':>25s} | {'window steps pilot/timed':>25s} | "
+            f"{'direct map CPU-s est/meas':>25s} {'meas/est':>8s}")
     print(head)
     for name, params, rig in inputs:
         r = measure(name, params, rig, a.drops, a.every)
         print(f"{r['name']:16s} {r['elements']:6d} {r['dt_us']:6.3f} {r['n_record']:5d} {r['drops']:6d} | "
               f"{r['est_runs']:6.1f}/{r['meas_runs']:6.1f} | {1e3 * r['est_drop']:7.1f}/{1e3 * r['meas_drop']:7.1f} "
-              f"(+{1e3 * r['meas_feat']:5.1f}) | {r['rigid_steps']:8.0f}/{r['est_steps']:8.0f}/{r['meas_steps']:8.0f}   | "
-              f"{r['rigid']:7.0f}/{r['estimate']:7.0f}/{r['measured']:7.0f} {r['measured'] / r['estimate']:8.2f}   "
+              f"(+{1e3 * r['meas_feat']:5.1f}) | {r['est_steps']:8.0f}/{r['meas_steps']:8.0f}        | "
+              f"      {r['estimate']:7.0f}/{r['measured']:7.0f} {r['measured'] / r['estimate']:8.2f}   "
               f"ns/element-step drop {1e9 * r['c_drop']:.2f} runs {1e9 * r['c_runs']:.2f} "
               f"(auto: {r['solver']} {r['chosen']:.0f} CPU-s; setup {r['meas_setup']:.1f} s, wall {r['wall_s']:.0f} s)",
               flush=True)

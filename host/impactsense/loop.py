@@ -211,7 +211,7 @@ def twin_drops(params, rig, x_mm, y_mm, height_mm, effects, slowness_us_per_mm: 
     p, sim_rig = corrected_twin(params, rig, effects)
     _, signal = split_effects(recorded_effects(effects))
     adc = simulate_drops(p, sim_rig, x_mm, y_mm, height_mm, noise=True, seed=seed, workers=workers, progress=False,
-                         solver=batch_solver(p, sim_rig, "auto", len(x_mm)))
+                         solver=batch_solver(p, sim_rig, "auto", x_mm, y_mm, height_mm))
     ctx = {"x_mm": np.asarray(x_mm, float), "y_mm": np.asarray(y_mm, float),
            "sensor_xy_mm": rig.sensor_xy_mm.astype(float), "fs_hz": float(rig.fs_hz),
            "bias": float(rig.bias_counts), "adc_max": int(rig.adc_max), "slowness_us_per_mm": slowness_us_per_mm}

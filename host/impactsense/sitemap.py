@@ -220,7 +220,7 @@ def map_solver(params, rig, solver: str | None, n_drops: int, ref_height_mm: flo
     model = get_model(params, rig)
     pilot = pilot_points(rig)
     window = measured_contact_windows(model, pilot[:, 0], pilot[:, 1], ref_height_mm)
-    return choose(model, int(n_drops), ref_height_mm, cached=is_cached(model), window=window)[0]
+    return choose(model, int(n_drops), window, cached=is_cached(model))[0]
 
 
 EDGE_BAND_MM = 40.0   # with every > 1: points this near an edge are all simulated (docs/findings.md, Session 24)
@@ -252,13 +252,11 @@ def plan(rig, step_mm: float, margin_mm: float, every: int = 1, edge_band_mm: fl
 def pilot_points(rig, step_mm: float = 5.0, margin_mm: float = 10.0, n: int | None = None) -> np.ndarray:
     """The grid points [n, 2] (mm) whose contact windows price the map (`solver_cost.measured_contact_windows`): n
     of the map's points off the discs, drawn with a fixed seed (the same points for the same rig)."""
-    from .sim.solver_cost import PILOT_DROPS
+    from .sim.solver_cost import PILOT_DROPS, pilot_rows
 
     (x0, y0, nx, ny), _, sim = plan(rig, step_mm, margin_mm, 1)
     rows = np.flatnonzero(sim)
-    n = min(PILOT_DROPS if n is None else n, rows.size)
-    pick = np.sort(np.random.default_rng(0).choice(rows, n, replace=False))
-    return grid_xy(x0, y0, step_mm, nx, ny)[pick]
+    return grid_xy(x0, y0, step_mm, nx, ny)[rows[pilot_rows(rows.size, PILOT_DROPS if n is None else n)]]
 
 
 def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, ref_height_mm: float = 175.0,
@@ -276,7 +274,7 @@ def site_map_cost(params, rig, step_mm: float = 5.0, margin_mm: float = 10.0, re
     n = int(sim.sum())
     pilot = pilot_points(rig, step_mm, margin_mm)
     window = measured_contact_windows(model, pilot[:, 0], pilot[:, 1], ref_height_mm)
-    solver, est = choose(model, n, ref_height_mm, cached=cached, window=window)
+    solver, est = choose(model, n, window, cached=cached)
     return {"nx": nx, "ny": ny, "step_mm": step_mm, "points": nx * ny, "simulated": n, "every": every,
             "edge_band_mm": float(edge_band_mm), "solver": solver, "cpu_s": float(est[f"{solver}_cpu_s"]),
             "window_steps": window["steps"], "window": window}

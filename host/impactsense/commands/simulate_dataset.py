@@ -62,7 +62,7 @@ def run(args) -> int:
     x, y, h = virtual_drops(rig, args.n, args.seed, args.edge_mm, args.sensor_clearance_mm, heights_mm=heights)
     from ..sim.simulate import batch_solver
 
-    args.solver = batch_solver(params, rig, args.solver, n_drops=x.size, height_mm=h)
+    args.solver = batch_solver(params, rig, args.solver, x, y, h)
     t0 = time.perf_counter()
     res = simulate_voltages(params, rig, x, y, h, method=args.method, solver=args.solver, workers=args.workers,
                             progress=True)

@@ -261,23 +261,19 @@ def _modal_voltages(model: Model, x, y, v0, progress: bool) -> list:
     return results
 
 
-def batch_solver(params: SimParams, rig, solver: str | None, n_drops: int | None = None,
-                 height_mm=175.0) -> str:
-    """The solver of a batch command: `solver` if given ("direct" / "modal"); "auto" (the batch commands'
-    default): the cheaper one for this batch by `solver_cost.choose` (the modal basis counted unless it is
-    already cached: both solvers meet the accuracy targets against each other, docs/findings.md); without
-    n_drops, modal only when the basis is cached, else params.solver."""
+def batch_solver(params: SimParams, rig, solver: str | None, x_mm, y_mm, height_mm) -> str:
+    """The solver of a batch command's drops at (x_mm, y_mm) from height_mm: `solver` if given ("direct" /
+    "modal"; None: params.solver); "auto" (the batch commands' default): the cheaper one for these drops by
+    `solver_cost.batch_choice` (the modal basis counted unless it is already cached, the direct path's contact
+    windows measured on a few of the drops: both solvers meet the accuracy targets against each other,
+    docs/findings.md)."""
     if solver != "auto":
         return solver or params.solver
     from .modal_basis import is_cached
+    from .solver_cost import batch_choice
 
     model = get_model(params, rig)
-    cached = is_cached(model)
-    if n_drops is None:
-        return "modal" if cached else params.solver
-    from .solver_cost import choose
-
-    return choose(model, int(n_drops), height_mm, cached=cached)[0]
+    return batch_choice(model, x_mm, y_mm, height_mm, cached=is_cached(model))
 
 
 def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: str | None = None,

@@ -1,11 +1,11 @@
 """What a batch of drops costs on each solver, in CPU seconds of one core: the rule `--solver auto` follows.
 
 - direct (the fast path, `simulate.py`): four reciprocal runs over the whole record, then per drop the ball on
-  the plate for its contact window (about twice the rigid Hertz contact time, the plate's give lengthens it,
-  plus the quiet tail of `simulate.contact_window`), each step costing the mesh's elements x
-  `DIRECT_S_PER_ELEMENT_STEP`. The site map prices the windows better (`measured_contact_windows`): a few
-  windows stepped on the plate (a thin plate's ball chatters: windows 2-5 x the rigid rule) and the elements each
-  step really touches (`cone_element_steps`: the explicit step starts from rest);
+  the plate for its contact window, each step costing the elements it really steps x `DIRECT_S_PER_ELEMENT_STEP`.
+  The windows are measured, not predicted (`measured_contact_windows`: up to PILOT_DROPS of the batch's drops
+  stepped; a thin plate's ball chatters, windows 2-5 x a rigid Hertz contact), and a step is priced over the
+  elements the wave has reached (`cone_element_steps`: the explicit step starts from rest). `batch_choice` steps
+  the pilot only when the choice depends on it (`direct_bounds`);
 - modal: the basis when it is not cached (free dofs x modes x `BASIS_S_PER_DOF_MODE`: the inertia-planned
   Lanczos slices and the residual probes, `modal_basis.py`), else its load; per drop its modal sum (modes x
   record samples x `MODAL_S_PER_DROP_MODE_SAMPLE`).
@@ -28,20 +28,6 @@ BASIS_S_PER_DOF_MODE = 2.0e-6
 MODAL_S_PER_DROP_MODE_SAMPLE = 2.2e-9
 MODAL_LOAD_S = 1.5
 MODE_COUNT_FACTOR = 2.0
-
-
-def contact_steps(model, height_mm) -> float:
-    """Mean steps of the fast path's contact windows for drops from height_mm: 2 x the rigid Hertz contact
-    time (the plate's compliance lengthens it) + the quiet tail, at most contact_window_ms."""
-    from .model import impact_velocity
-    from .simulate import QUIET_AFTER_CONTACT_FRACTION, QUIET_AFTER_CONTACT_S
-
-    v = np.maximum(np.asarray(impact_velocity(model.params, np.atleast_1d(height_mm)), float), 1e-3)
-    depth = (5 * model.ball_mass_kg * v ** 2 / (4 * model.k_hertz)) ** 0.4
-    contact = 2 * 2.9432 * depth / v
-    quiet = np.maximum(QUIET_AFTER_CONTACT_S, QUIET_AFTER_CONTACT_FRACTION * contact)
-    t = np.minimum(contact + quiet, model.params.contact_window_ms * 1e-3)
-    return float(np.mean(t)) / model.dt_s
 
 
 PILOT_DROPS = 24   # contact windows stepped to measure a plate's mean window (`measured_contact_windows`)
@@ -69,45 +55,58 @@ def cone_element_steps(model, x_m: float, y_m: float, steps: int) -> float:
     return float(np.sum(rows.astype(float) * cols))
 
 
-def measured_contact_windows(model, x_mm, y_mm, height_mm: float) -> dict:
-    """The fast path's contact windows of drops from height_mm at (x_mm, y_mm), stepped on the model
-    (`simulate.contact_window`; cached on the model per set of points): their mean steps ("steps") and mean
-    elements stepped (`cone_element_steps`, "element_steps"). Counts, not times, so the machine's load does not
-    enter them. On a thin plate the ball chatters (several contacts, the window 3-5 x `contact_steps`'
-    rigid-Hertz estimate: docs/findings.md, Session 25 mapcost)."""
+def measured_contact_windows(model, x_mm, y_mm, height_mm) -> dict:
+    """The fast path's contact windows of drops at (x_mm, y_mm) from height_mm (one height, or one a drop),
+    stepped on the model (`simulate.contact_window`; cached on the model per set of drops): their mean steps
+    ("steps") and mean elements stepped (`cone_element_steps`, "element_steps"). Counts, not times, so the
+    machine's load does not enter them. On a thin plate the ball chatters (several contacts, the window 3-5 x a
+    rigid Hertz contact: docs/findings.md, Session 25 mapcost)."""
     from .model import impact_velocity
     from .simulate import contact_window
 
     x = np.asarray(x_mm, float).ravel()
     y = np.asarray(y_mm, float).ravel()
-    key = (float(height_mm), x.tobytes(), y.tobytes())
+    h = np.broadcast_to(np.asarray(height_mm, float), x.shape).ravel()
+    key = (x.tobytes(), y.tobytes(), h.tobytes())
     cache = model.__dict__.setdefault("_windows", {})
     if key not in cache:
-        v0 = float(impact_velocity(model.params, float(height_mm)))
-        steps = [np.asarray(contact_window(model, a * 1e-3, b * 1e-3, v0)["force_n"]).size for a, b in zip(x, y)]
+        v0 = np.asarray(impact_velocity(model.params, h), float)
+        steps = [np.asarray(contact_window(model, a * 1e-3, b * 1e-3, float(v))["force_n"]).size
+                 for a, b, v in zip(x, y, v0)]
         cache[key] = {"steps": float(np.mean(steps)),
                       "element_steps": float(np.mean([cone_element_steps(model, a * 1e-3, b * 1e-3, k)
                                                       for a, b, k in zip(x, y, steps)]))}
     return cache[key]
 
 
-def direct_parts(model, n_drops: int, height_mm, window: dict | None = None) -> dict:
+def pilot_rows(n_drops: int, n: int = PILOT_DROPS) -> np.ndarray:
+    """Which of a batch's n_drops drops price it (`measured_contact_windows`): n of them, drawn with a fixed
+    seed (the same drops for the same batch), in order."""
+    n = min(int(n), int(n_drops))
+    return np.sort(np.random.default_rng(0).choice(int(n_drops), n, replace=False))
+
+
+def direct_parts(model, n_drops: int, window: dict) -> dict:
     """The direct solver's fast path, part by part: the four reciprocal runs ("runs_cpu_s", the whole plate every
-    step) and one drop's contact window ("drop_cpu_s"; window: its measured mean elements stepped,
-    `measured_contact_windows`, else the `contact_steps` estimate over the whole plate)."""
+    step) and one drop's contact window ("drop_cpu_s"; window: its mean elements stepped,
+    `measured_contact_windows`)."""
     record_steps = model.n_record * model.record_every
     runs = len(model.sensors) * record_steps * model.elements * DIRECT_S_PER_ELEMENT_STEP
-    if window is None:
-        element_steps = contact_steps(model, height_mm) * model.elements
-    else:
-        element_steps = float(window["element_steps"])
-    drop = element_steps * DIRECT_S_PER_ELEMENT_STEP
+    drop = float(window["element_steps"]) * DIRECT_S_PER_ELEMENT_STEP
     return {"runs_cpu_s": runs, "drop_cpu_s": drop, "cpu_s": runs + n_drops * drop}
 
 
-def direct_cpu_s(model, n_drops: int, height_mm, window: dict | None = None) -> float:
+def direct_cpu_s(model, n_drops: int, window: dict) -> float:
     """The direct solver's fast path for n_drops drops (four reciprocal runs, then the contact windows)."""
-    return direct_parts(model, n_drops, height_mm, window)["cpu_s"]
+    return direct_parts(model, n_drops, window)["cpu_s"]
+
+
+def direct_bounds(model, n_drops: int) -> tuple[float, float]:
+    """(lowest, highest) `direct_cpu_s` any window can give: no step at all, or every step of the longest
+    window `simulate.contact_window` takes (contact_window_ms) over the whole plate."""
+    longest = math.ceil(model.params.contact_window_ms * 1e-3 / model.dt_s)
+    return (direct_cpu_s(model, n_drops, {"element_steps": 0.0}),
+            direct_cpu_s(model, n_drops, {"element_steps": float(longest * model.elements)}))
 
 
 def basis_modes(model) -> int:
@@ -138,10 +137,29 @@ def modal_cpu_s(model, n_drops: int, *, cached: bool, modes: int | None = None) 
     return basis + n_drops * modes * model.n_record * MODAL_S_PER_DROP_MODE_SAMPLE
 
 
-def choose(model, n_drops: int, height_mm, *, cached: bool, window: dict | None = None) -> tuple[str, dict]:
+def choose(model, n_drops: int, window: dict, *, cached: bool) -> tuple[str, dict]:
     """("modal" | "direct", the two estimates in CPU s): the cheaper solver for this batch (window: the direct
-    path's measured contact windows, `direct_parts`)."""
-    direct = direct_cpu_s(model, n_drops, height_mm, window)
+    path's measured contact windows, `measured_contact_windows`). A cold basis over the modal solver's size
+    limit is never chosen (`basis_fits`)."""
+    direct = direct_cpu_s(model, n_drops, window)
     modal = modal_cpu_s(model, n_drops, cached=cached) if cached or basis_fits(model) else math.inf
     return ("modal" if modal < direct else "direct"), {"direct_cpu_s": direct, "modal_cpu_s": modal,
                                                        "basis_cached": cached}
+
+
+def batch_choice(model, x_mm, y_mm, height_mm, *, cached: bool) -> str:
+    """`choose` for a batch of drops at (x_mm, y_mm) from height_mm (one a drop): its windows measured on
+    `pilot_rows` of the drops, stepped only when the choice depends on them (the modal estimate between
+    `direct_bounds`)."""
+    x = np.asarray(x_mm, float).ravel()
+    n = x.size
+    modal = modal_cpu_s(model, n, cached=cached) if cached or basis_fits(model) else math.inf
+    lo, hi = direct_bounds(model, n)
+    if modal >= hi:
+        return "direct"
+    if modal < lo:
+        return "modal"
+    rows = pilot_rows(n)
+    h = np.broadcast_to(np.asarray(height_mm, float), x.shape)
+    window = measured_contact_windows(model, x[rows], np.asarray(y_mm, float).ravel()[rows], h[rows])
+    return choose(model, n, window, cached=cached)[0]
