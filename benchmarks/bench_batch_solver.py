@@ -2,7 +2,8 @@
 timed with each, and the batch size where the choice turns (the crossover), estimated and measured.
 
 For each plate (a `synthetic_rig.py` kind's truth, capped as calibrate caps it; `--coarsen F`: the element F x
-larger, so a cold modal basis costs ~F^4 less and can be timed on a loaded machine): the direct path's four
+larger: F^2 fewer dofs, the same band's modes, so a cold modal basis costs ~F^2 less and can be timed on a
+loaded machine; a direct drop costs less too, so the crossover is not the full mesh's): the direct path's four
 reciprocal runs and `--drops` drops of `simulate-dataset`'s virtual set (fast path, one worker), then the cold
 modal basis (a fresh cache folder; with the fixed part of a modal call) and the same drops by the modal solver
 (one drop, then all: a call's fixed part apart). The crossover is the batch size where
