@@ -2,8 +2,9 @@
 
 - direct (the fast path, `simulate.py`): four reciprocal runs over the whole record, then per drop the ball on
   the plate for its contact window, each step costing the elements it really steps x `DIRECT_S_PER_ELEMENT_STEP`.
-  The windows are measured, not predicted (`measured_contact_windows`: up to PILOT_DROPS of the batch's drops
-  stepped; a thin plate's ball chatters, windows 2-5 x a rigid Hertz contact), and a step is priced over the
+  The windows are measured, not predicted (`measured_contact_windows`: PILOT_DROPS of the batch's drops, or of
+  the site map's grid, stepped; a thin plate's ball chatters, windows 2-5 x a rigid Hertz contact), and a step
+  is priced over the
   elements the wave has reached (`cone_element_steps`: the explicit step starts from rest). `batch_choice` steps
   the pilot only when the choice depends on it (`direct_bounds`);
 - modal: the basis when it is not cached (free dofs x modes x `BASIS_S_PER_DOF_MODE`: the inertia-planned
