@@ -4,9 +4,8 @@
   the plate for its contact window, each step costing the elements it really steps x `DIRECT_S_PER_ELEMENT_STEP`.
   The windows are measured, not predicted (`measured_contact_windows`: PILOT_DROPS of the batch's drops, or of
   the site map's grid, stepped; a thin plate's ball chatters, windows 2-5 x a rigid Hertz contact), and a step
-  is priced over the
-  elements the wave has reached (`cone_element_steps`: the explicit step starts from rest). `batch_choice` steps
-  the pilot only when the choice depends on it (`direct_bounds`);
+  is priced over the elements the wave has reached (`cone_element_steps`: the explicit step starts from rest).
+  `batch_choice` steps the pilot only when the choice depends on it (`direct_bounds`);
 - modal: the basis when it is not cached (free dofs x modes x `BASIS_S_PER_DOF_MODE`: the inertia-planned
   Lanczos slices and the residual probes, `modal_basis.py`), else its load; per drop its modal sum (modes x
   record samples x `MODAL_S_PER_DROP_MODE_SAMPLE`).
