@@ -823,6 +823,21 @@ NB_MODULE(_core, m) {
         "tol_us"_a, "margin_mm"_a, "travel_metric"_a = std::vector<float>{});
 
   m.def(
+      "bond_inverse",
+      [](In16 x, const ic::CoreConfig& cfg, int channel) {
+        if (channel < 0 || channel >= ic::kChannels || !ic::bond_inverse_on(cfg, channel) ||
+            ic::check_bond_inverse(cfg) != ic::kOk)
+          throw std::invalid_argument("bond_inverse: channel has no valid bond inverse in config");
+        const int n = static_cast<int>(x.shape(0));
+        if (n < 1) throw std::invalid_argument("bond_inverse: x is empty");
+        auto out = make_array<int16_t>({x.shape(0)});
+        ic::bond_inverse(x.data(), n, cfg.bond_corner_hz[channel], cfg.bond_gain[channel],
+                         cfg.bond_limit_hz[channel], cfg, out.data());
+        return out;
+      },
+      "x"_a, "config"_a, "channel"_a,
+      "The bond inverse (bond_inverse.cpp) of one channel's int16 samples with the config's fields for channel.");
+  m.def(
       "threshold_crossing",
       [](In16 x, float base, float thr, int start) {
         return ic::threshold_crossing(x.data(), static_cast<int>(x.shape(0)), base, thr, start);

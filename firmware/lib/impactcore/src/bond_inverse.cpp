@@ -49,22 +49,54 @@ void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz,
   const float norm = 1.0f / (gain * (1.0f + k2));
   const float b0 = (1.0f + k1) * norm, b1 = (1.0f - k1) * norm, a1 = (1.0f - k2) / (1.0f + k2);
   const bool rails = cfg.adc_max > cfg.adc_min;
-  const float lo = rails ? static_cast<float>(cfg.adc_min) : -32768.0f;
-  const float hi = rails ? static_cast<float>(cfg.adc_max) : 32767.0f;
+  const int32_t lo = rails ? cfg.adc_min : -32768, hi = rails ? cfg.adc_max : 32767;
   const float x0 = static_cast<float>(x[0]);
-  float prev_v = 0.0f, prev_y = 0.0f;
-  for (int i = 0; i < n; ++i) {
-    const float v = static_cast<float>(x[i]) - x0;
-    const float bx = b0 * v;
-    const float bp = b1 * prev_v;
-    const float ay = a1 * prev_y;
-    const float y = (bx + bp) - ay;
-    prev_v = v;
-    prev_y = y;
-    float r = x0 + y;
-    r = r < lo ? lo : (r > hi ? hi : r);
-    // to the nearest count (halves up): truncation of a positive value, no library call (one VCVT on the M4F)
-    out[i] = static_cast<int16_t>(static_cast<int32_t>(r + 32768.5f) - 32768);
+  // r = x0 + y to the nearest count (halves up: truncation of r + 32768.5, one VCVT on the M4F), held to the
+  // rails after the rounding, in integers (the rounding is monotone and the rails whole counts, so this is the
+  // rails' clamp of r then rounded, bit for bit, while r + 32768.5 stays inside int32: |y| is at most the
+  // filter's l1 gain x 2^16; a filter that could leave it (a corner near 0 Hz) takes the float clamp).
+  const float l1 = fabsf(b0) + fabsf(b1 - a1 * b0) / (1.0f - fabsf(a1));
+  if (lo < -32768 || hi > 32767 || !(l1 < 16384.0f)) {
+    const float flo = static_cast<float>(lo), fhi = static_cast<float>(hi);
+    float prev_v = 0.0f, prev_y = 0.0f;
+    for (int i = 0; i < n; ++i) {
+      const float v = static_cast<float>(x[i]) - x0;
+      const float y = (b0 * v + b1 * prev_v) - a1 * prev_y;
+      prev_v = v;
+      prev_y = y;
+      float r = x0 + y;
+      r = r < flo ? flo : (r > fhi ? fhi : r);
+      out[i] = static_cast<int16_t>(static_cast<int32_t>(r + 32768.5f) - 32768);
+    }
+    return;
+  }
+  const uint32_t range = static_cast<uint32_t>(hi - lo);
+  // y_i = (b0 v_i + b1 v_(i-1)) - a1 y_(i-1), v_i = x_i - x_0, two samples a pass (the state stays in registers).
+  float pv = 0.0f, py = 0.0f;
+  const int16_t* p = x;
+  const int16_t* const pair_end = x + (n & ~1);
+  while (p != pair_end) {
+    const float v1 = static_cast<float>(p[0]) - x0;
+    const float y1 = (b0 * v1 + b1 * pv) - a1 * py;
+    const float v2 = static_cast<float>(p[1]) - x0;
+    const float y2 = (b0 * v2 + b1 * v1) - a1 * y1;
+    p += 2;
+    pv = v2;
+    py = y2;
+    int32_t s1 = static_cast<int32_t>((x0 + y1) + 32768.5f) - 32768;
+    int32_t s2 = static_cast<int32_t>((x0 + y2) + 32768.5f) - 32768;
+    if (static_cast<uint32_t>(s1 - lo) > range) s1 = s1 < lo ? lo : hi;
+    if (static_cast<uint32_t>(s2 - lo) > range) s2 = s2 < lo ? lo : hi;
+    out[0] = static_cast<int16_t>(s1);
+    out[1] = static_cast<int16_t>(s2);
+    out += 2;
+  }
+  if (n & 1) {
+    const float v = static_cast<float>(*p) - x0;
+    const float y = (b0 * v + b1 * pv) - a1 * py;
+    int32_t s = static_cast<int32_t>((x0 + y) + 32768.5f) - 32768;
+    if (static_cast<uint32_t>(s - lo) > range) s = s < lo ? lo : hi;
+    *out = static_cast<int16_t>(s);
   }
 }
 
