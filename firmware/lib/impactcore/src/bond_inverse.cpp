@@ -39,6 +39,48 @@ int bond_span_end(const CoreConfig& cfg, int n, float anchor) {
   return e;
 }
 
+namespace {
+
+// One sample of the inverse: y = (b0 v + b1 v_prev) - a1 y_prev, v = x - x0; out = x0 + y to the nearest count
+// (halves up: truncation of r + 32768.5), held to the rails [base - 32768, base - 32768 + range] in integers.
+struct BondStep {
+  float b0, b1, a1, x0;
+  int32_t base, lo, hi;
+  uint32_t range;
+  inline float operator()(int16_t xi, float& pv, float py, int16_t* o) const {
+    const float v = static_cast<float>(xi) - x0;
+    const float y = (b0 * v + b1 * pv) - a1 * py;
+    pv = v;
+    const int32_t t = static_cast<int32_t>((x0 + y) + 32768.5f);
+    int32_t s = t - 32768;
+    if (__builtin_expect(static_cast<uint32_t>(t - base) > range, 0)) s = t < base ? lo : hi;  // on a rail: rare
+    *o = static_cast<int16_t>(s);
+    return y;
+  }
+};
+
+// The loop, four samples a pass (the state stays in registers). kZeroLow: the low rail at 0 (a unipolar ADC),
+// known to the compiler (the rails' compare then reuses the offset count).
+template <bool kZeroLow>
+void bond_loop(const int16_t* x, int n, float b0, float b1, float a1, int32_t lo, int32_t hi, int16_t* out) {
+  const int32_t low = kZeroLow ? 0 : lo;
+  const BondStep step{b0, b1, a1, static_cast<float>(x[0]), low + 32768, low, hi, static_cast<uint32_t>(hi - low)};
+  float pv = 0.0f, py = 0.0f;
+  const int16_t* p = x;
+  const int16_t* const quad_end = x + (n & ~3);
+  while (p != quad_end) {
+    py = step(p[0], pv, py, out);
+    py = step(p[1], pv, py, out + 1);
+    py = step(p[2], pv, py, out + 2);
+    py = step(p[3], pv, py, out + 3);
+    p += 4;
+    out += 4;
+  }
+  for (const int16_t* const end = x + n; p != end; ++p, ++out) py = step(*p, pv, py, out);
+}
+
+}  // namespace
+
 void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz, const CoreConfig& cfg,
                   int16_t* out) {
   // s = 2 fs (z - 1) / (z + 1): H(z) = (b0 + b1 z^-1) / (1 + a1 z^-1) with k1 = 2 fs / wc, k2 = 2 fs / w2,
@@ -70,33 +112,10 @@ void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz,
     }
     return;
   }
-  const uint32_t range = static_cast<uint32_t>(hi - lo);
-  // y_i = (b0 v_i + b1 v_(i-1)) - a1 y_(i-1), v_i = x_i - x_0, two samples a pass (the state stays in registers).
-  float pv = 0.0f, py = 0.0f;
-  const int16_t* p = x;
-  const int16_t* const pair_end = x + (n & ~1);
-  while (p != pair_end) {
-    const float v1 = static_cast<float>(p[0]) - x0;
-    const float y1 = (b0 * v1 + b1 * pv) - a1 * py;
-    const float v2 = static_cast<float>(p[1]) - x0;
-    const float y2 = (b0 * v2 + b1 * v1) - a1 * y1;
-    p += 2;
-    pv = v2;
-    py = y2;
-    int32_t s1 = static_cast<int32_t>((x0 + y1) + 32768.5f) - 32768;
-    int32_t s2 = static_cast<int32_t>((x0 + y2) + 32768.5f) - 32768;
-    if (static_cast<uint32_t>(s1 - lo) > range) s1 = s1 < lo ? lo : hi;
-    if (static_cast<uint32_t>(s2 - lo) > range) s2 = s2 < lo ? lo : hi;
-    out[0] = static_cast<int16_t>(s1);
-    out[1] = static_cast<int16_t>(s2);
-    out += 2;
-  }
-  if (n & 1) {
-    const float v = static_cast<float>(*p) - x0;
-    const float y = (b0 * v + b1 * pv) - a1 * py;
-    int32_t s = static_cast<int32_t>((x0 + y) + 32768.5f) - 32768;
-    if (static_cast<uint32_t>(s - lo) > range) s = s < lo ? lo : hi;
-    *out = static_cast<int16_t>(s);
+  if (lo == 0) {
+    bond_loop<true>(x, n, b0, b1, a1, lo, hi, out);
+  } else {
+    bond_loop<false>(x, n, b0, b1, a1, lo, hi, out);
   }
 }
 
