@@ -6,6 +6,9 @@
 // read); the channel's features read that span alone.
 #include <math.h>
 #include <stdint.h>
+#if defined(__ARM_FEATURE_SAT)
+#include <arm_acle.h>
+#endif
 
 #include "impactcore.h"
 
@@ -42,39 +45,51 @@ int bond_span_end(const CoreConfig& cfg, int n, float anchor) {
 namespace {
 
 // One sample of the inverse: y = (b0 v + b1 v_prev) - a1 y_prev, v = x - x0; out = x0 + y to the nearest count
-// (halves up: truncation of r + 32768.5), held to the rails [base - 32768, base - 32768 + range] in integers.
+// (halves up: truncation of r + 32768.5 less 32768), held to the rails in integers. kHigh > 0: the rails are
+// [0, kHigh], known to the compiler (one USAT on the M4F for a 2^k - 1 rail); 0: [lo, hi] at run time.
+template <int kHigh>
 struct BondStep {
   float b0, b1, a1, x0;
-  int32_t base, lo, hi;
+  int32_t lo, hi;
   uint32_t range;
-  inline float operator()(int16_t xi, float& pv, float py, int16_t* o) const {
+  __attribute__((always_inline)) inline float operator()(int16_t xi, float& pv, float py, int16_t* o) const {
     const float v = static_cast<float>(xi) - x0;
     const float y = (b0 * v + b1 * pv) - a1 * py;
     pv = v;
-    const int32_t t = static_cast<int32_t>((x0 + y) + 32768.5f);
-    int32_t s = t - 32768;
-    if (__builtin_expect(static_cast<uint32_t>(t - base) > range, 0)) s = t < base ? lo : hi;  // on a rail: rare
+    int32_t s = static_cast<int32_t>((x0 + y) + 32768.5f) - 32768;
+    if (kHigh > 0) {
+#if defined(__ARM_FEATURE_SAT)
+      static_assert(kHigh <= 0 || ((kHigh + 1) & kHigh) == 0, "kHigh is a 2^k - 1 rail");
+      s = static_cast<int32_t>(__usat(s, __builtin_ctz(static_cast<unsigned>(kHigh) + 1u)));
+#else
+      s = s < 0 ? 0 : (s > kHigh ? kHigh : s);
+#endif
+    } else if (__builtin_expect(static_cast<uint32_t>(s - lo) > range, 0)) {  // on a rail: rare
+      s = s < lo ? lo : hi;
+    }
     *o = static_cast<int16_t>(s);
     return y;
   }
 };
 
-// The loop, four samples a pass (the state stays in registers). kZeroLow: the low rail at 0 (a unipolar ADC),
-// known to the compiler (the rails' compare then reuses the offset count).
-template <bool kZeroLow>
+// The loop, eight samples a pass (the state stays in registers).
+template <int kHigh>
 void bond_loop(const int16_t* x, int n, float b0, float b1, float a1, int32_t lo, int32_t hi, int16_t* out) {
-  const int32_t low = kZeroLow ? 0 : lo;
-  const BondStep step{b0, b1, a1, static_cast<float>(x[0]), low + 32768, low, hi, static_cast<uint32_t>(hi - low)};
+  const BondStep<kHigh> step{b0, b1, a1, static_cast<float>(x[0]), lo, hi, static_cast<uint32_t>(hi - lo)};
   float pv = 0.0f, py = 0.0f;
   const int16_t* p = x;
-  const int16_t* const quad_end = x + (n & ~3);
-  while (p != quad_end) {
+  const int16_t* const run_end = x + (n & ~7);
+  while (p != run_end) {
     py = step(p[0], pv, py, out);
     py = step(p[1], pv, py, out + 1);
     py = step(p[2], pv, py, out + 2);
     py = step(p[3], pv, py, out + 3);
-    p += 4;
-    out += 4;
+    py = step(p[4], pv, py, out + 4);
+    py = step(p[5], pv, py, out + 5);
+    py = step(p[6], pv, py, out + 6);
+    py = step(p[7], pv, py, out + 7);
+    p += 8;
+    out += 8;
   }
   for (const int16_t* const end = x + n; p != end; ++p, ++out) py = step(*p, pv, py, out);
 }
@@ -112,10 +127,10 @@ void bond_inverse(const int16_t* x, int n, float fc_hz, float gain, float f2_hz,
     }
     return;
   }
-  if (lo == 0) {
-    bond_loop<true>(x, n, b0, b1, a1, lo, hi, out);
+  if (lo == 0 && hi == 4095) {  // a 12-bit ADC's rails (the board's)
+    bond_loop<4095>(x, n, b0, b1, a1, lo, hi, out);
   } else {
-    bond_loop<false>(x, n, b0, b1, a1, lo, hi, out);
+    bond_loop<0>(x, n, b0, b1, a1, lo, hi, out);
   }
 }
 
