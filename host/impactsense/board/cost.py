@@ -43,12 +43,14 @@ EVENT_BUDGET = 64000
 BASE_INSTRUCTIONS = 53000
 FRONT_END_INSTRUCTIONS = 500
 BAND_PER_SAMPLE = 80
-# impactcore bond_inverse.cpp (a channel with bond_corner_hz > 0): its loop on the M4F (arm-none-eabi -O2, counted
-# from the listing) over the channel's span only (bond_span_end, docs/method.md "Bond inverse"): from the capture
-# start to the other channels' first crossing (on the board's captures at most BOND_ANCHOR_FRAMES: the trigger's
-# pretrigger of 96 frames at 50 kHz and a plate crossing) + kBondReach x the difference window + aic_after. The
-# channel's other passes then read the span only, which is not counted here (a margin).
-BOND_PER_SAMPLE = 24
+# impactcore bond_inverse.cpp (a channel with bond_corner_hz > 0): its loop on the M4F (the board build's
+# arm-none-eabi -O2 -ffp-contract=off, counted from the listing: 16 a sample on a 12-bit ADC's rails, one USAT,
+# about 18 on other rails, and a pass's 3 over eight samples; qemu's -Os build 13.6) over the channel's span only
+# (bond_span_end, docs/method.md "Bond inverse"): from the capture start to the other channels' first crossing (on
+# the board's captures at most BOND_ANCHOR_FRAMES: the trigger's pretrigger of 96 frames at 50 kHz and a plate
+# crossing) + kBondReach x the difference window + aic_after. The channel's other passes then read the span only,
+# which is not counted here (a margin).
+BOND_PER_SAMPLE = 17
 BOND_ANCHOR_FRAMES = 128
 BOND_REACH = 2          # impactcore.h kBondReach
 BOND_SPAN_MAX = 2048    # impactcore.h kBondSpanMax
