@@ -44,10 +44,14 @@ def test_short_record_is_said(session1):
     cut = int(1024 + 0.5 * need["far_arrival_ms"] * 50)   # half the span the far arrivals need
     assert window_check(rig, cut, 1024)["short"]
     assert not window_check(rig, cut, None)["short"]        # unknown first arrival: nothing claimed
-    from impactsense.signal import CORE_MAX_SAMPLES
+    from impactsense.signal import CORE_MAX_SAMPLES, QUIET_KEPT_MIN_SAMPLES
 
-    longer = window_check(rig, 4 * CORE_MAX_SAMPLES, 1024)      # what the core reads of a longer record
-    assert longer["after_first_arrival_ms"] == pytest.approx((CORE_MAX_SAMPLES - 1024) / 50.0)
+    # what the core reads of a longer record: CORE_MAX_SAMPLES from QUIET_KEPT_MIN_SAMPLES before the first
+    # arrival (1 ms at 50 kHz is fewer), so all but that quiet start lies after the first arrival
+    longer = window_check(rig, 4 * CORE_MAX_SAMPLES, 1024)
+    assert longer["after_first_arrival_ms"] == pytest.approx((CORE_MAX_SAMPLES - QUIET_KEPT_MIN_SAMPLES) / 50.0)
+    kept_whole = window_check(rig, 4 * CORE_MAX_SAMPLES, 100)  # less quiet start than that: read from sample 0
+    assert kept_whole["after_first_arrival_ms"] == pytest.approx((CORE_MAX_SAMPLES - 100) / 50.0)
 
 
 def test_info_says_a_cut_record_is_short(tmp_path, session1, capsys):
