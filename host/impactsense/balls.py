@@ -12,10 +12,10 @@ and wins over the words. A ball the table does not know is taken as steel (the t
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 
 from .errors import DataError
+from .materials import first_keyword_entry
 
 GPA = 1e9
 
@@ -53,10 +53,9 @@ STEEL = Ball("steel", 210 * GPA, 0.30)
 
 def lookup(text: str) -> Ball:
     """The table's ball with a keyword at the start of a word of `text`, else steel with known False."""
-    low = str(text).lower()
-    for keys, name, e_pa, nu in TABLE:
-        if any(re.search(r"(?<![a-z0-9])" + re.escape(k), low) for k in keys):
-            return Ball(name, e_pa, nu)
+    row = first_keyword_entry(text, TABLE)
+    if row is not None:
+        return Ball(*row)
     return Ball(STEEL.name, STEEL.e_pa, STEEL.nu, known=False, source="default (steel)")
 
 

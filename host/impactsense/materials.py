@@ -145,13 +145,20 @@ UNKNOWN = Material("unknown", ISOTROPIC, _p(2000, 500, 20000), e_pa=_p(20 * GPA,
                    notes="not in the materials table: wide priors; declare `material_properties` to narrow them")
 
 
+def first_keyword_entry(text: str, table):
+    """The first row (keywords, *rest) of `table` with a keyword at the start of a word of `text`
+    (case-insensitive), as `rest`; None when no row matches. The materials and the balls tables' one rule."""
+    low = str(text).lower()
+    for keys, *rest in table:
+        if any(re.search(r"(?<![a-z0-9])" + re.escape(k), low) for k in keys):
+            return rest
+    return None
+
+
 def lookup(text: str) -> Material:
     """The table's entry with a keyword at the start of a word of `text` (case-insensitive), else UNKNOWN."""
-    low = text.lower()
-    for keys, mat in TABLE:
-        if any(re.search(r"(?<![a-z0-9])" + re.escape(k), low) for k in keys):
-            return mat
-    return UNKNOWN
+    row = first_keyword_entry(text, TABLE)
+    return UNKNOWN if row is None else row[0]
 
 
 def _fibre_angle_from_words(text: str) -> float:
