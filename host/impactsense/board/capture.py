@@ -155,6 +155,45 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
     return np.concatenate([adc, tail], axis=-1)
 
 
+# A join between two records whose levels differ by JOIN_STEP_SHARE of the trigger's threshold floor or more (a step
+# that can fire it) is crossfaded over enough frames that the level moves by at most JOIN_SLOPE_SHARE of the
+# threshold a frame (the trigger's baseline, 1/8 a frame, then lags it by a quarter of the threshold at most).
+JOIN_STEP_SHARE = 1.0
+JOIN_SLOPE_SHARE = 1.0 / 32.0
+_LEVEL_SAMPLES = 8
+
+
+def joined_without_steps(adc: np.ndarray, threshold_counts: float, per_frame: float,
+                         pretrigger_samples: int | None = None) -> np.ndarray:
+    """Records [R, 4, n] (in the order the stream takes them) joined as the board's continuous stream sees the
+    plate between two drops: no step. Each record carries its own offsets (and a hum's phase), so record k's
+    start may sit above record k-1's end by more than the trigger's threshold (threshold_counts, the rig's
+    counts): fed as it is the step fires the trigger on the quiet start, and the capture's baseline then lies on
+    the previous record's level, its onset at the step (a drop the board never sees). Where some join steps by
+    JOIN_STEP_SHARE of the threshold or more, every record is led in by a raised-cosine crossfade from the
+    previous record's end level to its own quiet start (mirrored back), long enough for the
+    largest step at JOIN_SLOPE_SHARE of the threshold a frame (per_frame: the record's samples a board frame);
+    the first record's lead is its own quiet start. Records without such a step anywhere are returned as they
+    are."""
+    adc = np.asarray(adc)
+    if adc.ndim != 3 or adc.shape[0] < 2 or not threshold_counts > 0:
+        return adc
+    k = min(_LEVEL_SAMPLES, adc.shape[-1])
+    x = adc.astype(np.float64)
+    start, end = x[..., :k].mean(-1), x[..., -k:].mean(-1)
+    step = np.abs(start[1:] - end[:-1]).max()
+    if step < JOIN_STEP_SHARE * threshold_counts:
+        return adc
+    lead = int(np.ceil(np.pi / 2 * step / (JOIN_SLOPE_SHARE * threshold_counts) * per_frame))
+    quiet_n = max(2, int(BASELINE_SHARE_OF_PRETRIGGER * int(pretrigger_samples))) if pretrigger_samples else k
+    own = np.pad(x[..., :quiet_n], [(0, 0), (0, 0), (lead, 0)], mode="symmetric")[..., :lead]
+    # record k's lead starts on record k-1's end level (not its samples: a plate may still ring there)
+    before = np.concatenate([own[:1], np.broadcast_to(end[:-1, :, None], own[1:].shape)])
+    w = 0.5 - 0.5 * np.cos(np.pi * (np.arange(lead) + 0.5) / lead)   # 0 -> 1: the previous end -> own start
+    head = np.rint((1.0 - w) * before + w * own).astype(adc.dtype)
+    return np.concatenate([head, adc], axis=-1)
+
+
 def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0,
                  adc_max: int | None = None) -> np.ndarray:
     """Recorded drops as the board's stream: int16 [R, n, 4] frames, one drop after the other as they come in
@@ -168,6 +207,8 @@ def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0
     (board_anti_alias) is applied before the scan grid."""
     adc = continued_for_capture(adc, rig.fs_hz, app.capture_frames, fs_hz, app.core_config.baseline_samples,
                                 app.pretrigger_frames, rig.pretrigger_samples)
+    adc = joined_without_steps(adc, _core.TriggerConfig().threshold_counts * counts_per_core_count(rig),
+                               float(rig.fs_hz) / float(fs_hz), rig.pretrigger_samples)
     return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max if adc_max is None else adc_max,
                          adc_min=adc_min, anti_alias=board_anti_alias(rig, fs_hz))
 
