@@ -125,3 +125,24 @@ def test_the_boards_threshold_is_lowered_only_when_its_physics_is_clearly_better
     thr, record = run({100: 10.0, 60: 8.0, 40: 9.0})
     assert thr == 60.0 and record["chosen"] == 0.6 and record["physics_mae_mm"] == [10.0, 8.0, 9.0]
     assert run({100: 10.0, 60: None, 40: 5.0})[0] == 40.0
+
+
+def test_the_boards_acquisition_is_named_where_it_loses_drops_or_aliases():
+    """A rig recorded faster than the board without a declared front end aliases on the board; a trigger that missed
+    or took late more than TRIGGER_SHARE of the drops is named with its counts; neither where the board has both."""
+    from impactsense.board.gap import TRIGGER_SHARE
+
+    host = {"signal": BOARD, "rig": {"fs_hz": 96000.0}}
+    fine = {"signal": BOARD, "board_fs_hz": 50000, "board_front_end": {"anti_alias_hz": 10000, "anti_alias_poles": 4},
+            "board_trigger": {"threshold_counts": 158.4, "drops": 100, "captured": 100, "late": 0}}
+    assert board_lacks(host, fine) == []
+    aliasing = {**fine}
+    aliasing.pop("board_front_end")
+    assert any("anti-alias front end" in x and "25 kHz" in x for x in board_lacks(host, aliasing))
+    late = {**fine, "board_trigger": {**fine["board_trigger"], "late": int(100 * TRIGGER_SHARE) + 1}}
+    missed = {**fine, "board_trigger": {**fine["board_trigger"], "captured": 100 - int(100 * TRIGGER_SHARE) - 1}}
+    for card in (late, missed):
+        lacks = board_lacks(host, card)
+        assert len(lacks) == 1 and "trigger" in lacks[0] and "158.4" in lacks[0]
+    # a board that records itself (the rig's rate is the board's) needs no front end
+    assert board_lacks({**host, "rig": {"fs_hz": 50000.0}}, aliasing) == []

@@ -70,6 +70,7 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
                    "instructions a localiser run, over the event budget)")
     if float(hs.get("dispersion_exponent", 0) or 0) != 0 and float(bs.get("dispersion_exponent", 0) or 0) == 0:
         out.append("the dispersive localiser (the picked cycle's frequency scales each channel's slowness)")
+    out += _acquisition_lacks(host_card, board_card)
     if "twin" in host_card and "twin" not in board_card:
         out.append("the twin's site-map match")
     host_trees = int((host_card.get("forest") or {}).get("n_estimators", 0) or 0)
@@ -79,6 +80,31 @@ def board_lacks(host_card: dict, board_card: dict, board_trees: int | None = Non
                    f"{boosted.get('depth')} (event budget)")
     elif board_trees is not None and host_trees and board_trees < host_trees:
         out.append(f"forest trees: {host_trees} on the host, {board_trees} on the board (event and flash budgets)")
+    return out
+
+
+# The board's trigger is named when it missed or took late more than this share of the drops (board.models
+# trigger_record).
+TRIGGER_SHARE = 0.02
+
+
+def _acquisition_lacks(host_card: dict, board_card: dict) -> list[str]:
+    """What the board's acquisition lacks on this rig: an anti-alias front end where the rig's recordings are
+    faster than the board and rig.json declares none (the rig's content above the board's Nyquist frequency aliases
+    into its picks), and a trigger that missed drops or fired late on them (its threshold above the arrivals' first
+    cycles: the link's set_threshold, `impactsense emulate --threshold`)."""
+    out = []
+    rig_fs = float((host_card.get("rig") or {}).get("fs_hz", 0) or 0)
+    board_fs = float(board_card.get("board_fs_hz", 0) or 0)
+    if board_fs > 0 and rig_fs > board_fs + 1 and "board_front_end" not in board_card:
+        out.append(f"an anti-alias front end (rig.json board_front_end): the recordings at {rig_fs / 1000:g} kHz carry "
+                   f"content above the board's Nyquist frequency ({board_fs / 2000:g} kHz) that aliases into its picks")
+    trig = board_card.get("board_trigger") or {}
+    drops, captured, late = (int(trig.get(k, 0) or 0) for k in ("drops", "captured", "late"))
+    if drops and (drops - captured > TRIGGER_SHARE * drops or late > TRIGGER_SHARE * drops):
+        out.append(f"a trigger that reaches the arrivals: at its threshold ({trig.get('threshold_counts')} of the rig's "
+                   f"counts) it captured {captured} of {drops} drops and took {late} late (the first arrival inside "
+                   "its baseline frames); a lower threshold (the link's set_threshold) catches them")
     return out
 
 
