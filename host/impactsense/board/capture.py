@@ -282,3 +282,21 @@ def board_view(session, fs_hz: int):
     app did not capture are left out."""
     caps, rows, _ = board_captures(session, fs_hz)
     return replace(session.subset(rows), adc=caps)
+
+
+# A capture whose first onset pick lies within LATE_TRIGGER_FRAMES of the core's baseline segment's end was taken
+# late: the trigger fired so long after the first arrival that the pre-trigger frames no longer hold the quiet
+# before it (the arrival runs into the baseline, its onset read as a glitch or a later cycle).
+LATE_TRIGGER_FRAMES = 8
+
+
+def trigger_record(session, caps, feats, sig, excluded=None) -> dict:
+    """The board's trigger on the session's drops as the emulated board took them (board_captures): its threshold
+    floor in the rig's counts (the app's default, impactcore.h TriggerConfig, at the rig's ADC), the drops it
+    captured of those recorded (excluded rows not counted) and how many captures it took late (LATE_TRIGGER_FRAMES)."""
+    first = np.asarray(feats.raw["toa_threshold"], float)
+    first = np.where(np.isfinite(first) & (first >= 0), first, np.inf).min(1)
+    n = len(session) - int(np.count_nonzero(excluded)) if excluded is not None else len(session)
+    return {"threshold_counts": round(float(_core.TriggerConfig().threshold_counts * counts_per_core_count(session.rig)), 2),
+            "drops": int(n), "captured": int(len(caps)),
+            "late": int(np.count_nonzero(np.isfinite(first) & (first < int(sig.baseline_samples) + LATE_TRIGGER_FRAMES)))}

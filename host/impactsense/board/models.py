@@ -40,7 +40,7 @@ from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
 from .capture import (board_anti_alias, board_capture, board_captures, board_view, front_end_card,
-                      signal_for_board)
+                      signal_for_board, trigger_record)
 from .cost import (CLASS_FOREST_FIXED, EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    LOCALISER_EVALUATIONS, linear_instructions, signal_fits, signal_instructions)
 
@@ -248,27 +248,6 @@ def board_corrections(model: ImpactModel, features, xy_mm, settings: ForestSetti
     return out
 
 
-# A capture whose first onset pick lies within LATE_TRIGGER_FRAMES of the core's baseline segment's end was taken
-# late: the trigger fired so long after the first arrival that the pre-trigger frames no longer hold the quiet
-# before it (the arrival runs into the baseline, its onset read as a glitch or a later cycle).
-LATE_TRIGGER_FRAMES = 8
-
-
-def trigger_record(session, caps, feats, sig, excluded=None) -> dict:
-    """The board's trigger on the session's drops as the emulated board took them (board_captures): its threshold
-    floor in the rig's counts (the app's default, impactcore.h TriggerConfig, at the rig's ADC), the drops it
-    captured of those recorded (excluded rows not counted) and how many captures it took late (LATE_TRIGGER_FRAMES)."""
-    from .. import _core
-    from ..signal import counts_per_core_count
-
-    first = np.asarray(feats.raw["toa_threshold"], float)
-    first = np.where(np.isfinite(first) & (first >= 0), first, np.inf).min(1)
-    n = len(session) - int(np.count_nonzero(excluded)) if excluded is not None else len(session)
-    return {"threshold_counts": round(float(_core.TriggerConfig().threshold_counts * counts_per_core_count(session.rig)), 2),
-            "drops": int(n), "captured": int(len(caps)),
-            "late": int(np.count_nonzero(np.isfinite(first) & (first < int(sig.baseline_samples) + LATE_TRIGGER_FRAMES)))}
-
-
 def follow_flagged_choice(model: ImpactModel, three_sensor_position) -> None:
     """A board model with the channel check and without a twin takes the rig's model's per-channel choice of a
     flagged drop's position (its card's channel_check["three_sensor_position"], flagged_position.py; None: the
@@ -342,7 +321,6 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
     sig, threshold_record = choose_board_threshold(board, np.flatnonzero(is_train), sig, partial(signal_fits, front_end=front_end))
     extra_card = {**(extra_card or {}), "board_threshold": threshold_record}
     feats = featurize(caps, sig)
-    extra_card["board_trigger"] = trigger_record(session, caps, feats, sig, excluded)
     settings = settings or ForestSettings(n_estimators=n_trees, seed=seed, max_depth=max_depth)
     model = ImpactModel.fit(feats.take(np.flatnonzero(is_train)), session.xy_mm[rows][is_train],
                             session.height_mm[rows][is_train], session.rig.ball_mass_g, sig, settings,
@@ -362,17 +340,15 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
             session.height_mm[rows][is_train], settings)}
     ids = session.recording_id
     split = {
-        "data_path": str(session.path),
-        "data_hash": session.fingerprint(),
-        "test_fraction": test_fraction,
-        "seed": seed,
+        "data_path": str(session.path), "data_hash": session.fingerprint(), "test_fraction": test_fraction, "seed": seed,
         "train_recordings": ids[rows[is_train]].tolist(),
         "test_recordings": ids[rows[is_test]].tolist(),
         "excluded_recordings": ids[excluded].tolist(),
         "not_captured_recordings": ids[np.setdiff1d(np.arange(len(session)), rows)].tolist(),
     }
     card = {"board_fs_hz": int(fs_hz), "data": str(session.path), "split": split, **front_end_card(session.rig, fs_hz),
-            "test_recording_ids": split["test_recordings"], **(extra_card or {})}
+            "test_recording_ids": split["test_recordings"], "board_trigger": trigger_record(session, caps, feats, sig, excluded),
+            **(extra_card or {})}
     return Path(model.save(out_dir, extra_card=card))
 
 
