@@ -436,10 +436,10 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
         "tree_sweep": sweep,
         "board_front_end": models.card.get("board_front_end"),   # the analog low-pass the board models assume
     }
-    row = next((r for r in sweep if r["trees"] == k and "instructions" in r), None)
-    if signal_cost is not None and row is not None:   # the board's per-event cost, estimated (board.cost)
-        summary["event_instructions_estimate"] = {**signal_cost, "models": row["instructions"],
-                                                  "total": signal_cost["total"] + row["instructions"]}
+    # the board's per-event cost, estimated (board.cost) for every export: the trees chosen, a twin's match
+    est = export_check.event_estimate(models, n_trees, signal_cost)
+    est["drops"] = export_check.drops_estimate(models, n_trees, est)   # the rig's own drops, each priced whole
+    summary["event_instructions_estimate"] = est
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
     summary.update(export_check.four_channel_summary(models))

@@ -95,6 +95,48 @@ def board_signal_cost(models) -> dict | None:
     return cost
 
 
+def event_estimate(models, n_trees: dict, signal_cost: dict | None = None) -> dict:
+    """The board's instructions an event of this export, by part (board.cost.event_parts): the forests' prefixes
+    n_trees {x, y, energy} each walked to its deepest leaf, a twin model's match, the channel check's share when
+    the board runs it. signal_cost: board_signal_cost's, when export already has it."""
+    from .board.cost import deepest_walks, event_parts
+    from .signal import SignalConfig
+
+    roles = {"x": models.x, "y": models.y} if models.energy_linear else {
+        "x": models.x, "y": models.y, "energy": models.energy}
+    twin = models.twin
+    return event_parts(SignalConfig.from_dict(models.signal), models.card.get("board_front_end"),
+                       walks={r: deepest_walks(f)[:, 0].tolist() for r, f in roles.items()},
+                       trees={r: int(n_trees[r]) for r in roles},
+                       inputs={r: len(v) for r, v in models.inputs.items()},
+                       linear_terms=models.energy_trees() if models.energy_linear else 0,
+                       twin=None if twin is None else {"grid": twin["grid"], "config": twin["config"]},
+                       check_terms=(max((len(m.terms) for m in models.three_channel.values()), default=0)
+                                    if models.channel_check else None),
+                       check=None if signal_cost is None else int(signal_cost.get("check", 0)))
+
+
+def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
+    """The event estimate on the model's own session (board.drop_cost.rig_estimate: every drop priced whole on the
+    host's counts of the board's captures), or None when the card's session is not at hand."""
+    from .board.drop_cost import rig_estimate
+    from .board.scores import held_out_rows
+    from .errors import ImpactSenseError
+
+    try:
+        session = held_out_rows(models.card)[0]
+    except (ImpactSenseError, OSError, KeyError, ValueError):
+        return None
+    return rig_estimate(models, n_trees, parts, session, int(models.card.get("board_fs_hz") or 50000))
+
+
+def estimate_total(est: dict) -> int:
+    """The export's event estimate: the smaller of two bounds, the parts' worst cases (board.cost) and, when export
+    had the rig's own drops, the slowest of them priced whole (board.drop_cost)."""
+    drops = est.get("drops")
+    return min(int(est["total"]), int(drops["total"])) if drops else int(est["total"])
+
+
 def budgeted(models, signal_cost: dict, budget: int) -> int:
     """With `export --trees auto` (the event budget, board.cost): the instructions the check takes from the forests'
     share; when an event it flags (a localiser run without the channel and the three-channel class instead of the

@@ -102,6 +102,29 @@ FLAGGED_SCREEN = (1850, 2400)
 FLAGGED_PER_EVALUATION = (230, 300)
 CHECK_FLAGGED_FIXED = 300
 
+# A twin model's match (impactapp: twin_features and the twin's coarse-to-fine match at the forests' position):
+# TWIN_FIXED and TWIN_PER_POINT for each grid point the matches visit, at most twin_points_bound (the lattice
+# points within each match's cutoff). Refitted by `python3 benchmarks/bench_export_estimate.py` on the qemu image's
+# per-drop twin ticks (docs/findings.md "Session 26: exportest"). A drop whose match the twin doubts runs the cued
+# search over kTwinCuedCandidates channels instead (TWIN_CUED_PER_CANDIDATE each): not a clean event's cost, given
+# beside the estimate as the flagged event's.
+TWIN_FIXED = 2400
+TWIN_PER_POINT = 232
+TWIN_CUED_CANDIDATES = 4
+TWIN_CUED_PER_CANDIDATE = 6500
+
+# The per-drop form (board.drop_cost: each of the rig's own drops priced whole on the host's counts of the same
+# C++ on the same board captures). The features and report per drop: FEATURES_FIXED (a forest or a twin model's:
+# their reports differ) + FEATURES_PER_COUNT x the core's work counters (impactcore.h WorkCounts; a counter no run
+# varied gets no rate): a linear programme's bound at or above every clean drop of the qemu runs (the event less its
+# localiser, its models, the bond inverse's bound and the check's share), the least total slack; DROPS_MARGIN on top
+# of the slowest drop. The export's estimate is the smaller of the two forms (both bounds of what qemu measured). Refitted by `python3 benchmarks/bench_export_estimate.py --fit Q...json`
+# (docs/findings.md "Session 26: exportest": the runs, the residuals, estimate / measured per run).
+FEATURES_FIXED = {"forests": 40267.0, "twin": 36093.0}
+FEATURES_PER_COUNT = {"peak_blocks": 67.0, "hum_fits": 786.5, "hum_channels": 7513.5, "spike_hunts": 3109.3,
+                      "transients": 1010.5, "reach_tests": 28.4, "crossing_blocks": 201.3, "partial_prefix": 22.0}
+DROPS_MARGIN = 0
+
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
 # its cut-off divisor, the longest window kept.
 _BAND_BEFORE_US = 300.0
@@ -236,3 +259,63 @@ def check_instructions(cfg, three_terms: int) -> dict:
         loc += flagged_run_instructions(starts, isotropic((cfg.band_metric_xx, cfg.band_metric_xy,
                                                            cfg.band_metric_yy)))
     return {"check": CHECK_INSTRUCTIONS, "flagged": loc + CHECK_FLAGGED_FIXED + linear_instructions(three_terms)}
+
+
+def lattice_points_within(radius: float, step: float, samples: int = 16) -> int:
+    """The most grid points (spacing step) a disc of `radius` holds, over its centre's place in a grid cell."""
+    if not (radius > 0 and step > 0):
+        return 0
+    k = np.arange(-int(radius / step) - 1, int(radius / step) + 2) * step
+    off = (np.arange(samples) + 0.5) / samples * step
+    best = 0
+    for ox in off:
+        dx2 = (k[:, None] - ox) ** 2
+        for oy in off:
+            best = max(best, int(np.count_nonzero(dx2 + (k[None, :] - oy) ** 2 <= radius * radius)))
+    return best
+
+
+def twin_points_bound(grid, config) -> int:
+    """Grid points a clean event's twin match visits at most: the fine match's within cutoff_mm and, with a coarse
+    start (coarse_cutoff_mm > 0), every other point within coarse_cutoff_mm (the model's twin arrays: grid
+    [nx, ny, x0, y0, step], config [ref, prior, cutoff, temperature, coarse_cutoff, weak])."""
+    step, cutoff, coarse = float(grid[4]), float(config[2]), float(config[4])
+    return lattice_points_within(cutoff, step) + (lattice_points_within(coarse, 2 * step) if coarse > 0 else 0)
+
+
+def twin_instructions(twin) -> dict:
+    """A twin model's match on a clean event ('twin') and on a drop whose match the twin doubts ('cued': the cued
+    search's candidates on top): instructions; {} without a twin."""
+    if not twin:
+        return {}
+    clean = TWIN_FIXED + TWIN_PER_POINT * twin_points_bound(twin["grid"], twin["config"])
+    return {"twin": clean, "cued": clean + TWIN_CUED_CANDIDATES * TWIN_CUED_PER_CANDIDATE}
+
+
+def event_parts(cfg, front_end=None, walks: dict | None = None, trees: dict | None = None,
+                inputs: dict | None = None, linear_terms: int = 0, twin: dict | None = None,
+                check_terms: int | None = None, check: int | None = None) -> dict:
+    """The board's instructions an event, by part: 'base' (the features and report, the bond inverse's with them),
+    'band', 'localiser' (signal_instructions), 'check' (the channel check on every event: check_terms is the
+    three-channel class's terms when the board runs it, else None; `check` overrides its share, e.g. 0 when export
+    kept the check on the host), 'models' (forests_instructions of the prefixes `trees` of forests whose trees'
+    deepest walks are `walks` (role -> nodes per tree) reading `inputs`, plus linear_terms of the linear energy
+    estimate), 'twin' (twin_instructions) and 'total', their sum. 'flagged': with a twin, the event whose match it
+    doubts (the cued search); with the check, an event it flags (check_instructions' 'flagged' instead of the
+    forests)."""
+    sig = signal_instructions(cfg, 4, front_end)
+    parts = {"base": sig["base"], "band": sig["band"], "localiser": sig["localiser"]}
+    flagged = check_instructions(cfg, check_terms) if check_terms is not None else None
+    parts["check"] = int(check) if check is not None else (flagged["check"] if flagged else 0)
+    walks, trees = walks or {}, trees or {}
+    nodes = {r: np.asarray(w, dtype=np.int64).reshape(-1, 1) for r, w in walks.items()}
+    forests = forests_instructions(nodes, {r: int(k) for r, k in trees.items() if r in nodes}, inputs) if nodes else 0
+    parts["models"] = forests + linear_instructions(linear_terms)
+    t = twin_instructions(twin)
+    parts["twin"] = t.get("twin", 0)
+    parts["total"] = sum(parts[k] for k in ("base", "band", "localiser", "check", "models", "twin"))
+    if t:
+        parts["flagged"] = parts["total"] - parts["twin"] + t["cued"]
+    elif flagged and parts["check"]:
+        parts["flagged"] = parts["total"] - parts["models"] + flagged["flagged"]
+    return parts

@@ -1,0 +1,222 @@
+"""Export's per-event estimate (board.cost, export_check.event_estimate) against what qemu measured, by part, on
+every kind of exported model (issue 15; docs/findings.md "Session 26: exportest"). The refit of board.cost's
+coefficients reads this table.
+
+    python benchmarks/bench_export_estimate.py Q1.json Q2.json ... [--json OUT]
+
+Each Q.json is `bench_firmware_cost.py ... --json Q.json` (qemu's ticks per drop: the event, the models, the
+features, the localiser, a twin's match; the JSON names the board model and the trees it ran). The estimate is made
+again from that board model with this tree's board.cost, so a refit is checked without running qemu again. Per run:
+the clean events (every channel kept) against 'total', the flagged ones (a channel left out: the twin's cued search
+or the three-sensor path) against 'flagged', and per part the estimate against the measured maximum: the signal
+(the event less its models, the app's accounting on top) against base + band + localiser + check, the models
+against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linprog
+
+from impactsense.board import cost, drop_cost
+from impactsense.board.cost import EVENT_BUDGET
+from impactsense.data import load_session
+from impactsense.export import load_models
+from impactsense.export_check import event_estimate
+from impactsense.signal import SignalConfig
+
+LOW, HIGH = 0.99, 1.03
+
+
+def load_run(qjson: str) -> tuple[dict, object, dict, dict]:
+    """(the run's JSON, its board model, the trees it ran, the host's counts on its drops: cached beside the JSON)."""
+    q = json.loads(Path(qjson).read_text())
+    model_dir = q["model_dir"]
+    if model_dir == "shipped":
+        raise SystemExit(f"{qjson}: a shipped-model run names no board model; pass its board model (the bench's "
+                         "cache, build/bench-cache/shipped-*/out/board-model) as --model-dir to the bench")
+    models = load_models(model_dir)
+    trees = {r: int(q["export"]["trees"][r]) for r in ("x", "y", "energy")}
+    cache = Path(qjson).with_suffix(".counts.npz")
+    if cache.is_file():
+        z = np.load(cache)
+        counts = {k: z[k] for k in z.files}
+        counts["fields"] = [str(f) for f in counts["fields"]]
+    else:
+        s = load_session(None if q["data"] == "bundled" else q["data"])
+        counts = drop_cost.drop_counts(models, trees, s.subset(np.asarray(q["rows"])))
+        np.savez(cache, **counts)
+    if not np.array_equal(counts["evaluations"], np.asarray(q["per_drop"]["localiser_evaluations"])):
+        raise SystemExit(f"{qjson}: the host's localiser evaluations differ from qemu's (other captures?)")
+    return q, models, trees, counts
+
+
+def clean_mask(q: dict) -> np.ndarray:
+    p = q["per_drop"]
+    n = len(p["event"])
+    return np.asarray(p["left_out"]) == 4 if len(p.get("left_out", ())) == n else np.ones(n, bool)
+
+
+def fit(qjsons: list[str]) -> None:
+    """The features and report per clean drop (the event less its localiser, its models, the bond inverse's bound
+    and the channel check's share) bounded by the host's counters (non-negative rates) and one fixed part per model
+    kind (forests, twin): a linear programme, the bound at or above every drop of every run with the least total
+    slack; prints the rates for board.cost, the localiser's screening + rate line and each run's slack."""
+    rows_X, rows_y, names, loc = [], [], None, {0: [], 1: []}
+    for qj in qjsons:
+        q, models, trees, counts = load_run(qj)
+        p, c = q["per_drop"], clean_mask(q)
+        ev, lo, mo = (np.asarray(p[k], float) for k in ("event", "localiser", "models"))
+        cfg = SignalConfig.from_dict(models.signal)
+        bond = cost.BOND_PER_SAMPLE * cost.bond_samples(cfg) + checked(q, event_estimate(models, trees))["check"]
+        k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
+        loc[k].append(np.c_[counts["evaluations"], lo])
+        twin = models.twin is not None
+        X = np.c_[counts["work"], np.full(len(ev), float(not twin)), np.full(len(ev), float(twin))][c]
+        rows_X.append(X)
+        rows_y.append((ev - lo - mo - bond)[c])
+        names = counts["fields"] + ["fixed_forests", "fixed_twin"]
+    X, y = np.vstack(rows_X), np.concatenate(rows_y)
+    used = X.std(axis=0) > 0
+    used[-2:] = X[:, -2:].any(axis=0)   # the fixed parts: one per model kind the runs hold
+    Xu = X[:, used]
+    n_rates = int(used[:-2].sum())
+    lp = linprog(c=Xu.sum(axis=0), A_ub=-Xu, b_ub=-y, bounds=[(0, None)] * n_rates + [(None, None)] * (Xu.shape[1] - n_rates))
+    if not lp.success:
+        raise SystemExit(f"the linear programme failed: {lp.message}")
+    coef = np.zeros(X.shape[1])
+    coef[used] = lp.x
+    print("fit (a bound at or above every clean drop, the least total slack; board.cost FEATURES_PER_COUNT, "
+          "FEATURES_FIXED): " + ", ".join(f"{n} {c:.1f}" for n, c in zip(names, coef) if c))
+    for k, runs in loc.items():   # the localiser: the least screening + rate line at or above every drop
+        if runs:
+            e, lo = np.vstack(runs).T
+            lp = linprog(c=[len(e), e.sum()], A_ub=-np.c_[np.ones_like(e), e], b_ub=-lo, bounds=[(0, None)] * 2)
+            rate = cost.LOCALISER_PER_EVALUATION[k]
+            print(f"  localiser ({'isotropic' if k == 0 else 'metric'}): screening {lp.x[0]:.0f} + {lp.x[1]:.1f} an "
+                  f"evaluation bounds every drop with the least total slack; at board.cost's {rate} an evaluation "
+                  f"the least screening is {int(np.ceil((lo - rate * e).max()))} ({len(e)} drops, evaluations "
+                  f"{int(e.min())}..{int(e.max())}, the most at {int(e.max())}: {int(lo[e == e.max()].max())})")
+    for qj, Xr, yr in zip(qjsons, rows_X, rows_y):
+        res = yr - Xr @ coef
+        print(f"  {Path(qj).parent.name}: residual sd {res.std():.0f}, min {res.min():.0f}, max {res.max():.0f}; "
+              f"slowest predicted {(Xr @ coef).max():.0f} / measured {yr.max():.0f}")
+
+
+def checked(q: dict, est: dict) -> dict:
+    """est without the channel check's share when the run's export kept the check on the host."""
+    if est["check"] and q["export"].get("channel_check") is not True:
+        est["total"] -= est.pop("check")
+        est["check"] = 0
+        est.pop("flagged", None)
+    return est
+
+
+def stored(qjson: str) -> dict:
+    """A run as tests/data/board_cost_measured.json keeps it: what board.cost and board.drop_cost read of the model
+    (its signal configuration, front end, trees' deepest walks, inputs, twin arrays' grid and config, the models'
+    fixed cost), the host's counts on each drop and qemu's slowest clean and flagged events."""
+    q, models, trees, counts = load_run(qjson)
+    roles = {"x": models.x, "y": models.y} if models.energy_linear else {
+        "x": models.x, "y": models.y, "energy": models.energy}
+    est = checked(q, event_estimate(models, trees))
+    p, c = q["per_drop"], clean_mask(q)
+    ev = np.asarray(p["event"]) + max(0, int(q["instructions"]["app_event_max"])
+                                       - int(q["instructions"]["event_max_over_drops"]))
+    return {"run": Path(qjson).parent.name, "signal": models.signal, "front_end": models.card.get("board_front_end"),
+            "walks": {r: cost.deepest_walks(f)[:, 0].tolist() for r, f in roles.items()}, "trees": trees,
+            "inputs": {r: len(v) for r, v in models.inputs.items()},
+            "linear_terms": models.energy_trees() if models.energy_linear else 0,
+            "twin": None if models.twin is None else {k: np.asarray(models.twin[k]).tolist() for k in ("grid", "config")},
+            "check": est["check"], "fixed_models": drop_cost.forests_fixed(models, trees),
+            "check_terms": (max((len(m.terms) for m in models.three_channel.values()), default=0)
+                            if est["check"] else None),
+            "counts": {"fields": counts["fields"], "work": counts["work"][c].astype(int).tolist(),
+                       "evaluations": counts["evaluations"][c].tolist(), "walk": counts["walk"][c].tolist()},
+            "measured": {"clean_max": int(ev[c].max()), "flagged_max": int(ev[~c].max()) if (~c).any() else None,
+                         "command": q.get("command", "bench_firmware_cost.py --json")}}
+
+
+def run_row(qjson: str) -> dict:
+    q, models, trees, counts = load_run(qjson)
+    est = checked(q, event_estimate(models, trees))
+    cfg = SignalConfig.from_dict(models.signal)
+    per = drop_cost.drop_instructions(counts, est, cfg, models.twin is not None, drop_cost.forests_fixed(models, trees))
+    p = q["per_drop"]
+    ev, mo, lo = (np.asarray(p[k], np.int64) for k in ("event", "models", "localiser"))
+    app = max(0, int(q["instructions"]["app_event_max"]) - int(q["instructions"]["event_max_over_drops"]))
+    ev = ev + app
+    c = clean_mask(q)
+    est["drops"] = int(np.ceil(per[c].max())) + cost.DROPS_MARGIN if c.any() else None
+    name = Path(qjson).stem if Path(qjson).stem != "q" else Path(qjson).parent.name
+    row = {"run": name, "drops": int(len(ev)), "clean": int(c.sum()), "estimate": est,
+           "measured": {"clean_max": int(ev[c].max()) if c.any() else None,
+                        "flagged_max": int(ev[~c].max()) if (~c).any() else None,
+                        "signal_max": int((ev - mo)[c].max()) if c.any() else None,
+                        "localiser_max": int(lo.max()), "models_max": int(mo[c].max()) if c.any() else None,
+                        "twin_max": int(np.max(p["twin"])) if "twin" in p else None}}
+    m = row["measured"]
+    row["estimate_total"] = min(est["total"], est["drops"]) if est["drops"] else est["total"]
+    row["ratio"] = row["estimate_total"] / m["clean_max"] if m["clean_max"] else None
+    row["drops_ratio"] = est["drops"] / m["clean_max"] if m["clean_max"] else None
+    row["constant_ratio"] = est["total"] / m["clean_max"] if m["clean_max"] else None
+    res = (ev - per)[c]
+    row["per_drop_residual"] = {"min": int(res.min()), "max": int(res.max()), "sd": float(res.std())}
+    # per part, the slowest drop's measured less the largest predicted (features and report, localiser, models)
+    k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
+    loc = cost.LOCALISER_SCREEN[k] + counts["evaluations"] * cost.LOCALISER_PER_EVALUATION[k]
+    feat = drop_cost.features_instructions(counts, models.twin is not None) + cost.BOND_PER_SAMPLE * cost.bond_samples(cfg)
+    rest = per - loc - feat
+    row["part_max"] = {name: (int(meas[c].max()), int(np.ceil(pred[c].max()))) for name, meas, pred in
+                       (("features_report", ev - lo - mo, feat), ("localiser", lo, loc), ("models", mo, rest))}
+    row["flagged_ratio"] = (est["flagged"] / m["flagged_max"]) if m["flagged_max"] and "flagged" in est else None
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", help="bench_firmware_cost.py --json files")
+    ap.add_argument("--json", help="write the rows here")
+    ap.add_argument("--fit", action="store_true", help="print the per-drop rates' fit on the runs")
+    ap.add_argument("--store", help="write the runs as the tests' stored measurement (tests/data/...json)")
+    args = ap.parse_args()
+    if args.store:
+        Path(args.store).write_text(json.dumps([stored(q) for q in args.runs], separators=(",", ":")) + "\n")
+    if args.fit:
+        fit(args.runs)
+    rows = [run_row(q) for q in args.runs]
+    print(f"{'run':<16}{'drops':>6} {'estimate':>9} {'clean max':>10} {'est/meas':>9} {'per drop':>9} {'ratio':>6} "
+          f"{'parts':>9} {'ratio':>6}  {'signal est/meas':>17} {'models est/meas':>17} {'flagged est/meas':>17}")
+    ok = True
+    for r in rows:
+        e, m = r["estimate"], r["measured"]
+        sig = e["base"] + e["band"] + e["localiser"] + e["check"]
+        mod = e["models"] + e["twin"]
+        within = r["ratio"] is not None and LOW <= r["ratio"] <= HIGH
+        ok &= within or r["ratio"] is None
+        fl = (f"{e['flagged']:,}/{m['flagged_max']:,}" if m["flagged_max"] and "flagged" in e else "-")
+        print(f"{r['run']:<16}{r['drops']:>6} {r['estimate_total']:>9,} {m['clean_max'] or 0:>10,} "
+              f"{r['ratio'] or 0:>9.3f}{'' if within else '*'} {e['drops'] or 0:>8,} {r['drops_ratio'] or 0:>6.3f} "
+              f"{e['total']:>9,} {r['constant_ratio'] or 0:>6.3f}  {sig:>8,}/{m['signal_max'] or 0:<8,} "
+              f"{mod:>8,}/{m['models_max'] or 0:<8,} {fl:>17}")
+        verdict_est = "OVER" if r["estimate_total"] > EVENT_BUDGET else "ok"
+        verdict_meas = "over" if (m["clean_max"] or 0) > EVENT_BUDGET else "within"
+        rs = r["per_drop_residual"]
+        print(f"{'':<18}parts {', '.join(f'{k} {v:,}' for k, v in e.items() if v is not None)}; per drop: measured "
+              f"less predicted {rs['min']:,}..{rs['max']:,} (sd {rs['sd']:.0f}); export says {verdict_est}, "
+              f"qemu's clean events {verdict_meas}")
+        print(f"{'':<18}per drop, measured / predicted max: "
+              + ", ".join(f"{k} {a:,} / {b:,}" for k, (a, b) in r["part_max"].items()))
+    print(f"RESULT estimate / slowest clean event within {LOW}..{HIGH} on "
+          f"{sum(1 for r in rows if r['ratio'] and LOW <= r['ratio'] <= HIGH)} of {len(rows)} runs")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,91 @@
+"""The board's per-event cost on the rig's own drops (issue 15): the slowest of the drops the model was made from,
+each drop's parts predicted on the host from what the same C++ does on the same board captures.
+
+board.cost's constant form adds each part's worst case (the features' and report's, the localiser's at its
+evaluation cap, each tree's deepest walk); the parts' slowest drops differ, so that sum lies above every measured
+event by 3-30 % (docs/findings.md "Session 26: exportest"). Here each drop is priced whole: the host core (its
+build counts impactcore.h WorkCounts) runs the board's captures of the session's drops and gives each one's work
+counters and localiser evaluations (both equal to the board's: the same code on the same captures), the forests'
+walks are counted on its feature vector (board.cost.forest_nodes), and
+
+  drop = FEATURES_FIXED (a forest or a twin model's) + sum_k FEATURES_PER_COUNT[k] x counter_k
+         + the bond inverse + the band picks + (LOCALISER_SCREEN + evaluations x LOCALISER_PER_EVALUATION)
+         + the channel check + the forests' walk of this drop + the twin's match (its bound);
+
+the estimate is the slowest drop plus DROPS_MARGIN (a drop the session did not have, the rates' residual).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import cost
+
+
+def drop_counts(models, n_trees: dict, session, fs_hz: int = 50000) -> dict:
+    """What the host core does on the board's captures of every drop of `session`: 'work' [R, K] with 'fields',
+    'evaluations' [R] (every start's), 'walk' [R] (nodes the localisation forests' prefixes n_trees visit), 'rows'."""
+    from .. import _core
+    from ..pipeline import as_int16
+    from .capture import board_captures
+
+    caps, rows, cfg = board_captures(session, int(fs_hz), models.signal)
+    out = _core.process_batch(as_int16(caps, cfg), cfg.core(), cfg.localiser())
+    X = np.asarray(out["vector"], dtype=np.float32)
+    walk = np.zeros(len(X), dtype=np.int64)
+    for role, forest in (("x", models.x), ("y", models.y)):
+        k = int(n_trees[role])
+        if k > 0:
+            walk += cost.forest_nodes(forest, X[:, models.inputs[role]])[:k].sum(axis=0)
+    return {"work": np.asarray(out["work"], dtype=float), "fields": [str(f) for f in out["work_fields"]],
+            "evaluations": np.asarray(out["localiser_evaluations"])[:, 0].astype(np.int64), "walk": walk,
+            "rows": np.asarray(rows)}
+
+
+def features_instructions(counts: dict, twin: bool) -> np.ndarray:
+    """The features and report per drop (without the bond inverse): FEATURES_FIXED + the counters' rates + the
+    report's share of a forest or a twin model."""
+    rates = np.array([cost.FEATURES_PER_COUNT.get(str(f), 0.0) for f in counts["fields"]])
+    return cost.FEATURES_FIXED["twin" if twin else "forests"] + np.asarray(counts["work"], dtype=float) @ rates
+
+
+def forests_fixed(models, n_trees: dict) -> int:
+    """The models' cost on every drop beside the localisation forests' walk: FOREST_FIXED, the inputs' keys, the
+    energy class (the linear estimate's terms, or the class forest's prefix at its deepest walks)."""
+    inputs = sum(len(models.inputs[r]) for r in ("x", "y") if int(n_trees[r]) > 0)
+    energy = 0
+    if models.energy_linear:
+        energy = cost.linear_instructions(models.energy_trees())
+    elif int(n_trees.get("energy", 0)) > 0:
+        walks = cost.deepest_walks(models.energy)[: int(n_trees["energy"]), 0]
+        energy = (cost.FOREST_PER_NODE * int(walks.sum()) + cost.FOREST_PER_INPUT * len(models.inputs["energy"])
+                  + cost.CLASS_FOREST_FIXED)
+    return cost.FOREST_FIXED + cost.FOREST_PER_INPUT * inputs + energy
+
+
+def drop_instructions(counts: dict, parts: dict, cfg, twin: bool, fixed_models: int) -> np.ndarray:
+    """Each drop's event (instructions): the features and report from its counters (a twin model's or not), the
+    constant parts of `parts` (board.cost.event_parts: the band picks, the channel check, the twin's match), the
+    bond inverse's bound, its localiser at its own evaluations (signal configuration cfg) and its forests' walk on
+    top of fixed_models (forests_fixed)."""
+    k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
+    loc = cost.LOCALISER_SCREEN[k] + np.asarray(counts["evaluations"]) * cost.LOCALISER_PER_EVALUATION[k]
+    if parts["band"]:   # the band picks' own localiser run: its bound, as in the constant form
+        loc = loc + cost.localiser_run_instructions(max(1, int(cfg.localiser_starts)), k == 0, cost.evaluations_cap(cfg))
+    bond = cost.BOND_PER_SAMPLE * cost.bond_samples(cfg)
+    walk = cost.FOREST_PER_NODE * np.asarray(counts["walk"])
+    return (features_instructions(counts, twin) + bond + parts["band"] + loc + parts["check"] + fixed_models + walk
+            + parts["twin"])
+
+
+def rig_estimate(models, n_trees: dict, parts: dict, session, fs_hz: int = 50000) -> dict:
+    """The estimate on the session's drops: {'total' (the slowest drop + DROPS_MARGIN), 'slowest' (its
+    instructions), 'row' (its row), 'drops'}."""
+    from ..signal import SignalConfig
+
+    counts = drop_counts(models, n_trees, session, fs_hz)
+    per = drop_instructions(counts, parts, SignalConfig.from_dict(models.signal), models.twin is not None,
+                            forests_fixed(models, n_trees))
+    i = int(np.argmax(per))
+    return {"total": int(np.ceil(per[i])) + cost.DROPS_MARGIN, "slowest": int(np.ceil(per[i])),
+            "row": int(counts["rows"][i]), "drops": int(len(per))}
