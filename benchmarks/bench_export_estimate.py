@@ -10,7 +10,8 @@ again from that board model with this tree's board.cost, so a refit is checked w
 the clean events (every channel kept) against 'total', the flagged ones (a channel left out: the twin's cued search
 or the three-sensor path) against 'flagged', and per part the estimate against the measured maximum: the signal
 (the event less its models, the app's accounting on top) against base + band + localiser + check, the models
-against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03.
+against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03 (the estimate: the parts'
+worst cases, export's verdict; 'expected': the drops each priced whole, board.drop_cost, not a bound).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from impactsense.board import cost, drop_cost
 from impactsense.board.cost import EVENT_BUDGET
 from impactsense.data import load_session
 from impactsense.export import load_models
-from impactsense.export_check import event_estimate
+from impactsense.export_check import estimate_total, event_estimate
 from impactsense.signal import SignalConfig
 
 LOW, HIGH = 0.99, 1.03
@@ -50,8 +51,9 @@ def load_run(qjson: str) -> tuple[dict, object, dict, dict]:
         s = load_session(None if q["data"] == "bundled" else q["data"])
         counts = drop_cost.drop_counts(models, trees, s.subset(np.asarray(q["rows"])))
         np.savez(cache, **counts)
-    if not np.array_equal(counts["evaluations"], np.asarray(q["per_drop"]["localiser_evaluations"])):
-        raise SystemExit(f"{qjson}: the host's localiser evaluations differ from qemu's (other captures?)")
+    differ = int(np.count_nonzero(counts["evaluations"] != np.asarray(q["per_drop"]["localiser_evaluations"])))
+    if differ > 0.01 * len(counts["evaluations"]):   # a fixture's first drop: the app starts cold there
+        raise SystemExit(f"{qjson}: the host's localiser evaluations differ from qemu's on {differ} drops")
     return q, models, trees, counts
 
 
@@ -61,12 +63,29 @@ def clean_mask(q: dict) -> np.ndarray:
     return np.asarray(p["left_out"]) == 4 if len(p.get("left_out", ())) == n else np.ones(n, bool)
 
 
+def bound_fit(rows_X: list, rows_y: list) -> np.ndarray:
+    """Non-negative counter rates and free fixed parts (the last two columns): the bound at or above every row with
+    the least total slack (a column no row varies gets no rate)."""
+    X, y = np.vstack(rows_X), np.concatenate(rows_y)
+    used = X.std(axis=0) > 0
+    used[-2:] = X[:, -2:].any(axis=0)   # the fixed parts: one per model kind the runs hold
+    Xu = X[:, used]
+    n_rates = int(used[:-2].sum())
+    lp = linprog(c=Xu.sum(axis=0), A_ub=-Xu, b_ub=-y,
+                 bounds=[(0, None)] * n_rates + [(None, None)] * (Xu.shape[1] - n_rates))
+    if not lp.success:
+        raise SystemExit(f"the linear programme failed: {lp.message}")
+    coef = np.zeros(X.shape[1])
+    coef[used] = lp.x
+    return coef
+
+
 def fit(qjsons: list[str]) -> None:
     """The features and report per clean drop (the event less its localiser, its models, the bond inverse's bound
     and the channel check's share) bounded by the host's counters (non-negative rates) and one fixed part per model
     kind (forests, twin): a linear programme, the bound at or above every drop of every run with the least total
     slack; prints the rates for board.cost, the localiser's screening + rate line and each run's slack."""
-    rows_X, rows_y, names, loc = [], [], None, {0: [], 1: []}
+    rows_X, rows_y, names, loc, twin_ticks = [], [], None, {0: [], 1: []}, []
     for qj in qjsons:
         q, models, trees, counts = load_run(qj)
         p, c = q["per_drop"], clean_mask(q)
@@ -75,21 +94,15 @@ def fit(qjsons: list[str]) -> None:
         bond = cost.BOND_PER_SAMPLE * cost.bond_samples(cfg) + checked(q, event_estimate(models, trees))["check"]
         k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
         loc[k].append(np.c_[counts["evaluations"], lo])
+        if "twin" in p:   # the twin's match (its ticks) against the grid points it visited, clean drops
+            twin_ticks.append(np.c_[np.asarray(p["twin_points"])[c], np.asarray(p["twin"])[c],
+                                    np.full(c.sum(), cost.twin_points_bound(models.twin["grid"], models.twin["config"]))])
         twin = models.twin is not None
         X = np.c_[counts["work"], np.full(len(ev), float(not twin)), np.full(len(ev), float(twin))][c]
         rows_X.append(X)
         rows_y.append((ev - lo - mo - bond)[c])
         names = counts["fields"] + ["fixed_forests", "fixed_twin"]
-    X, y = np.vstack(rows_X), np.concatenate(rows_y)
-    used = X.std(axis=0) > 0
-    used[-2:] = X[:, -2:].any(axis=0)   # the fixed parts: one per model kind the runs hold
-    Xu = X[:, used]
-    n_rates = int(used[:-2].sum())
-    lp = linprog(c=Xu.sum(axis=0), A_ub=-Xu, b_ub=-y, bounds=[(0, None)] * n_rates + [(None, None)] * (Xu.shape[1] - n_rates))
-    if not lp.success:
-        raise SystemExit(f"the linear programme failed: {lp.message}")
-    coef = np.zeros(X.shape[1])
-    coef[used] = lp.x
+    coef = bound_fit(rows_X, rows_y)
     print("fit (a bound at or above every clean drop, the least total slack; board.cost FEATURES_PER_COUNT, "
           "FEATURES_FIXED): " + ", ".join(f"{n} {c:.1f}" for n, c in zip(names, coef) if c))
     for k, runs in loc.items():   # the localiser: the least screening + rate line at or above every drop
@@ -101,10 +114,21 @@ def fit(qjsons: list[str]) -> None:
                   f"evaluation bounds every drop with the least total slack; at board.cost's {rate} an evaluation "
                   f"the least screening is {int(np.ceil((lo - rate * e).max()))} ({len(e)} drops, evaluations "
                   f"{int(e.min())}..{int(e.max())}, the most at {int(e.max())}: {int(lo[e == e.max()].max())})")
-    for qj, Xr, yr in zip(qjsons, rows_X, rows_y):
+    if twin_ticks:
+        pts, ticks, most = np.vstack(twin_ticks).T
+        lp = linprog(c=[len(pts), pts.sum()], A_ub=-np.c_[np.ones_like(pts), pts], b_ub=-ticks, bounds=[(0, None)] * 2)
+        print(f"  twin match: {lp.x[0]:.0f} + {lp.x[1]:.1f} a visited point bounds every clean drop ({len(pts)} drops, "
+              f"{int(pts.min())}..{int(pts.max())} points, the bound {int(most.max())}; ticks max {int(ticks.max())})")
+    for i, (qj, Xr, yr) in enumerate(zip(qjsons, rows_X, rows_y)):
         res = yr - Xr @ coef
-        print(f"  {Path(qj).parent.name}: residual sd {res.std():.0f}, min {res.min():.0f}, max {res.max():.0f}; "
-              f"slowest predicted {(Xr @ coef).max():.0f} / measured {yr.max():.0f}")
+        others = [j for j in range(len(rows_X)) if j != i]
+        left = ""
+        if others and rows_X[i][:, -2:].any(axis=0)[np.flatnonzero(Xr[:, -2:].any(axis=0))].all() and \
+                np.vstack([rows_X[j] for j in others])[:, -2:][:, np.flatnonzero(Xr[:, -2:].any(axis=0))].any():
+            out = bound_fit([rows_X[j] for j in others], [rows_y[j] for j in others])
+            left = f"; fitted without this run: slowest {(Xr @ out).max():.0f} ({(Xr @ out).max() - yr.max():+.0f})"
+        print(f"  {Path(qj).parent.name}: measured less the bound {res.min():.0f}..{res.max():.0f}; slowest bound "
+              f"{(Xr @ coef).max():.0f} / measured {yr.max():.0f}{left}")
 
 
 def checked(q: dict, est: dict) -> dict:
@@ -151,7 +175,8 @@ def run_row(qjson: str) -> dict:
     app = max(0, int(q["instructions"]["app_event_max"]) - int(q["instructions"]["event_max_over_drops"]))
     ev = ev + app
     c = clean_mask(q)
-    est["drops"] = int(np.ceil(per[c].max())) + cost.DROPS_MARGIN if c.any() else None
+    drops = drop_cost.slowest(per, est, np.asarray(q["rows"]), drop_cost.hum_drops(counts))   # every drop, as export
+    est["drops"] = drops["slowest"]
     name = Path(qjson).stem if Path(qjson).stem != "q" else Path(qjson).parent.name
     row = {"run": name, "drops": int(len(ev)), "clean": int(c.sum()), "estimate": est,
            "measured": {"clean_max": int(ev[c].max()) if c.any() else None,
@@ -160,10 +185,9 @@ def run_row(qjson: str) -> dict:
                         "localiser_max": int(lo.max()), "models_max": int(mo[c].max()) if c.any() else None,
                         "twin_max": int(np.max(p["twin"])) if "twin" in p else None}}
     m = row["measured"]
-    row["estimate_total"] = min(est["total"], est["drops"]) if est["drops"] else est["total"]
+    row["estimate_total"] = estimate_total(est)
     row["ratio"] = row["estimate_total"] / m["clean_max"] if m["clean_max"] else None
     row["drops_ratio"] = est["drops"] / m["clean_max"] if m["clean_max"] else None
-    row["constant_ratio"] = est["total"] / m["clean_max"] if m["clean_max"] else None
     res = (ev - per)[c]
     row["per_drop_residual"] = {"min": int(res.min()), "max": int(res.max()), "sd": float(res.std())}
     # per part, the slowest drop's measured less the largest predicted (features and report, localiser, models)
@@ -173,6 +197,8 @@ def run_row(qjson: str) -> dict:
     rest = per - loc - feat
     row["part_max"] = {name: (int(meas[c].max()), int(np.ceil(pred[c].max()))) for name, meas, pred in
                        (("features_report", ev - lo - mo, feat), ("localiser", lo, loc), ("models", mo, rest))}
+    row["flagged_estimate"] = est.get("flagged")
+    row["flagged_drops"] = drops.get("flagged")
     row["flagged_ratio"] = (est["flagged"] / m["flagged_max"]) if m["flagged_max"] and "flagged" in est else None
     return row
 
@@ -189,8 +215,8 @@ def main() -> int:
     if args.fit:
         fit(args.runs)
     rows = [run_row(q) for q in args.runs]
-    print(f"{'run':<16}{'drops':>6} {'estimate':>9} {'clean max':>10} {'est/meas':>9} {'per drop':>9} {'ratio':>6} "
-          f"{'parts':>9} {'ratio':>6}  {'signal est/meas':>17} {'models est/meas':>17} {'flagged est/meas':>17}")
+    print(f"{'run':<16}{'drops':>6} {'estimate':>9} {'clean max':>10} {'est/meas':>9} {'expected':>9} {'ratio':>6}"
+          f"  {'signal est/meas':>17} {'models est/meas':>17} {'flagged est (exp) / meas':>26}")
     ok = True
     for r in rows:
         e, m = r["estimate"], r["measured"]
@@ -198,11 +224,11 @@ def main() -> int:
         mod = e["models"] + e["twin"]
         within = r["ratio"] is not None and LOW <= r["ratio"] <= HIGH
         ok &= within or r["ratio"] is None
-        fl = (f"{e['flagged']:,}/{m['flagged_max']:,}" if m["flagged_max"] and "flagged" in e else "-")
+        fl = (f"{e['flagged']:,} ({r['flagged_drops'] or 0:,}) / {m['flagged_max']:,}" if m["flagged_max"]
+              and "flagged" in e else "-")
         print(f"{r['run']:<16}{r['drops']:>6} {r['estimate_total']:>9,} {m['clean_max'] or 0:>10,} "
-              f"{r['ratio'] or 0:>9.3f}{'' if within else '*'} {e['drops'] or 0:>8,} {r['drops_ratio'] or 0:>6.3f} "
-              f"{e['total']:>9,} {r['constant_ratio'] or 0:>6.3f}  {sig:>8,}/{m['signal_max'] or 0:<8,} "
-              f"{mod:>8,}/{m['models_max'] or 0:<8,} {fl:>17}")
+              f"{r['ratio'] or 0:>9.3f}{'' if within else '*'} {e['drops']:>8,} {r['drops_ratio'] or 0:>6.3f}  "
+              f"{sig:>8,}/{m['signal_max'] or 0:<8,} {mod:>8,}/{m['models_max'] or 0:<8,} {fl:>26}")
         verdict_est = "OVER" if r["estimate_total"] > EVENT_BUDGET else "ok"
         verdict_meas = "over" if (m["clean_max"] or 0) > EVENT_BUDGET else "within"
         rs = r["per_drop_residual"]

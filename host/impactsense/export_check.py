@@ -117,8 +117,8 @@ def event_estimate(models, n_trees: dict, signal_cost: dict | None = None) -> di
 
 
 def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
-    """The event estimate on the model's own session (board.drop_cost.rig_estimate: every drop priced whole on the
-    host's counts of the board's captures), or None when the card's session is not at hand."""
+    """What to expect on the model's own session (board.drop_cost.rig_estimate: every drop priced whole on the host's
+    counts of the board's captures; not a bound), or None when the card's session is not at hand."""
     from .board.drop_cost import rig_estimate
     from .board.scores import held_out_rows
     from .errors import ImpactSenseError
@@ -131,10 +131,11 @@ def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
 
 
 def estimate_total(est: dict) -> int:
-    """The export's event estimate: the smaller of two bounds, the parts' worst cases (board.cost) and, when export
-    had the rig's own drops, the slowest of them priced whole (board.drop_cost)."""
-    drops = est.get("drops")
-    return min(int(est["total"]), int(drops["total"])) if drops else int(est["total"])
+    """The export's event estimate, the one its verdict reads: the parts' worst cases (board.cost), a bound of every
+    event qemu measured. The rig's own drops priced whole (est['drops'], board.drop_cost) are what to expect, not a
+    bound: fitted on few rigs, they miss a rig the fit has not seen by thousands (docs/findings.md "Session 26:
+    exportest")."""
+    return int(est["total"])
 
 
 def budgeted(models, signal_cost: dict, budget: int) -> int:

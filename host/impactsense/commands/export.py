@@ -139,20 +139,19 @@ def _export(args, card, rate, stage, out):
         from ..export_check import estimate_total
 
         drops, total = est.get("drops"), estimate_total(est)
-        print(f"per-event cost on the board, estimated: {total:,} instructions (budget {EVENT_BUDGET:,}: "
-              f"{'ok' if total <= EVENT_BUDGET else 'OVER'}), the smaller of two bounds:")
+        print(f"per-event cost on the board, estimated (board.cost, each part at its worst): {total:,} instructions "
+              f"(features and report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, "
+              f"forests {est['models']:,}{', channel check ' + format(est['check'], ',') if est.get('check') else ''}"
+              f"{', twin match ' + format(est['twin'], ',') if est.get('twin') else ''}; budget {EVENT_BUDGET:,}: "
+              f"{'ok' if total <= EVENT_BUDGET else 'OVER'})")
         if drops:
-            print(f"  the rig's {drops['drops']} drops, each priced whole (board.drop_cost): {drops['total']:,} (the "
-                  f"slowest, row {drops['row']}, {drops['slowest']:,} and a margin)")
-        print(f"  the parts' worst cases (board.cost): {est['total']:,} (features and report {est['base']:,}, band "
-              f"picks {est['band']:,}, localiser {est['localiser']:,}, forests {est['models']:,}"
-              f"{', channel check ' + format(est['check'], ',') if est.get('check') else ''}"
-              f"{', twin match ' + format(est['twin'], ',') if est.get('twin') else ''})")
+            print(f"  expected on the rig's {drops['drops']} drops, each priced whole (board.drop_cost, not a bound): "
+                  f"the slowest ~{drops['slowest']:,} (row {drops['row']})"
+                  + (f", flagged ~{drops['flagged']:,}" if "flagged" in drops else ""))
         if "flagged" in est:
             which = ("a drop whose match the twin doubts (its cued search)" if est.get("twin") else
                      "an event the channel check flags (the localiser without the channel, the three-channel class)")
-            print(f"  {which}: {est['flagged']:,} instructions "
-                  f"({'ok' if est['flagged'] <= EVENT_BUDGET else 'OVER'})")
+            print(f"  {which}: {est['flagged']:,} instructions ({'ok' if est['flagged'] <= EVENT_BUDGET else 'OVER'})")
     if isinstance(s.get("channel_check"), str):
         print(s["channel_check"])
     host = Path(args.model_dir)
