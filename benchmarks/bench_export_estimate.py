@@ -145,18 +145,14 @@ def stored(qjson: str) -> dict:
     (its signal configuration, front end, trees' deepest walks, inputs, twin arrays' grid and config, the models'
     fixed cost), the host's counts on each drop and qemu's slowest clean and flagged events."""
     q, models, trees, counts = load_run(qjson)
-    roles = {"x": models.x, "y": models.y} if models.energy_linear else {
-        "x": models.x, "y": models.y, "energy": models.energy}
     est = checked(q, event_estimate(models, trees))
     p, c = q["per_drop"], clean_mask(q)
     ev = np.asarray(p["event"]) + max(0, int(q["instructions"]["app_event_max"])
                                        - int(q["instructions"]["event_max_over_drops"]))
     return {"run": Path(qjson).parent.name, "signal": models.signal, "front_end": models.card.get("board_front_end"),
-            "walks": {r: cost.deepest_walks(f)[:, 0].tolist() for r, f in roles.items()}, "trees": trees,
-            "inputs": {r: len(v) for r, v in models.inputs.items()},
-            "linear_terms": models.energy_trees() if models.energy_linear else 0,
+            **drop_cost.model_inputs(models, trees),
             "twin": None if models.twin is None else {k: np.asarray(models.twin[k]).tolist() for k in ("grid", "config")},
-            "check": est["check"], "fixed_models": drop_cost.forests_fixed(models, trees),
+            "check": est["check"],
             "check_terms": (max((len(m.terms) for m in models.three_channel.values()), default=0)
                             if est["check"] else None),
             "counts": {"fields": counts["fields"], "work": counts["work"][c].astype(int).tolist(),
@@ -169,7 +165,8 @@ def run_row(qjson: str) -> dict:
     q, models, trees, counts = load_run(qjson)
     est = checked(q, event_estimate(models, trees))
     cfg = SignalConfig.from_dict(models.signal)
-    per = drop_cost.drop_instructions(counts, est, cfg, models.twin is not None, drop_cost.forests_fixed(models, trees))
+    per = drop_cost.drop_instructions(counts, est, cfg, models.twin is not None,
+                                      drop_cost.forests_fixed(**drop_cost.model_inputs(models, trees)))
     p = q["per_drop"]
     ev, mo, lo = (np.asarray(p[k], np.int64) for k in ("event", "models", "localiser"))
     app = max(0, int(q["instructions"]["app_event_max"]) - int(q["instructions"]["event_max_over_drops"]))

@@ -99,17 +99,13 @@ def event_estimate(models, n_trees: dict, signal_cost: dict | None = None) -> di
     """The board's instructions an event of this export, by part (board.cost.event_parts): the forests' prefixes
     n_trees {x, y, energy} each walked to its deepest leaf, a twin model's match, the channel check's share when
     the board runs it. signal_cost: board_signal_cost's, when export already has it."""
-    from .board.cost import deepest_walks, event_parts
+    from .board.cost import event_parts
+    from .board.drop_cost import model_inputs
     from .signal import SignalConfig
 
-    roles = {"x": models.x, "y": models.y} if models.energy_linear else {
-        "x": models.x, "y": models.y, "energy": models.energy}
     twin = models.twin
     return event_parts(SignalConfig.from_dict(models.signal), models.card.get("board_front_end"),
-                       walks={r: deepest_walks(f)[:, 0].tolist() for r, f in roles.items()},
-                       trees={r: int(n_trees[r]) for r in roles},
-                       inputs={r: len(v) for r, v in models.inputs.items()},
-                       linear_terms=models.energy_trees() if models.energy_linear else 0,
+                       **model_inputs(models, n_trees),
                        twin=None if twin is None else {"grid": twin["grid"], "config": twin["config"]},
                        check_terms=(max((len(m.terms) for m in models.three_channel.values()), default=0)
                                     if models.channel_check else None),

@@ -22,16 +22,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _core
+from ..pipeline import as_int16
+from ..signal import SignalConfig
 from . import cost
+from .capture import board_captures
 
 
 def drop_counts(models, n_trees: dict, session, fs_hz: int = 50000) -> dict:
     """What the host core does on the board's captures of every drop of `session`: 'work' [R, K] with 'fields',
     'evaluations' [R] (every start's), 'walk' [R] (nodes the localisation forests' prefixes n_trees visit), 'rows'."""
-    from .. import _core
-    from ..pipeline import as_int16
-    from .capture import board_captures
-
     caps, rows, cfg = board_captures(session, int(fs_hz), models.signal)
     out = _core.process_batch(as_int16(caps, cfg), cfg.core(), cfg.localiser())
     X = np.asarray(out["vector"], dtype=np.float32)
@@ -52,18 +52,27 @@ def features_instructions(counts: dict, twin: bool) -> np.ndarray:
     return cost.FEATURES_FIXED["twin" if twin else "forests"] + np.asarray(counts["work"], dtype=float) @ rates
 
 
-def forests_fixed(models, n_trees: dict) -> int:
+def forests_fixed(walks: dict, trees: dict, inputs: dict, linear_terms: int = 0) -> int:
     """The models' cost on every drop beside the localisation forests' walk: FOREST_FIXED, the inputs' keys, the
-    energy class (the linear estimate's terms, or the class forest's prefix at its deepest walks)."""
-    inputs = sum(len(models.inputs[r]) for r in ("x", "y") if int(n_trees[r]) > 0)
-    energy = 0
-    if models.energy_linear:
-        energy = cost.linear_instructions(models.energy_trees())
-    elif int(n_trees.get("energy", 0)) > 0:
-        walks = cost.deepest_walks(models.energy)[: int(n_trees["energy"]), 0]
-        energy = (cost.FOREST_PER_NODE * int(walks.sum()) + cost.FOREST_PER_INPUT * len(models.inputs["energy"])
-                  + cost.CLASS_FOREST_FIXED)
-    return cost.FOREST_FIXED + cost.FOREST_PER_INPUT * inputs + energy
+    energy class (linear_terms of the linear estimate, or the class forest's prefix trees['energy'] at its trees'
+    deepest walks walks['energy']); walks / trees / inputs as board.cost.event_parts takes them."""
+    keys = sum(int(inputs.get(r, 0)) for r in ("x", "y") if int(trees.get(r, 0)) > 0)
+    energy = cost.linear_instructions(linear_terms)
+    k = int(trees.get("energy", 0)) if "energy" in walks else 0
+    if k > 0:
+        energy += (cost.FOREST_PER_NODE * int(np.sum(walks["energy"][:k])) + cost.FOREST_PER_INPUT
+                   * int(inputs.get("energy", 0)) + cost.CLASS_FOREST_FIXED)
+    return cost.FOREST_FIXED + cost.FOREST_PER_INPUT * keys + energy
+
+
+def model_inputs(models, n_trees: dict) -> dict:
+    """What event_parts and forests_fixed read of an export: walks (each tree's deepest path), trees, inputs,
+    linear_terms."""
+    roles = {"x": models.x, "y": models.y} if models.energy_linear else {
+        "x": models.x, "y": models.y, "energy": models.energy}
+    return {"walks": {r: cost.deepest_walks(f)[:, 0].tolist() for r, f in roles.items()},
+            "trees": {r: int(n_trees[r]) for r in roles}, "inputs": {r: len(v) for r, v in models.inputs.items()},
+            "linear_terms": models.energy_trees() if models.energy_linear else 0}
 
 
 def drop_instructions(counts: dict, parts: dict, cfg, twin: bool, fixed_models: int) -> np.ndarray:
@@ -83,11 +92,9 @@ def drop_instructions(counts: dict, parts: dict, cfg, twin: bool, fixed_models: 
 
 def rig_estimate(models, n_trees: dict, parts: dict, session, fs_hz: int = 50000) -> dict:
     """What to expect on the session's drops (slowest)."""
-    from ..signal import SignalConfig
-
     counts = drop_counts(models, n_trees, session, fs_hz)
     per = drop_instructions(counts, parts, SignalConfig.from_dict(models.signal), models.twin is not None,
-                            forests_fixed(models, n_trees))
+                            forests_fixed(**model_inputs(models, n_trees)))
     return slowest(per, parts, counts["rows"], hum_drops(counts))
 
 
