@@ -127,11 +127,29 @@ def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
 
 
 def estimate_total(est: dict) -> int:
-    """The export's event estimate, the one its verdict reads: the parts' worst cases (board.cost), a bound of every
-    event qemu measured. The rig's own drops priced whole (est['drops'], board.drop_cost) are what to expect, not a
-    bound: fitted on few rigs, they miss a rig the fit has not seen by thousands (docs/findings.md "Session 26:
-    exportest")."""
-    return int(est["total"])
+    """The export's event estimate, the one its verdict reads, from the parts' worst cases (board.cost) and, when
+    export had the model's session, its slowest drop priced whole (board.drop_cost): the smaller of the two on a
+    session without a modelled hum, the parts' worst cases on one with a hum on one channel, the larger where the
+    drops do more than the parts cover (board.drop_cost.beyond_base; docs/findings.md "Session 26: exportest")."""
+    drops = est.get("drops") or {}
+    if not drops:
+        return int(est["total"])
+    if drops.get("beyond_base"):   # the rig's drops do more than the parts' worst cases cover (board.drop_cost)
+        return max(int(est["total"]), int(drops["slowest"]))
+    return int(est["total"]) if drops.get("hum") else min(int(est["total"]), int(drops["slowest"]))
+
+
+def flagged_total(est: dict) -> int | None:
+    """The flagged event's estimate (a twin's cued search, the check's three-sensor path) by the same rule as
+    estimate_total; None without a flagged path on the board."""
+    if "flagged" not in est:
+        return None
+    drops = est.get("drops") or {}
+    if not drops or "flagged" not in drops:
+        return int(est["flagged"])
+    if drops.get("beyond_base"):
+        return max(int(est["flagged"]), int(drops["flagged"]))
+    return int(est["flagged"]) if drops.get("hum") else min(int(est["flagged"]), int(drops["flagged"]))
 
 
 def budgeted(models, signal_cost: dict, budget: int) -> int:

@@ -126,9 +126,9 @@ TWIN_REPORT_CREDIT = 1600
 # localiser, its models, the bond inverse's bound and the check's share), the least total slack. What to expect, not
 # a bound (a run left out of the fit is missed by thousands): export's verdict reads the parts' worst cases above. Refitted by `python3 benchmarks/bench_export_estimate.py --fit Q...json`
 # (docs/findings.md "Session 26: exportest": the runs, the residuals, estimate / measured per run).
-FEATURES_FIXED = {"forests": 40267.0, "twin": 36093.0}
-FEATURES_PER_COUNT = {"peak_blocks": 67.0, "hum_fits": 786.5, "hum_channels": 7513.5, "spike_hunts": 3109.3,
-                      "transients": 1010.5, "reach_tests": 28.4, "crossing_blocks": 201.3, "partial_prefix": 22.0}
+FEATURES_FIXED = {"forests": 41027.0, "twin": 40601.0}
+FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 6136.6, "spike_hunts": 301.3,
+                      "transients": 1785.5, "reach_tests": 12.4, "crossing_blocks": 12.2}
 
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
 # its cut-off divisor, the longest window kept.

@@ -136,22 +136,27 @@ def _export(args, card, rate, stage, out):
     est = s.get("event_instructions_estimate")
     if est is not None:
         from ..board.cost import EVENT_BUDGET
-        from ..export_check import estimate_total
+        from ..export_check import estimate_total, flagged_total
 
         drops, total = est.get("drops"), estimate_total(est)
-        print(f"per-event cost on the board, estimated (board.cost, each part at its worst): {total:,} instructions "
-              f"(features and report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, "
+        print(f"per-event cost on the board, estimated: {total:,} instructions (budget {EVENT_BUDGET:,}: "
+              f"{'ok' if total <= EVENT_BUDGET else 'OVER'}); each part at its worst (board.cost) {est['total']:,}: "
+              f"features and report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, "
               f"forests {est['models']:,}{', channel check ' + format(est['check'], ',') if est.get('check') else ''}"
-              f"{', twin match ' + format(est['twin'], ',') if est.get('twin') else ''}; budget {EVENT_BUDGET:,}: "
-              f"{'ok' if total <= EVENT_BUDGET else 'OVER'})")
+              f"{', twin match ' + format(est['twin'], ',') if est.get('twin') else ''}")
         if drops:
-            print(f"  expected on the rig's {drops['drops']} drops, each priced whole (board.drop_cost, not a bound): "
-                  f"the slowest ~{drops['slowest']:,} (row {drops['row']})"
-                  + (f", flagged ~{drops['flagged']:,}" if "flagged" in drops else ""))
+            print(f"  the model's {drops['drops']} drops, each priced whole (board.drop_cost): the slowest "
+                  f"{drops['slowest']:,} (row {drops['row']})"
+                  + (", a drop models a mains hum: the parts' worst cases are used" if drops.get("hum")
+                     and not drops.get("beyond_base") else "")
+                  + (f", flagged ~{drops['flagged']:,}" if "flagged" in drops else "")
+                  + ("; its drops do more than the parts' worst cases cover (a mains hum on more than one channel or a "
+                     "channel redone): the larger is used" if drops.get("beyond_base") else ""))
         if "flagged" in est:
             which = ("a drop whose match the twin doubts (its cued search)" if est.get("twin") else
                      "an event the channel check flags (the localiser without the channel, the three-channel class)")
-            print(f"  {which}: {est['flagged']:,} instructions ({'ok' if est['flagged'] <= EVENT_BUDGET else 'OVER'})")
+            flagged = flagged_total(est)
+            print(f"  {which}: {flagged:,} instructions ({'ok' if flagged <= EVENT_BUDGET else 'OVER'})")
     if isinstance(s.get("channel_check"), str):
         print(s["channel_check"])
     host = Path(args.model_dir)
