@@ -127,16 +127,17 @@ def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
 
 
 def estimate_total(est: dict) -> int:
-    """The export's event estimate, the one its verdict reads, from the parts' worst cases (board.cost) and, when
-    export had the model's session, its slowest drop priced whole (board.drop_cost): the smaller of the two on a
-    session without a modelled hum, the parts' worst cases on one with a hum on one channel, the larger where the
-    drops do more than the parts cover (board.drop_cost.beyond_base; docs/findings.md "Session 26: exportest")."""
+    """The export's event estimate, the one its verdict reads: without the model's session, the parts' worst cases
+    (board.cost); with it, its slowest drop priced whole (board.drop_cost) on a session none of whose drops models a
+    mains hum or redoes a channel, and the larger of the two on one that does (each form alone has passed a model
+    that ran over: the parts on a glass plate ringing through its record, the drops with the hum's rate fitted
+    without the hum's run: docs/findings.md "Session 26: exportest")."""
     drops = est.get("drops") or {}
     if not drops:
         return int(est["total"])
-    if drops.get("beyond_base"):   # the rig's drops do more than the parts' worst cases cover (board.drop_cost)
+    if drops.get("hum") or drops.get("beyond_base"):   # a hum (or a channel redone): neither form alone bounds it
         return max(int(est["total"]), int(drops["slowest"]))
-    return int(est["total"]) if drops.get("hum") else min(int(est["total"]), int(drops["slowest"]))
+    return int(drops["slowest"])
 
 
 def flagged_total(est: dict) -> int | None:
@@ -147,9 +148,9 @@ def flagged_total(est: dict) -> int | None:
     drops = est.get("drops") or {}
     if not drops or "flagged" not in drops:
         return int(est["flagged"])
-    if drops.get("beyond_base"):
+    if drops.get("hum") or drops.get("beyond_base"):
         return max(int(est["flagged"]), int(drops["flagged"]))
-    return int(est["flagged"]) if drops.get("hum") else min(int(est["flagged"]), int(drops["flagged"]))
+    return int(drops["flagged"])
 
 
 def budgeted(models, signal_cost: dict, budget: int) -> int:

@@ -16,9 +16,8 @@ the slowest drop is what to expect on the board. The rates are a bound at or abo
 were fitted on; fitted without one run, they stay above that run's slowest drop on every hum-free run (+2.0k..+7.6k)
 and fall below it on the one run whose slowest drop models a hum (-4.1k): the hum's cost per channel is the rate the
 runs do not agree on (docs/findings.md "Session 26: exportest"). So export's estimate (export_check.estimate_total)
-is the smaller of this and the parts' worst cases on a session without hum, the parts' worst cases on one with a
-hum on one channel (what BASE_INSTRUCTIONS covers), and the larger of the two where the rig's drops do more than
-that (a hum on more than one channel, a channel redone after a spike: beyond_base).
+is this on a session without hum, and the larger of this and the parts' worst cases on a session whose drops model a
+hum or redo a channel (any_hum, beyond_base).
 """
 
 from __future__ import annotations

@@ -147,11 +147,9 @@ def _export(args, card, rate, stage, out):
         if drops:
             print(f"  the model's {drops['drops']} drops, each priced whole (board.drop_cost): the slowest "
                   f"{drops['slowest']:,} (row {drops['row']})"
-                  + (", a drop models a mains hum: the parts' worst cases are used" if drops.get("hum")
-                     and not drops.get("beyond_base") else "")
-                  + (f", flagged ~{drops['flagged']:,}" if "flagged" in drops else "")
-                  + ("; its drops do more than the parts' worst cases cover (a mains hum on more than one channel or a "
-                     "channel redone): the larger is used" if drops.get("beyond_base") else ""))
+                  + (f", flagged {drops['flagged']:,}" if "flagged" in drops else "")
+                  + ("; a drop models a mains hum (or redoes a channel): the larger of the two is used"
+                     if drops.get("hum") or drops.get("beyond_base") else "; it is used"))
         if "flagged" in est:
             which = ("a drop whose match the twin doubts (its cued search)" if est.get("twin") else
                      "an event the channel check flags (the localiser without the channel, the three-channel class)")
