@@ -10,8 +10,9 @@ again from that board model with this tree's board.cost, so a refit is checked w
 the clean events (every channel kept) against 'total', the flagged ones (a channel left out: the twin's cued search
 or the three-sensor path) against 'flagged', and per part the estimate against the measured maximum: the signal
 (the event less its models, the app's accounting on top) against base + band + localiser + check, the models
-against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03 (the estimate: export_check.estimate_total, export's
-verdict; 'per drop': the drops each priced whole, board.drop_cost; 'parts': each part at its worst, board.cost).
+against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03 (the estimate:
+export_check.estimate_total, export's verdict; 'per drop': the drops each priced whole, board.drop_cost; 'parts':
+each part at its worst, board.cost).
 """
 
 from __future__ import annotations
@@ -96,7 +97,8 @@ def fit(qjsons: list[str]) -> None:
         loc[k].append(np.c_[counts["evaluations"], lo])
         if "twin" in p:   # the twin's match (its ticks) against the grid points it visited, clean drops
             twin_ticks.append(np.c_[np.asarray(p["twin_points"])[c], np.asarray(p["twin"])[c],
-                                    np.full(c.sum(), cost.twin_points_bound(models.twin["grid"], models.twin["config"]))])
+                                    np.full(c.sum(), cost.twin_points_bound(models.twin["grid"],
+                                                                            models.twin["config"]))])
         twin = models.twin is not None
         X = np.c_[counts["work"], np.full(len(ev), float(not twin)), np.full(len(ev), float(twin))][c]
         rows_X.append(X)
@@ -151,7 +153,8 @@ def stored(qjson: str) -> dict:
                                        - int(q["instructions"]["event_max_over_drops"]))
     return {"run": Path(qjson).parent.name, "signal": models.signal, "front_end": models.card.get("board_front_end"),
             **drop_cost.model_inputs(models, trees),
-            "twin": None if models.twin is None else {k: np.asarray(models.twin[k]).tolist() for k in ("grid", "config")},
+            "twin": (None if models.twin is None else
+                     {k: np.asarray(models.twin[k]).tolist() for k in ("grid", "config")}),
             "check": est["check"],
             "check_terms": (max((len(m.terms) for m in models.three_channel.values()), default=0)
                             if est["check"] else None),
@@ -192,13 +195,15 @@ def run_row(qjson: str) -> dict:
     # per part, the slowest drop's measured less the largest predicted (features and report, localiser, models)
     k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
     loc = cost.LOCALISER_SCREEN[k] + counts["evaluations"] * cost.LOCALISER_PER_EVALUATION[k]
-    feat = drop_cost.features_instructions(counts, models.twin is not None) + cost.BOND_PER_SAMPLE * cost.bond_samples(cfg)
+    feat = (drop_cost.features_instructions(counts, models.twin is not None)
+            + cost.BOND_PER_SAMPLE * cost.bond_samples(cfg))
     rest = per - loc - feat
     row["part_max"] = {name: (int(meas[c].max()), int(np.ceil(pred[c].max()))) for name, meas, pred in
                        (("features_report", ev - lo - mo, feat), ("localiser", lo, loc), ("models", mo, rest))}
     row["flagged_estimate"] = flagged_total(row_est)
     row["flagged_drops"] = drops.get("flagged")
-    row["flagged_ratio"] = (row["flagged_estimate"] / m["flagged_max"]) if m["flagged_max"] and "flagged" in est else None
+    row["flagged_ratio"] = (row["flagged_estimate"] / m["flagged_max"]
+                            if m["flagged_max"] and "flagged" in est else None)
     return row
 
 

@@ -21,6 +21,8 @@ under qemu -icount, the image bench_firmware_cost.py builds: `python3 benchmarks
   (docs/findings.md "Session 24: aacheap");
 - band picks: per channel, each sample the demodulator filters (the window from kBandBeforeUs before the
   first onset to band_window_us after it, plus the cascade's settling), BAND_PER_SAMPLE instructions;
+- a twin model's match (twin_instructions), and export_check.event_estimate's sum of the parts (event_parts);
+  board/drop_cost.py prices each of the model's own drops whole instead (what export's verdict reads);
 - localiser: a bound, not a typical run: the screening (LOCALISER_SCREEN) and, for each start, at most
   LOCALISER_EVALUATIONS normal-equation evaluations (impactcore's localise.cpp stops there; fewer where the
   signal's localiser_evaluation_cap caps them) at LOCALISER_PER_EVALUATION each; an anisotropic plate (a travel
@@ -123,9 +125,10 @@ TWIN_REPORT_CREDIT = 1600
 # C++ on the same board captures). The features and report per drop: FEATURES_FIXED (a forest or a twin model's:
 # their reports differ) + FEATURES_PER_COUNT x the core's work counters (impactcore.h WorkCounts; a counter no run
 # varied gets no rate): a linear programme's bound at or above every clean drop of the qemu runs (the event less its
-# localiser, its models, the bond inverse's bound and the check's share), the least total slack. What to expect, not
-# a bound (a run left out of the fit is missed by thousands): export's verdict reads the parts' worst cases above. Refitted by `python3 benchmarks/bench_export_estimate.py --fit Q...json`
-# (docs/findings.md "Session 26: exportest": the runs, the residuals, estimate / measured per run).
+# localiser, its models, the bond inverse's bound and the check's share), the least total slack; export's verdict
+# (export_check.estimate_total) reads it, and on a session with a modelled hum not below the parts' worst cases.
+# Refitted by `python3 benchmarks/bench_export_estimate.py --fit Q...json` (docs/findings.md "Session 26:
+# exportest": the runs, each run left out of the fit, estimate / measured per run).
 FEATURES_FIXED = {"forests": 41027.0, "twin": 40601.0}
 FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 6136.6, "spike_hunts": 301.3,
                       "transients": 1785.5, "reach_tests": 12.4, "crossing_blocks": 12.2}

@@ -87,7 +87,8 @@ def drop_instructions(counts: dict, parts: dict, cfg, twin: bool, fixed_models: 
     k = 0 if cost.isotropic((cfg.travel_metric_xx, cfg.travel_metric_xy, cfg.travel_metric_yy)) else 1
     loc = cost.LOCALISER_SCREEN[k] + np.asarray(counts["evaluations"]) * cost.LOCALISER_PER_EVALUATION[k]
     if parts["band"]:   # the band picks' own localiser run: its bound, as in the constant form
-        loc = loc + cost.localiser_run_instructions(max(1, int(cfg.localiser_starts)), k == 0, cost.evaluations_cap(cfg))
+        loc = loc + cost.localiser_run_instructions(max(1, int(cfg.localiser_starts)), k == 0,
+                                                    cost.evaluations_cap(cfg))
     bond = cost.BOND_PER_SAMPLE * cost.bond_samples(cfg)
     walk = cost.FOREST_PER_NODE * np.asarray(counts["walk"])
     return (features_instructions(counts, twin) + bond + parts["band"] + loc + parts["check"] + fixed_models + walk
