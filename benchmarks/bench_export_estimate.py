@@ -28,7 +28,7 @@ from impactsense.board import cost, drop_cost
 from impactsense.board.cost import EVENT_BUDGET
 from impactsense.data import load_session
 from impactsense.export import load_models
-from impactsense.export_check import estimate_total, event_estimate, flagged_total
+from impactsense.export_check import estimate_form, estimate_total, event_estimate, event_verdict, flagged_total
 from impactsense.signal import SignalConfig
 
 LOW, HIGH = 0.99, 1.03
@@ -180,7 +180,7 @@ def run_row(qjson: str) -> dict:
     row_est = dict(est, drops=drops)
     est["drops"] = drops["slowest"]
     name = Path(qjson).stem if Path(qjson).stem != "q" else Path(qjson).parent.name
-    row = {"run": name, "drops": int(len(ev)), "clean": int(c.sum()), "estimate": est,
+    row = {"run": name, "drops": int(len(ev)), "clean": int(c.sum()), "estimate": est, "drops_detail": drops,
            "measured": {"clean_max": int(ev[c].max()) if c.any() else None,
                         "flagged_max": int(ev[~c].max()) if (~c).any() else None,
                         "signal_max": int((ev - mo)[c].max()) if c.any() else None,
@@ -188,6 +188,8 @@ def run_row(qjson: str) -> dict:
                         "twin_max": int(np.max(p["twin"])) if "twin" in p else None}}
     m = row["measured"]
     row["estimate_total"] = estimate_total(row_est)
+    row["verdict"] = event_verdict(row_est)
+    row["flagged_verdict"] = event_verdict(row_est, flagged=True)
     row["ratio"] = row["estimate_total"] / m["clean_max"] if m["clean_max"] else None
     row["drops_ratio"] = est["drops"] / m["clean_max"] if m["clean_max"] else None
     res = (ev - per)[c]
@@ -207,17 +209,95 @@ def run_row(qjson: str) -> dict:
     return row
 
 
+def with_rates(coef: np.ndarray, names: list[str]):
+    """board.cost's per-drop rates set to a fit's coefficients (fields then fixed_forests, fixed_twin) until the
+    returned function restores them."""
+    saved = dict(cost.FEATURES_PER_COUNT), dict(cost.FEATURES_FIXED)
+    cost.FEATURES_PER_COUNT.clear()
+    cost.FEATURES_PER_COUNT.update({n: float(c) for n, c in zip(names[:-2], coef[:-2]) if c})
+    cost.FEATURES_FIXED.update({"forests": float(coef[-2]), "twin": float(coef[-1])})
+
+    def restore():
+        cost.FEATURES_PER_COUNT.clear()
+        cost.FEATURES_PER_COUNT.update(saved[0])
+        cost.FEATURES_FIXED.update(saved[1])
+    return restore
+
+
+def fit_rows(qjson: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """A run's clean drops as the fit reads them: (the counters and the two fixed parts' indicators, the features
+    and report measured, the columns' names)."""
+    q, models, trees, counts = load_run(qjson)
+    p, c = q["per_drop"], clean_mask(q)
+    ev, lo, mo = (np.asarray(p[k], float) for k in ("event", "localiser", "models"))
+    cfg = SignalConfig.from_dict(models.signal)
+    bond = cost.BOND_PER_SAMPLE * cost.bond_samples(cfg) + checked(q, event_estimate(models, trees))["check"]
+    twin = models.twin is not None
+    X = np.c_[counts["work"], np.full(len(ev), float(not twin)), np.full(len(ev), float(twin))][c]
+    return X, (ev - lo - mo - bond)[c], counts["fields"] + ["fixed_forests", "fixed_twin"]
+
+
+def form(row: dict) -> str:
+    """Which of export's estimates a run's verdict reads (export_check.estimate_form)."""
+    return estimate_form(dict(row["estimate"], drops=row["drops_detail"]))
+
+
+def loo(fit_runs: list[str], runs: list[str]) -> list[dict]:
+    """Each run's estimate / qemu with the per-drop rates fitted without it (a run outside fit_runs: the rates of
+    all fit_runs), by the estimate's form (the drops priced whole, the larger with the parts on a hum session);
+    the parts' worst cases alone (export without the model's session) need no fit."""
+    data = {qj: fit_rows(qj) for qj in dict.fromkeys(fit_runs)}
+    out = []
+    for qj in runs:
+        others = [k for k in data if k != qj]
+        coef = bound_fit([data[k][0] for k in others], [data[k][1] for k in others])
+        names = next(iter(data.values()))[2]
+        restore = with_rates(coef, names)
+        try:
+            r = run_row(qj)
+        finally:
+            restore()
+        m = r["measured"]
+        out.append({"run": r["run"], "form": form(r), "clean_max": m["clean_max"], "estimate": r["estimate_total"],
+                    "ratio": r["ratio"], "parts_ratio": r["estimate"]["total"] / m["clean_max"],
+                    "flagged_ratio": r["flagged_ratio"], "left_out": qj in data})
+    return out
+
+
+def print_band(rows: list[dict]) -> None:
+    for r in rows:
+        fl = f", flagged {r['flagged_ratio']:.3f}" if r["flagged_ratio"] else ""
+        print(f"  {r['run']:<14} {r['form']:<6} qemu {r['clean_max']:>7,} estimate {r['estimate']:>7,} "
+              f"ratio {r['ratio']:.3f} (parts alone {r['parts_ratio']:.3f}){fl}"
+              f"{'' if r['left_out'] else ' (not in the fit)'}")
+    for f in ("drops", "hum"):
+        rs = [r["ratio"] for r in rows if r["form"] == f]
+        if rs:
+            print(f"BAND {f}: estimate / qemu in [{min(rs):.3f}, {max(rs):.3f}] ({len(rs)} runs, each left out)")
+    ps = [r["parts_ratio"] for r in rows]
+    print(f"BAND parts: [{min(ps):.3f}, {max(ps):.3f}] ({len(ps)} runs)")
+    fl = [r["flagged_ratio"] for r in rows if r["flagged_ratio"]]
+    if fl:
+        print(f"BAND flagged: [{min(fl):.3f}, {max(fl):.3f}] ({len(fl)} runs)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="bench_firmware_cost.py --json files")
     ap.add_argument("--json", help="write the rows here")
     ap.add_argument("--fit", action="store_true", help="print the per-drop rates' fit on the runs")
+    ap.add_argument("--loo", nargs="*", metavar="FIT_RUN",
+                    help="each run's estimate / qemu with the rates fitted without it on these runs (the fit's set; "
+                         "default every run given): the verdict's ratio band (board.cost ESTIMATE_RATIO_BAND)")
     ap.add_argument("--store", help="write the runs as the tests' stored measurement (tests/data/...json)")
     args = ap.parse_args()
     if args.store:
         Path(args.store).write_text(json.dumps([stored(q) for q in args.runs], separators=(",", ":")) + "\n")
     if args.fit:
         fit(args.runs)
+    if args.loo is not None:
+        print_band(loo(args.loo or args.runs, args.runs))
+        return 0
     rows = [run_row(q) for q in args.runs]
     print(f"{'run':<16}{'drops':>6} {'estimate':>9} {'clean max':>10} {'est/meas':>9} {'per drop':>9} {'ratio':>6}"
           f"  {'signal est/meas':>17} {'models est/meas':>17} {'flagged est (parts) / meas':>28}")
@@ -233,7 +313,7 @@ def main() -> int:
         print(f"{r['run']:<16}{r['drops']:>6} {r['estimate_total']:>9,} {m['clean_max'] or 0:>10,} "
               f"{r['ratio'] or 0:>9.3f}{'' if within else '*'} {e['drops']:>8,} {r['drops_ratio'] or 0:>6.3f}  "
               f"{sig:>8,}/{m['signal_max'] or 0:<8,} {mod:>8,}/{m['models_max'] or 0:<8,} {fl:>28}")
-        verdict_est = "OVER" if r["estimate_total"] > EVENT_BUDGET else "ok"
+        verdict_est = r["verdict"] + (f" (flagged {r['flagged_verdict']})" if r["flagged_verdict"] else "")
         verdict_meas = "over" if (m["clean_max"] or 0) > EVENT_BUDGET else "within"
         rs = r["per_drop_residual"]
         print(f"{'':<18}parts {', '.join(f'{k} {v:,}' for k, v in e.items() if v is not None)}; per drop: measured "

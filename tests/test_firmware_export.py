@@ -216,9 +216,13 @@ def test_cli_export(exported, tmp_path, capsys):
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     est = json.loads((tmp_path / "m" / "export.json").read_text()).get("event_instructions_estimate")
     assert last["within_flash_budget"] is True and "within_budget" not in last
-    from impactsense.export_check import estimate_total
+    from impactsense.export_check import event_verdict, within_event_budget
 
-    assert last["within_event_budget"] == (estimate_total(est) <= 64000)   # every export has an estimate
+    # every export has an estimate; the JSON line's verdict is export.json's: true ok, false OVER, null near
+    done = json.loads((tmp_path / "m" / "export.json").read_text())
+    assert done["event_verdict"] == event_verdict(est) in ("ok", "near", "OVER")
+    assert last["within_event_budget"] == within_event_budget(est) == {"ok": True, "OVER": False,
+                                                                        "near": None}[done["event_verdict"]]
     assert (tmp_path / "m" / "impactsense_forest_tables.c").is_file()
     assert not (tmp_path / "m" / "impactsense_models_m2c.c").exists()
     # --trees auto picks the prefix on the reported position's error: the twin's match for a twin model.

@@ -126,6 +126,16 @@ def drops_estimate(models, n_trees: dict, parts: dict) -> dict | None:
     return rig_estimate(models, n_trees, parts, session, int(models.card.get("board_fs_hz") or 50000))
 
 
+def estimate_form(est: dict) -> str:
+    """Which estimate export's verdict reads: "parts" (no session at hand: the parts' worst cases), "drops" (the
+    model's session, none of whose drops models a mains hum or redoes a channel: its slowest drop priced whole) or
+    "hum" (a session with such a drop: the larger of the two)."""
+    drops = est.get("drops") or {}
+    if not drops:
+        return "parts"
+    return "hum" if drops.get("hum") or drops.get("beyond_base") else "drops"
+
+
 def estimate_total(est: dict) -> int:
     """The export's event estimate, the one its verdict reads: without the model's session, the parts' worst cases
     (board.cost); with it, its slowest drop priced whole (board.drop_cost) on a session none of whose drops models a
@@ -151,6 +161,48 @@ def flagged_total(est: dict) -> int | None:
     if drops.get("hum") or drops.get("beyond_base"):
         return max(int(est["flagged"]), int(drops["flagged"]))
     return int(drops["flagged"])
+
+
+QEMU_COMMAND = "python3 benchmarks/bench_firmware_cost.py --export E --data D"
+
+
+def event_verdict(est: dict, flagged: bool = False) -> str:
+    """The board's event budget against export's estimate and its measured error (board.cost ESTIMATE_RATIO_BAND,
+    by estimate_form): "ok" when even the estimate's worst under-count keeps it within EVENT_BUDGET, "OVER" when even
+    its worst over-count leaves it above, "near" otherwise (measure it on qemu). flagged: the flagged event's
+    (flagged_total; the band's high end at least FLAGGED_RATIO_HIGH); None without a flagged path."""
+    from .board.cost import ESTIMATE_RATIO_BAND, EVENT_BUDGET, FLAGGED_RATIO_HIGH
+
+    total = flagged_total(est) if flagged else estimate_total(est)
+    if total is None:
+        return None
+    low, high = ESTIMATE_RATIO_BAND[estimate_form(est)]
+    if flagged:
+        high = max(high, FLAGGED_RATIO_HIGH)
+    if total / low <= EVENT_BUDGET:
+        return "ok"
+    return "OVER" if total / high > EVENT_BUDGET else "near"
+
+
+def verdict_text(est: dict, flagged: bool = False) -> str:
+    """event_verdict as export prints it: the verdict and the range of qemu's event the band gives."""
+    from .board.cost import ESTIMATE_RATIO_BAND, EVENT_BUDGET, FLAGGED_RATIO_HIGH
+
+    verdict = event_verdict(est, flagged)
+    total = flagged_total(est) if flagged else estimate_total(est)
+    low, high = ESTIMATE_RATIO_BAND[estimate_form(est)]
+    high = max(high, FLAGGED_RATIO_HIGH) if flagged else high
+    span = f"estimate / qemu {low:g}-{high:g}: {total / high:,.0f}-{total / low:,.0f} on the board"
+    if verdict == "near":
+        return f"budget {EVENT_BUDGET:,}: near the budget ({span}): measure it on qemu (`{QEMU_COMMAND}`)"
+    return f"budget {EVENT_BUDGET:,}: {verdict} ({span})"
+
+
+def within_event_budget(est: dict | None) -> bool | None:
+    """export's JSON line: True ("ok"), False ("OVER") or None (near the budget, or no estimate)."""
+    if est is None:
+        return None
+    return {"ok": True, "OVER": False}.get(event_verdict(est))
 
 
 def budgeted(models, signal_cost: dict, budget: int) -> int:

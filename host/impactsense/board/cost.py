@@ -133,6 +133,17 @@ FEATURES_FIXED = {"forests": 41027.0, "twin": 40601.0}
 FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 6136.6, "spike_hunts": 301.3,
                       "transients": 1785.5, "reach_tests": 12.4, "crossing_blocks": 12.2}
 
+# How far export's estimate is from qemu's slowest clean event, estimate / qemu, by which estimate the verdict reads
+# (export_check.estimate_form): "drops" (the model's session has no modelled hum: its drops priced whole), "hum" (a
+# session with a hum or a channel redone: the larger of the drops and the parts), "parts" (no session at hand: the
+# parts' worst cases). Measured with each run's per-drop rates fitted without that run (`python3
+# benchmarks/bench_export_estimate.py Q...json --loo FIT_RUNS...`), rounded outwards to 0.01 (docs/findings.md
+# "Session 26: exportfix"). FLAGGED_RATIO_HIGH: the flagged event's estimate / qemu's slowest flagged event, at most.
+# export_check.event_verdict: "ok" when estimate / low <= EVENT_BUDGET (even its worst under-count fits), "OVER" when
+# estimate / high > EVENT_BUDGET (even its worst over-count does not), otherwise "near" (measure it on qemu).
+ESTIMATE_RATIO_BAND = {"drops": (1.04, 1.22), "hum": (0.62, 1.13), "parts": (0.39, 1.27)}
+FLAGGED_RATIO_HIGH = 1.35
+
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
 # its cut-off divisor, the longest window kept.
 _BAND_BEFORE_US = 300.0

@@ -42,8 +42,7 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
-    from ..board.cost import EVENT_BUDGET
-    from ..export_check import estimate_total
+    from ..export_check import within_event_budget
     from ..errors import ConfigError
     from ..export import staged_output
 
@@ -99,7 +98,7 @@ def run(args) -> int:
     # the flash decides the exit status (the image would not link); the event estimate is a bound, said beside it
     print(json.dumps({"trees": s["trees"], "table_bytes_total": s["table_bytes_total"],
                       "within_flash_budget": s["within_budget"],
-                      "within_event_budget": None if est is None else estimate_total(est) <= EVENT_BUDGET}))
+                      "within_event_budget": within_event_budget(est)}))
     return 0 if s["within_budget"] else 1
 
 
@@ -135,12 +134,11 @@ def _export(args, card, rate, stage, out):
               f"{row['table_bytes'] / 1024:.1f} KB of tables{cost}{'' if row['within_budgets'] else ', over a budget'}")
     est = s.get("event_instructions_estimate")
     if est is not None:
-        from ..board.cost import EVENT_BUDGET
-        from ..export_check import estimate_total, flagged_total
+        from ..export_check import estimate_total, flagged_total, verdict_text
 
         drops, total = est.get("drops"), estimate_total(est)
-        print(f"per-event cost on the board, estimated: {total:,} instructions (budget {EVENT_BUDGET:,}: "
-              f"{'ok' if total <= EVENT_BUDGET else 'OVER'}); each part at its worst (board.cost) {est['total']:,}: "
+        print(f"per-event cost on the board, estimated: {total:,} instructions ({verdict_text(est)}); "
+              f"each part at its worst (board.cost) {est['total']:,}: "
               f"features and report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, "
               f"forests {est['models']:,}{', channel check ' + format(est['check'], ',') if est.get('check') else ''}"
               f"{', twin match ' + format(est['twin'], ',') if est.get('twin') else ''}")
@@ -153,8 +151,7 @@ def _export(args, card, rate, stage, out):
         if "flagged" in est:
             which = ("a drop whose match the twin doubts (its cued search)" if est.get("twin") else
                      "an event the channel check flags (the localiser without the channel, the three-channel class)")
-            flagged = flagged_total(est)
-            print(f"  {which}: {flagged:,} instructions ({'ok' if flagged <= EVENT_BUDGET else 'OVER'})")
+            print(f"  {which}: {flagged_total(est):,} instructions ({verdict_text(est, flagged=True)})")
     if isinstance(s.get("channel_check"), str):
         print(s["channel_check"])
     host = Path(args.model_dir)
