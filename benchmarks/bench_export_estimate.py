@@ -13,6 +13,12 @@ or the three-sensor path) against 'flagged', and per part the estimate against t
 against the forests + the twin's match. Target: estimate / slowest clean event within 0.99..1.03 (the estimate:
 export_check.estimate_total, export's verdict; 'per drop': the drops each priced whole, board.drop_cost; 'parts':
 each part at its worst, board.cost).
+
+    python benchmarks/bench_export_estimate.py Q1.json ... --loo FIT1.json ...
+
+prints each run's estimate / qemu with the per-drop rates fitted on the FIT runs without it, by the estimate's form,
+and the band per form: export's verdict (export_check.event_verdict) reads board.cost's ESTIMATE_RATIO_BAND, this
+band rounded outwards.
 """
 
 from __future__ import annotations

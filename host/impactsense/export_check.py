@@ -192,10 +192,11 @@ def verdict_text(est: dict, flagged: bool = False) -> str:
     total = flagged_total(est) if flagged else estimate_total(est)
     low, high = ESTIMATE_RATIO_BAND[estimate_form(est)]
     high = max(high, FLAGGED_RATIO_HIGH) if flagged else high
-    span = f"estimate / qemu {low:g}-{high:g}: {total / high:,.0f}-{total / low:,.0f} on the board"
+    span = (f"{total / high:,.0f}-{total / low:,.0f} on the board: the estimate has measured {low:g}-{high:g} x "
+            f"qemu's slowest event")
     if verdict == "near":
-        return f"budget {EVENT_BUDGET:,}: near the budget ({span}): measure it on qemu (`{QEMU_COMMAND}`)"
-    return f"budget {EVENT_BUDGET:,}: {verdict} ({span})"
+        return f"budget {EVENT_BUDGET:,}: near the budget, {span}; measure it on qemu: `{QEMU_COMMAND}`"
+    return f"budget {EVENT_BUDGET:,}: {verdict}, {span}"
 
 
 def within_event_budget(est: dict | None) -> bool | None:
