@@ -440,9 +440,7 @@ def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, writ
     est = export_check.event_estimate(models, n_trees, signal_cost)
     est["drops"] = export_check.drops_estimate(models, n_trees, est)   # the rig's own drops, each priced whole
     summary["event_instructions_estimate"] = est
-    summary["event_verdict"] = export_check.event_verdict(est)   # "ok", "near" (measure it on qemu) or "OVER"
-    if "flagged" in est:
-        summary["flagged_event_verdict"] = export_check.event_verdict(est, flagged=True)
+    summary.update(export_check.verdicts(est))   # "ok", "near" (measure it on qemu) or "OVER"
     summary["within_budget"] = summary["table_bytes_total"] <= summary["flash_budget_bytes"]
     summary["channel_check"] = bool(models.channel_check) if models.check_note is None else models.check_note
     summary.update(export_check.four_channel_summary(models))

@@ -184,8 +184,17 @@ def event_verdict(est: dict, flagged: bool = False) -> str:
     return "OVER" if total / high > EVENT_BUDGET else "near"
 
 
-def verdict_text(est: dict, flagged: bool = False) -> str:
-    """event_verdict as export prints it: the verdict and the range of qemu's event the band gives."""
+def verdicts(est: dict) -> dict:
+    """export.json's "event_verdict" and, with a flagged path on the board, "flagged_event_verdict"."""
+    out = {"event_verdict": event_verdict(est)}
+    if "flagged" in est:
+        out["flagged_event_verdict"] = event_verdict(est, flagged=True)
+    return out
+
+
+def verdict_text(est: dict, flagged: bool = False, export_dir=None, data=None) -> str:
+    """event_verdict as export prints it: the verdict and the range of qemu's event the band gives; near the budget
+    the qemu command (the export's folder and the model's session where given)."""
     from .board.cost import ESTIMATE_RATIO_BAND, EVENT_BUDGET, FLAGGED_RATIO_HIGH
 
     verdict = event_verdict(est, flagged)
@@ -195,7 +204,9 @@ def verdict_text(est: dict, flagged: bool = False) -> str:
     span = (f"{total / high:,.0f}-{total / low:,.0f} on the board: the estimate has measured {low:g}-{high:g} x "
             f"qemu's slowest event")
     if verdict == "near":
-        return f"budget {EVENT_BUDGET:,}: near the budget, {span}; measure it on qemu: `{QEMU_COMMAND}`"
+        command = QEMU_COMMAND.replace("--export E", f"--export {export_dir or 'E'}").replace(
+            "--data D", f"--data {data or 'D'}")
+        return f"budget {EVENT_BUDGET:,}: near the budget, {span}; measure it on qemu: `{command}`"
     return f"budget {EVENT_BUDGET:,}: {verdict}, {span}"
 
 

@@ -137,7 +137,9 @@ def _export(args, card, rate, stage, out):
         from ..export_check import estimate_total, flagged_total, verdict_text
 
         drops, total = est.get("drops"), estimate_total(est)
-        print(f"per-event cost on the board, estimated: {total:,} instructions ({verdict_text(est)}); "
+        split = card.get("zero_shot") or card.get("split") or {}
+        where = {"export_dir": out, "data": split.get("data_path") or card.get("data")}   # for the qemu command
+        print(f"per-event cost on the board, estimated: {total:,} instructions ({verdict_text(est, **where)}); "
               f"each part at its worst (board.cost) {est['total']:,}: "
               f"features and report {est['base']:,}, band picks {est['band']:,}, localiser {est['localiser']:,}, "
               f"forests {est['models']:,}{', channel check ' + format(est['check'], ',') if est.get('check') else ''}"
@@ -151,7 +153,7 @@ def _export(args, card, rate, stage, out):
         if "flagged" in est:
             which = ("a drop whose match the twin doubts (its cued search)" if est.get("twin") else
                      "an event the channel check flags (the localiser without the channel, the three-channel class)")
-            print(f"  {which}: {flagged_total(est):,} instructions ({verdict_text(est, flagged=True)})")
+            print(f"  {which}: {flagged_total(est):,} instructions ({verdict_text(est, flagged=True, **where)})")
     if isinstance(s.get("channel_check"), str):
         print(s["channel_check"])
     host = Path(args.model_dir)
