@@ -286,7 +286,12 @@ def test_the_twin_records_carry_the_rigs_noise_not_the_seeds(tmp_path, rig):
     assert measured < 0.6                        # a quiet logger: the seed's 1.5 counts would be 3x too much
     twin = cal["sim_params"]["noise_counts_rms"]
     assert twin == pytest.approx(measured, rel=0.15), (twin, measured)
-    assert json.loads((tmp_path / "cal" / "CAL.json").read_text())["sim_params"]["noise_counts_rms"] == twin
+    written = json.loads((tmp_path / "cal" / "CAL.json").read_text())
+    assert written["sim_params"]["noise_counts_rms"] == twin
+    # the twin's span likewise (calibration.span): what the calibration drops ring for, one field every command reads
+    ts = written["twin_span"]
+    assert written["sim_params"]["duration_ms"] == ts["duration_ms"] >= ts["default_ms"]
+    assert ts["measured_n2_ms"] > 0 and ts["bound"] in ("default", "measured", "record", "cost")
 
 
 def test_fewer_than_four_usable_drops(tmp_path, rig):

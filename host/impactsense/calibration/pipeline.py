@@ -30,6 +30,7 @@ from .cache import cpu_seconds, record_compute_times, write_json
 from .logger_gain import fit_logger_gain
 from .options import MIN_BUDGET, CalibrateOptions
 from .problem import build_problem, measured_core_config, picker_overrides, sim_core_config, sim_features
+from .span import twin_span
 from .stages import STAGES, held
 
 __all__ = ["MIN_BUDGET", "CalibrateOptions", "calibrate", "measured_core_config", "picker_overrides",
@@ -54,6 +55,10 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
                                                  f"{problem.params['damping_per_s']:.0f} 1/s from the plate stages"}
     # the twin's records carry the rig's noise (the seed's 1.5 counts is the bundled 12-bit logger's)
     problem.params["noise_counts_rms"] = float(problem.noise[0])
+    # the twin's records span what the rig's drops ring for (span.py): every command reads it from sim_params
+    problem.cal["twin_span"] = twin_span(fem.sim_params(problem.params, problem.rig), problem.rig, problem.feats,
+                                         [r for rs in problem.targets.recording_ids for r in rs])
+    problem.params["duration_ms"] = problem.cal["twin_span"]["duration_ms"]
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,
               "sim_params": fem.sim_params_json(problem.params, problem.rig),

@@ -173,6 +173,11 @@ def summary(cal: dict) -> str:
                      f"logger gain: circuit gain {lg['circuit_gain']:.4g} (x{lg['over_seed']:.3g} the seed's), the "
                      f"calibration drops' median peak {lg['measured_peak_median_counts']:.0f} counts measured, "
                      f"{lg['seed_peak_median_counts']:.0f} at the seed's gain")
+    ts = cal.get("twin_span")
+    if ts:
+        n2 = "-" if ts.get("measured_n2_ms") is None else f"{ts['measured_n2_ms']:.1f}"
+        lines.append(f"the twin's span: {ts['duration_ms']:.1f} ms after the touch (the calibration drops' median n2 "
+                     f"{n2} ms after their onset; set by: {ts['bound']})")
     lines.append("wall time [s], this run: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
     if "stage_compute_time_s" in cal:
         lines.append("compute time [s] per stage (cached stages: when last computed): "
