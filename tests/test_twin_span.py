@@ -89,3 +89,13 @@ def test_the_span_is_held_within_its_memory(rig, monkeypatch):
     assert got["bound"] == "cost" and got["duration_ms"] == pytest.approx(15.0, abs=0.01)
     longer = get_model(params.replace(duration_ms=got["duration_ms"]), rig)
     assert 4 * longer.n_record * longer.nodes * 4 <= per_ms * 15.0 * 1.01
+
+
+def test_the_span_option_is_checked():
+    """`calibrate --twin-span` takes measured (the rule) or default (the simulator's span), nothing else."""
+    from impactsense.calibration.options import CalibrateOptions
+    from impactsense.errors import ConfigError
+
+    CalibrateOptions(twin_span="default").validate()
+    with pytest.raises(ConfigError, match="--twin-span"):
+        CalibrateOptions(twin_span="long").validate()

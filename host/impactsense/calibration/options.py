@@ -49,6 +49,8 @@ class CalibrateOptions:
     # the twin's mesh: Eq. 1's, but at most this many elements (fem.capped_mesh; written into CAL.json's
     # sim_params as element_mm when it binds); None: Eq. 1's mesh whatever its size
     max_elements: int | None = 30_000
+    # the twin's span (sim_params duration_ms): "measured" (calibration.span's rule) or "default" (the simulator's)
+    twin_span: str = "measured"
 
     def validate(self):
         if not isinstance(self.budget, (int, np.integer)) or self.budget < MIN_BUDGET:
@@ -68,6 +70,8 @@ class CalibrateOptions:
             raise ConfigError(f"--max-elements must be a whole number >= 100, got {self.max_elements!r}")
         if self.workers < 1:
             raise ConfigError("--workers must be >= 1")
+        if self.twin_span not in ("measured", "default"):
+            raise ConfigError(f"--twin-span must be 'measured' or 'default', got {self.twin_span!r}")
         if not isinstance(self.nu_rounds, (int, np.integer)) or self.nu_rounds < 0:
             raise ConfigError(f"nu_rounds must be a whole number >= 0, got {self.nu_rounds!r}")
         if self.support not in ("rig", "auto", *SUPPORTS):

@@ -56,8 +56,11 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
     # the twin's records carry the rig's noise (the seed's 1.5 counts is the bundled 12-bit logger's)
     problem.params["noise_counts_rms"] = float(problem.noise[0])
     # the twin's records span what the rig's drops ring for (span.py): every command reads it from sim_params
-    problem.cal["twin_span"] = twin_span(fem.sim_params(problem.params, problem.rig), problem.rig, problem.feats,
-                                         [r for rs in problem.targets.recording_ids for r in rs])
+    span = twin_span(fem.sim_params(problem.params, problem.rig), problem.rig, problem.feats,
+                     [r for rs in problem.targets.recording_ids for r in rs])
+    if problem.opts.twin_span == "default":
+        span = {**span, "duration_ms": span["default_ms"], "bound": "default (--twin-span default)"}
+    problem.cal["twin_span"] = span
     problem.params["duration_ms"] = problem.cal["twin_span"]["duration_ms"]
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,

@@ -59,6 +59,10 @@ def register(sub) -> None:
                    help="the twin's mesh: Eq. 1's element size, but at most this many elements on the plate "
                         "(default 30000; 0: no cap); written into CAL.json's sim_params (element_mm) when it "
                         "binds, so the virtual drops and the site map use that mesh too")
+    p.add_argument("--twin-span", choices=("measured", "default"), default="measured",
+                   help="the twin's simulated span (sim_params duration_ms): measured (default: the calibration drops' "
+                        "median n2 after their onset, at least 6 ms, within the record and a memory/CPU bound; "
+                        "docs/method.md \"The twin's span\") or default (the simulator's 6 ms)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     from .simulate import add_scheduler_option
 
@@ -206,7 +210,7 @@ def run(args) -> int:
                             nu_rounds=args.nu_rounds, support=args.support,
                             rim_stiffness_n_m2=args.rim_stiffness, disc_bond=args.disc_bond,
                             max_elements=args.max_elements or None, plate_only=args.plate_only,
-                            design=not args.no_design)
+                            design=not args.no_design, twin_span=args.twin_span)
     simulate = None
     if opts.fem and args.element_mm is not None:
         from ..calibration.fem import fem_simulator
