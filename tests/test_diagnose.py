@@ -54,7 +54,7 @@ def baseline_work_once():
     recordings) is done once per recordings array. Speed only: every call computes the same numbers."""
     from impactsense import site_reference
 
-    extract, floor = R.extract, site_reference.noise_floor_reference
+    extract, floor = R.extract, site_reference.noise_floor
     features, floors = [], []     # (the array or Features object itself, result): identity, never a reused id
 
     def extract_once(session, picker=None):
@@ -73,7 +73,7 @@ def baseline_work_once():
 
     mp = pytest.MonkeyPatch()
     mp.setattr(R, "extract", extract_once)
-    mp.setattr(site_reference, "noise_floor_reference", floor_once)
+    mp.setattr(site_reference, "noise_floor", floor_once)
     yield
     mp.undo()
 

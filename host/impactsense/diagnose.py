@@ -12,7 +12,8 @@ the held-out log-likelihood gain over the current model, summed over drops (nats
 significant when (1) its per-case held-out gains are positive by a one-sided t-test at
 alpha / n_candidates (Bonferroni over the ~28 candidates of a round, family-wise alpha = 0.05), or its
 held-out likelihood ratio exceeds n_candidates / alpha (a move: its square, `move_or_delay.MOVE_EVIDENCE_SCALE`)
-with the t-test at plain alpha (`_evidence`), (2) it is
+with the t-test at plain alpha (`_evidence`; the ratio with each group's gain over its design effect, the
+reference's own cross-fitted intra-case correlation: `case_correlation`), (2) it is
 material (its size exceeds the rig tolerance the effect states) and (3) for an effect that contains a
 simpler one (`Effect.nests`) it also beats that simpler one by the same test. Rivals (`RIVALS`: a moved
 sensor and a constant delay on the same channel) are told apart by the one thing that differs between them:
@@ -46,6 +47,7 @@ from .data import Session
 from .effects import EFFECTS
 from .effects.sensor_position import band_test, direction_test, joint_test
 from . import move_or_delay as MD
+from . import case_correlation as CC
 
 ALPHA = 0.05   # family-wise, Bonferroni over the candidates of a round
 FOLDS = 5
@@ -77,6 +79,12 @@ class Candidate:
     fold_params: list
     rival: dict | None = None   # the rival on the same sensor: its name, held-out gain difference, p
     shadow_of: int | None = None   # not named: a stronger channel's move (delay, low-pass) outranks it (`move_or_delay.shadows_of_a_stronger_channel`)
+    tempered: float | None = None   # the score with each group's gain over its design effect (`case_correlation`); None: score
+
+    @property
+    def markov_score(self) -> float:
+        """The held-out ratio the evidence rule's Markov half reads: the tempered score where one is known."""
+        return self.score if self.tempered is None else self.tempered
 
 
 def case_folds(case_id: np.ndarray, k: int = FOLDS, seed: int = 0) -> list[np.ndarray]:
@@ -103,28 +111,46 @@ def _one_sided_p(case_gains: np.ndarray) -> float:
     return float(t.pvalue)
 
 
-def _evidence(score: float, p_value: float, n_cands: int, scale: float = 1.0) -> bool:
+def _evidence(score: float, p_value: float, n_cands: int, scale: float = 1.0, tempered: float | None = None) -> bool:
     """Significant: the per-case held-out gains pass the Bonferroni t-test, or the held-out likelihood ratio
     itself exceeds n_cands / alpha (exp(score): under no change its expectation is at most 1, so by Markov's
     inequality each candidate passes with probability <= alpha / n_cands) with the per-case gains positive at
-    plain alpha (the gain is not one case's doing)."""
+    plain alpha (the gain is not one case's doing). tempered: the ratio with each group's gain divided by its
+    design effect (`case_correlation`: one case's drops share the reference's error, so exp(score) alone has
+    an expectation above 1); the Markov half reads the smaller of score / scale and tempered."""
     if score <= 0:
         return False
-    return p_value < ALPHA / n_cands or (score >= scale * np.log(n_cands / ALPHA) and p_value < ALPHA)
+    ratio = score / scale if tempered is None else min(score / scale, tempered)
+    return p_value < ALPHA / n_cands or (ratio >= np.log(n_cands / ALPHA) and p_value < ALPHA)
 
 
-def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor):
-    """Held-out per-drop log-likelihood gain of one candidate over `ref`, and its per-fold params."""
+def _own_evidence(c: Candidate, n_cands: int, plain: bool = False) -> bool:
+    """The candidate's evidence against no change (`_evidence` at its own scale, on its tempered ratio unless
+    plain: the plain Markov half decides who outranks a weaker channel's delay, a rule that only takes names
+    away) and its size material."""
+    scale = MD.own_evidence_scale(c.effect)
+    return _evidence(c.score, c.p_value, n_cands, scale, None if plain else c.tempered) and c.material
+
+
+def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor, deff: dict | None = None):
+    """Held-out per-drop log-likelihood gain of one candidate over `ref`, its per-fold params and (deff given:
+    per group, the design effect `case_correlation.design_effects`) the summed gain with each group's part
+    divided by its design effect (else None)."""
     eff = EFFECTS[effect_name]
     gain = np.zeros(len(F))
+    tempered = np.zeros(len(F))
     fold_params = []
     for test in folds:
         train = np.setdiff1d(np.arange(len(F)), test)
         Ftr, Fte = F.subset(train), F.subset(test)
         params = eff.fit(ref, Ftr, sensor)
         fold_params.append(params)
-        gain[test] = eff.add(ref, sensor, params).ll(Fte) - ref.ll(Fte)
-    return gain, fold_params
+        new, old = eff.add(ref, sensor, params).ll_groups(Fte), ref.ll_groups(Fte)
+        groups = {g: new[g] - old[g] for g in new}
+        gain[test] = sum(groups.values())
+        if deff:
+            tempered[test] = CC.tempered(groups, deff)
+    return gain, fold_params, (float(tempered.sum()) if deff else None)
 
 
 def build(ref: R.Reference, F: R.Features, chosen: list[tuple], sweeps: int = 4):
@@ -156,33 +182,34 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     current = ref
     last_round: list[Candidate] = []
     cands = [(n, s) for n, e in EFFECTS.items() for s in e.candidates()]
+    deff = CC.design_effects(ref.case_icc, F.case_id) if ref.case_icc else None
     for round_ in range(max_effects):
         gains = {}
         results = []
         for name, sensor in cands:
             if progress:
                 progress(f"round {round_ + 1}: {name} {sensor}")
-            g, fp = evaluate(current, F, folds, name, sensor)
+            g, fp, gt = evaluate(current, F, folds, name, sensor, deff)
             gains[(name, sensor)] = g
             params = EFFECTS[name].fit(current, F, sensor)
             p = _one_sided_p(_case_sums(g, F.case_id))
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
-                                     bool(EFFECTS[name].material(params)), False, fp))
-        thr = ALPHA / len(cands)
+                                     bool(EFFECTS[name].material(params)), False, fp, tempered=gt))
         both = MD.move_over_delay_on_both_picks(current, F, folds, results, gains)
         delay_better = {k: -float(v.sum()) >= np.log(len(cands) / ALPHA) for k, v in both.items()}
         with_energy, move_better = MD.held_out_figures(current, F, folds, results, both, len(cands), ALPHA)
         direction = {}   # per sensor: the move-or-delay tests of its timing change (`direction_test`, `band_test`)
         evident = set()  # (effect, sensor) with the evidence against no change, before the move-or-delay rules
+        outranks = {(c.effect, c.sensor) for c in results if _own_evidence(c, len(cands), plain=True)}
         too_far = []     # moves the data ask for beyond a re-glued disc's: the strongest one's channel is flagged
         for c in results:
-            ok = _evidence(c.score, c.p_value, len(cands), MD.own_evidence_scale(c.effect)) and c.material
+            ok = _own_evidence(c, len(cands))
             if ok:
                 evident.add((c.effect, c.sensor))
             nest = EFFECTS[c.effect].nests
             if ok and nest is not None and (nest, c.sensor) in gains:
                 diff = gains[(c.effect, c.sensor)] - gains[(nest, c.sensor)]
-                ok = _one_sided_p(_case_sums(diff, F.case_id)) < thr
+                ok = _one_sided_p(_case_sums(diff, F.case_id)) < ALPHA / len(cands)
             if ok and c.effect in RIVALS and c.sensor is not None and c.sensor not in direction:
                 direction[c.sensor] = {**direction_test(current, F, c.sensor),
                                        "band": band_test(current, F, c.sensor),
@@ -205,7 +232,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         for c in results:   # a constant the data reject on its channel is not named there: the move is
             if c.effect == "channel_delay" and c.sensor in moved:
                 c.significant = False
-        MD.shadows_of_a_stronger_channel(results, evident, move_bound, unabsorbed, np.log(len(cands) / ALPHA))
+        MD.shadows_of_a_stronger_channel(results, outranks, move_bound, unabsorbed, np.log(len(cands) / ALPHA))
         _record_rivals(results, gains, direction, moved, F.case_id, both)
         MD.record_with_energy(results, with_energy)
         results.sort(key=lambda c: -c.score)
@@ -400,8 +427,8 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     ref.probe = make_probe(baseline)
     ref.probe["picker"] = picker
     if not same:   # the reference at the noise floor: its site terms ride with both sessions' features
-        from .site_reference import noise_floor_reference
-        site, sigma = noise_floor_reference(ref, Fb)
+        from .site_reference import noise_floor
+        site, sigma, ref.case_icc = noise_floor(ref, Fb)
         ref.sigma.update(sigma)
         ref.site = site
         Fn = site.attach(Fn)
@@ -440,6 +467,8 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
               "model": {"velocity_m_s": final.velocity_m_s, "sensor_xy_mm": _jsonable(final.sensor_xy_mm),
                         "gain": _jsonable(np.exp(final.gain_log / 2)), "anisotropy": _jsonable(final.aniso),
                         "decay_per_s": final.decay0_per_s}}
+    from .residual_dependence import dependence, repeatability
+
     result["residuals"] = {"dependence_before": dependence(ref, Fn), "dependence_after": dependence(final, Fn),
                            "repeatability": repeatability(Fn),
                            "noise_rms_counts": np.exp(np.median(Fn.log_noise, axis=0)).tolist(),
@@ -447,47 +476,6 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
                            "clipped_drops": Fn.clipped.sum(axis=0).tolist()}
     details = {"ref": ref, "final": final, "F": Fn, "accepted": accepted}
     return _jsonable(result), details
-
-
-def dependence(ref: R.Reference, F: R.Features) -> dict:
-    """How each channel's residuals depend on distance, direction, height, drop order and amplitude:
-    per channel, a joint least-squares slope (± standard error) of the drop-centred ToA residual (µs) and
-    log-energy residual on standardised regressors (slope per 1 SD of the regressor)."""
-    d, th, _, _ = ref.geometry(F)
-    amp = F.log_energy - F.log_energy.mean(axis=1, keepdims=True)
-    out = {"regressors": ["distance_mm", "cos2theta", "sin2theta", "height_mm", "drop_order", "log_energy"]}
-    for label, r in (("toa_us", ref.toa_resid(F)), ("log_energy", ref.energy_resid(F))):
-        rows = []
-        for c in range(4):
-            X = np.stack([d[:, c], np.cos(2 * th[:, c]), np.sin(2 * th[:, c]), F.height_mm, F.order,
-                          amp[:, c]], axis=1)
-            ok = np.all(np.isfinite(X), axis=1) & np.isfinite(r[:, c])
-            if label == "log_energy":
-                ok &= ~ref.clip_mask(F)[:, c]
-            X = X[ok]
-            X = (X - X.mean(0)) / np.maximum(X.std(0), 1e-9)
-            X = np.c_[np.ones(len(X)), X]
-            y = r[ok, c]
-            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-            res = y - X @ beta
-            cov = np.linalg.pinv(X.T @ X) * res.var(ddof=X.shape[1])
-            rows.append({"slope": beta[1:].tolist(), "se": np.sqrt(np.diag(cov))[1:].tolist(),
-                         "mean": float(np.mean(y))})
-        out[label] = rows
-    return out
-
-
-def repeatability(F: R.Features) -> dict:
-    """Within-case scatter of DToA (µs rms, per pair): the floor no timing model can go below."""
-    dt = F.toa_us[:, R.PAIR_I] - F.toa_us[:, R.PAIR_J]
-    dev, dof = np.zeros(6), 0
-    for c in np.unique(F.case_id):
-        m = F.case_id == c
-        if m.sum() > 1:
-            x = dt[m]
-            dev += np.nansum((x - np.nanmean(x, 0)) ** 2, axis=0)
-            dof += m.sum() - 1
-    return {"dtoa_within_case_rms_us": (np.sqrt(dev / max(dof, 1))).tolist(), "dof": int(dof)}
 
 
 # ---- report ----------------------------------------------------------------------------------------

@@ -139,7 +139,8 @@ def held_out_figures(current, F, folds, results, both: dict, n_candidates: int, 
 def name_the_delay_of_an_evident_move(results, evident: set, n_candidates: int, alpha: float) -> None:
     """Names the constant delay on a channel whose move has the evidence against no change (in `evident`) but is
     not named (no test rejects a constant, neither held-out figure prefers the move) and whose delay's own
-    held-out ratio reaches ln(n_candidates / alpha) (the Markov half of `diagnose._evidence`; its per-case t-test
+    held-out ratio reaches ln(n_candidates / alpha) (the Markov half of `diagnose._evidence`, read on the ratio
+    tempered by the design effect where the reference has one: `Candidate.markov_score`; its per-case t-test
     can miss on heavy-tailed case gains): the channel changed, and of the two rivals the constant is the
     simpler. Only on a channel with such a move and no rival named: no name without the evidence of a change."""
     if not DELAY_OF_AN_EVIDENT_MOVE:
@@ -148,7 +149,7 @@ def name_the_delay_of_an_evident_move(results, evident: set, n_candidates: int, 
     bound = np.log(n_candidates / alpha)
     for c in results:
         if (c.effect == "channel_delay" and not c.significant and c.sensor not in named and c.material
-                and ("sensor_position", c.sensor) in evident and c.score >= bound):
+                and ("sensor_position", c.sensor) in evident and c.markov_score >= bound):
             c.significant = True
 
 

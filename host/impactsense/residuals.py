@@ -305,6 +305,9 @@ class Reference:
     # posterior covariance is the reference's own uncertainty (`effects.sensor_position.direction_test`)
     site: object = field(default=None, repr=False)
     band: dict | None = None   # the band picks' travel law learned on the reference (`band_timing.fit_band`)
+    # per position group, the intra-case correlation of the reference's cross-fitted residuals
+    # (`case_correlation.reference_icc`); None: drops independent (the evidence rule's plain Markov half)
+    case_icc: dict | None = None
 
     def copy(self) -> "Reference":
         return replace(self, **{k: (v.copy() if isinstance(v, (np.ndarray, dict)) else v)

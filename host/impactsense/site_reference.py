@@ -126,11 +126,20 @@ def cross_fitted(ref: R.Reference, F: R.Features, seed: int = 0) -> R.Features:
 def noise_floor_reference(ref: R.Reference, F: R.Features, seed: int = 0) -> tuple[SiteTerms, dict]:
     """Site terms learned on all of F, and the cross-fitted residual scales that go with them
     (sigma['timing'], sigma['energy'] for `ref.sigma`)."""
+    site, sig, _ = noise_floor(ref, F, seed)
+    return site, sig
+
+
+def noise_floor(ref: R.Reference, F: R.Features, seed: int = 0) -> tuple[SiteTerms, dict, dict]:
+    """`noise_floor_reference` and, from the same cross-fitted residuals, how much one case's drops share
+    their error per position group (`case_correlation.reference_icc`, for `Reference.case_icc`)."""
+    from .case_correlation import reference_icc
+
     Fx = cross_fitted(ref, F, seed)
     rt = ref.toa_resid(Fx)
     sig = {"timing": R.robust_sigma(rt[np.all(np.isfinite(rt), axis=1)]),
            "energy": R.robust_sigma(ref.energy_resid(Fx)[~ref.clip_mask(Fx)])}
-    return fit_site(ref, F), sig
+    return fit_site(ref, F), sig, reference_icc(ref, Fx)
 
 
 def dtoa_rms(ref: R.Reference, F: R.Features) -> float:
