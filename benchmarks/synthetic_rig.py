@@ -32,7 +32,10 @@ samples, 8-bit, 4,000 before the trigger, a DC offset per channel, 50 Hz hum on 
 --cases 25 --reps 4), glass-audio (a 600 x 450 x 6 mm soda-lime glass tabletop, very lightly damped, sensors on an
 irregular quadrilateral turned ~12 deg, a 4-channel USB audio interface: 96 kHz, 16-bit, large full scale, AC-coupled
 at 10 Hz, a linear-phase anti-alias FIR at 43 kHz, 4,096 samples of which 512 before the hit; a 10 mm nylon ball;
-run it with --cases 25 --reps 4).
+run it with --cases 25 --reps 4), ss-strip-edge (an 850 x 280 x 1.5 mm stainless-steel strip, three sensors along one
+long edge and one near an end of the other, channels in no geometric order, a 5 mm silicon-nitride ball from
+20-100 mm, 500 kHz x 2,000 samples at 12 bits, rig.json without density or optional fields; run it with --cases 60
+--reps 3).
 The mesh is coarse (--element-mm) so a rig costs minutes on 2 cores.
 """
 
@@ -232,6 +235,25 @@ KINDS = {
         front_end=dict(peak_fraction=0.012, noise_counts=2.0, highpass_hz=10.0, anti_alias_fir_hz=43000.0,
                        anti_alias_taps=127),
         heights=(50, 80, 110, 140, 170, 200)),
+    "ss-strip-edge": dict(
+        # a long narrow stainless-steel strip (850 x 280 x 1.5 mm, aspect 3.0: thin and dispersive), three sensors
+        # along one long edge (staggered) and the fourth near one END of the other edge, so the hull is a skewed
+        # triangle over one end and the far end is seen from outside it; the channels wired in no geometric order;
+        # a small silicon-nitride ball (5 mm, 0.21 g) dropped from 20-100 mm (light hits: a weak, short, broad-band
+        # contact), a fast 12-bit logger with a short record (500 kHz x 2,000 samples = 4 ms, 200 before the hit);
+        # rig.json as a user writes it: the material by its grade, no density (the table's), no optional fields;
+        # many drops (run it with --cases 60 --reps 3)
+        rig={"plate_material": "stainless steel 1.4301 (AISI 304), 2B finish", "plate_x_mm": 850.0,
+             "plate_y_mm": 280.0, "thickness_mm": 1.5, "plate_support": "resting on four rubber feet",
+             "sensors": _sensors([(420, 30), (130, 232), (770, 42), (68, 38)]),
+             "sensor_type": "PZT disc", "sensor_diameter_mm": 10.0,
+             "ball_material": "silicon nitride (Si3N4) bearing ball, grade 5",
+             "ball_diameter_mm": 5.0, "ball_mass_g": 0.21, "channels": 4, "fs_hz": 500000, "samples": 2000,
+             "adc_bits": 12, "vref": 3.3, "bias_counts": 2048},
+        sim=dict(e_pa=193e9, nu=0.29, pretrigger_samples=200, damping_per_s=150.0, density_kg_m3=7930.0,
+                 ball_e_pa=310e9, ball_nu=0.27),
+        front_end=dict(peak_fraction=0.15),
+        heights=(20, 35, 50, 65, 80, 100)),
 }
 
 
