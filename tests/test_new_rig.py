@@ -400,7 +400,7 @@ def test_info_reads_no_hum_from_white_noise_over_a_short_tail():
     rng = np.random.default_rng(3)
     noise = np.clip(bias + rng.normal(0, 24.0, (40, 4, n)), 0, 65535).astype(np.uint16)
     rig = SimpleNamespace(fs_hz=fs, pretrigger_samples=1000, bias_counts=bias)
-    amp, _, floor, _ = hum_counts(SimpleNamespace(adc=noise, rig=rig))
+    amp, _, floor, _, _ = hum_counts(SimpleNamespace(adc=noise, rig=rig))
     from impactsense.hum import hum_lock_in
     from impactsense.residuals import tail_start
     tail = np.median(hum_lock_in(noise[:, :, tail_start(n, fs):] - float(bias), fs)[0].max(axis=2), axis=0)
@@ -408,7 +408,7 @@ def test_info_reads_no_hum_from_white_noise_over_a_short_tail():
     assert np.all(amp < floor) and np.all(floor < 18.0)
     assert all(hum_text({"hum_counts": a, "hum_floor_counts": f}).startswith("<") for a, f in zip(amp, floor))
     hummed = inject(noise, FaultSpec(hum=40.0, hum_hz=50.0, seed=1), fs, bias, 65535)
-    amp, _, floor, _ = hum_counts(SimpleNamespace(adc=hummed, rig=rig))
+    amp, _, floor, _, _ = hum_counts(SimpleNamespace(adc=hummed, rig=rig))
     assert np.all(amp > floor) and np.all((15.0 < amp) & (amp < 45.0))
 
 

@@ -90,7 +90,7 @@ def test_info_reads_hum_on_the_hum_channel_over_quiet_start_and_tail():
     tail_only = np.median(hum_lock_in(adc[:, :, t0:] - BIAS, FS)[0].max(axis=2), axis=0)
     assert np.all(tail_only[[0, 2, 3]] > 2.0)                # what the column printed before (no hum there)
     rig = SimpleNamespace(fs_hz=FS, pretrigger_samples=PRE, bias_counts=BIAS)
-    amp, where, floor, _ = hum_counts(SimpleNamespace(adc=adc, rig=rig))
+    amp, where, floor, _, _ = hum_counts(SimpleNamespace(adc=adc, rig=rig))
     assert "quiet start and the record's tail" in where
     assert 1.2 < amp[1] < 3.5 and amp[1] > floor[1]
     assert np.all(amp[[0, 2, 3]] < 0.6)

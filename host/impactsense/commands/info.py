@@ -8,11 +8,12 @@ ORDER = 10
 HUM_QUIET_S = 15e-3   # a quiet start at least this long (3/4 of a 50 Hz period) is where the hum is read
 
 
-def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray]:
+def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray, float]:
     """Each channel's median 50 / 60 Hz hum amplitude (counts) over the drops, the larger of the two, where it
     was read: the quiet start before the hit when the logger keeps HUM_QUIET_S of it, else the record's tail
     (diagnose's, residuals.tail_start), the median amplitude white noise alone would stay under there
-    (hum.hum_floor), and each channel's median amplitude at each of hum.HUM_HZ [4, 2]. The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
+    (hum.hum_floor), each channel's median amplitude at each of hum.HUM_HZ [4, 2] and the segment's span (ms, its
+    first to its last sample). The core's noise rms reads its baseline segment only, a few ms: the hum looks like an
     offset there."""
     from ..hum import hum_floor, hum_lock_in, quiet_index
     from ..residuals import tail_start
@@ -34,7 +35,18 @@ def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray]:
     quiet = session.adc[:, :, seg].astype(np.float32) - session.rig.bias_counts
     hum, _, left = hum_lock_in(quiet, fs, index)
     floor = hum_floor(quiet.shape[2], fs, left, index)
-    return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0), np.median(hum, axis=0)
+    picked = np.arange(n)[seg] if index is None else np.asarray(index)
+    span_ms = float(picked[-1] - picked[0] + 1) / fs * 1e3
+    return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0), np.median(hum, axis=0), span_ms
+
+
+def hum_readable(hum, floor, adc_max: int) -> np.ndarray:
+    """Per channel: whether the segment the hum was read over can tell a hum the logger could record from the
+    record's offset, trend and ringing. A hum over the ADC's half range would clip every record, so a reading or
+    a noise floor (hum.hum_floor) at or above it is the lock-in's ill-conditioning over a small part of a mains
+    period (a short record's tail), not a hum: not reported."""
+    half = adc_max / 2.0
+    return (np.asarray(hum, float) < half) & (np.asarray(floor, float) < half)
 
 
 def register(sub) -> None:
@@ -60,7 +72,8 @@ def summarise(session) -> dict:
     heights, counts = np.unique(session.height_mm, return_counts=True)
     base = SignalConfig.for_rig(session.rig).baseline_samples
     level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
-    hum, hum_where, hum_floor, hum_each = hum_counts(session)
+    hum, hum_where, hum_floor, hum_each, hum_span_ms = hum_counts(session)
+    readable = hum_readable(hum, hum_floor, session.rig.adc_max)
     return {
         "plate": plate_summary(session.rig),
         "ball": ball_summary(session.rig),
@@ -76,6 +89,7 @@ def summarise(session) -> dict:
         "pretrigger_samples": session.rig.pretrigger_samples,
         "baseline_samples": int(SignalConfig.for_rig(session.rig).baseline_samples),
         "hum_read_over": hum_where,
+        "hum_read_span_ms": hum_span_ms,
         "channels": [
             {
                 "channel": c,
@@ -84,9 +98,9 @@ def summarise(session) -> dict:
                 "dead_drops": int(feats.dead[:, c].sum()),
                 "no_onset_drops": int(feats.no_onset[:, c].sum()),
                 "noise_rms_counts": float(np.median(noise[:, c])),
-                "hum_counts": float(hum[c]),
-                "hum_floor_counts": float(hum_floor[c]),
-                "hum_hz": float(HUM_HZ[int(np.argmax(hum_each[c]))]),
+                "hum_counts": float(hum[c]) if readable[c] else None,
+                "hum_floor_counts": float(hum_floor[c]) if readable[c] else None,
+                "hum_hz": float(HUM_HZ[int(np.argmax(hum_each[c]))]) if readable[c] else None,
                 "peak_counts_median": float(np.median(peak[:, c])),
                 "snr_db_median": float(np.median(snr_db[:, c])),
             }
@@ -118,7 +132,10 @@ def ball_summary(rig) -> dict:
 
 
 def hum_text(channel: dict) -> str:
-    """The hum column: the amplitude, or '<floor' when white noise alone would read as much."""
+    """The hum column: the amplitude, '<floor' when white noise alone would read as much, 'n/a' when the segment
+    cannot read a hum the logger could record (`hum_readable`)."""
+    if channel["hum_counts"] is None:
+        return "n/a"
     if channel["hum_counts"] < channel["hum_floor_counts"]:
         return f"<{channel['hum_floor_counts']:.1f}"
     hz = channel.get("hum_hz")
@@ -161,6 +178,11 @@ def run(args) -> int:
     print(f"  (noise rms: the core's baseline segment; hum: 50/60 Hz amplitude over {s['hum_read_over']}, median "
           f"over the drops, @ the mains frequency that reads larger; '<F': under F, what the noise alone reads "
           f"there: no hum seen)")
+    if any(c["hum_counts"] is None for c in s["channels"]):
+        span_ms = s["hum_read_span_ms"]
+        print(f"  (hum n/a: {span_ms:.1f} ms of the record is too small a part of a mains period (20 ms at 50 Hz) to "
+              f"tell a hum from the record's offset, trend and ringing: the lock-in reads more than the ADC's half "
+              f"range; record at least 15 ms before the hit to see the hum)")
     if args.json_out:
         from ..outputs import json_text, write_file
 
