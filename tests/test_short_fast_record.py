@@ -28,7 +28,8 @@ def test_info_does_not_report_a_hum_the_logger_could_not_hold():
     amplitudes were read as 10-18 million counts on a 12-bit logger (and printed as hum, over a floor of 8
     million). A hum over the ADC's half range would clip every record: such a reading is 'n/a', said why; a
     record long enough to read it is reported as before."""
-    from impactsense.commands.info import hum_counts, hum_readable, hum_text
+    from impactsense.commands.info import hum_counts, hum_text
+    from impactsense.hum import hum_readable
 
     rng = np.random.default_rng(0)
     fs, n, pre, bias = 500000, 2000, 200, 2048
@@ -49,3 +50,33 @@ def test_info_does_not_report_a_hum_the_logger_could_not_hold():
     rig2 = SimpleNamespace(fs_hz=fs2, pretrigger_samples=pre2, bias_counts=bias, adc_max=4095)
     amp2, _, floor2, _, _ = hum_counts(SimpleNamespace(adc=hummed, rig=rig2))
     assert hum_readable(amp2, floor2, 4095).all() and np.all((10.0 < amp2) & (amp2 < 35.0))
+
+
+def test_diagnose_features_on_a_short_record_do_not_extend_an_unreadable_hum():
+    """diagnose's host features (residuals.signal_features): the tail's 50 / 60 Hz fit over a 2 ms tail read
+    millions of counts of 'hum' and was extended back over the record and subtracted from the decay's blocks,
+    and blocks past the record's end read its last sample repeated: the reference's decay read -92 1/s (a
+    growing envelope) on a plate decaying at 150. Now such a tail gives hum 0 and only its offset is taken out,
+    and blocks past the end are left out; a 50 ms record (the measured rigs') reads the same as before, bit for
+    bit."""
+    from impactsense.residuals import signal_features
+
+    rng = np.random.default_rng(1)
+    fs, n, pre, bias = 500000, 2000, 200, 2048
+    adc = _ringing_records(fs, n, pre, bias, rng, drops=20, ring=300.0, decay_per_s=150.0)
+    onset = np.full((20, 4), float(pre + 50))
+    _, decay_old, hum_old = signal_features(adc, onset, fs, float(bias))
+    assert np.median(hum_old) > 4095 / 2                    # before: a hum no 12-bit logger could hold
+    _, decay, hum = signal_features(adc, onset, fs, float(bias), 4095)
+    assert np.all(hum == 0.0)
+    ok = np.isfinite(decay)
+    # 3.5 ms after the onset hold only two whole 1 ms blocks from 1 ms on: no decay is read (3 blocks needed)
+    assert not ok.any()
+    # a long record (50 ms at 100 kHz, 25 ms of quiet tail): the same figures with and without the rule
+    fs2, n2, pre2 = 100000, 5000, 500
+    long = _ringing_records(fs2, n2, pre2, bias, rng, drops=10, ring=300.0, decay_per_s=300.0)
+    on2 = np.full((10, 4), float(pre2 + 20))
+    a = signal_features(long, on2, fs2, float(bias))
+    b = signal_features(long, on2, fs2, float(bias), 4095)
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)

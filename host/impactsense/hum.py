@@ -44,6 +44,30 @@ def hum_lock_in(seg: np.ndarray, fs_hz: float, index: np.ndarray | None = None,
     return hum, coef, ((flat - X @ coef_flat) ** 2).mean(axis=0).reshape(r, c)
 
 
+def hum_readable(hum, floor, adc_max: int) -> np.ndarray:
+    """Per record or channel: whether the segment the hum was read over can tell a hum the logger could record from the
+    record's offset, trend and ringing. A hum over the ADC's half range would clip every record, so a reading or
+    a noise floor (hum.hum_floor) at or above it is the lock-in's ill-conditioning over a small part of a mains
+    period (a short record's tail), not a hum: not reported."""
+    half = adc_max / 2.0
+    return (np.asarray(hum, float) < half) & (np.asarray(floor, float) < half)
+
+
+def tail_lock_in(seg: np.ndarray, fs_hz: float, adc_max: int | None = None):
+    """`hum_lock_in` over a record's tail [R, C, S]; with `adc_max`, a record whose tail cannot read a hum the
+    logger could hold (`hum_readable`) gets hum 0, its mean alone as the fit (the offset) and its variance as
+    what is left."""
+    hum, coef, left = hum_lock_in(seg, fs_hz)
+    if adc_max is None:
+        return hum, coef, left
+    readable = hum_readable(hum.max(axis=2), hum_floor(seg.shape[2], fs_hz, left), adc_max)
+    tail = np.asarray(seg, np.float64)
+    offset_only = np.zeros_like(coef)
+    offset_only[..., 0] = tail.mean(axis=2)
+    return (np.where(readable[..., None], hum, 0.0), np.where(readable[..., None], coef, offset_only),
+            np.where(readable, left, tail.var(axis=2)))
+
+
 TAIL_BLOCK_S = 1e-3      # the blocks in which the ring-down is followed to the noise
 TAIL_QUIET_RATIO = 1.2   # a block is quiet when its first-difference rms is within this x the quiet start's
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import _core
 from .data import Session
-from .hum import HUM_HZ, hum_lock_in  # noqa: F401  (HUM_HZ is read from here too: effects/noise.py)
+from .hum import HUM_HZ, hum_lock_in, tail_lock_in  # noqa: F401  (HUM_HZ is read from here too: effects/noise.py)
 from .signal import core_config, core_samples
 
 PAIR_I = np.array([0, 0, 0, 1, 1, 2])
@@ -118,8 +118,12 @@ def _plateaus(a: np.ndarray, adc_max: int):
     return ph.astype(float), pl.astype(float)
 
 
-def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bias: float):
-    """Spectral centroid, decay rate and hum amplitude: diagnostics computed on the host (not pickers)."""
+def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bias: float,
+                    adc_max: int | None = None):
+    """Spectral centroid, decay rate and hum amplitude: diagnostics computed on the host (not pickers).
+    A record's tail that cannot read a hum the logger could hold (`hum.hum_readable`, with `adc_max`: a short
+    record's tail, a small part of a mains period) gives hum 0 and only its offset is taken out of the decay's
+    blocks; a decay block that runs past the record's end is left out (it would read the last sample repeated)."""
     a = adc.astype(np.float32) - bias
     r, c, n = a.shape
     on = np.clip(np.nan_to_num(onset_samples, nan=0).astype(int), 0, n - 1)
@@ -134,7 +138,7 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     centroid = (p * f).sum(axis=2) / np.maximum(p.sum(axis=2), 1e-12)
     # hum: least-squares lock-in at 50 and 60 Hz over the tail (with offset and trend)
     t0 = tail_start(n, fs_hz)
-    hum, coef, noise_ms = hum_lock_in(a[:, :, t0:], fs_hz)
+    hum, coef, noise_ms = tail_lock_in(a[:, :, t0:], fs_hz, adc_max)
     # decay: slope of the log RMS envelope in blocks, of the signal alone: the tail's offset and hum (extended
     # over the record) are taken out and the tail's noise power is subtracted from each block's mean square;
     # a block that is not above the noise (power SNR < DECAY_MIN_SNR) is left out of the slope
@@ -150,7 +154,7 @@ def signal_features(adc: np.ndarray, onset_samples: np.ndarray, fs_hz: float, bi
     sig = a - base.astype(np.float32)
     blk = np.take_along_axis(sig, idx.reshape(r, c, -1), axis=2).reshape(r, c, len(starts), bw)
     power = (blk.astype(np.float64) ** 2).mean(axis=3) - noise_ms[..., None]
-    use = power > DECAY_MIN_SNR * noise_ms[..., None]
+    use = (power > DECAY_MIN_SNR * noise_ms[..., None]) & (on[..., None] + starts + bw <= n)
     env = 0.5 * np.log(np.maximum(power, 1e-6))
     t = np.broadcast_to((starts + bw / 2) / fs_hz, env.shape)
     w = use.astype(float)
@@ -205,7 +209,7 @@ def extract(session: Session, picker: dict | None = None) -> Features:
     toa = dispersion_corrected(picks, f["pick_period"], session.x_mm, session.y_mm, rig.sensor_xy_mm,
                                float(rig.fs_hz), picker)
     onset = np.asarray(f["toa_aic"], float)
-    logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts))
+    logc, decay, hum = signal_features(session.adc, onset, rig.fs_hz, float(rig.bias_counts), int(rig.adc_max))
     ph, pl = _plateaus(session.adc, rig.adc_max)
     n = len(session)
     return Features(

@@ -40,15 +40,6 @@ def hum_counts(session) -> tuple[np.ndarray, str, np.ndarray, np.ndarray, float]
     return np.median(hum.max(axis=2), axis=0), where, np.median(floor, axis=0), np.median(hum, axis=0), span_ms
 
 
-def hum_readable(hum, floor, adc_max: int) -> np.ndarray:
-    """Per channel: whether the segment the hum was read over can tell a hum the logger could record from the
-    record's offset, trend and ringing. A hum over the ADC's half range would clip every record, so a reading or
-    a noise floor (hum.hum_floor) at or above it is the lock-in's ill-conditioning over a small part of a mains
-    period (a short record's tail), not a hum: not reported."""
-    half = adc_max / 2.0
-    return (np.asarray(hum, float) < half) & (np.asarray(floor, float) < half)
-
-
 def register(sub) -> None:
     p = sub.add_parser("info", help="summarise a session: drops, cases, heights, clipping, noise, SNR",
                        description="Reads and validates a session folder and summarises it.")
@@ -73,6 +64,8 @@ def summarise(session) -> dict:
     base = SignalConfig.for_rig(session.rig).baseline_samples
     level = np.median(session.adc[:, :, :base].astype(float), axis=(0, 2))   # each channel's level before the hit
     hum, hum_where, hum_floor, hum_each, hum_span_ms = hum_counts(session)
+    from ..hum import hum_readable
+
     readable = hum_readable(hum, hum_floor, session.rig.adc_max)
     return {
         "plate": plate_summary(session.rig),
