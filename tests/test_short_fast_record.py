@@ -80,3 +80,19 @@ def test_diagnose_features_on_a_short_record_do_not_extend_an_unreadable_hum():
     b = signal_features(long, on2, fs2, float(bias), 4095)
     for u, v in zip(a, b):
         np.testing.assert_array_equal(u, v)
+
+
+def test_reference_and_damping_effect_are_quiet_without_a_decay(recwarn):
+    """A session whose records are too short for the decay's blocks reads NaN decay on every drop: the reference
+    fit and the damping effect say NaN (no decay read) without numpy's all-NaN warnings on the user's terminal."""
+    import warnings
+
+    from impactsense.effects.damping import Damping
+    from impactsense.residuals import Reference
+
+    ref = Reference(sensor_xy_mm=np.zeros((4, 2)), slowness_us_per_mm=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        F = SimpleNamespace(decay_per_s=np.full((12, 4), np.nan))
+        p = Damping().fit(ref, F, None)
+    assert np.isnan(p["extra_decay_per_s"])

@@ -24,6 +24,7 @@ than any one level (each crossing's noise is partly its own).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -452,10 +453,12 @@ def fit_reference(F: Features, mode: str = "calibrated") -> Reference:
         ref.cent_off = np.r_[0.0, sol[2:5]]
     ref.sigma["spectrum"] = robust_sigma(res)
     # decay, noise, hum
-    if per_ch:
-        ref.decay_off = np.nanmedian(F.decay_per_s, axis=0) - np.nanmedian(F.decay_per_s)
-    ref.decay0_per_s = float(np.nanmedian(F.decay_per_s))
-    ref.sigma["decay"] = robust_sigma(F.decay_per_s - ref.decay0_per_s - ref.decay_off)
+    with warnings.catch_warnings():   # a record too short for the decay's blocks: NaN, no decay term
+        warnings.simplefilter("ignore", RuntimeWarning)
+        if per_ch:
+            ref.decay_off = np.nanmedian(F.decay_per_s, axis=0) - np.nanmedian(F.decay_per_s)
+        ref.decay0_per_s = float(np.nanmedian(F.decay_per_s))
+        ref.sigma["decay"] = robust_sigma(F.decay_per_s - ref.decay0_per_s - ref.decay_off)
     ref.log_noise = (np.median(F.log_noise, axis=0) if per_ch
                      else np.full(4, np.median(F.log_noise)))
     ref.sigma["noise"] = robust_sigma(F.log_noise - ref.log_noise)

@@ -19,7 +19,8 @@ class Damping(Effect):
     min_change_pct = 5.0
 
     def fit(self, ref, F, sensor):
-        d = float(np.nanmedian(ref.decay_resid(F)))
+        r = ref.decay_resid(F)
+        d = float(np.nanmedian(r)) if np.isfinite(r).any() else float("nan")   # NaN: no decay read
         return {"extra_decay_per_s": d, "decay_per_s": float(ref.decay0_per_s + d),
                 "change_pct": float(100 * d / ref.decay0_per_s)}
 
