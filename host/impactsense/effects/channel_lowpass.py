@@ -22,6 +22,13 @@ REFINE_STEPS = np.geomspace(0.8, 1.25, 11)   # the fit's finer log grid around t
 PRETRIGGER_NOISE_SAMPLES = 64   # the record's first samples: before any impact (the noise level)
 
 
+def _nanmedian_or_nan(v) -> float:
+    """The median of v's finite values; NaN without a warning when there is none (a record too short for the
+    decay's blocks reads no decay)."""
+    v = np.asarray(v, float)
+    return float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else float("nan")
+
+
 def lowpass(a: np.ndarray, fc_hz: float, fs_hz: float, order: int = 2) -> np.ndarray:
     b, a_ = signal.butter(int(order), min(fc_hz, 0.45 * fs_hz), fs=fs_hz)
     return signal.lfilter(b, a_, a, axis=-1)
@@ -72,7 +79,7 @@ def forward_table(probe) -> dict:
         F = extract(dc_replace(sess, adc=to_adc(a, bias, sess.rig.adc_max)), probe.get("picker"))
         rows.append([np.nanmedian(F.toa_us - base.toa_us), np.nanmedian(F.log_energy - base.log_energy),
                      np.nanmedian(F.log_centroid - base.log_centroid),
-                     np.nanmedian(F.decay_per_s - base.decay_per_s)])
+                     _nanmedian_or_nan(F.decay_per_s - base.decay_per_s)])
         # the pick change's growth with distance (a weaker, farther arrival is picked later still)
         dt, dd = (F.toa_us - base.toa_us).ravel(), d.ravel()
         ok = np.isfinite(dt)
