@@ -106,7 +106,8 @@ def main() -> int:
         models, signal = firmware_models(args.export)
         pos["firmware"][test] = report_positions(board_reports(s.subset(test), models, signal, fs), len(test))
     timed("board captures")
-    caps, rows, sig0 = bcap.board_captures(s, fs)
+    trigger = {k: v for k, v in bcap.board_signal(board.card).items() if k == bcap.TRIGGER_KEY}   # export's choice
+    caps, rows, sig0 = bcap.board_captures(s, fs, trigger or None)
     at = {int(r): k for k, r in enumerate(rows)}
     tr = np.asarray([at[r] for r in train if r in at], int)
     te = np.asarray([at[r] for r in test if r in at], int)

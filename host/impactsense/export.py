@@ -197,7 +197,9 @@ def load_models(model_dir) -> ModelSet:
         inputs[role] = idx
     residual = "phys_x_mm +" in str(card.get("target", ""))
     three, pairs = _load_three_channel(model_dir, card, card_path) if twin is None else ({}, {})
-    signal = dict(card.get("signal") or {})
+    from .board.capture import board_signal   # with the trigger threshold a board model chose (board.trigger)
+
+    signal = board_signal(card)
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
                     export_check.check_arrays(card, signal, bool(three), card_path), three_position=pairs)
 
@@ -359,7 +361,8 @@ def header_h(models: ModelSet, model_hash: str) -> str:
     """impactsense_models.h: the defines and declarations of what this model has (a forest model's as before)."""
     pos_define, pos_decl = export_c.three_position_header(models)
     defines = ((LINEAR_DEFINE if models.energy_linear else "") + (THREE_CHANNEL_DEFINE if models.three_channel else "")
-               + (export_check.CHECK_DEFINE if models.channel_check else "") + pos_define)
+               + (export_check.CHECK_DEFINE if models.channel_check else "") + pos_define
+               + export_c.trigger_define(models.signal))
     decls = ((THREE_CHANNEL_DECL if models.three_channel else "")
              + (export_check.CHECK_DECL if models.channel_check else "") + pos_decl)
     return HEADER_H.format(model_hash=model_hash, n_features=models.n_features, signal_struct=signal_struct_c(),

@@ -112,7 +112,7 @@ def main(argv=None):
         app's capture and hold-off, led in when its quiet start is short): report bodies, captures, one report
         per drop?"""
         app = _link.App(cfg, fm)
-        frames = board_frames(s.adc[rows], s.rig, app, args.fs)
+        frames = board_frames(s.adc[rows], s.rig, app, args.fs, threshold_counts=cfg.get("threshold_counts"))
         reports, captures = replay_reports(app, frames)
         one = np.array([len(r) == 1 for r in reports])
         bodies = [np.frombuffer(_link.report_body(r[0]), dtype=np.uint8) for r in reports if len(r) == 1]

@@ -104,15 +104,18 @@ static impactapp::TableModels g_models = impactapp::exported_models();
 // The app as the fixture's native app ran it (gen_fixture.py app_defines): the rig's ADC rails as the core takes
 // them and, for a logger of other than 12 bits, the trigger's counts at its scale. Without them the image armed at
 // the board's 12-bit defaults and cut other captures than the fixture's from a 16-bit logger's drops.
+// The fixture's trigger (app_config's, at the logger's scale, the exported threshold included) comes last: the
+// exported one (IMPACTSENSE_TRIGGER_COUNTS) is in the board's 12-bit counts.
 static impactapp::AppConfig fixture_config() {
   impactapp::AppConfig cfg;
   cfg.core.adc_min = FIX_ADC_MIN;
   cfg.core.adc_max = FIX_ADC_MAX;
+  cfg = impactapp::exported_config(cfg);
 #ifdef FIX_THRESHOLD_COUNTS
   cfg.threshold_counts = FIX_THRESHOLD_COUNTS;
   cfg.rearm_counts = FIX_REARM_COUNTS;
 #endif
-  return impactapp::exported_config(cfg);
+  return cfg;
 }
 static impactapp::App g_app(g_hal, &g_models, fixture_config());
 static impactapp::TableModels g_m2c = impactapp::exported_m2cgen_models();  // the m2cgen export, same logic

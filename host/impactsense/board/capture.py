@@ -87,6 +87,7 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     """The SignalConfig the firmware runs: the model card's settings (or the defaults for the rig) taken to
     the board's rate and acquisition by the firmware's own function (impactapp::board_core_config: sample
     counts scaled, the board rate, the SAADC scan's capture delays), the rig's ADC rail and geometry."""
+    signal = {k: v for k, v in (signal or {}).items() if k != TRIGGER_KEY}   # the trigger is the app's (app_config)
     card = SignalConfig.from_dict(signal) if signal else SignalConfig.for_rig(rig)
     rails = rig_settings(rig)
     board = config_dict(_link.board_core_config(card.core(), int(fs_hz), rails["adc_min"], rails["adc_max"]))
@@ -95,13 +96,38 @@ def signal_for_board(rig, signal: dict | None = None, fs_hz: int = 50000):
     return SignalConfig.from_dict({**card.to_dict(), **changed, **geometry})
 
 
+# The key of an exported signal dict (forest_tables.npz, board.capture.board_signal) that carries the trigger threshold
+# export chose (board counts, impactcore.h's at 12 bits); absent: the firmware's default (impactcore.h TriggerConfig).
+TRIGGER_KEY = "trigger_counts"
+
+
+def trigger_counts(signal: dict | None = None) -> tuple[float, float]:
+    """(threshold, rearm) of the board's trigger in board counts: the exported signal's TRIGGER_KEY or the firmware's
+    default (impactcore.h TriggerConfig); the re-arm level is the default's unless the threshold is not above it,
+    then a third of the threshold (impactapp.cpp's rule for set_threshold and exported_config)."""
+    trig = _core.TriggerConfig()
+    thr = float((signal or {}).get(TRIGGER_KEY) or trig.threshold_counts)
+    rearm = float(trig.rearm_counts)
+    return thr, (rearm if rearm < thr else thr / 3.0)
+
+
+def board_signal(card: dict) -> dict:
+    """A board model card's signal dict as the export writes it for the board: with TRIGGER_KEY where the card's
+    board_trigger chose a threshold (board_counts; board.trigger.choose_trigger), as it is otherwise."""
+    signal = dict(card.get("signal") or {})
+    chosen = (card.get("board_trigger") or {}).get("board_counts")
+    if chosen is not None:
+        signal[TRIGGER_KEY] = float(chosen)
+    return signal
+
+
 def app_config(rig, fs_hz: int = 50000, signal: dict | None = None, **extra) -> dict:
     sig = signal_for_board(rig, signal, fs_hz)
     cfg = {"fs_hz": int(fs_hz), "core": sig.core(), "loc": sig.localiser()}
     scale = counts_per_core_count(rig)
-    if scale != 1.0:   # the trigger's counts (impactcore.h TriggerConfig, the app's defaults) at the rig's ADC
-        trig = _core.TriggerConfig()
-        cfg.update(threshold_counts=trig.threshold_counts * scale, rearm_counts=trig.rearm_counts * scale)
+    thr, rearm = trigger_counts(signal)
+    if scale != 1.0 or TRIGGER_KEY in (signal or {}):   # the trigger's counts (board counts) at the rig's ADC
+        cfg.update(threshold_counts=thr * scale, rearm_counts=rearm * scale)
     cfg.update(extra)
     return cfg
 
@@ -195,7 +221,7 @@ def joined_without_steps(adc: np.ndarray, threshold_counts: float, per_frame: fl
 
 
 def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0,
-                 adc_max: int | None = None) -> np.ndarray:
+                 adc_max: int | None = None, threshold_counts: float | None = None) -> np.ndarray:
     """Recorded drops as the board's stream: int16 [R, n, 4] frames, one drop after the other as they come in
     the lab (seconds apart: the plate quiet between them). Each record is continued for the app's capture and
     hold-off and led in by its quiet start when it is short (continued_for_capture), then read as the SAADC
@@ -204,11 +230,13 @@ def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0
     app then rightly takes them for one event) and before it has armed. Every path that replays recordings
     through the app (board_captures, board_capture, the emulator, the qemu test image's fixture) reads this.
     adc_min, adc_max: the rails (board_samples; default the rig's ADC). The rig's declared front-end low-pass
-    (board_anti_alias) is applied before the scan grid."""
+    (board_anti_alias) is applied before the scan grid. threshold_counts: the app's trigger threshold in the rig's
+    counts (app_config's; default the firmware's default at the rig's ADC): the joins' steps are judged against it."""
     adc = continued_for_capture(adc, rig.fs_hz, app.capture_frames, fs_hz, app.core_config.baseline_samples,
                                 app.pretrigger_frames, rig.pretrigger_samples)
-    adc = joined_without_steps(adc, _core.TriggerConfig().threshold_counts * counts_per_core_count(rig),
-                               float(rig.fs_hz) / float(fs_hz), rig.pretrigger_samples)
+    if threshold_counts is None:
+        threshold_counts = _core.TriggerConfig().threshold_counts * counts_per_core_count(rig)
+    adc = joined_without_steps(adc, float(threshold_counts), float(rig.fs_hz) / float(fs_hz), rig.pretrigger_samples)
     return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max if adc_max is None else adc_max,
                          adc_min=adc_min, anti_alias=board_anti_alias(rig, fs_hz))
 
@@ -250,8 +278,9 @@ def replay_reports(app, frames: np.ndarray) -> tuple[list[list[dict]], list[list
 def board_captures(session, fs_hz: int = 50000, signal: dict | None = None):
     """(captures int16 [R, 4, n], recording index [R], SignalConfig) taken by the firmware app from the
     session's drops as the board samples them (board_frames), one drop after the other."""
-    app = _link.App(app_config(session.rig, fs_hz, signal, dump_raw=True), None)
-    frames = board_frames(session.adc, session.rig, app, fs_hz)
+    cfg = app_config(session.rig, fs_hz, signal, dump_raw=True)
+    app = _link.App(cfg, None)
+    frames = board_frames(session.adc, session.rig, app, fs_hz, threshold_counts=cfg.get("threshold_counts"))
     caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
     if not caps:
         raise ValueError(f"{session.path}: the emulated board captured none of the {len(session)} drops")
@@ -267,7 +296,8 @@ def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
 
     def capture(counts: np.ndarray):
         app = _link.App(cfg, None)
-        frames = board_frames(counts, rig, app, fs_hz, adc_min=-32768, adc_max=32767)
+        frames = board_frames(counts, rig, app, fs_hz, adc_min=-32768, adc_max=32767,
+                              threshold_counts=cfg.get("threshold_counts"))
         caps, rows = _captures((i, app.feed(frames[i])) for i in range(frames.shape[0]))
         if not caps:
             return np.zeros((0, 4, app.capture_frames), np.int16), np.zeros(0, int)
@@ -290,13 +320,16 @@ def board_view(session, fs_hz: int):
 LATE_TRIGGER_FRAMES = 8
 
 
-def trigger_record(session, caps, feats, sig, excluded=None) -> dict:
+def trigger_record(session, caps, feats, sig, excluded=None, board_counts: float | None = None) -> dict:
     """The board's trigger on the session's drops as the emulated board took them (board_captures): its threshold
     floor in the rig's counts (the app's default, impactcore.h TriggerConfig, at the rig's ADC), the drops it
-    captured of those recorded (excluded rows not counted) and how many captures it took late (LATE_TRIGGER_FRAMES)."""
+    captured of those recorded (excluded rows not counted) and how many captures it took late (LATE_TRIGGER_FRAMES).
+    board_counts: the threshold export chose (board.trigger.choose_trigger; None: the default), recorded as such."""
     first = np.asarray(feats.raw["toa_threshold"], float)
     first = np.where(np.isfinite(first) & (first >= 0), first, np.inf).min(1)
     n = len(session) - int(np.count_nonzero(excluded)) if excluded is not None else len(session)
-    return {"threshold_counts": round(float(_core.TriggerConfig().threshold_counts * counts_per_core_count(session.rig)), 2),
+    thr = trigger_counts(None if board_counts is None else {TRIGGER_KEY: board_counts})[0]
+    return {"threshold_counts": round(float(thr * counts_per_core_count(session.rig)), 2),
+            **({} if board_counts is None else {"board_counts": float(board_counts)}),
             "drops": int(n), "captured": int(len(caps)),
             "late": int(np.count_nonzero(np.isfinite(first) & (first < int(sig.baseline_samples) + LATE_TRIGGER_FRAMES)))}

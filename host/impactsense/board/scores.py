@@ -15,7 +15,7 @@ from ..metrics import region_metrics
 from ..models import impact_energy_j
 from ..pipeline import featurize
 from ..signal import SignalConfig
-from .capture import board_captures
+from .capture import board_captures, board_signal
 
 
 def board_reports(session, models, signal: dict, fs_hz: int = 50000) -> dict:
@@ -76,7 +76,7 @@ def held_out_features(card: dict):
     the model sees them: a board-rate model's through the emulated board's captures."""
     s, rows = held_out_rows(card)
     rows = np.arange(len(s)) if rows is None else rows
-    signal = card.get("signal") or {}
+    signal = board_signal(card)   # a board model's trigger as export writes it (board.trigger)
     board_fs = card.get("board_fs_hz")
     if board_fs and abs(float(board_fs) - s.rig.fs_hz) > 1:
         caps, got, sig = board_captures(s.subset(rows), int(board_fs), signal)

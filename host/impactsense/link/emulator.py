@@ -26,13 +26,15 @@ class Emulator:
         self.session = session
         self.fs_hz = int(fs_hz)
         self.signal = signal_for_board(session.rig, signal, fs_hz)
-        self.app = _link.App(app_config(session.rig, fs_hz, signal, **config), models)
+        self._config = app_config(session.rig, fs_hz, signal, **config)
+        self.app = _link.App(self._config, models)
         self._frames = None
 
     @property
     def frames(self) -> np.ndarray:
         if self._frames is None:
-            self._frames = board_frames(self.session.adc, self.session.rig, self.app, self.fs_hz)
+            self._frames = board_frames(self.session.adc, self.session.rig, self.app, self.fs_hz,
+                                        threshold_counts=self._config.get("threshold_counts"))
         return self._frames
 
     def drops(self):

@@ -165,13 +165,19 @@ inline TableModels exported_m2cgen_models() { return exported_models_with(m2cgen
 #define IMPACTAPP_LOC_FIELD(kind, type, name, def, role) memcpy(&cfg.loc.name, &s.name, sizeof(cfg.loc.name));
 
 // The signal and localiser settings of the model card (every field of impactcore.h's lists the exporter
-// writes), taken to the board's rate and acquisition by board_core_config.
+// writes), taken to the board's rate and acquisition by board_core_config; and the trigger threshold the export
+// chose from the model's drops (IMPACTSENSE_TRIGGER_COUNTS, board counts; absent: cfg's, the firmware's default),
+// the re-arm level lowered as set_threshold lowers it. The link's set_threshold still overrides it at run time.
 inline AppConfig exported_config(AppConfig cfg) {
   const impactsense_signal_config& s = impactsense_signal;
   impactcore::CoreConfig card;
   IMPACTCORE_CONFIG_FIELDS(IMPACTAPP_CARD_FIELD)
   cfg.core = board_core_config(card, cfg.fs_hz, cfg.core.adc_min, cfg.core.adc_max);
   IMPACTCORE_LOCALISER_FIELDS(IMPACTAPP_LOC_FIELD)
+#ifdef IMPACTSENSE_TRIGGER_COUNTS
+  cfg.threshold_counts = IMPACTSENSE_TRIGGER_COUNTS;
+  if (cfg.rearm_counts >= cfg.threshold_counts) cfg.rearm_counts = cfg.threshold_counts / 3.0f;
+#endif
   return cfg;
 }
 
