@@ -191,7 +191,8 @@ def main() -> int:
                                         onset_threshold_counts=host.signal.onset_threshold_counts,
                                         choose_class="energy_class_choice" in card)
                 m3 = ImpactModel.load(Path(tmp) / "m")
-                c3, r3, _ = no_delay_captures(s.subset(test), fs)
+                t3 = {k: v for k, v in bcap.board_signal(m3.card).items() if k == bcap.TRIGGER_KEY}
+                c3, r3, _ = no_delay_captures(s.subset(test), fs, t3 or None)
                 pos["no_scan_delay"][test[r3]] = m3.predict(m3.featurize(c3))["xy_mm"]
         finally:
             bcap.board_samples, bmod.board_captures = orig_samples, orig_caps

@@ -198,7 +198,6 @@ def load_models(model_dir) -> ModelSet:
     residual = "phys_x_mm +" in str(card.get("target", ""))
     three, pairs = _load_three_channel(model_dir, card, card_path) if twin is None else ({}, {})
     from .board.capture import board_signal   # with the trigger threshold a board model chose (board.trigger)
-
     signal = board_signal(card)
     return ModelSet(models["x"], models["y"], models["energy"], card, n, inputs, residual, signal, twin, three,
                     export_check.check_arrays(card, signal, bool(three), card_path), three_position=pairs)

@@ -39,9 +39,9 @@ from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
-from .capture import (TRIGGER_KEY, board_anti_alias, board_capture, board_captures, board_view, front_end_card,
+from .capture import (board_anti_alias, board_capture, board_captures, board_view, front_end_card,
                       signal_for_board, trigger_record)
-from .trigger import choose_trigger
+from .trigger import captures_at_chosen_trigger
 from .cost import (CLASS_FOREST_FIXED, EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    LOCALISER_EVALUATIONS, linear_instructions, signal_fits, signal_instructions)
 
@@ -302,11 +302,9 @@ def train_board_models(session, out_dir, n_trees: int = 30, seed: int = 0, fs_hz
         train_rows, _ = case_split(session.case_id, test_fraction, seed, exclude_rows)
     train_rows = np.asarray(train_rows, int)
     excluded = np.isin(np.arange(len(session)), np.asarray([] if exclude_rows is None else exclude_rows, int))
-    caps, rows, sig = board_captures(session, fs_hz)
-    # the board's trigger threshold (board.trigger): the default unless a lower one takes more training drops on time
-    chosen, trigger_choice = choose_trigger(session, train_rows[~excluded[train_rows]], fs_hz, first=(caps, rows, sig))
-    if chosen is not None:
-        caps, rows, sig = board_captures(session, fs_hz, {TRIGGER_KEY: chosen})
+    # at the board's trigger threshold (board.trigger): the default unless a lower one takes more drops on time
+    caps, rows, sig, chosen, trigger_choice = captures_at_chosen_trigger(session, train_rows[~excluded[train_rows]], fs_hz,
+                                                                         board_captures)
     if onset_threshold_counts is not None:
         sig.onset_threshold_counts = float(onset_threshold_counts)
     is_train = np.isin(rows, train_rows)

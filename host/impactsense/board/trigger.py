@@ -73,3 +73,12 @@ def choose_trigger(session, train_rows, fs_hz: int = 50000, signal: dict | None 
     best = trials[int(np.argmin(bad))]   # argmin: the first (largest threshold) of the fewest
     record = {"default_counts": default, "floor_counts": round(floor, 2), "trials": trials}
     return (None if best["board_counts"] == default else best["board_counts"]), record
+
+
+def captures_at_chosen_trigger(session, train_rows, fs_hz: int = 50000, capture=board_captures):
+    """capture's (board_captures') output for the session at the threshold choose_trigger chooses on the training
+    rows: (captures, rows, SignalConfig, the chosen threshold or None, choose_trigger's record)."""
+    first = capture(session, fs_hz)
+    chosen, record = choose_trigger(session, train_rows, fs_hz, first=first)
+    caps, rows, sig = first if chosen is None else capture(session, fs_hz, {TRIGGER_KEY: chosen})
+    return caps, rows, sig, chosen, record
