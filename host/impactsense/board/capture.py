@@ -306,11 +306,11 @@ def board_capture(rig, fs_hz: int = 50000, signal: dict | None = None):
     return capture
 
 
-def board_view(session, fs_hz: int):
+def board_view(session, fs_hz: int, signal: dict | None = None):
     """`session` as the board captures it: the firmware app's captures (board_captures:
     resampled to 4 x fs_hz with the SAADC scan delays, triggered and cut by the app) as its adc; drops the
-    app did not capture are left out."""
-    caps, rows, _ = board_captures(session, fs_hz)
+    app did not capture are left out. signal: board_captures' (a chosen trigger, TRIGGER_KEY)."""
+    caps, rows, _ = board_captures(session, fs_hz, signal)
     return replace(session.subset(rows), adc=caps)
 
 

@@ -39,8 +39,8 @@ from ..three_channel_position import MIN_DROPS, three_channel_position_inputs
 from ..twin import TwinFit, estimate, fit_twin, position_groups
 from ..zeroshot import calibration_twins, fit_on_calibration_drops
 from .boosted import BOOST_DEPTH, BOOST_GAIN, boosted_regressor, choose_board_forests, prefix_within, stages_within
-from .capture import (board_anti_alias, board_capture, board_captures, board_view, front_end_card,
-                      signal_for_board, trigger_record)
+from .capture import (TRIGGER_KEY, board_anti_alias, board_capture, board_captures, board_signal, board_view,
+                      front_end_card, signal_for_board, trigger_record)
 from .trigger import captures_at_chosen_trigger
 from .cost import (CLASS_FOREST_FIXED, EVENT_BUDGET, FOREST_FIXED, FOREST_PER_INPUT, FOREST_PER_NODE, FOREST_PER_TREE,
                    LOCALISER_EVALUATIONS, linear_instructions, signal_fits, signal_instructions)
@@ -461,10 +461,12 @@ def sim_trained_for_board(model_dir: str | Path, out_dir: str | Path, fs_hz: int
                        train_rows=train_rows, test_fraction=0.0, seed=int(split.get("seed", 0)))
     model = ImpactModel.load(out_dir)
     model.card = {k: v for k, v in model.card.items() if k not in ("signal", "energy_threshold_j", "created_utc")}
-    # The calibration drops and their twins as the board captures them (both with the scan delays).
-    meas = board_view(session.subset(cal_rows), fs_hz)
+    # The calibration drops and their twins as the board captures them (both with the scan delays), at the trigger
+    # chosen on the virtual drops (board.trigger; None: the default)
+    trig = {k: v for k, v in board_signal(model.card).items() if k == TRIGGER_KEY} or None
+    meas = board_view(session.subset(cal_rows), fs_hz, trig)
     sim = board_view(replace(session.subset(cal_rows), adc=calibration_twins(params, session, cal_rows,
-                                                                              int(zs.get("seed", 0)), workers)), fs_hz)
+                                                                              int(zs.get("seed", 0)), workers)), fs_hz, trig)
     both = np.intersect1d(meas.recording_id, sim.recording_id)
     meas = meas.subset(np.flatnonzero(np.isin(meas.recording_id, both)))
     sim_adc = sim.adc[np.isin(sim.recording_id, both)]
@@ -473,7 +475,7 @@ def sim_trained_for_board(model_dir: str | Path, out_dir: str | Path, fs_hz: int
     # the virtual drops as the board captures them: the classifier's fits read them (without a twin always;
     # with one when the host model's boundary sits in the calibrated session's gap between heights)
     needs_virtual = board_map is None or card.get("energy_class_boundary_j") is not None
-    virtual_board = board_view(virtual.subset(train_rows), fs_hz) if needs_virtual else None
+    virtual_board = board_view(virtual.subset(train_rows), fs_hz, trig) if needs_virtual else None
     fits = fit_on_calibration_drops(model, meas, np.arange(len(meas)), sim_adc, board_map, virtual_board,
                                     class_heights_mm=session.height_mm)
     fits.pop("_virtual_twin")
