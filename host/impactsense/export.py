@@ -360,13 +360,12 @@ def header_h(models: ModelSet, model_hash: str) -> str:
     """impactsense_models.h: the defines and declarations of what this model has (a forest model's as before)."""
     pos_define, pos_decl = export_c.three_position_header(models)
     defines = ((LINEAR_DEFINE if models.energy_linear else "") + (THREE_CHANNEL_DEFINE if models.three_channel else "")
-               + (export_check.CHECK_DEFINE if models.channel_check else "") + pos_define
-               + export_c.trigger_define(models.signal))
+               + (export_check.CHECK_DEFINE if models.channel_check else "") + pos_define)
     decls = ((THREE_CHANNEL_DECL if models.three_channel else "")
              + (export_check.CHECK_DECL if models.channel_check else "") + pos_decl)
     return HEADER_H.format(model_hash=model_hash, n_features=models.n_features, signal_struct=signal_struct_c(),
                            residual=int(models.residual_xy), twin=int(models.twin is not None),
-                           energy_linear=defines, three_channel_decl=decls)
+                           energy_linear=defines + export_c.trigger_define(models.signal), three_channel_decl=decls)
 
 
 def _write_export(models, model_dir, out_dir: Path, trees, X_eval, xy_eval, write_m2cgen, phys_eval,
