@@ -19,7 +19,7 @@ def rig_dict(**extra):
 @pytest.mark.parametrize("text, name, kind", [
     ("PMMA", "PMMA", "isotropic"), ("cast acrylic sheet", "PMMA", "isotropic"),
     ("aluminium 6061-T6", "aluminium", "isotropic"), ("Aluminum 5083", "aluminium", "isotropic"),
-    ("stainless steel 304", "steel", "isotropic"), ("float glass", "glass", "isotropic"),
+    ("stainless steel 304", "stainless steel", "isotropic"), ("float glass", "glass", "isotropic"),
     ("carbon-fibre laminate, fibres mostly along x (orthotropic)", "CFRP laminate", "orthotropic"),
     ("glass-fibre epoxy laminate", "GFRP laminate", "orthotropic"),
     # a keyword counts at the start of a word: "polycarbonate" holds "carbon", "carbon steel" is a steel
@@ -31,6 +31,72 @@ def test_lookup_names_the_material_and_its_kind(text, name, kind):
     assert (m.name, m.kind, m.known) == (name, kind, True)
     for p in m.constants().values():
         assert p.lo <= p.value <= p.hi
+
+
+# A new user's words for the plate, and the handbook figures its priors must hold (E or E1 / E2 in GPa, nu or
+# nu12, density kg/m3; sources beside the table's entries): the typical value need not be the figure, the range must.
+GPA = 1e9
+HANDBOOK = [
+    ("FR4 board", "woven GFRP (FR-4 / G-10)", dict(e1_pa=24, e2_pa=21, nu12=0.13, rho=1850)),
+    ("G-10", "woven GFRP (FR-4 / G-10)", dict(e1_pa=24, e2_pa=21, rho=1800)),
+    ("FR-4 glass-epoxy laminate", "woven GFRP (FR-4 / G-10)", dict(e1_pa=24, e2_pa=21, rho=1850)),
+    ("woven glass fabric / epoxy", "woven GFRP (FR-4 / G-10)", dict(e1_pa=22, e2_pa=20)),
+    ("woven carbon fibre", "woven CFRP", dict(e1_pa=62, e2_pa=60, g12_pa=4.5, rho=1550)),
+    ("twill CFRP", "woven CFRP", dict(e1_pa=62, e2_pa=60, nu12=0.05)),
+    ("stainless steel 304", "stainless steel", dict(e_pa=193, nu=0.29, rho=8000)),
+    ("mild steel", "steel", dict(e_pa=205, nu=0.29, rho=7850)),
+    ("brass", "brass / bronze", dict(e_pa=100, nu=0.34, rho=8500)),
+    ("copper", "copper", dict(e_pa=117, nu=0.34, rho=8940)),
+    ("titanium grade 2", "titanium", dict(e_pa=105, nu=0.34, rho=4510)),
+    ("magnesium AZ31", "magnesium", dict(e_pa=45, nu=0.35, rho=1770)),
+    ("polycarbonate", "polycarbonate", dict(e_pa=2.4, nu=0.37, rho=1200)),
+    ("HDPE", "polyethylene", dict(e_pa=1.0, nu=0.44, rho=955)),
+    ("float glass", "glass", dict(e_pa=72, nu=0.22, rho=2500)),
+    ("granite", "natural stone", dict(e_pa=55, nu=0.25, rho=2650)),
+    ("plywood", "plywood", dict(e1_pa=9, e2_pa=5, rho=600)),
+    ("MDF", "fibreboard (MDF)", dict(e_pa=3.5, rho=750)),
+    ("acrylic", "PMMA", dict(e_pa=5.0, nu=0.35, rho=1180)),
+    ("perspex", "PMMA", dict(e_pa=5.0, rho=1190)),
+    ("aluminium 5083", "aluminium", dict(e_pa=71, nu=0.33, rho=2660)),
+    ("alumina 99.5 %", "alumina ceramic", dict(e_pa=370, nu=0.22, rho=3890)),
+    ("grey cast iron", "cast iron", dict(e_pa=110, nu=0.26, rho=7150)),
+    ("rigid PVC sheet", "rigid PVC", dict(e_pa=3.0, nu=0.39, rho=1400)),
+]
+
+
+@pytest.mark.parametrize("text, name, figures", HANDBOOK)
+def test_a_new_users_words_get_priors_holding_the_handbook_values(text, name, figures):
+    m = lookup(text)
+    assert m.known and m.name == name
+    for key, want in figures.items():
+        p = m.density_kg_m3 if key == "rho" else getattr(m, key)
+        want = want * GPA if key.endswith("_pa") else want
+        assert p is not None and p.lo <= want <= p.hi, (key, want, p)
+
+
+def test_woven_laminates_are_nearly_alike_both_ways_and_unidirectional_ones_are_not():
+    # a woven fabric's warp and fill: flexural speeds within a few percent; the unidirectional-leaning entries keep
+    # their stiff axis; the ellipse a woven plate may take is narrower than a unidirectional one's
+    from impactsense.materials import travel_metric_sd
+    for text in ("FR4 board", "twill CFRP"):
+        woven = lookup(text)
+        assert woven.orthotropic and woven.bending_stiffness_ratio() ** 0.25 < 1.05
+        assert travel_metric_sd(woven) < 0.5 * travel_metric_sd(lookup("glass-fibre epoxy laminate"))
+    assert lookup("unidirectional carbon/epoxy prepreg").bending_stiffness_ratio() ** 0.25 > 1.3
+    assert lookup("GFRP laminate (E-glass/epoxy), fibres at 35 deg").name == "GFRP laminate"
+    # a keyword of two words needs both: "woven" alone names no fibre, "glass" alone is a glass plate
+    assert not lookup("woven mat").known and lookup("glass").name == "glass"
+
+
+@pytest.mark.parametrize("text", ["Hardox 450 wear plate", "unobtainium", "basalt-fibre panel"])
+def test_words_the_table_does_not_know_get_the_wide_prior_and_info_says_so(text):
+    from impactsense.commands.info import plate_summary, priors_text
+    m = material_for_rig(rig_from_dict(rig_dict(plate_material=text)))
+    assert m is not None and not m.known and m.e_pa == UNKNOWN.e_pa
+    pl = plate_summary(rig_from_dict(rig_dict(plate_material=text)))
+    assert text in pl["material"] and "unknown to the materials table" in pl["material"]
+    assert "material_properties" in pl["material"]
+    assert priors_text(pl["priors"]).startswith("e GPa 20 (1..250)")
 
 
 def test_unknown_material_gets_wide_priors():

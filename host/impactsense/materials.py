@@ -13,9 +13,12 @@ Optional rig.json fields read here:
 - `material_properties`: known constants that replace the table's typical values (and pin their range), in
   SI units: {"e_pa": ..., "nu": ...} or {"e1_pa", "e2_pa", "g12_pa", "nu12"}.
 
-Tabled values are handbook figures for the dynamic (ultrasonic-rate) moduli: PMMA ~5 GPa (its quasi-static
-3 GPa rises with rate), aluminium alloys 69-72 GPa, steels 190-210 GPa, soda-lime/borosilicate glass
-62-74 GPa, titanium alloys 105-120 GPa, brasses and bronzes 90-125 GPa, copper 110-130 GPa, CFRP and GFRP laminates over the range from cross-ply to mostly unidirectional lay-ups.
+Tabled values are handbook figures (each entry's source in a comment beside it) for the dynamic
+(ultrasonic-rate) moduli where they differ: PMMA ~5 GPa (its quasi-static 3 GPa rises with rate), aluminium
+alloys 69-72 GPa, steels 190-210 GPa, soda-lime/borosilicate glass 62-74 GPa, titanium alloys 105-120 GPa,
+brasses and bronzes 90-125 GPa, copper 110-130 GPa; unidirectional-leaning CFRP and GFRP laminates over the
+range from cross-ply to mostly unidirectional lay-ups, woven ones (FR-4, G-10, twill or plain-weave carbon)
+with warp and fill nearly alike; wood and plywood orthotropic along the (face) grain.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from __future__ import annotations
 import math
 import re
 from functools import lru_cache
+from itertools import product
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -102,18 +106,49 @@ def _p(value, lo, hi) -> Prior:
 
 
 GPA = 1e9
+
+# Words that say a laminate's fibres run both ways in-plane (a woven fabric: warp and fill alike, axis 1 = warp).
+WEAVE = ("woven", "weave", "plain-weave", "twill", "satin", "fabric", "cloth")
+GLASS_FIBRE = ("gfrp", "glass", "e-glass", "s-glass", "fibreglass", "fiberglass")
+CARBON_FIBRE = ("cfrp", "carbon", "graphite")
+
 # (keywords matched at the start of a word of the lower-cased plate_material, so "polycarbonate" is not "carbon";
-# the first entry that matches wins: steel first ("carbon steel" is a steel), then the composites)
-TABLE: list[tuple[tuple[str, ...], Material]] = [
+# a keyword that is a tuple of words needs all of them (each at a word start, in any order); the first entry that
+# matches wins: steels first ("carbon steel" is a steel), the woven laminates before the unidirectional-leaning
+# ones, alumina before aluminium). Values: typical figure, then the range a fit may search.
+TABLE: list[tuple[tuple, Material]] = [
+    # ASM Handbook vol. 1 / AK Steel 304 & 316 data: 193 GPa, nu 0.29, 8000 kg/m3 (ferritic 430: 200 GPa, 7750)
+    (("stainless", "inox", "18/8"), Material(
+        "stainless steel", ISOTROPIC, _p(7950, 7700, 8100),
+        e_pa=_p(193 * GPA, 185 * GPA, 205 * GPA), nu=_p(0.29, 0.26, 0.31))),
     (("steel",), Material(
         "steel", ISOTROPIC, _p(7850, 7700, 8050),
         e_pa=_p(200 * GPA, 185 * GPA, 215 * GPA), nu=_p(0.29, 0.26, 0.32))),
-    (("cfrp", "carbon", "graphite"), Material(
+    # ASTM A48 grey iron classes 20-60: 66-157 GPa; ductile (ASTM A536) 165-170 GPa; 6900-7400 kg/m3
+    (("cast iron", "grey iron", "gray iron", "ductile iron", "nodular iron", "iron"), Material(
+        "cast iron", ISOTROPIC, _p(7150, 6900, 7400),
+        e_pa=_p(120 * GPA, 65 * GPA, 175 * GPA), nu=_p(0.26, 0.20, 0.31))),
+    # FR-4 / G-10 / woven E-glass-epoxy: IPC-4101 laminate data sheets (e.g. Isola 370HR: 24 / 21 GPa warp / fill,
+    # Poisson 0.13-0.18), MIL-HDBK-17-2F woven E-glass/epoxy G12 4-6 GPa, 1800-1950 kg/m3: quasi-isotropic in-plane
+    (("fr4", "fr-4", "fr 4", "g10", "g-10", "g11", "g-11", "epoxy glass cloth")
+     + tuple(product(WEAVE, GLASS_FIBRE)), Material(
+        "woven GFRP (FR-4 / G-10)", ORTHOTROPIC, _p(1850, 1700, 2000),
+        e1_pa=_p(24 * GPA, 17 * GPA, 30 * GPA), e2_pa=_p(21 * GPA, 15 * GPA, 28 * GPA),
+        g12_pa=_p(4.5 * GPA, 3 * GPA, 7 * GPA), nu12=_p(0.13, 0.08, 0.20),
+        notes="woven: warp (axis 1) and fill nearly alike")),
+    # woven carbon/epoxy (T300 3K plain weave / twill, Vf ~0.55): MIL-HDBK-17-2F, Hexcel fabric prepreg data:
+    # E1 ~ E2 55-70 GPa, G12 4-5 GPa, nu12 0.04-0.08, 1500-1600 kg/m3
+    (tuple(product(WEAVE, CARBON_FIBRE)), Material(
+        "woven CFRP", ORTHOTROPIC, _p(1550, 1400, 1650),
+        e1_pa=_p(62 * GPA, 40 * GPA, 80 * GPA), e2_pa=_p(58 * GPA, 38 * GPA, 78 * GPA),
+        g12_pa=_p(4.5 * GPA, 3 * GPA, 9 * GPA), nu12=_p(0.06, 0.02, 0.15),
+        notes="woven: warp (axis 1) and fill nearly alike")),
+    (CARBON_FIBRE, Material(
         "CFRP laminate", ORTHOTROPIC, _p(1550, 1400, 1700),
         e1_pa=_p(70 * GPA, 30 * GPA, 150 * GPA), e2_pa=_p(20 * GPA, 6 * GPA, 70 * GPA),
         g12_pa=_p(5 * GPA, 2.5 * GPA, 20 * GPA), nu12=_p(0.30, 0.05, 0.45))),
     (("gfrp", "glass-fibre", "glass fibre", "glass-fiber", "glass fiber", "fibreglass", "fiberglass", "e-glass",
-      "s-glass", "glass/epoxy", "glass-epoxy", "glass epoxy", "fr4", "fr-4", "g10", "g-10"), Material(
+      "s-glass", "glass/epoxy", "glass-epoxy", "glass epoxy"), Material(
         "GFRP laminate", ORTHOTROPIC, _p(1900, 1700, 2100),
         e1_pa=_p(30 * GPA, 15 * GPA, 50 * GPA), e2_pa=_p(12 * GPA, 6 * GPA, 30 * GPA),
         g12_pa=_p(4 * GPA, 2 * GPA, 8 * GPA), nu12=_p(0.25, 0.10, 0.40))),
@@ -123,6 +158,7 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
     (("polycarbonate", "lexan", "makrolon"), Material(
         "polycarbonate", ISOTROPIC, _p(1200, 1180, 1220),
         e_pa=_p(2.35 * GPA, 2.0 * GPA, 2.7 * GPA), nu=_p(0.37, 0.34, 0.40))),
+    # CP titanium grade 1-4: 103-105 GPa, 4510 kg/m3; Ti-6Al-4V: 114 GPa, 4430 kg/m3 (ASM Handbook vol. 2)
     (("titan", "ti-6al", "ti6al"), Material(
         "titanium", ISOTROPIC, _p(4500, 4400, 4650),
         e_pa=_p(112 * GPA, 100 * GPA, 120 * GPA), nu=_p(0.33, 0.30, 0.36))),
@@ -132,12 +168,67 @@ TABLE: list[tuple[tuple[str, ...], Material]] = [
     (("copper",), Material(
         "copper", ISOTROPIC, _p(8930, 8850, 8960),
         e_pa=_p(120 * GPA, 110 * GPA, 135 * GPA), nu=_p(0.34, 0.32, 0.36))),
+    # alumina ceramic (Al2O3 92-99.5 %): 300-390 GPa, nu 0.21-0.23, 3600-3950 kg/m3 (CoorsTek data): not aluminium
+    (("alumina", "al2o3", "aluminium oxide", "aluminum oxide"), Material(
+        "alumina ceramic", ISOTROPIC, _p(3850, 3550, 3990),
+        e_pa=_p(360 * GPA, 290 * GPA, 400 * GPA), nu=_p(0.22, 0.20, 0.25))),
     (("alumin",), Material(
         "aluminium", ISOTROPIC, _p(2700, 2600, 2850),
         e_pa=_p(70 * GPA, 65 * GPA, 75 * GPA), nu=_p(0.33, 0.30, 0.36))),
+    # AZ31B / AZ91 / ZE41: 44-45 GPa, nu 0.35, 1770-1840 kg/m3 (ASM Handbook vol. 2)
+    (("magnes", "az31", "az61", "az91", "ze41", "we43"), Material(
+        "magnesium", ISOTROPIC, _p(1780, 1730, 1850),
+        e_pa=_p(45 * GPA, 40 * GPA, 47 * GPA), nu=_p(0.35, 0.33, 0.37))),
     (("glass",), Material(
         "glass", ISOTROPIC, _p(2500, 2200, 2700),
         e_pa=_p(70 * GPA, 60 * GPA, 90 * GPA), nu=_p(0.22, 0.18, 0.26))),
+    # HDPE 0.8-1.2 GPa quasi-static, higher at acoustic rates; LDPE 0.2-0.3 GPa; nu 0.42-0.46; 920-970 kg/m3
+    (("hdpe", "pe-hd", "uhmw", "ldpe", "polyethylene", "polythene"), Material(
+        "polyethylene", ISOTROPIC, _p(950, 910, 975),
+        e_pa=_p(1.2 * GPA, 0.2 * GPA, 2.5 * GPA), nu=_p(0.43, 0.38, 0.47))),
+    # polypropylene homopolymer 1.3-1.8 GPa, nu 0.42, 900-910 kg/m3
+    (("polypropylen",), Material(
+        "polypropylene", ISOTROPIC, _p(905, 890, 920),
+        e_pa=_p(1.6 * GPA, 1.0 * GPA, 2.4 * GPA), nu=_p(0.42, 0.38, 0.45))),
+    # rigid (unplasticised) PVC: 2.9-3.4 GPa, nu 0.38-0.40, 1380-1450 kg/m3
+    (("pvc", "upvc", "polyvinyl chloride"), Material(
+        "rigid PVC", ISOTROPIC, _p(1400, 1350, 1460),
+        e_pa=_p(3.2 * GPA, 2.4 * GPA, 4.2 * GPA), nu=_p(0.39, 0.35, 0.42))),
+    # PA6 / PA66 (dry to conditioned) 1.5-3.3 GPa, nu 0.39, 1130-1150 kg/m3
+    (("nylon", "polyamide", "pa6", "pa66", "pa 6"), Material(
+        "nylon (polyamide)", ISOTROPIC, _p(1140, 1120, 1160),
+        e_pa=_p(2.8 * GPA, 1.5 * GPA, 3.8 * GPA), nu=_p(0.39, 0.35, 0.42))),
+    # POM (acetal, Delrin): 2.8-3.3 GPa, nu 0.35-0.38, 1410 kg/m3
+    (("pom", "acetal", "delrin", "polyoxymethylene"), Material(
+        "POM (acetal)", ISOTROPIC, _p(1410, 1390, 1430),
+        e_pa=_p(3.1 * GPA, 2.5 * GPA, 3.8 * GPA), nu=_p(0.36, 0.33, 0.40))),
+    # plywood: USDA Wood Handbook (FPL-GTR-190) ch. 11-12 and birch plywood (EN 636) data: bending along the face
+    # grain (axis 1) 6-13 GPa, across 2-8 GPa (more plies: more alike), panel shear 0.4-1.0 GPa, 400-750 kg/m3
+    (("plywood", "ply wood", "multiplex"), Material(
+        "plywood", ORTHOTROPIC, _p(600, 400, 750),
+        e1_pa=_p(9 * GPA, 5 * GPA, 14 * GPA), e2_pa=_p(5 * GPA, 2 * GPA, 9 * GPA),
+        g12_pa=_p(0.6 * GPA, 0.3 * GPA, 1.2 * GPA), nu12=_p(0.07, 0.02, 0.20),
+        notes="face grain along axis 1")),
+    # MDF / HDF / hardboard (EN 622-5): 2.5-4.5 GPa in-plane alike, nu ~0.25, 600-1050 kg/m3
+    (("mdf", "hdf", "hardboard", "fibreboard", "fiberboard", "medium-density", "medium density"), Material(
+        "fibreboard (MDF)", ISOTROPIC, _p(750, 550, 1050),
+        e_pa=_p(3.5 * GPA, 2.0 * GPA, 5.5 * GPA), nu=_p(0.25, 0.15, 0.35))),
+    # solid wood: Wood Handbook table 5-1/5-2 (E_L 8-16 GPa, E_T / E_L ~0.05, G_LT / E_L ~0.06, nu_LT ~0.4),
+    # 350-900 kg/m3; grain along axis 1
+    (("wood", "timber", "oak", "pine", "spruce", "beech", "birch", "maple", "hardwood", "softwood"), Material(
+        "solid wood", ORTHOTROPIC, _p(550, 350, 900),
+        e1_pa=_p(11 * GPA, 6 * GPA, 17 * GPA), e2_pa=_p(0.7 * GPA, 0.3 * GPA, 1.5 * GPA),
+        g12_pa=_p(0.7 * GPA, 0.3 * GPA, 1.3 * GPA), nu12=_p(0.40, 0.25, 0.50),
+        notes="grain along axis 1")),
+    # granite, marble, slate: 30-70 GPa (granite ~50-60), nu 0.2-0.3, 2600-2850 kg/m3 (Goodman, Introduction to
+    # Rock Mechanics, table A1.2; wide: stone varies by quarry)
+    (("granite", "marble", "slate", "stone", "quartzite", "limestone"), Material(
+        "natural stone", ISOTROPIC, _p(2680, 2300, 2900),
+        e_pa=_p(55 * GPA, 20 * GPA, 90 * GPA), nu=_p(0.25, 0.12, 0.33))),
+    # normal-weight concrete: 25-40 GPa (EN 1992-1-1 E_cm), nu 0.2, 2300-2450 kg/m3
+    (("concrete",), Material(
+        "concrete", ISOTROPIC, _p(2400, 2200, 2500),
+        e_pa=_p(33 * GPA, 20 * GPA, 45 * GPA), nu=_p(0.20, 0.15, 0.25))),
 ]
 
 UNKNOWN = Material("unknown", ISOTROPIC, _p(2000, 500, 20000), e_pa=_p(20 * GPA, 1 * GPA, 250 * GPA),
@@ -147,10 +238,15 @@ UNKNOWN = Material("unknown", ISOTROPIC, _p(2000, 500, 20000), e_pa=_p(20 * GPA,
 
 def first_keyword_entry(text: str, table):
     """The first row (keywords, *rest) of `table` with a keyword at the start of a word of `text`
-    (case-insensitive), as `rest`; None when no row matches. The materials and the balls tables' one rule."""
+    (case-insensitive; a keyword given as a tuple of words needs each of them), as `rest`; None when no row
+    matches. The materials and the balls tables' one rule."""
     low = str(text).lower()
+
+    def at_word_start(k: str) -> bool:
+        return re.search(r"(?<![a-z0-9])" + re.escape(k), low) is not None
+
     for keys, *rest in table:
-        if any(re.search(r"(?<![a-z0-9])" + re.escape(k), low) for k in keys):
+        if any(at_word_start(k) if isinstance(k, str) else all(map(at_word_start, k)) for k in keys):
             return rest
     return None
 

@@ -110,9 +110,20 @@ def plate_summary(rig) -> dict:
     from ..materials import material_for_rig
 
     mat = material_for_rig(rig)
-    return {"material": mat.name if mat.known else "unknown to the materials table (wide priors)",
+    words = rig.raw.get("plate_material", "")
+    return {"material": mat.name if mat.known else f"{words!r}: unknown to the materials table (wide priors; "
+                                                   "declare material_properties to narrow them)",
             "kind": mat.kind, "axis_deg": mat.axis_deg, "density_kg_m3": rig.density_kg_m3,
-            "density_from": "rig.json" if "density_kg_m3" in rig.raw else "the materials table (not in rig.json)"}
+            "density_from": "rig.json" if "density_kg_m3" in rig.raw else "the materials table (not in rig.json)",
+            "priors": {n: p.to_dict() for n, p in mat.constants().items()}}
+
+
+def priors_text(priors: dict) -> str:
+    """The plate's prior constants in a line: moduli in GPa, typical (range)."""
+    def one(name, p):
+        scale, label = (1e-9, name.replace("_pa", "") + " GPa") if name.endswith("_pa") else (1.0, name)
+        return f"{label} {p['value'] * scale:.3g} ({p['lo'] * scale:.3g}..{p['hi'] * scale:.3g})"
+    return ", ".join(one(n, p) for n, p in priors.items())
 
 
 def ball_summary(rig) -> dict:
@@ -149,7 +160,7 @@ def run(args) -> int:
     pl = s["plate"]
     axes = f", axis 1 at {pl['axis_deg']:g} deg" if pl["kind"] == "orthotropic" else ""
     print(f"  plate: {pl['material']} ({pl['kind']}{axes}), density {pl['density_kg_m3']:g} kg/m3 from "
-          f"{pl['density_from']}")
+          f"{pl['density_from']}; priors {priors_text(pl['priors'])}")
     b = s["ball"]
     print(f"  ball: {b['material']}, E {b['e_pa'] / 1e9:.3g} GPa, nu {b['nu']:.2f} (the twin's contact; from "
           f"{b['from']}), {session.rig.ball_diameter_mm:g} mm, {session.rig.ball_mass_g:g} g")
