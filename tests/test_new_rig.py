@@ -95,10 +95,12 @@ def test_layouts_of_other_than_four_sensors_are_a_clear_error(session1, n):
         rig_from_dict({**raw, "sensors": sensors, "channels": n})
 
 
-@pytest.mark.parametrize("text", ["E-glass/epoxy laminate", "FR-4 board", "woven glass-epoxy panel"])
-def test_glass_fibre_laminates_are_not_read_as_glass(session1, text):
+@pytest.mark.parametrize("text, name", [("E-glass/epoxy laminate", "GFRP laminate"),
+                                        ("FR-4 board", "woven GFRP (FR-4 / G-10)"),
+                                        ("woven glass-epoxy panel", "woven GFRP (FR-4 / G-10)")])
+def test_glass_fibre_laminates_are_not_read_as_glass(session1, text, name):
     mat = material_for_rig(rig_from_dict({**session1.rig.to_dict(), "plate_material": text}))
-    assert mat.name == "GFRP laminate" and mat.orthotropic
+    assert mat.name == name and mat.orthotropic
 
 
 def test_material_axes_deg_is_read_as_the_fibre_angle(session1):
