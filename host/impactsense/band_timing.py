@@ -80,4 +80,5 @@ def band_resid(model, F) -> np.ndarray | None:
     if band is None or tb is None:
         return None
     d, *_ = model.geometry(F)
-    return centre(tb - (band["slowness_us_per_mm"] * d + model.delay_us + np.asarray(band["offset_us"])))
+    return centre(tb - (band["slowness_us_per_mm"] * d + model.delay_us + np.asarray(band["offset_us"])),
+                  model.timing_kept(len(F)))

@@ -54,6 +54,7 @@ FOLDS = 5
 MAX_EFFECTS = 6
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
+TIMING_ONLY = ("channel_delay", "sensor_position")   # effects that change a channel's timing and nothing else
 # A re-glued disc lands near its mark: a sensor move larger than this fraction of the nearest declared sensor
 # spacing is not named as a move (a debonded channel's filtered, late arrivals fit one of ~100 mm); its channel
 # is reported as one the models cannot absorb (`unabsorbed_channels`: the three-sensor models, flagged).
@@ -250,7 +251,20 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
         if len(kept) != len(accepted):
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
+        if tuple(sorted(unabsorbed)) != ref.timing_out:   # a channel flagged: its timing left out from here on
+            accepted = _leave_out_timing(ref, accepted, unabsorbed)
+            current = _refit(ref, F, accepted) if accepted else ref
     return accepted, current, last_round
+
+
+def _leave_out_timing(ref: R.Reference, accepted: list, unabsorbed: dict) -> list:
+    """Takes the flagged channels' timing out of `ref` (in place: `Reference.timing_out`) and returns the
+    accepted effects less the timing-only ones on those channels. A flagged channel's picks are not a disc's
+    (the retrained models leave it out: three-sensor position and class); kept in the per-drop centring, its
+    misfit reaches the other channels as shadow delays and moves (a debonded disc's picks late by 14-150 us
+    named moves of 20-30 mm on two other sensors), and a delay on it would describe nothing the models use."""
+    ref.timing_out = tuple(sorted(unabsorbed))
+    return [c for c in accepted if not (c.effect in TIMING_ONLY and c.sensor in unabsorbed)]
 
 
 def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict) -> None:
@@ -435,6 +449,8 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     before = R.metrics(ref, Fn)
     unabsorbed: dict = {}
     accepted, final, last_round = select(ref, Fn, progress, unabsorbed=unabsorbed)
+    if ref.timing_out:   # before and after over the channels whose timing counts (a flagged one left out)
+        before = R.metrics(ref, Fn)
     after = out_of_fold_metrics(ref, Fn, accepted) if accepted else dict(before)
     effects = []
     for c in sorted(accepted, key=lambda c: -c.score):
@@ -460,6 +476,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
               # channels whose change the effects cannot describe (a move beyond a re-glued disc's): the
               # models leave them out (three-sensor position and class), flagged
               "unabsorbed_channels": [unabsorbed[k] for k in sorted(unabsorbed)],
+              "timing_left_out": list(ref.timing_out),
               "baseline": str(baseline.path), "data": str(data.path),
               "reference": "nominal (first loop)" if same else "calibrated on the baseline",
               "core_config": {**R.timing_picker(picker), "rig_delay_us": _jsonable(final.delay_us)},

@@ -56,6 +56,9 @@ def run(args) -> int:
               f"sensor spacing): not named; a change the models cannot absorb (retrain leaves the channel out: "
               f"three-sensor position and class)")
     b, a = result["before"], result["after"]
+    out = result.get("timing_left_out") or []
+    if out:
+        print(f"before / after over the other channels' timing (channel {', '.join(map(str, out))} left out)")
     print(f"{'':<16} {'before':>10} {'after':>10}")
     for k in ("dtoa_rms_us", "mae_mm", "energy_rms"):
         print(f"{k:<16} {b[k]:10.3f} {a[k]:10.3f}")

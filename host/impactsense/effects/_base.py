@@ -15,7 +15,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..residuals import Features, Reference, centre, _robust_lstsq
+from ..residuals import Features, Reference, _robust_lstsq
 
 
 class Effect(ABC):
@@ -75,7 +75,7 @@ def fit_timing(ref: Reference, F: Features, cols: list[np.ndarray]) -> np.ndarra
     """Robust LS of the centred ToA residual on centred columns ([R, 4] each): returns coefficients."""
     r = ref.toa_resid(F)
     ok = np.all(np.isfinite(r), axis=1)
-    X = np.stack([centre(c[ok]).ravel() for c in cols], axis=1)
+    X = np.stack([ref.centre_timing(c[ok]).ravel() for c in cols], axis=1)
     sol, _ = _robust_lstsq(X, r[ok].ravel())
     return sol
 
