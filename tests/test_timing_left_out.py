@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from impactsense import diagnose as D
+from impactsense import move_or_delay as MD
 from impactsense import residuals as R
 from impactsense.effects import EFFECTS
 
@@ -74,7 +75,8 @@ def test_a_delay_or_move_on_the_flagged_channel_is_not_kept_its_gain_and_low_pas
     acc = [D.Candidate(e, s, {}, 10.0, 0.01, True, True, []) for e, s in
            (("sensor_gain", 2), ("channel_delay", 2), ("channel_lowpass", 2), ("channel_delay", 1),
             ("sensor_position", 2), ("sensor_position", 0))]
-    kept = D._leave_out_timing(ref, acc, {2: {}})
-    assert ref.timing_out == (2,)
+    kept, flagged_now = MD.leave_out_flagged_timing(ref, acc, {2: {}})
+    assert flagged_now and ref.timing_out == (2,)
+    assert MD.leave_out_flagged_timing(ref, kept, {2: {}}) == (kept, False)   # once
     assert [(c.effect, c.sensor) for c in kept] == [("sensor_gain", 2), ("channel_lowpass", 2),
                                                      ("channel_delay", 1), ("sensor_position", 0)]

@@ -54,7 +54,6 @@ FOLDS = 5
 MAX_EFFECTS = 6
 PROBE_DROPS = 48
 RIVALS = {"sensor_position": "channel_delay", "channel_delay": "sensor_position"}
-TIMING_ONLY = ("channel_delay", "sensor_position")   # effects that change a channel's timing and nothing else
 # A re-glued disc lands near its mark: a sensor move larger than this fraction of the nearest declared sensor
 # spacing is not named as a move (a debonded channel's filtered, late arrivals fit one of ~100 mm); its channel
 # is reported as one the models cannot absorb (`unabsorbed_channels`: the three-sensor models, flagged).
@@ -248,23 +247,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 _flag(unabsorbed, c, move_bound)
         kept = [c for c in accepted if not (c.effect == "sensor_position" and c.params["offset_mm"] > move_bound)]
-        if len(kept) != len(accepted):
+        kept, flagged_now = MD.leave_out_flagged_timing(ref, kept, unabsorbed)   # from here on: docs/method.md 6 (g)
+        if len(kept) != len(accepted) or flagged_now:
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
-        if tuple(sorted(unabsorbed)) != ref.timing_out:   # a channel flagged: its timing left out from here on
-            accepted = _leave_out_timing(ref, accepted, unabsorbed)
-            current = _refit(ref, F, accepted) if accepted else ref
     return accepted, current, last_round
-
-
-def _leave_out_timing(ref: R.Reference, accepted: list, unabsorbed: dict) -> list:
-    """Takes the flagged channels' timing out of `ref` (in place: `Reference.timing_out`) and returns the
-    accepted effects less the timing-only ones on those channels. A flagged channel's picks are not a disc's
-    (the retrained models leave it out: three-sensor position and class); kept in the per-drop centring, its
-    misfit reaches the other channels as shadow delays and moves (a debonded disc's picks late by 14-150 us
-    named moves of 20-30 mm on two other sensors), and a delay on it would describe nothing the models use."""
-    ref.timing_out = tuple(sorted(unabsorbed))
-    return [c for c in accepted if not (c.effect in TIMING_ONLY and c.sensor in unabsorbed)]
 
 
 def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, both: dict) -> None:
@@ -449,8 +436,7 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     before = R.metrics(ref, Fn)
     unabsorbed: dict = {}
     accepted, final, last_round = select(ref, Fn, progress, unabsorbed=unabsorbed)
-    if ref.timing_out:   # before and after over the channels whose timing counts (a flagged one left out)
-        before = R.metrics(ref, Fn)
+    before = R.metrics(ref, Fn) if ref.timing_out else before   # over the channels kept (a flagged one left out)
     after = out_of_fold_metrics(ref, Fn, accepted) if accepted else dict(before)
     effects = []
     for c in sorted(accepted, key=lambda c: -c.score):
@@ -476,7 +462,6 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
               # channels whose change the effects cannot describe (a move beyond a re-glued disc's): the
               # models leave them out (three-sensor position and class), flagged
               "unabsorbed_channels": [unabsorbed[k] for k in sorted(unabsorbed)],
-              "timing_left_out": list(ref.timing_out),
               "baseline": str(baseline.path), "data": str(data.path),
               "reference": "nominal (first loop)" if same else "calibrated on the baseline",
               "core_config": {**R.timing_picker(picker), "rig_delay_us": _jsonable(final.delay_us)},

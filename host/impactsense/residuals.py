@@ -313,9 +313,7 @@ class Reference:
     # per position group, the intra-case correlation of the reference's cross-fitted residuals
     # (`case_correlation.reference_icc`); None: drops independent (the evidence rule's plain Markov half)
     case_icc: dict | None = None
-    # channels whose timing is left out (diagnose: a channel flagged as one the models cannot absorb, which the
-    # retrained models leave out too): their ToA residual is 0 and the per-drop centring runs over the others
-    timing_out: tuple = ()
+    timing_out: tuple = ()   # channels whose timing is left out (diagnose's flagged one): ToA residual 0
 
     def copy(self) -> "Reference":
         return replace(self, **{k: (v.copy() if isinstance(v, (np.ndarray, dict)) else v)
@@ -343,14 +341,9 @@ class Reference:
 
     def timing_kept(self, n: int) -> np.ndarray | None:
         """[n, 4] True on the channels whose timing counts; None when every channel's does."""
-        if not self.timing_out:
-            return None
-        keep = np.ones((n, 4), bool)
-        keep[:, list(self.timing_out)] = False
-        return keep
+        return np.broadcast_to(~np.isin(np.arange(4), self.timing_out), (n, 4)) if self.timing_out else None
 
-    def centre_timing(self, x: np.ndarray) -> np.ndarray:
-        """`centre` over the channels whose timing counts (the others set to 0)."""
+    def centre_timing(self, x: np.ndarray) -> np.ndarray:   # `centre` over the channels whose timing counts
         return centre(x, self.timing_kept(len(x)))
 
     def toa_resid(self, F: Features) -> np.ndarray:
@@ -489,11 +482,9 @@ def fit_reference(F: Features, mode: str = "calibrated") -> Reference:
 
 # ----------------------------------------------------------------------------------------------------
 def localise(ref: Reference, F: Features) -> np.ndarray:
-    """Physics TDOA localiser of the core with the model's velocity, delays and sensor positions (the channels
-    whose timing counts: `Reference.timing_out` left out)."""
+    """Physics TDOA localiser of the core: the model's velocity, delays, sensor positions; timing_out left out."""
     toa = (F.toa_us - ref.delay_us).astype(np.float32)
-    keep = ref.timing_kept(len(F))
-    keep = np.ones((len(F), 4), bool) if keep is None else keep
+    keep = np.broadcast_to(~np.isin(np.arange(4), ref.timing_out), toa.shape)
     use = (np.all(np.isfinite(toa) | ~keep, axis=1, keepdims=True) & keep).astype(np.uint8)
     toa = np.ascontiguousarray(np.nan_to_num(toa))
     out = _core.localise_batch(toa, np.ascontiguousarray(use), [float(v) for v in ref.sensor_xy_mm[:, 0]],
@@ -507,8 +498,7 @@ def metrics(ref: Reference, F: Features) -> dict:
     """The loop's before/after numbers: DToA residual RMS (µs) at the declared positions, physics
     localiser MAE (mm, mean of the x and y MAE, Eq. 36), RMS of the log-energy residual (nepers)."""
     pred = ref.toa_pred(F)
-    pairs = [k for k, (i, j) in enumerate(zip(PAIR_I, PAIR_J)) if i not in ref.timing_out and j not in ref.timing_out]
-    pi, pj = np.asarray(PAIR_I)[pairs], np.asarray(PAIR_J)[pairs]
+    pi, pj = (p[~np.isin(PAIR_I, ref.timing_out) & ~np.isin(PAIR_J, ref.timing_out)] for p in (PAIR_I, PAIR_J))
     dt_meas = F.toa_us[:, pi] - F.toa_us[:, pj]
     dt_pred = pred[:, pi] - pred[:, pj]
     r = dt_meas - dt_pred

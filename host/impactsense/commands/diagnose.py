@@ -56,7 +56,7 @@ def run(args) -> int:
               f"sensor spacing): not named; a change the models cannot absorb (retrain leaves the channel out: "
               f"three-sensor position and class)")
     b, a = result["before"], result["after"]
-    out = result.get("timing_left_out") or []
+    out = [u["sensor"] for u in result.get("unabsorbed_channels", [])]
     if out:
         print(f"before / after over the other channels' timing (channel {', '.join(map(str, out))} left out)")
     print(f"{'':<16} {'before':>10} {'after':>10}")
