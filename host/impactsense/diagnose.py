@@ -247,7 +247,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 _flag(unabsorbed, c, move_bound)
         kept = [c for c in accepted if not (c.effect == "sensor_position" and c.params["offset_mm"] > move_bound)]
-        kept, flagged_now = MD.leave_out_flagged_timing(ref, kept, unabsorbed)   # from here on: docs/method.md 6 (g)
+        kept, flagged_now = MD.leave_out_flagged_timing(ref, kept, unabsorbed)   # from here on: docs/method.md 6 (h)
         if len(kept) != len(accepted) or flagged_now:
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref
