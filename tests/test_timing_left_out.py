@@ -72,7 +72,8 @@ def test_dtoa_and_the_localiser_use_the_channels_kept():
 
 def test_a_delay_or_move_on_the_flagged_channel_is_not_kept_its_gain_and_low_pass_are():
     ref = _ref()
-    acc = [D.Candidate(e, s, {}, 10.0, 0.01, True, True, []) for e, s in
+    acc = [D.Candidate(e, s, {"offset_mm": 5.0} if e == "sensor_position" else {}, 10.0, 0.01, True, True, [])
+           for e, s in
            (("sensor_gain", 2), ("channel_delay", 2), ("channel_lowpass", 2), ("channel_delay", 1),
             ("sensor_position", 2), ("sensor_position", 0))]
     kept, flagged_now = MD.leave_out_flagged_timing(ref, acc, {2: {}})

@@ -242,12 +242,11 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             break
         accepted.append(best)
         current = _refit(ref, F, accepted)
-        # a move the joint refit took beyond the bound: out, its channel flagged
-        for c in accepted:
+        # a move the joint refit took beyond the bound: out, its channel flagged; a flagged channel's timing out
+        for c in accepted:                                                     # from here on (docs/method.md 6 (h))
             if c.effect == "sensor_position" and c.params["offset_mm"] > move_bound:
                 _flag(unabsorbed, c, move_bound)
-        kept = [c for c in accepted if not (c.effect == "sensor_position" and c.params["offset_mm"] > move_bound)]
-        kept, flagged_now = MD.leave_out_flagged_timing(ref, kept, unabsorbed)   # from here on: docs/method.md 6 (h)
+        kept, flagged_now = MD.leave_out_flagged_timing(ref, accepted, unabsorbed, move_bound)
         if len(kept) != len(accepted) or flagged_now:
             accepted = kept
             current = _refit(ref, F, accepted) if accepted else ref

@@ -183,12 +183,14 @@ def shadows_of_a_stronger_channel(results, evident: set, move_bound: float, unab
 TIMING_ONLY = ("channel_delay", "sensor_position")   # effects that change a channel's timing and nothing else
 
 
-def leave_out_flagged_timing(ref, accepted: list, unabsorbed: dict) -> tuple[list, bool]:
-    """(accepted less the timing-only effects on flagged channels, whether a channel was newly flagged); sets
+def leave_out_flagged_timing(ref, accepted: list, unabsorbed: dict, move_bound: float = np.inf) -> tuple[list, bool]:
+    """(accepted less its moves beyond move_bound and the timing-only effects on flagged channels, whether a channel
+    was newly flagged); sets
     `ref.timing_out` (in place) to the flagged channels. A flagged channel's picks are not a disc's (the retrained
     models leave it out: three-sensor position and class); kept in the per-drop centring, its misfit reaches the
     other channels as shadow delays and moves (a debonded disc's picks, late by 14-150 us growing with distance,
     named moves of 20-30 mm on two other sensors), and a delay on it would describe nothing the models use."""
+    accepted = [c for c in accepted if not (c.effect == "sensor_position" and c.params["offset_mm"] > move_bound)]
     out = tuple(sorted(unabsorbed))
     if out == tuple(ref.timing_out):
         return accepted, False

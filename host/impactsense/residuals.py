@@ -33,9 +33,9 @@ from . import _core
 from .data import Session
 from .hum import HUM_HZ, hum_lock_in, tail_lock_in  # noqa: F401  (HUM_HZ is read from here too: effects/noise.py)
 from .signal import core_config, core_samples
+# the DToA pairs and the loop's before / after numbers (`loop_numbers`), importable from here as before
+from .loop_numbers import PAIR_I as PAIR_I, PAIR_J as PAIR_J, localise as localise, metrics as metrics
 
-PAIR_I = np.array([0, 0, 0, 1, 1, 2])
-PAIR_J = np.array([1, 2, 3, 2, 3, 3])
 CENTROID_S = 2e-3           # spectral-centroid window after the onset
 CENTROID_LEAD_S = 5e-5      # ... starting this long before the onset
 DECAY_BLOCKS_S = (1e-3, 8e-3, 1e-3)  # envelope blocks after the onset: start, stop, width
@@ -480,31 +480,3 @@ def fit_reference(F: Features, mode: str = "calibrated") -> Reference:
     return ref
 
 
-# ----------------------------------------------------------------------------------------------------
-def localise(ref: Reference, F: Features) -> np.ndarray:
-    """Physics TDOA localiser of the core: the model's velocity, delays, sensor positions; timing_out left out."""
-    toa = (F.toa_us - ref.delay_us).astype(np.float32)
-    keep = np.broadcast_to(~np.isin(np.arange(4), ref.timing_out), toa.shape)
-    use = (np.all(np.isfinite(toa) | ~keep, axis=1, keepdims=True) & keep).astype(np.uint8)
-    toa = np.ascontiguousarray(np.nan_to_num(toa))
-    out = _core.localise_batch(toa, np.ascontiguousarray(use), [float(v) for v in ref.sensor_xy_mm[:, 0]],
-                               [float(v) for v in ref.sensor_xy_mm[:, 1]],
-                               float(1.0 / ref.slowness_us_per_mm), 7.0,
-                               float(F.plate_mm[0]), float(F.plate_mm[1]))
-    return np.stack([np.asarray(out["x_mm"]), np.asarray(out["y_mm"])], axis=1)
-
-
-def metrics(ref: Reference, F: Features) -> dict:
-    """The loop's before/after numbers: DToA residual RMS (µs) at the declared positions, physics
-    localiser MAE (mm, mean of the x and y MAE, Eq. 36), RMS of the log-energy residual (nepers)."""
-    pred = ref.toa_pred(F)
-    pi, pj = (p[~np.isin(PAIR_I, ref.timing_out) & ~np.isin(PAIR_J, ref.timing_out)] for p in (PAIR_I, PAIR_J))
-    dt_meas = F.toa_us[:, pi] - F.toa_us[:, pj]
-    dt_pred = pred[:, pi] - pred[:, pj]
-    r = dt_meas - dt_pred
-    xy = localise(ref, F)
-    err = np.abs(xy - np.stack([F.x_mm, F.y_mm], 1))
-    er = ref.energy_resid(F)[~ref.clip_mask(F)]
-    return {"dtoa_rms_us": float(np.sqrt(np.nanmean(r ** 2))),
-            "mae_mm": float(np.nanmean(err)),
-            "energy_rms": float(np.sqrt(np.mean(er ** 2)))}
