@@ -156,15 +156,34 @@ def train_score(session, trees: int, seed: int, signal=None):
     return model, score
 
 
-def cached_twin_session(ref, sim_params, effects, folder: Path, slow: float, seed: int, workers: int):
+def cached_twin_session(ref, sim_params, effects, folder: Path, slow: float, seed: int, workers: int,
+                        new_positions: int = 0):
     """`loop.twin_training_session`, kept in `folder` with its inputs (twin-key.json): a later run with the same
     reference recordings, twin, effects and seed loads it instead of simulating it again (its rig
-    `loop.training_rig`, as the function writes it: the recordings do not depend on it)."""
+    `loop.training_rig`, as the function writes it: the recordings do not depend on it). new_positions: the
+    twin's drops at new positions appended as `twin_training_session` appends them, kept in `folder`-newN (the
+    declared drops from `folder`'s cache)."""
     import dataclasses
 
-    from impactsense.data import load_session
-    from impactsense.loop import recorded_effects, training_rig, twin_training_session
+    from impactsense.data import load_session, write_session
+    from impactsense.loop import (append_drops, recorded_effects, training_rig, twin_drops, twin_positions,
+                                  twin_training_session)
 
+    if new_positions:
+        dense = folder.with_name(f"{folder.name}-new{new_positions}")
+        key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": recorded_effects(effects),
+                          "seed": seed, "new_positions": new_positions}, sort_keys=True, default=float)
+        stamp = dense / "twin-key.json"
+        if stamp.exists() and stamp.read_text() == key:
+            return dataclasses.replace(load_session(dense), rig=training_rig(ref.rig, effects))
+        sess = cached_twin_session(ref, sim_params, effects, folder, slow, seed, workers)
+        new = twin_positions(ref, new_positions, seed)
+        adc, cols, case, reps = append_drops(sess.adc, [sess.x_mm, sess.y_mm, sess.height_mm], sess.case_id,
+                                             sess.repetition, new,
+                                             twin_drops(sim_params, ref.rig, *new, effects, slow, seed + 1, workers))
+        sess = load_session(write_session(dense, sess.rig, *cols, adc, case, reps))
+        stamp.write_text(key)
+        return sess
     key = json.dumps({"ref": ref.fingerprint(), "twin": sim_params.to_dict(), "effects": recorded_effects(effects),
                       "seed": seed},
                      sort_keys=True, default=float)   # the slowness is the reference recordings' (their fingerprint)
@@ -182,7 +201,8 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
     from impactsense.bond_choice import fit_with_bond_choice
     from impactsense.commands.retrain import carry_delays, choose_training_data
     from impactsense.loop import (channel_delays, effect_dicts, fit_bond, measured_training_session, moves_disc,
-                                  pick_settings, size_plate_change, split_effects, training_draws, weak_channel)
+                                  pick_settings, size_plate_change, split_effects, training_draws,
+                                  twin_move_positions, weak_channel)
 
     sess = load_session(Path(args.sessions) / name)
     res, det = diagnose(ref, sess, same=False)
@@ -225,7 +245,7 @@ def one_changed(name, spec, ref, ref_model, sim_params, args, work: Path) -> dic
         twin, _ = split_effects(effect_dicts(accepted))
         if twin:
             t_sess = cached_twin_session(ref, sim_params, effect_dicts(accepted), work / f"{name}-twin", slow,
-                                         args.seed, args.workers)
+                                         args.seed, args.workers, twin_move_positions(ref, effect_dicts(accepted)))
             t_model, _ = carry_delays(train_score(t_sess, args.trees, args.seed), channel_delays(accepted))
             if t_model.twin_fit is not None:
                 t_model.twin_fit.weak_channel = weak_channel(accepted)

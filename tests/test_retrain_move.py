@@ -67,9 +67,13 @@ def _stub_class(monkeypatch):
     monkeypatch.setattr(RT, "class_accuracy", lambda model, session: model.class_accuracy)
 
 
-def test_a_moved_disc_with_a_twin_trains_on_the_data_whose_model_places_data_new_better(base, twin, tmp_path):
+def test_a_moved_disc_with_a_twin_trains_on_the_data_whose_model_places_data_new_better(base, twin, tmp_path,
+                                                                                        monkeypatch):
+    import impactsense.loop as L
     ref = R.fit_reference(R.extract(base))
     details = {"ref": ref}
+    cases = len(np.unique(base.case_id))
+    monkeypatch.setattr(L, "TWIN_TRAINING_POSITIONS", cases + 3)   # the twin's drops at 3 new positions too
     # disc 0 (at a corner) moved 8 mm further into its corner: every impact is ~8 mm further from it
     move = _cand("sensor_position", 0, {"dx_mm": -5.66, "dy_mm": -5.66, "offset_mm": 8.0})
     card = {"retrain": {}}
@@ -79,7 +83,10 @@ def test_a_moved_disc_with_a_twin_trains_on_the_data_whose_model_places_data_new
     assert card["retrain"]["training_choice"]["mae_mm"] == pytest.approx({"measured": 1.5, "corrected twin": 0.5})
     assert [c.effect for c in added] == ["sensor_position"]
     assert moved.path.name == "training-data" and (tmp_path / "a" / "measured-training-data").is_dir()
-    assert np.allclose(moved.xy_mm, base.xy_mm) and len(moved) == len(base)
+    n = len(base)   # DATA_REF's declared drops first, then the twin's at new positions (each its own case)
+    assert np.allclose(moved.xy_mm[:n], base.xy_mm) and len(moved) == n + 3
+    assert len(np.unique(moved.case_id)) == cases + 3 and np.all(moved.case_id[n:] > base.case_id.max())
+    assert np.hypot(moved.x_mm[n:, None] - base.x_mm, moved.y_mm[n:, None] - base.y_mm).min() > 0.1   # new positions
     assert np.array_equal(moved.rig.sensor_xy_mm, base.rig.sensor_xy_mm)   # the declared rig (retrain's --moved-rig off)
     card = {"retrain": {}}
     kept, _ = training_session(base, base, details, [move], twin, tmp_path / "b" / "training-data", 0, card,
@@ -97,7 +104,8 @@ def test_a_moved_disc_with_a_twin_trains_on_the_data_whose_model_places_data_new
     from impactsense.loop import twin_training_session
     none = twin_training_session(base, twin, [], tmp_path / "none", ref.slowness_us_per_mm, 0)
     cfg = SignalConfig.for_rig(base.rig)
-    dt = featurize(moved.adc, cfg).toa_us - featurize(none.adc, cfg).toa_us
+    assert len(none) == n   # no move: the twin's drops at DATA_REF's positions only
+    dt = featurize(moved.adc[:n], cfg).toa_us - featurize(none.adc, cfg).toa_us
     d0 = np.hypot(base.x_mm - 30.0, base.y_mm - 33.0)
     gained = np.hypot(base.x_mm - 30.0 + 5.66, base.y_mm - 33.0 + 5.66) - d0
     # the moved disc's picks later by its path change at about the picks' slowness; the other discs' as before
@@ -138,3 +146,31 @@ def test_the_training_choice_is_one_rule_that_the_loop_benchmark_shares(base):
     assert choose_training_data({"measured": placer(1.0), "corrected twin": placer(3.0)}, base)["chosen"] == "measured"
     assert choose_training_data({"measured": placer(3.0), "corrected twin": placer(1.0, 0.8)}, base)["chosen"] == "measured"
     assert "choose_training_data(" in inspect.getsource(bench_loop.one_changed)
+
+
+def test_the_loop_benchmark_trains_a_moved_disc_on_the_drops_retrain_simulates(base, twin, tmp_path):
+    """bench_loop's cached twin session with new positions (the declared drops from its cache, the new ones
+    appended) holds the drops `loop.twin_training_session` simulates for retrain, bit for bit; a move adds
+    `twin_move_positions` new positions, anything else none."""
+    import sys
+    from pathlib import Path
+
+    from impactsense.loop import TWIN_TRAINING_POSITIONS, twin_move_positions, twin_training_session
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_loop
+
+    ref = R.fit_reference(R.extract(base))
+    move = {"effect": "sensor_position", "sensor": 0, "params": {"dx_mm": -5.66, "dy_mm": -5.66}, "significant": True}
+    cases = len(np.unique(base.case_id))
+    assert twin_move_positions(base, [move]) == TWIN_TRAINING_POSITIONS - cases
+    assert twin_move_positions(base, [{**move, "significant": False}]) == 0
+    assert twin_move_positions(base, [{"effect": "sensor_gain", "sensor": 0, "params": {"gain": 0.8}}]) == 0
+    slow = ref.slowness_us_per_mm
+    ours = twin_training_session(base, twin, [move], tmp_path / "retrain", slow, 0, workers=1, new_positions=2)
+    bench = bench_loop.cached_twin_session(base, twin, [move], tmp_path / "bench", slow, 0, 1, new_positions=2)
+    assert len(ours) == len(bench) == len(base) + 2
+    assert np.array_equal(ours.adc, bench.adc) and np.allclose(ours.xy_mm, bench.xy_mm)
+    assert np.array_equal(ours.case_id, bench.case_id)
+    again = bench_loop.cached_twin_session(base, twin, [move], tmp_path / "bench", slow, 0, 1, new_positions=2)
+    assert np.array_equal(again.adc, bench.adc)   # read from its cache

@@ -65,7 +65,7 @@ TWIN_EFFECTS = ("sensor_position", "wave_speed", "damping")
 PICK_EFFECTS = ("channel_delay",)     # effects the model's picks carry (`with_channel_delays`), not the recordings
 RANDOM_EFFECTS = ("noise",)            # effects whose signal model is a random draw
 NOISE_DRAWS = 3                        # independent draws of a random effect per reference drop
-TWIN_TRAINING_POSITIONS = 1000         # with a twin and a random effect: distinct training positions (the twin's added)
+TWIN_TRAINING_POSITIONS = 1000         # with a twin and a random effect or a moved disc: distinct training positions (the twin's added)
 NOISE_FACTOR_SCALES = (0.6, 0.8, 1.0)  # onset_noise_factor tried, as fractions of the configured one
 CLEARLY_BETTER = 0.98                  # ... another one is kept when its travel spread is below this x the best
 BOND_FC_HZ = np.geomspace(1000.0, 16000.0, 25)   # the bond's cut-offs tried (above ~15 kHz: no first-arrival change)
@@ -167,9 +167,11 @@ def corrected_twin(params, rig, effects):
 
 
 def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: float, seed: int = 0,
-                          workers: int = 2, moved_rig: bool = False):
+                          workers: int = 2, moved_rig: bool = False, new_positions: int = 0):
     """DATA_REF's declared drops simulated by the corrected twin, the signal-level effects put in after (a delay
-    not: `recorded_effects`); written as a session folder (its rig.json: `training_rig`) and returned loaded."""
+    not: `recorded_effects`), and `new_positions` drops of it at new positions (`twin_positions`, `twin_drops`;
+    each its own case, after DATA_REF's rows; `twin_move_positions` says how many); written as a session folder
+    (its rig.json: `training_rig`) and returned loaded."""
     from .data import load_session, write_session
     from .effects import context
     from .effects.apply import apply_effects
@@ -180,9 +182,22 @@ def twin_training_session(base, params, effects, out_dir, slowness_us_per_mm: fl
                          workers=workers, progress=False)
     _, signal = split_effects(recorded_effects(effects))
     adc = apply_effects(adc, signal, context(base, slowness_us_per_mm), seed)
-    path = write_session(out_dir, training_rig(base.rig, effects, moved_rig), base.x_mm, base.y_mm, base.height_mm, adc,
-                         base.case_id, base.repetition)
+    cols, case, reps = [base.x_mm, base.y_mm, base.height_mm], base.case_id, base.repetition
+    if new_positions:
+        new = twin_positions(base, new_positions, seed)
+        adc, cols, case, reps = append_drops(adc, cols, case, reps, new, twin_drops(
+            params, base.rig, *new, effects, slowness_us_per_mm, seed + 1, workers))
+    path = write_session(out_dir, training_rig(base.rig, effects, moved_rig), *cols, adc, case, reps)
     return load_session(path)
+
+
+def append_drops(adc, cols, case, reps, new, new_adc):
+    """(adc, [x, y, height], case, repetition) with the drops at `new` (x, y, height) appended, each its own case
+    after the last one, repetition 0."""
+    n = len(new[0])
+    return (np.concatenate([adc, new_adc]), [np.concatenate([c, v]) for c, v in zip(cols, new)],
+            np.concatenate([case, int(np.max(case)) + 1 + np.arange(n)]),
+            np.concatenate([reps, np.zeros(n, np.asarray(reps).dtype)]))
 
 
 def twin_positions(base, n: int, seed: int = 0):
@@ -245,6 +260,17 @@ def twin_positions_wanted(base, accepted, twin) -> int:
     return max(0, TWIN_TRAINING_POSITIONS - len(np.unique(base.case_id)))
 
 
+def twin_move_positions(base, effects) -> int:
+    """New positions the corrected twin's training drops add to DATA_REF's declared ones when a disc moved
+    (`effects`: dicts; a significant sensor_position among them): as many as bring DATA_REF's positions (cases) to
+    TWIN_TRAINING_POSITIONS; else 0. The forests correct the physics position of the declared rig, whose error
+    near a moved disc is a new function of position: learned from the reference's positions alone it is not
+    (docs/findings.md "Session 26: moveretrain")."""
+    if not any(e["effect"] == "sensor_position" and e.get("significant", True) for e in effects):
+        return 0
+    return max(0, TWIN_TRAINING_POSITIONS - len(np.unique(base.case_id)))
+
+
 def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=None, workers: int = 2,
                               moved_rig: bool = False):
     """DATA_REF's recordings with every diagnosed effect's signal model put in but a delay's (`recorded_effects`:
@@ -266,11 +292,8 @@ def measured_training_session(base, accepted, ref, out_dir, seed: int = 0, twin=
     n = twin_positions_wanted(base, accepted, twin)
     if n:
         new = twin_positions(base, n, seed)
-        adc = np.concatenate([adc, twin_drops(twin, base.rig, *new, effect_dicts(accepted), ref.slowness_us_per_mm,
-                                              seed + k, workers)])
-        cols = [np.concatenate([c, v]) for c, v in zip(cols, new)]
-        case = np.concatenate([case, int(np.max(base.case_id)) + 1 + np.arange(n)])
-        reps = np.concatenate([reps, np.zeros(n, reps.dtype)])
+        adc, cols, case, reps = append_drops(adc, cols, case, reps, new, twin_drops(
+            twin, base.rig, *new, effect_dicts(accepted), ref.slowness_us_per_mm, seed + k, workers))
     path = write_session(out_dir, training_rig(base.rig, effect_dicts(accepted), moved_rig), *cols, adc, case, reps)
     return load_session(path)
 

@@ -161,7 +161,8 @@ def training_session(base, data, details, accepted, twin, folder: Path, seed: in
     standard error (the card's `training_choice`, `training_data`), in `folder` (the other beside it)."""
 
     from ..data import load_session
-    from ..loop import effect_dicts, measured_training_session, moves_disc, size_plate_change, twin_training_session
+    from ..loop import (effect_dicts, measured_training_session, moves_disc, size_plate_change, twin_move_positions,
+                        twin_training_session)
 
     measured = measured_training_session(base, accepted, details["ref"], folder, seed, twin=twin, moved_rig=moved_rig)
     card["retrain"]["training_data"] = "reference recordings with the effects put in"
@@ -170,7 +171,7 @@ def training_session(base, data, details, accepted, twin, folder: Path, seed: in
     sized = size_plate_change(twin, data, accepted, (details["ref"].probe or {}).get("picker"), seed, base=base)
     other = folder.parent / TWIN_TRAINING_DATA
     sim = twin_training_session(base, twin, effect_dicts(sized), other, details["ref"].slowness_us_per_mm, seed,
-                                moved_rig=moved_rig)
+                                moved_rig=moved_rig, new_positions=twin_move_positions(base, effect_dicts(sized)))
     models = {"measured": fit(measured, accepted), "corrected twin": fit(sim, sized)}
     card["retrain"]["training_choice"] = got = choose_training_data(models, data, seed)
     chosen, acc = got["chosen"], got["class_accuracy"]
@@ -420,7 +421,8 @@ def twin_params(args, site):
 def twin_model(args, base, data, details, accepted, settings, exclude, site, out: Path) -> dict:
     """A model trained on DATA_REF's declared drops simulated by the corrected twin (the accepted effects, a
     debonded channel's as fit_bond sized them); its score on DATA_NEW."""
-    from ..loop import channel_delays, effect_dicts, size_plate_change, twin_training_session, weak_channel
+    from ..loop import (channel_delays, effect_dicts, size_plate_change, twin_move_positions, twin_training_session,
+                        weak_channel)
     from ..workflow import train
 
     params = twin_params(args, None)
@@ -428,7 +430,8 @@ def twin_model(args, base, data, details, accepted, settings, exclude, site, out
     accepted = size_plate_change(params, data, accepted, (details["ref"].probe or {}).get("picker"), args.seed,
                                  base=base)
     sess = twin_training_session(base, params, effect_dicts(accepted), out.resolve() / "twin-training-data",
-                                 details["ref"].slowness_us_per_mm, args.seed, moved_rig=args.moved_rig)
+                                 details["ref"].slowness_us_per_mm, args.seed, moved_rig=args.moved_rig,
+                                 new_positions=twin_move_positions(base, effect_dicts(accepted)))
     model, _ = carry_delays(train(sess, None, args.test_fraction, args.seed, exclude, settings=settings,
                                   site_map=site), channel_delays(accepted))
     if model.twin_fit is not None:   # as the retrained model: the debonded channel is the twin's weak one
