@@ -171,7 +171,7 @@ def _apply_plate_fem(problem: CalibrationProblem, res: dict) -> None:
 
 def _damping_key(problem: CalibrationProblem) -> str:
     p = problem.params
-    return key(problem.base_key, p["e_pa"], p["nu"], p["damping_per_s"], "decay-v3", *model_key(p))
+    return key(problem.base_key, p["e_pa"], p["nu"], p["damping_per_s"], "decay-v4", *model_key(p))
 
 
 def _damping(problem: CalibrationProblem, _key) -> dict:
@@ -179,17 +179,18 @@ def _damping(problem: CalibrationProblem, _key) -> dict:
     D_s, then the one the 1/2 slope predicts); the secant between the runs gives the final step."""
     targets, session, rig, params = problem.targets, problem.session, problem.rig, problem.params
     recs = sorted({int(r) for rs in targets.recording_ids for r in rs})
-    power = np.full((len(session), 4, int(round((damping.MAX_MS - damping.START_MS) / damping.BLOCK_MS))), np.nan)
-    power[recs] = damping.block_power(session.adc[recs], problem.cfg, float(rig.bias_counts))
+    blocks = damping.record_blocks(session.adc[recs], problem.cfg)      # sized to what the records keep
+    power = np.full((len(session), 4, blocks.count), np.nan)
+    power[recs] = damping.block_power(session.adc[recs], problem.cfg, float(rig.bias_counts), blocks)
     p_meas = damping.case_power(power, targets.recording_ids)
     mask = damping.window_mask(p_meas, targets.noise_rms)
-    meas = damping.decay_rates(p_meas, mask)
+    meas = damping.decay_rates(p_meas, mask, blocks.width_ms)
 
     def sim_rates(d_s):
         p = dict(params, damping_per_s=float(d_s), duration_ms=damping.DECAY_DURATION_MS)
         adc = problem.simulate(p, rig, targets.x_mm, targets.y_mm, targets.height_mm)
         return damping.decay_rates(damping.sim_power(adc, problem.cfg_sim, float(rig.bias_counts), targets.peak,
-                                                     *problem.noise), mask)
+                                                     *problem.noise, blocks), mask, blocks.width_ms)
 
     d0 = float(params["damping_per_s"])
     r0 = sim_rates(d0)
@@ -204,11 +205,13 @@ def _damping(problem: CalibrationProblem, _key) -> dict:
             "se_per_s": damping.robust_se((meas - r1) / slope),
             "per_drop_per_s": per_drop, "slope_decay_per_damping": slope, "runs_per_s": [d0, d1],
             "measured_decay_per_s": meas, "fem_decay_per_s_at_runs": [r0, r1],
-            "window_ms": [damping.START_MS, damping.START_MS + damping.BLOCK_MS * mask.sum(axis=-1)],
+            "window_ms": [damping.START_MS, damping.START_MS + blocks.width_ms * mask.sum(axis=-1)],
+            "block_ms": blocks.width_ms,
             "in_range": bool(lo <= d2 <= hi),
             "method": "D_s = D_1 + median(lambda_meas - lambda_fem(D_1)) / slope; lambda = -1/2 slope of the "
-                      "noise-corrected log block power from 1 ms after the AIC onset while the measured case "
-                      f"stays >= {damping.SNR:.0f} x noise (<= {damping.MAX_MS:.0f} ms); FEM runs of the four "
+                      f"noise-corrected log power in {blocks.width_ms:.2f} ms blocks from 1 ms after the AIC onset "
+                      f"while the measured case stays >= {damping.SNR:.0f} x noise (to {blocks.end_ms:.2f} ms: "
+                      f"{damping.MAX_MS:.0f} ms or the records' end); FEM runs of the four "
                       f"drops ({damping.DECAY_DURATION_MS:.0f} ms) scaled to the measured peaks, rig noise added"}
 
 
