@@ -318,6 +318,32 @@ def _filtered_adc(volts, params, logger, front, seed) -> np.ndarray:
     return np.clip(np.rint(logger.bias_counts + x), 0, logger.adc_max).astype(np.uint16)
 
 
+# An A0 wavelength resolved by fewer elements than this carries the mesh's numerical dispersion into the picks
+# (docs/findings.md "Session 26: stripfit": on ss-strip-edge the travel fit's dispersion exponent follows the mesh).
+RESOLVED_ELEMENTS_PER_WAVELENGTH = 6.0
+
+
+def mesh_note(params, rig) -> str | None:
+    """A line saying the mesh is coarse for the logger's band, or None: the highest frequency whose A0 wavelength
+    (the softest direction's) spans RESOLVED_ELEMENTS_PER_WAVELENGTH elements against the band Eq. 1 meshes for
+    (the contact's spectrum, at most the logger's Nyquist); above it the simulated arrivals' speed is the mesh's,
+    not the plate's."""
+    from scipy.optimize import brentq
+
+    from impactsense.sim.model import mesh_element_m, mesh_size
+
+    f_max, _, _, hx, hy = mesh_size(params, rig)
+    element = max(hx, hy)
+    per_wavelength = lambda f: 10.0 * mesh_element_m(params, f) / element - RESOLVED_ELEMENTS_PER_WAVELENGTH
+    if per_wavelength(f_max) >= 0:
+        return None
+    f_ok = brentq(per_wavelength, 1.0, f_max) if per_wavelength(1.0) > 0 else 0.0
+    eq1 = mesh_element_m(params, f_max)
+    return (f"mesh {element * 1e3:.2g} mm (Eq. 1: {eq1 * 1e3:.2g} mm for {f_max / 1e3:.0f} kHz): A0 resolved "
+            f"({RESOLVED_ELEMENTS_PER_WAVELENGTH:g} elements a wavelength) up to {f_ok / 1e3:.0f} kHz only; picks "
+            f"above it travel at the mesh's speed, not the plate's (--element-mm smaller to resolve them)")
+
+
 def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: float) -> None:
     from impactsense.data import rig_from_dict, write_session
     from impactsense.faults import FaultSpec, inject
@@ -340,6 +366,9 @@ def make(kind: str, out: str, n_cases: int, reps: int, seed: int, element_mm: fl
     params = SimParams.from_rig(rig).replace(element_mm=element_mm, max_height_mm=float(max(spec["heights"])),
                                              **sim)
     params = params.replace(duration_ms=sim_duration_ms(rig, params.pretrigger_samples, params.duration_ms))
+    note = mesh_note(params, rig)
+    if note:
+        print(f"{kind}: {note}")
     t0 = time.perf_counter()
     volts = simulate_voltages(params, rig, xt, yt, h, workers=2, progress=True)["volts"]
     double = spec.get("double")

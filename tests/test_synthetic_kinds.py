@@ -70,3 +70,28 @@ def test_audio_front_end_sags_and_rings_before_the_arrival():
     before, after = adc[0, 1, arrival - 63:arrival], adc[0, 1, arrival + 1:arrival + 64][::-1]
     assert np.abs(before).max() > 10                              # pre-ringing ahead of the arrival
     assert np.allclose(before, after, atol=20)    # linear phase: the same ringing after it (less the ~13-count sag)
+
+
+def _truth_params(kind: str, element_mm: float):
+    spec = synthetic_rig.KINDS[kind]
+    sim, raw = dict(spec["sim"]), dict(spec["rig"])
+    rig = rig_from_dict(dict(raw, density_kg_m3=sim.pop("density_kg_m3", raw.get("density_kg_m3"))))
+    return SimParams.from_rig(rig).replace(element_mm=element_mm, max_height_mm=float(max(spec["heights"])),
+                                           **sim), rig
+
+
+def test_mesh_note_names_a_mesh_too_coarse_for_the_band():
+    """A mesh whose elements cut an A0 wavelength at the contact's band into fewer than 6 is named, with the
+    frequency it resolves; one that resolves the band is not (a 4 mm mesh on a 1.5 mm steel strip read at
+    500 kHz resolves A0 to ~24 kHz: its picks at 50-100 kHz read a dispersion exponent of ~1, the plate's ~0.4)."""
+    from impactsense.sim.dispersion import a0_wavelength
+
+    params, rig = _truth_params("ss-strip-edge", 4.0)
+    note = synthetic_rig.mesh_note(params, rig)
+    assert note is not None and "resolved" in note
+    f_ok = float(note.split("up to ")[1].split(" kHz")[0]) * 1e3
+    # at that frequency the wavelength spans the stated number of elements
+    lam_mm = a0_wavelength(f_ok, params.e_pa, params.nu, params.rho_kg_m3, params.thickness_mm * 1e-3) * 1e3
+    assert lam_mm / 4.0 == pytest.approx(synthetic_rig.RESOLVED_ELEMENTS_PER_WAVELENGTH, rel=0.05)
+    fine, rig = _truth_params("ss-strip-edge", 1.0)
+    assert synthetic_rig.mesh_note(fine, rig) is None
