@@ -283,6 +283,12 @@ def generator_args(args):
                                + gen_only + args.gen)
 
 
+def loop_twin(sim_params, args):
+    """The twin the loop builds its drops with: the generator's, at `--twin-span-ms` when given (as calibrate's
+    twin_span sets a CAL.json's duration_ms); the sessions keep the generator's --duration-ms."""
+    return sim_params if args.twin_span_ms is None else replace(sim_params, duration_ms=args.twin_span_ms)
+
+
 def run(args) -> dict:
     from impactsense.commands.retrain import score
     from impactsense.data import load_session
@@ -291,6 +297,7 @@ def run(args) -> dict:
     man = loop_sessions.generate(gen_args)
     ref = load_session(Path(args.sessions) / "ref")
     sim_params = loop_sessions.twin_params(loop_sessions.base_params(gen_args, ref.rig), gen_args)
+    sim_params = loop_twin(sim_params, args)
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
     ref_model, _ = train_score(ref, args.trees, args.seed)
@@ -457,6 +464,10 @@ def parse(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--only", default=None)
+    ap.add_argument("--twin-span-ms", type=float, default=None,
+                    help="the span the loop's twins simulate (corrected twins, the twin's drops at new positions, the "
+                         "unchanged twin, the E scan), as calibrate's twin_span sets sim_params duration_ms; default: "
+                         "the generator's --duration-ms (the sessions themselves keep it)")
     ap.add_argument("--merge", nargs="+", default=None, metavar="BENCH_LOOP.json",
                     help="print the table of earlier runs' OUT/bench_loop.json (split runs), nothing recomputed")
     args, gen = ap.parse_known_args(argv)

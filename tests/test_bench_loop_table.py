@@ -101,3 +101,13 @@ def test_a_moved_disc_whose_measured_model_was_kept_is_held_to_the_measured_yard
     assert bench_loop.table(out) == 0                         # 4.7 <= 1.2 x 4.0 (the twin's 3.0 not the yardstick)
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("| delay | channel_delay[2] | 6.00"))
     assert "4.70 -> 4.70 (measured)" in line and "1.18 -> **1.18**" in line
+
+
+def test_the_twin_span_option_sets_the_loops_twin_and_leaves_the_sessions_generator_alone(tmp_path):
+    from impactsense.sim import SimParams
+
+    args = bench_loop.parse(["--twin-span-ms", "25.3", "--sessions", str(tmp_path)])
+    assert bench_loop.generator_args(args).duration_ms == bench_loop.generator_args(
+        bench_loop.parse(["--sessions", str(tmp_path)])).duration_ms   # the sessions' cache key unchanged
+    assert bench_loop.loop_twin(SimParams(duration_ms=10.0), args).duration_ms == 25.3
+    assert bench_loop.loop_twin(SimParams(duration_ms=10.0), bench_loop.parse([])).duration_ms == 10.0
