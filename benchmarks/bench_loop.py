@@ -3,7 +3,7 @@ changes of the twin's drops, and unchanged controls): named, size, the reference
 loop, and the unchanged sessions' MAE. One HTML report per diagnose in OUT/reports/<session>/report.html.
 
     python3 benchmarks/bench_loop.py [--sessions /tmp/impactsense-loop] [--out /tmp/impactsense-loop-bench]
-        [--trees 60] [--only NAME,NAME] [--seed 0] [any loop_sessions.py option]
+        [--trees 60] [--only NAME,NAME] [--seed 0] [--twin-span-ms S] [any loop_sessions.py option]
     python3 benchmarks/bench_loop.py --merge OUT1/bench_loop.json OUT2/bench_loop.json   (split runs)
 
 Models: the reference model is trained on all of `ref` (forests and physics localiser, no site map: a
