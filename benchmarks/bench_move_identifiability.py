@@ -178,22 +178,12 @@ def _prepared(sessions: Path, cache: bool):
     from impactsense import diagnose as D, residuals as R
     from impactsense.band_timing import band_picks
     from impactsense.data import load_session
-    from impactsense.site_reference import choose_picker, noise_floor_reference
 
     path = sessions / ".identifiability-ref.pkl"
     if cache and path.exists():
         ref, picker = pickle.loads(path.read_bytes())
     else:
-        baseline = load_session(sessions / "ref")
-        Fb = R.extract(baseline)
-        picker, _ = choose_picker(baseline, Fb)
-        if picker is not None:
-            Fb = R.repick(baseline, Fb, picker)
-        ref = R.fit_reference(Fb, "calibrated")
-        Fb, _ = D._with_band_picks(ref, baseline, Fb, baseline, Fb, picker)
-        site, sigma = noise_floor_reference(ref, Fb)
-        ref.sigma.update(sigma)
-        ref.site = site
+        ref, _, picker, _, _ = D.prepared_reference(load_session(sessions / "ref"))
         if cache:
             path.write_bytes(pickle.dumps((ref, picker)))
 

@@ -14,49 +14,25 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 
 def prepare(folder: Path) -> dict:
-    """The reference of diagnose(DIR/ref, ...), once: picker, band law, site terms, sigma, ICC."""
+    """The reference of diagnose(DIR/ref, ...), once (`diagnose.prepared_reference`)."""
     from impactsense import diagnose as D
-    from impactsense import residuals as R
-    from impactsense.band_timing import band_picks, band_setting, fit_band
     from impactsense.data import load_session
-    from impactsense.site_reference import choose_picker, noise_floor
 
-    base = load_session(folder / "ref")
-    Fb = R.extract(base)
-    picker, _ = choose_picker(base, Fb)
-    if picker is not None:
-        Fb = R.repick(base, Fb, picker)
-    ref = R.fit_reference(Fb, "calibrated")
-    band = band_setting(Fb, ref.slowness_us_per_mm)
-    if band is not None:
-        Fb = replace(Fb, toa_band_us=band_picks(base, picker, band))
-        fitted = fit_band(ref, Fb)
-        ref.band = None if fitted is None else {**fitted, "setting": band}
-    ref.probe = D.make_probe(base)
-    ref.probe["picker"] = picker
-    site, sigma, ref.case_icc = noise_floor(ref, Fb)
-    ref.sigma.update(sigma)
-    ref.site = site
-    return {"ref": ref, "picker": picker, "band": band, "site": site}
+    ref, _, picker, _, band = D.prepared_reference(load_session(folder / "ref"))
+    return {"ref": ref, "picker": picker, "band": band}
 
 
 def features(P: dict, folder: Path, name: str):
-    from impactsense import residuals as R
-    from impactsense.band_timing import band_picks
+    from impactsense import diagnose as D
     from impactsense.data import load_session
 
-    data = load_session(folder / name)
-    F = R.extract(data, P["picker"])
-    if P["band"] is not None:
-        F = replace(F, toa_band_us=band_picks(data, P["picker"], P["band"]))
-    return P["site"].attach(F)
+    return D.session_features(P["ref"], load_session(folder / name), P["picker"], P["band"])
 
 
 def names(P: dict, F, plain: bool = False) -> list[dict]:

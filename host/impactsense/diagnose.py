@@ -276,20 +276,43 @@ def _record_rivals(results, gains: dict, direction: dict, moved: set, case_id, b
             c.rival["shadow_of_sensor"] = c.shadow_of
 
 
-def _with_band_picks(ref, baseline: Session, Fb, data: Session, Fn, picker):
-    """(Fb, Fn) with the core's band picks (`band_timing`) and ref.band fitted on the baseline's."""
+def prepared_reference(baseline: Session):
+    """The reference diagnose fits on a baseline it diagnoses another session against: the picks `choose_picker`
+    chooses, the band picks (`band_timing`) and their law, the probe, the site terms at the noise floor with sigma and
+    the case ICC. Returns (ref, Fb, picker, picker_trials, band): band is the band picks' setting (None without)."""
     from dataclasses import replace
 
     from .band_timing import band_picks, band_setting, fit_band
+    from .site_reference import choose_picker, noise_floor
 
-    band = band_setting(Fb, ref.slowness_us_per_mm)
-    if band is None:
-        return Fb, Fn
-    Fb = replace(Fb, toa_band_us=band_picks(baseline, picker, band))
-    Fn = replace(Fn, toa_band_us=band_picks(data, picker, band))
-    fitted = fit_band(ref, Fb)
-    ref.band = None if fitted is None else {**fitted, "setting": band}
-    return Fb, Fn
+    Fb = R.extract(baseline)
+    picker, picker_trials = choose_picker(baseline, Fb)   # the picks whose reference explains held-out drops best
+    if picker is not None:
+        Fb = R.repick(baseline, Fb, picker)
+    ref = R.fit_reference(Fb, "calibrated")
+    band = band_setting(Fb, ref.slowness_us_per_mm)   # a move shifts band and threshold picks by their own slowness
+    if band is not None:
+        Fb = replace(Fb, toa_band_us=band_picks(baseline, picker, band))
+        fitted = fit_band(ref, Fb)
+        ref.band = None if fitted is None else {**fitted, "setting": band}
+    ref.probe = make_probe(baseline)
+    ref.probe["picker"] = picker
+    site, sigma, ref.case_icc = noise_floor(ref, Fb)   # the site terms ride with both sessions' features
+    ref.sigma.update(sigma)
+    ref.site = site
+    return ref, Fb, picker, picker_trials, band
+
+
+def session_features(ref: R.Reference, data: Session, picker, band):
+    """A session's features as diagnose reads them against prepared_reference's ref: its picks, band picks, site terms."""
+    from dataclasses import replace
+
+    from .band_timing import band_picks
+
+    Fn = R.extract(data, picker)
+    if band is not None:
+        Fn = replace(Fn, toa_band_us=band_picks(data, picker, band))
+    return ref.site.attach(Fn)
 
 
 def _move_where_a_constant_is_rejected(results, direction: dict, move_bound: float, unabsorbed: dict,
@@ -413,25 +436,15 @@ def diagnose(baseline: Session, data: Session, progress=None, same: bool | None 
     """The whole loop. Returns (result dict in the JSON schema of issue 5, details for the report)."""
     if same is None:
         same = Path(baseline.path).resolve() == Path(data.path).resolve() and len(baseline) == len(data)
-    Fb = R.extract(baseline)
-    picker, picker_trials = None, []
-    if not same:   # the picks whose reference explains the baseline's held-out drops best
-        from .site_reference import choose_picker
-        picker, picker_trials = choose_picker(baseline, Fb)
-        if picker is not None:
-            Fb = R.repick(baseline, Fb, picker)
-    Fn = Fb if same else R.extract(data, picker)
-    ref = R.fit_reference(Fb, "nominal" if same else "calibrated")
-    if not same:   # the band picks beside the threshold picks: a move shifts each by its own slowness
-        Fb, Fn = _with_band_picks(ref, baseline, Fb, data, Fn, picker)
-    ref.probe = make_probe(baseline)
-    ref.probe["picker"] = picker
-    if not same:   # the reference at the noise floor: its site terms ride with both sessions' features
-        from .site_reference import noise_floor
-        site, sigma, ref.case_icc = noise_floor(ref, Fb)
-        ref.sigma.update(sigma)
-        ref.site = site
-        Fn = site.attach(Fn)
+    if same:   # the first loop: the nominal reference on the session's own picks
+        Fb = Fn = R.extract(baseline)
+        picker, picker_trials = None, []
+        ref = R.fit_reference(Fb, "nominal")
+        ref.probe = make_probe(baseline)
+        ref.probe["picker"] = picker
+    else:
+        ref, Fb, picker, picker_trials, band = prepared_reference(baseline)
+        Fn = session_features(ref, data, picker, band)
     before = R.metrics(ref, Fn)
     unabsorbed: dict = {}
     accepted, final, last_round = select(ref, Fn, progress, unabsorbed=unabsorbed)
