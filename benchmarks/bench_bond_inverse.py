@@ -12,7 +12,11 @@ NAME. Variants (comma list):
 - truth: the training drops' bond and the inverse both the session's true one-pole (the manifest's), f2 as base;
 - truthinv: fit_bond's bond in the training drops, the inverse the true one-pole's;
 - spectral: the one-pole sized by `spectral_one_pole` (the bonded channel's spectrum against the
-  reference's at the same positions, the other channels' ratio taken out) in the training drops and the inverse.
+  reference's at the same positions, the other channels' ratio taken out) in the training drops and the inverse;
+- pX[oN]: base's inverse (fc, g, f2) applied to the whole record in Python (`prefiltered`) and then N (default 1)
+  one-poles at f3 = X x the other channels' pick frequency, on the training drops and on NAME alike, fed to the
+  core as a plain channel (its inverse off); p0: the inverse alone (base on the whole record instead of the span)
+  (docs/findings.md "Session 27: bondloop").
 
 Per variant printed: MAE per axis (mm) and its ratio to UNCHANGED (the reference model's mean on same-1..3, given
 or measured), and the bonded channel's pick lag (onset less travel less the other channels' mean, the model's
@@ -124,6 +128,27 @@ def with_bond(accepted, ch: int, fc: float, gain: float) -> list:
                    Candidate("sensor_gain", ch, {"gain": gain, "noise_kept": True}, **common)]
 
 
+def prefiltered(session, ch: int, fc_hz: float, gain: float, f2_hz: float, f3_hz: float, order: int = 1):
+    """The session with channel ch through the bond's inverse up to f2 (as the core's, on the whole record) and
+    then `order` analogue one-poles at f3 (0: none), both bilinear (unwarped, as the core's inverse), rounded to
+    counts: a prototype of a roll-off after the inverse (the amplifier noise the lift raises by f2 / (fc g) above
+    f2, up to fs / 2, cut above the band the picks ride), fed to the core as a plain channel."""
+    from scipy import signal as ss
+
+    fs = float(session.rig.fs_hz)
+    a = np.asarray(session.adc, float).copy()
+    x = a[:, ch]
+    x0 = x[:, :1].copy()
+    b, den = ss.bilinear([1.0 / (2 * np.pi * fc_hz), 1.0], [gain / (2 * np.pi * f2_hz), gain], fs)
+    y = ss.lfilter(b, den, x - x0, axis=-1)
+    if f3_hz > 0.0:   # the analogue one-pole 1 / (1 + s / w3), bilinear as the inverse (a zero at fs / 2), `order` times
+        bb, aa = ss.bilinear([1.0], [1.0 / (2 * np.pi * f3_hz), 1.0], fs)
+        for _ in range(order):
+            y = ss.lfilter(bb, aa, y, axis=-1)
+    a[:, ch] = y + x0
+    return dataclasses.replace(session, adc=np.clip(np.floor(a + 0.5), 0, session.rig.adc_max).astype(session.adc.dtype))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sessions")
@@ -192,11 +217,22 @@ def main() -> int:
                 fc_s, g_s = spectral_one_pole(ref, sess, ch)
                 print(f"  spectral one-pole {fc_s:.0f} Hz x{g_s:.3f}")
                 effects, tag = with_bond(accepted, ch, fc_s, g_s), "spectral"
+            elif var.startswith("p"):   # pX[oN]: the inverse as a prefilter, then N one-poles at X x the pick frequency
+                x_of_pick, _, order = var[1:].partition("o")
+                inv = ("pre", float(x_of_pick), int(order or 1))
             elif var != "base":
                 raise SystemExit(f"unknown variant {var}")
             train_s = training(effects, tag)
             signal = pick_settings(train_s, effects, ref)
-            if inv is not None and inv[0] == "gain":
+            sess_v = sess
+            if inv is not None and inv[0] == "pre":
+                signal = dataclasses.replace(signal)
+                fc, g2, f2 = (list(v)[ch] for v in (signal.bond_corner_hz, signal.bond_gain, signal.bond_limit_hz))
+                f3 = inv[1] * f2 / bond_inverse.BOND_LIMIT_OF_PICK
+                signal.bond_corner_hz, signal.bond_gain, signal.bond_limit_hz = [0.0] * 4, [1.0] * 4, [0.0] * 4
+                train_s = prefiltered(train_s, ch, fc, g2, f2, f3, inv[2])
+                sess_v = prefiltered(sess, ch, fc, g2, f2, f3, inv[2])
+            elif inv is not None and inv[0] == "gain":
                 signal = dataclasses.replace(signal)
                 signal.channel_gain = [inv[1] if k == ch else v for k, v in enumerate(signal.channel_gain)]
             elif inv is not None and signal is not None:
@@ -205,12 +241,14 @@ def main() -> int:
                 signal.bond_gain = [inv[1] if k == ch else v for k, v in enumerate(signal.bond_gain)]
             model, _ = carry_delays(train(train_s, None, 0.0, args.seed, None, settings=settings, signal=signal,
                                           site_map=None), channel_delays(effects))
-            mae = score(sess, model)["mae_mm"]
-            res = lag_residual(train_s, sess, model.signal)
+            mae = score(sess_v, model)["mae_mm"]
+            res = lag_residual(train_s, sess_v, model.signal)
             own = lag_residual(train_s, train_s, model.signal)
-            f2 = list(model.signal.bond_limit_hz)[ch]
-            fc = list(model.signal.bond_corner_hz)[ch]
-            print(f"  {var}: inverse fc {fc:.0f} f2 {f2:.0f} Hz; MAE {mae:.2f} mm ({mae / unchanged:.3f} x unchanged "
+            if sess_v is sess:
+                f2 = list(model.signal.bond_limit_hz)[ch]
+                fc = list(model.signal.bond_corner_hz)[ch]
+            roll = f", roll-off {f3:.0f} Hz x{inv[2]}" if sess_v is not sess else ""
+            print(f"  {var}: inverse fc {fc:.0f} f2 {f2:.0f} Hz{roll}; MAE {mae:.2f} mm ({mae / unchanged:.3f} x unchanged "
                   f"{unchanged:.2f}); lag less the training cubic, mean/rms us: "
                   + ", ".join(f"ch{k}{'*' if k == ch else ''} {m:+.1f}/{r:.1f}" for k, (m, r) in enumerate(res))
                   + "; the training drops' own rms: " + ", ".join(f"{r:.1f}" for _, r in own)
