@@ -1,8 +1,8 @@
 """`impactsense record --port PORT --out DIR`: raw captures from the board into a session folder.
 
-Every capture is on disk as it arrives (a journal beside DIR, fsync'd in batches); on max events, Ctrl-C, an
-error or an unplugged board the captures so far become the session folder DIR (rig.json's notes mark it
-incomplete unless --max-events were recorded). After a crash the next `record --out DIR` saves the journal's
+Every capture is on disk as it arrives (a journal beside DIR, fsync'd in batches); on max events, Ctrl-C or
+`kill` (SIGINT or SIGTERM, also when started in the background), an error or an unplugged board the captures
+so far become the session folder DIR (rig.json's notes mark it incomplete unless --max-events were recorded). After a crash the next `record --out DIR` saves the journal's
 captures first. impacts.csv gets the true position and height of each drop from --truth CSV, --ask, or
 --x-mm/--y-mm/--height-mm, or leaves them empty (unknown): never the board's estimate (that goes to
 board_reports.csv)."""
@@ -32,9 +32,8 @@ def run(args) -> int:
 
     from ..data import load_rig, load_session
     from ..errors import ConfigError
-    from ..link.journal import CaptureJournal, journal_path
-    from ..link.record import ask_truth, finish_session, read_truth_csv, record
-    from ..link.transport import open_serial
+    from ..link.journal import journal_path
+    from ..link.record import finish_session, read_truth_csv, stopped_by_signals
     from ..outputs import check_output_folder
 
     fixed = {k: getattr(args, k) for k in ("x_mm", "y_mm", "height_mm") if getattr(args, k) is not None}
@@ -54,6 +53,19 @@ def run(args) -> int:
               "a new recording", file=sys.stderr)
         return 1
     rig = load_rig(args.rig) if args.rig else load_session(None).rig
+    with stopped_by_signals():   # Ctrl-C / kill stop the recording, whatever this process inherited
+        return _record(args, rig, journal, how, rows, fixed)
+
+
+def _record(args, rig, journal, how, rows, fixed) -> int:
+    """Opens the port, records into the journal until a stop, and saves the journal as the session folder."""
+    import sys
+
+    from ..errors import ConfigError
+    from ..link.journal import CaptureJournal
+    from ..link.record import ask_truth, finish_session, record
+    from ..link.transport import open_serial
+
     try:
         port = open_serial(args.port, args.baud)
     except Exception as exc:  # noqa: BLE001  (pyserial raises several types)
