@@ -2,10 +2,10 @@
 
 Every capture is on disk as it arrives (a journal beside DIR, fsync'd in batches); on max events, Ctrl-C or
 `kill` (SIGINT or SIGTERM, also when started in the background), an error or an unplugged board the captures
-so far become the session folder DIR (rig.json's notes mark it incomplete unless --max-events were recorded). After a crash the next `record --out DIR` saves the journal's
-captures first. impacts.csv gets the true position and height of each drop from --truth CSV, --ask, or
---x-mm/--y-mm/--height-mm, or leaves them empty (unknown): never the board's estimate (that goes to
-board_reports.csv)."""
+so far become the session folder DIR (rig.json's notes mark it incomplete unless --max-events were recorded).
+After a crash the next `record --out DIR` saves the journal's captures first. impacts.csv gets the true position
+and height of each drop from --truth CSV, --ask, or --x-mm/--y-mm/--height-mm, or leaves them empty (unknown):
+never the board's estimate (that goes to board_reports.csv)."""
 
 ORDER = 63
 
