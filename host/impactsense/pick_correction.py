@@ -54,7 +54,10 @@ def pick_errors(raw: dict, signal, xy_mm: np.ndarray, pick_set: str) -> np.ndarr
     toa, use, scale, v = pick_set_arrivals(raw, signal, pick_set)
     resid = toa - travel_distances(np.asarray(xy_mm, float), signal.sensor_xy_mm, _metric(signal, pick_set)) * scale / v
     resid = np.where(use, resid, np.nan)
-    return resid - np.nanmedian(resid, 1, keepdims=True)
+    centre = np.full((len(resid), 1), np.nan)
+    some = np.isfinite(resid).any(1)   # a drop with no pick in this set (e.g. no band pick on a low drop): NaN
+    centre[some] = np.nanmedian(resid[some], 1, keepdims=True)
+    return resid - centre
 
 
 def _forest(X: np.ndarray, y: np.ndarray, seed: int, trees: int = PICK_TREES):
