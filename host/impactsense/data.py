@@ -78,6 +78,9 @@ class Rig:
     # The board's analog anti-alias low-pass before its ADC (rig.json `board_front_end`): (corner Hz, poles) of a
     # Butterworth, None when none is declared (board.front_end; the lab logger's recordings are taken without it).
     board_anti_alias: tuple[float, int] | None = field(default=None, compare=False, repr=False)
+    # Where the session's recordings saturate inside the ADC's rails, (low, high) counts, measured by load_session
+    # (signal.saturation_counts); None: at the rails (the core's clipping rails are the ADC's).
+    saturation_counts: tuple[int, int] | None = field(default=None, compare=False, repr=False)
 
     @property
     def sensor_x_mm(self) -> np.ndarray:
@@ -455,6 +458,9 @@ def load_session(path: str | os.PathLike | None = None) -> Session:
         from .signal import quiet_start_samples
 
         rig = replace(rig, pretrigger_samples=quiet_start_samples(adc, rig))
+    from .signal import saturation_counts
+
+    rig = replace(rig, saturation_counts=saturation_counts(adc, rig))
     return Session(path=path, rig=rig, adc=adc, **imp)
 
 
