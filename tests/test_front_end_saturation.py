@@ -50,6 +50,14 @@ def test_saturation_inside_the_rails_is_found_and_nothing_otherwise():
     # a front end whose swing ends 1,850 counts from the bias: its flat tops
     low, high = saturation_counts(_drops(amp, rng, swing=1850.0), rig)
     assert high == 2048 + 1850 and low == 2048 - 1850
+    # a coarse oversampled logger (8 bits at 1 MHz, a 2 kHz ring to 0.85 of its range): its smooth peaks repeat a
+    # level for many samples, but creep up to it
+    t = np.arange(4000) / 1e6
+    ring = 0.85 * 127 * np.sin(2 * np.pi * 2000.0 * t[None, None, :] + np.arange(4)[None, :, None])
+    coarse = np.clip(np.rint(128 + ring * np.linspace(0.8, 1.0, 12)[:, None, None]
+                             + rng.normal(0, 0.4, (12, 4, 4000))), 0, 255).astype(np.uint16)
+    coarse[..., :200] = np.clip(np.rint(128 + rng.normal(0, 0.4, (12, 4, 200))), 0, 255)
+    assert saturation_counts(coarse, _rig(adc_bits=8, bias_counts=128, fs_hz=1000000, samples=4000)) is None
     # a single flat-topped record is not a saturation level (SATURATION_MIN_RECORDS)
     one = _drops(np.r_[4000.0, np.full(11, 500.0)], rng, swing=1850.0)
     assert saturation_counts(one, rig) is None

@@ -153,7 +153,7 @@ def quiet_start_samples(adc, rig) -> int | None:
 
 # A front end that saturates inside the ADC's range (an amplifier whose output swing ends before the converter's
 # full scale; a gain trimmed after the converter) holds a flat top there: SATURATION_RUN equal samples in a row at
-# a record's extreme, at least SATURATION_ROOM_SHARE of the way from the record's level before the hit to the
+# a record's extreme (entered by a step: SATURATION_STEP_NOISE), at least SATURATION_ROOM_SHARE of the way from the record's level before the hit to the
 # rail. The core flags clipping at its rails (adc_min / adc_max) and takes samples past them as at them; a session
 # whose records show such flat tops on at least SATURATION_MIN_RECORDS records has its rails there (the lowest top,
 # the highest bottom): those drops' channels are then flagged clipped, as at the ADC's own rails, and their
@@ -164,13 +164,21 @@ SATURATION_MIN_RECORDS = 2
 SATURATION_LEVEL_SAMPLES = 16   # the record's level before the hit: the median of its first samples
 
 
-def _flat_extreme(adc: np.ndarray, extreme: np.ndarray) -> np.ndarray:
-    """[R, C] whether each record holds SATURATION_RUN equal samples in a row at `extreme` [R, C]."""
+SATURATION_STEP_NOISE = 5.0   # ... entered by a step: the sample before the run this many noise sd (at least a
+# count) from it; a smooth peak's top on a coarse oversampled logger (8 bits at 1 MHz) repeats a level too, but
+# creeps up to it a count at a time
+
+
+def _flat_extreme(adc: np.ndarray, extreme: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """[R, C] whether each record holds SATURATION_RUN equal samples in a row at `extreme` [R, C], entered from a
+    sample at least `step` [R, C] counts away from it."""
     at = adc == extreme[..., None]
     run = at[..., :at.shape[-1] - SATURATION_RUN + 1].copy()
     for k in range(1, SATURATION_RUN):
         run &= at[..., k:at.shape[-1] - SATURATION_RUN + 1 + k]
-    return run.any(axis=-1)
+    first = np.argmax(run, axis=-1)
+    before = np.take_along_axis(adc, np.maximum(first - 1, 0)[..., None], axis=-1)[..., 0]
+    return run.any(axis=-1) & (first > 0) & (np.abs(before - extreme) >= step)
 
 
 def saturation_counts(adc, rig) -> tuple[int, int] | None:
@@ -181,10 +189,12 @@ def saturation_counts(adc, rig) -> tuple[int, int] | None:
         return None
     top = int(rig.adc_max)
     a = adc.astype(np.int32)
-    level = np.median(a[..., :SATURATION_LEVEL_SAMPLES], axis=-1)
+    quiet = a[..., :SATURATION_LEVEL_SAMPLES]
+    level = np.median(quiet, axis=-1)
+    step = np.maximum(SATURATION_STEP_NOISE * quiet.std(axis=-1), 1.0)
     hi, lo = a.max(axis=-1), a.min(axis=-1)
-    flat_hi = _flat_extreme(a, hi) & (hi < top) & (hi - level >= SATURATION_ROOM_SHARE * (top - level))
-    flat_lo = _flat_extreme(a, lo) & (lo > 0) & (level - lo >= SATURATION_ROOM_SHARE * level)
+    flat_hi = _flat_extreme(a, hi, step) & (hi < top) & (hi - level >= SATURATION_ROOM_SHARE * (top - level))
+    flat_lo = _flat_extreme(a, lo, step) & (lo > 0) & (level - lo >= SATURATION_ROOM_SHARE * level)
     high = int(hi[flat_hi].min()) if flat_hi.any(axis=1).sum() >= SATURATION_MIN_RECORDS else top
     low = int(lo[flat_lo].max()) if flat_lo.any(axis=1).sum() >= SATURATION_MIN_RECORDS else 0
     return None if (low, high) == (0, top) else (low, high)
