@@ -123,8 +123,9 @@ def test_a_16_bit_loggers_twin_clips_at_its_rails_instead_of_stopping(session1):
     assert out.dtype == np.int16 and out[0, :, 15].tolist()[:2] == [32767, -32768]
     assert abs(int(out[0, 2, 15]) - round(params.circuit_gain * 65536 / rig16.vref)) <= 1
     rig12 = rig_from_dict({**session1.rig.to_dict(), "samples": 100})
+    to_adc(volts, params, rig12, clip=False)     # its typical drop (median channel peak) within int16: kept
     with pytest.raises(ConfigError, match="calibrate again"):
-        to_adc(volts, params, rig12, clip=False)
+        to_adc(volts * 2.0, params, rig12, clip=False)   # the typical drop past int16 itself
 
 
 def test_a_drop_next_to_a_sensor_past_int16_clips_when_the_twins_gain_fits_the_logger(session1):
@@ -146,4 +147,23 @@ def test_a_drop_next_to_a_sensor_past_int16_clips_when_the_twins_gain_fits_the_l
     out = to_adc(volts, params, rig14, clip=False)
     assert out[3, 1, 15] == 32767 and abs(int(out[0, 0, 15]) - (8192 + 2000)) <= 1
     with pytest.raises(ConfigError, match="typical simulated drop.*calibrate again"):
-        to_adc(volts * 20.0, params, rig14, clip=False)   # every drop past the 14-bit rails: the gain is wrong
+        to_adc(volts * 20.0, params, rig14, clip=False)   # every drop past int16 itself: the gain is wrong
+
+
+def test_a_hot_front_ends_typical_drop_past_the_rails_is_kept_whole(session1):
+    """mg-clip (a 14-bit logger whose gain the lab set on its low drops: most drops clip): the calibrated twin's
+    typical site-map drop peaked at 9,072 counts, past the 8,191 of the rails, as the measured drops do, and
+    simulate-dataset stopped after its virtual drops ("the twin's gain does not fit this logger"). The map keeps
+    such drops whole up to the int16 range; a drop past int16 still clips there."""
+    import numpy as np
+
+    from impactsense.sim import SimParams, to_adc
+
+    params = SimParams(pretrigger_samples=10)
+    rig14 = rig_from_dict({**session1.rig.to_dict(), "adc_bits": 14, "bias_counts": 8192, "samples": 100})
+    per_volt = params.circuit_gain * 2 ** 14 / rig14.vref
+    volts = np.zeros((20, 4, 50))
+    volts[:, :, 5] = 9072.0 / per_volt                  # typical drops past the 14-bit rails
+    volts[3, 1, 5] = 40000.0 / per_volt                 # one next to a sensor: past int16 with the bias
+    out = to_adc(volts, params, rig14, clip=False)
+    assert out[3, 1, 15] == 32767 and abs(int(out[0, 0, 15]) - (8192 + 9072)) <= 1
