@@ -141,6 +141,11 @@ def evaluate(session: Session, model: ImpactModel, rows: np.ndarray | None = Non
         "energy_threshold_j": model.energy_threshold_j,
         "high_energy_fraction": float(label.mean()),
         "clipped_drops": int(feats.clipped.any(1).sum()),
+        # drops with no position, and of them those clipped on every channel with an onset (a twin model's match
+        # reads no energy there: the core's "clipped" reason, impactcore.h kErrClipped)
+        "not_placed": int((~ok).sum()),
+        "not_placed_every_channel_clipped": int((~ok & feats.clipped.any(1)
+                                                 & (feats.clipped | feats.no_onset | feats.dead).all(1)).sum()),
         "inner_region_mm": list(region),
     }
     # per channel, the drops whose report calls it inconsistent and leaves it out (the twin's misfit or, without a

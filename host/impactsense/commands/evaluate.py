@@ -69,6 +69,12 @@ def run(args) -> int:
     print(f"{session.name}: {report['scope']}: n = {report['n']}, accepted {report['accepted']}, "
           f"rejected {report['rejected']} (Eq. 35)")
     print(report_table(report))
+    if report.get("not_placed"):
+        clipped = report.get("not_placed_every_channel_clipped", 0)
+        why = (f"; {clipped} of them clipped on every channel with an onset: the twin's site map matches energies "
+               f"and none of theirs can be read" if clipped else "")
+        print(f"not placed: {report['not_placed']} of {report['n']} drops have no position (the figures above are "
+              f"over the other {report['predicted']}){why}")
     unclassed = report["predicted"] - report["classified"]
     if unclassed:
         print(f"energy class: {unclassed} of {report['predicted']} placed drops have none (class acc. is over the "
