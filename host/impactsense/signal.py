@@ -200,6 +200,16 @@ def saturation_counts(adc, rig) -> tuple[int, int] | None:
     return None if (low, high) == (0, top) else (low, high)
 
 
+def measured_on_recordings(adc, rig):
+    """`rig` with what a session's recordings [R, C, S] say about its acquisition: their quiet start where rig.json
+    does not declare it (`quiet_start_samples`), where they saturate (`saturation_counts`)."""
+    from dataclasses import replace
+
+    if rig.pretrigger_samples is None:
+        rig = replace(rig, pretrigger_samples=quiet_start_samples(adc, rig))
+    return replace(rig, saturation_counts=saturation_counts(adc, rig))
+
+
 # The core's defaults in ADC counts (impactcore.h) are those of the reference logger (12 bits over 3.3 V, the
 # board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
 REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
@@ -365,4 +375,4 @@ SignalConfig.__module__ = __name__
 __all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
            "channel_delays_us", "config_dict", "core_offset", "core_samples", "counts_per_core_count",
            "core_config", "localiser_config", "rig_settings", "settings", "baseline_for_pretrigger",
-           "quiet_start_samples", "record_start", "saturation_counts"]
+           "quiet_start_samples", "record_start", "saturation_counts", "measured_on_recordings"]
