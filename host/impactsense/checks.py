@@ -51,9 +51,7 @@ def check_rig(card: dict, rig: Rig, card_path, session_path) -> None:
     adc_max = signal.get("adc_max")
     if isinstance(adc_max, int):
         adc_max += int(signal.get("sample_offset", 0) or 0)   # the core's rails are after the re-centring
-    # a model's rails may sit inside the logger's (where its session saturated: signal.saturation_counts), never
-    # past them nor at half of them (a logger of another resolution)
-    if isinstance(adc_max, int) and not rig.adc_max / 2 < adc_max <= rig.adc_max:
+    if isinstance(adc_max, int) and adc_max != rig.adc_max:
         problems.append(f"a {rig.adc_bits}-bit logger but the model's ADC range is 0..{adc_max}")
     if problems:
         raise DataError(where, None, "the session's rig is not the model's (" + "; ".join(problems) + f"; model "

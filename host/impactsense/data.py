@@ -72,10 +72,9 @@ class Rig:
     vref: float
     bias_counts: int
     raw: dict = field(default_factory=dict, compare=False, repr=False)
-    # The recordings' quiet start (samples before the first arrival): rig.json's `pretrigger_samples`, else measured
-    # by load_session (None: not known); where they saturate inside the ADC's rails (signal.saturation_counts).
+    # The recordings' quiet start (samples before the first arrival): rig.json's `pretrigger_samples`, else
+    # what load_session measured on the session (None: not known; the core's baseline segment as declared).
     pretrigger_samples: int | None = field(default=None, compare=False, repr=False)
-    saturation_counts: tuple[int, int] | None = field(default=None, compare=False, repr=False)
     # The board's analog anti-alias low-pass before its ADC (rig.json `board_front_end`): (corner Hz, poles) of a
     # Butterworth, None when none is declared (board.front_end; the lab logger's recordings are taken without it).
     board_anti_alias: tuple[float, int] | None = field(default=None, compare=False, repr=False)
@@ -452,9 +451,10 @@ def load_session(path: str | os.PathLike | None = None) -> Session:
             bad = int(np.flatnonzero((v < 0) | (v > hi))[0])
             raise DataError(path / IMPACTS_FILE, col, f"line {bad + 2}: {v[bad]} lies off the plate")
     adc = _read_adc(path / RECORDINGS_FILE, rig, imp["recording_id"].size)
-    from .signal import measured_on_recordings
+    if rig.pretrigger_samples is None:
+        from .signal import quiet_start_samples
 
-    rig = measured_on_recordings(adc, rig)
+        rig = replace(rig, pretrigger_samples=quiet_start_samples(adc, rig))
     return Session(path=path, rig=rig, adc=adc, **imp)
 
 

@@ -81,14 +81,12 @@ def card_values(d: dict) -> dict:
 
 
 def rig_settings(rig) -> dict:
-    """What a rig's rig.json decides: sample rate, ADC rails (a 16-bit logger's re-centred, `core_offset`; where
-    its session's recordings saturate inside them, there: `saturation_counts`), the
+    """What a rig's rig.json decides: sample rate, ADC rails (a 16-bit logger's re-centred, `core_offset`), the
     count-valued defaults scaled to its ADC (`counts_per_core_count`), sensor and plate geometry, the rig's
     declared channel delays (optional key `rig_delay_us`, or `channel_delay_us`), where a record longer than
     the core reads begins the core's window (`record_start`)."""
     offset = core_offset(int(rig.adc_max))
-    low, high = getattr(rig, "saturation_counts", None) or (0, int(rig.adc_max))   # saturation_counts
-    d = {"fs_hz": float(rig.fs_hz), "adc_min": int(low) - offset, "adc_max": int(high) - offset,
+    d = {"fs_hz": float(rig.fs_hz), "adc_min": -offset, "adc_max": int(rig.adc_max) - offset,
          "sample_offset": offset,
          "sensor_x_mm": [float(v) for v in rig.sensor_x_mm], "sensor_y_mm": [float(v) for v in rig.sensor_y_mm],
          "plate_x_mm": float(rig.plate_x_mm), "plate_y_mm": float(rig.plate_y_mm)}
@@ -149,67 +147,6 @@ def quiet_start_samples(adc, rig) -> int | None:
     earliest = np.nanmin(np.where(np.isfinite(crossing), crossing, np.inf), axis=1)
     earliest = earliest[np.isfinite(earliest)]
     return int(np.percentile(earliest, QUIET_START_QUANTILE)) if earliest.size else None
-
-
-# A front end that saturates inside the ADC's range (an amplifier whose output swing ends before the converter's
-# full scale; a gain trimmed after the converter) holds a flat top there: SATURATION_RUN equal samples in a row at
-# a record's extreme (entered by a step: SATURATION_STEP_NOISE), at least SATURATION_ROOM_SHARE of the way from the record's level before the hit to the
-# rail. The core flags clipping at its rails (adc_min / adc_max) and takes samples past them as at them; a session
-# whose records show such flat tops on at least SATURATION_MIN_RECORDS records has its rails there (the lowest top,
-# the highest bottom): those drops' channels are then flagged clipped, as at the ADC's own rails, and their
-# energies left out where clipped ones are (docs/findings.md "Session 27: newuser8").
-SATURATION_RUN = 4
-SATURATION_ROOM_SHARE = 0.6
-SATURATION_MIN_RECORDS = 2
-SATURATION_LEVEL_SAMPLES = 16   # the record's level before the hit: the median of its first samples
-
-
-SATURATION_STEP_NOISE = 5.0   # ... entered by a step: the sample before the run this many noise sd (at least a
-# count) from it; a smooth peak's top on a coarse oversampled logger (8 bits at 1 MHz) repeats a level too, but
-# creeps up to it a count at a time
-
-
-def _flat_extreme(adc: np.ndarray, extreme: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """[R, C] whether each record holds SATURATION_RUN equal samples in a row at `extreme` [R, C], entered from a
-    sample at least `step` [R, C] counts away from it."""
-    at = adc == extreme[..., None]
-    run = at[..., :at.shape[-1] - SATURATION_RUN + 1].copy()
-    for k in range(1, SATURATION_RUN):
-        run &= at[..., k:at.shape[-1] - SATURATION_RUN + 1 + k]
-    first = np.argmax(run, axis=-1)
-    before = np.take_along_axis(adc, np.maximum(first - 1, 0)[..., None], axis=-1)[..., 0]
-    return run.any(axis=-1) & (first > 0) & (np.abs(before - extreme) >= step)
-
-
-def saturation_counts(adc, rig) -> tuple[int, int] | None:
-    """(low, high) in the rig's ADC counts where a session's recordings [R, C, S] saturate inside the ADC's rails
-    (flat tops, above), each the ADC's rail where none is seen; None when neither side shows one."""
-    adc = np.asarray(adc)
-    if adc.ndim != 3 or adc.shape[0] == 0 or adc.shape[2] < SATURATION_LEVEL_SAMPLES + SATURATION_RUN:
-        return None
-    top = int(rig.adc_max)
-    a = adc.astype(np.int32)
-    quiet = a[..., :SATURATION_LEVEL_SAMPLES]
-    level = np.median(quiet, axis=-1)
-    step = np.maximum(SATURATION_STEP_NOISE * quiet.std(axis=-1), 1.0)
-    hi, lo = a.max(axis=-1), a.min(axis=-1)
-    flat_hi = _flat_extreme(a, hi, step) & (hi < top) & (hi - level >= SATURATION_ROOM_SHARE * (top - level))
-    flat_lo = _flat_extreme(a, lo, step) & (lo > 0) & (level - lo >= SATURATION_ROOM_SHARE * level)
-    high = int(hi[flat_hi].min()) if flat_hi.any(axis=1).sum() >= SATURATION_MIN_RECORDS else top
-    low = int(lo[flat_lo].max()) if flat_lo.any(axis=1).sum() >= SATURATION_MIN_RECORDS else 0
-    return None if (low, high) == (0, top) else (low, high)
-
-
-def measured_on_recordings(adc, rig):
-    """`rig` with what a session's recordings [R, C, S] say about its acquisition: their quiet start where rig.json
-    does not declare it (`quiet_start_samples`), where they saturate (`saturation_counts`)."""
-    from dataclasses import replace
-
-    if rig.pretrigger_samples is None:
-        rig = replace(rig, pretrigger_samples=quiet_start_samples(adc, rig))
-    return replace(rig, saturation_counts=saturation_counts(adc, rig))
-
-
 # The core's defaults in ADC counts (impactcore.h) are those of the reference logger (12 bits over 3.3 V, the
 # board's SAADC and the bundled rig's); a rig with another ADC gets them scaled to the same volts.
 REFERENCE_ADC_BITS, REFERENCE_VREF = 12, 3.3
@@ -375,4 +312,4 @@ SignalConfig.__module__ = __name__
 __all__ = ["ConfigField", "CORE_FIELDS", "LOCALISER_FIELDS", "FIELDS", "LEGACY_NAMES", "SignalConfig", "card_values",
            "channel_delays_us", "config_dict", "core_offset", "core_samples", "counts_per_core_count",
            "core_config", "localiser_config", "rig_settings", "settings", "baseline_for_pretrigger",
-           "quiet_start_samples", "record_start", "saturation_counts", "measured_on_recordings"]
+           "quiet_start_samples", "record_start"]

@@ -100,8 +100,6 @@ def summarise(session) -> dict:
             for c in range(4)
         ],
         "usable_drops": int(feats.usable.sum()),
-        "saturation_counts": (None if session.rig.saturation_counts is None
-                              else [int(v) for v in session.rig.saturation_counts]),
         "record_window": window_check(session.rig, int(session.adc.shape[2]), session.rig.pretrigger_samples),
     }
 
@@ -184,11 +182,6 @@ def run(args) -> int:
     print(f"  (noise rms: the core's baseline segment; hum: 50/60 Hz amplitude over {s['hum_read_over']}, median "
           f"over the drops, @ the mains frequency that reads larger; '<F': under F, what the noise alone reads "
           f"there: no hum seen)")
-    if s["saturation_counts"] is not None:
-        lo, hi = s["saturation_counts"]
-        print(f"  (clipped: the recordings saturate inside the ADC's rails (0..{session.rig.adc_max}), flat tops at "
-              f"{lo} / {hi} counts: the front end's swing ends there; clipping is flagged from there, and those "
-              f"channels' energies are left out where clipped ones are)")
     if any(c["hum_counts"] is None for c in s["channels"]):
         span_ms = s["hum_read_span_ms"]
         print(f"  (hum n/a: {span_ms:.1f} ms of the record is too small a part of a mains period (20 ms at 50 Hz) to "

@@ -69,9 +69,6 @@ def run(args) -> int:
     site_map = start_site_map(args) if args.calibration and args.site_map else None
     how = f"{args.method} path" if (args.solver or params.solver) == "direct" else "modal solver"
     adc = to_adc(res["volts"], params, rig, noise=args.noise, seed=args.seed)
-    rails = (0, rig.adc_max)
-    if args.calibration:
-        adc, rails = through_saturation(adc, args.calibration, rails)
     elapsed = time.perf_counter() - t0
     raw = dict(rig.to_dict())
     raw["notes"] = (f"SIMULATED by impactsense simulate-dataset ({how}, seed {args.seed}); "
@@ -87,7 +84,7 @@ def run(args) -> int:
         extra[CALIBRATION_FILE] = calibration_record(args.calibration)
     out = write_session(args.out, raw, x, y, h, adc, force=args.force, extra_files=extra)
     peak = np.abs(adc.astype(int) - rig.bias_counts).max(axis=2)
-    clipped = np.mean((adc <= rails[0]) | (adc >= rails[1]), axis=2).max(axis=0) > 0
+    clipped = np.mean((adc == 0) | (adc == rig.adc_max), axis=2).max(axis=0) > 0
     print(f"{args.n} drops in {elapsed:.1f} s ({how}); mesh {summary['model']['nx']} x "
           f"{summary['model']['ny']}, dt {summary['model']['dt_us']:.3f} us")
     print("sensor  peak_median  peak_max  clipped")
@@ -139,39 +136,20 @@ def start_site_map(args):
     return finish
 
 
-def calibrated_session(cal_path):
-    """The session a calibration was fitted on, or None when it cannot be read."""
+def calibrated_heights(cal_path, default):
+    """The height range (mm) of the session a calibration was fitted on (sim.doe.measured_heights); `default`
+    when that session cannot be read."""
     from pathlib import Path
 
     from ..data import load_session
     from ..errors import DataError
+    from ..sim.doe import measured_heights
     from ..zeroshot import read_calibration
 
     data = read_calibration(Path(cal_path)).get("data")
     if not data:
-        return None
+        return default
     try:
-        return load_session(data)
+        return measured_heights(load_session(data))
     except DataError:
-        return None
-
-
-def calibrated_heights(cal_path, default):
-    """The height range (mm) of the session a calibration was fitted on (sim.doe.measured_heights); `default`
-    when that session cannot be read."""
-    from ..sim.doe import measured_heights
-
-    session = calibrated_session(cal_path)
-    return default if session is None else measured_heights(session)
-
-
-def through_saturation(adc, cal_path, rails):
-    """The virtual counts through the calibrated logger's front end: where the calibration session's recordings
-    saturate inside the ADC's rails (its rig's `saturation_counts`), the virtual ones saturate there too, so the
-    model trained on them reads its clipping where the measured drops have it (signal.saturation_counts).
-    Returns the counts and their rails (`rails` where the session does not saturate inside them)."""
-    import numpy as np
-
-    session = calibrated_session(cal_path)
-    sat = None if session is None else session.rig.saturation_counts
-    return (adc, rails) if sat is None else (np.clip(adc, sat[0], sat[1]).astype(adc.dtype), tuple(sat))
+        return default
