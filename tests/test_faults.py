@@ -290,3 +290,24 @@ def test_a_weak_channel_is_matched_with_and_without_it_and_flagged():
     xy3 = 2 * xyw - xy4
     assert np.mean(np.abs(xyw - xy4)) > 0.05                     # the three-channel match moved it
     assert np.mean(np.abs(xy3 - truth)) < 3 * np.mean(np.abs(xy4 - truth))
+
+
+def test_evaluate_counts_the_drops_a_twin_model_cannot_place_clipped_on_every_channel(twin_model):
+    """mg-clip (a hot front end: most drops clip on every channel): a twin model gives those drops no position (no
+    energy to match, the core's "clipped"), and evaluate's figures were over the others without saying so. The
+    report counts them (`not_placed`, `not_placed_every_channel_clipped`)."""
+    from dataclasses import replace
+
+    from impactsense.workflow import evaluate
+
+    model, held_out = twin_model
+    test = held_out.subset(np.arange(0, 12))
+    adc = test.adc.astype(np.int64)
+    hot = np.arange(0, 12, 3)                     # 4 drops driven 40x into the rails on every channel
+    bias = np.median(adc[hot, :, :50], axis=2, keepdims=True)
+    adc[hot] = np.clip(bias + 40 * (adc[hot] - bias), 0, test.rig.adc_max)
+    rep = evaluate(replace(test, adc=adc.astype(test.adc.dtype)), model, rows=np.arange(len(test)))
+    assert rep["not_placed"] == rep["n"] - rep["predicted"] == len(hot)
+    assert rep["not_placed_every_channel_clipped"] == len(hot)
+    clean = evaluate(test, model, rows=np.arange(len(test)))
+    assert clean["not_placed"] == 0 and clean["not_placed_every_channel_clipped"] == 0
