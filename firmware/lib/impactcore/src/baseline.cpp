@@ -6,6 +6,10 @@
 // what they could explain (the groups' weighted spread) does not already rule a hum out.
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
+#if defined(__ARM_FEATURE_DSP) && defined(__ARM_FEATURE_SIMD32) && !defined(__linux__)
+#include <arm_acle.h>
+#endif
 
 #include "impactcore.h"
 
@@ -118,6 +122,29 @@ void robust_level(const int16_t* x, const Sums* prefix, int n, int nb, Baseline*
 
 }  // namespace
 
+namespace {
+// sum over i in [a, e) of (2 i - (a + e - 1)) x[i], the part's first moment about its centre (the same int32 sum
+// either way; on the M4F two samples a SMLAD: the weights of a pair packed as two int16, stepped by 4 each).
+int32_t centred_moment(const int16_t* x, int a, int e) {
+  int32_t sxt = 0;
+  int i = a;
+#if defined(__ARM_FEATURE_DSP) && defined(__ARM_FEATURE_SIMD32) && !defined(__linux__)
+  if (e - a < 32768) {
+    const int32_t w0 = 2 * a - (a + e - 1);  // weight of x[a]; |w| < 2^15
+    uint32_t w = (static_cast<uint32_t>(static_cast<uint16_t>(w0 + 2)) << 16) | static_cast<uint16_t>(w0);
+    for (; i + 1 < e; i += 2) {
+      uint32_t pair;
+      memcpy(&pair, x + i, sizeof(pair));  // x[i] low, x[i + 1] high (little-endian)
+      sxt = __smlad(pair, w, sxt);
+      w = __sadd16(w, 0x00040004u);  // both weights + 4, each in its own halfword (|w| < 2^15: no wrap)
+    }
+  }
+#endif
+  for (; i < e; ++i) sxt += (2 * i - (a + e - 1)) * static_cast<int32_t>(x[i]);
+  return sxt;
+}
+}  // namespace
+
 float hum_noise_rms(const int16_t* x, const Baseline& b, int nb) {
   // robust_level: within_rms^2 (m - kBaselineParts) = sum over the kept parts of their squares about their
   // means. Each part's line takes Sxt^2 / Stt of that out, t = 2 i - (a + e - 1) (integers), Stt =
@@ -127,8 +154,7 @@ float hum_noise_rms(const int16_t* x, const Baseline& b, int nb) {
   for (int p = 0; p < kBaselineParts; ++p) {
     if (b.glitch_parts & (1 << p)) continue;
     const int a = nb * p / kBaselineParts, e = nb * (p + 1) / kBaselineParts, len = e - a;
-    int32_t sxt = 0;
-    for (int i = a; i < e; ++i) sxt += (2 * i - (a + e - 1)) * static_cast<int32_t>(x[i]);
+    const int32_t sxt = centred_moment(x, a, e);
     const float l = static_cast<float>(len), st = static_cast<float>(sxt);
     if (len > 1) explained += st * st / (l * (l * l - 1.0f) / 3.0f);
     m += len;
@@ -152,6 +178,15 @@ void HumBasis::set(float fs) {
     float sl, cl;
     sin_cos(0.5f * w[f] * static_cast<float>(kGroup), &sl, &cl);
     gain[f] = sh > 0.0f ? sl / (static_cast<float>(kGroup) * sh) : 1.0f;  // D: the group mean of a unit sinusoid
+    // a block's (the arguments as the hum channel's per-channel sin_cos took them: the same floats)
+    const float wf = w[f];
+    sin_cos(wf * static_cast<float>(kBlock), &blk_rs[f], &blk_rc[f]);
+    sin_cos(wf * static_cast<float>(kBlock - 1), &blk_ls[f], &blk_lc[f]);
+    sin_cos(wf * 0.5f * static_cast<float>(kBlock - 1), &blk_ms[f], &blk_mc[f]);
+    float bh, bch, bl, bcl;
+    sin_cos(0.5f * wf, &bh, &bch);
+    sin_cos(0.5f * wf * kBlock, &bl, &bcl);
+    blk_gain[f] = bh > 0.0f ? bl / (kBlock * bh) : 1.0f;
   }
 }
 

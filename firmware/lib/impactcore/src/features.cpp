@@ -426,14 +426,19 @@ struct HumSteps {
   int k;
   float c, s;                 // cos, sin of w k kBlock
   float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
-  void set(const Baseline& b) {
+  // the rotations from the event's basis (HumBasis: the rate's, computed once)
+  void set(const Baseline& b, const HumBasis& basis) {
     bl = &b;
     k = 0;
     c = 1.0f;
     s = 0.0f;
-    sin_cos(b.w * static_cast<float>(kBlock), &rs, &rc);
-    sin_cos(b.w * static_cast<float>(kBlock - 1), &ls, &lc);
-    sin_cos(b.w * 0.5f * static_cast<float>(kBlock - 1), &ms, &mc);
+    const int f = basis.index(b.w);
+    rs = basis.blk_rs[f];
+    rc = basis.blk_rc[f];
+    ls = basis.blk_ls[f];
+    lc = basis.blk_lc[f];
+    ms = basis.blk_ms[f];
+    mc = basis.blk_mc[f];
   }
   void next() {
     const float cn = c * rc - s * rs;
@@ -494,15 +499,12 @@ struct HumEnergy {
   }
   // steps (set for the onset scan): its rotation by w kBlock and its start w (kBlock - 1) / 2 are the
   // sin_cos this loop needs, the same arguments
-  IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level) {
+  IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level, const HumBasis& basis) {
     ch = &channel;
     bl = &b;
     base = level;
     d_block = -1;
-    float sh, chw, sl, cl;
-    sin_cos(0.5f * b.w, &sh, &chw);
-    sin_cos(0.5f * b.w * kBlock, &sl, &cl);
-    gain16 = sh > 0.0f ? sl / (kBlock * sh) : 1.0f;
+    gain16 = basis.blk_gain[basis.index(b.w)];
     const float rs = steps.rs, rc = steps.rc;
     float s = steps.ms, c = steps.mc;
     corr[0] = 0.0f;
@@ -537,10 +539,10 @@ struct HumEnergy {
   float to_block(int k) const { return ch->to_energy(ch->energy_to_block(k)) + corr[k]; }
   float to(int i) const {
     const int k = i / kBlock, m = i - k * kBlock;
-    float e = ch->to_energy(ch->energy_to(i)) + corr[k];
+    const Sums p = prefix_at(ch->x, ch->prefix, ch->n, i);  // Channel::energy_to's, read once
+    float e = ch->to_energy(ch->prefix_form(p.s2, p.s1, i)) + corr[k];
     if (m > 0) {
       const float d = block_d(k);
-      const Sums p = prefix_at(ch->x, ch->prefix, ch->n, i);
       const float dev = static_cast<float>(p.s1 - ch->prefix[k].s1) - m * base;
       e += d * (static_cast<float>(m) * d - 2.0f * dev);
     }
@@ -572,12 +574,18 @@ struct HumEnergy {
 constexpr int kLocalBlocks = 4;
 struct LocalHum {
   const Baseline* bl;
-  float r = 0.0f, slope = 0.0f, t = 0.0f;  // the line: value r at sample t, per-sample slope
+  // the line: value r at sample t, per-sample slope; fitted when read after a quiet block joined (a scan adds
+  // several before it reads the line: only the last kLocalBlocks count, so one fit serves them)
+  mutable float r = 0.0f, slope = 0.0f, t = 0.0f;
+  mutable bool stale = false;
   float rs[kLocalBlocks], ts[kLocalBlocks];
   int quiet = 0;                           // quiet blocks seen
   float model(float i) const { return with_hum(i, hum_at(*bl, i)); }
   // the model at sample i given hum_at(i) (HumSteps)
-  float with_hum(float i, float hum) const { return bl->level + hum + r + slope * (i - t); }
+  float with_hum(float i, float hum) const {
+    if (stale) fit();
+    return bl->level + hum + r + slope * (i - t);
+  }
   // block k is quiet: its residual joins the line; hum: hum_at at its centre (HumSteps::centre)
   void add_block(const Channel& ch, int k, float hum) {
     const int a = k * kBlock, e = ch.block_end(k);
@@ -587,6 +595,11 @@ struct LocalHum {
     rs[slot] = mean - bl->level - hum;
     ts[slot] = centre;
     ++quiet;
+    stale = true;
+  }
+  // the line through the last kLocalBlocks quiet blocks' residuals (their mean without a slope under three)
+  IC_NOINLINE void fit() const {
+    stale = false;
     const int m = quiet < kLocalBlocks ? quiet : kLocalBlocks;
     float st = 0.0f, sr = 0.0f;
     for (int j = 0; j < m; ++j) {
@@ -1059,7 +1072,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   local.bl = &bl;
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {
-    hum_e.steps.set(bl);
+    hum_e.steps.set(bl, *basis);
     cross = hum_crossing(ch, bl, thr, cfg.baseline_samples, &at, &spikes, &local, hum_e.steps, &hum_e.scan);
   } else {
     for (int from = cfg.baseline_samples;;) {
@@ -1074,7 +1087,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
 
   // Energy, peak and clipping over the whole capture.
   const int64_t energy_scaled = ch.energy_to_block(ch.nblk);
-  if (bl.hum) hum_e.build(ch, bl, base);
+  if (bl.hum) hum_e.build(ch, bl, base, *basis);
   const float energy = bl.hum ? hum_e.to_block(ch.nblk) : ch.to_energy(energy_scaled);
   // Below the threshold from baseline_samples to the crossing (peak_abs skips those blocks) only when no
   // transient was passed over and the baseline is the level.
@@ -1292,7 +1305,13 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
   const int16_t* ch_adc[kChannels];
   int ch_n[kChannels];
   int onsets = 0;
-  HumBasis basis;  // filled by the first channel whose hum is fitted
+  // The rate's hum basis, kept from event to event (filled when a hum is first fitted at this rate; the host's
+  // batches may run on several threads: one each).
+#if defined(__ARM_ARCH) && !defined(__linux__)
+  static HumBasis basis;
+#else
+  static thread_local HumBasis basis;
+#endif
   HuntWindow window[kChannels];
   bool bonded = false;
   float anchor = INFINITY;

@@ -358,14 +358,22 @@ struct Baseline {
   float w;            // rad per sample
   uint8_t hum;        // the hum is modelled
 };
-// What the hum fit needs of the sample rate alone (8 sin_cos), computed once per rate: set(fs) fills it,
-// fit_baseline calls set when fs_hz differs (a fresh HumBasis{} has fs_hz 0), so one event's channels
-// share it.
+// What the hum path needs of the sample rate alone (13 sin_cos a mains frequency), computed once per rate:
+// set(fs) fills it, fit_baseline calls set when fs_hz differs (a fresh HumBasis{} has fs_hz 0).
+// extract_features keeps one for the thread (the board: one), so events at one rate share it, and so do
+// their hum channels: the block rotations and a block mean's gain the onset scan and the energies about
+// the model step by (the same floats as a sin_cos of each argument per channel).
 struct HumBasis {
   float fs_hz = 0.0f;
-  float w[2], rot_c[2], rot_s[2], cg0[2], sg0[2], gain[2];  // per kMainsHz: rad/sample, a group's rotation,
-                                                             // group 0's phase, a group mean's gain
+  float w[2] = {}, rot_c[2] = {}, rot_s[2] = {}, cg0[2] = {}, sg0[2] = {},
+        gain[2] = {};  // per kMainsHz: rad/sample, a group's rotation, group 0's phase, a group mean's gain
+  // per kMainsHz, a block's: rotation by w kBlock, by w (kBlock - 1), by w (kBlock - 1) / 2, and the mean of
+  // a unit sinusoid over it (HumSteps, HumEnergy in features.cpp)
+  float blk_rc[2] = {}, blk_rs[2] = {}, blk_lc[2] = {}, blk_ls[2] = {}, blk_mc[2] = {}, blk_ms[2] = {},
+        blk_gain[2] = {};
   void set(float fs);
+  // the kMainsHz index of a fitted hum's w (w[0] or w[1])
+  int index(float w_hum) const { return w_hum == w[1] ? 1 : 0; }
 };
 // When a cheap bound on the fit rules the hum out (most clean captures), hum_hz, hum_amp, c0..c2 and w
 // stay 0 (they are read only when hum = 1).
