@@ -632,10 +632,18 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
     const int e = ch.block_end(k);
     return e - k * kBlock == kBlock ? hs.centre() : hum_at(bl, 0.5f * static_cast<float>(k * kBlock + e - 1));
   };
+  // a block's extremes (the unrolled pair scan for a whole block, as the peak scan reads them)
+  const auto extremes = [&](int a, int e, int32_t* lo, int32_t* hi) {
+    if (e - a == kBlock) {
+      block_extremes(ch.x + a, lo, hi);
+    } else {
+      range_extremes(ch.x, a, e, lo, hi);
+    }
+  };
   for (int k = 0; k < start / kBlock; ++k, hs.next()) {
     int32_t lo, hi;
     const int a = k * kBlock, e = ch.block_end(k);
-    range_extremes(ch.x, a, e, &lo, &hi);
+    extremes(a, e, &lo, &hi);
     scan->add(k, lo, hi);
     const float span = static_cast<float>(hi - lo);
     if (span < 2.0f * thr || span < 2.0f * thr + 2.0f * fabsf(hs.first() - hs.last())) local->add_block(ch, k, centre(k));
@@ -649,7 +657,7 @@ float hum_crossing(const Channel& ch, const Baseline& bl, float thr, int start, 
     const float ba = local->with_hum(static_cast<float>(a), whole ? hs.first() : hum_at(bl, static_cast<float>(a)));
     const float be = local->with_hum(static_cast<float>(e - 1), whole ? hs.last() : hum_at(bl, static_cast<float>(e - 1)));
     int32_t lo, hi;
-    range_extremes(ch.x, a, e, &lo, &hi);
+    extremes(a, e, &lo, &hi);
     if (a == k * kBlock) scan->add(k, lo, hi);
     const float blo = (ba < be ? ba : be) - 0.5f, bhi = (ba > be ? ba : be) + 0.5f;
     if (static_cast<float>(hi) - blo < thr && bhi - static_cast<float>(lo) < thr) {
