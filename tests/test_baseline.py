@@ -173,3 +173,21 @@ def test_a_spike_inside_the_arrival_leaves_the_energies(drops, size):
     other[r, c] = False
     for key in ("n2", "toa_us", "diff_energy", "window_energy", "flags"):
         np.testing.assert_array_equal(out[key][other], clean[key][other])
+
+
+def test_the_hum_basis_kept_between_events_follows_the_rate(drops):
+    """extract_features keeps the rate's hum basis (the mains frequencies' rotations) from event to event: events
+    at another rate in between (the basis made again for it) leave a hum channel's outputs bit for bit what they
+    were, and the hum at that other rate is modelled at its own frequency."""
+    s, adc, cfg = drops
+    hum100 = with_hum(adc[:8], 150, 50.0, 0.7, offset=20)
+    first = features(hum100, cfg)
+    assert np.all(first["flags"] & _core.FLAG_HUM)
+    # the same drops at half the rate with a 60 Hz hum: the basis is set for 50 kHz
+    t = np.arange(adc.shape[-1] // 2) / (FS / 2)
+    hum50 = np.clip(np.rint(adc[:8, :, ::2] + 150 * np.sin(2 * np.pi * 60.0 * t + 0.7)), 0, 4095).astype(np.int16)
+    other = features(np.ascontiguousarray(hum50), core_config(s.rig, fs_hz=FS / 2))
+    assert np.all(other["flags"] & _core.FLAG_HUM) and np.all(np.abs(other["hum_counts"] - 150) < 15)
+    again = features(hum100, cfg)
+    for k, v in first.items():
+        assert np.array_equal(np.asarray(v), np.asarray(again[k]), equal_nan=True), k
