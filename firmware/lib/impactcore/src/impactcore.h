@@ -358,7 +358,7 @@ struct Baseline {
   float w;            // rad per sample
   uint8_t hum;        // the hum is modelled
 };
-// What the hum path needs of the sample rate alone (13 sin_cos a mains frequency), computed once per rate:
+// What the hum path needs of the sample rate alone (9 sin_cos a mains frequency), computed once per rate:
 // set(fs) fills it, fit_baseline calls set when fs_hz differs (a fresh HumBasis{} has fs_hz 0).
 // extract_features keeps one for the thread (the board: one), so events at one rate share it, and so do
 // their hum channels: the block rotations and a block mean's gain the onset scan and the energies about
