@@ -6,7 +6,9 @@ Each NAME is diagnosed against DIR/ref exactly as `impactsense diagnose --baseli
 (the picker `choose_picker` chooses, the band picks, the site terms, the design effect of `case_correlation`),
 the reference's work done once for all names. Printed per session: the named effects with their held-out score,
 tempered score (over the design effects) and per-case p. --plain: also the names with the design effect off (the
-evidence rule's plain Markov half, as before Session 26). --move-fits: for each NAME that is a moved sensor
+evidence rule's plain Markov half, as before Session 26). --icc-only: also the names with the timing design
+effect of the ICC alone for every candidate (Session 26's rule, before each candidate's between-case share of the
+site terms' error, `case_correlation.timing_design_effect`). --move-fits: for each NAME that is a moved sensor
 (manifest truth), the move's fit on its session and on its `-control` session (the same drops without the move),
 and the error of each against the truth (docs/findings.md, Session 26 falsenames)."""
 
@@ -35,14 +37,21 @@ def features(P: dict, folder: Path, name: str):
     return D.session_features(P["ref"], load_session(folder / name), P["picker"], P["band"])
 
 
-def names(P: dict, F, plain: bool = False) -> list[dict]:
+def names(P: dict, F, plain: bool = False, icc_only: bool = False) -> list[dict]:
+    from impactsense import case_correlation as CC
     from impactsense import diagnose as D
 
     ref = P["ref"]
     if plain:
         ref = ref.copy()
         ref.case_icc = None
-    accepted, _, _ = D.select(ref, F)
+    shared = CC.off_case_site_cov
+    if icc_only:   # Session 26's rule: the timing design effect 1 + (m - 1) ICC for every candidate
+        CC.off_case_site_cov = lambda site, F: None
+    try:
+        accepted, _, _ = D.select(ref, F)
+    finally:
+        CC.off_case_site_cov = shared
     return [{"effect": c.effect, "sensor": c.sensor, "params": D._jsonable(c.params), "score": c.score,
              "tempered": c.tempered, "p_value": c.p_value} for c in accepted]
 
@@ -75,6 +84,8 @@ def main(argv=None) -> int:
     ap.add_argument("folder")
     ap.add_argument("names", help="comma-separated session names")
     ap.add_argument("--plain", action="store_true", help="also the names with the design effect off")
+    ap.add_argument("--icc-only", action="store_true",
+                    help="also the names with every candidate's timing design effect 1 + (m - 1) ICC (Session 26's rule)")
     ap.add_argument("--move-fits", action="store_true", help="the move's fit on a move session and its control")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
@@ -97,6 +108,9 @@ def main(argv=None) -> int:
             if args.plain:
                 row["named_plain"] = names(P, F, plain=True)
                 print(f"{name} (plain Markov half): {_fmt(row['named_plain'])}", flush=True)
+            if args.icc_only:
+                row["named_icc_only"] = names(P, F, icc_only=True)
+                print(f"{name} (design effect of the ICC alone): {_fmt(row['named_icc_only'])}", flush=True)
         out[name] = row
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))

@@ -63,3 +63,43 @@ def test_the_evidence_rule_reads_the_tempered_ratio():
     move = MD.own_evidence_scale("sensor_position")
     assert not D._evidence(14.8, 0.03, n, move, tempered=14.8 / 3.0)
     assert D._evidence(14.8, 0.03, n, move, tempered=14.8)           # no design effect: the scale's bound
+
+
+def _smooth_cases(rng, cases, m, tau2, k, length):
+    """Cases at random places on a unit square; each case's shared error is tau2 white plus a smooth part
+    (RBF of `length`, variance k) that neighbouring cases share; drops add unit-variance noise."""
+    xy = rng.uniform(0, 1, (cases, 2))
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+    Kc = k * np.exp(-0.5 * d2 / length ** 2)
+    case = np.repeat(np.arange(cases), m)
+    return xy, Kc, case, np.linalg.cholesky(Kc + tau2 * np.eye(cases) + 1e-9 * np.eye(cases))
+
+
+def test_a_signature_smooth_over_the_cases_carries_the_shared_error_between_cases_in_its_design_effect():
+    """The timing design effect of a candidate is the variance of its signature's projection of the error over
+    what independent drops would give: 1 + (m - 1) ICC plus the between-case share (off_case_site_cov's part).
+    Checked against the projection's variance over 4,000 draws: a signature smooth over the plate (a global
+    effect) picks up the shared error between cases; one that alternates between neighbouring cases does not
+    (its between-case share is negative; the rule keeps the ICC's design effect)."""
+    rng = np.random.default_rng(3)
+    cases, m, tau2, k = 40, 3, 0.4, 0.6
+    xy, Kc, case, L = _smooth_cases(rng, cases, m, tau2, k, 0.4)
+    sigma2 = 1.0 + tau2 + k
+    base = 1.0 + (m - 1) * (tau2 + k) / sigma2
+    off = np.where(case[:, None] == case[None, :], 0.0, Kc[case][:, case])
+    smooth = (xy[:, 0] - 0.5)[case][:, None]                       # a global, smooth signature
+    rough = np.where(np.argsort(np.argsort(xy[:, 0])) % 2 == 0, 1.0, -1.0)[case][:, None]
+    draws = 4000
+    e = (L @ rng.standard_normal((cases, draws)))[case] + rng.standard_normal((cases * m, draws))
+    def measured(delta):
+        return float(np.var(delta[:, 0] @ e)) / (sigma2 * float(np.sum(delta ** 2)))
+
+    predicted = CC.timing_design_effect(base, smooth, [off], np.sqrt(sigma2))
+    assert abs(measured(smooth) - predicted) < 0.1 * predicted, (measured(smooth), predicted)
+    assert predicted > 2 * base                                       # the ICC's design effect alone is far short
+    # a rough signature: the shared error between cases partly cancels; the rule keeps the ICC's design effect
+    # (it never tempers less than before), above what the projection measures
+    assert CC.timing_design_effect(base, rough, [off], np.sqrt(sigma2)) == base
+    assert measured(rough) < base
+    assert CC.timing_design_effect(base, smooth, None, 1.0) == base                      # no site terms: as before
+    assert CC.timing_design_effect(base, np.zeros_like(smooth), [off], 1.0) == base

@@ -75,3 +75,30 @@ def design_effects(icc: dict | None, case_id: np.ndarray) -> dict:
 def tempered(gain_groups: dict, deff: dict) -> np.ndarray:
     """The per-drop held-out gain with each group's part divided by its design effect."""
     return sum(v / deff.get(g, 1.0) for g, v in gain_groups.items())
+
+
+def off_case_site_cov(site, F: R.Features) -> list | None:
+    """Per channel, the site terms' posterior covariance of the ToA between drops of different cases ([R, R] µs²,
+    `site_reference.SiteTerms.toa_cov`; the same case's blocks zero: that share is in the ICC): how the reference's
+    error at the session's positions is shared between neighbouring cases. None without site terms."""
+    if site is None:
+        return None
+    case = np.asarray(F.case_id)
+    same = case[:, None] == case[None, :]
+    return [np.where(same, 0.0, site.toa_cov(F, c)) for c in range(4)]
+
+
+def timing_design_effect(base: float, delta: np.ndarray, cov: list | None, sigma_us: float) -> float:
+    """A candidate's timing design effect: base (1 + (m - 1) ICC) plus its signature's share of the reference's
+    error shared between cases, sum_c delta_c' K_c delta_c / (sigma^2 |delta|^2), with delta [R, 4] the candidate's
+    change of the drop-centred ToA residual at the session's drops (NaN rows left out) and K_c the off-case
+    posterior covariance of channel c (`off_case_site_cov`). Gaussian, linear signature: the held-out ratio S of a
+    candidate that is not there has E[exp(S / deff)] = 1 at deff = delta' Sigma delta / (sigma^2 |delta|^2)."""
+    if cov is None:
+        return base
+    d = np.where(np.isfinite(delta), delta, 0.0)
+    dd = float(np.sum(d * d))
+    if dd <= 0.0 or not sigma_us > 0:
+        return base
+    shared = sum(float(d[:, c] @ cov[c] @ d[:, c]) for c in range(d.shape[1]))
+    return base + max(shared, 0.0) / (sigma_us ** 2 * dd)

@@ -153,6 +153,17 @@ def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor, d
     return gain, fold_params, (float(tempered.sum()) if deff else None)
 
 
+def _candidate_deff(current: R.Reference, F: R.Features, name: str, sensor, params: dict, deff: dict | None,
+                    shared: list | None) -> dict | None:
+    """The design effects a candidate's held-out gain is tempered by: the groups' (`case_correlation.design_effects`)
+    with the timing group's raised by the candidate's own signature's share of the reference's error shared
+    between cases (`case_correlation.timing_design_effect`; docs/method.md section 6 (g))."""
+    if not deff or shared is None or "timing" not in deff:
+        return deff
+    delta = current.toa_resid(F) - EFFECTS[name].add(current, sensor, params).toa_resid(F)
+    return {**deff, "timing": CC.timing_design_effect(deff["timing"], delta, shared, current.sigma["timing"])}
+
+
 def build(ref: R.Reference, F: R.Features, chosen: list[tuple], sweeps: int = 4):
     """The reference with the chosen (effect, sensor) additions fitted jointly by backfitting: each one is
     refitted with all the others in place, a few sweeps (single-channel fits are otherwise biased by the
@@ -183,15 +194,17 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     last_round: list[Candidate] = []
     cands = [(n, s) for n, e in EFFECTS.items() for s in e.candidates()]
     deff = CC.design_effects(ref.case_icc, F.case_id) if ref.case_icc else None
+    shared = CC.off_case_site_cov(ref.site, F) if deff and "timing" in deff else None
     for round_ in range(max_effects):
         gains = {}
         results = []
         for name, sensor in cands:
             if progress:
                 progress(f"round {round_ + 1}: {name} {sensor}")
-            g, fp, gt = evaluate(current, F, folds, name, sensor, deff)
-            gains[(name, sensor)] = g
             params = EFFECTS[name].fit(current, F, sensor)
+            g, fp, gt = evaluate(current, F, folds, name, sensor,
+                                 _candidate_deff(current, F, name, sensor, params, deff, shared))
+            gains[(name, sensor)] = g
             p = _one_sided_p(_case_sums(g, F.case_id))
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
                                      bool(EFFECTS[name].material(params)), False, fp, tempered=gt))
