@@ -47,7 +47,7 @@ def names(P: dict, F, plain: bool = False, icc_only: bool = False) -> list[dict]
         ref.case_icc = None
     shared = CC.off_case_site_cov
     if icc_only:   # Session 26's rule: the timing design effect 1 + (m - 1) ICC for every candidate
-        CC.off_case_site_cov = lambda site, F: None
+        CC.off_case_site_cov = lambda site, F: None   # diagnose reads it through session_design_effects
     try:
         accepted, _, _ = D.select(ref, F)
     finally:

@@ -102,3 +102,23 @@ def timing_design_effect(base: float, delta: np.ndarray, cov: list | None, sigma
         return base
     shared = sum(float(d[:, c] @ cov[c] @ d[:, c]) for c in range(d.shape[1]))
     return base + max(shared, 0.0) / (sigma_us ** 2 * dd)
+
+
+def candidate_design_effects(deff: dict | None, before: R.Reference, after: R.Reference | None, F: R.Features,
+                             shared: list | None) -> dict | None:
+    """The design effects a candidate's held-out gain is tempered by (`diagnose.select`): the groups' (`design_effects`)
+    with the timing group's raised by the candidate's own signature's share of the error shared between cases
+    (`timing_design_effect`; delta = the change of the drop-centred ToA residual from `before` to `after`, the
+    reference with the candidate added at its fit on all drops; docs/method.md section 6 (g))."""
+    if not deff or shared is None or after is None or "timing" not in deff:
+        return deff
+    delta = before.toa_resid(F) - after.toa_resid(F)
+    return {**deff, "timing": timing_design_effect(deff["timing"], delta, shared, before.sigma["timing"])}
+
+
+def session_design_effects(ref: R.Reference, F: R.Features) -> tuple[dict | None, list | None]:
+    """(`design_effects` of ref's ICC at F's drops per case, `off_case_site_cov` of ref's site terms at F's drops);
+    (None, None) without an ICC (the plain bound)."""
+    if not ref.case_icc:
+        return None, None
+    return design_effects(ref.case_icc, F.case_id), off_case_site_cov(ref.site, F)

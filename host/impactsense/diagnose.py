@@ -132,11 +132,11 @@ def _own_evidence(c: Candidate, n_cands: int, plain: bool = False) -> bool:
     return _evidence(c.score, c.p_value, n_cands, scale, None if plain else c.tempered) and c.material
 
 
-def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor, deff: dict | None = None):
-    """Held-out per-drop log-likelihood gain of one candidate over `ref`, its per-fold params and (deff given:
-    per group, the design effect `case_correlation.design_effects`) the summed gain with each group's part
-    divided by its design effect (else None)."""
+def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor, deff=None, shared=None, params=None):
+    """Held-out per-drop log-likelihood gain of one candidate over `ref`, its per-fold params and (deff given) the summed
+    gain, each group's part over its design effect (the candidate's own: `case_correlation.candidate_design_effects`)."""
     eff = EFFECTS[effect_name]
+    deff = CC.candidate_design_effects(deff, ref, None if params is None else eff.add(ref, sensor, params), F, shared)
     gain = np.zeros(len(F))
     tempered = np.zeros(len(F))
     fold_params = []
@@ -151,17 +151,6 @@ def evaluate(ref: R.Reference, F: R.Features, folds, effect_name: str, sensor, d
         if deff:
             tempered[test] = CC.tempered(groups, deff)
     return gain, fold_params, (float(tempered.sum()) if deff else None)
-
-
-def _candidate_deff(current: R.Reference, F: R.Features, name: str, sensor, params: dict, deff: dict | None,
-                    shared: list | None) -> dict | None:
-    """The design effects a candidate's held-out gain is tempered by: the groups' (`case_correlation.design_effects`)
-    with the timing group's raised by the candidate's own signature's share of the reference's error shared
-    between cases (`case_correlation.timing_design_effect`; docs/method.md section 6 (g))."""
-    if not deff or shared is None or "timing" not in deff:
-        return deff
-    delta = current.toa_resid(F) - EFFECTS[name].add(current, sensor, params).toa_resid(F)
-    return {**deff, "timing": CC.timing_design_effect(deff["timing"], delta, shared, current.sigma["timing"])}
 
 
 def build(ref: R.Reference, F: R.Features, chosen: list[tuple], sweeps: int = 4):
@@ -193,8 +182,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
     current = ref
     last_round: list[Candidate] = []
     cands = [(n, s) for n, e in EFFECTS.items() for s in e.candidates()]
-    deff = CC.design_effects(ref.case_icc, F.case_id) if ref.case_icc else None
-    shared = CC.off_case_site_cov(ref.site, F) if deff and "timing" in deff else None
+    deff, shared = CC.session_design_effects(ref, F)   # per group; the site terms' error shared between cases
     for round_ in range(max_effects):
         gains = {}
         results = []
@@ -202,8 +190,7 @@ def select(ref: R.Reference, F: R.Features, progress=None, max_effects: int = MA
             if progress:
                 progress(f"round {round_ + 1}: {name} {sensor}")
             params = EFFECTS[name].fit(current, F, sensor)
-            g, fp, gt = evaluate(current, F, folds, name, sensor,
-                                 _candidate_deff(current, F, name, sensor, params, deff, shared))
+            g, fp, gt = evaluate(current, F, folds, name, sensor, deff, shared, params)
             gains[(name, sensor)] = g
             p = _one_sided_p(_case_sums(g, F.case_id))
             results.append(Candidate(name, sensor, params, float(g.sum()), p,
