@@ -149,6 +149,21 @@ def _captures(drops) -> tuple[list, list]:
     return caps, rows
 
 
+def continued_back(quiet: np.ndarray, lead: int) -> np.ndarray:
+    """`lead` samples before `quiet` (a record's quiet start [..., m]) that continue it forward in time into it:
+    its least-squares line (level and slope per channel: a hum or a drift goes on through the join with its own
+    phase and slope, no kink) extended back, plus its residual about that line mirrored back and forth (its noise,
+    no step). Float [..., lead]."""
+    q = np.asarray(quiet, np.float64)
+    m = q.shape[-1]
+    t = np.arange(m) - 0.5 * (m - 1)
+    mean = q.mean(-1, keepdims=True)
+    slope = (q * t).sum(-1, keepdims=True) / max(float((t * t).sum()), 1.0)
+    resid = q - mean - slope * t
+    noise = np.pad(resid, [(0, 0)] * (q.ndim - 1) + [(lead, 0)], mode="symmetric")[..., :lead]
+    return mean + slope * (np.arange(-lead, 0) - 0.5 * (m - 1)) + noise
+
+
 def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int, fs_hz: float,
                           baseline_samples: int = 64, pretrigger_frames: int = 0,
                           pretrigger_samples: int | None = None) -> np.ndarray:
@@ -160,7 +175,8 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
     (`pretrigger_frames` before its trigger, at fs_hz) would reach back past its baseline segment
     (`baseline_samples` frames) into the previous record is also led in by its quiet start: the board then seeks
     the onset on the record's own level, not on the step to the previous record's (records carry their own
-    offsets). Its capture then starts within the lead-in."""
+    offsets). Its capture then starts within the lead-in (continued_back: the quiet start's level, slope and
+    noise, so a hum runs on through it)."""
     adc = np.asarray(adc)
     n = adc.shape[-1]
     per_frame = float(fs_in_hz) / float(fs_hz)
@@ -170,9 +186,9 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
     lead = int(np.ceil((1.25 * pretrigger_frames + 16) * per_frame)) - int(pretrigger_samples) if short else 0
     if lead == 0 and n >= 2.0 * window:
         return adc
-    if lead:   # the quiet start mirrored back and forth (its noise and level, no step), as long as needed
+    if lead:   # the quiet start continued back (continued_back: its level, slope and noise), as long as needed
         quiet = adc[..., :max(2, int(BASELINE_SHARE_OF_PRETRIGGER * int(pretrigger_samples)))]
-        head = np.pad(quiet, [(0, 0)] * (adc.ndim - 1) + [(lead, 0)], mode="symmetric")[..., :lead]
+        head = np.rint(continued_back(quiet, lead)).astype(adc.dtype)
         adc = np.concatenate([head, adc], axis=-1)
     if n + lead >= 2.0 * window:
         return adc
@@ -197,7 +213,7 @@ def joined_without_steps(adc: np.ndarray, threshold_counts: float, per_frame: fl
     counts): fed as it is the step fires the trigger on the quiet start, and the capture's baseline then lies on
     the previous record's level, its onset at the step (a drop the board never sees). Where some join steps by
     JOIN_STEP_SHARE of the threshold or more, every record is led in by a raised-cosine crossfade from the
-    previous record's end level to its own quiet start (mirrored back), long enough for the
+    previous record's end level to its own quiet start continued back in time (continued_back), long enough for the
     largest step at JOIN_SLOPE_SHARE of the threshold a frame (per_frame: the record's samples a board frame);
     the first record's lead is its own quiet start. Records without such a step anywhere are returned as they
     are."""
@@ -212,7 +228,7 @@ def joined_without_steps(adc: np.ndarray, threshold_counts: float, per_frame: fl
         return adc
     lead = int(np.ceil(np.pi / 2 * step / (JOIN_SLOPE_SHARE * threshold_counts) * per_frame))
     quiet_n = max(2, int(BASELINE_SHARE_OF_PRETRIGGER * int(pretrigger_samples))) if pretrigger_samples else k
-    own = np.pad(x[..., :quiet_n], [(0, 0), (0, 0), (lead, 0)], mode="symmetric")[..., :lead]
+    own = continued_back(x[..., :quiet_n], lead)
     # record k's lead starts on record k-1's end level (not its samples: a plate may still ring there)
     before = np.concatenate([own[:1], np.broadcast_to(end[:-1, :, None], own[1:].shape)])
     w = 0.5 - 0.5 * np.cos(np.pi * (np.arange(lead) + 0.5) / lead)   # 0 -> 1: the previous end -> own start
