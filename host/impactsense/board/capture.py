@@ -149,19 +149,32 @@ def _captures(drops) -> tuple[list, list]:
     return caps, rows
 
 
-def continued_back(quiet: np.ndarray, lead: int) -> np.ndarray:
-    """`lead` samples before `quiet` (a record's quiet start [..., m]) that continue it forward in time into it:
-    its least-squares line (level and slope per channel: a hum or a drift goes on through the join with its own
-    phase and slope, no kink) extended back, plus its residual about that line mirrored back and forth (its noise,
-    no step). Float [..., lead]."""
+def _quiet_line(quiet: np.ndarray):
+    """A quiet start's least-squares line per channel: (level at its middle, slope a sample, residual, length)."""
     q = np.asarray(quiet, np.float64)
     m = q.shape[-1]
     t = np.arange(m) - 0.5 * (m - 1)
-    mean = q.mean(-1, keepdims=True)
+    level = q.mean(-1, keepdims=True)
     slope = (q * t).sum(-1, keepdims=True) / max(float((t * t).sum()), 1.0)
-    resid = q - mean - slope * t
-    noise = np.pad(resid, [(0, 0)] * (q.ndim - 1) + [(lead, 0)], mode="symmetric")[..., :lead]
-    return mean + slope * (np.arange(-lead, 0) - 0.5 * (m - 1)) + noise
+    return level, slope, q - level - slope * t, m
+
+
+def continued_back(quiet: np.ndarray, lead: int) -> np.ndarray:
+    """`lead` samples before `quiet` (a record's quiet start [..., m]) that run forward in time into it: its
+    least-squares line (level and slope per channel: a hum or a drift goes on through the join with its own phase
+    and slope, no kink) extended back over as long as the quiet start itself and held beyond (bounded by the
+    quiet start's own span), plus its residual about the line mirrored back and forth (its noise, no step).
+    Float [..., lead]."""
+    level, slope, resid, m = _quiet_line(quiet)
+    noise = np.pad(resid, [(0, 0)] * (resid.ndim - 1) + [(lead, 0)], mode="symmetric")[..., :lead]
+    t = np.maximum(np.arange(-lead, 0), -m) - 0.5 * (m - 1)
+    return level + slope * t + noise
+
+
+def held_level(quiet: np.ndarray) -> np.ndarray:
+    """The level continued_back holds beyond its quiet start's own span: [...]."""
+    level, slope, _, m = _quiet_line(quiet)
+    return (level + slope * (-m - 0.5 * (m - 1)))[..., 0]
 
 
 def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int, fs_hz: float,
@@ -203,35 +216,51 @@ def continued_for_capture(adc: np.ndarray, fs_in_hz: float, capture_frames: int,
 JOIN_STEP_SHARE = 1.0
 JOIN_SLOPE_SHARE = 1.0 / 32.0
 _LEVEL_SAMPLES = 8
+JOIN_QUIET_MARGIN = 16   # samples kept clear of a quiet start's first departure (an arrival's rise)
+
+
+def _quiet_lengths(x: np.ndarray, start: np.ndarray, quiet_n: int, threshold_counts: float) -> list[int]:
+    """Each record's quiet start [R, 4, n] -> its length: quiet_n samples, cut JOIN_QUIET_MARGIN samples before
+    the first where a channel leaves its start level (start [R, 4]) by half the trigger's threshold (an arrival
+    inside the declared quiet start: continued back it would put the drop into the lead-in)."""
+    away = np.abs(x[..., :quiet_n] - start[..., None]) >= 0.5 * threshold_counts
+    first = np.where(away.any(-1), away.argmax(-1), quiet_n).min(-1)
+    return [int(v) for v in np.clip(first - JOIN_QUIET_MARGIN, min(_LEVEL_SAMPLES, quiet_n), quiet_n)]
 
 
 def joined_without_steps(adc: np.ndarray, threshold_counts: float, per_frame: float,
-                         pretrigger_samples: int | None = None) -> np.ndarray:
+                         pretrigger_samples: int | None = None, reach_samples: int = 0) -> np.ndarray:
     """Records [R, 4, n] (in the order the stream takes them) joined as the board's continuous stream sees the
     plate between two drops: no step. Each record carries its own offsets (and a hum's phase), so record k's
     start may sit above record k-1's end by more than the trigger's threshold (threshold_counts, the rig's
     counts): fed as it is the step fires the trigger on the quiet start, and the capture's baseline then lies on
     the previous record's level, its onset at the step (a drop the board never sees). Where some join steps by
-    JOIN_STEP_SHARE of the threshold or more, every record is led in by a raised-cosine crossfade from the
-    previous record's end level to its own quiet start continued back in time (continued_back), long enough for the
+    JOIN_STEP_SHARE of the threshold or more, every record is led in by its own quiet start continued back in time
+    (continued_back: its level, slope and noise; a hum runs on with its own phase) over reach_samples (the
+    board's pre-trigger in the record's samples: as far back as a capture can reach), and before that by a
+    raised-cosine crossfade from the previous record's end level to that continuation, long enough for the
     largest step at JOIN_SLOPE_SHARE of the threshold a frame (per_frame: the record's samples a board frame);
-    the first record's lead is its own quiet start. Records without such a step anywhere are returned as they
-    are."""
+    the first record's lead is its own quiet start continued back. A capture so never holds the crossfade.
+    Records without such a step anywhere are returned as they are."""
     adc = np.asarray(adc)
     if adc.ndim != 3 or adc.shape[0] < 2 or not threshold_counts > 0:
         return adc
     k = min(_LEVEL_SAMPLES, adc.shape[-1])
     x = adc.astype(np.float64)
     start, end = x[..., :k].mean(-1), x[..., -k:].mean(-1)
-    step = np.abs(start[1:] - end[:-1]).max()
-    if step < JOIN_STEP_SHARE * threshold_counts:
+    if np.abs(start[1:] - end[:-1]).max() < JOIN_STEP_SHARE * threshold_counts:
         return adc
-    lead = int(np.ceil(np.pi / 2 * step / (JOIN_SLOPE_SHARE * threshold_counts) * per_frame))
     quiet_n = max(2, int(BASELINE_SHARE_OF_PRETRIGGER * int(pretrigger_samples))) if pretrigger_samples else k
-    own = continued_back(x[..., :quiet_n], lead)
+    quiet = [x[r, :, :n] for r, n in enumerate(_quiet_lengths(x, start, quiet_n, threshold_counts))]
+    held = np.stack([held_level(q) for q in quiet])
+    step = max(np.abs(held[1:] - end[:-1]).max(), JOIN_STEP_SHARE * threshold_counts)
+    fade = int(np.ceil(np.pi / 2 * step / (JOIN_SLOPE_SHARE * threshold_counts) * per_frame))
+    lead = fade + max(0, int(reach_samples))
+    own = np.stack([continued_back(q, lead) for q in quiet])
     # record k's lead starts on record k-1's end level (not its samples: a plate may still ring there)
     before = np.concatenate([own[:1], np.broadcast_to(end[:-1, :, None], own[1:].shape)])
-    w = 0.5 - 0.5 * np.cos(np.pi * (np.arange(lead) + 0.5) / lead)   # 0 -> 1: the previous end -> own start
+    w = np.ones(lead)
+    w[:fade] = 0.5 - 0.5 * np.cos(np.pi * (np.arange(fade) + 0.5) / fade)   # 0 -> 1: the previous end -> own
     head = np.rint((1.0 - w) * before + w * own).astype(adc.dtype)
     return np.concatenate([head, adc], axis=-1)
 
@@ -252,7 +281,9 @@ def board_frames(adc: np.ndarray, rig, app, fs_hz: int = 50000, adc_min: int = 0
                                 app.pretrigger_frames, rig.pretrigger_samples)
     if threshold_counts is None:
         threshold_counts = _core.TriggerConfig().threshold_counts * counts_per_core_count(rig)
-    adc = joined_without_steps(adc, float(threshold_counts), float(rig.fs_hz) / float(fs_hz), rig.pretrigger_samples)
+    per_frame = float(rig.fs_hz) / float(fs_hz)
+    adc = joined_without_steps(adc, float(threshold_counts), per_frame, rig.pretrigger_samples,
+                               int(np.ceil(app.pretrigger_frames * per_frame)))
     return board_samples(adc, rig.fs_hz, fs_hz, adc_max=rig.adc_max if adc_max is None else adc_max,
                          adc_min=adc_min, anti_alias=board_anti_alias(rig, fs_hz))
 
