@@ -8,8 +8,8 @@ Rows: the session as recorded; `inject --hum H --noise 2` (per record 0.5..1 x H
 of --lead samples before each record (the board's capture then starts inside the record, not in the stream's
 lead-in), without hum and with a hum of 0.5..1 x H continuous over the record and its lead. The emulator joins the
 recorded drops into one stream (board.capture.joined_without_steps: where a join steps by the trigger's threshold,
-each record is led in by its quiet start mirrored back); a record whose quiet start is shorter than the board's
-pre-trigger then puts that mirrored start, a hum turned back in time, into the capture's baseline segment.
+each record is led in by its quiet start continued back in time, the hum going on with its own phase, over as far as
+a capture reaches; a crossfade from the previous record before that). Compare the inject row with the continuous one.
 """
 
 from __future__ import annotations

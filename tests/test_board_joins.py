@@ -39,3 +39,39 @@ def test_a_step_as_large_as_the_threshold_is_crossfaded_slowly():
     for k in range(1, adc.shape[0]):
         assert abs(out[k, :, :8].mean() - adc[k - 1, :, -8:].mean()) < 1.0
         assert abs(out[k, :, lead - 8:lead].mean() - adc[k, :, :8].mean()) < 1.0
+
+
+def _hum_records(n_rec=3, n=600, quiet=200, amp=30.0, fs=100000.0, seed=1):
+    """Records with a 50 Hz hum of a random phase each (the joins then step) and a hit at `quiet`."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(-400, n) / fs   # 400 samples before each record: the hum as a continuous stream would have it
+    phase = rng.uniform(0, 2 * np.pi, (n_rec, 4, 1))
+    hum = amp * np.sin(2 * np.pi * 50.0 * t + phase) + 2048
+    x = hum + rng.normal(0.0, 0.5, hum.shape)
+    k = np.arange(n - quiet)
+    x[..., 400 + quiet:] += 400.0 * np.sin(k / 3.0) * np.exp(-k / 40.0)
+    return np.rint(x[..., 400:]).astype(np.int16), hum[..., :400]
+
+
+def test_a_hum_runs_on_through_the_lead_as_far_back_as_a_capture_reaches():
+    adc, hum_before = _hum_records()
+    reach = 96
+    out = joined_without_steps(adc, THR * 10, 2.0, 200, reach)
+    lead = out.shape[-1] - adc.shape[-1]
+    assert lead > reach
+    np.testing.assert_array_equal(out[:, :, lead:], adc)
+    near = out[:, :, lead - reach:lead].astype(float)   # what a capture can hold of the lead: the hum going on
+    # the hum as it was (not mirrored back): within the noise and the line's bend over 96 + 150 samples of a 50 Hz hum
+    # (30 x (2 pi 50 x 2.5 ms)^2 / 2 ~ 9 counts at most, most phases far less)
+    err = np.abs(near - hum_before[..., -reach:])
+    assert np.median(err) < 2.0 and err.max() < 10.0
+    mirrored = adc[..., :reach][..., ::-1].astype(float)
+    assert np.median(np.abs(mirrored - hum_before[..., -reach:])) > 3 * np.median(err)
+
+
+def test_an_arrival_inside_the_declared_quiet_start_stays_out_of_the_lead():
+    adc, _ = _hum_records(quiet=120)     # the hit 120 samples in: inside the 150 the quiet share would take
+    out = joined_without_steps(adc, THR * 10, 2.0, 200, 96)
+    lead = out.shape[-1] - adc.shape[-1]
+    head = out[:, :, :lead].astype(float)
+    assert np.abs(np.diff(head, axis=-1)).max() < 0.25 * 400.0   # no copy of the hit's swing (400 counts) in it
