@@ -2,10 +2,10 @@
 session as `impactsense inject` puts the hum in, and with the same amount of hum continuous through the board's
 capture.
 
-    python benchmarks/bench_board_hum.py [--data bundled:session-2] [--hum 50] [--lead 400]
+    python benchmarks/bench_board_hum.py [--data bundled:session-2] [--hum 50] [--hum-hz 50] [--noise 2] [--lead 400]
 
-Rows: the session as recorded; `inject --hum H --noise 2` (per record 0.5..1 x H at 50 Hz, random phase); a flat lead
-of --lead samples before each record (the board's capture then starts inside the record, not in the stream's
+Rows: the session as recorded; `inject --hum H --hum-hz F --noise N` (per record 0.5..1 x H at F Hz, random phase); a
+flat lead of --lead samples before each record (the board's capture then starts inside the record, not in the stream's
 lead-in), without hum and with a hum of 0.5..1 x H continuous over the record and its lead. The emulator joins the
 recorded drops into one stream (board.capture.joined_without_steps: where a join steps by the trigger's threshold,
 each record is led in by its quiet start continued back in time, the hum going on with its own phase, over as far as
@@ -28,6 +28,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="bundled:session-2")
     ap.add_argument("--hum", type=float, default=50.0, help="hum amplitude, counts (per channel 0.5..1 x)")
+    ap.add_argument("--hum-hz", type=float, default=50.0, help="mains frequency, Hz")
+    ap.add_argument("--noise", type=float, default=2.0, help="white noise the inject row adds, counts rms")
     ap.add_argument("--lead", type=int, default=400, help="flat samples put before each record")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -49,17 +51,18 @@ def main() -> int:
     def continuous(amp: float):
         phase = rng.uniform(0, 2 * np.pi, size=led.shape[:2] + (1,))
         a = amp * rng.uniform(0.5, 1.0, size=led.shape[:2] + (1,))
-        adc = np.rint(led + a * np.sin(2 * np.pi * 50.0 * t + phase)).astype(s.adc.dtype)
+        adc = np.rint(led + a * np.sin(2 * np.pi * args.hum_hz * t + phase)).astype(s.adc.dtype)
         return dataclasses.replace(s, adc=adc, rig=rig)
 
     rows = {"as recorded": s,
-            f"inject --hum {args.hum:g} --noise 2": inject_session(s, FaultSpec(hum=args.hum, noise=2, seed=args.seed)),
+            f"inject --hum {args.hum:g} --hum-hz {args.hum_hz:g} --noise {args.noise:g}":
+                inject_session(s, FaultSpec(hum=args.hum, hum_hz=args.hum_hz, noise=args.noise, seed=args.seed)),
             f"flat lead {args.lead}, no hum": continuous(0.0),
             f"flat lead {args.lead}, hum {args.hum:g} continuous": continuous(args.hum)}
-    print(f"{'session':<40}{'reported':>10}{'MAE mm':>9}{'class':>8}")
+    print(f"{'session':<46}{'reported':>10}{'MAE mm':>9}{'class':>8}")
     for name, session in rows.items():
         acc = board_accuracy(session, models, signal, threshold, 50000)
-        print(f"{name:<40}{acc['reported']:>6}/{acc['n']:<3}{acc['all']['mae_mm']:>9.2f}"
+        print(f"{name:<46}{acc['reported']:>6}/{acc['n']:<3}{acc['all']['mae_mm']:>9.2f}"
               f"{acc['energy_class_accuracy']:>8.3f}", flush=True)
     return 0
 
