@@ -148,3 +148,47 @@ def test_emulate_stopped_by_sigterm_closes_like_ctrl_c(tmp_path):
     assert proc.wait(30) == 128 + signal.SIGTERM, err
     assert "emulate: stopped by SIGTERM" in err and err.strip().splitlines()[-1] == "emulate: 0 reports", err
     assert not link.is_symlink()
+
+
+def test_background_monitor_stops_on_sigint_or_sigterm_with_its_log_intact(tmp_path):
+    """`monitor --db ... &` (SIGINT ignored from the shell, as a script or a CI runner starts it) stopped by
+    `kill -INT` or `kill` (SIGTERM) while the emulator streams: it exits within seconds (0 on SIGINT, 128 + 15 on
+    SIGTERM, as a shell reports a process that SIGTERM ended), says why, and its log holds each report it printed,
+    once, with the connection closed and its counters written (the close a kill would lose)."""
+    import json
+    import signal
+    import time
+
+    background = ("sh", "-c", 'trap "" INT; exec "$@"', "sh")
+    for how, code in ((signal.SIGINT, 0), (signal.SIGTERM, 128 + signal.SIGTERM)):
+        db, link = tmp_path / f"{how.name}.sqlite", tmp_path / f"board-{how.name}"
+        emu = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--speed", "0",
+                                "--limit", "3", "--models", "none", "--link", str(link)],
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        mon = None
+        try:
+            assert emu.stdout.readline().startswith("/dev/pts/")
+            mon = subprocess.Popen([*background, sys.executable, "-m", "impactsense.cli", "monitor", "--port",
+                                    str(link), "--json-lines", "--db", str(db)], stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+            printed = [mon.stdout.readline() for _ in range(3)]   # three reports seen: the log is being written
+            assert all(line.startswith("{") for line in printed), printed
+            mon.send_signal(how)
+            rc = mon.wait(30)   # (its pipes hold far more than it can print meanwhile)
+            out, err = mon.stdout.read(), mon.stderr.read()
+            assert rc == code, (how.name, rc, err)
+        finally:
+            for p in (mon, emu):
+                if p is not None:
+                    p.kill()
+                    p.wait()
+        said = "Ctrl-C" if how == signal.SIGINT else how.name
+        assert f"monitor: stopped ({said})" in err, err
+        seqs = [json.loads(line)["seq"] for line in printed + out.splitlines() if line.startswith("{")]
+        c = connect(db)
+        stored = [r[0] for r in c.execute("SELECT seq FROM reports ORDER BY id")]
+        conns = c.execute("SELECT closed, counters FROM connections").fetchall()
+        c.close()
+        # every printed report is stored (a report is logged before it is printed: at most the one in flight more)
+        assert len(stored) == len(set(stored)) and set(seqs) <= set(stored) and len(stored) <= len(seqs) + 1
+        assert len(conns) == 1 and conns[0][0] is not None and json.loads(conns[0][1])["reports"] >= len(seqs)
