@@ -171,21 +171,6 @@ def read_in_thread(frames, tick, tick_s: float = 0.05):
         yield item
 
 
-def _connection_frames(mon, idle_timeout_s, plot, state: dict, err):
-    """One connection's frames; with a plot they are read in a thread of their own while the window refreshes
-    (state["plot"] is None once the window is closed)."""
-    frames = mon.frames(idle_timeout_s)
-    if plot is None:
-        return frames
-
-    def tick():
-        if state["plot"] is not None and not state["plot"].refresh():
-            print("monitor: plot window closed; still monitoring", file=err)
-            state["plot"] = None
-
-    return read_in_thread(frames, tick)
-
-
 def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.stdout, err=sys.stderr,
         idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30, plot=None,
         log=None) -> dict:
@@ -213,7 +198,14 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
         mon = Monitor(port)
         if log is not None:
             log.connection_opened()
-        frames = _connection_frames(mon, idle_timeout_s, plot, state, err)
+        frames = mon.frames(idle_timeout_s)
+        if plot is not None:
+            def tick():
+                if state["plot"] is not None and not state["plot"].refresh():
+                    print("monitor: plot window closed; still monitoring", file=err)
+                    state["plot"] = None
+
+            frames = read_in_thread(frames, tick)
         try:
             for frame in frames:
                 if log is not None and frame["kind"] not in ("report", "raw"):
