@@ -157,6 +157,7 @@ def test_background_monitor_stops_on_sigint_or_sigterm_with_its_log_intact(tmp_p
     once, with the connection closed and its counters written (the close a kill would lose)."""
     import json
     import signal
+    import time
 
     background = ("sh", "-c", 'trap "" INT; exec "$@"', "sh")
     for how, code in ((signal.SIGINT, 0), (signal.SIGTERM, 128 + signal.SIGTERM)):
