@@ -534,26 +534,3 @@ def test_fuzzed_loader_inputs_give_right_numbers_or_exit_2_never_a_crash(tmp_pat
                         "--seed", "7"], capture_output=True, text=True, timeout=1800)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "tracebacks: 0" in r.stdout
-
-
-def test_stop_signals_take_int_and_term_whatever_was_inherited_but_leave_nohup_alone():
-    """stopped_by_signals (record, monitor, emulate): SIGINT raises KeyboardInterrupt and SIGTERM a Stopped naming it
-    even when inherited ignored (a background job); SIGHUP ignored (`nohup`) stays ignored; all come back after."""
-    import os
-
-    from impactsense.stop_signals import Stopped, stopped_by_signals
-
-    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
-        for how, raised in ((signal.SIGINT, KeyboardInterrupt), (signal.SIGTERM, Stopped)):
-            with pytest.raises(raised) as got, stopped_by_signals():
-                assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
-                os.kill(os.getpid(), how)
-                time.sleep(5)       # the handler raises at the next bytecode: never reached
-            assert getattr(got.value, "signum", signal.SIGINT) == how
-        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
-    finally:
-        for s, h in before.items():
-            signal.signal(s, h)
