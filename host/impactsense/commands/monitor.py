@@ -55,14 +55,9 @@ def run(args) -> int:
         from ..link.eventlog import EventLog
 
         log = EventLog(args.db, args.board_id or (f"ble:{args.ble}" if args.ble else args.port))
-    from ..stop_signals import Stopped, stopped_by_signals
-
     try:
-        with stopped_by_signals():   # Ctrl-C / kill / hang-up stop it, whatever this process inherited
-            totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log,
-                                 out=sys.stdout, err=sys.stderr)
-    except Stopped as exc:  # SIGTERM / SIGHUP: every report is already in the log (closed below); say which
-        return 128 + exc.signum
+        totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log,
+                             out=sys.stdout, err=sys.stderr)
     except KeyboardInterrupt:  # Ctrl-C: every report is already in the log
         return 0
     finally:

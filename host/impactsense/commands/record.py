@@ -33,9 +33,8 @@ def run(args) -> int:
     from ..data import load_rig, load_session
     from ..errors import ConfigError
     from ..link.journal import journal_path
-    from ..link.record import finish_session, read_truth_csv
+    from ..link.record import finish_session, read_truth_csv, stopped_by_signals
     from ..outputs import check_output_folder
-    from ..stop_signals import stopped_by_signals
 
     fixed = {k: getattr(args, k) for k in ("x_mm", "y_mm", "height_mm") if getattr(args, k) is not None}
     rows = read_truth_csv(args.truth) if args.truth else []
@@ -54,7 +53,7 @@ def run(args) -> int:
               "a new recording", file=sys.stderr)
         return 1
     rig = load_rig(args.rig) if args.rig else load_session(None).rig
-    with stopped_by_signals():   # Ctrl-C / kill / hang-up stop the recording (saved as "interrupted")
+    with stopped_by_signals():   # Ctrl-C / kill stop the recording, whatever this process inherited
         return _record(args, rig, journal, how, rows, fixed)
 
 

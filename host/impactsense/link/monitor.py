@@ -8,7 +8,6 @@ import sys
 import time
 from collections import Counter
 
-from ..stop_signals import Stopped
 from . import protocol
 from .transport import PortClosed, read_some
 
@@ -181,7 +180,6 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
     totals: dict = {}
     retries = 0
     header_done = False
-    stopped = None
     state = {"plot": plot}  # None once the window is closed
     while True:
         try:
@@ -227,9 +225,9 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                     print(REPORT_HEADER, file=out)
                     header_done = True
                 print(report_json(r) if json_lines else report_line(r, mon.rejected), file=out, flush=True)
-        except KeyboardInterrupt as exc:  # Ctrl-C, or a Stopped (stop_signals): counted and logged as a close
-            reconnect, stopped = False, exc
-            print(f"monitor: stopped ({getattr(exc, 'name', 'Ctrl-C')})", file=err)
+        except KeyboardInterrupt:
+            reconnect = False
+            print("monitor: stopped (Ctrl-C)", file=err)
         else:
             print("monitor: the link ended (port closed or board unplugged)", file=err)
         finally:
@@ -250,6 +248,4 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
         print("monitor: port closed; reconnecting", file=err)
         time.sleep(retry_s)
     print("monitor: " + ", ".join(f"{k}={v}" for k, v in totals.items()), file=err)
-    if isinstance(stopped, Stopped):  # SIGTERM / SIGHUP: the caller's exit code says which
-        raise stopped
     return totals

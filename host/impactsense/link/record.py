@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import signal
+import threading
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -75,6 +78,34 @@ def record(port, max_events: int | None = None, idle_timeout_s: float | None = N
     except KeyboardInterrupt:
         why = "interrupted"
     return out, fs_hz, mon.counters(), asm.incomplete, why
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _stop(_signum, _frame):
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def stopped_by_signals():
+    """Inside: Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt, which record() takes as its "interrupted"
+    stop (the captures so far are then saved), whatever dispositions the process inherited. A shell starts a
+    background job (`record ... &`, a script, a CI runner) with SIGINT ignored and Python then never raises
+    KeyboardInterrupt: without this, such a recording could not be stopped but by a kill that leaves the journal
+    for the next run. The previous handlers come back on leaving. Outside the main thread (where handlers cannot
+    be set) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _stop)
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
 
 
 LABELS = ("x_mm", "y_mm", "height_mm")
