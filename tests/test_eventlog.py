@@ -3,6 +3,7 @@ missing reports and gaps counted from what is stored; several boards in one file
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from impactsense.cli import main
@@ -132,19 +133,98 @@ def test_emulate_serves_clients_in_turn_with_the_shipped_model(tmp_path):
     assert len(seqs) >= 15 and all(v for _, v in seen[:3])
 
 
-def test_emulate_stopped_by_sigterm_closes_like_ctrl_c(tmp_path):
-    """SIGTERM (a service stop, a stray kill): the --link symlink is removed, the closing line printed and the
-    exit code says why (128 + 15), so a harness never reads a log without its closing line as a normal end."""
+# A shell without job control starts a background job (`cmd &`, a script, a CI runner) with SIGINT ignored.
+AS_A_BACKGROUND_JOB = ("sh", "-c", 'trap "" INT; exec "$@"', "sh")
+
+
+def test_emulate_stopped_by_a_signal_closes_like_ctrl_c(tmp_path):
+    """SIGTERM (a service stop, a stray kill) or SIGINT to a background-started emulator waiting for a client: the
+    --link symlink is removed and the closing line printed; the exit code says a SIGTERM (128 + 15), so a harness
+    never reads a log without its closing line as a normal end; SIGINT is Ctrl-C's clean end (0)."""
     import signal
 
+    for how, code in ((signal.SIGTERM, 128 + signal.SIGTERM), (signal.SIGINT, 0)):
+        link = tmp_path / f"board-{how.name}"
+        proc = subprocess.Popen([*AS_A_BACKGROUND_JOB, sys.executable, "-m", "impactsense.cli", "emulate", "--pty",
+                                 "--limit", "3", "--models", "none", "--link", str(link)], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            path = proc.stdout.readline().strip()
+            assert path.startswith("/dev/pts/") and link.is_symlink(), proc.stderr.read()
+            proc.send_signal(how)
+            assert proc.wait(30) == code, proc.stderr.read()
+        finally:
+            proc.kill()
+        err = proc.stderr.read()
+        assert ("emulate: stopped by SIGTERM" in err) == (how == signal.SIGTERM), err
+        assert err.strip().splitlines()[-1] == "emulate: 0 reports", err
+        assert not link.is_symlink()
+
+
+def test_emulate_stops_on_sigterm_while_its_client_reads_nothing(tmp_path):
+    """A client that opened the pty and stopped reading (its buffers full, the emulator's write waits on it):
+    SIGTERM still ends the emulator within seconds, the link removed."""
+    import signal
+
+    from impactsense.link.transport import open_serial
+
     link = tmp_path / "board"
-    proc = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--limit", "3",
-                             "--models", "none", "--link", str(link)], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--speed", "0", "--limit",
+                             "3", "--models", "none", "--link", str(link)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    path = proc.stdout.readline().strip()
-    assert path.startswith("/dev/pts/") and link.is_symlink(), proc.stderr.read()
-    proc.send_signal(signal.SIGTERM)
-    err = proc.stderr.read()
-    assert proc.wait(30) == 128 + signal.SIGTERM, err
-    assert "emulate: stopped by SIGTERM" in err and err.strip().splitlines()[-1] == "emulate: 0 reports", err
-    assert not link.is_symlink()
+    port = None
+    try:
+        assert proc.stdout.readline().startswith("/dev/pts/")
+        port = open_serial(str(link), timeout=0.5)
+        assert port.read(64)               # served; from now on nothing is read: the pty's buffers fill
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 128 + signal.SIGTERM, proc.stderr.read()
+    finally:
+        proc.kill()
+        if port is not None:
+            port.close()
+    assert not link.is_symlink() and "emulate: stopped by SIGTERM" in proc.stderr.read()
+
+
+def test_background_monitor_stops_on_sigint_or_sigterm_with_its_log_intact(tmp_path):
+    """`monitor --db ... &` (SIGINT ignored from the shell) stopped by `kill -INT` or `kill` (SIGTERM) while the
+    emulator streams: it exits within seconds (0 on SIGINT, 128 + 15 on SIGTERM, as a shell reports a process that
+    SIGTERM ended), says why, and its log holds each report it printed, once, with the connection closed and its
+    counters written (the close a kill would lose). The signal only marks the stop (stop_signals): it can never
+    land inside the log's transaction."""
+    import json
+    import signal
+
+    for how, code in ((signal.SIGINT, 0), (signal.SIGTERM, 128 + signal.SIGTERM)):
+        db, link = tmp_path / f"{how.name}.sqlite", tmp_path / f"board-{how.name}"
+        emu = subprocess.Popen([sys.executable, "-m", "impactsense.cli", "emulate", "--pty", "--speed", "0",
+                                "--limit", "3", "--models", "none", "--link", str(link)],
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        mon = None
+        try:
+            assert emu.stdout.readline().startswith("/dev/pts/")
+            mon = subprocess.Popen([*AS_A_BACKGROUND_JOB, sys.executable, "-m", "impactsense.cli", "monitor",
+                                    "--port", str(link), "--json-lines", "--db", str(db)], stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+            printed = [mon.stdout.readline() for _ in range(3)]   # three reports seen: the log is being written
+            assert all(line.startswith("{") for line in printed), printed
+            mon.send_signal(how)
+            rc = mon.wait(30)   # (its pipes hold far more than it can print meanwhile)
+            out, err = mon.stdout.read(), mon.stderr.read()
+            assert rc == code, (how.name, rc, err)
+        finally:
+            for p in (mon, emu):
+                if p is not None:
+                    p.kill()
+                    p.wait()
+        said = "Ctrl-C" if how == signal.SIGINT else how.name
+        assert f"monitor: stopped ({said})" in err and "Traceback" not in err, err
+        seqs = [json.loads(line)["seq"] for line in printed + out.splitlines() if line.startswith("{")]
+        c = connect(db)
+        stored = [r[0] for r in c.execute("SELECT seq FROM reports ORDER BY id")]
+        conns = c.execute("SELECT closed, counters FROM connections").fetchall()
+        c.close()
+        # every printed report is stored, once (a report is logged before it is printed: none stored unprinted)
+        assert len(stored) == len(set(stored)) and set(seqs) == set(stored)
+        assert len(conns) == 1 and conns[0][0] is not None and json.loads(conns[0][1])["reports"] == len(seqs)

@@ -68,17 +68,19 @@ def run(args) -> int:
           f"{path if path is not None else 'none (reports carry the physics position, valid=0)'}", file=sys.stderr)
     extra = {} if args.threshold is None else {"threshold_counts": args.threshold}
     emu = Emulator(s, models, fs_hz=args.rate, signal=signal, **extra)
+    import faulthandler
+
+    from ..stop_signals import stopped_by_signals
+
+    faulthandler.enable()   # a native crash (SIGSEGV, SIGABRT, ...) prints the Python stack to stderr
     code = 0
-    with _stopped_by_signals() as stop:
-        try:
-            serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True), once=args.once,
-                      passes=passes, link=args.link, connect_timeout_s=600.0 if args.once else None,
-                      log=lambda m: print(f"emulate: {m}", file=sys.stderr, flush=True))
-        except KeyboardInterrupt:
-            pass
-        except stop as exc:  # SIGTERM/SIGHUP: the pty closed and the link removed as on Ctrl-C, said, non-zero exit
-            print(f"emulate: stopped by {exc.name}", file=sys.stderr)
-            code = 128 + exc.signum
+    with stopped_by_signals() as stop:   # Ctrl-C / kill / hang-up: the pty closed and the link removed between drops
+        serve_pty(emu, speed=args.speed, announce=lambda p: print(p, flush=True), once=args.once,
+                  passes=passes, link=args.link, connect_timeout_s=600.0 if args.once else None,
+                  log=lambda m: print(f"emulate: {m}", file=sys.stderr, flush=True), stop=stop)
+    if stop() and stop.name != "SIGINT":   # SIGTERM / SIGHUP: said, and a non-zero exit (128 + signum)
+        print(f"emulate: stopped by {stop.name}", file=sys.stderr)
+        code = 128 + stop.signum
     print(f"emulate: {emu.app.events} reports", file=sys.stderr, flush=True)
     return code
 
@@ -105,36 +107,3 @@ def _require_models_rig(signal: dict, session, path) -> None:
                           f"(sensors at {rig.sensor_xy_mm.round(1).tolist()} mm): give --models DIR "
                           f"(`impactsense export` of a model trained on this rig) or --models none")
 
-
-class _Stopped(Exception):
-    def __init__(self, signum: int):
-        import signal
-
-        super().__init__(signum)
-        self.signum, self.name = signum, signal.Signals(signum).name
-
-
-class _stopped_by_signals:
-    """Within: SIGTERM and SIGHUP raise _Stopped (serve_pty's cleanup runs and the closing line is printed, as on
-    Ctrl-C); a native crash (SIGSEGV, SIGABRT, ...) prints the Python stack to stderr (faulthandler)."""
-
-    SIGNALS = ("SIGTERM", "SIGHUP")
-
-    def __enter__(self):
-        import faulthandler
-        import signal
-
-        faulthandler.enable()
-
-        def raise_stopped(signum, _frame):
-            raise _Stopped(signum)
-
-        self._old = {getattr(signal, n): signal.signal(getattr(signal, n), raise_stopped) for n in self.SIGNALS}
-        return _Stopped
-
-    def __exit__(self, *exc):
-        import signal
-
-        for signum, old in self._old.items():
-            signal.signal(signum, old)
-        return False

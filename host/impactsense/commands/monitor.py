@@ -55,14 +55,17 @@ def run(args) -> int:
         from ..link.eventlog import EventLog
 
         log = EventLog(args.db, args.board_id or (f"ble:{args.ble}" if args.ble else args.port))
+    from ..stop_signals import stopped_by_signals
+
     try:
-        totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log,
-                             out=sys.stdout, err=sys.stderr)
-    except KeyboardInterrupt:  # Ctrl-C: every report is already in the log
-        return 0
+        with stopped_by_signals() as stop:  # Ctrl-C / kill / hang-up end it between frames, its log closed
+            totals = monitor.run(opener, json_lines=args.json_lines, reconnect=args.reconnect, plot=plot, log=log,
+                                 out=sys.stdout, err=sys.stderr, stop=stop)
     finally:
         if log is not None:
             log.close()
+    if stop() and stop.name != "SIGINT":  # SIGTERM / SIGHUP: the exit code says which (as a shell reports a kill)
+        return 128 + stop.signum
     if plot is not None and plot.refresh():
         import matplotlib.pyplot as plt
 

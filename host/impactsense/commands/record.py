@@ -33,8 +33,9 @@ def run(args) -> int:
     from ..data import load_rig, load_session
     from ..errors import ConfigError
     from ..link.journal import journal_path
-    from ..link.record import finish_session, read_truth_csv, stopped_by_signals
+    from ..link.record import finish_session, read_truth_csv
     from ..outputs import check_output_folder
+    from ..stop_signals import stopped_by_signals
 
     fixed = {k: getattr(args, k) for k in ("x_mm", "y_mm", "height_mm") if getattr(args, k) is not None}
     rows = read_truth_csv(args.truth) if args.truth else []
@@ -53,11 +54,11 @@ def run(args) -> int:
               "a new recording", file=sys.stderr)
         return 1
     rig = load_rig(args.rig) if args.rig else load_session(None).rig
-    with stopped_by_signals():   # Ctrl-C / kill stop the recording, whatever this process inherited
-        return _record(args, rig, journal, how, rows, fixed)
+    with stopped_by_signals() as stop:   # Ctrl-C / kill / hang-up end the recording between reads, saved
+        return _record(args, rig, journal, how, rows, fixed, stop)
 
 
-def _record(args, rig, journal, how, rows, fixed) -> int:
+def _record(args, rig, journal, how, rows, fixed, stop) -> int:
     """Opens the port, records into the journal until a stop, and saves the journal as the session folder."""
     import sys
 
@@ -76,11 +77,12 @@ def _record(args, rig, journal, how, rows, fixed) -> int:
         print(f"\rrecorded {n}", end="", file=sys.stderr, flush=True)
         if args.ask:
             print(file=sys.stderr)
-            rows.append(ask_truth(n))
+            with stop.interruptible():   # a stop at the prompt: no flag wakes input()
+                rows.append(ask_truth(n))
 
     why = "error"
     try:
-        _, _, counters, incomplete, why = record(port, args.max_events, progress=progress, sink=sink)
+        _, _, counters, incomplete, why = record(port, args.max_events, progress=progress, sink=sink, stop=stop)
     finally:
         sink.close()
         try:

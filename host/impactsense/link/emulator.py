@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import _link
 from ..board.capture import app_config, board_frames, signal_for_board
+from ..stop_signals import sleep
 
 
 class Emulator:
@@ -91,11 +92,11 @@ def _open_pty(link: str | None):
     return master, path
 
 
-def _wait_for_client(master: int, deadline: float | None) -> bytes | None:
-    """Blocks until a client has the pty open; returns what it already sent (None: deadline passed)."""
+def _wait_for_client(master: int, deadline: float | None, stop=None) -> bytes | None:
+    """Blocks until a client has the pty open; returns what it already sent (None: deadline passed, or stop())."""
     pending = _probe_client(master)
     while pending is None:
-        if deadline is not None and time.monotonic() > deadline:
+        if (deadline is not None and time.monotonic() > deadline) or (stop is not None and stop()):
             return None
         time.sleep(0.01)
         pending = _probe_client(master)
@@ -104,14 +105,15 @@ def _wait_for_client(master: int, deadline: float | None) -> bytes | None:
 
 
 def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_timeout_s: float | None = 600.0,
-              once: bool = True, passes: int = 1, link: str | None = None, log=None) -> int:
+              once: bool = True, passes: int = 1, link: str | None = None, log=None, stop=None) -> int:
     """Opens a pty, announces its path and plays the drops to whoever has it open. Returns the bytes written.
 
     once: one client, one pass through the drops, then close (the first client's timeout: connect_timeout_s).
     Otherwise clients are served one after another, as a board on a USB port is: the app (its report
     counter and clock) runs on across clients; while no client is connected the drops wait; after `passes`
     passes through the drops (0: forever, until interrupted) the emulator waits until the last client has
-    read everything and returns. log(str): one line per client connect/disconnect."""
+    read everything and returns. log(str): one line per client connect/disconnect. stop
+    (stop_signals.StopRequest): once stop() holds, it returns between drops (and from any wait) as at the end."""
     log = log or (lambda _msg: None)
     frames = emulator.frames  # resample before announcing, so the client never waits on it
     written, n_drops = 0, frames.shape[0]
@@ -121,15 +123,15 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
     master, path = _open_pty(link)
     try:  # from the link's creation on: a signal raised at any point below still closes the pty and removes it
         announce(path)
-        while total is None or k < total:
+        while (total is None or k < total) and not (stop is not None and stop()):
             pending = _wait_for_client(master, time.monotonic() + connect_timeout_s
-                                       if connect_timeout_s is not None and k == 0 else None)
+                                       if connect_timeout_s is not None and k == 0 else None, stop)
             if pending is None:
                 break
             log(f"client connected (drop {k % n_drops} of pass {k // n_drops + 1})")
             t0, k0 = time.monotonic(), k
             try:
-                while total is None or k < total:
+                while (total is None or k < total) and not (stop is not None and stop()):
                     more = _probe_client(master)
                     if more is None:
                         raise OSError(errno.EIO, "client went away")
@@ -138,13 +140,13 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
                     out = emulator.app.rx(cmd) if cmd else b""
                     out += emulator.app.feed(frames[k % n_drops])
                     k += 1
-                    _write_all(master, out)
+                    _write_all(master, out, stop)
                     written += len(out)
                     if speed and speed > 0:
                         lag = t0 + (k - k0) * per_drop_s / speed - time.monotonic()
                         if lag > 0:
-                            time.sleep(lag)
-                _drain(master, path)
+                            sleep(lag, stop)
+                _drain(master, path, stop=stop)
             except OSError as exc:
                 if exc.errno != errno.EIO:  # EIO: the client went away
                     raise
@@ -158,11 +160,12 @@ def serve_pty(emulator: Emulator, speed: float = 1.0, announce=print, connect_ti
     return written
 
 
-def _write_all(fd: int, data: bytes) -> None:
+def _write_all(fd: int, data: bytes, stop=None) -> None:
+    """Writes data to the pty while a client is there (until stop() holds: the rest is not written)."""
     import select
 
     view = memoryview(data)
-    while view:
+    while view and not (stop is not None and stop()):
         try:
             n = os.write(fd, view)
             view = view[n:]
@@ -188,13 +191,13 @@ def _unread(slave_path: str) -> int | None:
         os.close(fd)
 
 
-def _drain(master: int, slave_path: str, settle_s: float = 0.2) -> None:
+def _drain(master: int, slave_path: str, settle_s: float = 0.2, stop=None) -> None:
     """Waits until the client has read everything written (closing the master drops what the client has not
     read), however long it takes; returns early only when the client goes away (then nothing can be
-    delivered). The kernel moves what is still in the pty's buffers into the slave's input queue as the
+    delivered) or stop() holds. The kernel moves what is still in the pty's buffers into the slave's input queue as the
     client reads, so the queue must stay empty for settle_s."""
     empty_since = None
-    while True:
+    while stop is None or not stop():
         if _probe_client(master) is None:   # no client (probed while this process holds no slave descriptor)
             return
         n = _unread(slave_path)

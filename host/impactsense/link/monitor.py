@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import sys
 import time
 from collections import Counter
 
+from ..stop_signals import sleep
 from . import protocol
 from .transport import PortClosed, read_some
 
@@ -23,10 +25,12 @@ class Monitor:
         self.rejected: Counter = Counter()  # reports without a position, by reason key
         self._version_said = False
 
-    def frames(self, idle_timeout_s: float | None = None):
-        """Yields decoded frames (dicts, see `_link.Decoder.feed`) until the port closes."""
+    def frames(self, idle_timeout_s: float | None = None, stop=None):
+        """Yields decoded frames (dicts, see `_link.Decoder.feed`) until the port closes, or, given stop
+        (stop_signals.StopRequest), until stop() holds: checked before each read (a read waits at most the
+        port's timeout), so a stop never cuts the handling of a frame."""
         last = time.monotonic()
-        while True:
+        while stop is None or not stop():
             try:
                 data = read_some(self.port)
             except PortClosed:
@@ -170,42 +174,62 @@ def read_in_thread(frames, tick, tick_s: float = 0.05):
         yield item
 
 
+def _connection_frames(mon, idle_timeout_s, plot, state: dict, err, stop):
+    """One connection's frames; with a plot they are read in a thread of their own while the window refreshes
+    (state["plot"] is None once the window is closed)."""
+    frames = mon.frames(idle_timeout_s, stop)
+    if plot is None:
+        return frames
+
+    def tick():
+        if state["plot"] is not None and not state["plot"].refresh():
+            print("monitor: plot window closed; still monitoring", file=err)
+            state["plot"] = None
+
+    return read_in_thread(frames, tick)
+
+
+def _open(open_port, reconnect: bool, retry_s: float, max_retries: int, err, stop):
+    """The port, or None: it cannot be opened (said, after max_retries tries a retry_s apart with reconnect) or a
+    stop came while retrying."""
+    for retry in range(max_retries + 1 if reconnect else 1):
+        if retry and sleep(retry_s, stop):
+            return None
+        try:
+            return open_port()
+        except Exception as exc:  # noqa: BLE001  (any open failure: retry or give up)
+            failure = exc
+    print(f"monitor: cannot open the port: {failure}", file=err)
+    return None
+
+
+def _stop_name(stop) -> str:
+    return "Ctrl-C" if stop.signum == signal.SIGINT else stop.name
+
+
 def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.stdout, err=sys.stderr,
         idle_timeout_s: float | None = None, retry_s: float = 1.0, max_retries: int = 30, plot=None,
-        log=None) -> dict:
+        log=None, stop=None) -> dict:
     """Prints reports until the port closes (and, with reconnect, re-opens it). Returns the counters.
 
     plot (link.plot.LivePlot): also draws the reports; the port is then read in a thread of its own.
-    log (link.eventlog.EventLog): also keeps every report (and any other frame but raw data) in the event log."""
+    log (link.eventlog.EventLog): also keeps every report (and any other frame but raw data) in the event log.
+    stop (stop_signals.StopRequest): once stop() holds, the connection ends as on a closed port (between frames,
+    its close logged) and no other is opened."""
     totals: dict = {}
-    retries = 0
     header_done = False
     state = {"plot": plot}  # None once the window is closed
     while True:
-        try:
-            port = open_port()
-        except Exception as exc:  # noqa: BLE001  (any open failure: retry or give up)
-            if reconnect and retries < max_retries:
-                retries += 1
-                time.sleep(retry_s)
-                continue
-            print(f"monitor: cannot open the port: {exc}", file=err)
-            totals["open_failed"] = 1
+        port = _open(open_port, reconnect, retry_s, max_retries, err, stop)
+        if port is None:
+            if stop is None or not stop():
+                totals["open_failed"] = 1
             break
-        retries = 0
         mon = Monitor(port)
         if log is not None:
             log.connection_opened()
-        frames = mon.frames(idle_timeout_s)
-        if plot is not None:
-            def tick():
-                if state["plot"] is not None and not state["plot"].refresh():
-                    print("monitor: plot window closed; still monitoring", file=err)
-                    state["plot"] = None
-
-            frames = read_in_thread(frames, tick)
         try:
-            for frame in frames:
+            for frame in _connection_frames(mon, idle_timeout_s, plot, state, err, stop):
                 if log is not None and frame["kind"] not in ("report", "raw"):
                     log.add_frame(frame["kind"], frame)
                 mon.say_version(err)  # once a connection, with the next frame after one of another version
@@ -225,11 +249,15 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
                     print(REPORT_HEADER, file=out)
                     header_done = True
                 print(report_json(r) if json_lines else report_line(r, mon.rejected), file=out, flush=True)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt:  # an in-process caller's Ctrl-C (the command sets `stop` instead)
             reconnect = False
             print("monitor: stopped (Ctrl-C)", file=err)
         else:
-            print("monitor: the link ended (port closed or board unplugged)", file=err)
+            if stop is not None and stop():
+                reconnect = False
+                print(f"monitor: stopped ({_stop_name(stop)})", file=err)
+            else:
+                print("monitor: the link ended (port closed or board unplugged)", file=err)
         finally:
             try:
                 port.close()
@@ -246,6 +274,7 @@ def run(open_port, json_lines: bool = False, reconnect: bool = False, out=sys.st
         if not reconnect:
             break
         print("monitor: port closed; reconnecting", file=err)
-        time.sleep(retry_s)
+        if sleep(retry_s, stop):
+            break
     print("monitor: " + ", ".join(f"{k}={v}" for k, v in totals.items()), file=err)
     return totals

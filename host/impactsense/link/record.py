@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import json
-import signal
-import threading
-from contextlib import contextmanager
 
 import numpy as np
 
@@ -42,11 +39,13 @@ class CaptureAssembler:
         return ev["data"]
 
 
-def record(port, max_events: int | None = None, idle_timeout_s: float | None = None, progress=None, sink=None):
+def record(port, max_events: int | None = None, idle_timeout_s: float | None = None, progress=None, sink=None,
+           stop=None):
     """Turns dump-raw on and collects (capture int16 [4, n], report) pairs until the port closes, max_events
-    are in, or Ctrl-C. Each pair goes to sink(capture, report) as it arrives (journal.CaptureJournal.append)
-    and, without a sink, into the returned list. Returns (pairs, fs_hz, link counters, incomplete captures,
-    why it stopped: "max-events", "link ended" or "interrupted")."""
+    are in, stop() holds (stop_signals.StopRequest, checked between reads) or Ctrl-C. Each pair goes to
+    sink(capture, report) as it arrives (journal.CaptureJournal.append) and, without a sink, into the returned
+    list. Returns (pairs, fs_hz, link counters, incomplete captures, why it stopped: "max-events", "link ended"
+    or "interrupted")."""
     port.write(protocol.dump_raw(True))
     mon = Monitor(port)
     asm = CaptureAssembler()
@@ -55,7 +54,7 @@ def record(port, max_events: int | None = None, idle_timeout_s: float | None = N
     n = 0
     why = "link ended"
     try:
-        for frame in mon.frames(idle_timeout_s):
+        for frame in mon.frames(idle_timeout_s, stop):
             if frame["kind"] == "ack":
                 fs_hz = frame["ack"]["fs_hz"]
                 if sink is not None and hasattr(sink, "set_fs"):
@@ -75,37 +74,11 @@ def record(port, max_events: int | None = None, idle_timeout_s: float | None = N
                     if max_events and n >= max_events:
                         why = "max-events"
                         break
-    except KeyboardInterrupt:
+        if why == "link ended" and stop is not None and stop():
+            why = "interrupted"
+    except KeyboardInterrupt:   # an in-process caller's Ctrl-C, or one at the --ask prompt
         why = "interrupted"
     return out, fs_hz, mon.counters(), asm.incomplete, why
-
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-def _stop(_signum, _frame):
-    raise KeyboardInterrupt
-
-
-@contextmanager
-def stopped_by_signals():
-    """Inside: Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt, which record() takes as its "interrupted"
-    stop (the captures so far are then saved), whatever dispositions the process inherited. A shell starts a
-    background job (`record ... &`, a script, a CI runner) with SIGINT ignored and Python then never raises
-    KeyboardInterrupt: without this, such a recording could not be stopped but by a kill that leaves the journal
-    for the next run. The previous handlers come back on leaving. Outside the main thread (where handlers cannot
-    be set) it does nothing."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {s: signal.getsignal(s) for s in STOP_SIGNALS}
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _stop)
-    try:
-        yield
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
 
 
 LABELS = ("x_mm", "y_mm", "height_mm")
