@@ -175,8 +175,6 @@ void HumBasis::set(float fs) {
     sin_cos(w[f] * 0.5f * static_cast<float>(kGroup - 1), &sg0[f], &cg0[f]);  // phase at group 0's centre
     float sh, ch;
     sin_cos(0.5f * w[f], &sh, &ch);
-    half_s[f] = sh;
-    half_c[f] = ch;
     float sl, cl;
     sin_cos(0.5f * w[f] * static_cast<float>(kGroup), &sl, &cl);
     gain[f] = sh > 0.0f ? sl / (static_cast<float>(kGroup) * sh) : 1.0f;  // D: the group mean of a unit sinusoid

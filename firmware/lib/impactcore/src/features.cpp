@@ -473,12 +473,10 @@ struct HumScan {
   }
 };
 
-// Energies about the hum model m(t) = c0 + c1 cos(w t) + c2 sin(w t) (relative to the level) without a pass
-// over the blocks: x - base = m + r (r the arrival, the noise and the fit's error), so
-// sum (x - base - m)^2 = sum (x - base)^2 - 2 sum (x - base) m + sum m^2 = sum (x - base)^2 - sum m^2 - 2 sum r m,
-// and the last term is left out (a 50/60 Hz model against a ringing of kHz averages out; docs/method.md "A hum
-// channel's energies"). sum_{t<i} m(t)^2 has a closed form (model_energy: one sin_cos). Used only when the hum
-// is modelled.
+// The hum model's per-block departures d_k (block means of c0 + c1 cos + c2 sin) and the correction that
+// turns the constant-baseline energies of Channel into energies about the model: for a block,
+// sum (x - base - d)^2 = sum (x - base)^2 - 2 d sum (x - base) + m d^2. corr[k]: that correction summed
+// over blocks [0, k) (counts^2). Used only when the hum is modelled.
 struct HumEnergy {
   HumSteps steps;  // set before the onset scan (which steps a copy)
   HumScan scan;    // the onset scan's extremes (hum_crossing resets it)
@@ -486,8 +484,7 @@ struct HumEnergy {
   const Baseline* bl;
   float base;
   float gain16;    // mean of a unit sinusoid over a block
-  // model_energy(i) = lin i + sin(w i / 2) (k1c cos(w (i - 1) / 2) + k1s sin(..)) + sin(w i) (k2c cos(w (i - 1)) + k2s sin(..))
-  float lin, k1c, k1s, k2c, k2s, half_w, hs, hc;
+  float corr[kMaxBlocks + 1];
 
   mutable int d_block;  // block_d's last block and value (reaches and the windows' ends meet there; build resets)
   mutable float d_value;
@@ -500,57 +497,66 @@ struct HumEnergy {
     d_value = bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
     return d_value;
   }
-  // sum over t in [0, i) of m(t)^2: sum cos(w t) = sin(w i / 2) cos(w (i - 1) / 2) / sin(w / 2) (and sin), the
-  // same at 2 w for the square's second harmonic
-  float model_energy(int i) const {
-    float sa, ca;
-    sin_cos(half_w * static_cast<float>(i), &sa, &ca);
-    const float sb = sa * hc - ca * hs, cb = ca * hc + sa * hs;  // w (i - 1) / 2
-    return lin * static_cast<float>(i) + sa * (k1c * cb + k1s * sb) +
-           2.0f * sa * ca * (k2c * (cb * cb - sb * sb) + k2s * 2.0f * sb * cb);
-  }
+  // steps (set for the onset scan): its rotation by w kBlock and its start w (kBlock - 1) / 2 are the
+  // sin_cos this loop needs, the same arguments
   IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level, const HumBasis& basis) {
     ch = &channel;
     bl = &b;
     base = level;
     d_block = -1;
-    const int f = basis.index(b.w);
-    gain16 = basis.blk_gain[f];
-    hs = basis.half_s[f];
-    hc = basis.half_c[f];
-    half_w = 0.5f * b.w;
-    const float sin_w = 2.0f * hs * hc;
-    lin = b.c0 * b.c0 + 0.5f * (b.c1 * b.c1 + b.c2 * b.c2);
-    k1c = 2.0f * b.c0 * b.c1 / hs;
-    k1s = 2.0f * b.c0 * b.c2 / hs;
-    k2c = 0.5f * (b.c1 * b.c1 - b.c2 * b.c2) / sin_w;
-    k2s = b.c1 * b.c2 / sin_w;
+    gain16 = basis.blk_gain[basis.index(b.w)];
+    const float rs = steps.rs, rc = steps.rc;
+    float s = steps.ms, c = steps.mc;
+    corr[0] = 0.0f;
+    // Full blocks first (m = kBlock: its products hoisted, the same floats), then a shorter last block.
+    const int full = channel.n / kBlock;
+    const float mf = static_cast<float>(kBlock), mbase = mf * base;
+    const float c0 = b.c0, g1 = gain16, c1 = b.c1, c2 = b.c2;
+    float acc = 0.0f;
+    int32_t prev = channel.prefix[0].s1;
+    for (int k = 0; k < full; ++k) {
+      const float d = c0 + g1 * (c1 * c + c2 * s);
+      const int32_t next = channel.prefix[k + 1].s1;
+      const float dev = static_cast<float>(next - prev) - mbase;
+      prev = next;
+      acc = acc + d * (mf * d - 2.0f * dev);
+      corr[k + 1] = acc;
+      const float cn = c * rc - s * rs;
+      s = s * rc + c * rs;
+      c = cn;
+    }
+    for (int k = full; k < channel.nblk; ++k) {
+      const int m = channel.block_end(k) - k * kBlock;
+      const float d = b.c0 + gain16 * (b.c1 * c + b.c2 * s);
+      const float dev = static_cast<float>(channel.prefix[k + 1].s1 - channel.prefix[k].s1) - m * base;
+      corr[k + 1] = corr[k] + d * (static_cast<float>(m) * d - 2.0f * dev);
+      const float cn = c * rc - s * rs;
+      s = s * rc + c * rs;
+      c = cn;
+    }
   }
   // Energy about the model of x[0 .. k kBlock) and of x[0 .. i).
-  float to_block(int k) const {
-    const int e = k * kBlock < ch->n ? k * kBlock : ch->n;
-    return ch->to_energy(ch->energy_to_block(k)) - model_energy(e);
+  float to_block(int k) const { return ch->to_energy(ch->energy_to_block(k)) + corr[k]; }
+  float to(int i) const {
+    const int k = i / kBlock, m = i - k * kBlock;
+    const Sums p = prefix_at(ch->x, ch->prefix, ch->n, i);  // Channel::energy_to's, read once
+    float e = ch->to_energy(ch->prefix_form(p.s2, p.s1, i)) + corr[k];
+    if (m > 0) {
+      const float d = block_d(k);
+      const float dev = static_cast<float>(p.s1 - ch->prefix[k].s1) - m * base;
+      e += d * (static_cast<float>(m) * d - 2.0f * dev);
+    }
+    return e;
   }
-  float to(int i) const { return ch->to_energy(ch->energy_to(i)) - model_energy(i); }
-  // The first sample where the energy about the model reaches target (energy_reaches about the model): the
-  // block found by bisection on the energy less the model's linear part (no sin_cos; its oscillating terms
-  // are bounded), then stepped to the block where the whole form crosses, then sample by sample.
+  // The first sample where the energy about the model reaches target (energy_reaches about the model).
   int reaches(float target) const {
     if (to_block(ch->nblk) < target) return ch->n - 1;
     int lo = 0, hi = ch->nblk;
     while (hi - lo > 1) {
       const int mid = (lo + hi) / 2;
-      const int e = mid * kBlock < ch->n ? mid * kBlock : ch->n;
-      if (ch->to_energy(ch->energy_to_block(mid)) - lin * static_cast<float>(e) < target) lo = mid; else hi = mid;
+      if (to_block(mid) < target) lo = mid; else hi = mid;
     }
     float cum = to_block(lo);
-    while (lo > 0 && cum >= target) cum = to_block(--lo);
-    while (lo + 1 < ch->nblk) {
-      const float next = to_block(lo + 1);
-      if (next >= target) break;
-      cum = next;
-      ++lo;
-    }
     const float d = base + block_d(lo);
     for (int i = lo * kBlock; i < ch->n; ++i) {
       const float v = static_cast<float>(ch->x[i]) - d;
@@ -1070,7 +1076,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int at = -1, spikes = 0;
   float cross = -1.0f;
   LocalHum local;
-  HumEnergy hum_e;
+  HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
   local.bl = &bl;
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {

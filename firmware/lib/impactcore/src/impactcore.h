@@ -371,7 +371,6 @@ struct HumBasis {
   // a unit sinusoid over it (HumSteps, HumEnergy in features.cpp)
   float blk_rc[2] = {}, blk_rs[2] = {}, blk_lc[2] = {}, blk_ls[2] = {}, blk_mc[2] = {}, blk_ms[2] = {},
         blk_gain[2] = {};
-  float half_s[2] = {}, half_c[2] = {};  // sin, cos of w / 2 (a hum channel's energies about the model)
   void set(float fs);
   // the kMainsHz index of a fitted hum's w (w[0] or w[1])
   int index(float w_hum) const { return w_hum == w[1] ? 1 : 0; }
