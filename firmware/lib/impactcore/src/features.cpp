@@ -416,40 +416,45 @@ int energy_reaches(const Channel& ch, int64_t target) {
   return ch.n - 1;
 }
 
-// hum_at at a block's first sample, its last and its centre, block after block from block 0: the phase
-// stepped by rotations (a sin_cos is ~70 instructions on the M4F; a hum channel's scan to its onset read
-// three a block). Full blocks only: a capture's last, shorter block takes hum_at. The rotations' rounding
-// leaves them within ~1e-6 of hum_at's amplitude over a capture (float phase arguments differ as much).
+// hum_at at a block's first sample, its last and its centre, block after block from block 0: each the level's
+// c0 plus a sinusoid sampled every kBlock samples, stepped by y_{k+1} = 2 cos(w kBlock) y_k - y_{k-1} (one
+// multiply-add each a block; a sin_cos is ~70 instructions on the M4F). Full blocks only: a capture's last,
+// shorter block takes hum_at. The steps' rounding leaves them within ~1e-6 of hum_at's amplitude over a capture
+// (float phase arguments differ as much).
 struct HumSteps {
   // set() before use (no default values: the struct sits unused in every channel without a hum)
   const Baseline* bl;
-  int k;
-  float c, s;                 // cos, sin of w k kBlock
-  float rc, rs, lc, ls, mc, ms;  // rotations by w kBlock, w (kBlock - 1), w (kBlock - 1) / 2
-  // the rotations from the event's basis (HumBasis: the rate's, computed once)
+  float two_c;           // 2 cos(w kBlock)
+  float f, fp, l, lp, m, mp;  // the sinusoid at block k's first, last and centre sample, and at block k - 1's
+  // from the event's basis (HumBasis: the rate's, computed once)
   void set(const Baseline& b, const HumBasis& basis) {
     bl = &b;
-    k = 0;
-    c = 1.0f;
-    s = 0.0f;
-    const int f = basis.index(b.w);
-    rs = basis.blk_rs[f];
-    rc = basis.blk_rc[f];
-    ls = basis.blk_ls[f];
-    lc = basis.blk_lc[f];
-    ms = basis.blk_ms[f];
-    mc = basis.blk_mc[f];
+    const int i = basis.index(b.w);
+    const float rs = basis.blk_rs[i], rc = basis.blk_rc[i], ms = basis.blk_ms[i], mc = basis.blk_mc[i];
+    const float ls = basis.blk_ls[i], lc = basis.blk_lc[i];
+    two_c = 2.0f * rc;
+    // c1 cos + c2 sin at a phase (cos, sin) and a block before it (the phase less w kBlock)
+    const auto now = [&](float c, float s) { return b.c1 * c + b.c2 * s; };
+    const auto before = [&](float c, float s) { return b.c1 * (c * rc + s * rs) + b.c2 * (s * rc - c * rs); };
+    f = now(1.0f, 0.0f);
+    fp = before(1.0f, 0.0f);
+    l = now(lc, ls);
+    lp = before(lc, ls);
+    m = now(mc, ms);
+    mp = before(mc, ms);
   }
   void next() {
-    const float cn = c * rc - s * rs;
-    s = s * rc + c * rs;
-    c = cn;
-    ++k;
+    const float fn = two_c * f - fp, ln = two_c * l - lp, mn = two_c * m - mp;
+    fp = f;
+    f = fn;
+    lp = l;
+    l = ln;
+    mp = m;
+    m = mn;
   }
-  float at(float cos_, float sin_) const { return bl->c0 + bl->c1 * cos_ + bl->c2 * sin_; }
-  float first() const { return at(c, s); }
-  float last() const { return at(c * lc - s * ls, s * lc + c * ls); }
-  float centre() const { return at(c * mc - s * ms, s * mc + c * ms); }
+  float first() const { return bl->c0 + f; }
+  float last() const { return bl->c0 + l; }
+  float centre() const { return bl->c0 + m; }
 };
 
 // The extremes the onset scan read: of every sample in blocks [0, covered).
@@ -497,42 +502,58 @@ struct HumEnergy {
     d_value = bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
     return d_value;
   }
-  // steps (set for the onset scan): its rotation by w kBlock and its start w (kBlock - 1) / 2 are the
-  // sin_cos this loop needs, the same arguments
+  // d_k - c0 = g (c1 cos + c2 sin) at block k's centre, a sinusoid sampled every kBlock: y_{k+1} = 2 cos(w kBlock)
+  // y_k - y_{k-1} (one multiply-add a block, as HumSteps)
   IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level, const HumBasis& basis) {
     ch = &channel;
     bl = &b;
     base = level;
     d_block = -1;
     gain16 = basis.blk_gain[basis.index(b.w)];
-    const float rs = steps.rs, rc = steps.rc;
-    float s = steps.ms, c = steps.mc;
+    // steps (set for the onset scan, not stepped): the sinusoid at block 0's centre and block -1's
+    const float two_c = steps.two_c;
+    float y = gain16 * steps.m, y_prev = gain16 * steps.mp;
     corr[0] = 0.0f;
-    // Full blocks first (m = kBlock: its products hoisted, the same floats), then a shorter last block.
+    // Full blocks first (m = kBlock), then a shorter last block.
     const int full = channel.n / kBlock;
-    const float mf = static_cast<float>(kBlock), mbase = mf * base;
-    const float c0 = b.c0, g1 = gain16, c1 = b.c1, c2 = b.c2;
+    const float mf = static_cast<float>(kBlock), mbase = mf * base, c0 = b.c0;
     float acc = 0.0f;
     int32_t prev = channel.prefix[0].s1;
-    for (int k = 0; k < full; ++k) {
-      const float d = c0 + g1 * (c1 * c + c2 * s);
+    // two blocks a pass (the recurrence's registers swap roles instead of moving)
+    int k = 0;
+    for (; k + 1 < full; k += 2) {
+      const float d0 = c0 + y;
+      const int32_t mid = channel.prefix[k + 1].s1, next = channel.prefix[k + 2].s1;
+      const float dev0 = static_cast<float>(mid - prev) - mbase;
+      acc = acc + d0 * (mf * d0 - 2.0f * dev0);
+      corr[k + 1] = acc;
+      y_prev = two_c * y - y_prev;  // block k + 1's
+      const float d1 = c0 + y_prev;
+      const float dev1 = static_cast<float>(next - mid) - mbase;
+      prev = next;
+      acc = acc + d1 * (mf * d1 - 2.0f * dev1);
+      corr[k + 2] = acc;
+      y = two_c * y_prev - y;        // block k + 2's (y_prev stays block k + 1's)
+    }
+    for (; k < full; ++k) {
+      const float dk = c0 + y;
       const int32_t next = channel.prefix[k + 1].s1;
       const float dev = static_cast<float>(next - prev) - mbase;
       prev = next;
-      acc = acc + d * (mf * d - 2.0f * dev);
+      acc = acc + dk * (mf * dk - 2.0f * dev);
       corr[k + 1] = acc;
-      const float cn = c * rc - s * rs;
-      s = s * rc + c * rs;
-      c = cn;
+      const float yn = two_c * y - y_prev;
+      y_prev = y;
+      y = yn;
     }
-    for (int k = full; k < channel.nblk; ++k) {
+    for (k = full; k < channel.nblk; ++k) {
       const int m = channel.block_end(k) - k * kBlock;
-      const float d = b.c0 + gain16 * (b.c1 * c + b.c2 * s);
+      const float dk = c0 + y;
       const float dev = static_cast<float>(channel.prefix[k + 1].s1 - channel.prefix[k].s1) - m * base;
-      corr[k + 1] = corr[k] + d * (static_cast<float>(m) * d - 2.0f * dev);
-      const float cn = c * rc - s * rs;
-      s = s * rc + c * rs;
-      c = cn;
+      corr[k + 1] = corr[k] + dk * (static_cast<float>(m) * dk - 2.0f * dev);
+      const float yn = two_c * y - y_prev;
+      y_prev = y;
+      y = yn;
     }
   }
   // Energy about the model of x[0 .. k kBlock) and of x[0 .. i).
