@@ -191,3 +191,23 @@ def test_the_hum_basis_kept_between_events_follows_the_rate(drops):
     again = features(hum100, cfg)
     for k, v in first.items():
         assert np.array_equal(np.asarray(v), np.asarray(again[k]), equal_nan=True), k
+
+
+def test_a_hum_on_the_longest_capture_leaves_the_energies(drops):
+    """The hum model is stepped block to block by the sinusoid's two-term recurrence (HumSteps, HumEnergy): on the
+    longest capture the core takes (kMaxSamples, 512 blocks, four 50 Hz periods at 100 kHz) a 150-count hum leaves
+    the capture's energy within 0.5 % of the same capture's without it on 95 % of channels (measured ~0.3 %; a 50 Hz
+    residual of 3 counts left over the capture adds ~0.2 %, 5 counts ~0.5 %), the arrival's within 1 %."""
+    _, adc, cfg = drops
+    n = _core.MAX_SAMPLES
+    rows = adc[:12]
+    quiet = rows[..., :150]
+    reps = -(-(n - rows.shape[-1]) // quiet.shape[-1])
+    long = np.concatenate([rows, np.tile(quiet, reps)], -1)[..., :n]
+    clean = features(long, cfg)
+    out = features(with_hum(long, 150, 50.0, 1.1, offset=-25), cfg)
+    assert np.all(out["flags"] & _core.FLAG_HUM)
+    ratio = np.log10(out["energy"] / clean["energy"])
+    assert np.percentile(np.abs(ratio), 95) < np.log10(1.005), np.abs(ratio).max()
+    arrival = np.log10(out["window_energy"].sum(-1) / clean["window_energy"].sum(-1))
+    assert np.percentile(np.abs(arrival), 95) < np.log10(1.01)
