@@ -108,8 +108,7 @@ def grouped_oof(X, log_e, groups, fit, n_folds: int = 5) -> np.ndarray:
 
 def fitters():
     """name -> fit(X, log_e, groups) -> X -> estimate."""
-    def degree_by_cv(X, y, g):
-        from impactsense.height_class import position_groups  # noqa: F401  (groups are positions already)
+    def degree_by_cv(X, y, g):     # g: the drops' position groups
         best = min(range(4), key=lambda d: np.mean((grouped_oof(X, y, g, lambda a, b, c: fit_estimate(a, b, d, c))
                                                     - y) ** 2))
         return fit_estimate(X, y, best, g)

@@ -1,0 +1,194 @@
+"""The calibrated twin's energy per channel against the rig's, by the path's direction to the fibres: where the
+zero-shot class's height estimate is wrong on a laminate, and whether the twin's in-plane shear modulus is why
+(measured; nothing chosen).
+
+    impactsense calibrate DATA --out CAL.json
+    python3 benchmarks/bench_twin_directivity.py DATA --calibration CAL.json [--g12-gpa 4.5 3] [--cache DIR]
+
+One drop per case of DATA is simulated with the twin of CAL.json (its sim_params; no noise, the rig's logger) at
+the case's declared position and height, and each twin feature (log10 of a channel's arrival and difference
+energies, the twin's fingerprint: sitemap.TWIN_FEATURE_NAMES) compared with the rig's (the mean over the case's
+drops): misfit = rig - twin, less each feature's median over the calibration drops (the channel gains and the
+spectral tilt the calibration's offsets hold). Printed per twin variant (CAL's own, then CAL's with g12 set to each
+--g12-gpa value, every other parameter kept):
+
+1. the misfit's spread: per feature, the part shared by a case's four channels (the site: what the ball puts in)
+   and each channel's own (the path: spreading, attenuation, direction);
+2. the misfit by the path's angle to the material's first axis and by its length (case x channel means), and by
+   site band (40-60 mm from the edges along / across the fibres, nearer, the interior);
+3. the arrival-time misfit: rms over cases of each sensor pair's DToA, rig - twin, less the pair's median (the
+   channel delays), us: what calibrate's laminate stage fits E1, E2, G12 by;
+4. the zero-shot class as the twin's estimate would give it at the declared position: each drop's log10 h error
+   = the mean over its 16 features of (rig - twin - the calibration drops' offsets) (slope 1, equal weights; the
+   product weights per kind and matches at the reported position), the class against the cut between the two
+   heights either side of the 75th percentile, on the cases every variant simulates; then with one more term per
+   channel, b exp(-(sin theta / 0.1)^2) (theta the path's angle to the fibres: energy beamed along them), b fitted
+   on the calibration drops alone.
+The calibration drops are CAL.json's (drops.case_ids); their cases are left out of part 4's figure.
+Simulations are cached under --cache (one .npz per variant). docs/findings.md "Session 28: rigcclass".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+FULL = (1 << 16) - 1
+LOBE_WIDTH = 0.1          # sin theta: ~6 degrees either side of the fibre axis
+
+
+def simulate_cases(session, cal: dict, cache: Path | None, tag: str) -> dict:
+    """Twin and rig features (16 twin features, usable masks, arrival times) of one drop per case."""
+    from impactsense.pipeline import featurize
+    from impactsense.signal import SignalConfig
+    from impactsense.sim import SimParams
+    from impactsense.sim.simulate import batch_solver, simulate_drops
+    from impactsense.sitemap import twin_features
+
+    path = None if cache is None else cache / f"twin-cases-{tag}.npz"
+    if path is not None and path.is_file():
+        with np.load(path) as z:
+            return dict(z)
+    params = SimParams.from_dict(cal["sim_params"])
+    cases, first = np.unique(session.case_id, return_index=True)
+    x, y, h = session.x_mm[first], session.y_mm[first], session.height_mm[first]
+    signal = SignalConfig.for_rig(session.rig)
+    solver = batch_solver(params, session.rig, "auto", x, y, h)
+    adc = simulate_drops(params, session.rig, x, y, h, noise=False, workers=1, progress=False, solver=solver)
+    twin, rig = featurize(adc, signal), featurize(session.adc, signal)
+    (ft, ut), (fm, um) = twin_features(twin), twin_features(rig)
+    out = dict(cases=cases, x=x, y=y, h=h, ft=ft, ut=ut, fm=fm, um=um, toa_t=twin.toa_us, toa_m=rig.toa_us)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, **out)
+    return out
+
+
+def path_geometry(xy: np.ndarray, sensors: np.ndarray, axis_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each (drop, channel) path's length (mm) and angle to the material's first axis (rad, 0..pi/2)."""
+    d = xy[:, None, :] - sensors[None]
+    c, s = np.cos(np.radians(axis_deg)), np.sin(np.radians(axis_deg))
+    along, across = d[..., 0] * c + d[..., 1] * s, -d[..., 0] * s + d[..., 1] * c
+    return np.hypot(along, across), np.arctan2(np.abs(across), np.abs(along))
+
+
+def report(name: str, sim: dict, session, cal_cases: np.ndarray, common: np.ndarray, axis_deg: float) -> None:
+    cases, x, y = sim["cases"], sim["x"], sim["y"]
+    W, H = session.rig.plate_x_mm, session.rig.plate_y_mm
+    sensors = np.asarray(session.rig.sensor_xy_mm, float)
+    idx = np.searchsorted(cases, session.case_id)
+    usable = (sim["ut"] == FULL)[idx] & (sim["um"] == FULL)
+    R = (sim["fm"] - sim["ft"][idx]).reshape(-1, 4, 4)          # drop, channel, kind; log10 rig - twin
+    is_cal = np.isin(session.case_id, cal_cases) & usable
+    off = np.median(R[is_cal], 0)
+    Rc = R - off
+    # case means
+    M = np.full((len(cases), 4, 4), np.nan)
+    for i in range(len(cases)):
+        rows = (idx == i) & usable
+        if rows.any():
+            M[i] = Rc[rows].mean(0)
+    shared = np.nanmean(M, (1, 2))
+    per_channel = np.nanmean(M, 2)
+    own = per_channel - shared[:, None]
+    print(f"{name}: cases simulated and usable {int(np.isfinite(shared).sum())} of {len(cases)}")
+    print(f"  1. misfit sd (log10): per feature {np.nanstd(M):.3f}, shared by the channels {np.nanstd(shared):.3f}, "
+          f"each channel's own {np.nanstd(own):.3f}")
+    r, theta = path_geometry(np.c_[x, y], sensors, axis_deg)
+    deg = np.degrees(theta)
+    line = "  2. by the path's angle to the fibres (deg: mean, n):"
+    for lo, hi in ((0, 10), (10, 20), (20, 35), (35, 55), (55, 90.1)):
+        m = (deg >= lo) & (deg < hi) & np.isfinite(per_channel)
+        line += f"  {lo:g}-{hi:g}: {per_channel[m].mean():+.3f} ({m.sum()})"
+    print(line)
+    line = "     by its length (mm):"
+    for lo, hi in ((0, 50), (50, 100), (100, 200), (200, 300), (300, 1e9)):
+        m = (r >= lo) & (r < hi) & np.isfinite(per_channel)
+        line += f"  {lo:g}-{hi:g}: {per_channel[m].mean():+.3f} ({m.sum()})"
+    print(line)
+    dx, dy = np.minimum(x, W - x), np.minimum(y, H - y)
+    bands = {"40-60 mm from an edge along the fibres": (dy >= 40) & (dy < 60) & (dx >= 40),
+             "40-60 mm from an edge across the fibres": (dx >= 40) & (dx < 60) & (dy >= 40),
+             "within 40 mm of an edge": np.minimum(dx, dy) < 40,
+             ">= 80 mm from every edge": np.minimum(dx, dy) >= 80}
+    print("     by site (shared; per channel): " + "; ".join(
+        f"{k} ({int((m & np.isfinite(shared)).sum())}) {np.nanmean(shared[m]):+.3f} ("
+        + " ".join(f"{v:+.2f}" for v in np.nanmean(per_channel[m], 0)) + ")" for k, m in bands.items()))
+    # 3. timing
+    pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
+    tm = np.full((len(cases), 4), np.nan)
+    for i in range(len(cases)):
+        rows = idx == i
+        tm[i] = np.nanmean(sim["toa_m"][rows], 0) if rows.any() else np.nan
+    dd = np.stack([(tm[:, i] - tm[:, j]) - (sim["toa_t"][:, i] - sim["toa_t"][:, j]) for i, j in pairs], 1)
+    dd -= np.nanmedian(dd, 0)
+    print(f"  3. DToA rig - twin, rms over cases and pairs (pair medians removed): {np.sqrt(np.nanmean(dd ** 2)):.1f} us")
+    # 4. the class as the twin's estimate would give it
+    cut = 0.5 * np.log10(class_heights(session))
+    lab = np.log10(session.height_mm) >= cut
+    test = usable & ~np.isin(session.case_id, cal_cases) & np.isin(session.case_id, common)
+    lobe = np.exp(-(np.sin(theta) / LOBE_WIDTH) ** 2)[idx]      # drop, channel
+    g = lobe[is_cal] - lobe[is_cal].mean(0)
+    yv = (R[is_cal] - np.median(R[is_cal], 0)).mean(2)
+    b = float(np.sum(g * yv) / np.sum(g * g))
+    for label, corr in (("the twin", 0.0), (f"+ fibre-axis lobe, b {b:+.3f} from the calibration drops",
+                                             b * lobe[:, :, None])):
+        Rk = R - corr
+        err = (Rk - np.median(Rk[is_cal], 0)).mean((1, 2))
+        wrong = ((np.log10(session.height_mm) + err) >= cut) != lab
+        per_case = [err[test & (session.case_id == c)].mean() for c in np.unique(session.case_id[test])]
+        print(f"  4. {label:58s} class {1 - wrong[test].mean():.3f} ({int(wrong[test].sum())} of {int(test.sum())} "
+              f"wrong), estimate error per-case sd {np.std(per_case):.3f} log10")
+
+
+def class_heights(session) -> float:
+    """The product of the two heights either side of the session's 75th-percentile energy (mm^2)."""
+    h = np.asarray(session.height_mm, float)
+    t = np.percentile(h, 75)
+    return float(h[h < t].max() * h[h >= t].min())
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("data")
+    ap.add_argument("--calibration", required=True, help="CAL.json of DATA (impactsense calibrate)")
+    ap.add_argument("--g12-gpa", type=float, nargs="*", default=[], help="twin variants: CAL's with this g12")
+    ap.add_argument("--cache", type=Path, default=None, help="folder for the simulated cases (reused)")
+    args = ap.parse_args()
+    warnings.filterwarnings("ignore", category=RuntimeWarning)     # a case without a usable twin drop: NaN means
+    from impactsense.data import load_session
+
+    session = load_session(args.data)
+    cal = json.loads(Path(args.calibration).read_text())
+    cal_cases = np.asarray(cal.get("drops", {}).get("case_ids", []), int)
+    if not np.isin(cal_cases, session.case_id).any():
+        raise SystemExit(f"{args.calibration}: drops.case_ids names no case of {session.name}")
+    axis = float(cal["sim_params"].get("material_axes_deg") or 0.0)
+    variants = {f"CAL (g12 {cal['sim_params'].get('g12_pa', 0) / 1e9:.1f} GPa)": cal}
+    for g in args.g12_gpa:
+        c = json.loads(json.dumps(cal))
+        c["sim_params"]["g12_pa"] = g * 1e9
+        variants[f"CAL with g12 {g:g} GPa"] = c
+    sims = {name: simulate_cases(session, c, args.cache, f"g12-{c['sim_params'].get('g12_pa', 0) / 1e9:.2f}")
+            for name, c in variants.items()}
+    common = _common([s["cases"][s["ut"] == FULL] for s in sims.values()])
+    print(f"{session.name}: {len(np.unique(session.case_id))} cases; calibration cases {cal_cases.tolist()}; "
+          f"part 4 on the {len(common)} cases every variant simulates (less the calibration cases)")
+    for name, sim in sims.items():
+        report(name, sim, session, cal_cases, common, axis)
+    return 0
+
+
+def _common(sets: list[np.ndarray]) -> np.ndarray:
+    out = sets[0]
+    for s in sets[1:]:
+        out = np.intersect1d(out, s)
+    return out
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
