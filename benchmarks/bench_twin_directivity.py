@@ -24,6 +24,9 @@ spectral tilt the calibration's offsets hold). Printed per twin variant (CAL's o
    heights either side of the 75th percentile, on the cases every variant simulates; then with one more term per
    channel, b exp(-(sin theta / 0.1)^2) (theta the path's angle to the fibres: energy beamed along them), b fitted
    on the calibration drops alone.
+5. (--draws K, the first variant only) the same two rows over K draws of four calibration cases, one per plate
+   quadrant, among the usable ones: b's spread, the class with b fitted on the draw and with b fitted on every drop
+   (the direction law known, not zero-shot), paired to the twin without the lobe.
 The calibration drops are CAL.json's (drops.case_ids); their cases are left out of part 4's figure.
 Simulations are cached under --cache (one .npz per variant). docs/findings.md "Session 28: rigcclass".
 """
@@ -145,6 +148,56 @@ def report(name: str, sim: dict, session, cal_cases: np.ndarray, common: np.ndar
               f"wrong), estimate error per-case sd {np.std(per_case):.3f} log10")
 
 
+def lobe_class(R, lobe, is_cal, test, log_h, cut, lab, b=None) -> tuple[float, float, float, float]:
+    """(b, the lobe's leverage sum g^2 on the calibration drops, class without the lobe, class with it); b fitted
+    on the calibration drops' channel misfits unless given."""
+    g = lobe[is_cal] - lobe[is_cal].mean(0)
+    lev = float(np.sum(g * g))
+    if b is None:
+        yv = (R[is_cal] - np.median(R[is_cal], 0)).mean(2)
+        b = float(np.sum(g * yv) / lev) if lev > 1e-9 else 0.0
+    acc = []
+    for corr in (0.0, b * lobe[:, :, None]):
+        Rk = R - corr
+        err = (Rk - np.median(Rk[is_cal], 0)).mean((1, 2))
+        acc.append(float(np.mean(((log_h + err) >= cut)[test] == lab[test])))
+    return b, lev, acc[0], acc[1]
+
+
+def draws(sim: dict, session, axis_deg: float, k: int) -> None:
+    """Part 5: the fibre-axis lobe's b and class over k draws of four calibration cases (one per quadrant)."""
+    cases, x, y = sim["cases"], sim["x"], sim["y"]
+    idx = np.searchsorted(cases, session.case_id)
+    usable = (sim["ut"] == FULL)[idx] & (sim["um"] == FULL)
+    R = (sim["fm"] - sim["ft"][idx]).reshape(-1, 4, 4)
+    _, theta = path_geometry(np.c_[x, y], np.asarray(session.rig.sensor_xy_mm, float), axis_deg)
+    lobe = np.exp(-(np.sin(theta) / LOBE_WIDTH) ** 2)[idx]
+    log_h = np.log10(session.height_mm)
+    cut = 0.5 * np.log10(class_heights(session))
+    lab = log_h >= cut
+    good = cases[sim["ut"] == FULL]
+    quadrant = ((x > session.rig.plate_x_mm / 2).astype(int) + 2 * (y > session.rig.plate_y_mm / 2))[
+        np.searchsorted(cases, good)]
+    b_all = lobe_class(R, lobe, usable, usable, log_h, cut, lab)[0]
+    rng = np.random.default_rng(0)
+    rows = []
+    for _ in range(k):
+        cal = np.array([rng.choice(good[quadrant == q]) for q in range(4) if np.any(quadrant == q)])
+        is_cal = np.isin(session.case_id, cal) & usable
+        test = usable & ~np.isin(session.case_id, cal)
+        b, lev, without, fitted = lobe_class(R, lobe, is_cal, test, log_h, cut, lab)
+        known = lobe_class(R, lobe, is_cal, test, log_h, cut, lab, b_all)[3]
+        rows.append((b, lev, without, fitted, known))
+    a = np.array(rows)
+    se = lambda d: d.std(ddof=1) / np.sqrt(len(d))  # noqa: E731
+    strong = a[:, 1] > np.median(a[:, 1])
+    print(f"  5. {k} draws of four calibration cases: b median {np.median(a[:, 0]):+.3f} (10-90 % "
+          f"{np.percentile(a[:, 0], 10):+.3f}..{np.percentile(a[:, 0], 90):+.3f}; every drop's {b_all:+.3f}); class "
+          f"without {a[:, 2].mean():.3f}; + lobe, b from the draw {a[:, 3].mean():.3f} ({(a[:, 3] - a[:, 2]).mean():+.3f} "
+          f"+- {se(a[:, 3] - a[:, 2]):.3f}; the half with more leverage {(a[strong, 3] - a[strong, 2]).mean():+.3f}); "
+          f"b every drop's {a[:, 4].mean():.3f} ({(a[:, 4] - a[:, 2]).mean():+.3f} +- {se(a[:, 4] - a[:, 2]):.3f})")
+
+
 def class_heights(session) -> float:
     """The product of the two heights either side of the session's 75th-percentile energy (mm^2)."""
     h = np.asarray(session.height_mm, float)
@@ -158,6 +211,7 @@ def main() -> int:
     ap.add_argument("--calibration", required=True, help="CAL.json of DATA (impactsense calibrate)")
     ap.add_argument("--g12-gpa", type=float, nargs="*", default=[], help="twin variants: CAL's with this g12")
     ap.add_argument("--cache", type=Path, default=None, help="folder for the simulated cases (reused)")
+    ap.add_argument("--draws", type=int, default=40, help="part 5's draws of calibration cases (0: none)")
     args = ap.parse_args()
     warnings.filterwarnings("ignore", category=RuntimeWarning)     # a case without a usable twin drop: NaN means
     from impactsense.data import load_session
@@ -180,6 +234,8 @@ def main() -> int:
           f"part 4 on the {len(common)} cases every variant simulates (less the calibration cases)")
     for name, sim in sims.items():
         report(name, sim, session, cal_cases, common, axis)
+    if args.draws:
+        draws(next(iter(sims.values())), session, axis, args.draws)
     return 0
 
 
