@@ -60,7 +60,7 @@ def simulate_cases(session, cal: dict, cache: Path | None, tag: str) -> dict:
     cases, first = np.unique(session.case_id, return_index=True)
     x, y, h = session.x_mm[first], session.y_mm[first], session.height_mm[first]
     signal = SignalConfig.for_rig(session.rig)
-    solver = batch_solver(params, session.rig, "auto", x, y, h)
+    solver = "modal" if params.loss_factor > 0 else batch_solver(params, session.rig, "auto", x, y, h)
     adc = simulate_drops(params, session.rig, x, y, h, noise=False, workers=1, progress=False, solver=solver)
     twin, rig = featurize(adc, signal), featurize(session.adc, signal)
     (ft, ut), (fm, um) = twin_features(twin), twin_features(rig)
@@ -210,6 +210,9 @@ def main() -> int:
     ap.add_argument("data")
     ap.add_argument("--calibration", required=True, help="CAL.json of DATA (impactsense calibrate)")
     ap.add_argument("--g12-gpa", type=float, nargs="*", default=[], help="twin variants: CAL's with this g12")
+    ap.add_argument("--variant", action="append", default=[],
+                    help="a twin variant: CAL's sim_params with KEY=VALUE[,KEY=VALUE] set (e.g. loss_factor=0.015; "
+                         "a loss factor simulates with the modal solver)")
     ap.add_argument("--cache", type=Path, default=None, help="folder for the simulated cases (reused)")
     ap.add_argument("--draws", type=int, default=40, help="part 5's draws of calibration cases (0: none)")
     args = ap.parse_args()
@@ -227,8 +230,16 @@ def main() -> int:
         c = json.loads(json.dumps(cal))
         c["sim_params"]["g12_pa"] = g * 1e9
         variants[f"CAL with g12 {g:g} GPa"] = c
-    sims = {name: simulate_cases(session, c, args.cache, f"g12-{c['sim_params'].get('g12_pa', 0) / 1e9:.2f}")
-            for name, c in variants.items()}
+    for v in args.variant:
+        c = json.loads(json.dumps(cal))
+        for item in v.split(","):
+            key, value = item.split("=")
+            c["sim_params"][key.strip()] = float(value)
+        variants[f"CAL with {v}"] = c
+    tags = {name: f"g12-{c['sim_params'].get('g12_pa', 0) / 1e9:.2f}" + "".join(
+        f"-{k}{c['sim_params'][k]:g}" for k in ("loss_factor", "damping_per_s")
+        if c["sim_params"].get(k) != cal["sim_params"].get(k)) for name, c in variants.items()}
+    sims = {name: simulate_cases(session, c, args.cache, tags[name]) for name, c in variants.items()}
     common = _common([s["cases"][s["ut"] == FULL] for s in sims.values()])
     print(f"{session.name}: {len(np.unique(session.case_id))} cases; calibration cases {cal_cases.tolist()}; "
           f"part 4 on the {len(common)} cases every variant simulates (less the calibration cases)")
