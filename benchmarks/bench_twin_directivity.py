@@ -14,8 +14,8 @@ spectral tilt the calibration's offsets hold). Printed per twin variant (CAL's o
 
 1. the misfit's spread: per feature, the part shared by a case's four channels (the site: what the ball puts in)
    and each channel's own (the path: spreading, attenuation, direction);
-2. the misfit by the path's angle to the material's first axis and by its length (case x channel means), and by
-   site band (40-60 mm from the edges along / across the fibres, nearer, the interior);
+2. the misfit by the path's angle to the material's first axis and by its length (case x channel means), per kind
+   of energy (its slope per decade of the path's length; along / across the fibres), and by site band (40-60 mm from the edges along / across the fibres, nearer, the interior);
 3. the arrival-time misfit: rms over cases of each sensor pair's DToA, rig - twin, less the pair's median (the
    channel delays), us: what calibrate's laminate stage fits E1, E2, G12 by;
 4. the zero-shot class as the twin's estimate would give it at the declared position: each drop's log10 h error
@@ -113,6 +113,16 @@ def report(name: str, sim: dict, session, cal_cases: np.ndarray, common: np.ndar
         m = (r >= lo) & (r < hi) & np.isfinite(per_channel)
         line += f"  {lo:g}-{hi:g}: {per_channel[m].mean():+.3f} ({m.sum()})"
     print(line)
+    # per kind (arrival, Delta^1..3: the higher, the more the high frequencies weigh): a loss growing with frequency
+    # makes the difference energies' misfit fall with the path's length faster than the arrival energy's
+    rl, dl = r[idx], deg[idx]
+    ok = usable[:, None] & np.ones_like(rl, bool)
+    slopes = [np.polyfit(np.log10(rl[ok]), Rc[..., k][ok], 1)[0] for k in range(4)]
+    along = [Rc[..., k][ok & (dl < 10) & (rl >= 100) & (rl < 300)].mean() for k in range(4)]
+    across = [Rc[..., k][ok & (dl > 55) & (rl >= 100) & (rl < 300)].mean() for k in range(4)]
+    print("     per kind (arrival, Delta^1, Delta^2, Delta^3), every drop: slope per decade of path length "
+          + " ".join(f"{v:+.3f}" for v in slopes) + "; paths 100-300 mm within 10 deg of the fibres "
+          + " ".join(f"{v:+.3f}" for v in along) + ", beyond 55 deg " + " ".join(f"{v:+.3f}" for v in across))
     dx, dy = np.minimum(x, W - x), np.minimum(y, H - y)
     bands = {"40-60 mm from an edge along the fibres": (dy >= 40) & (dy < 60) & (dx >= 40),
              "40-60 mm from an edge across the fibres": (dx >= 40) & (dx < 60) & (dy >= 40),
