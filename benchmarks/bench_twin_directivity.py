@@ -27,6 +27,9 @@ spectral tilt the calibration's offsets hold). Printed per twin variant (CAL's o
 5. (--draws K, the first variant only) the same two rows over K draws of four calibration cases, one per plate
    quadrant, among the usable ones: b's spread, the class with b fitted on the draw and with b fitted on every drop
    (the direction law known, not zero-shot), paired to the twin without the lobe.
+6. (first variant) the same estimate from a subset of the kinds of energy: all four, the arrival energy alone,
+   arrival + Delta^1, with CAL's calibration cases and over the --draws draws (paired to all four kinds): a loss
+   growing with frequency that the twin lacks weighs on the difference energies (part 2's per-kind slopes).
 The calibration drops are CAL.json's (drops.case_ids); their cases are left out of part 4's figure.
 Simulations are cached under --cache (one .npz per variant). docs/findings.md "Session 28: rigcclass".
 """
@@ -208,6 +211,47 @@ def draws(sim: dict, session, axis_deg: float, k: int) -> None:
           f"b every drop's {a[:, 4].mean():.3f} ({(a[:, 4] - a[:, 2]).mean():+.3f} +- {se(a[:, 4] - a[:, 2]):.3f})")
 
 
+KIND_SUBSETS = {"all four kinds": [0, 1, 2, 3], "arrival energy alone": [0], "arrival + Delta^1": [0, 1]}
+
+
+def kinds(sim: dict, session, cal_cases: np.ndarray, k: int) -> None:
+    """Part 6: the emulated class from subsets of the kinds, CAL's calibration cases and k quadrant draws."""
+    cases, x, y = sim["cases"], sim["x"], sim["y"]
+    idx = np.searchsorted(cases, session.case_id)
+    usable = (sim["ut"] == FULL)[idx] & (sim["um"] == FULL)
+    R = (sim["fm"] - sim["ft"][idx]).reshape(-1, 4, 4)
+    log_h = np.log10(session.height_mm)
+    cut = 0.5 * np.log10(class_heights(session))
+    lab = log_h >= cut
+
+    def score(cal):
+        is_cal = np.isin(session.case_id, cal) & usable
+        test = usable & ~np.isin(session.case_id, cal)
+        out = []
+        for ks in KIND_SUBSETS.values():
+            Rk = R[:, :, ks]
+            err = (Rk - np.median(Rk[is_cal], 0)).mean((1, 2))
+            out.append(float(np.mean(((log_h + err) >= cut)[test] == lab[test])))
+        return out
+    own = score(cal_cases)
+    print("  6. class by the kinds read, CAL's calibration cases: "
+          + ", ".join(f"{n} {v:.3f}" for n, v in zip(KIND_SUBSETS, own)))
+    if not k:
+        return
+    good = cases[sim["ut"] == FULL]
+    quadrant = ((x > session.rig.plate_x_mm / 2).astype(int) + 2 * (y > session.rig.plate_y_mm / 2))[
+        np.searchsorted(cases, good)]
+    rng = np.random.default_rng(0)
+    a = np.array([score(np.array([rng.choice(good[quadrant == q]) for q in range(4) if np.any(quadrant == q)]))
+                  for _ in range(k)])
+    line = f"     {k} draws: "
+    for j, n in enumerate(KIND_SUBSETS):
+        d = a[:, j] - a[:, 0]
+        line += f"{n} {a[:, j].mean():.3f}" + ("" if j == 0 else f" ({d.mean():+.3f} +- {d.std(ddof=1) / np.sqrt(k):.3f}, "
+                                                           f"better on {int(np.sum(d > 0))}, worse on {int(np.sum(d < 0))})") + "; "
+    print(line.rstrip("; "))
+
+
 def class_heights(session) -> float:
     """The product of the two heights either side of the session's 75th-percentile energy (mm^2)."""
     h = np.asarray(session.height_mm, float)
@@ -257,6 +301,7 @@ def main() -> int:
         report(name, sim, session, cal_cases, common, axis)
     if args.draws:
         draws(next(iter(sims.values())), session, axis, args.draws)
+    kinds(next(iter(sims.values())), session, cal_cases, args.draws)
     return 0
 
 
