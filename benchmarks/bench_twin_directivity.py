@@ -28,7 +28,8 @@ spectral tilt the calibration's offsets hold). Printed per twin variant (CAL's o
    quadrant, among the usable ones: b's spread, the class with b fitted on the draw and with b fitted on every drop
    (the direction law known, not zero-shot), paired to the twin without the lobe.
 6. (first variant) the same estimate from a subset of the kinds of energy: all four, the arrival energy alone,
-   arrival + Delta^1, with CAL's calibration cases and over the --draws draws (paired to all four kinds): a loss
+   arrival + Delta^1, all four weighted 1 / each kind's residual variance on the calibration drops (fit_twin's
+   default weights from those drops), with CAL's calibration cases and over the --draws draws (paired to all four kinds): a loss
    growing with frequency that the twin lacks weighs on the difference energies (part 2's per-kind slopes).
 The calibration drops are CAL.json's (drops.case_ids); their cases are left out of part 4's figure.
 Simulations are cached under --cache (one .npz per variant). docs/findings.md "Session 28: rigcclass".
@@ -211,7 +212,8 @@ def draws(sim: dict, session, axis_deg: float, k: int) -> None:
           f"b every drop's {a[:, 4].mean():.3f} ({(a[:, 4] - a[:, 2]).mean():+.3f} +- {se(a[:, 4] - a[:, 2]):.3f})")
 
 
-KIND_SUBSETS = {"all four kinds": [0, 1, 2, 3], "arrival energy alone": [0], "arrival + Delta^1": [0, 1]}
+KIND_SUBSETS = {"all four kinds": [0, 1, 2, 3], "arrival energy alone": [0], "arrival + Delta^1": [0, 1],
+                "all four, weighted 1 / the kind's variance on the calibration drops": "weighted"}
 
 
 def kinds(sim: dict, session, cal_cases: np.ndarray, k: int) -> None:
@@ -229,8 +231,13 @@ def kinds(sim: dict, session, cal_cases: np.ndarray, k: int) -> None:
         test = usable & ~np.isin(session.case_id, cal)
         out = []
         for ks in KIND_SUBSETS.values():
-            Rk = R[:, :, ks]
-            err = (Rk - np.median(Rk[is_cal], 0)).mean((1, 2))
+            if isinstance(ks, str):     # twin.fit_twin's default weights, from the four calibration cases' drops
+                dev = R - np.median(R[is_cal], 0)
+                w = 1.0 / np.maximum(dev[is_cal].reshape(-1, 4).var(0), 1e-6)      # per kind, pooled channels
+                err = (dev * w[None, None, :]).sum((1, 2)) / (4 * w.sum())
+            else:
+                Rk = R[:, :, ks]
+                err = (Rk - np.median(Rk[is_cal], 0)).mean((1, 2))
             out.append(float(np.mean(((log_h + err) >= cut)[test] == lab[test])))
         return out
     own = score(cal_cases)
