@@ -286,7 +286,8 @@ def main() -> int:
     if not np.isin(cal_cases, session.case_id).any():
         raise SystemExit(f"{args.calibration}: drops.case_ids names no case of {session.name}")
     axis = float(cal["sim_params"].get("material_axes_deg") or 0.0)
-    variants = {f"CAL (g12 {cal['sim_params'].get('g12_pa', 0) / 1e9:.1f} GPa)": cal}
+    g12 = cal["sim_params"].get("g12_pa")
+    variants = {f"CAL (g12 {g12 / 1e9:.1f} GPa)" if g12 else "CAL": cal}
     for g in args.g12_gpa:
         c = json.loads(json.dumps(cal))
         c["sim_params"]["g12_pa"] = g * 1e9
@@ -297,7 +298,7 @@ def main() -> int:
             key, value = item.split("=")
             c["sim_params"][key.strip()] = float(value)
         variants[f"CAL with {v}"] = c
-    tags = {name: f"g12-{c['sim_params'].get('g12_pa', 0) / 1e9:.2f}" + "".join(
+    tags = {name: f"g12-{(c['sim_params'].get('g12_pa') or 0) / 1e9:.2f}" + "".join(
         f"-{k}{c['sim_params'][k]:g}" for k in ("loss_factor", "damping_per_s")
         if c["sim_params"].get(k) != cal["sim_params"].get(k)) for name, c in variants.items()}
     sims = {name: simulate_cases(session, c, args.cache, tags[name]) for name, c in variants.items()}
