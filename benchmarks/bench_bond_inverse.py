@@ -13,6 +13,12 @@ NAME. Variants (comma list):
 - truthinv: fit_bond's bond in the training drops, the inverse the true one-pole's;
 - spectral: the one-pole sized by `spectral_one_pole` (the bonded channel's spectrum against the
   reference's at the same positions, the other channels' ratio taken out) in the training drops and the inverse;
+- fX: base with the core's onset_noise_factor X (the absolute threshold and AIC blend refitted by train);
+- wX: base with the physics position's bonded channel weighted as a pick X x as scattered as the others' (its
+  Huber-IRLS residual over X): `weighted_phys` shifts the core's position by the difference of a Python
+  weighted and unweighted fit of the same picks (a prototype of a per-channel weight in the localiser); wm: X the
+  training drops' own lag rms on the bonded channel over the others' median (base must run first)
+  (docs/findings.md "Session 28: bondloop2");
 - pX[oN]: base's inverse (fc, g, f2) applied to the whole record in Python (`prefiltered`) and then N (default 1)
   one-poles at f3 = X x the other channels' pick frequency, on the training drops and on NAME alike, fed to the
   core as a plain channel (its inverse off); p0: the inverse alone (base on the whole record instead of the span)
@@ -30,6 +36,7 @@ channel (the lag of channel k against the rest).
 from __future__ import annotations
 
 import argparse
+import warnings
 import dataclasses
 import json
 import pickle
@@ -149,6 +156,75 @@ def prefiltered(session, ch: int, fc_hz: float, gain: float, f2_hz: float, f3_hz
     return dataclasses.replace(session, adc=np.clip(np.floor(a + 0.5), 0, session.rig.adc_max).astype(session.adc.dtype))
 
 
+def _weighted_fit(toa, sx, sy, v, q, huber, sigma, start, plate):
+    """(x, y): the Huber fit of toa_k = t0 + |p - s_k|_Q / v with residual k over sigma_k, from start."""
+    from scipy.optimize import least_squares
+
+    def res(p):
+        dx, dy = p[0] - sx, p[1] - sy
+        d = np.sqrt(np.maximum(q[0] * dx * dx + 2 * q[1] * dx * dy + q[2] * dy * dy, 1e-12))
+        return (toa - p[2] - d / v) / sigma
+
+    dx, dy = start[0] - sx, start[1] - sy
+    t0 = float(np.mean(toa - np.sqrt(q[0] * dx * dx + 2 * q[1] * dx * dy + q[2] * dy * dy) / v))
+    x0 = [min(max(start[0], 1e-3), plate[0] - 1e-3), min(max(start[1], 1e-3), plate[1] - 1e-3), t0]
+    return least_squares(res, x0, loss="huber", f_scale=huber, method="trf",
+                         bounds=([0.0, 0.0, -np.inf], [plate[0], plate[1], np.inf])).x[:2]
+
+
+def weighted_phys(feats, cfg, sigma):
+    """feats with the physics position (phys_xy_mm and the vector's phys_x_mm / phys_y_mm) moved by the
+    difference between the picks' fit weighted by 1 / sigma^2 per channel and the unweighted one (the threshold
+    picks; with band picks on, half that and half the band picks' difference: the core's mean of the two)."""
+    from impactsense.pipeline import FEATURE_NAMES
+
+    loc = cfg.localiser()
+    sx, sy = np.asarray(loc.sensor_x_mm, float), np.asarray(loc.sensor_y_mm, float)
+    sig = np.asarray(sigma, float)
+    plate = (float(loc.plate_x_mm), float(loc.plate_y_mm))
+    sets = [(np.asarray(feats.toa_us, float), float(loc.velocity_mm_per_us),
+             (loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy))]
+    if float(loc.band_velocity_mm_per_us) > 0:
+        sets.append((np.asarray(feats.raw["toa_band_us"], float) - np.asarray(loc.band_delay_us, float)[None],
+                     float(loc.band_velocity_mm_per_us), (loc.band_metric_xx, loc.band_metric_xy, loc.band_metric_yy)))
+    phys = np.asarray(feats.phys_xy_mm, float)
+    delta = np.zeros_like(phys)
+    for toa, v, q in sets:
+        for i in range(len(phys)):
+            if not (np.isfinite(toa[i]).all() and np.isfinite(phys[i]).all()):
+                continue
+            p1 = _weighted_fit(toa[i], sx, sy, v, q, float(loc.huber_us), np.ones(4), phys[i], plate)
+            pw = _weighted_fit(toa[i], sx, sy, v, q, float(loc.huber_us), sig, phys[i], plate)
+            delta[i] += (pw - p1) / len(sets)
+    out = dataclasses.replace(feats)
+    out.phys_xy_mm = (phys + delta).astype(feats.phys_xy_mm.dtype)
+    vec = np.array(feats.vector, copy=True)
+    for k, name in enumerate(("phys_x_mm", "phys_y_mm")):
+        vec[:, FEATURE_NAMES.index(name)] += delta[:, k]
+    out.vector = vec
+    return out
+
+
+def with_three_delta(feats, cfg, ch):
+    """feats with raw["three_delta"]: the threshold picks' Huber fit without channel ch less the fit with all four
+    (mm; 0 where not placed): the three-sensor position beside the four-sensor one, a prototype input for the
+    position forests (variant t3)."""
+    loc = cfg.localiser()
+    sx, sy = np.asarray(loc.sensor_x_mm, float), np.asarray(loc.sensor_y_mm, float)
+    plate = (float(loc.plate_x_mm), float(loc.plate_y_mm))
+    q = (loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy)
+    toa, phys = np.asarray(feats.toa_us, float), np.asarray(feats.phys_xy_mm, float)
+    sig = np.array([1e4 if k == ch else 1.0 for k in range(4)])
+    delta = np.zeros_like(phys)
+    for i in range(len(phys)):
+        if np.isfinite(toa[i]).all() and np.isfinite(phys[i]).all():
+            p4 = _weighted_fit(toa[i], sx, sy, float(loc.velocity_mm_per_us), q, float(loc.huber_us), np.ones(4), phys[i], plate)
+            p3 = _weighted_fit(toa[i], sx, sy, float(loc.velocity_mm_per_us), q, float(loc.huber_us), sig, phys[i], plate)
+            delta[i] = p3 - p4
+    feats.raw["three_delta"] = delta
+    return feats
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sessions")
@@ -161,6 +237,7 @@ def main() -> int:
     ap.add_argument("--forest-seed", type=int, default=-1, help="the forests' seed (default: --seed's)")
     ap.add_argument("--cache", default="", help="a scratch file keeping diagnose's and fit_bond's result")
     args = ap.parse_args()
+    warnings.filterwarnings("ignore", message=".*sklearn.utils.parallel.delayed.*")
     folder = Path(args.sessions)
     truth = json.loads((folder / "manifest.json").read_text())["sessions"][args.name]["truth"]["params"]
     t0 = time.time()
@@ -199,12 +276,21 @@ def main() -> int:
                     loop.training_draws = draws
             return cache[tag]
 
+        own_rms = {}
+        import impactsense.models as _models
+        import impactsense.workflow as _workflow
+        plain_featurize = _workflow.featurize
+        plain_location_matrix = _models.location_matrix
         for var in args.variants.split(","):
             t1 = time.time()
+            _workflow.featurize = _models.featurize = plain_featurize
+            _models.location_matrix = plain_location_matrix
             bond_inverse.BOND_LIMIT_OF_PICK = base_limit
             effects, tag, inv = accepted, "fit", None
             if var.startswith("k"):
                 bond_inverse.BOND_LIMIT_OF_PICK = float(var[1:])
+            elif var.startswith("f"):   # fX: the core's onset_noise_factor X (the picks' threshold refitted on it)
+                inv = ("factor", float(var[1:]))
             elif var == "truth":
                 effects, tag = with_bond(accepted, ch, truth["fc_hz"], truth["gain"]), "truth"
             elif var.startswith("d"):   # dN: N copies of each training drop, each its own draw of the bond's noise
@@ -217,6 +303,31 @@ def main() -> int:
                 fc_s, g_s = spectral_one_pole(ref, sess, ch)
                 print(f"  spectral one-pole {fc_s:.0f} Hz x{g_s:.3f}")
                 effects, tag = with_bond(accepted, ch, fc_s, g_s), "spectral"
+            elif var.startswith("w"):   # wX / wm: the bonded channel's pick weighted as X x as scattered
+                scale = (own_rms["bonded"] / own_rms["others"]) if var == "wm" else float(var[1:])
+                sigma = [scale if k == ch else 1.0 for k in range(4)]
+                print(f"  {var}: the bonded channel's sigma x{scale:.2f}")
+
+                def patched(adc, cfg, sigma=sigma):
+                    return weighted_phys(plain_featurize(adc, cfg), cfg, sigma)
+                _workflow.featurize = _models.featurize = patched
+            elif var == "z":   # the bonded channel's onset columns held constant in the position forests' inputs
+                def patched_matrix(features, names):
+                    from impactsense.pipeline import onset_columns
+                    m = np.array(plain_location_matrix(features, names), copy=True)
+                    drop = set(onset_columns(ch, names))
+                    m[:, [k for k, n in enumerate(names) if n in drop]] = 0.0
+                    return m
+                _models.location_matrix = patched_matrix
+            elif var == "t3":   # the three-sensor fit's offset as two more position-forest inputs
+                def patched(adc, cfg):
+                    return with_three_delta(plain_featurize(adc, cfg), cfg, ch)
+
+                def patched_matrix(features, names):
+                    return np.concatenate([plain_location_matrix(features, names),
+                                           np.asarray(features.raw["three_delta"], np.float32)], 1)
+                _workflow.featurize = _models.featurize = patched
+                _models.location_matrix = patched_matrix
             elif var.startswith("p"):   # pX[oN]: the inverse as a prefilter, then N one-poles at X x the pick frequency
                 x_of_pick, _, order = var[1:].partition("o")
                 inv = ("pre", float(x_of_pick), int(order or 1))
@@ -232,6 +343,8 @@ def main() -> int:
                 signal.bond_corner_hz, signal.bond_gain, signal.bond_limit_hz = [0.0] * 4, [1.0] * 4, [0.0] * 4
                 train_s = prefiltered(train_s, ch, fc, g2, f2, f3, inv[2])
                 sess_v = prefiltered(sess, ch, fc, g2, f2, f3, inv[2])
+            elif inv is not None and inv[0] == "factor":
+                signal = dataclasses.replace(signal, onset_noise_factor=inv[1])
             elif inv is not None and inv[0] == "gain":
                 signal = dataclasses.replace(signal)
                 signal.channel_gain = [inv[1] if k == ch else v for k, v in enumerate(signal.channel_gain)]
@@ -244,15 +357,21 @@ def main() -> int:
             mae = score(sess_v, model)["mae_mm"]
             res = lag_residual(train_s, sess_v, model.signal)
             own = lag_residual(train_s, train_s, model.signal)
+            if var == "base":
+                own_rms = {"bonded": own[ch][1], "others": float(np.median([r for k, (_, r) in enumerate(own) if k != ch]))}
             if sess_v is sess:
                 f2 = list(model.signal.bond_limit_hz)[ch]
                 fc = list(model.signal.bond_corner_hz)[ch]
             roll = f", roll-off {f3:.0f} Hz x{inv[2]}" if sess_v is not sess else ""
-            print(f"  {var}: inverse fc {fc:.0f} f2 {f2:.0f} Hz{roll}; MAE {mae:.2f} mm ({mae / unchanged:.3f} x unchanged "
+            ms = model.signal
+            print(f"  {var}: inverse fc {fc:.0f} f2 {f2:.0f} Hz{roll}; picks: noise factor {float(ms.onset_noise_factor):.1f}, "
+                  f"threshold {float(ms.onset_threshold_counts):.0f}, blend {float(ms.aic_blend):.2f}; MAE {mae:.2f} mm ({mae / unchanged:.3f} x unchanged "
                   f"{unchanged:.2f}); lag less the training cubic, mean/rms us: "
                   + ", ".join(f"ch{k}{'*' if k == ch else ''} {m:+.1f}/{r:.1f}" for k, (m, r) in enumerate(res))
                   + "; the training drops' own rms: " + ", ".join(f"{r:.1f}" for _, r in own)
                   + f" ({time.time() - t1:.0f} s)", flush=True)
+        _workflow.featurize = _models.featurize = plain_featurize
+        _models.location_matrix = plain_location_matrix
     bond_inverse.BOND_LIMIT_OF_PICK = base_limit
     return 0
 
