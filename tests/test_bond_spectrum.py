@@ -6,6 +6,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_bond_inverse import spectral_one_pole  # noqa: E402
@@ -83,3 +84,41 @@ def test_the_prefilter_is_the_cores_inverse_and_its_roll_off_cuts_the_lifted_noi
     got = rolled[:, 1, 200:].astype(float).std() / plain[:, 1, 200:].astype(float).std()
     assert abs(got / want - 1.0) < 0.05, (got, want)
     assert want < 0.8   # the band above f3 carries a real share of the lifted noise (the test can fail)
+
+
+def test_the_weighted_physics_position_leans_on_the_channels_weighted_up():
+    """bench_bond_inverse.weighted_phys (the Session 28 prototype of a per-channel pick weight in the localiser):
+    exact travel times from a known hit on the bundled rig with one channel's pick 15 us late. Equal weights: the
+    position is the core's, unmoved. That channel weighted 1e4 x as scattered: the position moves onto the other
+    three's exact solution (within 0.5 mm), nearer the hit than the equal-weight fit."""
+    import dataclasses
+    from bench_bond_inverse import weighted_phys
+    from impactsense.data import load_session
+    from impactsense.pipeline import FEATURE_NAMES, featurize
+    from impactsense.signal import SignalConfig
+
+    s = load_session("bundled:session-1").subset(np.arange(1))
+    cfg = SignalConfig.for_rig(s.rig)
+    f = featurize(s.adc, cfg)
+    hit = np.array([120.0, 200.0])
+    sensors = np.asarray(cfg.sensor_xy_mm, float)
+    toa = 500.0 + np.linalg.norm(sensors - hit, axis=1) / float(cfg.velocity_mm_per_us)
+    toa[2] += 15.0
+    start = hit + [6.0, -4.0]   # the core's position of such picks: near, not on, the hit
+    vec = np.array(f.vector, copy=True)
+    vec[0, FEATURE_NAMES.index("phys_x_mm")], vec[0, FEATURE_NAMES.index("phys_y_mm")] = start
+    f = dataclasses.replace(f, toa_us=toa[None].astype(np.float32), phys_xy_mm=start[None].astype(np.float32), vector=vec)
+    same = weighted_phys(f, cfg, [1.0] * 4)
+    assert np.allclose(same.phys_xy_mm, f.phys_xy_mm) and np.allclose(same.vector, f.vector)
+    loc = cfg.localiser()
+    assert float(loc.band_velocity_mm_per_us) == 0.0   # the rig's default: no band picks, the threshold picks' fit alone
+    from bench_bond_inverse import _weighted_fit
+    plate = (float(loc.plate_x_mm), float(loc.plate_y_mm))
+    q = (loc.travel_metric_xx, loc.travel_metric_xy, loc.travel_metric_yy)
+    equal = _weighted_fit(toa, sensors[:, 0], sensors[:, 1], float(loc.velocity_mm_per_us), q, float(loc.huber_us),
+                          np.ones(4), start, plate)
+    moved = weighted_phys(f, cfg, [1.0, 1.0, 1e4, 1.0])
+    shift = moved.phys_xy_mm[0] - start
+    got = equal + shift   # the equal-weight fit moved by the weighted fit's difference
+    assert np.linalg.norm(got - hit) < 0.5 < np.linalg.norm(equal - hit)
+    assert moved.vector[0, FEATURE_NAMES.index("phys_x_mm")] == pytest.approx(moved.phys_xy_mm[0, 0], abs=1e-3)
