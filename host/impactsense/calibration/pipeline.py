@@ -30,6 +30,7 @@ from .cache import cpu_seconds, record_compute_times, write_json
 from .logger_gain import fit_logger_gain
 from .options import MIN_BUDGET, CalibrateOptions
 from .problem import build_problem, measured_core_config, picker_overrides, sim_core_config, sim_features
+from .loss import twin_loss
 from .span import twin_span
 from .stages import STAGES, held
 
@@ -62,6 +63,13 @@ def calibrate(data, out, options: CalibrateOptions | None = None, *, simulate=No
         span = {**span, "duration_ms": span["default_ms"], "bound": "default (--twin-span default)"}
     problem.cal["twin_span"] = span
     problem.params["duration_ms"] = problem.cal["twin_span"]["duration_ms"]
+    # the twin's decay per frequency band as the rig's (loss.py): a loss factor when the rig's decay rises with it
+    loss = twin_loss(problem.session, [r for rs in problem.targets.recording_ids for r in rs],
+                     float(problem.params["damping_per_s"]))
+    problem.cal["twin_loss"] = loss
+    if loss["kept"]:
+        problem.params["loss_factor"] = loss["loss_factor"]
+        problem.params["damping_per_s"] = loss["damping_per_s"]
     pzt = problem.cal["pzt_damping"]
     result = {**problem.header(), "plate": problem.plate, **problem.cal, "fitted": problem.params,
               "sim_params": fem.sim_params_json(problem.params, problem.rig),

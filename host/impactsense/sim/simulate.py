@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import ConfigError, ImpactSenseError
 from . import executor
+from .loss import apply_loss_factor
 from .model import Model, build_model, impact_velocity
 from .params import SimParams
 
@@ -288,8 +289,6 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
     solver = solver or params.solver
     if solver not in ("direct", "modal"):
         raise ConfigError(f"solver must be 'direct' or 'modal', got {solver!r}")
-    if solver == "direct" and params.loss_factor > 0:
-        raise ConfigError("loss_factor is a modal-solver parameter: use solver 'modal' or set it to 0")
     method = method or params.method
     if method not in ("auto", "fast", "direct"):
         raise ConfigError(f"method must be 'auto', 'fast' or 'direct', got {method!r}")
@@ -329,7 +328,7 @@ def simulate_voltages(params: SimParams, rig, x_mm, y_mm, height_mm, *, method: 
             bar.update(1)
     if bar is not None:
         bar.close()
-    return _collect(model, results)
+    return _collect(model, results, direct=True)
 
 
 def _simulate_chunk(task) -> dict:
@@ -372,8 +371,11 @@ def _on_cluster(address: str, params, rig, x, y, h, method, solver, progress) ->
                 contact_s=np.concatenate([p["contact_s"] for p in parts]))
 
 
-def _collect(model: Model, results: list) -> dict:
-    volts = np.stack([_taper(model, r["volts"]) for r in results])
+def _collect(model: Model, results: list, direct: bool = False) -> dict:
+    """The drops' records, tapered; direct: the explicit FEM's, given the loss factor the modal solver's poles
+    carry (`loss.apply_loss_factor`)."""
+    eta = float(model.params.loss_factor) if direct else 0.0
+    volts = np.stack([_taper(model, apply_loss_factor(r["volts"], model.fs_hz, eta)) for r in results])
     return dict(volts=volts, model=model, contacts=np.array([r["contacts"] for r in results]),
                 force_n=[np.asarray(r["force_n"]) for r in results], dt_s=model.dt_s,
                 contact_s=np.array([r["contact_end_s"] - r["contact_start_s"] for r in results]))
