@@ -48,7 +48,8 @@ Defaults (documented, see docs/method.md):
   grows with the element size and dt: 0.4-0.7 % at the default 2.1 mm mesh (11 steps instead of 14), so the
   default mesh is stepped plainly. subcycle = false turns it off everywhere.
 - solver "direct" (the explicit FEM, the reference) or "modal" (modal superposition of the same FEM's modes,
-  `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (modal solver only);
+  `modal.py`); loss_factor (0) adds a loss factor to every mode's damping (the direct solver's records get it
+  after the run, `loss.py`);
   modal_cutoff_factor (2): the modal basis holds the modes up to this x f_max (Eq. 1's band, the band the mesh
   resolves; at 1 x the truncation rings at the cut-off ahead of the wave and onset picks move by ~3-7 us, at
   2 x under 1 us, docs/findings.md); the truncated modes enter as residual flexibility (contact and
@@ -150,7 +151,7 @@ class SimParams:
     noise_counts_rms: float = 1.5          # used only when noise is asked for
     method: str = "auto"                   # "fast" (reciprocity), "direct", "auto": direct for <= 4 drops
     solver: str = "direct"                 # "direct": the explicit FEM (with `method`); "modal": its modes (sim.modal)
-    loss_factor: float = 0.0               # modal solver only: a loss factor eta on top of D_s (s_k += eta omega_k / 2)
+    loss_factor: float = 0.0               # a loss factor eta on top of D_s (s_k += eta omega_k / 2; direct: loss.py)
     modal_cutoff_factor: float = 2.0       # modal solver: modes up to this x f_max (the rest as residual flexibility)
     modal_poles: str = "fem_step"          # modal solver: "fem_step" (the direct solver's time step) or "exact"
 
