@@ -98,9 +98,11 @@ def fit_loss(decay: dict, d_s: float) -> dict:
     f = np.array([np.sqrt(lo * hi) for lo, hi in decay["bands_hz"]])
     r = np.asarray(decay["rate_per_s"], float)
     ok = np.isfinite(r)
-    res = {**decay, "bands_hz": [list(b) for b in decay["bands_hz"]], "damping_stage_per_s": float(d_s),
-           "loss_factor": 0.0, "damping_per_s": float(d_s), "kept": False}
     broad = decay.get("broadband_rate_per_s", float("nan"))
+    res = {**decay, "bands_hz": [list(b) for b in decay["bands_hz"]],       # JSON: an unreadable rate is None
+           "rate_per_s": [float(v) if np.isfinite(v) else None for v in r],
+           "broadband_rate_per_s": float(broad) if np.isfinite(broad) else None,
+           "damping_stage_per_s": float(d_s), "loss_factor": 0.0, "damping_per_s": float(d_s), "kept": False}
     if ok.sum() < 3 or not np.isfinite(broad):
         return {**res, "why": "fewer than three bands (or no broadband rate) with a readable decay"}
     slope, c = np.polyfit(2 * np.pi * f[ok], r[ok], 1)

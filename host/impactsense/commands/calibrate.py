@@ -182,6 +182,13 @@ def summary(cal: dict) -> str:
         n2 = "-" if ts.get("measured_n2_ms") is None else f"{ts['measured_n2_ms']:.1f}"
         lines.append(f"the twin's span: {ts['duration_ms']:.1f} ms after the touch (the calibration drops' median n2 "
                      f"{n2} ms after their onset; set by: {ts['bound']})")
+    tl = cal.get("twin_loss")
+    if tl:
+        rates = ", ".join("-" if r is None else f"{r:.0f}" for r in tl["rate_per_s"])
+        lines.append(f"the twin's loss factor: {tl['loss_factor']:.4g}, D_s {tl['damping_stage_per_s']:.0f} -> "
+                     f"{tl['damping_per_s']:.0f} 1/s ({tl['why']}; energy decay per octave band from "
+                     f"{tl['bands_hz'][0][0] / 1e3:g} kHz: {rates} 1/s)" if tl["kept"] else
+                     f"the twin's loss factor: none ({tl['why']})")
     lines.append("wall time [s], this run: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
     if "stage_compute_time_s" in cal:
         lines.append("compute time [s] per stage (cached stages: when last computed): "
