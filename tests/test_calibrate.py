@@ -121,7 +121,9 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     assert saved["fitted"]["nu"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["nu"])
     # a skipped nu stage claims nothing: the grid's nu and the decay's D_s are kept
     assert not saved["plate"]["nu_fit"]["identified"] and saved["plate"]["nu"] == saved["plate"]["nu_grid"]
-    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    # (the loss factor rule, last, lowers D_s by its line's part above the intercept when it keeps one)
+    assert saved["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["twin_loss"]["damping_per_s"])
     for stage in ("drops", "plate_grid", "plate_fem", "damping", "plate_nu", "plate_fem_refit", "design_fem",
                   "surrogates", "screening", "optimise",
                   "fem_confirm", "total"):
