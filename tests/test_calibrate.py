@@ -117,7 +117,7 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     assert saved["sim_params"]["damping_per_s"] == pytest.approx(cal["fitted"]["damping_per_s"])
     assert saved["sim_params"]["e_pa"] == pytest.approx(pl["E_mpa"] * 1e6)
     assert len(saved["exclude_case_ids"]) == 4 and len(saved["exclude_recording_ids"]) >= 8
-    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["damping_per_s"])
+    assert saved["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["damping_per_s"])
     assert saved["fitted"]["nu"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["nu"])
     # a skipped nu stage claims nothing: the grid's nu and the decay's D_s are kept
     assert not saved["plate"]["nu_fit"]["identified"] and saved["plate"]["nu"] == saved["plate"]["nu_grid"]
@@ -149,7 +149,8 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     nod = pipeline.calibrate(data, out, _small_opts(budget=48, nu_rounds=0, design=False), simulate=_standin_clean)
     assert "design_fem" not in nod["wall_time_s"] and "skipped" in nod["pzt_damping"]
     assert nod["plate"]["E_mpa"] == cal["plate"]["E_mpa"]
-    assert nod["sim_params"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    assert nod["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    assert nod["sim_params"]["damping_per_s"] == pytest.approx(nod["twin_loss"]["damping_per_s"])
     assert all(nod["sim_params"][k] == pytest.approx(v) for k, v in fem.SEED_PZT.items() if k != "damping_per_s")
     # another twin (a support chosen by hand) is not served from those caches: the plate FEM, damping and
     # design stages run again (the stand-in ignores the support, so the answer may repeat, but not the reads)
