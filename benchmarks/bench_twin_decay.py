@@ -38,8 +38,10 @@ def main() -> int:
         s = load_session(cal["data"])
         loss = twin_loss(s, [r for rs in cal["drops"]["recording_ids"] for r in rs],
                          float(cal.get("twin_loss", {}).get("damping_stage_per_s", cal["sim_params"]["damping_per_s"])))
-        print(f"loss factor rule on {a.calibration}'s drops: {loss['why']}; loss_factor {loss['loss_factor']:.5f}, "
-              f"D_s {loss['damping_stage_per_s']:.0f} -> {loss['damping_per_s']:.0f} 1/s")
+        print(f"loss factor rule on {a.calibration}'s drops: {loss['why']}; loss_factor {loss['loss_factor']:.5f} "
+              f"(line's slope {loss.get('slope_loss_factor', float('nan')):.5f} +- "
+              f"{loss.get('loss_factor_se', float('nan')):.5f}, intercept {loss.get('intercept_per_s', float('nan')):.0f}"
+              f" 1/s), D_s {loss['damping_stage_per_s']:.0f} -> {loss['damping_per_s']:.0f} 1/s")
     return 0
 
 

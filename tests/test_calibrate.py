@@ -117,13 +117,14 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     assert saved["sim_params"]["damping_per_s"] == pytest.approx(cal["fitted"]["damping_per_s"])
     assert saved["sim_params"]["e_pa"] == pytest.approx(pl["E_mpa"] * 1e6)
     assert len(saved["exclude_case_ids"]) == 4 and len(saved["exclude_recording_ids"]) >= 8
-    assert saved["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["damping_per_s"])
+    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["damping_per_s"])
     assert saved["fitted"]["nu"] == pytest.approx(saved["plate"]["nu_fit"]["used"]["nu"])
     # a skipped nu stage claims nothing: the grid's nu and the decay's D_s are kept
     assert not saved["plate"]["nu_fit"]["identified"] and saved["plate"]["nu"] == saved["plate"]["nu_grid"]
-    # (the loss factor rule, last, lowers D_s by its line's part above the intercept when it keeps one)
-    assert saved["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
-    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["twin_loss"]["damping_per_s"])
+    assert saved["fitted"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
+    # the stand-in's records hold a passing wave and its first echoes, no ringing field: its bands' "decay" rises
+    # with frequency only as the dispersive wave leaves (a negative intercept), so the twin gets no loss factor
+    assert not saved["twin_loss"]["kept"] and saved["sim_params"].get("loss_factor", 0.0) == 0.0
     for stage in ("drops", "plate_grid", "plate_fem", "damping", "plate_nu", "plate_fem_refit", "design_fem",
                   "surrogates", "screening", "optimise",
                   "fem_confirm", "total"):
@@ -149,8 +150,7 @@ def test_recovers_known_parameters_standin_same_model(tmp_path, rig):
     nod = pipeline.calibrate(data, out, _small_opts(budget=48, nu_rounds=0, design=False), simulate=_standin_clean)
     assert "design_fem" not in nod["wall_time_s"] and "skipped" in nod["pzt_damping"]
     assert nod["plate"]["E_mpa"] == cal["plate"]["E_mpa"]
-    assert nod["twin_loss"]["damping_stage_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
-    assert nod["sim_params"]["damping_per_s"] == pytest.approx(nod["twin_loss"]["damping_per_s"])
+    assert nod["sim_params"]["damping_per_s"] == pytest.approx(saved["damping_from_decay"]["damping_per_s"])
     assert all(nod["sim_params"][k] == pytest.approx(v) for k, v in fem.SEED_PZT.items() if k != "damping_per_s")
     # another twin (a support chosen by hand) is not served from those caches: the plate FEM, damping and
     # design stages run again (the stand-in ignores the support, so the answer may repeat, but not the reads)
