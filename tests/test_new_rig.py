@@ -328,6 +328,31 @@ def test_the_zero_shot_class_boundary_sits_in_the_sessions_gap_between_heights(s
     assert class_boundary_in_the_sessions_gap(model, coarse.height_mm, m, None, model.signal, model.twin_fit) is None
 
 
+def test_the_zero_shot_class_cut_is_the_middle_of_the_sessions_gap_not_of_the_virtual_steps(session1, monkeypatch):
+    """With a twin height estimate that is exact, the classifier's cut lies in the middle of the session's gap
+    (150 | 190 mm: 168.8 mm), not between the virtual drops' nearest 5 mm steps either side of it (165 | 170 mm:
+    167.5): the virtual drops inside the session's gap are left out of its training, so a drop from 168 mm (a
+    height the session never holds) is low and one from 170 mm high."""
+    import impactsense as isn
+    from impactsense import zeroshot
+    from impactsense.pipeline import featurize
+
+    virtual = session1.subset(np.arange(0, 771, 5))
+    model = isn.train(virtual, test_fraction=0.0, trees=10)
+    coarse = session1.subset(np.flatnonzero(np.isin(session1.height_mm, (110, 150, 190, 200))))
+    use = np.flatnonzero(featurize(virtual.adc, model.signal).usable)
+    exact = np.log10(np.asarray(virtual.height_mm, float)[use])
+
+    def exact_estimate(site, fit, feats, usable, xy):
+        assert len(feats) == exact.size
+        return {"log10_height_mm": exact}
+
+    monkeypatch.setattr(zeroshot, "twin_estimate", exact_estimate)
+    zeroshot.class_boundary_in_the_sessions_gap(model, coarse.height_mm, session1.rig.ball_mass_g, virtual,
+                                                model.signal, model.twin_fit)
+    assert model.forest_energy.predict(np.log10([150.0, 165.0, 168.0, 170.0, 190.0])[:, None]).tolist() == [0, 0, 0, 1, 1]
+
+
 def test_demo_on_a_new_rig_trains_the_model_train_trains(tmp_path, session1):
     """`demo --data DATA` on a rig without a site map chooses the energy class as `train DATA` does (the card's
     energy_class_choice), so the demo's figures are the commands'."""

@@ -204,9 +204,11 @@ def class_boundary_in_the_sessions_gap(model, heights_mm, ball_mass_g: float, vi
     `fit` fitted on them) with its boundary in the calibrated session's gap between drop heights around the
     model's threshold (height_class.class_cut), not at the threshold: a session dropped from a few heights has
     one of them on its 75th percentile, and the virtual drops' 5 mm steps put the classifier's boundary just
-    under that height, where every drop from it is a coin toss. The drops' labels (m g h >= the threshold) are
-    unchanged. heights_mm: the calibrated session's drop heights. Returns the boundary (J), None when the
-    session's heights leave no gap there (or no virtual drops are given)."""
+    under that height, where every drop from it is a coin toss. The virtual drops whose heights fall inside the
+    session's gap are left out of the classifier's training (else the stumps cut between the nearest virtual
+    heights either side of the boundary, e.g. 230 | 235 mm, not in the middle of the session's 230 | 240 mm gap).
+    The drops' labels (m g h >= the threshold) are unchanged. heights_mm: the calibrated session's drop heights.
+    Returns the boundary (J), None when the session's heights leave no gap there (or no virtual drops are given)."""
     h = np.asarray(heights_mm, float)
     h = h[np.isfinite(h) & (h > 0)]
     if h.size == 0 or fit is None or virtual is None:
@@ -225,8 +227,12 @@ def class_boundary_in_the_sessions_gap(model, heights_mm, ball_mass_g: float, vi
     use = np.flatnonzero(vf.usable)
     feats, usable = twin_features(vf.take(use))
     est = np.asarray(twin_estimate(model.site_map, fit, feats, usable, vf.phys_xy_mm[use])["log10_height_mm"], float)
-    ok = np.isfinite(est)
-    label = (impact_energy_j(virtual.height_mm[use][ok], virtual.rig.ball_mass_g) >= boundary).astype(int)
+    e_use = impact_energy_j(np.asarray(virtual.height_mm, float)[use], virtual.rig.ball_mass_g)
+    # the virtual drops inside the session's gap are left out: the session has none there, and the twin's finer
+    # height steps would put the stumps' cut between the nearest virtual heights either side of the boundary
+    # (e.g. 230 | 235 mm, 1 % above the session's 230 mm drops) instead of the middle of the session's gap (230 | 240)
+    ok = np.isfinite(est) & ~((e_use > below) & (e_use < above))
+    label = (e_use[ok] >= boundary).astype(int)
     if np.unique(label).size < 2:
         return None
     model.forest_energy = TWIN_CLASSIFIER.classifier().fit(est[ok, None], label)
