@@ -37,7 +37,9 @@ long edge and one near an end of the other, channels in no geometric order, a 5 
 20-100 mm, 500 kHz x 2,000 samples at 12 bits, rig.json without density or optional fields; run it with --cases 60
 --reps 3), mg-clip (a 450 x 350 x 3 mm magnesium AZ31B plate, sensors on an asymmetric trapezoid away from the
 corners, drops from 50 to 1000 mm with the logger's gain set on the low ones: the high drops clip on every channel,
-200 kHz, 14-bit, 3000 samples; run it with --cases 40 --reps 3).
+200 kHz, 14-bit, 3000 samples; run it with --cases 40 --reps 3), oak-table (a 600 x 400 x 18 mm solid-oak
+tabletop, grain along x, 27 mm buzzer discs on a parallelogram, a 12.7 mm ball, 48 kHz, 12-bit, 2048 samples; run
+it with --cases 40 --reps 3).
 The mesh is coarse (--element-mm, 4 mm unless the kind sets its own: ss-strip-edge's thin strip and mg-clip's 3 mm plate
 2 mm) so a rig costs minutes on 2 cores.
 """
@@ -261,6 +263,22 @@ KINDS = {
         # the converged plate's (the coarse mesh's dispersion), which calibrate's fast model reads as E and nu at
         # the steel entry's upper bounds (docs/findings.md, "Session 26: calbound")
         element_mm=2.0),
+    "oak-table": dict(
+        # a solid-oak tabletop (glued-up staves, 600 x 400 x 18 mm, grain along x: E_L/E_T ~ 12, a low in-plane
+        # shear modulus, slow and damped) on four rubber feet, four 27 mm piezo buzzer discs on a parallelogram
+        # (a sheared rectangle), a 12.7 mm steel ball, read by a 48 kHz 12-bit logger (2048 samples, 256 before
+        # the hit): the material no kind ran, a rate that is no divisor of the board's (run it with --cases 40
+        # --reps 3)
+        rig={"plate_material": "European oak tabletop, glued-up staves", "plate_x_mm": 600.0, "plate_y_mm": 400.0,
+             "thickness_mm": 18.0, "density_kg_m3": 690.0, "plate_support": "resting on four rubber feet",
+             "material_axes": {"fibre_angle_deg": 0.0},
+             "sensors": _sensors([(70, 60), (420, 45), (530, 340), (175, 352)]),
+             "sensor_type": "piezo buzzer disc (brass-backed PZT)", "sensor_diameter_mm": 27.0,
+             "ball_material": "steel", "ball_diameter_mm": 12.7, "ball_mass_g": 8.42, "channels": 4,
+             "fs_hz": 48000, "samples": 2048, "adc_bits": 12, "vref": 3.3, "bias_counts": 2048},
+        sim=dict(e_pa=12.5e9, e2_pa=1.05e9, g12_pa=0.85e9, nu=0.40, material_axes_deg=0.0, pretrigger_samples=256,
+                 damping_per_s=900.0),
+        heights=(50, 100, 150, 200, 250, 300)),
     "mg-clip": dict(
         # a drop-height sweep over 20:1 (50-1000 mm) on a 3 mm magnesium tooling plate, the logger's gain set on
         # the low drops, so the front end clips heavily from ~200 mm up: on the highest drops every channel sits on
