@@ -509,11 +509,8 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 // (linear sub-sample), from the last one at or before `cross` over the next three (three half periods, x 2/3).
 // On a dispersive plate (flexural waves: higher frequencies run faster) the cycle the threshold catches
 // arrives with its frequency's group velocity, so the localiser can scale each channel's slowness by it
-// (dispersion_exponent). NaN when the crossings are not found within kPeriodSearch samples either side: the
-// search spans 1.5 periods and the lead before the crossing, so it reads periods up to ~kPeriodSearch / 1.5
-// samples (64: fs / 43, 2.3 kHz at 100 kHz, 1.1 kHz at 48 kHz; 32 capped a low band's picks at fs / 21). A period
-// found within 32 samples is found the same (the searches stop at the first crossings).
-constexpr int kPeriodSearch = 64;
+// (dispersion_exponent). NaN when the crossings are not found within kPeriodSearch samples.
+constexpr int kPeriodSearch = 32;
 float pick_period(const int16_t* x, int n, float base, float cross);
 
 // Per-channel slowness factors (f_c / ref_hz)^-exponent, f_c = fs_hz / pick_period (1 where the period is
