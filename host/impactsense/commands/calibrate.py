@@ -109,6 +109,30 @@ def _at_bounds(cal: dict, lam: dict) -> str:
     return f"; AT THE MATERIAL'S PRIOR BOUND: {', '.join(hit)}" if hit else ""
 
 
+def _twin_lines(cal: dict) -> list[str]:
+    """The summary's lines on what the twin took from the logger and the decay: gain, span, loss factor."""
+    lines = []
+    lg = cal.get("logger_gain")
+    if lg:
+        lines.append(f"logger gain: {lg['skipped']}" if "skipped" in lg else
+                     f"logger gain: circuit gain {lg['circuit_gain']:.4g} (x{lg['over_seed']:.3g} the seed's), the "
+                     f"calibration drops' median peak {lg['measured_peak_median_counts']:.0f} counts measured, "
+                     f"{lg['seed_peak_median_counts']:.0f} at the seed's gain")
+    ts = cal.get("twin_span")
+    if ts:
+        n2 = "-" if ts.get("measured_n2_ms") is None else f"{ts['measured_n2_ms']:.1f}"
+        lines.append(f"the twin's span: {ts['duration_ms']:.1f} ms after the touch (the calibration drops' median n2 "
+                     f"{n2} ms after their onset; set by: {ts['bound']})")
+    tl = cal.get("twin_loss")
+    if tl:
+        rates = ", ".join("-" if r is None else f"{r:.0f}" for r in tl["rate_per_s"])
+        lines.append(f"the twin's loss factor: {tl['loss_factor']:.4g}, D_s {tl['damping_stage_per_s']:.0f} -> "
+                     f"{tl['damping_per_s']:.0f} 1/s ({tl['why']}; energy decay per octave band from "
+                     f"{tl['bands_hz'][0][0] / 1e3:g} kHz: {rates} 1/s)" if tl["kept"] else
+                     f"the twin's loss factor: none ({tl['why']})")
+    return lines
+
+
 def summary(cal: dict) -> str:
     """A short table a person can read."""
     pl = cal["plate"]
@@ -171,24 +195,7 @@ def summary(cal: dict) -> str:
             lines.append(f"screening, {out}: {', '.join(sig) if sig else 'no significant term'}")
     else:
         lines.append(f"PZT/damping: {pd.get('skipped', '-')}")
-    lg = cal.get("logger_gain")
-    if lg:
-        lines.append(f"logger gain: {lg['skipped']}" if "skipped" in lg else
-                     f"logger gain: circuit gain {lg['circuit_gain']:.4g} (x{lg['over_seed']:.3g} the seed's), the "
-                     f"calibration drops' median peak {lg['measured_peak_median_counts']:.0f} counts measured, "
-                     f"{lg['seed_peak_median_counts']:.0f} at the seed's gain")
-    ts = cal.get("twin_span")
-    if ts:
-        n2 = "-" if ts.get("measured_n2_ms") is None else f"{ts['measured_n2_ms']:.1f}"
-        lines.append(f"the twin's span: {ts['duration_ms']:.1f} ms after the touch (the calibration drops' median n2 "
-                     f"{n2} ms after their onset; set by: {ts['bound']})")
-    tl = cal.get("twin_loss")
-    if tl:
-        rates = ", ".join("-" if r is None else f"{r:.0f}" for r in tl["rate_per_s"])
-        lines.append(f"the twin's loss factor: {tl['loss_factor']:.4g}, D_s {tl['damping_stage_per_s']:.0f} -> "
-                     f"{tl['damping_per_s']:.0f} 1/s ({tl['why']}; energy decay per octave band from "
-                     f"{tl['bands_hz'][0][0] / 1e3:g} kHz: {rates} 1/s)" if tl["kept"] else
-                     f"the twin's loss factor: none ({tl['why']})")
+    lines += _twin_lines(cal)
     lines.append("wall time [s], this run: " + ", ".join(f"{k} {v:.1f}" for k, v in cal["wall_time_s"].items()))
     if "stage_compute_time_s" in cal:
         lines.append("compute time [s] per stage (cached stages: when last computed): "
