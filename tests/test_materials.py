@@ -110,20 +110,38 @@ def test_fibre_direction_from_words_and_from_material_axes():
     along_y = material_for_rig(rig_from_dict(rig_dict(plate_material="CFRP, fibres along y")))
     given = material_for_rig(rig_from_dict(rig_dict(plate_material="CFRP", material_axes={"fibre_angle_deg": 30})))
     assert (along_x.axis_deg, along_y.axis_deg, given.axis_deg) == (0.0, 90.0, 30.0)
-    # flexural waves run fastest along the fibres: (D11 / D22)^(1/4) between the two axes
-    v0 = flexural_group_velocity_mm_per_us(along_x, 2.5, 1550, 20e3, 0.0)
-    v90 = flexural_group_velocity_mm_per_us(along_x, 2.5, 1550, 20e3, 90.0)
-    assert v0 / v90 == pytest.approx(along_x.bending_stiffness_ratio() ** 0.25, rel=1e-9)
+    # flexural waves run fastest along the fibres: (D11 / D22)^(1/4) between the two axes on a thin plate (Kirchhoff)
+    v0 = flexural_group_velocity_mm_per_us(along_x, 2.5, 1550, 200.0, 0.0)
+    v90 = flexural_group_velocity_mm_per_us(along_x, 2.5, 1550, 200.0, 90.0)
+    assert v0 / v90 == pytest.approx(along_x.bending_stiffness_ratio() ** 0.25, rel=2e-3)
     with pytest.raises(DataError, match="material_axes"):
         material_for_rig(rig_from_dict(rig_dict(material_axes=[0])))
 
 
-def test_isotropic_velocity_is_the_kirchhoff_value():
+def test_isotropic_velocity_is_kirchhoff_on_a_thin_plate():
+    """h / wavelength ~0.006 (3 mm aluminium at 1 kHz): Mindlin's shear and rotary inertia change the group
+    velocity by well under 1 %."""
     m = lookup("aluminium")
-    e, nu, h, rho, f = m.e_pa.value, m.nu.value, 3e-3, 2700.0, 50e3
+    e, nu, h, rho, f = m.e_pa.value, m.nu.value, 3e-3, 2700.0, 1e3
     d = e * h ** 3 / (12 * (1 - nu ** 2))
     want = 2 * (d / (rho * h)) ** 0.25 * math.sqrt(2 * math.pi * f) * 1e-3
-    assert flexural_group_velocity_mm_per_us(m, 3.0, rho, f) == pytest.approx(want, rel=1e-12)
+    assert flexural_group_velocity_mm_per_us(m, 3.0, rho, f) == pytest.approx(want, rel=5e-3)
+
+
+def test_thick_soft_plate_velocity_levels_off_at_the_shear_wave_speed():
+    """A 12 mm HDPE sheet at 10 kHz (h / wavelength ~0.2): the A0 group velocity is the simulator's Mindlin
+    relation's (sim.dispersion), near the shear wave speed sqrt(kappa G / rho), where Kirchhoff's sqrt(omega)
+    law reads it ~1.7 x too fast; it grows with frequency and stays under ~1.1 x the shear speed."""
+    from impactsense.sim.dispersion import KAPPA_MINDLIN, a0_group_velocity
+
+    m = lookup("HDPE sheet")
+    e, nu, rho, h = m.e_pa.value, m.nu.value, 950.0, 12e-3
+    v = flexural_group_velocity_mm_per_us(m, 12.0, rho, 10e3)
+    assert v == pytest.approx(float(a0_group_velocity(10e3, e, nu, rho, h)) * 1e-3, rel=1e-4)
+    shear = math.sqrt(KAPPA_MINDLIN * e / (2 * (1 + nu)) / rho) * 1e-3
+    kirchhoff = 2 * (e * h ** 3 / (12 * (1 - nu ** 2)) / (rho * h)) ** 0.25 * math.sqrt(2 * math.pi * 10e3) * 1e-3
+    assert 0.8 * shear < v < 1.1 * shear and kirchhoff > 1.5 * v
+    assert flexural_group_velocity_mm_per_us(m, 12.0, rho, 3e3) < v < flexural_group_velocity_mm_per_us(m, 12.0, rho, 40e3) < 1.1 * shear
 
 
 def test_material_properties_pin_the_priors_and_bad_keys_name_the_field():

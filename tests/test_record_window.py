@@ -30,10 +30,11 @@ def test_path_difference_is_the_geometry(session1):
 
 
 def test_velocity_follows_the_flexural_law(session1):
-    # Kirchhoff: v ~ sqrt(h) at one frequency, so 4x the thickness doubles it
-    thin = slowest_velocity_mm_per_us(_rig(session1, thickness_mm=1.5))
-    thick = slowest_velocity_mm_per_us(_rig(session1, thickness_mm=6.0))
-    assert thick / thin == pytest.approx(2.0, rel=1e-6)
+    # thin (Kirchhoff): v ~ sqrt(h) at one frequency, so 4x the thickness nearly doubles it; thicker, the shear
+    # deformation and rotary inertia (Mindlin) hold it back more and more: the shear wave speed caps it
+    v = {h: slowest_velocity_mm_per_us(_rig(session1, thickness_mm=h)) for h in (0.5, 2.0, 6.0, 24.0)}
+    assert v[2.0] / v[0.5] == pytest.approx(2.0, rel=0.05)
+    assert v[24.0] / v[6.0] < 0.8 * v[2.0] / v[0.5]
 
 
 def test_short_record_is_said(session1):

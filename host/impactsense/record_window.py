@@ -3,7 +3,7 @@ path difference at its flexural group velocity (`impactsense info`, and `train` 
 
 A drop's first arrival reaches the nearest sensor; the last one the farthest, (max_k d_k - min_k d_k) / v later
 (d_k the distances from the drop to the sensors). Over the plate the largest of those differences is the span
-the record must keep after its first arrival. v: the materials table's typical values through the Kirchhoff
+the record must keep after its first arrival. v: the materials table's typical values through the Mindlin
 flexural group velocity at REFERENCE_HZ, the slowest direction (materials.flexural_group_velocity_mm_per_us;
 a starting value, not a measurement: the threshold onset catches faster, higher-frequency content). A logger
 that stops sooner loses the far sensors' arrivals on drops far from them: the core reads such a channel as
@@ -29,7 +29,7 @@ def longest_path_difference_mm(rig) -> float:
 
 
 def slowest_velocity_mm_per_us(rig) -> float:
-    """The plate's Kirchhoff flexural group velocity at REFERENCE_HZ (the table's typical values) in its slowest
+    """The plate's Mindlin flexural group velocity at REFERENCE_HZ (the table's typical values) in its slowest
     direction."""
     from .materials import flexural_group_velocity_mm_per_us, material_for_rig
 
