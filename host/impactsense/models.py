@@ -2,12 +2,11 @@
 
 Localisation is physics first, learning second: the core's TDOA localiser gives (x, y); one random forest
 per coordinate (one regressor each, so the C export is exact) learns the correction from the core's
-feature vector. The energy classifier is a random forest on the energy features; "high" means
-m g h at or above the 75th percentile of the training drops. With the twin's site map (sitemap.py) the
-classifier reads the twin's height estimate instead (twin.py, the core's twin_estimate), and the reported
-position is the twin's matched position around the forests' (or the class only: twin_role.py), its uncertainty
-a calibrated 1-sigma radial error fitted on out-of-fold errors of the training drops (out_of_fold_twin).
-"""
+feature vector. The energy classifier is a random forest on the energy features; "high" means m g h at or
+above the 75th percentile of the training drops. With the twin's site map (sitemap.py) the classifier reads
+the twin's height estimate instead (twin.py, the core's twin_estimate), and the reported position is the twin's
+matched position around the forests' (or the class only: twin_role.py), its uncertainty a calibrated 1-sigma
+radial error fitted on out-of-fold errors of the training drops (out_of_fold_twin)."""
 
 from __future__ import annotations
 
@@ -30,6 +29,7 @@ from .height_class import (LINEAR_CLASS_FEATURES, LINEAR_ENERGY_FILE, THREE_CHAN
 from .level_members import LEVEL_MEMBERS, add_level_positions, level_positions
 from .travel_field import FIELD_MEMBERS, member_field_positions, training_fields
 from .three_level_positions import add_level_picks
+from .threaded_forests import ThreadedForestClassifier, ThreadedForestRegressor
 from .modelfolder import file_hashes, load_forests, read_card, verified_path
 from .pipeline import FEATURE_NAMES, Features, featurize
 from .host_columns import HOST_LOCATION_FEATURES, chosen_location_names, location_matrix, location_names
@@ -95,12 +95,12 @@ class ForestSettings:
     balanced: bool = True     # classifier: class weights inverse to the class sizes
 
     def regressor(self) -> RandomForestRegressor:
-        return RandomForestRegressor(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
+        return ThreadedForestRegressor(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
                                      max_features=self.max_features, max_depth=self.max_depth,
                                      random_state=self.seed, n_jobs=-1)
 
     def classifier(self) -> RandomForestClassifier:
-        return RandomForestClassifier(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
+        return ThreadedForestClassifier(n_estimators=self.n_estimators, min_samples_leaf=self.min_samples_leaf,
                                       max_features="sqrt", max_depth=self.max_depth,
                                       random_state=self.seed, n_jobs=-1,
                                       class_weight="balanced" if self.balanced else None)
