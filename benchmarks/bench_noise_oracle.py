@@ -14,11 +14,12 @@ retrain on these drops with this pipeline reaches the row: the floor is the nois
 
     python3 benchmarks/bench_noise_oracle.py SESSIONS --out OUT [--draws 1,3] [--settings rig,loop]
         [--test-draws 2] [--trees 30] [--seed 12] [--name noise] [--unchanged same-1,same-2,same-3]
-        [--training DIR,DIR]
+        [--training DIR,DIR] [--white C]
 
 SESSIONS: benchmarks/loop_sessions.py's folder (ref, the unchanged sessions, the noise session, manifest.json).
 --training: also these training sessions (e.g. bench_loop's OUT/noise-measured: the loop's own, with the twin's
-drops at new positions), trained and scored the same way (row "draws" = their drop count).
+drops at new positions), trained and scored the same way (row "draws" = their drop count). --white C: another
+level in place of the session's: the "noise session" is then its own drops with C counts put in (one draw).
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ def main(argv=None) -> int:
     ap.add_argument("--unchanged", default="same-1,same-2,same-3")
     ap.add_argument("--trees", type=int, default=30)
     ap.add_argument("--seed", type=int, default=12)
+    ap.add_argument("--white", type=float, help="another white level (counts rms) on the session's own drops")
     ap.add_argument("--training", default="", help="also these training sessions (comma-separated folders)")
     args = ap.parse_args(argv)
     d, out = Path(args.sessions), Path(args.out)
@@ -84,6 +86,9 @@ def main(argv=None) -> int:
     truth = spec["truth"]
     ref, sess = load_session(d / "ref"), load_session(d / args.name)
     own_clean = dataclasses.replace(sess, adc=loop_sessions.without_change(sess.adc, spec, sess.rig))
+    if args.white is not None:   # the same drops at another level
+        truth = {**truth, "params": {**truth["params"], "noise_counts_rms": args.white}}
+        sess = dataclasses.replace(sess, adc=put_in(own_clean.adc, truth, sess.rig, spec["seed"]))
     others = [dataclasses.replace(sess, adc=put_in(own_clean.adc, truth, sess.rig, 7000 + k))
               for k in range(args.test_draws)]
     settings = ForestSettings(n_estimators=args.trees, seed=args.seed)
