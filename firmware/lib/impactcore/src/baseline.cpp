@@ -190,6 +190,9 @@ void HumBasis::set(float fs) {
   }
 }
 
+// A channel's fit names the event's mains frequency when its residual is at most this x the other's.
+constexpr float kPickMargin = 0.5f;
+
 void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_hz, float hum_min_counts,
                   HumBasis* basis, Baseline* out) {
   robust_level(x, prefix, n, nb, out);
@@ -232,11 +235,13 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
   }
   if (spread < 0.75f * 16.0f * inv_len) return;
   IC_WORK(hum_fits, 1);
-  // The sinusoids' values at the groups' centres, by rotation from group 0's phase. One frequency at a
-  // time (the groups in the same order: the same sums), so the sums and the rotation stay in registers.
+  // The sinusoids' values at the groups' centres, by rotation from group 0's phase (both mains frequencies
+  // until a channel of the event names the event's, then that one alone). One frequency at a time (the groups
+  // in the same order: the same sums), so the sums and the rotation stay in registers.
   if (basis->fs_hz != fs_hz) basis->set(fs_hz);
   HumFit fit[2];
-  for (int f = 0; f < 2; ++f) {
+  const int f_first = basis->event_pick == 1 ? 1 : 0, f_end = basis->event_pick == 0 ? 1 : 2;
+  for (int f = f_first; f < f_end; ++f) {
     const float rot_c = basis->rot_c[f], rot_s = basis->rot_s[f], gain = basis->gain[f];
     float cg = basis->cg0[f], sg = basis->sg0[f];
     HumFit acc;
@@ -249,11 +254,16 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
     fit[f] = acc;
   }
   const float* w = basis->w;
+  float other_rss = INFINITY;  // the other frequency's (when both were fitted and solved)
   float best_rss = INFINITY, coef[3], best[3] = {0, 0, 0}, best_var = 0.0f;
   int pick = -1;
-  for (int f = 0; f < 2; ++f) {
+  for (int f = f_first; f < f_end; ++f) {
     float rss, var12;
-    if (fit[f].solve(coef, &rss, &var12) && rss < best_rss) {
+    if (!fit[f].solve(coef, &rss, &var12)) continue;
+    if (!(rss < best_rss)) {
+      other_rss = rss;
+    } else {
+      other_rss = best_rss;
       best_rss = rss;
       // The coefficients' variance: the inverse normal matrix times the residual's scale per degree of
       // freedom, at least a group mean's noise (its samples' variance / kGroup, what the weights expect):
@@ -278,6 +288,9 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
   const float floor_counts = 2.0f * out->within_rms;
   out->hum = (out->hum_amp >= hum_min_counts && out->hum_amp >= floor_counts &&
               out->hum_amp * out->hum_amp >= 16.0f * best_var) ? 1 : 0;
+  // The event's mains frequency: the first modelled hum whose fit tells the two apart (its residual at most
+  // kPickMargin x the other frequency's: a wrong pick's lies near 1, docs/findings.md "Session 29: boardhum3").
+  if (out->hum && basis->event_pick < 0 && best_rss <= kPickMargin * other_rss) basis->event_pick = pick;
 }
 
 }  // namespace impactcore

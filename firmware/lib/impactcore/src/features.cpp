@@ -490,25 +490,15 @@ struct HumEnergy {
   float base;
   float gain16;    // mean of a unit sinusoid over a block
   float corr[kMaxBlocks + 1];
+  float dk[kMaxBlocks];  // d_k, as build stepped it (the windows' and n2's partial blocks read it: no sin_cos)
 
-  mutable int d_block;  // block_d's last block and value (reaches and the windows' ends meet there; build resets)
-  mutable float d_value;
-
-  float block_d(int k) const {
-    if (k == d_block) return d_value;
-    float s, c;
-    sin_cos(bl->w * (static_cast<float>(k * kBlock) + 0.5f * (kBlock - 1)), &s, &c);
-    d_block = k;
-    d_value = bl->c0 + gain16 * (bl->c1 * c + bl->c2 * s);
-    return d_value;
-  }
+  float block_d(int k) const { return dk[k]; }
   // d_k - c0 = g (c1 cos + c2 sin) at block k's centre, a sinusoid sampled every kBlock: y_{k+1} = 2 cos(w kBlock)
   // y_k - y_{k-1} (one multiply-add a block, as HumSteps)
   IC_NOINLINE void build(const Channel& channel, const Baseline& b, float level, const HumBasis& basis) {
     ch = &channel;
     bl = &b;
     base = level;
-    d_block = -1;
     gain16 = basis.blk_gain[basis.index(b.w)];
     // steps (set for the onset scan, not stepped): the sinusoid at block 0's centre and block -1's
     const float two_c = steps.two_c;
@@ -523,12 +513,14 @@ struct HumEnergy {
     int k = 0;
     for (; k + 1 < full; k += 2) {
       const float d0 = c0 + y;
+      dk[k] = d0;
       const int32_t mid = channel.prefix[k + 1].s1, next = channel.prefix[k + 2].s1;
       const float dev0 = static_cast<float>(mid - prev) - mbase;
       acc = acc + d0 * (mf * d0 - 2.0f * dev0);
       corr[k + 1] = acc;
       y_prev = two_c * y - y_prev;  // block k + 1's
       const float d1 = c0 + y_prev;
+      dk[k + 1] = d1;
       const float dev1 = static_cast<float>(next - mid) - mbase;
       prev = next;
       acc = acc + d1 * (mf * d1 - 2.0f * dev1);
@@ -536,11 +528,12 @@ struct HumEnergy {
       y = two_c * y_prev - y;        // block k + 2's (y_prev stays block k + 1's)
     }
     for (; k < full; ++k) {
-      const float dk = c0 + y;
+      const float d = c0 + y;
+      dk[k] = d;
       const int32_t next = channel.prefix[k + 1].s1;
       const float dev = static_cast<float>(next - prev) - mbase;
       prev = next;
-      acc = acc + dk * (mf * dk - 2.0f * dev);
+      acc = acc + d * (mf * d - 2.0f * dev);
       corr[k + 1] = acc;
       const float yn = two_c * y - y_prev;
       y_prev = y;
@@ -548,9 +541,10 @@ struct HumEnergy {
     }
     for (k = full; k < channel.nblk; ++k) {
       const int m = channel.block_end(k) - k * kBlock;
-      const float dk = c0 + y;
+      const float d = c0 + y;
+      dk[k] = d;
       const float dev = static_cast<float>(channel.prefix[k + 1].s1 - channel.prefix[k].s1) - m * base;
-      corr[k + 1] = corr[k] + dk * (static_cast<float>(m) * dk - 2.0f * dev);
+      corr[k + 1] = corr[k] + d * (static_cast<float>(m) * d - 2.0f * dev);
       const float yn = two_c * y - y_prev;
       y_prev = y;
       y = yn;
@@ -601,7 +595,31 @@ struct LocalHum {
   mutable bool stale = false;
   float rs[kLocalBlocks], ts[kLocalBlocks];
   int quiet = 0;                           // quiet blocks seen
-  float model(float i) const { return with_hum(i, hum_at(*bl, i)); }
+  // hum_at near one sample nc (set_near: the AIC window's centre, one sin_cos): hum_at(nc + u) = c0 + nh cos(w u) +
+  // nq sin(w u), the rotation by a = w u from its series to a^7 when |a| <= 0.5 (terms left out < 1e-7; sin_cos
+  // beyond): the AIC window's ends and the crossing without a sin_cos each
+  float nc = 0.0f, nh = 0.0f, nq = 0.0f;
+  void set_near(float c) {
+    if (!bl->hum) return;
+    float sn, cs;
+    sin_cos(bl->w * c, &sn, &cs);
+    nc = c;
+    nh = bl->c1 * cs + bl->c2 * sn;
+    nq = bl->c2 * cs - bl->c1 * sn;
+  }
+  float model_near(float i) const {
+    if (!bl->hum) return with_hum(i, 0.0f);
+    const float a = bl->w * (i - nc);
+    float sn, cs;
+    if (fabsf(a) <= 0.5f) {
+      const float a2 = a * a;
+      cs = 1.0f - a2 / 2.0f * (1.0f - a2 / 12.0f * (1.0f - a2 / 30.0f));
+      sn = a * (1.0f - a2 / 6.0f * (1.0f - a2 / 20.0f * (1.0f - a2 / 42.0f)));
+    } else {
+      sin_cos(a, &sn, &cs);
+    }
+    return with_hum(i, bl->c0 + nh * cs + nq * sn);
+  }
   // the model at sample i given hum_at(i) (HumSteps)
   float with_hum(float i, float hum) const {
     if (stale) fit();
@@ -724,9 +742,9 @@ float aic_on_clean_copy(const int16_t* x, const LocalHum& bl, int begin, int end
                         int search_from) {
   int16_t buf[kMaxAicWindow];
   const int len = end - begin;
-  const float b0 = bl.model(static_cast<float>(begin));
-  const float bm = bl.model(0.5f * static_cast<float>(begin + end - 1));
-  const float b1 = bl.model(static_cast<float>(end - 1));
+  const float b0 = bl.model_near(static_cast<float>(begin));
+  const float bm = bl.model_near(0.5f * static_cast<float>(begin + end - 1));
+  const float b1 = bl.model_near(static_cast<float>(end - 1));
   const float half = 0.5f * static_cast<float>(len - 1);
   // quadratic through the window's ends and middle: b(u) = bm + p u + q u^2, u = j - centre
   const float p = half > 0.0f ? (b1 - b0) / (2.0f * half) : 0.0f;
@@ -1097,7 +1115,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   int at = -1, spikes = 0;
   float cross = -1.0f;
   LocalHum local;
-  HumEnergy hum_e;  // 2 KB of stack beside Channel's 8.2 KB, one channel at a time
+  HumEnergy hum_e;  // 4 KB of stack beside Channel's 8.2 KB, one channel at a time
   local.bl = &bl;
   local.r = base - bl.level;  // 0: without a hum the local model is the level
   if (bl.hum) {
@@ -1163,6 +1181,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
     range_extremes(x, begin, icross, &lo, &hi);
     clean_copy = static_cast<float>(hi) - base >= thr || base - static_cast<float>(lo) >= thr;
   }
+  local.set_near(0.5f * static_cast<float>(begin + end - 1));  // the hum about the AIC window (a hum channel)
   const float aic = clean_copy ? aic_on_clean_copy(x, local, begin, end, icross, thr, icross - cfg.aic_before / 4)
                                : aic_pick_subsample(x, begin, end, icross - cfg.aic_before / 4);
   float toa = cross;
@@ -1174,7 +1193,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   }
   f->toa_us = toa * (1.0e6f / cfg.fs_hz) - channel_delay_us(cfg, c);
 
-  const float base_on = local.model(cross);
+  const float base_on = local.model_near(cross);
   const int ipk = first_extremum(x, n, base_on, icross);
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base_on);
   f->pick_period = pick_period(x, n, base_on, cross);
@@ -1341,6 +1360,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
 #else
   static thread_local HumBasis basis;
 #endif
+  basis.event_pick = -1;  // one mains frequency an event: the first modelled hum's (fit_baseline)
   HuntWindow window[kChannels];
   bool bonded = false;
   float anchor = INFINITY;
