@@ -51,6 +51,17 @@ def test_hum_of_150_counts_at_any_phase_leaves_picks_and_energies(drops, hz):
         assert np.percentile(np.abs(arrival), 95) < np.log10(1.01)
 
 
+def test_each_event_finds_its_own_mains_frequency(drops):
+    """Once a channel's fit tells 50 from 60 Hz, the event's later channels fit that frequency alone; the next
+    event starts afresh: events alternating 50 and 60 Hz hum in one batch recover each hum's amplitude on every
+    channel (an event fitted at the other frequency misses a 150-count hum by far more than 15 counts)."""
+    _, adc, cfg = drops
+    hummed = np.stack([with_hum(a, 150, 50.0 if i % 2 == 0 else 60.0, 0.7 * i) for i, a in enumerate(adc)])
+    out = features(hummed, cfg)
+    assert np.all(out["flags"] & _core.FLAG_HUM)
+    assert np.all(np.abs(out["hum_counts"] - 150) < 15)
+
+
 @pytest.mark.parametrize("amp", [6.0, 40.0, 400.0])
 def test_a_hum_channels_peak_is_the_whole_captures(drops, amp):
     """A hum channel's peak (largest |x - baseline|) is taken partly from the onset scan's block extremes and
