@@ -240,7 +240,7 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
   // in the same order: the same sums), so the sums and the rotation stay in registers.
   if (basis->fs_hz != fs_hz) basis->set(fs_hz);
   HumFit fit[2];
-  const int f_first = basis->event_pick == 1 ? 1 : 0, f_end = basis->event_pick == 0 ? 1 : 2;
+  const int f_first = basis->event_mains == 2 ? 1 : 0, f_end = basis->event_mains == 1 ? 1 : 2;
   for (int f = f_first; f < f_end; ++f) {
     const float rot_c = basis->rot_c[f], rot_s = basis->rot_s[f], gain = basis->gain[f];
     float cg = basis->cg0[f], sg = basis->sg0[f];
@@ -290,7 +290,7 @@ void fit_baseline(const int16_t* x, int n, const Sums* prefix, int nb, float fs_
               out->hum_amp * out->hum_amp >= 16.0f * best_var) ? 1 : 0;
   // The event's mains frequency: the first modelled hum whose fit tells the two apart (its residual at most
   // kPickMargin x the other frequency's: a wrong pick's lies near 1, docs/findings.md "Session 29: boardhum3").
-  if (out->hum && basis->event_pick < 0 && best_rss <= kPickMargin * other_rss) basis->event_pick = pick;
+  if (out->hum && basis->event_mains == 0 && best_rss <= kPickMargin * other_rss) basis->event_mains = 1 + pick;
 }
 
 }  // namespace impactcore

@@ -607,7 +607,8 @@ struct LocalHum {
     nh = bl->c1 * cs + bl->c2 * sn;
     nq = bl->c2 * cs - bl->c1 * sn;
   }
-  float model_near(float i) const {
+  // (out of line: inlined at its four calls it grew the board's code, whose flash is tight)
+  IC_NOINLINE float model_near(float i) const {
     if (!bl->hum) return with_hum(i, 0.0f);
     const float a = bl->w * (i - nc);
     float sn, cs;
@@ -1360,7 +1361,7 @@ int32_t extract_features(const int16_t* const adc[kChannels], int n, const CoreC
 #else
   static thread_local HumBasis basis;
 #endif
-  basis.event_pick = -1;  // one mains frequency an event: the first modelled hum's (fit_baseline)
+  basis.event_mains = 0;  // one mains frequency an event: named by a channel's fit (fit_baseline)
   HuntWindow window[kChannels];
   bool bonded = false;
   float anchor = INFINITY;

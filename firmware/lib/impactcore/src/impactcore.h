@@ -371,17 +371,17 @@ struct HumBasis {
   // a unit sinusoid over it (HumSteps, HumEnergy in features.cpp)
   float blk_rc[2] = {}, blk_rs[2] = {}, blk_lc[2] = {}, blk_ls[2] = {}, blk_mc[2] = {}, blk_ms[2] = {},
         blk_gain[2] = {};
-  // the kMainsHz index of the event's mains (-1: none yet; extract_features resets it each event): the first
-  // modelled hum whose fit tells 50 from 60 Hz sets it; one mains feeds every channel, so a later channel fits
-  // that frequency alone
-  int event_pick = -1;
+  // 1 + the kMainsHz index of the event's mains (0: none yet; extract_features resets it each event; 0 keeps the
+  // board's static basis out of initialised data): the first modelled hum whose fit tells 50 from 60 Hz sets it;
+  // one mains feeds every channel, so a later channel fits that frequency alone
+  int event_mains = 0;
   void set(float fs);
   // the kMainsHz index of a fitted hum's w (w[0] or w[1])
   int index(float w_hum) const { return w_hum == w[1] ? 1 : 0; }
 };
 // When a cheap bound on the fit rules the hum out (most clean captures), hum_hz, hum_amp, c0..c2 and w
-// stay 0 (they are read only when hum = 1). basis->event_pick >= 0: only that mains frequency is fitted;
-// a modelled hum whose fit tells the two frequencies apart sets it when it is -1.
+// stay 0 (they are read only when hum = 1). basis->event_mains > 0: only that mains frequency is fitted;
+// a modelled hum whose fit tells the two frequencies apart sets it when it is 0.
 void fit_baseline(const int16_t* x, int n, const Sums* prefix, int baseline_samples, float fs_hz,
                   float hum_min_counts, HumBasis* basis, Baseline* out);
 // The noise floor of a hum channel (hum = 1): the kept baseline parts' rms about each part's own straight
