@@ -89,6 +89,69 @@ def test_pick_period_is_the_caught_cycles_period():
         assert np.median(raw["pick_period"]) == pytest.approx(1e5 / f_hz, rel=0.03)
 
 
+def test_pick_period_reads_a_low_band_on_a_slow_logger():
+    """A 1.6 kHz oscillation at 48 kHz (30 samples a period: a thick wooden plate's picks on a 48 kHz logger read
+    2.7 kHz, 18 samples, with the zero crossing before the threshold up to a period back): its crossings lie beyond
+    the short search (PERIOD_SEARCH) and its half periods agree, so the core reads fs / f within 5 % (the first
+    cycles' crossings on a rising envelope with 1.5-count noise; the median within 2 %), where a 32-sample search
+    read none."""
+    from impactsense.pipeline import as_int16
+    from impactsense.signal import SignalConfig
+
+    cfg = SignalConfig.from_dict({"fs_hz": 48000.0})
+    rng = np.random.default_rng(6)
+    f_hz, n, start = 1600.0, 1024, 300
+    assert 1.5 * 48000.0 / f_hz + 1 > _core.PERIOD_SEARCH   # 1.5 periods and the lead: beyond the short search
+    rows = []
+    for phase in rng.uniform(0, 2 * np.pi, 6):
+        t = np.arange(n) - start
+        burst = 300.0 / (1.0 + np.exp(-t / 8.0)) * np.sin(2 * np.pi * f_hz / 48000.0 * t + phase)
+        rows.append(2048 + burst[None] + rng.normal(0, 1.5, (4, n)))
+    raw = _core.extract_batch(as_int16(np.rint(np.array(rows)).astype(np.uint16)), cfg.core())
+    assert np.all(np.isfinite(raw["pick_period"]))
+    assert np.allclose(raw["pick_period"], 48000.0 / f_hz, rtol=0.05)
+    assert np.median(raw["pick_period"]) == pytest.approx(48000.0 / f_hz, rel=0.02)
+
+
+def _half_lobes(lengths, amps, rows=3, n=1024, start=300, seed=0):
+    """Captures [rows, 4] (uint16 about 2048, 0.5-count noise) whose signal from `start` is a small negative lead
+    (4 samples, 5 counts: under the onset threshold, so the zero crossing before the threshold crossing is its
+    end) and then half sines of alternating sign (+ first) of these lengths (samples) and amplitudes (counts)."""
+    x = np.zeros(n)
+    t = start
+    signed = [(4, -5.0)] + [(length, amp * (-1) ** k) for k, (length, amp) in enumerate(zip(lengths, amps))]
+    for length, amp in signed:
+        x[t:t + length] = amp * np.sin(np.pi * (np.arange(length) + 0.5) / length)
+        t += length
+    rng = np.random.default_rng(seed)
+    return np.rint(2048 + x + rng.normal(0, 0.5, (rows, 4, n))).astype(np.uint16)
+
+
+@pytest.mark.parametrize("lengths, period", [((20, 20, 20, 40), 40.0),   # one slow cycle, beyond the short search
+                                             ((2, 8, 14, 40), 16.0),     # unequal halves within it: read as before
+                                             ((3, 9, 30, 40), None)])    # a fast half cycle, then one side long
+def test_pick_period_beyond_the_short_search_keeps_one_cycle_only(lengths, period):
+    """The core's period search: crossings within PERIOD_SEARCH samples of the threshold crossing give the read
+    a short search gives, whatever its half periods (2, 8, 14 samples: 16); beyond it, up to PERIOD_SEARCH_WIDE,
+    the read is kept when its three half periods agree within PERIOD_HALF_RATIO (20, 20, 20: a 40-sample period)
+    and not when they do not (3, 9, 30: the caught half cycle, then the signal stays on one side of the baseline
+    for 30 samples; 10 x, the kind a wider search reads on a fast plate). Periods within 5 % (the half sines'
+    linear sub-sample crossings)."""
+    from impactsense.pipeline import as_int16
+    from impactsense.signal import SignalConfig
+
+    span = sum(lengths[:3])
+    assert (span > _core.PERIOD_SEARCH) == (period != 16.0) and span < _core.PERIOD_SEARCH_WIDE
+    assert (max(lengths[:3]) / min(lengths[:3]) > _core.PERIOD_HALF_RATIO) == (period != 40.0)
+    cfg = SignalConfig.from_dict({"fs_hz": 100000.0})
+    raw = _core.extract_batch(as_int16(_half_lobes(lengths, (300.0, 200.0, 150.0, 100.0))), cfg.core())
+    assert np.all(np.isfinite(raw["toa_threshold"]) & (raw["toa_threshold"] >= 0))
+    if period is None:
+        assert np.all(np.isnan(raw["pick_period"]))
+    else:
+        assert np.allclose(raw["pick_period"], period, rtol=0.05)
+
+
 def test_dispersion_scaled_localiser_finds_exact_positions_and_scale_one_is_bit_for_bit():
     """ToAs whose channels travel at their own speeds (a dispersive plate's picked cycles): with the
     slowness scales the localiser recovers the position inside the hull to 0.05 mm, without them it misses;

@@ -586,6 +586,9 @@ NB_MODULE(_core, m) {
   m.attr("CHANNELS") = ic::kChannels;
   m.attr("FLAGGED_EVALUATIONS") = ic::kFlaggedEvaluations;
   m.attr("MAX_SAMPLES") = ic::kMaxSamples;
+  m.attr("PERIOD_SEARCH") = ic::kPeriodSearch;
+  m.attr("PERIOD_SEARCH_WIDE") = ic::kPeriodSearchWide;
+  m.attr("PERIOD_HALF_RATIO") = ic::kPeriodHalfRatio;
   m.attr("PAIR_I") = std::vector<int>(ic::kPairI, ic::kPairI + ic::kPairs);
   m.attr("PAIR_J") = std::vector<int>(ic::kPairJ, ic::kPairJ + ic::kPairs);
   m.attr("FLAG_CLIPPED") = static_cast<int>(ic::kFlagClipped);

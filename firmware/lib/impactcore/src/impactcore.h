@@ -514,8 +514,17 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 // (linear sub-sample), from the last one at or before `cross` over the next three (three half periods, x 2/3).
 // On a dispersive plate (flexural waves: higher frequencies run faster) the cycle the threshold catches
 // arrives with its frequency's group velocity, so the localiser can scale each channel's slowness by it
-// (dispersion_exponent). NaN when the crossings are not found within kPeriodSearch samples.
+// (dispersion_exponent). The crossings are sought within kPeriodSearch samples either side of the crossing
+// (the search spans 1.5 periods and the lead, so it reads periods up to ~kPeriodSearch / 1.5 samples). A low band
+// on a slow logger needs more (a thick wooden plate's 2.7 kHz picks at 48 kHz: 18 samples a period): where they
+// are not all within kPeriodSearch, the search goes on to kPeriodSearchWide and keeps the read only when its
+// three half periods agree (the longest <= kPeriodHalfRatio x the shortest): one cycle, not the caught half cycle
+// followed by a signal that stays on one side of the baseline for tens of samples (what a wider search finds on
+// a fast plate). A read within kPeriodSearch is the one a kPeriodSearch search makes (the searches stop at the
+// first crossings). NaN when no read is kept.
 constexpr int kPeriodSearch = 32;
+constexpr int kPeriodSearchWide = 64;
+constexpr float kPeriodHalfRatio = 5.0f;
 float pick_period(const int16_t* x, int n, float base, float cross);
 
 // Per-channel slowness factors (f_c / ref_hz)^-exponent, f_c = fs_hz / pick_period (1 where the period is
