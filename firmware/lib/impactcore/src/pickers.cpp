@@ -254,45 +254,43 @@ float pick_period(const int16_t* x, int n, float base, float cross) {
   if (!(cross >= 0.0f)) return NAN;
   const int at = static_cast<int>(cross);
   // The zero crossing at or before the threshold crossing: the last sign change within kPeriodSearchWide
-  // samples before it (the pair around the crossing included); i0, i3: the sample pairs of the first and last.
+  // samples before it (the pair around the crossing included); the loop leaves i one below its pair.
   float z[4];
-  int found = 0, i0 = 0, i3 = 0;
+  int found = 0;
   int lo = at - kPeriodSearchWide;
   if (lo < 0) lo = 0;
-  for (int i = at + 1 < n ? at + 1 : n - 1; i > lo && found == 0; --i) {
+  int i = at + 1 < n ? at + 1 : n - 1;
+  for (; i > lo && found == 0; --i) {
     const float a = static_cast<float>(x[i - 1]) - base, b = static_cast<float>(x[i]) - base;
     if ((a < 0.0f) != (b < 0.0f)) {
       const float zc = static_cast<float>(i - 1) + a / (a - b);
       if (zc <= cross) {
         z[0] = zc;
         found = 1;
-        i0 = i;
       }
     }
   }
   if (found == 0) return NAN;
+  // The next three, with the shortest and longest half period; the loop leaves j one above the last's pair.
   int hi = at + kPeriodSearchWide;
   if (hi > n - 1) hi = n - 1;
-  for (int i = at; i < hi && found < 4; ++i) {
-    const float a = static_cast<float>(x[i]) - base, b = static_cast<float>(x[i + 1]) - base;
+  float h_min = 1e9f, h_max = 0.0f;
+  int j = at;
+  for (; j < hi && found < 4; ++j) {
+    const float a = static_cast<float>(x[j]) - base, b = static_cast<float>(x[j + 1]) - base;
     if ((a < 0.0f) != (b < 0.0f)) {
-      const float zc = static_cast<float>(i) + a / (a - b);
+      const float zc = static_cast<float>(j) + a / (a - b);
       if (zc > z[found - 1]) {
+        const float h = zc - z[found - 1];
         z[found++] = zc;
-        i3 = i;
+        if (h < h_min) h_min = h;
+        if (h > h_max) h_max = h;
       }
     }
   }
   if (found < 4) return NAN;
-  if (i0 <= at - kPeriodSearch || i3 >= at + kPeriodSearch) {   // beyond the short search: one cycle only
-    float h_min = z[1] - z[0], h_max = h_min;
-    for (int k = 2; k < 4; ++k) {
-      const float h = z[k] - z[k - 1];
-      if (h < h_min) h_min = h;
-      if (h > h_max) h_max = h;
-    }
-    if (h_max > kPeriodHalfRatio * h_min) return NAN;
-  }
+  // Beyond the short search (a pair further than kPeriodSearch from the crossing): one cycle only.
+  if ((i < at - kPeriodSearch || j > at + kPeriodSearch) && h_max > kPeriodHalfRatio * h_min) return NAN;
   return (z[3] - z[0]) * (2.0f / 3.0f);
 }
 
