@@ -6,6 +6,9 @@ AIC blend.
     python benchmarks/bench_pick_period_bound.py DATA [DATA ...] --save A.npz      (with one core, e.g. main's venv)
     python benchmarks/bench_pick_period_bound.py DATA [DATA ...] --against A.npz   (with another)
 
+--board: the drops as the board captures them (board/capture.board_view at 50 kHz: resampled, the SAADC scan
+delays, the app's trigger and window) with the board's signal configuration, as `export` trains the board's models.
+
 Per session and threshold factor: channels with a pick, the fraction read (a finite period), and --against: how
 many reads differ from A's (NaN <-> a period, or the value by more than 1e-4 sample), how many of them are new
 reads (NaN in A), lost reads, and the new reads' period against the session's median at that threshold.
@@ -22,13 +25,16 @@ import numpy as np
 FACTORS = (0.4, 0.6, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0)
 
 
-def periods(path: str) -> dict[str, np.ndarray]:
+def periods(path: str, board: bool = False) -> dict[str, np.ndarray]:
+    from impactsense.board.capture import board_view, signal_for_board
     from impactsense.data import load_session
     from impactsense.signal import SignalConfig
     from impactsense.travel import picks
 
     s = load_session(path)
     cfg = SignalConfig.for_rig(s.rig)
+    if board:
+        s, cfg = board_view(s, 50000), signal_for_board(s.rig, None, 50000)
     out = {}
     for f in FACTORS:
         toa, period = picks(s.adc, cfg, with_period=True, onset_threshold_counts=cfg.onset_threshold_counts * f)
@@ -43,11 +49,12 @@ def main(argv=None) -> int:
     ap.add_argument("data", nargs="+")
     ap.add_argument("--save", help="write this core's periods here")
     ap.add_argument("--against", help="periods another core wrote (--save)")
+    ap.add_argument("--board", action="store_true", help="the drops as the board captures them, at 50 kHz")
     a = ap.parse_args(argv)
     ref = dict(np.load(a.against)) if a.against else None
     saved, total = {}, 0
     for path in a.data:
-        got = periods(path)
+        got = periods(path, a.board)
         saved.update(got)
         for f in FACTORS:
             p, picked = got[f"{path}|{f:g}"].astype(float), got[f"{path}|{f:g}|picked"]

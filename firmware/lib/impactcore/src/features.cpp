@@ -1197,7 +1197,7 @@ void channel_features(const int16_t* x, int n, const CoreConfig& cfg, int c, Hum
   const float base_on = local.model_near(cross);
   const int ipk = first_extremum(x, n, base_on, icross);
   f->first_peak = fabsf(static_cast<float>(x[ipk]) - base_on);
-  f->pick_period = pick_period(x, n, base_on, cross);
+  f->pick_period = pick_period(x, n, base_on, cross, (f->flags & kFlagClipped) == 0);
 
   // n2: where the cumulative energy stops growing (reaches n2_fraction of the total).
   int n2 = bl.hum ? hum_e.reaches(cfg.n2_fraction * energy)

@@ -521,11 +521,13 @@ float aic_pick_subsample(const int16_t* x, int begin, int end, int search_from);
 // three half periods agree (the longest <= kPeriodHalfRatio x the shortest): one cycle, not the caught half cycle
 // followed by a signal that stays on one side of the baseline for tens of samples (what a wider search finds on
 // a fast plate). A read within kPeriodSearch is the one a kPeriodSearch search makes (the searches stop at the
-// first crossings). NaN when no read is kept.
+// first crossings). wide false: kPeriodSearch only (the features pass it on a clipped channel: past the rail the
+// waveform is the front end's recovery, not the plate's cycle; a 50 kHz capture of a clipped PMMA drop reads a
+// slow swing whose halves agree). NaN when no read is kept.
 constexpr int kPeriodSearch = 32;
 constexpr int kPeriodSearchWide = 64;
 constexpr float kPeriodHalfRatio = 5.0f;
-float pick_period(const int16_t* x, int n, float base, float cross);
+float pick_period(const int16_t* x, int n, float base, float cross, bool wide);
 
 // Per-channel slowness factors (f_c / ref_hz)^-exponent, f_c = fs_hz / pick_period (1 where the period is
 // unknown): what localise_tdoa's slowness_scale takes when dispersion_exponent is not 0.

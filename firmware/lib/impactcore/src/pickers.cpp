@@ -250,14 +250,15 @@ int aic_pick(const int16_t* x, int begin, int end) {
   return k < 0.0f ? -1 : static_cast<int>(k + 0.5f);
 }
 
-float pick_period(const int16_t* x, int n, float base, float cross) {
+float pick_period(const int16_t* x, int n, float base, float cross, bool wide) {
   if (!(cross >= 0.0f)) return NAN;
   const int at = static_cast<int>(cross);
-  // The zero crossing at or before the threshold crossing: the last sign change within kPeriodSearchWide
+  const int reach = wide ? kPeriodSearchWide : kPeriodSearch;
+  // The zero crossing at or before the threshold crossing: the last sign change within `reach`
   // samples before it (the pair around the crossing included); the loop leaves i one below its pair.
   float z[4];
   int found = 0;
-  int lo = at - kPeriodSearchWide;
+  int lo = at - reach;
   if (lo < 0) lo = 0;
   int i = at + 1 < n ? at + 1 : n - 1;
   for (; i > lo && found == 0; --i) {
@@ -272,9 +273,12 @@ float pick_period(const int16_t* x, int n, float base, float cross) {
   }
   if (found == 0) return NAN;
   // The next three, with the shortest and longest half period; the loop leaves j one above the last's pair.
-  int hi = at + kPeriodSearchWide;
+  int hi = at + reach;
   if (hi > n - 1) hi = n - 1;
-  float h_min = 1e9f, h_max = 0.0f;
+  // Starts that a VFP immediate holds (no literal): no half period reaches kPeriodHalfRatio x 31 (the span is at most
+  // 2 reach + 1 samples), and the longest is over 2/3 (the last crossing lies 2 pairs past the first's).
+  static_assert(kPeriodHalfRatio * 31.0f > 2 * kPeriodSearchWide + 1, "h_min's start");
+  float h_min = 31.0f, h_max = 0.5f;
   int j = at;
   for (; j < hi && found < 4; ++j) {
     const float a = static_cast<float>(x[j]) - base, b = static_cast<float>(x[j + 1]) - base;
