@@ -116,7 +116,8 @@ def test_pick_period_reads_a_low_band_on_a_slow_logger():
 def _half_lobes(lengths, amps, rows=3, n=1024, start=300, seed=0):
     """Captures [rows, 4] (uint16 about 2048, 0.5-count noise) whose signal from `start` is a small negative lead
     (4 samples, 5 counts: under the onset threshold, so the zero crossing before the threshold crossing is its
-    end) and then half sines of alternating sign (+ first) of these lengths (samples) and amplitudes (counts)."""
+    end) and then half sines of alternating sign (+ first) of these lengths (samples) and amplitudes (counts),
+    held within the 12-bit rails."""
     x = np.zeros(n)
     t = start
     signed = [(4, -5.0)] + [(length, amp * (-1) ** k) for k, (length, amp) in enumerate(zip(lengths, amps))]
@@ -124,7 +125,7 @@ def _half_lobes(lengths, amps, rows=3, n=1024, start=300, seed=0):
         x[t:t + length] = amp * np.sin(np.pi * (np.arange(length) + 0.5) / length)
         t += length
     rng = np.random.default_rng(seed)
-    return np.rint(2048 + x + rng.normal(0, 0.5, (rows, 4, n))).astype(np.uint16)
+    return np.clip(np.rint(2048 + x + rng.normal(0, 0.5, (rows, 4, n))), 0, 4095).astype(np.uint16)
 
 
 @pytest.mark.parametrize("lengths, period", [((20, 20, 20, 40), 40.0),   # one slow cycle, beyond the short search
@@ -150,6 +151,23 @@ def test_pick_period_beyond_the_short_search_keeps_one_cycle_only(lengths, perio
         assert np.all(np.isnan(raw["pick_period"]))
     else:
         assert np.allclose(raw["pick_period"], period, rtol=0.05)
+
+
+def test_pick_period_searches_a_clipped_channel_only_near_its_crossing():
+    """The slow cycle above (20/20/20 samples) driven to the 12-bit rails: past the rail the waveform is the front
+    end's, so the core reads the period only within PERIOD_SEARCH samples: NaN here; the same shape at a fourth of
+    the width (5/5/5 samples, within the short search) is still read, 10 samples within 5 %."""
+    from impactsense.pipeline import as_int16
+    from impactsense.signal import SignalConfig
+
+    cfg = SignalConfig.from_dict({"fs_hz": 100000.0})
+    for lengths, period in (((20, 20, 20, 40), None), ((5, 5, 5, 40), 10.0)):
+        raw = _core.extract_batch(as_int16(_half_lobes(lengths, (3000.0,) * 4)), cfg.core())
+        assert np.all(raw["flags"] & _core.FLAG_CLIPPED)
+        if period is None:
+            assert np.all(np.isnan(raw["pick_period"]))
+        else:
+            assert np.allclose(raw["pick_period"], period, rtol=0.05)
 
 
 def test_dispersion_scaled_localiser_finds_exact_positions_and_scale_one_is_bit_for_bit():

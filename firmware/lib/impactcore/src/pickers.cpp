@@ -253,7 +253,8 @@ int aic_pick(const int16_t* x, int begin, int end) {
 float pick_period(const int16_t* x, int n, float base, float cross, bool wide) {
   if (!(cross >= 0.0f)) return NAN;
   const int at = static_cast<int>(cross);
-  const int reach = wide ? kPeriodSearchWide : kPeriodSearch;
+  static_assert(kPeriodSearchWide == kPeriodSearch << 1, "reach: a shift, no branch (board code bytes)");
+  const int reach = kPeriodSearch << static_cast<int>(wide);
   // The zero crossing at or before the threshold crossing: the last sign change within `reach`
   // samples before it (the pair around the crossing included); the loop leaves i one below its pair.
   float z[4];
