@@ -253,8 +253,7 @@ int aic_pick(const int16_t* x, int begin, int end) {
 float pick_period(const int16_t* x, int n, float base, float cross, bool wide) {
   if (!(cross >= 0.0f)) return NAN;
   const int at = static_cast<int>(cross);
-  static_assert(kPeriodSearchWide == kPeriodSearch << 1, "reach: a shift, no branch (board code bytes)");
-  const int reach = kPeriodSearch << static_cast<int>(wide);
+  const int reach = wide ? kPeriodSearchWide : kPeriodSearch;
   // The zero crossing at or before the threshold crossing: the last sign change within `reach`
   // samples before it (the pair around the crossing included); the loop leaves i one below its pair.
   float z[4];
@@ -295,7 +294,7 @@ float pick_period(const int16_t* x, int n, float base, float cross, bool wide) {
   }
   if (found < 4) return NAN;
   // Beyond the short search (a pair further than kPeriodSearch from the crossing): one cycle only.
-  if ((i < at - kPeriodSearch || j > at + kPeriodSearch) && h_max > kPeriodHalfRatio * h_min) return NAN;
+  if ((at - i > kPeriodSearch || j - at > kPeriodSearch) && h_max > kPeriodHalfRatio * h_min) return NAN;
   return (z[3] - z[0]) * (2.0f / 3.0f);
 }
 
