@@ -13,7 +13,6 @@ import argparse
 import math
 import sys
 
-import numpy as np
 
 
 def kirchhoff_mm_per_us(rig, freq_hz: float) -> float:
