@@ -67,6 +67,17 @@ def test_fit_travel_recovers_velocity_delays_and_metric(a, b):
     assert 0.7 < fit.spread_us < 2.0
 
 
+def _growing_bursts(f_hz, fs_hz, rise, rng, n=1024, start=300):
+    """Six captures [6, 4, n] (uint16 about 2048, 1.5-count noise) of an oscillation at f_hz sampled at fs_hz,
+    its amplitude rising to 300 counts as a logistic of `rise` samples from `start`, each at a random phase."""
+    rows = []
+    for phase in rng.uniform(0, 2 * np.pi, 6):
+        t = np.arange(n) - start
+        burst = 300.0 / (1.0 + np.exp(-t / rise)) * np.sin(2 * np.pi * f_hz / fs_hz * t + phase)
+        rows.append(2048 + burst[None] + rng.normal(0, 1.5, (4, n)))
+    return np.rint(np.array(rows)).astype(np.uint16)
+
+
 def test_pick_period_is_the_caught_cycles_period():
     """A 20 kHz (then 31.25 kHz) oscillation growing over a few cycles, sampled at 100 kHz with 1.5-count
     noise: the core's pick_period is fs / f whatever its phase against the samples, within 3 % at 5 samples
@@ -77,13 +88,7 @@ def test_pick_period_is_the_caught_cycles_period():
     cfg = SignalConfig.from_dict({"fs_hz": 100000.0})
     rng = np.random.default_rng(4)
     for f_hz, tol in ((20000.0, 0.03), (31250.0, 0.08)):   # 5 and 3.2 samples a period
-        n, start = 1024, 300
-        rows = []
-        for phase in rng.uniform(0, 2 * np.pi, 6):
-            t = np.arange(n) - start
-            burst = 300.0 / (1.0 + np.exp(-t / 4.0)) * np.sin(2 * np.pi * f_hz / 1e5 * t + phase)
-            rows.append(2048 + burst[None] + rng.normal(0, 1.5, (4, n)))
-        raw = _core.extract_batch(as_int16(np.rint(np.array(rows)).astype(np.uint16)), cfg.core())
+        raw = _core.extract_batch(as_int16(_growing_bursts(f_hz, 1e5, 4.0, rng)), cfg.core())
         assert np.all(np.isfinite(raw["pick_period"]))
         assert np.allclose(raw["pick_period"], 1e5 / f_hz, rtol=tol)
         assert np.median(raw["pick_period"]) == pytest.approx(1e5 / f_hz, rel=0.03)
@@ -100,14 +105,9 @@ def test_pick_period_reads_a_low_band_on_a_slow_logger():
 
     cfg = SignalConfig.from_dict({"fs_hz": 48000.0})
     rng = np.random.default_rng(6)
-    f_hz, n, start = 1600.0, 1024, 300
+    f_hz = 1600.0
     assert 1.5 * 48000.0 / f_hz + 1 > _core.PERIOD_SEARCH   # 1.5 periods and the lead: beyond the short search
-    rows = []
-    for phase in rng.uniform(0, 2 * np.pi, 6):
-        t = np.arange(n) - start
-        burst = 300.0 / (1.0 + np.exp(-t / 8.0)) * np.sin(2 * np.pi * f_hz / 48000.0 * t + phase)
-        rows.append(2048 + burst[None] + rng.normal(0, 1.5, (4, n)))
-    raw = _core.extract_batch(as_int16(np.rint(np.array(rows)).astype(np.uint16)), cfg.core())
+    raw = _core.extract_batch(as_int16(_growing_bursts(f_hz, 48000.0, 8.0, rng)), cfg.core())
     assert np.all(np.isfinite(raw["pick_period"]))
     assert np.allclose(raw["pick_period"], 48000.0 / f_hz, rtol=0.05)
     assert np.median(raw["pick_period"]) == pytest.approx(48000.0 / f_hz, rel=0.02)
