@@ -81,3 +81,20 @@ def test_a_delay_or_move_on_the_flagged_channel_is_not_kept_its_gain_and_low_pas
     assert MD.leave_out_flagged_timing(ref, kept, {2: {}}) == (kept, False)   # once
     assert [(c.effect, c.sensor) for c in kept] == [("sensor_gain", 2), ("channel_lowpass", 2),
                                                      ("channel_delay", 1), ("sensor_position", 0)]
+
+
+def test_the_clipping_group_is_the_plateaus_bernoulli_likelihood_and_finite_at_rate_zero():
+    """A drop-channel shows a plateau off the rails with the reference's rate p: the group is sum(k log p +
+    (n - k) log(1 - p)) per drop; a reference that saw none (p = 0) gives 0 for drops without one (0 log 0 = 0),
+    -inf for a drop with one, never NaN."""
+    F = _features()
+    F.plateau_hi[:3, 1] = 2000.0                    # three drops with a plateau mid-range on channel 1
+    ref = _ref()
+    ref.rail_lo, ref.rail_hi = np.zeros(4), np.full(4, 4095.0)
+    ref.plateau_rate = 0.1
+    got = ref.ll_groups(F)["clipping"]
+    assert np.allclose(got[:3], np.log(0.1) + 3 * np.log(0.9)) and np.allclose(got[3:], 4 * np.log(0.9))
+    ref.plateau_rate = 0.0
+    got = ref.ll_groups(F)["clipping"]
+    assert not np.isnan(got).any()
+    assert np.all(got[3:] == 0.0) and np.all(np.isneginf(got[:3]))

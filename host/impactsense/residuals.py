@@ -28,6 +28,7 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.special import xlogy
 
 from . import _core
 from .data import Session
@@ -388,7 +389,7 @@ class Reference:
         out["hum"] = huber_ll((F.hum_counts - hum_pred) / s["hum"]).sum(axis=(1, 2))
         ev = self.nonrail_plateaus(F)
         p0 = self.plateau_rate
-        out["clipping"] = (ev * np.log(p0) + (~ev) * np.log1p(-p0)).sum(axis=1)
+        out["clipping"] = (xlogy(ev, p0) + xlogy(~ev, 1.0 - p0)).sum(axis=1)   # 0 log 0 = 0 (a rate of 0 or 1)
         return out
 
     def ll(self, F: Features) -> np.ndarray:
