@@ -19,6 +19,21 @@ pytestmark = pytest.mark.skipif(
     reason="needs gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (scripts/setup-debian.sh)")
 
 
+def test_qemu_image_compiles_with_the_boards_flags(tmp_path):
+    """The instructions timed on qemu (the 64,000 budget) are the board's: the image uses the float ABI that
+    platformio.ini gives the board and the optimisation level our libraries set in their library.json."""
+    p = subprocess.run(["make", "-s", "-f", str(ROOT / "firmware/test/qemu/Makefile"), f"BUILD={tmp_path}",
+                        "--eval", "print-%: ; @echo $($*)", "print-COMMON"], capture_output=True, text=True,
+                       timeout=60, env={k: v for k, v in os.environ.items() if k != "OPT"})
+    assert p.returncode == 0, p.stderr
+    qemu_flags = p.stdout.split()
+    board_abi = re.search(r"^build_flags\s*=.*?(-mfloat-abi=\w+)", (ROOT / "platformio.ini").read_text(), re.M).group(1)
+    assert board_abi in qemu_flags and "-mfpu=fpv4-sp-d16" in qemu_flags
+    for lib in ("impactcore", "impactlink", "impactapp"):
+        flags = json.loads((ROOT / "firmware/lib" / lib / "library.json").read_text())["build"]["flags"]
+        assert [f for f in flags if f.startswith("-O")] == [f for f in qemu_flags if f.startswith("-O")], lib
+
+
 def test_qemu_image_matches_host(tmp_path):
     p = subprocess.run([str(ROOT / "firmware/test/qemu/run.sh"), str(tmp_path), "--drops", "6", "--trees", "8",
                         "--site-map-step", "20"],
