@@ -28,9 +28,19 @@ WINDOW_US = 800.0       # ... and lasts this long (the low band's packet rises w
 FRACTION = 0.3          # the arrival: first crossing of this fraction of the window's envelope maximum
 
 
-@lru_cache(maxsize=8)
-def _sos(lo, hi, fs):
-    return butter(ORDER, [lo, hi], btype="band", fs=fs, output="sos")
+# A band's top is held to this share of the logger's Nyquist frequency: a low-rate logger (20 kHz: Nyquist 10 kHz)
+# cannot hold a 5-15 kHz band, and a Butterworth edge at the Nyquist frequency is not a filter.
+NYQUIST_SHARE = 0.9
+
+
+@lru_cache(maxsize=16)
+def band_sos(lo, hi, fs, order=ORDER):
+    """A Butterworth band-pass's second-order sections over [lo, min(hi, NYQUIST_SHARE x fs / 2)] Hz, or None when
+    nothing of the band lies under that top (the band's values are then NaN)."""
+    top = min(float(hi), NYQUIST_SHARE * 0.5 * float(fs))
+    if float(lo) >= top:
+        return None
+    return butter(order, [float(lo), top], btype="band", fs=float(fs), output="sos")
 
 
 def band_arrivals(adc, toa_us, fs_hz, *, channel_delay_us=(0.0, 0.0, 0.0, 0.0), bands=None,
@@ -50,7 +60,10 @@ def band_arrivals(adc, toa_us, fs_hz, *, channel_delay_us=(0.0, 0.0, 0.0, 0.0), 
     inside = (t >= (raw - LEAD_US)[..., None]) & (t <= (raw + WINDOW_US)[..., None])    # [n, 4, S]
     out = np.full(raw.shape + (len(bands),), np.nan)
     for b, (lo, hi) in enumerate(bands):
-        env = np.abs(hilbert(sosfilt(_sos(lo, hi, float(fs_hz)), x, axis=-1), axis=-1))
+        sos = band_sos(lo, hi, float(fs_hz))
+        if sos is None:   # the band lies above what the logger holds
+            continue
+        env = np.abs(hilbert(sosfilt(sos, x, axis=-1), axis=-1))
         env_w = np.where(inside, env, 0.0)
         thr = FRACTION * env_w.max(axis=-1)
         i = np.maximum(np.argmax(env_w >= thr[..., None], axis=-1), 1)                   # first sample >= thr

@@ -25,10 +25,10 @@ Tried first and dropped (`--position-scan`, FEM drops made with 1 mm jitter):
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
-from scipy.signal import butter, hilbert, sosfiltfilt
+from scipy.signal import hilbert, sosfiltfilt
+
+from .bands import band_sos
 
 # (low Hz, high Hz, flat part of the window after the mean onset, us): chosen on `bench_calibrate.py
 # --position-scan` (smooth in position) and on their nu sensitivity against noise
@@ -40,11 +40,6 @@ TAPER_US = 1000.0
 ANCHOR_BAND_HZ = (1000.0, 15000.0)
 ANCHOR_FLAT_US = 2500.0
 ANCHOR_OFFSET_US = 850.0
-
-
-@lru_cache(maxsize=8)
-def _sos(lo, hi, fs):
-    return butter(ORDER, [lo, hi], btype="band", fs=fs, output="sos")
 
 
 def window(t_us, anchor_us, flat_us) -> np.ndarray:
@@ -65,7 +60,8 @@ def packet_times(env, anchor_us, flat_us, us_per_sample) -> np.ndarray:
 
 def event_anchor(x, mean_onset_us, fs_hz) -> np.ndarray:
     """Each event's window anchor [n] us (record time) from baseline-removed records x [n, 4, S]."""
-    e2 = (np.abs(hilbert(sosfiltfilt(_sos(*ANCHOR_BAND_HZ, float(fs_hz)), x, axis=-1), axis=-1)) ** 2).sum(1)
+    e2 = (np.abs(hilbert(sosfiltfilt(band_sos(*ANCHOR_BAND_HZ, float(fs_hz), ORDER), x, axis=-1), axis=-1))
+          ** 2).sum(1)
     c = packet_times(e2[:, None, :] ** 0.5, mean_onset_us, ANCHOR_FLAT_US, 1e6 / fs_hz)[:, 0]
     return np.where(np.isfinite(c), c - ANCHOR_OFFSET_US, mean_onset_us)
 
@@ -89,7 +85,11 @@ def group_delays(adc, toa_us, fs_hz, pair_i, pair_j, *, channel_delay_us=(0.0, 0
     anchor = event_anchor(x, np.array([r[f].mean() if f.any() else 0.0 for r, f in zip(raw, ok)]), fs_hz)
     out = np.empty((x.shape[0], len(bands), len(pair_i)))
     for b, (lo, hi, flat) in enumerate(bands):
-        env = np.abs(hilbert(sosfiltfilt(_sos(lo, hi, float(fs_hz)), x, axis=-1), axis=-1))
+        sos = band_sos(lo, hi, float(fs_hz), ORDER)   # the band's top held under the logger's Nyquist frequency
+        if sos is None:
+            out[:, b] = np.nan
+            continue
+        env = np.abs(hilbert(sosfiltfilt(sos, x, axis=-1), axis=-1))
         c = np.where(has[:, None], packet_times(env, anchor, flat, us), np.nan) - delay[None, :]
         out[:, b] = c[:, pair_i] - c[:, pair_j]
     return out
