@@ -1,7 +1,7 @@
 """The plate's flexural group velocity the record check takes (`impactsense info`, record_window.py) against what
 the session's picks travel at: the materials table's typical values through Kirchhoff's sqrt(omega) law (before)
 and through the Mindlin relation (materials.flexural_group_velocity_mm_per_us, now), at record_window's
-REFERENCE_HZ in the slowest direction, beside the travel fit's velocity (the core's threshold picks at the
+REFERENCE_HZ (a slower logger: reference_hz, a quarter of its rate) in the slowest direction, beside the travel fit's velocity (the core's threshold picks at the
 rig's default onset threshold, the declared positions, travel.fit_travel).
 
     python3 benchmarks/bench_flexural_speed.py DATA [DATA ...]      (DATA: a session folder or `bundled`)
@@ -41,18 +41,18 @@ def main(argv=None) -> int:
     ap.add_argument("data", nargs="+")
     a = ap.parse_args(argv)
     from impactsense.data import load_session
-    from impactsense.record_window import REFERENCE_HZ, slowest_velocity_mm_per_us
+    from impactsense.record_window import REFERENCE_HZ, reference_hz, slowest_velocity_mm_per_us
     from impactsense.signal import SignalConfig
     from impactsense.travel import fit_travel, metric_choice, picks
 
     print(f"{'session':28s} {'thick mm':>8s} {'Kirchhoff':>9s} {'Mindlin':>8s} {'picks':>6s}  (mm/us; table's values "
-          f"at {REFERENCE_HZ / 1e3:g} kHz, slowest direction; picks: travel fit at the default threshold)")
+          f"at {REFERENCE_HZ / 1e3:g} kHz, a slower logger's at a quarter of its rate, slowest direction; picks: travel fit at the default threshold)")
     for path in a.data:
         s = load_session(path)
         toa, period = picks(s.adc, SignalConfig.for_rig(s.rig), with_period=True)
         aniso = metric_choice(s.rig)
         fit = fit_travel(toa, s.xy_mm, s.rig.sensor_xy_mm, aniso, period, s.rig.fs_hz)
-        print(f"{path[-28:]:28s} {s.rig.thickness_mm:8.1f} {kirchhoff_mm_per_us(s.rig, REFERENCE_HZ):9.3f} "
+        print(f"{path[-28:]:28s} {s.rig.thickness_mm:8.1f} {kirchhoff_mm_per_us(s.rig, reference_hz(s.rig.fs_hz)):9.3f} "
               f"{slowest_velocity_mm_per_us(s.rig):8.3f} {fit.velocity_mm_per_us:6.3f}")
     return 0
 

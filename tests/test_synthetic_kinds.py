@@ -115,3 +115,27 @@ def test_thick_soft_plate_record_window_reads_the_mindlin_speed():
     assert check["velocity_mm_per_us"] == pytest.approx(v_truth, rel=0.15)
     assert check["short"]
     assert check["far_arrival_ms"] == pytest.approx(check["path_difference_mm"] / v_truth * 1e-3, rel=0.15)
+
+
+def test_low_rate_logger_record_window_reads_the_velocity_it_can_record():
+    """pvc-slowlog (a 20 kHz logger: nothing above 10 kHz in its records): the record check reads the plate's
+    velocity at a quarter of the rate, 5 kHz (within 10 % of the truth's A0 group velocity there; the picks'
+    travel fit on the session reads 0.52 mm/us at their 5.7 kHz), not at 10 kHz, where the waves run ~25 % faster
+    and the far arrivals would be said to come ~0.2 ms sooner; a record kept 0.9 ms after the first arrival is
+    SHORT (before: not). A 50 kHz logger keeps 10 kHz."""
+    from impactsense.record_window import REFERENCE_HZ, reference_hz
+    from impactsense.sim.dispersion import a0_group_velocity
+
+    spec = synthetic_rig.KINDS["pvc-slowlog"]
+    rig = rig_from_dict(spec["rig"])
+    truth = spec["sim"]
+    h_m = rig.thickness_mm * 1e-3
+    v5, v10 = (float(a0_group_velocity(f, truth["e_pa"], truth["nu"], rig.density_kg_m3, h_m)) * 1e-3
+               for f in (5e3, 10e3))
+    assert v10 > 1.2 * v5
+    pre = truth["pretrigger_samples"]
+    check = window_check(rig, pre + int(0.9e-3 * rig.fs_hz), pre)
+    assert check["reference_hz"] == pytest.approx(5e3)
+    assert check["velocity_mm_per_us"] == pytest.approx(v5, rel=0.10)
+    assert check["short"]
+    assert reference_hz(50e3) == REFERENCE_HZ

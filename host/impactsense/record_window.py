@@ -4,7 +4,7 @@ path difference at its flexural group velocity (`impactsense info`, and `train` 
 A drop's first arrival reaches the nearest sensor; the last one the farthest, (max_k d_k - min_k d_k) / v later
 (d_k the distances from the drop to the sensors). Over the plate the largest of those differences is the span
 the record must keep after its first arrival. v: the materials table's typical values through the Mindlin
-flexural group velocity at REFERENCE_HZ, the slowest direction (materials.flexural_group_velocity_mm_per_us;
+flexural group velocity at REFERENCE_HZ (a slower logger: a quarter of its rate), the slowest direction (materials.flexural_group_velocity_mm_per_us;
 a starting value, not a measurement: the threshold onset catches faster, higher-frequency content). A logger
 that stops sooner loses the far sensors' arrivals on drops far from them: the core reads such a channel as
 dead or without an onset, though nothing is wrong with the disc.
@@ -15,6 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 REFERENCE_HZ = 10e3    # an impact's arrivals carry most of their energy at a few to some tens of kHz
+# ... as a logger holds them: a low-rate logger's records carry nothing above its Nyquist frequency and little
+# near it; its arrivals are read at most at this share of its rate (half the Nyquist: 5 kHz at 20 kHz)
+LOGGER_BAND_SHARE = 0.25
 GRID_MM = 5.0
 ANGLES_DEG = np.arange(0.0, 180.0, 15.0)
 
@@ -28,13 +31,21 @@ def longest_path_difference_mm(rig) -> float:
     return float((d.max(axis=0) - d.min(axis=0)).max())
 
 
+def reference_hz(fs_hz: float) -> float:
+    """The frequency the record check reads the plate's velocity at: REFERENCE_HZ, or LOGGER_BAND_SHARE of the
+    logger's rate where that is lower (a 20 kHz logger's arrivals are read at 5 kHz, where the plate's flexural
+    waves are slower: the far arrivals come later)."""
+    return float(min(REFERENCE_HZ, LOGGER_BAND_SHARE * float(fs_hz)))
+
+
 def slowest_velocity_mm_per_us(rig) -> float:
-    """The plate's Mindlin flexural group velocity at REFERENCE_HZ (the table's typical values) in its slowest
-    direction."""
+    """The plate's Mindlin flexural group velocity at reference_hz(rig.fs_hz) (the table's typical values) in its
+    slowest direction."""
     from .materials import flexural_group_velocity_mm_per_us, material_for_rig
 
     mat = material_for_rig(rig)
-    return min(flexural_group_velocity_mm_per_us(mat, rig.thickness_mm, rig.density_kg_m3, REFERENCE_HZ, float(a))
+    f = reference_hz(rig.fs_hz)
+    return min(flexural_group_velocity_mm_per_us(mat, rig.thickness_mm, rig.density_kg_m3, f, float(a))
                for a in ANGLES_DEG)
 
 
@@ -52,7 +63,7 @@ def window_check(rig, samples: int, first_arrival_samples: int | None) -> dict:
     after_ms = (None if first_arrival_samples is None
                 else (start + samples - first_arrival_samples) / rig.fs_hz * 1e3)
     return {"after_first_arrival_ms": after_ms, "far_arrival_ms": needed_ms, "path_difference_mm": path_mm,
-            "velocity_mm_per_us": v, "reference_hz": REFERENCE_HZ, "record_samples": recorded,
+            "velocity_mm_per_us": v, "reference_hz": reference_hz(rig.fs_hz), "record_samples": recorded,
             "core_samples": samples, "core_start": start,
             "short": bool(after_ms is not None and after_ms < needed_ms)}
 
