@@ -481,3 +481,26 @@ def test_travel_refit_reads_as_far_as_the_calibration_drops_determine_it(session
         assert r["prior"]["sd_delay_us"] == pytest.approx(1e6 / rig.fs_hz)
     assert rec_spread["threshold"]["travel_metric"][0] == back.travel_metric_xx
     assert back.onset_threshold_counts == wrong.onset_threshold_counts and back.aic_blend == wrong.aic_blend
+
+
+def test_zero_shot_table_shows_the_seed_papers_rows_only_for_the_bundled_rig(tmp_path):
+    """The seed paper's Tables 7-9 are the bundled rig's: `demo --data D --zero-shot` on another rig printed them
+    as "seed, sim-trained ... 22.4 mm" beside that rig's figures (a PVC plate's, 3.92 mm), a comparison of two
+    plates. Elsewhere the table holds our rows only; on the bundled session-1 both, as before."""
+    from types import SimpleNamespace
+
+    from impactsense.commands.demo import is_bundled
+    from impactsense.data import bundled_session_path
+    from impactsense.zeroshot import zero_shot_table
+
+    m = {"r2": 0.99, "rmse_mm": 6.4, "mae_mm": 3.9}
+    result = {key: {"all": m, "inner": m, "energy_class_accuracy": 1.0} for key in ("sim_trained", "measured_trained")}
+    ours = [ln for ln in zero_shot_table(result).splitlines() if ln.startswith("impactsense, ")]
+    assert len(ours) == 4
+    with_seed = zero_shot_table(result, seed_rows=True).splitlines()
+    assert sum(ln.startswith("seed, ") for ln in with_seed) == 4
+    without = zero_shot_table(result, seed_rows=False).splitlines()
+    assert not any(ln.startswith("seed") for ln in without)
+    assert [ln for ln in without if ln.startswith("impactsense, ")] == ours
+    assert is_bundled(SimpleNamespace(path=bundled_session_path()))
+    assert not is_bundled(SimpleNamespace(path=tmp_path))

@@ -434,12 +434,15 @@ def run_zero_shot(session: Session, cal_path: str | Path, out_dir: str | Path, n
     return result
 
 
-def zero_shot_table(result: dict) -> str:
+def zero_shot_table(result: dict, seed_rows: bool = True) -> str:
+    """Our sim- and measured-trained rows, each after the seed paper's (its Tables 7-9 are the bundled rig's:
+    seed_rows False on any other session, whose table then holds ours only)."""
     lines = [f"{'':46s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
     for region, label in (("all", "whole plate"), ("inner", "inner region")):
         for kind, key in (("sim-trained", "sim_trained"), ("measured-trained", "measured_trained")):
-            r2, rmse, mae, acc = SEED_ROWS[f"{kind}, {label}"]
-            lines.append(f"{'seed, ' + kind + ', ' + label:46s} {r2:6.2f} {rmse:8.1f} {mae:7.1f} {acc:9.2f}")
+            if seed_rows:
+                r2, rmse, mae, acc = SEED_ROWS[f"{kind}, {label}"]
+                lines.append(f"{'seed, ' + kind + ', ' + label:46s} {r2:6.2f} {rmse:8.1f} {mae:7.1f} {acc:9.2f}")
             m = result[key][region]
             lines.append(f"{'impactsense, ' + kind + ', ' + label:46s} {m['r2']:6.3f} {m['rmse_mm']:8.2f} "
                          f"{m['mae_mm']:7.2f} {result[key]['energy_class_accuracy']:9.2f}")

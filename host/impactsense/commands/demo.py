@@ -29,6 +29,13 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def is_bundled(session) -> bool:
+    """Whether `session` is the bundled session-1, the session the seed paper's Tables 7-9 are of."""
+    from ..data import bundled_session_path
+
+    return session.path.resolve() == bundled_session_path().resolve()
+
+
 def comparison_table(ours: dict, seed_rows: bool = True) -> str:
     """Our rows, after the seed paper's (its Tables 7-9 are the bundled rig's: seed_rows False elsewhere)."""
     lines = [f"{'':54s} {'R2':>6s} {'RMSE mm':>8s} {'MAE mm':>7s} {'class acc':>9s}"]
@@ -86,9 +93,7 @@ def run(args) -> int:
     }
     print(f"\n{session.name}, held-out 20 % of cases: n = {report['n']} "
           f"(Eq. 35 accepted {report['accepted']}, rejected {report['rejected']})")
-    from ..data import bundled_session_path
-
-    print(comparison_table(ours, seed_rows=session.path.resolve() == bundled_session_path().resolve()))
+    print(comparison_table(ours, seed_rows=is_bundled(session)))
     try:
         other = load_session("bundled:session-2") if args.data == "bundled" else None
     except Exception:  # the second bundled session is optional
@@ -131,4 +136,4 @@ def run_zero_shot_part(args, session, out) -> None:
     print(f"measured test split: {len(res['test_recordings'])} drops (the calibration drops "
           f"{len(res['calibration_recordings'])} recordings excluded); channel delays from the calibration "
           f"drops (us): {', '.join(f'{d:+.2f}' for d in res['channel_delay_us_from_calibration_drops'])}")
-    print(zero_shot_table(res))
+    print(zero_shot_table(res, seed_rows=is_bundled(session)))
