@@ -443,7 +443,12 @@ void App::process_capture() {
   const int16_t* chans[4] = {capture_[0], capture_[1], capture_[2], capture_[3]};
   const int32_t st = ic::process_event(chans, capture_frames_, cfg_.core, cfg_.loc, &ev_);
   il::Report& r = report_;
-  r = il::Report{};  // every field zero but its defaults (left_out -1, set below anyway)
+  // Every field zero but its defaults, field by field (`r = il::Report{}` is a memset call under -Os).
+  r.x_mm = r.y_mm = 0.0f;
+  r.energy_class = 0;
+  r.accepted = r.valid = false;
+  r.clipped = r.dead = 0;
+  r.reason = 0;
   r.seq = seq_++;
   r.timestamp_ms = static_cast<uint32_t>((trigger_frame_ * 1000u) / cfg_.fs_hz);
   r.uncertainty_mm = -1.0f;

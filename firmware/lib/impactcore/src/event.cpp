@@ -102,7 +102,7 @@ void localise_event(const EventFeatures& f, const CoreConfig& cfg, const Localis
   // independent, docs/findings.md "Picks in one band"). Like the threshold localiser it runs on the channels that
   // have a pick, at least three: a far channel's band peak under the noise floor gives no band pick, and the other
   // three still place the drop (docs/findings.md "Band picks on three channels"); fewer: not run.
-  *band = LocaliserResult{};
+  clear_result(band);
   band->x_mm = band->y_mm = NAN;
   band->status = kErrBadConfig;
   if (!(cfg.band_pick_hz > 0.0f && loc.band_velocity_mm_per_us > 0.0f && phys->status == kOk)) return;

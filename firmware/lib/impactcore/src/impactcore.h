@@ -553,6 +553,15 @@ struct LocaliserResult {
   int32_t status;
 };
 
+// A LocaliserResult with every field 0, field by field: a `= {}` of the struct is a memset call under -Os
+// (newlib-nano's byte loop, ~150 instructions for its 40 bytes; the event clears two).
+inline void clear_result(LocaliserResult* r) {
+  r->x_mm = r->y_mm = r->t0_us = 0.0f;
+  r->cov_xx = r->cov_xy = r->cov_yy = 0.0f;
+  r->rms_residual_us = 0.0f;
+  r->iterations = r->evaluations = r->status = 0;
+}
+
 // Solves toa_i = t0 + |p - s_i|_Q / v for p = (x, y) and t0 by iteratively reweighted Gauss-Newton
 // (Huber weights with threshold huber_us, so one late pick cannot drag the solution), from one start:
 // the lowest Huber cost of a 4 x 4 grid of cell centres over the plate; at most 6 iterations and 16

@@ -483,7 +483,8 @@ LocaliserResult localise_tdoa(const float toa_us[kChannels], const uint8_t use[k
                               float velocity_mm_per_us, float sigma_us, float plate_x_mm,
                               float plate_y_mm, float huber_us, const float* travel_metric,
                               const float* slowness_scale, int starts, int posterior_grid, int max_evaluations) {
-  LocaliserResult res = {};
+  LocaliserResult res;
+  clear_result(&res);
   res.status = kOk;
   Problem p;
   p.iso = travel_metric == nullptr ||
