@@ -55,7 +55,7 @@ void apply_gain(ChannelFeatures* f, float gain) {
 #define IC_NOINLINE
 #endif
 
-IC_INLINE float to_float(int64_t v) { return int64_to_float(v); }
+IC_NOINLINE float to_float(int64_t v) { return int64_to_float(v); }  // out of line: one copy
 
 // floor(v) for v >= 0 as int64, saturating (no libgcc float -> int64 conversion, ~150 instructions on
 // the M4F: floats >= 2^24 are integers, so the mantissa shifted by the exponent is exact).
@@ -550,18 +550,28 @@ struct HumEnergy {
       y = yn;
     }
   }
+  // A scaled energy in counts^2 as its two words, each converted by one VCVT (within 1.5 ulp of the correctly
+  // rounded conversion, libgcc's ~50-instruction __floatdisf: the sum with corr rounds more).
+  IC_NOINLINE float scaled(int64_t e) const {
+    const float hi = static_cast<float>(static_cast<int32_t>(e >> 32)) * 4294967296.0f;
+    return (hi + static_cast<float>(static_cast<uint32_t>(e))) / ch->nb2;
+  }
   // Energy about the model of x[0 .. k kBlock) and of x[0 .. i).
-  float to_block(int k) const { return ch->to_energy(ch->energy_to_block(k)) + corr[k]; }
+  float to_block(int k) const { return scaled(ch->energy_to_block(k)) + corr[k]; }
+  // x[0 .. i): the nearer block boundary's, plus or less the samples in between about the block's model (at most
+  // kBlock / 2 of them, in float: no partial prefix sums and no 64-bit algebra)
   float to(int i) const {
-    const int k = i / kBlock, m = i - k * kBlock;
-    const Sums p = prefix_at(ch->x, ch->prefix, ch->n, i);  // Channel::energy_to's, read once
-    float e = ch->to_energy(ch->prefix_form(p.s2, p.s1, i)) + corr[k];
-    if (m > 0) {
-      const float d = block_d(k);
-      const float dev = static_cast<float>(p.s1 - ch->prefix[k].s1) - m * base;
-      e += d * (static_cast<float>(m) * d - 2.0f * dev);
+    const int k = i / kBlock, a = k * kBlock;
+    if (i == a) return to_block(k);
+    const int e = ch->block_end(k);
+    const float d = base + block_d(k);
+    const bool back = e - i < i - a;
+    float s = 0.0f;
+    for (int j = back ? i : a; j < (back ? e : i); ++j) {
+      const float v = static_cast<float>(ch->x[j]) - d;
+      s += v * v;
     }
-    return e;
+    return back ? to_block(k + 1) - s : to_block(k) + s;
   }
   // The first sample where the energy about the model reaches target (energy_reaches about the model).
   int reaches(float target) const {
@@ -637,22 +647,25 @@ struct LocalHum {
     ++quiet;
     stale = true;
   }
-  // the line through the last kLocalBlocks quiet blocks' residuals (their mean without a slope under three)
+  // the line through the last kLocalBlocks quiet blocks' residuals (their mean without a slope under three):
+  // one pass, the times u about the newest block's (half-integers: exact, and so are their squares' sums while
+  // the blocks lie within ~2,000 samples of each other)
   IC_NOINLINE void fit() const {
     stale = false;
     const int m = quiet < kLocalBlocks ? quiet : kLocalBlocks;
-    float st = 0.0f, sr = 0.0f;
+    const float t0 = ts[(quiet - 1) % kLocalBlocks];
+    float su = 0.0f, sr = 0.0f, suu = 0.0f, sur = 0.0f;
     for (int j = 0; j < m; ++j) {
-      st += ts[j];
+      const float u = ts[j] - t0;
+      su += u;
       sr += rs[j];
+      suu += u * u;
+      sur += u * rs[j];
     }
-    t = st / static_cast<float>(m);
-    r = sr / static_cast<float>(m);
-    float stt = 0.0f, str = 0.0f;
-    for (int j = 0; j < m; ++j) {
-      stt += (ts[j] - t) * (ts[j] - t);
-      str += (ts[j] - t) * (rs[j] - r);
-    }
+    const float inv = 1.0f / static_cast<float>(m), ub = su * inv;
+    t = t0 + ub;
+    r = sr * inv;
+    const float stt = suu - su * ub, str = sur - ub * sr;
     slope = m >= 3 && stt > 0.0f ? str / stt : 0.0f;
   }
 };
