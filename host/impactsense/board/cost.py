@@ -130,9 +130,9 @@ TWIN_REPORT_CREDIT = 1600
 # Refitted by `python3 benchmarks/bench_export_estimate.py --fit Q...json` (docs/findings.md "Session 26:
 # exportest": the runs, each run left out of the fit, estimate / measured per run). hum_channels: that fit's 6,136.6
 # less what a hum channel's path lost since (qemu, session-2 with hum on four channels: 1,290 in Session 27
-# boardhum, 713 in Session 28 boardhum2, 917 in Session 29 boardhum3).
+# boardhum, 713 in Session 28 boardhum2, 917 in Session 29 boardhum3, 630 in Session 30 boardhum4).
 FEATURES_FIXED = {"forests": 41027.0, "twin": 40601.0}
-FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 3217.9, "spike_hunts": 301.3,
+FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 2587.9, "spike_hunts": 301.3,
                       "transients": 1785.5, "reach_tests": 12.4, "crossing_blocks": 12.2}
 
 # How far export's estimate is from qemu's slowest clean event, estimate / qemu, by which estimate the verdict reads
@@ -144,9 +144,9 @@ FEATURES_PER_COUNT = {"peak_blocks": 199.2, "hum_fits": 482.4, "hum_channels": 3
 # export_check.event_verdict: "ok" when estimate / low <= EVENT_BUDGET (even its worst under-count fits), "OVER" when
 # estimate / high > EVENT_BUDGET (even its worst over-count does not), otherwise "near" (measure it on qemu).
 # The "hum" band's low end is the stored alu-large-thin run's (four hum channels on every drop), whose qemu figure
-# predates three cheaper hum paths (Sessions 27 boardhum, 28 boardhum2 and 29 boardhum3, ~2.9k a hum channel together;
-# its session was not remade): with hum_channels' rate lowered by that it reads 0.53 (it read 0.62 with the old rate).
-ESTIMATE_RATIO_BAND = {"drops": (1.04, 1.22), "hum": (0.53, 1.13), "parts": (0.39, 1.27)}
+# predates four cheaper hum paths (Sessions 27 boardhum, 28 boardhum2, 29 boardhum3 and 30 boardhum4, ~3.5k a hum channel
+# together; its session was not remade): with hum_channels' rate lowered by that it reads 0.517 (0.62 with the old rate).
+ESTIMATE_RATIO_BAND = {"drops": (1.04, 1.22), "hum": (0.51, 1.13), "parts": (0.39, 1.27)}
 FLAGGED_RATIO_HIGH = 1.35
 
 # impactcore.h's band pick geometry (bandpick.cpp): the window before the first onset, the cascade's poles and
