@@ -560,18 +560,20 @@ struct HumEnergy {
   float to_block(int k) const { return scaled(ch->energy_to_block(k)) + corr[k]; }
   // x[0 .. i): the nearer block boundary's, plus or less the samples in between about the block's model (at most
   // kBlock / 2 of them, in float: no partial prefix sums and no 64-bit algebra)
-  float to(int i) const {
+  IC_NOINLINE float to(int i) const {
     const int k = i / kBlock, a = k * kBlock;
     if (i == a) return to_block(k);
     const int e = ch->block_end(k);
     const float d = base + block_d(k);
     const bool back = e - i < i - a;
+    const int from = back ? i : a, to_j = back ? e : i;
     float s = 0.0f;
-    for (int j = back ? i : a; j < (back ? e : i); ++j) {
+    for (int j = from; j < to_j; ++j) {
       const float v = static_cast<float>(ch->x[j]) - d;
       s += v * v;
     }
-    return back ? to_block(k + 1) - s : to_block(k) + s;
+    const float edge = to_block(back ? k + 1 : k);
+    return back ? edge - s : edge + s;
   }
   // The first sample where the energy about the model reaches target (energy_reaches about the model).
   int reaches(float target) const {
