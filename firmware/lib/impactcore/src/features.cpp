@@ -550,7 +550,7 @@ struct HumEnergy {
       y = yn;
     }
   }
-  // A scaled energy in counts^2 as its two words, each converted by one VCVT (within 1.5 ulp of the correctly
+  // A scaled energy in counts^2 as its two words, each converted by one VCVT (within 2 ulp of the correctly
   // rounded conversion, libgcc's ~50-instruction __floatdisf: the sum with corr rounds more).
   IC_NOINLINE float scaled(int64_t e) const {
     const float hi = static_cast<float>(static_cast<int32_t>(e >> 32)) * 4294967296.0f;
