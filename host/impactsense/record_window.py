@@ -6,9 +6,8 @@ A drop's first arrival reaches the nearest sensor; the last one the farthest, (m
 the record must keep after its first arrival. v: the materials table's typical values through the Mindlin
 flexural group velocity at REFERENCE_HZ (a slower logger: a quarter of its rate), the slowest direction
 (materials.flexural_group_velocity_mm_per_us; a starting value, not a measurement: the threshold onset catches
-faster, higher-frequency content). A logger
-that stops sooner loses the far sensors' arrivals on drops far from them: the core reads such a channel as
-dead or without an onset, though nothing is wrong with the disc.
+faster, higher-frequency content). A logger that stops sooner loses the far sensors' arrivals on drops far from
+them: the core reads such a channel as dead or without an onset, though nothing is wrong with the disc.
 """
 
 from __future__ import annotations
